@@ -1,0 +1,30 @@
+# All set-up happens here: a local virtual environment with every dependency, made when missing.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: serve test bench lint clean
+
+$(STAMP): pyproject.toml
+	test -d $(VENV) || $(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -e ".[fast,service,study,dev]"
+	touch $(STAMP)
+
+serve: $(STAMP)
+	$(BIN)/q3t serve
+
+# pytest exits 5 when it collected no test: that is a failure here, never a silent pass.
+test: $(STAMP)
+	$(BIN)/python -m pytest -q; rc=$$?; \
+	if [ $$rc -eq 5 ]; then echo "pytest collected no tests" >&2; exit 1; fi; exit $$rc
+
+bench: $(STAMP)
+	$(BIN)/q3t bench
+
+lint: $(STAMP)
+	$(BIN)/ruff check sim server tests
+
+clean:
+	rm -rf $(VENV) runs
