@@ -1,0 +1,117 @@
+"""Sparse Hessian layout: the upper triangle of the DoF graph in CSR, fixed for a whole run.
+
+Every term adds into ``data`` through precomputed slots, so the pattern (and with it the
+symbolic factorisation) never changes. DoF ``3 * node + c``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from numba import njit
+
+
+@dataclass(frozen=True)
+class Pattern:
+    """Upper-triangular CSR pattern ``(indptr, indices)``, element slots
+    ``(n_elem, 3 n_en, 3 n_en)`` (-1 below the diagonal) and node-block slots ``(n_nodes, 3, 3)``
+    (-1 below the diagonal); ``colors`` groups elements that share no node."""
+
+    n_dof: int
+    indptr: np.ndarray
+    indices: np.ndarray
+    elem_slots: np.ndarray
+    node_slots: np.ndarray
+    colors: list[np.ndarray]
+
+    @property
+    def nnz(self) -> int:
+        return len(self.indices)
+
+    def matrix(self, data: np.ndarray) -> sp.csr_matrix:
+        """The full symmetric matrix (for SciPy and tests)."""
+        U = sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n_dof, self.n_dof))
+        return U + sp.triu(U, 1).T
+
+
+def element_dofs(conn: np.ndarray) -> np.ndarray:
+    """DoFs per element ``(n_elem, 3 n_en)``, node-major."""
+    return (3 * conn[:, :, None] + np.arange(3)).reshape(len(conn), -1)
+
+
+@njit(cache=True)
+def _slots(indptr, indices, dofs):
+    n_e, k = dofs.shape
+    out = np.full((n_e, k, k), -1, np.int64)
+    for e in range(n_e):
+        for a in range(k):
+            r = dofs[e, a]
+            lo, hi = indptr[r], indptr[r + 1]
+            for b in range(k):
+                c = dofs[e, b]
+                if c >= r:
+                    out[e, a, b] = lo + np.searchsorted(indices[lo:hi], c)
+    return out
+
+
+def greedy_colors(conn: np.ndarray, n_nodes: int) -> list[np.ndarray]:
+    """Partition elements into groups without shared nodes (race-free parallel scatter)."""
+    color = np.full(len(conn), -1)
+    order = np.argsort(conn.min(axis=1), kind="stable")
+    used = [np.zeros(n_nodes, bool)]
+    for e in order:
+        for c, taken in enumerate(used):
+            if not taken[conn[e]].any():
+                break
+        else:
+            used.append(np.zeros(n_nodes, bool))
+            c = len(used) - 1
+        used[c][conn[e]] = True
+        color[e] = c
+    return [np.flatnonzero(color == c) for c in range(len(used))]
+
+
+def build_pattern(conn: np.ndarray, n_nodes: int) -> Pattern:
+    dofs = element_dofs(conn)
+    k = dofs.shape[1]
+    rows = np.repeat(dofs, k, axis=1).ravel()
+    cols = np.tile(dofs, (1, k)).ravel()
+    keep = cols >= rows
+    n_dof = 3 * n_nodes
+    A = sp.csr_matrix((np.ones(keep.sum()), (rows[keep], cols[keep])), shape=(n_dof, n_dof))
+    A.sum_duplicates()
+    A.sort_indices()
+    indptr, indices = A.indptr.astype(np.int64), A.indices.astype(np.int64)
+    node_dofs = (3 * np.arange(n_nodes)[:, None] + np.arange(3))
+    return Pattern(n_dof, indptr, indices, _slots(indptr, indices, dofs),
+                   _slots(indptr, indices, node_dofs).reshape(n_nodes, 3, 3),
+                   greedy_colors(conn, n_nodes))
+
+
+@njit(cache=True)
+def scatter_node_blocks(data, node_slots, nodes, blocks):
+    """data[slots] += blocks for 3x3 node blocks ``(n, 3, 3)`` at ``nodes (n,)``."""
+    for t in range(len(nodes)):
+        s = node_slots[nodes[t]]
+        for i in range(3):
+            for j in range(3):
+                if s[i, j] >= 0:
+                    data[s[i, j]] += blocks[t, i, j]
+
+
+@njit(cache=True)
+def sym_matvec(indptr, indices, data, x):
+    """y = A x for the symmetric A stored as its upper triangle in CSR."""
+    n = len(indptr) - 1
+    y = np.zeros(n)
+    for r in range(n):
+        acc = 0.0
+        for p in range(indptr[r], indptr[r + 1]):
+            c = indices[p]
+            acc += data[p] * x[c]
+            if c != r:
+                y[c] += data[p] * x[r]
+        y[r] += acc
+    return y

@@ -1,0 +1,89 @@
+"""The ``q3t`` command: run, bench, serve, play, study, check."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
+
+
+def resolve_scene(name: str) -> Path:
+    p = Path(name)
+    if p.is_file():
+        return p
+    q = SCENES / f"{name}.toml"
+    if q.is_file():
+        return q
+    raise SystemExit(f"q3t: no scene {name!r} (not a file, not in {SCENES})")
+
+
+def parse_sets(items: list[str]) -> dict:
+    from sim.scene import parse_value
+
+    out = {}
+    for it in items:
+        if "=" not in it:
+            raise SystemExit(f"q3t: --set needs key.path=value, got {it!r}")
+        k, v = it.split("=", 1)
+        out[k.strip()] = parse_value(v.strip())
+    return out
+
+
+def _progress(sim, rec) -> None:
+    n = sim.n_steps
+    bar = "#" * int(30 * rec.step / n)
+    probes = " ".join(f"{k}={v:.4g}" for k, v in list(rec.probes.items())[:3])
+    print(f"\r[{bar:<30}] step {rec.step}/{n} t={rec.time:.3g} newton={rec.iterations} "
+          f"res={rec.residual:.2e} {probes}", end="" if rec.step < n else "\n",
+          file=sys.stderr, flush=True)
+
+
+def cmd_run(args) -> int:
+    from sim.scene import SceneError, load_scene
+    from sim.simulation import Simulation
+
+    overrides = parse_sets(args.set)
+    if args.element:
+        overrides["shell.element"] = args.element
+    try:
+        scene = load_scene(resolve_scene(args.scene), overrides)
+        sim = Simulation.from_scene(scene)
+    except (SceneError, ValueError) as exc:
+        print(f"q3t: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out or f"runs/{scene.name}-{scene.shell.element}-{time.strftime('%Y%m%d-%H%M%S')}")
+    c = sim.result()["counts"]
+    print(f"{scene.name}: {scene.shell.element}, {c['elements']} elements, {c['dofs']} DoFs, "
+          f"solver {sim.model.built['linear_solver']}", file=sys.stderr)
+    ok = sim.run(progress=None if args.quiet else _progress)
+    sim.write(out)
+    if not ok:
+        print(f"\nq3t: FAILED: {sim.failure['reason']} at step {sim.failure['step']}",
+              file=sys.stderr)
+    print(f"wrote {out}/result.json ({sim.wall:.2f} s)", file=sys.stderr)
+    return 0 if ok else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="q3t", description=__doc__)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="run a scene headless and write result.json")
+    r.add_argument("scene", help="scene name in scenes/ or a TOML path")
+    r.add_argument("--element", help="override shell.element (linear, q3t, quadratic, quartic)")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene value, e.g. material.nu=0.3 (repeatable)")
+    r.add_argument("--out", help="output folder (default runs/<scene>-<element>-<time>)")
+    r.add_argument("--quiet", action="store_true")
+    r.set_defaults(func=cmd_run)
+    from sim import bench
+
+    bench.add_parser(sub)
+    args = ap.parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

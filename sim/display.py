@@ -1,0 +1,45 @@
+"""What the viewer and the recorder see of a shell: a closed triangle surface (top skin, bottom
+skin, rim) over the corner-vertex columns, and per-vertex fields. No solver objects leak out."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class DisplayMesh:
+    """faces ``(m, 3)`` over display vertices; ``nodes (2 n_v,)`` maps them to shell nodes
+    (top skin first, then bottom skin)."""
+
+    faces: np.ndarray
+    nodes: np.ndarray
+
+    @classmethod
+    def from_shell(cls, shell) -> DisplayMesh:
+        n_v = shell.n_vertices
+        F = shell.mesh.faces
+        top, bot = shell.skin_nodes(True), shell.skin_nodes(False)
+        faces = [F, F[:, ::-1] + n_v]
+        # rim: each boundary edge (a, b) in its face's orientation gives a quad top-a, top-b,
+        # bottom-b, bottom-a
+        be = _oriented_boundary(F)
+        a, b = be[:, 0], be[:, 1]
+        faces += [np.column_stack([a, a + n_v, b]), np.column_stack([b, a + n_v, b + n_v])]
+        return cls(np.concatenate(faces).astype(np.int32), np.concatenate([top, bot]))
+
+    def positions(self, x: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(x[self.nodes], dtype=np.float32)
+
+    def per_vertex(self, values: np.ndarray) -> np.ndarray:
+        """Repeat a per-mid-surface-vertex field on both skins."""
+        return np.concatenate([values, values])
+
+
+def _oriented_boundary(F: np.ndarray) -> np.ndarray:
+    """Boundary edges ``(n_b, 2)`` in the orientation of the one face that holds each."""
+    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    _, inv, count = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True,
+                              return_counts=True)
+    return directed[count[inv.ravel()] == 1]

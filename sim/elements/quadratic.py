@@ -1,0 +1,9 @@
+"""18-node quadratic prism: 6-node triangle in-plane times quadratic thickness, 7 x 3 points.
+
+The reference element of the paper (Sec. 4); edge mid-nodes are shared between neighbours.
+"""
+
+from sim.elements import register
+from sim.elements.base import Prism
+
+QUADRATIC = register(Prism("quadratic", p=2, q=2, default_quadrature=(7, 3)))

@@ -1,0 +1,10 @@
+"""75-node quartic prism: 15-node triangle times quartic thickness (paper Fig. 8's quartic line).
+
+In-plane rule: collapsed Gauss with 5 x 5 points (exact to degree 9 >= 2*(4-1) + 2); 5 Gauss
+points through the thickness.
+"""
+
+from sim.elements import register
+from sim.elements.base import Prism
+
+QUARTIC = register(Prism("quartic", p=4, q=4, default_quadrature=(25, 5)))

@@ -1,0 +1,161 @@
+"""Isotropic hyperelastic energies in principal stretches, and the 3x3 -> 9x9 lifting.
+
+An isotropic energy psi(F) depends on the singular values s of F = U diag(s) V^T only. Its first
+Piola-Kirchhoff stress is P = U diag(psi_i) V^T and its tangent dP/dF is block-diagonal in the
+basis {u_a v_b^T} (Teran et al. 2005; Smith et al. 2019):
+  - a 3x3 block psi_ab on the diagonal directions u_a v_a^T,
+  - per pair i < j, a "symmetric" direction (u_i v_j^T + u_j v_i^T)/sqrt2 with eigenvalue
+    (psi_i - psi_j)/(s_i - s_j) and a "twist" (u_i v_j^T - u_j v_i^T)/sqrt2 with eigenvalue
+    (psi_i + psi_j)/(s_i + s_j).
+Clamping the 3x3 block's eigenvalues and the six pair eigenvalues at zero gives the projection of
+dP/dF to positive semi-definite at no extra cost. Divided differences are formed without
+cancellation, so equal stretches (the rest state) are exact.
+
+Models (``model`` integer): 0 compressible Neo-Hookean
+  psi = mu/2 (tr F^T F - 3) - mu ln J + lam/2 ln^2 J,
+1 Hencky: psi = mu |ln V|^2 + lam/2 tr^2(ln V) with ln V the principal log stretches,
+2 Hencky elastoplastic (von Mises), whose principal energy is the incremental potential of
+sim.materials.plasticity. ``params = [mu, lam, law, hp...]``; ``ep_n`` is the committed
+equivalent plastic strain (0 for elastic models).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from sim.materials.plasticity import return_map
+
+NEO_HOOKEAN, HENCKY, HENCKY_PLASTIC = 0, 1, 2
+PAIRS = np.array([[0, 1], [0, 2], [1, 2]])
+
+
+@njit(cache=True)
+def dlog(a: float, b: float) -> float:
+    """(ln a - ln b) / (a - b), exact as a -> b."""
+    r = (a - b) / b
+    if abs(r) < 1e-4:
+        return (1.0 - r / 2 + r * r / 3 - r * r * r / 4) / b
+    return (np.log(a) - np.log(b)) / (a - b)
+
+
+@njit(cache=True)
+def _from_log(s, W, tau, D, a_dd):
+    """Principal derivatives in stretches from those in log strains (Kirchhoff tau = dW/deps)."""
+    g = tau / s
+    H = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            H[i, j] = D[i, j] / (s[i] * s[j])
+        H[i, i] -= tau[i] / (s[i] * s[i])
+    sym = np.empty(3)
+    twist = np.empty(3)
+    for k in range(3):
+        i, j = PAIRS[k, 0], PAIRS[k, 1]
+        sym[k] = a_dd * dlog(s[i], s[j]) / s[i] - tau[j] / (s[i] * s[j])
+        twist[k] = (g[i] + g[j]) / (s[i] + s[j])
+    return W, g, H, sym, twist
+
+
+@njit(cache=True)
+def _sq_minus_log(s):
+    """s^2 - 1 - 2 ln s without cancellation near s = 1 (it is O((s-1)^2) there)."""
+    d = s - 1.0
+    if abs(d) < 1e-2:  # series of d - log1p(d), truncation below 1e-20 relative
+        t = d * d / 2 - d**3 / 3 + d**4 / 4 - d**5 / 5 + d**6 / 6 - d**7 / 7 + d**8 / 8
+        return d * d + 2 * t
+    return s * s - 1.0 - 2.0 * np.log(s)
+
+
+@njit(cache=True)
+def _neo_hookean(s, mu, lam):
+    lj = np.log(s[0]) + np.log(s[1]) + np.log(s[2])
+    c = mu - lam * lj
+    # mu/2 (I1 - 3) - mu ln J summed per stretch: the two O(s-1) parts cancel analytically,
+    # so energy differences near rest are not lost in round-off (the line search needs them)
+    W = 0.5 * mu * (_sq_minus_log(s[0]) + _sq_minus_log(s[1]) + _sq_minus_log(s[2]))
+    W += 0.5 * lam * lj * lj
+    g = mu * s - c / s
+    H = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            H[i, j] = lam / (s[i] * s[j])
+        H[i, i] += mu + c / (s[i] * s[i])
+    sym = np.empty(3)
+    twist = np.empty(3)
+    for k in range(3):
+        p = s[PAIRS[k, 0]] * s[PAIRS[k, 1]]
+        sym[k] = mu + c / p
+        twist[k] = mu - c / p
+    return W, g, H, sym, twist
+
+
+@njit(cache=True)
+def _hencky(s, mu, lam):
+    eps = np.log(s)
+    tr = eps.sum()
+    W = mu * (eps @ eps) + 0.5 * lam * tr * tr
+    tau = 2 * mu * eps + lam * tr
+    D = np.full((3, 3), lam) + 2 * mu * np.eye(3)
+    return _from_log(s, W, tau, D, 2 * mu)
+
+
+@njit(cache=True)
+def principal(model, s, params, ep_n):
+    """Principal energy: (W, dW/ds (3,), d2W/ds2 (3,3), sym (3,), twist (3,)) for pairs
+    (0,1), (0,2), (1,2)."""
+    mu, lam = params[0], params[1]
+    if model == NEO_HOOKEAN:
+        return _neo_hookean(s, mu, lam)
+    if model == HENCKY:
+        return _hencky(s, mu, lam)
+    W, tau, D, a_dd, _ = return_map(np.log(s), ep_n, mu, lam, int(params[2]), params[3:])
+    return _from_log(s, W, tau, D, a_dd)
+
+
+@njit(cache=True)
+def polar_svd(F):
+    """F = U diag(s) V^T with s > 0 for det F > 0, via the eigen-decomposition of F^T F.
+
+    Returns (U, s, V, ok); ok is False for det F <= 0 (inverted or flat), where the energies are
+    +inf by definition.
+    """
+    det = np.linalg.det(F)
+    if not det > 0.0:
+        return np.eye(3), np.ones(3), np.eye(3), False
+    lam2, V = np.linalg.eigh(F.T @ F)
+    s = np.sqrt(np.maximum(lam2, 1e-300))
+    U = (F @ V) / s
+    return U, s, V, True
+
+
+@njit(cache=True)
+def stress_tangent(model, F, params, ep_n, want_tangent, project):
+    """Energy density W, first Piola-Kirchhoff P (3,3) and tangent C = dP/dF (9,9) in row-major
+    vec(F) order. ``project`` clamps C to positive semi-definite. W = inf when det F <= 0."""
+    U, s, V, ok = polar_svd(F)
+    C = np.zeros((9, 9))
+    if not ok:
+        return np.inf, np.zeros((3, 3)), C
+    W, g, H, sym, twist = principal(model, s, params, ep_n)
+    P = (U * g) @ V.T
+    if not want_tangent:
+        return W, P, C
+    if project:
+        ev, Q = np.linalg.eigh(H)
+        H = (Q * np.maximum(ev, 0.0)) @ Q.T
+        sym = np.maximum(sym, 0.0)
+        twist = np.maximum(twist, 0.0)
+    D = np.empty((3, 9))
+    for a in range(3):
+        D[a] = np.outer(U[:, a], V[:, a]).ravel()
+    C += D.T @ H @ D
+    r = 1.0 / np.sqrt(2.0)
+    for k in range(3):
+        i, j = PAIRS[k, 0], PAIRS[k, 1]
+        a = np.outer(U[:, i], V[:, j]).ravel()
+        b = np.outer(U[:, j], V[:, i]).ravel()
+        vs = (a + b) * r
+        vt = (a - b) * r
+        C += sym[k] * np.outer(vs, vs) + twist[k] * np.outer(vt, vt)
+    return W, P, C

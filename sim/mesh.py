@@ -1,0 +1,132 @@
+"""Mid-surface triangle meshes: generators at a target edge length, file loading, normals, edges.
+
+All lengths in metres. Generators return vertices ``(n_v, 3)`` and faces ``(n_f, 3)`` with
+counter-clockwise orientation about the +z (or outward radial) normal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TriMesh:
+    """Vertices ``(n_v, 3)`` float64 and faces ``(n_f, 3)`` int64 of the sheet mid-surface."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+def _grid(nx: int, ny: int) -> np.ndarray:
+    """Faces of an (nx+1) x (ny+1) vertex grid, cells split along alternating diagonals so the
+    mesh has no preferred direction (a uniform diagonal stiffens bending anisotropically)."""
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    v00 = i * (ny + 1) + j
+    v10, v01, v11 = v00 + ny + 1, v00 + 1, v00 + ny + 2
+    flip = (i + j) % 2 == 1
+    a = np.where(flip, np.stack([v00, v10, v01], 1).T, np.stack([v00, v10, v11], 1).T).T
+    b = np.where(flip, np.stack([v10, v11, v01], 1).T, np.stack([v00, v11, v01], 1).T).T
+    return np.concatenate([a, b]).astype(np.int64)
+
+
+def rectangle(size: tuple[float, float], edge_length: float,
+              origin: tuple[float, float] = (0.0, 0.0)) -> TriMesh:
+    """A plate of ``size`` (Lx, Ly) in the z = 0 plane, lower-left corner at ``origin``."""
+    nx = max(1, int(round(size[0] / edge_length)))
+    ny = max(1, int(round(size[1] / edge_length)))
+    x, y = np.meshgrid(np.linspace(0, size[0], nx + 1), np.linspace(0, size[1], ny + 1),
+                       indexing="ij")
+    V = np.column_stack([x.ravel() + origin[0], y.ravel() + origin[1], np.zeros(x.size)])
+    return TriMesh(V, _grid(nx, ny))
+
+
+def annulus(r_inner: float, r_outer: float, edge_length: float) -> TriMesh:
+    """A ring (or, with ``r_inner == 0``, a disk) centred at the origin in z = 0.
+
+    Rings of vertices at roughly ``edge_length`` spacing, each ring triangulated to the next.
+    """
+    n_rings = max(1, int(round((r_outer - r_inner) / edge_length)))
+    radii = np.linspace(r_inner, r_outer, n_rings + 1)
+    counts = [1 if r == 0 else max(6, int(round(2 * np.pi * r / edge_length))) for r in radii]
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    verts, faces = [], []
+    for r, n in zip(radii, counts, strict=True):
+        t = np.arange(n) * 2 * np.pi / n
+        verts.append(np.column_stack([r * np.cos(t), r * np.sin(t), np.zeros(n)]))
+    for k in range(n_rings):
+        faces.append(_stitch(starts[k], counts[k], starts[k + 1], counts[k + 1]))
+    return TriMesh(np.concatenate(verts), np.concatenate(faces).astype(np.int64))
+
+
+def _stitch(s0: int, n0: int, s1: int, n1: int) -> np.ndarray:
+    """Triangulate the band between two closed vertex rings by merging their angular orders."""
+    i = j = 0
+    tris = []
+    while i < n0 or j < n1:
+        advance_inner = n0 > 1 and i < n0 and (j >= n1 or (i + 1) / n0 <= (j + 1) / n1)
+        if advance_inner:
+            tris.append((s0 + i, s1 + j % n1, s0 + (i + 1) % n0))
+            i += 1
+        else:
+            tris.append((s0 + i % n0, s1 + j, s1 + (j + 1) % n1))
+            j += 1
+            if n0 == 1 and j >= n1:
+                break
+    return np.array(tris)
+
+
+def cylinder_band(radius: float, height: float, edge_length: float) -> TriMesh:
+    """A cylindrical band (the cookie-cutter strip): axis z, z in [0, height], normals outward."""
+    nt = max(6, int(round(2 * np.pi * radius / edge_length)))
+    nz = max(1, int(round(height / edge_length)))
+    t, z = np.meshgrid(np.arange(nt + 1) * 2 * np.pi / nt, np.linspace(0, height, nz + 1),
+                       indexing="ij")
+    V = np.column_stack([radius * np.cos(t.ravel()), radius * np.sin(t.ravel()), z.ravel()])
+    F = _grid(nt, nz)
+    # close the seam: the last column of vertices is the first one
+    seam = np.arange(nt * (nz + 1), (nt + 1) * (nz + 1))
+    F = np.where(F >= nt * (nz + 1), F - nt * (nz + 1), F)
+    V = np.delete(V, seam, axis=0)
+    return TriMesh(V, F)
+
+
+def load(path: str | Path, scale: float = 1.0) -> TriMesh:
+    """Any OBJ/PLY/STL trimesh reads; ``scale`` converts the file's length unit to metres."""
+    import trimesh
+
+    m = trimesh.load(path, force="mesh", process=True)
+    if len(m.faces) == 0:
+        raise ValueError(f"{path}: no triangles")
+    return TriMesh(np.asarray(m.vertices, float) * scale, np.asarray(m.faces, np.int64))
+
+
+def vertex_normals(mesh: TriMesh) -> np.ndarray:
+    """Area-weighted unit vertex normals ``(n_v, 3)``."""
+    V, F = mesh.vertices, mesh.faces
+    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    n = np.zeros_like(V)
+    for c in range(3):
+        np.add.at(n, F[:, c], fn)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    if np.any(norm == 0):
+        raise ValueError("mesh has vertices without a defined normal (unused or degenerate)")
+    return n / norm
+
+
+def edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique edges ``(n_e, 2)`` (sorted vertex pairs) and, per face, its three edge ids
+    ``(n_f, 3)`` for local edges (0,1), (1,2), (2,0)."""
+    loc = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    uniq, inv = np.unique(np.sort(loc, axis=1), axis=0, return_inverse=True)
+    return uniq, inv.reshape(3, -1).T
+
+
+def boundary_edges(faces: np.ndarray) -> np.ndarray:
+    """Edges used by exactly one face, as sorted vertex pairs ``(n_b, 2)``."""
+    uniq, face_edges = edges(faces)
+    count = np.bincount(face_edges.ravel(), minlength=len(uniq))
+    return uniq[count == 1]

@@ -1,0 +1,204 @@
+"""Discretisation: a validated Scene becomes a Model (shell, energy terms, Dirichlet data).
+
+Only what the scene asks for is built: no inertia for statics, no load term without loads, no
+plastic state for an elastic material. ``Model.built`` lists what was built.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim import mesh as meshes
+from sim.assembly import Pattern, build_pattern
+from sim.elements import get_element
+from sim.linsolve import make_solver
+from sim.materials.plasticity import LINEAR, PERFECT, SWIFT, VOCE
+from sim.newton import NewtonSettings, Problem
+from sim.scene import MaterialSpec, MeshSpec, RegionSpec, Scene
+from sim.shell import Shell, extrude
+from sim.terms import Term
+from sim.terms import loads as L
+from sim.terms.elasticity import PROJECT_ELEMENT, PROJECT_NONE, PROJECT_QP, Elasticity
+from sim.terms.inertia import Inertia, lumped_mass
+
+MODEL_IDS = {"neo_hookean": 0, "hencky": 1, "plastic": 2}
+LAWS = {"perfect": PERFECT, "linear": LINEAR, "swift": SWIFT, "voce": VOCE}
+PROJECTIONS = {"qp": PROJECT_QP, "element": PROJECT_ELEMENT, "none": PROJECT_NONE}
+
+
+def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
+    if spec.kind == "rectangle":
+        return meshes.rectangle(spec.size, spec.edge_length, spec.origin)
+    if spec.kind in ("annulus", "disk"):
+        r0 = 0.0 if spec.kind == "disk" else spec.r_inner
+        return meshes.annulus(r0, spec.r_outer, spec.edge_length)
+    if spec.kind == "cylinder_band":
+        return meshes.cylinder_band(spec.radius, spec.height, spec.edge_length)
+    return meshes.load(spec.path, spec.scale)
+
+
+def lame(E: float, nu: float) -> tuple[float, float]:
+    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+
+
+def material_params(m: MaterialSpec) -> np.ndarray:
+    """[mu, lam, law, hp...] as the numba kernels expect (sim.materials.isotropic)."""
+    mu, lam = lame(m.E, m.nu)
+    if m.model != "plastic":
+        return np.array([mu, lam, 0.0, 0.0])
+    h, y0 = m.hardening, m.yield_stress
+    hp = {"perfect": [y0], "linear": [y0, h.modulus], "swift": [h.K, h.e0, h.n],
+          "voce": [y0, h.saturation, h.rate]}[h.law]
+    return np.array([mu, lam, float(LAWS[h.law]), *hp])
+
+
+def region_mask(shell: Shell, r: RegionSpec) -> np.ndarray:
+    """Selected in-plane nodes ``(n_plane,)`` by their rest mid-surface position."""
+    X = shell.plane_mid
+    scale = np.ptp(shell.mesh.vertices, axis=0).max()
+    if r.box is not None:
+        tol = 1e-9 * scale
+        mask = np.all((X >= np.array(r.box.min) - tol) & (X <= np.array(r.box.max) + tol), 1)
+    else:
+        n = np.asarray(r.plane.normal, float)
+        n = n / np.linalg.norm(n)
+        mask = np.abs((X - np.asarray(r.plane.point)) @ n) <= r.plane.tolerance
+    if r.boundary:
+        bnd = np.zeros(shell.n_plane, bool)
+        bnd[np.unique(meshes.boundary_edges(shell.mesh.faces))] = True
+        if shell.element.p > 1:  # edge nodes between two boundary vertices
+            mask_v = bnd[: shell.n_vertices]
+            for_e = _edge_node_owner(shell)
+            bnd[shell.n_vertices: shell.n_vertices + len(for_e)] = mask_v[for_e].all(1)
+        mask &= bnd
+    if not mask.any():
+        raise ValueError(f"regions.{r.name}: selects no node")
+    return mask
+
+
+def _edge_node_owner(shell: Shell) -> np.ndarray:
+    uniq, _ = meshes.edges(shell.mesh.faces)
+    return np.repeat(uniq, shell.element.p - 1, axis=0)
+
+
+LAYERS = {"all": None, "bottom": 0, "top": -1, "mid": "mid"}
+
+
+@dataclass
+class Model:
+    scene: Scene
+    shell: Shell
+    pattern: Pattern
+    problem: Problem
+    terms: list[Term]
+    elasticity: Elasticity
+    external: L.ExternalForce | None
+    inertia: Inertia | None
+    fixed: np.ndarray  # (n_nodes, 3) bool
+    prescribed: np.ndarray  # (n_nodes, 3) displacement at t = 1 on fixed DoFs
+    regions: dict[str, np.ndarray]  # name -> in-plane node mask
+    settings: NewtonSettings
+    force_scale: float
+    built: dict = field(default_factory=dict)
+
+    def dirichlet_positions(self, t: float) -> np.ndarray:
+        return self.shell.rest + t * self.prescribed
+
+    def column_nodes(self, plane_mask: np.ndarray, layers: str = "all") -> np.ndarray:
+        q, n = self.shell.element.q, self.shell.n_plane
+        idx = np.flatnonzero(plane_mask)
+        if layers == "all":
+            ks = range(q + 1)
+        elif layers == "bottom":
+            ks = [0]
+        elif layers == "top":
+            ks = [q]
+        else:
+            if q % 2:
+                raise ValueError("layers = 'mid' needs an element with a mid-surface layer")
+            ks = [q // 2]
+        return np.concatenate([k * n + idx for k in ks])
+
+
+def build_model(scene: Scene) -> Model:
+    elem = get_element(scene.shell.element)
+    shell = extrude(build_mesh(scene.mesh), scene.shell.thickness, elem)
+    rule = elem.quadrature(scene.shell.quadrature)
+    pattern = build_pattern(shell.conn, shell.n_nodes)
+    m = scene.material
+    plastic = m.model == "plastic"
+    elastic = Elasticity(shell, rule, MODEL_IDS[m.model], material_params(m), pattern,
+                         PROJECTIONS[scene.solver.hessian_projection], plastic=plastic)
+    terms: list[Term] = [elastic]
+    built = {"terms": ["elasticity"], "plastic_state": plastic}
+    regions = {r.name: region_mask(shell, r) for r in scene.regions}
+    ext = _external_force(scene, shell, rule, elastic, regions)
+    dynamic = scene.stepping.kind == "dynamic"
+    if ext is not None:
+        ramp = scene.stepping.load_ramp
+        if dynamic:
+            ext.scale = (lambda t: min(1.0, t / ramp)) if ramp > 0 else (lambda t: 1.0)
+        terms.append(ext)
+        built["terms"].append("external_force")
+    inertia = None
+    if dynamic:
+        inertia = Inertia(lumped_mass(shell, rule, elastic.wdetJ, m.density), pattern, shell.rest)
+        terms.append(inertia)
+        built["terms"].append("inertia")
+    fixed = np.zeros((shell.n_nodes, 3), bool)
+    prescribed = np.zeros((shell.n_nodes, 3))
+    model = Model(scene, shell, pattern, None, terms, elastic, ext, inertia, fixed, prescribed,
+                  regions, NewtonSettings(rtol=scene.solver.rtol,
+                                          max_iterations=scene.solver.max_iterations), 0.0, built)
+    for i, bc in enumerate(scene.bcs):
+        try:
+            nodes = model.column_nodes(regions[bc.region], bc.layers)
+        except ValueError as exc:
+            raise ValueError(f"bcs.{i}.layers: {exc}") from None
+        for c in bc.components:
+            k = "xyz".index(c)
+            fixed[nodes, k] = True
+            prescribed[nodes, k] = bc.displacement[k]
+    mu, lam = lame(m.E, m.nu)
+    h = float(np.mean(shell.thickness))
+    edge = float(np.mean(np.linalg.norm(np.diff(shell.mesh.vertices[shell.mesh.faces[:, :2]],
+                                                axis=1)[:, 0], axis=1)))
+    # Residual floor: positions carry 1e-16 |X| absolute error, which across a fibre of length
+    # h is a strain error that the stiffest modulus (lam + 2 mu) turns into a force on the
+    # node's fibre face (h * edge); summed over nodes in the 2-norm.
+    floor = 1e-16 * (lam + 2 * mu) * np.abs(shell.rest).max() * edge * np.sqrt(shell.n_nodes)
+    model.settings = NewtonSettings(rtol=scene.solver.rtol, atol=floor,
+                                    xtol=scene.solver.xtol * h,
+                                    max_iterations=scene.solver.max_iterations)
+    model.force_scale = float(np.abs(ext.f).max()) if ext is not None else 0.0
+    solver = make_solver(pattern, scene.solver.linear_solver)
+    built["linear_solver"] = solver.name
+    model.problem = Problem(terms, pattern, solver, fixed)
+    return model
+
+
+def _external_force(scene, shell, rule, elastic, regions) -> L.ExternalForce | None:
+    if not scene.loads:
+        return None
+    f = np.zeros((shell.n_nodes, 3))
+    for i, ld in enumerate(scene.loads):
+        try:
+            if ld.kind == "gravity":
+                f += L.body_force(shell, elastic.wdetJ, rule,
+                                  scene.material.density * np.array(ld.vector))
+            elif ld.kind == "traction":
+                f += L.traction(shell, regions[ld.region], np.array(ld.vector))
+            elif ld.kind == "pressure":
+                sel = np.ones(len(shell.conn), bool)
+                if ld.region:
+                    v_mask = regions[ld.region][: shell.n_vertices]
+                    sel = v_mask[shell.mesh.faces].all(1)
+                f += L.pressure(shell, sel, ld.value, ld.skin == "top")
+            else:
+                v = int(np.argmin(np.linalg.norm(shell.mesh.vertices - ld.point, axis=1)))
+                f += L.point_force(shell, v, np.array(ld.vector))
+        except ValueError as exc:
+            raise ValueError(f"loads.{i}: {exc}") from None
+    return L.ExternalForce(f, shell.rest)

@@ -1,0 +1,55 @@
+"""Probes: named scalar outputs recorded every step (displacement, thickness, reaction, volume),
+plus the per-vertex fields the viewer colours by."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.elements.base import _line_lagrange
+
+
+def mid_surface(model, x: np.ndarray) -> np.ndarray:
+    """Positions at w = 0 of every mid-surface vertex column ``(n_v, 3)``."""
+    sh = model.shell
+    L, _ = _line_lagrange(sh.element.q, np.zeros(1))
+    cols = [x[k * sh.n_plane: k * sh.n_plane + sh.n_vertices] for k in range(sh.element.q + 1)]
+    return sum(w * c for w, c in zip(L[0], cols, strict=True))
+
+
+def thickness(model, x: np.ndarray) -> np.ndarray:
+    """Fibre length between the skins at every mid-surface vertex ``(n_v,)``."""
+    sh = model.shell
+    return np.linalg.norm(x[sh.skin_nodes(True)] - x[sh.skin_nodes(False)], axis=1)
+
+
+def volume(model, x: np.ndarray) -> float:
+    el = model.elasticity
+    F = np.einsum("ead,eqaj->eqdj", x[el.conn], el.dNdX)
+    return float(np.sum(np.linalg.det(F) * el.wdetJ))
+
+
+def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[str, float]:
+    """Every probe of the scene at state ``x``; ``gradient`` is the total energy gradient (the
+    support reactions), computed here when a reaction probe needs it."""
+    out = {}
+    sh = model.shell
+    for p in model.scene.probes:
+        if p.kind == "displacement":
+            v = int(np.argmin(np.linalg.norm(sh.mesh.vertices - np.array(p.point), axis=1)))
+            mid0 = mid_surface(model, sh.rest)[v]
+            u = mid_surface(model, x)[v] - mid0
+            out[p.name] = float(np.linalg.norm(u) if p.component == "norm"
+                                else u["xyz".index(p.component)])
+        elif p.kind == "thickness":
+            h = thickness(model, x)
+            out[p.name] = float(getattr(np, p.stat)(h))
+        elif p.kind == "volume":
+            out[p.name] = volume(model, x)
+        else:
+            if gradient is None:
+                gradient = model.problem.gradient(x)
+            nodes = model.column_nodes(model.regions[p.region])
+            r = gradient[nodes].sum(0)
+            out[p.name] = float(np.linalg.norm(r) if p.component == "norm"
+                                else r["xyz".index(p.component)])
+    return out

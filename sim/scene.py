@@ -1,0 +1,261 @@
+"""Scene files: TOML validated into frozen pydantic models. Units SI (m, Pa, kg, s, N).
+
+``load_scene(path, overrides)`` applies ``key.path=value`` overrides to the raw TOML before
+validation, so an override is checked exactly like the file. Errors name the field.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+Vec3 = tuple[float, float, float]
+Pos = Annotated[float, Field(gt=0)]
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class MeshSpec(Strict):
+    kind: Literal["rectangle", "annulus", "disk", "cylinder_band", "file"]
+    edge_length: Pos | None = None
+    size: tuple[Pos, Pos] | None = None  # rectangle: (Lx, Ly)
+    origin: tuple[float, float] = (0.0, 0.0)
+    r_inner: Annotated[float, Field(ge=0)] = 0.0
+    r_outer: Pos | None = None
+    radius: Pos | None = None  # cylinder_band
+    height: Pos | None = None  # cylinder_band
+    path: str | None = None
+    scale: Pos = 1.0  # file units to metres
+
+    @model_validator(mode="after")
+    def _needs(self):
+        need = {"rectangle": ["size", "edge_length"], "annulus": ["r_outer", "edge_length"],
+                "disk": ["r_outer", "edge_length"],
+                "cylinder_band": ["radius", "height", "edge_length"], "file": ["path"]}[self.kind]
+        missing = [k for k in need if getattr(self, k) is None]
+        if missing:
+            raise ValueError(f"mesh kind {self.kind!r} needs {', '.join(missing)}")
+        if self.kind == "annulus" and self.r_inner >= self.r_outer:
+            raise ValueError("r_inner must be smaller than r_outer")
+        return self
+
+
+class ShellSpec(Strict):
+    thickness: Pos
+    element: str = "q3t"
+    quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = None
+
+
+class Hardening(Strict):
+    law: Literal["perfect", "linear", "swift", "voce"] = "perfect"
+    modulus: float = 0.0  # linear: H (Pa)
+    K: float = 0.0  # swift (Pa)
+    e0: float = 0.002
+    n: float = 0.2
+    saturation: float = 0.0  # voce Ysat (Pa)
+    rate: float = 0.0  # voce C
+
+
+class MaterialSpec(Strict):
+    model: Literal["neo_hookean", "hencky", "plastic"] = "neo_hookean"
+    E: Pos
+    nu: Annotated[float, Field(ge=0.0, lt=0.5)]
+    density: Pos = 1000.0
+    yield_stress: Annotated[float, Field(ge=0.0)] | None = None
+    hardening: Hardening = Hardening()
+
+    @model_validator(mode="after")
+    def _plastic_needs_yield(self):
+        if self.model == "plastic" and self.yield_stress is None:
+            raise ValueError("a plastic material needs yield_stress")
+        return self
+
+
+class BoxSpec(Strict):
+    min: Vec3
+    max: Vec3
+
+
+class PlaneSpec(Strict):
+    point: Vec3
+    normal: Vec3
+    tolerance: Pos = 1e-9
+
+
+class RegionSpec(Strict):
+    name: str
+    box: BoxSpec | None = None
+    plane: PlaneSpec | None = None
+    boundary: bool = False  # only nodes on the mesh boundary
+
+    @model_validator(mode="after")
+    def _one_shape(self):
+        if (self.box is None) == (self.plane is None):
+            raise ValueError("a region needs exactly one of box or plane")
+        return self
+
+
+class BCSpec(Strict):
+    region: str
+    components: Annotated[str, Field(pattern=r"^[xyz]{1,3}$")] = "xyz"
+    layers: Literal["all", "bottom", "mid", "top"] = "all"
+    displacement: Vec3 = (0.0, 0.0, 0.0)  # reached at t = 1, linear in t
+
+
+class LoadSpec(Strict):
+    kind: Literal["gravity", "traction", "pressure", "point"]
+    vector: Vec3 | None = None  # gravity (m/s^2), traction (Pa), point (N)
+    value: float | None = None  # pressure (Pa)
+    region: str | None = None
+    point: Vec3 | None = None
+    skin: Literal["top", "bottom"] = "top"
+
+    @model_validator(mode="after")
+    def _fields(self):
+        need = {"gravity": ["vector"], "traction": ["vector", "region"],
+                "pressure": ["value"], "point": ["vector", "point"]}[self.kind]
+        missing = [k for k in need if getattr(self, k) is None]
+        if missing:
+            raise ValueError(f"load kind {self.kind!r} needs {', '.join(missing)}")
+        return self
+
+
+class SteppingSpec(Strict):
+    kind: Literal["static", "dynamic"] = "static"
+    steps: Annotated[int, Field(ge=1, le=100000)] = 1
+    dt: Pos | None = None  # dynamic: time step (s); duration = steps * dt
+    load_ramp: Annotated[float, Field(ge=0)] = 0.0  # dynamic: loads ramp over this time (s)
+    max_cutbacks: Annotated[int, Field(ge=0, le=30)] = 6
+
+    @model_validator(mode="after")
+    def _dt(self):
+        if self.kind == "dynamic" and self.dt is None:
+            raise ValueError("dynamic stepping needs dt")
+        return self
+
+
+class SolverSpec(Strict):
+    rtol: Annotated[float, Field(gt=0, lt=1)] = 1e-8
+    # a Newton correction below xtol * thickness ends the iteration (at the residual's floor)
+    xtol: Annotated[float, Field(gt=0, lt=1)] = 1e-6
+    max_iterations: Annotated[int, Field(ge=1, le=1000)] = 30
+    linear_solver: Literal["auto", "pardiso", "scipy"] = "auto"
+    hessian_projection: Literal["qp", "element", "none"] = "qp"
+
+
+class ProbeSpec(Strict):
+    name: str
+    kind: Literal["displacement", "thickness", "reaction", "volume"]
+    point: Vec3 | None = None
+    component: Literal["x", "y", "z", "norm"] = "norm"
+    stat: Literal["min", "max", "mean"] = "mean"
+    region: str | None = None
+
+    @model_validator(mode="after")
+    def _fields(self):
+        if self.kind == "displacement" and self.point is None:
+            raise ValueError("a displacement probe needs point")
+        if self.kind == "reaction" and self.region is None:
+            raise ValueError("a reaction probe needs region")
+        return self
+
+
+class Scene(Strict):
+    name: str
+    description: str = ""
+    mesh: MeshSpec
+    shell: ShellSpec
+    material: MaterialSpec
+    regions: list[RegionSpec] = []
+    bcs: list[BCSpec] = []
+    loads: list[LoadSpec] = []
+    stepping: SteppingSpec = SteppingSpec()
+    solver: SolverSpec = SolverSpec()
+    probes: list[ProbeSpec] = []
+
+    @model_validator(mode="after")
+    def _references(self):
+        from sim.elements import ELEMENTS
+
+        if self.shell.element not in ELEMENTS:
+            raise ValueError(f"shell.element: unknown {self.shell.element!r}, "
+                             f"known: {sorted(ELEMENTS)}")
+        names = [r.name for r in self.regions]
+        if len(set(names)) != len(names):
+            raise ValueError("regions: names must be unique")
+        for where, items in (("bcs", self.bcs), ("loads", self.loads), ("probes", self.probes)):
+            for i, it in enumerate(items):
+                if getattr(it, "region", None) and it.region not in names:
+                    raise ValueError(f"{where}.{i}.region: unknown region {it.region!r}")
+        return self
+
+
+class SceneError(ValueError):
+    """A scene that cannot be loaded; the message names the field and the reason."""
+
+
+def _format(err: ValidationError) -> str:
+    lines = []
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"]) or "scene"
+        lines.append(f"{loc}: {e['msg']}")
+    return "; ".join(lines)
+
+
+def parse_value(text: str):
+    """A TOML value (number, bool, array, quoted string); bare words are strings."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_override(raw: dict, key: str, value) -> None:
+    """Set ``raw[a][b]...`` for ``key = "a.b..."``; list items by index (``loads.0.vector``)."""
+    parts = key.split(".")
+    node = raw
+    for p in parts[:-1]:
+        if isinstance(node, list):
+            if not p.isdigit() or int(p) >= len(node):
+                raise SceneError(f"{key}: no item {p!r}")
+            node = node[int(p)]
+        else:
+            node = node.setdefault(p, {})
+        if not isinstance(node, (dict, list)):
+            raise SceneError(f"{key}: {p!r} is not a table")
+    last = parts[-1]
+    if isinstance(node, list):
+        if not last.isdigit() or int(last) >= len(node):
+            raise SceneError(f"{key}: no item {last!r}")
+        node[int(last)] = value
+    else:
+        node[last] = value
+
+
+def scene_from_dict(raw: dict) -> Scene:
+    try:
+        return Scene.model_validate(raw)
+    except ValidationError as err:
+        raise SceneError(_format(err)) from None
+
+
+def scene_from_toml(text: str, overrides: dict | None = None) -> Scene:
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"TOML: {err}") from None
+    for k, v in (overrides or {}).items():
+        apply_override(raw, k, v)
+    return scene_from_dict(raw)
+
+
+def load_scene(path: str | Path, overrides: dict | None = None) -> Scene:
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"scene file {str(path)!r} does not exist")
+    return scene_from_toml(path.read_text(), overrides)

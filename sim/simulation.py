@@ -1,0 +1,194 @@
+"""Stepping a model through time: static load stepping or implicit Euler, with automatic
+cut-back of a failing step, per-step records, and the result written as result.json/final.npz.
+
+Data flows one way: Scene -> Model -> Simulation.step() -> StepRecord / Frame.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from sim import probes
+from sim.display import DisplayMesh
+from sim.model import Model, build_model
+from sim.newton import NewtonResult, Timing, minimise
+from sim.scene import Scene
+
+
+class SolverFailure(RuntimeError):
+    """A step failed even after the allowed cut-backs; ``report`` holds the numbers."""
+
+    def __init__(self, report: dict):
+        self.report = report
+        super().__init__(f"step {report['step']} failed at t = {report['t']:.6g} after "
+                         f"{report['cutbacks']} cut-backs: {report['reason']}; residuals "
+                         f"{[f'{r:.3e}' for r in report['residuals'][-6:]]}")
+
+
+@dataclass
+class StepRecord:
+    step: int
+    time: float
+    iterations: int
+    residual: float
+    energy: float
+    cutbacks: int
+    probes: dict[str, float]
+
+
+@dataclass
+class Frame:
+    """What a viewer needs of one step. positions ``(n_display, 3)`` float32; fields per display
+    vertex (``thickness_mm``, ``thinning_pct``)."""
+
+    step: int
+    time: float
+    positions: np.ndarray
+    fields: dict[str, np.ndarray]
+    probes: dict[str, float]
+    iterations: int
+    residual: float
+
+
+@dataclass
+class Simulation:
+    model: Model
+    step_index: int = 0
+    t: float = 0.0
+    records: list[StepRecord] = field(default_factory=list)
+    timing: Timing = field(default_factory=Timing)
+    wall: float = 0.0
+    failure: dict | None = None
+
+    @classmethod
+    def from_scene(cls, scene: Scene) -> Simulation:
+        return cls(build_model(scene))
+
+    def __post_init__(self):
+        self.x = self.model.shell.rest.copy()
+        self.display = DisplayMesh.from_shell(self.model.shell)
+        self.h0 = probes.thickness(self.model, self.x)
+
+    @property
+    def n_steps(self) -> int:
+        return self.model.scene.stepping.steps
+
+    @property
+    def done(self) -> bool:
+        return self.step_index >= self.n_steps or self.failure is not None
+
+    def _dt(self) -> float:
+        st = self.model.scene.stepping
+        return st.dt if st.kind == "dynamic" else 1.0 / st.steps
+
+    def load_factor(self, t: float) -> float:
+        st = self.model.scene.stepping
+        if st.kind == "static":
+            return t
+        return min(1.0, t / st.load_ramp) if st.load_ramp > 0 else 1.0
+
+    def _attempt(self, t_new: float, dt: float) -> NewtonResult:
+        m = self.model
+        for term in m.terms:
+            term.begin_step(t_new if m.scene.stepping.kind == "static" else t_new, dt, self.x)
+        if m.external is not None:
+            m.external.factor = float(self.load_factor(t_new))
+        x0 = self.x.copy()
+        target = m.dirichlet_positions(self.load_factor(t_new))
+        x0[m.fixed] = target[m.fixed]
+        return minimise(m.problem, x0, m.settings, m.force_scale)
+
+    def step(self) -> StepRecord:
+        """Advance one nominal step, halving the increment on failure (up to max_cutbacks)."""
+        if self.done:
+            raise RuntimeError("simulation already finished")
+        start = time.perf_counter()
+        t_target = self.t + self._dt()
+        dt, cutbacks, iters = self._dt(), 0, 0
+        while self.t < t_target - 1e-12 * t_target:
+            dt = min(dt, t_target - self.t)
+            res = self._attempt(self.t + dt, dt)
+            self.timing.add(res.timing)
+            iters += res.iterations
+            if not res.converged:
+                cutbacks += 1
+                if cutbacks > self.model.scene.stepping.max_cutbacks:
+                    self.failure = {"step": self.step_index + 1, "t": self.t + dt,
+                                    "cutbacks": cutbacks - 1, "reason": res.reason,
+                                    "iterations": res.iterations, "residuals": res.residuals}
+                    self.wall += time.perf_counter() - start
+                    raise SolverFailure(self.failure)
+                dt /= 2
+                continue
+            self.x = res.x
+            for term in self.model.terms:
+                term.commit(self.x)
+            self.t += dt
+            dt *= 2  # grow back after a successful sub-step
+        self.step_index += 1
+        rec = StepRecord(self.step_index, self.t, iters, res.residuals[-1], res.energy, cutbacks,
+                         probes.evaluate(self.model, self.x))
+        self.records.append(rec)
+        self.wall += time.perf_counter() - start
+        return rec
+
+    def run(self, progress=None) -> bool:
+        """Step to the end; returns converged. ``progress(sim, record)`` after each step."""
+        while not self.done:
+            try:
+                rec = self.step()
+            except SolverFailure:
+                return False
+            if progress:
+                progress(self, rec)
+        return True
+
+    def frame(self) -> Frame:
+        h = probes.thickness(self.model, self.x)
+        rec = self.records[-1] if self.records else None
+        fields = {"thickness_mm": self.display.per_vertex(1e3 * h),
+                  "thinning_pct": self.display.per_vertex(100 * (1 - h / self.h0))}
+        return Frame(self.step_index, self.t, self.display.positions(self.x), fields,
+                     rec.probes if rec else {}, rec.iterations if rec else 0,
+                     rec.residual if rec else 0.0)
+
+    def result(self) -> dict:
+        m = self.model
+        t = self.timing
+        n_it = max(t.iterations, 1)
+        return {
+            "scene": m.scene.name,
+            "element": m.shell.element.name,
+            "quadrature": list(m.scene.shell.quadrature or m.shell.element.default_quadrature),
+            "counts": {"vertices": m.shell.n_vertices, "nodes": m.shell.n_nodes,
+                       "elements": len(m.shell.conn), "dofs": 3 * m.shell.n_nodes,
+                       "free_dofs": int((~m.fixed).sum())},
+            "built": m.built,
+            "converged": self.failure is None and self.step_index == self.n_steps,
+            "failure": self.failure,
+            "steps": [asdict(r) for r in self.records],
+            "timing": {"total": self.wall, "assembly": t.assembly,
+                       "factorisation": t.factorisation, "solve": t.solve,
+                       "line_search": t.line_search, "newton_iterations": t.iterations,
+                       "per_iteration": (t.assembly + t.factorisation + t.solve
+                                         + t.line_search) / n_it},
+        }
+
+    def write(self, out: Path) -> None:
+        """result.json and final.npz, each written to a temporary name first so an interrupted
+        run never leaves a half-written file."""
+        out.mkdir(parents=True, exist_ok=True)
+        sh = self.model.shell
+        tmp = out / "final.tmp.npz"
+        np.savez_compressed(tmp, rest=sh.rest, deformed=self.x, faces=sh.mesh.faces,
+                            conn=sh.conn, thickness=probes.thickness(self.model, self.x),
+                            rest_thickness=self.h0)
+        tmp.replace(out / "final.npz")
+        tmp = out / "result.tmp.json"
+        tmp.write_text(json.dumps(self.result(), indent=1))
+        tmp.replace(out / "result.json")

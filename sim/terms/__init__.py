@@ -1,0 +1,32 @@
+"""Energy terms. Each is (value, gradient, Hessian) of one part of the incremental potential:
+
+    term.energy(x) -> float
+    term.add_gradient(x, g)           # g += dE/dx, x and g of shape (n_nodes, 3)
+    term.add_hessian(x, data)         # data += d2E/dx2 on the fixed CSR pattern
+
+Newton only sums them. ``begin_step(t, dt, x)`` is called before each step, ``commit(x)`` after
+it converged. Terms that need neither inherit the no-ops.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class Term:
+    name = "term"
+
+    def begin_step(self, t: float, dt: float, x: np.ndarray) -> None:
+        """Take the step's time, step size and the state at its start."""
+
+    def commit(self, x: np.ndarray) -> None:
+        """Accept the converged state of the step (plastic state, velocities)."""
+
+    def energy(self, x: np.ndarray) -> float:
+        raise NotImplementedError
+
+    def add_gradient(self, x: np.ndarray, g: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def add_hessian(self, x: np.ndarray, data: np.ndarray) -> None:
+        """Linear terms have none."""

@@ -1,0 +1,148 @@
+"""Elastic (and elastoplastic) stored energy: sum over elements and quadrature points of
+w detJ Psi(F), with F = sum_a x_a (x) dN_a/dX (paper Eq. 2-3).
+
+The plastic state, when a scene has one, enters as G = F Fp^{-1}: the energy density is then
+an isotropic function of G, so the chain rule only maps dN/dX to b = dN/dX Fp^{-1}.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from sim.materials.isotropic import stress_tangent
+from sim.terms import Term
+
+PROJECT_NONE, PROJECT_QP, PROJECT_ELEMENT = 0, 1, 2
+
+
+def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
+                        weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """dN/dX ``(n_elem, n_qp, n_en, 3)`` and w detJ ``(n_elem, n_qp)`` from the rest positions.
+
+    dN: reference gradients ``(n_qp, n_en, 3)``; raises on an element with detJ <= 0.
+    """
+    Xe = rest[conn]  # (n_e, n_en, 3)
+    J = np.einsum("ead,qaj->eqdj", Xe, dN)  # dX_d / dxi_j
+    det = np.linalg.det(J)
+    if np.any(det <= 0):
+        bad = np.unique(np.nonzero(det <= 0)[0])
+        raise ValueError(f"{len(bad)} element(s) inverted or flat in the rest state "
+                         f"(first: {bad[:5].tolist()}); check thickness and mesh orientation")
+    Jinv = np.linalg.inv(J)
+    dNdX = np.einsum("qaj,eqjd->eqad", dN, Jinv)
+    return np.ascontiguousarray(dNdX), det * weights[None, :]
+
+
+@njit(cache=True)
+def _element(x, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project):
+    """Energy, gradient (n_en*3,) and Hessian (n_en*3, n_en*3) of one element."""
+    n_en = nodes.shape[0]
+    k = 3 * n_en
+    g = np.zeros(k)
+    K = np.zeros((k, k))
+    E = 0.0
+    for q in range(dNdX.shape[0]):
+        b = dNdX[q] @ fp_inv[q] if plastic else dNdX[q]
+        G = np.zeros((3, 3))
+        for a in range(n_en):
+            for i in range(3):
+                for J in range(3):
+                    G[i, J] += x[nodes[a], i] * b[a, J]
+        W, P, C = stress_tangent(model, G, params, ep[q] if plastic else 0.0, want == 2,
+                                 project == PROJECT_QP)
+        if not np.isfinite(W):
+            return np.inf, g, K
+        w = wdetJ[q]
+        E += w * W
+        if want == 0:
+            continue
+        for a in range(n_en):
+            for i in range(3):
+                g[3 * a + i] += w * (P[i, 0] * b[a, 0] + P[i, 1] * b[a, 1] + P[i, 2] * b[a, 2])
+        if want < 2:
+            continue
+        CB = np.zeros((9, n_en, 3))  # C[iM, kN] b[bn, N]
+        for r in range(9):
+            for bn in range(n_en):
+                for kk in range(3):
+                    CB[r, bn, kk] = (C[r, 3 * kk] * b[bn, 0] + C[r, 3 * kk + 1] * b[bn, 1]
+                                     + C[r, 3 * kk + 2] * b[bn, 2])
+        for a in range(n_en):
+            for i in range(3):
+                row = 3 * a + i
+                for bn in range(n_en):
+                    for kk in range(3):
+                        K[row, 3 * bn + kk] += w * (b[a, 0] * CB[3 * i, bn, kk]
+                                                    + b[a, 1] * CB[3 * i + 1, bn, kk]
+                                                    + b[a, 2] * CB[3 * i + 2, bn, kk])
+    if want == 2 and project == PROJECT_ELEMENT:
+        ev, Q = np.linalg.eigh(K)
+        K = (Q * np.maximum(ev, 0.0)) @ Q.T
+    return E, g, K
+
+
+@njit(cache=True, parallel=True)
+def elastic_kernel(x, conn, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project,
+                   colors, color_ptr, slots, grad, data):
+    """Total energy; adds the gradient into ``grad (n_nodes, 3)`` (want >= 1) and the Hessian
+    into ``data`` through ``slots (n_elem, k, k)`` (want == 2). Elements of one colour share no
+    node, so each colour is scattered in parallel without races. Returns inf on inversion."""
+    n_e = conn.shape[0]
+    energies = np.zeros(n_e)
+    for c in range(len(color_ptr) - 1):
+        for t in prange(color_ptr[c], color_ptr[c + 1]):
+            e = colors[t]
+            E, g, K = _element(x, conn[e], dNdX[e], wdetJ[e], model, params, fp_inv[e], ep[e],
+                               plastic, want, project)
+            energies[e] = E
+            if want >= 1 and np.isfinite(E):
+                for a in range(conn.shape[1]):
+                    for i in range(3):
+                        grad[conn[e, a], i] += g[3 * a + i]
+            if want == 2 and np.isfinite(E):
+                s = slots[e]
+                for r in range(K.shape[0]):
+                    for cc in range(K.shape[0]):
+                        if s[r, cc] >= 0:
+                            data[s[r, cc]] += K[r, cc]
+    return energies.sum()
+
+
+class Elasticity(Term):
+    """Stored energy of the shell. ``material``: (model id, params array); ``plastic`` state is
+    ``fp_inv (n_elem, n_qp, 3, 3)`` and ``ep (n_elem, n_qp)``, or None for an elastic scene."""
+
+    name = "elasticity"
+
+    def __init__(self, shell, rule, model: int, params: np.ndarray, pattern, project: int,
+                 plastic: bool = False):
+        _, dN = shell.element.basis(rule.points)
+        self.conn = shell.conn
+        self.dNdX, self.wdetJ = reference_gradients(shell.rest, shell.conn, dN, rule.weights)
+        self.model, self.params = model, np.asarray(params, float)
+        self.pattern, self.project = pattern, project
+        n_e, n_q = self.wdetJ.shape
+        self.plastic = plastic
+        if plastic:
+            self.fp_inv = np.tile(np.eye(3), (n_e, n_q, 1, 1))
+            self.ep = np.zeros((n_e, n_q))
+        else:  # an elastic scene allocates no plastic state
+            self.fp_inv = np.zeros((n_e, 0, 3, 3))
+            self.ep = np.zeros((n_e, 0))
+        self._colors = np.concatenate(pattern.colors)
+        self._color_ptr = np.concatenate([[0], np.cumsum([len(c) for c in pattern.colors])])
+
+    def _run(self, x, want, grad, data):
+        return elastic_kernel(x, self.conn, self.dNdX, self.wdetJ, self.model, self.params,
+                              self.fp_inv, self.ep, self.plastic, want, self.project,
+                              self._colors, self._color_ptr, self.pattern.elem_slots, grad, data)
+
+    def energy(self, x):
+        return self._run(x, 0, np.zeros((0, 3)), np.zeros(0))
+
+    def add_gradient(self, x, g):
+        return self._run(x, 1, g, np.zeros(0))
+
+    def add_hessian(self, x, data):
+        return self._run(x, 2, np.zeros(x.shape), data)

@@ -1,0 +1,135 @@
+"""Dead loads: gravity / body force, traction on the rim, pressure on a skin, point loads.
+
+All are linear in x: E = -f . x with a nodal force vector f computed once by quadrature on the
+rest geometry, scaled in time by the step's load factor.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.quadrature import line_rule, triangle_rule
+from sim.terms import Term
+
+
+class ExternalForce(Term):
+    """E(x) = -s(t) f . (x - X), ``f (n_nodes, 3)``; ``scale(t)`` the load curve. Measured from
+    the rest state X so the energy carries no large constant that would drown its changes in
+    round-off near convergence."""
+
+    name = "external_force"
+
+    def __init__(self, f: np.ndarray, rest: np.ndarray, scale=lambda t: t):
+        self.f = f
+        self.rest = rest
+        self.scale = scale
+        self.factor = 0.0
+
+    def begin_step(self, t, dt, x):
+        self.factor = float(self.scale(t))
+
+    def energy(self, x):
+        return -self.factor * float(np.sum(self.f * (x - self.rest)))
+
+    def add_gradient(self, x, g):
+        g -= self.factor * self.f
+
+
+def _scatter(shell, elems, pts, weights_vec):
+    """Sum N_a(pts) * weights_vec over quadrature points into nodal forces.
+
+    elems (m,), pts (m, nq, 3) reference points, weights_vec (m, nq, 3)."""
+    f = np.zeros((shell.n_nodes, 3))
+    m, nq = pts.shape[:2]
+    N, _ = shell.element.basis(pts.reshape(-1, 3))
+    N = N.reshape(m, nq, -1)
+    contrib = np.einsum("mqa,mqd->mad", N, weights_vec)
+    np.add.at(f, shell.conn[elems], contrib)
+    return f
+
+
+def _map(shell, elems, pts):
+    """Rest positions and reference Jacobians at reference points (m, nq, 3)."""
+    m, nq = pts.shape[:2]
+    N, dN = shell.element.basis(pts.reshape(-1, 3))
+    Xe = shell.rest[shell.conn[elems]]
+    dN = dN.reshape(m, nq, -1, 3)
+    return np.einsum("mqaj,mad->mqdj", dN, Xe)
+
+
+def body_force(shell, wdetJ: np.ndarray, rule, density_times_accel: np.ndarray) -> np.ndarray:
+    """f_a = int rho g N_a dV over every element. wdetJ (n_elem, n_qp)."""
+    n_e = len(shell.conn)
+    pts = np.broadcast_to(rule.points, (n_e,) + rule.points.shape)
+    w = wdetJ[:, :, None] * np.asarray(density_times_accel)[None, None, :]
+    return _scatter(shell, np.arange(n_e), pts, w)
+
+
+def _edge_faces(shell, plane_nodes_mask: np.ndarray):
+    """(element, local edge) of rim faces whose both vertices are selected boundary nodes."""
+    F = shell.mesh.faces
+    out = []
+    from sim.mesh import edges
+
+    uniq, fe = edges(F)
+    count = np.bincount(fe.ravel(), minlength=len(uniq))
+    for le, (a, b) in enumerate([(0, 1), (1, 2), (2, 0)]):
+        on = (count[fe[:, le]] == 1) & plane_nodes_mask[F[:, a]] & plane_nodes_mask[F[:, b]]
+        out += [(e, a, b) for e in np.flatnonzero(on)]
+    return out
+
+
+_CORNER_UV = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])  # barycentric (u, v, 1-u-v)
+
+
+def traction(shell, plane_mask: np.ndarray, t_vec: np.ndarray) -> np.ndarray:
+    """Traction ``t_vec`` (Pa, per rest area) on the rim faces of the selected boundary edges."""
+    faces = _edge_faces(shell, plane_mask)
+    if not faces:
+        raise ValueError("traction region contains no boundary edge")
+    sp_, sw = line_rule(shell.element.p + 1)
+    wp, ww = line_rule(shell.element.q + 1)
+    s = (sp_ + 1) / 2
+    pts, wts = [], []
+    for _, a, b in faces:
+        uv = _CORNER_UV[a][None, :] * (1 - s[:, None]) + _CORNER_UV[b][None, :] * s[:, None]
+        pts.append([(u, v, w) for w in wp for (u, v) in uv])
+        wts.append([wi * si / 2 for wi in ww for si in sw])
+    elems = np.array([e for e, _, _ in faces])
+    pts, wts = np.array(pts), np.array(wts)
+    J = _map(shell, elems, pts)
+    ds = J[..., 0] * 0
+    for e_i, (_, a, b) in enumerate(faces):
+        d_uv = _CORNER_UV[b] - _CORNER_UV[a]
+        ds[e_i] = J[e_i, :, :, 0] * d_uv[0] + J[e_i, :, :, 1] * d_uv[1]
+    dA = np.linalg.norm(np.cross(ds, J[..., 2]), axis=-1) * wts
+    return _scatter(shell, elems, pts, dA[..., None] * np.asarray(t_vec)[None, None, :])
+
+
+def pressure(shell, elem_mask: np.ndarray, p: float, top: bool) -> np.ndarray:
+    """Pressure ``p`` (Pa) pushing on the top (or bottom) skin of the selected elements, along
+    the rest inward normal of that skin (a dead load)."""
+    elems = np.flatnonzero(elem_mask)
+    if len(elems) == 0:
+        raise ValueError("pressure region contains no element")
+    tp, tw = triangle_rule(3 if shell.element.p == 1 else 7)
+    w0 = 1.0 if top else -1.0
+    pts = np.broadcast_to(np.column_stack([tp, np.full(len(tp), w0)]), (len(elems), len(tp), 3))
+    J = _map(shell, elems, np.ascontiguousarray(pts))
+    n = np.cross(J[..., 0], J[..., 1]) * tw[None, :, None]  # area-weighted outward (for top)
+    force = -p * n if top else p * n
+    return _scatter(shell, elems, np.ascontiguousarray(pts), force)
+
+
+def point_force(shell, vertex: int, force: np.ndarray) -> np.ndarray:
+    """A force on the node column of mid-surface vertex ``vertex``, split over its layers by the
+    through-thickness integrals of the line basis (1/2, 1/2 linear; 1/6, 2/3, 1/6 quadratic)."""
+    wp, ww = line_rule(shell.element.q + 1)
+    from sim.elements.base import _line_lagrange
+
+    L, _ = _line_lagrange(shell.element.q, wp)
+    share = (L * ww[:, None]).sum(0) / 2
+    f = np.zeros((shell.n_nodes, 3))
+    for k, s in enumerate(share):
+        f[k * shell.n_plane + vertex] += s * np.asarray(force)
+    return f

@@ -1,0 +1,1 @@
+"""Rigid forming tools: SDF programs (sdf) and their display meshes (meshes)."""
