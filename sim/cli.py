@@ -54,7 +54,8 @@ def cmd_run(args) -> int:
     except (SceneError, ValueError) as exc:
         print(f"q3t: {exc}", file=sys.stderr)
         return 2
-    out = Path(args.out or f"runs/{scene.name}-{scene.shell.element}-{time.strftime('%Y%m%d-%H%M%S')}")
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    out = Path(args.out or f"runs/{scene.name}-{scene.shell.element}-{stamp}")
     c = sim.result()["counts"]
     print(f"{scene.name}: {scene.shell.element}, {c['elements']} elements, {c['dofs']} DoFs, "
           f"solver {sim.model.built['linear_solver']}", file=sys.stderr)
@@ -81,6 +82,12 @@ def main(argv: list[str] | None = None) -> int:
     from sim import bench
 
     bench.add_parser(sub)
+    try:  # the service commands exist only where the service stack is installed
+        from server import cli as server_cli
+    except ImportError:
+        server_cli = None
+    if server_cli is not None:
+        server_cli.add_parser(sub)
     args = ap.parse_args(argv)
     return args.func(args)
 

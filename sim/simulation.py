@@ -69,7 +69,12 @@ class Simulation:
     def from_scene(cls, scene: Scene) -> Simulation:
         return cls(build_model(scene))
 
+    # live parameters: name -> (min, max); applied from the next step on
+    PARAMETERS = {"load_scale": (0.0, 100.0)}
+
     def __post_init__(self):
+        self.parameters = {"load_scale": 1.0}
+        self.parameter_log: list[dict] = []
         self.x = self.model.shell.rest.copy()
         self.display = DisplayMesh.from_shell(self.model.shell)
         self.h0 = probes.thickness(self.model, self.x)
@@ -92,12 +97,23 @@ class Simulation:
             return t
         return min(1.0, t / st.load_ramp) if st.load_ramp > 0 else 1.0
 
+    def set_parameter(self, name: str, value: float) -> None:
+        """Change a live parameter from the next step on; recorded with that step number."""
+        if name not in self.PARAMETERS:
+            raise ValueError(f"{name}: unknown parameter; known: {sorted(self.PARAMETERS)}")
+        lo, hi = self.PARAMETERS[name]
+        if not (isinstance(value, (int, float)) and np.isfinite(value) and lo <= value <= hi):
+            raise ValueError(f"{name}: {value!r} out of range [{lo}, {hi}]")
+        self.parameters[name] = float(value)
+        self.parameter_log.append({"step": self.step_index + 1, "name": name,
+                                   "value": float(value)})
+
     def _attempt(self, t_new: float, dt: float) -> NewtonResult:
         m = self.model
         for term in m.terms:
             term.begin_step(t_new if m.scene.stepping.kind == "static" else t_new, dt, self.x)
         if m.external is not None:
-            m.external.factor = float(self.load_factor(t_new))
+            m.external.factor = float(self.load_factor(t_new)) * self.parameters["load_scale"]
         x0 = self.x.copy()
         target = m.dirichlet_positions(self.load_factor(t_new))
         x0[m.fixed] = target[m.fixed]
@@ -169,6 +185,7 @@ class Simulation:
                        "elements": len(m.shell.conn), "dofs": 3 * m.shell.n_nodes,
                        "free_dofs": int((~m.fixed).sum())},
             "built": m.built,
+            "parameters": self.parameter_log,
             "converged": self.failure is None and self.step_index == self.n_steps,
             "failure": self.failure,
             "steps": [asdict(r) for r in self.records],
