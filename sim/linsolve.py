@@ -52,6 +52,7 @@ class Pardiso:
     """MKL PARDISO, real SPD (mtype 2), upper triangle CSR, zero-based indices."""
 
     name = "pardiso"
+    refines = True  # iparm[7]: PARDISO refines the solution itself
 
     def __init__(self, pattern):
         lib = mkl()
@@ -114,6 +115,7 @@ class SciPyLU:
     are the inertia of the matrix (a positive-definiteness check like Cholesky's)."""
 
     name = "scipy"
+    refines = False
 
     def __init__(self, pattern):
         self.pattern = pattern

@@ -97,7 +97,7 @@ def _solve(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinements: int
     that stall Newton well above its tolerance."""
     p = problem.pattern
     x = problem.solver.solve(rhs)
-    for _ in range(refinements):
+    for _ in range(0 if problem.solver.refines else refinements):
         r = rhs - sym_matvec(p.indptr, p.indices, data, x)
         x += problem.solver.solve(r)
     return x

@@ -42,9 +42,11 @@ def _element(x, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, pr
     g = np.zeros(k)
     K = np.zeros((k, k))
     E = 0.0
+    CB = np.empty((9, n_en, 3))  # C[iM, kN] b[bn, N]
+    G = np.empty((3, 3))
     for q in range(dNdX.shape[0]):
         b = dNdX[q] @ fp_inv[q] if plastic else dNdX[q]
-        G = np.zeros((3, 3))
+        G[:] = 0.0
         for a in range(n_en):
             for i in range(3):
                 for J in range(3):
@@ -62,7 +64,6 @@ def _element(x, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, pr
                 g[3 * a + i] += w * (P[i, 0] * b[a, 0] + P[i, 1] * b[a, 1] + P[i, 2] * b[a, 2])
         if want < 2:
             continue
-        CB = np.zeros((9, n_en, 3))  # C[iM, kN] b[bn, N]
         for r in range(9):
             for bn in range(n_en):
                 for kk in range(3):

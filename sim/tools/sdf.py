@@ -426,7 +426,14 @@ def _workspace():
     return st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp
 
 
-@numba.njit(cache=True)
+# explicit signatures: one compilation each, instead of one per literal value of the flags
+_F1 = numba.float64[::1]
+_F2 = numba.float64[:, ::1]
+_F3 = numba.float64[:, :, ::1]
+_B = numba.boolean
+
+
+@numba.njit(numba.float64(_F1, _F1, _B, _F1, _F2, _F3, _F3, _F2, _F1, _F1, _F2), cache=True)
 def _eval_point(prog, x, derivs, st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp):
     """Run the program at one point x (tool frame). Result in st_d[0], st_g[0], st_H[0]."""
     if prog.shape[0] < HEADER + 2 or prog[0] != MAGIC:
@@ -511,36 +518,9 @@ def _eval_point(prog, x, derivs, st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp):
     return st_d[0]
 
 
-@numba.njit(cache=True)
-def sdf_eval(prog, X):
-    """d (n,), g (n, 3), H (n, 3, 3) of the program at points X (n, 3) in the tool frame."""
-    n = X.shape[0]
-    d = np.empty(n)
-    g = np.empty((n, 3))
-    H = np.empty((n, 3, 3))
-    st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp = _workspace()
-    for p in range(n):
-        d[p] = _eval_point(prog, X[p], True, st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp)
-        for i in range(3):
-            g[p, i] = st_g[0, i]
-            for j in range(3):
-                H[p, i, j] = st_H[0, i, j]
-    return d, g, H
-
-
-@numba.njit(cache=True)
-def sdf_distance(prog, X):
-    """Signed distance only (no derivatives, cheaper) at points X (n, 3) in the tool frame."""
-    n = X.shape[0]
-    d = np.empty(n)
-    st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp = _workspace()
-    for p in range(n):
-        d[p] = _eval_point(prog, X[p], False, st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp)
-    return d
-
-
-@numba.njit(cache=True)
-def _sdf_world(prog, R, t, X, derivs):
+@numba.njit(numba.types.Tuple((_F1, _F2, _F3))(_F1, _F2, _F1, _F2, _B, _B), cache=True)
+def _run(prog, R, t, X, posed, derivs):
+    """All points: x_local = R^T (x - t) when posed; g, H rotated back by R when posed."""
     n = X.shape[0]
     d = np.empty(n)
     g = np.empty((n if derivs else 0, 3))
@@ -548,12 +528,17 @@ def _sdf_world(prog, R, t, X, derivs):
     st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp = _workspace()
     xl = np.empty(3)
     for p in range(n):
-        for i in range(3):
-            xl[i] = (R[0, i] * (X[p, 0] - t[0]) + R[1, i] * (X[p, 1] - t[1])
-                     + R[2, i] * (X[p, 2] - t[2]))
+        if posed:
+            for i in range(3):
+                xl[i] = (R[0, i] * (X[p, 0] - t[0]) + R[1, i] * (X[p, 1] - t[1])
+                         + R[2, i] * (X[p, 2] - t[2]))
+        else:
+            for i in range(3):
+                xl[i] = X[p, i]
         d[p] = _eval_point(prog, xl, derivs, st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp)
         if derivs:
-            _rotate_back(R, st_g[0], st_H[0], tmp, True)
+            if posed:
+                _rotate_back(R, st_g[0], st_H[0], tmp, True)
             for i in range(3):
                 g[p, i] = st_g[0, i]
                 for j in range(3):
@@ -562,18 +547,34 @@ def _sdf_world(prog, R, t, X, derivs):
 
 
 @numba.njit(cache=True)
+def sdf_eval(prog, X):
+    """d (n,), g (n, 3), H (n, 3, 3) of the program at points X (n, 3) in the tool frame."""
+    return _run(np.ascontiguousarray(prog), np.eye(3), np.zeros(3), np.ascontiguousarray(X),
+                False, True)
+
+
+@numba.njit(cache=True)
+def sdf_distance(prog, X):
+    """Signed distance only (no derivatives, cheaper) at points X (n, 3) in the tool frame."""
+    return _run(np.ascontiguousarray(prog), np.eye(3), np.zeros(3), np.ascontiguousarray(X),
+                False, False)[0]
+
+
+@numba.njit(cache=True)
 def sdf_world(prog, R, t, X):
     """d, g, H at world points X (n, 3) of a tool with pose (R, t).
 
     x_local = R^T (x - t); g_world = R g_local, H_world = R H_local R^T.
     """
-    return _sdf_world(prog, R, t, X, True)
+    return _run(np.ascontiguousarray(prog), np.ascontiguousarray(R), np.ascontiguousarray(t),
+                np.ascontiguousarray(X), True, True)
 
 
 @numba.njit(cache=True)
 def sdf_world_distance(prog, R, t, X):
     """Signed distance only at world points X (n, 3) of a tool with pose (R, t)."""
-    return _sdf_world(prog, R, t, X, False)[0]
+    return _run(np.ascontiguousarray(prog), np.ascontiguousarray(R), np.ascontiguousarray(t),
+                np.ascontiguousarray(X), True, False)[0]
 
 
 # ----------------------------------------------------------------------------------------------

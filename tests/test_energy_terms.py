@@ -1,0 +1,128 @@
+"""Finite-difference checks of every energy term's gradient and Hessian, and of the material
+tangents (exact and projected)."""
+
+import numpy as np
+import pytest
+
+from sim.materials.isotropic import stress_tangent
+from sim.scene import load_scene
+from sim.simulation import Simulation
+
+RNG = np.random.default_rng(7)
+
+
+def _fd_check(energy, gradient, hessian_matvec, x, scale):
+    """Central differences along random directions. With step h the truncation error is
+    O(h^2 |E'''|) and round-off O(eps |E| / h); h = 1e-6 * scale balances both to ~1e-7 of the
+    derivative's size, so 1e-5 relative is a safe bound that still catches any wrong term."""
+    for _ in range(3):
+        v = RNG.standard_normal(x.shape)
+        h = 1e-6 * scale
+        fd = (energy(x + h * v) - energy(x - h * v)) / (2 * h)
+        an = float(np.sum(gradient(x) * v))
+        assert abs(fd - an) <= 1e-5 * max(abs(an), 1e-12), (fd, an)
+        fdH = (gradient(x + h * v) - gradient(x - h * v)) / (2 * h)
+        Hv = hessian_matvec(x, v)
+        assert np.abs(fdH - Hv).max() <= 1e-5 * np.abs(Hv).max(), np.abs(fdH - Hv).max()
+
+
+@pytest.mark.parametrize("model", [0, 1])
+@pytest.mark.parametrize("kind", ["rest", "general", "compressed", "equal"])
+def test_material_tangent(model, kind):
+    F = {"rest": np.eye(3), "general": np.eye(3) + 0.3 * RNG.standard_normal((3, 3)),
+         "compressed": np.diag([0.7, 0.8, 1.1]) @ np.array([[1, 0.2, 0], [0, 1, 0], [0, 0, 1]]),
+         "equal": np.diag([1.1, 1.1, 0.9])}[kind]
+    if np.linalg.det(F) <= 0:
+        F[:, 0] *= -1
+    params = np.array([2.0, 5.0])
+    W, P, C = stress_tangent(model, F, params, 0.0, True, False)
+    h = 1e-6
+    for k in range(9):
+        dF = np.zeros(9)
+        dF[k] = h
+        dF = dF.reshape(3, 3)
+        Wp, Pp, _ = stress_tangent(model, F + dF, params, 0.0, False, False)
+        Wm, Pm, _ = stress_tangent(model, F - dF, params, 0.0, False, False)
+        # O(1) moduli: central differences with h = 1e-6 are good to ~1e-9
+        assert abs((Wp - Wm) / (2 * h) - P.ravel()[k]) < 1e-7
+        assert np.abs((Pp - Pm).ravel() / (2 * h) - C[:, k]).max() < 1e-7
+    _, _, Cp = stress_tangent(model, F, params, 0.0, True, True)
+    assert np.linalg.eigvalsh(Cp).min() > -1e-10  # projected tangent is PSD
+    if np.linalg.eigvalsh(C).min() >= 0:
+        assert np.allclose(Cp, C, atol=1e-10)  # and equal to the exact one where that is PSD
+
+
+def test_energy_is_infinite_for_inverted_elements():
+    F = np.diag([1.0, 1.0, -0.5])
+    for model in (0, 1):
+        W, P, _ = stress_tangent(model, F, np.array([1.0, 1.0]), 0.0, False, False)
+        assert W == np.inf and np.all(np.isfinite(P))
+
+
+def _small(element, extra=None):
+    o = {"mesh.edge_length": 0.035, "material.E": 1e6, "shell.element": element,
+         "solver.hessian_projection": "none"}
+    o.update(extra or {})
+    return Simulation.from_scene(load_scene("scenes/cantilever.toml", o)).model
+
+
+@pytest.mark.parametrize("element", ["linear", "q3t", "quadratic"])
+@pytest.mark.parametrize("material", ["neo_hookean", "hencky"])
+def test_elasticity_term_fd(element, material):
+    m = _small(element, {"material.model": material})
+    term = m.elasticity
+    x = m.shell.rest + 2e-4 * RNG.standard_normal(m.shell.rest.shape)
+
+    def grad(y):
+        g = np.zeros_like(y)
+        term.add_gradient(y, g)
+        return g
+
+    def hv(y, v):
+        d = np.zeros(m.pattern.nnz)
+        term.add_hessian(y, d)
+        return (m.pattern.matrix(d) @ v.ravel()).reshape(v.shape)
+
+    _fd_check(term.energy, grad, hv, x, 1e-3)
+
+
+def test_external_force_and_inertia_fd():
+    m = Simulation.from_scene(load_scene("scenes/cantilever.toml", {
+        "mesh.edge_length": 0.035, "stepping.kind": "dynamic", "stepping.dt": 1e-3})).model
+    assert "inertia" in m.built["terms"] and "external_force" in m.built["terms"]
+    x = m.shell.rest + 1e-3 * RNG.standard_normal(m.shell.rest.shape)
+    for term in (m.external, m.inertia):
+        term.begin_step(0.5, 1e-3, m.shell.rest)
+
+        def grad(y, term=term):
+            g = np.zeros_like(y)
+            term.add_gradient(y, g)
+            return g
+
+        def hv(y, v, term=term):
+            d = np.zeros(m.pattern.nnz)
+            term.add_hessian(y, d)
+            return (m.pattern.matrix(d) @ v.ravel()).reshape(v.shape)
+
+        if term is m.external:  # linear: zero Hessian, check the gradient only
+            v = RNG.standard_normal(x.shape)
+            fd = (term.energy(x + 1e-4 * v) - term.energy(x - 1e-4 * v)) / 2e-4
+            assert np.isclose(fd, np.sum(grad(x) * v), rtol=1e-9)
+        else:
+            _fd_check(term.energy, grad, hv, x, 1e-3)
+
+
+def test_loads_sum_to_applied_totals():
+    """Consistent nodal forces integrate exactly: gravity sums to the weight, a traction to
+    traction x rim area, a pressure to pressure x skin area, for every element."""
+    for el in ("linear", "q3t", "quadratic"):
+        m = _small(el)
+        total = m.external.f.sum(0)
+        weight = 1000.0 * 9.81 * 0.7 * 0.07 * 0.007
+        assert np.allclose(total, [0, 0, -weight], rtol=1e-12, atol=1e-12)
+        m2 = Simulation.from_scene(load_scene("scenes/cantilever.toml", {
+            "mesh.edge_length": 0.035, "shell.element": el,
+            "loads": [{"kind": "traction", "vector": [1e3, 0, 0], "region": "clamp"},
+                      {"kind": "pressure", "value": 10.0}]})).model
+        f = m2.external.f.sum(0)
+        assert np.allclose(f, [1e3 * 0.07 * 0.007, 0, -10.0 * 0.7 * 0.07], rtol=1e-10)
