@@ -1,0 +1,42 @@
+"""The FastAPI app factory: settings in, app out. The lifespan owns the solver process, the
+bridge thread and the viewer; routers hold one resource each."""
+
+from __future__ import annotations
+
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+
+from server import errors
+from server.routers import meta, runs, scenes, web
+from server.runs import RunManager
+from server.settings import Settings
+from server.store import SceneStore
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        store = SceneStore(settings.scenes_dir)
+        manager = RunManager(settings, store)
+        if settings.viewer:
+            from server.viewer import Viewer
+            from sim.elements import ELEMENTS
+
+            manager.viewer = Viewer(settings.viewer_host, settings.viewer_port, manager,
+                                    sorted(ELEMENTS), manager.parameter_ranges)
+        app.state.store, app.state.manager = store, manager
+        manager.start()
+        yield
+        manager.close()
+        if manager.viewer:
+            manager.viewer.stop()
+
+    app = FastAPI(title="q3t-forming preview", version="0.1.0", lifespan=lifespan)
+    app.state.settings = settings
+    errors.install(app, settings)
+    for module in (scenes, runs, meta, web):
+        app.include_router(module.router)
+    return app

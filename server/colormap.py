@@ -1,0 +1,32 @@
+"""Named colour maps for per-vertex fields, and the legend text."""
+
+from __future__ import annotations
+
+import numpy as np
+
+# viridis sampled at 9 evenly spaced points (matplotlib's values, rounded to 8 bits)
+VIRIDIS = np.array([[68, 1, 84], [71, 44, 122], [59, 81, 139], [44, 113, 142], [33, 144, 141],
+                    [39, 173, 129], [92, 200, 99], [170, 220, 50], [253, 231, 37]], np.float64)
+COLORMAPS = {"viridis": VIRIDIS}
+
+
+def value_range(values: np.ndarray, min_span: float = 1e-6) -> tuple[float, float]:
+    lo, hi = float(np.min(values)), float(np.max(values))
+    if hi - lo < min_span:  # a uniform field would otherwise colour noise
+        mid = 0.5 * (lo + hi)
+        lo, hi = mid - min_span / 2, mid + min_span / 2
+    return lo, hi
+
+
+def colorize(values: np.ndarray, lo: float, hi: float, name: str = "viridis") -> np.ndarray:
+    """Shape: values (n,) -> RGB (n, 3) uint8."""
+    table = COLORMAPS[name]
+    s = np.clip((np.asarray(values, np.float64) - lo) / (hi - lo), 0.0, 1.0) * (len(table) - 1)
+    i = np.minimum(s.astype(np.int64), len(table) - 2)
+    w = (s - i)[:, None]
+    return np.round(table[i] * (1 - w) + table[i + 1] * w).astype(np.uint8)
+
+
+def legend_markdown(label: str, unit: str, lo: float, hi: float, name: str = "viridis") -> str:
+    return (f"**{label}** ({name})  \n"
+            f"🟪 {lo:.4g} {unit} → 🟩 → 🟨 {hi:.4g} {unit}")

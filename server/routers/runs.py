@@ -1,0 +1,93 @@
+"""/api/runs: start, list, status, pause/resume/step/stop, live parameters, result, recording,
+delete. Every call returns at once; the solver process does the work."""
+
+from __future__ import annotations
+
+import json
+from typing import Literal
+
+from fastapi import APIRouter, Request, Response
+from fastapi.responses import FileResponse
+from pydantic import BaseModel, ConfigDict, Field
+
+from server.runs import RunManager
+
+router = APIRouter(prefix="/api/runs", tags=["runs"])
+Scalar = float | int | bool | str | list[float]
+
+
+class Body(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class NewRun(Body):
+    scene: str
+    element: str | None = None
+    overrides: dict[str, Scalar] = Field(default_factory=dict,
+                                         description='scene overrides, e.g. {"material.nu": 0.3}')
+    parameters: dict[str, float] = Field(default_factory=dict, description="live parameters")
+    paused: bool = False
+
+
+class ParameterValue(Body):
+    value: float
+
+
+def _runs(request: Request) -> RunManager:
+    return request.app.state.manager
+
+
+@router.get("")
+def list_runs(request: Request) -> list[dict]:
+    return _runs(request).list()
+
+
+@router.post("", status_code=201)
+def start_run(body: NewRun, request: Request) -> dict:
+    run = _runs(request).start_run(body.scene, body.element, body.overrides, body.parameters,
+                                   body.paused)
+    return run.summary()
+
+
+@router.get("/{run_id}")
+def status(run_id: str, request: Request, since: int = 0) -> dict:
+    """The run's state and its step records after step ``since``."""
+    m = _runs(request)
+    with m.lock:
+        run = m.get(run_id)
+        return {**run.summary(), "records": [r for r in run.records if r["step"] > since]}
+
+
+@router.post("/{run_id}/{action}")
+def control(run_id: str, action: Literal["pause", "resume", "step", "stop"],
+            request: Request) -> dict:
+    return _runs(request).command(run_id, action).summary()
+
+
+@router.put("/{run_id}/parameters/{name}", status_code=202)
+def set_parameter(run_id: str, name: str, body: ParameterValue, request: Request) -> dict:
+    return _runs(request).set_parameter(run_id, name, body.value)
+
+
+@router.get("/{run_id}/result")
+def result(run_id: str, request: Request) -> dict:
+    m = _runs(request)
+    path = m.dir(m.get(run_id).id) / "result.json"
+    if not path.is_file():
+        raise KeyError(f"run {run_id!r} has no result yet")
+    return json.loads(path.read_text())
+
+
+@router.get("/{run_id}/recording")
+def recording(run_id: str, request: Request) -> FileResponse:
+    m = _runs(request)
+    path = m.dir(m.get(run_id).id) / "run.rrd"
+    if not path.is_file():
+        raise KeyError(f"run {run_id!r} has no recording")
+    return FileResponse(path, media_type="application/octet-stream", filename=f"{run_id}.rrd")
+
+
+@router.delete("/{run_id}", status_code=204)
+def delete_run(run_id: str, request: Request) -> Response:
+    _runs(request).delete(run_id)
+    return Response(status_code=204)

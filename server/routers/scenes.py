@@ -1,0 +1,101 @@
+"""/api/scenes: list, read, create, update, delete, duplicate, validate; the JSON schema."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request, Response
+from pydantic import BaseModel, ConfigDict
+
+from server.settings import check_name
+from server.store import SceneStore
+from sim.scene import Scene
+
+router = APIRouter(prefix="/api/scenes", tags=["scenes"])
+
+
+class Body(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class SceneText(Body):
+    toml: str
+
+
+class NewScene(Body):
+    name: str
+    toml: str
+
+
+class NewName(Body):
+    name: str
+
+
+def _store(request: Request) -> SceneStore:
+    return request.app.state.store
+
+
+def _read(store: SceneStore, name: str) -> dict:
+    text = store.text(name)
+    try:
+        scene, error = store.validate(text).model_dump(mode="json"), None
+    except ValueError as exc:
+        scene, error = None, str(exc)
+    return {"name": name, "toml": text, "scene": scene, "error": error}
+
+
+@router.get("")
+def list_scenes(request: Request) -> list[dict]:
+    store = _store(request)
+    return [store.summary(n) for n in store.names()]
+
+
+@router.get("/schema")
+def schema() -> dict:
+    return Scene.model_json_schema()
+
+
+@router.post("/validate")
+def validate(body: SceneText) -> dict:
+    return {"ok": True, "scene": SceneStore.validate(body.toml).model_dump(mode="json")}
+
+
+@router.get("/{name}")
+def read_scene(name: str, request: Request) -> dict:
+    return _read(_store(request), name)
+
+
+@router.post("", status_code=201)
+def create_scene(body: NewScene, request: Request, response: Response) -> dict:
+    store = _store(request)
+    check_name(body.name, "scene name")
+    if store.exists(body.name):
+        from server.runs import Conflict
+
+        raise Conflict(f"scene {body.name!r} exists; use PUT to change it")
+    store.save(body.name, body.toml)
+    response.headers["Location"] = f"/api/scenes/{body.name}"
+    return _read(store, body.name)
+
+
+@router.put("/{name}")
+def update_scene(name: str, body: SceneText, request: Request) -> dict:
+    store = _store(request)
+    store.save(name, body.toml)
+    return _read(store, name)
+
+
+@router.delete("/{name}", status_code=204)
+def delete_scene(name: str, request: Request) -> Response:
+    _store(request).delete(name)
+    return Response(status_code=204)
+
+
+@router.post("/{name}/duplicate", status_code=201)
+def duplicate_scene(name: str, body: NewName, request: Request) -> dict:
+    store = _store(request)
+    text = store.text(name)
+    if store.exists(check_name(body.name, "scene name")):
+        from server.runs import Conflict
+
+        raise Conflict(f"scene {body.name!r} exists")
+    store.save(body.name, text)
+    return _read(store, body.name)

@@ -1,0 +1,33 @@
+"""Service settings: one frozen dataclass, filled from the command line or by tests."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,79}$")
+
+
+def check_name(name: str, what: str = "name") -> str:
+    """A file-system-safe name: letters, digits, ``_ . -``; never ``..`` or a path."""
+    if not NAME.match(name) or ".." in name:
+        raise ValueError(f"{what} {name!r}: use letters, digits, '_', '-', '.' (no paths)")
+    return name
+
+
+@dataclass(frozen=True)
+class Settings:
+    scenes_dir: Path = ROOT / "scenes"
+    runs_dir: Path = ROOT / "runs"
+    viewer: bool = True  # start the viser viewer in the server process
+    viewer_host: str = "127.0.0.1"
+    viewer_port: int = 8081
+    token: str | None = None  # required on every request when set
+    max_body: int = 256 * 1024  # bytes; larger request bodies get 413
+    frame_queue: int = 4  # frames in flight from worker to bridge; extra frames are dropped
+    record_mesh_every: int = 1  # steps between meshes in run.rrd
+    push_hz: float = 20.0  # most frames per second pushed to the viewer
+    step_delay: float = 0.0  # seconds between steps (lets a tiny scene be watched)
+    extra: dict = field(default_factory=dict)

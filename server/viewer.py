@@ -1,0 +1,154 @@
+"""The viser viewer: the sheet coloured by a field, a legend, and run controls.
+
+It never sees the solver: the bridge hands it frames (dicts of arrays) and it calls back into
+the run manager through ``ViewerActions``. Positions stream to a wireframe every push (about
+0.1 ms at 40k vertices); the coloured surface is a glTF re-sent at most ``colour_hz`` times a
+second (about 10 ms and 1.5 MB at 40k vertices), always on the last frame of a run.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import trimesh
+import viser
+
+from server.colormap import colorize, legend_markdown, value_range
+
+FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%")}
+
+
+class ViewerActions(Protocol):
+    def viewer_command(self, cmd: str) -> str: ...
+    def viewer_reset(self, element: str | None) -> str: ...
+    def viewer_set(self, name: str, value: float) -> str: ...
+
+
+@dataclass
+class Gui:
+    status: viser.GuiMarkdownHandle
+    field: viser.GuiDropdownHandle
+    legend: viser.GuiMarkdownHandle
+    element: viser.GuiDropdownHandle
+    sliders: dict
+
+
+class Viewer:
+    def __init__(self, host: str, port: int, actions: ViewerActions, elements: list[str],
+                 parameters: dict[str, tuple[float, float]], colour_hz: float = 4.0):
+        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.actions = actions
+        self.colour_period = 1.0 / colour_hz
+        self.lock = threading.Lock()
+        self.faces: np.ndarray | None = None
+        self.surface = self.wire = None
+        self.last_colour = 0.0
+        self.frame: dict | None = None
+        self.echo = False  # set while code (not a user) moves a slider
+        self.gui = self._build_gui(elements, parameters)
+
+    @property
+    def port(self) -> int:
+        return self.server.get_port()
+
+    def _build_gui(self, elements: list[str], parameters: dict) -> Gui:
+        g = self.server.gui
+        status = g.add_markdown("No run yet")
+        with g.add_folder("Run"):
+            for label, cmd in (("Play", "resume"), ("Pause", "pause"), ("Step", "step")):
+                g.add_button(label).on_click(lambda _e, c=cmd: self._status(
+                    self.actions.viewer_command(c)))
+            element = g.add_dropdown("Element", tuple(elements),
+                                     initial_value="q3t" if "q3t" in elements else elements[0])
+            g.add_button("Reset").on_click(
+                lambda _e: self._status(self.actions.viewer_reset(element.value)))
+        sliders = {}
+        with g.add_folder("Live parameters"):
+            for name, (lo, hi) in parameters.items():
+                s = g.add_slider(name, min=lo, max=hi, step=(hi - lo) / 1000,
+                                 initial_value=min(max(1.0, lo), hi))
+                s.on_update(lambda _e, n=name, h=s: self._on_slider(n, h))
+                sliders[name] = s
+        with g.add_folder("Colour"):
+            field = g.add_dropdown("Colour by", tuple(FIELDS), initial_value="thickness_mm")
+            legend = g.add_markdown("")
+        field.on_update(lambda _e: self._recolour())
+        return Gui(status, field, legend, element, sliders)
+
+    def _status(self, text: str) -> None:
+        self.gui.status.content = text
+
+    def _on_slider(self, name: str, handle) -> None:
+        if not self.echo:
+            self._status(self.actions.viewer_set(name, float(handle.value)))
+
+    def set_parameter_value(self, name: str, value: float) -> None:
+        if name in self.gui.sliders:
+            self.echo = True
+            try:
+                self.gui.sliders[name].value = value
+            finally:
+                self.echo = False
+
+    def new_run(self, run_id: str, faces: np.ndarray) -> None:
+        with self.lock:
+            self.faces = np.asarray(faces, np.uint32)
+            self.frame = None
+            for h in (self.surface, self.wire):
+                if h is not None:
+                    h.remove()
+            self.surface = self.wire = None
+        self._status(f"Run `{run_id}`: building")
+
+    def show(self, frame: dict, status: str, final: bool = False) -> None:
+        """Push one frame: positions always, colours when due or final."""
+        with self.lock:
+            if self.faces is None:
+                return
+            self.frame = frame
+            now = time.perf_counter()
+            with self.server.atomic():
+                if self.wire is None:
+                    self.wire = self.server.scene.add_mesh_simple(
+                        "/sheet/wire", frame["positions"], self.faces, wireframe=True,
+                        color=(60, 60, 60), opacity=0.25)
+                    self._aim(frame["positions"])
+                else:
+                    self.wire.vertices = frame["positions"]
+                if final or self.surface is None or now - self.last_colour >= self.colour_period:
+                    self._send_surface(frame)
+                    self.last_colour = now
+                self.gui.status.content = status
+
+    def _recolour(self) -> None:
+        with self.lock:
+            if self.frame is not None and self.faces is not None:
+                self._send_surface(self.frame)
+
+    def _send_surface(self, frame: dict) -> None:
+        key = self.gui.field.value
+        values = frame["fields"][key]
+        lo, hi = value_range(values, 1e-3)
+        rgb = colorize(values, lo, hi)
+        mesh = trimesh.Trimesh(frame["positions"], self.faces, process=False,
+                               vertex_colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
+        self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
+        label, unit = FIELDS[key]
+        self.gui.legend.content = legend_markdown(label, unit, lo, hi)
+
+    def _aim(self, positions: np.ndarray) -> None:
+        lo, hi = positions.min(0), positions.max(0)
+        centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) or 1.0
+        eye = centre + size * np.array([0.1, -0.9, 0.6])
+        cam = self.server.initial_camera
+        cam.look_at, cam.position, cam.up = tuple(centre), tuple(eye), (0.0, 0.0, 1.0)
+        for client in self.server.get_clients().values():
+            client.camera.look_at, client.camera.position = tuple(centre), tuple(eye)
+            client.camera.up_direction = (0.0, 0.0, 1.0)
+
+    def stop(self) -> None:
+        self.server.stop()

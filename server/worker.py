@@ -1,0 +1,164 @@
+"""The solver process: owns one Simulation and steps the active run.
+
+Commands come down ``commands`` as dicts with a request id; replies, states and step records go
+up ``events`` (small, never dropped); frames go up the bounded ``frames`` queue with
+``put_nowait`` and are dropped when the server is behind. Every ``keyframe_every`` steps (and at
+the first and last step) the frame travels on ``events`` instead, so recordings never miss it.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import queue
+import time
+import traceback
+from dataclasses import asdict
+from pathlib import Path
+
+
+def _frame_msg(run: str, sim) -> dict:
+    f = sim.frame()
+    return {"kind": "frame", "run": run, "step": f.step, "time": f.time,
+            "positions": f.positions, "fields": {k: v.astype("float32") for k, v in
+                                                 f.fields.items()},
+            "probes": f.probes, "iterations": f.iterations, "residual": f.residual}
+
+
+class _Solver:
+    def __init__(self, events: mp.Queue, frames: mp.Queue, keyframe_every: int,
+                 step_delay: float):
+        self.events, self.frames = events, frames
+        self.keyframe_every, self.step_delay = max(1, keyframe_every), step_delay
+        self.sim = None
+        self.run: str | None = None
+        self.out: Path | None = None
+        self.paused = False
+        self.pending_steps = 0
+
+    def emit(self, kind: str, **kw) -> None:
+        self.events.put({"kind": kind, "run": self.run, **kw})
+
+    @property
+    def stepping(self) -> bool:
+        return self.sim is not None and (not self.paused or self.pending_steps > 0)
+
+    def handle(self, msg: dict) -> None:
+        cmd = msg["cmd"]
+        try:
+            getattr(self, f"cmd_{cmd}")(msg)
+            self.events.put({"kind": "reply", "id": msg.get("id"), "ok": True, "run": self.run})
+        except Exception as exc:  # a reply names the problem; the worker stays alive
+            self.events.put({"kind": "reply", "id": msg.get("id"), "ok": False,
+                             "error": str(exc), "run": self.run})
+
+    def cmd_start(self, msg: dict) -> None:
+        from sim.scene import scene_from_toml
+        from sim.simulation import Simulation
+
+        if self.sim is not None:
+            self.finish("stopped", "replaced by a new run")
+        self.run, self.out = msg["run"], Path(msg["out"])
+        self.paused, self.pending_steps = bool(msg.get("paused")), 0
+        self.emit("state", state="building")
+        try:
+            scene = scene_from_toml(msg["scene_toml"], msg.get("overrides") or {})
+            self.sim = Simulation.from_scene(scene)
+            for name, value in (msg.get("parameters") or {}).items():
+                self.sim.set_parameter(name, value)
+        except Exception as exc:
+            self.sim = None
+            self.emit("state", state="failed", reason=f"build failed: {exc}")
+            raise
+        self.emit("meta", faces=self.sim.display.faces, n_steps=self.sim.n_steps,
+                  counts=self.sim.result()["counts"], element=scene.shell.element,
+                  probes=[p.name for p in scene.probes])
+        self.events.put(_frame_msg(self.run, self.sim))
+        self.emit("state", state="paused" if self.paused else "running")
+
+    def _need_run(self) -> None:
+        if self.sim is None:
+            raise RuntimeError("no active run")
+
+    def cmd_pause(self, msg: dict) -> None:
+        self._need_run()
+        self.paused, self.pending_steps = True, 0
+        self.emit("state", state="paused")
+
+    def cmd_resume(self, msg: dict) -> None:
+        self._need_run()
+        self.paused = False
+        self.emit("state", state="running")
+
+    def cmd_step(self, msg: dict) -> None:
+        self._need_run()
+        self.paused = True
+        self.pending_steps += 1
+
+    def cmd_stop(self, msg: dict) -> None:
+        self._need_run()
+        self.finish("stopped", "stopped by request")
+
+    def cmd_set(self, msg: dict) -> None:
+        self._need_run()
+        self.sim.set_parameter(msg["name"], msg["value"])
+        self.emit("parameter", entry=self.sim.parameter_log[-1])
+
+    def cmd_ping(self, msg: dict) -> None:
+        pass
+
+    def step(self) -> None:
+        from sim.simulation import SolverFailure
+
+        if self.pending_steps:
+            self.pending_steps -= 1
+        try:
+            rec = self.sim.step()
+        except SolverFailure as exc:
+            self.finish("failed", str(exc))
+            return
+        self.emit("step", record=asdict(rec))
+        msg = _frame_msg(self.run, self.sim)
+        if rec.step % self.keyframe_every == 0 or self.sim.done:
+            self.events.put(msg)
+        else:
+            try:
+                self.frames.put_nowait(msg)
+            except queue.Full:
+                pass  # the viewer shows a newer frame soon; recordings use keyframes
+        if self.sim.done:
+            self.finish("finished")
+        elif self.step_delay:
+            time.sleep(self.step_delay)
+
+    def finish(self, state: str, reason: str | None = None) -> None:
+        try:
+            self.sim.write(self.out)
+        except Exception as exc:  # the state still goes up; the reason says what broke
+            reason = f"{reason or state}; writing results failed: {exc}"
+        self.emit("state", state=state, reason=reason)
+        self.sim, self.paused, self.pending_steps = None, False, 0
+
+
+def worker_main(commands: mp.Queue, events: mp.Queue, frames: mp.Queue, keyframe_every: int = 1,
+                step_delay: float = 0.0) -> None:
+    """Entry point of the spawned process. Exits on a ``shutdown`` command."""
+    solver = _Solver(events, frames, keyframe_every, step_delay)
+    try:
+        import sim.simulation  # noqa: F401  (import and compile while nobody waits)
+    except Exception:
+        events.put({"kind": "log", "run": None, "text": traceback.format_exc()})
+    events.put({"kind": "ready", "run": None})
+    while True:
+        try:
+            msg = commands.get_nowait() if solver.stepping else commands.get(timeout=0.2)
+        except queue.Empty:
+            msg = None
+        if msg is not None:
+            if msg["cmd"] == "shutdown":
+                break
+            solver.handle(msg)
+            continue
+        if solver.stepping:
+            solver.step()
+    events.close()
+    frames.close()
