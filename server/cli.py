@@ -1,0 +1,94 @@
+"""``q3t serve`` (the preview service) and ``q3t play`` (open a run's recording)."""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from server.settings import ROOT, Settings
+
+
+def _loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def cmd_serve(args) -> int:
+    import uvicorn
+
+    from server.app import create_app
+
+    token = args.token or os.environ.get("Q3T_TOKEN")
+    if not _loopback(args.host) and not token:
+        print(f"q3t: refusing to serve on {args.host} without a token (--token or Q3T_TOKEN)",
+              file=sys.stderr)
+        return 2
+    scenes = Path(args.scenes_dir)
+    if not (scenes / f"{args.scene}.toml").is_file():
+        print(f"q3t: no scene {args.scene!r} in {scenes}", file=sys.stderr)
+        return 2
+    settings = Settings(scenes_dir=scenes, runs_dir=Path(args.runs_dir), token=token,
+                        viewer=not args.no_viewer, viewer_host=args.host,
+                        viewer_port=args.viewer_port, step_delay=args.step_delay,
+                        extra={"default_scene": args.scene})
+    query = f"?token={token}" if token else ""
+    print(f"q3t: open http://{args.host}:{args.port}/{query}  (API docs at /docs)",
+          file=sys.stderr, flush=True)
+    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level="warning")
+    return 0
+
+
+def _rerun() -> str:
+    exe = Path(sys.executable).with_name("rerun")
+    return str(exe) if exe.exists() else (shutil.which("rerun") or "rerun")
+
+
+def play_command(path: Path, web: bool, port: int) -> list[str]:
+    if web:
+        return [_rerun(), "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(port),
+                "--port", str(port + 1), str(path)]
+    return [_rerun(), str(path)]
+
+
+def cmd_play(args) -> int:
+    path = Path(args.run)
+    if path.is_dir():
+        path = path / "run.rrd"
+    elif not path.exists():
+        path = Path(args.runs_dir) / args.run / "run.rrd"
+    if not path.is_file():
+        print(f"q3t: no recording at {path}", file=sys.stderr)
+        return 2
+    cmd = play_command(path, args.web, args.port)
+    if args.web:
+        print(f"q3t: rerun web viewer at http://127.0.0.1:{args.port}", file=sys.stderr)
+    return subprocess.call(cmd)
+
+
+def add_parser(sub) -> None:
+    s = sub.add_parser("serve", help="start the browser preview service")
+    s.add_argument("scene", nargs="?", default="cantilever", help="default scene name")
+    s.add_argument("--host", default="127.0.0.1")
+    s.add_argument("--port", type=int, default=8080)
+    s.add_argument("--viewer-port", type=int, default=8081, help="viser viewer port")
+    s.add_argument("--token", help="access token (required unless bound to loopback)")
+    s.add_argument("--scenes-dir", default=str(ROOT / "scenes"))
+    s.add_argument("--runs-dir", default="runs")
+    s.add_argument("--step-delay", type=float, default=0.0,
+                   help="seconds between solver steps (to watch tiny scenes)")
+    s.add_argument("--no-viewer", action="store_true", help="no viser viewer")
+    s.set_defaults(func=cmd_serve)
+    p = sub.add_parser("play", help="open a run's rerun recording")
+    p.add_argument("run", help="run id, run folder or .rrd file")
+    p.add_argument("--web", action="store_true", help="serve rerun's web viewer on 127.0.0.1")
+    p.add_argument("--port", type=int, default=9090, help="web viewer port (with --web)")
+    p.add_argument("--runs-dir", default="runs")
+    p.set_defaults(func=cmd_play)
