@@ -1,0 +1,236 @@
+// The preview page: plain JS, no build step. Talks to /api and embeds the viser viewer.
+"use strict";
+const $ = (id) => document.getElementById(id);
+const state = { scene: null, run: null, records: [], config: null };
+const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b"];
+
+async function api(method, url, body) {
+  const opts = { method, headers: {} };
+  if (body !== undefined) {
+    opts.headers["Content-Type"] = "application/json";
+    opts.body = JSON.stringify(body);
+  }
+  const r = await fetch(url, opts);
+  const data = r.status === 204 ? null : await r.json().catch(() => null);
+  if (!r.ok) {
+    const d = data && data.detail;
+    throw new Error(typeof d === "string" ? d : JSON.stringify(d));
+  }
+  return data;
+}
+
+function say(text, isError) {
+  $("msg").textContent = text;
+  $("msg").style.color = isError ? "#b00" : "#555";
+}
+
+async function loadScenes() {
+  const list = await api("GET", "/api/scenes");
+  const ul = $("scenes");
+  ul.replaceChildren();
+  for (const s of list) {
+    const li = document.createElement("li");
+    li.textContent = s.name + (s.description ? " — " + s.description : "");
+    li.dataset.name = s.name;
+    li.className = s.name === state.scene ? "sel" : "";
+    li.onclick = () => selectScene(s.name);
+    ul.appendChild(li);
+  }
+  if (!state.scene && list.length) await selectScene(list[0].name);
+}
+
+async function selectScene(name) {
+  const s = await api("GET", `/api/scenes/${encodeURIComponent(name)}`);
+  state.scene = name;
+  $("scene-name").value = name;
+  $("toml").value = s.toml;
+  $("scene-error").textContent = s.error || "";
+  for (const li of $("scenes").children) li.className = li.dataset.name === name ? "sel" : "";
+}
+
+async function saveScene() {
+  const name = $("scene-name").value.trim();
+  try {
+    await api("PUT", `/api/scenes/${encodeURIComponent(name)}`, { toml: $("toml").value });
+    $("scene-error").textContent = "";
+    state.scene = name;
+    say(`saved ${name}`);
+    await loadScenes();
+  } catch (e) {
+    $("scene-error").textContent = e.message;
+  }
+}
+
+async function validateScene() {
+  try {
+    await api("POST", "/api/scenes/validate", { toml: $("toml").value });
+    $("scene-error").textContent = "";
+  } catch (e) {
+    $("scene-error").textContent = e.message;
+  }
+}
+
+async function startRun() {
+  try {
+    const params = {};
+    for (const inp of document.querySelectorAll("#sliders input")) params[inp.name] = +inp.value;
+    const run = await api("POST", "/api/runs",
+      { scene: state.scene, element: $("element").value, parameters: params });
+    selectRun(run.id);
+    say(`started ${run.id}`);
+    await loadRuns();
+  } catch (e) { say(e.message, true); }
+}
+
+async function control(action) {
+  if (!state.run) return say("no run selected", true);
+  try {
+    await api("POST", `/api/runs/${state.run}/${action}`);
+    say(`${action}: ${state.run}`);
+  } catch (e) { say(e.message, true); }
+}
+
+function buildSliders() {
+  const box = $("sliders");
+  for (const [name, r] of Object.entries(state.config.parameters)) {
+    const label = document.createElement("label");
+    const out = document.createElement("output");
+    const inp = document.createElement("input");
+    Object.assign(inp, { type: "range", name, min: r.min, max: Math.min(r.max, 10),
+                         step: 0.01, value: 1 });
+    inp.id = `param-${name}`;
+    out.textContent = "1";
+    inp.oninput = () => { out.textContent = inp.value; };
+    inp.onchange = async () => {
+      if (!state.run) return;
+      try {
+        const r = await api("PUT", `/api/runs/${state.run}/parameters/${name}`,
+                            { value: +inp.value });
+        say(`${name} = ${r.value} from step ${r.applies_from_step}`);
+      } catch (e) { say(e.message, true); }
+    };
+    label.append(name + " ", inp, " ", out);
+    box.appendChild(label);
+  }
+}
+
+async function loadRuns() {
+  const runs = await api("GET", "/api/runs");
+  const body = $("runs").querySelector("tbody");
+  body.replaceChildren();
+  for (const r of runs) {
+    const tr = document.createElement("tr");
+    tr.className = r.id === state.run ? "sel" : "";
+    tr.dataset.id = r.id;
+    const link = `<a href="/api/runs/${r.id}/recording" download>rrd</a> ` +
+                 `<a href="/api/runs/${r.id}/result" target="_blank">result</a>`;
+    tr.innerHTML = `<td>${r.id}</td><td class="state">${r.state}</td>` +
+                   `<td>${r.step}/${r.n_steps ?? "?"}</td><td>${link}</td>`;
+    tr.onclick = () => selectRun(r.id);
+    body.appendChild(tr);
+  }
+  if (!state.run && runs.length) selectRun(runs[0].id);
+}
+
+function selectRun(id) {
+  if (state.run !== id) { state.run = id; state.records = []; }
+  for (const tr of $("runs").querySelectorAll("tbody tr"))
+    tr.className = tr.dataset.id === id ? "sel" : "";
+}
+
+async function poll() {
+  try {
+    await loadRuns();
+    if (state.run) {
+      const since = state.records.length ? state.records[state.records.length - 1].step : 0;
+      const st = await api("GET", `/api/runs/${state.run}?since=${since}`);
+      state.records.push(...st.records);
+      $("status").textContent = `${st.id}: ${st.state}, step ${st.step}/${st.n_steps ?? "?"}` +
+        (st.reason ? ` — ${st.reason}` : "");
+      $("status").dataset.state = st.state;
+      $("status").dataset.step = st.step;
+      drawPlots();
+    }
+  } catch (e) { say(e.message, true); }
+  setTimeout(poll, 500);
+}
+
+function plot(canvas, series) {
+  // series: [{name, xs, ys}] drawn each on its own normalised y scale, with min/max labels
+  const ctx = canvas.getContext("2d");
+  const W = canvas.width, H = canvas.height, pad = 28;
+  ctx.clearRect(0, 0, W, H);
+  const xs = series.flatMap((s) => s.xs);
+  if (!xs.length) return;
+  const x0 = Math.min(...xs), x1 = Math.max(...xs, x0 + 1);
+  ctx.font = "11px sans-serif";
+  series.forEach((s, k) => {
+    const ys = s.ys.filter(Number.isFinite);
+    if (!ys.length) return;
+    let y0 = Math.min(...ys), y1 = Math.max(...ys);
+    if (y1 - y0 < 1e-12 * Math.max(1, Math.abs(y1))) { y0 -= 1; y1 += 1; }
+    ctx.strokeStyle = ctx.fillStyle = COLORS[k % COLORS.length];
+    ctx.beginPath();
+    s.xs.forEach((x, i) => {
+      const px = pad + (W - 2 * pad) * (x - x0) / (x1 - x0);
+      const py = H - pad - (H - 2 * pad) * (s.ys[i] - y0) / (y1 - y0);
+      i ? ctx.lineTo(px, py) : ctx.moveTo(px, py);
+      ctx.fillRect(px - 1.5, py - 1.5, 3, 3);
+    });
+    ctx.stroke();
+    ctx.fillText(`${s.name} [${y0.toPrecision(3)}, ${y1.toPrecision(3)}]`, pad, 12 + 12 * k);
+  });
+  ctx.fillStyle = "#555";
+  ctx.fillText(`step ${x0} … ${x1}`, W - 110, H - 8);
+}
+
+function drawPlots() {
+  const rec = state.records;
+  const steps = rec.map((r) => r.step);
+  const names = rec.length ? Object.keys(rec[rec.length - 1].probes) : [];
+  plot($("probes"), names.map((n) => ({ name: n, xs: steps, ys: rec.map((r) => r.probes[n]) })));
+  plot($("residual"), [
+    { name: "log10 residual", xs: steps, ys: rec.map((r) => Math.log10(r.residual)) },
+    { name: "Newton iterations", xs: steps, ys: rec.map((r) => r.iterations) },
+  ]);
+}
+
+async function main() {
+  state.config = await api("GET", "/api/config");
+  for (const e of state.config.elements) {
+    const o = document.createElement("option");
+    o.value = o.textContent = e;
+    o.selected = e === "q3t";
+    $("element").appendChild(o);
+  }
+  buildSliders();
+  if (state.config.viewer_port) {
+    $("viewer").src = `${location.protocol}//${location.hostname}:${state.config.viewer_port}/`;
+  }
+  $("save").onclick = saveScene;
+  $("toml").oninput = () => { clearTimeout(state.vt); state.vt = setTimeout(validateScene, 400); };
+  $("duplicate").onclick = async () => {
+    const name = prompt("name of the copy", `${state.scene}-copy`);
+    if (!name) return;
+    try {
+      await api("POST", `/api/scenes/${state.scene}/duplicate`, { name });
+      state.scene = name;
+      await loadScenes();
+      await selectScene(name);
+    } catch (e) { say(e.message, true); }
+  };
+  $("delete-scene").onclick = async () => {
+    if (!confirm(`delete scene ${state.scene}?`)) return;
+    try {
+      await api("DELETE", `/api/scenes/${state.scene}`);
+      state.scene = null;
+      await loadScenes();
+    } catch (e) { say(e.message, true); }
+  };
+  $("start").onclick = startRun;
+  for (const a of ["pause", "resume", "step", "stop"]) $(a).onclick = () => control(a);
+  await loadScenes();
+  poll();
+}
+
+main().catch((e) => say(e.message, true));
