@@ -26,9 +26,10 @@ tool surface smaller for the same stiffness).
 Per node, with e' = de/dd and e'' = d2e/dd2:
     grad = e'(d) g,      hess = e''(d) g g^T + e'(d) H.
 The curvature term e'(d) H is what makes a node slide correctly around a rounded punch nose
-or die shoulder; it is negative semi-definite outside convex tool regions (e' < 0, H >= 0
-there) so the node Hessian can be indefinite; ``project_psd=True`` clamps the negative
-eigenvalues of each 3 x 3 block to zero for solvers that need a PSD matrix.
+or die shoulder. Next to convex parts of a tool (punch rim, die shoulder) H is PSD and
+e' < 0, so the term is negative semi-definite and the node Hessian can be indefinite;
+``project_psd=True`` clamps the negative eigenvalues of each 3 x 3 block to zero (Jacobi
+eigen-decomposition) for solvers that need a PSD matrix. The default is the exact Hessian.
 Nodes with d >= delta cost nothing: their distance is evaluated without derivatives and only
 the nodes inside the layer get the full (d, g, H) evaluation.
 
@@ -44,7 +45,7 @@ with u_tool the displacement over the step of the tool material point that was a
     f1(y) = 2 y / eps - y^2 / eps^2 (y < eps), 1 (y >= eps),     f0' = f1,
     f0(y) = -y^3 / (3 eps^2) + y^2 / eps + eps / 3 (y < eps),  y (y >= eps),
 eps = eps_v the slip length below which static friction is regularised (IPC's eps_v h).
-    grad = mu lam_n f1(y) / y u_T                                    (|grad| = mu lam_n for y >= eps)
+    grad = mu lam_n f1(y) / y u_T                     (|grad| = mu lam_n for y >= eps)
     hess = mu lam_n [ f1(y) / y P + (f1'(y) y - f1(y)) / y^3 u_T u_T^T ],  P = I - n n^T
 (for y < eps: f1 / y = 2 / eps - y / eps^2, (f1' y - f1) / y^3 = -1 / (eps^2 y); at y = 0 the
 limit 2 / eps P). In the tangent plane its eigenvalues are f1(y) / y (across the slip) and
@@ -90,15 +91,54 @@ def _penalty_scalar(d, k, delta, c2):
 
 @numba.njit(cache=True)
 def _psd3(A):
-    """Projection of a symmetric 3 x 3 matrix onto the PSD cone (negative eigenvalues -> 0)."""
-    w, V = np.linalg.eigh(A)
-    B = np.zeros((3, 3))
+    """Projection of a symmetric 3 x 3 matrix onto the PSD cone (negative eigenvalues -> 0).
+
+    Cyclic Jacobi rotations (cheap to compile, unlike LAPACK's eigh in numba): each rotation
+    in the (p, q) plane zeroes A[p, q]; a few sweeps reach round-off.
+    """
+    B = A.copy()
+    V = np.eye(3)
+    scale = 0.0
+    for i in range(3):
+        for j in range(3):
+            scale += B[i, j] * B[i, j]
+    for _ in range(30):
+        off = B[0, 1] * B[0, 1] + B[0, 2] * B[0, 2] + B[1, 2] * B[1, 2]
+        if off <= 1e-32 * scale:
+            break
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            apq = B[p, q]
+            if apq == 0.0:
+                continue
+            theta = (B[q, q] - B[p, p]) / (2.0 * apq)
+            tt = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
+            if theta < 0.0:
+                tt = -tt
+            c = 1.0 / math.sqrt(tt * tt + 1.0)
+            s = tt * c
+            for k in range(3):  # columns: B J
+                bkp = B[k, p]
+                bkq = B[k, q]
+                B[k, p] = c * bkp - s * bkq
+                B[k, q] = s * bkp + c * bkq
+            for k in range(3):  # rows: J^T (B J)
+                bpk = B[p, k]
+                bqk = B[q, k]
+                B[p, k] = c * bpk - s * bqk
+                B[q, k] = s * bpk + c * bqk
+            for k in range(3):  # eigenvectors: V J
+                vkp = V[k, p]
+                vkq = V[k, q]
+                V[k, p] = c * vkp - s * vkq
+                V[k, q] = s * vkp + c * vkq
+    P = np.zeros((3, 3))
     for m in range(3):
-        if w[m] > 0.0:
+        w = B[m, m]
+        if w > 0.0:
             for i in range(3):
                 for j in range(3):
-                    B[i, j] += w[m] * V[i, m] * V[j, m]
-    return B
+                    P[i, j] += w * V[i, m] * V[j, m]
+    return P
 
 
 @numba.njit(cache=True)
@@ -115,7 +155,10 @@ def _penalty_kernel(d, g, H, k, delta, c2, project_psd):
             for j in range(3):
                 hess[p, i, j] = d2 * g[p, i] * g[p, j] + d1 * H[p, i, j]
         if project_psd:
-            hess[p] = _psd3(hess[p])
+            B = _psd3(hess[p])
+            for i in range(3):
+                for j in range(3):
+                    hess[p, i, j] = B[i, j]
     return e, grad, hess
 
 

@@ -17,9 +17,11 @@
 Any CSG program (union / intersect / subtract, smooth or not) is meshed implicitly: marching
 tetrahedra on a grid of ``resolution`` cells along the longest side of its bounding box
 (Freudenthal split of each cube, consistent across cubes, so the result is closed where the
-surface stays inside the grid), followed by moving the vertices onto the zero level set along their grid edges (bracketed root finding, so vertices stay distinct even on
-sharp CSG creases, which Newton projection would collapse). Unbounded tools (planes, infinite sweeps) are clipped to a
-cube of side ``plane_size`` (or to ``bounds``); there the surface is open.
+surface stays inside the grid). Each vertex is then moved onto the zero level set along its
+own grid edge by bracketed root finding, so vertices stay distinct even on sharp CSG creases
+(a Newton projection along g would collapse them there). Unbounded tools (planes, infinite
+sweeps) are clipped to a cube of side ``plane_size`` (or to ``bounds``); there the surface is
+open. Explicit sweeps whose offset outline would fold also fall back to this path.
 
 Meshes are for display only: Python-level loops here run over corners and arcs, not nodes.
 """

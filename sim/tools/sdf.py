@@ -69,9 +69,11 @@ polygon outside, and away from the bisectors of the sharp (reflex) corners; on t
 bisectors it is the correct value with a C0 ridge (the sharp vertical edge of the swept solid).
 Only convex polygon corners are rounded by the offset construction; reflex ones stay sharp.
 
-Hard UNION / INTERSECT / SUBTRACT (k = 0) keep the exact min / max: the value is exact
-outside a union (inside it is a bound), but only C0 where the two operands are equal, which
-includes the crease where two surfaces meet. With k > 0 the cubic polynomial smooth minimum
+Hard UNION / INTERSECT / SUBTRACT (k = 0) keep the exact min / max of the operands. That is
+the exact distance outside a union; inside a union and for intersections / subtractions it
+is a bound that is exact wherever one operand's surface is the nearest. It is only C0 where
+the two operands are equal, which includes the crease where two surfaces meet. With k > 0
+the cubic polynomial smooth minimum
     h = max(k - |a - b|, 0) / k,   smin(a, b) = min(a, b) - k h^3 / 6
 is used (smax(a, b) = -smin(-a, -b)); it is C2 in (a, b), so a penalty energy built on it is
 C1 with a continuous Hessian across the blend, the surface gets a fillet of width ~k, and the
