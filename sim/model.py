@@ -25,7 +25,7 @@ from sim.terms.inertia import Inertia, lumped_mass
 
 MODEL_IDS = {"neo_hookean": 0, "hencky": 1, "plastic": 2}
 LAWS = {"perfect": PERFECT, "linear": LINEAR, "swift": SWIFT, "voce": VOCE}
-PROJECTIONS = {"qp": PROJECT_QP, "element": PROJECT_ELEMENT, "none": PROJECT_NONE}
+PROJECTIONS = {"auto": PROJECT_QP, "qp": PROJECT_QP, "element": PROJECT_ELEMENT, "none": PROJECT_NONE}
 
 
 def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
@@ -171,6 +171,7 @@ def build_model(scene: Scene) -> Model:
     floor = 1e-16 * (lam + 2 * mu) * np.abs(shell.rest).max() * edge * np.sqrt(shell.n_nodes)
     model.settings = NewtonSettings(rtol=scene.solver.rtol, atol=floor,
                                     xtol=scene.solver.xtol * h,
+                                    try_exact=scene.solver.hessian_projection == "auto",
                                     max_iterations=scene.solver.max_iterations)
     model.force_scale = float(np.abs(ext.f).max()) if ext is not None else 0.0
     solver = make_solver(pattern, scene.solver.linear_solver)

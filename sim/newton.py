@@ -24,6 +24,7 @@ class NewtonSettings:
     max_iterations: int = 30
     max_line_search: int = 30
     armijo: float = 1e-4
+    try_exact: bool = True  # exact Hessian when positive definite, projected otherwise
 
 
 @dataclass
@@ -83,12 +84,25 @@ class Problem:
         return g
 
     def hessian(self, x: np.ndarray) -> np.ndarray:
+        return self.gradient_hessian(x)[1]
+
+    def gradient_hessian(self, x: np.ndarray, exact: bool = False):
+        """Total gradient and Hessian data with Dirichlet rows/columns replaced by identity.
+        ``exact`` skips the PSD projection of terms that project (elasticity)."""
+        g = np.zeros_like(x)
         data = np.zeros(self.pattern.nnz)
         for t in self.terms:
-            t.add_hessian(x, data)
+            saved = getattr(t, "project", None)
+            if exact and saved is not None:
+                t.project = 0
+            try:
+                t.add_gradient_hessian(x, g, data)
+            finally:
+                if saved is not None:
+                    t.project = saved
         data[self._zero] = 0.0
         data[self._diag] = 1.0
-        return data
+        return g, data
 
 
 def _solve(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinements: int = 2):
@@ -133,7 +147,9 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
     ref = None
     for it in range(settings.max_iterations + 1):
         t0 = time.perf_counter()
-        g = problem.gradient(x)
+        # exact Hessian first: where it is positive definite Newton converges quadratically;
+        # the projected one is the fallback when the factorisation finds it indefinite
+        g, data = problem.gradient_hessian(x, exact=settings.try_exact)
         g[~free] = 0.0
         r = float(np.linalg.norm(g))
         if not np.isfinite(r):
@@ -146,11 +162,19 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
             return NewtonResult(x, True, it, E, res, "", timing)
         if it == settings.max_iterations:
             break
-        data = problem.hessian(x)
         t1 = time.perf_counter()
         timing.assembly += t1 - t0
         try:
-            _factor(problem, data)
+            if settings.try_exact:
+                try:
+                    problem.solver.factor(data)
+                except SingularMatrix:
+                    t_a = time.perf_counter()
+                    _, data = problem.gradient_hessian(x)
+                    timing.assembly += time.perf_counter() - t_a
+                    _factor(problem, data)
+            else:
+                _factor(problem, data)
         except SingularMatrix as exc:
             return NewtonResult(x0, False, it, E, res, f"singular factorisation: {exc}", timing)
         t2 = time.perf_counter()

@@ -145,7 +145,8 @@ class SolverSpec(Strict):
     xtol: Annotated[float, Field(gt=0, lt=1)] = 1e-6
     max_iterations: Annotated[int, Field(ge=1, le=1000)] = 30
     linear_solver: Literal["auto", "pardiso", "scipy"] = "auto"
-    hessian_projection: Literal["qp", "element", "none"] = "qp"
+    # auto: the exact Hessian where it is positive definite, else projected per quadrature point
+    hessian_projection: Literal["auto", "qp", "element", "none"] = "auto"
 
 
 class ProbeSpec(Strict):
@@ -165,6 +166,16 @@ class ProbeSpec(Strict):
         return self
 
 
+class StudySpec(Strict):
+    """A refinement study of one probe (``q3t study``): mesh edge lengths, elements, reference."""
+
+    probe: str
+    edge_lengths: list[Pos]
+    elements: list[str] = ["linear", "q3t", "quadratic"]
+    reference_element: str = "quadratic"
+    reference_edge_length: Pos | None = None
+
+
 class Scene(Strict):
     name: str
     description: str = ""
@@ -177,6 +188,7 @@ class Scene(Strict):
     stepping: SteppingSpec = SteppingSpec()
     solver: SolverSpec = SolverSpec()
     probes: list[ProbeSpec] = []
+    study: StudySpec | None = None
 
     @model_validator(mode="after")
     def _references(self):
@@ -192,6 +204,8 @@ class Scene(Strict):
             for i, it in enumerate(items):
                 if getattr(it, "region", None) and it.region not in names:
                     raise ValueError(f"{where}.{i}.region: unknown region {it.region!r}")
+        if self.study and self.study.probe not in [p.name for p in self.probes]:
+            raise ValueError(f"study.probe: no probe named {self.study.probe!r}")
         return self
 
 

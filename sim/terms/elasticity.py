@@ -147,3 +147,6 @@ class Elasticity(Term):
 
     def add_hessian(self, x, data):
         return self._run(x, 2, np.zeros(x.shape), data)
+
+    def add_gradient_hessian(self, x, g, data):
+        return self._run(x, 2, g, data)
