@@ -83,6 +83,21 @@ def _edge_node_owner(shell: Shell) -> np.ndarray:
     return np.repeat(uniq, shell.element.p - 1, axis=0)
 
 
+def arc_positions(X: np.ndarray, phi: float, a: float) -> np.ndarray:
+    """End section at x = a of a strip bent about y into an arc of curvature phi / a (its
+    symmetry plane x = 0 fixed): a point at height Z sits at radius 1/k - Z from the centre
+    (0, ., 1/k). Series for small phi so the straight state is exact. X shape (n, 3)."""
+    if abs(phi) < 1e-8:
+        sinc, cosc = 1.0 - phi**2 / 6, phi / 2 - phi**3 / 24
+    else:
+        sinc, cosc = np.sin(phi) / phi, (1 - np.cos(phi)) / phi
+    Z = X[:, 2]
+    out = X.copy()
+    out[:, 0] = a * sinc - Z * np.sin(phi)
+    out[:, 2] = a * cosc + Z * np.cos(phi)
+    return out
+
+
 LAYERS = {"all": None, "bottom": 0, "top": -1, "mid": "mid"}
 
 
@@ -98,13 +113,19 @@ class Model:
     inertia: Inertia | None
     fixed: np.ndarray  # (n_nodes, 3) bool
     prescribed: np.ndarray  # (n_nodes, 3) displacement at t = 1 on fixed DoFs
+    bends: list  # (node ids, BendSpec) moved along arcs
     regions: dict[str, np.ndarray]  # name -> in-plane node mask
     settings: NewtonSettings
     force_scale: float
     built: dict = field(default_factory=dict)
 
+    released: np.ndarray | None = None  # (n_nodes, 3) bool: DoFs freed for springback
+
     def dirichlet_positions(self, t: float) -> np.ndarray:
-        return self.shell.rest + t * self.prescribed
+        x = self.shell.rest + t * self.prescribed
+        for nodes, bend in self.bends:
+            x[nodes] = arc_positions(self.shell.rest[nodes], bend.angle * t, bend.length)
+        return x
 
     def column_nodes(self, plane_mask: np.ndarray, layers: str = "all") -> np.ndarray:
         q, n = self.shell.element.q, self.shell.n_plane
@@ -125,7 +146,10 @@ class Model:
 def build_model(scene: Scene) -> Model:
     elem = get_element(scene.shell.element)
     shell = extrude(build_mesh(scene.mesh), scene.shell.thickness, elem)
-    rule = elem.quadrature(scene.shell.quadrature)
+    rule_spec = scene.shell.quadrature or elem.default_quadrature
+    if scene.shell.thickness_points:
+        rule_spec = (rule_spec[0], scene.shell.thickness_points)
+    rule = elem.quadrature(rule_spec)
     pattern = build_pattern(shell.conn, shell.n_nodes)
     m = scene.material
     plastic = m.model == "plastic"
@@ -149,7 +173,7 @@ def build_model(scene: Scene) -> Model:
         built["terms"].append("inertia")
     fixed = np.zeros((shell.n_nodes, 3), bool)
     prescribed = np.zeros((shell.n_nodes, 3))
-    model = Model(scene, shell, pattern, None, terms, elastic, ext, inertia, fixed, prescribed,
+    model = Model(scene, shell, pattern, None, terms, elastic, ext, inertia, fixed, prescribed, [],
                   regions, NewtonSettings(rtol=scene.solver.rtol,
                                           max_iterations=scene.solver.max_iterations), 0.0, built)
     for i, bc in enumerate(scene.bcs):
@@ -157,10 +181,21 @@ def build_model(scene: Scene) -> Model:
             nodes = model.column_nodes(regions[bc.region], bc.layers)
         except ValueError as exc:
             raise ValueError(f"bcs.{i}.layers: {exc}") from None
-        for c in bc.components:
-            k = "xyz".index(c)
+        comps = ["xyz".index(c) for c in bc.components]
+        if bc.bend is not None:
+            if bc.components != "xyz":
+                raise ValueError(f"bcs.{i}.bend: a bent end needs components = 'xyz'")
+            model.bends.append((nodes, bc.bend))
+        for k in comps:
             fixed[nodes, k] = True
             prescribed[nodes, k] = bc.displacement[k]
+    if scene.stepping.release:
+        released = np.zeros_like(fixed)
+        for bc in scene.bcs:
+            if bc.release:
+                nodes = model.column_nodes(regions[bc.region], bc.layers)
+                released[np.ix_(nodes, ["xyz".index(c) for c in bc.components])] = True
+        model.released = released
     mu, lam = lame(m.E, m.nu)
     h = float(np.mean(shell.thickness))
     edge = float(np.mean(np.linalg.norm(np.diff(shell.mesh.vertices[shell.mesh.faces[:, :2]],

@@ -28,6 +28,29 @@ def volume(model, x: np.ndarray) -> float:
     return float(np.sum(np.linalg.det(F) * el.wdetJ))
 
 
+def curvature_xz(P: np.ndarray) -> float:
+    """Curvature 1/R of the least-squares circle through points ``(n, 3)`` projected on x-z
+    (algebraic fit: x^2 + z^2 + D x + E z + F = 0); 0 for collinear points."""
+    x, z = P[:, 0] - P[:, 0].mean(), P[:, 2] - P[:, 2].mean()
+    A = np.column_stack([x, z, np.ones_like(x)])
+    (D, E, F), *_ = np.linalg.lstsq(A, -(x * x + z * z), rcond=None)
+    r2 = D * D / 4 + E * E / 4 - F
+    return float(1.0 / np.sqrt(r2)) if r2 > 0 and np.isfinite(r2) else 0.0
+
+
+def vertex_average(model, per_qp: np.ndarray) -> np.ndarray:
+    """Element means of a quadrature-point field ``(n_elem, n_qp)`` averaged onto the
+    mid-surface vertices ``(n_v,)`` (element e sits on mid-surface face e)."""
+    F = model.shell.mesh.faces
+    elem = per_qp.mean(1)
+    acc = np.zeros(model.shell.n_vertices)
+    cnt = np.zeros(model.shell.n_vertices)
+    for c in range(3):
+        np.add.at(acc, F[:, c], elem)
+        np.add.at(cnt, F[:, c], 1.0)
+    return acc / np.maximum(cnt, 1)
+
+
 def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[str, float]:
     """Every probe of the scene at state ``x``; ``gradient`` is the total energy gradient (the
     support reactions), computed here when a reaction probe needs it."""
@@ -45,6 +68,14 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[s
             out[p.name] = float(getattr(np, p.stat)(h))
         elif p.kind == "volume":
             out[p.name] = volume(model, x)
+        elif p.kind == "curvature":
+            v = model.regions[p.region][: sh.n_vertices]
+            out[p.name] = curvature_xz(mid_surface(model, x)[v])
+        elif p.kind == "plastic_strain":
+            ep = model.elasticity.ep
+            out[p.name] = float(getattr(np, p.stat)(ep)) if ep.size else 0.0
+        elif p.kind == "von_mises":
+            out[p.name] = float(getattr(np, p.stat)(model.elasticity.von_mises(x)))
         else:
             if gradient is None:
                 gradient = model.problem.gradient(x)

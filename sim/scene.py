@@ -49,6 +49,9 @@ class ShellSpec(Strict):
     thickness: Pos
     element: str = "q3t"
     quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = None
+    # section points through the thickness, keeping the element's in-plane rule: plastic
+    # bending needs more than the 2-3 of the defaults to integrate the elastic-plastic profile
+    thickness_points: Annotated[int, Field(ge=1, le=20)] | None = None
 
 
 class Hardening(Strict):
@@ -100,11 +103,22 @@ class RegionSpec(Strict):
         return self
 
 
+class BendSpec(Strict):
+    """Cylindrical bending about y of a strip whose symmetry plane is x = 0: the region (an end
+    section at x = length) moves rigidly along the arc of curvature angle / length, rotating by
+    ``angle`` (rad) at t = 1; positive angles bend the ends up (+z)."""
+
+    angle: float
+    length: Pos
+
+
 class BCSpec(Strict):
     region: str
     components: Annotated[str, Field(pattern=r"^[xyz]{1,3}$")] = "xyz"
     layers: Literal["all", "bottom", "mid", "top"] = "all"
     displacement: Vec3 = (0.0, 0.0, 0.0)  # reached at t = 1, linear in t
+    bend: BendSpec | None = None
+    release: bool = False  # removed in the release (springback) stage
 
 
 class LoadSpec(Strict):
@@ -131,6 +145,8 @@ class SteppingSpec(Strict):
     dt: Pos | None = None  # dynamic: time step (s); duration = steps * dt
     load_ramp: Annotated[float, Field(ge=0)] = 0.0  # dynamic: loads ramp over this time (s)
     max_cutbacks: Annotated[int, Field(ge=0, le=30)] = 6
+    # after the last step: remove loads and the BCs marked release, solve static equilibrium
+    release: bool = False
 
     @model_validator(mode="after")
     def _dt(self):
@@ -151,7 +167,8 @@ class SolverSpec(Strict):
 
 class ProbeSpec(Strict):
     name: str
-    kind: Literal["displacement", "thickness", "reaction", "volume"]
+    kind: Literal["displacement", "thickness", "reaction", "volume", "curvature",
+                  "plastic_strain", "von_mises"]
     point: Vec3 | None = None
     component: Literal["x", "y", "z", "norm"] = "norm"
     stat: Literal["min", "max", "mean"] = "mean"
@@ -161,8 +178,8 @@ class ProbeSpec(Strict):
     def _fields(self):
         if self.kind == "displacement" and self.point is None:
             raise ValueError("a displacement probe needs point")
-        if self.kind == "reaction" and self.region is None:
-            raise ValueError("a reaction probe needs region")
+        if self.kind in ("reaction", "curvature") and self.region is None:
+            raise ValueError(f"a {self.kind} probe needs region")
         return self
 
 

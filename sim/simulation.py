@@ -75,13 +75,16 @@ class Simulation:
     def __post_init__(self):
         self.parameters = {"load_scale": 1.0}
         self.parameter_log: list[dict] = []
+        self._last_increment: np.ndarray | None = None
+        self._last_dt = 1.0
         self.x = self.model.shell.rest.copy()
         self.display = DisplayMesh.from_shell(self.model.shell)
         self.h0 = probes.thickness(self.model, self.x)
 
     @property
     def n_steps(self) -> int:
-        return self.model.scene.stepping.steps
+        st = self.model.scene.stepping
+        return st.steps + (1 if st.release else 0)
 
     @property
     def done(self) -> bool:
@@ -114,15 +117,52 @@ class Simulation:
             term.begin_step(t_new if m.scene.stepping.kind == "static" else t_new, dt, self.x)
         if m.external is not None:
             m.external.factor = float(self.load_factor(t_new)) * self.parameters["load_scale"]
-        x0 = self.x.copy()
         target = m.dirichlet_positions(self.load_factor(t_new))
+        # predictor: continue the last converged increment (quasi-static paths are smooth), so
+        # a prescribed motion does not start as a jump concentrated on the boundary elements
+        x0 = self.x.copy()
+        if self._last_increment is not None:
+            x0 += self._last_increment * (dt / self._last_dt)
         x0[m.fixed] = target[m.fixed]
+        if self._last_increment is not None and not np.isfinite(m.problem.energy(x0)):
+            x0 = self.x.copy()
+            x0[m.fixed] = target[m.fixed]
         return minimise(m.problem, x0, m.settings, m.force_scale)
+
+    def _release(self) -> StepRecord:
+        """Springback: drop the loads and the released BCs, then solve static equilibrium
+        (remaining BCs hold their current positions)."""
+        m = self.model
+        start = time.perf_counter()
+        m.problem.set_fixed(m.fixed & ~m.released)
+        for term in m.terms:
+            term.begin_step(self.t, self._dt(), self.x)
+        if m.external is not None:
+            m.external.factor = 0.0
+        res = minimise(m.problem, self.x, m.settings, m.force_scale)
+        self.timing.add(res.timing)
+        if not res.converged:
+            self.failure = {"step": self.step_index + 1, "t": self.t, "cutbacks": 0,
+                            "reason": f"release: {res.reason}", "iterations": res.iterations,
+                            "residuals": res.residuals}
+            self.wall += time.perf_counter() - start
+            raise SolverFailure(self.failure)
+        self.x = res.x
+        for term in m.terms:
+            term.commit(self.x)
+        self.step_index += 1
+        rec = StepRecord(self.step_index, self.t, res.iterations, res.residuals[-1], res.energy,
+                         0, probes.evaluate(m, self.x))
+        self.records.append(rec)
+        self.wall += time.perf_counter() - start
+        return rec
 
     def step(self) -> StepRecord:
         """Advance one nominal step, halving the increment on failure (up to max_cutbacks)."""
         if self.done:
             raise RuntimeError("simulation already finished")
+        if self.step_index == self.model.scene.stepping.steps:
+            return self._release()
         start = time.perf_counter()
         t_target = self.t + self._dt()
         dt, cutbacks, iters = self._dt(), 0, 0
@@ -141,6 +181,7 @@ class Simulation:
                     raise SolverFailure(self.failure)
                 dt /= 2
                 continue
+            self._last_increment, self._last_dt = res.x - self.x, dt
             self.x = res.x
             for term in self.model.terms:
                 term.commit(self.x)
@@ -169,6 +210,12 @@ class Simulation:
         rec = self.records[-1] if self.records else None
         fields = {"thickness_mm": self.display.per_vertex(1e3 * h),
                   "thinning_pct": self.display.per_vertex(100 * (1 - h / self.h0))}
+        el = self.model.elasticity
+        fields["von_mises_MPa"] = self.display.per_vertex(
+            1e-6 * probes.vertex_average(self.model, el.von_mises(self.x)))
+        if el.plastic:  # an elastic scene has no plastic strain to show
+            fields["eq_plastic_strain"] = self.display.per_vertex(
+                probes.vertex_average(self.model, el.ep))
         return Frame(self.step_index, self.t, self.display.positions(self.x), fields,
                      rec.probes if rec else {}, rec.iterations if rec else 0,
                      rec.residual if rec else 0.0)
@@ -180,7 +227,8 @@ class Simulation:
         return {
             "scene": m.scene.name,
             "element": m.shell.element.name,
-            "quadrature": list(m.scene.shell.quadrature or m.shell.element.default_quadrature),
+            "quadrature": [len(np.unique(m.elasticity.rule.points[:, :2], axis=0)),
+                           len(np.unique(m.elasticity.rule.points[:, 2]))],
             "counts": {"vertices": m.shell.n_vertices, "nodes": m.shell.n_nodes,
                        "elements": len(m.shell.conn), "dofs": 3 * m.shell.n_nodes,
                        "free_dofs": int((~m.fixed).sum())},

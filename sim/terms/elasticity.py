@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from sim.materials.isotropic import stress_tangent
+from sim.materials.isotropic import polar_svd, principal, stress_tangent
+from sim.materials.plasticity import plastic_strain_increment, return_map
 from sim.terms import Term
 
 PROJECT_NONE, PROJECT_QP, PROJECT_ELEMENT = 0, 1, 2
@@ -110,6 +111,57 @@ def elastic_kernel(x, conn, dNdX, wdetJ, model, params, fp_inv, ep, plastic, wan
     return energies.sum()
 
 
+@njit(cache=True)
+def _deformation_gradient(x, nodes, b):
+    G = np.zeros((3, 3))
+    for a in range(nodes.shape[0]):
+        for i in range(3):
+            for J in range(3):
+                G[i, J] += x[nodes[a], i] * b[a, J]
+    return G
+
+
+@njit(cache=True, parallel=True)
+def plastic_commit_kernel(x, conn, dNdX, params, fp_inv, ep):
+    """Return-map every quadrature point at the converged state x and update, in place,
+    Fp^-1 (n_elem, n_qp, 3, 3) <- Fp_n^-1 V diag(exp(-deps_p)) V^T and ep (n_elem, n_qp) += dgamma
+    (the flow is isochoric: det Fp^-1 stays 1 to round-off)."""
+    mu, lam, law, hp = params[0], params[1], int(params[2]), params[3:]
+    for e in prange(conn.shape[0]):
+        for q in range(dNdX.shape[1]):
+            G = _deformation_gradient(x, conn[e], dNdX[e, q] @ fp_inv[e, q])
+            U, s, V, ok = polar_svd(G)
+            if not ok:
+                continue
+            eps = np.log(s)
+            dep = plastic_strain_increment(eps, ep[e, q], mu, lam, law, hp)
+            dg = return_map(eps, ep[e, q], mu, lam, law, hp)[4]
+            if dg == 0.0:
+                continue
+            fp_inv[e, q] = fp_inv[e, q] @ ((V * np.exp(-dep)) @ V.T)
+            ep[e, q] += dg
+
+
+@njit(cache=True, parallel=True)
+def stress_kernel(x, conn, dNdX, model, params, fp_inv, ep, plastic):
+    """Von Mises equivalent of the Cauchy stress (n_elem, n_qp) at state x (with the trial
+    return map at the committed plastic state)."""
+    out = np.zeros(dNdX.shape[:2])
+    for e in prange(conn.shape[0]):
+        for q in range(dNdX.shape[1]):
+            b = dNdX[e, q] @ fp_inv[e, q] if plastic else dNdX[e, q]
+            G = _deformation_gradient(x, conn[e], b)
+            U, s, V, ok = polar_svd(G)
+            if not ok:
+                continue
+            W, g, H, sym, twist = principal(model, s, params, ep[e, q] if plastic else 0.0)
+            tau = g * s  # principal Kirchhoff stress
+            dev = tau - tau.mean()
+            J = s[0] * s[1] * s[2]  # det G = det F: the plastic part is isochoric
+            out[e, q] = np.sqrt(1.5 * (dev @ dev)) / J
+    return out
+
+
 class Elasticity(Term):
     """Stored energy of the shell. ``material``: (model id, params array); ``plastic`` state is
     ``fp_inv (n_elem, n_qp, 3, 3)`` and ``ep (n_elem, n_qp)``, or None for an elastic scene."""
@@ -119,6 +171,7 @@ class Elasticity(Term):
     def __init__(self, shell, rule, model: int, params: np.ndarray, pattern, project: int,
                  plastic: bool = False):
         _, dN = shell.element.basis(rule.points)
+        self.rule = rule
         self.conn = shell.conn
         self.dNdX, self.wdetJ = reference_gradients(shell.rest, shell.conn, dN, rule.weights)
         self.model, self.params = model, np.asarray(params, float)
@@ -150,3 +203,12 @@ class Elasticity(Term):
 
     def add_gradient_hessian(self, x, g, data):
         return self._run(x, 2, g, data)
+
+    def commit(self, x):
+        if self.plastic:
+            plastic_commit_kernel(x, self.conn, self.dNdX, self.params, self.fp_inv, self.ep)
+
+    def von_mises(self, x) -> np.ndarray:
+        """Von Mises stress (Pa) per element and quadrature point ``(n_elem, n_qp)``."""
+        return stress_kernel(x, self.conn, self.dNdX, self.model, self.params, self.fp_inv,
+                             self.ep, self.plastic)
