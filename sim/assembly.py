@@ -62,14 +62,12 @@ def greedy_colors(conn: np.ndarray, n_nodes: int) -> list[np.ndarray]:
     order = np.argsort(conn.min(axis=1), kind="stable")
     used = [np.zeros(n_nodes, bool)]
     for e in order:
-        for c, taken in enumerate(used):
-            if not taken[conn[e]].any():
-                break
-        else:
+        free = [k for k, taken in enumerate(used) if not taken[conn[e]].any()]
+        if not free:
             used.append(np.zeros(n_nodes, bool))
-            c = len(used) - 1
-        used[c][conn[e]] = True
-        color[e] = c
+        k = free[0] if free else len(used) - 1
+        used[k][conn[e]] = True
+        color[e] = k
     return [np.flatnonzero(color == c) for c in range(len(used))]
 
 

@@ -20,7 +20,12 @@ from sim.scene import MaterialSpec, MeshSpec, RegionSpec, Scene
 from sim.shell import Shell, extrude
 from sim.terms import Term
 from sim.terms import loads as L
-from sim.terms.elasticity import PROJECT_ELEMENT, PROJECT_NONE, PROJECT_QP, Elasticity
+from sim.terms.elasticity import (
+    PROJECT_ELEMENT,
+    PROJECT_NONE,
+    PROJECT_QP,
+    Elasticity,
+)
 from sim.terms.inertia import Inertia, lumped_mass
 
 MODEL_IDS = {"neo_hookean": 0, "hencky": 1, "plastic": 2}

@@ -56,7 +56,7 @@ def test_uniaxial_tension_follows_the_hardening_law(law):
         # independent 1-D integration: Hencky elasticity is linear in log strain, so in
         # uniaxial Kirchhoff stress tau: eps = tau / E + ep and tau = Y(ep) once yielding
         tau_1d = E * eps if E * eps <= 200e6 else brentq(
-            lambda t: t - yield_stress(law_id, hp, eps - t / E)[0], 1e6, 1e10)
+            lambda t, eps=eps: t - yield_stress(law_id, hp, eps - t / E)[0], 1e6, 1e10)
         width = x[:, 1].max() - x[:, 1].min()
         thick = x[:, 2].max() - x[:, 2].min()
         J = (1 + stretch * rec.time) * width / 0.01 * thick / 0.002
@@ -87,7 +87,7 @@ def test_simple_shear_equivalent_stress_follows_the_law():
         rec = sim.step()
         g = gamma * rec.time
         t_xy = MU * g if np.sqrt(3) * MU * g <= 200e6 else brentq(
-            lambda t: np.sqrt(3) * t - yield_stress(law_id, hp, (g - t / MU) / np.sqrt(3))[0],
+            lambda t, g=g: np.sqrt(3) * t - yield_stress(law_id, hp, (g - t / MU) / np.sqrt(3))[0],
             1e6, 1e10)
         ep_1d = max(0.0, (g - t_xy / MU) / np.sqrt(3))
         vm = m.elasticity.von_mises(sim.x)
