@@ -79,9 +79,11 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--out", help="output folder (default runs/<scene>-<element>-<time>)")
     r.add_argument("--quiet", action="store_true")
     r.set_defaults(func=cmd_run)
-    from sim import bench
+    from sim import bench, check, study, sweep
 
     bench.add_parser(sub)
+    for mod in (study, sweep, check):  # matplotlib and dask are imported only when run
+        mod.add_parser(sub)
     try:  # the service commands exist only where the service stack is installed
         from server import cli as server_cli
     except ImportError:

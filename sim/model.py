@@ -20,6 +20,7 @@ from sim.scene import MaterialSpec, MeshSpec, RegionSpec, Scene
 from sim.shell import Shell, extrude
 from sim.terms import Term
 from sim.terms import loads as L
+from sim.terms.contact import ToolContact
 from sim.terms.elasticity import (
     PROJECT_ELEMENT,
     PROJECT_NONE,
@@ -176,6 +177,9 @@ def build_model(scene: Scene) -> Model:
         inertia = Inertia(lumped_mass(shell, rule, elastic.wdetJ, m.density), pattern, shell.rest)
         terms.append(inertia)
         built["terms"].append("inertia")
+    tools = _tools(scene, shell, pattern)
+    terms += tools
+    built["terms"] += [t.name for t in tools]
     fixed = np.zeros((shell.n_nodes, 3), bool)
     prescribed = np.zeros((shell.n_nodes, 3))
     model = Model(scene, shell, pattern, None, terms, elastic, ext, inertia, fixed, prescribed, [],
@@ -218,6 +222,52 @@ def build_model(scene: Scene) -> Model:
     built["linear_solver"] = solver.name
     model.problem = Problem(terms, pattern, solver, fixed)
     return model
+
+
+def tool_program(s) -> np.ndarray:
+    """SDF program of a ShapeSpec (sim.tools.sdf)."""
+    from sim.tools import sdf
+
+    if s.kind == "plane":
+        return sdf.plane(s.point, s.normal)
+    if s.kind == "box":
+        return sdf.rounded_box(s.half_extents, s.radius, s.center)
+    if s.kind == "punch":
+        return sdf.punch(s.radius, s.height, s.edge_radius)
+    if s.kind == "die_ring":
+        return sdf.die_ring(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
+    if s.kind == "blank_holder":
+        return sdf.blank_holder(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
+    if s.kind == "star":
+        return sdf.star(s.n_points, s.r_outer, s.r_inner, s.height, s.corner_radius,
+                        s.edge_radius, s.phase)
+    return sdf.star_die(s.n_points, s.r_outer, s.r_inner, s.height, s.edge_radius,
+                        s.corner_radius, phase=s.phase)
+
+
+def _tools(scene, shell, pattern) -> list[ToolContact]:
+    """One contact term per tool, over the nodes of both skins (every in-plane node, so the
+    edge nodes of quadratic elements too)."""
+    if not scene.tools:
+        return []
+    from sim.contact import auto_stiffness
+
+    nodes = np.concatenate([shell.layer_nodes(0), shell.layer_nodes(shell.element.q)])
+    h = float(np.mean(shell.thickness))
+    F = shell.mesh.faces
+    edge = float(np.mean(np.linalg.norm(shell.mesh.vertices[F[:, 0]]
+                                        - shell.mesh.vertices[F[:, 1]], axis=1)))
+    out = []
+    for i, t in enumerate(scene.tools):
+        try:
+            prog = tool_program(t.shape)
+        except ValueError as exc:
+            raise ValueError(f"tools.{i}.shape: {exc}") from None
+        k = t.stiffness or auto_stiffness(scene.material.E, h, edge)
+        # slip below 1 % of the thickness counts as sticking (IPC's eps_v)
+        out.append(ToolContact(t.name, prog, nodes, t.position, t.velocity, k, t.friction,
+                               1e-2 * h, pattern, delta=1e-2 * h))
+    return out
 
 
 def _external_force(scene, shell, rule, elastic, regions) -> L.ExternalForce | None:

@@ -74,6 +74,15 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[s
         elif p.kind == "plastic_strain":
             ep = model.elasticity.ep
             out[p.name] = float(getattr(np, p.stat)(ep)) if ep.size else 0.0
+        elif p.kind in ("tool_force", "penetration", "contact_nodes"):
+            term = next(t for t in model.terms if getattr(t, "tool", None) == p.tool)
+            rep = term.report(x)
+            if p.kind == "tool_force":
+                f = np.array([rep["fx"], rep["fy"], rep["fz"]])
+                out[p.name] = float(np.linalg.norm(f) if p.component == "norm"
+                                    else f["xyz".index(p.component)])
+            else:
+                out[p.name] = float(rep[p.kind])
         elif p.kind == "von_mises":
             out[p.name] = float(getattr(np, p.stat)(model.elasticity.von_mises(x)))
         else:

@@ -168,7 +168,8 @@ class SolverSpec(Strict):
 class ProbeSpec(Strict):
     name: str
     kind: Literal["displacement", "thickness", "reaction", "volume", "curvature",
-                  "plastic_strain", "von_mises"]
+                  "plastic_strain", "von_mises", "tool_force", "penetration", "contact_nodes"]
+    tool: str | None = None
     point: Vec3 | None = None
     component: Literal["x", "y", "z", "norm"] = "norm"
     stat: Literal["min", "max", "mean"] = "mean"
@@ -180,6 +181,8 @@ class ProbeSpec(Strict):
             raise ValueError("a displacement probe needs point")
         if self.kind in ("reaction", "curvature") and self.region is None:
             raise ValueError(f"a {self.kind} probe needs region")
+        if self.kind in ("tool_force", "penetration", "contact_nodes") and self.tool is None:
+            raise ValueError(f"a {self.kind} probe needs tool")
         return self
 
 
@@ -193,6 +196,49 @@ class StudySpec(Strict):
     reference_edge_length: Pos | None = None
 
 
+class ShapeSpec(Strict):
+    """A tool shape (sim.tools.sdf builders). Lengths in m, in the tool's local frame."""
+
+    kind: Literal["plane", "box", "punch", "die_ring", "blank_holder", "star_die", "star"]
+    point: Vec3 = (0.0, 0.0, 0.0)  # plane
+    normal: Vec3 = (0.0, 0.0, 1.0)  # plane
+    half_extents: tuple[Pos, Pos, Pos] | None = None  # box
+    center: Vec3 = (0.0, 0.0, 0.0)  # box
+    radius: Annotated[float, Field(ge=0)] = 0.0  # punch radius / box corner radius
+    height: Pos = 0.05
+    edge_radius: Annotated[float, Field(ge=0)] = 0.0
+    inner_radius: Annotated[float, Field(ge=0)] = 0.0  # die opening, holder inner
+    outer_radius: Pos = 0.1
+    n_points: Annotated[int, Field(ge=3, le=32)] = 5  # star
+    r_outer: Pos = 0.05
+    r_inner: Pos = 0.03
+    corner_radius: Annotated[float, Field(ge=0)] = 0.0
+    phase: float = 0.0
+
+    @model_validator(mode="after")
+    def _needs(self):
+        if self.kind == "box" and self.half_extents is None:
+            raise ValueError("a box needs half_extents")
+        if self.kind in ("die_ring", "blank_holder") and self.inner_radius >= self.outer_radius:
+            raise ValueError("inner_radius must be smaller than outer_radius")
+        if self.kind in ("star", "star_die") and self.r_inner >= self.r_outer:
+            raise ValueError("r_inner must be smaller than r_outer")
+        return self
+
+
+class ToolSpec(Strict):
+    """A rigid tool moving by translation: position at t = 0, velocity in m per unit time
+    (static stepping: over the whole run t goes 0 -> 1, so velocity is the stroke)."""
+
+    name: str
+    shape: ShapeSpec
+    position: Vec3 = (0.0, 0.0, 0.0)
+    velocity: Vec3 = (0.0, 0.0, 0.0)
+    friction: Annotated[float, Field(ge=0, le=2)] = 0.0
+    stiffness: Pos | None = None  # N/m per node; default: sim.contact.auto_stiffness
+    release: bool = False  # retracted in the release (springback) stage
+
+
 class Scene(Strict):
     name: str
     description: str = ""
@@ -204,6 +250,7 @@ class Scene(Strict):
     loads: list[LoadSpec] = []
     stepping: SteppingSpec = SteppingSpec()
     solver: SolverSpec = SolverSpec()
+    tools: list[ToolSpec] = []
     probes: list[ProbeSpec] = []
     study: StudySpec | None = None
 
@@ -221,6 +268,12 @@ class Scene(Strict):
             for i, it in enumerate(items):
                 if getattr(it, "region", None) and it.region not in names:
                     raise ValueError(f"{where}.{i}.region: unknown region {it.region!r}")
+        tools = [t.name for t in self.tools]
+        if len(set(tools)) != len(tools):
+            raise ValueError("tools: names must be unique")
+        for i, p in enumerate(self.probes):
+            if p.tool is not None and p.tool not in tools:
+                raise ValueError(f"probes.{i}.tool: unknown tool {p.tool!r}")
         if self.study and self.study.probe not in [p.name for p in self.probes]:
             raise ValueError(f"study.probe: no probe named {self.study.probe!r}")
         return self

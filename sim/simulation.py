@@ -18,6 +18,7 @@ from sim.display import DisplayMesh
 from sim.model import Model, build_model
 from sim.newton import NewtonResult, Timing, minimise
 from sim.scene import Scene
+from sim.terms.contact import ToolContact
 
 
 class SolverFailure(RuntimeError):
@@ -69,11 +70,15 @@ class Simulation:
     def from_scene(cls, scene: Scene) -> Simulation:
         return cls(build_model(scene))
 
-    # live parameters: name -> (min, max); applied from the next step on
-    PARAMETERS = {"load_scale": (0.0, 100.0)}
+    # live parameters, all multipliers of the scene's values (1 = as written): name -> range;
+    # applied from the next step on
+    PARAMETERS = {"load_scale": (0.0, 100.0), "tool_speed": (0.0, 10.0),
+                  "friction_scale": (0.0, 10.0)}
 
     def __post_init__(self):
-        self.parameters = {"load_scale": 1.0}
+        self.parameters = {k: 1.0 for k in self.PARAMETERS}
+        self.tools = [t for t in self.model.terms if isinstance(t, ToolContact)]
+        self._mu0 = {t.tool: t.mu for t in self.tools}
         self.parameter_log: list[dict] = []
         self._last_increment: np.ndarray | None = None
         self._last_dt = 1.0
@@ -108,6 +113,9 @@ class Simulation:
         if not (isinstance(value, (int, float)) and np.isfinite(value) and lo <= value <= hi):
             raise ValueError(f"{name}: {value!r} out of range [{lo}, {hi}]")
         self.parameters[name] = float(value)
+        for t in self.tools:
+            t.speed_scale = self.parameters["tool_speed"]
+            t.mu = self._mu0[t.tool] * self.parameters["friction_scale"]
         self.parameter_log.append({"step": self.step_index + 1, "name": name,
                                    "value": float(value)})
 
@@ -135,6 +143,9 @@ class Simulation:
         m = self.model
         start = time.perf_counter()
         m.problem.set_fixed(m.fixed & ~m.released)
+        released = {t.name for t in m.scene.tools if t.release}
+        m.problem.terms = [t for t in m.terms
+                           if not (isinstance(t, ToolContact) and t.tool in released)]
         for term in m.terms:
             term.begin_step(self.t, self._dt(), self.x)
         if m.external is not None:
@@ -204,6 +215,10 @@ class Simulation:
             if progress:
                 progress(self, rec)
         return True
+
+    def tool_poses(self) -> dict[str, np.ndarray]:
+        """Current translation (3,) of every tool."""
+        return {t.tool: t.position.copy() for t in self.tools}
 
     def frame(self) -> Frame:
         h = probes.thickness(self.model, self.x)

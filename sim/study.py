@@ -149,8 +149,9 @@ def terms_overhead(scene_path: str, overrides: dict | None = None, repeat: int =
                      "wall": float(np.median(walls)), "per_iteration": float(np.median(per_it)),
                      "iterations": r["timing"]["newton_iterations"],
                      "probes": r["steps"][-1]["probes"] if r["steps"] else {}}
-    out["saved_wall"] = 1 - out["lean"]["wall"] / out["all_terms"]["wall"]
-    out["saved_per_iteration"] = 1 - out["lean"]["per_iteration"] / out["all_terms"]["per_iteration"]
+    lean, full = out["lean"], out["all_terms"]
+    out["saved_wall"] = 1 - lean["wall"] / full["wall"]
+    out["saved_per_iteration"] = 1 - lean["per_iteration"] / full["per_iteration"]
     return out
 
 
@@ -227,13 +228,15 @@ FACTOR_COLS = [("element", "element", ""), ("edge_length", "edge [m]", ".5g"),
 
 def overhead_md(o: dict) -> str:
     lean, full = o["lean"], o["all_terms"]
+    probe = next(iter(lean["probes"]), None)
     rows = [{"run": name, "terms": ", ".join(d["built"]["terms"]),
              "plastic": str(d["built"]["plastic_state"]), "it": d["iterations"],
-             "per_it": d["per_iteration"], "wall": d["wall"]}
+             "per_it": d["per_iteration"], "wall": d["wall"],
+             "probe": d["probes"].get(probe, float("nan"))}
             for name, d in (("as the scene needs", lean), ("every term built", full))]
     cols = [("run", "run", ""), ("terms", "terms", ""), ("plastic", "plastic state", ""),
-            ("it", "Newton it.", "d"), ("per_it", "per iteration [s]", ".4f"),
-            ("wall", "total [s]", ".3f")]
+            ("probe", str(probe), ".6g"), ("it", "Newton it.", "d"),
+            ("per_it", "per iteration [s]", ".4f"), ("wall", "total [s]", ".3f")]
     return (f"Overrides for every term: `{o['all_terms_overrides']}` (same answer: inertia "
             f"weight M/dt^2 negligible, yield never reached).\n\n" + _table(rows, cols)
             + f"\nSaved: {100 * o['saved_per_iteration']:.0f} % per Newton iteration, "
@@ -252,10 +255,10 @@ def write_study(study: dict, overhead: dict | None, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     plots = plot_study(study, out)
     p, ref = study["plan"], study["reference"]
-    md = [f"# Refinement study: {Path(p['scene']).stem}\n", f"{_meta()}.\n",
+    md = [f"# Refinement study: {Path(p['scene']).stem}\n\n", f"{_meta()}.\n\n",
           f"Probe `{p['probe']}`; reference **{p['reference'][0]} at edge "
           f"{p['reference'][1]:.6g} m** ({ref['dofs']} DoFs): {ref['value']:.8g}. Times are build "
-          "plus solve of one run, after a warm-up run of each element.\n",
+          "plus solve of one run, after a warm-up run of each element.\n\n",
           *[f"- {n}\n" for n in p["notes"]], "\n", _table(study["rows"], STUDY_COLS), "\n",
           *[f"![{f}]({f})\n" for f in plots if f.endswith(".png")]]
     if overhead:
