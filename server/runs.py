@@ -204,6 +204,9 @@ class RunManager:
                     run.state = ev["state"]
                 else:
                     self._finish(run, ev["state"], ev.get("reason"))
+                if self.viewer:
+                    self.viewer.set_status(f"Run `{run.id}`  \n{run.state}, step {run.step}/"
+                                           f"{run.n_steps}  \n{run.reason or ''}")
             elif kind == "meta":
                 run.n_steps, run.counts, run.probes = ev["n_steps"], ev["counts"], ev["probes"]
                 self.faces = ev["faces"]

@@ -82,6 +82,8 @@ class Viewer:
     def _status(self, text: str) -> None:
         self.gui.status.content = text
 
+    set_status = _status
+
     def _on_slider(self, name: str, handle) -> None:
         if not self.echo:
             self._status(self.actions.viewer_set(name, float(handle.value)))

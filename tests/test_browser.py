@@ -60,20 +60,25 @@ def server(tmp_path_factory):
     proc.wait(10)
 
 
-def colormap_fraction(png: bytes) -> float:
-    """Fraction of pixels whose colour is a shade (lit 0.35x..1.4x) of a colour-map entry."""
+def hue(rgb: np.ndarray) -> np.ndarray:
+    """Shape: (n, 3) in 0..255 -> hue in degrees (n,)."""
+    r, g, b = (rgb / 255.0).T
+    return np.degrees(np.arctan2(np.sqrt(3) * (g - b), 2 * r - g - b)) % 360
+
+
+def colormap_pixels(png: bytes) -> tuple[int, float]:
+    """Chromatic pixels left of viser's GUI panel whose hue is that of a colour-map entry
+    (lighting changes brightness and saturation, not hue): their count and their fraction."""
     from PIL import Image
 
-    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), np.float64).reshape(-1, 3)
-    img = img[img.max(1) - img.min(1) > 25]  # chromatic pixels only: not grey background/grid
-    if not len(img):
-        return 0.0
-    t = np.linspace(0, 1, 64)[:, None] * (len(VIRIDIS) - 1)
-    i = np.minimum(t.astype(int), len(VIRIDIS) - 2)
-    ref = VIRIDIS[i[:, 0]] * (1 - (t - i)) + VIRIDIS[i[:, 0] + 1] * (t - i)
-    unit = ref / np.linalg.norm(ref, axis=1, keepdims=True)
-    cos = (img / np.linalg.norm(img, axis=1, keepdims=True)) @ unit.T
-    return float((cos.max(1) > 0.995).sum()) / (img.shape[0] + 1e-9) * len(img) / len(img)
+    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), np.float64)
+    img = img[:, : int(0.6 * img.shape[1])].reshape(-1, 3)
+    img = img[img.max(1) - img.min(1) > 25]  # not the grey background and grid
+    t = np.linspace(0, len(VIRIDIS) - 1, 64)
+    ref = np.array([np.interp(t, np.arange(len(VIRIDIS)), VIRIDIS[:, c]) for c in range(3)]).T
+    d = np.abs(hue(img)[:, None] - hue(ref)[None, :])
+    match = (np.minimum(d, 360 - d).min(1) < 8).sum()
+    return int(match), float(match) / max(len(img), 1)
 
 
 def test_page_run_viewer_pause(server, tmp_path):
@@ -101,8 +106,8 @@ def test_page_run_viewer_pause(server, tmp_path):
         assert httpx.get(f"{server}/api/runs/{run}").json()["step"] == step, "pause ignored"
         assert int(page.get_attribute("#status", "data-step")) == step
         assert page.get_attribute("#status", "data-state") == "paused"
-        frac = colormap_fraction(png)
-        assert frac > 0.5, f"viewer shows no colour-map pixels ({frac:.2f}); see {tmp_path}"
+        count, frac = colormap_pixels(png)
+        assert count > 1000 and frac > 0.5, f"colour-map pixels {count} ({frac:.2f}): {tmp_path}"
         page.click("#resume")
         page.wait_for_function(
             f"+document.getElementById('status').dataset.step > {step}", timeout=30_000)

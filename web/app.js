@@ -148,6 +148,7 @@ async function poll() {
       $("status").textContent = `${st.id}: ${st.state}, step ${st.step}/${st.n_steps ?? "?"}` +
         (st.reason ? ` — ${st.reason}` : "");
       $("status").dataset.state = st.state;
+      $("status").dataset.run = st.id;
       $("status").dataset.step = st.step;
       drawPlots();
     }
