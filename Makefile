@@ -10,6 +10,7 @@ $(STAMP): pyproject.toml
 	test -d $(VENV) || $(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e ".[fast,service,study,dev]"
+	$(MAKE) --no-print-directory browser-deps
 	touch $(STAMP)
 
 serve: $(STAMP)
@@ -28,3 +29,13 @@ lint: $(STAMP)
 
 clean:
 	rm -rf $(VENV) runs
+
+# Browser tests drive Debian's chromium through Playwright (never `playwright install`).
+.PHONY: browser-deps
+browser-deps:
+	@if [ ! -x /usr/bin/chromium ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    apt-get update -qq && apt-get install -y -qq chromium; \
+	  else echo "browser tests will skip: /usr/bin/chromium missing (as root: apt-get install chromium)"; fi; \
+	fi
+	@$(BIN)/python -c "import playwright" 2>/dev/null || $(BIN)/pip install -q playwright
