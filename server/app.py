@@ -26,7 +26,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             from sim.elements import ELEMENTS
 
             manager.viewer = Viewer(settings.viewer_host, settings.viewer_port, manager,
-                                    sorted(ELEMENTS), manager.parameter_ranges)
+                                    sorted(ELEMENTS))
         app.state.store, app.state.manager = store, manager
         manager.start()
         yield

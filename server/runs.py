@@ -49,12 +49,13 @@ class Run:
 
 class RunManager:
     def __init__(self, settings: Settings, store: SceneStore):
-        from sim.simulation import Simulation
-
         self.settings, self.store = settings, store
         self.root = settings.runs_dir
         self.root.mkdir(parents=True, exist_ok=True)
-        self.parameter_ranges: dict = dict(Simulation.PARAMETERS)
+        # live parameters and their ranges come from the solver process once it has imported
+        # the solver: the server never imports it, so the page is up in about a second
+        self.parameter_ranges: dict = {}
+        self.ready = threading.Event()
         self.lock = threading.RLock()
         self.runs: dict[str, Run] = self._load()
         self.active: str | None = None
@@ -130,8 +131,7 @@ class RunManager:
                                "stop it first")
             stamp = time.strftime("%Y%m%d-%H%M%S")
             run = Run(f"{scene}-{spec.shell.element}-{stamp}-{secrets.token_hex(2)}", scene,
-                      spec.shell.element, overrides, time.time(),
-                      parameters={**{k: 1.0 for k in self.parameter_ranges}, **(parameters or {})})
+                      spec.shell.element, overrides, time.time(), parameters=dict(parameters or {}))
             out = self.dir(run.id)
             out.mkdir(parents=True)
             atomic_write(out / "scene.toml", text)
@@ -155,6 +155,7 @@ class RunManager:
             return run
 
     def check_parameter(self, name: str, value) -> float:
+        self.ready.wait(120)
         if name not in self.parameter_ranges:
             raise ValueError(f"{name}: unknown parameter; known: {sorted(self.parameter_ranges)}")
         lo, hi = self.parameter_ranges[name]
@@ -194,6 +195,11 @@ class RunManager:
 
     def _on_event(self, ev: dict) -> dict | None:
         """Update the run from one event; returns a frame to show, if any."""
+        if ev["kind"] == "ready" and not self.ready.is_set():
+            self.parameter_ranges = ev["parameters"]
+            self.ready.set()
+            if self.viewer:
+                self.viewer.add_parameters(self.parameter_ranges)
         with self.lock:
             run = self.runs.get(ev.get("run") or "")
             if run is None or run.id != self.active:

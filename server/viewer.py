@@ -39,7 +39,7 @@ class Gui:
 
 class Viewer:
     def __init__(self, host: str, port: int, actions: ViewerActions, elements: list[str],
-                 parameters: dict[str, tuple[float, float]], colour_hz: float = 4.0):
+                 colour_hz: float = 4.0):
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.actions = actions
         self.colour_period = 1.0 / colour_hz
@@ -49,13 +49,13 @@ class Viewer:
         self.last_colour = 0.0
         self.frame: dict | None = None
         self.echo = False  # set while code (not a user) moves a slider
-        self.gui = self._build_gui(elements, parameters)
+        self.gui = self._build_gui(elements)
 
     @property
     def port(self) -> int:
         return self.server.get_port()
 
-    def _build_gui(self, elements: list[str], parameters: dict) -> Gui:
+    def _build_gui(self, elements: list[str]) -> Gui:
         g = self.server.gui
         status = g.add_markdown("No run yet")
         with g.add_folder("Run"):
@@ -66,18 +66,21 @@ class Viewer:
                                      initial_value="q3t" if "q3t" in elements else elements[0])
             g.add_button("Reset").on_click(
                 lambda _e: self._status(self.actions.viewer_reset(element.value)))
-        sliders = {}
-        with g.add_folder("Live parameters"):
-            for name, (lo, hi) in parameters.items():
-                s = g.add_slider(name, min=lo, max=hi, step=(hi - lo) / 1000,
-                                 initial_value=min(max(1.0, lo), hi))
-                s.on_update(lambda _e, n=name, h=s: self._on_slider(n, h))
-                sliders[name] = s
+        self.param_folder = g.add_folder("Live parameters")
         with g.add_folder("Colour"):
             field = g.add_dropdown("Colour by", tuple(FIELDS), initial_value="thickness_mm")
             legend = g.add_markdown("")
         field.on_update(lambda _e: self._recolour())
-        return Gui(status, field, legend, element, sliders)
+        return Gui(status, field, legend, element, {})
+
+    def add_parameters(self, parameters: dict[str, tuple[float, float]]) -> None:
+        """One slider per live parameter, once the solver process has said which exist."""
+        with self.param_folder:
+            for name, (lo, hi) in parameters.items():
+                s = self.server.gui.add_slider(name, min=lo, max=hi, step=(hi - lo) / 1000,
+                                               initial_value=min(max(1.0, lo), hi))
+                s.on_update(lambda _e, n=name, h=s: self._on_slider(n, h))
+                self.gui.sliders[name] = s
 
     def _status(self, text: str) -> None:
         self.gui.status.content = text

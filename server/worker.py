@@ -143,11 +143,14 @@ def worker_main(commands: mp.Queue, events: mp.Queue, frames: mp.Queue, keyframe
                 step_delay: float = 0.0) -> None:
     """Entry point of the spawned process. Exits on a ``shutdown`` command."""
     solver = _Solver(events, frames, keyframe_every, step_delay)
-    try:
-        import sim.simulation  # noqa: F401  (import and compile while nobody waits)
+    parameters = {}
+    try:  # import and compile here, so the server answers while this takes seconds
+        from sim.simulation import Simulation
+
+        parameters = dict(Simulation.PARAMETERS)
     except Exception:
         events.put({"kind": "log", "run": None, "text": traceback.format_exc()})
-    events.put({"kind": "ready", "run": None})
+    events.put({"kind": "ready", "run": None, "parameters": parameters})
     while True:
         try:
             msg = commands.get_nowait() if solver.stepping else commands.get(timeout=0.2)

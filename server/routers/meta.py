@@ -12,6 +12,7 @@ def config(request: Request) -> dict:
     from sim.elements import ELEMENTS
 
     m = request.app.state.manager
+    m.ready.wait(120)  # the solver process names the live parameters once it is up
     return {"elements": sorted(ELEMENTS),
             "parameters": {k: {"min": lo, "max": hi} for k, (lo, hi) in
                            m.parameter_ranges.items()},
