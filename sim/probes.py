@@ -22,6 +22,19 @@ def thickness(model, x: np.ndarray) -> np.ndarray:
     return np.linalg.norm(x[sh.skin_nodes(True)] - x[sh.skin_nodes(False)], axis=1)
 
 
+def fibre_tilt(model, x: np.ndarray) -> np.ndarray:
+    """Angle (degrees) per vertex between the through-thickness fibre (bottom to top skin) and
+    the normal of the deformed mid-surface: transverse shear, zero in pure bending and
+    stretching; linear prisms escape volumetric locking by shearing (paper Fig. 11)."""
+    from sim.mesh import TriMesh, vertex_normals
+
+    sh = model.shell
+    fibre = x[sh.skin_nodes(True)] - x[sh.skin_nodes(False)]
+    n = vertex_normals(TriMesh(mid_surface(model, x), sh.mesh.faces))
+    c = np.abs(np.einsum("ij,ij->i", fibre, n)) / np.linalg.norm(fibre, axis=1)
+    return np.degrees(np.arccos(np.clip(c, 0.0, 1.0)))
+
+
 def volume(model, x: np.ndarray) -> float:
     el = model.elasticity
     F = np.einsum("ead,eqaj->eqdj", x[el.conn], el.dNdX)
@@ -68,6 +81,8 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[s
             out[p.name] = float(getattr(np, p.stat)(h))
         elif p.kind == "volume":
             out[p.name] = volume(model, x)
+        elif p.kind == "fibre_tilt":
+            out[p.name] = float(getattr(np, p.stat)(fibre_tilt(model, x)))
         elif p.kind == "curvature":
             v = model.regions[p.region][: sh.n_vertices]
             out[p.name] = curvature_xz(mid_surface(model, x)[v])

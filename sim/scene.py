@@ -168,7 +168,8 @@ class SolverSpec(Strict):
 class ProbeSpec(Strict):
     name: str
     kind: Literal["displacement", "thickness", "reaction", "volume", "curvature",
-                  "plastic_strain", "von_mises", "tool_force", "penetration", "contact_nodes"]
+                  "plastic_strain", "von_mises", "tool_force", "penetration", "contact_nodes",
+                  "fibre_tilt"]
     tool: str | None = None
     point: Vec3 | None = None
     component: Literal["x", "y", "z", "norm"] = "norm"

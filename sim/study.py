@@ -38,6 +38,7 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
               reference: tuple[str, float] | None = None) -> Plan:
     """Options over the scene's ``study`` table; without one, its first probe at 4, 2 and 1
     times its own edge length."""
+    from sim.elements import ELEMENTS
     from sim.scene import load_scene
 
     sc = load_scene(scene_path)
@@ -50,6 +51,9 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
             raise ValueError(f"{sc.name}: no probe to study")
     probe = st.probe if st else sc.probes[0].name
     elements = elements or (st.elements if st else ["linear", "q3t", "quadratic"])
+    unknown = set(elements) - set(ELEMENTS)
+    if unknown:
+        raise ValueError(f"unknown element(s) {sorted(unknown)}; known: {sorted(ELEMENTS)}")
     e0 = sc.mesh.edge_length
     levels = sorted(levels or (st.edge_lengths if st else [4 * e0, 2 * e0, e0]), reverse=True)
     if reference is None:
@@ -289,7 +293,9 @@ def run(args) -> int:
     try:
         ref = None
         if args.reference:
-            el, edge = args.reference.split(":")
+            el, _, edge = args.reference.partition(":")
+            if not edge:
+                raise ValueError("--reference needs ELEMENT:EDGE, e.g. quadratic:0.0035")
             ref = (el, float(edge))
         plan = make_plan(scene, args.elements and args.elements.split(","),
                          args.levels and [float(v) for v in args.levels.split(",")], ref)

@@ -1,0 +1,105 @@
+"""Tools and contact through the whole solver: load transfer, the penetration bound, Coulomb
+friction, and the deep-drawn cup (volume, punch force, thickness stages, linear-prism shear)."""
+
+import functools
+
+import numpy as np
+import pytest
+
+from sim.scene import load_scene, scene_from_dict
+from sim.simulation import Simulation
+
+T = 0.002
+
+
+def sheet_on_ground(mu: float, slide: float) -> Simulation:
+    """A 40 x 40 x 2 mm sheet on a ground plane under a 10 kPa pressure (16 N in all)."""
+    raw = {"name": "sheet", "mesh": {"kind": "rectangle", "size": [0.04, 0.04],
+                                     "edge_length": 0.005, "origin": [-0.02, -0.02]},
+           "shell": {"thickness": T, "element": "q3t"},
+           "material": {"model": "neo_hookean", "E": 1e8, "nu": 0.3},
+           "regions": [{"name": "centre", "box": {"min": [-0.001, -0.001, -1],
+                                                  "max": [0.001, 0.001, 1]}},
+                       {"name": "edge", "plane": {"point": [-0.02, 0, 0],
+                                                  "normal": [1, 0, 0]}}],
+           "bcs": ([{"region": "edge", "components": "xy", "displacement": [slide, 0, 0]}]
+                   if slide else [{"region": "centre", "components": "xy"}]),
+           "loads": [{"kind": "pressure", "value": 1e4}],
+           "tools": [{"name": "ground", "friction": mu,
+                      "shape": {"kind": "plane", "point": [0, 0, -T / 2], "normal": [0, 0, 1]}}],
+           "stepping": {"steps": 4},
+           "probes": [{"name": "fz", "kind": "tool_force", "tool": "ground", "component": "z"},
+                      {"name": "fx", "kind": "tool_force", "tool": "ground", "component": "x"},
+                      {"name": "pen", "kind": "penetration", "tool": "ground"}]}
+    return Simulation.from_scene(scene_from_dict(raw))
+
+
+def test_pressed_sheet_transfers_the_load_without_penetrating():
+    sim = sheet_on_ground(0.0, 0.0)
+    assert sim.run(), sim.failure
+    for rec in sim.records:
+        # the plane carries the applied pressure resultant (Newton's rtol 1e-8 of the load)
+        assert np.isclose(rec.probes["fz"], -1e4 * 0.04**2 * rec.time, rtol=1e-6)
+        assert rec.probes["pen"] <= 0.01 * T  # documented bound: 1 % of the thickness
+    assert "contact:ground" in sim.model.built["terms"]
+
+
+def test_dragged_sheet_needs_mu_times_the_normal_force():
+    """Friction lags the normal force by one step (IPC-style), so the drag of step k is mu
+    times the normal force of step k - 1 once the sheet slides."""
+    mu = 0.3
+    sim = sheet_on_ground(mu, 0.005)
+    assert sim.run(), sim.failure
+    fz = [r.probes["fz"] for r in sim.records]
+    fx = [r.probes["fx"] for r in sim.records]
+    for k in (2, 3):
+        # smoothing of the stick-slip transition below 1 % of t of slip: 1e-6 relative
+        assert np.isclose(fx[k], -mu * fz[k - 1], rtol=1e-6)
+
+
+def test_no_tools_no_contact_term():
+    sim = Simulation.from_scene(load_scene("scenes/cantilever.toml",
+                                           {"mesh.edge_length": 0.035}))
+    assert not any(t.startswith("contact") for t in sim.model.built["terms"])
+
+
+@functools.cache
+def cup(element: str, edge: float = 0.002) -> Simulation:
+    """The cup as shipped (2 mm edges, 25 mm stroke in 50 steps) or coarser."""
+    sim = Simulation.from_scene(load_scene("scenes/cup_drawing.toml", {
+        "shell.element": element, "mesh.edge_length": edge}))
+    sim.run()
+    return sim
+
+
+@pytest.mark.slow
+def test_cup_volume_force_and_thickness():
+    sim = cup("q3t")
+    assert sim.result()["converged"], sim.failure
+    p = {k: np.array([r.probes[k] for r in sim.records]) for k in sim.records[0].probes}
+    v0 = float(np.sum(sim.model.elasticity.wdetJ))
+    assert np.abs(p["volume"] / v0 - 1).max() < 0.01  # isochoric plastic flow
+    f = p["punch_force"]
+    peak = int(np.argmax(f))
+    assert 0 < peak < len(f) - 5  # rises, peaks, then falls as the flange is drawn in
+    assert f[-1] < 0.8 * f[peak]
+    # tearing bound pi d_punch t UTS, UTS of AA5754-O ~ 220 MPa (measured peak 21.6 kN of
+    # 22.8; the 3 mm mesh overshoots to 23.0 kN, so the bound is checked at the shipped 2 mm)
+    assert f.max() < np.pi * 0.033 * 0.001 * 220e6
+    # Fig. 10 stages: thinning at the punch radius, thickening of the flange under compression
+    h_min = p["min_thickness"]
+    # contact chatter moves the thinnest node by ~1 um between steps: the trend is what counts
+    assert h_min[-1] < 0.9e-3 and np.all(np.diff(h_min) < 5e-6)
+    assert p["max_thickness"][-1] > 1.1e-3
+    assert p["punch_penetration"].max() <= 0.01 * 0.001  # the documented bound: 1 % of t
+
+
+@pytest.mark.slow
+def test_linear_prisms_shear_where_q3t_bends():
+    """The paper's Fig. 11: linear prisms relieve the volumetric constraint by shearing. We
+    tell them apart by the largest angle between the through-thickness fibres and the deformed
+    mid-surface normal at the end of the stroke, on the 3 mm mesh: measured 17 deg for Q3T,
+    81 deg for linear (on 2 mm Q3T shows 11 deg)."""
+    q3t, lin = cup("q3t", 0.003), cup("linear", 0.003)
+    assert q3t.records[-1].probes["max_fibre_tilt"] < 25.0
+    assert lin.records[-1].probes["max_fibre_tilt"] > 60.0
