@@ -64,9 +64,12 @@ def region_mask(shell: Shell, r: RegionSpec) -> np.ndarray:
     """Selected in-plane nodes ``(n_plane,)`` by their rest mid-surface position."""
     X = shell.plane_mid
     scale = np.ptp(shell.mesh.vertices, axis=0).max()
+    tol = 1e-9 * scale
     if r.box is not None:
-        tol = 1e-9 * scale
         mask = np.all((X >= np.array(r.box.min) - tol) & (X <= np.array(r.box.max) + tol), 1)
+    elif r.ring is not None:
+        rho = np.hypot(X[:, 0], X[:, 1])
+        mask = (rho >= r.ring.r_min - tol) & (rho <= r.ring.r_max + tol)
     else:
         n = np.asarray(r.plane.normal, float)
         n = n / np.linalg.norm(n)

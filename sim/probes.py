@@ -81,6 +81,10 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[s
             out[p.name] = float(getattr(np, p.stat)(h))
         elif p.kind == "volume":
             out[p.name] = volume(model, x)
+        elif p.kind == "height_range":  # out-of-plane amplitude, e.g. of flange wrinkles
+            v = model.regions[p.region][: sh.n_vertices]
+            z = mid_surface(model, x)[v, 2]
+            out[p.name] = float(z.max() - z.min())
         elif p.kind == "fibre_tilt":
             out[p.name] = float(getattr(np, p.stat)(fibre_tilt(model, x)))
         elif p.kind == "curvature":

@@ -90,16 +90,24 @@ class PlaneSpec(Strict):
     tolerance: Pos = 1e-9
 
 
+class RingSpec(Strict):
+    """Nodes whose rest distance from the z axis lies in [r_min, r_max]."""
+
+    r_min: Annotated[float, Field(ge=0)] = 0.0
+    r_max: Pos
+
+
 class RegionSpec(Strict):
     name: str
     box: BoxSpec | None = None
     plane: PlaneSpec | None = None
+    ring: RingSpec | None = None
     boundary: bool = False  # only nodes on the mesh boundary
 
     @model_validator(mode="after")
     def _one_shape(self):
-        if (self.box is None) == (self.plane is None):
-            raise ValueError("a region needs exactly one of box or plane")
+        if sum(s is not None for s in (self.box, self.plane, self.ring)) != 1:
+            raise ValueError("a region needs exactly one of box, plane or ring")
         return self
 
 
@@ -169,7 +177,7 @@ class ProbeSpec(Strict):
     name: str
     kind: Literal["displacement", "thickness", "reaction", "volume", "curvature",
                   "plastic_strain", "von_mises", "tool_force", "penetration", "contact_nodes",
-                  "fibre_tilt"]
+                  "fibre_tilt", "height_range"]
     tool: str | None = None
     point: Vec3 | None = None
     component: Literal["x", "y", "z", "norm"] = "norm"
@@ -180,7 +188,7 @@ class ProbeSpec(Strict):
     def _fields(self):
         if self.kind == "displacement" and self.point is None:
             raise ValueError("a displacement probe needs point")
-        if self.kind in ("reaction", "curvature") and self.region is None:
+        if self.kind in ("reaction", "curvature", "height_range") and self.region is None:
             raise ValueError(f"a {self.kind} probe needs region")
         if self.kind in ("tool_force", "penetration", "contact_nodes") and self.tool is None:
             raise ValueError(f"a {self.kind} probe needs tool")

@@ -118,8 +118,9 @@ def factorisation_times(scene_path: str, elements: list[str], levels: list[float
 
 def all_terms_overrides(scene) -> dict:
     """Overrides that build every term without changing the answer: dynamic with dt = 1e6 s
-    (inertia M/dt^2 is ~1e-12 of the elastic stiffness) ramping the load as the static steps
-    do, plastic with a yield stress of 1e30 Pa (never reached), a zero load if none."""
+    (inertia stiffness M/dt^2: 1e-12 N/m per kg of node mass, nothing beside any elastic
+    stiffness) ramping the load as the static steps do, plastic with a yield stress of 1e30 Pa
+    (never reached), a zero load if none."""
     o = {}
     st = scene.stepping
     if st.kind == "static":
