@@ -8,12 +8,23 @@ import numpy as np
 VIRIDIS = np.array([[68, 1, 84], [71, 44, 122], [59, 81, 139], [44, 113, 142], [33, 144, 141],
                     [39, 173, 129], [92, 200, 99], [170, 220, 50], [253, 231, 37]], np.float64)
 COLORMAPS = {"viridis": VIRIDIS}
+# tools: muted greys with a tint each (never colour-map hues), drawn semi-transparent
+TOOL_COLOURS = [(150, 155, 170), (170, 150, 130), (150, 150, 150), (160, 140, 160),
+                (140, 150, 120)]
+TOOL_OPACITY = 0.35
+
+
+def tool_colour(i: int) -> tuple[tuple[int, int, int], float]:
+    """RGB and opacity of the i-th tool of a scene."""
+    return TOOL_COLOURS[i % len(TOOL_COLOURS)], TOOL_OPACITY
 
 
 def value_range(values: np.ndarray, min_span: float = 1e-6) -> tuple[float, float]:
     lo, hi = float(np.min(values)), float(np.max(values))
     if hi - lo < min_span:  # a uniform field would otherwise colour noise
         mid = 0.5 * (lo + hi)
+        if lo >= 0 and mid < min_span / 2:  # a field that is zero (plastic strain) stays >= 0
+            return 0.0, min_span
         lo, hi = mid - min_span / 2, mid + min_span / 2
     return lo, hi
 
@@ -28,5 +39,7 @@ def colorize(values: np.ndarray, lo: float, hi: float, name: str = "viridis") ->
 
 
 def legend_markdown(label: str, unit: str, lo: float, hi: float, name: str = "viridis") -> str:
-    return (f"**{label}** ({name})  \n"
-            f"🟪 {lo:.4g} {unit} → 🟩 → 🟨 {hi:.4g} {unit}")
+    """The field's name, its unit and the range the colours span (this frame's min to max)."""
+    u = f" {unit}" if unit and unit != "-" else ""
+    return (f"**{label}** [{unit or '-'}], {name}  \n"
+            f"🟪 {lo:.4g}{u} → 🟩 → 🟨 {hi:.4g}{u}")

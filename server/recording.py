@@ -1,5 +1,7 @@
-"""A run's rerun recording: the sheet mesh coloured by thickness every keyframe, and time series
-of every probe, energy, Newton iterations, residual, max thinning and live parameters.
+"""A run's rerun recording: the sheet mesh coloured by thickness every keyframe, the tool meshes
+once (static, ``tools/<name>``) with their translation (``rr.Transform3D``) every keyframe, and
+time series of every probe, energy, Newton iterations, residual, max thinning and live
+parameters.
 
 Each logged step is flushed, so a killed run still leaves a readable ``run.rrd``.
 """
@@ -11,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from server.colormap import colorize, value_range
+from server.colormap import colorize, tool_colour, value_range
 
 
 class Recorder:
@@ -25,8 +27,14 @@ class Recorder:
         self.rec.set_time("step", sequence=int(step))
         self.rec.set_time("sim_time", duration=float(t))
 
-    def meta(self, faces: np.ndarray) -> None:
+    def meta(self, faces: np.ndarray, tools: list[dict] = ()) -> None:
         self.faces = np.asarray(faces, np.uint32)
+        for i, t in enumerate(tools):
+            rgb, alpha = tool_colour(i)
+            self.rec.log(f"tools/{t['name']}", rr.Mesh3D(
+                vertex_positions=t["vertices"], triangle_indices=t["faces"],
+                albedo_factor=[*rgb, int(255 * alpha)]), static=True)
+        self.rec.flush()
 
     def step(self, record: dict) -> None:
         self._time(record["step"], record["time"])
@@ -51,6 +59,8 @@ class Recorder:
             colors = colorize(h, *value_range(h))
             self.rec.log("sheet", rr.Mesh3D(vertex_positions=frame["positions"],
                                             triangle_indices=self.faces, vertex_colors=colors))
+        for name, pose in (frame.get("tools") or {}).items():
+            self.rec.log(f"tools/{name}", rr.Transform3D(translation=np.asarray(pose, np.float32)))
         self.rec.flush()
 
     def close(self) -> None:

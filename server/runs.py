@@ -37,6 +37,8 @@ class Run:
     n_steps: int | None = None
     counts: dict | None = None
     probes: list[str] = field(default_factory=list)
+    tools: list[str] = field(default_factory=list)
+    timing: dict = field(default_factory=dict)  # build_s, tool_meshes_s, first_frame_s, ...
     parameters: dict = field(default_factory=dict)
     parameter_log: list[dict] = field(default_factory=list)
     records: list[dict] = field(default_factory=list)
@@ -215,11 +217,14 @@ class RunManager:
                                            f"{run.n_steps}  \n{run.reason or ''}")
             elif kind == "meta":
                 run.n_steps, run.counts, run.probes = ev["n_steps"], ev["counts"], ev["probes"]
+                tools = ev.get("tools") or []
+                run.tools = [t["name"] for t in tools]
+                run.timing.update(ev.get("timing") or {})
                 self.faces = ev["faces"]
                 if self.recorder:
-                    self.recorder.meta(ev["faces"])
+                    self.recorder.meta(ev["faces"], tools)
                 if self.viewer:
-                    self.viewer.new_run(run.id, ev["faces"])
+                    self.viewer.new_run(run.id, ev["faces"], tools)
                 self._save(run)
             elif kind == "step":
                 run.records.append(ev["record"])
@@ -234,6 +239,10 @@ class RunManager:
                 if self.viewer:
                     self.viewer.set_parameter_value(ev["entry"]["name"], ev["entry"]["value"])
             elif kind == "frame":
+                if "first_frame_s" not in run.timing:
+                    run.timing["first_frame_s"] = time.time() - run.created
+                elif ev["step"] == 1 and "first_step_s" not in run.timing:
+                    run.timing["first_step_s"] = time.time() - run.created
                 if self.recorder:
                     self.recorder.frame(ev)
                 return ev

@@ -1,9 +1,11 @@
-"""The viser viewer: the sheet coloured by a field, a legend, and run controls.
+"""The viser viewer: the sheet coloured by a field, a legend, the tools, and run controls.
 
 It never sees the solver: the bridge hands it frames (dicts of arrays) and it calls back into
 the run manager through ``ViewerActions``. Positions stream to a wireframe every push (about
 0.1 ms at 40k vertices); the coloured surface is a glTF re-sent at most ``colour_hz`` times a
-second (about 10 ms and 1.5 MB at 40k vertices), always on the last frame of a run.
+second (about 10 ms and 1.5 MB at 40k vertices), always on the last frame of a run. Each tool is
+one single-colour, semi-transparent mesh sent once per run; frames only move it (``.position``).
+The colour dropdown offers every field the frames carry.
 """
 
 from __future__ import annotations
@@ -17,9 +19,27 @@ import numpy as np
 import trimesh
 import viser
 
-from server.colormap import colorize, legend_markdown, value_range
+from server.colormap import colorize, legend_markdown, tool_colour, value_range
 
-FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%")}
+# field key -> (label, unit); the dropdown shows "label (unit)"
+FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%"),
+          "eq_plastic_strain": ("Equivalent plastic strain", "-"),
+          "von_mises_MPa": ("von Mises stress", "MPa")}
+# smallest colour span per field: a (nearly) uniform field shows one colour, not its noise
+MIN_SPAN = {"thickness_mm": 1e-3, "thinning_pct": 1e-2, "eq_plastic_strain": 1e-5,
+            "von_mises_MPa": 1e-2}
+DEFAULT_FIELD = "thickness_mm"
+
+
+def field_label(key: str) -> str:
+    label, unit = FIELDS.get(key, (key, ""))
+    return f"{label} ({unit})" if unit else label
+
+
+def field_options(keys) -> dict[str, str]:
+    """Dropdown label -> field key for the fields a frame carries, known fields first."""
+    ordered = [k for k in FIELDS if k in keys] + sorted(k for k in keys if k not in FIELDS)
+    return {field_label(k): k for k in ordered}
 
 
 class ViewerActions(Protocol):
@@ -43,9 +63,11 @@ class Viewer:
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.actions = actions
         self.colour_period = 1.0 / colour_hz
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()  # viser runs update callbacks in the assigning thread
         self.faces: np.ndarray | None = None
         self.surface = self.wire = None
+        self.tools: dict[str, object] = {}  # tool name -> viser mesh handle
+        self.options = field_options(FIELDS)  # dropdown label -> field key
         self.last_colour = 0.0
         self.frame: dict | None = None
         self.echo = False  # set while code (not a user) moves a slider
@@ -68,9 +90,10 @@ class Viewer:
                 lambda _e: self._status(self.actions.viewer_reset(element.value)))
         self.param_folder = g.add_folder("Live parameters")
         with g.add_folder("Colour"):
-            field = g.add_dropdown("Colour by", tuple(FIELDS), initial_value="thickness_mm")
+            field = g.add_dropdown("Colour by", tuple(field_options(FIELDS)),
+                                   initial_value=field_label(DEFAULT_FIELD))
             legend = g.add_markdown("")
-        field.on_update(lambda _e: self._recolour())
+        field.on_update(lambda _e: None if self.echo else self._recolour())
         return Gui(status, field, legend, element, {})
 
     def add_parameters(self, parameters: dict[str, tuple[float, float]]) -> None:
@@ -99,15 +122,46 @@ class Viewer:
             finally:
                 self.echo = False
 
-    def new_run(self, run_id: str, faces: np.ndarray) -> None:
+    def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict] = ()) -> None:
+        """A new run: drop the old sheet and tools, add this run's tools (meshes sent once)."""
         with self.lock:
             self.faces = np.asarray(faces, np.uint32)
             self.frame = None
-            for h in (self.surface, self.wire):
+            for h in (self.surface, self.wire, *self.tools.values()):
                 if h is not None:
                     h.remove()
             self.surface = self.wire = None
+            self.tools = {}
+            for i, t in enumerate(tools):
+                rgb, alpha = tool_colour(i)
+                self.tools[t["name"]] = self.server.scene.add_mesh_simple(
+                    f"/tools/{t['name']}", np.asarray(t["vertices"], np.float32),
+                    np.asarray(t["faces"], np.uint32), color=rgb, opacity=alpha,
+                    side="double", cast_shadow=False, receive_shadow=False)
         self._status(f"Run `{run_id}`: building")
+
+    def _set_fields(self, keys) -> None:
+        """Offer exactly the fields this frame carries; keep the choice when still offered."""
+        options = field_options(keys)
+        if options == self.options:
+            return
+        current = self.options.get(self.gui.field.value, DEFAULT_FIELD)
+        self.options = options
+        keep = next((lab for lab, k in options.items() if k == current),
+                    next((lab for lab, k in options.items() if k == DEFAULT_FIELD),
+                         next(iter(options))))
+        self.echo = True
+        try:
+            self.gui.field.options = tuple(options)
+            self.gui.field.value = keep
+        finally:
+            self.echo = False
+
+    def _move_tools(self, frame: dict) -> None:
+        for name, pose in (frame.get("tools") or {}).items():
+            h = self.tools.get(name)
+            if h is not None:
+                h.position = np.asarray(pose, np.float64)
 
     def show(self, frame: dict, status: str, final: bool = False) -> None:
         """Push one frame: positions always, colours when due or final."""
@@ -117,6 +171,8 @@ class Viewer:
             self.frame = frame
             now = time.perf_counter()
             with self.server.atomic():
+                self._set_fields(frame["fields"])
+                self._move_tools(frame)
                 if self.wire is None:
                     self.wire = self.server.scene.add_mesh_simple(
                         "/sheet/wire", frame["positions"], self.faces, wireframe=True,
@@ -135,14 +191,16 @@ class Viewer:
                 self._send_surface(self.frame)
 
     def _send_surface(self, frame: dict) -> None:
-        key = self.gui.field.value
+        key = self.options.get(self.gui.field.value, DEFAULT_FIELD)
+        if key not in frame["fields"]:
+            key = next(iter(frame["fields"]))
         values = frame["fields"][key]
-        lo, hi = value_range(values, 1e-3)
+        lo, hi = value_range(values, MIN_SPAN.get(key, 1e-6))
         rgb = colorize(values, lo, hi)
         mesh = trimesh.Trimesh(frame["positions"], self.faces, process=False,
                                vertex_colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
         self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
-        label, unit = FIELDS[key]
+        label, unit = FIELDS.get(key, (key, ""))
         self.gui.legend.content = legend_markdown(label, unit, lo, hi)
 
     def _aim(self, positions: np.ndarray) -> None:

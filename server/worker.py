@@ -4,6 +4,10 @@ Commands come down ``commands`` as dicts with a request id; replies, states and 
 up ``events`` (small, never dropped); frames go up the bounded ``frames`` queue with
 ``put_nowait`` and are dropped when the server is behind. Every ``keyframe_every`` steps (and at
 the first and last step) the frame travels on ``events`` instead, so recordings never miss it.
+
+The run's first messages are ``meta`` (sheet faces and the tool meshes, each sent once per run)
+and the rest-state frame, both before the first step; later frames carry only positions, fields
+and the tools' translations.
 """
 
 from __future__ import annotations
@@ -15,13 +19,39 @@ import traceback
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
+
 
 def _frame_msg(run: str, sim) -> dict:
     f = sim.frame()
     return {"kind": "frame", "run": run, "step": f.step, "time": f.time,
             "positions": f.positions, "fields": {k: v.astype("float32") for k, v in
                                                  f.fields.items()},
+            "tools": {k: np.asarray(v, np.float32) for k, v in sim.tool_poses().items()},
             "probes": f.probes, "iterations": f.iterations, "residual": f.residual}
+
+
+def plane_size(positions: np.ndarray) -> float:
+    """Side of the square that shows an unbounded tool (a plane): twice the sheet's extent."""
+    extent = positions.max(0) - positions.min(0) if len(positions) else np.ones(3)
+    return float(2.0 * max(float(np.max(extent)), 1e-3))
+
+
+def tool_meshes(scene, size: float, cache: dict) -> list[dict]:
+    """Display meshes of the scene's tools in their local frames (world = local + translation):
+    ``[{name, kind, vertices (m, 3) float32, faces (k, 3) uint32}]``. Cached per shape."""
+    from sim.model import tool_program
+    from sim.tools.meshes import tool_mesh
+
+    out = []
+    for spec in scene.tools:
+        key = (spec.shape.model_dump_json(), round(size, 9))
+        if key not in cache:
+            V, F = tool_mesh(tool_program(spec.shape), plane_size=size)
+            cache[key] = (np.asarray(V, np.float32), np.asarray(F, np.uint32))
+        V, F = cache[key]
+        out.append({"name": spec.name, "kind": spec.shape.kind, "vertices": V, "faces": F})
+    return out
 
 
 class _Solver:
@@ -34,6 +64,7 @@ class _Solver:
         self.out: Path | None = None
         self.paused = False
         self.pending_steps = 0
+        self.mesh_cache: dict = {}  # tool meshes by shape: a repeated run skips the meshing
 
     def emit(self, kind: str, **kw) -> None:
         self.events.put({"kind": kind, "run": self.run, **kw})
@@ -60,19 +91,31 @@ class _Solver:
         self.run, self.out = msg["run"], Path(msg["out"])
         self.paused, self.pending_steps = bool(msg.get("paused")), 0
         self.emit("state", state="building")
+        t0 = time.perf_counter()
         try:
             scene = scene_from_toml(msg["scene_toml"], msg.get("overrides") or {})
             self.sim = Simulation.from_scene(scene)
             for name, value in (msg.get("parameters") or {}).items():
                 self.sim.set_parameter(name, value)
+            t1 = time.perf_counter()
+            rest = _frame_msg(self.run, self.sim)
         except Exception as exc:
             self.sim = None
             self.emit("state", state="failed", reason=f"build failed: {exc}")
             raise
+        t2 = time.perf_counter()
+        try:  # display only: a tool that cannot be meshed must not stop the run
+            tools = tool_meshes(scene, plane_size(rest["positions"]), self.mesh_cache)
+        except Exception:
+            tools = []
+            self.emit("log", text=f"tool meshes failed:\n{traceback.format_exc()}")
+        t3 = time.perf_counter()
         self.emit("meta", faces=self.sim.display.faces, n_steps=self.sim.n_steps,
                   counts=self.sim.result()["counts"], element=scene.shell.element,
-                  probes=[p.name for p in scene.probes])
-        self.events.put(_frame_msg(self.run, self.sim))
+                  probes=[p.name for p in scene.probes], tools=tools,
+                  timing={"build_s": t1 - t0, "rest_frame_s": t2 - t1,
+                          "tool_meshes_s": t3 - t2})
+        self.events.put(rest)  # the rest state, before the first step (which may take seconds)
         self.emit("state", state="paused" if self.paused else "running")
 
     def _need_run(self) -> None:
