@@ -38,8 +38,14 @@ def colorize(values: np.ndarray, lo: float, hi: float, name: str = "viridis") ->
     return np.round(table[i] * (1 - w) + table[i + 1] * w).astype(np.uint8)
 
 
-def legend_markdown(label: str, unit: str, lo: float, hi: float, name: str = "viridis") -> str:
-    """The field's name, its unit and the range the colours span (this frame's min to max)."""
+def legend_html(label: str, unit: str, lo: float, hi: float, name: str = "viridis") -> str:
+    """A colour bar naming the field, its unit and the range the colours span (this frame's
+    min to max). HTML, since emoji swatches need a font that headless browsers lack."""
+    stops = ", ".join(f"rgb({r:.0f},{g:.0f},{b:.0f})" for r, g, b in COLORMAPS[name])
     u = f" {unit}" if unit and unit != "-" else ""
-    return (f"**{label}** [{unit or '-'}], {name}  \n"
-            f"🟪 {lo:.4g}{u} → 🟩 → 🟨 {hi:.4g}{u}")
+    return (f'<div class="q3t-legend" style="font-size:0.85em">'
+            f"<div><b>{label}</b> [{unit or '-'}]</div>"
+            f'<div style="height:10px;border-radius:2px;margin:2px 0;'
+            f'background:linear-gradient(to right, {stops})"></div>'
+            f'<div style="display:flex;justify-content:space-between">'
+            f"<span>{lo:.4g}{u}</span><span>{hi:.4g}{u}</span></div></div>")

@@ -19,7 +19,7 @@ import numpy as np
 import trimesh
 import viser
 
-from server.colormap import colorize, legend_markdown, tool_colour, value_range
+from server.colormap import colorize, legend_html, tool_colour, value_range
 
 # field key -> (label, unit); the dropdown shows "label (unit)"
 FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%"),
@@ -52,7 +52,7 @@ class ViewerActions(Protocol):
 class Gui:
     status: viser.GuiMarkdownHandle
     field: viser.GuiDropdownHandle
-    legend: viser.GuiMarkdownHandle
+    legend: viser.GuiHtmlHandle
     element: viser.GuiDropdownHandle
     sliders: dict
 
@@ -92,7 +92,7 @@ class Viewer:
         with g.add_folder("Colour"):
             field = g.add_dropdown("Colour by", tuple(field_options(FIELDS)),
                                    initial_value=field_label(DEFAULT_FIELD))
-            legend = g.add_markdown("")
+            legend = g.add_html("")
         field.on_update(lambda _e: None if self.echo else self._recolour())
         return Gui(status, field, legend, element, {})
 
@@ -201,7 +201,7 @@ class Viewer:
                                vertex_colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
         self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
         label, unit = FIELDS.get(key, (key, ""))
-        self.gui.legend.content = legend_markdown(label, unit, lo, hi)
+        self.gui.legend.content = legend_html(label, unit, lo, hi)
 
     def _aim(self, positions: np.ndarray) -> None:
         lo, hi = positions.min(0), positions.max(0)
