@@ -38,7 +38,7 @@ def cmd_serve(args) -> int:
     settings = Settings(scenes_dir=scenes, runs_dir=Path(args.runs_dir), token=token,
                         viewer=not args.no_viewer, viewer_host=args.host,
                         viewer_port=args.viewer_port, step_delay=args.step_delay,
-                        extra={"default_scene": args.scene})
+                        default_scene=args.scene)
     query = f"?token={token}" if token else ""
     print(f"q3t: open http://{args.host}:{args.port}/{query}  (API docs at /docs)",
           file=sys.stderr, flush=True)
@@ -75,7 +75,9 @@ def cmd_play(args) -> int:
 
 def add_parser(sub) -> None:
     s = sub.add_parser("serve", help="start the browser preview service")
-    s.add_argument("scene", nargs="?", default="cantilever", help="default scene name")
+    s.add_argument("scene", nargs="?", default="cup_drawing",
+                   help="default scene name (selected first on the page; the viewer's Play "
+                        "starts it)")
     s.add_argument("--host", default="127.0.0.1")
     s.add_argument("--port", type=int, default=8080)
     s.add_argument("--viewer-port", type=int, default=8081, help="viser viewer port")

@@ -319,7 +319,7 @@ class RunManager:
 
     def viewer_reset(self, element: str | None) -> str:
         last = max(self.runs.values(), key=lambda r: r.created, default=None)
-        scene = last.scene if last else self.settings.extra.get("default_scene", "cantilever")
+        scene = last.scene if last else self.settings.default_scene
         try:
             if self.active:
                 self.command(self.active, "stop")

@@ -36,7 +36,10 @@ async function loadScenes() {
     li.onclick = () => selectScene(s.name);
     ul.appendChild(li);
   }
-  if (!state.scene && list.length) await selectScene(list[0].name);
+  if (!state.scene && list.length) {
+    const dflt = list.find((s) => s.name === state.config.default_scene);
+    await selectScene((dflt || list[0]).name);
+  }
 }
 
 async function selectScene(name) {

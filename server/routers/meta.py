@@ -16,7 +16,8 @@ def config(request: Request) -> dict:
     return {"elements": sorted(ELEMENTS),
             "parameters": {k: {"min": lo, "max": hi} for k, (lo, hi) in
                            m.parameter_ranges.items()},
-            "viewer_port": m.viewer.port if m.viewer else None}
+            "viewer_port": m.viewer.port if m.viewer else None,
+            "default_scene": m.settings.default_scene}
 
 
 @router.get("/health")
