@@ -67,6 +67,14 @@ def cmd_play(args) -> int:
     if not path.is_file():
         print(f"q3t: no recording at {path}", file=sys.stderr)
         return 2
+    if args.viser:
+        from server import replay
+
+        rep = replay.load(path)
+        print(f"q3t: {len(rep.steps)} recorded frames, tools {sorted(rep.tools)}; viser viewer "
+              f"at http://127.0.0.1:{args.port} (Ctrl-C ends)", file=sys.stderr, flush=True)
+        replay.serve(rep, "127.0.0.1", args.port, title=path.parent.name)
+        return 0
     cmd = play_command(path, args.web, args.port)
     if args.web:
         print(f"q3t: rerun web viewer at http://127.0.0.1:{args.port}", file=sys.stderr)
@@ -91,6 +99,8 @@ def add_parser(sub) -> None:
     p = sub.add_parser("play", help="open a run's rerun recording")
     p.add_argument("run", help="run id, run folder or .rrd file")
     p.add_argument("--web", action="store_true", help="serve rerun's web viewer on 127.0.0.1")
-    p.add_argument("--port", type=int, default=9090, help="web viewer port (with --web)")
+    p.add_argument("--viser", action="store_true",
+                   help="replay in a viser viewer on 127.0.0.1 (step slider, Play)")
+    p.add_argument("--port", type=int, default=9090, help="viewer port (with --web or --viser)")
     p.add_argument("--runs-dir", default="runs")
     p.set_defaults(func=cmd_play)

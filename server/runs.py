@@ -11,6 +11,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from server.history import FrameHistory
 from server.recording import Recorder
 from server.settings import Settings, check_name
 from server.store import SceneStore, atomic_write
@@ -64,6 +65,7 @@ class RunManager:
         self.recorder: Recorder | None = None
         self.faces = None
         self.viewer = None
+        self.history = FrameHistory(settings.history_frames, settings.history_bytes)
         self.worker = self._new_worker()
         self.restarts = 0
         self._stop = threading.Event()
@@ -139,6 +141,7 @@ class RunManager:
             atomic_write(out / "scene.toml", text)
             self._save(run)
             self.runs[run.id], self.active = run, run.id
+            self.history.reset(run.id)
             self.recorder = Recorder(out / "run.rrd", run.id)
             self.worker.send("start", run=run.id, out=str(out), scene_toml=text,
                              overrides=overrides, parameters=parameters or {}, paused=paused)
@@ -183,6 +186,8 @@ class RunManager:
             if run.id == self.active:
                 raise Conflict(f"run {run_id!r} is {run.state}; stop it first")
             del self.runs[run.id]
+            if self.history.run == run.id:
+                self.history.reset(None)
         shutil.rmtree(self.dir(run_id), ignore_errors=True)
 
     # ---- events from the solver -------------------------------------------------------------
@@ -243,6 +248,7 @@ class RunManager:
                     run.timing["first_frame_s"] = time.time() - run.created
                 elif ev["step"] == 1 and "first_step_s" not in run.timing:
                     run.timing["first_step_s"] = time.time() - run.created
+                self.history.add(ev)
                 if self.recorder:
                     self.recorder.frame(ev)
                 return ev
@@ -284,6 +290,8 @@ class RunManager:
                     run = self.runs.get(shown["run"])
                     final = bool(run and run.n_steps == shown["step"])
             frames = self._drain(w.frames, 64)
+            for f in frames:
+                self.history.add(f)  # ignores frames of other runs
             if frames and (newest is None or frames[-1]["step"] > newest["step"]):
                 newest, final = frames[-1], False
             now = time.perf_counter()
@@ -331,6 +339,27 @@ class RunManager:
             return f"Started `{run.id}`"
         except (Conflict, KeyError, SceneError, ValueError) as exc:
             return f"Cannot start: {exc}"
+
+    def frame_at(self, run_id: str, step: int) -> dict:
+        """A kept frame of the current (latest) run: the one at ``step`` or the nearest before."""
+        self.get(run_id)
+        frame = self.history.at(step) if self.history.run == run_id else None
+        if frame is None:
+            raise KeyError(f"no frames kept for run {run_id!r} (only the latest run's are)")
+        return frame
+
+    def viewer_scrub(self, step: int) -> tuple[dict | None, str]:
+        """The frame to show for the time slider, or why none (a running run streams)."""
+        run = self.runs.get(self.history.run or "")
+        if run is None:
+            return None, "No run to scrub"
+        if run.state in ("starting", "building", "running"):
+            return None, f"Run `{run.id}` is {run.state}: pause it to scrub"
+        frame = self.history.at(step)
+        if frame is None:
+            return None, "No frames yet"
+        return frame, (f"Run `{run.id}` ({run.state})  \nshowing step {frame['step']}/"
+                       f"{run.n_steps} (kept every {self.history.stride})")
 
     def viewer_set(self, name: str, value: float) -> str:
         if self.active is None:

@@ -30,5 +30,7 @@ class Settings:
     record_mesh_every: int = 1  # steps between meshes in run.rrd
     push_hz: float = 20.0  # most frames per second pushed to the viewer
     step_delay: float = 0.0  # seconds between steps (lets a tiny scene be watched)
+    history_frames: int = 400  # frames of the current run kept for scrubbing; then every k-th
+    history_bytes: int = 256 * 2**20  # and at most this many bytes of them (server process)
     default_scene: str = "cup_drawing"  # selected first on the page; the viewer's Play starts it
     extra: dict = field(default_factory=dict)

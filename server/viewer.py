@@ -5,7 +5,8 @@ the run manager through ``ViewerActions``. Positions stream to a wireframe every
 0.1 ms at 40k vertices); the coloured surface is a glTF re-sent at most ``colour_hz`` times a
 second (about 10 ms and 1.5 MB at 40k vertices), always on the last frame of a run. Each tool is
 one single-colour, semi-transparent mesh sent once per run; frames only move it (``.position``).
-The colour dropdown offers every field the frames carry.
+The colour dropdown offers every field the frames carry. The time slider follows the live step;
+when the run is paused or over, moving it shows a kept frame (``RunManager.history``).
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ class ViewerActions(Protocol):
     def viewer_command(self, cmd: str) -> str: ...
     def viewer_reset(self, element: str | None) -> str: ...
     def viewer_set(self, name: str, value: float) -> str: ...
+    def viewer_scrub(self, step: int) -> tuple[dict | None, str]: ...
 
 
 @dataclass
@@ -55,6 +57,7 @@ class Gui:
     legend: viser.GuiHtmlHandle
     element: viser.GuiDropdownHandle
     sliders: dict
+    time: viser.GuiSliderHandle
 
 
 class Viewer:
@@ -88,13 +91,17 @@ class Viewer:
                                      initial_value="q3t" if "q3t" in elements else elements[0])
             g.add_button("Reset").on_click(
                 lambda _e: self._status(self.actions.viewer_reset(element.value)))
+        with g.add_folder("Time"):
+            time_slider = g.add_slider("Step", min=0, max=1, step=1, initial_value=0,
+                                       hint="pause the run (or let it finish), then drag")
+        time_slider.on_update(lambda _e: None if self.echo else self._scrub())
         self.param_folder = g.add_folder("Live parameters")
         with g.add_folder("Colour"):
             field = g.add_dropdown("Colour by", tuple(field_options(FIELDS)),
                                    initial_value=field_label(DEFAULT_FIELD))
             legend = g.add_html("")
         field.on_update(lambda _e: None if self.echo else self._recolour())
-        return Gui(status, field, legend, element, {})
+        return Gui(status, field, legend, element, {}, time_slider)
 
     def add_parameters(self, parameters: dict[str, tuple[float, float]]) -> None:
         """One slider per live parameter, once the solver process has said which exist."""
@@ -132,6 +139,11 @@ class Viewer:
                     h.remove()
             self.surface = self.wire = None
             self.tools = {}
+            self.echo = True
+            try:
+                self.gui.time.value, self.gui.time.max = 0, 1
+            finally:
+                self.echo = False
             for i, t in enumerate(tools):
                 rgb, alpha = tool_colour(i)
                 self.tools[t["name"]] = self.server.scene.add_mesh_simple(
@@ -157,14 +169,34 @@ class Viewer:
         finally:
             self.echo = False
 
+    def _set_time(self, step: int) -> None:
+        """Move the time slider to the live step (its end grows with the run)."""
+        self.echo = True
+        try:
+            self.gui.time.max = max(1, int(step), int(self.gui.time.max))
+            self.gui.time.value = int(step)
+        finally:
+            self.echo = False
+
+    def _scrub(self) -> None:
+        frame, message = self.actions.viewer_scrub(int(self.gui.time.value))
+        if frame is None:
+            self._status(message)
+            live = self.frame
+            if live is not None:
+                self._set_time(live["step"])
+            return
+        self.show(frame, message, final=True, live=False)
+
     def _move_tools(self, frame: dict) -> None:
         for name, pose in (frame.get("tools") or {}).items():
             h = self.tools.get(name)
             if h is not None:
                 h.position = np.asarray(pose, np.float64)
 
-    def show(self, frame: dict, status: str, final: bool = False) -> None:
-        """Push one frame: positions always, colours when due or final."""
+    def show(self, frame: dict, status: str, final: bool = False, live: bool = True) -> None:
+        """Push one frame: positions always, colours when due or final. A live frame also moves
+        the time slider; a scrubbed one (``live=False``) leaves it where the user put it."""
         with self.lock:
             if self.faces is None:
                 return
@@ -173,6 +205,8 @@ class Viewer:
             with self.server.atomic():
                 self._set_fields(frame["fields"])
                 self._move_tools(frame)
+                if live:
+                    self._set_time(frame["step"])
                 if self.wire is None:
                     self.wire = self.server.scene.add_mesh_simple(
                         "/sheet/wire", frame["positions"], self.faces, wireframe=True,

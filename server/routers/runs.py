@@ -78,6 +78,31 @@ def result(run_id: str, request: Request) -> dict:
     return json.loads(path.read_text())
 
 
+@router.get("/{run_id}/frames")
+def frames(run_id: str, request: Request) -> dict:
+    """The steps whose frames the server keeps (the latest run only; every k-th when long)."""
+    m = _runs(request)
+    m.get(run_id)
+    summary = m.history.summary()
+    if summary["run"] != run_id:
+        raise KeyError(f"no frames kept for run {run_id!r} (only the latest run's are)")
+    return summary
+
+
+@router.get("/{run_id}/frames/{step}")
+def frame(run_id: str, step: int, request: Request) -> dict:
+    """One kept frame (the one at ``step`` or the nearest before): tool translations, probes,
+    and each field's min, max and mean over the display vertices."""
+    f = _runs(request).frame_at(run_id, step)
+    return {"step": f["step"], "time": f["time"], "n_vertices": len(f["positions"]),
+            "tools": {k: [float(x) for x in v] for k, v in f["tools"].items()},
+            "fields": {k: {"min": float(v.min()), "max": float(v.max()), "mean": float(v.mean())}
+                       for k, v in f["fields"].items()},
+            "bounds": [[float(x) for x in f["positions"].min(0)],
+                       [float(x) for x in f["positions"].max(0)]],
+            "probes": f["probes"]}
+
+
 @router.get("/{run_id}/recording")
 def recording(run_id: str, request: Request) -> FileResponse:
     m = _runs(request)

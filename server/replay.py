@@ -1,0 +1,139 @@
+"""``q3t play RUN --viser``: a recorded run (``run.rrd``) in a viser viewer with a time slider.
+
+The recording is read back with ``rerun.chunk.RrdReader``: the sheet (``/sheet``, a Mesh3D per
+keyframe with the thickness colours it was recorded with), the tool meshes (``/tools/<name>``,
+static) and their translations (``Transform3D`` per keyframe). Only what the recording holds can
+be shown: the sheet is coloured by thickness, as recorded.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from server.colormap import tool_colour
+
+
+@dataclass
+class Replay:
+    steps: list[int] = field(default_factory=list)
+    positions: list[np.ndarray] = field(default_factory=list)  # per step (n, 3) float32
+    colors: list[np.ndarray] = field(default_factory=list)  # per step (n, 3) uint8
+    faces: np.ndarray | None = None
+    tools: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # V, F
+    poses: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)  # tool -> step -> t
+
+    def pose(self, tool: str, step: int) -> np.ndarray:
+        """The tool's translation at ``step``: the latest recorded at or before it."""
+        known = self.poses.get(tool) or {}
+        before = [s for s in known if s <= step]
+        return known[max(before)] if before else (known[min(known)] if known else np.zeros(3))
+
+
+def _vec3(cell) -> np.ndarray:
+    """One row of a list<fixed_size_list<float, 3>> column -> (n, 3)."""
+    return np.asarray(cell.values.flatten().to_numpy(zero_copy_only=False)).reshape(-1, 3)
+
+
+def _rgb(cell) -> np.ndarray:
+    """One row of packed RGBA uint32 colours (0xRRGGBBAA) -> (n, 3) uint8."""
+    c = np.asarray(cell.values.to_numpy(zero_copy_only=False), np.uint32)
+    return np.stack([(c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255], axis=1).astype(np.uint8)
+
+
+def load(path: Path) -> Replay:
+    from rerun.chunk import RrdReader
+
+    rep, sheet = Replay(), {}
+    for chunk in RrdReader(str(path)).stream():
+        entity = str(chunk.entity_path)
+        rb = chunk.to_record_batch()
+        cols = set(rb.schema.names)
+        steps = rb.column("step").to_pylist() if "step" in cols else [None] * rb.num_rows
+        if entity == "/sheet" and "Mesh3D:vertex_positions" in cols:
+            pos, tri = rb.column("Mesh3D:vertex_positions"), rb.column("Mesh3D:triangle_indices")
+            col = rb.column("Mesh3D:vertex_colors") if "Mesh3D:vertex_colors" in cols else None
+            for i, step in enumerate(steps):
+                if step is None:
+                    continue
+                if rep.faces is None:
+                    rep.faces = _vec3(tri[i]).astype(np.uint32)
+                p = _vec3(pos[i]).astype(np.float32)
+                c = _rgb(col[i]) if col is not None else np.full((len(p), 3), 180, np.uint8)
+                sheet[int(step)] = (p, c)
+        elif entity.startswith("/tools/"):
+            name = entity.removeprefix("/tools/")
+            if "Mesh3D:vertex_positions" in cols:
+                rep.tools[name] = (_vec3(rb.column("Mesh3D:vertex_positions")[0]),
+                                   _vec3(rb.column("Mesh3D:triangle_indices")[0]).astype(np.uint32))
+            if "Transform3D:translation" in cols:
+                tr = rb.column("Transform3D:translation")
+                for i, step in enumerate(steps):
+                    if step is not None:
+                        rep.poses.setdefault(name, {})[int(step)] = _vec3(tr[i])[0]
+    for step in sorted(sheet):
+        rep.steps.append(step)
+        rep.positions.append(sheet[step][0])
+        rep.colors.append(sheet[step][1])
+    return rep
+
+
+def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "",
+          block: bool = True):
+    """A viser viewer of ``rep``: sheet, tools, a step slider and Play/Pause. Returns the
+    server when ``block`` is false (tests); otherwise runs until Ctrl-C."""
+    import trimesh
+    import viser
+
+    if not rep.steps or rep.faces is None:
+        raise ValueError("the recording holds no sheet mesh")
+    server = viser.ViserServer(host=host, port=port, verbose=False)
+    lock = threading.Lock()
+    handles = {}
+    for i, (name, (V, F)) in enumerate(rep.tools.items()):
+        rgb, alpha = tool_colour(i)
+        handles[name] = server.scene.add_mesh_simple(
+            f"/tools/{name}", V.astype(np.float32), F, color=rgb, opacity=alpha, side="double",
+            cast_shadow=False, receive_shadow=False)
+    g = server.gui
+    status = g.add_markdown(f"Recording `{title}`: {len(rep.steps)} frames, steps "
+                            f"{rep.steps[0]}-{rep.steps[-1]} (sheet coloured by thickness)")
+    slider = g.add_slider("Step", min=0, max=max(1, len(rep.steps) - 1), step=1,
+                          initial_value=0, hint="index into the recorded frames")
+    playing = g.add_checkbox("Play", initial_value=False)
+    fps = g.add_slider("Frames/s", min=1, max=30, step=1, initial_value=8)
+
+    def show(i: int) -> None:
+        i = int(min(max(i, 0), len(rep.steps) - 1))
+        step = rep.steps[i]
+        rgba = np.c_[rep.colors[i], np.full(len(rep.colors[i]), 255, np.uint8)]
+        mesh = trimesh.Trimesh(rep.positions[i], rep.faces, vertex_colors=rgba, process=False)
+        with lock, server.atomic():
+            server.scene.add_mesh_trimesh("/sheet", mesh)
+            for name, h in handles.items():
+                h.position = np.asarray(rep.pose(name, step), np.float64)
+            status.content = f"Recording `{title}`: step {step} ({i + 1}/{len(rep.steps)})"
+
+    slider.on_update(lambda _e: show(slider.value))
+    lo, hi = rep.positions[0].min(0), rep.positions[0].max(0)
+    centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) or 1.0
+    cam = server.initial_camera
+    cam.look_at, cam.up = tuple(centre), (0.0, 0.0, 1.0)
+    cam.position = tuple(centre + size * np.array([0.1, -0.9, 0.6]))
+    show(0)
+    if not block:
+        return server
+    try:
+        while True:
+            time.sleep(1.0 / fps.value)
+            if playing.value:
+                slider.value = (slider.value + 1) % len(rep.steps)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
+    return None
