@@ -153,7 +153,7 @@ async function poll() {
       $("status").dataset.state = st.state;
       $("status").dataset.run = st.id;
       $("status").dataset.step = st.step;
-      drawPlots();
+      drawPlots(st.probes);
     }
   } catch (e) { say(e.message, true); }
   setTimeout(poll, 500);
@@ -172,6 +172,7 @@ function plot(canvas, series) {
     const ys = s.ys.filter(Number.isFinite);
     if (!ys.length) return;
     let y0 = Math.min(...ys), y1 = Math.max(...ys);
+    if (s.fromZero) { y0 = Math.min(y0, 0); y1 = Math.max(y1, 0); }
     if (y1 - y0 < 1e-12 * Math.max(1, Math.abs(y1))) { y0 -= 1; y1 += 1; }
     ctx.strokeStyle = ctx.fillStyle = COLORS[k % COLORS.length];
     ctx.beginPath();
@@ -188,8 +189,24 @@ function plot(canvas, series) {
   ctx.fillText(`step ${x0} … ${x1}`, W - 110, H - 8);
 }
 
-function drawPlots() {
+function drawForce(rec, probeNames) {
+  // the punch force, live, when the scene has a punch_force probe (N in records, kN here)
+  const has = probeNames.includes("punch_force") ||
+    (rec.length && "punch_force" in rec[rec.length - 1].probes);
+  $("force-fig").hidden = !has;
+  if (!has) return;
+  const pts = rec.filter((r) => Number.isFinite(r.probes.punch_force));
+  const kN = pts.map((r) => r.probes.punch_force / 1000);
+  plot($("force"), [{ name: "punch force (kN)", xs: pts.map((r) => r.step), ys: kN,
+                      fromZero: true }]);
+  $("force-now").textContent = pts.length ?
+    `— ${kN[kN.length - 1].toFixed(2)} kN at step ${pts[pts.length - 1].step}, ` +
+    `peak ${Math.max(...kN.map(Math.abs)).toFixed(2)} kN` : "";
+}
+
+function drawPlots(probeNames) {
   const rec = state.records;
+  drawForce(rec, probeNames || []);
   const steps = rec.map((r) => r.step);
   const names = rec.length ? Object.keys(rec[rec.length - 1].probes) : [];
   plot($("probes"), names.map((n) => ({ name: n, xs: steps, ys: rec.map((r) => r.probes[n]) })));
