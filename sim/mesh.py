@@ -81,7 +81,8 @@ def _stitch(s0: int, n0: int, s1: int, n1: int) -> np.ndarray:
 
 def cylinder_band(radius: float, height: float, edge_length: float) -> TriMesh:
     """A cylindrical band (the cookie-cutter strip): axis z, z in [0, height], normals outward."""
-    nt = max(6, int(round(2 * np.pi * radius / edge_length)))
+    # a multiple of 4 columns puts vertices on both axes, where scenes hold the band
+    nt = max(8, 4 * int(round(2 * np.pi * radius / edge_length / 4)))
     nz = max(1, int(round(height / edge_length)))
     t, z = np.meshgrid(np.arange(nt + 1) * 2 * np.pi / nt, np.linspace(0, height, nz + 1),
                        indexing="ij")

@@ -129,6 +129,7 @@ class Model:
     built: dict = field(default_factory=dict)
 
     released: np.ndarray | None = None  # (n_nodes, 3) bool: DoFs freed for springback
+    release_support: np.ndarray | None = None  # (n_nodes, 3) bool: held only for springback
 
     def dirichlet_positions(self, t: float) -> np.ndarray:
         x = self.shell.rest + t * self.prescribed
@@ -188,12 +189,16 @@ def build_model(scene: Scene) -> Model:
     model = Model(scene, shell, pattern, None, terms, elastic, ext, inertia, fixed, prescribed, [],
                   regions, NewtonSettings(rtol=scene.solver.rtol,
                                           max_iterations=scene.solver.max_iterations), 0.0, built)
+    release_support = np.zeros((shell.n_nodes, 3), bool)
     for i, bc in enumerate(scene.bcs):
         try:
             nodes = model.column_nodes(regions[bc.region], bc.layers)
         except ValueError as exc:
             raise ValueError(f"bcs.{i}.layers: {exc}") from None
         comps = ["xyz".index(c) for c in bc.components]
+        if bc.release_only:
+            release_support[np.ix_(nodes, comps)] = True
+            continue
         if bc.bend is not None:
             if bc.components != "xyz":
                 raise ValueError(f"bcs.{i}.bend: a bent end needs components = 'xyz'")
@@ -208,6 +213,7 @@ def build_model(scene: Scene) -> Model:
                 nodes = model.column_nodes(regions[bc.region], bc.layers)
                 released[np.ix_(nodes, ["xyz".index(c) for c in bc.components])] = True
         model.released = released
+        model.release_support = release_support
     mu, lam = lame(m.E, m.nu)
     h = float(np.mean(shell.thickness))
     edge = float(np.mean(np.linalg.norm(np.diff(shell.mesh.vertices[shell.mesh.faces[:, :2]],

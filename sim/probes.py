@@ -94,7 +94,11 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[s
             ep = model.elasticity.ep
             out[p.name] = float(getattr(np, p.stat)(ep)) if ep.size else 0.0
         elif p.kind in ("tool_force", "penetration", "contact_nodes"):
-            term = next(t for t in model.terms if getattr(t, "tool", None) == p.tool)
+            term = next((t for t in model.problem.terms if getattr(t, "tool", None) == p.tool),
+                        None)
+            if term is None:  # retracted for springback: it carries nothing
+                out[p.name] = 0.0
+                continue
             rep = term.report(x)
             if p.kind == "tool_force":
                 f = np.array([rep["fx"], rep["fy"], rep["fz"]])

@@ -127,6 +127,8 @@ class BCSpec(Strict):
     displacement: Vec3 = (0.0, 0.0, 0.0)  # reached at t = 1, linear in t
     bend: BendSpec | None = None
     release: bool = False  # removed in the release (springback) stage
+    # only in the release stage, holding the nodes where they are (a support for the free part)
+    release_only: bool = False
 
 
 class LoadSpec(Strict):

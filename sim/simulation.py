@@ -142,7 +142,7 @@ class Simulation:
         (remaining BCs hold their current positions)."""
         m = self.model
         start = time.perf_counter()
-        m.problem.set_fixed(m.fixed & ~m.released)
+        m.problem.set_fixed((m.fixed & ~m.released) | m.release_support)
         released = {t.name for t in m.scene.tools if t.release}
         m.problem.terms = [t for t in m.terms
                            if not (isinstance(t, ToolContact) and t.tool in released)]

@@ -12,7 +12,7 @@ from sim.simulation import Simulation
 SCENES = sorted((Path(__file__).parent.parent / "scenes").glob("*.toml"))
 
 
-def coarse(scene_path):
+def coarse(scene_path, element=None):
     """Coarsen the mesh to about 200 triangles and cap the steps at 2."""
     sc = load_scene(scene_path)
     if sc.mesh.kind == "rectangle":
@@ -22,14 +22,21 @@ def coarse(scene_path):
     else:
         e = sc.mesh.edge_length * 3 if sc.mesh.edge_length else None
     o = {"stepping.steps": min(sc.stepping.steps, 2)}
+    # the first two steps of the real path: tools keep their stroke per step
+    for i, t in enumerate(sc.tools):
+        o[f"tools.{i}.velocity"] = [v * o["stepping.steps"] / sc.stepping.steps
+                                    for v in t.velocity]
+    if element:
+        o["shell.element"] = element
     if e:
         o["mesh.edge_length"] = e
     return load_scene(scene_path, o)
 
 
+@pytest.mark.parametrize("element", ["linear", "q3t", "quadratic"])
 @pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
-def test_scene_runs_coarse(path, tmp_path):
-    sim = Simulation.from_scene(coarse(path))
+def test_scene_runs_coarse(path, element, tmp_path):
+    sim = Simulation.from_scene(coarse(path, element))
     assert sim.run(), sim.failure
     sim.write(tmp_path)
     res = sim.result()

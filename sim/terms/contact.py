@@ -38,6 +38,9 @@ class ToolContact(Term):
         self.t_now = self.position.copy()
         self._lagged = None
         self._settled = False  # normal forces of a converged state are known
+        # Newton's protocol (as Elasticity): nonzero = PSD-project each node block; the exact
+        # block is indefinite next to convex tool edges (e' H with e' < 0)
+        self.project = 1
 
     def begin_step(self, t, dt, x):
         self.t_now = self.position + self.speed_scale * dt * self.velocity
@@ -58,7 +61,8 @@ class ToolContact(Term):
 
     def _eval(self, x):
         X = x[self.nodes]
-        E, g, H, _, _ = penalty_contact(X, self.prog, EYE, self.t_now, self.k, self.delta)
+        E, g, H, _, _ = penalty_contact(X, self.prog, EYE, self.t_now, self.k, self.delta,
+                                        project_psd=bool(self.project))
         if self.mu > 0 and self._lagged is not None and self._lagged[0].any():
             act, X0, disp, lam, nrm = self._lagged
             Ef, gf, Hf = friction(X[act], X0, disp, lam, nrm, self.mu, self.eps_v)
