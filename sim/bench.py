@@ -25,20 +25,26 @@ PAPER = {("beam", "linear"): 0.184, ("beam", "q3t"): 0.298, ("beam", "quadratic"
          ("cup", "linear"): 0.812, ("cup", "q3t"): 1.887, ("cup", "quadratic"): 2.525}
 
 
-def _scene(case: str, element: str, edge: float):
+def _scene(case: str, element: str, edge: float, extra: dict | None = None):
     from sim.cli import resolve_scene
     from sim.scene import load_scene
 
-    overrides = {"shell.element": element, "mesh.edge_length": edge}
+    overrides = {"shell.element": element, "mesh.edge_length": edge, **(extra or {})}
     return load_scene(resolve_scene(CASES[case]["scene"]), overrides)
 
 
-def measure(case: str, element: str, edge: float, repeat: int) -> dict:
+# the beam as an elastoplastic sheet: the same Hencky energy plus the return mapping, at a
+# yield stress low enough that the perturbed state yields (plasticity's cost per iteration)
+PLASTIC = {"material.model": "plastic", "material.yield_stress": 1e3}
+HENCKY = {"material.model": "hencky"}
+
+
+def measure(case: str, element: str, edge: float, repeat: int, extra=None) -> dict:
     from sim.newton import _solve
     from sim.simulation import Simulation
 
     t0 = time.perf_counter()
-    sim = Simulation.from_scene(_scene(case, element, edge))
+    sim = Simulation.from_scene(_scene(case, element, edge, extra))
     build = time.perf_counter() - t0
     m, P = sim.model, sim.model.problem
     rng = np.random.default_rng(0)
@@ -72,18 +78,60 @@ def measure(case: str, element: str, edge: float, repeat: int) -> dict:
             "build_s": build, **med, "paper_s": PAPER.get((case, element))}
 
 
+def _print(r: dict) -> None:
+    print(f"{r['case']:12s} {r['element']:9s} {r['elements']:6d} el {r['dofs']:7d} dof  iter "
+          f"{r['iteration']:.3f} s (assembly {r['assembly']:.3f}, factor "
+          f"{r['factorisation']:.3f}, solve {r['solve']:.3f}, energy "
+          f"{r['energy']:.3f})  paper {r['paper_s']}", flush=True)
+
+
+def forming(edge: float, steps: int, element: str = "q3t") -> dict:
+    """The first ``steps`` steps of cup_drawing (contact, friction, plasticity) at a given edge:
+    seconds per Newton iteration and iterations per step."""
+    from sim.cli import resolve_scene
+    from sim.scene import load_scene
+    from sim.simulation import Simulation
+
+    base = load_scene(resolve_scene("cup_drawing"))
+    frac = steps / base.stepping.steps
+    sim = Simulation.from_scene(load_scene(resolve_scene("cup_drawing"), {
+        "shell.element": element, "mesh.edge_length": edge, "stepping.steps": steps,
+        "tools.0.velocity": [v * frac for v in base.tools[0].velocity]}))
+    sim.run()
+    res = sim.result()
+    t = res["timing"]
+    return {"case": "cup_forming", "element": element, **res["counts"],
+            "converged": res["converged"], "steps": len(res["steps"]),
+            "newton_per_step": t["newton_iterations"] / max(1, len(res["steps"])),
+            "per_iteration": t["per_iteration"], "assembly": t["assembly"],
+            "factorisation": t["factorisation"], "solve": t["solve"],
+            "line_search": t["line_search"], "total": t["total"], "paper_s": 1.887}
+
+
 def run(args) -> int:
     rows = []
     cases = args.cases.split(",")
     elements = args.elements.split(",")
     for case in cases:
+        if case == "plastic":
+            for label, extra in (("beam_hencky", HENCKY), ("beam_plastic", PLASTIC)):
+                r = measure("beam", "q3t", CASES["beam"]["edge"]["q3t"], args.repeat, extra)
+                r["case"] = label
+                rows.append(r)
+                _print(r)
+            continue
+        if case == "forming":
+            r = forming(CASES["cup"]["edge"]["q3t"], args.forming_steps)
+            rows.append(r)
+            print(f"cup_forming q3t {r['elements']} el {r['dofs']} dof: "
+                  f"{r['per_iteration']:.3f} s per Newton iteration, "
+                  f"{r['newton_per_step']:.1f} iterations per step "
+                  f"({r['steps']} steps, converged {r['converged']})", flush=True)
+            continue
         for el in elements:
             r = measure(case, el, CASES[case]["edge"][el], args.repeat)
             rows.append(r)
-            print(f"{case:5s} {el:9s} {r['elements']:6d} el {r['dofs']:7d} dof  iter "
-                  f"{r['iteration']:.3f} s (assembly {r['assembly']:.3f}, factor "
-                  f"{r['factorisation']:.3f}, solve {r['solve']:.3f}, energy "
-                  f"{r['energy']:.3f})  paper {r['paper_s']}", flush=True)
+            _print(r)
     meta = {"date": time.strftime("%Y-%m-%d"), "machine": platform.processor() or
             platform.machine(), "cpus": __import__("os").cpu_count(), "repeat": args.repeat}
     out = Path(args.out)
@@ -95,7 +143,10 @@ def run(args) -> int:
 
 def add_parser(sub) -> None:
     b = sub.add_parser("bench", help="per-iteration cost at the paper's Table 1 sizes")
-    b.add_argument("--cases", default="beam,cup")
+    b.add_argument("--cases", default="beam,cup,plastic,forming",
+                   help="beam, cup (Table 1 sizes), plastic (elastic vs plastic beam), "
+                        "forming (cup_drawing steps at the paper's cup size)")
+    b.add_argument("--forming-steps", type=int, default=3)
     b.add_argument("--elements", default="linear,q3t,quadratic")
     b.add_argument("--repeat", type=int, default=5)
     b.add_argument("--out", default="runs/bench")
