@@ -1,0 +1,212 @@
+"""A run with tools through the service (TestClient, viser viewer on, no browser): a 20 x 20 mm,
+0.5 mm plastic plate on a ground plane, pressed 0.2 mm by a punch in 3 steps. The run finishes,
+frames carry every field (plastic strain included) and the tools' translations, the punch moves
+down step by step, the viewer draws one mesh per tool and moves it, offers every field in its
+dropdown and scrubs kept frames, and the recording holds the tool meshes and transforms (read
+back, and replayed by ``q3t play --viser``'s loader)."""
+
+from __future__ import annotations
+
+import os
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser")
+pytest.importorskip("rerun")
+from fastapi.testclient import TestClient  # noqa: E402
+from rerun.chunk import RrdReader  # noqa: E402
+
+from server.app import create_app  # noqa: E402
+from server.history import FrameHistory  # noqa: E402
+from server.settings import Settings  # noqa: E402
+from tests.test_service import wait_state  # noqa: E402
+
+PRESS_TOML = """
+name = "press"
+description = "A small plastic plate on a plane, pressed by a punch (service tests)"
+
+[mesh]
+kind = "rectangle"
+size = [0.02, 0.02]
+origin = [-0.01, -0.01]
+edge_length = 0.005
+
+[shell]
+thickness = 0.0005
+element = "q3t"
+
+[material]
+model = "plastic"
+E = 70.0e9
+nu = 0.33
+yield_stress = 100.0e6
+hardening = { law = "perfect" }
+
+[[regions]]
+name = "centre"
+box = { min = [-0.001, -0.001, -1.0], max = [0.001, 0.001, 1.0] }
+
+[[bcs]]
+region = "centre"
+components = "xy"
+
+[[tools]]
+name = "ground"
+shape = { kind = "plane", point = [0.0, 0.0, 0.0], normal = [0.0, 0.0, 1.0] }
+position = [0.0, 0.0, -0.00025]
+
+[[tools]]
+name = "punch"
+shape = { kind = "punch", radius = 0.004, height = 0.01, edge_radius = 0.001 }
+position = [0.0, 0.0, 0.00025]
+velocity = [0.0, 0.0, -0.0002]
+
+[stepping]
+steps = 3
+
+[[probes]]
+name = "punch_force"
+kind = "tool_force"
+tool = "punch"
+component = "z"
+
+[[probes]]
+name = "max_plastic_strain"
+kind = "plastic_strain"
+stat = "max"
+"""
+FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain"}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def done(tmp_path_factory):
+    """One finished press run: (client, settings, run status)."""
+    tmp = tmp_path_factory.mktemp("viewer")
+    os.environ.setdefault("XDG_CONFIG_HOME", str(tmp / "config"))
+    os.environ.setdefault("XDG_DATA_HOME", str(tmp / "data"))
+    (tmp / "scenes").mkdir()
+    (tmp / "scenes" / "press.toml").write_text(PRESS_TOML)
+    settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs", viewer=True,
+                        viewer_port=free_port())
+    with TestClient(create_app(settings)) as client:
+        r = client.post("/api/runs", json={"scene": "press"})
+        assert r.status_code == 201, r.text
+        st = wait_state(client, r.json()["id"], {"finished", "failed", "stopped"})
+        assert st["state"] == "finished", st["reason"]
+        yield client, settings, st
+
+
+def test_tool_run_frames_and_poses(done):
+    client, _, st = done
+    run = st["id"]
+    assert st["tools"] == ["ground", "punch"]
+    assert [r["step"] for r in st["records"]] == [1, 2, 3]
+    assert {"build_s", "tool_meshes_s", "first_frame_s"} <= set(st["timing"])
+    kept = client.get(f"/api/runs/{run}/frames").json()
+    assert kept["steps"] == [0, 1, 2, 3] and kept["stride"] == 1
+    frames = [client.get(f"/api/runs/{run}/frames/{k}").json() for k in range(4)]
+    for f in frames:
+        assert set(f["fields"]) == FIELDS
+        assert f["fields"]["thickness_mm"]["min"] > 0
+    assert frames[0]["fields"]["eq_plastic_strain"]["max"] == 0.0
+    assert frames[-1]["fields"]["eq_plastic_strain"]["max"] > 0.0  # the press yields
+    punch_z = [f["tools"]["punch"][2] for f in frames]
+    assert np.all(np.diff(punch_z) < 0), punch_z  # the punch moves down every step
+    assert punch_z[-1] == pytest.approx(0.00025 - 0.0002, abs=1e-7)
+    for f in frames:  # the ground stays put
+        assert f["tools"]["ground"] == pytest.approx([0.0, 0.0, -0.00025], abs=1e-9)
+    assert st["records"][-1]["probes"]["punch_force"] > 0
+    assert client.get("/api/runs/nope-run/frames").status_code == 404
+
+
+def test_viewer_draws_moves_recolours_and_scrubs(done):
+    client, _, st = done
+    viewer = client.app.state.manager.viewer
+    last = client.get(f"/api/runs/{st['id']}/frames/3").json()["tools"]
+    assert sorted(viewer.tools) == ["ground", "punch"]
+    np.testing.assert_allclose(viewer.tools["punch"].position, last["punch"], atol=1e-9)
+    options = viewer.gui.field.options
+    assert len(options) == 4 and "Equivalent plastic strain (-)" in options
+    viewer.gui.field.value = "Equivalent plastic strain (-)"
+    assert "Equivalent plastic strain" in viewer.gui.legend.content
+    viewer.gui.field.value = "von Mises stress (MPa)"
+    assert "MPa" in viewer.gui.legend.content
+    assert viewer.gui.time.value == 3 and viewer.gui.time.max == 3  # followed the live run
+    viewer.gui.time.value = 1  # as a user dragging the slider of the finished run
+    step1 = client.get(f"/api/runs/{st['id']}/frames/1").json()["tools"]["punch"]
+    np.testing.assert_allclose(viewer.tools["punch"].position, step1, atol=1e-9)
+    assert "showing step 1/3" in viewer.gui.status.content
+    assert viewer.frame["step"] == 1
+
+
+def tool_chunks(path: Path) -> tuple[dict, dict]:
+    """Static tool meshes (name -> vertex count) and translations (name -> {step: xyz})."""
+    meshes, poses = {}, {}
+    for chunk in RrdReader(str(path)).stream():
+        entity = str(chunk.entity_path)
+        if not entity.startswith("/tools/"):
+            continue
+        rb, name = chunk.to_record_batch(), entity.removeprefix("/tools/")
+        if "Mesh3D:vertex_positions" in rb.schema.names:
+            meshes[name] = len(rb.column("Mesh3D:vertex_positions")[0])
+        if "Transform3D:translation" in rb.schema.names:
+            for step, t in zip(rb.column("step").to_pylist(),
+                               rb.column("Transform3D:translation").to_pylist(), strict=True):
+                poses.setdefault(name, {})[step] = t[0]
+    return meshes, poses
+
+
+def test_recording_has_tool_meshes_and_transforms(done):
+    client, settings, st = done
+    path = settings.runs_dir / st["id"] / "run.rrd"
+    meshes, poses = tool_chunks(path)
+    assert set(meshes) == {"ground", "punch"} and meshes["punch"] > 100
+    assert sorted(poses["punch"]) == [0, 1, 2, 3]
+    for k in range(4):
+        want = client.get(f"/api/runs/{st['id']}/frames/{k}").json()["tools"]["punch"]
+        assert poses["punch"][k] == pytest.approx(want, abs=1e-9)
+
+
+def test_replay_loads_the_recording(done):
+    from server import replay
+
+    _, settings, st = done
+    rep = replay.load(settings.runs_dir / st["id"] / "run.rrd")
+    assert rep.steps == [0, 1, 2, 3] and rep.faces is not None
+    assert all(p.shape == rep.positions[0].shape for p in rep.positions)
+    assert sorted(rep.tools) == ["ground", "punch"]
+    assert rep.pose("punch", 3)[2] < rep.pose("punch", 0)[2]
+    server = replay.serve(rep, port=free_port(), block=False)
+    server.stop()
+
+
+def test_history_keeps_every_kth_frame_past_the_cap():
+    h = FrameHistory(max_frames=10)
+    h.reset("r")
+
+    def frame(k: int, run: str = "r") -> dict:
+        return {"run": run, "step": k, "time": float(k), "positions": np.zeros((5, 3)),
+                "fields": {"thickness_mm": np.full(5, k, np.float32)}}
+
+    for k in range(38):
+        h.add(frame(k))
+    h.add(frame(99, run="other"))  # another run's frame is ignored
+    s = h.summary()
+    assert s["steps"] == [0, 8, 16, 24, 32, 37] and s["stride"] == 8  # even spacing + newest
+    assert h.at(13)["step"] == 8 and h.at(1000)["step"] == 37
+    h.add(frame(38))
+    assert h.summary()["steps"][-2:] == [32, 38]  # the old newest (off the grid) made way
+    small = FrameHistory(max_frames=400, max_bytes=5 * 80)  # 80 bytes a frame
+    small.reset("r")
+    for k in range(20):
+        small.add(frame(k))
+    assert small.summary()["bytes"] <= 5 * 80
