@@ -268,7 +268,8 @@ def write_study(study: dict, overhead: dict | None, out: Path) -> None:
           f"Probe `{p['probe']}`; reference **{p['reference'][0]} at edge "
           f"{p['reference'][1]:.6g} m** ({ref['dofs']} DoFs): {ref['value']:.8g}. Times are build "
           "plus solve of one run, after a warm-up run of each element.\n\n",
-          *[f"- {n}\n" for n in p["notes"]], "\n", _table(study["rows"], STUDY_COLS), "\n",
+          *[f"- {n}\n" for n in p["notes"]], "\n" if p["notes"] else "",
+          _table(study["rows"], STUDY_COLS), "\n",
           *[f"![{f}]({f})\n" for f in plots if f.endswith(".png")]]
     if overhead:
         md += ["\n## Leave out what a scene does not need\n\n", overhead_md(overhead)]
