@@ -52,7 +52,6 @@ class Pardiso:
     """MKL PARDISO, real SPD (mtype 2), upper triangle CSR, zero-based indices."""
 
     name = "pardiso"
-    refines = True  # iparm[7]: PARDISO refines the solution itself
 
     def __init__(self, pattern):
         lib = mkl()
@@ -72,8 +71,7 @@ class Pardiso:
         self.iparm[0] = 1  # our own settings, not MKL defaults
         self.iparm[1] = 2  # METIS nested dissection
         self.iparm[9] = 8  # pivot perturbation 1e-8 (only used for indefinite types)
-        self.iparm[7] = 2  # iterative refinement steps: thin nearly incompressible shells
-        # have condition numbers ~1e12, a plain solve leaves ~1e-6 relative residuals
+        self.iparm[7] = 0  # no automatic refinement: the caller refines only when needed
         self.iparm[34] = 1  # zero-based indexing
         self.data = np.zeros(len(self.ja))
         self._call(11, np.zeros(self.n))
@@ -115,7 +113,6 @@ class SciPyLU:
     are the inertia of the matrix (a positive-definiteness check like Cholesky's)."""
 
     name = "scipy"
-    refines = False
 
     def __init__(self, pattern):
         self.pattern = pattern
