@@ -264,6 +264,9 @@ def write_study(study: dict, overhead: dict | None, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     plots = plot_study(study, out)
     p, ref = study["plan"], study["reference"]
+    if p["reference"][0] in p["elements"]:  # say so: its rows converge to themselves
+        p = {**p, "notes": [*p["notes"], f"{p['reference'][0]} rows: error against the same "
+                            "element on a finer mesh (self-convergence, an underestimate)"]}
     md = [f"# Refinement study: {Path(p['scene']).stem}\n\n", f"{_meta()}.\n\n",
           f"Probe `{p['probe']}`; reference **{p['reference'][0]} at edge "
           f"{p['reference'][1]:.6g} m** ({ref['dofs']} DoFs): {ref['value']:.8g}. Times are build "
