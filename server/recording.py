@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from server.colormap import colorize, tool_colour, value_range
+from server.colormap import MIN_SPAN, colorize, tool_colour, value_range
 
 
 class Recorder:
@@ -56,7 +56,7 @@ class Recorder:
             self.rec.log("solver/max_thinning_pct", rr.Scalars(float(np.max(thinning))))
         if self.faces is not None:
             h = frame["fields"]["thickness_mm"]
-            colors = colorize(h, *value_range(h))
+            colors = colorize(h, *value_range(h, MIN_SPAN["thickness_mm"]))
             self.rec.log("sheet", rr.Mesh3D(vertex_positions=frame["positions"],
                                             triangle_indices=self.faces, vertex_colors=colors))
         for name, pose in (frame.get("tools") or {}).items():

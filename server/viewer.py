@@ -20,15 +20,12 @@ import numpy as np
 import trimesh
 import viser
 
-from server.colormap import colorize, legend_html, tool_colour, value_range
+from server.colormap import MIN_SPAN, colorize, legend_html, tool_colour, value_range
 
 # field key -> (label, unit); the dropdown shows "label (unit)"
 FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%"),
           "eq_plastic_strain": ("Equivalent plastic strain", "-"),
           "von_mises_MPa": ("von Mises stress", "MPa")}
-# smallest colour span per field: a (nearly) uniform field shows one colour, not its noise
-MIN_SPAN = {"thickness_mm": 1e-3, "thinning_pct": 1e-2, "eq_plastic_strain": 1e-5,
-            "von_mises_MPa": 1e-2}
 DEFAULT_FIELD = "thickness_mm"
 
 
