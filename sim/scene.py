@@ -154,7 +154,7 @@ class SteppingSpec(Strict):
     steps: Annotated[int, Field(ge=1, le=100000)] = 1
     dt: Pos | None = None  # dynamic: time step (s); duration = steps * dt
     load_ramp: Annotated[float, Field(ge=0)] = 0.0  # dynamic: loads ramp over this time (s)
-    max_cutbacks: Annotated[int, Field(ge=0, le=30)] = 6
+    max_cutbacks: Annotated[int, Field(ge=0, le=30)] = 10  # down to 1/1024 of a step
     # after the last step: remove loads and the BCs marked release, solve static equilibrium
     release: bool = False
 
