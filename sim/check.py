@@ -65,9 +65,9 @@ def make_cases(scene) -> list[Case]:
                        {"shell.thickness": h, **load_overrides(scene, (h / h0) ** 2)}))
     cs.append(Case("1 step, 100x load", "one huge increment: cut-backs must rescue it",
                    {"stepping.steps": 1, **load_overrides(scene, 100.0)}))
-    cs.append(Case("varying thickness", "thickness field over the mesh",
-                   skip="not expressible in scenes yet (extrude takes a per-vertex thickness, "
-                        "the scene only a scalar)"))
+    # thickness falling linearly from h0 at the clamp to h0 / 4 at the tip
+    cs.append(Case("varying thickness", "tapered plate: h0 at the clamp, h0/4 at the tip",
+                   {"shell.thickness_gradient": [-0.75 * h0 / L, 0.0, 0.0]}))
     cs.append(Case("sliver triangles", "file mesh: 4 vertices at 1e-3 of an opposite edge, 6 "
                    "triangles of aspect ratio 1e3-2e3",
                    sliver=True))

@@ -155,7 +155,12 @@ class Model:
 
 def build_model(scene: Scene) -> Model:
     elem = get_element(scene.shell.element)
-    shell = extrude(build_mesh(scene.mesh), scene.shell.thickness, elem)
+    mesh = build_mesh(scene.mesh)
+    h = scene.shell.thickness + mesh.vertices @ np.asarray(scene.shell.thickness_gradient)
+    if np.any(h <= 0):
+        raise ValueError(f"shell.thickness_gradient: thickness reaches {h.min():.3g} m "
+                         "(must stay positive on the whole mesh)")
+    shell = extrude(mesh, h, elem)
     rule_spec = scene.shell.quadrature or elem.default_quadrature
     if scene.shell.thickness_points:
         rule_spec = (rule_spec[0], scene.shell.thickness_points)

@@ -46,7 +46,9 @@ class MeshSpec(Strict):
 
 
 class ShellSpec(Strict):
-    thickness: Pos
+    thickness: Pos  # at the origin when thickness_gradient is set
+    # a tapered sheet: thickness + gradient . X at every vertex (m per m); must stay positive
+    thickness_gradient: Vec3 = (0.0, 0.0, 0.0)
     element: str = "q3t"
     quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = None
     # section points through the thickness, keeping the element's in-plane rule: plastic

@@ -84,3 +84,13 @@ def test_malformed_toml_is_a_scene_error():
 def test_override_paths_are_checked():
     with pytest.raises(SceneError, match="loads.7"):
         load_scene("scenes/cantilever.toml", {"loads.7.vector": [0, 0, 1]})
+
+
+def test_tapered_thickness_follows_the_gradient():
+    sim = Simulation.from_scene(load_scene("scenes/cantilever.toml", {
+        "mesh.edge_length": 0.035, "shell.thickness_gradient": [-0.005, 0.0, 0.0]}))
+    V = sim.model.shell.mesh.vertices
+    assert np.allclose(sim.model.shell.thickness, 0.007 - 0.005 * V[:, 0])
+    with pytest.raises(ValueError, match="thickness_gradient"):
+        Simulation.from_scene(load_scene("scenes/cantilever.toml", {
+            "mesh.edge_length": 0.035, "shell.thickness_gradient": [-0.02, 0.0, 0.0]}))
