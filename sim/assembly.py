@@ -71,11 +71,16 @@ def greedy_colors(conn: np.ndarray, n_nodes: int) -> list[np.ndarray]:
     return [np.flatnonzero(color == c) for c in range(len(used))]
 
 
-def build_pattern(conn: np.ndarray, n_nodes: int) -> Pattern:
+def build_pattern(conn: np.ndarray, n_nodes: int, pairs: np.ndarray | None = None) -> Pattern:
+    """``pairs (m, 2)``: extra node couplings (a tool DoF and the sheet nodes it can touch)."""
     dofs = element_dofs(conn)
     k = dofs.shape[1]
     rows = np.repeat(dofs, k, axis=1).ravel()
     cols = np.tile(dofs, (1, k)).ravel()
+    if pairs is not None and len(pairs):
+        pd = element_dofs(pairs)
+        rows = np.concatenate([rows, np.repeat(pd, 6, axis=1).ravel()])
+        cols = np.concatenate([cols, np.tile(pd, (1, 6)).ravel()])
     keep = cols >= rows
     n_dof = 3 * n_nodes
     A = sp.csr_matrix((np.ones(keep.sum()), (rows[keep], cols[keep])), shape=(n_dof, n_dof))
@@ -113,3 +118,9 @@ def sym_matvec(indptr, indices, data, x):
                 y[c] += data[p] * x[r]
         y[r] += acc
     return y
+
+
+def pair_slots(pattern: Pattern, pairs: np.ndarray) -> np.ndarray:
+    """Slots of the off-diagonal 3x3 blocks (a, b) of node pairs ``(m, 2)`` with a < b,
+    shape (m, 3, 3)."""
+    return _slots(pattern.indptr, pattern.indices, element_dofs(pairs))[:, :3, 3:]

@@ -120,7 +120,8 @@ class Model:
     elasticity: Elasticity
     external: L.ExternalForce | None
     inertia: Inertia | None
-    fixed: np.ndarray  # (n_nodes, 3) bool
+    x0: np.ndarray  # (n_nodes + n_tool_dofs, 3): rest positions, then force-controlled tools
+    fixed: np.ndarray  # (n_nodes + n_tool_dofs, 3) bool
     prescribed: np.ndarray  # (n_nodes, 3) displacement at t = 1 on fixed DoFs
     bends: list  # (node ids, BendSpec) moved along arcs
     regions: dict[str, np.ndarray]  # name -> in-plane node mask
@@ -132,7 +133,7 @@ class Model:
     release_support: np.ndarray | None = None  # (n_nodes, 3) bool: held only for springback
 
     def dirichlet_positions(self, t: float) -> np.ndarray:
-        x = self.shell.rest + t * self.prescribed
+        x = self.x0 + t * self.prescribed
         for nodes, bend in self.bends:
             x[nodes] = arc_positions(self.shell.rest[nodes], bend.angle * t, bend.length)
         return x
@@ -165,7 +166,14 @@ def build_model(scene: Scene) -> Model:
     if scene.shell.thickness_points:
         rule_spec = (rule_spec[0], scene.shell.thickness_points)
     rule = elem.quadrature(rule_spec)
-    pattern = build_pattern(shell.conn, shell.n_nodes)
+    forced = [i for i, t in enumerate(scene.tools) if t.force is not None]
+    n_total = shell.n_nodes + len(forced)
+    x0 = np.vstack([shell.rest, np.zeros((len(forced), 3))])
+    candidates = _contact_nodes(shell)
+    pairs = np.concatenate([np.column_stack([candidates, np.full_like(candidates, shell.n_nodes
+                                                                       + j)])
+                            for j in range(len(forced))]) if forced else None
+    pattern = build_pattern(shell.conn, n_total, pairs)
     m = scene.material
     plastic = m.model == "plastic"
     elastic = Elasticity(shell, rule, MODEL_IDS[m.model], material_params(m), pattern,
@@ -173,7 +181,7 @@ def build_model(scene: Scene) -> Model:
     terms: list[Term] = [elastic]
     built = {"terms": ["elasticity"], "plastic_state": plastic}
     regions = {r.name: region_mask(shell, r) for r in scene.regions}
-    ext = _external_force(scene, shell, rule, elastic, regions)
+    ext = _external_force(scene, shell, rule, elastic, regions, x0)
     dynamic = scene.stepping.kind == "dynamic"
     if ext is not None:
         ramp = scene.stepping.load_ramp
@@ -183,18 +191,22 @@ def build_model(scene: Scene) -> Model:
         built["terms"].append("external_force")
     inertia = None
     if dynamic:
-        inertia = Inertia(lumped_mass(shell, rule, elastic.wdetJ, m.density), pattern, shell.rest)
+        mass = np.concatenate([lumped_mass(shell, rule, elastic.wdetJ, m.density),
+                               np.zeros(len(forced))])
+        inertia = Inertia(mass, pattern, x0)
         terms.append(inertia)
         built["terms"].append("inertia")
-    tools = _tools(scene, shell, pattern)
+    tools = _tools(scene, shell, pattern, candidates)
     terms += tools
     built["terms"] += [t.name for t in tools]
-    fixed = np.zeros((shell.n_nodes, 3), bool)
-    prescribed = np.zeros((shell.n_nodes, 3))
-    model = Model(scene, shell, pattern, None, terms, elastic, ext, inertia, fixed, prescribed, [],
+    fixed = np.zeros((n_total, 3), bool)
+    fixed[shell.n_nodes:, :2] = True  # force-controlled tools move in z only
+    prescribed = np.zeros((n_total, 3))
+    model = Model(scene, shell, pattern, None, terms, elastic, ext, inertia, x0, fixed,
+                  prescribed, [],
                   regions, NewtonSettings(rtol=scene.solver.rtol,
                                           max_iterations=scene.solver.max_iterations), 0.0, built)
-    release_support = np.zeros((shell.n_nodes, 3), bool)
+    release_support = np.zeros((n_total, 3), bool)
     for i, bc in enumerate(scene.bcs):
         try:
             nodes = model.column_nodes(regions[bc.region], bc.layers)
@@ -217,6 +229,9 @@ def build_model(scene: Scene) -> Model:
             if bc.release:
                 nodes = model.column_nodes(regions[bc.region], bc.layers)
                 released[np.ix_(nodes, ["xyz".index(c) for c in bc.components])] = True
+        for t in tools:  # a retracted force-controlled tool's offset is held
+            if t.vdof is not None and t.tool in {s.name for s in scene.tools if s.release}:
+                release_support[t.vdof] = True
         model.released = released
         model.release_support = release_support
     mu, lam = lame(m.E, m.nu)
@@ -262,14 +277,20 @@ def tool_program(s) -> np.ndarray:
                         s.corner_radius, phase=s.phase)
 
 
-def _tools(scene, shell, pattern) -> list[ToolContact]:
-    """One contact term per tool, over the nodes of both skins (every in-plane node, so the
-    edge nodes of quadratic elements too)."""
+def _contact_nodes(shell) -> np.ndarray:
+    """Both skins, every in-plane node (so the edge nodes of quadratic elements too)."""
+    return np.concatenate([shell.layer_nodes(0), shell.layer_nodes(shell.element.q)])
+
+
+def _tools(scene, shell, pattern, nodes) -> list[ToolContact]:
+    """One contact term per tool over the candidate skin nodes; force-controlled tools get the
+    next extra row of x for their z offset."""
     if not scene.tools:
         return []
+    from sim.assembly import pair_slots
     from sim.contact import auto_stiffness
 
-    nodes = np.concatenate([shell.layer_nodes(0), shell.layer_nodes(shell.element.q)])
+    vdof = shell.n_nodes
     h = float(np.mean(shell.thickness))
     F = shell.mesh.faces
     edge = float(np.mean(np.linalg.norm(shell.mesh.vertices[F[:, 0]]
@@ -286,31 +307,38 @@ def _tools(scene, shell, pattern) -> list[ToolContact]:
         k = t.stiffness or auto_stiffness(scene.material.E, h, edge,
                                           pressure=4e-3 * scene.material.E)
         # slip below 1 % of the thickness counts as sticking (IPC's eps_v)
+        kw = {}
+        if t.force is not None:
+            pairs = np.column_stack([nodes, np.full_like(nodes, vdof)])
+            kw = {"vdof": vdof, "force": t.force, "pair_slots": pair_slots(pattern, pairs),
+                  "stop": t.stop}
+            vdof += 1
         out.append(ToolContact(t.name, prog, nodes, t.position, t.velocity, k, t.friction,
-                               1e-2 * h, pattern, delta=1e-2 * h))
+                               1e-2 * h, pattern, delta=1e-2 * h, **kw))
     return out
 
 
-def _external_force(scene, shell, rule, elastic, regions) -> L.ExternalForce | None:
+def _external_force(scene, shell, rule, elastic, regions, x0) -> L.ExternalForce | None:
     if not scene.loads:
         return None
-    f = np.zeros((shell.n_nodes, 3))
+    f = np.zeros((len(x0), 3))
+    n = shell.n_nodes
     for i, ld in enumerate(scene.loads):
         try:
             if ld.kind == "gravity":
-                f += L.body_force(shell, elastic.wdetJ, rule,
+                f[:n] += L.body_force(shell, elastic.wdetJ, rule,
                                   scene.material.density * np.array(ld.vector))
             elif ld.kind == "traction":
-                f += L.traction(shell, regions[ld.region], np.array(ld.vector))
+                f[:n] += L.traction(shell, regions[ld.region], np.array(ld.vector))
             elif ld.kind == "pressure":
                 sel = np.ones(len(shell.conn), bool)
                 if ld.region:
                     v_mask = regions[ld.region][: shell.n_vertices]
                     sel = v_mask[shell.mesh.faces].all(1)
-                f += L.pressure(shell, sel, ld.value, ld.skin == "top")
+                f[:n] += L.pressure(shell, sel, ld.value, ld.skin == "top")
             else:
                 v = int(np.argmin(np.linalg.norm(shell.mesh.vertices - ld.point, axis=1)))
-                f += L.point_force(shell, v, np.array(ld.vector))
+                f[:n] += L.point_force(shell, v, np.array(ld.vector))
         except ValueError as exc:
             raise ValueError(f"loads.{i}: {exc}") from None
-    return L.ExternalForce(f, shell.rest)
+    return L.ExternalForce(f, x0)

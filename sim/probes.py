@@ -93,7 +93,7 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[s
         elif p.kind == "plastic_strain":
             ep = model.elasticity.ep
             out[p.name] = float(getattr(np, p.stat)(ep)) if ep.size else 0.0
-        elif p.kind in ("tool_force", "penetration", "contact_nodes"):
+        elif p.kind in ("tool_force", "penetration", "contact_nodes", "tool_position"):
             term = next((t for t in model.problem.terms if getattr(t, "tool", None) == p.tool),
                         None)
             if term is None:  # retracted for springback: it carries nothing
@@ -104,6 +104,8 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[s
                 f = np.array([rep["fx"], rep["fy"], rep["fz"]])
                 out[p.name] = float(np.linalg.norm(f) if p.component == "norm"
                                     else f["xyz".index(p.component)])
+            elif p.kind == "tool_position":
+                out[p.name] = rep["z"]
             else:
                 out[p.name] = float(rep[p.kind])
         elif p.kind == "von_mises":

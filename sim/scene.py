@@ -181,7 +181,7 @@ class ProbeSpec(Strict):
     name: str
     kind: Literal["displacement", "thickness", "reaction", "volume", "curvature",
                   "plastic_strain", "von_mises", "tool_force", "penetration", "contact_nodes",
-                  "fibre_tilt", "height_range"]
+                  "fibre_tilt", "height_range", "tool_position"]
     tool: str | None = None
     point: Vec3 | None = None
     component: Literal["x", "y", "z", "norm"] = "norm"
@@ -194,7 +194,8 @@ class ProbeSpec(Strict):
             raise ValueError("a displacement probe needs point")
         if self.kind in ("reaction", "curvature", "height_range") and self.region is None:
             raise ValueError(f"a {self.kind} probe needs region")
-        if self.kind in ("tool_force", "penetration", "contact_nodes") and self.tool is None:
+        if (self.kind in ("tool_force", "penetration", "contact_nodes", "tool_position")
+                and self.tool is None):
             raise ValueError(f"a {self.kind} probe needs tool")
         return self
 
@@ -250,6 +251,18 @@ class ToolSpec(Strict):
     friction: Annotated[float, Field(ge=0, le=2)] = 0.0
     stiffness: Pos | None = None  # N/m per node; default: sim.contact.auto_stiffness
     release: bool = False  # retracted in the release (springback) stage
+    # force control: the tool presses along -z with this force (N) and its z is solved with
+    # the sheet (a blank holder); velocity must then have no z component
+    force: Pos | None = None
+    # force control: the lowest z offset (m, from the start position) the tool can reach, the
+    # press's distance blocks; without it a holder falls once the flange has been drawn in
+    stop: float | None = None
+
+    @model_validator(mode="after")
+    def _force_axis(self):
+        if self.force is not None and self.velocity[2] != 0.0:
+            raise ValueError("a force-controlled tool moves in z by itself: velocity z must be 0")
+        return self
 
 
 class Scene(Strict):

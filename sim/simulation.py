@@ -73,7 +73,7 @@ class Simulation:
     # live parameters, all multipliers of the scene's values (1 = as written): name -> range;
     # applied from the next step on
     PARAMETERS = {"load_scale": (0.0, 100.0), "tool_speed": (0.0, 10.0),
-                  "friction_scale": (0.0, 10.0)}
+                  "friction_scale": (0.0, 10.0), "holder_force_scale": (0.0, 10.0)}
 
     def __post_init__(self):
         self.parameters = {k: 1.0 for k in self.PARAMETERS}
@@ -82,7 +82,7 @@ class Simulation:
         self.parameter_log: list[dict] = []
         self._last_increment: np.ndarray | None = None
         self._last_dt = 1.0
-        self.x = self.model.shell.rest.copy()
+        self.x = self.model.x0.copy()
         self.display = DisplayMesh.from_shell(self.model.shell)
         self.h0 = probes.thickness(self.model, self.x)
 
@@ -116,6 +116,7 @@ class Simulation:
         for t in self.tools:
             t.speed_scale = self.parameters["tool_speed"]
             t.mu = self._mu0[t.tool] * self.parameters["friction_scale"]
+            t.force_scale = self.parameters["holder_force_scale"]
         self.parameter_log.append({"step": self.step_index + 1, "name": name,
                                    "value": float(value)})
 
@@ -218,7 +219,7 @@ class Simulation:
 
     def tool_poses(self) -> dict[str, np.ndarray]:
         """Current translation (3,) of every tool."""
-        return {t.tool: t.position.copy() for t in self.tools}
+        return {t.tool: np.array(t.translation(self.x)) for t in self.tools}
 
     def frame(self) -> Frame:
         h = probes.thickness(self.model, self.x)
@@ -245,7 +246,7 @@ class Simulation:
             "quadrature": [len(np.unique(m.elasticity.rule.points[:, :2], axis=0)),
                            len(np.unique(m.elasticity.rule.points[:, 2]))],
             "counts": {"vertices": m.shell.n_vertices, "nodes": m.shell.n_nodes,
-                       "elements": len(m.shell.conn), "dofs": 3 * m.shell.n_nodes,
+                       "elements": len(m.shell.conn), "dofs": 3 * len(m.x0),
                        "free_dofs": int((~m.fixed).sum())},
             "built": m.built,
             "parameters": self.parameter_log,
@@ -265,7 +266,8 @@ class Simulation:
         out.mkdir(parents=True, exist_ok=True)
         sh = self.model.shell
         tmp = out / "final.tmp.npz"
-        np.savez_compressed(tmp, rest=sh.rest, deformed=self.x, faces=sh.mesh.faces,
+        np.savez_compressed(tmp, rest=sh.rest, deformed=self.x[: sh.n_nodes],
+                            faces=sh.mesh.faces,
                             conn=sh.conn, thickness=probes.thickness(self.model, self.x),
                             rest_thickness=self.h0)
         tmp.replace(out / "final.npz")

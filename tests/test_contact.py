@@ -117,3 +117,18 @@ def test_flange_wrinkles_without_blank_holder():
     assert free.run(), free.failure
     loose = free.records[-1].probes["flange_wrinkle_amplitude"]
     assert loose > 5 * held and loose > 1e-3
+
+
+@pytest.mark.slow
+def test_force_controlled_blank_holder_holds_its_force_then_rests_on_its_stop():
+    """The holder's height is solved with the sheet: while it touches the flange the sheet
+    pushes back with exactly the set force (Newton's tolerance: 1e-4 relative is generous), it
+    rises as the flange thickens, and once the flange has been drawn in it rests on its stop."""
+    recs = cup("q3t", 0.003).records
+    force = np.array([r.probes["holder_force"] for r in recs])
+    z = np.array([r.probes["holder_height"] for r in recs])
+    touching = force > 1500.0
+    assert touching[:30].all()
+    assert np.allclose(force[touching], 3000.0, rtol=1e-4)
+    assert z[29] > z[0] + 3e-4  # lifted by the thickening flange (measured 0.45 mm)
+    assert not touching[-1] and np.isclose(z[-1], 0.0005 - 0.0001, atol=1e-6)

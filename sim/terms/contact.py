@@ -6,6 +6,11 @@ The contact layer starts ``delta`` (1 % of the thickness) outside the tool surfa
 placed exactly on a tool is already held by it (no free rigid mode at the first step).
 The tool moves rigidly (translation); its position is integrated from its velocity, so a speed
 changed between steps takes effect from the next step on.
+
+Force control (a blank holder): the tool's z offset is an unknown of the system, stored as an
+extra "node" row ``x[vdof]`` whose x and y are held. The term then adds the work of the
+pressing force, F * x[vdof, 2], and the couplings: with u the tool offset, contact depends on
+x_i - u, so dE/du = -sum_i g_i and d2E/du2 = sum_i H_i, d2E/dx_i du = -H_i.
 """
 
 from __future__ import annotations
@@ -21,10 +26,13 @@ EYE = np.eye(3)
 
 class ToolContact(Term):
     """nodes: candidate sheet nodes (both skins) ``(m,)``; prog: SDF program; position (3,)
-    at t = 0; velocity (3,) per unit time; k penalty stiffness (N/m); mu Coulomb coefficient."""
+    at t = 0; velocity (3,) per unit time; k penalty stiffness (N/m); mu Coulomb coefficient.
+    ``vdof``: row of x holding the tool's solved offset (force control) or None; ``force`` (N)
+    presses the tool along -z; ``pair_slots (m, 3, 3)`` the CSR slots of the (node, vdof)
+    blocks."""
 
     def __init__(self, name, prog, nodes, position, velocity, k, mu, eps_v, pattern,
-                 delta=0.0):
+                 delta=0.0, vdof=None, force=0.0, pair_slots=None, stop=None):
         self.name = f"contact:{name}"
         self.tool = name
         self.prog = np.ascontiguousarray(prog, float)
@@ -32,15 +40,29 @@ class ToolContact(Term):
         self.position = np.asarray(position, float).copy()  # committed
         self.velocity = np.asarray(velocity, float)
         self.speed_scale = 1.0
+        self.force_scale = 1.0
         self.k, self.mu, self.eps_v = float(k), float(mu), float(eps_v)
         self.delta = float(delta)
         self.pattern = pattern
+        self.vdof, self.force, self.pair_slots = vdof, float(force), pair_slots
+        # the distance-block stop: a spring 100x the contact stiffness of all candidate nodes,
+        # so the tool rests on it without measurable give
+        self.stop = stop
+        self.k_stop = 100.0 * self.k * len(self.nodes)
+        # Hessian-only floor on the tool DoF: a tool that loses contact (the flange has left
+        # the holder) would make the matrix singular; with it the tool drops in a few Newton
+        # steps of at most F / k_floor each, the line search keeping the energy decreasing
+        self.k_floor = 1e-4 * self.k * len(self.nodes)
         self.t_now = self.position.copy()
         self._lagged = None
         self._settled = False  # normal forces of a converged state are known
         # Newton's protocol (as Elasticity): nonzero = PSD-project each node block; the exact
         # block is indefinite next to convex tool edges (e' H with e' < 0)
         self.project = 1
+
+    def translation(self, x) -> np.ndarray:
+        """Where the tool is at state x (its offset is part of x under force control)."""
+        return self.t_now + x[self.vdof] if self.vdof is not None else self.t_now
 
     def begin_step(self, t, dt, x):
         self.t_now = self.position + self.speed_scale * dt * self.velocity
@@ -50,7 +72,8 @@ class ToolContact(Term):
         self._lagged = None
         if self.mu > 0 and self._settled:
             X0 = x[self.nodes]
-            lam, nrm = normal_forces(X0, self.prog, EYE, self.position, self.k, self.delta)
+            here = self.position + (x[self.vdof] if self.vdof is not None else 0.0)
+            lam, nrm = normal_forces(X0, self.prog, EYE, here, self.k, self.delta)
             act = lam > 0
             disp = np.broadcast_to(self.t_now - self.position, (int(act.sum()), 3))
             self._lagged = (act, X0[act], np.ascontiguousarray(disp), lam[act], nrm[act])
@@ -59,45 +82,77 @@ class ToolContact(Term):
         self.position = self.t_now.copy()
         self._settled = True
 
-    def _eval(self, x):
+    def _eval(self, x, derivs=True):
+        """(E, penalty gradient (m,3), penalty Hessian (m,3,3), friction gradient, Hessian)."""
         X = x[self.nodes]
-        E, g, H, _, _ = penalty_contact(X, self.prog, EYE, self.t_now, self.k, self.delta,
-                                        project_psd=bool(self.project))
+        E, g, H, _, _ = penalty_contact(X, self.prog, EYE, self.translation(x), self.k,
+                                        self.delta, project_psd=bool(self.project))
+        gf = np.zeros_like(g)
+        Hf = np.zeros_like(H)
         if self.mu > 0 and self._lagged is not None and self._lagged[0].any():
             act, X0, disp, lam, nrm = self._lagged
-            Ef, gf, Hf = friction(X[act], X0, disp, lam, nrm, self.mu, self.eps_v)
+            Ef, gfa, Hfa = friction(X[act], X0, disp, lam, nrm, self.mu, self.eps_v)
             E += Ef
-            g[act] += gf
-            H[act] += Hf
-        return E, g, H
+            gf[act] = gfa
+            Hf[act] = Hfa
+        if self.vdof is not None:
+            u = x[self.vdof, 2]
+            E += self.force * self.force_scale * u
+            if self.stop is not None and u < self.stop:
+                E += 0.5 * self.k_stop * (self.stop - u) ** 2
+        return E, g, H, gf, Hf
+
+    def _stop_force(self, x) -> tuple[float, float]:
+        """Derivative and stiffness of the stop spring in the tool's z."""
+        u = x[self.vdof, 2]
+        if self.stop is None or u >= self.stop:
+            return 0.0, 0.0
+        return -self.k_stop * (self.stop - u), self.k_stop
 
     def energy(self, x):
-        X = x[self.nodes]
-        E = penalty_contact(X, self.prog, EYE, self.t_now, self.k, self.delta)[0]
-        if self.mu > 0 and self._lagged is not None and self._lagged[0].any():
-            act, X0, disp, lam, nrm = self._lagged
-            E += friction(X[act], X0, disp, lam, nrm, self.mu, self.eps_v)[0]
-        return E
+        return self._eval(x)[0]
+
+    def _add_gradient(self, x, g, gp, gf):
+        np.add.at(g, self.nodes, gp + gf)
+        if self.vdof is not None:
+            g[self.vdof] -= gp.sum(0)
+            g[self.vdof, 2] += self.force * self.force_scale + self._stop_force(x)[0]
+
+    def _add_hessian(self, x, data, Hp, Hf):
+        scatter_node_blocks(data, self.pattern.node_slots, self.nodes, Hp + Hf)
+        if self.vdof is not None:
+            block = Hp.sum(0)
+            block[2, 2] += self._stop_force(x)[1] + self.k_floor
+            scatter_node_blocks(data, self.pattern.node_slots, np.array([self.vdof]),
+                                block[None])
+            _scatter_pairs(data, self.pair_slots, -Hp)
 
     def add_gradient(self, x, g):
-        _, gn, _ = self._eval(x)
-        np.add.at(g, self.nodes, gn)
+        _, gp, _, gf, _ = self._eval(x)
+        self._add_gradient(x, g, gp, gf)
 
     def add_hessian(self, x, data):
-        _, _, H = self._eval(x)
-        scatter_node_blocks(data, self.pattern.node_slots, self.nodes, H)
+        _, _, Hp, _, Hf = self._eval(x)
+        self._add_hessian(x, data, Hp, Hf)
 
     def add_gradient_hessian(self, x, g, data):
-        _, gn, H = self._eval(x)
-        np.add.at(g, self.nodes, gn)
-        scatter_node_blocks(data, self.pattern.node_slots, self.nodes, H)
+        _, gp, Hp, gf, Hf = self._eval(x)
+        self._add_gradient(x, g, gp, gf)
+        self._add_hessian(x, data, Hp, Hf)
 
     def report(self, x) -> dict[str, float]:
-        """Force the sheet exerts on the tool (N), nodes in contact, deepest penetration (m)."""
-        _, gn, _ = self._eval(x)
-        gap = penalty_contact(x[self.nodes], self.prog, EYE, self.t_now, self.k,
+        """Force the sheet exerts on the tool (N), nodes in contact, deepest penetration (m),
+        and the tool's z position."""
+        _, gp, _, gf, _ = self._eval(x)
+        gap = penalty_contact(x[self.nodes], self.prog, EYE, self.translation(x), self.k,
                               self.delta)[4]
-        f = gn.sum(0)
+        f = (gp + gf).sum(0)
         return {"fx": float(f[0]), "fy": float(f[1]), "fz": float(f[2]),
                 "contact_nodes": int((gap < self.delta).sum()),
-                "penetration": float(max(0.0, -gap.min())) if len(gap) else 0.0}
+                "penetration": float(max(0.0, -gap.min())) if len(gap) else 0.0,
+                "z": float(self.translation(x)[2])}
+
+
+def _scatter_pairs(data, slots, blocks):
+    """data[slots] += blocks for the (node, tool) blocks; every slot is above the diagonal."""
+    np.add.at(data, slots.reshape(-1), blocks.reshape(-1))
