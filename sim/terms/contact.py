@@ -10,7 +10,9 @@ changed between steps takes effect from the next step on.
 Force control (a blank holder): the tool's z offset is an unknown of the system, stored as an
 extra "node" row ``x[vdof]`` whose x and y are held. The term then adds the work of the
 pressing force, F * x[vdof, 2], and the couplings: with u the tool offset, contact depends on
-x_i - u, so dE/du = -sum_i g_i and d2E/du2 = sum_i H_i, d2E/dx_i du = -H_i.
+x_i - u, so dE/du = -sum_i g_i and d2E/du2 = sum_i H_i, d2E/dx_i du = -H_i. Friction is not
+coupled to u (its tool displacement is the prescribed one): on a flat holder it has no z part;
+on the holder's rounded inner edge it adds up to 2 % to the measured holder force (cup test).
 """
 
 from __future__ import annotations
