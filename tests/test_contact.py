@@ -122,7 +122,7 @@ def test_flange_wrinkles_without_blank_holder():
 @pytest.mark.slow
 def test_force_controlled_blank_holder_holds_its_force_then_rests_on_its_stop():
     """The holder's height is solved with the sheet: while it touches the flange the sheet
-    pushes back with exactly the set force (Newton's tolerance: 1e-4 relative is generous), it
+    pushes back with the set force, it
     rises as the flange thickens, and once the flange has been drawn in it rests on its stop."""
     recs = cup("q3t", 0.003).records
     force = np.array([r.probes["holder_force"] for r in recs])
@@ -133,6 +133,8 @@ def test_force_controlled_blank_holder_holds_its_force_then_rests_on_its_stop():
     # holds it up with the set force; later the flange edge slides over the holder's rounded
     # inner edge, where friction (not coupled to the holder's height, see terms/contact.py)
     # adds up to 2 % to the measured force
-    assert np.allclose(force[:30], 3000.0, rtol=1e-4)
+    # 1e-3: Newton may stop on a correction below 1e-6 t, at which the holder's stiffness
+    # (all contact springs in series, ~1e11 N/m) leaves up to ~1 N unbalanced (measured 1.1 N)
+    assert np.allclose(force[:30], 3000.0, rtol=1e-3)
     assert z[29] > z[0] + 3e-4  # lifted by the thickening flange (measured 0.45 mm)
     assert not touching[-1] and np.isclose(z[-1], 0.0005 - 0.0001, atol=1e-6)
