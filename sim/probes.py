@@ -118,3 +118,26 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[s
             out[p.name] = float(np.linalg.norm(r) if p.component == "norm"
                                 else r["xyz".index(p.component)])
     return out
+
+
+def section_vertices(model, spec) -> np.ndarray:
+    """Mid-surface vertices on the section ray, sorted by rest radius ``(m,)``."""
+    V = model.shell.mesh.vertices
+    d = np.asarray(spec.direction, float)
+    d /= np.linalg.norm(d)
+    along = V[:, :2] @ d
+    across = np.abs(V[:, 0] * d[1] - V[:, 1] * d[0])
+    idx = np.flatnonzero((along >= -1e-12) & (across <= spec.width))
+    if len(idx) < 2:
+        raise ValueError(f"sections.{spec.name}: fewer than two vertices on the ray")
+    return idx[np.argsort(along[idx])]
+
+
+def section(model, x, idx) -> dict[str, list[float]]:
+    """Rest radius, current radius (from the z axis) and thickness along a section (m)."""
+    mid = mid_surface(model, x)[idx]
+    rest = model.shell.mesh.vertices[idx]
+    return {"rest_radius": np.hypot(rest[:, 0], rest[:, 1]).tolist(),
+            "radius": np.hypot(mid[:, 0], mid[:, 1]).tolist(),
+            "z": mid[:, 2].tolist(),
+            "thickness": thickness(model, x)[idx].tolist()}

@@ -265,6 +265,17 @@ class ToolSpec(Strict):
         return self
 
 
+class SectionSpec(Strict):
+    """A radial section: the mid-surface vertices within ``width`` of the ray from the origin
+    along ``direction`` (rest state), sorted by rest radius; their current radius and
+    thickness are recorded at every step listed (all steps when empty)."""
+
+    name: str
+    direction: tuple[float, float] = (1.0, 0.0)
+    width: Pos = 1e-4
+    steps: list[Annotated[int, Field(ge=0)]] = []
+
+
 class Scene(Strict):
     name: str
     description: str = ""
@@ -278,6 +289,7 @@ class Scene(Strict):
     solver: SolverSpec = SolverSpec()
     tools: list[ToolSpec] = []
     probes: list[ProbeSpec] = []
+    sections: list[SectionSpec] = []
     study: StudySpec | None = None
 
     @model_validator(mode="after")

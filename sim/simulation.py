@@ -81,10 +81,14 @@ class Simulation:
         self._mu0 = {t.tool: t.mu for t in self.tools}
         self.parameter_log: list[dict] = []
         self._last_increment: np.ndarray | None = None
+        self._sections = {sp.name: probes.section_vertices(self.model, sp)
+                          for sp in self.model.scene.sections}
+        self.sections: dict[str, list[dict]] = {name: [] for name in self._sections}
         self._last_dt = 1.0
         self.x = self.model.x0.copy()
         self.display = DisplayMesh.from_shell(self.model.shell)
         self.h0 = probes.thickness(self.model, self.x)
+        self._record_sections()  # the rest state, when a section asks for step 0
 
     @property
     def n_steps(self) -> int:
@@ -166,6 +170,7 @@ class Simulation:
         rec = StepRecord(self.step_index, self.t, res.iterations, res.residuals[-1], res.energy,
                          0, probes.evaluate(m, self.x))
         self.records.append(rec)
+        self._record_sections()
         self.wall += time.perf_counter() - start
         return rec
 
@@ -203,8 +208,16 @@ class Simulation:
         rec = StepRecord(self.step_index, self.t, iters, res.residuals[-1], res.energy, cutbacks,
                          probes.evaluate(self.model, self.x))
         self.records.append(rec)
+        self._record_sections()
         self.wall += time.perf_counter() - start
         return rec
+
+    def _record_sections(self) -> None:
+        for sp in self.model.scene.sections:
+            if not sp.steps or self.step_index in sp.steps:
+                self.sections[sp.name].append(
+                    {"step": self.step_index, "time": self.t,
+                     **probes.section(self.model, self.x, self._sections[sp.name])})
 
     def run(self, progress=None) -> bool:
         """Step to the end; returns converged. ``progress(sim, record)`` after each step."""
@@ -253,6 +266,7 @@ class Simulation:
             "converged": self.failure is None and self.step_index == self.n_steps,
             "failure": self.failure,
             "steps": [asdict(r) for r in self.records],
+            "sections": self.sections,
             "timing": {"total": self.wall, "assembly": t.assembly,
                        "factorisation": t.factorisation, "solve": t.solve,
                        "line_search": t.line_search, "newton_iterations": t.iterations,
