@@ -31,7 +31,8 @@ from sim.terms.inertia import Inertia, lumped_mass
 
 MODEL_IDS = {"neo_hookean": 0, "hencky": 1, "plastic": 2}
 LAWS = {"perfect": PERFECT, "linear": LINEAR, "swift": SWIFT, "voce": VOCE}
-PROJECTIONS = {"auto": PROJECT_QP, "qp": PROJECT_QP, "element": PROJECT_ELEMENT, "none": PROJECT_NONE}
+PROJECTIONS = {"auto": PROJECT_QP, "qp": PROJECT_QP, "element": PROJECT_ELEMENT,
+               "none": PROJECT_NONE}
 
 
 def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
