@@ -70,14 +70,13 @@ def _element(x, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, pr
                 for kk in range(3):
                     CB[r, bn, kk] = (C[r, 3 * kk] * b[bn, 0] + C[r, 3 * kk + 1] * b[bn, 1]
                                      + C[r, 3 * kk + 2] * b[bn, 2])
-        for a in range(n_en):
-            for i in range(3):
-                row = 3 * a + i
-                for bn in range(n_en):
-                    for kk in range(3):
-                        K[row, 3 * bn + kk] += w * (b[a, 0] * CB[3 * i, bn, kk]
-                                                    + b[a, 1] * CB[3 * i + 1, bn, kk]
-                                                    + b[a, 2] * CB[3 * i + 2, bn, kk])
+        full = project == PROJECT_ELEMENT  # else the upper triangle is enough (symmetric)
+        for row in range(k):
+            a, i = row // 3, row % 3
+            for col in range(0 if full else row, k):
+                bn, kk = col // 3, col % 3
+                K[row, col] += w * (b[a, 0] * CB[3 * i, bn, kk] + b[a, 1] * CB[3 * i + 1, bn, kk]
+                                    + b[a, 2] * CB[3 * i + 2, bn, kk])
     if want == 2 and project == PROJECT_ELEMENT:
         ev, Q = np.linalg.eigh(K)
         K = (Q * np.maximum(ev, 0.0)) @ Q.T
@@ -103,11 +102,13 @@ def elastic_kernel(x, conn, dNdX, wdetJ, model, params, fp_inv, ep, plastic, wan
                     for i in range(3):
                         grad[conn[e, a], i] += g[3 * a + i]
             if want == 2 and np.isfinite(E):
+                # K's local upper triangle holds every pair once; the global slot is above the
+                # diagonal in one orientation or the other
                 s = slots[e]
                 for r in range(K.shape[0]):
-                    for cc in range(K.shape[0]):
-                        if s[r, cc] >= 0:
-                            data[s[r, cc]] += K[r, cc]
+                    for cc in range(r, K.shape[0]):
+                        slot = s[r, cc] if s[r, cc] >= 0 else s[cc, r]
+                        data[slot] += K[r, cc]
     return energies.sum()
 
 
