@@ -73,10 +73,6 @@ class Problem:
                 return np.inf
         return total
 
-    def energy_magnitude(self, x: np.ndarray) -> float:
-        """Sum of the terms' absolute energies: the scale of round-off in ``energy``."""
-        return sum(abs(t.energy(x)) for t in self.terms)
-
     def gradient(self, x: np.ndarray) -> np.ndarray:
         g = np.zeros_like(x)
         for t in self.terms:
@@ -84,25 +80,32 @@ class Problem:
         return g
 
     def hessian(self, x: np.ndarray) -> np.ndarray:
-        return self.gradient_hessian(x)[1]
+        return self.evaluate(x)[3]
 
     def gradient_hessian(self, x: np.ndarray, exact: bool = False):
-        """Total gradient and Hessian data with Dirichlet rows/columns replaced by identity.
-        ``exact`` skips the PSD projection of terms that project (elasticity)."""
+        return self.evaluate(x, exact)[2:]
+
+    def evaluate(self, x: np.ndarray, exact: bool = False):
+        """Energy, its round-off scale (sum of the terms' absolute energies), gradient and
+        Hessian data with Dirichlet rows/columns replaced by identity, in one pass over the
+        terms. ``exact`` skips the PSD projection of terms that project."""
         g = np.zeros_like(x)
         data = np.zeros(self.pattern.nnz)
+        E = mag = 0.0
         for t in self.terms:
             saved = getattr(t, "project", None)
             if exact and saved is not None:
                 t.project = 0
             try:
-                t.add_gradient_hessian(x, g, data)
+                e = t.add_gradient_hessian(x, g, data)
             finally:
                 if saved is not None:
                     t.project = saved
+            E += e
+            mag += abs(e)
         data[self._zero] = 0.0
         data[self._diag] = 1.0
-        return g, data
+        return (E if np.isfinite(E) else np.inf), mag, g, data
 
 
 def _solve(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinements: int = 2):
@@ -149,11 +152,13 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
                             timing)
     res: list[float] = []
     ref = None
+    cached = None  # (E, magnitude, g, data) at x from the line search's full trial step
     for it in range(settings.max_iterations + 1):
         t0 = time.perf_counter()
         # exact Hessian first: where it is positive definite Newton converges quadratically;
         # the projected one is the fallback when the factorisation finds it indefinite
-        g, data = problem.gradient_hessian(x, exact=settings.try_exact)
+        E, mag, g, data = cached or problem.evaluate(x, exact=settings.try_exact)
+        cached = None
         g[~free] = 0.0
         r = float(np.linalg.norm(g))
         if not np.isfinite(r):
@@ -202,21 +207,26 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
         alpha, accepted = 1.0, False
         # measured: energies of bent thin shells carry ~1e-9 relative round-off (stretches from
         # eigenvalues of F^T F); below this the residual is the better merit
-        noise = 1e-8 * problem.energy_magnitude(x)
+        noise = 1e-8 * mag
         for _ in range(settings.max_line_search):
             x_new = x + alpha * dx
-            E_new = problem.energy(x_new)
+            # the full step is usually taken: evaluate everything there at once, so the next
+            # iteration reuses it instead of assembling again
+            trial = problem.evaluate(x_new, exact=settings.try_exact) if alpha == 1.0 else None
+            E_new = trial[0] if trial else problem.energy(x_new)
             if E_new <= E + settings.armijo * alpha * slope:
                 accepted = True
                 break
             # within the energy's round-off a decrease cannot be seen: the residual decides
             if E_new <= E + noise:
-                g_new = problem.gradient(x_new)
+                g_new = trial[2].copy() if trial else problem.gradient(x_new)
                 g_new[~free] = 0.0
                 if np.linalg.norm(g_new) <= (1 - settings.armijo * alpha) * r:
                     accepted = True
                     break
             alpha *= 0.5
+        if accepted and trial is not None:
+            cached = trial
         timing.line_search += time.perf_counter() - t3
         if not accepted:
             timing.iterations = it + 1

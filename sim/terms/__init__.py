@@ -31,7 +31,9 @@ class Term:
     def add_hessian(self, x: np.ndarray, data: np.ndarray) -> None:
         """Linear terms have none."""
 
-    def add_gradient_hessian(self, x: np.ndarray, g: np.ndarray, data: np.ndarray) -> None:
-        """Both at once; terms whose kernels share the work override this."""
+    def add_gradient_hessian(self, x: np.ndarray, g: np.ndarray, data: np.ndarray) -> float:
+        """Both at once, returning the energy; terms whose kernels share the work override
+        this."""
         self.add_gradient(x, g)
         self.add_hessian(x, data)
+        return self.energy(x)

@@ -138,9 +138,10 @@ class ToolContact(Term):
         self._add_hessian(x, data, Hp, Hf)
 
     def add_gradient_hessian(self, x, g, data):
-        _, gp, Hp, gf, Hf = self._eval(x)
+        E, gp, Hp, gf, Hf = self._eval(x)
         self._add_gradient(x, g, gp, gf)
         self._add_hessian(x, data, Hp, Hf)
+        return E
 
     def report(self, x) -> dict[str, float]:
         """Force the sheet exerts on the tool (N), nodes in contact, deepest penetration (m),
