@@ -11,6 +11,8 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from server.estimate import estimate as study_estimate
+from server.estimate import find_study
 from server.history import FrameHistory
 from server.recording import Recorder
 from server.settings import Settings, check_name
@@ -43,6 +45,8 @@ class Run:
     parameters: dict = field(default_factory=dict)
     parameter_log: list[dict] = field(default_factory=list)
     records: list[dict] = field(default_factory=list)
+    # finished runs: error estimate from a study of the scene, and the run's cost
+    estimate: dict | None = None
 
     def summary(self) -> dict:
         d = asdict(self)
@@ -70,6 +74,8 @@ class RunManager:
         self.restarts = 0
         self._stop = threading.Event()
         self.bridge = threading.Thread(target=self._bridge, name="q3t-bridge", daemon=True)
+        self._facts: dict[str, tuple] = {}  # run id -> (edge length, result.json)
+        self._estimate_keys: dict[str, tuple] = {}  # run id -> the study report it used
 
     # ---- life cycle -------------------------------------------------------------------------
     def _new_worker(self) -> WorkerHandle:
@@ -186,13 +192,53 @@ class RunManager:
             if run.id == self.active:
                 raise Conflict(f"run {run_id!r} is {run.state}; stop it first")
             del self.runs[run.id]
+            self._facts.pop(run.id, None)
+            self._estimate_keys.pop(run.id, None)
             if self.history.run == run.id:
                 self.history.reset(None)
         shutil.rmtree(self.dir(run_id), ignore_errors=True)
 
+    # ---- error estimate -----------------------------------------------------------------------
+    def _run_facts(self, run: Run) -> tuple[float | None, dict | None]:
+        if run.id not in self._facts:
+            from sim.scene import scene_from_toml
+
+            d = self.dir(run.id)
+            try:
+                edge = scene_from_toml((d / "scene.toml").read_text(),
+                                       run.overrides).mesh.edge_length
+            except (OSError, ValueError):
+                edge = None
+            try:
+                result = json.loads((d / "result.json").read_text())
+            except (OSError, ValueError):
+                result = None
+            self._facts[run.id] = (edge, result)
+        return self._facts[run.id]
+
+    def estimate(self, run: Run) -> dict | None:
+        """A finished run's error estimate (the study row of its element and edge length) and
+        cost; recomputed when a study report of its scene appears or changes."""
+        if run.state != "finished":
+            return None
+        try:
+            found = find_study(self.root, run.scene)
+            key = (str(found[0]), found[0].stat().st_mtime_ns) if found else None
+            if run.estimate is None or self._estimate_keys.get(run.id, "?") != key:
+                edge, result = self._run_facts(run)
+                run.estimate = study_estimate(self.root, run.scene, run.element, edge, result,
+                                              run.overrides)
+                self._estimate_keys[run.id] = key
+        except Exception as exc:  # never let the estimate break a status request
+            run.estimate = {"available": False, "reason": "error",
+                            "text": f"no error estimate: {exc}", "notes": []}
+        return run.estimate
+
     # ---- events from the solver -------------------------------------------------------------
     def _finish(self, run: Run, state: str, reason: str | None) -> None:
         run.state, run.reason = state, reason
+        if state == "finished":
+            self.estimate(run)
         self._save(run)
         if run.id == self.active:
             self.active = None

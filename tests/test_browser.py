@@ -1,10 +1,13 @@
 """The real server in a subprocess, driven by Playwright in Debian's chromium: open the page,
 start a run, see the coloured shell in the viser viewer (pixel colours from the colour map),
-pause and see the step count stop."""
+pause and see the step count stop; edit a scene in the schema form (errors next to the field,
+lists, optional fields, the TOML view in sync both ways), save it, run it and read the run's
+error estimate from a study report."""
 
 from __future__ import annotations
 
 import io
+import json
 import os
 import socket
 import subprocess
@@ -16,9 +19,12 @@ import httpx
 import numpy as np
 import pytest
 
+from server import sceneform
 from server.colormap import VIRIDIS
+from server.tomlout import drop_none
 from tests.test_service import tiny_toml
 
+ROOT = Path(__file__).resolve().parent.parent
 CHROMIUM = "/usr/bin/chromium"
 pytestmark = pytest.mark.browser
 if not Path(CHROMIUM).exists():
@@ -33,7 +39,13 @@ def free_port() -> int:
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory):
+def server(served):
+    return served[0]
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """(url, folder with scenes/ and runs/)"""
     tmp = tmp_path_factory.mktemp("browser")
     (tmp / "scenes").mkdir()
     (tmp / "scenes" / "tiny.toml").write_text(tiny_toml(steps=400))
@@ -55,7 +67,7 @@ def server(tmp_path_factory):
     else:
         proc.kill()
         raise AssertionError(proc.stdout.read().decode())
-    yield url
+    yield url, tmp
     proc.terminate()
     proc.wait(10)
 
@@ -114,4 +126,108 @@ def test_page_run_viewer_pause(server, tmp_path):
         page.click("#stop")
         page.wait_for_function("document.getElementById('status').dataset.state == 'stopped'",
                                timeout=30_000)
+        browser.close()
+
+
+def test_scene_form_and_run_estimate(served):
+    url, tmp = served
+    (tmp / "runs" / "study-formed").mkdir(parents=True)
+    (tmp / "runs" / "study-formed" / "report.json").write_text(json.dumps({"study": {
+        "plan": {"scene": "scenes/formed.toml", "probe": "tip", "elements": ["linear"],
+                 "levels": [0.035], "reference": ["quadratic", 0.0035], "notes": []},
+        "reference": {"value": -1.0}, "date": "2026-11-22",
+        "rows": [{"element": "linear", "edge_length": 0.035, "status": "converged",
+                  "dofs": 100, "probe": -0.9, "error": 0.1, "time": 0.1, "iterations": 1}]}}))
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM)
+        page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        errors = []  # uncaught errors of our scripts (not of the embedded viewer)
+        page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
+        page.goto(url + "/")
+        field = lambda path: page.locator(f'#scene-form [data-path="{path}"]')  # noqa: E731
+        nu = field("material.nu").locator("input")
+        nu.wait_for(timeout=60_000)
+        assert nu.input_value() == "0.49" and nu.get_attribute("max") == "0.5"
+        assert field("material.model").locator("select").input_value() == "neo_hookean"
+        # every shipped scene: the form built from its JSON gives that JSON back
+        for path in sorted((ROOT / "scenes").glob("*.toml")):
+            scene = sceneform.parse(path.read_text())["scene"]
+            back = page.evaluate("""async (scene) => {
+                const schema = await (await fetch('/api/scenes/schema')).json();
+                const f = new SceneForm.Form(document.createElement('div'), schema);
+                f.build(scene);
+                return f.value();
+            }""", scene)
+            assert back == drop_none(scene), path.stem
+        # raw tables of an invalid scene come back as they are (the server names the errors)
+        raw = {"name": "x", "mesh": {"kind": "rectanglee", "size": [1, None]}, "bcs": [{}]}
+        back = page.evaluate("""(raw) => {
+            const f = new SceneForm.Form(document.createElement('div'), state.form.schema);
+            f.build(raw);
+            return f.value();
+        }""", raw)
+        assert back["mesh"] == {"kind": "rectanglee", "size": [1, None], "origin": [0, 0],
+                                "r_inner": 0, "scale": 1}
+        assert back["bcs"] == [{"components": "xyz", "layers": "all",  # region: missing
+                                "displacement": [0, 0, 0], "release": False,
+                                "release_only": False}]
+
+        # a bad value: the server's error next to the field; the TOML view follows the form
+        nu.fill("0.7")
+        err = field("material.nu").locator(":scope > .field-error")
+        err.filter(has_text="Input should be less than 0.5").wait_for()
+        assert "nu = 0.7" in page.input_value("#toml")
+        nu.fill("0.3")
+        page.wait_for_function("document.getElementById('toml').value.includes('nu = 0.3')")
+        assert err.text_content() == ""
+        # a list item: add a region (its name is missing, then its shape), then remove it
+        page.click('#scene-form [data-path="regions"] > button.add')
+        field("regions.1.name").locator(":scope > .field-error").filter(
+            has_text="Field required").wait_for()
+        field("regions.1.name").locator("input").fill("extra")
+        field("regions.1").locator(":scope > .field-error").filter(
+            has_text="exactly one of box, plane or ring").wait_for()
+        assert field("regions.1.name").locator(":scope > .field-error").text_content() == ""
+        page.click('#scene-form [data-path="regions.1"] button.remove')
+        page.wait_for_function("document.getElementById('scene-error').dataset.count === '0'")
+        # an optional field: unset -> set
+        opt = field("shell.thickness_points")
+        assert opt.locator("input.num").is_disabled()
+        opt.locator("input.unset").uncheck()
+        opt.locator("input.num").fill("5")
+        page.wait_for_function(
+            "document.getElementById('toml').value.includes('thickness_points = 5')")
+        # the TOML view: an edit there rebuilds the form
+        page.click("#tab-toml")
+        toml = page.input_value("#toml").replace('name = "tiny"', 'name = "formed"')
+        page.fill("#toml", toml.replace("steps = 400", "steps = 2"))
+        page.click("#tab-form")
+        page.wait_for_function("document.querySelector('#scene-form [data-path=\"stepping.steps"
+                               "\"] input').value === '2'")
+        assert field("shell.thickness_points").locator("input.num").input_value() == "5"
+        # save under a new name, run it: the finished run shows its estimate
+        page.fill("#scene-name", "formed")
+        page.click("#save")
+        page.wait_for_selector("#scenes li[data-name=formed]")
+        saved = httpx.get(f"{url}/api/scenes/formed").json()
+        assert saved["scene"]["material"]["nu"] == 0.3
+        assert saved["scene"]["shell"]["thickness_points"] == 5
+        assert saved["scene"]["stepping"]["steps"] == 2
+        active = httpx.get(f"{url}/api/health").json()["active"]
+        if active:  # left running by a failed test before this one
+            httpx.post(f"{url}/api/runs/{active}/stop")
+            deadline = time.time() + 30
+            while httpx.get(f"{url}/api/health").json()["active"] and time.time() < deadline:
+                time.sleep(0.1)
+        page.select_option("#element", "linear")
+        page.click("#start")
+        est = page.locator("#estimate .estimate-text")
+        est.wait_for(timeout=60_000)
+        text = est.text_content()
+        assert text.startswith("error estimate: 10 % vs quadratic at 3.5 mm (study of "
+                               "2026-11-22); cost "), text
+        assert "Newton iterations" in text
+        assert page.get_attribute("#status", "data-state") == "finished", \
+            page.text_content("#status")
+        assert [e for e in errors if "/static/" in e] == [], errors
         browser.close()

@@ -3,6 +3,7 @@ live parameters, results, recordings, bad input, and a solver process killed mid
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import time
@@ -80,6 +81,11 @@ def test_happy_path(env):
     res = client.get(f"/api/runs/{run_id}/result").json()
     assert res["converged"] and res["element"] == "linear"
     assert res["parameters"] == st["parameter_log"]
+    est = st["estimate"]  # a finished run without a study of its scene says how to get one
+    assert not est["available"] and est["reason"] == "no_study"
+    assert est["text"].startswith("no study for this scene: run `q3t study mine`; cost ")
+    assert est["cost"]["newton_iterations"] == res["timing"]["newton_iterations"]
+    assert res["estimate"] == est
     rec = client.get(f"/api/runs/{run_id}/recording")
     assert rec.status_code == 200 and len(rec.content) > 1000
     assert client.get(f"/api/runs/{run_id}?since=2").json()["records"][0]["step"] == 3
@@ -176,3 +182,37 @@ def test_worker_crash_fails_the_run_and_the_next_run_succeeds(env):
     assert nxt.status_code == 201, nxt.text
     st = wait_state(client, nxt.json()["id"], {"finished", "failed", "stopped"})
     assert st["state"] == "finished", st["reason"]
+
+
+def test_finished_run_shows_its_error_estimate_from_a_study(env):
+    """A synthetic ``q3t study`` report for the scene in the runs root: the finished run's
+    status carries the row of its element and edge length, and the run's own cost."""
+    client, settings = env
+    study = settings.runs_dir / "study-tiny"
+    study.mkdir()
+    rows = [{"element": "q3t", "edge_length": h, "status": "converged", "elements": 10,
+             "dofs": 100, "probe": -1.0, "error": e, "time": 0.1, "iterations": 2}
+            for h, e in ((0.07, 0.2), (0.035, 0.049))]
+    (study / "report.json").write_text(json.dumps({"study": {
+        "plan": {"scene": "scenes/tiny.toml", "probe": "tip", "elements": ["q3t"],
+                 "levels": [0.07, 0.035], "reference": ["quadratic", 0.0035], "notes": []},
+        "reference": {"value": -1.0}, "rows": rows, "date": "2026-11-22"}}))
+    try:
+        run_id = client.post("/api/runs", json={"scene": "tiny", "element": "q3t"}).json()["id"]
+        assert client.get(f"/api/runs/{run_id}").json()["estimate"] is None  # not finished
+        st = wait_state(client, run_id, {"finished", "failed", "stopped"})
+        assert st["state"] == "finished", st["reason"]
+        est = st["estimate"]
+        assert est["available"] and est["match"] == "exact", est
+        assert est["relative_error"] == 0.049 and est["row"]["edge_length"] == 0.035
+        res = client.get(f"/api/runs/{run_id}/result").json()
+        assert est["cost"]["wall_s"] == res["timing"]["total"]
+        assert est["cost"]["newton_iterations"] == res["timing"]["newton_iterations"] > 0
+        assert est["text"].startswith("error estimate: 4.9 % vs quadratic at 3.5 mm (study of "
+                                      "2026-11-22); cost ")
+        saved = json.loads((settings.runs_dir / run_id / "run.json").read_text())
+        assert saved["estimate"]["relative_error"] == 0.049  # kept with the run
+    finally:
+        for f in study.iterdir():
+            f.unlink()
+        study.rmdir()

@@ -1,7 +1,8 @@
 // The preview page: plain JS, no build step. Talks to /api and embeds the viser viewer.
 "use strict";
 const $ = (id) => document.getElementById(id);
-const state = { scene: null, run: null, records: [], config: null };
+const state = { scene: null, run: null, records: [], config: null, form: null, syncSeq: 0,
+                syncTimer: null, syncPending: null, syncRunning: null };
 const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b"];
 
 async function api(method, url, body) {
@@ -47,13 +48,100 @@ async function selectScene(name) {
   state.scene = name;
   $("scene-name").value = name;
   $("toml").value = s.toml;
-  $("scene-error").textContent = s.error || "";
+  clearTimeout(state.syncTimer);
+  state.syncTimer = null;
+  state.syncSeq++;  // answers to edits of the previous scene are stale now
+  state.tomlStale = false;
+  if (s.scene) {
+    state.form.build(s.scene);
+    showSceneErrors([]);
+  } else {
+    await syncFromToml();  // the raw tables and the errors naming the fields
+  }
   for (const li of $("scenes").children) li.className = li.dataset.name === name ? "sel" : "";
+}
+
+// ---- the scene form and the TOML view, in sync through the server ---------------------------
+// form -> JSON -> POST /api/scenes/render -> TOML; TOML -> POST /api/scenes/parse -> form.
+function showSceneErrors(errors) {
+  const rest = state.form.showErrors(errors);
+  const box = $("scene-error");
+  box.textContent = errors.map((e) => `${e.loc}: ${e.msg}`).join("\n");
+  box.dataset.count = errors.length;
+  box.dataset.unplaced = rest.length;
+}
+
+function scheduleSync(fn, ms) {
+  clearTimeout(state.syncTimer);
+  state.syncPending = fn;
+  state.syncTimer = setTimeout(() => { state.syncTimer = null; fn(); }, ms);
+}
+
+async function flushSync() {
+  // a pending edit is converted before the TOML is saved
+  if (state.syncTimer) {
+    clearTimeout(state.syncTimer);
+    state.syncTimer = null;
+    await state.syncPending();
+  }
+  await state.syncRunning;
+}
+
+async function syncFromForm() {
+  const seq = ++state.syncSeq;
+  $("sync").textContent = "…";
+  const job = api("POST", "/api/scenes/render", { scene: state.form.value() });
+  state.syncRunning = job.catch(() => null);
+  try {
+    const r = await job;
+    if (seq !== state.syncSeq) return;
+    state.tomlStale = r.toml === null;  // the form holds what TOML cannot say (a null)
+    if (r.toml !== null) $("toml").value = r.toml;
+    showSceneErrors(r.errors);
+    $("sync").textContent = r.ok ? "valid" : `${r.errors.length} error(s)`;
+  } catch (e) { say(e.message, true); }
+}
+
+async function syncFromToml() {
+  const seq = ++state.syncSeq;
+  $("sync").textContent = "…";
+  const job = api("POST", "/api/scenes/parse", { toml: $("toml").value });
+  state.syncRunning = job.catch(() => null);
+  try {
+    const r = await job;
+    if (seq !== state.syncSeq) return;
+    state.tomlStale = false;
+    if (r.scene || r.raw) state.form.build(r.scene || r.raw);
+    showSceneErrors(r.errors);
+    $("sync").textContent = r.ok ? "valid" : `${r.errors.length} error(s)`;
+  } catch (e) { say(e.message, true); }
+}
+
+function suggestNames(path, scene) {
+  // choices for the form's text fields that name something else in the scene
+  const names = (list) => (scene[list] || []).map((x) => x && x.name).filter(Boolean);
+  const p = path.split(".").filter((s) => !/^\d+$/.test(s)).join(".");
+  if (["shell.element", "study.reference_element", "study.elements"].includes(p))
+    return state.config.elements;
+  if (/^(bcs|loads|probes)\.region$/.test(p)) return names("regions");
+  if (p === "probes.tool") return names("tools");
+  if (p === "study.probe") return names("probes");
+  return null;
+}
+
+function showTab(which) {
+  const form = which === "form";
+  $("scene-form").hidden = !form;
+  $("toml").hidden = form;
+  $("tab-form").setAttribute("aria-selected", String(form));
+  $("tab-toml").setAttribute("aria-selected", String(!form));
 }
 
 async function saveScene() {
   const name = $("scene-name").value.trim();
   try {
+    await flushSync();
+    if (state.tomlStale) throw new Error("the form has errors (see the fields): not saved");
     await api("PUT", `/api/scenes/${encodeURIComponent(name)}`, { toml: $("toml").value });
     $("scene-error").textContent = "";
     state.scene = name;
@@ -64,17 +152,9 @@ async function saveScene() {
   }
 }
 
-async function validateScene() {
-  try {
-    await api("POST", "/api/scenes/validate", { toml: $("toml").value });
-    $("scene-error").textContent = "";
-  } catch (e) {
-    $("scene-error").textContent = e.message;
-  }
-}
-
 async function startRun() {
   try {
+    await flushSync();
     const params = {};
     for (const inp of document.querySelectorAll("#sliders input")) params[inp.name] = +inp.value;
     const run = await api("POST", "/api/runs",
@@ -153,10 +233,42 @@ async function poll() {
       $("status").dataset.state = st.state;
       $("status").dataset.run = st.id;
       $("status").dataset.step = st.step;
+      showEstimate(st);
       drawPlots(st.probes);
     }
   } catch (e) { say(e.message, true); }
   setTimeout(poll, 500);
+}
+
+function showEstimate(st) {
+  // a finished run: its error estimate from a study of the scene and its cost
+  const box = $("estimate");
+  const est = st.estimate;
+  box.hidden = !est;
+  box.dataset.run = st.id;
+  box.dataset.available = est ? String(!!est.available) : "";
+  if (!est) { box.replaceChildren(); return; }
+  const line = document.createElement("div");
+  line.className = "estimate-text";
+  // `q3t study SCENE` in backticks becomes code
+  est.text.split("`").forEach((part, i) => {
+    if (i % 2) {
+      const c = document.createElement("code");
+      c.textContent = part;
+      line.append(c);
+    } else line.append(part);
+  });
+  const kids = [line];
+  if (est.notes && est.notes.length) {
+    const ul = document.createElement("ul");
+    for (const n of est.notes) {
+      const li = document.createElement("li");
+      li.textContent = n;
+      ul.append(li);
+    }
+    kids.push(ul);
+  }
+  box.replaceChildren(...kids);
 }
 
 function plot(canvas, series) {
@@ -229,7 +341,11 @@ async function main() {
     $("viewer").src = `${location.protocol}//${location.hostname}:${state.config.viewer_port}/`;
   }
   $("save").onclick = saveScene;
-  $("toml").oninput = () => { clearTimeout(state.vt); state.vt = setTimeout(validateScene, 400); };
+  state.form = new SceneForm.Form($("scene-form"), await api("GET", "/api/scenes/schema"),
+                                  () => scheduleSync(syncFromForm, 300), suggestNames);
+  $("toml").oninput = () => scheduleSync(syncFromToml, 400);
+  $("tab-form").onclick = () => showTab("form");
+  $("tab-toml").onclick = () => showTab("toml");
   $("duplicate").onclick = async () => {
     const name = prompt("name of the copy", `${state.scene}-copy`);
     if (!name) return;

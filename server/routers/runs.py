@@ -51,10 +51,12 @@ def start_run(body: NewRun, request: Request) -> dict:
 
 @router.get("/{run_id}")
 def status(run_id: str, request: Request, since: int = 0) -> dict:
-    """The run's state and its step records after step ``since``."""
+    """The run's state and its step records after step ``since``; for a finished run also
+    ``estimate``: its error from a study of the scene (``q3t study``) and its cost."""
     m = _runs(request)
     with m.lock:
         run = m.get(run_id)
+        m.estimate(run)
         return {**run.summary(), "records": [r for r in run.records if r["step"] > since]}
 
 
@@ -71,11 +73,15 @@ def set_parameter(run_id: str, name: str, body: ParameterValue, request: Request
 
 @router.get("/{run_id}/result")
 def result(run_id: str, request: Request) -> dict:
+    """The run's result.json, with ``estimate`` as in the status."""
     m = _runs(request)
-    path = m.dir(m.get(run_id).id) / "result.json"
+    run = m.get(run_id)
+    path = m.dir(run.id) / "result.json"
     if not path.is_file():
         raise KeyError(f"run {run_id!r} has no result yet")
-    return json.loads(path.read_text())
+    with m.lock:
+        estimate = m.estimate(run)
+    return {**json.loads(path.read_text()), "estimate": estimate}
 
 
 @router.get("/{run_id}/frames")

@@ -1,10 +1,12 @@
-"""/api/scenes: list, read, create, update, delete, duplicate, validate; the JSON schema."""
+"""/api/scenes: list, read, create, update, delete, duplicate, validate; the JSON schema; the
+form's conversions (render: scene JSON to TOML, parse: TOML to scene JSON), which never save."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter, Request, Response
 from pydantic import BaseModel, ConfigDict
 
+from server import sceneform
 from server.settings import check_name
 from server.store import SceneStore
 from sim.scene import Scene
@@ -27,6 +29,10 @@ class NewScene(Body):
 
 class NewName(Body):
     name: str
+
+
+class SceneJSON(Body):
+    scene: dict
 
 
 def _store(request: Request) -> SceneStore:
@@ -56,6 +62,21 @@ def schema() -> dict:
 @router.post("/validate")
 def validate(body: SceneText) -> dict:
     return {"ok": True, "scene": SceneStore.validate(body.toml).model_dump(mode="json")}
+
+
+@router.post("/render")
+def render(body: SceneJSON) -> dict:
+    """Scene JSON (the page's form) to TOML text, with validation errors naming the field
+    (``{"loc": "material.nu", "msg": ...}``). A valid scene is written without its defaults.
+    Never saves."""
+    return sceneform.render(body.scene)
+
+
+@router.post("/parse")
+def parse(body: SceneText) -> dict:
+    """TOML text to scene JSON: ``scene`` (validated, defaults filled in) or ``raw`` and
+    ``errors`` naming the fields. Never saves."""
+    return sceneform.parse(body.toml)
 
 
 @router.get("/{name}")

@@ -11,7 +11,7 @@ import web
 
 router = APIRouter(tags=["web"], include_in_schema=False)
 ROOT = Path(web.__file__).resolve().parent
-FILES = {"app.js": "text/javascript", "style.css": "text/css"}
+FILES = {"app.js": "text/javascript", "form.js": "text/javascript", "style.css": "text/css"}
 
 
 @router.get("/")

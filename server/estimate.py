@@ -1,0 +1,209 @@
+"""Error estimate and cost of a finished run, from a ``q3t study`` report of its scene.
+
+``q3t study SCENE`` writes ``runs/study-SCENE/report.json``: ``{"study": {"plan": {scene, probe,
+elements, levels, reference: [element, edge]}, "reference": {..., "value"}, "rows": [{element,
+edge_length, dofs, probe, error, time, iterations, status}, ...]}, "overhead": ...}``. The
+estimate of a run is the row of its element at its mesh edge length (or the nearest level, said
+so), with the row's relative error and the reference it was measured against, next to the run's
+own cost from its ``result.json``.
+
+An analytic reference in the report is used instead of the numerical one: ``study.analytic``
+(or ``study.reference.analytic``) as ``{"name": ..., "value": ...}`` or a bare number; a row's
+error against it is its ``error_analytic`` when given, else ``|probe - value| / |value|``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import time
+from pathlib import Path
+
+DATE = re.compile(r"^(\d{4}-\d{2}-\d{2})\b", re.M)
+SAME_EDGE = 1e-3  # relative: levels are written with 5-6 significant digits
+
+
+def _stem(path) -> str:
+    return Path(str(path)).stem
+
+
+_cache: dict[Path, tuple[int, dict | None]] = {}
+
+
+def _load(path: Path) -> dict | None:
+    """The report's ``study`` part, or None when it is not a refinement study (a factorisation
+    report, an unreadable file). Cached by modification time."""
+    try:
+        mtime = path.stat().st_mtime_ns
+    except OSError:
+        return None
+    hit = _cache.get(path)
+    if hit and hit[0] == mtime:
+        return hit[1]
+    try:
+        data = json.loads(path.read_text())
+        study = data.get("study") if isinstance(data, dict) else None
+        if not (isinstance(study, dict) and isinstance(study.get("rows"), list)
+                and isinstance(study.get("plan"), dict)):
+            study = None
+        elif "date" not in study:
+            study = {**study, "date": data.get("date") or _date(path)}
+    except (OSError, ValueError):
+        study = None
+    _cache[path] = (mtime, study)
+    return study
+
+
+def _date(report: Path) -> str:
+    """The day of the study: the first line of report.md's header, else the file's mtime."""
+    md = report.with_name("report.md")
+    try:
+        m = DATE.search(md.read_text()[:2000])
+        if m:
+            return m.group(1)
+    except OSError:
+        pass
+    return time.strftime("%Y-%m-%d", time.localtime(report.stat().st_mtime))
+
+
+def find_study(root: Path, scene: str) -> tuple[Path, dict] | None:
+    """``root/study-<scene>/report.json`` first, else the newest ``root/study*/report.json``
+    whose plan names the scene."""
+    first = root / f"study-{scene}" / "report.json"
+    study = _load(first)
+    if study is not None and _stem(study["plan"].get("scene", scene)) == scene:
+        return first, study
+    found = []
+    for p in root.glob("study*/report.json"):
+        s = _load(p)
+        if s is not None and _stem(s["plan"].get("scene", "")) == scene:
+            found.append((p.stat().st_mtime, p, s))
+    if not found:
+        return None
+    _, p, s = max(found, key=lambda t: t[0])
+    return p, s
+
+
+def length(m: float) -> str:
+    """An edge length for people: 3.5 mm, 17.5 mm, 0.12 m."""
+    if m < 1.0:
+        return f"{1000 * m:.3g} mm"
+    return f"{m:.3g} m"
+
+
+def seconds(s: float) -> str:
+    if s < 0.1:
+        return f"{1000 * s:.2g} ms"
+    return f"{s:.2f} s" if s < 1 else f"{s:.1f} s" if s < 10 else f"{s:.0f} s"
+
+
+def percent(e: float) -> str:
+    return f"{100 * e:.2g} %"
+
+
+def reference_of(study: dict) -> dict:
+    ref = study.get("reference") or {}
+    an = study.get("analytic", ref.get("analytic") if isinstance(ref, dict) else None)
+    if isinstance(an, (int, float)) and not isinstance(an, bool):
+        an = {"value": float(an)}
+    if isinstance(an, dict) and isinstance(an.get("value"), (int, float)):
+        name = an.get("name") or "analytic solution"
+        return {"kind": "analytic", "name": name, "value": float(an["value"]),
+                "label": f"{name} (analytic)"}
+    el, edge = (study["plan"].get("reference") or [None, None])[:2]
+    return {"kind": "numerical", "element": el, "edge_length": edge,
+            "value": ref.get("value") if isinstance(ref, dict) else None,
+            "label": f"{el} at {length(edge)}" if edge else str(el)}
+
+
+def row_error(row: dict, ref: dict) -> float | None:
+    if ref["kind"] == "analytic":
+        if isinstance(row.get("error_analytic"), (int, float)):
+            return float(row["error_analytic"])
+        p = row.get("probe")
+        if isinstance(p, (int, float)) and ref["value"]:
+            return abs(p - ref["value"]) / abs(ref["value"])
+        return None
+    e = row.get("error")
+    return float(e) if isinstance(e, (int, float)) else None
+
+
+def cost_of(result: dict | None) -> dict | None:
+    if not result:
+        return None
+    t = result.get("timing") or {}
+    c = result.get("counts") or {}
+    return {"wall_s": t.get("total"), "newton_iterations": t.get("newton_iterations"),
+            "per_iteration_s": t.get("per_iteration"), "dofs": c.get("dofs"),
+            "steps": len(result.get("steps") or [])}
+
+
+def cost_text(cost: dict | None) -> str:
+    if not cost or cost.get("wall_s") is None:
+        return ""
+    s = f"cost {seconds(cost['wall_s'])}"
+    if cost.get("newton_iterations") is not None:
+        s += f", {cost['newton_iterations']} Newton iterations"
+        if cost.get("per_iteration_s"):
+            s += f" ({seconds(cost['per_iteration_s'])} per iteration)"
+    return s
+
+
+def estimate(root: Path, scene: str, element: str, edge_length: float | None,
+             result: dict | None, overrides: dict | None = None) -> dict:
+    """What the page shows for a finished run: ``available``, ``text`` and the numbers."""
+    cost = cost_of(result)
+    out: dict = {"available": False, "scene": scene, "element": element,
+                 "edge_length": edge_length, "cost": cost, "notes": []}
+
+    def done(head: str) -> dict:
+        out["text"] = "; ".join(s for s in (head, cost_text(cost)) if s)
+        return out
+
+    found = find_study(root, scene)
+    if found is None:
+        out["reason"] = "no_study"
+        return done(f"no study for this scene: run `q3t study {scene}`")
+    path, study = found
+    ref = reference_of(study)
+    out["study"] = {"path": str(path), "date": study.get("date"),
+                    "probe": study["plan"].get("probe"),
+                    "elements": study["plan"].get("elements"),
+                    "levels": study["plan"].get("levels")}
+    out["reference"] = ref
+    when = f"study of {study.get('date')}"
+    rows = [r for r in study["rows"] if r.get("element") == element
+            and isinstance(r.get("edge_length"), (int, float)) and r["edge_length"] > 0]
+    if not rows:
+        out["reason"] = "element_not_studied"
+        studied = ", ".join(sorted({str(r.get("element")) for r in study["rows"]}))
+        return done(f"the {when} has no {element} rows (it has {studied}): run "
+                    f"`q3t study {scene} --elements {element}`")
+    if edge_length is None or edge_length <= 0:
+        out["reason"] = "no_edge_length"
+        return done(f"the run's mesh has no edge length to match the {when}")
+    row = min(rows, key=lambda r: abs(math.log(r["edge_length"] / edge_length)))
+    exact = abs(row["edge_length"] / edge_length - 1) <= SAME_EDGE
+    err = row_error(row, ref)
+    if err is None:
+        out["reason"] = "no_error"
+        return done(f"the {when} has no error for {element} at {length(row['edge_length'])}")
+    out.update(available=True, relative_error=err, row=row,
+               match="exact" if exact else "nearest")
+    if not exact:
+        out["notes"].append(f"nearest studied level: {length(row['edge_length'])} (the run "
+                            f"used {length(edge_length)})")
+    if row.get("status") not in (None, "converged"):
+        out["notes"].append(f"the study's run at this level ended {row['status']}")
+    if ref["kind"] == "numerical" and ref.get("element") == element:
+        out["notes"].append(f"{element} against {element} on a finer mesh: self-convergence, "
+                            "an underestimate")
+    other = sorted(k for k in (overrides or {}) if k not in ("shell.element", "mesh.edge_length"))
+    if other:
+        out["notes"].append(f"the run overrides {', '.join(other)}; the study did not")
+    head = f"error estimate: {percent(err)} vs {ref['label']}"
+    if not exact:
+        head += f" at the nearest studied level {length(row['edge_length'])}"
+    head += f" ({when})"
+    return done(head)

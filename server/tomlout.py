@@ -1,0 +1,141 @@
+"""Scene dicts to TOML text: ``tomli_w`` when it is installed, else the small emitter here.
+
+The emitter covers what scenes use: tables, arrays of tables, inline tables for small objects
+(``plane = { point = [...], normal = [...] }``), numbers, strings, booleans and arrays. TOML has
+no null: ``None`` values in tables are left out; a ``None`` inside an array is an error.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+INLINE_WIDTH = 88  # a nested table whose ``key = { ... }`` line fits is written inline
+
+
+def have_tomli_w() -> bool:
+    try:
+        import tomli_w  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def to_toml(data: dict, *, emitter: str = "auto") -> str:
+    """``emitter``: "auto" (tomli_w if installed), "tomli_w" or "builtin"."""
+    data = drop_none(data)
+    if emitter == "tomli_w" or (emitter == "auto" and have_tomli_w()):
+        import tomli_w
+
+        return tomli_w.dumps(data)
+    return dumps(data)
+
+
+def drop_none(value):
+    """The value without ``None`` entries in tables (TOML cannot say null)."""
+    if isinstance(value, dict):
+        return {k: drop_none(v) for k, v in value.items() if v is not None}
+    if isinstance(value, (list, tuple)):
+        return [drop_none(v) for v in value]
+    return value
+
+
+def key(k: str) -> str:
+    return k if BARE_KEY.match(k) else string(k)
+
+
+def string(s: str) -> str:
+    out = []
+    for ch in s:
+        if ch == "\\":
+            out.append("\\\\")
+        elif ch == '"':
+            out.append('\\"')
+        elif ch == "\n":
+            out.append("\\n")
+        elif ch == "\t":
+            out.append("\\t")
+        elif ch == "\r":
+            out.append("\\r")
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04x}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def number(x: float) -> str:
+    if math.isnan(x):
+        return "nan"
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    ax = abs(x)
+    if ax == 0 or 1e-4 <= ax < 1e6:
+        return repr(x)  # shortest round-trip, always with "." or "e"
+    for p in range(17):  # shortest scientific form that reads back to the same float
+        s = f"{x:.{p}e}"
+        if float(s) == x:
+            break
+    mant, _, exp = s.partition("e")
+    return f"{mant}e{int(exp)}"
+
+
+def value(v, where: str = "value") -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return number(v)
+    if isinstance(v, str):
+        return string(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(value(x, f"{where}.{i}") for i, x in enumerate(v)) + "]"
+    if isinstance(v, dict):
+        if not v:
+            return "{}"
+        return "{ " + ", ".join(f"{key(k)} = {value(x, f'{where}.{k}')}" for k, x in v.items()
+                               if x is not None) + " }"
+    if v is None:
+        raise ValueError(f"{where}: TOML has no null")
+    raise ValueError(f"{where}: cannot write {type(v).__name__} as TOML")
+
+
+def _is_table_array(v) -> bool:
+    return isinstance(v, list) and bool(v) and all(isinstance(x, dict) for x in v)
+
+
+def dumps(data: dict) -> str:
+    """TOML text of ``data``; reads back (tomllib) to the same dict, with tuples as lists."""
+    blocks: list[list[str]] = []
+    _table(data, [], None, blocks)
+    return "\n".join("\n".join(b) for b in blocks if b).rstrip("\n") + "\n"
+
+
+def _table(d: dict, path: list[str], header: str | None, blocks: list[list[str]]) -> None:
+    lines = [header] if header else []
+    later: list[tuple[str, object]] = []
+    for k, v in d.items():
+        if v is None:
+            continue
+        where = ".".join([*path, k])
+        if isinstance(v, dict) or _is_table_array(v):
+            line = f"{key(k)} = {value(v, where)}"
+            if path and len(line) <= INLINE_WIDTH:  # small and nested: inline
+                lines.append(line)
+            else:
+                later.append((k, v))
+        else:
+            lines.append(f"{key(k)} = {value(v, where)}")
+    if header is not None or lines:
+        lines.append("")
+        blocks.append(lines)
+    for k, v in later:
+        sub = [*path, k]
+        name = ".".join(key(p) for p in sub)
+        if isinstance(v, dict):
+            _table(v, sub, f"[{name}]", blocks)
+        else:
+            for item in v:
+                _table(item, sub, f"[[{name}]]", blocks)
