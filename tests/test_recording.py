@@ -91,3 +91,17 @@ def test_play_command(tmp_path):
     assert play_command(tmp_path / "a.rrd", web=False, port=9090)[1:] == [str(tmp_path / "a.rrd")]
     web = play_command(tmp_path / "a.rrd", web=True, port=9090)
     assert "--serve-web" in web and web[web.index("--bind") + 1] == "127.0.0.1"
+
+
+def test_recording_has_no_channels_for_absent_quantities(client):
+    """An elastic scene without tools records no tool, no plastic and no contact channel: the
+    channels follow what the scene built (issue: compute only what a scene needs)."""
+    c, settings = client
+    run_id = c.post("/api/runs", json={"scene": "tiny", "element": "q3t"}).json()["id"]
+    st = wait_state(c, run_id, {"finished", "failed", "stopped"})
+    assert st["state"] == "finished", st["reason"]
+    paths = {str(ch.entity_path) for ch in RrdReader(str(settings.runs_dir / run_id
+                                                          / "run.rrd")).stream()}
+    assert "/sheet" in paths and "/probes/tip_deflection" in paths
+    assert not any(p.startswith("/tools") for p in paths)
+    assert not any("plastic" in p or "contact" in p or "punch" in p for p in paths)
