@@ -82,6 +82,9 @@ def cmd_play(args) -> int:
 
 
 def add_parser(sub) -> None:
+    from server import bench
+
+    bench.add_parser(sub)
     s = sub.add_parser("serve", help="start the browser preview service")
     s.add_argument("scene", nargs="?", default="cup_drawing",
                    help="default scene name (selected first on the page; the viewer's Play "
