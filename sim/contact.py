@@ -67,6 +67,7 @@ import math
 import numba
 import numpy as np
 
+from .materials.isotropic import eigh3
 from .tools.sdf import _pose, sdf_world, sdf_world_distance
 
 # ----------------------------------------------------------------------------------------------
@@ -91,54 +92,9 @@ def _penalty_scalar(d, k, delta, c2):
 
 @numba.njit(cache=True)
 def _psd3(A):
-    """Projection of a symmetric 3 x 3 matrix onto the PSD cone (negative eigenvalues -> 0).
-
-    Cyclic Jacobi rotations (cheap to compile, unlike LAPACK's eigh in numba): each rotation
-    in the (p, q) plane zeroes A[p, q]; a few sweeps reach round-off.
-    """
-    B = A.copy()
-    V = np.eye(3)
-    scale = 0.0
-    for i in range(3):
-        for j in range(3):
-            scale += B[i, j] * B[i, j]
-    for _ in range(30):
-        off = B[0, 1] * B[0, 1] + B[0, 2] * B[0, 2] + B[1, 2] * B[1, 2]
-        if off <= 1e-32 * scale:
-            break
-        for p, q in ((0, 1), (0, 2), (1, 2)):
-            apq = B[p, q]
-            if apq == 0.0:
-                continue
-            theta = (B[q, q] - B[p, p]) / (2.0 * apq)
-            tt = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
-            if theta < 0.0:
-                tt = -tt
-            c = 1.0 / math.sqrt(tt * tt + 1.0)
-            s = tt * c
-            for k in range(3):  # columns: B J
-                bkp = B[k, p]
-                bkq = B[k, q]
-                B[k, p] = c * bkp - s * bkq
-                B[k, q] = s * bkp + c * bkq
-            for k in range(3):  # rows: J^T (B J)
-                bpk = B[p, k]
-                bqk = B[q, k]
-                B[p, k] = c * bpk - s * bqk
-                B[q, k] = s * bpk + c * bqk
-            for k in range(3):  # eigenvectors: V J
-                vkp = V[k, p]
-                vkq = V[k, q]
-                V[k, p] = c * vkp - s * vkq
-                V[k, q] = s * vkp + c * vkq
-    P = np.zeros((3, 3))
-    for m in range(3):
-        w = B[m, m]
-        if w > 0.0:
-            for i in range(3):
-                for j in range(3):
-                    P[i, j] += w * V[i, m] * V[j, m]
-    return P
+    """Projection of a symmetric 3 x 3 matrix onto the PSD cone (negative eigenvalues -> 0)."""
+    w, V = eigh3(A)
+    return (V * np.maximum(w, 0.0)) @ V.T
 
 
 @numba.njit(cache=True)
