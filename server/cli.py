@@ -21,6 +21,19 @@ def _loopback(host: str) -> bool:
         return False
 
 
+def serve_settings(args, token: str | None) -> Settings:
+    """Settings of ``q3t serve``. viser has no token check of its own: it stays on loopback
+    unless --expose-viewer asks otherwise, with a warning."""
+    viewer_host = args.host if args.expose_viewer else "127.0.0.1"
+    if args.expose_viewer and not _loopback(args.host):
+        print(f"q3t: warning: the viewer on {args.host}:{args.viewer_port} is open to anyone "
+              "who can reach it (no token)", file=sys.stderr)
+    return Settings(scenes_dir=Path(args.scenes_dir), runs_dir=Path(args.runs_dir),
+                    token=token, viewer=not args.no_viewer, viewer_host=viewer_host,
+                    viewer_port=args.viewer_port, step_delay=args.step_delay,
+                    default_scene=args.scene)
+
+
 def cmd_serve(args) -> int:
     import uvicorn
 
@@ -35,10 +48,7 @@ def cmd_serve(args) -> int:
     if not (scenes / f"{args.scene}.toml").is_file():
         print(f"q3t: no scene {args.scene!r} in {scenes}", file=sys.stderr)
         return 2
-    settings = Settings(scenes_dir=scenes, runs_dir=Path(args.runs_dir), token=token,
-                        viewer=not args.no_viewer, viewer_host=args.host,
-                        viewer_port=args.viewer_port, step_delay=args.step_delay,
-                        default_scene=args.scene)
+    settings = serve_settings(args, token)
     query = f"?token={token}" if token else ""
     print(f"q3t: open http://{args.host}:{args.port}/{query}  (API docs at /docs)",
           file=sys.stderr, flush=True)
@@ -98,6 +108,9 @@ def add_parser(sub) -> None:
     s.add_argument("--step-delay", type=float, default=0.0,
                    help="seconds between solver steps (to watch tiny scenes)")
     s.add_argument("--no-viewer", action="store_true", help="no viser viewer")
+    s.add_argument("--expose-viewer", action="store_true",
+                   help="bind the viser viewer to --host too (it has no token check; by "
+                        "default it stays on 127.0.0.1)")
     s.set_defaults(func=cmd_serve)
     p = sub.add_parser("play", help="open a run's rerun recording")
     p.add_argument("run", help="run id, run folder or .rrd file")

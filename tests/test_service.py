@@ -216,3 +216,17 @@ def test_finished_run_shows_its_error_estimate_from_a_study(env):
         for f in study.iterdir():
             f.unlink()
         study.rmdir()
+
+
+def test_viewer_stays_on_loopback_unless_exposed():
+    """The API asks for a token off loopback; viser cannot, so it is not exposed by default."""
+    import argparse
+
+    from server.cli import add_parser, serve_settings
+
+    ap = argparse.ArgumentParser()
+    add_parser(ap.add_subparsers(dest="cmd"))
+    args = ap.parse_args(["serve", "--host", "0.0.0.0", "--token", "t"])
+    assert serve_settings(args, "t").viewer_host == "127.0.0.1"
+    args = ap.parse_args(["serve", "--host", "0.0.0.0", "--token", "t", "--expose-viewer"])
+    assert serve_settings(args, "t").viewer_host == "0.0.0.0"
