@@ -315,7 +315,7 @@ def _tools(scene, shell, pattern, nodes) -> list[ToolContact]:
                   "stop": t.stop}
             vdof += 1
         out.append(ToolContact(t.name, prog, nodes, t.position, t.velocity, k, t.friction,
-                               1e-2 * h, pattern, delta=1e-2 * h, **kw))
+                               1e-2 * h, pattern, delta=1e-2 * h, keyframes=t.keyframes, **kw))
     return out
 
 

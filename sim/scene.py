@@ -254,6 +254,9 @@ class ToolSpec(Strict):
     # force control: the tool presses along -z with this force (N) and its z is solved with
     # the sheet (a blank holder); velocity must then have no z component
     force: Pos | None = None
+    # a path: [t, dx, dy, dz] rows, offsets from `position` (m) at scene times t (static: 0-1),
+    # piecewise linear in between and held after the last; adds to the velocity's motion
+    keyframes: list[tuple[float, float, float, float]] = []
     # force control: the lowest z offset (m, from the start position) the tool can reach, the
     # press's distance blocks; without it a holder falls once the flange has been drawn in
     stop: float | None = None
@@ -262,6 +265,11 @@ class ToolSpec(Strict):
     def _force_axis(self):
         if self.force is not None and self.velocity[2] != 0.0:
             raise ValueError("a force-controlled tool moves in z by itself: velocity z must be 0")
+        times = [k[0] for k in self.keyframes]
+        if any(b <= a for a, b in zip(times, times[1:], strict=False)):
+            raise ValueError("keyframes: times must increase")
+        if self.force is not None and any(k[3] != 0.0 for k in self.keyframes):
+            raise ValueError("keyframes: a force-controlled tool has no z path")
         return self
 
 

@@ -156,3 +156,23 @@ def test_force_controlled_blank_holder_holds_its_force_then_rests_on_its_stop():
     assert np.allclose(force[:30], 3000.0, rtol=1e-3)
     assert z[29] > z[0] + 3e-4  # lifted by the thickening flange (measured 0.45 mm)
     assert not touching[-1] and np.isclose(z[-1], 0.0005 - 0.0001, atol=1e-6)
+
+
+def test_tool_follows_its_keyframes():
+    """A punch path given as keyframes (down 2 mm by t = 0.5, held, up 1 mm by t = 1) is followed
+    step by step."""
+    sim = sheet_on_ground(0.0, 0.0)
+    raw = sim.model.scene.model_dump()
+    raw["tools"].append({"name": "punch", "position": [0.0, 0.0, 0.01],
+                         "shape": {"kind": "punch", "radius": 0.005, "height": 0.02},
+                         "keyframes": [[0.0, 0, 0, 0], [0.5, 0, 0, -0.002], [0.75, 0, 0, -0.002],
+                                       [1.0, 0, 0, -0.001]]})
+    sim = Simulation.from_scene(scene_from_dict(raw))
+    z = []
+    for _ in range(4):
+        sim.step()
+        z.append(sim.tool_poses()["punch"][2])
+    assert np.allclose(z, [0.009, 0.008, 0.008, 0.009], atol=1e-12)
+    with pytest.raises(Exception, match="times must increase"):
+        raw["tools"][-1]["keyframes"] = [[0.5, 0, 0, 0], [0.2, 0, 0, 0]]
+        scene_from_dict(raw)

@@ -34,13 +34,15 @@ class ToolContact(Term):
     blocks."""
 
     def __init__(self, name, prog, nodes, position, velocity, k, mu, eps_v, pattern,
-                 delta=0.0, vdof=None, force=0.0, pair_slots=None, stop=None):
+                 delta=0.0, vdof=None, force=0.0, pair_slots=None, stop=None, keyframes=()):
         self.name = f"contact:{name}"
         self.tool = name
         self.prog = np.ascontiguousarray(prog, float)
         self.nodes = np.asarray(nodes, np.int64)
         self.position = np.asarray(position, float).copy()  # committed
         self.velocity = np.asarray(velocity, float)
+        kf = np.asarray(keyframes, float).reshape(-1, 4)
+        self._path_t, self._path_u = kf[:, 0], kf[:, 1:]
         self.speed_scale = 1.0
         self.force_scale = 1.0
         self.k, self.mu, self.eps_v = float(k), float(mu), float(eps_v)
@@ -66,8 +68,15 @@ class ToolContact(Term):
         """Where the tool is at state x (its offset is part of x under force control)."""
         return self.t_now + x[self.vdof] if self.vdof is not None else self.t_now
 
+    def path(self, t: float) -> np.ndarray:
+        """Keyframed offset (3,) at scene time t (zero without keyframes)."""
+        if not len(self._path_t):
+            return np.zeros(3)
+        return np.array([np.interp(t, self._path_t, self._path_u[:, c]) for c in range(3)])
+
     def begin_step(self, t, dt, x):
-        self.t_now = self.position + self.speed_scale * dt * self.velocity
+        step = dt * self.velocity + self.path(t) - self.path(t - dt)
+        self.t_now = self.position + self.speed_scale * step
         # friction lags the normal force of the last converged state; the rest state is not an
         # equilibrium (a skin placed on a tool sits in the contact layer), so the first step
         # is frictionless
