@@ -40,6 +40,8 @@ class StepRecord:
     energy: float
     cutbacks: int
     probes: dict[str, float]
+    # per tool: force the sheet exerts on it (N), nodes in contact, deepest penetration (m), z
+    tools: dict[str, dict] = field(default_factory=dict)
 
 
 @dataclass
@@ -168,7 +170,7 @@ class Simulation:
             term.commit(self.x)
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, res.iterations, res.residuals[-1], res.energy,
-                         0, probes.evaluate(m, self.x))
+                         0, probes.evaluate(m, self.x), self._tool_reports())
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start
@@ -206,7 +208,7 @@ class Simulation:
             dt *= 2  # grow back after a successful sub-step
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iters, res.residuals[-1], res.energy, cutbacks,
-                         probes.evaluate(self.model, self.x))
+                         probes.evaluate(self.model, self.x), self._tool_reports())
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start
@@ -229,6 +231,10 @@ class Simulation:
             if progress:
                 progress(self, rec)
         return True
+
+    def _tool_reports(self) -> dict[str, dict]:
+        active = set(map(id, self.model.problem.terms))
+        return {t.tool: t.report(self.x) for t in self.tools if id(t) in active}
 
     def tool_poses(self) -> dict[str, np.ndarray]:
         """Current translation (3,) of every tool."""

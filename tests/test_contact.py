@@ -38,6 +38,9 @@ def test_pressed_sheet_transfers_the_load_without_penetrating():
     sim = sheet_on_ground(0.0, 0.0)
     assert sim.run(), sim.failure
     for rec in sim.records:
+        assert set(rec.tools["ground"]) == {"fx", "fy", "fz", "contact_nodes", "penetration", "z"}
+        tool = rec.tools["ground"]
+        assert tool["fz"] == rec.probes["fz"] and tool["contact_nodes"] > 0
         # the plane carries the applied pressure resultant (Newton's rtol 1e-8 of the load)
         assert np.isclose(rec.probes["fz"], -1e4 * 0.04**2 * rec.time, rtol=1e-6)
         assert rec.probes["pen"] <= 0.01 * T  # documented bound: 1 % of the thickness
