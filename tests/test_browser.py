@@ -112,13 +112,19 @@ def test_page_run_viewer_pause(server, tmp_path):
         time.sleep(1.0)  # the step under way when pause arrived may still finish
         run = page.get_attribute("#status", "data-run")
         step = httpx.get(f"{server}/api/runs/{run}").json()["step"]
-        time.sleep(4.0)  # a few viewer frames at 2-3 frames/s
-        png = page.locator("#viewer").screenshot()
+        # software WebGL draws 2-3 frames/s and, on a cold start, the coloured mesh can take a
+        # while to arrive: look again for up to 40 s before calling the viewer empty
+        deadline = time.time() + 40.0
+        while True:
+            time.sleep(2.0)
+            png = page.locator("#viewer").screenshot()
+            count, frac = colormap_pixels(png)
+            if (count > 1000 and frac > 0.5) or time.time() > deadline:
+                break
         (tmp_path / "viewer.png").write_bytes(png)
         assert httpx.get(f"{server}/api/runs/{run}").json()["step"] == step, "pause ignored"
         assert int(page.get_attribute("#status", "data-step")) == step
         assert page.get_attribute("#status", "data-state") == "paused"
-        count, frac = colormap_pixels(png)
         assert count > 1000 and frac > 0.5, f"colour-map pixels {count} ({frac:.2f}): {tmp_path}"
         page.click("#resume")
         page.wait_for_function(
