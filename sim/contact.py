@@ -94,7 +94,7 @@ def _penalty_scalar(d, k, delta, c2):
 def _psd3(A):
     """Projection of a symmetric 3 x 3 matrix onto the PSD cone (negative eigenvalues -> 0)."""
     w, V = eigh3(A)
-    return (V * np.maximum(w, 0.0)) @ V.T
+    return (V * np.maximum(w, 0.0)) @ np.ascontiguousarray(V.T)
 
 
 @numba.njit(cache=True)

@@ -51,11 +51,14 @@ def served(tmp_path_factory):
     (tmp / "scenes" / "tiny.toml").write_text(tiny_toml(steps=400))
     port, vport = free_port(), free_port()
     env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data")}
+    # the server's output goes to a file: a pipe nobody reads fills up (numba's compile
+    # warnings on a cold cache) and then blocks the server mid-write
+    log = open(tmp / "server.log", "wb")  # noqa: SIM115 - closed after the server stops
     proc = subprocess.Popen(
         [sys.executable, "-m", "sim.cli", "serve", "tiny", "--port", str(port),
          "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
          "--runs-dir", str(tmp / "runs"), "--step-delay", "0.2"],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        env=env, stdout=log, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
     deadline = time.time() + 60
     while time.time() < deadline:
@@ -66,10 +69,12 @@ def served(tmp_path_factory):
             time.sleep(0.2)
     else:
         proc.kill()
-        raise AssertionError(proc.stdout.read().decode())
+        log.close()
+        raise AssertionError((tmp / "server.log").read_text())
     yield url, tmp
     proc.terminate()
     proc.wait(10)
+    log.close()
 
 
 def hue(rgb: np.ndarray) -> np.ndarray:

@@ -183,12 +183,12 @@ def stress_tangent(model, F, params, ep_n, want_tangent, project):
     if not ok:
         return np.inf, np.zeros((3, 3)), C
     W, g, H, sym, twist = principal(model, s, params, ep_n)
-    P = (U * g) @ V.T
+    P = (U * g) @ np.ascontiguousarray(V.T)
     if not want_tangent:
         return W, P, C
     if project:
         ev, Q = eigh3(H)
-        H = (Q * np.maximum(ev, 0.0)) @ Q.T
+        H = (Q * np.maximum(ev, 0.0)) @ np.ascontiguousarray(Q.T)
         sym = np.maximum(sym, 0.0)
         twist = np.maximum(twist, 0.0)
     # C = sum_ab H_ab d_a d_b^T + sum_k sym_k s_k s_k^T + twist_k t_k t_k^T with d_a = u_a v_a^T,

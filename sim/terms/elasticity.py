@@ -139,7 +139,7 @@ def plastic_commit_kernel(x, conn, dNdX, params, fp_inv, ep):
             dg = return_map(eps, ep[e, q], mu, lam, law, hp)[4]
             if dg == 0.0:
                 continue
-            fp_inv[e, q] = fp_inv[e, q] @ ((V * np.exp(-dep)) @ V.T)
+            fp_inv[e, q] = fp_inv[e, q] @ ((V * np.exp(-dep)) @ np.ascontiguousarray(V.T))
             ep[e, q] += dg
 
 
