@@ -56,19 +56,35 @@ def _slots(indptr, indices, dofs):
     return out
 
 
+@njit(cache=True)
+def _greedy_color(conn, order, n_nodes, max_colors):
+    """First colour, per element in ``order``, whose elements touch none of its nodes."""
+    color = np.full(conn.shape[0], -1, np.int64)
+    used = np.zeros((max_colors, n_nodes), np.bool_)
+    for e in order:
+        for c in range(max_colors):
+            free = True
+            for a in range(conn.shape[1]):
+                if used[c, conn[e, a]]:
+                    free = False
+                    break
+            if free:
+                for a in range(conn.shape[1]):
+                    used[c, conn[e, a]] = True
+                color[e] = c
+                break
+    return color
+
+
 def greedy_colors(conn: np.ndarray, n_nodes: int) -> list[np.ndarray]:
     """Partition elements into groups without shared nodes (race-free parallel scatter)."""
-    color = np.full(len(conn), -1)
     order = np.argsort(conn.min(axis=1), kind="stable")
-    used = [np.zeros(n_nodes, bool)]
-    for e in order:
-        free = [k for k, taken in enumerate(used) if not taken[conn[e]].any()]
-        if not free:
-            used.append(np.zeros(n_nodes, bool))
-        k = free[0] if free else len(used) - 1
-        used[k][conn[e]] = True
-        color[e] = k
-    return [np.flatnonzero(color == c) for c in range(len(used))]
+    # an element meets at most (elements per node) x (nodes per element) others; 64 colours
+    # cover every mesh we make (9 for the triangle meshes here); more raises below
+    color = _greedy_color(conn, order, n_nodes, 64)
+    if np.any(color < 0):
+        raise ValueError("mesh needs more than 64 colours for the parallel scatter")
+    return [np.flatnonzero(color == c) for c in range(color.max() + 1)]
 
 
 def build_pattern(conn: np.ndarray, n_nodes: int, pairs: np.ndarray | None = None) -> Pattern:

@@ -155,3 +155,16 @@ def test_q3t_paper_rule_spurious_mode_only_on_a_single_cell():
     assert _rank_defect("q3t", (1, 3), clamp=False, cells=(1, 1)) == 1
     assert _rank_defect("q3t", (1, 3), clamp=False, cells=(2, 2)) == 0
     assert _rank_defect("q3t", (3, 3), clamp=False, cells=(1, 1)) == 0
+
+
+@pytest.mark.parametrize("name", ["linear", "q3t", "quadratic"])
+def test_scatter_colours_partition_elements_without_shared_nodes(name):
+    """The parallel scatter is race-free only if no two elements of a colour share a node."""
+    from sim.assembly import greedy_colors
+
+    sh = shell.extrude(mesh.annulus(0.0, 0.03, 0.004), 0.001, ELEMENTS[name])
+    groups = greedy_colors(sh.conn, sh.n_nodes)
+    assert sorted(np.concatenate(groups).tolist()) == list(range(len(sh.conn)))
+    for g in groups:
+        nodes = sh.conn[g].ravel()
+        assert len(np.unique(nodes)) == len(nodes)
