@@ -241,8 +241,11 @@ class Viewer:
         cam = self.server.initial_camera
         cam.look_at, cam.position, cam.up = tuple(centre), tuple(eye), (0.0, 0.0, 1.0)
         for client in self.server.get_clients().values():
-            client.camera.look_at, client.camera.position = tuple(centre), tuple(eye)
+            # a client camera's position setter drags look_at along with it: place the eye
+            # first, then aim (the other order leaves the sheet out of view)
             client.camera.up_direction = (0.0, 0.0, 1.0)
+            client.camera.position = tuple(eye)
+            client.camera.look_at = tuple(centre)
 
     def stop(self) -> None:
         self.server.stop()
