@@ -275,7 +275,7 @@ class RunManager:
                 if self.recorder:
                     self.recorder.meta(ev["faces"], tools)
                 if self.viewer:
-                    self.viewer.new_run(run.id, ev["faces"], tools)
+                    self.viewer.new_run(run.id, ev["faces"], tools, run.element)
                 self._save(run)
             elif kind == "step":
                 run.records.append(ev["record"])

@@ -126,9 +126,12 @@ class Viewer:
             finally:
                 self.echo = False
 
-    def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict] = ()) -> None:
+    def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict] = (),
+                element: str | None = None) -> None:
         """A new run: drop the old sheet and tools, add this run's tools (meshes sent once)."""
         with self.lock:
+            if element in self.gui.element.options:
+                self.gui.element.value = element  # Reset restarts with what is shown
             self.faces = np.asarray(faces, np.uint32)
             self.frame = None
             for h in (self.surface, self.wire, *self.tools.values()):
@@ -243,9 +246,12 @@ class Viewer:
         for client in self.server.get_clients().values():
             # a client camera's position setter drags look_at along with it: place the eye
             # first, then aim (the other order leaves the sheet out of view)
-            client.camera.up_direction = (0.0, 0.0, 1.0)
-            client.camera.position = tuple(eye)
-            client.camera.look_at = tuple(centre)
+            try:
+                client.camera.up_direction = (0.0, 0.0, 1.0)
+                client.camera.position = tuple(eye)
+                client.camera.look_at = tuple(centre)
+            except AssertionError:
+                pass  # its camera state has not arrived yet; initial_camera places it
 
     def stop(self) -> None:
         self.server.stop()

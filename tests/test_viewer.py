@@ -98,7 +98,7 @@ def done(tmp_path_factory):
     settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs", viewer=True,
                         viewer_port=free_port())
     with TestClient(create_app(settings)) as client:
-        r = client.post("/api/runs", json={"scene": "press"})
+        r = client.post("/api/runs", json={"scene": "press", "element": "linear"})
         assert r.status_code == 201, r.text
         st = wait_state(client, r.json()["id"], {"finished", "failed", "stopped"})
         assert st["state"] == "finished", st["reason"]
@@ -133,6 +133,7 @@ def test_viewer_draws_moves_recolours_and_scrubs(done):
     viewer = client.app.state.manager.viewer
     last = client.get(f"/api/runs/{st['id']}/frames/3").json()["tools"]
     assert sorted(viewer.tools) == ["ground", "punch"]
+    assert viewer.gui.element.value == st["element"] == "linear"  # the scene says q3t
     np.testing.assert_allclose(viewer.tools["punch"].position, last["punch"], atol=1e-9)
     options = viewer.gui.field.options
     assert len(options) == 4 and "Equivalent plastic strain (-)" in options
