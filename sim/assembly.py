@@ -15,8 +15,8 @@ from numba import njit
 
 @dataclass(frozen=True)
 class Pattern:
-    """Upper-triangular CSR pattern ``(indptr, indices)``, element slots
-    ``(n_elem, 3 n_en, 3 n_en)`` (-1 below the diagonal) and node-block slots ``(n_nodes, 3, 3)``
+    """Upper-triangular CSR pattern ``(indptr, indices)``, element slots of the packed upper
+    triangle ``(n_elem, 3 n_en (3 n_en + 1) / 2)`` and node-block slots ``(n_nodes, 3, 3)``
     (-1 below the diagonal); ``colors`` groups elements that share no node."""
 
     n_dof: int
@@ -39,6 +39,26 @@ class Pattern:
 def element_dofs(conn: np.ndarray) -> np.ndarray:
     """DoFs per element ``(n_elem, 3 n_en)``, node-major."""
     return (3 * conn[:, :, None] + np.arange(3)).reshape(len(conn), -1)
+
+
+@njit(cache=True)
+def _packed_slots(indptr, indices, dofs):
+    """Global slot of each upper-triangle entry (r <= c) of each element matrix, packed row by
+    row ``(n_elem, k (k+1) / 2)``, int32: half the entries of a full k x k map at half the
+    width, which is what the scatter streams through memory every assembly."""
+    n_e, k = dofs.shape
+    out = np.empty((n_e, k * (k + 1) // 2), np.int32)
+    for e in range(n_e):
+        p = 0
+        for a in range(k):
+            for b in range(a, k):
+                r, c = dofs[e, a], dofs[e, b]
+                if c < r:
+                    r, c = c, r
+                lo, hi = indptr[r], indptr[r + 1]
+                out[e, p] = lo + np.searchsorted(indices[lo:hi], c)
+                p += 1
+    return out
 
 
 @njit(cache=True)
@@ -104,7 +124,9 @@ def build_pattern(conn: np.ndarray, n_nodes: int, pairs: np.ndarray | None = Non
     A.sort_indices()
     indptr, indices = A.indptr.astype(np.int64), A.indices.astype(np.int64)
     node_dofs = (3 * np.arange(n_nodes)[:, None] + np.arange(3))
-    return Pattern(n_dof, indptr, indices, _slots(indptr, indices, dofs),
+    if len(indices) >= 2**31:
+        raise ValueError(f"Hessian pattern has {len(indices)} entries: beyond int32 slots")
+    return Pattern(n_dof, indptr, indices, _packed_slots(indptr, indices, dofs),
                    _slots(indptr, indices, node_dofs).reshape(n_nodes, 3, 3),
                    greedy_colors(conn, n_nodes))
 

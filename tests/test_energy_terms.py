@@ -52,6 +52,49 @@ def test_material_tangent(model, kind):
         assert np.allclose(Cp, C, atol=1e-10)  # and equal to the exact one where that is PSD
 
 
+def _rotation(axis, angle):
+    k = np.asarray(axis, float) / np.linalg.norm(axis)
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * Kx + (1 - np.cos(angle)) * Kx @ Kx
+
+
+@pytest.mark.parametrize("kind", ["rest", "general", "compressed", "equal"])
+def test_neo_hookean_direct_matches_principal_form(kind):
+    """The exact Neo-Hookean tangent is computed from F directly, the projected one in the
+    principal frame: both must give the same W and P, and the same C where C is PSD."""
+    F = {"rest": np.eye(3), "general": np.eye(3) + 0.3 * RNG.standard_normal((3, 3)),
+         "compressed": np.diag([0.7, 0.8, 1.1]),
+         "equal": _rotation([1, 2, 3], 0.7) @ np.diag([1.1, 1.1, 0.9])}[kind]
+    if np.linalg.det(F) <= 0:
+        F[:, 0] *= -1
+    params = np.array([2.0, 5.0])
+    W, P, C = stress_tangent(0, F, params, 0.0, True, False)
+    Wp, Pp, Cp = stress_tangent(0, F, params, 0.0, True, True)
+    # two evaluations of the same closed forms: they differ by round-off of O(1) quantities
+    assert W == pytest.approx(Wp, rel=1e-12, abs=1e-14)
+    np.testing.assert_allclose(P, Pp, atol=1e-12)
+    if np.linalg.eigvalsh(C).min() > 0:
+        np.testing.assert_allclose(C, Cp, atol=1e-10)
+
+
+@pytest.mark.parametrize("model", [0, 1])
+def test_small_strain_energy_keeps_its_digits_under_rotation(model):
+    """A bent thin shell: strain 1e-6 under a rotation of 0.8 rad. The energy (1e-12 of the
+    moduli) must not drown in the round-off of O(1) terms: both forms cancel the first-order
+    parts analytically, leaving round-off of order eps * strain, 1e-10 of the energy."""
+    e = 1e-6
+    F = _rotation([0.3, -1.0, 0.2], 0.8) @ np.diag([1 + e, 1.0, 1.0])
+    mu, lam = 2.0, 5.0
+    # uniaxial stretch s = 1 + e, series to O(e^4): s^2 - 1 - 2 ln s and ln s
+    sq_minus_log = 2 * e**2 - 2 * e**3 / 3 + e**4 / 2
+    ln_s = e - e**2 / 2 + e**3 / 3
+    exact = {0: 0.5 * mu * sq_minus_log + 0.5 * lam * ln_s**2,
+             1: mu * ln_s**2 + 0.5 * lam * ln_s**2}[model]
+    for project in (False, True):
+        W, _, _ = stress_tangent(model, F, np.array([mu, lam]), 0.0, False, project)
+        assert W == pytest.approx(exact, rel=1e-8)
+
+
 def test_energy_is_infinite_for_inverted_elements():
     F = np.diag([1.0, 1.0, -0.5])
     for model in (0, 1):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from sim.materials.isotropic import polar_svd, principal, stress_tangent
+from sim.materials.isotropic import polar_svd, principal, stress_tangent_into
 from sim.materials.plasticity import plastic_strain_increment, return_map
 from sim.terms import Term
 
@@ -36,26 +36,34 @@ def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
 
 
 @njit(cache=True)
-def _element(x, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project):
-    """Energy, gradient (n_en*3,) and Hessian (n_en*3, n_en*3) of one element."""
+def _element(x, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project, g, Kp):
+    """Energy of one element; adds its gradient into ``g (n_en*3,)`` (want >= 1) and the upper
+    triangle of its Hessian, packed row by row, into ``Kp (k (k+1) / 2,)`` (want == 2)."""
     n_en = nodes.shape[0]
     k = 3 * n_en
-    g = np.zeros(k)
-    K = np.zeros((k, k))
     E = 0.0
-    CB = np.empty((9, n_en, 3))  # C[iM, kN] b[bn, N]
+    CB = np.empty((9, k))  # CB[iJ, 3 bn + kk] = sum_L C[iJ, kk L] b[bn, L]
     G = np.empty((3, 3))
+    P = np.empty((3, 3))
+    C = np.empty((9, 9))
+    b = np.empty((n_en, 3))
     for q in range(dNdX.shape[0]):
-        b = dNdX[q] @ fp_inv[q] if plastic else dNdX[q]
+        for a in range(n_en):
+            for J in range(3):
+                if plastic:  # b = dN/dX Fp^-1
+                    b[a, J] = (dNdX[q, a, 0] * fp_inv[q, 0, J] + dNdX[q, a, 1] * fp_inv[q, 1, J]
+                               + dNdX[q, a, 2] * fp_inv[q, 2, J])
+                else:
+                    b[a, J] = dNdX[q, a, J]
         G[:] = 0.0
         for a in range(n_en):
             for i in range(3):
                 for J in range(3):
                     G[i, J] += x[nodes[a], i] * b[a, J]
-        W, P, C = stress_tangent(model, G, params, ep[q] if plastic else 0.0, want == 2,
-                                 project == PROJECT_QP)
+        W = stress_tangent_into(model, G, params, ep[q] if plastic else 0.0, want == 2,
+                                project == PROJECT_QP, P, C)
         if not np.isfinite(W):
-            return np.inf, g, K
+            return np.inf
         w = wdetJ[q]
         E += w * W
         if want == 0:
@@ -66,49 +74,63 @@ def _element(x, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, pr
         if want < 2:
             continue
         for r in range(9):
-            for bn in range(n_en):
-                for kk in range(3):
-                    CB[r, bn, kk] = (C[r, 3 * kk] * b[bn, 0] + C[r, 3 * kk + 1] * b[bn, 1]
-                                     + C[r, 3 * kk + 2] * b[bn, 2])
-        full = project == PROJECT_ELEMENT  # else the upper triangle is enough (symmetric)
+            for kk in range(3):
+                c0, c1, c2 = C[r, 3 * kk], C[r, 3 * kk + 1], C[r, 3 * kk + 2]
+                for bn in range(n_en):
+                    CB[r, 3 * bn + kk] = c0 * b[bn, 0] + c1 * b[bn, 1] + c2 * b[bn, 2]
+        off = 0  # packed offset of (row, row)
         for row in range(k):
             a, i = row // 3, row % 3
-            for col in range(0 if full else row, k):
-                bn, kk = col // 3, col % 3
-                K[row, col] += w * (b[a, 0] * CB[3 * i, bn, kk] + b[a, 1] * CB[3 * i + 1, bn, kk]
-                                    + b[a, 2] * CB[3 * i + 2, bn, kk])
+            b0, b1, b2 = w * b[a, 0], w * b[a, 1], w * b[a, 2]
+            for col in range(row, k):  # contiguous in Kp and CB: vectorises
+                Kp[off + col - row] += (b0 * CB[3 * i, col] + b1 * CB[3 * i + 1, col]
+                                        + b2 * CB[3 * i + 2, col])
+            off += k - row
     if want == 2 and project == PROJECT_ELEMENT:
+        K = np.empty((k, k))
+        off = 0
+        for row in range(k):
+            for col in range(row, k):
+                K[row, col] = K[col, row] = Kp[off + col - row]
+            off += k - row
         ev, Q = np.linalg.eigh(K)
         K = (Q * np.maximum(ev, 0.0)) @ Q.T
-    return E, g, K
+        off = 0
+        for row in range(k):
+            for col in range(row, k):
+                Kp[off + col - row] = K[row, col]
+            off += k - row
+    return E
 
 
 @njit(cache=True, parallel=True)
 def elastic_kernel(x, conn, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project,
                    colors, color_ptr, slots, grad, data):
     """Total energy; adds the gradient into ``grad (n_nodes, 3)`` (want >= 1) and the Hessian
-    into ``data`` through ``slots (n_elem, k, k)`` (want == 2). Elements of one colour share no
-    node, so each colour is scattered in parallel without races. Returns inf on inversion."""
-    n_e = conn.shape[0]
+    into ``data`` through the packed upper-triangle ``slots (n_elem, k (k+1) / 2)``
+    (want == 2). Elements of one colour share no node, so each colour is scattered in parallel
+    without races. Returns inf on inversion."""
+    n_e, n_en = conn.shape
+    k = 3 * n_en
     energies = np.zeros(n_e)
     for c in range(len(color_ptr) - 1):
         for t in prange(color_ptr[c], color_ptr[c + 1]):
             e = colors[t]
-            E, g, K = _element(x, conn[e], dNdX[e], wdetJ[e], model, params, fp_inv[e], ep[e],
-                               plastic, want, project)
+            g = np.zeros(k)
+            Kp = np.zeros(k * (k + 1) // 2 if want == 2 else 0)
+            E = _element(x, conn[e], dNdX[e], wdetJ[e], model, params, fp_inv[e], ep[e],
+                         plastic, want, project, g, Kp)
             energies[e] = E
-            if want >= 1 and np.isfinite(E):
-                for a in range(conn.shape[1]):
+            if not np.isfinite(E):
+                continue
+            if want >= 1:
+                for a in range(n_en):
                     for i in range(3):
                         grad[conn[e, a], i] += g[3 * a + i]
-            if want == 2 and np.isfinite(E):
-                # K's local upper triangle holds every pair once; the global slot is above the
-                # diagonal in one orientation or the other
+            if want == 2:
                 s = slots[e]
-                for r in range(K.shape[0]):
-                    for cc in range(r, K.shape[0]):
-                        slot = s[r, cc] if s[r, cc] >= 0 else s[cc, r]
-                        data[slot] += K[r, cc]
+                for p in range(Kp.shape[0]):
+                    data[s[p]] += Kp[p]
     return energies.sum()
 
 
