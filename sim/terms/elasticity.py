@@ -30,13 +30,16 @@ def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
                         weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """dN/dX ``(n_elem, n_qp, n_en, 3)`` and w detJ ``(n_elem, n_qp)`` from the rest positions.
 
-    dN: reference gradients ``(n_qp, n_en, 3)``; raises on an element with detJ <= 0.
+    dN: reference gradients ``(n_qp, n_en, 3)``; raises on an element with detJ <= 0, or flat
+    to round-off: detJ below 1e-10 of the median (a zero-area triangle's detJ is round-off,
+    1e-16 of the others, of either sign; slivers of aspect ratio 1e4 are still 1e-4).
     """
     Xe = rest[conn]  # (n_e, n_en, 3)
     J = np.einsum("ead,qaj->eqdj", Xe, dN)  # dX_d / dxi_j
     det = np.linalg.det(J)
-    if np.any(det <= 0):
-        bad = np.unique(np.nonzero(det <= 0)[0])
+    flat = det <= 1e-10 * np.median(det)
+    if np.any(flat):
+        bad = np.unique(np.nonzero(flat)[0])
         raise ValueError(f"{len(bad)} element(s) inverted or flat in the rest state "
                          f"(first: {bad[:5].tolist()}); check thickness and mesh orientation")
     Jinv = np.linalg.inv(J)
