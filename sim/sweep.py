@@ -19,11 +19,12 @@ from pathlib import Path
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
-def run_case(scene_path: str, overrides: dict) -> dict:
+def run_case(scene_path: str, overrides: dict, measure=None) -> dict:
     """Run one scene with ``overrides``; a summary that pickles small (no arrays).
 
     status: ``converged``, ``failed`` (solver diagnostic in ``reason``), ``invalid`` (the scene
     was rejected, message in ``reason``) or ``nan`` (converged with a non-finite probe).
+    ``measure(sim) -> dict``, when given, adds its numbers as ``measured`` after the run.
     """
     from sim.scene import load_scene
     from sim.simulation import Simulation
@@ -46,6 +47,8 @@ def run_case(scene_path: str, overrides: dict) -> dict:
     if sim.records:
         out["probes"] = dict(sim.records[-1].probes)
         out["residual"] = float(sim.records[-1].residual)
+    if measure is not None:
+        out["measured"] = measure(sim)
     if not ok:
         f = sim.failure
         out.update(status="failed", reason=f["reason"], cutbacks=out["cutbacks"] + f["cutbacks"],
