@@ -332,6 +332,30 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def summary(rows: list[dict]) -> str:
+    """Markdown, one line per case and a column per element: the outcome with Newton
+    iterations, cut-backs and the final residual, or the rejection / failure class."""
+    elements = list(dict.fromkeys(r["element"] for r in rows))
+    by = {(r["case"], r["element"]): r for r in rows}
+    lines = ["| case | " + " | ".join(elements) + " |", "|---|" + "---|" * len(elements)]
+    for case in dict.fromkeys(r["case"] for r in rows):
+        cells = []
+        for el in elements:
+            r = by.get((case, el))
+            if r is None:
+                cells.append("")
+                continue
+            c = r.get("outcome", r["status"])
+            if c == "converged":
+                c = (f"{r['iterations']} it, {r['cutbacks']} cb, {r['residual']:.0e} N, "
+                     f"{r['elapsed']:.1f} s")
+            if r["verdict"] != "ok" and r["verdict"] != "skipped":
+                c += f" **{r['verdict']}**"
+            cells.append(c)
+        lines.append(f"| {case} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def select(cases: list[Case], names: str | None) -> list[Case]:
     if not names:
         return cases
@@ -359,7 +383,8 @@ def run(args) -> int:
           f"({', '.join(f'{k} {v} m' for k, v in EDGE.items())}); tool cases: `{TOOLS}`; budget "
           f"{args.budget:g} s per run; {len(rows)} runs in {wall:.0f} s; {len(bad)} "
           f"problem(s).\n\n"
-          + "\n".join(f"- **{c.name}**: {c.what}" for c in cases) + "\n\n" + table(rows))
+          + "\n".join(f"- **{c.name}**: {c.what}" for c in cases) + "\n\n" + summary(rows)
+          + "\n" + table(rows))
     (out / "check.md").write_text(md)
     (out / "check.json").write_text(json.dumps({"wall": wall, "budget": args.budget,
                                                 "rows": rows}, indent=1))

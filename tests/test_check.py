@@ -21,6 +21,7 @@ from sim.check import (
     run_check,
     run_isolated,
     select,
+    summary,
     table,
     verdict,
     write_sliver_obj,
@@ -118,6 +119,8 @@ def test_a_handful_of_hard_cases_end_in_their_expected_outcome():
     assert big["cutbacks"] == 0 and big["probes"]["tip_deflection"] < -0.6
     md = table(rows)
     assert md.count("\n") == len(rows) + 2 and "| zero thickness | linear |" in md
+    sm = summary(rows)
+    assert sm.count("\n") == len(cases) + 2 and "| zero thickness | rejected | rejected |" in sm
 
 
 def test_the_punch_100x_faster_converges_and_balances_the_die():
