@@ -352,3 +352,32 @@ def test_elastic_scene_has_no_plastic_state():
                                            {"mesh.edge_length": 0.035}))
     assert sim.model.elasticity.ep.size == 0 and not sim.model.built["plastic_state"]
     assert "eq_plastic_strain" not in sim.frame().fields
+
+
+def test_result_files_carry_the_plastic_fields(tmp_path):
+    """final.npz has per-vertex and per-element eq. plastic strain (accumulated and net), von
+    Mises stress, thickness and thinning; result.json their min / mean / max."""
+    import json
+
+    sim = Simulation.from_scene(load_scene("scenes/plastic_bending.toml"))
+    assert sim.run(), sim.failure
+    sim.write(tmp_path)
+    npz = np.load(tmp_path / "final.npz")
+    m = sim.model
+    n_v, n_e = m.shell.n_vertices, len(m.shell.conn)
+    for name in ("eq_plastic_strain", "net_plastic_strain", "von_mises", "thickness",
+                 "thinning_pct"):
+        assert npz[name].shape == (n_v,) and npz[f"{name}_elem"].shape == (n_e,)
+        assert np.all(np.isfinite(npz[name]))
+    el = m.elasticity
+    np.testing.assert_array_equal(npz["eq_plastic_strain_elem"], el.ep.mean(1))
+    np.testing.assert_array_equal(npz["von_mises_elem"], el.von_mises(sim.x).mean(1))
+    np.testing.assert_allclose(npz["thinning_pct"], 100 * (1 - npz["thickness"]
+                                                           / npz["rest_thickness"]))
+    fields = json.loads((tmp_path / "result.json").read_text())["fields"]
+    assert fields["eq_plastic_strain"]["max"] == pytest.approx(npz["eq_plastic_strain"].max())
+    assert fields["von_mises"]["mean"] == pytest.approx(npz["von_mises"].mean())
+    # an elastic scene reports no plastic fields
+    el_sim = Simulation.from_scene(load_scene("scenes/cantilever.toml",
+                                              {"mesh.edge_length": 0.035}))
+    assert "eq_plastic_strain" not in el_sim.result()["fields"]
