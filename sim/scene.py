@@ -148,7 +148,10 @@ class MaterialSpec(Strict):
                 raise ValueError(f"hardening.K: with n = 0 Swift is Y = K = {h.K:.6g} Pa, which "
                                  f"differs from yield_stress = {y0:.6g} Pa")
             return 1.0
-        e0 = (y0 / h.K) ** (1.0 / h.n)
+        try:
+            e0 = (y0 / h.K) ** (1.0 / h.n)
+        except OverflowError:
+            e0 = float("inf")
         if not (0.0 < e0 < float("inf")):
             raise ValueError(f"hardening: e0 = (yield_stress / K)^(1/n) = {e0:.3g} is not a "
                              "positive finite strain; check K and n")

@@ -24,6 +24,8 @@ def material(hardening: dict | None = None, **extra):
     ({"law": "swift", "K": 5e8, "n": -0.1}, {}, "material.hardening.n"),
     ({"law": "swift", "K": 5e8, "n": 0.2, "e0": 0.01}, {}, "hardening.e0: K e0^n"),
     ({"law": "swift", "K": 5e8, "n": 0.0}, {}, "hardening.K: with n = 0"),
+    ({"law": "swift", "K": 1e8, "n": 1e-300}, {}, "not a positive finite strain"),  # overflow
+    ({"law": "swift", "K": 5e8, "n": 1e-300}, {}, "not a positive finite strain"),  # underflow
     ({"law": "voce", "rate": 20.0}, {}, "needs saturation"),  # Ysat = 0 softened to zero
     ({"law": "voce", "saturation": 1e8, "rate": 20.0}, {}, "hardening.saturation"),
     ({"law": "voce", "saturation": 4e8, "rate": -1.0}, {}, "material.hardening.rate"),
