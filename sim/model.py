@@ -293,20 +293,18 @@ def _tools(scene, shell, pattern, nodes) -> list[ToolContact]:
 
     vdof = shell.n_nodes
     h = float(np.mean(shell.thickness))
-    F = shell.mesh.faces
-    edge = float(np.mean(np.linalg.norm(shell.mesh.vertices[F[:, 0]]
-                                        - shell.mesh.vertices[F[:, 1]], axis=1)))
+    # the largest tributary area of a skin node: its share of a unit pressure on the skin
+    area = float(np.linalg.norm(L.pressure(shell, np.ones(len(shell.conn), bool), 1.0, False),
+                                axis=1).max())
     out = []
     for i, t in enumerate(scene.tools):
         try:
             prog = tool_program(t.shape)
         except ValueError as exc:
             raise ValueError(f"tools.{i}.shape: {exc}") from None
-        # contact pressure under a punch nose reaches the sheet's tensile strength, about
-        # 4e-3 E for steels and aluminium alloys; auto_stiffness keeps the penetration at that
-        # pressure below 1 % of the thickness (measured: 0.6 % on cup_drawing)
-        k = t.stiffness or auto_stiffness(scene.material.E, h, edge,
-                                          pressure=4e-3 * scene.material.E)
+        # auto_stiffness: at its design pressure (4e-3 E, about the tensile strength) the
+        # spring is compressed by 1 % of t, the contact layer delta below
+        k = t.stiffness or auto_stiffness(scene.material.E, h, area)
         # slip below 1 % of the thickness counts as sticking (IPC's eps_v)
         kw = {}
         if t.force is not None:

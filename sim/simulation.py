@@ -166,6 +166,8 @@ class Simulation:
         released = {t.name for t in m.scene.tools if t.release}
         m.problem.terms = [t for t in m.terms
                            if not (isinstance(t, ToolContact) and t.tool in released)]
+        for tool in self.tools:  # the tools that stay hold their last position
+            tool.moving = False
         for term in m.terms:
             term.begin_step(self.t, self._dt(), self.x)
         if m.external is not None:

@@ -45,6 +45,7 @@ class ToolContact(Term):
         self._path_t, self._path_u = kf[:, 0], kf[:, 1:]
         self.speed_scale = 1.0
         self.force_scale = 1.0
+        self.moving = True  # False in the release (springback) stage: the tool stays put
         self.k, self.mu, self.eps_v = float(k), float(mu), float(eps_v)
         self.delta = float(delta)
         self.pattern = pattern
@@ -76,7 +77,7 @@ class ToolContact(Term):
 
     def begin_step(self, t, dt, x):
         step = dt * self.velocity + self.path(t) - self.path(t - dt)
-        self.t_now = self.position + self.speed_scale * step
+        self.t_now = self.position + (self.speed_scale * step if self.moving else 0.0)
         # friction lags the normal force of the last converged state; the rest state is not an
         # equilibrium (a skin placed on a tool sits in the contact layer), so the first step
         # is frictionless
