@@ -123,7 +123,7 @@ class Model:
     inertia: Inertia | None
     x0: np.ndarray  # (n_nodes + n_tool_dofs, 3): rest positions, then force-controlled tools
     fixed: np.ndarray  # (n_nodes + n_tool_dofs, 3) bool
-    prescribed: np.ndarray  # (n_nodes, 3) displacement at t = 1 on fixed DoFs
+    prescribed: np.ndarray  # (n_nodes, 3) displacement at the end of the ramp on fixed DoFs
     bends: list  # (node ids, BendSpec) moved along arcs
     regions: dict[str, np.ndarray]  # name -> in-plane node mask
     settings: NewtonSettings
@@ -133,10 +133,26 @@ class Model:
     released: np.ndarray | None = None  # (n_nodes, 3) bool: DoFs freed for springback
     release_support: np.ndarray | None = None  # (n_nodes, 3) bool: held only for springback
 
+    # keyframed BCs: (node ids (m,), component ids (c,), times (k,), displacements (k, c)),
+    # times starting at 0 with zero displacement
+    motions: list = field(default_factory=list)
+
+    def ramp(self, t: float) -> float:
+        """Default time curve of prescribed displacements and bends (sim.scene.BCSpec): linear
+        from 0 to 1 over the run (static) or over stepping.load_ramp, else 1 s (dynamic)."""
+        st = self.scene.stepping
+        length = 1.0 if st.kind == "static" or st.load_ramp == 0 else st.load_ramp
+        return min(1.0, t / length)
+
     def dirichlet_positions(self, t: float) -> np.ndarray:
-        x = self.x0 + t * self.prescribed
+        """Positions ``(n_nodes + n_tool_dofs, 3)`` with every prescribed DoF at scene time t."""
+        f = self.ramp(t)
+        x = self.x0 + f * self.prescribed
         for nodes, bend in self.bends:
-            x[nodes] = arc_positions(self.shell.rest[nodes], bend.angle * t, bend.length)
+            x[nodes] = arc_positions(self.shell.rest[nodes], bend.angle * f, bend.length)
+        for nodes, comps, times, values in self.motions:
+            for j, c in enumerate(comps):
+                x[nodes, c] = self.x0[nodes, c] + np.interp(t, times, values[:, j])
         return x
 
     def column_nodes(self, plane_mask: np.ndarray, layers: str = "all") -> np.ndarray:
@@ -221,6 +237,11 @@ def build_model(scene: Scene) -> Model:
             if bc.components != "xyz":
                 raise ValueError(f"bcs.{i}.bend: a bent end needs components = 'xyz'")
             model.bends.append((nodes, bc.bend))
+        if bc.keyframes:
+            kf = np.asarray(bc.keyframes, float)
+            if kf[0, 0] > 0:  # from rest at t = 0
+                kf = np.vstack([np.zeros(kf.shape[1]), kf])
+            model.motions.append((nodes, comps, kf[:, 0], kf[:, 1:]))
         for k in comps:
             fixed[nodes, k] = True
             prescribed[nodes, k] = bc.displacement[k]
