@@ -46,6 +46,51 @@ def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
     return meshes.load(spec.path, spec.scale)
 
 
+def _read_values(path: str) -> np.ndarray:
+    """A .npy array or a text file of numbers (whitespace or comma separated)."""
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"no file {path!r}")
+    try:
+        if p.suffix == ".npy":
+            return np.asarray(np.load(p, allow_pickle=False), float).ravel()
+        return np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, ndmin=1).ravel()
+    except ValueError as exc:
+        raise ValueError(f"{p.name} is not an array of numbers ({exc})") from None
+
+
+def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray]:
+    """The mid-surface and the thickness at each of its vertices ``(n_v,)`` (m); errors name
+    the shell field they come from."""
+    sh, spec = scene.shell, scene.mesh
+    field_name = "shell.thickness_file" if sh.thickness_file else "shell.thickness_attribute"
+    try:
+        values = _read_values(sh.thickness_file) if sh.thickness_file else None
+        if spec.kind == "file":
+            mesh, h = meshes.load_with_values(spec.path, spec.scale, values,
+                                              sh.thickness_attribute)
+        else:
+            mesh, h = build_mesh(spec), values
+            if h is not None and len(h) != len(mesh.vertices):
+                raise ValueError(f"{len(h)} values for the {len(mesh.vertices)} vertices of "
+                                 f"the {spec.kind} mesh")
+    except meshes.MeshFileError as exc:
+        raise ValueError(f"mesh.path: {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"{field_name}: {exc}") from None
+    if h is None:
+        h = sh.thickness + mesh.vertices @ np.asarray(sh.thickness_gradient)
+        field_name = "shell.thickness_gradient"
+    bad = ~np.isfinite(h) | (h <= 0)
+    if bad.any():
+        v = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{field_name}: thickness must be positive at every vertex "
+                         f"({int(bad.sum())} are not; vertex {v}: {h[v]:.3g} m)")
+    return mesh, np.asarray(h, float)
+
+
 def lame(E: float, nu: float) -> tuple[float, float]:
     return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
@@ -173,11 +218,7 @@ class Model:
 
 def build_model(scene: Scene) -> Model:
     elem = get_element(scene.shell.element)
-    mesh = build_mesh(scene.mesh)
-    h = scene.shell.thickness + mesh.vertices @ np.asarray(scene.shell.thickness_gradient)
-    if np.any(h <= 0):
-        raise ValueError(f"shell.thickness_gradient: thickness reaches {h.min():.3g} m "
-                         "(must stay positive on the whole mesh)")
+    mesh, h = mesh_and_thickness(scene)
     shell = extrude(mesh, h, elem)
     rule_spec = scene.shell.quadrature or elem.default_quadrature
     if scene.shell.thickness_points:

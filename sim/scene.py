@@ -47,14 +47,33 @@ class MeshSpec(Strict):
 
 
 class ShellSpec(Strict):
-    thickness: Pos  # at the origin when thickness_gradient is set
+    """Thickness (m), one of: ``thickness`` (constant, or at the origin of a taper
+    ``thickness + thickness_gradient . X``); ``thickness_file``, a .npy or text file of one value
+    per mesh vertex (generated meshes: the generator's vertex order; mesh files: the file's);
+    ``thickness_attribute``, a vertex property of a PLY mesh file. Relative paths are taken
+    from the scene file's folder."""
+
+    thickness: Pos | None = None
     # a tapered sheet: thickness + gradient . X at every vertex (m per m); must stay positive
     thickness_gradient: Vec3 = (0.0, 0.0, 0.0)
+    thickness_file: str | None = None
+    thickness_attribute: str | None = None
     element: str = "q3t"
     quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = None
     # section points through the thickness, keeping the element's in-plane rule: plastic
     # bending needs more than the 2-3 of the defaults to integrate the elastic-plastic profile
     thickness_points: Annotated[int, Field(ge=1, le=20)] | None = None
+
+    @model_validator(mode="after")
+    def _one_thickness(self):
+        given = [k for k in ("thickness", "thickness_file", "thickness_attribute")
+                 if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give exactly one of thickness, thickness_file, thickness_attribute"
+                             f" (got {', '.join(given) or 'none'})")
+        if self.thickness is None and any(self.thickness_gradient):
+            raise ValueError("thickness_gradient tapers a constant thickness: it needs thickness")
+        return self
 
 
 class Hardening(Strict):
@@ -359,6 +378,10 @@ class Scene(Strict):
         for i, p in enumerate(self.probes):
             if p.tool is not None and p.tool not in tools:
                 raise ValueError(f"probes.{i}.tool: unknown tool {p.tool!r}")
+        if self.shell.thickness_attribute and not (
+                self.mesh.kind == "file" and str(self.mesh.path).lower().endswith(".ply")):
+            raise ValueError("shell.thickness_attribute: needs a PLY mesh file (mesh.kind = "
+                             "'file', mesh.path ending in .ply)")
         if self.study and self.study.probe not in [p.name for p in self.probes]:
             raise ValueError(f"study.probe: no probe named {self.study.probe!r}")
         return self
@@ -423,8 +446,24 @@ def scene_from_toml(text: str, overrides: dict | None = None) -> Scene:
     return scene_from_dict(raw)
 
 
+def _from_folder(raw: dict, folder: Path) -> None:
+    """Relative file paths of a scene file are taken from its folder."""
+    for table, key in (("mesh", "path"), ("shell", "thickness_file")):
+        node = raw.get(table)
+        if isinstance(node, dict) and isinstance(node.get(key), str):
+            p = Path(node[key]).expanduser()
+            node[key] = str(p if p.is_absolute() else folder / p)
+
+
 def load_scene(path: str | Path, overrides: dict | None = None) -> Scene:
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"scene file {str(path)!r} does not exist")
-    return scene_from_toml(path.read_text(), overrides)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"TOML: {err}") from None
+    for k, v in (overrides or {}).items():
+        apply_override(raw, k, v)
+    _from_folder(raw, path.resolve().parent)
+    return scene_from_dict(raw)
