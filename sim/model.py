@@ -46,6 +46,51 @@ def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
     return meshes.load(spec.path, spec.scale)
 
 
+def _read_values(path: str) -> np.ndarray:
+    """A .npy array or a text file of numbers (whitespace or comma separated)."""
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"no file {path!r}")
+    try:
+        if p.suffix == ".npy":
+            return np.asarray(np.load(p, allow_pickle=False), float).ravel()
+        return np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, ndmin=1).ravel()
+    except ValueError as exc:
+        raise ValueError(f"{p.name} is not an array of numbers ({exc})") from None
+
+
+def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray]:
+    """The mid-surface and the thickness at each of its vertices ``(n_v,)`` (m); errors name
+    the shell field they come from."""
+    sh, spec = scene.shell, scene.mesh
+    field_name = "shell.thickness_file" if sh.thickness_file else "shell.thickness_attribute"
+    try:
+        values = _read_values(sh.thickness_file) if sh.thickness_file else None
+        if spec.kind == "file":
+            mesh, h = meshes.load_with_values(spec.path, spec.scale, values,
+                                              sh.thickness_attribute)
+        else:
+            mesh, h = build_mesh(spec), values
+            if h is not None and len(h) != len(mesh.vertices):
+                raise ValueError(f"{len(h)} values for the {len(mesh.vertices)} vertices of "
+                                 f"the {spec.kind} mesh")
+    except meshes.MeshFileError as exc:
+        raise ValueError(f"mesh.path: {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"{field_name}: {exc}") from None
+    if h is None:
+        h = sh.thickness + mesh.vertices @ np.asarray(sh.thickness_gradient)
+        field_name = "shell.thickness_gradient"
+    bad = ~np.isfinite(h) | (h <= 0)
+    if bad.any():
+        v = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{field_name}: thickness must be positive at every vertex "
+                         f"({int(bad.sum())} are not; vertex {v}: {h[v]:.3g} m)")
+    return mesh, np.asarray(h, float)
+
+
 def lame(E: float, nu: float) -> tuple[float, float]:
     return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
@@ -123,7 +168,7 @@ class Model:
     inertia: Inertia | None
     x0: np.ndarray  # (n_nodes + n_tool_dofs, 3): rest positions, then force-controlled tools
     fixed: np.ndarray  # (n_nodes + n_tool_dofs, 3) bool
-    prescribed: np.ndarray  # (n_nodes, 3) displacement at t = 1 on fixed DoFs
+    prescribed: np.ndarray  # (n_nodes, 3) displacement at the end of the ramp on fixed DoFs
     bends: list  # (node ids, BendSpec) moved along arcs
     regions: dict[str, np.ndarray]  # name -> in-plane node mask
     settings: NewtonSettings
@@ -133,10 +178,26 @@ class Model:
     released: np.ndarray | None = None  # (n_nodes, 3) bool: DoFs freed for springback
     release_support: np.ndarray | None = None  # (n_nodes, 3) bool: held only for springback
 
+    # keyframed BCs: (node ids (m,), component ids (c,), times (k,), displacements (k, c)),
+    # times starting at 0 with zero displacement
+    motions: list = field(default_factory=list)
+
+    def ramp(self, t: float) -> float:
+        """Default time curve of prescribed displacements and bends (sim.scene.BCSpec): linear
+        from 0 to 1 over the run (static) or over stepping.load_ramp, else 1 s (dynamic)."""
+        st = self.scene.stepping
+        length = 1.0 if st.kind == "static" or st.load_ramp == 0 else st.load_ramp
+        return min(1.0, t / length)
+
     def dirichlet_positions(self, t: float) -> np.ndarray:
-        x = self.x0 + t * self.prescribed
+        """Positions ``(n_nodes + n_tool_dofs, 3)`` with every prescribed DoF at scene time t."""
+        f = self.ramp(t)
+        x = self.x0 + f * self.prescribed
         for nodes, bend in self.bends:
-            x[nodes] = arc_positions(self.shell.rest[nodes], bend.angle * t, bend.length)
+            x[nodes] = arc_positions(self.shell.rest[nodes], bend.angle * f, bend.length)
+        for nodes, comps, times, values in self.motions:
+            for j, c in enumerate(comps):
+                x[nodes, c] = self.x0[nodes, c] + np.interp(t, times, values[:, j])
         return x
 
     def column_nodes(self, plane_mask: np.ndarray, layers: str = "all") -> np.ndarray:
@@ -157,11 +218,7 @@ class Model:
 
 def build_model(scene: Scene) -> Model:
     elem = get_element(scene.shell.element)
-    mesh = build_mesh(scene.mesh)
-    h = scene.shell.thickness + mesh.vertices @ np.asarray(scene.shell.thickness_gradient)
-    if np.any(h <= 0):
-        raise ValueError(f"shell.thickness_gradient: thickness reaches {h.min():.3g} m "
-                         "(must stay positive on the whole mesh)")
+    mesh, h = mesh_and_thickness(scene)
     shell = extrude(mesh, h, elem)
     rule_spec = scene.shell.quadrature or elem.default_quadrature
     if scene.shell.thickness_points:
@@ -221,6 +278,11 @@ def build_model(scene: Scene) -> Model:
             if bc.components != "xyz":
                 raise ValueError(f"bcs.{i}.bend: a bent end needs components = 'xyz'")
             model.bends.append((nodes, bc.bend))
+        if bc.keyframes:
+            kf = np.asarray(bc.keyframes, float)
+            if kf[0, 0] > 0:  # from rest at t = 0
+                kf = np.vstack([np.zeros(kf.shape[1]), kf])
+            model.motions.append((nodes, comps, kf[:, 0], kf[:, 1:]))
         for k in comps:
             fixed[nodes, k] = True
             prescribed[nodes, k] = bc.displacement[k]

@@ -6,6 +6,7 @@ validation, so an override is checked exactly like the file. Errors name the fie
 
 from __future__ import annotations
 
+import math
 import tomllib
 from pathlib import Path
 from typing import Annotated, Literal
@@ -46,14 +47,33 @@ class MeshSpec(Strict):
 
 
 class ShellSpec(Strict):
-    thickness: Pos  # at the origin when thickness_gradient is set
+    """Thickness (m), one of: ``thickness`` (constant, or at the origin of a taper
+    ``thickness + thickness_gradient . X``); ``thickness_file``, a .npy or text file of one value
+    per mesh vertex (generated meshes: the generator's vertex order; mesh files: the file's);
+    ``thickness_attribute``, a vertex property of a PLY mesh file. Relative paths are taken
+    from the scene file's folder."""
+
+    thickness: Pos | None = None
     # a tapered sheet: thickness + gradient . X at every vertex (m per m); must stay positive
     thickness_gradient: Vec3 = (0.0, 0.0, 0.0)
+    thickness_file: str | None = None
+    thickness_attribute: str | None = None
     element: str = "q3t"
     quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = None
     # section points through the thickness, keeping the element's in-plane rule: plastic
     # bending needs more than the 2-3 of the defaults to integrate the elastic-plastic profile
     thickness_points: Annotated[int, Field(ge=1, le=20)] | None = None
+
+    @model_validator(mode="after")
+    def _one_thickness(self):
+        given = [k for k in ("thickness", "thickness_file", "thickness_attribute")
+                 if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give exactly one of thickness, thickness_file, thickness_attribute"
+                             f" (got {', '.join(given) or 'none'})")
+        if self.thickness is None and any(self.thickness_gradient):
+            raise ValueError("thickness_gradient tapers a constant thickness: it needs thickness")
+        return self
 
 
 class Hardening(Strict):
@@ -123,14 +143,50 @@ class BendSpec(Strict):
 
 
 class BCSpec(Strict):
+    """Dirichlet condition on the named components of a region's node columns.
+
+    Its motion over time is one of: ``displacement`` (m) along the default ramp, linear in t
+    from 0 to the full value and held after it: over the whole run in static stepping
+    (t = 0 -> 1), over ``stepping.load_ramp`` in dynamic stepping, or over 1 s when that is 0
+    (a jump would be an infinite velocity); ``keyframes``, rows [t, u_c...] with one
+    displacement (m) per named component, in order, at increasing scene times t >= 0,
+    piecewise linear in between, held after the last and starting from rest (a first row at
+    t = 0 must be zero; one at t > 0 is reached from zero at t = 0); or ``bend``."""
+
     region: str
     components: Annotated[str, Field(pattern=r"^[xyz]{1,3}$")] = "xyz"
     layers: Literal["all", "bottom", "mid", "top"] = "all"
-    displacement: Vec3 = (0.0, 0.0, 0.0)  # reached at t = 1, linear in t
+    displacement: Vec3 = (0.0, 0.0, 0.0)
+    keyframes: list[list[float]] = []
     bend: BendSpec | None = None
     release: bool = False  # removed in the release (springback) stage
     # only in the release stage, holding the nodes where they are (a support for the free part)
     release_only: bool = False
+
+    @model_validator(mode="after")
+    def _motion(self):
+        if len(set(self.components)) != len(self.components):
+            raise ValueError(f"components: {self.components!r} names a component twice")
+        if not self.keyframes:
+            return self
+        if self.bend is not None or any(self.displacement):
+            raise ValueError("keyframes: give either keyframes or displacement / bend")
+        n = 1 + len(self.components)
+        for i, row in enumerate(self.keyframes):
+            if len(row) != n:
+                raise ValueError(f"keyframes.{i}: needs [t, {', '.join(self.components)}] "
+                                 f"({n} numbers) for components {self.components!r}, "
+                                 f"got {len(row)}")
+            if not all(math.isfinite(v) for v in row):
+                raise ValueError(f"keyframes.{i}: not a finite number")
+        times = [r[0] for r in self.keyframes]
+        if times[0] < 0:
+            raise ValueError("keyframes: times must be >= 0")
+        if any(b <= a for a, b in zip(times, times[1:], strict=False)):
+            raise ValueError("keyframes: times must increase")
+        if times[0] == 0 and any(self.keyframes[0][1:]):
+            raise ValueError("keyframes: the motion starts from rest (zero at t = 0)")
+        return self
 
 
 class LoadSpec(Strict):
@@ -155,7 +211,9 @@ class SteppingSpec(Strict):
     kind: Literal["static", "dynamic"] = "static"
     steps: Annotated[int, Field(ge=1, le=100000)] = 1
     dt: Pos | None = None  # dynamic: time step (s); duration = steps * dt
-    load_ramp: Annotated[float, Field(ge=0)] = 0.0  # dynamic: loads ramp over this time (s)
+    # dynamic: loads ramp over this time (s), 0 = applied at once; also the default ramp of
+    # prescribed displacements (BCSpec), which take 1 s when it is 0
+    load_ramp: Annotated[float, Field(ge=0)] = 0.0
     max_cutbacks: Annotated[int, Field(ge=0, le=30)] = 10  # down to 1/1024 of a step
     # after the last step: remove loads and the BCs marked release, solve static equilibrium
     release: bool = False
@@ -320,6 +378,10 @@ class Scene(Strict):
         for i, p in enumerate(self.probes):
             if p.tool is not None and p.tool not in tools:
                 raise ValueError(f"probes.{i}.tool: unknown tool {p.tool!r}")
+        if self.shell.thickness_attribute and not (
+                self.mesh.kind == "file" and str(self.mesh.path).lower().endswith(".ply")):
+            raise ValueError("shell.thickness_attribute: needs a PLY mesh file (mesh.kind = "
+                             "'file', mesh.path ending in .ply)")
         if self.study and self.study.probe not in [p.name for p in self.probes]:
             raise ValueError(f"study.probe: no probe named {self.study.probe!r}")
         return self
@@ -384,8 +446,24 @@ def scene_from_toml(text: str, overrides: dict | None = None) -> Scene:
     return scene_from_dict(raw)
 
 
+def _from_folder(raw: dict, folder: Path) -> None:
+    """Relative file paths of a scene file are taken from its folder."""
+    for table, key in (("mesh", "path"), ("shell", "thickness_file")):
+        node = raw.get(table)
+        if isinstance(node, dict) and isinstance(node.get(key), str):
+            p = Path(node[key]).expanduser()
+            node[key] = str(p if p.is_absolute() else folder / p)
+
+
 def load_scene(path: str | Path, overrides: dict | None = None) -> Scene:
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"scene file {str(path)!r} does not exist")
-    return scene_from_toml(path.read_text(), overrides)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"TOML: {err}") from None
+    for k, v in (overrides or {}).items():
+        apply_override(raw, k, v)
+    _from_folder(raw, path.resolve().parent)
+    return scene_from_dict(raw)

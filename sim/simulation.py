@@ -135,7 +135,7 @@ class Simulation:
             term.begin_step(t_new if m.scene.stepping.kind == "static" else t_new, dt, self.x)
         if m.external is not None:
             m.external.factor = float(self.load_factor(t_new)) * self.parameters["load_scale"]
-        target = m.dirichlet_positions(self.load_factor(t_new))
+        target = m.dirichlet_positions(t_new)  # each BC's own time curve
         # predictor: continue the last converged increment (quasi-static paths are smooth), so
         # a prescribed motion does not start as a jump concentrated on the boundary elements
         x0 = self.x.copy()
