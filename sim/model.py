@@ -100,10 +100,7 @@ def material_params(m: MaterialSpec) -> np.ndarray:
     mu, lam = lame(m.E, m.nu)
     if m.model != "plastic":
         return np.array([mu, lam, 0.0, 0.0])
-    h, y0 = m.hardening, m.yield_stress
-    hp = {"perfect": [y0], "linear": [y0, h.modulus], "swift": [h.K, h.e0, h.n],
-          "voce": [y0, h.saturation, h.rate]}[h.law]
-    return np.array([mu, lam, float(LAWS[h.law]), *hp])
+    return np.array([mu, lam, float(LAWS[m.hardening.law]), *m.hardening_params()])
 
 
 def region_mask(shell: Shell, r: RegionSpec) -> np.ndarray:
@@ -275,8 +272,11 @@ def build_model(scene: Scene) -> Model:
             release_support[np.ix_(nodes, comps)] = True
             continue
         if bc.bend is not None:
-            if bc.components != "xyz":
-                raise ValueError(f"bcs.{i}.bend: a bent end needs components = 'xyz'")
+            # 'x' alone: the end section is turned like a rotated wall but free to move
+            # across the strip, so it carries a pure moment (no shear force)
+            if "x" not in bc.components:
+                raise ValueError(f"bcs.{i}.bend: a bent end prescribes x (its rotation): "
+                                 "components must include 'x'")
             model.bends.append((nodes, bc.bend))
         if bc.keyframes:
             kf = np.asarray(bc.keyframes, float)

@@ -64,6 +64,35 @@ def vertex_average(model, per_qp: np.ndarray) -> np.ndarray:
     return acc / np.maximum(cnt, 1)
 
 
+def output_fields(model, x: np.ndarray, h0: np.ndarray) -> dict[str, np.ndarray]:
+    """Result fields at state x, per mid-surface vertex ``(n_v,)`` and per element
+    (``*_elem``, ``(n_elem,)``): thickness (m), thinning (% of the rest thickness ``h0``),
+    von Mises stress (Pa) and, for a plastic scene, the accumulated and the net (retained)
+    equivalent plastic strain. Element values are quadrature-point means; vertex values the
+    mean of the adjacent elements (thickness: measured at the vertex, as in the viewer)."""
+    from sim.materials.plasticity import net_plastic_strain
+
+    el, faces = model.elasticity, model.shell.mesh.faces
+    h = thickness(model, x)
+    per_qp = {"von_mises": el.von_mises(x)}
+    if el.plastic:  # an elastic scene has no plastic state to report
+        per_qp["eq_plastic_strain"] = el.ep
+        per_qp["net_plastic_strain"] = net_plastic_strain(el.fp_inv)
+    out = {"thickness": h, "thinning_pct": 100 * (1 - h / h0),
+           "thickness_elem": h[faces].mean(1), "thinning_pct_elem": 100 * (1 - h[faces].mean(1)
+                                                                           / h0[faces].mean(1))}
+    for name, q in per_qp.items():
+        out[name] = vertex_average(model, q)
+        out[f"{name}_elem"] = q.mean(1)
+    return out
+
+
+def field_summary(fields: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
+    """min / mean / max of each per-vertex field of :func:`output_fields` (result.json)."""
+    return {k: {"min": float(v.min()), "mean": float(v.mean()), "max": float(v.max())}
+            for k, v in fields.items() if not k.endswith("_elem")}
+
+
 def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[str, float]:
     """Every probe of the scene at state ``x``; ``gradient`` is the total energy gradient (the
     support reactions), computed here when a reaction probe needs it."""

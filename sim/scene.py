@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import tomllib
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -76,29 +76,110 @@ class ShellSpec(Strict):
         return self
 
 
+FinitePos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+FiniteNonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
 class Hardening(Strict):
+    """Isotropic hardening Y(ep) of sim.materials.plasticity. The initial flow stress is always
+    ``material.yield_stress``; each law takes its own fields only (a field of another law is an
+    error, never silently ignored):
+
+    - perfect: Y = yield_stress
+    - linear: Y = yield_stress + modulus ep, modulus >= 0
+    - swift: Y = K (e0 + ep)^n, K > 0, n >= 0; e0 defaults to (yield_stress / K)^(1/n) so that
+      Y(0) = yield_stress; an e0 given explicitly must satisfy K e0^n = yield_stress
+    - voce: Y = yield_stress + (saturation - yield_stress)(1 - exp(-rate ep)), saturation >=
+      yield_stress, rate > 0 (rate 0 is perfect plasticity: use law 'perfect')
+
+    Softening (modulus < 0, saturation < yield_stress) is rejected: the incremental potential is
+    convex, and its Hessian positive semi-definite, only for a nondecreasing Y (module docstring
+    of sim.materials.plasticity), and a softening law localises into a mesh-dependent band.
+    """
+
     law: Literal["perfect", "linear", "swift", "voce"] = "perfect"
-    modulus: float = 0.0  # linear: H (Pa)
-    K: float = 0.0  # swift (Pa)
-    e0: float = 0.002
-    n: float = 0.2
-    saturation: float = 0.0  # voce Ysat (Pa)
-    rate: float = 0.0  # voce C
+    modulus: FiniteNonNeg | None = None  # linear: H (Pa)
+    K: FinitePos | None = None  # swift strength coefficient (Pa)
+    n: FiniteNonNeg | None = None  # swift exponent
+    e0: FinitePos | None = None  # swift strain offset
+    saturation: FinitePos | None = None  # voce Ysat (Pa)
+    rate: FinitePos | None = None  # voce C
+
+    FIELDS: ClassVar[dict[str, tuple[str, ...]]] = {
+        "perfect": (), "linear": ("modulus",), "swift": ("K", "n", "e0"),
+        "voce": ("saturation", "rate")}
+    REQUIRED: ClassVar[dict[str, tuple[str, ...]]] = {
+        "perfect": (), "linear": ("modulus",), "swift": ("K", "n"), "voce": ("saturation", "rate")}
+
+    @model_validator(mode="after")
+    def _own_fields(self):
+        for other, names in self.FIELDS.items():
+            for name in names:
+                if other != self.law and getattr(self, name) is not None \
+                        and name not in self.FIELDS[self.law]:
+                    raise ValueError(f"{name}: a parameter of law {other!r}, not of "
+                                     f"{self.law!r} (which takes "
+                                     f"{', '.join(self.FIELDS[self.law]) or 'none'})")
+        missing = [k for k in self.REQUIRED[self.law] if getattr(self, k) is None]
+        if missing:
+            raise ValueError(f"law {self.law!r} needs {', '.join(missing)}")
+        return self
 
 
 class MaterialSpec(Strict):
     model: Literal["neo_hookean", "hencky", "plastic"] = "neo_hookean"
-    E: Pos
+    E: FinitePos
     nu: Annotated[float, Field(ge=0.0, lt=0.5)]
-    density: Pos = 1000.0
-    yield_stress: Annotated[float, Field(ge=0.0)] | None = None
+    density: FinitePos = 1000.0
+    yield_stress: FinitePos | None = None  # initial flow stress (Pa), plastic model only
     hardening: Hardening = Hardening()
 
     @model_validator(mode="after")
-    def _plastic_needs_yield(self):
-        if self.model == "plastic" and self.yield_stress is None:
+    def _plastic_fields(self):
+        if self.model != "plastic":
+            if self.yield_stress is not None:
+                raise ValueError(f"yield_stress: only used by model 'plastic' (not "
+                                 f"{self.model!r})")
+            if self.hardening.law != "perfect":
+                raise ValueError(f"hardening: only used by model 'plastic' (not "
+                                 f"{self.model!r})")
+            return self
+        if self.yield_stress is None:
             raise ValueError("a plastic material needs yield_stress")
+        h, y0 = self.hardening, self.yield_stress
+        if h.law == "voce" and h.saturation < y0:
+            raise ValueError(f"hardening.saturation: {h.saturation:.6g} Pa is below yield_stress "
+                             f"{y0:.6g} Pa (a softening law; see Hardening)")
+        if h.law == "swift":
+            self._swift_e0()
         return self
+
+    def _swift_e0(self) -> float:
+        h, y0 = self.hardening, self.yield_stress
+        if h.e0 is not None:
+            y_swift = h.K * h.e0**h.n
+            # the two spellings of the initial yield must agree to round-off of the inputs
+            if abs(y_swift / y0 - 1) > 1e-6:
+                raise ValueError(f"hardening.e0: K e0^n = {y_swift:.6g} Pa differs from "
+                                 f"yield_stress = {y0:.6g} Pa (omit e0 to derive it from them)")
+            return h.e0
+        if h.n == 0.0:  # Y = K whatever e0: it must be the yield stress
+            if abs(h.K / y0 - 1) > 1e-6:
+                raise ValueError(f"hardening.K: with n = 0 Swift is Y = K = {h.K:.6g} Pa, which "
+                                 f"differs from yield_stress = {y0:.6g} Pa")
+            return 1.0
+        e0 = (y0 / h.K) ** (1.0 / h.n)
+        if not (0.0 < e0 < float("inf")):
+            raise ValueError(f"hardening: e0 = (yield_stress / K)^(1/n) = {e0:.3g} is not a "
+                             "positive finite strain; check K and n")
+        return e0
+
+    def hardening_params(self) -> list[float]:
+        """Kernel parameters ``hp`` of sim.materials.plasticity for this law (plastic only)."""
+        h, y0 = self.hardening, self.yield_stress
+        return {"perfect": lambda: [y0], "linear": lambda: [y0, h.modulus],
+                "swift": lambda: [h.K, self._swift_e0(), h.n],
+                "voce": lambda: [y0, h.saturation, h.rate]}[h.law]()
 
 
 class BoxSpec(Strict):
@@ -136,7 +217,9 @@ class RegionSpec(Strict):
 class BendSpec(Strict):
     """Cylindrical bending about y of a strip whose symmetry plane is x = 0: the region (an end
     section at x = length) moves rigidly along the arc of curvature angle / length, rotating by
-    ``angle`` (rad) at t = 1; positive angles bend the ends up (+z)."""
+    ``angle`` (rad) at t = 1; positive angles bend the ends up (+z). Only the BC's components are
+    held: ``components = "x"`` turns the section like a rotated wall that it may slide along
+    (no shear force: a pure end moment), "xyz" moves it rigidly."""
 
     angle: float
     length: Pos

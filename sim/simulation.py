@@ -284,6 +284,7 @@ class Simulation:
             "failure": self.failure,
             "steps": [asdict(r) for r in self.records],
             "sections": self.sections,
+            "fields": probes.field_summary(probes.output_fields(m, self.x, self.h0)),
             "timing": {"total": self.wall, "assembly": t.assembly,
                        "factorisation": t.factorisation, "solve": t.solve,
                        "line_search": t.line_search, "newton_iterations": t.iterations,
@@ -298,9 +299,8 @@ class Simulation:
         sh = self.model.shell
         tmp = out / "final.tmp.npz"
         np.savez_compressed(tmp, rest=sh.rest, deformed=self.x[: sh.n_nodes],
-                            faces=sh.mesh.faces,
-                            conn=sh.conn, thickness=probes.thickness(self.model, self.x),
-                            rest_thickness=self.h0)
+                            faces=sh.mesh.faces, conn=sh.conn, rest_thickness=self.h0,
+                            **probes.output_fields(self.model, self.x, self.h0))
         tmp.replace(out / "final.npz")
         tmp = out / "result.tmp.json"
         tmp.write_text(json.dumps(self.result(), indent=1))
