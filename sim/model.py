@@ -320,24 +320,40 @@ def build_model(scene: Scene) -> Model:
 
 
 def tool_program(s) -> np.ndarray:
-    """SDF program of a ShapeSpec (sim.tools.sdf)."""
+    """SDF program of a ShapeSpec (sim.tools.sdf), CSG operands and placements included."""
     from sim.tools import sdf
 
-    if s.kind == "plane":
-        return sdf.plane(s.point, s.normal)
-    if s.kind == "box":
-        return sdf.rounded_box(s.half_extents, s.radius, s.center)
-    if s.kind == "punch":
-        return sdf.punch(s.radius, s.height, s.edge_radius)
-    if s.kind == "die_ring":
-        return sdf.die_ring(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
-    if s.kind == "blank_holder":
-        return sdf.blank_holder(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
-    if s.kind == "star":
-        return sdf.star(s.n_points, s.r_outer, s.r_inner, s.height, s.corner_radius,
+    if s.kind in ("union", "subtract", "intersect"):
+        op = getattr(sdf, s.kind)
+        progs = [tool_program(c) for c in s.shapes]
+        prog = progs[0]
+        for other in progs[1:]:
+            prog = op(prog, other, s.blend)
+    elif s.kind == "plane":
+        prog = sdf.plane(s.point, s.normal)
+    elif s.kind == "box":
+        prog = sdf.rounded_box(s.half_extents, s.radius, s.center)
+    elif s.kind == "punch":
+        prog = sdf.punch(s.radius, s.height, s.edge_radius)
+    elif s.kind == "die_ring":
+        prog = sdf.die_ring(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
+    elif s.kind == "blank_holder":
+        prog = sdf.blank_holder(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
+    elif s.kind == "star":
+        prog = sdf.star(s.n_points, s.r_outer, s.r_inner, s.height, s.corner_radius,
                         s.edge_radius, s.phase)
-    return sdf.star_die(s.n_points, s.r_outer, s.r_inner, s.height, s.edge_radius,
-                        s.corner_radius, phase=s.phase)
+    elif s.kind == "polygon":
+        prog = sdf.extruded_polygon(s.points, 0.0, s.height, s.corner_radius, s.edge_radius,
+                                    s.reflex_radius or 0.0)
+    else:
+        prog = sdf.star_die(s.n_points, s.r_outer, s.r_inner, s.height, s.edge_radius,
+                            s.corner_radius, phase=s.phase, valley_radius=s.reflex_radius)
+    if any(s.rotation) or any(s.offset):
+        rv = np.asarray(s.rotation, float)
+        angle = float(np.linalg.norm(rv))
+        R = sdf.rotation(rv / angle, angle) if angle > 0 else np.eye(3)
+        prog = sdf.moved(prog, R, s.offset)
+    return prog
 
 
 def _contact_nodes(shell) -> np.ndarray:

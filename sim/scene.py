@@ -322,7 +322,7 @@ class ProbeSpec(Strict):
     name: str
     kind: Literal["displacement", "thickness", "reaction", "volume", "curvature",
                   "plastic_strain", "von_mises", "tool_force", "penetration", "contact_nodes",
-                  "fibre_tilt", "height_range", "tool_position"]
+                  "fibre_tilt", "height_range", "tool_position", "springback"]
     tool: str | None = None
     point: Vec3 | None = None
     component: Literal["x", "y", "z", "norm"] = "norm"
@@ -351,10 +351,20 @@ class StudySpec(Strict):
     reference_edge_length: Pos | None = None
 
 
-class ShapeSpec(Strict):
-    """A tool shape (sim.tools.sdf builders). Lengths in m, in the tool's local frame."""
+PRIMITIVES = ("plane", "box", "punch", "die_ring", "blank_holder", "star_die", "star", "polygon")
+CSG = ("union", "subtract", "intersect")
 
-    kind: Literal["plane", "box", "punch", "die_ring", "blank_holder", "star_die", "star"]
+
+class ShapeSpec(Strict):
+    """A tool shape (sim.tools.sdf builders). Lengths in m, in the tool's local frame.
+
+    CSG: kind union / intersect (two or more ``shapes``, folded left) or subtract (exactly
+    two: the first minus the second), ``blend`` > 0 a smooth fillet of that width (C2).
+    Any shape can be placed in its parent's frame by ``offset`` (m) and ``rotation`` (an
+    axis-angle vector, rad: axis * angle), e.g. a punch lying along y: rotation
+    [1.5708, 0, 0]."""
+
+    kind: Literal[PRIMITIVES + CSG]
     point: Vec3 = (0.0, 0.0, 0.0)  # plane
     normal: Vec3 = (0.0, 0.0, 1.0)  # plane
     half_extents: tuple[Pos, Pos, Pos] | None = None  # box
@@ -367,8 +377,16 @@ class ShapeSpec(Strict):
     n_points: Annotated[int, Field(ge=3, le=32)] = 5  # star
     r_outer: Pos = 0.05
     r_inner: Pos = 0.03
-    corner_radius: Annotated[float, Field(ge=0)] = 0.0
+    corner_radius: Annotated[float, Field(ge=0)] = 0.0  # star tips, convex polygon corners
+    # star_die valleys (default max(corner_radius, edge_radius)); reflex polygon corners
+    reflex_radius: Annotated[float, Field(ge=0)] | None = None
     phase: float = 0.0
+    # polygon: a prism 0 <= z <= height over these (x, y) vertices (either orientation)
+    points: list[tuple[float, float]] = []
+    shapes: list[ShapeSpec] = []  # CSG operands
+    blend: Annotated[float, Field(ge=0)] = 0.0
+    offset: Vec3 = (0.0, 0.0, 0.0)
+    rotation: Vec3 = (0.0, 0.0, 0.0)
 
     @model_validator(mode="after")
     def _needs(self):
@@ -378,6 +396,23 @@ class ShapeSpec(Strict):
             raise ValueError("inner_radius must be smaller than outer_radius")
         if self.kind in ("star", "star_die") and self.r_inner >= self.r_outer:
             raise ValueError("r_inner must be smaller than r_outer")
+        if self.kind == "polygon" and len(self.points) < 3:
+            raise ValueError("a polygon needs at least 3 points")
+        if self.kind in CSG:
+            if self.kind == "subtract" and len(self.shapes) != 2:
+                raise ValueError("subtract needs exactly two shapes (the first minus the "
+                                 "second)")
+            if len(self.shapes) < 2:
+                raise ValueError(f"{self.kind} needs at least two shapes")
+        elif self.shapes:
+            raise ValueError(f"shapes: only union, subtract and intersect have operands, "
+                             f"not {self.kind!r}")
+        if not all(map(math.isfinite, self.rotation + self.offset)):
+            raise ValueError("offset and rotation must be finite")
+        if self.kind in PRIMITIVES:  # the builders' own checks (radii fit, polygon simple)
+            from sim.model import tool_program
+
+            tool_program(self)
         return self
 
 

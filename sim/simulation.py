@@ -162,6 +162,7 @@ class Simulation:
         (remaining BCs hold their current positions)."""
         m = self.model
         start = time.perf_counter()
+        self.formed = probes.mid_surface(m, self.x)  # the shape in the closed tools
         m.problem.set_fixed((m.fixed & ~m.released) | m.release_support)
         released = {t.name for t in m.scene.tools if t.release}
         m.problem.terms = [t for t in m.terms
@@ -183,7 +184,8 @@ class Simulation:
         self._converged(res.x)
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, res.iterations, res.residuals[-1], res.energy,
-                         0, probes.evaluate(m, self.x), self._tool_reports())
+                         0, probes.evaluate(m, self.x, formed=self.formed),
+                         self._tool_reports())
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start

@@ -443,3 +443,40 @@ def test_rounded_polygon_validation_and_orientation():
         sdf.rounded_polygon(sq, 0.6)
     with pytest.raises(ValueError, match="valley_radius"):
         sdf.star_die(5, 0.04, 0.03, 0.02, 0.002, corner_radius=0.002, valley_radius=0.001)
+
+
+def test_scene_shapes_csg_polygons_and_placement():
+    """ShapeSpec: CSG, polygons and placed shapes from a scene file build the same program as
+    the builders; bad shapes name the field."""
+    from sim.model import tool_program
+    from sim.scene import SceneError, load_scene
+
+    sc = load_scene("scenes/beam_forming.toml")
+    die = sc.tools[0].shape
+    assert die.kind == "subtract" and [s.kind for s in die.shapes] == ["box", "punch"]
+    R = sdf.rotation([1, 0, 0], 0.5 * np.pi)
+    ref = sdf.subtract(sdf.rounded_box([0.06, 0.02, 0.02], 0.0, [0, 0, -0.017]),
+                       sdf.moved(sdf.punch(0.101, 0.04, 0.0), R, [0, 0.02, 0.08675]), 0.002)
+    np.testing.assert_allclose(tool_program(die), ref, rtol=1e-15, atol=1e-15)
+    # the cavity's lowest point sits 14.25 mm below the blank's mid-plane
+    d, g, _ = sdf.sdf_eval(tool_program(die), np.array([[0.0, 0.0, -0.01425]]))
+    assert abs(d[0]) < 1e-12 and np.allclose(g[0], [0, 0, 1], atol=1e-12)
+    poly = {"kind": "polygon", "points": [[0, 0], [0.06, 0], [0.06, 0.04], [0.03, 0.015],
+                                          [0, 0.04]], "height": 0.02, "corner_radius": 0.004,
+            "reflex_radius": 0.005, "edge_radius": 0.002}
+    o = {"tools.0.shape": {"kind": "union", "shapes": [poly, {"kind": "plane"}], "blend": 0.001}}
+    prog = tool_program(load_scene("scenes/beam_forming.toml", o).tools[0].shape)
+    ref = sdf.union(sdf.extruded_polygon(poly["points"], 0.0, 0.02, 0.004, 0.002, 0.005),
+                    sdf.plane([0, 0, 0], [0, 0, 1]), 0.001)
+    np.testing.assert_array_equal(prog, ref)
+    bad = [({"kind": "subtract", "shapes": [poly]}, "exactly two"),
+           ({"kind": "union", "shapes": [poly]}, "at least two"),
+           ({**poly, "corner_radius": 0.03, "edge_radius": 0.0}, "radii too large"),
+           ({**poly, "points": [[0, 0], [1, 0]]}, "at least 3 points"),
+           ({"kind": "box", "half_extents": [1, 1, 1], "shapes": [poly, poly]}, "operands"),
+           ({**poly, "rotation": [float("nan"), 0, 0]}, "finite"),
+           ({"kind": "cone"}, "kind")]
+    for shape, why in bad:
+        with pytest.raises(SceneError, match=why) as err:
+            load_scene("scenes/beam_forming.toml", {"tools.0.shape": shape})
+        assert "tools.0.shape" in str(err.value)
