@@ -1,7 +1,8 @@
 """A run's rerun recording: the sheet mesh coloured by thickness every keyframe, the tool meshes
 once (static, ``tools/<name>``) with their translation (``rr.Transform3D``) every keyframe, and
-time series of every probe, energy, Newton iterations, residual, max thinning and live
-parameters.
+time series of every probe, energy, Newton iterations, residual, max thinning (and max plastic
+strain where there is a plastic state) and live parameters. ``channels`` lists them from what
+the model built, so a recording has no channel for a quantity the scene lacks.
 
 Each logged step is flushed, so a killed run still leaves a readable ``run.rrd``.
 """
@@ -14,6 +15,19 @@ import numpy as np
 import rerun as rr
 
 from server.colormap import MIN_SPAN, colorize, tool_colour, value_range
+
+SOLVER = ("energy", "iterations", "residual", "cutbacks")
+# per-frame maxima of the frame fields that have one: a scalar series beside the coloured mesh
+FIELD_MAXIMA = {"thinning_pct": "solver/max_thinning_pct",
+                "eq_plastic_strain": "solver/max_eq_plastic_strain"}
+
+
+def channels(outputs: dict) -> list[str]:
+    """Entity paths of a run whose model built ``outputs`` (``Model.built["outputs"]``); a live
+    parameter adds ``parameters/<name>`` once it is changed."""
+    return ["sheet", *(f"tools/{t}" for t in outputs["tools"]),
+            *(f"probes/{p}" for p in outputs["probes"]), *(f"solver/{n}" for n in SOLVER),
+            *(FIELD_MAXIMA[f] for f in outputs["frame_fields"] if f in FIELD_MAXIMA)]
 
 
 class Recorder:
@@ -40,7 +54,7 @@ class Recorder:
         self._time(record["step"], record["time"])
         for name, value in record["probes"].items():
             self.rec.log(f"probes/{name}", rr.Scalars(float(value)))
-        for name in ("energy", "iterations", "residual", "cutbacks"):
+        for name in SOLVER:
             self.rec.log(f"solver/{name}", rr.Scalars(float(record[name])))
         self.rec.flush()
 
@@ -51,9 +65,9 @@ class Recorder:
 
     def frame(self, frame: dict) -> None:
         self._time(frame["step"], frame["time"])
-        thinning = frame["fields"].get("thinning_pct")
-        if thinning is not None:
-            self.rec.log("solver/max_thinning_pct", rr.Scalars(float(np.max(thinning))))
+        for name, path in FIELD_MAXIMA.items():
+            if name in frame["fields"]:
+                self.rec.log(path, rr.Scalars(float(np.max(frame["fields"][name]))))
         if self.faces is not None:
             h = frame["fields"]["thickness_mm"]
             colors = colorize(h, *value_range(h, MIN_SPAN["thickness_mm"]))

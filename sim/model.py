@@ -1,7 +1,9 @@
 """Discretisation: a validated Scene becomes a Model (shell, energy terms, Dirichlet data).
 
 Only what the scene asks for is built: no inertia for statics, no load term without loads, no
-plastic state for an elastic material. ``Model.built`` lists what was built.
+plastic state for an elastic material, no contact without tools. ``Model.built`` (``describe``)
+reports what was built, read off the model itself: energy terms, state arrays with their shapes,
+the linear solver, and the outputs of a run (probes, sections, frame fields, tools shown).
 """
 
 from __future__ import annotations
@@ -234,7 +236,6 @@ def build_model(scene: Scene) -> Model:
     elastic = Elasticity(shell, rule, MODEL_IDS[m.model], material_params(m), pattern,
                          PROJECTIONS[scene.solver.hessian_projection], plastic=plastic)
     terms: list[Term] = [elastic]
-    built = {"terms": ["elasticity"], "plastic_state": plastic}
     regions = {r.name: region_mask(shell, r) for r in scene.regions}
     ext = _external_force(scene, shell, rule, elastic, regions, x0)
     dynamic = scene.stepping.kind == "dynamic"
@@ -243,24 +244,21 @@ def build_model(scene: Scene) -> Model:
         if dynamic:
             ext.scale = (lambda t: min(1.0, t / ramp)) if ramp > 0 else (lambda t: 1.0)
         terms.append(ext)
-        built["terms"].append("external_force")
     inertia = None
     if dynamic:
         mass = np.concatenate([lumped_mass(shell, rule, elastic.wdetJ, m.density),
                                np.zeros(len(forced))])
         inertia = Inertia(mass, pattern, x0)
         terms.append(inertia)
-        built["terms"].append("inertia")
     tools = _tools(scene, shell, pattern, candidates)
     terms += tools
-    built["terms"] += [t.name for t in tools]
     fixed = np.zeros((n_total, 3), bool)
     fixed[shell.n_nodes:, :2] = True  # force-controlled tools move in z only
     prescribed = np.zeros((n_total, 3))
     model = Model(scene, shell, pattern, None, terms, elastic, ext, inertia, x0, fixed,
                   prescribed, [],
                   regions, NewtonSettings(rtol=scene.solver.rtol,
-                                          max_iterations=scene.solver.max_iterations), 0.0, built)
+                                          max_iterations=scene.solver.max_iterations), 0.0)
     release_support = np.zeros((n_total, 3), bool)
     for i, bc in enumerate(scene.bcs):
         try:
@@ -314,9 +312,37 @@ def build_model(scene: Scene) -> Model:
                                     max_iterations=scene.solver.max_iterations)
     model.force_scale = float(np.abs(ext.f).max()) if ext is not None else 0.0
     solver = make_solver(pattern, scene.solver.linear_solver)
-    built["linear_solver"] = solver.name
     model.problem = Problem(terms, pattern, solver, fixed)
+    model.built = describe(model)
     return model
+
+
+def frame_fields(model: Model) -> list[str]:
+    """Per-vertex fields of every frame (``Simulation.frame``): plastic strain only where there
+    is a plastic state."""
+    return ["thickness_mm", "thinning_pct", "von_mises_MPa",
+            *(["eq_plastic_strain"] if model.elasticity.plastic else [])]
+
+
+def describe(model: Model) -> dict:
+    """What ``model`` holds: ``terms`` (names), ``plastic_state``, ``state`` (array name ->
+    shape: what a step carries over besides the positions), ``linear_solver``, ``outputs``."""
+    el, inertia = model.elasticity, model.inertia
+    tools = [t for t in model.terms if isinstance(t, ToolContact)]
+    state: dict[str, list[int]] = {"positions": list(model.x0.shape)}
+    if el.plastic:
+        state |= {"plastic.fp_inv": list(el.fp_inv.shape), "plastic.ep": list(el.ep.shape)}
+    if inertia is not None:
+        state |= {"inertia.x_n": list(inertia.x_n.shape), "inertia.v": list(inertia.v.shape)}
+    for t in tools:  # committed tool position; contact is tested on these skin nodes
+        state |= {f"{t.name}.position": [3], f"{t.name}.candidates": [len(t.nodes)]}
+    sc = model.scene
+    return {"terms": [t.name for t in model.terms], "plastic_state": el.plastic,
+            "state": state, "linear_solver": model.problem.solver.name,
+            "outputs": {"probes": [p.name for p in sc.probes],
+                        "sections": [s.name for s in sc.sections],
+                        "frame_fields": frame_fields(model),
+                        "tools": [t.tool for t in tools]}}
 
 
 def tool_program(s) -> np.ndarray:

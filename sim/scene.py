@@ -342,13 +342,38 @@ class ProbeSpec(Strict):
 
 
 class StudySpec(Strict):
-    """A refinement study of one probe (``q3t study``): mesh edge lengths, elements, reference."""
+    """A refinement study (``q3t study``): mesh edge lengths, elements, what is measured and the
+    reference it is measured against.
 
-    probe: str
-    edge_lengths: list[Pos]
+    measure: ``final`` - the probe after the last step; ``curve`` - the probe over the run
+    against ``over`` (``time`` or another probe, e.g. the punch's position), compared on the
+    common range of the two curves; ``profile`` - a section's ``field`` along its rest radius
+    at recorded ``step`` (default: the last recorded). ``norm``: relative L2 or max difference
+    (curves and profiles). ``analytic``: a closed-form value for the probe (``final`` only)
+    instead of a numerical reference run; the scene must satisfy the formula's assumptions.
+    """
+
+    probe: str | None = None  # default: the scene's first probe
+    measure: Literal["final", "curve", "profile"] = "final"
+    over: str = "time"
+    section: str | None = None
+    field: Literal["thickness", "radius", "z"] = "thickness"
+    step: Annotated[int, Field(ge=0)] | None = None
+    norm: Literal["l2", "max"] = "l2"
+    edge_lengths: list[Pos] | None = None  # default: 4x, 2x, 1x the mesh's own
     elements: list[str] = ["linear", "q3t", "quadratic"]
     reference_element: str = "quadratic"
     reference_edge_length: Pos | None = None
+    analytic: Literal["euler_bernoulli", "springback"] | None = None
+
+    @model_validator(mode="after")
+    def _what(self):
+        if self.measure == "profile" and self.section is None:
+            raise ValueError("a profile study needs section")
+        if self.analytic and self.measure != "final":
+            raise ValueError("analytic: a closed-form reference is one value: measure must be "
+                             "'final'")
+        return self
 
 
 PRIMITIVES = ("plane", "box", "punch", "die_ring", "blank_holder", "star_die", "star", "polygon")
@@ -500,9 +525,34 @@ class Scene(Strict):
                 self.mesh.kind == "file" and str(self.mesh.path).lower().endswith(".ply")):
             raise ValueError("shell.thickness_attribute: needs a PLY mesh file (mesh.kind = "
                              "'file', mesh.path ending in .ply)")
-        if self.study and self.study.probe not in [p.name for p in self.probes]:
-            raise ValueError(f"study.probe: no probe named {self.study.probe!r}")
+        plastic = self.material.model == "plastic"
+        for i, p in enumerate(self.probes):  # nothing is recorded of a quantity the scene lacks
+            if p.kind == "plastic_strain" and not plastic:
+                raise ValueError(f"probes.{i}: a plastic_strain probe needs material.model = "
+                                 "'plastic' (an elastic scene has no plastic strain)")
+        if self.study:
+            self._check_study(self.study)
         return self
+
+    def _check_study(self, st: StudySpec) -> None:
+        probes = [p.name for p in self.probes]
+        if st.probe is not None and st.probe not in probes:
+            raise ValueError(f"study.probe: no probe named {st.probe!r}")
+        if st.measure != "profile" and st.probe is None and not probes:
+            raise ValueError("study.probe: the scene has no probe to study")
+        if st.measure == "curve" and st.over != "time" and st.over not in probes:
+            raise ValueError(f"study.over: 'time' or a probe name, not {st.over!r}")
+        if st.measure == "profile":
+            sec = next((s for s in self.sections if s.name == st.section), None)
+            if sec is None:
+                raise ValueError(f"study.section: no section named {st.section!r}")
+            if st.step is not None and sec.steps and st.step not in sec.steps:
+                raise ValueError(f"study.step: section {sec.name!r} records steps {sec.steps}, "
+                                 f"not {st.step}")
+        if st.analytic:
+            from sim.analytic import reference
+
+            reference(self, st.analytic, st.probe or probes[0])
 
 
 class SceneError(ValueError):

@@ -61,10 +61,11 @@ def run_case(scene_path: str, overrides: dict, series: bool = False) -> dict:
     out.update(converged=ok, wall=sim.wall, dofs=res["counts"]["dofs"],
                elements=res["counts"]["elements"], iterations=res["timing"]["newton_iterations"],
                cutbacks=sum(r.cutbacks for r in sim.records))
-    if series:
-        out["history"] = {"time": [r.time for r in sim.records],
-                          **{k: [r.probes[k] for r in sim.records]
-                             for k in (sim.records[0].probes if sim.records else {})}}
+    if series:  # the loading steps only: a release (springback) stage does not advance time
+        recs = [r for r in sim.records if r.step <= sim.model.scene.stepping.steps]
+        out["history"] = {"time": [r.time for r in recs],
+                          **{k: [r.probes[k] for r in recs]
+                             for k in (recs[0].probes if recs else {})}}
         out["sections"] = sim.sections
     if sim.records:
         out["probes"] = dict(sim.records[-1].probes)
@@ -177,25 +178,27 @@ def cluster_text(workers: int, threads: int, scheduler: str | None) -> str:
             f"{'s' * (threads != 1)}")
 
 
-def run_tasks(fn: Callable, argsets: list[tuple], labels: list[dict], workers: int = 1,
-              threads: int = 1, scheduler: str | None = None, timeout: float | None = None,
+def run_tasks(calls: list[tuple], labels: list[dict], workers: int = 1, threads: int = 1,
+              scheduler: str | None = None, timeout: float | None = None,
               on_result: Callable[[int, dict], None] | None = None) -> tuple[list[dict], bool]:
-    """``fn(*args)`` for every argset on Dask, gathered as they finish; rows in input order.
+    """Every ``(fn, *args)`` of ``calls`` as a Dask task, gathered as they finish; rows in the
+    order of ``calls``, which is also the order of their priorities on the cluster.
 
     A task that raised is an ``error`` row, one still unfinished after ``timeout`` s is
-    cancelled and becomes a ``timeout`` row (``labels[i]`` gives both their ``overrides``).
-    ``on_result(i, row)`` runs after each result. Returns (rows, finished: no timeout hit). The
-    local cluster is closed on every way out, which ends its worker processes and any case
-    still running in them."""
+    cancelled and becomes a ``timeout`` row (``labels[i]`` is merged into both). ``on_result(i,
+    row)`` runs after each result; an exception it raises ends the run (and propagates).
+    Returns (rows, finished: no timeout hit). The local cluster is closed on every way out,
+    which ends its worker processes and any case still running in them."""
     import dask
     from distributed import Client, LocalCluster, as_completed
 
-    rows: list[dict | None] = [None] * len(argsets)
+    rows: list[dict | None] = [None] * len(calls)
     finished = True
 
     def gather(client) -> None:
         nonlocal finished
-        futures = [client.submit(fn, *a, pure=False) for a in argsets]
+        futures = [client.submit(fn, *args, pure=False, priority=len(calls) - i)
+                   for i, (fn, *args) in enumerate(calls)]
         where = {f.key: i for i, f in enumerate(futures)}
         try:
             for f in as_completed(futures, timeout=timeout):
@@ -205,6 +208,7 @@ def run_tasks(fn: Callable, argsets: list[tuple], labels: list[dict], workers: i
                     on_result(i, rows[i])
         except TimeoutError:
             finished = False
+        finally:
             client.cancel([f for f in futures if not f.done()])
         for i, r in enumerate(rows):
             if r is None:
@@ -239,7 +243,7 @@ def run_sweep(scene_path: str, overrides: list[dict], workers: int = 2,
               scheduler: str | None = None, timeout: float | None = None,
               budget: float = DEFAULT_BUDGET, on_result=None) -> tuple[list[dict], bool]:
     """Every case through ``isolated_case``; see ``run_tasks``."""
-    return run_tasks(isolated_case, [(scene_path, o, budget) for o in overrides],
+    return run_tasks([(isolated_case, scene_path, o, budget) for o in overrides],
                      [{"overrides": o} for o in overrides], workers, 1, scheduler, timeout,
                      on_result)
 

@@ -1,5 +1,6 @@
 """Every run writes runs/<id>/run.rrd: it verifies with the rerun CLI and reads back the probe
-series step by step, matching the run's records; a killed solver still leaves a readable file."""
+series step by step, matching the run's records; a killed solver still leaves a readable file; its
+channels are those the model built, and no shipped scene has a channel for an absent quantity."""
 
 from __future__ import annotations
 
@@ -18,7 +19,11 @@ from rerun.chunk import RrdReader  # noqa: E402
 
 from server.app import create_app  # noqa: E402
 from server.cli import play_command  # noqa: E402
+from server.recording import channels  # noqa: E402
 from server.settings import Settings  # noqa: E402
+from sim.model import build_model  # noqa: E402
+from sim.scene import load_scene, scene_from_toml  # noqa: E402
+from sim.simulation import Simulation  # noqa: E402
 from tests.test_service import tiny_toml, wait_state  # noqa: E402
 
 RERUN = Path(sys.executable).with_name("rerun")
@@ -93,15 +98,53 @@ def test_play_command(tmp_path):
     assert "--serve-web" in web and web[web.index("--bind") + 1] == "127.0.0.1"
 
 
-def test_recording_has_no_channels_for_absent_quantities(client):
-    """An elastic scene without tools records no tool, no plastic and no contact channel: the
-    channels follow what the scene built (issue: compute only what a scene needs)."""
+def test_recording_holds_exactly_the_channels_the_model_built(client):
+    """The entity paths of a real recording are those ``channels`` predicts from the model's
+    ``built`` outputs: an elastic scene without tools records no tool, plastic or contact
+    channel."""
     c, settings = client
     run_id = c.post("/api/runs", json={"scene": "tiny", "element": "q3t"}).json()["id"]
     st = wait_state(c, run_id, {"finished", "failed", "stopped"})
     assert st["state"] == "finished", st["reason"]
-    paths = {str(ch.entity_path) for ch in RrdReader(str(settings.runs_dir / run_id
-                                                          / "run.rrd")).stream()}
-    assert "/sheet" in paths and "/probes/tip_deflection" in paths
-    assert not any(p.startswith("/tools") for p in paths)
-    assert not any("plastic" in p or "contact" in p or "punch" in p for p in paths)
+    paths = {str(ch.entity_path).lstrip("/") for ch in RrdReader(str(settings.runs_dir / run_id
+                                                                     / "run.rrd")).stream()}
+    paths = {p for p in paths if not p.startswith("__")}  # rerun's own properties
+    outputs = build_model(scene_from_toml(tiny_toml(steps=3))).built["outputs"]
+    assert paths == set(channels(outputs))
+    assert "sheet" in paths and "probes/tip_deflection" in paths
+    assert not any(p.startswith("tools") or "plastic" in p or "contact" in p for p in paths)
+
+
+SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.toml"))
+TOOL_PROBES = {"tool_force", "penetration", "contact_nodes", "tool_position"}
+
+
+def _coarse(sc) -> dict:
+    """About 20-60 triangles: the channel list depends on the scene, not on the mesh."""
+    m = sc.mesh
+    edge = {"rectangle": lambda: max(m.size or (0,)) / 8, "disk": lambda: m.r_outer / 4,
+            "annulus": lambda: m.r_outer / 4, "cylinder_band": lambda: m.height / 2}
+    return {"mesh.edge_length": edge[m.kind]()} if m.kind in edge else {}
+
+
+@pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
+def test_every_shipped_scene_records_no_channel_for_an_absent_quantity(path):
+    sc = load_scene(path)
+    sim = Simulation.from_scene(load_scene(path, _coarse(sc)))
+    ch = channels(sim.model.built["outputs"])
+    tools = {t.name for t in sc.tools}
+    plastic = sc.material.model == "plastic"
+    assert len(ch) == len(set(ch))
+    assert {p.split("/", 1)[1] for p in ch if p.startswith("tools/")} == tools
+    for p in sc.probes:  # a tool's force, contact or position only where the tool exists
+        if p.kind in TOOL_PROBES:
+            assert p.tool in tools
+        assert p.kind != "plastic_strain" or plastic
+    assert ("solver/max_eq_plastic_strain" in ch) == plastic
+    if not plastic:
+        assert not any("plastic" in c for c in ch)
+    if not tools:
+        assert not any(c.startswith("tools/") or "punch" in c or "contact" in c or "holder"
+                       in c or "penetration" in c for c in ch)
+    # the frame the recorder colours and summarises carries exactly the fields reported
+    assert list(sim.frame().fields) == sim.model.built["outputs"]["frame_fields"]
