@@ -48,6 +48,20 @@ def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
     return meshes.load(spec.path, spec.scale)
 
 
+def imperfect(mesh: meshes.TriMesh, amplitude: float) -> meshes.TriMesh:
+    """``MeshSpec.imperfection``: one smooth out-of-plane bump over a flat mesh's extent."""
+    if amplitude == 0.0:
+        return mesh
+    V = mesh.vertices
+    if np.ptp(V[:, 2]) > 1e-12 * np.ptp(V, axis=0).max():
+        raise ValueError("mesh.imperfection: needs a flat mesh (z = const)")
+    lo, span = V.min(0), np.ptp(V, axis=0)
+    s, t = (V[:, 0] - lo[0]) / span[0], (V[:, 1] - lo[1]) / span[1]
+    out = V.copy()
+    out[:, 2] += amplitude * np.sin(np.pi * s) * np.sin(np.pi * t)
+    return meshes.TriMesh(out, mesh.faces)
+
+
 def _read_values(path: str) -> np.ndarray:
     """A .npy array or a text file of numbers (whitespace or comma separated)."""
     from pathlib import Path
@@ -82,6 +96,7 @@ def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray]:
         raise ValueError(f"mesh.path: {exc}") from None
     except ValueError as exc:
         raise ValueError(f"{field_name}: {exc}") from None
+    mesh = imperfect(mesh, spec.imperfection)
     if h is None:
         h = sh.thickness + mesh.vertices @ np.asarray(sh.thickness_gradient)
         field_name = "shell.thickness_gradient"

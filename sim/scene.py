@@ -32,6 +32,10 @@ class MeshSpec(Strict):
     height: Pos | None = None  # cylinder_band
     path: str | None = None
     scale: Pos = 1.0  # file units to metres
+    # out-of-plane imperfection of a flat mid-surface (m): z += a sin(pi s) sin(pi t), with
+    # (s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to
+    # leave its plane, so buckling (Fig. 4 at nu = 0.499) needs a seed
+    imperfection: float = 0.0
 
     @model_validator(mode="after")
     def _needs(self):

@@ -294,6 +294,19 @@ def factorisation_times(scene_path: str, elements: list[str], levels: list[float
     return rows
 
 
+def factorisation_report(scene_path: str, elements: list[str], levels: list[float], out: Path,
+                         repeat: int = FACTOR_REPEAT, overrides: dict | None = None,
+                         **cluster) -> list[dict]:
+    """Fig. 7: time the factorisations, print the table, write report.md / .json and plots.
+    ``q3t bench`` runs this too."""
+    rows = factorisation_times(scene_path, elements, levels, repeat, overrides, **cluster)
+    print(_table(rows, FACTOR_COLS), flush=True)
+    write_factorisation(scene_path, rows, out, cluster_text(cluster.get("workers", 1),
+                                                            cluster.get("threads", 1),
+                                                            cluster.get("scheduler")))
+    return rows
+
+
 def _inputs(args) -> tuple[str, Plan]:
     """The plan from the command line; ValueError / SceneError on bad input."""
     from sim.cli import parse_sets, resolve_scene
@@ -335,10 +348,8 @@ def run(args) -> int:
           "timeout": args.timeout}
     where = cluster_text(args.workers, args.threads, args.scheduler)
     if args.factorisation:
-        rows = factorisation_times(scene, plan.elements, plan.levels,
-                                   args.repeat or FACTOR_REPEAT, plan.overrides, **kw)
-        print(_table(rows, FACTOR_COLS))
-        write_factorisation(scene, rows, out, where)
+        factorisation_report(scene, plan.elements, plan.levels, out,
+                             args.repeat or FACTOR_REPEAT, plan.overrides, **kw)
     elif args.overhead_only:
         o = {"overrides": {**plan.overrides, "mesh.edge_length": plan.levels[-1]},
              "repeat": args.repeat or OVERHEAD_REPEAT}

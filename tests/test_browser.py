@@ -178,10 +178,10 @@ def test_scene_form_and_run_estimate(served):
             return f.value();
         }""", raw)
         assert back["mesh"] == {"kind": "rectanglee", "size": [1, None], "origin": [0, 0],
-                                "r_inner": 0, "scale": 1}
+                                "r_inner": 0, "scale": 1, "imperfection": 0}
         assert back["bcs"] == [{"components": "xyz", "layers": "all",  # region: missing
-                                "displacement": [0, 0, 0], "release": False,
-                                "release_only": False}]
+                                "displacement": [0, 0, 0], "keyframes": [],
+                                "release": False, "release_only": False}]
 
         # a bad value: the server's error next to the field; the TOML view follows the form
         nu.fill("0.7")

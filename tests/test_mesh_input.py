@@ -150,3 +150,16 @@ def test_missing_or_broken_mesh_file_names_the_field(tmp_path):
     path = write_scene(tmp_path, 'kind = "file"\npath = "bad.ply"')
     with pytest.raises(ValueError, match="mesh.path: bad.ply"):
         Simulation.from_scene(load_scene(path))
+
+
+def test_imperfection_seeds_one_smooth_bump(tmp_path):
+    path = write_scene(tmp_path)
+    sim = Simulation.from_scene(load_scene(path, {"mesh.imperfection": 1e-5}))
+    V = sim.model.shell.mesh.vertices
+    s, t = V[:, 0] / 0.1, V[:, 1] / 0.06
+    assert np.allclose(V[:, 2], 1e-5 * np.sin(np.pi * s) * np.sin(np.pi * t), atol=1e-20)
+    assert V[:, 2].max() > 0.5e-5
+    band = write_scene(tmp_path, 'kind = "cylinder_band"\nradius = 0.05\nheight = 0.02\n'
+                                 'edge_length = 0.02')
+    with pytest.raises(ValueError, match="mesh.imperfection: needs a flat mesh"):
+        Simulation.from_scene(load_scene(band, {"mesh.imperfection": 1e-5}))
