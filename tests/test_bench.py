@@ -24,4 +24,4 @@ def test_bench_includes_the_factorisation_comparison(tmp_path, monkeypatch, caps
     # Q3T at the finer level has the nodes of quadratic at the coarser one (Fig. 7, right)
     assert by[("q3t", 0.0175)]["nodes"] == by[("quadratic", 0.035)]["nodes"]
     assert (out / "factorisation" / "report.json").is_file()
-    assert "factor [s]" in capsys.readouterr().out
+    assert "median [s]" in capsys.readouterr().out
