@@ -112,8 +112,9 @@ def test_simple_shear_follows_the_hardening_law(law):
     interior = ~lateral
     for _ in range(6):
         rec = sim.step()
-        # the free nodes start at rest and Newton moves them; later steps may start on the
-        # solution, since the predictor continues the last increment and the path is linear
+        # the free nodes start at rest and Newton moves them through the first, already plastic
+        # step (7-9 iterations); later steps may start on the solution, since the predictor
+        # continues the last increment and the homogeneous path is linear in time
         assert rec.iterations > 0 or rec.step > 1
         g = gamma * rec.time
         # the interior found the homogeneous shear (the patch-test property of the elements)
@@ -124,8 +125,8 @@ def test_simple_shear_follows_the_hardening_law(law):
             MU * g, xtol=1e-6)
         ep_1d = max(0.0, (g - t_xy / MU) / np.sqrt(3))
         vm = m.elasticity.von_mises(sim.x)
-        # the issue's 1 %; the O(gamma^2) finite-strain terms and the held z of the bottom edge
-        # (the sheet would thin by O(gamma^2)) stay below 0.2 %
+        # the issue's 1 %; the finite-strain terms and the held z of the bottom edge are far
+        # smaller (measured: von Mises within 1.1e-6, ep within 5.6e-6 for every law)
         assert abs(vm.mean() / (np.sqrt(3) * t_xy) - 1) < 0.01, (g, vm.mean(), t_xy)
         assert np.ptp(vm) < 0.01 * vm.mean()  # homogeneous
         if ep_1d > 1e-3:
@@ -188,7 +189,10 @@ def test_plastic_energy_finite_differences(law, element):
             el.add_hessian(y, d)
             return (pat.matrix(d) @ v.ravel()).reshape(v.shape)
 
-        _fd_check(el.energy, grad, hv, x, 1e-5)
+        # step h = 1e-6 * 1e-3 m (strain ~1e-7): 1e3 times inside the nearest yield-surface
+        # margin, while the log strains' absolute round-off (~1e-16, from the eigenvalues of
+        # F^T F) stays ~1e-9 of the energy difference (a 1e-11 m step left only 1e-5 of it)
+        _fd_check(el.energy, grad, hv, x, 1e-3)
 
 
 E_B, NU_B, Y_B, T_B = 200e9, 0.33, 16e6, 0.005
