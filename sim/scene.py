@@ -238,7 +238,8 @@ class ShapeSpec(Strict):
     r_outer: Pos = 0.05
     r_inner: Pos = 0.03
     corner_radius: Annotated[float, Field(ge=0)] = 0.0  # star tips, convex polygon corners
-    # star_die valleys (default max(corner_radius, edge_radius)); reflex polygon corners
+    # star and star_die valleys (star_die default max(corner_radius, edge_radius), star 0),
+    # reflex polygon corners
     reflex_radius: Annotated[float, Field(ge=0)] | None = None
     phase: float = 0.0
     # polygon: a prism 0 <= z <= height over these (x, y) vertices (either orientation)
