@@ -382,7 +382,7 @@ def tool_program(s) -> np.ndarray:
         prog = sdf.blank_holder(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
     elif s.kind == "star":
         prog = sdf.star(s.n_points, s.r_outer, s.r_inner, s.height, s.corner_radius,
-                        s.edge_radius, s.phase)
+                        s.edge_radius, s.phase, s.reflex_radius or 0.0)
     elif s.kind == "polygon":
         prog = sdf.extruded_polygon(s.points, 0.0, s.height, s.corner_radius, s.edge_radius,
                                     s.reflex_radius or 0.0)

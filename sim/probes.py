@@ -113,6 +113,9 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None,
             out[p.name] = float(getattr(np, p.stat)(h))
         elif p.kind == "volume":
             out[p.name] = volume(model, x)
+        elif p.kind == "cup_height":  # rim (the region, mean) above the lowest point
+            z = mid_surface(model, x)[:, 2]
+            out[p.name] = float(z[model.regions[p.region][: sh.n_vertices]].mean() - z.min())
         elif p.kind == "height_range":  # out-of-plane amplitude, e.g. of flange wrinkles
             v = model.regions[p.region][: sh.n_vertices]
             z = mid_surface(model, x)[v, 2]

@@ -326,7 +326,7 @@ class ProbeSpec(Strict):
     name: str
     kind: Literal["displacement", "thickness", "reaction", "volume", "curvature",
                   "plastic_strain", "von_mises", "tool_force", "penetration", "contact_nodes",
-                  "fibre_tilt", "height_range", "tool_position", "springback"]
+                  "fibre_tilt", "height_range", "tool_position", "springback", "cup_height"]
     tool: str | None = None
     point: Vec3 | None = None
     component: Literal["x", "y", "z", "norm"] = "norm"
@@ -337,7 +337,8 @@ class ProbeSpec(Strict):
     def _fields(self):
         if self.kind == "displacement" and self.point is None:
             raise ValueError("a displacement probe needs point")
-        if self.kind in ("reaction", "curvature", "height_range") and self.region is None:
+        if (self.kind in ("reaction", "curvature", "height_range", "cup_height")
+                and self.region is None):
             raise ValueError(f"a {self.kind} probe needs region")
         if (self.kind in ("tool_force", "penetration", "contact_nodes", "tool_position")
                 and self.tool is None):
@@ -407,7 +408,8 @@ class ShapeSpec(Strict):
     r_outer: Pos = 0.05
     r_inner: Pos = 0.03
     corner_radius: Annotated[float, Field(ge=0)] = 0.0  # star tips, convex polygon corners
-    # star_die valleys (default max(corner_radius, edge_radius)); reflex polygon corners
+    # star and star_die valleys (star_die default max(corner_radius, edge_radius), star 0),
+    # reflex polygon corners
     reflex_radius: Annotated[float, Field(ge=0)] | None = None
     phase: float = 0.0
     # polygon: a prism 0 <= z <= height over these (x, y) vertices (either orientation)
@@ -446,8 +448,9 @@ class ShapeSpec(Strict):
 
 
 class ToolSpec(Strict):
-    """A rigid tool moving by translation: position at t = 0, velocity in m per unit time
-    (static stepping: over the whole run t goes 0 -> 1, so velocity is the stroke)."""
+    """A rigid tool: position at t = 0, velocity in m per unit time (static stepping: over the
+    whole run t goes 0 -> 1, so velocity is the stroke), and keyframes of offset and
+    rotation."""
 
     name: str
     shape: ShapeSpec
@@ -460,8 +463,11 @@ class ToolSpec(Strict):
     # the sheet (a blank holder); velocity must then have no z component
     force: Pos | None = None
     # a path: [t, dx, dy, dz] rows, offsets from `position` (m) at scene times t (static: 0-1),
-    # piecewise linear in between and held after the last; adds to the velocity's motion
-    keyframes: list[tuple[float, float, float, float]] = []
+    # or [t, dx, dy, dz, rx, ry, rz] with a rotation vector (axis * angle, rad) about the
+    # tool's origin; piecewise linear in between (rotations: exact for a fixed axis), held
+    # before the first and after the last; adds to the velocity's motion
+    keyframes: list[tuple[float, float, float, float]
+                    | tuple[float, float, float, float, float, float, float]] = []
     # force control: the lowest z offset (m, from the start position) the tool can reach, the
     # press's distance blocks; without it a holder falls once the flange has been drawn in
     stop: float | None = None
@@ -473,8 +479,15 @@ class ToolSpec(Strict):
         times = [k[0] for k in self.keyframes]
         if any(b <= a for a, b in zip(times, times[1:], strict=False)):
             raise ValueError("keyframes: times must increase")
+        if len({len(k) for k in self.keyframes}) > 1:
+            raise ValueError("keyframes: rows must all be [t, dx, dy, dz] or all "
+                             "[t, dx, dy, dz, rx, ry, rz]")
+        if not all(math.isfinite(v) for k in self.keyframes for v in k):
+            raise ValueError("keyframes: values must be finite")
         if self.force is not None and any(k[3] != 0.0 for k in self.keyframes):
             raise ValueError("keyframes: a force-controlled tool has no z path")
+        if self.force is not None and any(any(k[4:]) for k in self.keyframes):
+            raise ValueError("keyframes: a force-controlled tool does not rotate")
         return self
 
 

@@ -18,7 +18,7 @@ from sim.display import DisplayMesh
 from sim.model import Model, build_model
 from sim.newton import NewtonResult, Timing, minimise
 from sim.scene import Scene
-from sim.terms.contact import ToolContact
+from sim.terms.contact import ToolContact, settle_friction
 
 
 class SolverFailure(RuntimeError):
@@ -150,6 +150,8 @@ class Simulation:
         return minimise(m.problem, x0, m.settings, max(m.force_scale, self._force_level))
 
     def _converged(self, x: np.ndarray) -> None:
+        x = settle_friction(self.model.problem, x, self.model.settings,
+                            max(self.model.force_scale, self._force_level), self.timing)
         self.x = x
         for term in self.model.terms:
             term.commit(x)
@@ -252,6 +254,12 @@ class Simulation:
     def tool_poses(self) -> dict[str, np.ndarray]:
         """Current translation (3,) of every tool."""
         return {t.tool: np.array(t.translation(self.x)) for t in self.tools}
+
+    def tool_rotations(self) -> dict[str, np.ndarray]:
+        """Current orientation of every tool as a unit quaternion (w, x, y, z)."""
+        from sim.terms.contact import quaternion_wxyz
+
+        return {t.tool: quaternion_wxyz(t.R_now) for t in self.tools}
 
     def frame(self) -> Frame:
         h = probes.thickness(self.model, self.x)

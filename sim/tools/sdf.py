@@ -1085,10 +1085,12 @@ def star_points(n_points, r_outer, r_inner, phase=0.0):
     return np.stack([r * np.cos(ang), r * np.sin(ang)], axis=1)
 
 
-def star(n_points, r_outer, r_inner, height, corner_radius=0.0, edge_radius=0.0, phase=0.0):
-    """Star-shaped prism (punch), 0 <= z <= height; tips rounded by corner_radius."""
+def star(n_points, r_outer, r_inner, height, corner_radius=0.0, edge_radius=0.0, phase=0.0,
+         valley_radius=0.0):
+    """Star-shaped prism (punch, or a form block), 0 <= z <= height; tips rounded by
+    corner_radius, valleys (reflex corners) by valley_radius (0: sharp)."""
     return extruded_polygon(star_points(n_points, r_outer, r_inner, phase), 0.0, height,
-                            corner_radius, edge_radius)
+                            corner_radius, edge_radius, valley_radius)
 
 
 def star_die(n_points, r_outer, r_inner, height, shoulder_radius, corner_radius=0.0,
