@@ -61,7 +61,7 @@ def test_two_level_study_on_dask_writes_report_and_plots(tmp_path):
 EB = {"material.nu": 0.0, "material.E": 1e11, "stepping.steps": 1}  # tip at 0.1 % of L
 
 
-def test_analytic_reference_euler_bernoulli_on_the_cantilever_at_nu_zero():
+def test_analytic_reference_euler_bernoulli_on_the_cantilever_at_nu_zero(tmp_path):
     plan = make_plan(CANTILEVER, ["quadratic"], [0.07, 0.035, 0.0175], None, EB,
                      {"analytic": "euler_bernoulli"})
     assert plan.reference is None and plan.analytic["name"] == "euler_bernoulli"
@@ -73,6 +73,14 @@ def test_analytic_reference_euler_bernoulli_on_the_cantilever_at_nu_zero():
     # adds ~(h/L)^2 = 1e-4 of flexibility, so below that the ordering is not guaranteed)
     assert err[0] > err[1] > err[2] and err[1] < 1e-3
     assert study["reference_label"] == "euler_bernoulli (analytic)"
+    # what the service shows for a finished run: the study's error against the formula
+    from server.estimate import estimate
+
+    write_study(study, [], tmp_path / "study-cantilever")
+    assert "euler_bernoulli (analytic)" in (tmp_path / "study-cantilever" / "report.md").read_text()
+    est = estimate(tmp_path, "cantilever", "quadratic", 0.035, None)
+    assert est["available"] and est["reference"]["kind"] == "analytic"
+    assert est["relative_error"] == pytest.approx(err[1], rel=1e-12)
 
 
 def test_analytic_reference_rejects_a_scene_outside_its_assumptions(capsys):
