@@ -1,5 +1,6 @@
 """``q3t bench``: per-Newton-iteration cost (assembly, factorisation, solve) at the paper's
-Table 1 sizes, and the factorisation comparison of its Fig. 7 (same elements / same nodes).
+Table 1 sizes, and the factorisation comparison of its Fig. 7 on the cantilever (same elements /
+same nodes; ``sim.study.factorisation_report``, also ``q3t study --factorisation``).
 
 Medians of ``--repeat`` runs; the machines are noisy, so compare ratios more than seconds.
 """
@@ -21,6 +22,9 @@ CASES = {
     "cup": {"scene": "cup_blank", "edge": {"linear": 0.00046, "q3t": 0.00046,
                                             "quadratic": 0.00092}},
 }
+# Fig. 7 levels: the cantilever at 80 to 4,500 triangles; equal edge lengths give equal
+# elements, and Q3T at one level has the nodes of quadratic at the next coarser (about 2x edge)
+FIG7_LEVELS = [0.035, 0.0175, 0.00875, 0.0046667]
 PAPER = {("beam", "linear"): 0.184, ("beam", "q3t"): 0.298, ("beam", "quadratic"): 0.372,
          ("cup", "linear"): 0.812, ("cup", "q3t"): 1.887, ("cup", "quadratic"): 2.525}
 
@@ -188,6 +192,14 @@ def run(args) -> int:
                   f"{r['assembly_ratio_vs_neo_hookean']:.2f}x (bound: 1.5x the elastic "
                   "iteration, Hencky)", flush=True)
             continue
+        if case == "factorisation":
+            from sim.cli import resolve_scene
+            from sim.study import factorisation_report
+
+            fig7 = factorisation_report(str(resolve_scene("cantilever")), elements, FIG7_LEVELS,
+                                        Path(args.out) / "factorisation", args.repeat)
+            rows += [{"case": "fig7", **r} for r in fig7]
+            continue
         if case == "forming":
             r = forming(CASES["cup"]["edge"]["q3t"], args.forming_steps)
             rows.append(r)
@@ -211,9 +223,10 @@ def run(args) -> int:
 
 def add_parser(sub) -> None:
     b = sub.add_parser("bench", help="per-iteration cost at the paper's Table 1 sizes")
-    b.add_argument("--cases", default="beam,cup,plastic,forming",
-                   help="beam, cup (Table 1 sizes), plastic (elastic vs plastic beam), "
-                        "forming (cup_drawing steps at the paper's cup size)")
+    b.add_argument("--cases", default="beam,cup,factorisation,plastic,forming",
+                   help="beam, cup (Table 1 sizes), factorisation (Fig. 7: the cantilever "
+                        "at 80-4,500 elements), plastic (elastic vs plastic beam), forming "
+                        "(cup_drawing steps at the paper's cup size)")
     b.add_argument("--forming-steps", type=int, default=3)
     b.add_argument("--elements", default="linear,q3t,quadratic")
     b.add_argument("--repeat", type=int, default=5)

@@ -93,9 +93,12 @@ def field_summary(fields: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
             for k, v in fields.items() if not k.endswith("_elem")}
 
 
-def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[str, float]:
+def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None,
+             formed: np.ndarray | None = None) -> dict[str, float]:
     """Every probe of the scene at state ``x``; ``gradient`` is the total energy gradient (the
-    support reactions), computed here when a reaction probe needs it."""
+    support reactions), computed here when a reaction probe needs it; ``formed`` the
+    mid-surface (n_v, 3) at the end of the stroke, the reference of springback probes (they
+    read 0 before the release stage)."""
     out = {}
     sh = model.shell
     for p in model.scene.probes:
@@ -110,12 +113,26 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[s
             out[p.name] = float(getattr(np, p.stat)(h))
         elif p.kind == "volume":
             out[p.name] = volume(model, x)
+        elif p.kind == "cup_height":  # rim (the region, mean) above the lowest point
+            z = mid_surface(model, x)[:, 2]
+            out[p.name] = float(z[model.regions[p.region][: sh.n_vertices]].mean() - z.min())
         elif p.kind == "height_range":  # out-of-plane amplitude, e.g. of flange wrinkles
             v = model.regions[p.region][: sh.n_vertices]
             z = mid_surface(model, x)[v, 2]
             out[p.name] = float(z.max() - z.min())
         elif p.kind == "fibre_tilt":
-            out[p.name] = float(getattr(np, p.stat)(fibre_tilt(model, x)))
+            tilt = fibre_tilt(model, x)
+            if p.region:
+                tilt = tilt[model.regions[p.region][: sh.n_vertices]]
+            out[p.name] = float(getattr(np, p.stat)(tilt))
+        elif p.kind == "springback":  # deviation from the shape in the closed tools
+            if formed is None:
+                out[p.name] = 0.0
+                continue
+            v = (model.regions[p.region][: sh.n_vertices] if p.region
+                 else np.ones(sh.n_vertices, bool))
+            dev = np.linalg.norm(mid_surface(model, x)[v] - formed[v], axis=1)
+            out[p.name] = float(getattr(np, p.stat)(dev))
         elif p.kind == "curvature":
             v = model.regions[p.region][: sh.n_vertices]
             out[p.name] = curvature_xz(mid_surface(model, x)[v])

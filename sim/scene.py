@@ -6,6 +6,7 @@ validation, so an override is checked exactly like the file. Errors name the fie
 
 from __future__ import annotations
 
+import math
 import tomllib
 from pathlib import Path
 from typing import Annotated, ClassVar, Literal
@@ -31,6 +32,10 @@ class MeshSpec(Strict):
     height: Pos | None = None  # cylinder_band
     path: str | None = None
     scale: Pos = 1.0  # file units to metres
+    # out-of-plane imperfection of a flat mid-surface (m): z += a sin(pi s) sin(pi t), with
+    # (s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to
+    # leave its plane, so buckling (Fig. 4 at nu = 0.499) needs a seed
+    imperfection: float = 0.0
 
     @model_validator(mode="after")
     def _needs(self):
@@ -46,14 +51,33 @@ class MeshSpec(Strict):
 
 
 class ShellSpec(Strict):
-    thickness: Pos  # at the origin when thickness_gradient is set
+    """Thickness (m), one of: ``thickness`` (constant, or at the origin of a taper
+    ``thickness + thickness_gradient . X``); ``thickness_file``, a .npy or text file of one value
+    per mesh vertex (generated meshes: the generator's vertex order; mesh files: the file's);
+    ``thickness_attribute``, a vertex property of a PLY mesh file. Relative paths are taken
+    from the scene file's folder."""
+
+    thickness: Pos | None = None
     # a tapered sheet: thickness + gradient . X at every vertex (m per m); must stay positive
     thickness_gradient: Vec3 = (0.0, 0.0, 0.0)
+    thickness_file: str | None = None
+    thickness_attribute: str | None = None
     element: str = "q3t"
     quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = None
     # section points through the thickness, keeping the element's in-plane rule: plastic
     # bending needs more than the 2-3 of the defaults to integrate the elastic-plastic profile
     thickness_points: Annotated[int, Field(ge=1, le=20)] | None = None
+
+    @model_validator(mode="after")
+    def _one_thickness(self):
+        given = [k for k in ("thickness", "thickness_file", "thickness_attribute")
+                 if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give exactly one of thickness, thickness_file, thickness_attribute"
+                             f" (got {', '.join(given) or 'none'})")
+        if self.thickness is None and any(self.thickness_gradient):
+            raise ValueError("thickness_gradient tapers a constant thickness: it needs thickness")
+        return self
 
 
 FinitePos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -209,14 +233,50 @@ class BendSpec(Strict):
 
 
 class BCSpec(Strict):
+    """Dirichlet condition on the named components of a region's node columns.
+
+    Its motion over time is one of: ``displacement`` (m) along the default ramp, linear in t
+    from 0 to the full value and held after it: over the whole run in static stepping
+    (t = 0 -> 1), over ``stepping.load_ramp`` in dynamic stepping, or over 1 s when that is 0
+    (a jump would be an infinite velocity); ``keyframes``, rows [t, u_c...] with one
+    displacement (m) per named component, in order, at increasing scene times t >= 0,
+    piecewise linear in between, held after the last and starting from rest (a first row at
+    t = 0 must be zero; one at t > 0 is reached from zero at t = 0); or ``bend``."""
+
     region: str
     components: Annotated[str, Field(pattern=r"^[xyz]{1,3}$")] = "xyz"
     layers: Literal["all", "bottom", "mid", "top"] = "all"
-    displacement: Vec3 = (0.0, 0.0, 0.0)  # reached at t = 1, linear in t
+    displacement: Vec3 = (0.0, 0.0, 0.0)
+    keyframes: list[list[float]] = []
     bend: BendSpec | None = None
     release: bool = False  # removed in the release (springback) stage
     # only in the release stage, holding the nodes where they are (a support for the free part)
     release_only: bool = False
+
+    @model_validator(mode="after")
+    def _motion(self):
+        if len(set(self.components)) != len(self.components):
+            raise ValueError(f"components: {self.components!r} names a component twice")
+        if not self.keyframes:
+            return self
+        if self.bend is not None or any(self.displacement):
+            raise ValueError("keyframes: give either keyframes or displacement / bend")
+        n = 1 + len(self.components)
+        for i, row in enumerate(self.keyframes):
+            if len(row) != n:
+                raise ValueError(f"keyframes.{i}: needs [t, {', '.join(self.components)}] "
+                                 f"({n} numbers) for components {self.components!r}, "
+                                 f"got {len(row)}")
+            if not all(math.isfinite(v) for v in row):
+                raise ValueError(f"keyframes.{i}: not a finite number")
+        times = [r[0] for r in self.keyframes]
+        if times[0] < 0:
+            raise ValueError("keyframes: times must be >= 0")
+        if any(b <= a for a, b in zip(times, times[1:], strict=False)):
+            raise ValueError("keyframes: times must increase")
+        if times[0] == 0 and any(self.keyframes[0][1:]):
+            raise ValueError("keyframes: the motion starts from rest (zero at t = 0)")
+        return self
 
 
 class LoadSpec(Strict):
@@ -241,7 +301,9 @@ class SteppingSpec(Strict):
     kind: Literal["static", "dynamic"] = "static"
     steps: Annotated[int, Field(ge=1, le=100000)] = 1
     dt: Pos | None = None  # dynamic: time step (s); duration = steps * dt
-    load_ramp: Annotated[float, Field(ge=0)] = 0.0  # dynamic: loads ramp over this time (s)
+    # dynamic: loads ramp over this time (s), 0 = applied at once; also the default ramp of
+    # prescribed displacements (BCSpec), which take 1 s when it is 0
+    load_ramp: Annotated[float, Field(ge=0)] = 0.0
     max_cutbacks: Annotated[int, Field(ge=0, le=30)] = 10  # down to 1/1024 of a step
     # after the last step: remove loads and the BCs marked release, solve static equilibrium
     release: bool = False
@@ -267,7 +329,7 @@ class ProbeSpec(Strict):
     name: str
     kind: Literal["displacement", "thickness", "reaction", "volume", "curvature",
                   "plastic_strain", "von_mises", "tool_force", "penetration", "contact_nodes",
-                  "fibre_tilt", "height_range", "tool_position"]
+                  "fibre_tilt", "height_range", "tool_position", "springback", "cup_height"]
     tool: str | None = None
     point: Vec3 | None = None
     component: Literal["x", "y", "z", "norm"] = "norm"
@@ -278,7 +340,8 @@ class ProbeSpec(Strict):
     def _fields(self):
         if self.kind == "displacement" and self.point is None:
             raise ValueError("a displacement probe needs point")
-        if self.kind in ("reaction", "curvature", "height_range") and self.region is None:
+        if (self.kind in ("reaction", "curvature", "height_range", "cup_height")
+                and self.region is None):
             raise ValueError(f"a {self.kind} probe needs region")
         if (self.kind in ("tool_force", "penetration", "contact_nodes", "tool_position")
                 and self.tool is None):
@@ -287,19 +350,54 @@ class ProbeSpec(Strict):
 
 
 class StudySpec(Strict):
-    """A refinement study of one probe (``q3t study``): mesh edge lengths, elements, reference."""
+    """A refinement study (``q3t study``): mesh edge lengths, elements, what is measured and the
+    reference it is measured against.
 
-    probe: str
-    edge_lengths: list[Pos]
+    measure: ``final`` - the probe after the last step; ``curve`` - the probe over the run
+    against ``over`` (``time`` or another probe, e.g. the punch's position), compared on the
+    common range of the two curves; ``profile`` - a section's ``field`` along its rest radius
+    at recorded ``step`` (default: the last recorded). ``norm``: relative L2 or max difference
+    (curves and profiles). ``analytic``: a closed-form value for the probe (``final`` only)
+    instead of a numerical reference run; the scene must satisfy the formula's assumptions.
+    """
+
+    probe: str | None = None  # default: the scene's first probe
+    measure: Literal["final", "curve", "profile"] = "final"
+    over: str = "time"
+    section: str | None = None
+    field: Literal["thickness", "radius", "z"] = "thickness"
+    step: Annotated[int, Field(ge=0)] | None = None
+    norm: Literal["l2", "max"] = "l2"
+    edge_lengths: list[Pos] | None = None  # default: 4x, 2x, 1x the mesh's own
     elements: list[str] = ["linear", "q3t", "quadratic"]
     reference_element: str = "quadratic"
     reference_edge_length: Pos | None = None
+    analytic: Literal["euler_bernoulli", "springback"] | None = None
+
+    @model_validator(mode="after")
+    def _what(self):
+        if self.measure == "profile" and self.section is None:
+            raise ValueError("a profile study needs section")
+        if self.analytic and self.measure != "final":
+            raise ValueError("analytic: a closed-form reference is one value: measure must be "
+                             "'final'")
+        return self
+
+
+PRIMITIVES = ("plane", "box", "punch", "die_ring", "blank_holder", "star_die", "star", "polygon")
+CSG = ("union", "subtract", "intersect")
 
 
 class ShapeSpec(Strict):
-    """A tool shape (sim.tools.sdf builders). Lengths in m, in the tool's local frame."""
+    """A tool shape (sim.tools.sdf builders). Lengths in m, in the tool's local frame.
 
-    kind: Literal["plane", "box", "punch", "die_ring", "blank_holder", "star_die", "star"]
+    CSG: kind union / intersect (two or more ``shapes``, folded left) or subtract (exactly
+    two: the first minus the second), ``blend`` > 0 a smooth fillet of that width (C2).
+    Any shape can be placed in its parent's frame by ``offset`` (m) and ``rotation`` (an
+    axis-angle vector, rad: axis * angle), e.g. a punch lying along y: rotation
+    [1.5708, 0, 0]."""
+
+    kind: Literal[PRIMITIVES + CSG]
     point: Vec3 = (0.0, 0.0, 0.0)  # plane
     normal: Vec3 = (0.0, 0.0, 1.0)  # plane
     half_extents: tuple[Pos, Pos, Pos] | None = None  # box
@@ -312,8 +410,17 @@ class ShapeSpec(Strict):
     n_points: Annotated[int, Field(ge=3, le=32)] = 5  # star
     r_outer: Pos = 0.05
     r_inner: Pos = 0.03
-    corner_radius: Annotated[float, Field(ge=0)] = 0.0
+    corner_radius: Annotated[float, Field(ge=0)] = 0.0  # star tips, convex polygon corners
+    # star and star_die valleys (star_die default max(corner_radius, edge_radius), star 0),
+    # reflex polygon corners
+    reflex_radius: Annotated[float, Field(ge=0)] | None = None
     phase: float = 0.0
+    # polygon: a prism 0 <= z <= height over these (x, y) vertices (either orientation)
+    points: list[tuple[float, float]] = []
+    shapes: list[ShapeSpec] = []  # CSG operands
+    blend: Annotated[float, Field(ge=0)] = 0.0
+    offset: Vec3 = (0.0, 0.0, 0.0)
+    rotation: Vec3 = (0.0, 0.0, 0.0)
 
     @model_validator(mode="after")
     def _needs(self):
@@ -323,12 +430,30 @@ class ShapeSpec(Strict):
             raise ValueError("inner_radius must be smaller than outer_radius")
         if self.kind in ("star", "star_die") and self.r_inner >= self.r_outer:
             raise ValueError("r_inner must be smaller than r_outer")
+        if self.kind == "polygon" and len(self.points) < 3:
+            raise ValueError("a polygon needs at least 3 points")
+        if self.kind in CSG:
+            if self.kind == "subtract" and len(self.shapes) != 2:
+                raise ValueError("subtract needs exactly two shapes (the first minus the "
+                                 "second)")
+            if len(self.shapes) < 2:
+                raise ValueError(f"{self.kind} needs at least two shapes")
+        elif self.shapes:
+            raise ValueError(f"shapes: only union, subtract and intersect have operands, "
+                             f"not {self.kind!r}")
+        if not all(map(math.isfinite, self.rotation + self.offset)):
+            raise ValueError("offset and rotation must be finite")
+        if self.kind in PRIMITIVES:  # the builders' own checks (radii fit, polygon simple)
+            from sim.model import tool_program
+
+            tool_program(self)
         return self
 
 
 class ToolSpec(Strict):
-    """A rigid tool moving by translation: position at t = 0, velocity in m per unit time
-    (static stepping: over the whole run t goes 0 -> 1, so velocity is the stroke)."""
+    """A rigid tool: position at t = 0, velocity in m per unit time (static stepping: over the
+    whole run t goes 0 -> 1, so velocity is the stroke), and keyframes of offset and
+    rotation."""
 
     name: str
     shape: ShapeSpec
@@ -341,8 +466,11 @@ class ToolSpec(Strict):
     # the sheet (a blank holder); velocity must then have no z component
     force: Pos | None = None
     # a path: [t, dx, dy, dz] rows, offsets from `position` (m) at scene times t (static: 0-1),
-    # piecewise linear in between and held after the last; adds to the velocity's motion
-    keyframes: list[tuple[float, float, float, float]] = []
+    # or [t, dx, dy, dz, rx, ry, rz] with a rotation vector (axis * angle, rad) about the
+    # tool's origin; piecewise linear in between (rotations: exact for a fixed axis), held
+    # before the first and after the last; adds to the velocity's motion
+    keyframes: list[tuple[float, float, float, float]
+                    | tuple[float, float, float, float, float, float, float]] = []
     # force control: the lowest z offset (m, from the start position) the tool can reach, the
     # press's distance blocks; without it a holder falls once the flange has been drawn in
     stop: float | None = None
@@ -354,8 +482,15 @@ class ToolSpec(Strict):
         times = [k[0] for k in self.keyframes]
         if any(b <= a for a, b in zip(times, times[1:], strict=False)):
             raise ValueError("keyframes: times must increase")
+        if len({len(k) for k in self.keyframes}) > 1:
+            raise ValueError("keyframes: rows must all be [t, dx, dy, dz] or all "
+                             "[t, dx, dy, dz, rx, ry, rz]")
+        if not all(math.isfinite(v) for k in self.keyframes for v in k):
+            raise ValueError("keyframes: values must be finite")
         if self.force is not None and any(k[3] != 0.0 for k in self.keyframes):
             raise ValueError("keyframes: a force-controlled tool has no z path")
+        if self.force is not None and any(any(k[4:]) for k in self.keyframes):
+            raise ValueError("keyframes: a force-controlled tool does not rotate")
         return self
 
 
@@ -406,9 +541,38 @@ class Scene(Strict):
         for i, p in enumerate(self.probes):
             if p.tool is not None and p.tool not in tools:
                 raise ValueError(f"probes.{i}.tool: unknown tool {p.tool!r}")
-        if self.study and self.study.probe not in [p.name for p in self.probes]:
-            raise ValueError(f"study.probe: no probe named {self.study.probe!r}")
+        if self.shell.thickness_attribute and not (
+                self.mesh.kind == "file" and str(self.mesh.path).lower().endswith(".ply")):
+            raise ValueError("shell.thickness_attribute: needs a PLY mesh file (mesh.kind = "
+                             "'file', mesh.path ending in .ply)")
+        plastic = self.material.model == "plastic"
+        for i, p in enumerate(self.probes):  # nothing is recorded of a quantity the scene lacks
+            if p.kind == "plastic_strain" and not plastic:
+                raise ValueError(f"probes.{i}: a plastic_strain probe needs material.model = "
+                                 "'plastic' (an elastic scene has no plastic strain)")
+        if self.study:
+            self._check_study(self.study)
         return self
+
+    def _check_study(self, st: StudySpec) -> None:
+        probes = [p.name for p in self.probes]
+        if st.probe is not None and st.probe not in probes:
+            raise ValueError(f"study.probe: no probe named {st.probe!r}")
+        if st.measure != "profile" and st.probe is None and not probes:
+            raise ValueError("study.probe: the scene has no probe to study")
+        if st.measure == "curve" and st.over != "time" and st.over not in probes:
+            raise ValueError(f"study.over: 'time' or a probe name, not {st.over!r}")
+        if st.measure == "profile":
+            sec = next((s for s in self.sections if s.name == st.section), None)
+            if sec is None:
+                raise ValueError(f"study.section: no section named {st.section!r}")
+            if st.step is not None and sec.steps and st.step not in sec.steps:
+                raise ValueError(f"study.step: section {sec.name!r} records steps {sec.steps}, "
+                                 f"not {st.step}")
+        if st.analytic:
+            from sim.analytic import reference
+
+            reference(self, st.analytic, st.probe or probes[0])
 
 
 class SceneError(ValueError):
@@ -470,8 +634,24 @@ def scene_from_toml(text: str, overrides: dict | None = None) -> Scene:
     return scene_from_dict(raw)
 
 
+def _from_folder(raw: dict, folder: Path) -> None:
+    """Relative file paths of a scene file are taken from its folder."""
+    for table, key in (("mesh", "path"), ("shell", "thickness_file")):
+        node = raw.get(table)
+        if isinstance(node, dict) and isinstance(node.get(key), str):
+            p = Path(node[key]).expanduser()
+            node[key] = str(p if p.is_absolute() else folder / p)
+
+
 def load_scene(path: str | Path, overrides: dict | None = None) -> Scene:
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"scene file {str(path)!r} does not exist")
-    return scene_from_toml(path.read_text(), overrides)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"TOML: {err}") from None
+    for k, v in (overrides or {}).items():
+        apply_override(raw, k, v)
+    _from_folder(raw, path.resolve().parent)
+    return scene_from_dict(raw)

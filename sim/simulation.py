@@ -18,7 +18,7 @@ from sim.display import DisplayMesh
 from sim.model import Model, build_model
 from sim.newton import NewtonResult, Timing, minimise
 from sim.scene import Scene
-from sim.terms.contact import ToolContact
+from sim.terms.contact import ToolContact, settle_friction
 
 
 class SolverFailure(RuntimeError):
@@ -135,7 +135,7 @@ class Simulation:
             term.begin_step(t_new if m.scene.stepping.kind == "static" else t_new, dt, self.x)
         if m.external is not None:
             m.external.factor = float(self.load_factor(t_new)) * self.parameters["load_scale"]
-        target = m.dirichlet_positions(self.load_factor(t_new))
+        target = m.dirichlet_positions(t_new)  # each BC's own time curve
         # predictor: continue the last converged increment (quasi-static paths are smooth), so
         # a prescribed motion does not start as a jump concentrated on the boundary elements
         x0 = self.x.copy()
@@ -150,6 +150,8 @@ class Simulation:
         return minimise(m.problem, x0, m.settings, max(m.force_scale, self._force_level))
 
     def _converged(self, x: np.ndarray) -> None:
+        x = settle_friction(self.model.problem, x, self.model.settings,
+                            max(self.model.force_scale, self._force_level), self.timing)
         self.x = x
         for term in self.model.terms:
             term.commit(x)
@@ -162,10 +164,13 @@ class Simulation:
         (remaining BCs hold their current positions)."""
         m = self.model
         start = time.perf_counter()
+        self.formed = probes.mid_surface(m, self.x)  # the shape in the closed tools
         m.problem.set_fixed((m.fixed & ~m.released) | m.release_support)
         released = {t.name for t in m.scene.tools if t.release}
         m.problem.terms = [t for t in m.terms
                            if not (isinstance(t, ToolContact) and t.tool in released)]
+        for tool in self.tools:  # the tools that stay hold their last position
+            tool.moving = False
         for term in m.terms:
             term.begin_step(self.t, self._dt(), self.x)
         if m.external is not None:
@@ -181,7 +186,8 @@ class Simulation:
         self._converged(res.x)
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, res.iterations, res.residuals[-1], res.energy,
-                         0, probes.evaluate(m, self.x), self._tool_reports())
+                         0, probes.evaluate(m, self.x, formed=self.formed),
+                         self._tool_reports())
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start
@@ -248,6 +254,12 @@ class Simulation:
     def tool_poses(self) -> dict[str, np.ndarray]:
         """Current translation (3,) of every tool."""
         return {t.tool: np.array(t.translation(self.x)) for t in self.tools}
+
+    def tool_rotations(self) -> dict[str, np.ndarray]:
+        """Current orientation of every tool as a unit quaternion (w, x, y, z)."""
+        from sim.terms.contact import quaternion_wxyz
+
+        return {t.tool: quaternion_wxyz(t.R_now) for t in self.tools}
 
     def frame(self) -> Frame:
         h = probes.thickness(self.model, self.x)
