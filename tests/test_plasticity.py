@@ -385,3 +385,20 @@ def test_result_files_carry_the_plastic_fields(tmp_path):
     el_sim = Simulation.from_scene(load_scene("scenes/cantilever.toml",
                                               {"mesh.edge_length": 0.035}))
     assert "eq_plastic_strain" not in el_sim.result()["fields"]
+
+
+def test_plastic_bench_yields_half_the_points(monkeypatch):
+    """`q3t bench --cases plastic` at a coarse size: the Swift sheet is partly yielded (its
+    yield stress is the median von Mises stress) and the ratios against both elastic sheets are
+    reported."""
+    from sim import bench
+
+    monkeypatch.setitem(bench.CASES["beam"]["edge"], "q3t", 0.035)
+    rows = bench.plastic(repeat=2)
+    assert [r["case"] for r in rows] == ["beam_neo_hookean", "beam_hencky", "beam_plastic"]
+    assert len({r["dofs"] for r in rows}) == 1  # the same size
+    p = rows[-1]
+    assert 0.3 < p["yielding_fraction"] < 0.7
+    for k in ("iteration_ratio_vs_hencky", "iteration_ratio_vs_neo_hookean",
+              "assembly_ratio_vs_hencky", "assembly_ratio_vs_neo_hookean"):
+        assert np.isfinite(p[k]) and p[k] > 0
