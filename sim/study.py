@@ -185,6 +185,11 @@ def case_error(r: dict, ref, m: dict) -> float:
     return curve_error(*v, *ref, m["norm"])
 
 
+def _finite(v: float) -> float | None:
+    """None (JSON null, 'no error') for a case without one: failed, or no common range."""
+    return v if math.isfinite(v) else None
+
+
 def _case(plan: Plan, element: str, edge: float) -> tuple:
     o = {**plan.overrides, "shell.element": element, "mesh.edge_length": edge}
     warm = {**plan.overrides, "shell.element": element, "mesh.edge_length": plan.levels[0]}
@@ -239,7 +244,7 @@ def run_study(plan: Plan, progress=print, workers: int = 1, threads: int = 1,
         final = r.get("probes", {}).get(m["probe"]) if m["measure"] != "profile" else None
         rows.append({"element": el, "edge_length": edge, "status": r["status"],
                      "elements": r.get("elements"), "dofs": r.get("dofs"), "probe": final,
-                     "error": case_error(r, ref_value, m),
+                     "error": _finite(case_error(r, ref_value, m)),
                      "time": r.get("build", 0.0) + r.get("wall", 0.0),
                      "solve_time": r.get("wall", 0.0), "iterations": r.get("iterations"),
                      "reason": r.get("reason")})

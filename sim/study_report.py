@@ -32,7 +32,7 @@ def plot_study(study: dict, out: Path) -> list[str]:
         fig, ax = plt.subplots(figsize=(5.5, 4))
         for el in study["plan"]["elements"]:
             rs = [r for r in study["rows"] if r["element"] == el
-                  and math.isfinite(r["error"]) and r["error"] > 0]
+                  and r["error"] is not None and r["error"] > 0]
             ax.loglog([r[x_key] for r in rs], [r["error"] for r in rs],
                       marker=MARKERS.get(el, "o"), label=el)
         ax.set(xlabel=xlabel, ylabel=f"relative error of {study['plan']['probe']}",
@@ -120,9 +120,9 @@ def _meta() -> str:
 def _how(cluster: str, workers: int, scheduler: str | None) -> str:
     s = (f"Cases ran as Dask tasks on {cluster}; each worker ran every element once on the "
          "coarsest level first (warm-up, not timed). Times are build plus solve of one case.")
-    if not scheduler and workers > 1 and workers * 1 >= (os.cpu_count() or 1):
-        s += (f" {workers} cases ran at once on {os.cpu_count()} cores: they shared the cores, "
-              "so the times are inflated and noisy; use --workers 1 for timings.")
+    if not scheduler and workers > 1:
+        s += (f" {workers} cases ran at once on {os.cpu_count()} cores: they shared the "
+              "machine, so the times are inflated and noisy; use --workers 1 for timings.")
     return s
 
 
