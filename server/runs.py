@@ -26,7 +26,6 @@ from server.estimate import estimate as study_estimate
 from server.estimate import find_study
 from server.history import FrameHistory
 from server.problems import Conflict, Invalid, NotFound, NotReady
-from server.recording import repair
 from server.settings import Settings, check_name
 from server.store import SceneStore, atomic_write
 from server.worker import worker_main
@@ -142,6 +141,8 @@ class RunManager:
     def _repair(self, run: Run) -> str:
         """Make the recording of a run whose recording process was killed verifiable again.
         Returns what to add to the run's reason ("" when all went well)."""
+        from server.recording import repair  # imports rerun: only the solver needs it otherwise
+
         try:
             repair(self.dir(run.id) / "run.rrd")
             return ""
@@ -483,7 +484,7 @@ class RunManager:
         return out
 
     def _bridge(self) -> None:
-        self._newest, self._final, self._last_push = None, False, 0.0
+        self._newest, self._final, self._next_push = None, False, 0.0
         while not self._stop.is_set():
             self.heartbeat = time.monotonic()
             try:
@@ -512,10 +513,13 @@ class RunManager:
         now = time.perf_counter()
         if self.viewer is None:
             self._newest = None  # nothing to show it on: a viewer added later starts afresh
-        elif self._newest is not None and (
-                self._final or now - self._last_push >= 1.0 / self.settings.push_hz):
+        elif self._newest is not None and (self._final or now >= self._next_push):
             self._push(self._newest, self._final)
-            self._newest, self._final, self._last_push = None, False, now
+            # on a fixed grid of 1/push_hz, not "that long after the last push", so the rate
+            # is push_hz and not less by the loop's jitter; never a burst after a pause
+            period = 1.0 / self.settings.push_hz
+            self._next_push = max(self._next_push + period, now)
+            self._newest, self._final = None, False
         if not events and not w.alive() and not self._stop.is_set():
             self._worker_died()
 
