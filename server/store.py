@@ -1,8 +1,9 @@
 """Scene files on disk: TOML validated before it is written, written atomically.
 
-A scene's ``mesh.path`` (``mesh.kind = "file"``) names a file inside the scenes folder, relative
-to it: an absolute path, ``..``, a backslash or a link out of the folder is refused with a 422
-naming ``mesh.path``, so a scene sent over the API cannot make the server read any other file."""
+A scene's files (``mesh.path`` of a file mesh, ``shell.thickness_file``) are named inside the
+scenes folder, relative to it: an absolute path, ``..``, a backslash or a link out of the folder
+is refused with a 422 naming the field, so a scene sent over the API cannot make the server read
+any other file."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from server.settings import check_name
 from sim.scene import Scene, SceneError, scene_from_toml
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl")  # what sim.mesh.load reads
+VALUE_SUFFIXES = (".npy", ".txt", ".csv")  # what sim.model reads as per-vertex values
 
 
 def _temp(path: Path, data: str | bytes) -> str:
@@ -81,39 +83,44 @@ class SceneStore:
         except tomllib.TOMLDecodeError:
             return {"name": name, "description": "", "valid": False}
 
-    def mesh_file(self, scene: Scene) -> Path | None:
-        """The file a ``mesh.kind = "file"`` scene reads, inside the scenes folder; else None.
-        Raises SceneError naming ``mesh.path``. The name is checked before any file is looked
-        at, so a refused name touches nothing."""
-        if scene.mesh.kind != "file":
-            return None
-        text = scene.mesh.path or ""
+    def scene_files(self, scene: Scene) -> dict[str, Path]:
+        """The files a scene reads (``mesh.path`` of a file mesh, ``shell.thickness_file``), each
+        inside the scenes folder, by field. Raises SceneError naming the field. A name is
+        checked before any file is looked at, so a refused name touches nothing."""
+        wanted = {"mesh.path": (scene.mesh.path or "" if scene.mesh.kind == "file" else None,
+                                MESH_SUFFIXES),
+                  "shell.thickness_file": (scene.shell.thickness_file, VALUE_SUFFIXES)}
+        return {f: self._inside(f, text, suffixes)
+                for f, (text, suffixes) in wanted.items() if text is not None}
+
+    def _inside(self, field: str, text: str, suffixes: tuple[str, ...]) -> Path:
         rel = PurePosixPath(text)
         if (not text or "\\" in text or "\0" in text or rel.is_absolute()
                 or PureWindowsPath(text).drive or ".." in rel.parts):
-            raise SceneError(f"mesh.path: {text!r} must be a relative path inside the scenes "
+            raise SceneError(f"{field}: {text!r} must be a relative path inside the scenes "
                              "folder, without '..' or '\\'")
-        if rel.suffix.lower() not in MESH_SUFFIXES:
-            raise SceneError(f"mesh.path: {text!r} is not a mesh file ({', '.join(MESH_SUFFIXES)})")
+        if rel.suffix.lower() not in suffixes:
+            raise SceneError(f"{field}: {text!r} is not a file of the kind it names "
+                             f"({', '.join(suffixes)})")
         root = self.root.resolve()
         full = (root / rel).resolve()
         if not full.is_relative_to(root):
-            raise SceneError(f"mesh.path: {text!r} leads out of the scenes folder")
+            raise SceneError(f"{field}: {text!r} leads out of the scenes folder")
         if not full.is_file():
-            raise SceneError(f"mesh.path: no file {text!r} in the scenes folder")
+            raise SceneError(f"{field}: no file {text!r} in the scenes folder")
         return full
 
     def validate(self, text: str, overrides: dict | None = None) -> Scene:
         """Raises SceneError naming the field; the text is never written when invalid."""
         scene = scene_from_toml(text, overrides)
-        self.mesh_file(scene)
+        self.scene_files(scene)
         return scene
 
     def solver_overrides(self, scene: Scene) -> dict:
-        """Overrides the solver process needs on top of the user's: the mesh file's full path
-        (the solver reads a relative path from its working folder, not the scenes folder)."""
-        full = self.mesh_file(scene)
-        return {"mesh.path": str(full)} if full else {}
+        """Overrides the solver process needs on top of the user's: the full paths of the files
+        the scene reads (the solver reads a relative path from its working folder, not the
+        scenes folder)."""
+        return {f: str(full) for f, full in self.scene_files(scene).items()}
 
     def save(self, name: str, text: str) -> Scene:
         path = self.path(name)  # the name first: a bad one touches nothing

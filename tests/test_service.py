@@ -27,7 +27,7 @@ def tiny_toml(steps: int = 4) -> str:
     text = (ROOT / "scenes/cantilever.toml").read_text()
     text = text.replace("edge_length = 0.0046667", "edge_length = 0.035")
     text = text.replace("steps = 4", f"steps = {steps}")
-    return text.replace("E = 5.0e6", "E = 1.0e9").replace('name = "cantilever"', 'name = "tiny"')
+    return text.replace('name = "cantilever"', 'name = "tiny"')
 
 
 @pytest.fixture(scope="module")
@@ -71,6 +71,11 @@ def outside_scenes(settings) -> dict:
 def file_scene(path: str) -> str:
     """tiny, its mesh read from ``path``."""
     return tiny_toml().replace('kind = "rectangle"', f"kind = \"file\"\npath = '{path}'")
+
+
+def thickness_scene(path: str) -> str:
+    """tiny, its per-vertex thickness read from ``path``."""
+    return tiny_toml().replace("thickness = 0.007", f"thickness_file = '{path}'")
 
 
 def wait_step(client, run_id: str, step: int, timeout: float = 30.0) -> dict:
@@ -196,9 +201,16 @@ def test_scene_crud(env):
     ("put", "/api/scenes/m", {"toml": file_scene("..\\secret.obj")}, 422, ["mesh.path"]),
     ("put", "/api/scenes/m", {"toml": file_scene("C:/secret.obj")}, 422, ["mesh.path"]),
     ("put", "/api/scenes/m", {"toml": file_scene("nothere.obj")}, 422, ["mesh.path", "no file"]),
-    ("put", "/api/scenes/m", {"toml": file_scene("tiny.toml")}, 422, ["mesh.path", "not a mesh"]),
+    ("put", "/api/scenes/m", {"toml": file_scene("tiny.toml")}, 422, ["mesh.path", "not a file of the kind"]),
     ("put", "/api/scenes/m", {"toml": file_scene("out.obj")}, 422, ["mesh.path", "out of the"]),
     ("post", "/api/scenes/validate", {"toml": file_scene("/etc/hostname")}, 422, ["mesh.path"]),
+    # a thickness file: the same rule
+    ("put", "/api/scenes/m", {"toml": thickness_scene("/etc/passwd")}, 422,
+     ["shell.thickness_file"]),
+    ("put", "/api/scenes/m", {"toml": thickness_scene("../h.npy")}, 422,
+     ["shell.thickness_file", ".."]),
+    ("post", "/api/scenes/validate", {"toml": thickness_scene("h.npy")}, 422,
+     ["shell.thickness_file", "no file"]),
     ("post", "/api/runs", {"scene": "tiny", "overrides": {"mesh.kind": "file",
                                                           "mesh.path": "/etc/hostname"}},
      422, ["mesh.path"]),
