@@ -561,3 +561,18 @@ def test_live_tool_speed_friction_and_holder_force_take_effect_next_step():
     # the sheet holds the holder up with the halved force (rtol as in the holder test)
     assert np.isclose(rec.probes["holder_force"], 1500.0, rtol=1e-3)
     assert [p["step"] for p in sim.parameter_log] == [2, 2, 2]
+
+
+def test_keyframe_rows_are_validated():
+    raw = sheet_on_ground(0.0, 0.0).model.scene.model_dump()
+    bad = [([[0, 0, 0, 0], [1, 0, 0, 0, 0.1, 0, 0]], "all"),
+           ([[0, 0, 0], [1, 0, 0]], "all"),
+           ([[0, 0, 0, 0], [1, 0, 0, float("inf")]], "finite")]
+    for kf, why in bad:
+        raw["tools"][0]["keyframes"] = kf
+        with pytest.raises(Exception, match=why):
+            scene_from_dict(raw)
+    raw["tools"][0]["keyframes"] = [[0, 0, 0, 0, 0, 0, 0], [1, 0, 0, 0, 0, 0, 0.2]]
+    raw["tools"][0]["force"] = 100.0
+    with pytest.raises(Exception, match="does not rotate"):
+        scene_from_dict(raw)
