@@ -89,8 +89,13 @@ class Recorder:
             self.rec.log("sheet", rr.Mesh3D.from_fields(vertex_positions=frame["positions"],
                                                         vertex_colors=colors))
             self.meshes += 1
+        rotations = frame.get("tool_rotations") or {}
         for name, pose in (frame.get("tools") or {}).items():
-            self.rec.log(f"tools/{name}", rr.Transform3D(translation=np.asarray(pose, np.float32)))
+            q = rotations.get(name)  # (w, x, y, z); rerun takes (x, y, z, w)
+            rot = rr.Quaternion(xyzw=np.roll(np.asarray(q, np.float32), -1)) if q is not None \
+                else None
+            self.rec.log(f"tools/{name}", rr.Transform3D(
+                translation=np.asarray(pose, np.float32), quaternion=rot))
         self.rec.flush()
 
     def close(self) -> None:

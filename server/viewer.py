@@ -290,6 +290,10 @@ class Viewer:
             h = self.tools.get(name)
             if h is not None:
                 h.position = np.asarray(pose, np.float64)
+        for name, wxyz in (frame.get("tool_rotations") or {}).items():
+            h = self.tools.get(name)
+            if h is not None:
+                h.wxyz = np.asarray(wxyz, np.float64)
 
     def show(self, frame: dict, status: str, final: bool = False, live: bool = True) -> None:
         """Push one frame: positions always, colours when due or final. A live frame also moves

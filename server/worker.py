@@ -33,6 +33,8 @@ def _frame_msg(run: str, sim) -> dict:
             "positions": f.positions, "fields": {k: v.astype("float32") for k, v in
                                                  f.fields.items()},
             "tools": {k: np.asarray(v, np.float32) for k, v in sim.tool_poses().items()},
+            "tool_rotations": {k: np.asarray(v, np.float32)  # (w, x, y, z)
+                               for k, v in sim.tool_rotations().items()},
             "probes": f.probes, "iterations": f.iterations, "residual": f.residual}
 
 

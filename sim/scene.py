@@ -388,16 +388,16 @@ PRIMITIVES = ("plane", "box", "punch", "die_ring", "blank_holder", "star_die", "
 CSG = ("union", "subtract", "intersect")
 
 
-class ShapeSpec(Strict):
+class _Shape(Strict):
     """A tool shape (sim.tools.sdf builders). Lengths in m, in the tool's local frame.
 
     CSG: kind union / intersect (two or more ``shapes``, folded left) or subtract (exactly
-    two: the first minus the second), ``blend`` > 0 a smooth fillet of that width (C2).
-    Any shape can be placed in its parent's frame by ``offset`` (m) and ``rotation`` (an
-    axis-angle vector, rad: axis * angle), e.g. a punch lying along y: rotation
-    [1.5708, 0, 0]."""
+    two: the first minus the second), ``blend`` > 0 a smooth fillet of that width (C2); the
+    operands may be CSG of primitives in turn (two levels, which keeps the scene schema
+    finite for the web form). Any shape can be placed in its parent's frame by ``offset``
+    (m) and ``rotation`` (an axis-angle vector, rad: axis * angle), e.g. a punch lying along
+    y: rotation [1.5708, 0, 0]."""
 
-    kind: Literal[PRIMITIVES + CSG]
     point: Vec3 = (0.0, 0.0, 0.0)  # plane
     normal: Vec3 = (0.0, 0.0, 1.0)  # plane
     half_extents: tuple[Pos, Pos, Pos] | None = None  # box
@@ -417,7 +417,6 @@ class ShapeSpec(Strict):
     phase: float = 0.0
     # polygon: a prism 0 <= z <= height over these (x, y) vertices (either orientation)
     points: list[tuple[float, float]] = []
-    shapes: list[ShapeSpec] = []  # CSG operands
     blend: Annotated[float, Field(ge=0)] = 0.0
     offset: Vec3 = (0.0, 0.0, 0.0)
     rotation: Vec3 = (0.0, 0.0, 0.0)
@@ -432,13 +431,14 @@ class ShapeSpec(Strict):
             raise ValueError("r_inner must be smaller than r_outer")
         if self.kind == "polygon" and len(self.points) < 3:
             raise ValueError("a polygon needs at least 3 points")
+        shapes = getattr(self, "shapes", [])
         if self.kind in CSG:
-            if self.kind == "subtract" and len(self.shapes) != 2:
+            if self.kind == "subtract" and len(shapes) != 2:
                 raise ValueError("subtract needs exactly two shapes (the first minus the "
                                  "second)")
-            if len(self.shapes) < 2:
+            if len(shapes) < 2:
                 raise ValueError(f"{self.kind} needs at least two shapes")
-        elif self.shapes:
+        elif shapes:
             raise ValueError(f"shapes: only union, subtract and intersect have operands, "
                              f"not {self.kind!r}")
         if not all(map(math.isfinite, self.rotation + self.offset)):
@@ -448,6 +448,26 @@ class ShapeSpec(Strict):
 
             tool_program(self)
         return self
+
+
+class PrimitiveSpec(_Shape):
+    """A primitive tool shape (an operand of an operand)."""
+
+    kind: Literal[PRIMITIVES]
+
+
+class OperandSpec(_Shape):
+    """A CSG operand: a primitive or a CSG of primitives."""
+
+    kind: Literal[PRIMITIVES + CSG]
+    shapes: list[PrimitiveSpec] = []
+
+
+class ShapeSpec(_Shape):
+    """A tool's shape: a primitive or a CSG of operands (see _Shape)."""
+
+    kind: Literal[PRIMITIVES + CSG]
+    shapes: list[OperandSpec] = []
 
 
 class ToolSpec(Strict):
@@ -469,8 +489,7 @@ class ToolSpec(Strict):
     # or [t, dx, dy, dz, rx, ry, rz] with a rotation vector (axis * angle, rad) about the
     # tool's origin; piecewise linear in between (rotations: exact for a fixed axis), held
     # before the first and after the last; adds to the velocity's motion
-    keyframes: list[tuple[float, float, float, float]
-                    | tuple[float, float, float, float, float, float, float]] = []
+    keyframes: list[list[float]] = []
     # force control: the lowest z offset (m, from the start position) the tool can reach, the
     # press's distance blocks; without it a holder falls once the flange has been drawn in
     stop: float | None = None
@@ -482,7 +501,8 @@ class ToolSpec(Strict):
         times = [k[0] for k in self.keyframes]
         if any(b <= a for a, b in zip(times, times[1:], strict=False)):
             raise ValueError("keyframes: times must increase")
-        if len({len(k) for k in self.keyframes}) > 1:
+        lengths = {len(k) for k in self.keyframes}
+        if len(lengths) > 1 or not lengths <= {4, 7}:
             raise ValueError("keyframes: rows must all be [t, dx, dy, dz] or all "
                              "[t, dx, dy, dz, rx, ry, rz]")
         if not all(math.isfinite(v) for k in self.keyframes for v in k):

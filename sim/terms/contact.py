@@ -17,10 +17,10 @@ increments, so a speed changed between steps takes effect from the next step on.
 
 Force control (a blank holder): the tool's z offset is an unknown of the system, stored as an
 extra "node" row ``x[vdof]`` whose x and y are held. The term then adds the work of the
-pressing force, F * x[vdof, 2], and the couplings: with u the tool offset, contact depends on
-x_i - u, so dE/du = -sum_i g_i and d2E/du2 = sum_i H_i, d2E/dx_i du = -H_i. Friction is not
-coupled to u (its tool displacement is the prescribed one): on a flat holder it has no z part;
-on the holder's rounded inner edge it adds up to 2 % to the measured holder force (cup test).
+pressing force, F * x[vdof, 2], and the couplings: with u the tool offset, contact and
+friction (slip relative to the tool, which moves by u - u_start over the step besides its
+prescribed motion) depend on x_i - u, so dE/du = -sum_i g_i, d2E/du2 = sum_i H_i and
+d2E/dx_i du = -H_i, with g, H the sum of both.
 """
 
 from __future__ import annotations
@@ -117,6 +117,7 @@ class ToolContact(Term):
         # force of that state, refreshed within the step by settle_friction. (At rest a skin
         # placed on a tool sits in the contact layer and carries k delta: a first guess.)
         self._start = x[self.nodes].copy()
+        self._start_u = x[self.vdof].copy() if self.vdof is not None else 0.0
         self._lagged = None
         if self.mu > 0:
             here = self.position + (x[self.vdof] if self.vdof is not None else 0.0)
@@ -156,7 +157,10 @@ class ToolContact(Term):
         Hf = np.zeros_like(H)
         if self.mu > 0 and self._lagged is not None and self._lagged[0].any():
             act, X0, disp, lam, nrm, _ = self._lagged
-            Ef, gfa, Hfa = friction(X[act], X0, disp, lam, nrm, self.mu, self.eps_v)
+            Xa = X[act]
+            if self.vdof is not None:  # slip relative to the tool, whose height is solved
+                Xa = Xa - (x[self.vdof] - self._start_u)
+            Ef, gfa, Hfa = friction(Xa, X0, disp, lam, nrm, self.mu, self.eps_v)
             E += Ef
             gf[act] = gfa
             Hf[act] = Hfa
@@ -180,17 +184,18 @@ class ToolContact(Term):
     def _add_gradient(self, x, g, gp, gf):
         np.add.at(g, self.nodes, gp + gf)
         if self.vdof is not None:
-            g[self.vdof] -= gp.sum(0)
+            g[self.vdof] -= (gp + gf).sum(0)
             g[self.vdof, 2] += self.force * self.force_scale + self._stop_force(x)[0]
 
     def _add_hessian(self, x, data, Hp, Hf):
-        scatter_node_blocks(data, self.pattern.node_slots, self.nodes, Hp + Hf)
+        H = Hp + Hf
+        scatter_node_blocks(data, self.pattern.node_slots, self.nodes, H)
         if self.vdof is not None:
-            block = Hp.sum(0)
+            block = H.sum(0)
             block[2, 2] += self._stop_force(x)[1] + self.k_floor
             scatter_node_blocks(data, self.pattern.node_slots, np.array([self.vdof]),
                                 block[None])
-            _scatter_pairs(data, self.pair_slots, -Hp)
+            _scatter_pairs(data, self.pair_slots, -H)
 
     def add_gradient(self, x, g):
         _, gp, _, gf, _ = self._eval(x)
