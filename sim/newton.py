@@ -17,11 +17,14 @@ from sim.linsolve import SingularMatrix
 
 @dataclass(frozen=True)
 class NewtonSettings:
-    rtol: float = 1e-8  # residual relative to max(initial residual of the step, load scale)
-    atol: float = 0.0  # force round-off floor (N); the model estimates it
-    xtol: float = 0.0  # converged when a Newton correction is below this length (m) ...
-    xtol_residual: float = 1e-3  # ... and the residual is below this fraction of the reference
+    rtol: float = 1e-8  # residual relative to the step's force level (see minimise)
+    # at the round-off floor of the residual, a Newton correction below this length (m) ends
+    # the iteration: the state is then as accurate as its floating-point representation
+    xtol: float = 0.0
+    # the iteration budget; past it Newton goes on while every iteration makes real progress,
+    # up to ``cap_factor`` times the budget
     max_iterations: int = 30
+    cap_factor: int = 10
     max_line_search: int = 30
     armijo: float = 1e-4
     try_exact: bool = True  # exact Hessian when positive definite, projected otherwise
@@ -29,6 +32,10 @@ class NewtonSettings:
 
 @dataclass
 class Timing:
+    """Seconds in: assembly (every energy + gradient + Hessian evaluation, wherever it runs),
+    factorisation, solve, line_search (the energy and gradient evaluations of backtracking and
+    of the round-off floor, nothing else)."""
+
     assembly: float = 0.0
     factorisation: float = 0.0
     solve: float = 0.0
@@ -46,9 +53,11 @@ class NewtonResult:
     converged: bool
     iterations: int
     energy: float
-    residuals: list[float] = field(default_factory=list)
+    residuals: list[float] = field(default_factory=list)  # at every iterate, the last at x
     reason: str = ""
     timing: Timing = field(default_factory=Timing)
+    ref: float = 0.0  # the force level the residual was measured against (N)
+    floor: float | None = None  # measured force round-off floor (N), when it was needed
 
 
 class Problem:
@@ -83,45 +92,54 @@ class Problem:
         return self.evaluate(x)[3]
 
     def gradient_hessian(self, x: np.ndarray, exact: bool = False):
-        return self.evaluate(x, exact)[2:]
+        return self.evaluate(x, exact)[2:4]
 
     def evaluate(self, x: np.ndarray, exact: bool = False):
-        """Energy, its round-off scale (sum of the terms' absolute energies), gradient and
-        Hessian data with Dirichlet rows/columns replaced by identity, in one pass over the
-        terms. ``exact`` skips the PSD projection of terms that project."""
+        """Energy, its round-off scale (sum of the terms' absolute energies), gradient, Hessian
+        data with Dirichlet rows/columns replaced by identity, and the applied forces as
+        (largest 2-norm, sum of the resultants' magnitudes) of the gradients of the terms other
+        than the elastic one (loads, inertia, tools), in one pass over the terms. ``exact`` skips
+        the PSD projection of terms that project."""
         g = np.zeros_like(x)
         data = np.zeros(self.pattern.nnz)
-        E = mag = 0.0
+        E = mag = level = applied = 0.0
         for t in self.terms:
             saved = getattr(t, "project", None)
             if exact and saved is not None:
                 t.project = 0
+            before = None if t.name == "elasticity" else g.copy()
             try:
                 e = t.add_gradient_hessian(x, g, data)
             finally:
                 if saved is not None:
                     t.project = saved
+            if before is not None:
+                level = max(level, float(np.linalg.norm(g - before)))
+                applied += float(np.linalg.norm((g - before).sum(0)))
             E += e
             mag += abs(e)
         data[self._zero] = 0.0
         data[self._diag] = 1.0
-        return (E if np.isfinite(E) else np.inf), mag, g, data
+        return (E if np.isfinite(E) else np.inf), mag, g, data, (level, applied)
 
 
 def _solve(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinements: int = 2):
     """Solve with iterative refinement against the unshifted matrix: thin, nearly
     incompressible shells have condition numbers near 1e12 and one solve alone leaves residuals
-    that stall Newton well above its tolerance."""
+    that stall Newton well above its tolerance. Returns the solution and its relative residual
+    |rhs - K x| / |rhs| (near 1 when the factors had to be shifted far from K)."""
     p = problem.pattern
     x = problem.solver.solve(rhs)
     scale = np.linalg.norm(rhs)
-    for _ in range(refinements):
+    rel = 0.0
+    for k in range(refinements + 1):
         r = rhs - sym_matvec(p.indptr, p.indices, data, x)
+        rel = float(np.linalg.norm(r)) / scale if scale > 0 else 0.0
         # 1e-10: well below Newton's rtol, above what refinement can reach at cond ~ 1e12
-        if np.linalg.norm(r) <= 1e-10 * scale:
+        if rel <= 1e-10 or k == refinements:
             break
         x += problem.solver.solve(r)
-    return x
+    return x, rel
 
 
 def _factor(problem: Problem, data: np.ndarray) -> None:
@@ -140,9 +158,53 @@ def _factor(problem: Problem, data: np.ndarray) -> None:
     raise SingularMatrix(f"Hessian not positive definite even with shift {shift:.3g}")
 
 
+@dataclass
+class Floor:
+    """What rounding the state costs, measured at x for d = one unit in the last place of every
+    free coordinate, with random signs: ``force`` = |g(x + d) - g(x)| (N) and ``energy`` =
+    |E(x + d) - E(x) - g . d| relative to the energy's scale. No iteration can push the residual
+    much below what moving x by its own rounding error does, nor see an energy change smaller
+    than the energy's jitter. Positions carry eps |X|, not eps |u|, so on thin shells this is
+    far above rtol times the load (cantilever h/L = 1e-2: 2.6e-7 N against 1.8e-9 N)."""
+
+    force: float
+    energy: float
+
+
+# The floor is one sample of a random quantity: the residuals Newton reached after an exact
+# step from near the solution measured 0.3-1.2 times it (q3t check), so a residual within twice
+# the sample is at the floor.
+FLOOR_MARGIN = 2.0
+
+
+def measure_floor(problem: Problem, x: np.ndarray, E: float, g: np.ndarray,
+                  free: np.ndarray, mag: float) -> Floor:
+    rng = np.random.default_rng(0)
+    d = np.where(free, rng.choice([-1.0, 1.0], x.shape) * np.spacing(np.abs(x)), 0.0)
+    y = x + d  # exact: x plus or minus one ulp is the neighbouring double
+    gy = problem.gradient(y)
+    gy[~free] = 0.0
+    de = problem.energy(y) - E - float(np.sum(g * d))
+    # the jitter sample can vanish by chance; 64 eps |E| is a floor under it (measured jitter
+    # 1-4 eps |E| on the cantilever)
+    return Floor(float(np.linalg.norm(gy - g)),
+                 max(4 * abs(de), 64 * EPS * mag) / mag if mag > 0 else 0.0)
+
+
+EPS = float(np.finfo(float).eps)
+
+
 def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
-             force_scale: float) -> NewtonResult:
-    """Minimise the total energy from ``x0`` (Dirichlet DoFs already at their values)."""
+             force_level: float = 0.0, reactions: bool = False) -> NewtonResult:
+    """Minimise the total energy from ``x0`` (Dirichlet DoFs already at their values).
+
+    Converged when the residual (gradient 2-norm on the free DoFs) is below ``rtol`` times the
+    step's force level: the largest of ``force_level`` (the caller's: the run's force level so
+    far), the applied forces (loads, inertia, tools) and, with ``reactions`` (a prescribed
+    motion drives the step), the support reactions, all at the current iterate and never the
+    residual of the predicted start. Or when the residual is at its measured round-off floor
+    (:class:`Floor`) and either the Newton correction is below ``xtol`` or the residual after
+    it is again at the floor: the state is then as accurate as its representation allows."""
     x = x0.copy()
     timing = Timing()
     free = ~problem.fixed
@@ -151,30 +213,78 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
         return NewtonResult(x0, False, 0, E, [], "inverted element at the start of the step",
                             timing)
     res: list[float] = []
-    ref = None
-    cached = None  # (E, magnitude, g, data) at x from the line search's full trial step
-    for it in range(settings.max_iterations + 1):
-        t0 = time.perf_counter()
+    ref = 0.0
+    floor: Floor | None = None
+    cap = settings.max_iterations * settings.cap_factor
+    by_energy = True  # the last step decreased the energy by more than its noise
+    cached = None  # a full evaluation at x from the last iteration, reused as its assembly
+    rel, inexact = 0.0, 0  # relative residual of the last linear solve; such in a row
+    at_floor = 0  # iterations in a row at the round-off floor
+
+    def result(x, ok, it, E, reason=""):
+        timing.iterations = it
+        return NewtonResult(x, ok, it, E, res, reason, timing, ref,
+                            floor.force if floor else None)
+
+    def get_floor(x, E, g, mag) -> Floor:
+        nonlocal floor
+        if floor is None:
+            t = time.perf_counter()
+            floor = measure_floor(problem, x, E, g, free, mag)
+            timing.line_search += time.perf_counter() - t
+        return floor
+
+    def failure(x, it, E, g, mag, why):
+        # a residual target below what rounding x produces: say so, not only how it ended.
+        # The load is below the floor only if it is so where the attempt started as well
+        # (an iterate far from equilibrium is stiffer, and so is its floor)
+        fl = get_floor(x, E, g, mag)
+        if ref < fl.force and it > 0:
+            t = time.perf_counter()
+            E0, g0 = problem.energy(x0), problem.gradient(x0)
+            g0[~free] = 0.0
+            fl = min(fl, measure_floor(problem, x0, E0, g0, free, abs(E0)),
+                     key=lambda f: f.force)
+            timing.line_search += time.perf_counter() - t
+        if rel > 1e-2:
+            why += (f"; Hessian numerically singular (its shifted factors leave {rel:.0%} of "
+                    "the residual)")
+        if ref < fl.force:
+            why = (f"load below force round-off floor (load {ref:.3e} N, floor "
+                   f"{fl.force:.3e} N; {why})")
+        elif settings.rtol * ref < fl.force:
+            why += f"; round-off floor {fl.force:.3e} N above the target"
+        return result(x, False, it, E, why)
+
+    def evaluate(y):
+        t = time.perf_counter()
+        out = problem.evaluate(y, exact=settings.try_exact)
+        timing.assembly += time.perf_counter() - t
+        return out
+
+    for it in range(cap + 1):
         # exact Hessian first: where it is positive definite Newton converges quadratically;
         # the projected one is the fallback when the factorisation finds it indefinite
-        E, mag, g, data = cached or problem.evaluate(x, exact=settings.try_exact)
+        E, mag, g, data, (level, applied) = cached or evaluate(x)
         cached = None
+        if not np.isfinite(E):
+            return result(x0, False, it, E, "inverted element")
+        held = np.where(free, 0.0, g)
+        support = float(np.linalg.norm(held)) if reactions else 0.0
+        # the resultants: what the supports carry and what is applied (N)
+        scale = applied + float(np.linalg.norm(held.sum(0)))
         g[~free] = 0.0
         r = float(np.linalg.norm(g))
         if not np.isfinite(r):
-            return NewtonResult(x0, False, it, E, res, "non-finite gradient", timing)
+            return result(x0, False, it, E, "non-finite gradient")
         res.append(r)
-        ref = max(r, force_scale) if ref is None else ref
-        # the round-off floor ends the iteration only after one Newton step: on very thin
-        # shells small loads sit below it, and the first step still carries the answer
-        if r <= settings.rtol * ref or (it >= 1 and r <= settings.atol):
-            timing.assembly += time.perf_counter() - t0
-            timing.iterations = it
-            return NewtonResult(x, True, it, E, res, "", timing)
-        if it == settings.max_iterations:
-            break
+        ref = max(force_level, level, support)
+        if r <= settings.rtol * ref:
+            return result(x, True, it, E)
+        # real progress (with an energy decrease above its noise): the residual falling below
+        # all before it by a tenth, as in a linear convergence still going on
+        stalled = len(res) > 1 and r >= 0.9 * min(res[:-1])
         t1 = time.perf_counter()
-        timing.assembly += t1 - t0
         try:
             if settings.try_exact:
                 try:
@@ -182,59 +292,98 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
                 except SingularMatrix:
                     t_a = time.perf_counter()
                     _, data = problem.gradient_hessian(x)
+                    t1 += time.perf_counter() - t_a
                     timing.assembly += time.perf_counter() - t_a
                     _factor(problem, data)
             else:
                 _factor(problem, data)
         except SingularMatrix as exc:
-            return NewtonResult(x0, False, it, E, res, f"singular factorisation: {exc}", timing)
+            return result(x0, False, it, E, f"singular factorisation: {exc}")
         t2 = time.perf_counter()
-        dx = -_solve(problem, data, g.ravel()).reshape(x.shape)
-        dx[~free] = 0.0
-        t3 = time.perf_counter()
-        # at the round-off floor of the residual the correction itself is negligible
-        if (np.abs(dx).max() <= settings.xtol and r <= settings.xtol_residual * ref
-                and np.isfinite(problem.energy(x + dx))):
-            timing.factorisation += t2 - t1
-            timing.solve += t3 - t2
-            timing.iterations = it + 1
-            return NewtonResult(x + dx, True, it + 1, problem.energy(x + dx), res, "", timing)
         timing.factorisation += t2 - t1
-        timing.solve += t3 - t2
+        dx, rel = _solve(problem, data, g.ravel())
+        dx = -dx.reshape(x.shape)
+        dx[~free] = 0.0
+        timing.solve += time.perf_counter() - t2
+        # only a correction that is Newton's (to 1 %) measures how far the state is off; one
+        # from factors shifted far from the Hessian (numerically singular) does not. Measured:
+        # below 3e-6 in every shipped scene; 0.01-300 where the Hessian's soft stiffness is
+        # below its round-off (h/L = 1e-4), where descent along such directions crawls
+        newton = rel <= 1e-2
+        inexact = 0 if newton else inexact + 1
+        if inexact == 5:
+            return failure(x, it, E, g, mag, "singular factorisation: Hessian numerically "
+                           f"singular (5 solves in a row leave up to {rel:.0%} of the residual)")
+        small = newton and float(np.abs(dx).max()) <= settings.xtol
+        # the floor is measured where it can matter: a negligible correction, a residual that
+        # stopped falling or has nothing to be measured against; again near it, since it
+        # moves with the state (the stresses change the stiffness)
+        if (small or stalled or ref == 0.0) if floor is None else r <= 10 * floor.force:
+            floor = None
+            get_floor(x, E, g, mag)
+        trial = evaluate(x + dx)  # the full step is usually taken: the next assembly
+        if floor is not None and r <= FLOOR_MARGIN * floor.force:
+            # the residual carries no more information than rounding x does: apply the
+            # correction and stop if it is negligible or the residual stays at the floor
+            g1 = trial[2].copy()
+            g1[~free] = 0.0
+            r1 = float(np.linalg.norm(g1))
+            # the floor is stiff self-balanced pairs (top and bottom of a fibre), which cancel
+            # in the resultant: it must still balance what is applied, or the soft (bending)
+            # modes are off. Measured at the floor: 1e-14..3e-6 of the applied resultants;
+            # 0.8-0.9 where the Hessian's soft stiffness is lost to its round-off (h/L = 1e-4)
+            off = float(np.linalg.norm(g1.sum(0))) / scale if scale > 0 else 0.0
+            if (np.isfinite(trial[0]) and newton and off <= 1e-4
+                    and (small or r1 <= FLOOR_MARGIN * floor.force)):
+                res.append(r1)  # the residual of the state returned
+                return result(x + dx, True, it + 1, trial[0])
+            # at the floor the residual cannot guide the iteration any more: a few tries
+            # (converged states leave it in one or two), then say where it stands
+            at_floor += 1
+            if at_floor == 5:
+                return failure(x, it, E, g, mag, "line search stalled at the round-off floor "
+                               f"(5 iterations; residual {r:.3e}, resultant off by {off:.1e} "
+                               "of the applied)")
+        else:
+            at_floor = 0
+        if it == cap or (it >= settings.max_iterations and not by_energy and stalled):
+            return failure(x, it, E, g, mag, f"iteration budget: no convergence in {it} "
+                           f"iterations (residual {r:.3e}, target {settings.rtol * ref:.3e})")
         slope = float(np.sum(g * dx))
         if slope >= 0:  # not a descent direction (cannot happen with a PD matrix): use -g
-            dx, slope = -g, -r * r
-        alpha, accepted = 1.0, False
-        # measured: energies of bent thin shells carry ~1e-9 relative round-off (stretches from
-        # eigenvalues of F^T F); below this the residual is the better merit
-        noise = 1e-8 * mag
+            dx, slope, trial = -g, -r * r, None
+        alpha, accepted, by_energy = 1.0, False, False
         for _ in range(settings.max_line_search):
             x_new = x + alpha * dx
-            # the full step is usually taken: evaluate everything there at once, so the next
-            # iteration reuses it instead of assembling again
-            trial = problem.evaluate(x_new, exact=settings.try_exact) if alpha == 1.0 else None
-            E_new = trial[0] if trial else problem.energy(x_new)
-            if E_new <= E + settings.armijo * alpha * slope:
-                accepted = True
+            t3 = time.perf_counter()
+            if alpha == 1.0 and trial is not None:
+                E_new = trial[0]
+            else:
+                trial = None
+                E_new = problem.energy(x_new)
+                timing.line_search += time.perf_counter() - t3
+            dE = E_new - E
+            if not np.isfinite(dE):
+                alpha *= 0.5
+                continue
+            # a decrease the energy's round-off could fake proves nothing: within 1e-6 of its
+            # scale (far above any jitter measured, 1e-14) compare with the measured noise
+            noise = get_floor(x, E, g, mag).energy * mag if abs(dE) <= 1e-6 * mag else 0.0
+            if dE <= settings.armijo * alpha * slope and -dE > noise:
+                accepted = by_energy = True
                 break
-            # within the energy's round-off a decrease cannot be seen: the residual decides
-            if E_new <= E + noise:
+            if abs(dE) <= noise:  # the energy cannot tell: the residual decides
+                t3 = time.perf_counter()
                 g_new = trial[2].copy() if trial else problem.gradient(x_new)
                 g_new[~free] = 0.0
+                timing.line_search += time.perf_counter() - t3
                 if np.linalg.norm(g_new) <= (1 - settings.armijo * alpha) * r:
                     accepted = True
                     break
             alpha *= 0.5
-        if accepted and trial is not None:
-            cached = trial
-        timing.line_search += time.perf_counter() - t3
         if not accepted:
-            timing.iterations = it + 1
-            return NewtonResult(x, False, it + 1, E, res,
-                                f"line search stalled (residual {r:.3e})", timing)
-        x = x + alpha * dx
+            return failure(x, it + 1, E, g, mag, f"line search stalled (residual {r:.3e})")
+        cached = trial
+        x = x_new
         E = E_new
-    timing.iterations = settings.max_iterations
-    return NewtonResult(x, False, settings.max_iterations, E, res,
-                        f"no convergence in {settings.max_iterations} iterations "
-                        f"(residual {res[-1]:.3e}, target {settings.rtol * ref:.3e})", timing)
+    raise AssertionError("unreachable")

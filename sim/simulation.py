@@ -145,19 +145,47 @@ class Simulation:
         if self._last_increment is not None and not np.isfinite(m.problem.energy(x0)):
             x0 = self.x.copy()
             x0[m.fixed] = target[m.fixed]
-        # a sub-step that barely moves (after cut-backs, or a slow tool) starts with a tiny
-        # residual: relative to that alone its target can sit below round-off
-        return minimise(m.problem, x0, m.settings, max(m.force_scale, self._force_level))
+        # a sub-step that barely moves (after cut-backs, or a slow tool) has its forces from
+        # the state it starts in: the run's force level so far is the floor of its reference
+        return minimise(m.problem, x0, m.settings, self._force_level, m.driven)
 
-    def _converged(self, x: np.ndarray) -> None:
-        x = settle_friction(self.model.problem, x, self.model.settings,
-                            max(self.model.force_scale, self._force_level), self.timing)
-        self.x = x
+    # deepest penetration of a tool into the sheet a converged state may have, in sheet
+    # thicknesses: the contact stiffness keeps it at 1 % under the largest forming pressure
+    # (sim.model), so 10 % is a pressure ten times that, which no sheet metal carries: the
+    # tool went through the sheet (an increment too large for the penalty to stop it)
+    MAX_PENETRATION = 0.1
+
+    def _penetration(self, x: np.ndarray) -> str:
+        """The diagnostic when a tool penetrates the sheet beyond the bound, else ''."""
+        bound = self.MAX_PENETRATION * float(np.mean(self.model.shell.thickness))
+        active = set(map(id, self.model.problem.terms))
+        for t in self.tools:
+            if id(t) in active and (d := t.report(x)["penetration"]) > bound:
+                return (f"penetration beyond bound ({t.tool}: {d:.3e} m, bound {bound:.3e} m "
+                        f"= {self.MAX_PENETRATION:g} thickness)")
+        return ""
+
+    def _travel_limit(self, dt: float) -> float:
+        """``dt`` halved until no tool moves more than a sheet thickness in it: penalty contact
+        sees only where a sub-step ends, so a tool moving farther than that can start the
+        iteration deep inside the sheet or pass through it unseen."""
+        h = float(np.mean(self.model.shell.thickness))
+        for _ in range(30):
+            if all(np.linalg.norm(t.speed_scale * (dt * t.velocity + t.path(self.t + dt)
+                                                   - t.path(self.t))) <= h
+                   for t in self.tools):
+                break
+            dt /= 2
+        return dt
+
+    def _converged(self, res: NewtonResult) -> None:
+        # friction's lagged normal force settled at the converged state (sim.terms.contact)
+        self.x = settle_friction(self.model.problem, res.x, self.model.settings,
+                                 max(self._force_level, res.ref), self.timing,
+                                 self.model.driven)
         for term in self.model.terms:
-            term.commit(x)
-        f = np.zeros_like(x)
-        self.model.elasticity.add_gradient(x, f)
-        self._force_level = max(self._force_level, float(np.linalg.norm(f)))
+            term.commit(self.x)
+        self._force_level = max(self._force_level, res.ref)
 
     def _release(self) -> StepRecord:
         """Springback: drop the loads and the released BCs, then solve static equilibrium
@@ -175,7 +203,7 @@ class Simulation:
             term.begin_step(self.t, self._dt(), self.x)
         if m.external is not None:
             m.external.factor = 0.0
-        res = minimise(m.problem, self.x, m.settings, max(m.force_scale, self._force_level))
+        res = minimise(m.problem, self.x, m.settings, self._force_level, m.driven)
         self.timing.add(res.timing)
         if not res.converged:
             self.failure = {"step": self.step_index + 1, "t": self.t, "cutbacks": 0,
@@ -183,7 +211,7 @@ class Simulation:
                             "residuals": res.residuals}
             self.wall += time.perf_counter() - start
             raise SolverFailure(self.failure)
-        self._converged(res.x)
+        self._converged(res)
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, res.iterations, res.residuals[-1], res.energy,
                          0, probes.evaluate(m, self.x, formed=self.formed),
@@ -194,33 +222,41 @@ class Simulation:
         return rec
 
     def step(self) -> StepRecord:
-        """Advance one nominal step, halving the increment on failure (up to max_cutbacks)."""
+        """Advance one nominal step, halving the increment on failure and doubling it back
+        after a success; the step fails when the increment would fall below 1 / 2^max_cutbacks
+        of the nominal one (a bound on the sub-steps, not on the failures over the step)."""
         if self.done:
             raise RuntimeError("simulation already finished")
         if self.step_index == self.model.scene.stepping.steps:
             return self._release()
         start = time.perf_counter()
-        t_target = self.t + self._dt()
-        dt, cutbacks, iters = self._dt(), 0, 0
+        nominal = self._dt()
+        t_target = self.t + nominal
+        dt_min = nominal / 2 ** self.model.scene.stepping.max_cutbacks
+        dt, cutbacks, iters = nominal, 0, 0
         while self.t < t_target - 1e-12 * t_target:
-            dt = min(dt, t_target - self.t)
+            dt = self._travel_limit(min(dt, t_target - self.t))
             res = self._attempt(self.t + dt, dt)
             self.timing.add(res.timing)
             iters += res.iterations
+            if res.converged and (deep := self._penetration(res.x)):
+                res.converged, res.reason = False, deep
             if not res.converged:
-                cutbacks += 1
-                if cutbacks > self.model.scene.stepping.max_cutbacks:
+                # a load below the force round-off floor stays below it in any increment
+                hopeless = res.reason.startswith("load below force round-off floor")
+                if hopeless or dt / 2 < dt_min * (1 - 1e-12):
                     self.failure = {"step": self.step_index + 1, "t": self.t + dt,
-                                    "cutbacks": cutbacks - 1, "reason": res.reason,
+                                    "cutbacks": cutbacks, "reason": res.reason,
                                     "iterations": res.iterations, "residuals": res.residuals}
                     self.wall += time.perf_counter() - start
                     raise SolverFailure(self.failure)
+                cutbacks += 1
                 dt /= 2
                 continue
             self._last_increment, self._last_dt = res.x - self.x, dt
-            self._converged(res.x)
+            self._converged(res)
             self.t += dt
-            dt *= 2  # grow back after a successful sub-step
+            dt = min(2 * dt, nominal)  # grow back after a successful sub-step
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iters, res.residuals[-1], res.energy, cutbacks,
                          probes.evaluate(self.model, self.x), self._tool_reports())

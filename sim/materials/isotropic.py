@@ -196,36 +196,44 @@ def _y_minus_log1p(y):
 
 
 @njit(cache=True)
-def _neo_hookean_direct(F, mu, lam, want_tangent, P, C):
-    """Neo-Hookean W, P and dP/dF from F itself (no SVD, about 5x cheaper): the exact tangent
-    only, since its PSD projection needs the principal frame.
+def _neo_hookean_h(H, mu, lam, want_tangent, P, C):
+    """Neo-Hookean W, P and dP/dF at F = I + H from the displacement gradient H (no SVD, about
+    5x cheaper): the exact tangent only, since its PSD projection needs the principal frame.
 
-    The energy goes through E = F^T F - I, which is O(strain) whatever the rotation (F - I is
-    not, for a bent shell): with y = det(I + E) - 1 = tr E + c2(E) + det E (c2: the sum of the
-    principal 2x2 minors), I1 - 3 - 2 ln J = tr E - ln(1 + y) = (y - ln(1 + y)) - c2(E) - det E.
-    Every part is O(|E|^2) and its round-off O(|E| eps), as in the principal-stretch form, so
-    small strains under large rotations keep their digits (the line search needs them).
+    The energy goes through E = F^T F - I = H + H^T + H^T H and J - 1 = tr H + c2(H) + det H
+    (c2: the sum of the principal 2x2 minors), both formed from H so a strain keeps its relative
+    digits however small it is. E is O(strain) whatever the rotation (F - I is not, for a bent
+    shell): with y = det(I + E) - 1, I1 - 3 - 2 ln J = tr E - ln(1 + y) =
+    (y - ln(1 + y)) - c2(E) - det E. Every part is O(|E|^2) and its round-off O(|E| eps), as in
+    the principal-stretch form, so small strains under large rotations keep their digits (the
+    line search needs them).
     P = mu F + (lam ln J - mu) F^-T,
     C[iJ, kL] = mu d_ik d_JL + lam Fi[J, i] Fi[L, k] + (mu - lam ln J) Fi[J, k] Fi[L, i].
     """
-    det = det3(F)
-    if not det > 0.0:
+    jm1 = (H[0, 0] + H[1, 1] + H[2, 2]
+           + H[0, 0] * H[1, 1] - H[0, 1] * H[1, 0] + H[0, 0] * H[2, 2] - H[0, 2] * H[2, 0]
+           + H[1, 1] * H[2, 2] - H[1, 2] * H[2, 1] + det3(H))
+    if not jm1 > -1.0:
         P[:] = 0.0
         return np.inf
     e = np.empty((3, 3))
     for i in range(3):
         for j in range(i, 3):
-            e[i, j] = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]
-        e[i, i] -= 1.0
+            e[i, j] = (H[i, j] + H[j, i] + H[0, i] * H[0, j] + H[1, i] * H[1, j]
+                       + H[2, i] * H[2, j])
     c2 = (e[0, 0] * e[1, 1] - e[0, 1] ** 2 + e[0, 0] * e[2, 2] - e[0, 2] ** 2
           + e[1, 1] * e[2, 2] - e[1, 2] ** 2)
     d3 = (e[0, 0] * (e[1, 1] * e[2, 2] - e[1, 2] ** 2) - e[0, 1] * (e[0, 1] * e[2, 2]
           - e[1, 2] * e[0, 2]) + e[0, 2] * (e[0, 1] * e[1, 2] - e[1, 1] * e[0, 2]))
-    y = e[0, 0] + e[1, 1] + e[2, 2] + c2 + d3
-    # ln J from det F, not log1p(y): y = J^2 - 1 loses digits through the log as J -> 0
-    lj = np.log(det)
+    y = jm1 * (2.0 + jm1)  # J^2 - 1
+    lj = np.log1p(jm1)
     W = 0.5 * mu * (_y_minus_log1p(y) - c2 - d3) + 0.5 * lam * lj * lj
-    J = det
+    J = 1.0 + jm1
+    F = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            F[i, j] = H[i, j]
+        F[i, i] += 1.0
     Fi = np.empty((3, 3))  # F^-1 = cof(F)^T / J
     Fi[0, 0] = (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]) / J
     Fi[0, 1] = (F[0, 2] * F[2, 1] - F[0, 1] * F[2, 2]) / J
@@ -267,8 +275,38 @@ def stress_tangent_into(model, F, params, ep_n, want_tangent, project, P, C):
     """:func:`stress_tangent` writing P and C (when ``want_tangent``) into the given arrays
     (the element loop reuses them: allocation per quadrature point costs as much as the
     arithmetic). Returns W."""
-    if model == NEO_HOOKEAN and not project:
-        return _neo_hookean_direct(F, params[0], params[1], want_tangent, P, C)
+    if model == NEO_HOOKEAN:
+        H = F.copy()
+        for i in range(3):
+            H[i, i] -= 1.0
+        return stress_tangent_h(model, H, params, want_tangent, project, P, C)
+    return principal_stress_tangent_into(model, F, params, ep_n, want_tangent, project, P, C)
+
+
+@njit(cache=True)
+def stress_tangent_h(model, H, params, want_tangent, project, P, C):
+    """:func:`stress_tangent_into` of an elastic model at F = I + H, from the displacement
+    gradient H. Neo-Hookean's W and P always come from the closed form in H (so an energy or a
+    gradient does not depend on whether the Hessian is projected); only a projected tangent
+    goes through the principal frame."""
+    if model == NEO_HOOKEAN:
+        W = _neo_hookean_h(H, params[0], params[1], want_tangent and not project, P, C)
+        if want_tangent and project and np.isfinite(W):
+            F = H.copy()
+            for i in range(3):
+                F[i, i] += 1.0
+            Pp = np.empty((3, 3))
+            principal_stress_tangent_into(model, F, params, 0.0, True, True, Pp, C)
+        return W
+    F = H.copy()
+    for i in range(3):
+        F[i, i] += 1.0
+    return principal_stress_tangent_into(model, F, params, 0.0, want_tangent, project, P, C)
+
+
+@njit(cache=True)
+def principal_stress_tangent_into(model, F, params, ep_n, want_tangent, project, P, C):
+    """W, P and C through the principal stretches of F (any model)."""
     U, s, V, ok = polar_svd(F)
     if not ok:
         P[:] = 0.0

@@ -232,7 +232,8 @@ def _scatter_pairs(data, slots, blocks):
     np.add.at(data, slots.reshape(-1), blocks.reshape(-1))
 
 
-def settle_friction(problem, x, settings, force_scale, timing, tol=1e-3, max_solves=4):
+def settle_friction(problem, x, settings, force_scale, timing, reactions=False, tol=1e-3,
+                    max_solves=4):
     """Fixed point of the lagged normal force within a step: friction uses the normal forces
     frozen at the start of the solve (a potential, so Newton applies); after convergence they
     are refreshed from the converged state and the step is solved again from there until they
@@ -246,7 +247,7 @@ def settle_friction(problem, x, settings, force_scale, timing, tol=1e-3, max_sol
         saved = [t._lagged for t in tools]
         if max((t.relag(x) for t in tools), default=0.0) <= tol:
             return x
-        res = minimise(problem, x, settings, force_scale)
+        res = minimise(problem, x, settings, force_scale, reactions)
         timing.add(res.timing)
         if not res.converged:
             for t, lag in zip(tools, saved, strict=True):

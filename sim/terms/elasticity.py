@@ -1,8 +1,12 @@
 """Elastic (and elastoplastic) stored energy: sum over elements and quadrature points of
-w detJ Psi(F), with F = sum_a x_a (x) dN_a/dX (paper Eq. 2-3).
+w detJ Psi(F), with F = sum_a x_a (x) dN_a/dX (paper Eq. 2-3), formed as
+F = I + sum_a u_a (x) dN_a/dX from the displacement u = x - X: the rest state gives F = I and zero
+force exactly, and the round-off of the sum scales with |u|, not with |X| (summing x_a dN_a
+cancels terms of size |X| / h to leave O(1): at h/L = 1e-4 that alone was a force 15x the load).
 
-The plastic state, when a scene has one, enters as G = F Fp^{-1}: the energy density is then
-an isotropic function of G, so the chain rule only maps dN/dX to b = dN/dX Fp^{-1}.
+The plastic state, when a scene has one, enters as G = F Fp^{-1} = Fp^{-1} + sum_a u_a (x) b_a:
+the energy density is then an isotropic function of G, so the chain rule only maps dN/dX to
+b = dN/dX Fp^{-1}.
 """
 
 from __future__ import annotations
@@ -10,7 +14,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from sim.materials.isotropic import polar_svd, principal, stress_tangent_into
+from sim.materials.isotropic import (
+    polar_svd,
+    principal,
+    stress_tangent_h,
+    stress_tangent_into,
+)
 from sim.materials.plasticity import plastic_flow
 from sim.terms import Term
 
@@ -21,13 +30,16 @@ def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
                         weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """dN/dX ``(n_elem, n_qp, n_en, 3)`` and w detJ ``(n_elem, n_qp)`` from the rest positions.
 
-    dN: reference gradients ``(n_qp, n_en, 3)``; raises on an element with detJ <= 0.
+    dN: reference gradients ``(n_qp, n_en, 3)``; raises on an element with detJ <= 0, or flat
+    to round-off: detJ below 1e-10 of the median (a zero-area triangle's detJ is round-off,
+    1e-16 of the others, of either sign; slivers of aspect ratio 1e4 are still 1e-4).
     """
     Xe = rest[conn]  # (n_e, n_en, 3)
     J = np.einsum("ead,qaj->eqdj", Xe, dN)  # dX_d / dxi_j
     det = np.linalg.det(J)
-    if np.any(det <= 0):
-        bad = np.unique(np.nonzero(det <= 0)[0])
+    flat = det <= 1e-10 * np.median(det)
+    if np.any(flat):
+        bad = np.unique(np.nonzero(flat)[0])
         raise ValueError(f"{len(bad)} element(s) inverted or flat in the rest state "
                          f"(first: {bad[:5].tolist()}); check thickness and mesh orientation")
     Jinv = np.linalg.inv(J)
@@ -36,7 +48,8 @@ def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
 
 
 @njit(cache=True)
-def _element(x, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project, g, Kp):
+def _element(x, rest, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project, g,
+             Kp):
     """Energy of one element; adds its gradient into ``g (n_en*3,)`` (want >= 1) and the upper
     triangle of its Hessian, packed row by row, into ``Kp (k (k+1) / 2,)`` (want == 2)."""
     n_en = nodes.shape[0]
@@ -47,6 +60,10 @@ def _element(x, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, pr
     P = np.empty((3, 3))
     C = np.empty((9, 9))
     b = np.empty((n_en, 3))
+    u = np.empty((n_en, 3))
+    for a in range(n_en):
+        for i in range(3):
+            u[a, i] = x[nodes[a], i] - rest[nodes[a], i]
     for q in range(dNdX.shape[0]):
         for a in range(n_en):
             for J in range(3):
@@ -55,13 +72,18 @@ def _element(x, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, pr
                                + dNdX[q, a, 2] * fp_inv[q, 2, J])
                 else:
                     b[a, J] = dNdX[q, a, J]
-        G[:] = 0.0
-        for a in range(n_en):
+        _displacement_gradient(u, b, G)  # H = G - G(rest)
+        if plastic:
             for i in range(3):
                 for J in range(3):
-                    G[i, J] += x[nodes[a], i] * b[a, J]
-        W = stress_tangent_into(model, G, params, ep[q] if plastic else 0.0, want == 2,
-                                project == PROJECT_QP, P, C)
+                    G[i, J] += fp_inv[q, i, J]
+            W = stress_tangent_into(model, G, params, ep[q], want == 2,
+                                    want == 2 and project == PROJECT_QP, P, C)
+        else:
+            # the projection only changes the Hessian: energy and gradient of a line search
+            # come from the same formula as those of an assembly
+            W = stress_tangent_h(model, G, params, want == 2,
+                                 want == 2 and project == PROJECT_QP, P, C)
         if not np.isfinite(W):
             return np.inf
         w = wdetJ[q]
@@ -104,8 +126,8 @@ def _element(x, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, pr
 
 
 @njit(cache=True, parallel=True)
-def elastic_kernel(x, conn, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project,
-                   colors, color_ptr, slots, grad, data):
+def elastic_kernel(x, rest, conn, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want,
+                   project, colors, color_ptr, slots, grad, data):
     """Total energy; adds the gradient into ``grad (n_nodes, 3)`` (want >= 1) and the Hessian
     into ``data`` through the packed upper-triangle ``slots (n_elem, k (k+1) / 2)``
     (want == 2). Elements of one colour share no node, so each colour is scattered in parallel
@@ -118,7 +140,7 @@ def elastic_kernel(x, conn, dNdX, wdetJ, model, params, fp_inv, ep, plastic, wan
             e = colors[t]
             g = np.zeros(k)
             Kp = np.zeros(k * (k + 1) // 2 if want == 2 else 0)
-            E = _element(x, conn[e], dNdX[e], wdetJ[e], model, params, fp_inv[e], ep[e],
+            E = _element(x, rest, conn[e], dNdX[e], wdetJ[e], model, params, fp_inv[e], ep[e],
                          plastic, want, project, g, Kp)
             energies[e] = E
             if not np.isfinite(E):
@@ -135,24 +157,36 @@ def elastic_kernel(x, conn, dNdX, wdetJ, model, params, fp_inv, ep, plastic, wan
 
 
 @njit(cache=True)
-def _deformation_gradient(x, nodes, b):
-    G = np.zeros((3, 3))
-    for a in range(nodes.shape[0]):
+def _displacement_gradient(u, b, H):
+    """H = sum_a u_a (x) b_a into ``H (3, 3)``; u ``(n_en, 3)``."""
+    H[:] = 0.0
+    for a in range(u.shape[0]):
         for i in range(3):
             for J in range(3):
-                G[i, J] += x[nodes[a], i] * b[a, J]
-    return G
+                H[i, J] += u[a, i] * b[a, J]
+
+
+@njit(cache=True)
+def _deformation_gradient(x, rest, nodes, b, G0):
+    """G = G0 + sum_a (x_a - X_a) (x) b_a, G0 the gradient at rest (I, or Fp^-1)."""
+    u = np.empty((nodes.shape[0], 3))
+    for a in range(nodes.shape[0]):
+        for i in range(3):
+            u[a, i] = x[nodes[a], i] - rest[nodes[a], i]
+    G = np.empty((3, 3))
+    _displacement_gradient(u, b, G)
+    return G + G0
 
 
 @njit(cache=True, parallel=True)
-def plastic_commit_kernel(x, conn, dNdX, params, fp_inv, ep):
+def plastic_commit_kernel(x, rest, conn, dNdX, params, fp_inv, ep):
     """Return-map every quadrature point at the converged state x and update, in place,
     Fp^-1 (n_elem, n_qp, 3, 3) <- Fp_n^-1 V diag(exp(-deps_p)) V^T and ep (n_elem, n_qp) += dgamma
     (the flow is isochoric: det Fp^-1 stays 1 to round-off)."""
     mu, law, hp = params[0], int(params[2]), params[3:]
     for e in prange(conn.shape[0]):
         for q in range(dNdX.shape[1]):
-            G = _deformation_gradient(x, conn[e], dNdX[e, q] @ fp_inv[e, q])
+            G = _deformation_gradient(x, rest, conn[e], dNdX[e, q] @ fp_inv[e, q], fp_inv[e, q])
             U, s, V, ok = polar_svd(G)
             if not ok:
                 continue
@@ -165,14 +199,17 @@ def plastic_commit_kernel(x, conn, dNdX, params, fp_inv, ep):
 
 
 @njit(cache=True, parallel=True)
-def stress_kernel(x, conn, dNdX, model, params, fp_inv, ep, plastic):
+def stress_kernel(x, rest, conn, dNdX, model, params, fp_inv, ep, plastic):
     """Von Mises equivalent of the Cauchy stress (n_elem, n_qp) at state x (with the trial
     return map at the committed plastic state)."""
     out = np.zeros(dNdX.shape[:2])
     for e in prange(conn.shape[0]):
         for q in range(dNdX.shape[1]):
-            b = dNdX[e, q] @ fp_inv[e, q] if plastic else dNdX[e, q]
-            G = _deformation_gradient(x, conn[e], b)
+            if plastic:
+                G = _deformation_gradient(x, rest, conn[e], dNdX[e, q] @ fp_inv[e, q],
+                                          fp_inv[e, q])
+            else:
+                G = _deformation_gradient(x, rest, conn[e], dNdX[e, q], np.eye(3))
             U, s, V, ok = polar_svd(G)
             if not ok:
                 continue
@@ -195,6 +232,7 @@ class Elasticity(Term):
         _, dN = shell.element.basis(rule.points)
         self.rule = rule
         self.conn = shell.conn
+        self.rest = shell.rest
         self.dNdX, self.wdetJ = reference_gradients(shell.rest, shell.conn, dN, rule.weights)
         self.model, self.params = model, np.asarray(params, float)
         self.pattern, self.project = pattern, project
@@ -210,9 +248,10 @@ class Elasticity(Term):
         self._color_ptr = np.concatenate([[0], np.cumsum([len(c) for c in pattern.colors])])
 
     def _run(self, x, want, grad, data):
-        return elastic_kernel(x, self.conn, self.dNdX, self.wdetJ, self.model, self.params,
-                              self.fp_inv, self.ep, self.plastic, want, self.project,
-                              self._colors, self._color_ptr, self.pattern.elem_slots, grad, data)
+        return elastic_kernel(x, self.rest, self.conn, self.dNdX, self.wdetJ, self.model,
+                              self.params, self.fp_inv, self.ep, self.plastic, want,
+                              self.project, self._colors, self._color_ptr,
+                              self.pattern.elem_slots, grad, data)
 
     def energy(self, x):
         return self._run(x, 0, np.zeros((0, 3)), np.zeros(0))
@@ -228,9 +267,10 @@ class Elasticity(Term):
 
     def commit(self, x):
         if self.plastic:
-            plastic_commit_kernel(x, self.conn, self.dNdX, self.params, self.fp_inv, self.ep)
+            plastic_commit_kernel(x, self.rest, self.conn, self.dNdX, self.params, self.fp_inv,
+                                  self.ep)
 
     def von_mises(self, x) -> np.ndarray:
         """Von Mises stress (Pa) per element and quadrature point ``(n_elem, n_qp)``."""
-        return stress_kernel(x, self.conn, self.dNdX, self.model, self.params, self.fp_inv,
-                             self.ep, self.plastic)
+        return stress_kernel(x, self.rest, self.conn, self.dNdX, self.model, self.params,
+                             self.fp_inv, self.ep, self.plastic)
