@@ -170,10 +170,9 @@ class Simulation:
         sees only where a sub-step ends, so a tool moving farther than that can start the
         iteration deep inside the sheet or pass through it unseen."""
         h = float(np.mean(self.model.shell.thickness))
+        sheet = self.x[: self.model.shell.n_nodes]
         for _ in range(30):
-            if all(np.linalg.norm(t.speed_scale * (dt * t.velocity + t.path(self.t + dt)
-                                                   - t.path(self.t))) <= h
-                   for t in self.tools):
+            if all(t.travel(self.t, self.t + dt, sheet) <= h for t in self.tools):
                 break
             dt /= 2
         return dt

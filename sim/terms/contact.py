@@ -105,6 +105,19 @@ class ToolContact(Term):
             return np.zeros(6)
         return np.array([np.interp(t, self._path_t, self._path_u[:, c]) for c in range(6)])
 
+    def travel(self, t0: float, t1: float, points: np.ndarray) -> float:
+        """Largest distance the tool moves, at the live speed, from scene time t0 to t1, at
+        any of ``points`` (n, 3): its translation plus its rotation angle times the farthest
+        point's distance from the tool's origin (the rotation centre)."""
+        if not self.moving:
+            return 0.0
+        d = self.path(t1) - self.path(t0)
+        d[:3] += (t1 - t0) * self.velocity
+        d *= self.speed_scale
+        turn = float(np.linalg.norm(d[3:]))
+        reach = float(np.linalg.norm(points - self.t_now, axis=1).max()) if turn else 0.0
+        return float(np.linalg.norm(d[:3])) + turn * reach
+
     def begin_step(self, t, dt, x):
         step = self.path(t) - self.path(t - dt)
         step[:3] += dt * self.velocity
