@@ -4,10 +4,10 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: serve test bench lint clean
+.PHONY: serve test bench lint clean venv
 
 $(STAMP): pyproject.toml
-	test -d $(VENV) || $(PY) -m venv $(VENV)
+	@test -x $(BIN)/pip || $(MAKE) --no-print-directory venv
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e ".[fast,service,study,dev]"
 	$(MAKE) --no-print-directory browser-deps
@@ -39,3 +39,19 @@ browser-deps:
 	  else echo "browser tests will skip: /usr/bin/chromium missing (as root: apt-get install chromium)"; fi; \
 	fi
 	@$(BIN)/python -c "import playwright" 2>/dev/null || $(BIN)/pip install -q playwright
+
+# Debian's python3 makes a venv only with the python3-venv package (ensurepip); as root we
+# install it, otherwise we say what to run. A failed attempt leaves a .venv without pip: removed.
+venv:
+	@$(PY) -m venv $(VENV) || { \
+	  rm -rf $(VENV); \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "$(PY) -m venv failed: installing Debian's python3-venv"; \
+	    apt-get update -qq && apt-get install -y -qq python3-venv && $(PY) -m venv $(VENV); \
+	  else \
+	    echo "$(PY) -m venv failed: install python3-venv (Debian, as root:" \
+	         "apt-get install python3-venv) or set PY to a Python 3.11 with venv, then" \
+	         "run make again" >&2; \
+	    exit 1; \
+	  fi; }
+	@test -x $(BIN)/pip || { echo "$(VENV) has no pip after creation" >&2; exit 1; }

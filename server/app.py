@@ -14,13 +14,16 @@ from server.settings import Settings
 from server.store import SceneStore
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
+def create_app(settings: Settings | None = None, worker_target=None) -> FastAPI:
+    """``worker_target``: the solver process's entry point (default ``worker_main``; the
+    benchmark passes a frame generator)."""
     settings = settings or Settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         store = SceneStore(settings.scenes_dir)
-        manager = RunManager(settings, store)
+        manager = RunManager(settings, store, **({"worker_target": worker_target}
+                                                  if worker_target else {}))
         if settings.viewer:
             from server.viewer import Viewer
             from sim.elements import ELEMENTS

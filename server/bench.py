@@ -1,18 +1,41 @@
-"""``q3t bench-service``: the viewer path and the API under load, measured (not tested).
+"""``q3t bench-service``: the viewer path, the API under load and the start-up, measured (not
+tested). Every figure goes through the real pieces, with a websocket client connected to the
+viser viewer (so viser encodes and sends every update, as to a browser):
 
-- frames/s of position updates of a 40k-vertex sheet pushed to viser (server side), and the
-  cost of a full per-vertex-coloured push;
-- latency (p50/p99) of run-status requests while the solver worker steps a scene.
+- delivery: a frame generator in the solver's place (same process, queues, frame format and
+  recording as ``server.worker``) makes 40k-vertex frames faster than the viewer takes them;
+  the bridge pushes to viser. Reports frames made, dropped (queue full), received, pushed per
+  second, at the service's push cap (20/s) and uncapped (the path's capacity), and the status
+  latency over HTTP meanwhile;
+- status latency (p50/p99 over HTTP) while ``q3t serve`` (viewer and recording on) builds and
+  steps the cup blank at ~40k display vertices;
+- start-up of ``q3t serve`` to a ready page and solver, with an empty and a warm numba cache,
+  and the first frame of a small run after each (numba compiles on first use).
 """
 
 from __future__ import annotations
 
+import functools
 import json
+import multiprocessing as mp
+import os
+import queue
+import shutil
+import signal
+import socket
+import subprocess
+import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
+
+from server.settings import ROOT
+
+CUP_40K = {"mesh.edge_length": 0.00038, "stepping.steps": 50}  # 39,686 display vertices
+PARAMETERS = {"load_scale": (0.0, 100.0)}
 
 
 def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -23,72 +46,319 @@ def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
     a = (i[:-1, :-1] * m + j[:-1, :-1]).ravel()
     F = np.concatenate([np.column_stack([a, a + m, a + 1]), np.column_stack([a + 1, a + m,
                                                                              a + m + 1])])
-    return V, F.astype(np.int32)
+    return V, F.astype(np.uint32)
 
 
-def viewer_path(n_vertices: int = 40_000, frames: int = 200) -> dict:
-    import trimesh
-    import viser
+def frame_generator(commands, events, frames, record_every: int, step_delay: float,
+                    n_vertices: int = 40_000, rate: float = 100.0) -> None:
+    """Stands in for ``worker.worker_main``: on ``start`` it makes ``rate`` frames a second of
+    an ``n_vertices`` sheet (positions and four fields, as the solver sends them), puts them on
+    the bounded queue (dropped when full), sends step records and writes the recording like
+    the solver process does; until ``stop``."""
+    from server.recording import Recorder
 
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    V, F = _grid(n_vertices)
+    events.put({"kind": "ready", "run": None, "parameters": PARAMETERS})
+    run = rec = None
+    step = produced = dropped = 0
+    t_next = time.perf_counter()
+
+    def emit(kind, **kw):
+        events.put({"kind": kind, "run": run, **kw})
+
+    def frame(k: int) -> dict:
+        W = V.copy()
+        W[:, 2] = 0.01 * np.sin(k / 10 + V[:, 0] * 6)
+        h = (1.0 - 0.1 * V[:, 0] * np.sin(k / 20)).astype(np.float32)
+        return {"kind": "frame", "run": run, "step": k, "time": 0.01 * k, "positions": W,
+                "fields": {"thickness_mm": h, "thinning_pct": 100 * (1 - h),
+                           "von_mises_MPa": 100 * h, "eq_plastic_strain": 0 * h},
+                "tools": {}, "probes": {"tip": float(W[0, 2])}, "iterations": 1,
+                "residual": 1e-9}
+
+    while True:
+        try:
+            msg = commands.get_nowait() if run else commands.get(timeout=0.2)
+        except queue.Empty:
+            msg = None
+        if msg is not None:
+            if msg["cmd"] == "shutdown":
+                break
+            if msg["cmd"] == "start":
+                run, step, produced, dropped = msg["run"], 0, 0, 0
+                rec = Recorder(Path(msg["out"]) / "run.rrd", run)
+                emit("state", state="building")
+                emit("meta", faces=F, n_steps=10**6, counts={}, element="synthetic",
+                     probes=["tip"], tools=[], timing={})
+                rec.meta(F)
+                events.put(frame(0))
+                emit("state", state="running")
+            elif msg["cmd"] == "stop" and run:
+                rec.close()
+                emit("state", state="stopped", reason=msg.get("reason") or "stopped",
+                     frames={"produced": produced, "dropped": dropped})
+                run = None
+            events.put({"kind": "reply", "id": msg.get("id"), "ok": True, "run": run,
+                        "result": None})
+            continue
+        if run is None:
+            continue
+        now = time.perf_counter()
+        if now < t_next:
+            time.sleep(t_next - now)
+        t_next = max(t_next + 1.0 / rate, time.perf_counter() - 1.0 / rate)
+        step += 1
+        f = frame(step)
+        produced += 1
+        emit("step", record={"step": step, "time": f["time"], "probes": f["probes"],
+                             "iterations": 1, "residual": 1e-9, "energy": 0.0, "cutbacks": 0},
+             frames={"produced": produced, "dropped": dropped})
+        rec.step({"step": step, "time": f["time"], "probes": f["probes"], "iterations": 1,
+                  "residual": 1e-9, "energy": 0.0, "cutbacks": 0})
+        rec.frame(f, mesh=step % record_every == 0)
+        try:
+            frames.put_nowait(f)
+        except queue.Full:
+            dropped += 1
+    events.close()
+    frames.close()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class ViewerClient:
+    """A websocket client of the viser viewer that reads (and discards) every message."""
+
+    def __init__(self, port: int):
+        import viser
+        from websockets.sync.client import connect
+
+        self.messages = self.bytes = 0
+        deadline = time.time() + 30
+        while True:
+            try:
+                self.ws = connect(f"ws://127.0.0.1:{port}", max_size=None,
+                                  subprotocols=[f"viser-v{viser.__version__}"])
+                break
+            except OSError:
+                if time.time() > deadline:
+                    raise
+                time.sleep(0.2)
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self) -> None:
+        try:
+            while True:
+                m = self.ws.recv()
+                self.messages += 1
+                self.bytes += len(m)
+        except Exception:
+            return
+
+    def close(self) -> None:
+        self.ws.close()
+
+
+def _wait_http(url: str, cond, timeout: float, proc=None) -> float:
+    """Seconds until ``cond(response json)`` holds for GET url."""
+    import httpx
+
+    t0 = time.perf_counter()
+    while True:
+        try:
+            r = httpx.get(url, timeout=2)
+            if r.status_code == 200 and cond(r.json()):
+                return time.perf_counter() - t0
+        except (httpx.HTTPError, ValueError):
+            pass
+        if time.perf_counter() - t0 > timeout or (proc is not None and proc.poll() is not None):
+            raise RuntimeError(f"{url} not ready after {time.perf_counter() - t0:.0f} s")
+        time.sleep(0.05)
+
+
+def _latency(url: str, seconds: float, every: float = 0.01) -> np.ndarray:
+    """Status request latencies (ms) for ``seconds``, one request every ``every`` s."""
+    import httpx
+
+    lat = []
+    with httpx.Client() as c:
+        t_end = time.perf_counter() + seconds
+        while time.perf_counter() < t_end:
+            t0 = time.perf_counter()
+            c.get(url).raise_for_status()
+            lat.append(time.perf_counter() - t0)
+            time.sleep(every)
+    return 1e3 * np.array(lat)
+
+
+def cpu_pressure() -> float | None:
+    """Linux PSI: % of the last 60 s in which runnable tasks waited for a CPU (other jobs on a
+    shared machine show up here), or None where not available."""
     try:
-        V, F = _grid(n_vertices)
-        handle = server.scene.add_mesh_simple("/sheet", V, F)
-        t = []
-        for k in range(frames):
-            W = V.copy()
-            W[:, 2] = 0.01 * np.sin(k / 10 + V[:, 0] * 6)
-            t0 = time.perf_counter()
-            with server.atomic():
-                handle.vertices = W
-            t.append(time.perf_counter() - t0)
-        colours = (np.random.default_rng(0).random((len(V), 4)) * 255).astype(np.uint8)
-        c = []
-        for _ in range(10):
-            mesh = trimesh.Trimesh(V, F, vertex_colors=colours, process=False)
-            t0 = time.perf_counter()
-            server.scene.add_mesh_trimesh("/sheet_coloured", mesh)
-            c.append(time.perf_counter() - t0)
-    finally:
-        server.stop()
-    med = float(np.median(t))
-    return {"vertices": len(V), "position_push_ms": 1e3 * med, "frames_per_s": 1.0 / med,
-            "coloured_push_ms": 1e3 * float(np.median(c))}
+        line = Path("/proc/pressure/cpu").read_text().splitlines()[0]
+        return float(dict(kv.split("=") for kv in line.split()[1:])["avg60"])
+    except (OSError, ValueError, KeyError, IndexError):
+        return None
 
 
-def status_latency(requests: int = 300, scene: str = "cantilever") -> dict:
-    from fastapi.testclient import TestClient
+def _pcts(lat: np.ndarray) -> dict:
+    return {"requests": len(lat), "p50_ms": float(np.percentile(lat, 50)),
+            "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max()),
+            "cpu_pressure_avg60_pct": cpu_pressure()}
+
+
+def _serve_app(settings, port: int, n_vertices: int, rate: float) -> None:
+    """Child process: uvicorn with the service app, the frame generator as its solver."""
+    import uvicorn
 
     from server.app import create_app
-    from server.settings import ROOT, Settings
+
+    target = functools.partial(frame_generator, n_vertices=n_vertices, rate=rate)
+    uvicorn.run(create_app(settings, worker_target=target), host="127.0.0.1", port=port,
+                log_level="warning")
+
+
+def delivery(n_vertices: int, seconds: float, push_hz: float, rate: float) -> dict:
+    """Frames through the real bridge and viewer, from a generator faster than the viewer."""
+    import httpx
+
+    from server.settings import Settings
 
     with tempfile.TemporaryDirectory() as tmp:
-        settings = Settings(scenes_dir=ROOT / "scenes", runs_dir=Path(tmp), viewer=False)
-        with TestClient(create_app(settings)) as c:
-            run = c.post("/api/runs", json={"scene": scene}).json()["id"]
-            lat = []
-            t_end = time.time() + 120
-            while len(lat) < requests and time.time() < t_end:
-                t0 = time.perf_counter()
-                c.get(f"/api/runs/{run}")
-                lat.append(time.perf_counter() - t0)
-                time.sleep(0.01)
-            state = c.get(f"/api/runs/{run}").json()
-            c.post(f"/api/runs/{run}/stop")
-    lat = np.array(lat) * 1e3
-    return {"requests": len(lat), "p50_ms": float(np.percentile(lat, 50)),
-            "p99_ms": float(np.percentile(lat, 99)), "solver_step_reached": state.get("step")}
+        (Path(tmp) / "scenes").mkdir()
+        (Path(tmp) / "scenes" / "synthetic.toml").write_text(
+            (ROOT / "scenes" / "cantilever.toml").read_text())
+        port, vport = _free_port(), _free_port()
+        settings = Settings(scenes_dir=Path(tmp) / "scenes", runs_dir=Path(tmp) / "runs",
+                            viewer_port=vport, push_hz=push_hz)
+        proc = mp.get_context("spawn").Process(target=_serve_app,  # it spawns the generator
+                                               args=(settings, port, n_vertices, rate))
+        proc.start()
+        url = f"http://127.0.0.1:{port}"
+        try:
+            _wait_http(url + "/api/config", lambda j: j["ready"], 60)
+            client = ViewerClient(vport)
+            run = httpx.post(url + "/api/runs", json={"scene": "synthetic"}).json()["id"]
+            _wait_http(f"{url}/api/runs/{run}", lambda j: j["frames"].get("pushed", 0) > 0, 30)
+            time.sleep(1.0)  # settle
+            a = httpx.get(f"{url}/api/runs/{run}").json()["frames"]
+            m0, b0, t0 = client.messages, client.bytes, time.perf_counter()
+            lat = _latency(f"{url}/api/runs/{run}", seconds)
+            b = httpx.get(f"{url}/api/runs/{run}").json()["frames"]
+            dt = time.perf_counter() - t0
+            msgs, mb = client.messages - m0, (client.bytes - b0) / 1e6
+            httpx.post(f"{url}/api/runs/{run}/stop")
+            client.close()
+        finally:
+            proc.terminate()
+            proc.join(10)
+    per_s = {k: (b.get(k, 0) - a.get(k, 0)) / dt for k in ("produced", "dropped", "received",
+                                                           "pushed")}
+    return {"vertices": int(np.sqrt(n_vertices)) ** 2, "push_hz_cap": push_hz, "seconds": dt,
+            "per_s": per_s, "viewer_messages_per_s": msgs / dt, "viewer_MB_per_s": mb / dt,
+            "status": _pcts(lat)}
+
+
+def _serve(tmp: Path, port: int, vport: int, env: dict) -> subprocess.Popen:
+    log = open(tmp / f"serve-{port}.log", "wb")  # noqa: SIM115 - the child holds it
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim.cli", "serve", "cantilever", "--port", str(port),
+         "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
+         "--runs-dir", str(tmp / "runs")], stdout=log, stderr=subprocess.STDOUT,
+        env=env, start_new_session=True)
+    log.close()
+    return proc
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+
+
+def start_and_latency(seconds: float, tmp: Path) -> dict:
+    """``q3t serve`` started with an empty, then a warm numba cache; then, on the warm server,
+    status latency while it builds and steps the cup blank at ~40k display vertices."""
+    import httpx
+
+    (tmp / "scenes").mkdir()
+    for name in ("cantilever", "cup_blank"):
+        shutil.copy(ROOT / "scenes" / f"{name}.toml", tmp / "scenes")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp / "numba-cache"),
+           "PYTHONPATH": str(ROOT), "XDG_CONFIG_HOME": str(tmp / "cfg"),
+           "XDG_DATA_HOME": str(tmp / "data")}
+    out = {}
+    for label in ("cold", "warm"):
+        port, vport = _free_port(), _free_port()
+        url = f"http://127.0.0.1:{port}"
+        t0 = time.perf_counter()
+        proc = _serve(tmp, port, vport, env)
+        try:
+            page = _wait_http(url + "/api/health", lambda j: j["ok"], 120, proc)
+            httpx.get(url + "/").raise_for_status()
+            ready = time.perf_counter() - t0
+            _wait_http(url + "/api/config", lambda j: j["ready"], 120, proc)
+            solver = time.perf_counter() - t0
+            client = ViewerClient(vport)
+            run = httpx.post(url + "/api/runs", json={"scene": "cantilever", "overrides": {
+                "mesh.edge_length": 0.035}}).json()["id"]
+            _wait_http(f"{url}/api/runs/{run}", lambda j: j["state"] == "finished", 300, proc)
+            timing = httpx.get(f"{url}/api/runs/{run}").json()["timing"]
+            out[label] = {"page_s": ready, "page_health_s": page, "solver_ready_s": solver,
+                          "first_frame_s": timing.get("first_frame_s"),
+                          "first_step_s": timing.get("first_step_s")}
+            if label == "warm":
+                big = httpx.post(url + "/api/runs", json={"scene": "cup_blank",
+                                                           "overrides": CUP_40K}).json()["id"]
+                lat = _latency(f"{url}/api/runs/{big}", seconds)
+                st = httpx.get(f"{url}/api/runs/{big}").json()
+                out["solver_40k"] = {**_pcts(lat), "scene": "cup_blank", "overrides": CUP_40K,
+                                     "state": st["state"], "step_reached": st["step"],
+                                     "timing": st["timing"], "frames": st["frames"],
+                                     "viewer_MB": client.bytes / 1e6}
+                httpx.post(f"{url}/api/runs/{big}/stop")
+            client.close()
+        finally:
+            _stop(proc)
+    return out
 
 
 def run(args) -> int:
-    out = {"date": time.strftime("%Y-%m-%d"), "viewer": viewer_path(args.vertices),
-           "status": status_latency(args.requests, args.scene)}
-    v, s = out["viewer"], out["status"]
-    print(f"viewer: {v['vertices']} vertices, position push {v['position_push_ms']:.2f} ms "
-          f"({v['frames_per_s']:.0f} frames/s server side), coloured push "
-          f"{v['coloured_push_ms']:.1f} ms")
-    print(f"status while solving {args.scene}: p50 {s['p50_ms']:.1f} ms, p99 {s['p99_ms']:.1f} "
-          f"ms over {s['requests']} requests (solver reached step {s['solver_step_reached']})")
+    out = {"date": time.strftime("%Y-%m-%d")}
+    with tempfile.TemporaryDirectory() as tmp:
+        out["start"] = start_and_latency(args.seconds_solver, Path(tmp))
+    out["delivery"] = [delivery(args.vertices, args.seconds, hz, args.rate)
+                       for hz in (20.0, 1000.0)]
+    s = out["start"]
+    for label in ("cold", "warm"):
+        c = s[label]
+        print(f"start ({label} numba cache): page {c['page_s']:.1f} s, solver ready "
+              f"{c['solver_ready_s']:.1f} s; small run: first frame {c['first_frame_s']:.1f} s "
+              f"after it was started, first step {c['first_step_s'] or float('nan'):.1f} s")
+    b = s["solver_40k"]
+    print(f"status while q3t serve builds and steps cup_blank at ~40k vertices (viewer, "
+          f"recording on): p50 {b['p50_ms']:.1f} ms, p99 {b['p99_ms']:.1f} ms, max "
+          f"{b['max_ms']:.0f} ms over {b['requests']} requests; reached step "
+          f"{b['step_reached']} ({b['state']}), build {b['timing'].get('build_s', 0):.1f} s; "
+          f"CPU pressure {b['cpu_pressure_avg60_pct']} %")
+    for d in out["delivery"]:
+        p = d["per_s"]
+        print(f"delivery, {d['vertices']} vertices, push cap {d['push_hz_cap']:.0f}/s: made "
+              f"{p['produced']:.0f}/s, dropped {p['dropped']:.0f}/s, received "
+              f"{p['received']:.0f}/s, pushed {p['pushed']:.1f}/s ({d['viewer_MB_per_s']:.0f} "
+              f"MB/s to the viewer client); status p50 {d['status']['p50_ms']:.1f} ms, p99 "
+              f"{d['status']['p99_ms']:.1f} ms; CPU pressure "
+              f"{d['status']['cpu_pressure_avg60_pct']} %")
     path = Path(args.out)
     path.mkdir(parents=True, exist_ok=True)
     (path / "bench_service.json").write_text(json.dumps(out, indent=1))
@@ -96,9 +366,12 @@ def run(args) -> int:
 
 
 def add_parser(sub) -> None:
-    b = sub.add_parser("bench-service", help="viewer frame rate and API latency under load")
+    b = sub.add_parser("bench-service", help="viewer frame rate, API latency, start-up time")
     b.add_argument("--vertices", type=int, default=40_000)
-    b.add_argument("--requests", type=int, default=300)
-    b.add_argument("--scene", default="cantilever")
+    b.add_argument("--rate", type=float, default=100.0,
+                   help="frames/s the generator makes (faster than the viewer takes them)")
+    b.add_argument("--seconds", type=float, default=15.0, help="per delivery measurement")
+    b.add_argument("--seconds-solver", type=float, default=60.0,
+                   help="status requests while the solver runs the 40k-vertex scene")
     b.add_argument("--out", default="runs/bench")
     b.set_defaults(func=run)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import ipaddress
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -21,17 +20,24 @@ def _loopback(host: str) -> bool:
         return False
 
 
+EXPOSED_VIEWER = ("q3t: warning: --expose-viewer: the viser viewer on {host}:{port} has no "
+                  "token check. Anyone who can reach that port can watch every run AND use its "
+                  "controls: Play, Pause, Step and Reset (which stop and start runs) and the "
+                  "live-parameter sliders. Expose it only on a network you trust.")
+
+
 def serve_settings(args, token: str | None) -> Settings:
     """Settings of ``q3t serve``. viser has no token check of its own: it stays on loopback
-    unless --expose-viewer asks otherwise, with a warning."""
+    unless --expose-viewer asks otherwise, with a warning that its controls are open too."""
     viewer_host = args.host if args.expose_viewer else "127.0.0.1"
     if args.expose_viewer and not _loopback(args.host):
-        print(f"q3t: warning: the viewer on {args.host}:{args.viewer_port} is open to anyone "
-              "who can reach it (no token)", file=sys.stderr)
+        print(EXPOSED_VIEWER.format(host=args.host, port=args.viewer_port), file=sys.stderr)
+    if args.record_every < 1:
+        raise SystemExit("q3t: --record-every must be at least 1")
     return Settings(scenes_dir=Path(args.scenes_dir), runs_dir=Path(args.runs_dir),
                     token=token, viewer=not args.no_viewer, viewer_host=viewer_host,
                     viewer_port=args.viewer_port, step_delay=args.step_delay,
-                    default_scene=args.scene)
+                    record_every=args.record_every, default_scene=args.scene)
 
 
 def cmd_serve(args) -> int:
@@ -42,6 +48,10 @@ def cmd_serve(args) -> int:
     token = args.token or os.environ.get("Q3T_TOKEN")
     if not _loopback(args.host) and not token:
         print(f"q3t: refusing to serve on {args.host} without a token (--token or Q3T_TOKEN)",
+              file=sys.stderr)
+        return 2
+    if token is not None and not (token.isascii() and token.isprintable() and token.strip()):
+        print("q3t: the token must be printable ASCII (it travels in URLs and cookies)",
               file=sys.stderr)
         return 2
     scenes = Path(args.scenes_dir)
@@ -56,16 +66,13 @@ def cmd_serve(args) -> int:
     return 0
 
 
-def _rerun() -> str:
-    exe = Path(sys.executable).with_name("rerun")
-    return str(exe) if exe.exists() else (shutil.which("rerun") or "rerun")
-
-
 def play_command(path: Path, web: bool, port: int) -> list[str]:
+    from server.recording import rerun_cli
+
     if web:
-        return [_rerun(), "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(port),
+        return [rerun_cli(), "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(port),
                 "--port", str(port + 1), str(path)]
-    return [_rerun(), str(path)]
+    return [rerun_cli(), str(path)]
 
 
 def cmd_play(args) -> int:
@@ -107,10 +114,14 @@ def add_parser(sub) -> None:
     s.add_argument("--runs-dir", default="runs")
     s.add_argument("--step-delay", type=float, default=0.0,
                    help="seconds between solver steps (to watch tiny scenes)")
+    s.add_argument("--record-every", type=int, default=Settings.record_every, metavar="N",
+                   help="steps between sheet meshes in each run's run.rrd (scalars are "
+                        "recorded every step; the first and last step always)")
     s.add_argument("--no-viewer", action="store_true", help="no viser viewer")
     s.add_argument("--expose-viewer", action="store_true",
-                   help="bind the viser viewer to --host too (it has no token check; by "
-                        "default it stays on 127.0.0.1)")
+                   help="bind the viser viewer to --host too. It has no token check: anyone "
+                        "who reaches it can use its Play/Pause/Step/Reset and parameter "
+                        "controls. By default it stays on 127.0.0.1")
     s.set_defaults(func=cmd_serve)
     p = sub.add_parser("play", help="open a run's rerun recording")
     p.add_argument("run", help="run id, run folder or .rrd file")

@@ -1,8 +1,9 @@
 """Error estimate and cost of a finished run, from a ``q3t study`` report of its scene.
 
 ``q3t study SCENE`` writes ``runs/study-SCENE/report.json``: ``{"study": {"plan": {scene, probe,
-elements, levels, reference: [element, edge]}, "reference": {..., "value"}, "rows": [{element,
-edge_length, dofs, probe, error, time, iterations, status}, ...]}, "overhead": ...}``. The
+elements, levels, reference: [element, edge] or null}, "reference": {..., "value"}, "analytic":
+{name, value, about} or null, "rows": [{element, edge_length, dofs, probe, error (null when the
+case has none), time, iterations, status}, ...]}, "overhead": ...}``. The
 estimate of a run is the row of its element at its mesh edge length (or the nearest level, said
 so), with the row's relative error and the reference it was measured against, next to the run's
 own cost from its ``result.json``.

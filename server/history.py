@@ -45,6 +45,8 @@ class FrameHistory:
                 "fields": {k: np.asarray(v, np.float32) for k, v in frame["fields"].items()},
                 "tools": {k: np.asarray(v, np.float32) for k, v in
                           (frame.get("tools") or {}).items()},
+                "tool_rotations": {k: np.asarray(v, np.float32) for k, v in
+                                   (frame.get("tool_rotations") or {}).items()},
                 "probes": dict(frame.get("probes") or {}),
                 "iterations": frame.get("iterations", 0), "residual": frame.get("residual", 0.0)}
         with self.lock:

@@ -1,9 +1,10 @@
 """``q3t play RUN --viser``: a recorded run (``run.rrd``) in a viser viewer with a time slider.
 
-The recording is read back with ``rerun.chunk.RrdReader``: the sheet (``/sheet``, a Mesh3D per
-keyframe with the thickness colours it was recorded with), the tool meshes (``/tools/<name>``,
-static) and their translations (``Transform3D`` per keyframe). Only what the recording holds can
-be shown: the sheet is coloured by thickness, as recorded.
+The recording is read back with ``rerun.chunk.RrdReader``: the sheet (``/sheet``: its triangles
+static, then per keyframe its positions with the thickness colours they were recorded with),
+the tool meshes (``/tools/<name>``, static) and their translations (``Transform3D`` per step).
+Only what the recording holds can be shown: the sheet is coloured by thickness, as recorded.
+The same loader feeds the service's viewer when it replays an older run.
 """
 
 from __future__ import annotations
@@ -54,17 +55,23 @@ def load(path: Path) -> Replay:
         rb = chunk.to_record_batch()
         cols = set(rb.schema.names)
         steps = rb.column("step").to_pylist() if "step" in cols else [None] * rb.num_rows
-        if entity == "/sheet" and "Mesh3D:vertex_positions" in cols:
-            pos, tri = rb.column("Mesh3D:vertex_positions"), rb.column("Mesh3D:triangle_indices")
-            col = rb.column("Mesh3D:vertex_colors") if "Mesh3D:vertex_colors" in cols else None
-            for i, step in enumerate(steps):
-                if step is None:
-                    continue
-                if rep.faces is None:
-                    rep.faces = _vec3(tri[i]).astype(np.uint32)
-                p = _vec3(pos[i]).astype(np.float32)
-                c = _rgb(col[i]) if col is not None else np.full((len(p), 3), 180, np.uint8)
-                sheet[int(step)] = (p, c)
+        if entity == "/sheet":
+            # the triangles are static (logged once); positions and colours come per keyframe
+            if "Mesh3D:triangle_indices" in cols and rep.faces is None:
+                tri = rb.column("Mesh3D:triangle_indices")
+                rep.faces = next((_vec3(tri[i]).astype(np.uint32) for i in range(rb.num_rows)
+                                  if tri[i].is_valid), None)
+            if "Mesh3D:vertex_positions" in cols:
+                pos = rb.column("Mesh3D:vertex_positions")
+                col = rb.column("Mesh3D:vertex_colors") if "Mesh3D:vertex_colors" in cols \
+                    else None
+                for i, step in enumerate(steps):
+                    if step is None or not pos[i].is_valid:
+                        continue
+                    p = _vec3(pos[i]).astype(np.float32)
+                    c = _rgb(col[i]) if col is not None and col[i].is_valid \
+                        else np.full((len(p), 3), 180, np.uint8)
+                    sheet[int(step)] = (p, c)
         elif entity.startswith("/tools/"):
             name = entity.removeprefix("/tools/")
             if "Mesh3D:vertex_positions" in cols:

@@ -1,30 +1,39 @@
 """Runs: their state, the solver process that steps them, and the bridge thread that carries
-its events to the run records, the recording and the viewer. Nothing here waits on a solve."""
+its events to the run records and the viewer. Nothing here waits on a solve.
+
+``RunManager.lock`` guards the run records and is held only for bookkeeping (a few dict and
+list updates): the viewer's pushes, file writes, the error estimate and recording repairs run
+outside it, so a status request never waits on them. One bad event never stops the bridge: an
+error while handling it fails the active run with the reason (the solver is told to stop), a
+viewer error is reported on the run, and the bridge's liveness is part of ``/api/health``.
+"""
 
 from __future__ import annotations
 
+import collections
+import copy
 import json
 import queue
 import secrets
+import sys
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+import traceback
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from server.estimate import estimate as study_estimate
 from server.estimate import find_study
 from server.history import FrameHistory
-from server.recording import Recorder
+from server.problems import Conflict, Invalid, NotFound, NotReady
 from server.settings import Settings, check_name
 from server.store import SceneStore, atomic_write
+from server.worker import worker_main
 from server.workerhandle import WorkerHandle
 from sim.scene import SceneError
 
 ACTIVE = {"starting", "building", "running", "paused"}
-
-
-class Conflict(RuntimeError):
-    """The request does not fit the run's state (409)."""
+HEARTBEAT_S = 5.0  # a bridge silent for longer than this is reported dead
 
 
 @dataclass
@@ -44,18 +53,20 @@ class Run:
     timing: dict = field(default_factory=dict)  # build_s, tool_meshes_s, first_frame_s, ...
     parameters: dict = field(default_factory=dict)
     parameter_log: list[dict] = field(default_factory=list)
+    # frames made and dropped (queue full) by the solver; received and pushed to the viewer here
+    frames: dict = field(default_factory=dict)
     records: list[dict] = field(default_factory=list)
     # finished runs: error estimate from a study of the scene, and the run's cost
     estimate: dict | None = None
 
     def summary(self) -> dict:
-        d = asdict(self)
-        del d["records"]
-        return d
+        """Everything but the records, copied (the bridge may change the run meanwhile)."""
+        return {f.name: copy.deepcopy(getattr(self, f.name)) for f in fields(self)
+                if f.name != "records"}
 
 
 class RunManager:
-    def __init__(self, settings: Settings, store: SceneStore):
+    def __init__(self, settings: Settings, store: SceneStore, worker_target=worker_main):
         self.settings, self.store = settings, store
         self.root = settings.runs_dir
         self.root.mkdir(parents=True, exist_ok=True)
@@ -64,34 +75,54 @@ class RunManager:
         self.parameter_ranges: dict = {}
         self.ready = threading.Event()
         self.lock = threading.RLock()
+        self._save_lock = threading.Lock()
+        self._estimate_lock = threading.Lock()
         self.runs: dict[str, Run] = self._load()
         self.active: str | None = None
-        self.recorder: Recorder | None = None
-        self.faces = None
         self.viewer = None
         self.history = FrameHistory(settings.history_frames, settings.history_bytes)
+        self._target = worker_target
         self.worker = self._new_worker()
         self.restarts = 0
         self._stop = threading.Event()
         self.bridge = threading.Thread(target=self._bridge, name="q3t-bridge", daemon=True)
+        self.heartbeat = time.monotonic()
+        self.bridge_errors = 0
+        self.bridge_error: str | None = None
+        self.logs: collections.deque = collections.deque(maxlen=50)  # the solver's log events
+        self._pending: dict[int, dict] = {}  # request id -> {"event", "reply"}
         self._facts: dict[str, tuple] = {}  # run id -> (edge length, result.json)
         self._estimate_keys: dict[str, tuple] = {}  # run id -> the study report it used
 
     # ---- life cycle -------------------------------------------------------------------------
     def _new_worker(self) -> WorkerHandle:
         s = self.settings
-        return WorkerHandle(s.frame_queue, s.record_mesh_every, s.step_delay)
+        return WorkerHandle(s.frame_queue, s.record_every, s.step_delay, self._target)
 
     def start(self) -> None:
+        if self.viewer:
+            self.viewer.set_recordings(self.recorded())
         self.bridge.start()
 
     def close(self) -> None:
+        """Shut down: the active run is stopped by the solver (result.json and a closed
+        recording) when it answers within ``stop_timeout``; no new solver process starts."""
+        with self.lock:
+            run = self.runs.get(self.active) if self.active else None
+        if run is not None and self.worker.alive() and self.bridge.is_alive():
+            self.worker.send("stop", reason="server shut down")
+            deadline = time.monotonic() + self.settings.stop_timeout
+            while self.active == run.id and time.monotonic() < deadline:
+                time.sleep(0.02)
         self._stop.set()
         self.bridge.join(2.0)
+        clean = self.worker.close()  # a solver still inside a step is asked, then killed
+        note = self._repair(run) if run is not None and not clean else ""
         with self.lock:
             if self.active:
-                self._finish(self.runs[self.active], "stopped", "server shut down")
-        self.worker.close()
+                self._finish(self.runs[self.active], "stopped", "server shut down" + note)
+        if run is not None:
+            self._save(run)
 
     def _load(self) -> dict[str, Run]:
         runs = {}
@@ -100,16 +131,41 @@ class RunManager:
                 run = Run(**json.loads(p.read_text()))
             except (ValueError, TypeError):
                 continue
-            if run.state in ACTIVE:
-                run.state, run.reason = "failed", "the server stopped during the run"
             runs[run.id] = run
+            if run.state in ACTIVE:  # the server died during the run
+                run.state = "failed"
+                run.reason = "the server stopped during the run" + self._repair(run)
+                self._save(run)
         return runs
+
+    def _repair(self, run: Run) -> str:
+        """Make the recording of a run whose recording process was killed verifiable again.
+        Returns what to add to the run's reason ("" when all went well)."""
+        from server.recording import repair  # imports rerun: only the solver needs it otherwise
+
+        try:
+            repair(self.dir(run.id) / "run.rrd")
+            return ""
+        except Exception as exc:
+            return f"; recording unreadable: {exc}"
 
     def dir(self, run_id: str) -> Path:
         return self.root / check_name(run_id, "run id")
 
     def _save(self, run: Run) -> None:
-        atomic_write(self.dir(run.id) / "run.json", json.dumps(asdict(run), indent=1))
+        with self.lock:  # a consistent snapshot; the encoding and the write come after
+            data = {**run.summary(), "records": list(run.records)}
+        text = json.dumps(data, indent=1)
+        with self._save_lock:
+            atomic_write(self.dir(run.id) / "run.json", text)
+
+    def health(self) -> dict:
+        bridge = self.bridge.is_alive() and time.monotonic() - self.heartbeat < HEARTBEAT_S
+        worker = self.worker.alive()
+        return {"ok": bridge and worker, "worker_alive": worker, "worker_pid": self.worker.pid,
+                "worker_restarts": self.restarts, "bridge_alive": bridge,
+                "bridge_errors": self.bridge_errors, "bridge_error": self.bridge_error,
+                "active": self.active}
 
     # ---- requests ---------------------------------------------------------------------------
     def get(self, run_id: str) -> Run:
@@ -117,24 +173,42 @@ class RunManager:
         try:
             return self.runs[run_id]
         except KeyError:
-            raise KeyError(f"no run {run_id!r}") from None
+            raise NotFound(f"no run {run_id!r}") from None
 
     def list(self) -> list[dict]:
         with self.lock:
             return [r.summary() for r in sorted(self.runs.values(), key=lambda r: -r.created)]
 
+    def status(self, run_id: str, since: int = 0) -> dict:
+        with self.lock:
+            run = self.get(run_id)
+            out = {**run.summary(), "records": [r for r in run.records if r["step"] > since]}
+        out["estimate"] = self.estimate(run)  # reads files: outside the lock
+        return out
+
+    def recorded(self) -> list[str]:
+        """Runs with a recording to replay, newest first (not the active one)."""
+        with self.lock:
+            runs = sorted(self.runs.values(), key=lambda r: -r.created)
+            return [r.id for r in runs if r.id != self.active
+                    and (self.root / r.id / "run.rrd").is_file()]
+
     def start_run(self, scene: str, element: str | None = None, overrides: dict | None = None,
                   parameters: dict | None = None, paused: bool = False) -> Run:
-        text = self.store.text(scene)  # KeyError -> 404
+        text = self.store.text(scene)
         overrides = dict(overrides or {})
         if element:
             overrides["shell.element"] = element
         spec = self.store.validate(text, overrides)  # SceneError -> 422
         from sim.elements import get_element
 
-        get_element(spec.shell.element)  # ValueError names the known elements
+        try:
+            get_element(spec.shell.element)
+        except ValueError as exc:  # names the known elements
+            raise Invalid(f"shell.element: {exc}") from None
         for name, value in (parameters or {}).items():
             self.check_parameter(name, value)
+        solver_overrides = {**overrides, **self.store.solver_overrides(spec)}
         with self.lock:
             if self.active:
                 raise Conflict(f"run {self.active!r} is {self.runs[self.active].state}; "
@@ -145,44 +219,63 @@ class RunManager:
             out = self.dir(run.id)
             out.mkdir(parents=True)
             atomic_write(out / "scene.toml", text)
-            self._save(run)
+            atomic_write(out / "run.json", json.dumps(asdict(run), indent=1))
             self.runs[run.id], self.active = run, run.id
             self.history.reset(run.id)
-            self.recorder = Recorder(out / "run.rrd", run.id)
             self.worker.send("start", run=run.id, out=str(out), scene_toml=text,
-                             overrides=overrides, parameters=parameters or {}, paused=paused)
+                             overrides=solver_overrides, parameters=parameters or {},
+                             paused=paused, record_every=self.settings.record_every)
         return run
 
-    def command(self, run_id: str, cmd: str) -> Run:
+    def command(self, run_id: str, cmd: str) -> dict:
         with self.lock:
             run = self.get(run_id)
             if run.id != self.active:
                 raise Conflict(f"run {run_id!r} is {run.state}, not active")
-            if cmd == "pause":
+            if cmd in ("pause", "step"):
                 run.state = "paused"  # at once, so a status read after the request agrees
             elif cmd == "resume" and run.state == "paused":
                 run.state = "running"
             self.worker.send(cmd)
-            return run
+            return run.summary()
 
     def check_parameter(self, name: str, value) -> float:
-        self.ready.wait(120)
+        if not self.ready.wait(self.settings.ack_timeout):
+            raise NotReady("the solver process is still starting (it names the live "
+                           "parameters); retry in a moment")
         if name not in self.parameter_ranges:
-            raise ValueError(f"{name}: unknown parameter; known: {sorted(self.parameter_ranges)}")
+            raise Invalid(f"{name}: unknown parameter; known: {sorted(self.parameter_ranges)}")
         lo, hi = self.parameter_ranges[name]
-        if not isinstance(value, (int, float)) or not lo <= value <= hi:
-            raise ValueError(f"{name}: {value!r} out of range [{lo}, {hi}]")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not lo <= value <= hi:
+            raise Invalid(f"{name}: {value!r} out of range [{lo}, {hi}]")
         return float(value)
 
     def set_parameter(self, run_id: str, name: str, value) -> dict:
+        """Send a live parameter change and wait (``ack_timeout``) for the solver to say from
+        which step it applies. A solver inside a long step answers later: then ``applied`` is
+        false and the step appears in the run's ``parameter_log``."""
         value = self.check_parameter(name, value)
-        with self.lock:
+        waiter = {"event": threading.Event(), "reply": None}
+        with self.lock:  # the bridge handles the reply under this lock: registered in time
             run = self.get(run_id)
             if run.id != self.active:
                 raise Conflict(f"run {run_id!r} is {run.state}, not active")
-            self.worker.send("set", name=name, value=value)
-            return {"run": run.id, "name": name, "value": value,
-                    "applies_from_step": run.step + 1}
+            rid = self.worker.send("set", name=name, value=value)
+            self._pending[rid] = waiter
+        answered = waiter["event"].wait(self.settings.ack_timeout)
+        with self.lock:
+            self._pending.pop(rid, None)
+        out = {"run": run.id, "name": name, "value": value, "applied": False,
+               "applies_from_step": None}
+        if not answered:
+            out["detail"] = ("sent; the solver is inside a step and applies it from the next: "
+                             "see parameter_log in the run's status")
+            return out
+        reply = waiter["reply"]
+        if not reply["ok"]:
+            raise Conflict(f"{name}: the solver refused: {reply['error']}")
+        return {**out, "applied": True, "applies_from_step": reply["result"]["step"]}
 
     def delete(self, run_id: str) -> None:
         import shutil
@@ -197,6 +290,8 @@ class RunManager:
             if self.history.run == run.id:
                 self.history.reset(None)
         shutil.rmtree(self.dir(run_id), ignore_errors=True)
+        if self.viewer:
+            self.viewer.set_recordings(self.recorded())
 
     # ---- error estimate -----------------------------------------------------------------------
     def _run_facts(self, run: Run) -> tuple[float | None, dict | None]:
@@ -216,101 +311,168 @@ class RunManager:
             self._facts[run.id] = (edge, result)
         return self._facts[run.id]
 
-    def estimate(self, run: Run) -> dict | None:
+    def estimate(self, run: Run, finished: bool = False) -> dict | None:
         """A finished run's error estimate (the study row of its element and edge length) and
-        cost; recomputed when a study report of its scene appears or changes."""
-        if run.state != "finished":
+        cost; recomputed when a study report of its scene appears or changes. Reads files:
+        never call it holding ``lock``. ``finished``: the run is finishing (its state is set
+        after this)."""
+        if run.state != "finished" and not finished:
             return None
-        try:
-            found = find_study(self.root, run.scene)
-            key = (str(found[0]), found[0].stat().st_mtime_ns) if found else None
-            if run.estimate is None or self._estimate_keys.get(run.id, "?") != key:
-                edge, result = self._run_facts(run)
-                run.estimate = study_estimate(self.root, run.scene, run.element, edge, result,
-                                              run.overrides)
-                self._estimate_keys[run.id] = key
-        except Exception as exc:  # never let the estimate break a status request
-            run.estimate = {"available": False, "reason": "error",
-                            "text": f"no error estimate: {exc}", "notes": []}
-        return run.estimate
+        with self._estimate_lock:
+            try:
+                found = find_study(self.root, run.scene)
+                key = (str(found[0]), found[0].stat().st_mtime_ns) if found else None
+                if run.estimate is None or self._estimate_keys.get(run.id, "?") != key:
+                    edge, result = self._run_facts(run)
+                    run.estimate = study_estimate(self.root, run.scene, run.element, edge,
+                                                  result, run.overrides)
+                    self._estimate_keys[run.id] = key
+            except Exception as exc:  # never let the estimate break a status request
+                run.estimate = {"available": False, "reason": "error",
+                                "text": f"no error estimate: {exc}", "notes": []}
+            return run.estimate
 
     # ---- events from the solver -------------------------------------------------------------
     def _finish(self, run: Run, state: str, reason: str | None) -> None:
+        """Under ``lock``: the run is over. The caller saves it (outside the lock)."""
         run.state, run.reason = state, reason
-        if state == "finished":
-            self.estimate(run)
-        self._save(run)
         if run.id == self.active:
             self.active = None
-            if self.recorder:
-                self.recorder.close()
-                self.recorder = None
 
-    def _on_event(self, ev: dict) -> dict | None:
-        """Update the run from one event; returns a frame to show, if any."""
-        if ev["kind"] == "ready" and not self.ready.is_set():
-            self.parameter_ranges = ev["parameters"]
-            self.ready.set()
-            if self.viewer:
-                self.viewer.add_parameters(self.parameter_ranges)
+    def _on_event(self, ev: dict) -> tuple[list, dict | None]:
+        """Book one event into the run records, under the lock and nothing slow. Returns the
+        viewer updates to make after the lock is released, and the frame to show, if any."""
+        kind, later = ev["kind"], []
+        if kind == "ready":
+            if not self.ready.is_set():
+                self.parameter_ranges = ev["parameters"]
+                self.ready.set()
+                if self.viewer:
+                    later.append(lambda: self.viewer.add_parameters(self.parameter_ranges))
+            return later, None
+        if kind == "log":
+            self.logs.append(ev["text"])
+            return later, None
+        if kind == "state" and ev["state"] == "finished":
+            run = self.runs.get(ev.get("run") or "")
+            if run is not None and run.id == self.active:
+                self.estimate(run, finished=True)  # reads files: before taking the lock
         with self.lock:
+            if kind == "reply":
+                waiter = self._pending.get(ev.get("id"))
+                if waiter is not None:
+                    waiter["reply"] = ev
+                    waiter["event"].set()
             run = self.runs.get(ev.get("run") or "")
             if run is None or run.id != self.active:
-                return None
-            kind = ev["kind"]
+                return later, None
             if kind == "state":
+                run.frames.update(ev.get("frames") or {})
                 if ev["state"] in ACTIVE:
                     run.state = ev["state"]
                 else:
                     self._finish(run, ev["state"], ev.get("reason"))
+                    later.append(lambda: self._save(run))
+                    if self.viewer:
+                        later.append(lambda: self.viewer.set_recordings(self.recorded()))
                 if self.viewer:
-                    self.viewer.set_status(f"Run `{run.id}`  \n{run.state}, step {run.step}/"
-                                           f"{run.n_steps}  \n{run.reason or ''}")
+                    status = (f"Run `{run.id}`  \n{run.state}, step {run.step}/{run.n_steps}"
+                              f"  \n{run.reason or ''}")
+                    later.append(lambda: self.viewer.set_status(status))
             elif kind == "meta":
                 run.n_steps, run.counts, run.probes = ev["n_steps"], ev["counts"], ev["probes"]
                 tools = ev.get("tools") or []
                 run.tools = [t["name"] for t in tools]
                 run.timing.update(ev.get("timing") or {})
-                self.faces = ev["faces"]
-                if self.recorder:
-                    self.recorder.meta(ev["faces"], tools)
+                later.append(lambda: self._save(run))
                 if self.viewer:
-                    self.viewer.new_run(run.id, ev["faces"], tools, run.element)
-                self._save(run)
+                    later.append(lambda: self.viewer.new_run(run.id, ev["faces"], tools,
+                                                             run.element))
             elif kind == "step":
                 run.records.append(ev["record"])
                 run.step = ev["record"]["step"]
-                if self.recorder:
-                    self.recorder.step(ev["record"])
+                run.frames.update(ev.get("frames") or {})
             elif kind == "parameter":
-                run.parameter_log.append(ev["entry"])
-                run.parameters[ev["entry"]["name"]] = ev["entry"]["value"]
-                if self.recorder:
-                    self.recorder.parameter(ev["entry"])
+                entry = ev["entry"]
+                run.parameter_log.append(entry)
+                run.parameters[entry["name"]] = entry["value"]
                 if self.viewer:
-                    self.viewer.set_parameter_value(ev["entry"]["name"], ev["entry"]["value"])
+                    later.append(lambda: self.viewer.set_parameter_value(entry["name"],
+                                                                         entry["value"]))
             elif kind == "frame":
                 if "first_frame_s" not in run.timing:
                     run.timing["first_frame_s"] = time.time() - run.created
                 elif ev["step"] == 1 and "first_step_s" not in run.timing:
                     run.timing["first_step_s"] = time.time() - run.created
+                run.frames["received"] = run.frames.get("received", 0) + 1
                 self.history.add(ev)
-                if self.recorder:
-                    self.recorder.frame(ev)
-                return ev
-            elif kind == "reply" and not ev["ok"]:
+                return later, ev
+            elif kind == "reply" and not ev["ok"] and ev.get("id") not in self._pending:
                 run.reason = ev["error"]  # visible in the status; the run goes on
-        return None
+        return later, None
+
+    def _fail_active(self, reason: str) -> None:
+        """The server cannot follow the active run any more: fail it, and stop the solver
+        (which closes the recording; its later events for this run are ignored)."""
+        with self.lock:
+            run = self.runs.get(self.active) if self.active else None
+            if run is None:
+                return
+            self._finish(run, "failed", reason)
+            self.worker.send("stop", reason=reason)
+        self._save(run)
+
+    def _fault(self, exc: BaseException, what: str) -> None:
+        self.bridge_errors += 1
+        self.bridge_error = f"{what}: {type(exc).__name__}: {exc}"
+        print(f"q3t: {self.bridge_error}\n{traceback.format_exc()}", file=sys.stderr)
+
+    def _handle(self, ev: dict) -> dict | None:
+        """One event, guarded: returns the frame to show, if any."""
+        try:
+            later, shown = self._on_event(ev)
+        except Exception as exc:
+            what = f"the server could not handle the solver's {ev.get('kind')!r} event"
+            self._fault(exc, what)
+            try:
+                self._fail_active(f"{what}: {exc}")
+            except Exception as exc2:
+                self._fault(exc2, "failing the run")
+            return None
+        for update in later:
+            try:
+                update()
+            except Exception as exc:  # display and files only: the run goes on
+                self._fault(exc, "viewer or file update")
+                self._note(ev.get("run"), f"viewer: {exc}")
+        return shown
+
+    def _note(self, run_id: str | None, text: str) -> None:
+        with self.lock:
+            run = self.runs.get(run_id or "")
+            if run is not None:
+                run.reason = text
 
     def _worker_died(self) -> None:
         code = self.worker.process.exitcode
         why = f"killed by signal {-code}" if code and code < 0 else f"exit code {code}"
         with self.lock:
-            if self.active:
-                self._finish(self.runs[self.active], "failed", f"solver process died ({why})")
+            run = self.runs.get(self.active) if self.active else None
+        # the solver wrote the recording and could not close it: repair it before the run
+        # reads as failed, so a download after that verifies
+        note = self._repair(run) if run is not None else ""
+        with self.lock:
+            if self._stop.is_set():
+                return
+            if run is not None and run.id == self.active:
+                self._finish(run, "failed", f"solver process died ({why}){note}")
             old, self.worker = self.worker, self._new_worker()
             self.restarts += 1
         old.close(timeout=0.1)
+        if run is not None:
+            self._save(run)
+            if self.viewer:
+                self.viewer.set_recordings(self.recorded())
 
     def _drain(self, q, limit: int = 1000) -> list:
         out = []
@@ -322,31 +484,44 @@ class RunManager:
         return out
 
     def _bridge(self) -> None:
-        last_push, newest, final = 0.0, None, False
+        self._newest, self._final, self._next_push = None, False, 0.0
         while not self._stop.is_set():
-            w = self.worker
+            self.heartbeat = time.monotonic()
             try:
-                events = [w.events.get(timeout=0.05)] + self._drain(w.events)
-            except (queue.Empty, OSError, ValueError, EOFError):
-                events = []
-            for ev in events:
-                shown = self._on_event(ev)
-                if shown is not None:
-                    newest = shown
-                    run = self.runs.get(shown["run"])
-                    final = bool(run and run.n_steps == shown["step"])
-            frames = self._drain(w.frames, 64)
-            for f in frames:
-                self.history.add(f)  # ignores frames of other runs
-            if frames and (newest is None or frames[-1]["step"] > newest["step"]):
-                newest, final = frames[-1], False
-            now = time.perf_counter()
-            if newest is not None and self.viewer and (
-                    final or now - last_push >= 1.0 / self.settings.push_hz):
-                self._push(newest, final)
-                newest, last_push = None, now
-            if not events and not w.alive():
-                self._worker_died()
+                self._bridge_step()
+            except Exception as exc:  # never let the bridge die; health reports the errors
+                self._fault(exc, "bridge")
+                time.sleep(0.05)
+
+    def _bridge_step(self) -> None:
+        w = self.worker
+        try:
+            events = [w.events.get(timeout=0.05)] + self._drain(w.events)
+        except (queue.Empty, OSError, ValueError, EOFError):
+            events = []
+        frames = self._drain(w.frames, 64)
+        for ev in events + frames:
+            shown = self._handle(ev)
+            if shown is None:
+                continue
+            newest = self._newest
+            same = newest is not None and newest["run"] == shown["run"]
+            if same and shown["step"] < newest["step"]:
+                continue  # an older frame from the bounded queue, after a newer one
+            keep_final = self._final and same and shown["step"] == newest["step"]
+            self._newest, self._final = shown, bool(shown.get("final")) or keep_final
+        now = time.perf_counter()
+        if self.viewer is None:
+            self._newest = None  # nothing to show it on: a viewer added later starts afresh
+        elif self._newest is not None and (self._final or now >= self._next_push):
+            self._push(self._newest, self._final)
+            # on a fixed grid of 1/push_hz, not "that long after the last push", so the rate
+            # is push_hz and not less by the loop's jitter; never a burst after a pause
+            period = 1.0 / self.settings.push_hz
+            self._next_push = max(self._next_push + period, now)
+            self._newest, self._final = None, False
+        if not events and not w.alive() and not self._stop.is_set():
+            self._worker_died()
 
     def _push(self, frame: dict, final: bool) -> None:
         run = self.runs.get(frame["run"])
@@ -358,7 +533,11 @@ class RunManager:
         try:
             self.viewer.show(frame, status, final=final)
         except Exception as exc:  # a viewer problem must never stop the bridge
-            run.reason = f"viewer: {exc}"
+            self._fault(exc, "viewer")
+            self._note(run.id, f"viewer: {exc}")
+            return
+        with self.lock:
+            run.frames["pushed"] = run.frames.get("pushed", 0) + 1
 
     # ---- viewer actions ---------------------------------------------------------------------
     def viewer_command(self, cmd: str) -> str:
@@ -367,8 +546,8 @@ class RunManager:
                 if cmd != "resume":
                     return "No active run"
                 return self.viewer_reset(None)
-            return f"{cmd}: {self.command(self.active, cmd).id}"
-        except (Conflict, KeyError) as exc:
+            return f"{cmd}: {self.command(self.active, cmd)['id']}"
+        except (Conflict, NotFound) as exc:
             return str(exc)
 
     def viewer_reset(self, element: str | None) -> str:
@@ -383,7 +562,7 @@ class RunManager:
             run = self.start_run(scene, element or (last.element if last else None),
                                  last.overrides if last else None)
             return f"Started `{run.id}`"
-        except (Conflict, KeyError, SceneError, ValueError) as exc:
+        except (Conflict, NotFound, NotReady, SceneError, Invalid) as exc:
             return f"Cannot start: {exc}"
 
     def frame_at(self, run_id: str, step: int) -> dict:
@@ -391,7 +570,7 @@ class RunManager:
         self.get(run_id)
         frame = self.history.at(step) if self.history.run == run_id else None
         if frame is None:
-            raise KeyError(f"no frames kept for run {run_id!r} (only the latest run's are)")
+            raise NotFound(f"no frames kept for run {run_id!r} (only the latest run's are)")
         return frame
 
     def viewer_scrub(self, step: int) -> tuple[dict | None, str]:
@@ -407,11 +586,32 @@ class RunManager:
         return frame, (f"Run `{run.id}` ({run.state})  \nshowing step {frame['step']}/"
                        f"{run.n_steps} (kept every {self.history.stride})")
 
+    def viewer_recording(self, run_id: str):
+        """A recorded run for the viewer to replay: (``replay.Replay``, message) or (None, why
+        not)."""
+        from server import replay
+
+        run = self.runs.get(run_id)
+        if run is None:
+            return None, f"No run `{run_id}`"
+        if run.id == self.active:
+            return None, f"Run `{run_id}` is {run.state}: its recording is still being written"
+        try:
+            rep = replay.load(self.dir(run.id) / "run.rrd")
+        except Exception as exc:
+            return None, f"Cannot read the recording of `{run_id}`: {exc}"
+        if not rep.steps or rep.faces is None:
+            return None, f"The recording of `{run_id}` holds no sheet mesh"
+        return rep, (f"Recording of `{run_id}` ({run.state}): {len(rep.steps)} frames, steps "
+                     f"{rep.steps[0]}-{rep.steps[-1]} (coloured by thickness, as recorded)")
+
     def viewer_set(self, name: str, value: float) -> str:
         if self.active is None:
             return "No active run"
         try:
-            self.set_parameter(self.active, name, value)
-            return f"{name} = {value:.4g} from the next step"
-        except (Conflict, ValueError) as exc:
+            r = self.set_parameter(self.active, name, value)
+            when = (f"from step {r['applies_from_step']}" if r["applied"]
+                    else "from the next step")
+            return f"{name} = {value:.4g} {when}"
+        except (Conflict, Invalid, NotFound, NotReady) as exc:
             return str(exc)

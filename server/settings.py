@@ -6,14 +6,17 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from server.problems import Invalid
+
 ROOT = Path(__file__).resolve().parent.parent
-NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,79}$")
+NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,79}")
 
 
 def check_name(name: str, what: str = "name") -> str:
     """A file-system-safe name: letters, digits, ``_ . -``; never ``..`` or a path."""
-    if not NAME.match(name) or ".." in name:
-        raise ValueError(f"{what} {name!r}: use letters, digits, '_', '-', '.' (no paths)")
+    if not isinstance(name, str) or not NAME.fullmatch(name) or ".." in name:  # fullmatch:
+        # ``$`` would let a trailing newline through
+        raise Invalid(f"{what} {name!r}: use letters, digits, '_', '-', '.' (no paths)")
     return name
 
 
@@ -27,9 +30,11 @@ class Settings:
     token: str | None = None  # required on every request when set
     max_body: int = 256 * 1024  # bytes; larger request bodies get 413
     frame_queue: int = 4  # frames in flight from worker to bridge; extra frames are dropped
-    record_mesh_every: int = 1  # steps between meshes in run.rrd
+    record_every: int = 10  # steps between sheet meshes in run.rrd (and its first and last)
     push_hz: float = 20.0  # most frames per second pushed to the viewer
     step_delay: float = 0.0  # seconds between steps (lets a tiny scene be watched)
+    ack_timeout: float = 1.0  # seconds a parameter change waits for the solver's answer
+    stop_timeout: float = 5.0  # seconds shutdown waits for the solver to stop the run
     history_frames: int = 400  # frames of the current run kept for scrubbing; then every k-th
     history_bytes: int = 256 * 2**20  # and at most this many bytes of them (server process)
     default_scene: str = "cup_drawing"  # selected first on the page; the viewer's Play starts it

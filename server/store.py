@@ -1,27 +1,59 @@
-"""Scene files on disk: TOML text validated before it is written, written atomically."""
+"""Scene files on disk: TOML validated before it is written, written atomically.
+
+A scene's files (``mesh.path`` of a file mesh, ``shell.thickness_file``) are named inside the
+scenes folder, relative to it: an absolute path, ``..``, a backslash or a link out of the folder
+is refused with a 422 naming the field, so a scene sent over the API cannot make the server read
+any other file."""
 
 from __future__ import annotations
 
 import os
 import tempfile
 import tomllib
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 
+from server.problems import Conflict, NotFound
 from server.settings import check_name
 from sim.scene import Scene, SceneError, scene_from_toml
 
+MESH_SUFFIXES = (".obj", ".ply", ".stl")  # what sim.mesh.load reads
+VALUE_SUFFIXES = (".npy", ".txt", ".csv")  # what sim.model reads as per-vertex values
 
-def atomic_write(path: Path, data: str | bytes) -> None:
-    """Write to a temporary file in the same folder, then rename: never a half-written file."""
+
+def _temp(path: Path, data: str | bytes) -> str:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data.encode() if isinstance(data, str) else data)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return tmp
+
+
+def atomic_write(path: Path, data: str | bytes) -> None:
+    """Write to a temporary file in the same folder, then rename: never a half-written file."""
+    tmp = _temp(path, data)
+    try:
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def exclusive_write(path: Path, data: str | bytes) -> bool:
+    """Like ``atomic_write``, but only if ``path`` does not exist yet (a hard link fails on an
+    existing name, atomically): of two concurrent writers exactly one wins. Returns whether
+    this one did."""
+    tmp = _temp(path, data)
+    try:
+        os.link(tmp, path)
+        return True
+    except FileExistsError:
+        return False
+    finally:
+        Path(tmp).unlink(missing_ok=True)
 
 
 class SceneStore:
@@ -41,7 +73,7 @@ class SceneStore:
     def text(self, name: str) -> str:
         p = self.path(name)
         if not p.is_file():
-            raise KeyError(name)
+            raise NotFound(f"no scene {name!r}")
         return p.read_text()
 
     def summary(self, name: str) -> dict:
@@ -51,21 +83,64 @@ class SceneStore:
         except tomllib.TOMLDecodeError:
             return {"name": name, "description": "", "valid": False}
 
-    @staticmethod
-    def validate(text: str, overrides: dict | None = None) -> Scene:
+    def scene_files(self, scene: Scene) -> dict[str, Path]:
+        """The files a scene reads (``mesh.path`` of a file mesh, ``shell.thickness_file``), each
+        inside the scenes folder, by field. Raises SceneError naming the field. A name is
+        checked before any file is looked at, so a refused name touches nothing."""
+        wanted = {"mesh.path": (scene.mesh.path or "" if scene.mesh.kind == "file" else None,
+                                MESH_SUFFIXES),
+                  "shell.thickness_file": (scene.shell.thickness_file, VALUE_SUFFIXES)}
+        return {f: self._inside(f, text, suffixes)
+                for f, (text, suffixes) in wanted.items() if text is not None}
+
+    def _inside(self, field: str, text: str, suffixes: tuple[str, ...]) -> Path:
+        rel = PurePosixPath(text)
+        if (not text or "\\" in text or "\0" in text or rel.is_absolute()
+                or PureWindowsPath(text).drive or ".." in rel.parts):
+            raise SceneError(f"{field}: {text!r} must be a relative path inside the scenes "
+                             "folder, without '..' or '\\'")
+        if rel.suffix.lower() not in suffixes:
+            raise SceneError(f"{field}: {text!r} is not a file of the kind it names "
+                             f"({', '.join(suffixes)})")
+        root = self.root.resolve()
+        full = (root / rel).resolve()
+        if not full.is_relative_to(root):
+            raise SceneError(f"{field}: {text!r} leads out of the scenes folder")
+        if not full.is_file():
+            raise SceneError(f"{field}: no file {text!r} in the scenes folder")
+        return full
+
+    def validate(self, text: str, overrides: dict | None = None) -> Scene:
         """Raises SceneError naming the field; the text is never written when invalid."""
-        return scene_from_toml(text, overrides)
+        scene = scene_from_toml(text, overrides)
+        self.scene_files(scene)
+        return scene
+
+    def solver_overrides(self, scene: Scene) -> dict:
+        """Overrides the solver process needs on top of the user's: the full paths of the files
+        the scene reads (the solver reads a relative path from its working folder, not the
+        scenes folder)."""
+        return {f: str(full) for f, full in self.scene_files(scene).items()}
 
     def save(self, name: str, text: str) -> Scene:
+        path = self.path(name)  # the name first: a bad one touches nothing
         scene = self.validate(text)
-        atomic_write(self.path(name), text)
+        atomic_write(path, text)
+        return scene
+
+    def create(self, name: str, text: str) -> Scene:
+        """Save a new scene; Conflict if the name is taken, also by a concurrent create."""
+        path = self.path(name)
+        scene = self.validate(text)
+        if not exclusive_write(path, text):
+            raise Conflict(f"scene {name!r} exists; use PUT to change it")
         return scene
 
     def delete(self, name: str) -> None:
         p = self.path(name)
         if not p.is_file():
-            raise KeyError(name)
+            raise NotFound(f"no scene {name!r}")
         p.unlink()
 
 
-__all__ = ["SceneStore", "SceneError", "atomic_write"]
+__all__ = ["SceneStore", "SceneError", "atomic_write", "exclusive_write"]

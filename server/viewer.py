@@ -6,7 +6,10 @@ the run manager through ``ViewerActions``. Positions stream to a wireframe every
 second (about 10 ms and 1.5 MB at 40k vertices), always on the last frame of a run. Each tool is
 one single-colour, semi-transparent mesh sent once per run; frames only move it (``.position``).
 The colour dropdown offers every field the frames carry. The time slider follows the live step;
-when the run is paused or over, moving it shows a kept frame (``RunManager.history``).
+when the run is paused or over, moving it shows a kept frame (``RunManager.history``). The
+"Run" dropdown above it picks an older run's recording instead (``run.rrd``, read with
+``server.replay``): the slider then scrubs its recorded frames, coloured by thickness as
+recorded, until "live run" is picked again or a new run starts.
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ class ViewerActions(Protocol):
     def viewer_reset(self, element: str | None) -> str: ...
     def viewer_set(self, name: str, value: float) -> str: ...
     def viewer_scrub(self, step: int) -> tuple[dict | None, str]: ...
+    def viewer_recording(self, run_id: str): ...
 
 
 @dataclass
@@ -55,6 +59,11 @@ class Gui:
     element: viser.GuiDropdownHandle
     sliders: dict
     time: viser.GuiSliderHandle
+    recording: viser.GuiDropdownHandle
+    buttons: dict  # label -> button handle (Play, Pause, Step, Reset)
+
+
+LIVE = "live run"
 
 
 class Viewer:
@@ -71,6 +80,9 @@ class Viewer:
         self.last_colour = 0.0
         self.frame: dict | None = None
         self.echo = False  # set while code (not a user) moves a slider
+        self.live_faces: np.ndarray | None = None
+        self.live_tools: list[dict] = []
+        self.replay = None  # a recorded run being shown (server.replay.Replay)
         self.gui = self._build_gui(elements)
 
     @property
@@ -80,17 +92,23 @@ class Viewer:
     def _build_gui(self, elements: list[str]) -> Gui:
         g = self.server.gui
         status = g.add_markdown("No run yet")
+        buttons = {}
         with g.add_folder("Run"):
             for label, cmd in (("Play", "resume"), ("Pause", "pause"), ("Step", "step")):
-                g.add_button(label).on_click(lambda _e, c=cmd: self._status(
+                buttons[label] = g.add_button(label)
+                buttons[label].on_click(lambda _e, c=cmd: self._status(
                     self.actions.viewer_command(c)))
             element = g.add_dropdown("Element", tuple(elements),
                                      initial_value="q3t" if "q3t" in elements else elements[0])
-            g.add_button("Reset").on_click(
+            buttons["Reset"] = g.add_button("Reset")
+            buttons["Reset"].on_click(
                 lambda _e: self._status(self.actions.viewer_reset(element.value)))
         with g.add_folder("Time"):
+            recording = g.add_dropdown("Run", (LIVE,), initial_value=LIVE,
+                                       hint="the live run, or an older run's recording")
             time_slider = g.add_slider("Step", min=0, max=1, step=1, initial_value=0,
                                        hint="pause the run (or let it finish), then drag")
+        recording.on_update(lambda _e: None if self.echo else self._choose_recording())
         time_slider.on_update(lambda _e: None if self.echo else self._scrub())
         self.param_folder = g.add_folder("Live parameters")
         with g.add_folder("Colour"):
@@ -98,7 +116,7 @@ class Viewer:
                                    initial_value=field_label(DEFAULT_FIELD))
             legend = g.add_html("")
         field.on_update(lambda _e: None if self.echo else self._recolour())
-        return Gui(status, field, legend, element, {}, time_slider)
+        return Gui(status, field, legend, element, {}, time_slider, recording, buttons)
 
     def add_parameters(self, parameters: dict[str, tuple[float, float]]) -> None:
         """One slider per live parameter, once the solver process has said which exist."""
@@ -128,29 +146,103 @@ class Viewer:
 
     def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict] = (),
                 element: str | None = None) -> None:
-        """A new run: drop the old sheet and tools, add this run's tools (meshes sent once)."""
+        """A new run: drop the old sheet and tools (and a replay), add this run's tools (meshes
+        sent once)."""
         with self.lock:
             if element in self.gui.element.options:
                 self.gui.element.value = element  # Reset restarts with what is shown
-            self.faces = np.asarray(faces, np.uint32)
+            self.live_faces = np.asarray(faces, np.uint32)
+            self.live_tools = list(tools)
             self.frame = None
-            for h in (self.surface, self.wire, *self.tools.values()):
-                if h is not None:
-                    h.remove()
-            self.surface = self.wire = None
-            self.tools = {}
+            self.replay = None
             self.echo = True
             try:
+                self.gui.recording.value = LIVE
                 self.gui.time.value, self.gui.time.max = 0, 1
             finally:
                 self.echo = False
-            for i, t in enumerate(tools):
-                rgb, alpha = tool_colour(i)
-                self.tools[t["name"]] = self.server.scene.add_mesh_simple(
-                    f"/tools/{t['name']}", np.asarray(t["vertices"], np.float32),
-                    np.asarray(t["faces"], np.uint32), color=rgb, opacity=alpha,
-                    side="double", cast_shadow=False, receive_shadow=False)
+            self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
+                                              for t in self.live_tools])
         self._status(f"Run `{run_id}`: building")
+
+    def _set_scene(self, faces: np.ndarray, tools: list[tuple]) -> None:
+        """Replace the sheet's faces and the tool meshes ``[(name, V, F)]`` (under lock)."""
+        for h in (self.surface, self.wire, *self.tools.values()):
+            if h is not None:
+                h.remove()
+        self.surface = self.wire = None
+        self.faces = faces
+        self.tools = {}
+        for i, (name, V, F) in enumerate(tools):
+            rgb, alpha = tool_colour(i)
+            self.tools[name] = self.server.scene.add_mesh_simple(
+                f"/tools/{name}", np.asarray(V, np.float32), np.asarray(F, np.uint32),
+                color=rgb, opacity=alpha, side="double", cast_shadow=False,
+                receive_shadow=False)
+
+    def set_recordings(self, run_ids: list[str]) -> None:
+        """The runs the "Run" dropdown offers to replay (newest first)."""
+        with self.lock:
+            options = (LIVE, *run_ids)
+            if tuple(self.gui.recording.options) == options:
+                return
+            keep = self.gui.recording.value if self.gui.recording.value in options else LIVE
+            self.echo = True
+            try:
+                self.gui.recording.options = options
+                self.gui.recording.value = keep
+            finally:
+                self.echo = False
+
+    def _choose_recording(self) -> None:
+        choice = self.gui.recording.value
+        if choice == LIVE:
+            with self.lock:
+                self.replay = None
+                if self.live_faces is not None:
+                    self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
+                                                      for t in self.live_tools])
+                live = self.frame
+            if live is not None:
+                self.show(live, "Showing the live run", final=True)
+            else:
+                self._status("Showing the live run")
+            return
+        rep, message = self.actions.viewer_recording(choice)
+        if rep is None:
+            self._status(message)
+            self.echo = True
+            try:
+                self.gui.recording.value = LIVE
+            finally:
+                self.echo = False
+            return
+        with self.lock:
+            self.replay = rep
+            self._set_scene(rep.faces, [(n, V, F) for n, (V, F) in rep.tools.items()])
+            self.echo = True
+            try:
+                self.gui.time.max = max(1, rep.steps[-1])
+                self.gui.time.value = rep.steps[-1]
+            finally:
+                self.echo = False
+            self._show_recorded(rep.steps[-1], message)
+            self._aim(rep.positions[-1])
+
+    def _show_recorded(self, step: int, message: str) -> None:
+        """The recorded frame at ``step`` or the nearest before it (under lock)."""
+        rep = self.replay
+        i = max(int(np.searchsorted(rep.steps, step, side="right")) - 1, 0)
+        k = rep.steps[i]
+        rgba = np.c_[rep.colors[i], np.full(len(rep.colors[i]), 255, np.uint8)]
+        mesh = trimesh.Trimesh(rep.positions[i], rep.faces, process=False, vertex_colors=rgba)
+        with self.server.atomic():
+            self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
+            for name, h in self.tools.items():
+                h.position = np.asarray(rep.pose(name, k), np.float64)
+            self.gui.legend.content = ("<div class='q3t-legend'><b>Thickness</b>, colours as "
+                                       "recorded (each frame's min to max)</div>")
+            self.gui.status.content = f"{message}  \nshowing recorded step {k}"
 
     def _set_fields(self, keys) -> None:
         """Offer exactly the fields this frame carries; keep the choice when still offered."""
@@ -179,6 +271,11 @@ class Viewer:
             self.echo = False
 
     def _scrub(self) -> None:
+        with self.lock:
+            if self.replay is not None:
+                self._show_recorded(int(self.gui.time.value),
+                                    f"Recording of `{self.gui.recording.value}`")
+                return
         frame, message = self.actions.viewer_scrub(int(self.gui.time.value))
         if frame is None:
             self._status(message)
@@ -193,13 +290,19 @@ class Viewer:
             h = self.tools.get(name)
             if h is not None:
                 h.position = np.asarray(pose, np.float64)
+        for name, wxyz in (frame.get("tool_rotations") or {}).items():
+            h = self.tools.get(name)
+            if h is not None:
+                h.wxyz = np.asarray(wxyz, np.float64)
 
     def show(self, frame: dict, status: str, final: bool = False, live: bool = True) -> None:
         """Push one frame: positions always, colours when due or final. A live frame also moves
         the time slider; a scrubbed one (``live=False``) leaves it where the user put it."""
         with self.lock:
-            if self.faces is None:
-                return
+            if live:
+                self.frame = frame
+            if self.faces is None or (self.replay is not None and live):
+                return  # a replay is shown: the live run is kept, not drawn
             self.frame = frame
             now = time.perf_counter()
             with self.server.atomic():
@@ -221,7 +324,7 @@ class Viewer:
 
     def _recolour(self) -> None:
         with self.lock:
-            if self.frame is not None and self.faces is not None:
+            if self.frame is not None and self.faces is not None and self.replay is None:
                 self._send_surface(self.frame)
 
     def _send_surface(self, frame: dict) -> None:

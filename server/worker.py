@@ -1,19 +1,24 @@
-"""The solver process: owns one Simulation and steps the active run.
+"""The solver process: owns one Simulation, steps the active run and writes its recording.
 
-Commands come down ``commands`` as dicts with a request id; replies, states and step records go
-up ``events`` (small, never dropped); frames go up the bounded ``frames`` queue with
-``put_nowait`` and are dropped when the server is behind. Every ``keyframe_every`` steps (and at
-the first and last step) the frame travels on ``events`` instead, so recordings never miss it.
+Commands come down ``commands`` as dicts with a request id. Up ``events`` go the small messages,
+never dropped: replies, states, step records, parameter changes, the run's ``meta`` (sheet faces
+and tool meshes, once per run) and the few frames that must arrive - the rest state, the frame
+of a paused run, the last frame of a run (``final``). Every other frame goes up the bounded
+``frames`` queue with ``put_nowait``, and is dropped when the queue is full: a viewer slower than
+the solver never makes frames pile up. The recording (``run.rrd``) is written here, from every
+step, so it does not depend on what reaches the server: the sheet mesh every ``record_every``
+steps and at the first and last step, scalars every step.
 
-The run's first messages are ``meta`` (sheet faces and the tool meshes, each sent once per run)
-and the rest-state frame, both before the first step; later frames carry only positions, fields
-and the tools' translations.
+SIGINT is ignored (Ctrl-C in a terminal reaches the whole process group; the server decides what
+happens to the run). If the server process dies, the run is finished as failed, its recording
+closed (a complete, verifiable file) and the process exits.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
 import queue
+import signal
 import time
 import traceback
 from dataclasses import asdict
@@ -28,6 +33,8 @@ def _frame_msg(run: str, sim) -> dict:
             "positions": f.positions, "fields": {k: v.astype("float32") for k, v in
                                                  f.fields.items()},
             "tools": {k: np.asarray(v, np.float32) for k, v in sim.tool_poses().items()},
+            "tool_rotations": {k: np.asarray(v, np.float32)  # (w, x, y, z)
+                               for k, v in sim.tool_rotations().items()},
             "probes": f.probes, "iterations": f.iterations, "residual": f.residual}
 
 
@@ -54,16 +61,22 @@ def tool_meshes(scene, size: float, cache: dict) -> list[dict]:
     return out
 
 
+class RecordingFailed(RuntimeError):
+    pass
+
+
 class _Solver:
-    def __init__(self, events: mp.Queue, frames: mp.Queue, keyframe_every: int,
-                 step_delay: float):
+    def __init__(self, events, frames, record_every: int, step_delay: float):
         self.events, self.frames = events, frames
-        self.keyframe_every, self.step_delay = max(1, keyframe_every), step_delay
+        self.record_every, self.step_delay = max(1, record_every), step_delay
         self.sim = None
         self.run: str | None = None
         self.out: Path | None = None
+        self.recorder = None
+        self.last_mesh = -1  # step of the last sheet mesh written to the recording
         self.paused = False
         self.pending_steps = 0
+        self.produced = self.dropped = 0  # frames of this run made / dropped (queue full)
         self.mesh_cache: dict = {}  # tool meshes by shape: a repeated run skips the meshing
 
     def emit(self, kind: str, **kw) -> None:
@@ -76,13 +89,33 @@ class _Solver:
     def handle(self, msg: dict) -> None:
         cmd = msg["cmd"]
         try:
-            getattr(self, f"cmd_{cmd}")(msg)
-            self.events.put({"kind": "reply", "id": msg.get("id"), "ok": True, "run": self.run})
+            result = getattr(self, f"cmd_{cmd}")(msg)
+            self.events.put({"kind": "reply", "id": msg.get("id"), "cmd": cmd, "ok": True,
+                             "run": self.run, "result": result})
         except Exception as exc:  # a reply names the problem; the worker stays alive
-            self.events.put({"kind": "reply", "id": msg.get("id"), "ok": False,
+            self.events.put({"kind": "reply", "id": msg.get("id"), "cmd": cmd, "ok": False,
                              "error": str(exc), "run": self.run})
 
+    # ---- the recording: any error in it fails the run, naming it ------------------------------
+    def record(self, method: str, *args, **kw) -> None:
+        if self.recorder is None:
+            return
+        try:
+            getattr(self.recorder, method)(*args, **kw)
+        except Exception as exc:
+            self.recorder = None  # a broken stream is not written to again
+            raise RecordingFailed(f"recording {self.out / 'run.rrd'} failed: {exc}") from exc
+
+    def record_frame(self, msg: dict, final: bool = False) -> None:
+        step = msg["step"]
+        mesh = step != self.last_mesh and (step % self.record_every == 0 or final)
+        self.record("frame", msg, mesh=mesh)
+        if mesh:
+            self.last_mesh = step
+
+    # ---- commands -----------------------------------------------------------------------------
     def cmd_start(self, msg: dict) -> None:
+        from server.recording import Recorder
         from sim.scene import scene_from_toml
         from sim.simulation import Simulation
 
@@ -90,8 +123,17 @@ class _Solver:
             self.finish("stopped", "replaced by a new run")
         self.run, self.out = msg["run"], Path(msg["out"])
         self.paused, self.pending_steps = bool(msg.get("paused")), 0
+        self.produced = self.dropped = 0
+        self.last_mesh = -1
+        self.record_every = max(1, int(msg.get("record_every") or self.record_every))
         self.emit("state", state="building")
         t0 = time.perf_counter()
+        try:
+            self.recorder = None
+            self.recorder = Recorder(self.out / "run.rrd", self.run)
+        except Exception as exc:
+            self.emit("state", state="failed", reason=f"recording failed: {exc}")
+            raise
         try:
             scene = scene_from_toml(msg["scene_toml"], msg.get("overrides") or {})
             self.sim = Simulation.from_scene(scene)
@@ -101,6 +143,7 @@ class _Solver:
             rest = _frame_msg(self.run, self.sim)
         except Exception as exc:
             self.sim = None
+            self._close_recording()
             self.emit("state", state="failed", reason=f"build failed: {exc}")
             raise
         t2 = time.perf_counter()
@@ -116,16 +159,31 @@ class _Solver:
                   timing={"build_s": t1 - t0, "rest_frame_s": t2 - t1,
                           "tool_meshes_s": t3 - t2})
         self.events.put(rest)  # the rest state, before the first step (which may take seconds)
+        try:
+            self.record("meta", self.sim.display.faces, tools)
+            for entry in self.sim.parameter_log:
+                self.record("parameter", entry)
+            self.record_frame(rest)
+        except RecordingFailed as exc:
+            self.finish("failed", str(exc))
+            return
         self.emit("state", state="paused" if self.paused else "running")
 
     def _need_run(self) -> None:
         if self.sim is None:
             raise RuntimeError("no active run")
 
+    def _pause(self) -> None:
+        if not self.paused:
+            self.paused = True
+            self.emit("state", state="paused")
+            # the viewer must show where the run stopped, even if that frame was dropped
+            self.events.put({**_frame_msg(self.run, self.sim), "final": True})
+
     def cmd_pause(self, msg: dict) -> None:
         self._need_run()
-        self.paused, self.pending_steps = True, 0
-        self.emit("state", state="paused")
+        self.pending_steps = 0
+        self._pause()
 
     def cmd_resume(self, msg: dict) -> None:
         self._need_run()
@@ -133,59 +191,106 @@ class _Solver:
         self.emit("state", state="running")
 
     def cmd_step(self, msg: dict) -> None:
+        """One step, then paused (a running run pauses after the step under way)."""
         self._need_run()
-        self.paused = True
+        self._pause()
         self.pending_steps += 1
 
     def cmd_stop(self, msg: dict) -> None:
         self._need_run()
-        self.finish("stopped", "stopped by request")
+        self.finish("stopped", msg.get("reason") or "stopped by request")
 
-    def cmd_set(self, msg: dict) -> None:
+    def cmd_set(self, msg: dict) -> dict:
         self._need_run()
         self.sim.set_parameter(msg["name"], msg["value"])
-        self.emit("parameter", entry=self.sim.parameter_log[-1])
+        entry = self.sim.parameter_log[-1]
+        self.emit("parameter", entry=entry)
+        try:
+            self.record("parameter", entry)
+        except RecordingFailed as exc:
+            self.finish("failed", str(exc))
+        return entry
 
     def cmd_ping(self, msg: dict) -> None:
         pass
 
+    # ---- stepping -----------------------------------------------------------------------------
     def step(self) -> None:
         from sim.simulation import SolverFailure
 
-        if self.pending_steps:
+        single = self.pending_steps > 0
+        if single:
             self.pending_steps -= 1
         try:
             rec = self.sim.step()
         except SolverFailure as exc:
             self.finish("failed", str(exc))
             return
-        self.emit("step", record=asdict(rec))
         msg = _frame_msg(self.run, self.sim)
-        if rec.step % self.keyframe_every == 0 or self.sim.done:
-            self.events.put(msg)
+        self.produced += 1
+        self.emit("step", record=asdict(rec),
+                  frames={"produced": self.produced, "dropped": self.dropped})
+        try:
+            self.record("step", asdict(rec))
+            self.record_frame(msg, final=self.sim.done)
+        except RecordingFailed as exc:
+            self.finish("failed", str(exc), msg)
+            return
+        if self.sim.done:
+            self.finish("finished", None, msg)
+            return
+        if single:  # a single step of a paused run: its frame must arrive
+            self.events.put({**msg, "final": True})
         else:
             try:
                 self.frames.put_nowait(msg)
             except queue.Full:
-                pass  # the viewer shows a newer frame soon; recordings use keyframes
-        if self.sim.done:
-            self.finish("finished")
-        elif self.step_delay:
+                self.dropped += 1  # the viewer shows a newer frame soon
+        if self.step_delay:
             time.sleep(self.step_delay)
 
-    def finish(self, state: str, reason: str | None = None) -> None:
+    def _close_recording(self) -> str | None:
+        try:
+            if self.recorder is not None:
+                self.recorder.close()
+        except Exception as exc:
+            return f"closing the recording failed: {exc}"
+        finally:
+            self.recorder = None
+        return None
+
+    def finish(self, state: str, reason: str | None = None, last: dict | None = None) -> None:
+        """End the run: its last frame (to the viewer and the recording), result.json, the
+        closed recording, then the state."""
+        problems = []
+        try:
+            last = last or _frame_msg(self.run, self.sim)
+            self.events.put({**last, "final": True})
+            if self.recorder is not None:
+                self.record_frame(last, final=True)
+        except Exception as exc:
+            problems.append(str(exc))
         try:
             self.sim.write(self.out)
         except Exception as exc:  # the state still goes up; the reason says what broke
-            reason = f"{reason or state}; writing results failed: {exc}"
-        self.emit("state", state=state, reason=reason)
+            problems.append(f"writing results failed: {exc}")
+        problems.append(self._close_recording())
+        problems = [p for p in problems if p]
+        if problems:
+            state = "failed" if state == "finished" else state
+            reason = "; ".join([reason or state, *problems])
+        self.emit("state", state=state, reason=reason,
+                  frames={"produced": self.produced, "dropped": self.dropped})
         self.sim, self.paused, self.pending_steps = None, False, 0
 
 
-def worker_main(commands: mp.Queue, events: mp.Queue, frames: mp.Queue, keyframe_every: int = 1,
+def worker_main(commands, events, frames, record_every: int = 10,
                 step_delay: float = 0.0) -> None:
-    """Entry point of the spawned process. Exits on a ``shutdown`` command."""
-    solver = _Solver(events, frames, keyframe_every, step_delay)
+    """Entry point of the spawned process. Exits on a ``shutdown`` command, or when the server
+    process is gone."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    parent = mp.parent_process()
+    solver = _Solver(events, frames, record_every, step_delay)
     parameters = {}
     try:  # import and compile here, so the server answers while this takes seconds
         from sim.simulation import Simulation
@@ -194,17 +299,28 @@ def worker_main(commands: mp.Queue, events: mp.Queue, frames: mp.Queue, keyframe
     except Exception:
         events.put({"kind": "log", "run": None, "text": traceback.format_exc()})
     events.put({"kind": "ready", "run": None, "parameters": parameters})
+    orphaned = False
     while True:
+        if parent is not None and not parent.is_alive():
+            orphaned = True
+            if solver.sim is not None:
+                solver.finish("failed", "the server process died")
+            break
         try:
             msg = commands.get_nowait() if solver.stepping else commands.get(timeout=0.2)
         except queue.Empty:
             msg = None
         if msg is not None:
             if msg["cmd"] == "shutdown":
+                if solver.sim is not None:
+                    solver.finish("stopped", "server shut down")
                 break
             solver.handle(msg)
             continue
         if solver.stepping:
             solver.step()
+    if orphaned:  # nobody reads the queues any more: do not wait to flush them
+        events.cancel_join_thread()
+        frames.cancel_join_thread()
     events.close()
     frames.close()

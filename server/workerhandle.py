@@ -11,13 +11,16 @@ _ids = itertools.count(1)
 
 
 class WorkerHandle:
-    def __init__(self, frame_queue: int, keyframe_every: int, step_delay: float):
+    def __init__(self, frame_queue: int, record_every: int, step_delay: float,
+                 target=worker_main):
+        """``target``: the process's entry point (``worker_main``; the benchmark passes a
+        frame generator with the same signature)."""
         ctx = mp.get_context("spawn")
         self.commands, self.events = ctx.Queue(), ctx.Queue()
-        self.frames = ctx.Queue(maxsize=frame_queue)
-        self.process = ctx.Process(target=worker_main, name="q3t-solver", daemon=True,
+        self.frames = ctx.Queue(maxsize=max(1, frame_queue))
+        self.process = ctx.Process(target=target, name="q3t-solver", daemon=True,
                                    args=(self.commands, self.events, self.frames,
-                                         keyframe_every, step_delay))
+                                         record_every, step_delay))
         self.process.start()
 
     @property
@@ -32,13 +35,17 @@ class WorkerHandle:
         self.commands.put({"id": rid, "cmd": cmd, **kw})
         return rid
 
-    def close(self, timeout: float = 3.0) -> None:
+    def close(self, timeout: float = 3.0) -> bool:
+        """Ask the process to exit, kill it if it does not. Returns whether it exited itself."""
+        clean = True
         if self.alive():
             self.send("shutdown")
             self.process.join(timeout)
         if self.alive():
+            clean = False
             self.process.kill()
             self.process.join(1.0)
         for q in (self.commands, self.events, self.frames):
             q.cancel_join_thread()
             q.close()
+        return clean

@@ -1,5 +1,6 @@
 """``q3t bench``: per-Newton-iteration cost (assembly, factorisation, solve) at the paper's
-Table 1 sizes, and the factorisation comparison of its Fig. 7 (same elements / same nodes).
+Table 1 sizes, and the factorisation comparison of its Fig. 7 on the cantilever (same elements /
+same nodes; ``sim.study.factorisation_report``, also ``q3t study --factorisation``).
 
 Medians of ``--repeat`` runs; the machines are noisy, so compare ratios more than seconds.
 """
@@ -21,6 +22,9 @@ CASES = {
     "cup": {"scene": "cup_blank", "edge": {"linear": 0.00046, "q3t": 0.00046,
                                             "quadratic": 0.00092}},
 }
+# Fig. 7 levels: the cantilever at 80 to 4,500 triangles; equal edge lengths give equal
+# elements, and Q3T at one level has the nodes of quadratic at the next coarser (about 2x edge)
+FIG7_LEVELS = [0.035, 0.0175, 0.00875, 0.0046667]
 PAPER = {("beam", "linear"): 0.184, ("beam", "q3t"): 0.298, ("beam", "quadratic"): 0.372,
          ("cup", "linear"): 0.812, ("cup", "q3t"): 1.887, ("cup", "quadratic"): 2.525}
 
@@ -33,24 +37,20 @@ def _scene(case: str, element: str, edge: float, extra: dict | None = None):
     return load_scene(resolve_scene(CASES[case]["scene"]), overrides)
 
 
-# the beam as an elastoplastic sheet: the same Hencky energy plus the return mapping, at a
-# yield stress low enough that the perturbed state yields (plasticity's cost per iteration)
-PLASTIC = {"material.model": "plastic", "material.yield_stress": 1e3}
 HENCKY = {"material.model": "hencky"}
 
 
-def measure(case: str, element: str, edge: float, repeat: int, extra=None) -> dict:
-    from sim.linsolve import SingularMatrix
-    from sim.newton import _solve
+def _prepare(case: str, element: str, edge: float, extra=None):
+    """(sim, state, build seconds): the scene at a smooth deflection of a tenth of the
+    thickness, a state Newton meets (random noise compresses fibres locally and makes the exact
+    Hessian indefinite, which no run does), compiled and warmed up."""
     from sim.simulation import Simulation
 
     t0 = time.perf_counter()
     sim = Simulation.from_scene(_scene(case, element, edge, extra))
     build = time.perf_counter() - t0
-    m, P = sim.model, sim.model.problem
+    m = sim.model
     h = float(np.mean(m.shell.thickness))
-    # a smooth deflection of a tenth of the thickness: a state Newton meets (random noise
-    # compresses fibres locally and makes the exact Hessian indefinite, which no run does)
     X = m.x0
     lo, hi = X.min(0), X.max(0)
     s_ = np.sin(np.pi * (X[:, 0] - lo[0]) / (hi[0] - lo[0]))
@@ -58,37 +58,90 @@ def measure(case: str, element: str, edge: float, repeat: int, extra=None) -> di
     x = X.copy()
     x[:, 2] += 0.1 * h * s_
     x[m.fixed] = X[m.fixed]
-    P.evaluate(x, exact=m.settings.try_exact)  # compile / warm up
-    out = {"assembly": [], "factorisation": [], "solve": [], "energy": []}
-    for _ in range(repeat):
-        t = time.perf_counter()
-        # as Newton does: the exact Hessian first (the projected one only when it is indefinite)
-        _, _, g, data = P.evaluate(x, exact=m.settings.try_exact)
-        t1 = time.perf_counter()
-        try:
-            P.solver.factor(data)
-        except SingularMatrix:  # as Newton: the projected Hessian when the exact one is not PD
-            _, _, g, data = P.evaluate(x)
-            P.solver.factor(data)
-        t2 = time.perf_counter()
-        _solve(P, data, g.ravel())
-        t3 = time.perf_counter()
-        P.energy(x)
-        t4 = time.perf_counter()
-        out["assembly"].append(t1 - t)
-        out["factorisation"].append(t2 - t1)
-        out["solve"].append(t3 - t2)
-        out["energy"].append(t4 - t3)
-    med = {k: float(np.median(v)) for k, v in out.items()}
-    # one Newton iteration = energy+gradient+Hessian in one pass (the line search's full step,
-    # reused by the next iteration), factorisation, solve; an energy-only evaluation is paid
-    # only when the full step is rejected
+    _iteration(sim, x)  # compile / warm up
+    return sim, x, build
+
+
+def _iteration(sim, x) -> dict:
+    """One Newton iteration as Newton does it, timed: energy + gradient + exact Hessian in one
+    pass (the line search's full step, reused by the next iteration), factorisation (with the
+    projected Hessian evaluated again if the exact one is not positive definite), one solve;
+    plus an energy-only evaluation (paid only when a full step is rejected)."""
+    from sim.linsolve import SingularMatrix
+    from sim.newton import _solve
+
+    m, P = sim.model, sim.model.problem
+    t = time.perf_counter()
+    _, _, g, data = P.evaluate(x, exact=m.settings.try_exact)
+    t1 = time.perf_counter()
+    projected = False
+    try:
+        P.solver.factor(data)
+    except SingularMatrix:
+        _, _, g, data = P.evaluate(x)
+        P.solver.factor(data)
+        projected = True
+    t2 = time.perf_counter()
+    _solve(P, data, g.ravel())
+    t3 = time.perf_counter()
+    P.energy(x)
+    t4 = time.perf_counter()
+    return {"assembly": t1 - t, "factorisation": t2 - t1, "solve": t3 - t2, "energy": t4 - t3,
+            "projected": projected}
+
+
+def _row(case, element, sim, build, times: list[dict]) -> dict:
+    m = sim.model
+    med = {k: float(np.median([t[k] for t in times]))
+           for k in ("assembly", "factorisation", "solve", "energy")}
     med["iteration"] = med["assembly"] + med["factorisation"] + med["solve"]
     c = sim.result()["counts"]
     return {"case": case, "element": element, "vertices": c["vertices"],
             "elements": c["elements"], "nodes": c["nodes"], "dofs": c["dofs"],
             "nnz_upper": int(m.pattern.nnz), "solver": m.built["linear_solver"],
-            "build_s": build, **med, "paper_s": PAPER.get((case, element))}
+            "build_s": build, **med, "projected_hessian": any(t["projected"] for t in times),
+            "paper_s": PAPER.get((case, element))}
+
+
+def measure(case: str, element: str, edge: float, repeat: int, extra=None) -> dict:
+    sim, x, build = _prepare(case, element, edge, extra)
+    return _row(case, element, sim, build, [_iteration(sim, x) for _ in range(repeat)])
+
+
+def plastic(repeat: int, element: str = "q3t") -> list[dict]:
+    """Plasticity's cost per iteration on the beam at the elastic case's size: a Swift-hardening
+    sheet whose yield stress is the median von Mises stress of the deflected state, so about half
+    of the quadrature points return to the yield surface and half stay elastic, against the same
+    sheet elastic with the plastic model's own energy (Hencky: the 1.5x bound's baseline) and
+    with the default Neo-Hookean (closed-form, SVD-free). Runs are interleaved, one iteration of
+    each per round, so drifts of a shared machine hit all three alike; ratios are medians of the
+    per-round ratios."""
+    edge = CASES["beam"]["edge"][element]
+    hencky = _prepare("beam", element, edge, HENCKY)
+    y0 = float(np.median(hencky[0].model.elasticity.von_mises(hencky[1])))
+    swift = {"material.model": "plastic", "material.yield_stress": y0,
+             "material.hardening": {"law": "swift", "K": 3 * y0, "n": 0.2}}
+    cases = {"beam_neo_hookean": _prepare("beam", element, edge),
+             "beam_hencky": hencky, "beam_plastic": _prepare("beam", element, edge, swift)}
+    el = cases["beam_plastic"][0].model.elasticity
+    fp, ep = el.fp_inv.copy(), el.ep.copy()
+    el.commit(cases["beam_plastic"][1])  # which points would flow at this state
+    yielding = float(np.mean(el.ep > 0))
+    el.fp_inv[:], el.ep[:] = fp, ep
+    times = {k: [] for k in cases}
+    for _ in range(repeat):
+        for k, (sim, x, _) in cases.items():
+            times[k].append(_iteration(sim, x))
+    rows = [_row(k, element, sim, build, times[k]) for k, (sim, _, build) in cases.items()]
+    plastic_row = rows[-1]
+    plastic_row["yield_stress"], plastic_row["yielding_fraction"] = y0, yielding
+    for k in ("beam_hencky", "beam_neo_hookean"):
+        for part, keys in (("iteration", ("assembly", "factorisation", "solve")),
+                           ("assembly", ("assembly",))):
+            per_round = [sum(tp[p] for p in keys) / sum(tb[p] for p in keys)
+                         for tp, tb in zip(times["beam_plastic"], times[k], strict=True)]
+            plastic_row[f"{part}_ratio_vs_{k[5:]}"] = float(np.median(per_round))
+    return rows
 
 
 def _print(r: dict) -> None:
@@ -98,27 +151,39 @@ def _print(r: dict) -> None:
           f"{r['energy']:.3f})  paper {r['paper_s']}", flush=True)
 
 
-def forming(edge: float, steps: int, element: str = "q3t") -> dict:
-    """The first ``steps`` steps of cup_drawing (contact, friction, plasticity) at a given edge:
-    seconds per Newton iteration and iterations per step."""
+def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
+    """cup_drawing as shipped (50 steps over the 25 mm stroke) at a given edge, run to step
+    ``until``; the last ``steps`` of them are timed: seconds per Newton iteration and
+    iterations per step while the punch nose, the die shoulder and the holder are in contact,
+    with friction (its fixed point included) and plastic flow (mid-stroke by default)."""
     from sim.cli import resolve_scene
     from sim.scene import load_scene
     from sim.simulation import Simulation
 
-    base = load_scene(resolve_scene("cup_drawing"))
-    frac = steps / base.stepping.steps
     sim = Simulation.from_scene(load_scene(resolve_scene("cup_drawing"), {
-        "shell.element": element, "mesh.edge_length": edge, "stepping.steps": steps,
-        "tools.0.velocity": [v * frac for v in base.tools[0].velocity]}))
-    sim.run()
+        "shell.element": element, "mesh.edge_length": edge}))
+    until = min(until, sim.n_steps)
+    first = max(0, until - steps)
+    while sim.step_index < first:
+        sim.step()
+    before = dict(vars(sim.timing))
+    wall = sim.wall
+    while sim.step_index < until:
+        sim.step()
+    t = {k: v - before[k] for k, v in vars(sim.timing).items()}
+    n_it = max(1, t["iterations"])
+    rec = sim.records[-1]
     res = sim.result()
-    t = res["timing"]
     return {"case": "cup_forming", "element": element, **res["counts"],
-            "converged": res["converged"], "steps": len(res["steps"]),
-            "newton_per_step": t["newton_iterations"] / max(1, len(res["steps"])),
-            "per_iteration": t["per_iteration"], "assembly": t["assembly"],
-            "factorisation": t["factorisation"], "solve": t["solve"],
-            "line_search": t["line_search"], "total": t["total"], "paper_s": 1.887}
+            "converged": sim.failure is None, "steps": f"{first + 1}-{until}",
+            "stroke_mm": -1e3 * rec.probes.get("punch_travel", float("nan")),
+            "punch_force_kN": 1e-3 * rec.probes.get("punch_force", float("nan")),
+            "newton_per_step": t["iterations"] / max(1, until - first),
+            "per_iteration": (t["assembly"] + t["factorisation"] + t["solve"]
+                              + t["line_search"]) / n_it,
+            "assembly": t["assembly"] / n_it, "factorisation": t["factorisation"] / n_it,
+            "solve": t["solve"] / n_it, "line_search": t["line_search"] / n_it,
+            "total": sim.wall - wall, "paper_s": 1.887}
 
 
 def run(args) -> int:
@@ -127,19 +192,34 @@ def run(args) -> int:
     elements = args.elements.split(",")
     for case in cases:
         if case == "plastic":
-            for label, extra in (("beam_hencky", HENCKY), ("beam_plastic", PLASTIC)):
-                r = measure("beam", "q3t", CASES["beam"]["edge"]["q3t"], args.repeat, extra)
-                r["case"] = label
+            for r in plastic(args.repeat):
                 rows.append(r)
                 _print(r)
+            r = rows[-1]
+            print(f"plastic: {100 * r['yielding_fraction']:.0f} % of points yielding (Swift, "
+                  f"yield {r['yield_stress']:.3g} Pa); per iteration "
+                  f"{r['iteration_ratio_vs_hencky']:.2f}x Hencky, "
+                  f"{r['iteration_ratio_vs_neo_hookean']:.2f}x Neo-Hookean; evaluation "
+                  f"{r['assembly_ratio_vs_hencky']:.2f}x / "
+                  f"{r['assembly_ratio_vs_neo_hookean']:.2f}x (bound: 1.5x the elastic "
+                  "iteration, Hencky)", flush=True)
+            continue
+        if case == "factorisation":
+            from sim.cli import resolve_scene
+            from sim.study import factorisation_report
+
+            fig7 = factorisation_report(str(resolve_scene("cantilever")), elements, FIG7_LEVELS,
+                                        Path(args.out) / "factorisation", args.repeat)
+            rows += [{"case": "fig7", **r} for r in fig7]
             continue
         if case == "forming":
-            r = forming(CASES["cup"]["edge"]["q3t"], args.forming_steps)
+            r = forming(CASES["cup"]["edge"]["q3t"], args.forming_steps, args.forming_to)
             rows.append(r)
             print(f"cup_forming q3t {r['elements']} el {r['dofs']} dof: "
                   f"{r['per_iteration']:.3f} s per Newton iteration, "
-                  f"{r['newton_per_step']:.1f} iterations per step "
-                  f"({r['steps']} steps, converged {r['converged']})", flush=True)
+                  f"{r['newton_per_step']:.1f} iterations per step (steps {r['steps']}, "
+                  f"{r['stroke_mm']:.1f} mm stroke, punch force {r['punch_force_kN']:.1f} kN, "
+                  f"converged {r['converged']})  paper {r['paper_s']}", flush=True)
             continue
         for el in elements:
             r = measure(case, el, CASES[case]["edge"][el], args.repeat)
@@ -156,10 +236,14 @@ def run(args) -> int:
 
 def add_parser(sub) -> None:
     b = sub.add_parser("bench", help="per-iteration cost at the paper's Table 1 sizes")
-    b.add_argument("--cases", default="beam,cup,plastic,forming",
-                   help="beam, cup (Table 1 sizes), plastic (elastic vs plastic beam), "
-                        "forming (cup_drawing steps at the paper's cup size)")
-    b.add_argument("--forming-steps", type=int, default=3)
+    b.add_argument("--cases", default="beam,cup,factorisation,plastic,forming",
+                   help="beam, cup (Table 1 sizes), factorisation (Fig. 7: the cantilever "
+                        "at 80-4,500 elements), plastic (elastic vs plastic beam), forming "
+                        "(cup_drawing steps at the paper's cup size)")
+    b.add_argument("--forming-steps", type=int, default=3,
+                   help="forming: how many steps are timed (the last ones before --forming-to)")
+    b.add_argument("--forming-to", type=int, default=25,
+                   help="forming: the step (of 50) the cup is run to; 25 = 12.5 mm, mid-stroke")
     b.add_argument("--elements", default="linear,q3t,quadratic")
     b.add_argument("--repeat", type=int, default=5)
     b.add_argument("--out", default="runs/bench")

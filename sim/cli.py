@@ -11,22 +11,25 @@ SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
 
 def resolve_scene(name: str) -> Path:
+    """A TOML path or a scene name in scenes/; SceneError (exit 2) otherwise."""
+    from sim.scene import SceneError
+
     p = Path(name)
     if p.is_file():
         return p
     q = SCENES / f"{name}.toml"
     if q.is_file():
         return q
-    raise SystemExit(f"q3t: no scene {name!r} (not a file, not in {SCENES})")
+    raise SceneError(f"no scene {name!r} (not a file, not in {SCENES})")
 
 
 def parse_sets(items: list[str]) -> dict:
-    from sim.scene import parse_value
+    from sim.scene import SceneError, parse_value
 
     out = {}
     for it in items:
         if "=" not in it:
-            raise SystemExit(f"q3t: --set needs key.path=value, got {it!r}")
+            raise SceneError(f"--set needs key.path=value, got {it!r}")
         k, v = it.split("=", 1)
         out[k.strip()] = parse_value(v.strip())
     return out
@@ -91,7 +94,13 @@ def main(argv: list[str] | None = None) -> int:
     if server_cli is not None:
         server_cli.add_parser(sub)
     args = ap.parse_args(argv)
-    return args.func(args)
+    from sim.scene import SceneError
+
+    try:
+        return args.func(args)
+    except SceneError as exc:  # bad input, whichever command read it: exit 2 like argparse
+        print(f"q3t: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -70,6 +70,9 @@ import numpy as np
 from .materials.isotropic import eigh3
 from .tools.sdf import _pose, sdf_world, sdf_world_distance
 
+# design contact pressure of auto_stiffness, as a fraction of Young's modulus
+DESIGN_PRESSURE = 4e-3
+
 # ----------------------------------------------------------------------------------------------
 # normal contact
 # ----------------------------------------------------------------------------------------------
@@ -180,26 +183,34 @@ def normal_forces(X, prog, R, t, k, delta, *, c2=False):
     return lam, normals
 
 
-def auto_stiffness(E_young, thickness, edge_length, *, pressure=None, penetration=0.01):
+def auto_stiffness(E_young, thickness, area, *, pressure=None, penetration=0.01):
     """Penalty stiffness k (N/m per node) from the sheet data.
 
-    Rule: a surface node carries the contact pressure p of its tributary area A = edge_length^2,
-    i.e. a force F = p A. The penalty spring then penetrates s = F / k; asking s <= alpha t
-    (alpha = ``penetration``, default 1 % of the sheet thickness t) gives
+    Rule: a skin node carries the contact pressure p on its tributary area; ``area`` is the
+    largest one, A (sim.model takes the largest nodal share of a unit pressure on the skin,
+    the consistent load: 4/3 h^2 on a criss-cross grid of spacing h, about 0.87 e^2 inside a
+    mesh of equilateral triangles of edge e, a third of the triangle area per edge node and
+    none per vertex for quadratic triangles). The node then takes a force F <= p A and its
+    spring is compressed by s = F / k; asking s <= alpha t (alpha = ``penetration``, default
+    1 % of the sheet thickness t) gives
         k = p A / (alpha t).
-    p is the typical forming contact pressure; by default p = 1e-3 E_young, which is the order
-    of the yield stress of sheet metals (steel 210 GPa -> 210 MPa, aluminium 70 GPa -> 70 MPa)
-    and an upper bound for blank-holder pressures (a few MPa); contact pressure under the
-    punch nose approaches the yield stress. Pass ``pressure`` when it is known.
+    p is the design contact pressure; by default p = 4e-3 E_young, the order of the tensile
+    strength of sheet metals (steel 210 GPa -> 840 MPa, aluminium 70 GPa -> 280 MPa), which
+    the contact pressure under a punch nose approaches; blank-holder pressures (a few MPa) are
+    far below it. Pass ``pressure`` when it is known.
+    Penetration: the model starts the spring a contact layer delta = alpha t outside the tool
+    (sim.model), so the tool surface itself is penetrated by s - delta <= alpha t (p_c / p - 1)
+    at a contact pressure p_c: not at all up to the design pressure, by at most alpha t up to
+    twice it (tests/test_contact.py measures both).
     Conditioning: the through-thickness stiffness of the sheet under one node is about
-    E A / t, so k / (E A / t) = p / (alpha E) = 0.1 with the defaults: the penalty is stiff
-    enough to keep penetrations at 1 % of t and an order of magnitude softer than the sheet,
-    which keeps the Newton system well conditioned. Tighter alpha raises k proportionally.
+    E A / t, so k / (E A / t) = p / (alpha E) = 0.4 with the defaults: the penalty is stiff
+    enough to keep penetrations at 1 % of t and still softer than the sheet under it, which
+    keeps the Newton system well conditioned. Tighter alpha raises k proportionally.
     """
-    if E_young <= 0 or thickness <= 0 or edge_length <= 0 or penetration <= 0:
-        raise ValueError("E_young, thickness, edge_length and penetration must be positive")
-    p = 1e-3 * E_young if pressure is None else float(pressure)
-    return p * edge_length * edge_length / (penetration * thickness)
+    if E_young <= 0 or thickness <= 0 or area <= 0 or penetration <= 0:
+        raise ValueError("E_young, thickness, area and penetration must be positive")
+    p = DESIGN_PRESSURE * E_young if pressure is None else float(pressure)
+    return p * area / (penetration * thickness)
 
 
 # ----------------------------------------------------------------------------------------------

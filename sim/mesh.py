@@ -95,14 +95,50 @@ def cylinder_band(radius: float, height: float, edge_length: float) -> TriMesh:
     return TriMesh(V, F)
 
 
+class MeshFileError(ValueError):
+    """A mesh file that is missing or cannot be read."""
+
+
 def load(path: str | Path, scale: float = 1.0) -> TriMesh:
     """Any OBJ/PLY/STL trimesh reads; ``scale`` converts the file's length unit to metres."""
+    return load_with_values(path, scale)[0]
+
+
+def load_with_values(path: str | Path, scale: float = 1.0, values: np.ndarray | None = None,
+                     attribute: str | None = None) -> tuple[TriMesh, np.ndarray | None]:
+    """:func:`load`, carrying one value per vertex of the file (``values (n_file,)`` in the
+    file's vertex order, or the PLY vertex property ``attribute``) through trimesh's merging
+    of duplicate vertices (the first of duplicates keeps its value) and removal of unused
+    ones. Returns the mesh and the values per mesh vertex (None without any)."""
     import trimesh
 
-    m = trimesh.load(path, force="mesh", process=True)
-    if len(m.faces) == 0:
-        raise ValueError(f"{path}: no triangles")
-    return TriMesh(np.asarray(m.vertices, float) * scale, np.asarray(m.faces, np.int64))
+    path = Path(path)
+    if not path.is_file():
+        raise MeshFileError(f"no mesh file {str(path)!r}")
+    try:
+        m = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh's parsers raise anything on a malformed file
+        raise MeshFileError(f"{path.name}: not a readable mesh ({exc})") from None
+    if not hasattr(m, "faces") or len(m.faces) == 0:
+        raise MeshFileError(f"{path.name}: no triangles")
+    if attribute is not None:
+        raw = m.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
+        # ASCII PLY: a dict of columns; binary: a structured array
+        names = tuple(raw) if isinstance(raw, dict) else (raw.dtype.names or ()) \
+            if raw is not None else ()
+        if attribute not in names:
+            raise ValueError(f"{path.name}: no vertex property {attribute!r} "
+                             f"(has {', '.join(n for n in names) or 'none'})")
+        values = np.asarray(raw[attribute], float)
+    if values is not None:
+        values = np.asarray(values, float).ravel()
+        if len(values) != len(m.vertices):
+            raise ValueError(f"{len(values)} values for the {len(m.vertices)} vertices of "
+                             f"{path.name}")
+        m.vertex_attributes["value"] = values
+    m.process()  # merge duplicates (STL has no shared vertices), drop unused
+    out = np.asarray(m.vertex_attributes["value"], float) if values is not None else None
+    return TriMesh(np.asarray(m.vertices, float) * scale, np.asarray(m.faces, np.int64)), out
 
 
 def vertex_normals(mesh: TriMesh) -> np.ndarray:

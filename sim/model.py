@@ -1,7 +1,9 @@
 """Discretisation: a validated Scene becomes a Model (shell, energy terms, Dirichlet data).
 
 Only what the scene asks for is built: no inertia for statics, no load term without loads, no
-plastic state for an elastic material. ``Model.built`` lists what was built.
+plastic state for an elastic material, no contact without tools. ``Model.built`` (``describe``)
+reports what was built, read off the model itself: energy terms, state arrays with their shapes,
+the linear solver, and the outputs of a run (probes, sections, frame fields, tools shown).
 """
 
 from __future__ import annotations
@@ -46,6 +48,66 @@ def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
     return meshes.load(spec.path, spec.scale)
 
 
+def imperfect(mesh: meshes.TriMesh, amplitude: float) -> meshes.TriMesh:
+    """``MeshSpec.imperfection``: one smooth out-of-plane bump over a flat mesh's extent."""
+    if amplitude == 0.0:
+        return mesh
+    V = mesh.vertices
+    if np.ptp(V[:, 2]) > 1e-12 * np.ptp(V, axis=0).max():
+        raise ValueError("mesh.imperfection: needs a flat mesh (z = const)")
+    lo, span = V.min(0), np.ptp(V, axis=0)
+    s, t = (V[:, 0] - lo[0]) / span[0], (V[:, 1] - lo[1]) / span[1]
+    out = V.copy()
+    out[:, 2] += amplitude * np.sin(np.pi * s) * np.sin(np.pi * t)
+    return meshes.TriMesh(out, mesh.faces)
+
+
+def _read_values(path: str) -> np.ndarray:
+    """A .npy array or a text file of numbers (whitespace or comma separated)."""
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"no file {path!r}")
+    try:
+        if p.suffix == ".npy":
+            return np.asarray(np.load(p, allow_pickle=False), float).ravel()
+        return np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, ndmin=1).ravel()
+    except ValueError as exc:
+        raise ValueError(f"{p.name} is not an array of numbers ({exc})") from None
+
+
+def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray]:
+    """The mid-surface and the thickness at each of its vertices ``(n_v,)`` (m); errors name
+    the shell field they come from."""
+    sh, spec = scene.shell, scene.mesh
+    field_name = "shell.thickness_file" if sh.thickness_file else "shell.thickness_attribute"
+    try:
+        values = _read_values(sh.thickness_file) if sh.thickness_file else None
+        if spec.kind == "file":
+            mesh, h = meshes.load_with_values(spec.path, spec.scale, values,
+                                              sh.thickness_attribute)
+        else:
+            mesh, h = build_mesh(spec), values
+            if h is not None and len(h) != len(mesh.vertices):
+                raise ValueError(f"{len(h)} values for the {len(mesh.vertices)} vertices of "
+                                 f"the {spec.kind} mesh")
+    except meshes.MeshFileError as exc:
+        raise ValueError(f"mesh.path: {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"{field_name}: {exc}") from None
+    mesh = imperfect(mesh, spec.imperfection)
+    if h is None:
+        h = sh.thickness + mesh.vertices @ np.asarray(sh.thickness_gradient)
+        field_name = "shell.thickness_gradient"
+    bad = ~np.isfinite(h) | (h <= 0)
+    if bad.any():
+        v = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{field_name}: thickness must be positive at every vertex "
+                         f"({int(bad.sum())} are not; vertex {v}: {h[v]:.3g} m)")
+    return mesh, np.asarray(h, float)
+
+
 def lame(E: float, nu: float) -> tuple[float, float]:
     return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
@@ -55,10 +117,7 @@ def material_params(m: MaterialSpec) -> np.ndarray:
     mu, lam = lame(m.E, m.nu)
     if m.model != "plastic":
         return np.array([mu, lam, 0.0, 0.0])
-    h, y0 = m.hardening, m.yield_stress
-    hp = {"perfect": [y0], "linear": [y0, h.modulus], "swift": [h.K, h.e0, h.n],
-          "voce": [y0, h.saturation, h.rate]}[h.law]
-    return np.array([mu, lam, float(LAWS[h.law]), *hp])
+    return np.array([mu, lam, float(LAWS[m.hardening.law]), *m.hardening_params()])
 
 
 def region_mask(shell: Shell, r: RegionSpec) -> np.ndarray:
@@ -123,7 +182,7 @@ class Model:
     inertia: Inertia | None
     x0: np.ndarray  # (n_nodes + n_tool_dofs, 3): rest positions, then force-controlled tools
     fixed: np.ndarray  # (n_nodes + n_tool_dofs, 3) bool
-    prescribed: np.ndarray  # (n_nodes, 3) displacement at t = 1 on fixed DoFs
+    prescribed: np.ndarray  # (n_nodes, 3) displacement at the end of the ramp on fixed DoFs
     bends: list  # (node ids, BendSpec) moved along arcs
     regions: dict[str, np.ndarray]  # name -> in-plane node mask
     settings: NewtonSettings
@@ -133,10 +192,26 @@ class Model:
     released: np.ndarray | None = None  # (n_nodes, 3) bool: DoFs freed for springback
     release_support: np.ndarray | None = None  # (n_nodes, 3) bool: held only for springback
 
+    # keyframed BCs: (node ids (m,), component ids (c,), times (k,), displacements (k, c)),
+    # times starting at 0 with zero displacement
+    motions: list = field(default_factory=list)
+
+    def ramp(self, t: float) -> float:
+        """Default time curve of prescribed displacements and bends (sim.scene.BCSpec): linear
+        from 0 to 1 over the run (static) or over stepping.load_ramp, else 1 s (dynamic)."""
+        st = self.scene.stepping
+        length = 1.0 if st.kind == "static" or st.load_ramp == 0 else st.load_ramp
+        return min(1.0, t / length)
+
     def dirichlet_positions(self, t: float) -> np.ndarray:
-        x = self.x0 + t * self.prescribed
+        """Positions ``(n_nodes + n_tool_dofs, 3)`` with every prescribed DoF at scene time t."""
+        f = self.ramp(t)
+        x = self.x0 + f * self.prescribed
         for nodes, bend in self.bends:
-            x[nodes] = arc_positions(self.shell.rest[nodes], bend.angle * t, bend.length)
+            x[nodes] = arc_positions(self.shell.rest[nodes], bend.angle * f, bend.length)
+        for nodes, comps, times, values in self.motions:
+            for j, c in enumerate(comps):
+                x[nodes, c] = self.x0[nodes, c] + np.interp(t, times, values[:, j])
         return x
 
     def column_nodes(self, plane_mask: np.ndarray, layers: str = "all") -> np.ndarray:
@@ -157,11 +232,7 @@ class Model:
 
 def build_model(scene: Scene) -> Model:
     elem = get_element(scene.shell.element)
-    mesh = build_mesh(scene.mesh)
-    h = scene.shell.thickness + mesh.vertices @ np.asarray(scene.shell.thickness_gradient)
-    if np.any(h <= 0):
-        raise ValueError(f"shell.thickness_gradient: thickness reaches {h.min():.3g} m "
-                         "(must stay positive on the whole mesh)")
+    mesh, h = mesh_and_thickness(scene)
     shell = extrude(mesh, h, elem)
     rule_spec = scene.shell.quadrature or elem.default_quadrature
     if scene.shell.thickness_points:
@@ -180,7 +251,6 @@ def build_model(scene: Scene) -> Model:
     elastic = Elasticity(shell, rule, MODEL_IDS[m.model], material_params(m), pattern,
                          PROJECTIONS[scene.solver.hessian_projection], plastic=plastic)
     terms: list[Term] = [elastic]
-    built = {"terms": ["elasticity"], "plastic_state": plastic}
     regions = {r.name: region_mask(shell, r) for r in scene.regions}
     ext = _external_force(scene, shell, rule, elastic, regions, x0)
     dynamic = scene.stepping.kind == "dynamic"
@@ -189,23 +259,20 @@ def build_model(scene: Scene) -> Model:
         if dynamic:
             ext.scale = (lambda t: min(1.0, t / ramp)) if ramp > 0 else (lambda t: 1.0)
         terms.append(ext)
-        built["terms"].append("external_force")
     inertia = None
     if dynamic:
         mass = np.concatenate([lumped_mass(shell, rule, elastic.wdetJ, m.density),
                                np.zeros(len(forced))])
         inertia = Inertia(mass, pattern, x0)
         terms.append(inertia)
-        built["terms"].append("inertia")
     tools = _tools(scene, shell, pattern, candidates)
     terms += tools
-    built["terms"] += [t.name for t in tools]
     fixed = np.zeros((n_total, 3), bool)
     fixed[shell.n_nodes:, :2] = True  # force-controlled tools move in z only
     prescribed = np.zeros((n_total, 3))
     model = Model(scene, shell, pattern, None, terms, elastic, ext, inertia, x0, fixed,
                   prescribed, [],
-                  regions, NewtonSettings(), built)
+                  regions, NewtonSettings())
     release_support = np.zeros((n_total, 3), bool)
     for i, bc in enumerate(scene.bcs):
         try:
@@ -217,9 +284,17 @@ def build_model(scene: Scene) -> Model:
             release_support[np.ix_(nodes, comps)] = True
             continue
         if bc.bend is not None:
-            if bc.components != "xyz":
-                raise ValueError(f"bcs.{i}.bend: a bent end needs components = 'xyz'")
+            # 'x' alone: the end section is turned like a rotated wall but free to move
+            # across the strip, so it carries a pure moment (no shear force)
+            if "x" not in bc.components:
+                raise ValueError(f"bcs.{i}.bend: a bent end prescribes x (its rotation): "
+                                 "components must include 'x'")
             model.bends.append((nodes, bc.bend))
+        if bc.keyframes:
+            kf = np.asarray(bc.keyframes, float)
+            if kf[0, 0] > 0:  # from rest at t = 0
+                kf = np.vstack([np.zeros(kf.shape[1]), kf])
+            model.motions.append((nodes, comps, kf[:, 0], kf[:, 1:]))
         for k in comps:
             fixed[nodes, k] = True
             prescribed[nodes, k] = bc.displacement[k]
@@ -241,30 +316,74 @@ def build_model(scene: Scene) -> Model:
                                     max_iterations=scene.solver.max_iterations)
     model.driven = bool(np.any(prescribed != 0.0) or model.bends)
     solver = make_solver(pattern, scene.solver.linear_solver)
-    built["linear_solver"] = solver.name
     model.problem = Problem(terms, pattern, solver, fixed)
+    model.built = describe(model)
     return model
 
 
+def frame_fields(model: Model) -> list[str]:
+    """Per-vertex fields of every frame (``Simulation.frame``): plastic strain only where there
+    is a plastic state."""
+    return ["thickness_mm", "thinning_pct", "von_mises_MPa",
+            *(["eq_plastic_strain"] if model.elasticity.plastic else [])]
+
+
+def describe(model: Model) -> dict:
+    """What ``model`` holds: ``terms`` (names), ``plastic_state``, ``state`` (array name ->
+    shape: what a step carries over besides the positions), ``linear_solver``, ``outputs``."""
+    el, inertia = model.elasticity, model.inertia
+    tools = [t for t in model.terms if isinstance(t, ToolContact)]
+    state: dict[str, list[int]] = {"positions": list(model.x0.shape)}
+    if el.plastic:
+        state |= {"plastic.fp_inv": list(el.fp_inv.shape), "plastic.ep": list(el.ep.shape)}
+    if inertia is not None:
+        state |= {"inertia.x_n": list(inertia.x_n.shape), "inertia.v": list(inertia.v.shape)}
+    for t in tools:  # committed tool position; contact is tested on these skin nodes
+        state |= {f"{t.name}.position": [3], f"{t.name}.candidates": [len(t.nodes)]}
+    sc = model.scene
+    return {"terms": [t.name for t in model.terms], "plastic_state": el.plastic,
+            "state": state, "linear_solver": model.problem.solver.name,
+            "outputs": {"probes": [p.name for p in sc.probes],
+                        "sections": [s.name for s in sc.sections],
+                        "frame_fields": frame_fields(model),
+                        "tools": [t.tool for t in tools]}}
+
+
 def tool_program(s) -> np.ndarray:
-    """SDF program of a ShapeSpec (sim.tools.sdf)."""
+    """SDF program of a ShapeSpec (sim.tools.sdf), CSG operands and placements included."""
     from sim.tools import sdf
 
-    if s.kind == "plane":
-        return sdf.plane(s.point, s.normal)
-    if s.kind == "box":
-        return sdf.rounded_box(s.half_extents, s.radius, s.center)
-    if s.kind == "punch":
-        return sdf.punch(s.radius, s.height, s.edge_radius)
-    if s.kind == "die_ring":
-        return sdf.die_ring(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
-    if s.kind == "blank_holder":
-        return sdf.blank_holder(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
-    if s.kind == "star":
-        return sdf.star(s.n_points, s.r_outer, s.r_inner, s.height, s.corner_radius,
-                        s.edge_radius, s.phase)
-    return sdf.star_die(s.n_points, s.r_outer, s.r_inner, s.height, s.edge_radius,
-                        s.corner_radius, phase=s.phase)
+    if s.kind in ("union", "subtract", "intersect"):
+        op = getattr(sdf, s.kind)
+        progs = [tool_program(c) for c in s.shapes]
+        prog = progs[0]
+        for other in progs[1:]:
+            prog = op(prog, other, s.blend)
+    elif s.kind == "plane":
+        prog = sdf.plane(s.point, s.normal)
+    elif s.kind == "box":
+        prog = sdf.rounded_box(s.half_extents, s.radius, s.center)
+    elif s.kind == "punch":
+        prog = sdf.punch(s.radius, s.height, s.edge_radius)
+    elif s.kind == "die_ring":
+        prog = sdf.die_ring(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
+    elif s.kind == "blank_holder":
+        prog = sdf.blank_holder(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
+    elif s.kind == "star":
+        prog = sdf.star(s.n_points, s.r_outer, s.r_inner, s.height, s.corner_radius,
+                        s.edge_radius, s.phase, s.reflex_radius or 0.0)
+    elif s.kind == "polygon":
+        prog = sdf.extruded_polygon(s.points, 0.0, s.height, s.corner_radius, s.edge_radius,
+                                    s.reflex_radius or 0.0)
+    else:
+        prog = sdf.star_die(s.n_points, s.r_outer, s.r_inner, s.height, s.edge_radius,
+                            s.corner_radius, phase=s.phase, valley_radius=s.reflex_radius)
+    if any(s.rotation) or any(s.offset):
+        rv = np.asarray(s.rotation, float)
+        angle = float(np.linalg.norm(rv))
+        R = sdf.rotation(rv / angle, angle) if angle > 0 else np.eye(3)
+        prog = sdf.moved(prog, R, s.offset)
+    return prog
 
 
 def _contact_nodes(shell) -> np.ndarray:
@@ -282,20 +401,18 @@ def _tools(scene, shell, pattern, nodes) -> list[ToolContact]:
 
     vdof = shell.n_nodes
     h = float(np.mean(shell.thickness))
-    F = shell.mesh.faces
-    edge = float(np.mean(np.linalg.norm(shell.mesh.vertices[F[:, 0]]
-                                        - shell.mesh.vertices[F[:, 1]], axis=1)))
+    # the largest tributary area of a skin node: its share of a unit pressure on the skin
+    area = float(np.linalg.norm(L.pressure(shell, np.ones(len(shell.conn), bool), 1.0, False),
+                                axis=1).max())
     out = []
     for i, t in enumerate(scene.tools):
         try:
             prog = tool_program(t.shape)
         except ValueError as exc:
             raise ValueError(f"tools.{i}.shape: {exc}") from None
-        # contact pressure under a punch nose reaches the sheet's tensile strength, about
-        # 4e-3 E for steels and aluminium alloys; auto_stiffness keeps the penetration at that
-        # pressure below 1 % of the thickness (measured: 0.6 % on cup_drawing)
-        k = t.stiffness or auto_stiffness(scene.material.E, h, edge,
-                                          pressure=4e-3 * scene.material.E)
+        # auto_stiffness: at its design pressure (4e-3 E, about the tensile strength) the
+        # spring is compressed by 1 % of t, the contact layer delta below
+        k = t.stiffness or auto_stiffness(scene.material.E, h, area)
         # slip below 1 % of the thickness counts as sticking (IPC's eps_v)
         kw = {}
         if t.force is not None:

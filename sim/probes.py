@@ -64,9 +64,41 @@ def vertex_average(model, per_qp: np.ndarray) -> np.ndarray:
     return acc / np.maximum(cnt, 1)
 
 
-def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[str, float]:
+def output_fields(model, x: np.ndarray, h0: np.ndarray) -> dict[str, np.ndarray]:
+    """Result fields at state x, per mid-surface vertex ``(n_v,)`` and per element
+    (``*_elem``, ``(n_elem,)``): thickness (m), thinning (% of the rest thickness ``h0``),
+    von Mises stress (Pa) and, for a plastic scene, the accumulated and the net (retained)
+    equivalent plastic strain. Element values are quadrature-point means; vertex values the
+    mean of the adjacent elements (thickness: measured at the vertex, as in the viewer)."""
+    from sim.materials.plasticity import net_plastic_strain
+
+    el, faces = model.elasticity, model.shell.mesh.faces
+    h = thickness(model, x)
+    per_qp = {"von_mises": el.von_mises(x)}
+    if el.plastic:  # an elastic scene has no plastic state to report
+        per_qp["eq_plastic_strain"] = el.ep
+        per_qp["net_plastic_strain"] = net_plastic_strain(el.fp_inv)
+    out = {"thickness": h, "thinning_pct": 100 * (1 - h / h0),
+           "thickness_elem": h[faces].mean(1), "thinning_pct_elem": 100 * (1 - h[faces].mean(1)
+                                                                           / h0[faces].mean(1))}
+    for name, q in per_qp.items():
+        out[name] = vertex_average(model, q)
+        out[f"{name}_elem"] = q.mean(1)
+    return out
+
+
+def field_summary(fields: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
+    """min / mean / max of each per-vertex field of :func:`output_fields` (result.json)."""
+    return {k: {"min": float(v.min()), "mean": float(v.mean()), "max": float(v.max())}
+            for k, v in fields.items() if not k.endswith("_elem")}
+
+
+def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None,
+             formed: np.ndarray | None = None) -> dict[str, float]:
     """Every probe of the scene at state ``x``; ``gradient`` is the total energy gradient (the
-    support reactions), computed here when a reaction probe needs it."""
+    support reactions), computed here when a reaction probe needs it; ``formed`` the
+    mid-surface (n_v, 3) at the end of the stroke, the reference of springback probes (they
+    read 0 before the release stage)."""
     out = {}
     sh = model.shell
     for p in model.scene.probes:
@@ -81,12 +113,26 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None) -> dict[s
             out[p.name] = float(getattr(np, p.stat)(h))
         elif p.kind == "volume":
             out[p.name] = volume(model, x)
+        elif p.kind == "cup_height":  # rim (the region, mean) above the lowest point
+            z = mid_surface(model, x)[:, 2]
+            out[p.name] = float(z[model.regions[p.region][: sh.n_vertices]].mean() - z.min())
         elif p.kind == "height_range":  # out-of-plane amplitude, e.g. of flange wrinkles
             v = model.regions[p.region][: sh.n_vertices]
             z = mid_surface(model, x)[v, 2]
             out[p.name] = float(z.max() - z.min())
         elif p.kind == "fibre_tilt":
-            out[p.name] = float(getattr(np, p.stat)(fibre_tilt(model, x)))
+            tilt = fibre_tilt(model, x)
+            if p.region:
+                tilt = tilt[model.regions[p.region][: sh.n_vertices]]
+            out[p.name] = float(getattr(np, p.stat)(tilt))
+        elif p.kind == "springback":  # deviation from the shape in the closed tools
+            if formed is None:
+                out[p.name] = 0.0
+                continue
+            v = (model.regions[p.region][: sh.n_vertices] if p.region
+                 else np.ones(sh.n_vertices, bool))
+            dev = np.linalg.norm(mid_surface(model, x)[v] - formed[v], axis=1)
+            out[p.name] = float(getattr(np, p.stat)(dev))
         elif p.kind == "curvature":
             v = model.regions[p.region][: sh.n_vertices]
             out[p.name] = curvature_xz(mid_surface(model, x)[v])

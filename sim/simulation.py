@@ -18,7 +18,7 @@ from sim.display import DisplayMesh
 from sim.model import Model, build_model
 from sim.newton import NewtonResult, Timing, minimise
 from sim.scene import Scene
-from sim.terms.contact import ToolContact
+from sim.terms.contact import ToolContact, settle_friction
 
 
 class SolverFailure(RuntimeError):
@@ -135,7 +135,7 @@ class Simulation:
             term.begin_step(t_new if m.scene.stepping.kind == "static" else t_new, dt, self.x)
         if m.external is not None:
             m.external.factor = float(self.load_factor(t_new)) * self.parameters["load_scale"]
-        target = m.dirichlet_positions(self.load_factor(t_new))
+        target = m.dirichlet_positions(t_new)  # each BC's own time curve
         # predictor: continue the last converged increment (quasi-static paths are smooth), so
         # a prescribed motion does not start as a jump concentrated on the boundary elements
         x0 = self.x.copy()
@@ -170,18 +170,20 @@ class Simulation:
         sees only where a sub-step ends, so a tool moving farther than that can start the
         iteration deep inside the sheet or pass through it unseen."""
         h = float(np.mean(self.model.shell.thickness))
+        sheet = self.x[: self.model.shell.n_nodes]
         for _ in range(30):
-            if all(np.linalg.norm(t.speed_scale * (dt * t.velocity + t.path(self.t + dt)
-                                                   - t.path(self.t))) <= h
-                   for t in self.tools):
+            if all(t.travel(self.t, self.t + dt, sheet) <= h for t in self.tools):
                 break
             dt /= 2
         return dt
 
     def _converged(self, res: NewtonResult) -> None:
-        self.x = res.x
+        # friction's lagged normal force settled at the converged state (sim.terms.contact)
+        self.x = settle_friction(self.model.problem, res.x, self.model.settings,
+                                 max(self._force_level, res.ref), self.timing,
+                                 self.model.driven)
         for term in self.model.terms:
-            term.commit(res.x)
+            term.commit(self.x)
         self._force_level = max(self._force_level, res.ref)
 
     def _release(self) -> StepRecord:
@@ -189,10 +191,13 @@ class Simulation:
         (remaining BCs hold their current positions)."""
         m = self.model
         start = time.perf_counter()
+        self.formed = probes.mid_surface(m, self.x)  # the shape in the closed tools
         m.problem.set_fixed((m.fixed & ~m.released) | m.release_support)
         released = {t.name for t in m.scene.tools if t.release}
         m.problem.terms = [t for t in m.terms
                            if not (isinstance(t, ToolContact) and t.tool in released)]
+        for tool in self.tools:  # the tools that stay hold their last position
+            tool.moving = False
         for term in m.terms:
             term.begin_step(self.t, self._dt(), self.x)
         if m.external is not None:
@@ -208,7 +213,8 @@ class Simulation:
         self._converged(res)
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, res.iterations, res.residuals[-1], res.energy,
-                         0, probes.evaluate(m, self.x), self._tool_reports())
+                         0, probes.evaluate(m, self.x, formed=self.formed),
+                         self._tool_reports())
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start
@@ -284,6 +290,12 @@ class Simulation:
         """Current translation (3,) of every tool."""
         return {t.tool: np.array(t.translation(self.x)) for t in self.tools}
 
+    def tool_rotations(self) -> dict[str, np.ndarray]:
+        """Current orientation of every tool as a unit quaternion (w, x, y, z)."""
+        from sim.terms.contact import quaternion_wxyz
+
+        return {t.tool: quaternion_wxyz(t.R_now) for t in self.tools}
+
     def frame(self) -> Frame:
         h = probes.thickness(self.model, self.x)
         rec = self.records[-1] if self.records else None
@@ -317,6 +329,7 @@ class Simulation:
             "failure": self.failure,
             "steps": [asdict(r) for r in self.records],
             "sections": self.sections,
+            "fields": probes.field_summary(probes.output_fields(m, self.x, self.h0)),
             "timing": {"total": self.wall, "assembly": t.assembly,
                        "factorisation": t.factorisation, "solve": t.solve,
                        "line_search": t.line_search, "newton_iterations": t.iterations,
@@ -331,9 +344,8 @@ class Simulation:
         sh = self.model.shell
         tmp = out / "final.tmp.npz"
         np.savez_compressed(tmp, rest=sh.rest, deformed=self.x[: sh.n_nodes],
-                            faces=sh.mesh.faces,
-                            conn=sh.conn, thickness=probes.thickness(self.model, self.x),
-                            rest_thickness=self.h0)
+                            faces=sh.mesh.faces, conn=sh.conn, rest_thickness=self.h0,
+                            **probes.output_fields(self.model, self.x, self.h0))
         tmp.replace(out / "final.npz")
         tmp = out / "result.tmp.json"
         tmp.write_text(json.dumps(self.result(), indent=1))

@@ -1,9 +1,15 @@
 """``q3t sweep``: the cartesian product of scene overrides, one Dask task per case.
 
-Each task loads the scene with its overrides, runs it and returns a small dict (``run_case``):
-a case whose scene is invalid or whose solver fails is a row of the table, never the end of the
-sweep. By default a ``LocalCluster`` of single-threaded worker processes runs the cases;
-``--scheduler`` sends them to an existing cluster instead (its workers need this package).
+Each task runs one case and returns a small dict (``run_case``): a case whose scene is invalid
+or whose solver fails is a row of the table, never the end of the sweep. By default a
+``LocalCluster`` of single-threaded worker processes runs the cases; ``--scheduler`` sends them
+to an existing cluster instead (its workers need this package).
+
+Two clocks bound a sweep. Each case runs in a child process of its worker
+(``sim.check.run_isolated``) that is killed after ``--budget`` seconds (status ``timeout``), so
+one hung case costs its budget and the worker moves on. ``--timeout`` bounds the whole sweep:
+cases not finished by then are cancelled and marked ``timeout``. Results are gathered as they
+finish and ``sweep.json`` is rewritten after each one, so whatever finished is always on disk.
 """
 
 from __future__ import annotations
@@ -11,19 +17,31 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import multiprocessing as mp
+import os
 import sys
+import threading
 import time
+from collections.abc import Callable
+from multiprocessing.context import ForkServerProcess
 from pathlib import Path
 
 # Numba's own pool would give every worker all cores: one thread each, the cluster is the pool.
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+DEFAULT_BUDGET = 600.0  # s per case: the slowest shipped scene at its default size takes ~60 s
 
 
-def run_case(scene_path: str, overrides: dict, measure=None) -> dict:
+def worker_env(threads: int = 1) -> dict[str, str]:
+    """Thread counts of a worker's numba, OpenMP and MKL pools, pinned before they start."""
+    return {k: str(threads) for k in WORKER_ENV}
+
+
+def run_case(scene_path: str, overrides: dict, series: bool = False, measure=None) -> dict:
     """Run one scene with ``overrides``; a summary that pickles small (no arrays).
 
     status: ``converged``, ``failed`` (solver diagnostic in ``reason``), ``invalid`` (the scene
     was rejected, message in ``reason``) or ``nan`` (converged with a non-finite probe).
+    ``series``: also every step's time and probes (``history``) and the recorded sections.
     ``measure(sim) -> dict``, when given, adds its numbers as ``measured`` after the run.
     """
     from sim.scene import load_scene
@@ -44,6 +62,12 @@ def run_case(scene_path: str, overrides: dict, measure=None) -> dict:
     out.update(converged=ok, wall=sim.wall, dofs=res["counts"]["dofs"],
                elements=res["counts"]["elements"], iterations=res["timing"]["newton_iterations"],
                cutbacks=sum(r.cutbacks for r in sim.records))
+    if series:  # the loading steps only: a release (springback) stage does not advance time
+        recs = [r for r in sim.records if r.step <= sim.model.scene.stepping.steps]
+        out["history"] = {"time": [r.time for r in recs],
+                          **{k: [r.probes[k] for r in recs]
+                             for k in (recs[0].probes if recs else {})}}
+        out["sections"] = sim.sections
     if sim.records:
         out["probes"] = dict(sim.records[-1].probes)
         out["residual"] = float(sim.records[-1].residual)
@@ -59,6 +83,59 @@ def run_case(scene_path: str, overrides: dict, measure=None) -> dict:
         out.update(status="nan", reason="non-finite probe after a converged run")
     return out
 
+
+class _WatchedProcess(ForkServerProcess):
+    """A case's child that exits once the Dask worker that started it is gone: a worker closed
+    with its cluster (a sweep's --timeout) would otherwise leave a hung case running until its
+    budget, as an orphan of the forkserver."""
+
+    def __init__(self, *args, **kw):
+        super().__init__(*args, **kw)
+        self.watch_pid = os.getpid()
+
+    def run(self):
+        def watch() -> None:
+            while True:
+                time.sleep(1.0)
+                try:
+                    os.kill(self.watch_pid, 0)
+                except ProcessLookupError:
+                    os._exit(143)
+
+        threading.Thread(target=watch, daemon=True).start()
+        super().run()
+
+
+class _WatchedContext:
+    """The ``ctx`` that ``run_isolated`` takes: sim.check's forkserver context (children forked
+    from a clean server with the solver imported), its processes watched."""
+
+    def __init__(self):
+        from sim.check import _context
+
+        self._ctx = _context()
+        self.Pipe = self._ctx.Pipe
+
+    def Process(self, **kw):  # noqa: N802 - the multiprocessing context's name
+        return _WatchedProcess(**kw)
+
+
+def isolated_case(scene_path: str, overrides: dict, budget: float) -> dict:
+    """``run_case`` in a child process killed after ``budget`` s (runs on a Dask worker).
+
+    A daemonic worker (an external cluster's default) may not start children: the case then
+    runs in the worker itself, without a budget, and the row says so."""
+    from sim.check import run_isolated
+
+    if mp.current_process().daemon:
+        out = run_case(scene_path, overrides)
+        out["budget"] = ("none: daemonic Dask worker (start it with "
+                         "DASK_DISTRIBUTED__WORKER__DAEMON=False)")
+        return out
+    out = run_isolated(scene_path, overrides, budget, _WatchedContext())
+    out.setdefault("overrides", dict(overrides))
+    out["budget"] = budget
+    return out
 
 def split_values(text: str) -> list[str]:
     """Split ``v1,v2,...`` at top-level commas, so ``[0,0,-9.81],[0,0,-1]`` is two values."""
@@ -96,27 +173,65 @@ def cases(grid: dict[str, list], fixed: dict | None = None) -> list[dict]:
             for combo in itertools.product(*(grid[k] for k in keys))]
 
 
-def run_sweep(scene_path: str, overrides: list[dict], workers: int = 2,
-              scheduler: str | None = None, timeout: float | None = None) -> list[dict]:
-    """Results in the order of ``overrides``. The cluster is closed on every way out; a sweep
-    still running after ``timeout`` seconds raises ``TimeoutError``."""
-    from distributed import Client, LocalCluster, wait
+def cluster_text(workers: int, threads: int, scheduler: str | None) -> str:
+    if scheduler:
+        return f"the Dask cluster at {scheduler}"
+    return (f"a local Dask cluster of {workers} worker process{'es' * (workers != 1)}, one "
+            f"task at a time each, numba/OpenMP/MKL pinned to {threads} thread"
+            f"{'s' * (threads != 1)}")
 
-    def gather(client) -> list[dict]:
-        futures = client.map(run_case, [scene_path] * len(overrides), overrides, pure=False)
-        wait(futures, timeout=timeout)
-        return [_row(f, o) for f, o in zip(futures, overrides, strict=True)]
+
+def run_tasks(calls: list[tuple], labels: list[dict], workers: int = 1, threads: int = 1,
+              scheduler: str | None = None, timeout: float | None = None,
+              on_result: Callable[[int, dict], None] | None = None) -> tuple[list[dict], bool]:
+    """Every ``(fn, *args)`` of ``calls`` as a Dask task, gathered as they finish; rows in the
+    order of ``calls``, which is also the order of their priorities on the cluster.
+
+    A task that raised is an ``error`` row, one still unfinished after ``timeout`` s is
+    cancelled and becomes a ``timeout`` row (``labels[i]`` is merged into both). ``on_result(i,
+    row)`` runs after each result; an exception it raises ends the run (and propagates).
+    Returns (rows, finished: no timeout hit). The local cluster is closed on every way out,
+    which ends its worker processes and any case still running in them."""
+    import dask
+    from distributed import Client, LocalCluster, as_completed
+
+    rows: list[dict | None] = [None] * len(calls)
+    finished = True
+
+    def gather(client) -> None:
+        nonlocal finished
+        futures = [client.submit(fn, *args, pure=False, priority=len(calls) - i)
+                   for i, (fn, *args) in enumerate(calls)]
+        where = {f.key: i for i, f in enumerate(futures)}
+        try:
+            for f in as_completed(futures, timeout=timeout):
+                i = where[f.key]
+                rows[i] = _row(f, labels[i])
+                if on_result:
+                    on_result(i, rows[i])
+        except TimeoutError:
+            finished = False
+        finally:
+            client.cancel([f for f in futures if not f.done()])
+        for i, r in enumerate(rows):
+            if r is None:
+                rows[i] = {**labels[i], "status": "timeout", "converged": False, "probes": {},
+                           "reason": f"not finished within the --timeout of {timeout:g} s"}
 
     if scheduler:
         with Client(scheduler, timeout=30) as client:
-            return gather(client)
-    with (LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                       dashboard_address=None, env=WORKER_ENV, silence_logs=40) as cluster,
-          Client(cluster) as client):
-        return gather(client)
+            gather(client)
+        return rows, finished
+    # non-daemonic workers may start the child processes that enforce per-case budgets
+    with (dask.config.set({"distributed.worker.daemon": False}),
+          LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                       dashboard_address=None, env=worker_env(threads), silence_logs=40)
+          as cluster, Client(cluster) as client):
+        gather(client)
+    return rows, finished
 
 
-def _row(future, overrides: dict) -> dict:
+def _row(future, label: dict) -> dict:
     """A task that raised (a bug, a lost worker) is still a row, not the end of the sweep."""
     if future.status == "finished":
         return future.result()
@@ -124,8 +239,16 @@ def _row(future, overrides: dict) -> dict:
         reason = repr(future.exception(timeout=1))
     except Exception as exc:  # noqa: BLE001 - cancelled or lost: say which
         reason = f"{future.status}: {exc!r}"
-    return {"overrides": overrides, "status": "error", "converged": False, "reason": reason,
-            "probes": {}}
+    return {**label, "status": "error", "converged": False, "reason": reason, "probes": {}}
+
+
+def run_sweep(scene_path: str, overrides: list[dict], workers: int = 2,
+              scheduler: str | None = None, timeout: float | None = None,
+              budget: float = DEFAULT_BUDGET, on_result=None) -> tuple[list[dict], bool]:
+    """Every case through ``isolated_case``; see ``run_tasks``."""
+    return run_tasks([(isolated_case, scene_path, o, budget) for o in overrides],
+                     [{"overrides": o} for o in overrides], workers, 1, scheduler, timeout,
+                     on_result)
 
 
 def table(rows: list[dict], grid_keys: list[str]) -> str:
@@ -178,36 +301,64 @@ def _as_x(v):
     return v if isinstance(v, (int, float)) else str(v)
 
 
+def _write(out: Path, name: str, data: dict) -> None:
+    """Through a temporary name: an interrupted sweep never leaves half a file."""
+    tmp = out / f"{name}.tmp"
+    tmp.write_text(json.dumps(data, indent=1))
+    tmp.replace(out / name)
+
+
 def run(args) -> int:
+    """Exit 0 when every case has a row of its own; 1 when ``--timeout`` cut the sweep short
+    (the rows that finished are still written); 2 on bad input."""
     from sim.cli import parse_sets, resolve_scene
 
     scene = str(resolve_scene(args.scene))
     try:
         grid = parse_grid(args.grid)
+        if args.budget <= 0 or (args.timeout is not None and args.timeout <= 0):
+            raise ValueError("--budget and --timeout must be positive (seconds)")
+        if args.workers < 1:
+            raise ValueError("--workers must be at least 1")
     except ValueError as exc:
         print(f"q3t sweep: {exc}", file=sys.stderr)
         return 2
-    todo = cases(grid, parse_sets(args.set))
-    print(f"sweep {scene}: {len(todo)} cases on "
-          f"{args.scheduler or f'{args.workers} local workers'}", file=sys.stderr)
-    t0 = time.perf_counter()
-    rows = run_sweep(scene, todo, args.workers, args.scheduler, args.timeout)
-    wall = time.perf_counter() - t0
+    fixed = parse_sets(args.set)
+    todo = cases(grid, fixed)
+    where = cluster_text(args.workers, 1, args.scheduler)
+    print(f"sweep {scene}: {len(todo)} cases on {where}", file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    head = {"scene": scene, "grid": grid, "fixed": fixed, "workers": args.workers,
+            "scheduler": args.scheduler, "budget": args.budget, "timeout": args.timeout}
+    done: dict[int, dict] = {}
+    t0 = time.perf_counter()
+
+    def partial(i: int, row: dict) -> None:
+        done[i] = row
+        print(f"case {i + 1}/{len(todo)}: {row['status']}", file=sys.stderr, flush=True)
+        _write(out, "sweep.json", {**head, "complete": False, "wall": time.perf_counter() - t0,
+                                   "cases": [done[k] for k in sorted(done)]})
+
+    rows, finished = run_sweep(scene, todo, args.workers, args.scheduler, args.timeout,
+                               args.budget, partial)
+    wall = time.perf_counter() - t0
     keys = list(grid)
     md = table(rows, keys)
+    note = "" if finished else (f" The sweep's --timeout of {args.timeout:g} s ended it: "
+                                "unfinished cases are marked timeout.")
     (out / "sweep.md").write_text(f"# Sweep of {scene}\n\n{len(rows)} cases in {wall:.1f} s on "
-                                  f"{args.scheduler or f'{args.workers} local workers'}.\n\n"
-                                  + md)
-    (out / "sweep.json").write_text(json.dumps(
-        {"scene": scene, "grid": grid, "fixed": parse_sets(args.set), "wall": wall,
-         "workers": args.workers, "scheduler": args.scheduler, "cases": rows}, indent=1))
+                                  f"{where}; budget {args.budget:g} s per case.{note}\n\n" + md)
+    _write(out, "sweep.json", {**head, "complete": finished, "wall": wall, "cases": rows})
     probe = args.probe or next((p for r in rows for p in r.get("probes", {})), None)
     if probe:
         plot(rows, keys, probe, out)
     print(md + f"wrote {out}/sweep.json, sweep.md ({wall:.1f} s)")
-    return 0
+    if not finished:
+        print(f"q3t sweep: --timeout {args.timeout:g} s reached; "
+              f"{sum(r['status'] == 'timeout' for r in rows)} case(s) unfinished",
+              file=sys.stderr)
+    return 0 if finished else 1
 
 
 def add_parser(sub) -> None:
@@ -219,7 +370,10 @@ def add_parser(sub) -> None:
                    help="an override for every case (repeatable)")
     s.add_argument("--workers", type=int, default=2, help="local single-threaded workers")
     s.add_argument("--scheduler", help="address of an existing Dask scheduler")
-    s.add_argument("--timeout", type=float, default=None, help="give up after this many s")
+    s.add_argument("--budget", type=float, default=DEFAULT_BUDGET,
+                   help="wall-clock seconds per case; a case over it is killed (timeout)")
+    s.add_argument("--timeout", type=float, default=None,
+                   help="seconds for the whole sweep; unfinished cases are marked timeout")
     s.add_argument("--probe", help="probe to plot (default: the first)")
     s.add_argument("--out", default="runs/sweep")
     s.set_defaults(func=run)

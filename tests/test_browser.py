@@ -1,8 +1,9 @@
 """The real server in a subprocess, driven by Playwright in Debian's chromium: open the page,
-start a run, see the coloured shell in the viser viewer (pixel colours from the colour map),
-pause and see the step count stop; edit a scene in the schema form (errors next to the field,
-lists, optional fields, the TOML view in sync both ways), save it, run it and read the run's
-error estimate from a study report."""
+start a run on a tapered sheet, see the coloured shell in the viser viewer (pixel colours from
+the colour map, several of its bins: the thickness varies along the sheet), pause and see the
+step count stop; press the viewer's own Play, Pause and Step; edit a scene in the schema form
+(errors next to the field, lists, optional fields, the TOML view in sync both ways), save it,
+run it and read the run's error estimate from a study report."""
 
 from __future__ import annotations
 
@@ -32,6 +33,14 @@ if not Path(CHROMIUM).exists():
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 
 
+def tapered_toml(steps: int) -> str:
+    """tiny with a thickness falling linearly from 7 mm at the clamp to 3.5 mm at the tip."""
+    text = tiny_toml(steps=steps)
+    assert "thickness = 0.007\n" in text
+    return text.replace("thickness = 0.007\n",
+                        "thickness = 0.007\nthickness_gradient = [-0.005, 0.0, 0.0]\n")
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -48,7 +57,7 @@ def served(tmp_path_factory):
     """(url, folder with scenes/ and runs/)"""
     tmp = tmp_path_factory.mktemp("browser")
     (tmp / "scenes").mkdir()
-    (tmp / "scenes" / "tiny.toml").write_text(tiny_toml(steps=400))
+    (tmp / "scenes" / "tiny.toml").write_text(tapered_toml(steps=400))
     port, vport = free_port(), free_port()
     env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data")}
     # the server's output goes to a file: a pipe nobody reads fills up (numba's compile
@@ -58,7 +67,7 @@ def served(tmp_path_factory):
         [sys.executable, "-m", "sim.cli", "serve", "tiny", "--port", str(port),
          "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
          "--runs-dir", str(tmp / "runs"), "--step-delay", "0.2"],
-        env=env, stdout=log, stderr=subprocess.STDOUT)
+        env={**env, "PYTHONPATH": str(ROOT)}, stdout=log, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
     deadline = time.time() + 60
     while time.time() < deadline:
@@ -83,9 +92,14 @@ def hue(rgb: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(np.sqrt(3) * (g - b), 2 * r - g - b)) % 360
 
 
-def colormap_pixels(png: bytes) -> tuple[int, float]:
+BINS = 8  # the colour map split into this many equal ranges of the field
+
+
+def colormap_pixels(png: bytes) -> tuple[int, float, np.ndarray]:
     """Chromatic pixels left of viser's GUI panel whose hue is that of a colour-map entry
-    (lighting changes brightness and saturation, not hue): their count and their fraction."""
+    (lighting changes brightness and saturation, not hue; viridis' hue falls monotonically
+    from purple to yellow, so the hue also tells where on the map a pixel is): their count,
+    their fraction, and how many fall in each of BINS ranges of the map."""
     from PIL import Image
 
     img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), np.float64)
@@ -94,8 +108,15 @@ def colormap_pixels(png: bytes) -> tuple[int, float]:
     t = np.linspace(0, len(VIRIDIS) - 1, 64)
     ref = np.array([np.interp(t, np.arange(len(VIRIDIS)), VIRIDIS[:, c]) for c in range(3)]).T
     d = np.abs(hue(img)[:, None] - hue(ref)[None, :])
-    match = (np.minimum(d, 360 - d).min(1) < 8).sum()
-    return int(match), float(match) / max(len(img), 1)
+    d = np.minimum(d, 360 - d)
+    ok = d.min(1) < 8
+    bins = np.bincount(d[ok].argmin(1) * BINS // len(ref), minlength=BINS)
+    return int(ok.sum()), float(ok.sum()) / max(len(img), 1), bins
+
+
+def spread(bins: np.ndarray) -> int:
+    """Colour-map bins holding at least 5 % of the matching pixels."""
+    return int((bins >= 0.05 * max(bins.sum(), 1)).sum())
 
 
 def test_page_run_viewer_pause(server, tmp_path):
@@ -123,14 +144,33 @@ def test_page_run_viewer_pause(server, tmp_path):
         while True:
             time.sleep(2.0)
             png = page.locator("#viewer").screenshot()
-            count, frac = colormap_pixels(png)
-            if (count > 1000 and frac > 0.5) or time.time() > deadline:
+            count, frac, bins = colormap_pixels(png)
+            if (count > 1000 and frac > 0.5 and spread(bins) >= 3) or time.time() > deadline:
                 break
         (tmp_path / "viewer.png").write_bytes(png)
         assert httpx.get(f"{server}/api/runs/{run}").json()["step"] == step, "pause ignored"
         assert int(page.get_attribute("#status", "data-step")) == step
         assert page.get_attribute("#status", "data-state") == "paused"
         assert count > 1000 and frac > 0.5, f"colour-map pixels {count} ({frac:.2f}): {tmp_path}"
+        # the sheet tapers from 7 to 3.5 mm: its colours span the map, not one hue of it (a
+        # one-colour mesh fills a single bin)
+        assert spread(bins) >= 3, f"colour-map bins {bins.tolist()}: {tmp_path}"
+        # the viewer's own buttons: Play, Pause, Step (viser GUI in the iframe)
+        frame.get_by_role("button", name="Play").click()
+        page.wait_for_function(
+            f"+document.getElementById('status').dataset.step > {step}", timeout=30_000)
+        frame.get_by_role("button", name="Pause").click()
+        page.wait_for_function("document.getElementById('status').dataset.state == 'paused'",
+                               timeout=30_000)
+        time.sleep(1.0)
+        step = httpx.get(f"{server}/api/runs/{run}").json()["step"]
+        frame.get_by_role("button", name="Step").click()
+        page.wait_for_function(
+            f"+document.getElementById('status').dataset.step == {step + 1}", timeout=30_000)
+        time.sleep(1.0)
+        st = httpx.get(f"{server}/api/runs/{run}").json()
+        assert st["step"] == step + 1 and st["state"] == "paused", st
+        step += 1
         page.click("#resume")
         page.wait_for_function(
             f"+document.getElementById('status').dataset.step > {step}", timeout=30_000)
@@ -178,10 +218,10 @@ def test_scene_form_and_run_estimate(served):
             return f.value();
         }""", raw)
         assert back["mesh"] == {"kind": "rectanglee", "size": [1, None], "origin": [0, 0],
-                                "r_inner": 0, "scale": 1}
+                                "r_inner": 0, "scale": 1, "imperfection": 0}
         assert back["bcs"] == [{"components": "xyz", "layers": "all",  # region: missing
-                                "displacement": [0, 0, 0], "release": False,
-                                "release_only": False}]
+                                "displacement": [0, 0, 0], "keyframes": [],
+                                "release": False, "release_only": False}]
 
         # a bad value: the server's error next to the field; the TOML view follows the form
         nu.fill("0.7")

@@ -135,8 +135,8 @@ def test_psd_projection():
 
 def test_auto_stiffness_rule():
     E, t, h = 210e9, 1.0e-3, 2.0e-3
-    k = contact.auto_stiffness(E, t, h)
-    p = 1e-3 * E
+    k = contact.auto_stiffness(E, t, h * h)
+    p = 4e-3 * E
     assert k == pytest.approx(p * h * h / (0.01 * t))
     # a node loaded by p h^2 on a plane settles at a penetration of 1 % of the thickness
     tool = sdf.plane([0, 0, 0], [0, 0, 1])
@@ -144,10 +144,10 @@ def test_auto_stiffness_rule():
     _, grad, *_ = contact.penalty_contact(np.array([[0, 0, -s]]), tool, None, None, k, 0.0)
     assert -grad[0, 2] == pytest.approx(p * h * h)
     assert s == pytest.approx(0.01 * t)
-    assert contact.auto_stiffness(E, t, h, pressure=5e6, penetration=0.05) == pytest.approx(
+    assert contact.auto_stiffness(E, t, h * h, pressure=5e6, penetration=0.05) == pytest.approx(
         5e6 * h * h / (0.05 * t))
-    # penalty / sheet through-thickness stiffness = p / (alpha E) = 0.1 by default
-    assert k / (E * h * h / t) == pytest.approx(0.1)
+    # penalty / sheet through-thickness stiffness = p / (alpha E) = 0.4 by default
+    assert k / (E * h * h / t) == pytest.approx(0.4)
 
 
 def test_normal_forces_for_lagging():

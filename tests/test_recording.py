@@ -1,8 +1,12 @@
-"""Every run writes runs/<id>/run.rrd: it verifies with the rerun CLI and reads back the probe
-series step by step, matching the run's records; a killed solver still leaves a readable file."""
+"""Every run writes runs/<id>/run.rrd from the solver process: it verifies with the rerun CLI
+and reads back the probe series step by step (the punch force of a press), matching the run's
+records, with the sheet mesh every ``record_every`` steps. Whichever process is killed - the
+solver that records, the server, or both - the file verifies afterwards. Its channels are those
+the model built, and no shipped scene has a channel for an absent quantity."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -10,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+import httpx
 import pytest
 
 pytest.importorskip("rerun")
@@ -18,9 +23,15 @@ from rerun.chunk import RrdReader  # noqa: E402
 
 from server.app import create_app  # noqa: E402
 from server.cli import play_command  # noqa: E402
+from server.recording import channels  # noqa: E402
 from server.settings import Settings  # noqa: E402
-from tests.test_service import tiny_toml, wait_state  # noqa: E402
+from sim.model import build_model  # noqa: E402
+from sim.scene import load_scene, scene_from_toml  # noqa: E402
+from sim.simulation import Simulation  # noqa: E402
+from tests.test_service import tiny_toml, wait_state, wait_step  # noqa: E402
+from tests.test_viewer import PRESS_TOML  # noqa: E402
 
+ROOT = Path(__file__).resolve().parent.parent
 RERUN = Path(sys.executable).with_name("rerun")
 
 
@@ -32,9 +43,11 @@ def client(tmp_path_factory):
     if RERUN.exists():  # the config lives in the temporary XDG_CONFIG_HOME
         subprocess.run([str(RERUN), "analytics", "disable"], capture_output=True, timeout=30)
     (tmp / "scenes").mkdir()
-    (tmp / "scenes" / "tiny.toml").write_text(tiny_toml(steps=3))
-    (tmp / "scenes" / "long.toml").write_text(tiny_toml(steps=200))
-    settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs", viewer=False)
+    (tmp / "scenes" / "tiny.toml").write_text(tiny_toml(steps=5))
+    (tmp / "scenes" / "press.toml").write_text(PRESS_TOML)
+    (tmp / "scenes" / "long.toml").write_text(tiny_toml(steps=2000))
+    settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs", viewer=False,
+                        record_every=2)
     with TestClient(create_app(settings)) as c:
         yield c, settings
 
@@ -50,41 +63,162 @@ def series(path: Path, entity: str) -> dict[int, float]:
     return out
 
 
-def verify(path: Path) -> None:
+def sheet_steps(path: Path) -> list[int]:
+    """The steps at which the recording holds sheet positions."""
+    steps = []
+    for chunk in RrdReader(str(path)).stream():
+        rb = chunk.to_record_batch()
+        if str(chunk.entity_path) == "/sheet" and "Mesh3D:vertex_positions" in rb.schema.names:
+            pos = rb.column("Mesh3D:vertex_positions")
+            steps += [s for i, s in enumerate(rb.column("step").to_pylist())
+                      if s is not None and pos[i].is_valid]
+    return sorted(steps)
+
+
+def verify(path: Path) -> subprocess.CompletedProcess:
     if not RERUN.exists():
         pytest.skip("the rerun CLI is not installed next to python")
-    r = subprocess.run([str(RERUN), "rrd", "verify", str(path)], capture_output=True, text=True,
-                       timeout=60)
+    return subprocess.run([str(RERUN), "rrd", "verify", str(path)], capture_output=True,
+                          text=True, timeout=60)
+
+
+def assert_verifies(path: Path) -> None:
+    r = verify(path)
     assert r.returncode == 0, r.stderr
 
 
-def test_recording_verifies_and_reads_back_probes(client):
+def test_recording_verifies_and_reads_back_the_punch_force(client):
     c, settings = client
-    run_id = c.post("/api/runs", json={"scene": "tiny", "element": "linear"}).json()["id"]
+    run_id = c.post("/api/runs", json={"scene": "press", "element": "linear"}).json()["id"]
     st = wait_state(c, run_id, {"finished", "failed", "stopped"})
     assert st["state"] == "finished", st["reason"]
     path = settings.runs_dir / run_id / "run.rrd"
-    verify(path)
-    tip = series(path, "/probes/tip_deflection")
-    want = {r["step"]: r["probes"]["tip_deflection"] for r in st["records"]}
-    assert tip == pytest.approx(want)
+    assert_verifies(path)
+    force = series(path, "/probes/punch_force")
+    want = {r["step"]: r["probes"]["punch_force"] for r in st["records"]}
+    assert sorted(force) == [1, 2, 3] and force == pytest.approx(want, rel=1e-6)
+    assert all(v > 0 for v in force.values())  # the punch presses: a real force, not zeros
     assert sorted(series(path, "/solver/iterations")) == [1, 2, 3]
     assert sorted(series(path, "/solver/max_thinning_pct")) == [0, 1, 2, 3]
-    meshes = [ch for ch in RrdReader(str(path)).stream() if str(ch.entity_path) == "/sheet"]
-    assert meshes, "no sheet mesh in the recording"
+    assert sheet_steps(path) == [0, 2, 3]  # every record_every = 2 steps, and the last
 
 
-def test_killed_solver_leaves_a_readable_recording(client):
+def test_sheet_triangles_are_stored_once(client):
+    """The triangles are static: one copy, however many meshes are recorded."""
+    c, settings = client
+    run_id = c.post("/api/runs", json={"scene": "tiny", "element": "linear"}).json()["id"]
+    assert wait_state(c, run_id, {"finished", "failed", "stopped"})["state"] == "finished"
+    path = settings.runs_dir / run_id / "run.rrd"
+    assert sheet_steps(path) == [0, 2, 4, 5]
+    tri = 0
+    for chunk in RrdReader(str(path)).stream():
+        rb = chunk.to_record_batch()
+        if str(chunk.entity_path) == "/sheet" and "Mesh3D:triangle_indices" in rb.schema.names:
+            tri += sum(v.is_valid for v in rb.column("Mesh3D:triangle_indices"))
+    assert tri == 1
+
+
+def test_killed_solver_leaves_a_verifiable_recording(client):
+    """The solver process records: SIGKILL it mid-run and the server repairs the file."""
     c, settings = client
     run_id = c.post("/api/runs", json={"scene": "long", "element": "linear"}).json()["id"]
-    deadline = time.time() + 30
-    while c.get(f"/api/runs/{run_id}").json()["step"] < 2 and time.time() < deadline:
-        time.sleep(0.05)
+    wait_step(c, run_id, 3)
     os.kill(c.get("/api/health").json()["worker_pid"], signal.SIGKILL)
-    wait_state(c, run_id, {"failed"}, timeout=20)
+    st = wait_state(c, run_id, {"failed"}, timeout=20)
+    assert "killed by signal 9" in st["reason"]
     path = settings.runs_dir / run_id / "run.rrd"
-    verify(path)
-    assert len(series(path, "/probes/tip_deflection")) >= 2
+    assert_verifies(path)
+    assert len(series(path, "/probes/tip_deflection")) >= 3
+    assert sheet_steps(path)[0] == 0
+
+
+def start_server(tmp: Path, log_name: str) -> tuple[subprocess.Popen, str]:
+    from tests.test_browser import free_port
+
+    port = free_port()
+    log = open(tmp / log_name, "wb")  # noqa: SIM115 - the child keeps it; closed with the test
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim.cli", "serve", "long", "--port", str(port), "--no-viewer",
+         "--scenes-dir", str(tmp / "scenes"), "--runs-dir", str(tmp / "runs")],
+        stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)})
+    log.close()
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.time() + 60
+    while True:
+        try:
+            if httpx.get(url + "/api/health", timeout=1).json()["ok"]:
+                return proc, url
+        except httpx.HTTPError:
+            pass
+        if time.time() > deadline or proc.poll() is not None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            raise AssertionError((tmp / log_name).read_text())
+        time.sleep(0.2)
+
+
+def run_to_step(url: str, step: int) -> tuple[str, int]:
+    run_id = httpx.post(url + "/api/runs", json={"scene": "long", "element": "linear"}).json()
+    run_id = run_id["id"]
+    deadline = time.time() + 60
+    while httpx.get(f"{url}/api/runs/{run_id}").json()["step"] < step:
+        assert time.time() < deadline
+        time.sleep(0.05)
+    return run_id, httpx.get(url + "/api/health").json()["worker_pid"]
+
+
+def gone(pid: int, timeout: float) -> bool:
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_killed_server_leaves_verifiable_recordings(tmp_path):
+    """SIGKILL the server: its solver process notices, closes the recording and exits.
+    SIGKILL server and solver together: the file has no footer; the next server start finds
+    the interrupted run, marks it failed and repairs the file."""
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "scenes" / "long.toml").write_text(tiny_toml(steps=2000))
+    procs = []
+    try:
+        proc, url = start_server(tmp_path, "server1.log")
+        procs.append(proc)
+        first, worker = run_to_step(url, 3)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+        assert gone(worker, 20), "the solver process outlived its server"
+        assert_verifies(tmp_path / "runs" / first / "run.rrd")
+
+        proc, url = start_server(tmp_path, "server2.log")
+        procs.append(proc)
+        second, worker = run_to_step(url, 3)
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+        assert gone(worker, 10)
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait(10)
+    path = tmp_path / "runs" / second / "run.rrd"
+    assert verify(path).returncode != 0  # no footer: this is what needs the repair
+    settings = Settings(scenes_dir=tmp_path / "scenes", runs_dir=tmp_path / "runs",
+                        viewer=False)
+    with TestClient(create_app(settings)) as c:
+        for run_id in (first, second):
+            st = c.get(f"/api/runs/{run_id}").json()
+            assert st["state"] == "failed", st
+            assert st["reason"].startswith(("the server process died",
+                                            "the server stopped during the run")), st
+    assert_verifies(path)
+    assert len(series(path, "/probes/tip_deflection")) >= 3
+    saved = json.loads((tmp_path / "runs" / second / "run.json").read_text())
+    assert saved["state"] == "failed"
 
 
 def test_play_command(tmp_path):
@@ -93,15 +227,53 @@ def test_play_command(tmp_path):
     assert "--serve-web" in web and web[web.index("--bind") + 1] == "127.0.0.1"
 
 
-def test_recording_has_no_channels_for_absent_quantities(client):
-    """An elastic scene without tools records no tool, no plastic and no contact channel: the
-    channels follow what the scene built (issue: compute only what a scene needs)."""
+def test_recording_holds_exactly_the_channels_the_model_built(client):
+    """The entity paths of a real recording are those ``channels`` predicts from the model's
+    ``built`` outputs: an elastic scene without tools records no tool, plastic or contact
+    channel."""
     c, settings = client
     run_id = c.post("/api/runs", json={"scene": "tiny", "element": "q3t"}).json()["id"]
     st = wait_state(c, run_id, {"finished", "failed", "stopped"})
     assert st["state"] == "finished", st["reason"]
-    paths = {str(ch.entity_path) for ch in RrdReader(str(settings.runs_dir / run_id
-                                                          / "run.rrd")).stream()}
-    assert "/sheet" in paths and "/probes/tip_deflection" in paths
-    assert not any(p.startswith("/tools") for p in paths)
-    assert not any("plastic" in p or "contact" in p or "punch" in p for p in paths)
+    paths = {str(ch.entity_path).lstrip("/") for ch in RrdReader(str(settings.runs_dir / run_id
+                                                                     / "run.rrd")).stream()}
+    paths = {p for p in paths if not p.startswith("__")}  # rerun's own properties
+    outputs = build_model(scene_from_toml(tiny_toml(steps=3))).built["outputs"]
+    assert paths == set(channels(outputs))
+    assert "sheet" in paths and "probes/tip_deflection" in paths
+    assert not any(p.startswith("tools") or "plastic" in p or "contact" in p for p in paths)
+
+
+SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.toml"))
+TOOL_PROBES = {"tool_force", "penetration", "contact_nodes", "tool_position"}
+
+
+def _coarse(sc) -> dict:
+    """About 20-60 triangles: the channel list depends on the scene, not on the mesh."""
+    m = sc.mesh
+    edge = {"rectangle": lambda: max(m.size or (0,)) / 8, "disk": lambda: m.r_outer / 4,
+            "annulus": lambda: m.r_outer / 4, "cylinder_band": lambda: m.height / 2}
+    return {"mesh.edge_length": edge[m.kind]()} if m.kind in edge else {}
+
+
+@pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
+def test_every_shipped_scene_records_no_channel_for_an_absent_quantity(path):
+    sc = load_scene(path)
+    sim = Simulation.from_scene(load_scene(path, _coarse(sc)))
+    ch = channels(sim.model.built["outputs"])
+    tools = {t.name for t in sc.tools}
+    plastic = sc.material.model == "plastic"
+    assert len(ch) == len(set(ch))
+    assert {p.split("/", 1)[1] for p in ch if p.startswith("tools/")} == tools
+    for p in sc.probes:  # a tool's force, contact or position only where the tool exists
+        if p.kind in TOOL_PROBES:
+            assert p.tool in tools
+        assert p.kind != "plastic_strain" or plastic
+    assert ("solver/max_eq_plastic_strain" in ch) == plastic
+    if not plastic:
+        assert not any("plastic" in c for c in ch)
+    if not tools:
+        assert not any(c.startswith("tools/") or "punch" in c or "contact" in c or "holder"
+                       in c or "penetration" in c for c in ch)
+    # the frame the recorder colours and summarises carries exactly the fields reported
+    assert list(sim.frame().fields) == sim.model.built["outputs"]["frame_fields"]

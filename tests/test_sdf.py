@@ -35,6 +35,9 @@ def _tools():
         "polygon": sdf.extruded_polygon(
             [[0.0, 0.0], [0.06, 0.0], [0.06, 0.04], [0.03, 0.015], [0.0, 0.04]],
             -0.01, 0.02, 0.004, 0.002),
+        "polygon_reflex": sdf.extruded_polygon(
+            [[0.0, 0.0], [0.06, 0.0], [0.06, 0.04], [0.03, 0.015], [0.0, 0.04]],
+            -0.01, 0.02, 0.004, 0.002, reflex_radius=0.005),
         "star": sdf.star(5, 0.05, 0.025, 0.04, corner_radius=0.004, edge_radius=0.003),
         "star_die": sdf.star_die(5, 0.05, 0.025, 0.03, 0.005, corner_radius=0.003),
         "union_smooth": sdf.union(sdf.punch(0.03, 0.05, 0.004),
@@ -209,18 +212,28 @@ def test_exact_box_corners_edges_faces():
 def test_exact_star_die_shoulder_and_punch_tip():
     n_pts, ro, ri, height, rs, rc = 5, 0.05, 0.025, 0.03, 0.005, 0.003
     prog = sdf.star_die(n_pts, ro, ri, height, rs, corner_radius=rc)
-    poly = sdf.parse(prog)[6]  # inner polygon: the star offset inward by rc
+    C = sdf.parse(prog)[6]  # rounded outline of the opening: edges b_k -> a_{k+1}
     rng = np.random.default_rng(3)
     n = 200
-    k = rng.integers(0, len(poly), n)
-    a, b = poly[k], poly[(k + 1) % len(poly)]
-    nrm = sdf.edge_normals(poly)[k]
+    k = rng.integers(0, len(C), n)
+    a, b = C[k, 6:8], C[(k + 1) % len(C), 4:6]
+    e = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
+    nrm = np.stack([e[:, 1], -e[:, 0]], axis=1)
     foot = a + rng.uniform(0.3, 0.7, n)[:, None] * (b - a)  # middle of an edge
     phi = rng.uniform(0.5 * np.pi, np.pi, n)
     delta = rng.uniform(-0.5 * rs, 0.5 * rs, n)
-    w = rc + rs + (rs + delta) * np.cos(phi)  # distance to the inner polygon
+    w = rs + (rs + delta) * np.cos(phi)  # distance to the outline
     z = -rs + (rs + delta) * np.sin(phi)
     X = np.concatenate([foot + w[:, None] * nrm, z[:, None]], axis=1)
+    d, _, _ = sdf.sdf_eval(prog, X)
+    np.testing.assert_allclose(d, delta, atol=1e-15)
+    # the wall next to a valley: an arc of radius max(rc, rs) about a centre in the plate
+    v = C[1]
+    assert v[3] == -1.0 and v[2] == rs
+    ang = np.arctan2(*(0.5 * (v[4:6] + v[6:8]) - v[:2])[::-1]) + rng.uniform(-0.1, 0.1, n)
+    delta = rng.uniform(-0.5 * rs, 0.5 * rs, n)  # > 0: in the opening, towards the centre
+    X = np.stack([v[0] + (rs + delta) * np.cos(ang), v[1] + (rs + delta) * np.sin(ang),
+                  np.full(n, -0.5 * height)], axis=1)
     d, _, _ = sdf.sdf_eval(prog, X)
     np.testing.assert_allclose(d, delta, atol=1e-15)
     # rounded star tip of a star punch: arc of radius rc about the inner tip vertex
@@ -380,3 +393,90 @@ def test_mesh_of_wide_star_die_falls_back_to_implicit():
     mesh = trimesh.Trimesh(V, F)
     assert mesh.is_watertight and mesh.volume > 0
     assert np.abs(sdf.sdf_distance(prog, V)).max() <= 1e-10 * np.ptp(V, axis=0).max()
+
+
+def test_star_die_valleys_are_c1():
+    """The cookie cutter's die: its valleys (reflex corners of the opening, where the band
+    comes closest) are rounded arcs, so the gradient is continuous across their bisectors.
+    With sharp valleys it jumped from (-0.746, -0.666) to (-0.864, -0.504) there."""
+    prog = sdf.star_die(5, 0.04, 0.03, 0.02, 0.001, corner_radius=0.002)
+    C = sdf.parse(prog)[6]
+    valleys = C[C[:, 3] < 0]
+    assert len(valleys) == 5 and np.all(valleys[:, 2] == 0.002)
+    mid = 0.5 * (valleys[:, 4:6] + valleys[:, 6:8]) - valleys[:, :2]
+    e = mid / np.linalg.norm(mid, axis=1, keepdims=True)  # from the centre to the arc middle
+    tang = np.stack([-e[:, 1], e[:, 0]], axis=1)
+    for gap in (1e-4, 1e-3):  # in the air, 0.1 and 1 mm from the valley, mid-height
+        P = valleys[:, :2] + (valleys[:, 2:3] + gap) * e
+        jumps = []
+        for h in (1e-6, 1e-9):
+            sides = [np.column_stack([P + sgn * h * tang, np.full(5, -0.01)]) for sgn in (1, -1)]
+            (d1, g1, H1), (d2, g2, _) = (sdf.sdf_eval(prog, X) for X in sides)
+            # reflex arc about a centre in the plate: d = |p - c| - rc
+            np.testing.assert_allclose(d1, np.hypot(0.002 + gap, h) - 0.002, atol=1e-15)
+            jump = np.linalg.norm(g1 - g2, axis=1)
+            # C1: the jump is the curvature times 2h (|H| = 1 / (2 mm + gap)), no step
+            assert np.all(jump <= 2 * h * np.linalg.norm(H1, 2, axis=(1, 2)) * (1 + 1e-6) + 1e-12)
+            jumps.append(jump.max())
+        assert jumps[1] < 1e-5
+    # FD of gradient and Hessian around the valleys: the air in front of them, the wall, the
+    # shoulder and the plate (points within 2 mm of the arcs, all heights near the top)
+    rng = np.random.default_rng(8)
+    k = rng.integers(0, 5, 400)
+    ang = rng.uniform(-0.6, 0.6, 400)
+    rad = valleys[k, 2] + rng.uniform(-1.5e-3, 2e-3, 400)
+    dirs = np.stack([e[k, 0] * np.cos(ang) - e[k, 1] * np.sin(ang),
+                     e[k, 0] * np.sin(ang) + e[k, 1] * np.cos(ang)], axis=1)
+    X = np.column_stack([valleys[k, :2] + rad[:, None] * dirs, rng.uniform(-4e-3, 1e-3, 400)])
+    d, _, H = _assert_fd(lambda Y: sdf.sdf_eval(prog, Y), X)
+    assert (d > 0).sum() > 100 and (d < 0).sum() > 50
+    assert (np.abs(H).max(axis=(1, 2)) > 100.0).sum() > 100  # the curved valley walls
+
+
+def test_rounded_polygon_validation_and_orientation():
+    sq = [[0, 0], [1, 0], [1, 1], [0, 1]]
+    C = sdf.rounded_polygon(sq, [0.1, 0.2, 0.0, 0.3])
+    Cr = sdf.rounded_polygon(sq[::-1], [0.3, 0.0, 0.2, 0.1])  # clockwise: radii follow
+    assert np.allclose(np.sort(C[:, 2]), np.sort(Cr[:, 2]))
+    assert np.all(C[:, 3] == 1.0)
+    with pytest.raises(ValueError, match="overlap"):
+        sdf.rounded_polygon(sq, 0.6)
+    with pytest.raises(ValueError, match="valley_radius"):
+        sdf.star_die(5, 0.04, 0.03, 0.02, 0.002, corner_radius=0.002, valley_radius=0.001)
+
+
+def test_scene_shapes_csg_polygons_and_placement():
+    """ShapeSpec: CSG, polygons and placed shapes from a scene file build the same program as
+    the builders; bad shapes name the field."""
+    from sim.model import tool_program
+    from sim.scene import SceneError, load_scene
+
+    sc = load_scene("scenes/beam_forming.toml")
+    die = sc.tools[0].shape
+    assert die.kind == "subtract" and [s.kind for s in die.shapes] == ["box", "punch"]
+    R = sdf.rotation([1, 0, 0], 0.5 * np.pi)
+    ref = sdf.subtract(sdf.rounded_box([0.06, 0.02, 0.02], 0.0, [0, 0, -0.017]),
+                       sdf.moved(sdf.punch(0.101, 0.04, 0.0), R, [0, 0.02, 0.08675]), 0.002)
+    np.testing.assert_allclose(tool_program(die), ref, rtol=1e-15, atol=1e-15)
+    # the cavity's lowest point sits 14.25 mm below the blank's mid-plane
+    d, g, _ = sdf.sdf_eval(tool_program(die), np.array([[0.0, 0.0, -0.01425]]))
+    assert abs(d[0]) < 1e-12 and np.allclose(g[0], [0, 0, 1], atol=1e-12)
+    poly = {"kind": "polygon", "points": [[0, 0], [0.06, 0], [0.06, 0.04], [0.03, 0.015],
+                                          [0, 0.04]], "height": 0.02, "corner_radius": 0.004,
+            "reflex_radius": 0.005, "edge_radius": 0.002}
+    o = {"tools.0.shape": {"kind": "union", "shapes": [poly, {"kind": "plane"}], "blend": 0.001}}
+    prog = tool_program(load_scene("scenes/beam_forming.toml", o).tools[0].shape)
+    ref = sdf.union(sdf.extruded_polygon(poly["points"], 0.0, 0.02, 0.004, 0.002, 0.005),
+                    sdf.plane([0, 0, 0], [0, 0, 1]), 0.001)
+    np.testing.assert_array_equal(prog, ref)
+    bad = [({"kind": "subtract", "shapes": [poly]}, "exactly two"),
+           ({"kind": "union", "shapes": [poly]}, "at least two"),
+           ({**poly, "corner_radius": 0.03, "edge_radius": 0.0}, "radii too large"),
+           ({**poly, "points": [[0, 0], [1, 0]]}, "at least 3 points"),
+           ({"kind": "box", "half_extents": [1, 1, 1], "shapes": [poly, poly]}, "operands"),
+           ({**poly, "rotation": [float("nan"), 0, 0]}, "finite"),
+           ({"kind": "cone"}, "kind")]
+    for shape, why in bad:
+        with pytest.raises(SceneError, match=why) as err:
+            load_scene("scenes/beam_forming.toml", {"tools.0.shape": shape})
+        assert "tools.0.shape" in str(err.value)

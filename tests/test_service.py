@@ -9,12 +9,14 @@ import signal
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("fastapi")
 from fastapi.testclient import TestClient  # noqa: E402
 
 from server.app import create_app  # noqa: E402
+from server.runs import ACTIVE  # noqa: E402
 from server.settings import Settings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -25,7 +27,7 @@ def tiny_toml(steps: int = 4) -> str:
     text = (ROOT / "scenes/cantilever.toml").read_text()
     text = text.replace("edge_length = 0.0046667", "edge_length = 0.035")
     text = text.replace("steps = 4", f"steps = {steps}")
-    return text.replace("E = 5.0e6", "E = 1.0e9").replace('name = "cantilever"', 'name = "tiny"')
+    return text.replace('name = "cantilever"', 'name = "tiny"')
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +38,9 @@ def env(tmp_path_factory):
     scenes = tmp / "scenes"
     scenes.mkdir()
     (scenes / "tiny.toml").write_text(tiny_toml())
+    # files next to the scenes folder that no request may read, write or delete
+    (tmp / "secret.toml").write_text(tiny_toml())
+    (tmp / "secret.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     settings = Settings(scenes_dir=scenes, runs_dir=tmp / "runs", viewer=False, max_body=64_000)
     with TestClient(create_app(settings)) as client:
         yield client, settings
@@ -55,29 +60,76 @@ def no_temp_files(root: Path) -> list[Path]:
     return [p for p in root.rglob("*") if p.name.startswith(".") or ".tmp" in p.name]
 
 
+def outside_scenes(settings) -> dict:
+    """Every file in the test folder outside scenes/ and runs/, with its content and mtime."""
+    root = settings.scenes_dir.parent
+    keep = (settings.scenes_dir, settings.runs_dir, root / "config", root / "data")
+    return {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in root.rglob("*")
+            if p.is_file() and not any(p.is_relative_to(k) for k in keep)}
+
+
+def file_scene(path: str) -> str:
+    """tiny, its mesh read from ``path``."""
+    return tiny_toml().replace('kind = "rectangle"', f"kind = \"file\"\npath = '{path}'")
+
+
+def thickness_scene(path: str) -> str:
+    """tiny, its per-vertex thickness read from ``path``."""
+    return tiny_toml().replace("thickness = 0.007", f"thickness_file = '{path}'")
+
+
+def wait_step(client, run_id: str, step: int, timeout: float = 30.0) -> dict:
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        st = client.get(f"/api/runs/{run_id}").json()
+        if st["step"] >= step or st["state"] not in ACTIVE:
+            return st
+        time.sleep(0.02)
+    raise AssertionError(f"run {run_id} did not reach step {step}")
+
+
 def test_happy_path(env):
+    """Create a scene, start a run, change load_scale while it runs, step it (a running run
+    pauses), resume, finish; the parameter's step comes from the solver, is recorded, and the
+    response follows it from that step on."""
     client, settings = env
-    r = client.post("/api/scenes", json={"name": "mine", "toml": tiny_toml(steps=3)})
+    r = client.post("/api/scenes", json={"name": "mine", "toml": tiny_toml(steps=200)})
     assert r.status_code == 201, r.text
     assert "mine" in [s["name"] for s in client.get("/api/scenes").json()]
-    r = client.post("/api/runs", json={"scene": "mine", "element": "linear", "paused": True})
+    # E = 1e11: the tip deflects 0.15 % of the length at load_scale 2, so the response is
+    # linear in the load to ~(w/L)^2 ~ 2e-6 and load_scale's effect is a clean factor of 2
+    r = client.post("/api/runs", json={"scene": "mine", "element": "linear",
+                                       "overrides": {"material.E": 1.0e11}})
     assert r.status_code == 201, r.text
     run_id = r.json()["id"]
-    wait_state(client, run_id, {"paused"})
+    st = wait_step(client, run_id, 3)
+    assert st["state"] == "running", st
     r = client.put(f"/api/runs/{run_id}/parameters/load_scale", json={"value": 2.0})
     assert r.status_code == 202, r.text
-    assert r.json()["applies_from_step"] == 1
-    assert client.post(f"/api/runs/{run_id}/step").status_code == 200
-    deadline = time.time() + 30
-    while client.get(f"/api/runs/{run_id}").json()["step"] < 1 and time.time() < deadline:
-        time.sleep(0.05)
+    reply = r.json()
+    assert reply["applied"], reply  # the solver answers between steps (~5 ms here)
+    k = reply["applies_from_step"]
+    assert 3 < k < 200
+    r = client.post(f"/api/runs/{run_id}/step")  # on a running run: pauses after one step
+    assert r.status_code == 200 and r.json()["state"] == "paused", r.text
+    time.sleep(0.3)
     st = client.get(f"/api/runs/{run_id}").json()
-    assert st["step"] == 1 and st["state"] == "paused"
+    assert st["state"] == "paused", st  # the solver said so too, not only the request
+    paused_at = st["step"]
+    time.sleep(0.2)
+    assert client.get(f"/api/runs/{run_id}").json()["step"] == paused_at
     assert client.post(f"/api/runs/{run_id}/resume").status_code == 200
     st = wait_state(client, run_id, {"finished", "failed", "stopped"})
     assert st["state"] == "finished", st["reason"]
-    assert [r["step"] for r in st["records"]] == [1, 2, 3]
-    assert st["parameter_log"] == [{"step": 1, "name": "load_scale", "value": 2.0}]
+    assert [r["step"] for r in st["records"]] == list(range(1, 201))
+    assert st["parameter_log"] == [{"step": k, "name": "load_scale", "value": 2.0}]
+    # gravity ramps linearly with the step: tip / step is constant, and doubles from step k on
+    # (rel 1e-4: the nonlinearity above is ~2e-6; the wrong step would be off by 100 %)
+    ratio = {r["step"]: r["probes"]["tip_deflection"] / r["step"] for r in st["records"]}
+    base = ratio[1]
+    assert base < 0
+    for step, v in ratio.items():
+        assert v == pytest.approx(base * (2.0 if step >= k else 1.0), rel=1e-4), (step, k)
     res = client.get(f"/api/runs/{run_id}/result").json()
     assert res["converged"] and res["element"] == "linear"
     assert res["parameters"] == st["parameter_log"]
@@ -86,6 +138,7 @@ def test_happy_path(env):
     assert est["text"].startswith("no study for this scene: run `q3t study mine`; cost ")
     assert est["cost"]["newton_iterations"] == res["timing"]["newton_iterations"]
     assert res["estimate"] == est
+    assert st["frames"]["produced"] == 200
     rec = client.get(f"/api/runs/{run_id}/recording")
     assert rec.status_code == 200 and len(rec.content) > 1000
     assert client.get(f"/api/runs/{run_id}?since=2").json()["records"][0]["step"] == 3
@@ -124,27 +177,152 @@ def test_scene_crud(env):
     ("post", "/api/runs", {"scene": "tiny", "parameters": {"load_scale": 1e6}}, 422,
      ["load_scale", "range"]),
     ("post", "/api/runs", {"scene": "tiny", "parameters": {"gravity": 1}}, 422, ["unknown"]),
-    ("get", "/api/scenes/..", None, 404, []),
-    ("get", "/api/scenes/..%2F..%2Fetc%2Fpasswd", None, 404, []),
+    # names that routing passes to the handlers, which must refuse them before any file access
+    ("get", "/api/scenes/%2e%2e", None, 422, ["scene name"]),
+    ("get", "/api/scenes/..%5C..%5Csecret", None, 422, ["scene name"]),
+    ("get", "/api/scenes/a..b", None, 422, ["scene name"]),
+    ("get", "/api/scenes/secret%00", None, 422, ["scene name"]),
+    ("get", "/api/scenes/tiny%0A", None, 422, ["scene name"]),
     ("get", "/api/scenes/.hidden", None, 422, ["scene name"]),
+    ("put", "/api/scenes/%2e%2e%5Csecret", {"toml": tiny_toml()}, 422, ["scene name"]),
+    ("put", "/api/scenes/..secret", {"toml": tiny_toml()}, 422, ["scene name"]),
+    ("delete", "/api/scenes/%2e%2e%5Csecret", None, 422, ["scene name"]),
+    ("delete", "/api/scenes/%2E%2E", None, 422, ["scene name"]),
+    ("post", "/api/scenes/%2e%2e/duplicate", {"name": "x"}, 422, ["scene name"]),
     ("post", "/api/scenes", {"name": "../evil", "toml": tiny_toml()}, 422, ["scene name"]),
+    ("post", "/api/scenes", {"name": "..\\secret", "toml": tiny_toml()}, 422, ["scene name"]),
     ("post", "/api/scenes/tiny/duplicate", {"name": "a/b"}, 422, ["scene name"]),
-    ("put", "/api/scenes/big", {"toml": "#" * 100_000}, 413, ["larger"]),
+    ("post", "/api/scenes/tiny/duplicate", {"name": "..secret"}, 422, ["scene name"]),
+    ("get", "/api/scenes/..%2F..%2Fetc%2Fpasswd", None, 404, []),  # routing: no such route
+    # a scene's mesh file: only relative paths inside the scenes folder
+    ("put", "/api/scenes/m", {"toml": file_scene("/etc/passwd")}, 422, ["mesh.path"]),
+    ("put", "/api/scenes/m", {"toml": file_scene("../secret.obj")}, 422, ["mesh.path", ".."]),
+    ("put", "/api/scenes/m", {"toml": file_scene("sub/../../secret.obj")}, 422, ["mesh.path"]),
+    ("put", "/api/scenes/m", {"toml": file_scene("..\\secret.obj")}, 422, ["mesh.path"]),
+    ("put", "/api/scenes/m", {"toml": file_scene("C:/secret.obj")}, 422, ["mesh.path"]),
+    ("put", "/api/scenes/m", {"toml": file_scene("nothere.obj")}, 422, ["mesh.path", "no file"]),
+    ("put", "/api/scenes/m", {"toml": file_scene("tiny.toml")}, 422, ["mesh.path", "not a file"]),
+    ("put", "/api/scenes/m", {"toml": file_scene("out.obj")}, 422, ["mesh.path", "out of the"]),
+    ("post", "/api/scenes/validate", {"toml": file_scene("/etc/hostname")}, 422, ["mesh.path"]),
+    # a thickness file: the same rule
+    ("put", "/api/scenes/m", {"toml": thickness_scene("/etc/passwd")}, 422,
+     ["shell.thickness_file"]),
+    ("put", "/api/scenes/m", {"toml": thickness_scene("../h.npy")}, 422,
+     ["shell.thickness_file", ".."]),
+    ("post", "/api/scenes/validate", {"toml": thickness_scene("h.npy")}, 422,
+     ["shell.thickness_file", "no file"]),
+    ("post", "/api/runs", {"scene": "tiny", "overrides": {"mesh.kind": "file",
+                                                          "mesh.path": "/etc/hostname"}},
+     422, ["mesh.path"]),
     ("get", "/api/runs/..secret", None, 422, ["run id"]),
+    ("get", "/api/runs/%2e%2e", None, 422, ["run id"]),
+    ("delete", "/api/runs/..%5Csecret", None, 422, ["run id"]),
     ("post", "/api/runs/nope-run/pause", None, 404, ["nope-run"]),
     ("post", "/api/runs/nope-run/explode", None, 422, []),
     ("put", "/api/runs/nope-run/parameters/load_scale", {"value": "abc"}, 422, ["value"]),
 ])
 def test_bad_input(env, method, url, body, status, words):
     client, settings = env
-    before = sorted(settings.scenes_dir.iterdir())
-    r = getattr(client, method)(url, **({"json": body} if body is not None else {}))
+    out = settings.scenes_dir / "out.obj"  # a link out of the scenes folder
+    if not out.is_symlink():
+        out.symlink_to(settings.scenes_dir.parent / "secret.obj")
+    before, outside = sorted(settings.scenes_dir.iterdir()), outside_scenes(settings)
+    kw = {"json": body} if body is not None else {}
+    r = client.request(method.upper(), url, **kw)
     assert r.status_code == status, r.text
     for w in words:
         assert w in r.text, (w, r.text)
     assert sorted(settings.scenes_dir.iterdir()) == before  # nothing saved
     assert no_temp_files(settings.scenes_dir) == []
+    assert outside_scenes(settings) == outside  # nothing outside touched
     assert client.get("/api/health").json()["ok"]  # alive
+
+
+def test_chunked_oversize_body_is_413(env):
+    """A body without Content-Length (chunked) is counted as it arrives."""
+    client, settings = env
+    before = sorted(settings.scenes_dir.iterdir())
+
+    def chunks():
+        yield b'{"toml": "'
+        for _ in range(100):
+            yield b"#" * 1000
+        yield b'"}'
+
+    r = client.put("/api/scenes/big", content=chunks(), headers={"Content-Type":
+                                                                  "application/json"})
+    assert r.status_code == 413 and "larger" in r.text, r.text
+    assert sorted(settings.scenes_dir.iterdir()) == before
+    small = client.put("/api/scenes/chunky", content=iter([b'{"toml": ', json.dumps(
+        tiny_toml()).encode(), b"}"]), headers={"Content-Type": "application/json"})
+    assert small.status_code == 200, small.text  # a small chunked body still gets through
+    assert client.delete("/api/scenes/chunky").status_code == 204
+
+
+def test_scene_with_a_mesh_file_in_the_scenes_folder_runs(env):
+    """A relative mesh.path is read from the scenes folder (not the server's working folder)."""
+    import trimesh
+
+    from sim.mesh import rectangle
+
+    client, settings = env
+    m = rectangle((0.7, 0.07), 0.035)
+    (settings.scenes_dir / "meshes").mkdir(exist_ok=True)
+    trimesh.Trimesh(m.vertices, m.faces, process=False).export(
+        settings.scenes_dir / "meshes" / "plate.obj")
+    r = client.put("/api/scenes/fromfile", json={"toml": file_scene("meshes/plate.obj")})
+    assert r.status_code == 200, r.text
+    run_id = client.post("/api/runs", json={"scene": "fromfile", "element": "linear"}).json()
+    st = wait_state(client, run_id["id"], {"finished", "failed", "stopped"})
+    assert st["state"] == "finished", st["reason"]
+    assert "mesh.path" not in st["overrides"]  # the full path went to the solver only
+    assert client.delete("/api/scenes/fromfile").status_code == 204
+
+
+def test_concurrent_creates_of_one_scene_one_wins(env):
+    import threading
+
+    from server.problems import Conflict
+    from server.store import SceneStore
+
+    _, settings = env
+    store, n = SceneStore(settings.scenes_dir), 8
+    barrier, results = threading.Barrier(n), []
+
+    def create(i: int) -> None:
+        barrier.wait()
+        try:
+            store.create("race", tiny_toml().replace("tiny", f"tiny{i}"))
+            results.append(i)
+        except Conflict:
+            results.append(None)
+
+    threads = [threading.Thread(target=create, args=(i,)) for i in range(n)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    winners = [i for i in results if i is not None]
+    assert len(results) == n and len(winners) == 1, results
+    assert f"tiny{winners[0]}" in (settings.scenes_dir / "race.toml").read_text()
+    assert no_temp_files(settings.scenes_dir) == []
+    (settings.scenes_dir / "race.toml").unlink()
+
+
+def test_internal_errors_are_500_not_404(env, monkeypatch):
+    """Only request problems are 4xx: a KeyError or ValueError from a bug is a 500."""
+    client, _ = env
+    raw = TestClient(client.app, raise_server_exceptions=False)  # the running app's state
+    store = client.app.state.store
+    for exc in (KeyError("internal"), ValueError("internal")):
+        def broken(exc=exc):
+            raise exc
+
+        monkeypatch.setattr(store, "names", broken)
+        r = raw.get("/api/scenes")
+        assert r.status_code == 500, (exc, r.status_code, r.text)
+    monkeypatch.undo()
+    assert client.get("/api/scenes").status_code == 200
 
 
 def test_parameter_out_of_range_on_a_run(env):
@@ -218,15 +396,298 @@ def test_finished_run_shows_its_error_estimate_from_a_study(env):
         study.rmdir()
 
 
-def test_viewer_stays_on_loopback_unless_exposed():
-    """The API asks for a token off loopback; viser cannot, so it is not exposed by default."""
+def test_viewer_stays_on_loopback_unless_exposed(capsys):
+    """The API asks for a token off loopback; viser cannot, so it is not exposed by default,
+    and exposing it warns that its run controls are open too."""
+    from server.cli import serve_settings
+
+    assert serve_settings(serve_args("--host", "0.0.0.0", "--token", "t"), "t").viewer_host \
+        == "127.0.0.1"
+    assert capsys.readouterr().err == ""
+    args = serve_args("--host", "0.0.0.0", "--token", "t", "--expose-viewer")
+    assert serve_settings(args, "t").viewer_host == "0.0.0.0"
+    err = capsys.readouterr().err
+    assert "no token check" in err and "Play, Pause, Step and Reset" in err
+    assert serve_settings(serve_args("--record-every", "3"), None).record_every == 3
+
+
+class SlowViewer:
+    """A viewer that takes 0.2 s a frame: far slower than the tiny scene's ~5 ms steps."""
+
+    def __init__(self):
+        self.shown = []
+
+    def show(self, frame, status, final=False, live=True):
+        time.sleep(0.2)
+        self.shown.append(frame["step"])
+
+    def new_run(self, *a, **k): pass
+    def set_status(self, *a): pass
+    def add_parameters(self, *a): pass
+    def set_parameter_value(self, *a): pass
+    def set_recordings(self, *a): pass
+
+
+def test_frames_are_dropped_for_a_slow_viewer(env, monkeypatch):
+    """The solver outruns the viewer 40:1: frames are dropped (at the solver, whose queue
+    holds frame_queue of them, and at the bridge, which shows only the newest), none pile up,
+    the viewer gets the last frame, and the recording still has every N-th mesh."""
+    from dataclasses import replace
+
+    from tests.test_recording import series, sheet_steps
+
+    client, settings = env
+    m = client.app.state.manager
+    viewer = SlowViewer()
+    monkeypatch.setattr(m, "viewer", viewer)
+    monkeypatch.setattr(m, "settings", replace(m.settings, record_every=7, push_hz=1000.0))
+    (settings.scenes_dir / "fast.toml").write_text(tiny_toml(steps=60))
+    run_id = client.post("/api/runs", json={"scene": "fast", "element": "linear"}).json()["id"]
+    peak, lat = 0, []
+    deadline = time.time() + 60
+    while True:
+        t0 = time.perf_counter()
+        state = client.get(f"/api/runs/{run_id}").json()["state"]
+        lat.append(time.perf_counter() - t0)
+        if state not in ACTIVE:
+            break
+        peak = max(peak, m.worker.frames.qsize())
+        assert time.time() < deadline
+        time.sleep(0.01)
+    # the viewer is busy all the time (0.2 s a frame) but outside the run lock: status reads do
+    # not wait for it (were it held, the median wait would be about 0.1 s)
+    assert np.median(lat) < 0.05, sorted(lat)
+    st = client.get(f"/api/runs/{run_id}").json()
+    assert st["state"] == "finished", st["reason"]
+    f = st["frames"]
+    assert f["produced"] == 60
+    assert f["dropped"] > 0, f  # the queue was full: dropped by the solver, not queued
+    assert peak <= settings.frame_queue
+    sent = f["produced"] - f["dropped"] + 1  # + the rest frame
+    # those still queued when the run ended are not taken for it: at most frame_queue
+    assert sent - settings.frame_queue <= f["received"] <= sent, f
+    deadline = time.time() + 10  # the bridge may still be showing a frame
+    while not viewer.shown or viewer.shown[-1] != 60:
+        assert time.time() < deadline, viewer.shown  # the last frame is never dropped
+        time.sleep(0.05)
+    f = client.get(f"/api/runs/{run_id}").json()["frames"]
+    assert len(viewer.shown) == f["pushed"] < f["received"]  # the bridge skipped stale ones
+    assert viewer.shown == sorted(viewer.shown)
+    path = settings.runs_dir / run_id / "run.rrd"
+    assert sheet_steps(path) == [0, 7, 14, 21, 28, 35, 42, 49, 56, 60]  # every N, and the last
+    assert sorted(series(path, "/solver/iterations")) == list(range(1, 61))  # scalars: all
+
+
+def test_a_bridge_error_fails_the_run_and_the_service_goes_on(env, monkeypatch):
+    """An exception while the bridge books an event (here: the disk is full) fails the active
+    run with the reason; the bridge stays alive, /api/health says so, the next run runs."""
+    client, settings = env
+    m = client.app.state.manager
+
+    def full(frame):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(m.history, "add", full)
+    (settings.scenes_dir / "long.toml").write_text(tiny_toml(steps=200))
+    run_id = client.post("/api/runs", json={"scene": "long"}).json()["id"]
+    st = wait_state(client, run_id, {"failed", "finished", "stopped"}, timeout=30)
+    assert st["state"] == "failed", st
+    assert "No space left on device" in st["reason"] and "'frame' event" in st["reason"]
+    health = client.get("/api/health").json()
+    assert health["ok"] and health["bridge_alive"] and health["bridge_errors"] >= 1, health
+    assert health["active"] is None
+    monkeypatch.undo()
+    nxt = client.post("/api/runs", json={"scene": "tiny"})
+    assert nxt.status_code == 201, nxt.text  # not 409: the failed run is not left active
+    st = wait_state(client, nxt.json()["id"], {"finished", "failed", "stopped"})
+    assert st["state"] == "finished", st["reason"]
+
+
+def test_a_recording_error_in_the_solver_fails_the_run(tmp_path, monkeypatch):
+    """The solver process writes the recording; a write error (disk full) fails the run with
+    the reason and the solver goes on to the next run. Driven in this process, queues and all,
+    with the recorder's frame write failing."""
+    import queue
+
+    from server import recording
+    from server.worker import _Solver
+
+    events, frames = queue.Queue(), queue.Queue(maxsize=4)
+    solver = _Solver(events, frames, record_every=1, step_delay=0.0)
+    calls = {"n": 0}
+    real = recording.Recorder.frame
+
+    def full_on_step_2(self, frame, mesh=True):
+        calls["n"] += 1
+        if frame["step"] == 2:
+            raise OSError(28, "No space left on device")
+        return real(self, frame, mesh)
+
+    monkeypatch.setattr(recording.Recorder, "frame", full_on_step_2)
+    for run in ("r1", "r2"):  # the server makes the run's folder
+        (tmp_path / run).mkdir()
+    solver.handle({"id": 1, "cmd": "start", "run": "r1", "out": str(tmp_path / "r1"),
+                   "scene_toml": tiny_toml(steps=5), "overrides": {"shell.element": "linear"}})
+    while solver.stepping:
+        solver.step()
+    states = []
+    while not events.empty():
+        ev = events.get()
+        if ev["kind"] == "state":
+            states.append((ev["state"], ev.get("reason")))
+    assert states[-1][0] == "failed", states
+    assert "No space left on device" in states[-1][1] and "recording" in states[-1][1]
+    assert (tmp_path / "r1" / "result.json").is_file()  # the results are still written
+    monkeypatch.undo()
+    solver.handle({"id": 2, "cmd": "start", "run": "r2", "out": str(tmp_path / "r2"),
+                   "scene_toml": tiny_toml(steps=2), "overrides": {"shell.element": "linear"}})
+    while solver.stepping:
+        solver.step()
+    kinds = []
+    while not events.empty():
+        ev = events.get()
+        if ev["kind"] == "state":
+            kinds.append(ev["state"])
+    assert kinds[-1] == "finished", kinds
+
+
+def sleepy_worker(commands, events, frames, record_every, step_delay):
+    """A solver process that never gets ready (for the tests of a slow start)."""
+    time.sleep(60)
+
+
+def test_nothing_waits_long_for_a_slow_solver_start(tmp_path):
+    settings = Settings(scenes_dir=tmp_path / "scenes", runs_dir=tmp_path / "runs",
+                        viewer=False, ack_timeout=0.5)
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "scenes" / "tiny.toml").write_text(tiny_toml())
+    with TestClient(create_app(settings, worker_target=sleepy_worker)) as client:
+        t0 = time.perf_counter()
+        cfg = client.get("/api/config").json()
+        assert time.perf_counter() - t0 < 0.5  # no wait for the solver
+        assert cfg["ready"] is False and cfg["parameters"] == {}
+        t0 = time.perf_counter()
+        r = client.post("/api/runs", json={"scene": "tiny", "parameters": {"load_scale": 2}})
+        assert r.status_code == 503 and "starting" in r.text, r.text
+        assert r.headers["retry-after"] == "1"
+        assert time.perf_counter() - t0 < 2.0  # ack_timeout, not 120 s
+
+
+def test_shutdown_stops_the_active_run_with_a_result(tmp_path):
+    """Leaving the app (as on Ctrl-C) stops the active run: state 'stopped', result.json and
+    a closed recording; no solver process is started during the shutdown."""
+    settings = Settings(scenes_dir=tmp_path / "scenes", runs_dir=tmp_path / "runs",
+                        viewer=False)
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "scenes" / "long.toml").write_text(tiny_toml(steps=2000))
+    with TestClient(create_app(settings)) as client:
+        run_id = client.post("/api/runs", json={"scene": "long"}).json()["id"]
+        wait_step(client, run_id, 2)
+        m = client.app.state.manager
+        worker = m.worker
+    assert m.restarts == 0 and m.worker is worker and not worker.alive()
+    saved = json.loads((settings.runs_dir / run_id / "run.json").read_text())
+    assert saved["state"] == "stopped" and saved["reason"] == "server shut down", saved
+    result = json.loads((settings.runs_dir / run_id / "result.json").read_text())
+    assert 2 <= len(result["steps"]) < 2000
+
+
+def test_ctrl_c_stops_the_run_and_the_server(tmp_path):
+    """SIGINT to the whole process group (Ctrl-C in a terminal): the solver process ignores
+    it, the server stops the active run (state 'stopped' with a result) and exits; no solver
+    process is left or restarted."""
+    import subprocess
+    import sys
+
+    import httpx
+
+    from tests.test_browser import free_port
+
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "scenes" / "long.toml").write_text(tiny_toml(steps=2000))
+    port = free_port()
+    log = open(tmp_path / "server.log", "wb")  # noqa: SIM115 - closed below
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim.cli", "serve", "long", "--port", str(port), "--no-viewer",
+         "--scenes-dir", str(tmp_path / "scenes"), "--runs-dir", str(tmp_path / "runs")],
+        stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        url = f"http://127.0.0.1:{port}"
+        deadline = time.time() + 60
+        while True:
+            try:
+                if httpx.get(url + "/api/health", timeout=1).json()["ok"]:
+                    break
+            except httpx.HTTPError:
+                pass
+            assert time.time() < deadline and proc.poll() is None, \
+                (tmp_path / "server.log").read_text()
+            time.sleep(0.2)
+        run_id = httpx.post(url + "/api/runs", json={"scene": "long"}).json()["id"]
+        while httpx.get(f"{url}/api/runs/{run_id}").json()["step"] < 2:
+            assert time.time() < deadline
+            time.sleep(0.05)
+        worker_pid = httpx.get(url + "/api/health").json()["worker_pid"]
+        os.killpg(proc.pid, signal.SIGINT)
+        assert proc.wait(30) == 0, (tmp_path / "server.log").read_text()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+        log.close()
+    saved = json.loads((tmp_path / "runs" / run_id / "run.json").read_text())
+    assert saved["state"] == "stopped" and saved["reason"] == "server shut down", saved
+    assert (tmp_path / "runs" / run_id / "result.json").is_file()
+    with pytest.raises(ProcessLookupError):
+        os.kill(worker_pid, 0)
+    deadline = time.time() + 10  # multiprocessing's resource tracker exits after the server
+    while True:
+        left = subprocess.run(["ps", "-o", "pid,args", "--no-headers", "-s", str(proc.pid)],
+                              capture_output=True, text=True).stdout.splitlines()
+        left = [p for p in left if "<defunct>" not in p]  # exited, not yet reaped by init
+        if not left or time.time() > deadline:
+            break
+        time.sleep(0.2)
+    assert left == [], left  # nothing left running in the session (no new solver)
+    assert "solver process died" not in (tmp_path / "server.log").read_text()
+
+
+def test_token_is_required_and_checked_as_bytes(tmp_path):
+    """With a token every request needs it (query, then cookie; or a Bearer header); a wrong
+    or non-ASCII one is a 401, never a 500. (No lifespan: the check comes first.)"""
+    settings = Settings(scenes_dir=tmp_path, runs_dir=tmp_path / "runs", viewer=False,
+                        token="s3cret")
+    client = TestClient(create_app(settings))
+    assert client.get("/static/style.css").status_code == 401
+    assert client.get("/static/style.css?token=wrong").status_code == 401
+    assert client.get("/static/style.css?token=%C3%BC%00").status_code == 401
+    r = client.get("/static/style.css", headers={"Authorization": "Bearer \u00fc".encode()})
+    assert r.status_code == 401, r.text
+    r = client.get("/static/style.css", headers={"Authorization": b"Bearer \xff\xfe"})
+    assert r.status_code == 401, r.text
+    assert client.get("/static/style.css?token=s3cret").status_code == 200
+    assert client.get("/static/style.css").status_code == 200  # the cookie it set
+    fresh = TestClient(create_app(settings))
+    assert fresh.get("/static/style.css", headers={"Authorization": "Bearer s3cret"}
+                     ).status_code == 200
+
+
+def serve_args(*argv):
     import argparse
 
-    from server.cli import add_parser, serve_settings
+    from server.cli import add_parser
 
     ap = argparse.ArgumentParser()
     add_parser(ap.add_subparsers(dest="cmd"))
-    args = ap.parse_args(["serve", "--host", "0.0.0.0", "--token", "t"])
-    assert serve_settings(args, "t").viewer_host == "127.0.0.1"
-    args = ap.parse_args(["serve", "--host", "0.0.0.0", "--token", "t", "--expose-viewer"])
-    assert serve_settings(args, "t").viewer_host == "0.0.0.0"
+    return ap.parse_args(["serve", *argv])
+
+
+def test_serve_refuses_other_hosts_without_a_token(monkeypatch, capsys):
+    from server.cli import cmd_serve
+
+    monkeypatch.delenv("Q3T_TOKEN", raising=False)
+    assert cmd_serve(serve_args("--host", "0.0.0.0")) == 2
+    assert "refusing to serve on 0.0.0.0 without a token" in capsys.readouterr().err
+    assert cmd_serve(serve_args("--host", "192.168.1.5", "--token", "\u00fcber")) == 2
+    assert "printable ASCII" in capsys.readouterr().err

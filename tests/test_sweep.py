@@ -1,6 +1,7 @@
-"""q3t sweep: grid parsing, one case's summary (converged, invalid, solver failure), and a real
-sweep on a 2-worker local Dask cluster run as a child process group that cannot outlive its
-timeout."""
+"""q3t sweep: grid parsing, one case's summary (converged, invalid, solver failure), a real
+sweep on a 2-worker local Dask cluster whose --timeout keeps what finished, and one on an
+existing cluster (--scheduler) whose per-case budget kills a hung case; each runs as a child
+process group that must end with the command."""
 
 import json
 import math
@@ -55,36 +56,78 @@ def _gone(pgid: int) -> bool:
     return False
 
 
-def test_sweep_on_a_local_cluster_reports_failures_and_shuts_down(tmp_path):
-    cmd = [sys.executable, "-m", "sim.cli", "sweep", "cantilever",
-           "--grid", "material.nu=0.3,0.5", "--grid", "solver.max_iterations=1,30",
-           "--set", "mesh.edge_length=0.07", "--set", "stepping.steps=1",
-           "--set", "stepping.max_cutbacks=0", "--workers", "2", "--timeout", "90",
-           "--out", str(tmp_path)]
+def _run(cmd: list[str], limit: float) -> tuple[int, str, int]:
+    """``cmd`` in its own process group, killed whole past ``limit`` s; (rc, output, pgid)."""
     p = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                          text=True, start_new_session=True)
     try:
-        out, _ = p.communicate(timeout=150)
+        out, _ = p.communicate(timeout=limit)
     except subprocess.TimeoutExpired:
         os.killpg(p.pid, signal.SIGKILL)  # the sweep and every worker it started
         p.communicate()
-        pytest.fail("q3t sweep did not finish in 150 s")
-    assert p.returncode == 0, out
+        pytest.fail(f"{cmd[:4]} did not finish in {limit} s")
+    return p.returncode, out, p.pid
+
+
+def _assert_group_ends(pgid: int, what: str) -> None:
+    """Workers, forkservers and case children all stay in the command's process group."""
+    deadline = time.monotonic() + 10  # a case child notices its worker is gone within 1 s
+    while not _gone(pgid) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    if not _gone(pgid):
+        os.killpg(pgid, signal.SIGKILL)
+        pytest.fail(f"processes outlived {what}")
+
+
+def test_sweep_on_a_local_cluster_reports_failures_and_keeps_what_finished(tmp_path):
+    """8 cases: 4 invalid, 2 solver failures, 1 converged, and 1 of 100,000 steps that the
+    sweep's --timeout cuts: it is marked timeout, the rest is written, the exit code is 1."""
+    cmd = [sys.executable, "-m", "sim.cli", "sweep", "cantilever",
+           "--grid", "material.nu=0.3,0.5", "--grid", "solver.max_iterations=1,30",
+           "--grid", "stepping.steps=1,100000",
+           "--set", "mesh.edge_length=0.07", "--set", "stepping.max_cutbacks=0",
+           "--workers", "2", "--timeout", "20", "--out", str(tmp_path)]
+    rc, out, pgid = _run(cmd, 150)
+    assert rc == 1, out
     res = json.loads((tmp_path / "sweep.json").read_text())
-    status = {(c["overrides"]["material.nu"], c["overrides"]["solver.max_iterations"]):
-              c["status"] for c in res["cases"]}
+    assert not res["complete"] and len(res["cases"]) == 8
+    status = {(c["overrides"]["material.nu"], c["overrides"]["solver.max_iterations"],
+               c["overrides"]["stepping.steps"]): c["status"] for c in res["cases"]}
     # one Newton iteration cannot solve the step and no cut-back is allowed: a solver failure
-    assert status == {(0.3, 1): "failed", (0.3, 30): "converged",
-                      (0.5, 1): "invalid", (0.5, 30): "invalid"}
+    assert status == {(0.3, 1, 1): "failed", (0.3, 1, 100000): "failed",
+                      (0.3, 30, 1): "converged", (0.3, 30, 100000): "timeout",
+                      **{(0.5, m, s): "invalid" for m in (1, 30) for s in (1, 100000)}}
     ok = next(c for c in res["cases"] if c["status"] == "converged")
     assert ok["probes"]["tip_deflection"] < 0 and ok["dofs"] > 0 and ok["wall"] > 0
     md = (tmp_path / "sweep.md").read_text()
-    assert md.count("| invalid |") == 2 and "material.nu: Input should be less than 0.5" in md
-    assert "no convergence in 1 iterations" in md
+    assert md.count("| invalid |") == 4 and "material.nu: Input should be less than 0.5" in md
+    assert "no convergence in 1 iterations" in md and "--timeout of 20 s" in md
     assert (tmp_path / "sweep.png").stat().st_size > 0 and (tmp_path / "sweep.svg").is_file()
-    deadline = time.monotonic() + 10  # the cluster's worker processes end with the command
-    while not _gone(p.pid) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    if not _gone(p.pid):
-        os.killpg(p.pid, signal.SIGKILL)
-        pytest.fail("Dask worker processes outlived q3t sweep")
+    _assert_group_ends(pgid, "q3t sweep")
+
+
+CLUSTER = """
+import sys, dask
+from distributed import LocalCluster
+from sim.cli import main
+# non-daemonic workers may start the child processes that enforce per-case budgets
+with dask.config.set({"distributed.worker.daemon": False}), LocalCluster(
+        n_workers=1, threads_per_worker=1, dashboard_address=None, silence_logs=40) as c:
+    sys.exit(main([*sys.argv[1:], "--scheduler", c.scheduler_address]))
+"""
+
+
+def test_sweep_on_an_existing_cluster_kills_a_hung_case_at_its_budget(tmp_path):
+    """--scheduler ADDRESS: the cases go to a cluster the sweep did not start; the case of
+    100,000 steps is killed at its 6 s budget and the worker goes on with the next case."""
+    cmd = [sys.executable, "-c", CLUSTER, "sweep", "cantilever",
+           "--grid", "stepping.steps=100000,1", "--set", "mesh.edge_length=0.07",
+           "--budget", "6", "--out", str(tmp_path)]
+    rc, out, pgid = _run(cmd, 150)
+    assert rc == 0, out
+    res = json.loads((tmp_path / "sweep.json").read_text())
+    assert res["complete"] and res["scheduler"].startswith("tcp://")
+    by = {c["overrides"]["stepping.steps"]: c for c in res["cases"]}
+    assert by[100000]["status"] == "timeout" and "6 s budget" in by[100000]["reason"]
+    assert by[1]["status"] == "converged" and by[1]["budget"] == 6
+    _assert_group_ends(pgid, "the cluster")

@@ -3,12 +3,14 @@
 frames carry every field (plastic strain included) and the tools' translations, the punch moves
 down step by step, the viewer draws one mesh per tool and moves it, offers every field in its
 dropdown and scrubs kept frames, and the recording holds the tool meshes and transforms (read
-back, and replayed by ``q3t play --viser``'s loader)."""
+back, and replayed by ``q3t play --viser``'s loader and by the service's viewer); the viewer's
+Play/Pause/Step/Reset buttons drive a run (pressed through viser's server-side handles)."""
 
 from __future__ import annotations
 
 import os
 import socket
+import time
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +24,7 @@ from rerun.chunk import RrdReader  # noqa: E402
 from server.app import create_app  # noqa: E402
 from server.history import FrameHistory  # noqa: E402
 from server.settings import Settings  # noqa: E402
-from tests.test_service import wait_state  # noqa: E402
+from tests.test_service import tiny_toml, wait_state, wait_step  # noqa: E402
 
 PRESS_TOML = """
 name = "press"
@@ -95,8 +97,9 @@ def done(tmp_path_factory):
     os.environ.setdefault("XDG_DATA_HOME", str(tmp / "data"))
     (tmp / "scenes").mkdir()
     (tmp / "scenes" / "press.toml").write_text(PRESS_TOML)
+    (tmp / "scenes" / "long.toml").write_text(tiny_toml(steps=4000))
     settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs", viewer=True,
-                        viewer_port=free_port())
+                        viewer_port=free_port(), record_every=2)
     with TestClient(create_app(settings)) as client:
         r = client.post("/api/runs", json={"scene": "press", "element": "linear"})
         assert r.status_code == 201, r.text
@@ -182,7 +185,7 @@ def test_replay_loads_the_recording(done):
 
     _, settings, st = done
     rep = replay.load(settings.runs_dir / st["id"] / "run.rrd")
-    assert rep.steps == [0, 1, 2, 3] and rep.faces is not None
+    assert rep.steps == [0, 2, 3] and rep.faces is not None  # record_every = 2, and the last
     assert all(p.shape == rep.positions[0].shape for p in rep.positions)
     assert sorted(rep.tools) == ["ground", "punch"]
     assert rep.pose("punch", 3)[2] < rep.pose("punch", 0)[2]
@@ -211,3 +214,75 @@ def test_history_keeps_every_kth_frame_past_the_cap():
     for k in range(20):
         small.add(frame(k))
     assert small.summary()["bytes"] <= 5 * 80
+
+
+def until(cond, timeout: float = 30.0, what: str = ""):
+    deadline = time.time() + timeout
+    while not cond():
+        assert time.time() < deadline, what
+        time.sleep(0.02)
+
+
+def test_viewer_buttons_drive_the_run(done):
+    """Pause, Step, Play and Reset pressed in the viewer (``button.value = True`` runs the
+    click handlers, as a click from a browser does)."""
+    client, _, _ = done
+    viewer = client.app.state.manager.viewer
+    b = viewer.gui.buttons
+    run = client.post("/api/runs", json={"scene": "long", "element": "linear"}).json()["id"]
+    status = lambda: client.get(f"/api/runs/{run}").json()  # noqa: E731
+    try:
+        wait_step(client, run, 2)
+        b["Pause"].value = True
+        assert viewer.gui.status.content.startswith("pause: ")
+        until(lambda: status()["state"] == "paused", what="Pause")
+        time.sleep(0.3)  # the step under way when Pause arrived may still finish
+        at = status()["step"]
+        time.sleep(0.3)
+        assert status()["step"] == at  # paused: no more steps
+        b["Step"].value = True
+        until(lambda: status()["step"] == at + 1, what="Step")
+        time.sleep(0.3)
+        st = status()
+        assert st["step"] == at + 1 and st["state"] == "paused", st  # one step, still paused
+        b["Play"].value = True
+        until(lambda: status()["step"] > at + 3 and status()["state"] == "running", what="Play")
+        viewer.gui.element.value = "q3t"
+        b["Reset"].value = True  # stops this run and starts the last scene with the element
+        assert viewer.gui.status.content.startswith("Started `long-q3t-"), \
+            viewer.gui.status.content
+        assert status()["state"] == "stopped"
+        new = client.get("/api/health").json()["active"]
+        assert new and new != run and new.startswith("long-q3t-")
+    finally:
+        active = client.get("/api/health").json()["active"]
+        if active:
+            client.post(f"/api/runs/{active}/stop")
+            wait_state(client, active, {"stopped", "finished", "failed"})
+
+
+def test_viewer_replays_an_older_recorded_run(done):
+    """The "Run" dropdown offers finished runs; picking one shows its recording, the time
+    slider scrubs it, and "live run" goes back."""
+    from server import replay
+    from server.viewer import LIVE
+
+    client, settings, st = done
+    viewer = client.app.state.manager.viewer
+    assert st["id"] in viewer.gui.recording.options
+    assert viewer.gui.recording.options[0] == LIVE
+    rep = replay.load(settings.runs_dir / st["id"] / "run.rrd")
+    viewer.gui.recording.value = st["id"]
+    assert viewer.replay is not None and viewer.replay.steps == [0, 2, 3]
+    assert "Recording of" in viewer.gui.status.content, viewer.gui.status.content
+    assert viewer.gui.time.max == 3 and viewer.gui.time.value == 3
+    assert sorted(viewer.tools) == ["ground", "punch"]
+    viewer.gui.time.value = 1  # recorded at 0 and 2: shows 0, the nearest before
+    assert viewer.gui.status.content.endswith("showing recorded step 0")
+    np.testing.assert_allclose(viewer.tools["punch"].position, rep.pose("punch", 0), atol=1e-9)
+    viewer.gui.time.value = 2
+    assert viewer.gui.status.content.endswith("showing recorded step 2")
+    np.testing.assert_allclose(viewer.tools["punch"].position, rep.pose("punch", 2), atol=1e-9)
+    assert rep.pose("punch", 2)[2] < rep.pose("punch", 0)[2]
+    viewer.gui.recording.value = LIVE
+    assert viewer.replay is None

@@ -173,14 +173,22 @@ async function control(action) {
   } catch (e) { say(e.message, true); }
 }
 
-function buildSliders() {
+async function buildSliders() {
+  // the solver process names the live parameters a few seconds after the server is up
+  while (!state.config.ready) {
+    $("sliders").textContent = "live parameters: waiting for the solver process…";
+    await new Promise((ok) => setTimeout(ok, 1000));
+    state.config = await api("GET", "/api/config");
+  }
   const box = $("sliders");
+  box.replaceChildren();
   for (const [name, r] of Object.entries(state.config.parameters)) {
     const label = document.createElement("label");
     const out = document.createElement("output");
     const inp = document.createElement("input");
-    Object.assign(inp, { type: "range", name, min: r.min, max: Math.min(r.max, 10),
-                         step: 0.01, value: 1 });
+    // the whole range the server accepts (load_scale goes to 100), in 1000 steps
+    Object.assign(inp, { type: "range", name, min: r.min, max: r.max,
+                         step: (r.max - r.min) / 1000, value: 1 });
     inp.id = `param-${name}`;
     out.textContent = "1";
     inp.oninput = () => { out.textContent = inp.value; };
@@ -189,7 +197,8 @@ function buildSliders() {
       try {
         const r = await api("PUT", `/api/runs/${state.run}/parameters/${name}`,
                             { value: +inp.value });
-        say(`${name} = ${r.value} from step ${r.applies_from_step}`);
+        say(r.applied ? `${name} = ${r.value} from step ${r.applies_from_step}`
+                      : `${name} = ${r.value} from the next step (the solver is mid-step)`);
       } catch (e) { say(e.message, true); }
     };
     label.append(name + " ", inp, " ", out);
@@ -336,7 +345,7 @@ async function main() {
     o.selected = e === "q3t";
     $("element").appendChild(o);
   }
-  buildSliders();
+  buildSliders().catch((e) => say(e.message, true));
   if (state.config.viewer_port) {
     $("viewer").src = `${location.protocol}//${location.hostname}:${state.config.viewer_port}/`;
   }

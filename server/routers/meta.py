@@ -12,8 +12,9 @@ def config(request: Request) -> dict:
     from sim.elements import ELEMENTS
 
     m = request.app.state.manager
-    m.ready.wait(120)  # the solver process names the live parameters once it is up
-    return {"elements": sorted(ELEMENTS),
+    # the solver process names the live parameters once it is up (a few seconds after the
+    # server); until then ``ready`` is false and the page asks again
+    return {"ready": m.ready.is_set(), "elements": sorted(ELEMENTS),
             "parameters": {k: {"min": lo, "max": hi} for k, (lo, hi) in
                            m.parameter_ranges.items()},
             "viewer_port": m.viewer.port if m.viewer else None,
@@ -22,6 +23,4 @@ def config(request: Request) -> dict:
 
 @router.get("/health")
 def health(request: Request) -> dict:
-    m = request.app.state.manager
-    return {"ok": True, "worker_alive": m.worker.alive(), "worker_pid": m.worker.pid,
-            "worker_restarts": m.restarts, "active": m.active}
+    return request.app.state.manager.health()

@@ -10,6 +10,7 @@ from fastapi import APIRouter, Request, Response
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field
 
+from server.problems import NotFound
 from server.runs import RunManager
 
 router = APIRouter(prefix="/api/runs", tags=["runs"])
@@ -53,21 +54,20 @@ def start_run(body: NewRun, request: Request) -> dict:
 def status(run_id: str, request: Request, since: int = 0) -> dict:
     """The run's state and its step records after step ``since``; for a finished run also
     ``estimate``: its error from a study of the scene (``q3t study``) and its cost."""
-    m = _runs(request)
-    with m.lock:
-        run = m.get(run_id)
-        m.estimate(run)
-        return {**run.summary(), "records": [r for r in run.records if r["step"] > since]}
+    return _runs(request).status(run_id, since)
 
 
 @router.post("/{run_id}/{action}")
 def control(run_id: str, action: Literal["pause", "resume", "step", "stop"],
             request: Request) -> dict:
-    return _runs(request).command(run_id, action).summary()
+    return _runs(request).command(run_id, action)
 
 
 @router.put("/{run_id}/parameters/{name}", status_code=202)
 def set_parameter(run_id: str, name: str, body: ParameterValue, request: Request) -> dict:
+    """Applied from the next step. Waits briefly for the solver: ``applied`` and
+    ``applies_from_step`` say from which step it acts (the step is also in the run's
+    ``parameter_log``); a solver inside a long step answers later (``applied`` false)."""
     return _runs(request).set_parameter(run_id, name, body.value)
 
 
@@ -78,10 +78,8 @@ def result(run_id: str, request: Request) -> dict:
     run = m.get(run_id)
     path = m.dir(run.id) / "result.json"
     if not path.is_file():
-        raise KeyError(f"run {run_id!r} has no result yet")
-    with m.lock:
-        estimate = m.estimate(run)
-    return {**json.loads(path.read_text()), "estimate": estimate}
+        raise NotFound(f"run {run_id!r} has no result yet")
+    return {**json.loads(path.read_text()), "estimate": m.estimate(run)}
 
 
 @router.get("/{run_id}/frames")
@@ -91,7 +89,7 @@ def frames(run_id: str, request: Request) -> dict:
     m.get(run_id)
     summary = m.history.summary()
     if summary["run"] != run_id:
-        raise KeyError(f"no frames kept for run {run_id!r} (only the latest run's are)")
+        raise NotFound(f"no frames kept for run {run_id!r} (only the latest run's are)")
     return summary
 
 
@@ -114,7 +112,7 @@ def recording(run_id: str, request: Request) -> FileResponse:
     m = _runs(request)
     path = m.dir(m.get(run_id).id) / "run.rrd"
     if not path.is_file():
-        raise KeyError(f"run {run_id!r} has no recording")
+        raise NotFound(f"run {run_id!r} has no recording")
     return FileResponse(path, media_type="application/octet-stream", filename=f"{run_id}.rrd")
 
 

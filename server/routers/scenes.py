@@ -60,8 +60,8 @@ def schema() -> dict:
 
 
 @router.post("/validate")
-def validate(body: SceneText) -> dict:
-    return {"ok": True, "scene": SceneStore.validate(body.toml).model_dump(mode="json")}
+def validate(body: SceneText, request: Request) -> dict:
+    return {"ok": True, "scene": _store(request).validate(body.toml).model_dump(mode="json")}
 
 
 @router.post("/render")
@@ -88,11 +88,7 @@ def read_scene(name: str, request: Request) -> dict:
 def create_scene(body: NewScene, request: Request, response: Response) -> dict:
     store = _store(request)
     check_name(body.name, "scene name")
-    if store.exists(body.name):
-        from server.runs import Conflict
-
-        raise Conflict(f"scene {body.name!r} exists; use PUT to change it")
-    store.save(body.name, body.toml)
+    store.create(body.name, body.toml)  # atomic: of two creates of one name, one wins
     response.headers["Location"] = f"/api/scenes/{body.name}"
     return _read(store, body.name)
 
@@ -114,9 +110,6 @@ def delete_scene(name: str, request: Request) -> Response:
 def duplicate_scene(name: str, body: NewName, request: Request) -> dict:
     store = _store(request)
     text = store.text(name)
-    if store.exists(check_name(body.name, "scene name")):
-        from server.runs import Conflict
-
-        raise Conflict(f"scene {body.name!r} exists")
-    store.save(body.name, text)
+    check_name(body.name, "scene name")
+    store.create(body.name, text)
     return _read(store, body.name)

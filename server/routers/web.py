@@ -8,6 +8,7 @@ from fastapi import APIRouter
 from fastapi.responses import FileResponse
 
 import web
+from server.problems import NotFound
 
 router = APIRouter(tags=["web"], include_in_schema=False)
 ROOT = Path(web.__file__).resolve().parent
@@ -22,5 +23,5 @@ def index() -> FileResponse:
 @router.get("/static/{name}")
 def static(name: str) -> FileResponse:
     if name not in FILES:
-        raise KeyError(f"no file {name!r}")
+        raise NotFound(f"no file {name!r}")
     return FileResponse(ROOT / name, media_type=FILES[name])

@@ -8,8 +8,10 @@ unity. tests/test_elements.py checks the printed form fails and ours passes.
 from sim.elements import register
 from sim.elements.base import Prism
 
-# The paper's rule, 1 in-plane x 3 thickness points. It admits one zero-energy mode on a free
-# single-cell (two-triangle) patch only; meshes of two or more cells, free or clamped, have none
-# (tests/test_elements.py). The full 3 x 3 rule has no such mode but locks in transverse shear:
-# 15 % too stiff on the paper's cantilever against 5 % for 1 x 3 (README, "Quadrature").
+# The paper's rule, 1 in-plane x 3 thickness points. Trade-off (README, "Quadrature and spurious
+# modes"; tests/test_elements.py): it leaves spurious zero-energy modes on a free mesh of one
+# prism (4) or two triangles (1); three or more triangles, or any clamp, have none. The 3 x 3
+# rule has no mode anywhere but locks in transverse shear: 15 % too stiff on the paper's
+# cantilever against 4.9 % for 1 x 3, which would break the 5 % accuracy claim. So 1 x 3 stays
+# the default; a scene of one or two elements should set shell.quadrature = [3, 3].
 Q3T = register(Prism("q3t", p=1, q=2, default_quadrature=(1, 3)))

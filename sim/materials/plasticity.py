@@ -43,7 +43,9 @@ Hardening laws: integer `law`, float64 parameter array `hp`:
     1 linear   Y = Y0 + H ep                            hp = [Y0, H]
     2 Swift    Y = K (e0 + ep)^n                        hp = [K, e0, n]   (e0 > 0, 0 <= n)
     3 Voce     Y = Y0 + (Ysat - Y0)(1 - exp(-C ep))     hp = [Y0, Ysat, C]
-Requirements: Y >= 0 and H > -3 mu along the path (all four laws with the usual parameters).
+Requirements: Y > 0 and H > -3 mu along the path for the return to be unique, H >= 0 for W to be
+convex; sim.scene.Hardening admits only nonsoftening parameters (K, e0 > 0, n >= 0, Ysat >= Y0,
+C > 0, H >= 0), and derives Swift's e0 = (Y0 / K)^(1/n) from the yield stress.
 """
 
 import math
@@ -171,13 +173,29 @@ def return_map(eps_tr, ep_n, mu, lam, law, hp):
     return W, tau, D, a, dg
 
 
+def net_plastic_strain(fp_inv: np.ndarray) -> np.ndarray:
+    """Equivalent net (retained) plastic strain sqrt(2/3) |ln U_p| with Fp = R_p U_p, from
+    Fp^-1 of shape (..., 3, 3); shape (...). Unlike the accumulated ep, which also counts flow
+    that was later reversed, this measures the plastic deformation the material keeps."""
+    c = np.einsum("...ji,...jk->...ik", fp_inv, fp_inv)  # Fp^-T Fp^-1: eigenvalues U_p^-2
+    e = -0.5 * np.log(np.linalg.eigvalsh(c))
+    return np.sqrt(2.0 / 3.0) * np.linalg.norm(e, axis=-1)
+
+
 @numba.njit(cache=True)
-def plastic_strain_increment(eps_tr, ep_n, mu, lam, law, hp):
-    """Principal plastic log-strain increment dg N, shape (3,), trace zero to round-off."""
+def plastic_flow(eps_tr, ep_n, mu, law, hp):
+    """Principal plastic log-strain increment dg N, shape (3,), trace zero to round-off, and dg:
+    the one return the commit needs (the multiplier is solved once)."""
     dg = _dgamma(eps_tr, ep_n, mu, law, hp)
     out = np.zeros(3)
     if dg > 0.0:
         _, e, r = _trial(eps_tr)
         out = (dg * _SQRT3_2 / r) * e
         out -= (out[0] + out[1] + out[2]) / 3.0
-    return out
+    return out, dg
+
+
+@numba.njit(cache=True)
+def plastic_strain_increment(eps_tr, ep_n, mu, lam, law, hp):
+    """Principal plastic log-strain increment dg N, shape (3,), trace zero to round-off."""
+    return plastic_flow(eps_tr, ep_n, mu, law, hp)[0]

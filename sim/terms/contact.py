@@ -2,17 +2,25 @@
 Coulomb friction (sim.contact), as one energy term. A scene builds one such term per tool and
 none without tools.
 
+Friction lags the normal force (sim.contact); ``settle_friction`` refreshes it from the
+converged state and re-solves until it no longer changes, so a converged step slides with
+|f_t| = mu f_n of its own normal force.
+
 The contact layer starts ``delta`` (1 % of the thickness) outside the tool surface, so a skin
 placed exactly on a tool is already held by it (no free rigid mode at the first step).
-The tool moves rigidly (translation); its position is integrated from its velocity, so a speed
-changed between steps takes effect from the next step on.
+The tool moves rigidly: a translation (velocity plus keyframed offsets) and a keyframed
+rotation about its origin, given as a rotation vector (axis * angle, rad) interpolated
+linearly between keyframes (exact for a fixed axis). Its pose (R, t) places the SDF
+(x_world = R x_local + t) for contact, friction (the tool's displacement over a step at each
+node, sim.contact.tool_displacement) and display. Both are integrated step by step from their
+increments, so a speed changed between steps takes effect from the next step on.
 
 Force control (a blank holder): the tool's z offset is an unknown of the system, stored as an
 extra "node" row ``x[vdof]`` whose x and y are held. The term then adds the work of the
-pressing force, F * x[vdof, 2], and the couplings: with u the tool offset, contact depends on
-x_i - u, so dE/du = -sum_i g_i and d2E/du2 = sum_i H_i, d2E/dx_i du = -H_i. Friction is not
-coupled to u (its tool displacement is the prescribed one): on a flat holder it has no z part;
-on the holder's rounded inner edge it adds up to 2 % to the measured holder force (cup test).
+pressing force, F * x[vdof, 2], and the couplings: with u the tool offset, contact and
+friction (slip relative to the tool, which moves by u - u_start over the step besides its
+prescribed motion) depend on x_i - u, so dE/du = -sum_i g_i, d2E/du2 = sum_i H_i and
+d2E/dx_i du = -H_i, with g, H the sum of both.
 """
 
 from __future__ import annotations
@@ -20,10 +28,25 @@ from __future__ import annotations
 import numpy as np
 
 from sim.assembly import scatter_node_blocks
-from sim.contact import friction, normal_forces, penalty_contact
+from sim.contact import friction, normal_forces, penalty_contact, tool_displacement
 from sim.terms import Term
+from sim.tools.sdf import rotation
 
 EYE = np.eye(3)
+
+
+def rotation_matrix(rv) -> np.ndarray:
+    """Rotation (3, 3) of a rotation vector (axis * angle, rad)."""
+    angle = float(np.linalg.norm(rv))
+    return rotation(rv, angle) if angle > 0 else EYE.copy()
+
+
+def quaternion_wxyz(R) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of a rotation matrix (for display poses)."""
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return np.array([w, x, y, z])
 
 
 class ToolContact(Term):
@@ -41,10 +64,19 @@ class ToolContact(Term):
         self.nodes = np.asarray(nodes, np.int64)
         self.position = np.asarray(position, float).copy()  # committed
         self.velocity = np.asarray(velocity, float)
-        kf = np.asarray(keyframes, float).reshape(-1, 4)
-        self._path_t, self._path_u = kf[:, 0], kf[:, 1:]
+        kf = np.asarray(keyframes, float)
+        kf = kf.reshape(-1, kf.shape[-1] if kf.size else 4)
+        if kf.shape[1] == 4:  # translation only
+            kf = np.hstack([kf, np.zeros((len(kf), 3))])
+        self._path_t, self._path_u = kf[:, 0], kf[:, 1:]  # (k,), (k, 6): offset, rotation
+        start = self.path(0.0)  # where the path begins (held before its first time)
+        self.position += start[:3]
+        self.rot = start[3:].copy()  # committed rotation vector
+        self.rot_now = self.rot.copy()
+        self.R_now = rotation_matrix(self.rot)
         self.speed_scale = 1.0
         self.force_scale = 1.0
+        self.moving = True  # False in the release (springback) stage: the tool stays put
         self.k, self.mu, self.eps_v = float(k), float(mu), float(eps_v)
         self.delta = float(delta)
         self.pattern = pattern
@@ -59,7 +91,6 @@ class ToolContact(Term):
         self.k_floor = 1e-4 * self.k * len(self.nodes)
         self.t_now = self.position.copy()
         self._lagged = None
-        self._settled = False  # normal forces of a converged state are known
         # Newton's protocol (as Elasticity): nonzero = PSD-project each node block; the exact
         # block is indefinite next to convex tool edges (e' H with e' < 0)
         self.project = 1
@@ -69,40 +100,80 @@ class ToolContact(Term):
         return self.t_now + x[self.vdof] if self.vdof is not None else self.t_now
 
     def path(self, t: float) -> np.ndarray:
-        """Keyframed offset (3,) at scene time t (zero without keyframes)."""
+        """Keyframed offset and rotation vector (6,) at scene time t (zero without keyframes)."""
         if not len(self._path_t):
-            return np.zeros(3)
-        return np.array([np.interp(t, self._path_t, self._path_u[:, c]) for c in range(3)])
+            return np.zeros(6)
+        return np.array([np.interp(t, self._path_t, self._path_u[:, c]) for c in range(6)])
+
+    def travel(self, t0: float, t1: float, points: np.ndarray) -> float:
+        """Largest distance the tool moves, at the live speed, from scene time t0 to t1, at
+        any of ``points`` (n, 3): its translation plus its rotation angle times the farthest
+        point's distance from the tool's origin (the rotation centre)."""
+        if not self.moving:
+            return 0.0
+        d = self.path(t1) - self.path(t0)
+        d[:3] += (t1 - t0) * self.velocity
+        d *= self.speed_scale
+        turn = float(np.linalg.norm(d[3:]))
+        reach = float(np.linalg.norm(points - self.t_now, axis=1).max()) if turn else 0.0
+        return float(np.linalg.norm(d[:3])) + turn * reach
 
     def begin_step(self, t, dt, x):
-        step = dt * self.velocity + self.path(t) - self.path(t - dt)
-        self.t_now = self.position + self.speed_scale * step
-        # friction lags the normal force of the last converged state; the rest state is not an
-        # equilibrium (a skin placed on a tool sits in the contact layer), so the first step
-        # is frictionless
+        step = self.path(t) - self.path(t - dt)
+        step[:3] += dt * self.velocity
+        step = self.speed_scale * step if self.moving else 0.0 * step
+        self.t_now = self.position + step[:3]
+        self.rot_now = self.rot + step[3:]
+        self.R_now = rotation_matrix(self.rot_now)
+        self._R0 = rotation_matrix(self.rot)
+        # slip is measured from the state at the start of the step; friction lags the normal
+        # force of that state, refreshed within the step by settle_friction. (At rest a skin
+        # placed on a tool sits in the contact layer and carries k delta: a first guess.)
+        self._start = x[self.nodes].copy()
+        self._start_u = x[self.vdof].copy() if self.vdof is not None else 0.0
         self._lagged = None
-        if self.mu > 0 and self._settled:
-            X0 = x[self.nodes]
+        if self.mu > 0:
             here = self.position + (x[self.vdof] if self.vdof is not None else 0.0)
-            lam, nrm = normal_forces(X0, self.prog, EYE, here, self.k, self.delta)
-            act = lam > 0
-            disp = np.broadcast_to(self.t_now - self.position, (int(act.sum()), 3))
-            self._lagged = (act, X0[act], np.ascontiguousarray(disp), lam[act], nrm[act])
+            self._lag(*normal_forces(self._start, self.prog, self._R0, here, self.k,
+                                     self.delta))
+
+    def _lag(self, lam, nrm):
+        act = lam > 0
+        # the prescribed motion over the step of the tool points under the nodes
+        disp = tool_displacement(self._start[act], self._R0, self.position, self.R_now,
+                                 self.t_now)
+        self._lagged = (act, self._start[act], np.ascontiguousarray(disp), lam[act], nrm[act],
+                        lam)
+
+    def relag(self, x) -> float:
+        """Take the normal forces of state x as the lagged ones; returns their largest change
+        relative to the largest normal force (0 without friction)."""
+        if self.mu == 0:
+            return 0.0
+        lam, nrm = normal_forces(x[self.nodes], self.prog, self.R_now, self.translation(x),
+                                 self.k, self.delta)
+        old = self._lagged[5] if self._lagged is not None else np.zeros_like(lam)
+        self._lag(lam, nrm)
+        top = float(lam.max()) if lam.size else 0.0
+        return float(np.abs(lam - old).max()) / top if top > 0 else 0.0
 
     def commit(self, x):
         self.position = self.t_now.copy()
-        self._settled = True
+        self.rot = self.rot_now.copy()
 
     def _eval(self, x, derivs=True):
         """(E, penalty gradient (m,3), penalty Hessian (m,3,3), friction gradient, Hessian)."""
         X = x[self.nodes]
-        E, g, H, _, _ = penalty_contact(X, self.prog, EYE, self.translation(x), self.k,
+        E, g, H, _, _ = penalty_contact(X, self.prog, self.R_now, self.translation(x), self.k,
                                         self.delta, project_psd=bool(self.project))
         gf = np.zeros_like(g)
         Hf = np.zeros_like(H)
         if self.mu > 0 and self._lagged is not None and self._lagged[0].any():
-            act, X0, disp, lam, nrm = self._lagged
-            Ef, gfa, Hfa = friction(X[act], X0, disp, lam, nrm, self.mu, self.eps_v)
+            act, X0, disp, lam, nrm, _ = self._lagged
+            Xa = X[act]
+            if self.vdof is not None:  # slip relative to the tool, whose height is solved
+                Xa = Xa - (x[self.vdof] - self._start_u)
+            Ef, gfa, Hfa = friction(Xa, X0, disp, lam, nrm, self.mu, self.eps_v)
             E += Ef
             gf[act] = gfa
             Hf[act] = Hfa
@@ -126,17 +197,18 @@ class ToolContact(Term):
     def _add_gradient(self, x, g, gp, gf):
         np.add.at(g, self.nodes, gp + gf)
         if self.vdof is not None:
-            g[self.vdof] -= gp.sum(0)
+            g[self.vdof] -= (gp + gf).sum(0)
             g[self.vdof, 2] += self.force * self.force_scale + self._stop_force(x)[0]
 
     def _add_hessian(self, x, data, Hp, Hf):
-        scatter_node_blocks(data, self.pattern.node_slots, self.nodes, Hp + Hf)
+        H = Hp + Hf
+        scatter_node_blocks(data, self.pattern.node_slots, self.nodes, H)
         if self.vdof is not None:
-            block = Hp.sum(0)
+            block = H.sum(0)
             block[2, 2] += self._stop_force(x)[1] + self.k_floor
             scatter_node_blocks(data, self.pattern.node_slots, np.array([self.vdof]),
                                 block[None])
-            _scatter_pairs(data, self.pair_slots, -Hp)
+            _scatter_pairs(data, self.pair_slots, -H)
 
     def add_gradient(self, x, g):
         _, gp, _, gf, _ = self._eval(x)
@@ -154,17 +226,45 @@ class ToolContact(Term):
 
     def report(self, x) -> dict[str, float]:
         """Force the sheet exerts on the tool (N), nodes in contact, deepest penetration (m),
-        and the tool's z position."""
+        the tool's position (x, y, z, m) and rotation vector (rx, ry, rz, rad)."""
         _, gp, _, gf, _ = self._eval(x)
-        gap = penalty_contact(x[self.nodes], self.prog, EYE, self.translation(x), self.k,
-                              self.delta)[4]
+        gap = penalty_contact(x[self.nodes], self.prog, self.R_now, self.translation(x),
+                              self.k, self.delta)[4]
         f = (gp + gf).sum(0)
+        t = self.translation(x)
         return {"fx": float(f[0]), "fy": float(f[1]), "fz": float(f[2]),
                 "contact_nodes": int((gap < self.delta).sum()),
                 "penetration": float(max(0.0, -gap.min())) if len(gap) else 0.0,
-                "z": float(self.translation(x)[2])}
+                "x": float(t[0]), "y": float(t[1]), "z": float(t[2]),
+                "rx": float(self.rot_now[0]), "ry": float(self.rot_now[1]),
+                "rz": float(self.rot_now[2])}
 
 
 def _scatter_pairs(data, slots, blocks):
     """data[slots] += blocks for the (node, tool) blocks; every slot is above the diagonal."""
     np.add.at(data, slots.reshape(-1), blocks.reshape(-1))
+
+
+def settle_friction(problem, x, settings, force_scale, timing, reactions=False, tol=1e-3,
+                    max_solves=4):
+    """Fixed point of the lagged normal force within a step: friction uses the normal forces
+    frozen at the start of the solve (a potential, so Newton applies); after convergence they
+    are refreshed from the converged state and the step is solved again from there until they
+    change by at most ``tol`` of the largest one (usually once or twice), so a sliding node's
+    drag is mu times its own converged normal force. A re-solve that fails keeps the last
+    converged state and its lag. Returns the state."""
+    from sim.newton import minimise
+
+    tools = [t for t in problem.terms if isinstance(t, ToolContact) and t.mu > 0]
+    for _ in range(max_solves):
+        saved = [t._lagged for t in tools]
+        if max((t.relag(x) for t in tools), default=0.0) <= tol:
+            return x
+        res = minimise(problem, x, settings, force_scale, reactions)
+        timing.add(res.timing)
+        if not res.converged:
+            for t, lag in zip(tools, saved, strict=True):
+                t._lagged = lag
+            return x
+        x = res.x
+    return x

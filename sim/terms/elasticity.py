@@ -20,7 +20,7 @@ from sim.materials.isotropic import (
     stress_tangent_h,
     stress_tangent_into,
 )
-from sim.materials.plasticity import plastic_strain_increment, return_map
+from sim.materials.plasticity import plastic_flow
 from sim.terms import Term
 
 PROJECT_NONE, PROJECT_QP, PROJECT_ELEMENT = 0, 1, 2
@@ -183,7 +183,7 @@ def plastic_commit_kernel(x, rest, conn, dNdX, params, fp_inv, ep):
     """Return-map every quadrature point at the converged state x and update, in place,
     Fp^-1 (n_elem, n_qp, 3, 3) <- Fp_n^-1 V diag(exp(-deps_p)) V^T and ep (n_elem, n_qp) += dgamma
     (the flow is isochoric: det Fp^-1 stays 1 to round-off)."""
-    mu, lam, law, hp = params[0], params[1], int(params[2]), params[3:]
+    mu, law, hp = params[0], int(params[2]), params[3:]
     for e in prange(conn.shape[0]):
         for q in range(dNdX.shape[1]):
             G = _deformation_gradient(x, rest, conn[e], dNdX[e, q] @ fp_inv[e, q], fp_inv[e, q])
@@ -191,8 +191,7 @@ def plastic_commit_kernel(x, rest, conn, dNdX, params, fp_inv, ep):
             if not ok:
                 continue
             eps = np.log(s)
-            dep = plastic_strain_increment(eps, ep[e, q], mu, lam, law, hp)
-            dg = return_map(eps, ep[e, q], mu, lam, law, hp)[4]
+            dep, dg = plastic_flow(eps, ep[e, q], mu, law, hp)
             if dg == 0.0:
                 continue
             fp_inv[e, q] = fp_inv[e, q] @ ((V * np.exp(-dep)) @ np.ascontiguousarray(V.T))

@@ -6,9 +6,11 @@
 * REVOLVE: the 2-D (rho, z) outline of the rounded rectangle (arcs sampled with ``n_arc``
   segments per quarter circle) revolved with ``n_segments`` segments; a profile that reaches
   the axis closes with a pole vertex on each cap, so punches and rings are watertight.
-* SWEEP (extruded polygon, star die): the same outline, with rho replaced by offsets of the
+* SWEEP (extruded polygon): the same outline, with rho replaced by offsets of the
   stored polygon (edges moved along their normals, convex corners as arcs of ``n_arc``
   segments, reflex corners mitred); prisms get flat caps by ear clipping. Watertight.
+* RSWEEP (star die, polygons with rounded reflex corners): the same with offsets of the
+  rounded outline (every arc's radius grows or shrinks with the offset).
 * BOX: a subdivided cube surface mapped onto the rounded box by the closest-point
   projection onto the inner box plus the radius (flat faces stay flat, edges become
   cylinders, corners sphere octants). Watertight.
@@ -100,6 +102,38 @@ def _offset_ring(poly, u, n_arc):
     return np.concatenate(pts)
 
 
+def _offset_ring_rounded(C, u, n_arc):
+    """Points (M, 2) of the level set {w = u} of a rounded polygon (RSWEEP corners C (m, 8)),
+    or None where it folds (an arc of radius rc + s u < 0). Arc i becomes n_arc + 1 points at
+    radius rc + s u about its centre; a sharp corner an arc of radius u about the vertex
+    (convex, u > 0; reflex, u < 0) or the mitre point repeated. M depends on C only."""
+    c, rc, sg, a, b = C[:, 0:2], C[:, 2], C[:, 3], C[:, 4:6], C[:, 6:8]
+    nxt = np.roll(a, -1, axis=0) - b  # edge i: b_i -> a_{i+1}
+    L = np.linalg.norm(nxt, axis=1)
+    ok = L > 0
+    n_out = np.zeros_like(nxt)
+    n_out[ok] = np.stack([nxt[ok, 1], -nxt[ok, 0]], axis=1) / L[ok, None]
+    pts = []
+    for i in range(len(C)):
+        if rc[i] > 0.0:
+            rad = rc[i] + sg[i] * u
+            if rad < 0.0:
+                return None
+            e0, e1 = (a[i] - c[i]) / rc[i], (b[i] - c[i]) / rc[i]
+        else:
+            e0, e1 = n_out[i - 1], n_out[i]  # normals of the edges meeting there
+            if sg[i] * u < 0.0:  # mitre
+                m = (e0 + e1) / (1.0 + np.dot(e0, e1))
+                pts.append(np.repeat((c[i] + u * m)[None, :], n_arc + 1, axis=0))
+                continue
+            rad = u
+        a0 = np.arctan2(e0[1], e0[0])
+        da = np.arctan2(e0[0] * e1[1] - e0[1] * e1[0], np.dot(e0, e1))
+        th = a0 + np.linspace(0.0, da, n_arc + 1)
+        pts.append(c[i] + rad * np.stack([np.cos(th), np.sin(th)], axis=1))
+    return np.concatenate(pts)
+
+
 def _weld(V, F, tol):
     """Merge vertices closer than tol, drop faces that became degenerate and unused vertices."""
     pairs = cKDTree(V).query_pairs(tol, output_type="ndarray")
@@ -184,6 +218,14 @@ def _mesh_profile(lo, hi, z0, z1, r, poly, n_segments, n_arc):
         c, s = np.cos(th), np.sin(th)
         rings = [np.stack([u * c, u * s, np.full_like(c, z)], axis=1) for u, z in P]
         scale = max(np.abs(P).max(), 1e-300)
+    elif poly.shape[1] == _sdf.RCORNER:  # rounded polygon: offsets either way
+        scale = max(np.abs(poly[:, 4:]).max() + abs(hi), abs(z0), abs(z1))
+        rings = []
+        for u, z in P:
+            q = _offset_ring_rounded(poly, u, n_arc)
+            if q is None or not _sdf.is_simple_polygon(_dedup_cyclic(q, True, 1e-12 * scale)):
+                return None  # the offset outline folds: leave it to the implicit mesher
+            rings.append(np.concatenate([q, np.full((len(q), 1), z)], axis=1))
     else:
         scale = max(np.abs(poly).max() + abs(hi), abs(z0), abs(z1))
         if P[:, 0].min() < 0.0:
@@ -277,7 +319,7 @@ def _explicit(node, n_segments, n_arc, plane_size):
         return _mesh_box(node[1], node[2], node[3], n_arc)
     if kind == "revolve":
         return _mesh_profile(*node[1:6], None, n_segments, n_arc)
-    if kind == "sweep":
+    if kind in ("sweep", "rsweep"):
         if not np.isfinite(node[2]):
             return None
         return _mesh_profile(*node[1:6], node[6], n_segments, n_arc)
@@ -303,6 +345,10 @@ def tool_bounds(node):
     if kind == "sweep":
         poly, hi = node[6], node[2]
         return (np.r_[poly.min(0) - hi, node[3]], np.r_[poly.max(0) + hi, node[4]])
+    if kind == "rsweep":  # outline within its tangent points and arcs (centre +- radius)
+        C, hi = node[6], node[2]
+        P = np.concatenate([C[:, 4:6], C[:, 6:8], C[:, :2] - C[:, 2:3], C[:, :2] + C[:, 2:3]])
+        return (np.r_[P.min(0) - max(hi, 0.0), node[3]], np.r_[P.max(0) + max(hi, 0.0), node[4]])
     if kind == "frame":
         lo, hi = tool_bounds(node[3])
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):

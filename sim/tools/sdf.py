@@ -38,6 +38,11 @@ code   name           parameters (n_params)
                       lo = -inf: a prism over the polygon dilated by hi (an extruded polygon,
                       convex corners rounded by hi); finite lo: a plate around a polygonal
                       opening (star die)
+5      RSWEEP         lo hi z0 z1 r m, then 8 per corner: cx cy rc s ax ay bx by (6 + 8 m): SWEEP
+                      with w the signed distance to a rounded polygon: straight edges from
+                      b_i to a_{i+1} and, at corner i, an arc of radius rc about (cx, cy) from
+                      a_i to b_i (s = +1 convex, -1 reflex; rc = 0 a sharp corner,
+                      a = b = c). Convex and reflex corners can both be rounded (star die)
 10     UNION          k (1): min(a, b); k > 0 a smooth union with blend width k
 11     INTERSECT      k (1): max(a, b); k > 0 smooth
 12     SUBTRACT       k (1): a minus b = max(a, -b); k > 0 smooth
@@ -68,6 +73,9 @@ SWEEP is exact wherever the offset curves of the polygon are regular: everywhere
 polygon outside, and away from the bisectors of the sharp (reflex) corners; on those
 bisectors it is the correct value with a C0 ridge (the sharp vertical edge of the swept solid).
 Only convex polygon corners are rounded by the offset construction; reflex ones stay sharp.
+RSWEEP rounds both, and its w (distance to a G1 outline of segments and arcs) is exact and
+C1 everywhere except on the outline's medial axis (at distance rc inside a convex arc, rc
+outside a reflex one, and the bisectors of sharp corners).
 
 Hard UNION / INTERSECT / SUBTRACT (k = 0) keep the exact min / max of the operands. That is
 the exact distance outside a union; inside a union and for intersections / subtractions it
@@ -101,6 +109,7 @@ OP_PLANE = 1
 OP_BOX = 2
 OP_REVOLVE = 3
 OP_SWEEP = 4
+OP_RSWEEP = 5
 OP_UNION = 10
 OP_INTERSECT = 11
 OP_SUBTRACT = 12
@@ -109,7 +118,7 @@ OP_POP_FRAME = 21
 
 _NPARAM = {OP_PLANE: 6, OP_BOX: 7, OP_REVOLVE: 5, OP_UNION: 1, OP_INTERSECT: 1,
            OP_SUBTRACT: 1, OP_PUSH_FRAME: 12, OP_POP_FRAME: 0}
-_PRIMITIVES = (OP_PLANE, OP_BOX, OP_REVOLVE, OP_SWEEP)
+_PRIMITIVES = (OP_PLANE, OP_BOX, OP_REVOLVE, OP_SWEEP, OP_RSWEEP)
 _BINARY = (OP_UNION, OP_INTERSECT, OP_SUBTRACT)
 
 # ----------------------------------------------------------------------------------------------
@@ -355,6 +364,148 @@ def _prim_sweep(prog, b, x, derivs, g, H, prof, gw, Hw):
     return _compose_profile(prof, gw, Hw, prof[1], derivs, g, H)
 
 
+RCORNER = 8  # values per corner of a rounded polygon: cx cy rc s ax ay bx by
+
+
+@numba.njit(cache=True)
+def _rpolygon_sd(prog, base, m, px, py, derivs, gw, Hw):
+    """Signed distance w to the rounded polygon stored at prog[base: base + 8 m] (> 0 outside).
+
+    Corner i is an arc of radius rc about (cx, cy) from its tangent point a on the incoming
+    edge to b on the outgoing one, s = +1 for a convex corner (centre inside), -1 for a
+    reflex one; the edges run from b_i to a_{i+1}; rc = 0 is a sharp corner (a = b = c).
+    Nearest feature: edge interior w = n.(p - b), gw = n, Hw = 0; arc interior (p - c in the
+    cone of a - c and b - c) w = s (|p - c| - rc), gw = s e, Hw = s (I - e e^T) / |p - c|;
+    an edge end (sharp corner) as in _polygon_sd, the sign from an even-odd crossing test of
+    the chord polygon a_0 b_0 a_1 b_1 ... (arcs and chords enclose no point whose nearest
+    feature is an edge end).
+    """
+    best = np.inf
+    kind = 0  # 0 edge interior, 1 edge end, 2 arc
+    qx = 0.0
+    qy = 0.0
+    nx = 1.0
+    ny = 0.0
+    sg = 1.0
+    arc_rho = 0.0
+    arc_rc = 0.0
+    inside = False
+    for i in range(m):
+        o = base + RCORNER * i
+        cx = prog[o]
+        cy = prog[o + 1]
+        rc = prog[o + 2]
+        s = prog[o + 3]
+        ax = prog[o + 4]
+        ay = prog[o + 5]
+        bx = prog[o + 6]
+        by = prog[o + 7]
+        o2 = base + RCORNER * ((i + 1) % m)
+        ex0 = prog[o2 + 4]
+        ey0 = prog[o2 + 5]
+        if rc > 0.0:
+            vx = px - cx
+            vy = py - cy
+            turn = (ax - cx) * (by - cy) - (ay - cy) * (bx - cx)
+            c1 = (ax - cx) * vy - (ay - cy) * vx
+            c2 = vx * (by - cy) - vy * (bx - cx)
+            if c1 * turn >= 0.0 and c2 * turn >= 0.0:
+                rho = math.sqrt(vx * vx + vy * vy)
+                dd = (rho - rc) * (rho - rc)
+                if dd < best:
+                    best = dd
+                    kind = 2
+                    sg = s
+                    arc_rho = rho
+                    arc_rc = rc
+                    if rho > 0.0:
+                        nx = vx / rho
+                        ny = vy / rho
+                    else:  # at the centre: finite stand-in
+                        nx = (ax - cx) / rc
+                        ny = (ay - cy) / rc
+            # chord a -> b for the crossing test
+            if (ay > py) != (by > py):
+                if px < ax + (py - ay) * (bx - ax) / (by - ay):
+                    inside = not inside
+        ex = ex0 - bx
+        ey = ey0 - by
+        L2 = ex * ex + ey * ey
+        if L2 > 0.0:
+            wx = px - bx
+            wy = py - by
+            t = (wx * ex + wy * ey) / L2
+            k = 0
+            if t < 0.0:
+                t = 0.0
+                k = 1
+            elif t > 1.0:
+                t = 1.0
+                k = 1
+            dx = wx - t * ex
+            dy = wy - t * ey
+            dd = dx * dx + dy * dy
+            if dd < best:
+                best = dd
+                kind = k
+                qx = bx + t * ex
+                qy = by + t * ey
+                L = math.sqrt(L2)
+                nx = ey / L
+                ny = -ex / L
+            if (by > py) != (ey0 > py):
+                if px < bx + (py - by) * ex / ey:
+                    inside = not inside
+    if kind == 2:
+        if derivs:
+            gw[0] = sg * nx
+            gw[1] = sg * ny
+            c = sg / arc_rho if arc_rho > 0.0 else 0.0
+            Hw[0, 0] = c * (1.0 - nx * nx)
+            Hw[0, 1] = -c * nx * ny
+            Hw[1, 0] = Hw[0, 1]
+            Hw[1, 1] = c * (1.0 - ny * ny)
+        return sg * (arc_rho - arc_rc)
+    if kind == 0:
+        w = nx * (px - qx) + ny * (py - qy)
+        if derivs:
+            gw[0] = nx
+            gw[1] = ny
+            Hw[0, 0] = 0.0
+            Hw[0, 1] = 0.0
+            Hw[1, 0] = 0.0
+            Hw[1, 1] = 0.0
+        return w
+    sgn = -1.0 if inside else 1.0
+    dist = math.sqrt(best)
+    if derivs:
+        if dist > 0.0:
+            ux = (px - qx) / dist
+            uy = (py - qy) / dist
+            gw[0] = sgn * ux
+            gw[1] = sgn * uy
+            Hw[0, 0] = sgn * (1.0 - ux * ux) / dist
+            Hw[0, 1] = -sgn * ux * uy / dist
+            Hw[1, 0] = Hw[0, 1]
+            Hw[1, 1] = sgn * (1.0 - uy * uy) / dist
+        else:
+            gw[0] = nx
+            gw[1] = ny
+            Hw[0, 0] = 0.0
+            Hw[0, 1] = 0.0
+            Hw[1, 0] = 0.0
+            Hw[1, 1] = 0.0
+    return sgn * dist
+
+
+@numba.njit(cache=True)
+def _prim_rsweep(prog, b, x, derivs, g, H, prof, gw, Hw):
+    m = int(prog[b + 5])
+    w = _rpolygon_sd(prog, b + 6, m, x[0], x[1], derivs, gw, Hw)
+    _rrect2(w, x[2], prog[b], prog[b + 1], prog[b + 2], prog[b + 3], prog[b + 4], prof)
+    return _compose_profile(prof, gw, Hw, prof[1], derivs, g, H)
+
+
 @numba.njit(cache=True)
 def _smin(st_d, st_g, st_H, ia, ib, k, derivs):
     """Stack slot ia := smin(slot ia, slot ib) (cubic polynomial blend, exact min if k <= 0)."""
@@ -508,6 +659,8 @@ def _eval_point(prog, x, derivs, st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp):
                 d = _prim_revolve(prog, b, xl, derivs, g, H, prof, gw, tmp[0:2, 0:2])
             elif op == OP_SWEEP:
                 d = _prim_sweep(prog, b, xl, derivs, g, H, prof, gw, tmp[0:2, 0:2])
+            elif op == OP_RSWEEP:
+                d = _prim_rsweep(prog, b, xl, derivs, g, H, prof, gw, tmp[0:2, 0:2])
             else:
                 raise ValueError("SDF program: unknown opcode")
             if lev > 0:
@@ -675,6 +828,9 @@ def validate(prog):
         if op == OP_SWEEP:
             if npar < 6 or npar != 6 + 2 * int(p[5]) or int(p[5]) < 3:
                 raise ValueError("SDF program: bad SWEEP record")
+        elif op == OP_RSWEEP:
+            if npar < 6 or npar != 6 + RCORNER * int(p[5]) or int(p[5]) < 3:
+                raise ValueError("SDF program: bad RSWEEP record")
         elif op not in _NPARAM or npar != _NPARAM[op]:
             raise ValueError(f"SDF program: unknown opcode {op} or bad parameter count")
         if op in _PRIMITIVES:
@@ -832,16 +988,90 @@ def sweep(points2d, lo, hi, z0, z1, radius=0.0):
                                                       p.ravel()])))
 
 
-def extruded_polygon(points2d, z0, z1, corner_radius=0.0, edge_radius=0.0):
+def rounded_polygon(points, radii):
+    """Corners (m, 8) of a simple polygon whose vertex i is rounded by an arc of radius
+    radii[i] tangent to both edges: convex and reflex corners alike (0 keeps it sharp).
+
+    Row i: cx cy rc s ax ay bx by (arc centre, radius, +1 convex / -1 reflex, tangent points
+    on the incoming and outgoing edge), counter-clockwise, the layout of an RSWEEP record.
+    Raises ValueError when two roundings would overlap on an edge or the outline folds.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    r = np.broadcast_to(np.asarray(radii, dtype=np.float64), (len(p),)).copy()
+    if np.any(r < 0) or not np.all(np.isfinite(r)):
+        raise ValueError("corner radii must be finite and >= 0")
+    if len(p) < 3 or polygon_area(p) == 0.0:
+        raise ValueError("polygon needs at least 3 vertices and a nonzero area")
+    if polygon_area(p) < 0.0:  # made counter-clockwise: the radii follow their vertices
+        p, r = p[::-1].copy(), r[::-1].copy()
+    u_out = np.roll(p, -1, axis=0) - p
+    length = np.linalg.norm(u_out, axis=1)
+    if np.any(length <= 0.0):
+        raise ValueError("polygon has repeated vertices")
+    u_out /= length[:, None]
+    u_in = np.roll(u_out, 1, axis=0)
+    cross = u_in[:, 0] * u_out[:, 1] - u_in[:, 1] * u_out[:, 0]
+    phi = np.arctan2(np.abs(cross), np.sum(u_in * u_out, axis=1))  # turning angle
+    if np.any(phi > np.pi - 1e-6):
+        raise ValueError("polygon has a cusp (edge reversal)")
+    r[phi < 1e-12] = 0.0  # a straight vertex needs no rounding
+    tang = r * np.tan(0.5 * phi)
+    if np.any(tang + np.roll(tang, -1) > length * (1.0 + 1e-12)):
+        i = int(np.argmax(tang + np.roll(tang, -1) - length))
+        raise ValueError(f"corner radii of vertices {i} and {(i + 1) % len(p)} overlap on "
+                         "their common edge: radii too large")
+    a = p - tang[:, None] * u_in
+    b = p + tang[:, None] * u_out
+    bis = u_out - u_in
+    nb = np.linalg.norm(bis, axis=1)
+    bis = np.divide(bis, nb[:, None], out=np.zeros_like(bis), where=nb[:, None] > 0)
+    c = p + (r / np.cos(0.5 * phi))[:, None] * bis
+    s = np.where(cross >= 0.0, 1.0, -1.0)
+    chord = np.stack([a, b], axis=1).reshape(-1, 2)
+    keep = np.ones(len(chord), dtype=bool)
+    keep[1:] = np.linalg.norm(np.diff(chord, axis=0), axis=1) > 1e-12 * np.abs(p).max()
+    if not is_simple_polygon(chord[keep]):
+        raise ValueError("rounded polygon is not simple")
+    return np.column_stack([c, r, s, a, b])
+
+
+def rounded_sweep(corners, lo, hi, z0, z1, radius=0.0):
+    """Raw RSWEEP primitive: SWEEP (see the module docstring) over a rounded polygon
+    (``rounded_polygon``), w its exact signed distance."""
+    C = np.asarray(corners, dtype=np.float64)
+    if C.ndim != 2 or C.shape[1] != RCORNER or C.shape[0] < 3:
+        raise ValueError("corners must be (m >= 3, 8) rows of rounded_polygon")
+    if not (z1 > z0 and hi > lo and not (np.isinf(lo) and np.isinf(hi))):
+        raise ValueError("sweep: need lo < hi (not both infinite) and z0 < z1")
+    width = hi - lo if np.isfinite(hi - lo) else np.inf
+    if not 0.0 <= radius <= 0.5 * min(width, z1 - z0):
+        raise ValueError("sweep: corner radius larger than half the profile")
+    return _program(_record(OP_RSWEEP, np.concatenate([[lo, hi, z0, z1, radius, C.shape[0]],
+                                                       C.ravel()])))
+
+
+def extruded_polygon(points2d, z0, z1, corner_radius=0.0, edge_radius=0.0,
+                     reflex_radius=0.0):
     """Prism over a simple 2-D polygon between z0 and z1.
 
-    corner_radius rounds the convex vertical edges (the polygon is offset inward by it and the
-    SDF of that inner polygon minus corner_radius is used; reflex corners stay sharp).
-    edge_radius rounds the rims of both caps; it must not exceed corner_radius (else the
-    inner polygon of the cap rounding would need a negative offset and lose exactness).
+    corner_radius rounds the convex vertical edges, reflex_radius the reflex ones (0: sharp,
+    a C0 ridge of the distance on the bisector outside). edge_radius rounds the rims of both
+    caps; it must not exceed corner_radius (the cap rounding follows the outline offset
+    inward by edge_radius, whose convex arcs have radius corner_radius - edge_radius).
+    Without reflex rounding the polygon is offset inward by corner_radius and swept (SWEEP);
+    with it the rounded polygon is swept (RSWEEP). Both are exact distances.
     """
     if corner_radius < 0.0 or edge_radius < 0.0 or edge_radius > corner_radius:
         raise ValueError("need 0 <= edge_radius <= corner_radius")
+    if reflex_radius < 0.0:
+        raise ValueError("need reflex_radius >= 0")
+    if reflex_radius > 0.0:
+        p = _ccw(points2d)
+        u = np.roll(p, -1, axis=0) - p
+        v = p - np.roll(p, 1, axis=0)
+        convex = v[:, 0] * u[:, 1] - v[:, 1] * u[:, 0] >= 0.0
+        corners = rounded_polygon(p, np.where(convex, corner_radius, reflex_radius))
+        return rounded_sweep(corners, -np.inf, 0.0, z0, z1, edge_radius)
     inner = offset_polygon(points2d, -corner_radius) if corner_radius > 0 else _ccw(points2d)
     return sweep(inner, -np.inf, corner_radius, z0, z1, edge_radius)
 
@@ -855,28 +1085,39 @@ def star_points(n_points, r_outer, r_inner, phase=0.0):
     return np.stack([r * np.cos(ang), r * np.sin(ang)], axis=1)
 
 
-def star(n_points, r_outer, r_inner, height, corner_radius=0.0, edge_radius=0.0, phase=0.0):
-    """Star-shaped prism (punch), 0 <= z <= height; tips rounded by corner_radius."""
+def star(n_points, r_outer, r_inner, height, corner_radius=0.0, edge_radius=0.0, phase=0.0,
+         valley_radius=0.0):
+    """Star-shaped prism (punch, or a form block), 0 <= z <= height; tips rounded by
+    corner_radius, valleys (reflex corners) by valley_radius (0: sharp)."""
     return extruded_polygon(star_points(n_points, r_outer, r_inner, phase), 0.0, height,
-                            corner_radius, edge_radius)
+                            corner_radius, edge_radius, valley_radius)
 
 
 def star_die(n_points, r_outer, r_inner, height, shoulder_radius, corner_radius=0.0,
-             width=None, phase=0.0):
+             width=None, phase=0.0, valley_radius=None):
     """Die plate with a star-shaped opening: top face z = 0, bottom z = -height.
 
-    The opening is the star with its tips rounded by corner_radius; the shoulder (rim of the
-    opening) is rounded by shoulder_radius exactly (a rounded corner of the (w, z) profile).
-    The plate extends ``width`` (default r_inner) beyond the opening, so its outer outline is
-    an offset curve of the star (the SDF is exact for any width; for widths at which that
-    outline would fold the display mesh falls back to implicit meshing).
+    The opening is the star with its tips rounded by corner_radius and its valleys by
+    valley_radius (default max(corner_radius, shoulder_radius)): both are arcs of the exact
+    rounded outline (RSWEEP), so the distance is C1 in the opening, valleys included; only a
+    valley_radius of 0 leaves a sharp vertical edge there (C0 on its bisector). The shoulder
+    (rim of the opening) is rounded by shoulder_radius exactly; that needs the shoulder's
+    centre line, the outline offset by shoulder_radius into the plate, to stay regular, i.e.
+    valley_radius >= shoulder_radius. The plate extends ``width`` (default r_inner) beyond
+    the opening, so its outer outline is an offset curve of the star (the SDF is exact for any
+    width; for widths at which that outline would fold the display mesh falls back to
+    implicit meshing).
     """
     width = float(r_inner if width is None else width)
     if width <= 2.0 * shoulder_radius:
         raise ValueError("star_die: width must exceed twice the shoulder radius")
+    rv = max(corner_radius, shoulder_radius) if valley_radius is None else float(valley_radius)
+    if rv < shoulder_radius:
+        raise ValueError("star_die: valley_radius must be >= the shoulder radius")
     pts = star_points(n_points, r_outer, r_inner, phase)
-    inner = offset_polygon(pts, -corner_radius) if corner_radius > 0 else pts
-    return sweep(inner, corner_radius, corner_radius + width, -height, 0.0, shoulder_radius)
+    radii = np.where(np.arange(len(pts)) % 2 == 0, corner_radius, rv)
+    return rounded_sweep(rounded_polygon(pts, radii), 0.0, width, -height, 0.0,
+                         shoulder_radius)
 
 
 def _combine(op, a, b, blend):
@@ -913,7 +1154,8 @@ def parse(prog):
     """Expression tree of a program, for inspection and meshing.
 
     Nodes: ("plane", p, n), ("box", c, h, r), ("revolve", lo, hi, z0, z1, r),
-    ("sweep", lo, hi, z0, z1, r, poly (m, 2)), ("union" | "intersect" | "subtract", k, a, b),
+    ("sweep", lo, hi, z0, z1, r, poly (m, 2)), ("rsweep", lo, hi, z0, z1, r, corners (m, 8)
+    as cx cy rc s ax ay bx by), ("union" | "intersect" | "subtract", k, a, b),
     ("frame", R, t, child).
     """
     validate(prog)
@@ -928,6 +1170,8 @@ def parse(prog):
             stack.append(("revolve", *map(float, p[:5])))
         elif op == OP_SWEEP:
             stack.append(("sweep", *map(float, p[:5]), p[6:].reshape(-1, 2).copy()))
+        elif op == OP_RSWEEP:
+            stack.append(("rsweep", *map(float, p[:5]), p[6:].reshape(-1, RCORNER).copy()))
         elif op in _BINARY:
             b = stack.pop()
             a = stack.pop()

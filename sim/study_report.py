@@ -1,0 +1,184 @@
+"""``q3t study``'s outputs: report.md (tables), report.json, and the plots (PNG and SVG,
+matplotlib): error against run time and DoFs, factorisation time against elements and nodes."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import time
+from pathlib import Path
+
+MARKERS = {"linear": "o", "q3t": "s", "quadratic": "^", "quartic": "D"}
+
+
+def _save(fig, out: Path, stem: str) -> list[str]:
+    names = [f"{stem}.png", f"{stem}.svg"]
+    for n in names:
+        fig.savefig(out / n, dpi=120)
+    return names
+
+
+def plot_study(study: dict, out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = []
+    for x_key, xlabel, stem in (("time", "run time [s]", "error_time"),
+                                ("dofs", "degrees of freedom", "error_dofs")):
+        fig, ax = plt.subplots(figsize=(5.5, 4))
+        for el in study["plan"]["elements"]:
+            rs = [r for r in study["rows"] if r["element"] == el
+                  and r["error"] is not None and r["error"] > 0]
+            ax.loglog([r[x_key] for r in rs], [r["error"] for r in rs],
+                      marker=MARKERS.get(el, "o"), label=el)
+        ax.set(xlabel=xlabel, ylabel=f"relative error of {study['plan']['probe']}",
+               title=f"reference: {study['reference_label']}")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+        fig.tight_layout()
+        files += _save(fig, out, stem)
+        plt.close(fig)
+    return files
+
+
+def plot_factorisation(rows: list[dict], out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for ax, key in zip(axes, ("elements", "nodes"), strict=True):
+        for el in dict.fromkeys(r["element"] for r in rows):
+            rs = [r for r in rows if r["element"] == el and "factorisation" in r]
+            ax.loglog([r[key] for r in rs], [r["factorisation"] for r in rs],
+                      marker=MARKERS.get(el, "o"), label=el)
+        ax.set(xlabel=f"number of {key}", ylabel="factorisation time [s] (median)",
+               title=f"same number of {key}")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    files = _save(fig, out, "factorisation")
+    plt.close(fig)
+    return files
+
+
+def _table(rows: list[dict], cols: list[tuple[str, str, str]]) -> str:
+    lines = ["| " + " | ".join(c[1] for c in cols) + " |", "|" + "---|" * len(cols)]
+    for r in rows:
+        lines.append("| " + " | ".join(format(r[k], f) if r.get(k) is not None else ""
+                                       for k, _, f in cols) + " |")
+    return "\n".join(lines) + "\n"
+
+
+STUDY_COLS = [("element", "element", ""), ("edge_length", "edge [m]", ".5g"),
+              ("elements", "triangles", "d"), ("dofs", "DoFs", "d"), ("probe", "probe", ".6g"),
+              ("error", "rel. error", ".3e"), ("time", "time [s]", ".3f"),
+              ("iterations", "Newton it.", "d"), ("status", "status", "")]
+FACTOR_COLS = [("element", "element", ""), ("edge_length", "edge [m]", ".5g"),
+               ("elements", "elements", "d"), ("nodes", "nodes", "d"), ("dofs", "DoFs", "d"),
+               ("nnz_upper", "nnz (upper)", "d"), ("factorisation", "median [s]", ".4f"),
+               ("factorisation_min", "min [s]", ".4f"), ("status", "status", "")]
+
+
+def overhead_md(overheads: list[dict]) -> str:
+    """One table for all scenes: each as it is against each with every term built."""
+    rows = []
+    for o in overheads:
+        lean, full = o["lean"], o["all_terms"]
+        probe = next(iter(lean["probes"]), None)
+        for name, d in (("as the scene needs", lean), ("every term built", full)):
+            rows.append({"scene": o["scene"], "run": name, "terms": ", ".join(d["built"]["terms"]),
+                         "state": ", ".join(k for k in d["built"]["state"] if k != "positions")
+                         or "-", "it": d["iterations"], "per_it": d["per_iteration"],
+                         "wall": d["wall"],
+                         "probe": f"{probe} = {d['probes'].get(probe, math.nan):.9g}"})
+        rows.append({"scene": "", "run": "**saved**", "terms": "", "state": "", "it": None,
+                     "per_it": None, "wall": None,
+                     "probe": f"**{100 * o['saved_per_iteration']:.0f} % per iteration, "
+                              f"{100 * o['saved_wall']:.0f} % of the run**"})
+    cols = [("scene", "scene", ""), ("run", "run", ""), ("terms", "terms", ""),
+            ("state", "state arrays", ""), ("probe", "probe", ""), ("it", "Newton it.", "d"),
+            ("per_it", "per iteration [s]", ".4f"), ("wall", "total [s]", ".3f")]
+    repeat = overheads[0]["repeat"] if overheads else 0
+    return ("Every term built: a contact term with a plane 1 km below the sheet where a scene "
+            "has no tool, a zero load where it has none, plastic state under a yield stress of "
+            "1e30 Pa with the scene's own elastic law, inertia with zero mass: the same answer "
+            "(the probes agree to round-off) with the work of every term done. The fastest of "
+            f"{repeat} interleaved runs each.\n\n" + _table(rows, cols))
+
+
+def _meta() -> str:
+    return (f"{time.strftime('%Y-%m-%d')}, {platform.machine()} with {os.cpu_count()} cores, "
+            f"Python {platform.python_version()}")
+
+
+def _how(cluster: str, workers: int, scheduler: str | None) -> str:
+    s = (f"Cases ran as Dask tasks on {cluster}; each worker ran every element once on the "
+         "coarsest level first (warm-up, not timed). Times are build plus solve of one case.")
+    if not scheduler and workers > 1:
+        s += (f" {workers} cases ran at once on {os.cpu_count()} cores: they shared the "
+              "machine, so the times are inflated and noisy; use --workers 1 for timings.")
+    return s
+
+
+def write_study(study: dict, overheads: list[dict], out: Path, workers: int = 1,
+                scheduler: str | None = None) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    plots = plot_study(study, out)
+    p, ref = study["plan"], study["reference"]
+    notes = list(p["notes"])
+    if p["reference"] and p["reference"][0] in p["elements"]:  # its rows converge to themselves
+        notes.append(f"{p['reference'][0]} rows: error against the same element on a finer "
+                     "mesh (self-convergence, an underestimate)")
+    if not study["finished"]:
+        notes.append("the study's --timeout ended it: unfinished cases are marked timeout")
+    if study.get("overhead_failed"):
+        notes.append(f"the lean against all-terms timing failed: {study['overhead_failed']}")
+    if p["analytic"]:
+        head = f"reference **{p['analytic']['name']} (analytic)**: {p['analytic']['about']}."
+    else:
+        el, edge = p["reference"]
+        value = f": {ref['value']:.8g}" if "value" in ref else ""
+        head = (f"reference **{el} at edge {edge:.6g} m** (a numerical run, {ref['dofs']} "
+                f"DoFs){value}.")
+    md = [f"# Refinement study: {Path(p['scene']).stem}\n\n", f"{_meta()}.\n\n",
+          f"Measure `{p['probe']}`; {head}\n\n",
+          _how(study["cluster"], workers, scheduler) + "\n\n",
+          *[f"- overrides of every case: `{p['overrides']}`\n" for _ in [0] if p["overrides"]],
+          *[f"- {n}\n" for n in notes], "\n" if notes or p["overrides"] else "",
+          _table(study["rows"], STUDY_COLS), "\n",
+          *[f"![{f}]({f})\n" for f in plots if f.endswith(".png")]]
+    if overheads:
+        md += ["\n## Leave out what a scene does not need\n\n", overhead_md(overheads)]
+    (out / "report.md").write_text("".join(md))
+    (out / "report.json").write_text(json.dumps({"study": study, "overhead": overheads},
+                                                indent=1, default=float))
+
+
+def write_overhead(overheads: list[dict], out: Path, cluster: str) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    md = (f"# Leave out what a scene does not need\n\n{_meta()}; ran on {cluster}.\n\n"
+          + overhead_md(overheads))
+    (out / "report.md").write_text(md)
+    (out / "report.json").write_text(json.dumps({"overhead": overheads}, indent=1))
+
+
+def write_factorisation(scene: str, rows: list[dict], out: Path, cluster: str = "") -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    plots = plot_factorisation(rows, out)
+    ok = [r for r in rows if "factorisation" in r]
+    md = (f"# Factorisation of the Hessian at rest: {Path(scene).stem} (paper Fig. 7)\n\n"
+          f"{_meta()}; solver {ok[0]['solver'] if ok else '-'}; median and minimum of "
+          f"{ok[0]['repeat'] if ok else 0} `solver.factor` calls per case (after one dropped "
+          f"call); ran on {cluster}.\n\n"
+          + _table(rows, FACTOR_COLS) + "\n" + "".join(f"![{f}]({f})\n" for f in plots
+                                                       if f.endswith(".png")))
+    (out / "report.md").write_text(md)
+    (out / "report.json").write_text(json.dumps({"scene": scene, "factorisation": rows},
+                                                indent=1))
+
