@@ -203,7 +203,7 @@ def _child(conn, scene_path: str, overrides: dict) -> None:
     # leaked semaphore; a child stuck in a kernel gets SIGKILL after a grace period
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
-        conn.send(run_case(scene_path, overrides, measure))
+        conn.send(run_case(scene_path, overrides, measure=measure))
     except Exception as exc:  # noqa: BLE001 - anything but a diagnosed failure is a crash
         conn.send({"status": "crashed", "reason": f"{type(exc).__name__}: {exc}", "probes": {}})
 
