@@ -72,13 +72,13 @@ def _iteration(sim, x) -> dict:
 
     m, P = sim.model, sim.model.problem
     t = time.perf_counter()
-    _, _, g, data = P.evaluate(x, exact=m.settings.try_exact)
+    _, _, g, data, _ = P.evaluate(x, exact=m.settings.try_exact)
     t1 = time.perf_counter()
     projected = False
     try:
         P.solver.factor(data)
     except SingularMatrix:
-        _, _, g, data = P.evaluate(x)
+        _, _, g, data, _ = P.evaluate(x)
         P.solver.factor(data)
         projected = True
     t2 = time.perf_counter()

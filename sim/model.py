@@ -187,7 +187,6 @@ class Model:
     regions: dict[str, np.ndarray]  # name -> in-plane node mask
     settings: NewtonSettings
     built: dict = field(default_factory=dict)
-    driven: bool = False  # a prescribed motion drives the run: its reactions are its forces
 
     released: np.ndarray | None = None  # (n_nodes, 3) bool: DoFs freed for springback
     release_support: np.ndarray | None = None  # (n_nodes, 3) bool: held only for springback
@@ -195,6 +194,13 @@ class Model:
     # keyframed BCs: (node ids (m,), component ids (c,), times (k,), displacements (k, c)),
     # times starting at 0 with zero displacement
     motions: list = field(default_factory=list)
+
+    @property
+    def driven(self) -> bool:
+        """A prescribed motion drives the run (displacements, bends, keyframes): its
+        reactions are its forces. Read from the arrays each time, so a caller that sets
+        ``prescribed`` after the build is seen."""
+        return bool(self.motions or self.bends or np.any(self.prescribed != 0.0))
 
     def ramp(self, t: float) -> float:
         """Default time curve of prescribed displacements and bends (sim.scene.BCSpec): linear
@@ -314,7 +320,6 @@ def build_model(scene: Scene) -> Model:
     model.settings = NewtonSettings(rtol=scene.solver.rtol, xtol=scene.solver.xtol * h,
                                     try_exact=scene.solver.hessian_projection == "auto",
                                     max_iterations=scene.solver.max_iterations)
-    model.driven = bool(np.any(prescribed != 0.0) or model.bends)
     solver = make_solver(pattern, scene.solver.linear_solver)
     model.problem = Problem(terms, pattern, solver, fixed)
     model.built = describe(model)

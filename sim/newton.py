@@ -21,10 +21,10 @@ class NewtonSettings:
     # at the round-off floor of the residual, a Newton correction below this length (m) ends
     # the iteration: the state is then as accurate as its floating-point representation
     xtol: float = 0.0
-    # the iteration budget; past it Newton goes on while every iteration makes real progress,
-    # up to ``cap_factor`` times the budget
-    max_iterations: int = 30
-    cap_factor: int = 10
+    # the cap; an iteration without real progress (an energy decrease above its noise, or the
+    # residual 10 % below all before) for ``patience`` iterations in a row ends sooner
+    max_iterations: int = 200
+    patience: int = 10
     max_line_search: int = 30
     armijo: float = 1e-4
     try_exact: bool = True  # exact Hessian when positive definite, projected otherwise
@@ -126,19 +126,25 @@ class Problem:
 def _solve(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinements: int = 2):
     """Solve with iterative refinement against the unshifted matrix: thin, nearly
     incompressible shells have condition numbers near 1e12 and one solve alone leaves residuals
-    that stall Newton well above its tolerance. Returns the solution and its relative residual
-    |rhs - K x| / |rhs| (near 1 when the factors had to be shifted far from K)."""
+    that stall Newton well above its tolerance. A refinement that does not lower the residual
+    is dropped: with factors shifted to get past a zero-energy mode (a sheet free to turn on a
+    frictionless tool) it would amplify the round-off in that mode by 1 / shift. Returns the
+    solution and its relative residual |rhs - K x| / |rhs|."""
     p = problem.pattern
-    x = problem.solver.solve(rhs)
     scale = np.linalg.norm(rhs)
-    rel = 0.0
-    for k in range(refinements + 1):
-        r = rhs - sym_matvec(p.indptr, p.indices, data, x)
-        rel = float(np.linalg.norm(r)) / scale if scale > 0 else 0.0
-        # 1e-10: well below Newton's rtol, above what refinement can reach at cond ~ 1e12
-        if rel <= 1e-10 or k == refinements:
+    x = problem.solver.solve(rhs)
+    r = rhs - sym_matvec(p.indptr, p.indices, data, x)
+    rel = float(np.linalg.norm(r)) / scale if scale > 0 else 0.0
+    # 1e-10: well below Newton's rtol, above what refinement can reach at cond ~ 1e12
+    for _ in range(refinements):
+        if rel <= 1e-10:
             break
-        x += problem.solver.solve(r)
+        y = x + problem.solver.solve(r)
+        ry = rhs - sym_matvec(p.indptr, p.indices, data, y)
+        rel_y = float(np.linalg.norm(ry)) / scale
+        if not rel_y < rel:
+            break
+        x, r, rel = y, ry, rel_y
     return x, rel
 
 
@@ -203,8 +209,9 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
     far), the applied forces (loads, inertia, tools) and, with ``reactions`` (a prescribed
     motion drives the step), the support reactions, all at the current iterate and never the
     residual of the predicted start. Or when the residual is at its measured round-off floor
-    (:class:`Floor`) and either the Newton correction is below ``xtol`` or the residual after
-    it is again at the floor: the state is then as accurate as its representation allows."""
+    (:class:`Floor`), the Newton correction is Newton's (its solve exact to 1 %) and either
+    below ``xtol`` or leaves the residual at the floor, and the residual's resultant still
+    balances what is applied: the state is then as accurate as its representation allows."""
     x = x0.copy()
     timing = Timing()
     free = ~problem.fixed
@@ -215,8 +222,8 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
     res: list[float] = []
     ref = 0.0
     floor: Floor | None = None
-    cap = settings.max_iterations * settings.cap_factor
-    by_energy = True  # the last step decreased the energy by more than its noise
+    cap = settings.max_iterations
+    idle = 0  # iterations in a row without real progress
     cached = None  # a full evaluation at x from the last iteration, reused as its assembly
     rel, inexact = 0.0, 0  # relative residual of the last linear solve; such in a row
     at_floor = 0  # iterations in a row at the round-off floor
@@ -246,7 +253,7 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
             fl = min(fl, measure_floor(problem, x0, E0, g0, free, abs(E0)),
                      key=lambda f: f.force)
             timing.line_search += time.perf_counter() - t
-        if rel > 1e-2:
+        if rel > 1e-2 and "numerically singular" not in why:
             why += (f"; Hessian numerically singular (its shifted factors leave {rel:.0%} of "
                     "the residual)")
         if ref < fl.force:
@@ -271,18 +278,19 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
             return result(x0, False, it, E, "inverted element")
         held = np.where(free, 0.0, g)
         support = float(np.linalg.norm(held)) if reactions else 0.0
-        # the resultants: what the supports carry and what is applied (N)
-        scale = applied + float(np.linalg.norm(held.sum(0)))
         g[~free] = 0.0
         r = float(np.linalg.norm(g))
         if not np.isfinite(r):
             return result(x0, False, it, E, "non-finite gradient")
         res.append(r)
         ref = max(force_level, level, support)
+        # the resultants: what the supports carry and what is applied (N); self-balanced
+        # reactions (a block sheared between two faces) cancel in it, the force level not
+        scale = max(applied + float(np.linalg.norm(held.sum(0))), ref)
         if r <= settings.rtol * ref:
             return result(x, True, it, E)
-        # real progress (with an energy decrease above its noise): the residual falling below
-        # all before it by a tenth, as in a linear convergence still going on
+        # real progress, besides an energy decrease above its noise (the line search's): the
+        # residual falling below all before it by a tenth, as in a linear convergence
         stalled = len(res) > 1 and r >= 0.9 * min(res[:-1])
         t1 = time.perf_counter()
         try:
@@ -346,8 +354,11 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
                                "of the applied)")
         else:
             at_floor = 0
-        if it == cap or (it >= settings.max_iterations and not by_energy and stalled):
-            return failure(x, it, E, g, mag, f"iteration budget: no convergence in {it} "
+        if it == cap:
+            return failure(x, it, E, g, mag, f"no convergence in {it} iterations (residual "
+                           f"{r:.3e}, target {settings.rtol * ref:.3e})")
+        if idle == settings.patience:
+            return failure(x, it, E, g, mag, f"line search stalled: no progress in {idle} "
                            f"iterations (residual {r:.3e}, target {settings.rtol * ref:.3e})")
         slope = float(np.sum(g * dx))
         if slope >= 0:  # not a descent direction (cannot happen with a PD matrix): use -g
@@ -383,6 +394,7 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
             alpha *= 0.5
         if not accepted:
             return failure(x, it + 1, E, g, mag, f"line search stalled (residual {r:.3e})")
+        idle = 0 if by_energy or not stalled else idle + 1
         cached = trial
         x = x_new
         E = E_new

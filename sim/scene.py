@@ -319,7 +319,8 @@ class SolverSpec(Strict):
     rtol: Annotated[float, Field(gt=0, lt=1)] = 1e-8
     # a Newton correction below xtol * thickness ends the iteration (at the residual's floor)
     xtol: Annotated[float, Field(gt=0, lt=1)] = 1e-6
-    max_iterations: Annotated[int, Field(ge=1, le=1000)] = 30
+    # Newton's cap per attempt; one that stops progressing ends sooner (sim.newton)
+    max_iterations: Annotated[int, Field(ge=1, le=1000)] = 200
     linear_solver: Literal["auto", "pardiso", "scipy"] = "auto"
     # auto: the exact Hessian where it is positive definite, else projected per quadrature point
     hessian_projection: Literal["auto", "qp", "element", "none"] = "auto"

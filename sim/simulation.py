@@ -152,15 +152,25 @@ class Simulation:
     # deepest penetration of a tool into the sheet a converged state may have, in sheet
     # thicknesses: the contact stiffness keeps it at 1 % under the largest forming pressure
     # (sim.model), so 10 % is a pressure ten times that, which no sheet metal carries: the
-    # tool went through the sheet (an increment too large for the penalty to stop it)
+    # tool went through the sheet (an increment too large for the penalty to stop it). Nodes
+    # held in every component do not count: a tool pressed into a clamp penetrates it by
+    # however far it is driven, whatever the solver does.
     MAX_PENETRATION = 0.1
 
     def _penetration(self, x: np.ndarray) -> str:
         """The diagnostic when a tool penetrates the sheet beyond the bound, else ''."""
+        from sim.contact import penalty_contact
+
         bound = self.MAX_PENETRATION * float(np.mean(self.model.shell.thickness))
         active = set(map(id, self.model.problem.terms))
         for t in self.tools:
-            if id(t) in active and (d := t.report(x)["penetration"]) > bound:
+            if id(t) not in active:
+                continue
+            gap = penalty_contact(x[t.nodes], t.prog, t.R_now, t.translation(x), t.k,
+                                  t.delta)[4]
+            movable = ~self.model.problem.fixed[t.nodes].all(1)
+            d = float(max(0.0, -gap[movable].min())) if movable.any() else 0.0
+            if d > bound:
                 return (f"penetration beyond bound ({t.tool}: {d:.3e} m, bound {bound:.3e} m "
                         f"= {self.MAX_PENETRATION:g} thickness)")
         return ""

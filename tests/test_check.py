@@ -67,7 +67,7 @@ def test_bad_input_meshes_have_one_bad_triangle_and_are_rejected(tmp_path, kind)
 def test_outcomes_are_classified_and_a_wrong_one_is_a_problem():
     """A regression to "no convergence" everywhere must not pass: every case names the outcome
     it must end in, and a converged run must balance its loads."""
-    out = {"status": "failed", "reason": "iteration budget: no convergence in 300 iterations"}
+    out = {"status": "failed", "reason": "no convergence in 200 iterations (residual 1)"}
     assert outcome(out) == "iteration budget"
     assert verdict(Case("x", "x"), "q3t", out).startswith("PROBLEM")
     floor = {"status": "failed", "reason": "load below force round-off floor (load 1e-8 N, "
@@ -90,9 +90,13 @@ def test_a_handful_of_hard_cases_end_in_their_expected_outcome():
                    "nu=0.4999,h/L=1e-04,1 step,sliver,zero thickness,varying,inverted,zero-area,"
                    "E=1e+06,dt x100")
     assert len(cases) == 10
-    # 80 triangles instead of the check's 320: the same outcomes, a quarter of the time
-    rows = run_check(cases, ["linear", "q3t"], budget=40.0,
+    # 80 triangles instead of the check's 320: the same outcomes, a quarter of the time. Not
+    # for h/L = 1e-4, which is at the edge of double precision either way and is run at the
+    # check's size, where Q3T's load is 100x below its floor (it fails in 0.1 s)
+    thin = [c for c in cases if c.name == "h/L=1e-04"]
+    rows = run_check([c for c in cases if c not in thin], ["linear", "q3t"], budget=40.0,
                      edges={"linear": 0.035, "q3t": 0.035})
+    rows += run_check(thin, ["linear", "q3t"], budget=40.0)
     by = {(r["case"], r["element"]): r for r in rows}
     for r in rows:
         assert r["verdict"] == "ok", table([r])
@@ -124,15 +128,16 @@ def test_a_handful_of_hard_cases_end_in_their_expected_outcome():
 
 
 def test_the_punch_100x_faster_converges_and_balances_the_die():
-    """The 12 mm stroke in one step: sub-steps keep the punch within a thickness per
-    increment, and the beam, held in z by nothing else, is pressed between punch and die."""
+    """The 13.2 mm stroke in one step: sub-steps keep the punch within a thickness per
+    increment, and the beam, held in z by nothing else, is pressed between punch and mold
+    into the mold's curvature."""
     (row,) = run_check(select(make_cases(load_scene(CANTILEVER)), "punch 100x"), ["linear"],
                        budget=40.0)
     assert row["verdict"] == "ok" and row["outcome"] == "converged", table([row])
     assert row["measured"]["support_z"] == 0.0  # no z support: the tools balance each other
-    # 100 steps give 1,373 N on this mesh (q3t check); the plastic answer depends on the
-    # increments a little: 1,362 N in the sub-steps of one step (0.8 %)
-    assert row["probes"]["punch_force"] == pytest.approx(1373, rel=0.02)
+    # the closed mold's 10 1/m (measured 9.9951, as in 100 steps); the squeezing force is
+    # path-dependent (27.2 kN here, 30.5 kN in 100 steps) and not compared
+    assert row["probes"]["curvature"] == pytest.approx(10.0, rel=1e-3)
 
 
 def test_a_run_over_budget_is_killed_and_reported():

@@ -26,7 +26,7 @@ from server.app import create_app  # noqa: E402
 from server.estimate import estimate  # noqa: E402
 from server.settings import Settings  # noqa: E402
 from server.tomlout import dumps, have_tomli_w, number  # noqa: E402
-from sim.scene import Scene  # noqa: E402
+from sim.scene import Scene, SolverSpec  # noqa: E402
 from tests.test_service import tiny_toml  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -136,7 +136,8 @@ def test_parse_gives_the_scene_or_the_raw_tables_and_errors(env):
     client, _ = env
     ok = client.post("/api/scenes/parse", json={"toml": tiny_toml()}).json()
     assert ok["ok"] and ok["scene"]["name"] == "tiny" and ok["errors"] == []
-    assert ok["scene"]["solver"]["max_iterations"] == 30  # defaults filled in for the form
+    # defaults filled in for the form
+    assert ok["scene"]["solver"]["max_iterations"] == SolverSpec().max_iterations
     bad = client.post("/api/scenes/parse", json={"toml": "bogus = 1\n" + tiny_toml().replace(
         "nu = 0.49", "nu = 0.7")}).json()
     assert not bad["ok"] and bad["scene"] is None and bad["raw"]["material"]["nu"] == 0.7

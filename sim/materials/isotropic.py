@@ -279,16 +279,15 @@ def stress_tangent_into(model, F, params, ep_n, want_tangent, project, P, C):
         H = F.copy()
         for i in range(3):
             H[i, i] -= 1.0
-        return stress_tangent_h(model, H, params, want_tangent, project, P, C)
+        return stress_tangent_h(model, H, params, ep_n, want_tangent, project, P, C)
     return principal_stress_tangent_into(model, F, params, ep_n, want_tangent, project, P, C)
 
 
 @njit(cache=True)
-def stress_tangent_h(model, H, params, want_tangent, project, P, C):
-    """:func:`stress_tangent_into` of an elastic model at F = I + H, from the displacement
-    gradient H. Neo-Hookean's W and P always come from the closed form in H (so an energy or a
-    gradient does not depend on whether the Hessian is projected); only a projected tangent
-    goes through the principal frame."""
+def stress_tangent_h(model, H, params, ep_n, want_tangent, project, P, C):
+    """:func:`stress_tangent_into` at F = I + H, from H = F - I. Neo-Hookean's W and P always
+    come from the closed form in H (so an energy or a gradient does not depend on whether the
+    Hessian is projected); only a projected tangent goes through the principal frame."""
     if model == NEO_HOOKEAN:
         W = _neo_hookean_h(H, params[0], params[1], want_tangent and not project, P, C)
         if want_tangent and project and np.isfinite(W):
@@ -301,7 +300,7 @@ def stress_tangent_h(model, H, params, want_tangent, project, P, C):
     F = H.copy()
     for i in range(3):
         F[i, i] += 1.0
-    return principal_stress_tangent_into(model, F, params, 0.0, want_tangent, project, P, C)
+    return principal_stress_tangent_into(model, F, params, ep_n, want_tangent, project, P, C)
 
 
 @njit(cache=True)

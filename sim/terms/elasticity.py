@@ -14,12 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from sim.materials.isotropic import (
-    polar_svd,
-    principal,
-    stress_tangent_h,
-    stress_tangent_into,
-)
+from sim.materials.isotropic import polar_svd, principal, stress_tangent_h
 from sim.materials.plasticity import plastic_flow
 from sim.terms import Term
 
@@ -72,18 +67,17 @@ def _element(x, rest, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, wa
                                + dNdX[q, a, 2] * fp_inv[q, 2, J])
                 else:
                     b[a, J] = dNdX[q, a, J]
-        _displacement_gradient(u, b, G)  # H = G - G(rest)
+        # G - I: the displacement part, plus Fp^-1 - I under a plastic state (zero before
+        # it flows, so an unyielded plastic scene runs on the elastic bits)
+        _displacement_gradient(u, b, G)
         if plastic:
             for i in range(3):
                 for J in range(3):
-                    G[i, J] += fp_inv[q, i, J]
-            W = stress_tangent_into(model, G, params, ep[q], want == 2,
-                                    want == 2 and project == PROJECT_QP, P, C)
-        else:
-            # the projection only changes the Hessian: energy and gradient of a line search
-            # come from the same formula as those of an assembly
-            W = stress_tangent_h(model, G, params, want == 2,
-                                 want == 2 and project == PROJECT_QP, P, C)
+                    G[i, J] += fp_inv[q, i, J] - (1.0 if i == J else 0.0)
+        # the projection only changes the Hessian: energy and gradient of a line search come
+        # from the same formula as those of an assembly
+        W = stress_tangent_h(model, G, params, ep[q] if plastic else 0.0, want == 2,
+                             want == 2 and project == PROJECT_QP, P, C)
         if not np.isfinite(W):
             return np.inf
         w = wdetJ[q]
