@@ -321,7 +321,8 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
         inexact = 0 if newton else inexact + 1
         if inexact == 5:
             return failure(x, it, E, g, mag, "singular factorisation: Hessian numerically "
-                           f"singular (5 solves in a row leave up to {rel:.0%} of the residual)")
+                           "singular (5 solves in a row leave over 1 % of the residual, the "
+                           f"last {rel:.1e})")
         small = newton and float(np.abs(dx).max()) <= settings.xtol
         # the floor is measured where it can matter: a negligible correction, a residual that
         # stopped falling or has nothing to be measured against; again near it, since it
