@@ -229,6 +229,37 @@ def _rrect2(u, z, lo, hi, z0, z1, r, out):
 
 
 @numba.njit(cache=True)
+def _edge_or_point(px, py, qx, qy, nx, ny, best, inside, on_edge, derivs, gw, Hw):
+    """The nearest feature of a polygon scan: an edge's interior (``on_edge``: the line through
+    q with outward normal n; w = n.(p - q), gw = n, Hw = 0) or a point q at squared distance
+    ``best`` (w = +-|p - q|, gw = +-e, Hw = +-(I - e e^T) / |p - q|, the sign from the
+    even-odd test's ``inside``). Fills gw (2,) and Hw (2, 2) when derivs; returns w."""
+    if on_edge:
+        if derivs:
+            gw[0] = nx
+            gw[1] = ny
+            Hw[:, :] = 0.0
+        return nx * (px - qx) + ny * (py - qy)
+    sgn = -1.0 if inside else 1.0
+    dist = math.sqrt(best)
+    if derivs:
+        if dist > 0.0:
+            ex = (px - qx) / dist
+            ey = (py - qy) / dist
+            gw[0] = sgn * ex
+            gw[1] = sgn * ey
+            Hw[0, 0] = sgn * (1.0 - ex * ex) / dist
+            Hw[0, 1] = -sgn * ex * ey / dist
+            Hw[1, 0] = Hw[0, 1]
+            Hw[1, 1] = sgn * (1.0 - ey * ey) / dist
+        else:  # exactly on the point: a finite stand-in
+            gw[0] = nx
+            gw[1] = ny
+            Hw[:, :] = 0.0
+    return sgn * dist
+
+
+@numba.njit(cache=True)
 def _polygon_sd(prog, base, m, px, py, derivs, gw, Hw):
     """Signed distance w to the CCW polygon stored at prog[base: base + 2 m] (> 0 outside).
 
@@ -278,36 +309,7 @@ def _polygon_sd(prog, base, m, px, py, derivs, gw, Hw):
             if px < xint:
                 inside = not inside
         j = i
-    if kind == 0:
-        w = nx * (px - cx) + ny * (py - cy)
-        if derivs:
-            gw[0] = nx
-            gw[1] = ny
-            Hw[0, 0] = 0.0
-            Hw[0, 1] = 0.0
-            Hw[1, 0] = 0.0
-            Hw[1, 1] = 0.0
-        return w
-    sgn = -1.0 if inside else 1.0
-    dist = math.sqrt(best)
-    if derivs:
-        if dist > 0.0:
-            ex = (px - cx) / dist
-            ey = (py - cy) / dist
-            gw[0] = sgn * ex
-            gw[1] = sgn * ey
-            Hw[0, 0] = sgn * (1.0 - ex * ex) / dist
-            Hw[0, 1] = -sgn * ex * ey / dist
-            Hw[1, 0] = Hw[0, 1]
-            Hw[1, 1] = sgn * (1.0 - ey * ey) / dist
-        else:  # exactly on a vertex: finite stand-in
-            gw[0] = nx
-            gw[1] = ny
-            Hw[0, 0] = 0.0
-            Hw[0, 1] = 0.0
-            Hw[1, 0] = 0.0
-            Hw[1, 1] = 0.0
-    return sgn * dist
+    return _edge_or_point(px, py, cx, cy, nx, ny, best, inside, kind == 0, derivs, gw, Hw)
 
 
 @numba.njit(cache=True)
@@ -466,36 +468,7 @@ def _rpolygon_sd(prog, base, m, px, py, derivs, gw, Hw):
             Hw[1, 0] = Hw[0, 1]
             Hw[1, 1] = c * (1.0 - ny * ny)
         return sg * (arc_rho - arc_rc)
-    if kind == 0:
-        w = nx * (px - qx) + ny * (py - qy)
-        if derivs:
-            gw[0] = nx
-            gw[1] = ny
-            Hw[0, 0] = 0.0
-            Hw[0, 1] = 0.0
-            Hw[1, 0] = 0.0
-            Hw[1, 1] = 0.0
-        return w
-    sgn = -1.0 if inside else 1.0
-    dist = math.sqrt(best)
-    if derivs:
-        if dist > 0.0:
-            ux = (px - qx) / dist
-            uy = (py - qy) / dist
-            gw[0] = sgn * ux
-            gw[1] = sgn * uy
-            Hw[0, 0] = sgn * (1.0 - ux * ux) / dist
-            Hw[0, 1] = -sgn * ux * uy / dist
-            Hw[1, 0] = Hw[0, 1]
-            Hw[1, 1] = sgn * (1.0 - uy * uy) / dist
-        else:
-            gw[0] = nx
-            gw[1] = ny
-            Hw[0, 0] = 0.0
-            Hw[0, 1] = 0.0
-            Hw[1, 0] = 0.0
-            Hw[1, 1] = 0.0
-    return sgn * dist
+    return _edge_or_point(px, py, qx, qy, nx, ny, best, inside, kind == 0, derivs, gw, Hw)
 
 
 @numba.njit(cache=True)
