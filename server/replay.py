@@ -2,7 +2,8 @@
 
 The recording is read back with ``rerun.chunk.RrdReader``: the sheet (``/sheet``: its triangles
 static, then per keyframe its positions with the thickness colours they were recorded with),
-the tool meshes (``/tools/<name>``, static) and their translations (``Transform3D`` per step).
+the tool meshes (``/tools/<name>``, static) and their poses (``Transform3D`` per step: the
+translation, and the rotation of a tool whose keyframes turn it).
 Only what the recording holds can be shown: the sheet is coloured by thickness, as recorded.
 The same loader feeds the service's viewer when it replays an older run.
 """
@@ -27,12 +28,25 @@ class Replay:
     faces: np.ndarray | None = None
     tools: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # V, F
     poses: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)  # tool -> step -> t
+    # tool -> step -> unit quaternion (w, x, y, z), for tools the recording turns
+    rotations: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)
 
     def pose(self, tool: str, step: int) -> np.ndarray:
         """The tool's translation at ``step``: the latest recorded at or before it."""
-        known = self.poses.get(tool) or {}
-        before = [s for s in known if s <= step]
-        return known[max(before)] if before else (known[min(known)] if known else np.zeros(3))
+        return _latest(self.poses.get(tool), step, np.zeros(3))
+
+    def rotation(self, tool: str, step: int) -> np.ndarray:
+        """The tool's rotation (w, x, y, z) at ``step``: the latest recorded, else none."""
+        return _latest(self.rotations.get(tool), step, np.array([1.0, 0.0, 0.0, 0.0]))
+
+
+def _latest(known: dict | None, step: int, default: np.ndarray) -> np.ndarray:
+    """The value recorded at the latest step at or before ``step`` (the first one before the
+    first record)."""
+    if not known:
+        return default
+    before = [s for s in known if s <= step]
+    return known[max(before)] if before else known[min(known)]
 
 
 def _vec3(cell) -> np.ndarray:
@@ -82,6 +96,13 @@ def load(path: Path) -> Replay:
                 for i, step in enumerate(steps):
                     if step is not None:
                         rep.poses.setdefault(name, {})[int(step)] = _vec3(tr[i])[0]
+            if "Transform3D:quaternion" in cols:
+                q = rb.column("Transform3D:quaternion")
+                for i, step in enumerate(steps):
+                    if step is not None and q[i].is_valid:  # rerun stores (x, y, z, w)
+                        xyzw = np.asarray(q[i].values.flatten().to_numpy(zero_copy_only=False),
+                                          np.float64).reshape(-1, 4)[0]
+                        rep.rotations.setdefault(name, {})[int(step)] = np.roll(xyzw, 1)
     for step in sorted(sheet):
         rep.steps.append(step)
         rep.positions.append(sheet[step][0])
@@ -123,6 +144,7 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
             server.scene.add_mesh_trimesh("/sheet", mesh)
             for name, h in handles.items():
                 h.position = np.asarray(rep.pose(name, step), np.float64)
+                h.wxyz = rep.rotation(name, step)
             status.content = f"Recording `{title}`: step {step} ({i + 1}/{len(rep.steps)})"
 
     slider.on_update(lambda _e: show(slider.value))

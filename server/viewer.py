@@ -240,6 +240,7 @@ class Viewer:
             self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
             for name, h in self.tools.items():
                 h.position = np.asarray(rep.pose(name, k), np.float64)
+                h.wxyz = rep.rotation(name, k)
             self.gui.legend.content = ("<div class='q3t-legend'><b>Thickness</b>, colours as "
                                        "recorded (each frame's min to max)</div>")
             self.gui.status.content = f"{message}  \nshowing recorded step {k}"

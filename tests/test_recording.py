@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 
 pytest.importorskip("rerun")
@@ -23,7 +24,7 @@ from rerun.chunk import RrdReader  # noqa: E402
 
 from server.app import create_app  # noqa: E402
 from server.cli import play_command  # noqa: E402
-from server.recording import channels  # noqa: E402
+from server.recording import Recorder, channels  # noqa: E402
 from server.settings import Settings  # noqa: E402
 from sim.model import build_model  # noqa: E402
 from sim.scene import load_scene, scene_from_toml  # noqa: E402
@@ -277,3 +278,28 @@ def test_every_shipped_scene_records_no_channel_for_an_absent_quantity(path):
                        in c or "penetration" in c for c in ch)
     # the frame the recorder colours and summarises carries exactly the fields reported
     assert list(sim.frame().fields) == sim.model.built["outputs"]["frame_fields"]
+
+
+def test_replay_reads_back_tool_rotations(tmp_path):
+    """A turning tool's rotation is recorded with its translation and read back per step (the
+    viewer and `q3t play --viser` turn the tool mesh with it); a step between records has the
+    latest one."""
+    from server import replay
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    rec = Recorder(tmp_path / "run.rrd", "turn")
+    rec.meta(np.array([[0, 1, 2]]), [{"name": "lid", "vertices": V, "faces": [[0, 1, 2]]}])
+    half = 0.3  # a 0.6 rad turn about y
+    turned = np.array([np.cos(half), 0.0, np.sin(half), 0.0])
+    for k, q in enumerate([[1.0, 0, 0, 0], turned]):
+        rec.frame({"step": 2 * k, "time": float(k), "positions": V,
+                   "fields": {"thickness_mm": np.ones(3, np.float32)},
+                   "tools": {"lid": [0.0, 0.0, -0.01 * k]}, "tool_rotations": {"lid": q}},
+                  mesh=k == 0)
+    rec.close()
+    rep = replay.load(tmp_path / "run.rrd")
+    # float32 in the file: 1e-7 is its resolution for a unit quaternion
+    assert np.allclose(rep.rotation("lid", 0), [1, 0, 0, 0], atol=1e-7)
+    assert np.allclose(rep.rotation("lid", 2), turned, atol=1e-7)
+    assert np.allclose(rep.rotation("lid", 1), [1, 0, 0, 0], atol=1e-7)  # latest before 1
+    assert np.isclose(rep.pose("lid", 2)[2], -0.01, atol=1e-9)
