@@ -229,6 +229,23 @@ def _rrect2(u, z, lo, hi, z0, z1, r, out):
 
 
 @numba.njit(cache=True)
+def _segment_nearest(wx, wy, ex, ey, L2):
+    """The point of segment a + t e, t in [0, 1], nearest to p, with w = p - a and L2 = |e|^2:
+    (squared distance, t, 1 if it is an end point else 0)."""
+    t = (wx * ex + wy * ey) / L2
+    k = 0
+    if t <= 0.0:
+        t = 0.0
+        k = 1
+    elif t >= 1.0:
+        t = 1.0
+        k = 1
+    dx = wx - t * ex
+    dy = wy - t * ey
+    return dx * dx + dy * dy, t, k
+
+
+@numba.njit(cache=True)
 def _edge_or_point(px, py, qx, qy, nx, ny, best, inside, on_edge, derivs, gw, Hw):
     """The nearest feature of a polygon scan: an edge's interior (``on_edge``: the line through
     q with outward normal n; w = n.(p - q), gw = n, Hw = 0) or a point q at squared distance
@@ -282,20 +299,8 @@ def _polygon_sd(prog, base, m, px, py, derivs, gw, Hw):
         by = prog[base + 2 * i + 1]
         ex = bx - ax
         ey = by - ay
-        wx = px - ax
-        wy = py - ay
         L2 = ex * ex + ey * ey
-        t = (wx * ex + wy * ey) / L2
-        k = 0
-        if t <= 0.0:
-            t = 0.0
-            k = 1
-        elif t >= 1.0:
-            t = 1.0
-            k = 1
-        dx = wx - t * ex
-        dy = wy - t * ey
-        dd = dx * dx + dy * dy
+        dd, t, k = _segment_nearest(px - ax, py - ay, ex, ey, L2)
         if dd < best:
             best = dd
             kind = k
@@ -434,19 +439,7 @@ def _rpolygon_sd(prog, base, m, px, py, derivs, gw, Hw):
         ey = ey0 - by
         L2 = ex * ex + ey * ey
         if L2 > 0.0:
-            wx = px - bx
-            wy = py - by
-            t = (wx * ex + wy * ey) / L2
-            k = 0
-            if t < 0.0:
-                t = 0.0
-                k = 1
-            elif t > 1.0:
-                t = 1.0
-                k = 1
-            dx = wx - t * ex
-            dy = wy - t * ey
-            dd = dx * dx + dy * dy
+            dd, t, k = _segment_nearest(px - bx, py - by, ex, ey, L2)
             if dd < best:
                 best = dd
                 kind = k
