@@ -83,8 +83,9 @@ class Simulation:
         self._mu0 = {t.tool: t.mu for t in self.tools}
         self.parameter_log: list[dict] = []
         self._last_increment: np.ndarray | None = None
-        # the largest internal force vector (N, 2-norm) met at a converged state: the force
-        # level of a tool- or displacement-driven run, which has no load to scale by
+        # the largest force level (N, 2-norm: applied forces, and support reactions where a
+        # prescribed motion drives the run) met at a converged state; the floor of Newton's
+        # reference in later steps (a slow sub-step's own forces can be tiny)
         self._force_level = 0.0
         self._sections = {sp.name: probes.section_vertices(self.model, sp)
                           for sp in self.model.scene.sections}
@@ -187,14 +188,19 @@ class Simulation:
             dt /= 2
         return dt
 
-    def _converged(self, res: NewtonResult) -> None:
-        # friction's lagged normal force settled at the converged state (sim.terms.contact)
-        self.x = settle_friction(self.model.problem, res.x, self.model.settings,
-                                 max(self._force_level, res.ref), self.timing,
-                                 self.model.driven)
+    def _converged(self, res: NewtonResult) -> tuple[NewtonResult, int]:
+        """Accept a converged solve: settle friction's lagged normal force at it (re-solving
+        from there, sim.terms.contact), commit every term at the settled state. Returns the
+        solve the state comes from (the last re-solve, or ``res``) and the re-solves' Newton
+        iterations, which belong to the step."""
+        self.x, settled, extra = settle_friction(
+            self.model.problem, res.x, self.model.settings, max(self._force_level, res.ref),
+            self.timing, self.model.driven)
         for term in self.model.terms:
             term.commit(self.x)
-        self._force_level = max(self._force_level, res.ref)
+        final = settled or res
+        self._force_level = max(self._force_level, res.ref, final.ref)
+        return final, extra
 
     def _release(self) -> StepRecord:
         """Springback: drop the loads and the released BCs, then solve static equilibrium
@@ -214,16 +220,17 @@ class Simulation:
             m.external.factor = 0.0
         res = minimise(m.problem, self.x, m.settings, self._force_level, m.driven)
         self.timing.add(res.timing)
+        iterations = res.iterations
         if not res.converged:
             self.failure = {"step": self.step_index + 1, "t": self.t, "cutbacks": 0,
                             "reason": f"release: {res.reason}", "iterations": res.iterations,
                             "residuals": res.residuals}
             self.wall += time.perf_counter() - start
             raise SolverFailure(self.failure)
-        self._converged(res)
+        res, extra = self._converged(res)
         self.step_index += 1
-        rec = StepRecord(self.step_index, self.t, res.iterations, res.residuals[-1], res.energy,
-                         0, probes.evaluate(m, self.x, formed=self.formed),
+        rec = StepRecord(self.step_index, self.t, iterations + extra, res.residuals[-1],
+                         res.energy, 0, probes.evaluate(m, self.x, formed=self.formed),
                          self._tool_reports())
         self.records.append(rec)
         self._record_sections()
@@ -262,8 +269,11 @@ class Simulation:
                 cutbacks += 1
                 dt /= 2
                 continue
-            self._last_increment, self._last_dt = res.x - self.x, dt
-            self._converged(res)
+            before = self.x
+            res, extra = self._converged(res)
+            iters += extra
+            # the predictor continues the settled increment, not the first solve's
+            self._last_increment, self._last_dt = self.x - before, dt
             self.t += dt
             dt = min(2 * dt, nominal)  # grow back after a successful sub-step
         self.step_index += 1

@@ -245,26 +245,29 @@ def _scatter_pairs(data, slots, blocks):
     np.add.at(data, slots.reshape(-1), blocks.reshape(-1))
 
 
-def settle_friction(problem, x, settings, force_scale, timing, reactions=False, tol=1e-3,
+def settle_friction(problem, x, settings, force_level, timing, reactions=False, tol=1e-3,
                     max_solves=4):
     """Fixed point of the lagged normal force within a step: friction uses the normal forces
     frozen at the start of the solve (a potential, so Newton applies); after convergence they
     are refreshed from the converged state and the step is solved again from there until they
     change by at most ``tol`` of the largest one (usually once or twice), so a sliding node's
     drag is mu times its own converged normal force. A re-solve that fails keeps the last
-    converged state and its lag. Returns the state."""
+    converged state and its lag. Returns the state, the last converged re-solve's
+    NewtonResult (None when none ran) and the Newton iterations of all re-solves."""
     from sim.newton import minimise
 
     tools = [t for t in problem.terms if isinstance(t, ToolContact) and t.mu > 0]
+    last, iterations = None, 0
     for _ in range(max_solves):
         saved = [t._lagged for t in tools]
         if max((t.relag(x) for t in tools), default=0.0) <= tol:
-            return x
-        res = minimise(problem, x, settings, force_scale, reactions)
+            break
+        res = minimise(problem, x, settings, force_level, reactions)
         timing.add(res.timing)
+        iterations += res.iterations
         if not res.converged:
             for t, lag in zip(tools, saved, strict=True):
                 t._lagged = lag
-            return x
-        x = res.x
-    return x
+            break
+        x, last = res.x, res
+    return x, last, iterations
