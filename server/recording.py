@@ -1,10 +1,10 @@
 """A run's rerun recording, written by the solver process: the sheet's triangles once
 (static), its positions coloured by thickness every ``record_every`` steps (and at the first and
-last step), the tool meshes once (static, ``tools/<name>``) with their translation
-(``rr.Transform3D``) every step, and time series of every probe, energy, Newton iterations,
-residual, max thinning (and max plastic strain where there is a plastic state) and live
-parameters. ``channels`` lists them from what the model built, so a recording has no channel
-for a quantity the scene lacks.
+last step), the tool meshes once (static, ``tools/<name>``) with their pose (``rr.Transform3D``:
+translation, and rotation for a tool whose keyframes turn it) every step, and time series of
+every probe, energy, Newton iterations, residual, max thinning (and max plastic strain where
+there is a plastic state) and live parameters. ``channels`` lists them from what the model
+built, so a recording has no channel for a quantity the scene lacks.
 
 Every step is flushed. A recording stream writes its footer only when it is closed, and
 ``rerun rrd verify`` refuses a file without one; so when the process that records is killed,
@@ -46,7 +46,6 @@ class Recorder:
         self.rec = rr.RecordingStream("q3t-forming", recording_id=run_id)
         self.rec.save(str(path))
         self.faces: np.ndarray | None = None
-        self.meshes = 0  # sheet meshes written
 
     def _time(self, step: int, t: float) -> None:
         self.rec.set_time("step", sequence=int(step))
@@ -88,7 +87,6 @@ class Recorder:
             colors = colorize(h, *value_range(h, MIN_SPAN["thickness_mm"]))
             self.rec.log("sheet", rr.Mesh3D.from_fields(vertex_positions=frame["positions"],
                                                         vertex_colors=colors))
-            self.meshes += 1
         rotations = frame.get("tool_rotations") or {}
         for name, pose in (frame.get("tools") or {}).items():
             q = rotations.get(name)  # (w, x, y, z); rerun takes (x, y, z, w)

@@ -87,6 +87,7 @@ class RunManager:
         self._stop = threading.Event()
         self.bridge = threading.Thread(target=self._bridge, name="q3t-bridge", daemon=True)
         self.heartbeat = time.monotonic()
+        self.repairing: str | None = None  # the run whose recording the bridge is repairing
         self.bridge_errors = 0
         self.bridge_error: str | None = None
         self.logs: collections.deque = collections.deque(maxlen=50)  # the solver's log events
@@ -143,11 +144,16 @@ class RunManager:
         Returns what to add to the run's reason ("" when all went well)."""
         from server.recording import repair  # imports rerun: only the solver needs it otherwise
 
+        # a repair (rerun rrd merge) can outlast the heartbeat: health says what the bridge does
+        self.repairing = run.id
         try:
             repair(self.dir(run.id) / "run.rrd")
             return ""
         except Exception as exc:
             return f"; recording unreadable: {exc}"
+        finally:
+            self.repairing = None
+            self.heartbeat = time.monotonic()
 
     def dir(self, run_id: str) -> Path:
         return self.root / check_name(run_id, "run id")
@@ -160,10 +166,13 @@ class RunManager:
             atomic_write(self.dir(run.id) / "run.json", text)
 
     def health(self) -> dict:
-        bridge = self.bridge.is_alive() and time.monotonic() - self.heartbeat < HEARTBEAT_S
+        repairing = self.repairing
+        bridge = self.bridge.is_alive() and (
+            repairing is not None or time.monotonic() - self.heartbeat < HEARTBEAT_S)
         worker = self.worker.alive()
         return {"ok": bridge and worker, "worker_alive": worker, "worker_pid": self.worker.pid,
                 "worker_restarts": self.restarts, "bridge_alive": bridge,
+                "repairing_recording": repairing,
                 "bridge_errors": self.bridge_errors, "bridge_error": self.bridge_error,
                 "active": self.active}
 

@@ -67,9 +67,6 @@ class SceneStore:
     def names(self) -> list[str]:
         return sorted(p.stem for p in self.root.glob("*.toml") if not p.name.startswith("."))
 
-    def exists(self, name: str) -> bool:
-        return self.path(name).is_file()
-
     def text(self, name: str) -> str:
         p = self.path(name)
         if not p.is_file():

@@ -266,8 +266,8 @@ class _Solver:
         try:
             last = last or _frame_msg(self.run, self.sim)
             self.events.put({**last, "final": True})
-            if self.recorder is not None:
-                self.record_frame(last, final=True)
+            if self.recorder is not None and last["step"] != self.last_mesh:
+                self.record_frame(last, final=True)  # unless step() recorded it already
         except Exception as exc:
             problems.append(str(exc))
         try:

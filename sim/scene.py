@@ -645,13 +645,18 @@ def scene_from_dict(raw: dict) -> Scene:
         raise SceneError(_format(err)) from None
 
 
-def scene_from_toml(text: str, overrides: dict | None = None) -> Scene:
+def scene_from_toml(text: str, overrides: dict | None = None,
+                    folder: Path | None = None) -> Scene:
+    """The scene of a TOML text with ``overrides`` applied; relative file paths are taken from
+    ``folder`` when given (a scene file's own folder)."""
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise SceneError(f"TOML: {err}") from None
     for k, v in (overrides or {}).items():
         apply_override(raw, k, v)
+    if folder is not None:
+        _from_folder(raw, folder)
     return scene_from_dict(raw)
 
 
@@ -668,11 +673,4 @@ def load_scene(path: str | Path, overrides: dict | None = None) -> Scene:
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"scene file {str(path)!r} does not exist")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise SceneError(f"TOML: {err}") from None
-    for k, v in (overrides or {}).items():
-        apply_override(raw, k, v)
-    _from_folder(raw, path.resolve().parent)
-    return scene_from_dict(raw)
+    return scene_from_toml(path.read_text(), overrides, path.resolve().parent)

@@ -248,7 +248,9 @@ class Simulation:
         start = time.perf_counter()
         nominal = self._dt()
         t_target = self.t + nominal
-        dt_min = nominal / 2 ** self.model.scene.stepping.max_cutbacks
+        # cut-backs count from the increment the tools' travel allows (it may already be a
+        # fraction of the nominal one), so a fast punch keeps all of its cut-backs
+        dt_min = self._travel_limit(nominal) / 2 ** self.model.scene.stepping.max_cutbacks
         dt, cutbacks, iters = nominal, 0, 0
         while self.t < t_target - 1e-12 * t_target:
             dt = self._travel_limit(min(dt, t_target - self.t))

@@ -691,3 +691,23 @@ def test_serve_refuses_other_hosts_without_a_token(monkeypatch, capsys):
     assert "refusing to serve on 0.0.0.0 without a token" in capsys.readouterr().err
     assert cmd_serve(serve_args("--host", "192.168.1.5", "--token", "\u00fcber")) == 2
     assert "printable ASCII" in capsys.readouterr().err
+
+
+def test_health_counts_a_long_recording_repair_as_alive(env, monkeypatch):
+    """The bridge repairs a killed solver's recording itself (rerun rrd merge, up to minutes on
+    a long run): health reports the repair, not a dead bridge, while it lasts."""
+    from server import runs
+
+    client, _ = env
+    m = client.app.state.manager
+    seen = {}
+
+    def slow_repair(path):  # the heartbeat is long stale when health is asked
+        monkeypatch.setattr(m, "heartbeat", m.heartbeat - 10 * runs.HEARTBEAT_S)
+        seen["health"] = m.health()
+
+    monkeypatch.setattr("server.recording.repair", slow_repair)
+    assert m._repair(runs.Run("r-repair", "tiny", "q3t", {}, 0.0)) == ""
+    assert seen["health"]["bridge_alive"] and seen["health"]["repairing_recording"] == "r-repair"
+    after = m.health()
+    assert after["bridge_alive"] and after["repairing_recording"] is None
