@@ -14,34 +14,17 @@ from numba import njit
 
 
 @dataclass(frozen=True)
-class Blocks:
-    """Elements in blocks for the parallel scatter: ``order`` lists the elements colour by
-    colour and block by block, block ``b`` is ``order[block_ptr[b]:block_ptr[b + 1]]`` and
-    colour ``c`` the blocks ``color_ptr[c]`` to ``color_ptr[c + 1]``. Blocks of one colour
-    share no node, so they scatter in parallel without races."""
-
-    order: np.ndarray
-    block_ptr: np.ndarray
-    color_ptr: np.ndarray
-
-    def colors(self) -> list[np.ndarray]:
-        """The elements of each colour."""
-        return [self.order[self.block_ptr[self.color_ptr[c]]:self.block_ptr[self.color_ptr[c + 1]]]
-                for c in range(len(self.color_ptr) - 1)]
-
-
-@dataclass(frozen=True)
 class Pattern:
     """Upper-triangular CSR pattern ``(indptr, indices)``, element slots of the packed upper
     triangle ``(n_elem, 3 n_en (3 n_en + 1) / 2)`` and node-block slots ``(n_nodes, 3, 3)``
-    (-1 below the diagonal); ``blocks`` orders the elements for a race-free parallel scatter."""
+    (-1 below the diagonal); ``colors`` groups elements that share no node."""
 
     n_dof: int
     indptr: np.ndarray
     indices: np.ndarray
     elem_slots: np.ndarray
     node_slots: np.ndarray
-    blocks: Blocks
+    colors: list[np.ndarray]
 
     @property
     def nnz(self) -> int:
@@ -94,52 +77,34 @@ def _slots(indptr, indices, dofs):
 
 
 @njit(cache=True)
-def _greedy_block_color(conn, order, block, n_nodes, max_colors):
-    """First colour, per block of ``block`` consecutive elements of ``order``, whose blocks
-    touch none of its nodes; -1 where ``max_colors`` do not suffice."""
-    n_blocks = (len(order) + block - 1) // block
-    color = np.full(n_blocks, -1, np.int64)
+def _greedy_color(conn, order, n_nodes, max_colors):
+    """First colour, per element in ``order``, whose elements touch none of its nodes."""
+    color = np.full(conn.shape[0], -1, np.int64)
     used = np.zeros((max_colors, n_nodes), np.bool_)
-    for blk in range(n_blocks):
-        lo, hi = blk * block, min((blk + 1) * block, len(order))
+    for e in order:
         for c in range(max_colors):
             free = True
-            for t in range(lo, hi):
-                for a in range(conn.shape[1]):
-                    if used[c, conn[order[t], a]]:
-                        free = False
-                        break
-                if not free:
+            for a in range(conn.shape[1]):
+                if used[c, conn[e, a]]:
+                    free = False
                     break
             if free:
-                for t in range(lo, hi):
-                    for a in range(conn.shape[1]):
-                        used[c, conn[order[t], a]] = True
-                color[blk] = c
+                for a in range(conn.shape[1]):
+                    used[c, conn[e, a]] = True
+                color[e] = c
                 break
     return color
 
 
-def greedy_blocks(conn: np.ndarray, n_nodes: int, block: int = 64) -> Blocks:
-    """Blocks of ``block`` elements consecutive in their lowest node, coloured greedily.
-
-    A block walks a narrow band of the DoF numbering, so its scatter touches few cache lines
-    again and again; single elements coloured apart (``block=1``) jump across the whole
-    Hessian, and on the Q3T beam that scatter took twice as long."""
+def greedy_colors(conn: np.ndarray, n_nodes: int) -> list[np.ndarray]:
+    """Partition elements into groups without shared nodes (race-free parallel scatter)."""
     order = np.argsort(conn.min(axis=1), kind="stable")
-    # a block meets the blocks within the mesh's node bandwidth; 64 colours cover every mesh
-    # we make (2 to 4 here, 9 for single elements); more raises below
-    color = _greedy_block_color(conn, order, block, n_nodes, 64)
+    # an element meets at most (elements per node) x (nodes per element) others; 64 colours
+    # cover every mesh we make (9 for the triangle meshes here); more raises below
+    color = _greedy_color(conn, order, n_nodes, 64)
     if np.any(color < 0):
         raise ValueError("mesh needs more than 64 colours for the parallel scatter")
-    starts = np.arange(len(color)) * block
-    ends = np.minimum(starts + block, len(order))
-    by_color = np.argsort(color, kind="stable")
-    sizes = (ends - starts)[by_color]
-    new_order = np.concatenate([order[starts[b]:ends[b]] for b in by_color])
-    block_ptr = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-    color_ptr = np.searchsorted(color[by_color], np.arange(color.max() + 2)).astype(np.int64)
-    return Blocks(new_order.astype(np.int64), block_ptr, color_ptr)
+    return [np.flatnonzero(color == c) for c in range(color.max() + 1)]
 
 
 def build_pattern(conn: np.ndarray, n_nodes: int, pairs: np.ndarray | None = None) -> Pattern:
@@ -163,7 +128,7 @@ def build_pattern(conn: np.ndarray, n_nodes: int, pairs: np.ndarray | None = Non
         raise ValueError(f"Hessian pattern has {len(indices)} entries: beyond int32 slots")
     return Pattern(n_dof, indptr, indices, _packed_slots(indptr, indices, dofs),
                    _slots(indptr, indices, node_dofs).reshape(n_nodes, 3, 3),
-                   greedy_blocks(conn, n_nodes))
+                   greedy_colors(conn, n_nodes))
 
 
 @njit(cache=True)

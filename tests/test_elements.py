@@ -239,19 +239,12 @@ def test_spurious_zero_energy_modes(name, rule, shape):
 
 @pytest.mark.parametrize("name", ["linear", "q3t", "quadratic"])
 def test_scatter_colours_partition_elements_without_shared_nodes(name):
-    """The parallel scatter is race-free only if no two blocks of a colour share a node (each
-    block runs on one thread; its own elements may share nodes)."""
-    from sim.assembly import greedy_blocks
+    """The parallel scatter is race-free only if no two elements of a colour share a node."""
+    from sim.assembly import greedy_colors
 
     sh = shell.extrude(mesh.annulus(0.0, 0.03, 0.004), 0.001, ELEMENTS[name])
-    for size in (1, 7, 64):
-        bl = greedy_blocks(sh.conn, sh.n_nodes, size)
-        assert sorted(bl.order.tolist()) == list(range(len(sh.conn)))
-        assert len(bl.colors()) > 1
-        for c in range(len(bl.color_ptr) - 1):
-            seen = np.zeros(sh.n_nodes, int)
-            for b in range(bl.color_ptr[c], bl.color_ptr[c + 1]):
-                block = bl.order[bl.block_ptr[b]:bl.block_ptr[b + 1]]
-                assert 0 < len(block) <= size
-                seen[np.unique(sh.conn[block])] += 1
-            assert seen.max() == 1  # no node in two blocks of one colour
+    groups = greedy_colors(sh.conn, sh.n_nodes)
+    assert sorted(np.concatenate(groups).tolist()) == list(range(len(sh.conn)))
+    for g in groups:
+        nodes = sh.conn[g].ravel()
+        assert len(np.unique(nodes)) == len(nodes)

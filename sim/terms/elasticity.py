@@ -12,7 +12,7 @@ b = dN/dX Fp^{-1}.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange
 
 from sim.materials.isotropic import (
     NEO_HOOKEAN,
@@ -138,25 +138,27 @@ def _element(x, rest, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, wa
 
 @njit(cache=True, parallel=True)
 def elastic_kernel(x, rest, conn, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want,
-                   project, order, block_ptr, color_ptr, slots, grad, data):
+                   project, colors, color_ptr, slots, grad, data, n_chunks):
     """Total energy; adds the gradient into ``grad (n_nodes, 3)`` (want >= 1) and the Hessian
     into ``data`` through the packed upper-triangle ``slots (n_elem, k (k+1) / 2)``
-    (want == 2). Element blocks of one colour share no node (:class:`sim.assembly.Blocks`),
-    so they scatter in parallel without races. Returns inf on inversion."""
+    (want == 2). Elements of one colour share no node, so each colour is scattered in parallel
+    without races. Returns inf on inversion."""
     n_e, n_en = conn.shape
     k = 3 * n_en
     energies = np.zeros(n_e)
+    # ``n_chunks`` (a few per thread), each with its own scratch: numba's heap arrays, made
+    # per element, cost as much as a linear prism's arithmetic
     for c in range(len(color_ptr) - 1):
-        for blk in prange(color_ptr[c], color_ptr[c + 1]):
-            # scratch per block: numba's heap arrays, made per element, cost as much as a
-            # linear prism's arithmetic. g and Kp are handed back zeroed by their scatter.
+        lo, n = color_ptr[c], color_ptr[c + 1] - color_ptr[c]
+        for ch in prange(n_chunks):
+            # scratch per chunk; g and Kp are handed back zeroed by the scatter that drains them
             g = np.zeros(k)
             Kp = np.zeros(k * (k + 1) // 2 if want == 2 else 0)
             CB, C = np.empty((9, k)), np.empty((9, 9))
             G, P = np.empty((3, 3)), np.empty((3, 3))
             b, u, FiT = np.empty((n_en, 3)), np.empty((n_en, 3)), np.empty((3, 3))
-            for t in range(block_ptr[blk], block_ptr[blk + 1]):
-                e = order[t]
+            for t in range(lo + ch * n // n_chunks, lo + (ch + 1) * n // n_chunks):
+                e = colors[t]
                 E = _element(x, rest, conn[e], dNdX[e], wdetJ[e], model, params, fp_inv[e],
                              ep[e], plastic, want, project, g, Kp, CB, G, P, C, b, u, FiT)
                 energies[e] = E
@@ -258,7 +260,6 @@ class Elasticity(Term):
         self.dNdX, self.wdetJ = reference_gradients(shell.rest, shell.conn, dN, rule.weights)
         self.model, self.params = model, np.asarray(params, float)
         self.pattern, self.project = pattern, project
-        self._blocks = pattern.blocks
         n_e, n_q = self.wdetJ.shape
         self.plastic = plastic
         if plastic:
@@ -267,12 +268,14 @@ class Elasticity(Term):
         else:  # an elastic scene allocates no plastic state
             self.fp_inv = np.zeros((n_e, 0, 3, 3))
             self.ep = np.zeros((n_e, 0))
+        self._colors = np.concatenate(pattern.colors)
+        self._color_ptr = np.concatenate([[0], np.cumsum([len(c) for c in pattern.colors])])
 
     def _run(self, x, want, grad, data):
         return elastic_kernel(x, self.rest, self.conn, self.dNdX, self.wdetJ, self.model,
                               self.params, self.fp_inv, self.ep, self.plastic, want,
-                              self.project, self._blocks.order, self._blocks.block_ptr,
-                              self._blocks.color_ptr, self.pattern.elem_slots, grad, data)
+                              self.project, self._colors, self._color_ptr,
+                              self.pattern.elem_slots, grad, data, 4 * get_num_threads())
 
     def energy(self, x):
         return self._run(x, 0, np.zeros((0, 3)), np.zeros(0))
