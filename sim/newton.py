@@ -71,7 +71,7 @@ class Problem:
         self.fixed = fixed
         fdof = fixed.ravel()
         rows = np.repeat(np.arange(self.pattern.n_dof), np.diff(self.pattern.indptr))
-        self._zero = fdof[rows] | fdof[self.pattern.indices]
+        self._zero = np.flatnonzero(fdof[rows] | fdof[self.pattern.indices])
         self._diag = self.pattern.indptr[:-1][fdof]  # upper CSR: the diagonal comes first
 
     def energy(self, x: np.ndarray) -> float:
