@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: serve test bench lint clean venv
+.PHONY: serve test bench lint clean clean-cache venv
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/pip || $(MAKE) --no-print-directory venv
@@ -29,6 +29,10 @@ lint: $(STAMP)
 
 clean:
 	rm -rf $(VENV) runs
+
+# numba's compiled kernels (cache=True); a kernel's cache entry sees edits to its own file only
+clean-cache:
+	find sim server -name '*.nbi' -delete -o -name '*.nbc' -delete
 
 # Browser tests drive Debian's chromium through Playwright (never `playwright install`).
 .PHONY: browser-deps

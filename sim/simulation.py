@@ -160,15 +160,12 @@ class Simulation:
 
     def _penetration(self, x: np.ndarray) -> str:
         """The diagnostic when a tool penetrates the sheet beyond the bound, else ''."""
-        from sim.contact import penalty_contact
-
         bound = self.MAX_PENETRATION * float(np.mean(self.model.shell.thickness))
         active = set(map(id, self.model.problem.terms))
         for t in self.tools:
             if id(t) not in active:
                 continue
-            gap = penalty_contact(x[t.nodes], t.prog, t.R_now, t.translation(x), t.k,
-                                  t.delta)[4]
+            gap = t.gap(x)
             movable = ~self.model.problem.fixed[t.nodes].all(1)
             d = float(max(0.0, -gap[movable].min())) if movable.any() else 0.0
             if d > bound:
@@ -188,19 +185,21 @@ class Simulation:
             dt /= 2
         return dt
 
-    def _converged(self, res: NewtonResult) -> tuple[NewtonResult, int]:
-        """Accept a converged solve: settle friction's lagged normal force at it (re-solving
-        from there, sim.terms.contact), commit every term at the settled state. Returns the
-        solve the state comes from (the last re-solve, or ``res``) and the re-solves' Newton
-        iterations, which belong to the step."""
-        self.x, settled, extra = settle_friction(
+    def _settle(self, res: NewtonResult) -> tuple[np.ndarray, NewtonResult, int]:
+        """Settle friction's lagged normal force at a converged solve (re-solving from there,
+        sim.terms.contact). Returns the settled state, the solve it comes from (the last
+        re-solve, or ``res``) and the re-solves' Newton iterations, which belong to the step."""
+        x, settled, extra = settle_friction(
             self.model.problem, res.x, self.model.settings, max(self._force_level, res.ref),
             self.timing, self.model.driven)
+        return x, settled or res, extra
+
+    def _commit(self, x: np.ndarray, res: NewtonResult, final: NewtonResult) -> None:
+        """Accept the settled state: every term commits its state (plastic flow) there."""
+        self.x = x
         for term in self.model.terms:
-            term.commit(self.x)
-        final = settled or res
+            term.commit(x)
         self._force_level = max(self._force_level, res.ref, final.ref)
-        return final, extra
 
     def _release(self) -> StepRecord:
         """Springback: drop the loads and the released BCs, then solve static equilibrium
@@ -227,7 +226,15 @@ class Simulation:
                             "residuals": res.residuals}
             self.wall += time.perf_counter() - start
             raise SolverFailure(self.failure)
-        res, extra = self._converged(res)
+        x, final, extra = self._settle(res)
+        if deep := self._penetration(x):
+            self.failure = {"step": self.step_index + 1, "t": self.t, "cutbacks": 0,
+                            "reason": f"release: {deep}", "iterations": iterations + extra,
+                            "residuals": final.residuals}
+            self.wall += time.perf_counter() - start
+            raise SolverFailure(self.failure)
+        self._commit(x, res, final)
+        res = final
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iterations + extra, res.residuals[-1],
                          res.energy, 0, probes.evaluate(m, self.x, formed=self.formed),
@@ -257,8 +264,13 @@ class Simulation:
             res = self._attempt(self.t + dt, dt)
             self.timing.add(res.timing)
             iters += res.iterations
-            if res.converged and (deep := self._penetration(res.x)):
-                res.converged, res.reason = False, deep
+            if res.converged:
+                # the penetration bound is checked where the step ends: after friction's
+                # re-solves, which move the sheet along (and into) the tools
+                x, final, extra = self._settle(res)
+                iters += extra
+                if deep := self._penetration(x):
+                    res.converged, res.reason = False, deep
             if not res.converged:
                 # a load below the force round-off floor stays below it in any increment
                 hopeless = res.reason.startswith("load below force round-off floor")
@@ -272,8 +284,8 @@ class Simulation:
                 dt /= 2
                 continue
             before = self.x
-            res, extra = self._converged(res)
-            iters += extra
+            self._commit(x, res, final)
+            res = final
             # the predictor continues the settled increment, not the first solve's
             self._last_increment, self._last_dt = self.x - before, dt
             self.t += dt

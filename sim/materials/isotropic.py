@@ -258,10 +258,9 @@ def neo_hookean_h(H, mu, lam, want_tangent, P, C, FiT):
                         C[r, 3 * k + ll] = (lam * FiT[i, jj] * FiT[k, ll]
                                             - a * FiT[k, jj] * FiT[i, ll])
                 C[r, r] += mu
-    for i in range(3):  # P = mu F + a F^-T
+    for i in range(3):  # P = mu F + a F^-T, rounded as mu (H + I) + a F^-T
         for j in range(3):
-            P[i, j] = mu * H[i, j] + a * FiT[i, j]
-        P[i, i] += mu
+            P[i, j] = mu * (H[i, j] + (1.0 if i == j else 0.0)) + a * FiT[i, j]
     return W, a
 
 

@@ -30,7 +30,7 @@ import numpy as np
 from sim.assembly import scatter_node_blocks
 from sim.contact import friction, normal_forces, penalty_contact, tool_displacement
 from sim.terms import Term
-from sim.tools.sdf import rotation
+from sim.tools.sdf import rotation, sdf_world_distance
 
 EYE = np.eye(3)
 
@@ -224,12 +224,15 @@ class ToolContact(Term):
         self._add_hessian(x, data, Hp, Hf)
         return E
 
+    def gap(self, x) -> np.ndarray:
+        """Signed distance (m) of each candidate node to the tool surface, negative inside."""
+        return sdf_world_distance(self.prog, self.R_now, self.translation(x), x[self.nodes])
+
     def report(self, x) -> dict[str, float]:
         """Force the sheet exerts on the tool (N), nodes in contact, deepest penetration (m),
         the tool's position (x, y, z, m) and rotation vector (rx, ry, rz, rad)."""
         _, gp, _, gf, _ = self._eval(x)
-        gap = penalty_contact(x[self.nodes], self.prog, self.R_now, self.translation(x),
-                              self.k, self.delta)[4]
+        gap = self.gap(x)
         f = (gp + gf).sum(0)
         t = self.translation(x)
         return {"fx": float(f[0]), "fy": float(f[1]), "fz": float(f[2]),
