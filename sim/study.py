@@ -120,15 +120,16 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
 _WARM: set[str] = set()  # warm-ups done in this (worker) process
 
 
-def study_case(scene_path: str, overrides: dict, warmup: dict) -> dict:
+def study_case(scene_path: str, overrides: dict, warmup: dict,
+               budget: float | None = None) -> dict:
     """One timed case on a Dask worker: ``run_case`` with its series, after a warm-up run
     (``warmup`` overrides, once per worker process) that loads every kernel the element needs
-    from numba's cache."""
+    from numba's cache. ``budget``: the case's seconds (``run_case``), the warm-up's too."""
     key = json.dumps([scene_path, warmup], sort_keys=True, default=str)
     if key not in _WARM:
-        run_case(scene_path, warmup)
+        run_case(scene_path, warmup, budget=budget)
         _WARM.add(key)
-    return run_case(scene_path, overrides, series=True)
+    return run_case(scene_path, overrides, series=True, budget=budget)
 
 
 def measured(r: dict, m: dict):
@@ -190,25 +191,26 @@ def _finite(v: float) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _case(plan: Plan, element: str, edge: float) -> tuple:
+def _case(plan: Plan, element: str, edge: float, budget: float | None) -> tuple:
     o = {**plan.overrides, "shell.element": element, "mesh.edge_length": edge}
     warm = {**plan.overrides, "shell.element": element, "mesh.edge_length": plan.levels[0]}
-    return (study_case, plan.scene, o, warm)
+    return (study_case, plan.scene, o, warm, budget)
 
 
 def run_study(plan: Plan, progress=print, workers: int = 1, threads: int = 1,
               scheduler: str | None = None, timeout: float | None = None,
-              overhead: dict | None = None) -> dict:
+              overhead: dict | None = None, budget: float | None = None) -> dict:
     """The reference run (unless analytic), then every element at every level, on Dask; rows
     carry the relative error. ``overhead``: also ``terms_overhead(**overhead)`` as the last
-    task. Raises StudyError when the reference run fails."""
+    task. ``budget``: seconds per case (``run_case``; the reference run has none: the study
+    needs it). Raises StudyError when the reference run fails."""
     m = plan.measure
     calls, labels = [], []
     if plan.reference:
-        calls.append(_case(plan, *plan.reference))
+        calls.append(_case(plan, *plan.reference, None))
         labels.append({"overrides": calls[-1][2]})
     grid = [(el, edge) for el in plan.elements for edge in plan.levels]
-    calls += [_case(plan, el, edge) for el, edge in grid]
+    calls += [_case(plan, el, edge, budget) for el, edge in grid]
     labels += [{"overrides": c[2]} for c in calls[len(labels):]]
     if overhead is not None:
         calls.append((terms_overhead, plan.scene, overhead["overrides"], overhead["repeat"]))
@@ -326,8 +328,9 @@ def _inputs(args) -> tuple[str, Plan]:
     for name in ("workers", "threads"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name} must be at least 1")
-    if args.timeout is not None and args.timeout <= 0:
-        raise ValueError("--timeout must be positive (seconds)")
+    for name in ("timeout", "budget"):
+        if getattr(args, name) is not None and getattr(args, name) <= 0:
+            raise ValueError(f"--{name} must be positive (seconds)")
     if args.repeat is not None and args.repeat < 1:
         raise ValueError("--repeat must be at least 1")
     study = {k: v for k, v in (("probe", args.probe), ("measure", args.measure),
@@ -373,7 +376,7 @@ def run(args) -> int:
             "repeat": args.repeat or OVERHEAD_REPEAT}
         try:
             study = run_study(plan, lambda s: print(s, file=sys.stderr, flush=True),
-                              overhead=overhead, **kw)
+                              overhead=overhead, budget=args.budget, **kw)
         except StudyError as exc:
             print(f"q3t study: {exc}", file=sys.stderr)
             return 1
@@ -413,5 +416,8 @@ def add_parser(sub) -> None:
     s.add_argument("--scheduler", help="address of an existing Dask scheduler")
     s.add_argument("--timeout", type=float, default=None,
                    help="seconds for the whole study; unfinished cases are marked timeout")
+    s.add_argument("--budget", type=float, default=None,
+                   help="seconds per case (not the reference run), checked after each step: "
+                        "a case over it stops there, marked timeout, and the study goes on")
     s.add_argument("--out", help="output folder (default runs/study-<scene>)")
     s.set_defaults(func=run)

@@ -36,16 +36,19 @@ def worker_env(threads: int = 1) -> dict[str, str]:
     return {k: str(threads) for k in WORKER_ENV}
 
 
-def run_case(scene_path: str, overrides: dict, series: bool = False, measure=None) -> dict:
+def run_case(scene_path: str, overrides: dict, series: bool = False, measure=None,
+             budget: float | None = None) -> dict:
     """Run one scene with ``overrides``; a summary that pickles small (no arrays).
 
     status: ``converged``, ``failed`` (solver diagnostic in ``reason``), ``invalid`` (the scene
-    was rejected, message in ``reason``) or ``nan`` (converged with a non-finite probe).
+    was rejected, message in ``reason``), ``nan`` (converged with a non-finite probe) or
+    ``timeout`` (``budget`` seconds of building and stepping spent before the last step: the
+    run stops after the step that used it up, so a single step is never cut short).
     ``series``: also every step's time and probes (``history``) and the recorded sections.
     ``measure(sim) -> dict``, when given, adds its numbers as ``measured`` after the run.
     """
     from sim.scene import load_scene
-    from sim.simulation import Simulation
+    from sim.simulation import Simulation, SolverFailure
 
     out = {"overrides": dict(overrides), "status": "invalid", "converged": False,
            "reason": None, "probes": {}, "wall": 0.0, "build": 0.0, "dofs": None,
@@ -57,7 +60,22 @@ def run_case(scene_path: str, overrides: dict, series: bool = False, measure=Non
         out["reason"] = str(exc)
         return out
     out["build"] = time.perf_counter() - t0
-    ok = sim.run()
+    over = None
+    if budget is None:
+        ok = sim.run()
+    else:
+        ok = True
+        while not sim.done:
+            try:
+                sim.step()
+            except SolverFailure:
+                ok = False
+                break
+            spent = time.perf_counter() - t0
+            if spent > budget and not sim.done:
+                over = (f"over its budget of {budget:g} s after step {sim.step_index} of "
+                        f"{sim.n_steps} ({spent:.1f} s)")
+                break
     res = sim.result()
     out.update(converged=ok, wall=sim.wall, dofs=res["counts"]["dofs"],
                elements=res["counts"]["elements"], iterations=res["timing"]["newton_iterations"],
@@ -73,7 +91,9 @@ def run_case(scene_path: str, overrides: dict, series: bool = False, measure=Non
         out["residual"] = float(sim.records[-1].residual)
     if measure is not None:
         out["measured"] = measure(sim)
-    if not ok:
+    if over is not None:
+        out.update(status="timeout", converged=False, reason=over)
+    elif not ok:
         f = sim.failure
         out.update(status="failed", reason=f["reason"], cutbacks=out["cutbacks"] + f["cutbacks"],
                    residual=float(f["residuals"][-1]) if f["residuals"] else None)

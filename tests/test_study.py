@@ -150,6 +150,29 @@ def test_study_command_line_and_its_exit_codes(tmp_path, capsys):
     assert "Traceback" not in err and not (tmp_path / "bad" / "report.json").exists()
 
 
+def test_a_case_over_its_budget_stops_after_a_step_and_the_study_goes_on(tmp_path):
+    """--budget: a case that has spent its seconds stops after the step that used them up,
+    marked timeout with where it stood; the others and the report go on."""
+    from sim.sweep import run_case
+
+    # a budget of 1 ns is spent before the first step ends: the case stops after it
+    r = run_case(CONVERGENCE, {"mesh.edge_length": 0.07, "stepping.steps": 3}, budget=1e-9)
+    assert r["status"] == "timeout" and not r["converged"]
+    assert r["reason"].startswith("over its budget of 1e-09 s after step 1 of 3")
+    assert r["probes"] and r["iterations"] > 0  # what the finished step gave
+    # the last step is never cut: a run done within its steps converges whatever the budget
+    r = run_case(CONVERGENCE, {"mesh.edge_length": 0.07, "stepping.steps": 1}, budget=1e-9)
+    assert r["status"] == "converged"
+    rc = main(["study", "convergence", "--elements", "q3t", "--levels", "0.07",
+               "--reference", "quadratic:0.07", "--set", "stepping.steps=2", "--budget",
+               "1e-9", "--no-overhead", "--out", str(tmp_path)])
+    assert rc == 0
+    rows = json.loads((tmp_path / "report.json").read_text())["study"]["rows"]
+    assert rows[0]["status"] == "timeout" and rows[0]["error"] is None
+    assert "over its budget" in rows[0]["reason"]
+    assert main(["study", "convergence", "--budget", "0"]) == 2
+
+
 def test_factorisation_mode_times_each_element(tmp_path):
     rows = factorisation_times(CONVERGENCE, ["linear", "q3t"], [0.07], repeat=10)
     lin, q3t = rows
