@@ -209,8 +209,11 @@ class Simulation:
         self.formed = probes.mid_surface(m, self.x)  # the shape in the closed tools
         m.problem.set_fixed((m.fixed & ~m.released) | m.release_support)
         released = {t.name for t in m.scene.tools if t.release}
+        # springback is a static equilibrium: a dynamic run's inertia goes too (kept, the
+        # release would be one more time step of a sheet still moving)
         m.problem.terms = [t for t in m.terms
-                           if not (isinstance(t, ToolContact) and t.tool in released)]
+                           if not (isinstance(t, ToolContact) and t.tool in released)
+                           and t is not m.inertia]
         for tool in self.tools:  # the tools that stay hold their last position
             tool.moving = False
         for term in m.terms:
