@@ -15,7 +15,7 @@ import numpy as np
 
 from sim import probes
 from sim.display import DisplayMesh
-from sim.model import Model, build_model
+from sim.model import Model, build_model, frame_fields
 from sim.newton import NewtonResult, Timing, minimise
 from sim.scene import Scene
 from sim.terms.contact import ToolContact, settle_friction
@@ -334,16 +334,17 @@ class Simulation:
         return {t.tool: quaternion_wxyz(t.R_now) for t in self.tools}
 
     def frame(self) -> Frame:
-        h = probes.thickness(self.model, self.x)
+        """The viewer's frame: positions and the fields ``model.frame_fields`` names (the one
+        list of them: the recording's channels and ``built`` read it too)."""
+        m, x = self.model, self.x
         rec = self.records[-1] if self.records else None
-        fields = {"thickness_mm": self.display.per_vertex(1e3 * h),
-                  "thinning_pct": self.display.per_vertex(100 * (1 - h / self.h0))}
-        el = self.model.elasticity
-        fields["von_mises_MPa"] = self.display.per_vertex(
-            1e-6 * probes.vertex_average(self.model, el.von_mises(self.x)))
-        if el.plastic:  # an elastic scene has no plastic strain to show
-            fields["eq_plastic_strain"] = self.display.per_vertex(
-                probes.vertex_average(self.model, el.ep))
+        h = probes.thickness(m, x)
+        field_of = {"thickness_mm": lambda: 1e3 * h,
+                    "thinning_pct": lambda: 100 * (1 - h / self.h0),
+                    "von_mises_MPa": lambda: 1e-6 * probes.vertex_average(
+                        m, m.elasticity.von_mises(x)),
+                    "eq_plastic_strain": lambda: probes.vertex_average(m, m.elasticity.ep)}
+        fields = {name: self.display.per_vertex(field_of[name]()) for name in frame_fields(m)}
         return Frame(self.step_index, self.t, self.display.positions(self.x), fields,
                      rec.probes if rec else {}, rec.iterations if rec else 0,
                      rec.residual if rec else 0.0)
