@@ -28,10 +28,12 @@ lint: $(STAMP)
 	$(BIN)/ruff check sim server tests
 
 clean:
-	rm -rf $(VENV) runs
+	rm -rf $(VENV) runs .numba-cache
 
-# numba's compiled kernels (cache=True); a kernel's cache entry sees edits to its own file only
+# numba's compiled kernels (cache=True): sim/__init__.py keys the folder on a hash of sim's
+# sources, so this is only needed to measure a cold start by hand
 clean-cache:
+	rm -rf .numba-cache
 	find sim server -name '*.nbi' -delete -o -name '*.nbc' -delete
 
 # Browser tests drive Debian's chromium through Playwright (never `playwright install`).

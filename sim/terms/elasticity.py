@@ -59,8 +59,8 @@ def _element(x, rest, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, wa
     Inlined into the kernel (as are the helpers it calls per quadrature point): a call passes
     each array as a reference-counted struct, and those calls took 55 % of the Q3T beam's
     gradient and 30 % of its Hessian evaluation. numba's cache keys a kernel on its own file
-    only: after editing an inlined helper in another module (sim.materials.isotropic), clear
-    the cache (``make clean-cache``) or the kernel keeps the old helper.
+    only; sim/__init__.py therefore keys the cache folder on all of sim's sources, so an edit
+    of an inlined helper in another module (sim.materials.isotropic) recompiles this kernel.
     """
     n_en = nodes.shape[0]
     k = 3 * n_en
