@@ -42,6 +42,9 @@ class StepRecord:
     probes: dict[str, float]
     # per tool: force the sheet exerts on it (N), nodes in contact, deepest penetration (m), z
     tools: dict[str, dict] = field(default_factory=dict)
+    # friction: how far from settled the lagged normal forces are at the state (largest change,
+    # relative to the largest force; settled at <= 1e-3, sim.terms.contact.settle_friction)
+    friction_change: float = 0.0
 
 
 @dataclass
@@ -87,6 +90,7 @@ class Simulation:
         # prescribed motion drives the run) met at a converged state; the floor of Newton's
         # reference in later steps (a slow sub-step's own forces can be tiny)
         self._force_level = 0.0
+        self._friction_change = 0.0
         self._sections = {sp.name: probes.section_vertices(self.model, sp)
                           for sp in self.model.scene.sections}
         self.sections: dict[str, list[dict]] = {name: [] for name in self._sections}
@@ -188,8 +192,9 @@ class Simulation:
     def _settle(self, res: NewtonResult) -> tuple[np.ndarray, NewtonResult, int]:
         """Settle friction's lagged normal force at a converged solve (re-solving from there,
         sim.terms.contact). Returns the settled state, the solve it comes from (the last
-        re-solve, or ``res``) and the re-solves' Newton iterations, which belong to the step."""
-        x, settled, extra = settle_friction(
+        re-solve, or ``res``) and the re-solves' Newton iterations, which belong to the step;
+        keeps how far from settled it is for the step record."""
+        x, settled, extra, self._friction_change = settle_friction(
             self.model.problem, res.x, self.model.settings, max(self._force_level, res.ref),
             self.timing, self.model.driven)
         return x, settled or res, extra
@@ -241,7 +246,7 @@ class Simulation:
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iterations + extra, res.residuals[-1],
                          res.energy, 0, probes.evaluate(m, self.x, formed=self.formed),
-                         self._tool_reports())
+                         self._tool_reports(), self._friction_change)
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start
@@ -295,7 +300,8 @@ class Simulation:
             dt = min(2 * dt, nominal)  # grow back after a successful sub-step
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iters, res.residuals[-1], res.energy, cutbacks,
-                         probes.evaluate(self.model, self.x), self._tool_reports())
+                         probes.evaluate(self.model, self.x), self._tool_reports(),
+                         self._friction_change)
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start

@@ -80,6 +80,13 @@ def test_dragged_sheet_needs_mu_times_the_normal_force():
     # is exact; settle_friction's fixed point stops at a 1e-3 change of the normal force,
     # here the first re-solve already reproduces it (friction leaves the normal force alone)
     np.testing.assert_allclose(fx, -mu * fz, rtol=1e-6)
+    # how settled each step's friction is, in its record and result.json: the fixed point's
+    # last change of the normal forces (settled at 1e-3; a capped one says how far off)
+    change = [r.friction_change for r in sim.records]
+    assert all(0.0 <= c < 1e-2 for c in change)
+    assert [s["friction_change"] for s in sim.result()["steps"]] == change
+    frictionless = sheet_on_ground(0.0, 0.0)
+    assert frictionless.run() and all(r.friction_change == 0.0 for r in frictionless.records)
 
 
 def test_sheet_sticks_below_mu_times_the_normal_force():

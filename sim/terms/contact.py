@@ -148,12 +148,18 @@ class ToolContact(Term):
     def relag(self, x) -> float:
         """Take the normal forces of state x as the lagged ones; returns their largest change
         relative to the largest normal force (0 without friction)."""
+        return self.lag_change(x, take=True)
+
+    def lag_change(self, x, take: bool = False) -> float:
+        """Largest change of the normal forces at state x from the lagged ones, relative to the
+        largest (0 without friction); ``take``: they become the lagged ones."""
         if self.mu == 0:
             return 0.0
         lam, nrm = normal_forces(x[self.nodes], self.prog, self.R_now, self.translation(x),
                                  self.k, self.delta)
         old = self._lagged[5] if self._lagged is not None else np.zeros_like(lam)
-        self._lag(lam, nrm)
+        if take:
+            self._lag(lam, nrm)
         top = float(lam.max()) if lam.size else 0.0
         return float(np.abs(lam - old).max()) / top if top > 0 else 0.0
 
@@ -256,15 +262,19 @@ def settle_friction(problem, x, settings, force_level, timing, reactions=False, 
     change by at most ``tol`` of the largest one (usually once or twice), so a sliding node's
     drag is mu times its own converged normal force. A re-solve that fails keeps the last
     converged state and its lag. Returns the state, the last converged re-solve's
-    NewtonResult (None when none ran) and the Newton iterations of all re-solves."""
+    NewtonResult (None when none ran), the Newton iterations of all re-solves, and how far
+    from settled the state is: the largest change of its normal forces from the lagged ones,
+    relative to the largest (at most ``tol`` when settled; more after ``max_solves`` re-solves
+    or a failed one, which the step record then shows)."""
     from sim.newton import minimise
 
     tools = [t for t in problem.terms if isinstance(t, ToolContact) and t.mu > 0]
     last, iterations = None, 0
     for _ in range(max_solves):
         saved = [t._lagged for t in tools]
-        if max((t.relag(x) for t in tools), default=0.0) <= tol:
-            break
+        change = max((t.relag(x) for t in tools), default=0.0)
+        if change <= tol:
+            return x, last, iterations, change
         res = minimise(problem, x, settings, force_level, reactions)
         timing.add(res.timing)
         iterations += res.iterations
@@ -273,4 +283,4 @@ def settle_friction(problem, x, settings, force_level, timing, reactions=False, 
                 t._lagged = lag
             break
         x, last = res.x, res
-    return x, last, iterations
+    return x, last, iterations, max((t.lag_change(x) for t in tools), default=0.0)
