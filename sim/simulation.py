@@ -90,7 +90,6 @@ class Simulation:
         # prescribed motion drives the run) met at a converged state; the floor of Newton's
         # reference in later steps (a slow sub-step's own forces can be tiny)
         self._force_level = 0.0
-        self._friction_change = 0.0
         self._sections = {sp.name: probes.section_vertices(self.model, sp)
                           for sp in self.model.scene.sections}
         self.sections: dict[str, list[dict]] = {name: [] for name in self._sections}
@@ -189,15 +188,15 @@ class Simulation:
             dt /= 2
         return dt
 
-    def _settle(self, res: NewtonResult) -> tuple[np.ndarray, NewtonResult, int]:
+    def _settle(self, res: NewtonResult) -> tuple[np.ndarray, NewtonResult, int, float]:
         """Settle friction's lagged normal force at a converged solve (re-solving from there,
         sim.terms.contact). Returns the settled state, the solve it comes from (the last
-        re-solve, or ``res``) and the re-solves' Newton iterations, which belong to the step;
-        keeps how far from settled it is for the step record."""
-        x, settled, extra, self._friction_change = settle_friction(
+        re-solve, or ``res``), the re-solves' Newton iterations, which belong to the step, and
+        how far from settled the state is (for the step record)."""
+        x, settled, extra, change = settle_friction(
             self.model.problem, res.x, self.model.settings, max(self._force_level, res.ref),
             self.timing, self.model.driven)
-        return x, settled or res, extra
+        return x, settled or res, extra, change
 
     def _commit(self, x: np.ndarray, res: NewtonResult, final: NewtonResult) -> None:
         """Accept the settled state: every term commits its state (plastic flow) there."""
@@ -234,7 +233,7 @@ class Simulation:
                             "residuals": res.residuals}
             self.wall += time.perf_counter() - start
             raise SolverFailure(self.failure)
-        x, final, extra = self._settle(res)
+        x, final, extra, change = self._settle(res)
         if deep := self._penetration(x):
             self.failure = {"step": self.step_index + 1, "t": self.t, "cutbacks": 0,
                             "reason": f"release: {deep}", "iterations": iterations + extra,
@@ -246,7 +245,7 @@ class Simulation:
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iterations + extra, res.residuals[-1],
                          res.energy, 0, probes.evaluate(m, self.x, formed=self.formed),
-                         self._tool_reports(), self._friction_change)
+                         self._tool_reports(), change)
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start
@@ -275,7 +274,7 @@ class Simulation:
             if res.converged:
                 # the penetration bound is checked where the step ends: after friction's
                 # re-solves, which move the sheet along (and into) the tools
-                x, final, extra = self._settle(res)
+                x, final, extra, change = self._settle(res)
                 iters += extra
                 if deep := self._penetration(x):
                     res.converged, res.reason = False, deep
@@ -300,8 +299,7 @@ class Simulation:
             dt = min(2 * dt, nominal)  # grow back after a successful sub-step
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iters, res.residuals[-1], res.energy, cutbacks,
-                         probes.evaluate(self.model, self.x), self._tool_reports(),
-                         self._friction_change)
+                         probes.evaluate(self.model, self.x), self._tool_reports(), change)
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start

@@ -36,6 +36,10 @@ def worker_env(threads: int = 1) -> dict[str, str]:
     return {k: str(threads) for k in WORKER_ENV}
 
 
+class _OverBudget(Exception):
+    """A case that spent its budget (``run_case``), raised between two steps."""
+
+
 def run_case(scene_path: str, overrides: dict, series: bool = False, measure=None,
              budget: float | None = None) -> dict:
     """Run one scene with ``overrides``; a summary that pickles small (no arrays).
@@ -48,7 +52,7 @@ def run_case(scene_path: str, overrides: dict, series: bool = False, measure=Non
     ``measure(sim) -> dict``, when given, adds its numbers as ``measured`` after the run.
     """
     from sim.scene import load_scene
-    from sim.simulation import Simulation, SolverFailure
+    from sim.simulation import Simulation
 
     out = {"overrides": dict(overrides), "status": "invalid", "converged": False,
            "reason": None, "probes": {}, "wall": 0.0, "build": 0.0, "dofs": None,
@@ -60,22 +64,17 @@ def run_case(scene_path: str, overrides: dict, series: bool = False, measure=Non
         out["reason"] = str(exc)
         return out
     out["build"] = time.perf_counter() - t0
+    def check_budget(sim, rec):
+        spent = time.perf_counter() - t0
+        if spent > budget and not sim.done:
+            raise _OverBudget(f"over its budget of {budget:g} s after step {sim.step_index} "
+                              f"of {sim.n_steps} ({spent:.1f} s)")
+
     over = None
-    if budget is None:
-        ok = sim.run()
-    else:
-        ok = True
-        while not sim.done:
-            try:
-                sim.step()
-            except SolverFailure:
-                ok = False
-                break
-            spent = time.perf_counter() - t0
-            if spent > budget and not sim.done:
-                over = (f"over its budget of {budget:g} s after step {sim.step_index} of "
-                        f"{sim.n_steps} ({spent:.1f} s)")
-                break
+    try:
+        ok = sim.run(progress=None if budget is None else check_budget)
+    except _OverBudget as exc:
+        ok, over = False, str(exc)
     res = sim.result()
     out.update(converged=ok, wall=sim.wall, dofs=res["counts"]["dofs"],
                elements=res["counts"]["elements"], iterations=res["timing"]["newton_iterations"],

@@ -528,6 +528,19 @@ def test_a_recording_error_in_the_solver_fails_the_run(tmp_path, monkeypatch):
         (tmp_path / run).mkdir()
     solver.handle({"id": 1, "cmd": "start", "run": "r1", "out": str(tmp_path / "r1"),
                    "scene_toml": tiny_toml(steps=5), "overrides": {"shell.element": "linear"}})
+    states = _step_to_end(solver, events)
+    assert states[-1][0] == "failed", states
+    assert "No space left on device" in states[-1][1] and "recording" in states[-1][1]
+    assert (tmp_path / "r1" / "result.json").is_file()  # the results are still written
+    monkeypatch.undo()
+    solver.handle({"id": 2, "cmd": "start", "run": "r2", "out": str(tmp_path / "r2"),
+                   "scene_toml": tiny_toml(steps=2), "overrides": {"shell.element": "linear"}})
+    states = _step_to_end(solver, events)
+    assert states[-1][0] == "finished", states
+
+
+def _step_to_end(solver, events) -> list[tuple[str, str | None]]:
+    """Step the in-process solver until its run ends; the (state, reason) events it sent."""
     while solver.stepping:
         solver.step()
     states = []
@@ -535,20 +548,7 @@ def test_a_recording_error_in_the_solver_fails_the_run(tmp_path, monkeypatch):
         ev = events.get()
         if ev["kind"] == "state":
             states.append((ev["state"], ev.get("reason")))
-    assert states[-1][0] == "failed", states
-    assert "No space left on device" in states[-1][1] and "recording" in states[-1][1]
-    assert (tmp_path / "r1" / "result.json").is_file()  # the results are still written
-    monkeypatch.undo()
-    solver.handle({"id": 2, "cmd": "start", "run": "r2", "out": str(tmp_path / "r2"),
-                   "scene_toml": tiny_toml(steps=2), "overrides": {"shell.element": "linear"}})
-    while solver.stepping:
-        solver.step()
-    kinds = []
-    while not events.empty():
-        ev = events.get()
-        if ev["kind"] == "state":
-            kinds.append(ev["state"])
-    assert kinds[-1] == "finished", kinds
+    return states
 
 
 def sleepy_worker(commands, events, frames, record_every, step_delay):

@@ -197,10 +197,9 @@ def _y_minus_log1p(y):
 
 @njit(cache=True, inline='always')
 def neo_hookean_h(H, mu, lam, want_tangent, P, C, FiT):
-    """Neo-Hookean (W, lam ln J - mu), P and dP/dF at F = I + H from the displacement gradient H
-    (no SVD, about 5x cheaper), and F^-T into ``FiT (3, 3)``: the exact tangent only, since its
-    PSD projection needs the principal frame. From F^-T and the coefficient, the element kernel
-    forms the Hessian without C (:func:`sim.terms.elasticity._element`).
+    """Neo-Hookean W, P and dP/dF at F = I + H from the displacement gradient H (no SVD, about
+    5x cheaper): the exact tangent only, since its PSD projection needs the principal frame.
+    ``FiT (3, 3)`` is scratch (it receives F^-T), so that no array is made per call.
 
     The energy goes through E = F^T F - I = H + H^T + H^T H and J - 1 = tr H + c2(H) + det H
     (c2: the sum of the principal 2x2 minors), both formed from H so a strain keeps its relative
@@ -219,7 +218,7 @@ def neo_hookean_h(H, mu, lam, want_tangent, P, C, FiT):
         for i in range(3):  # loops: inlined into prange bodies, where P[:] = 0 is a parfor
             for j in range(3):
                 P[i, j] = 0.0
-        return np.inf, 0.0
+        return np.inf
     # no temporaries: one evaluation runs per quadrature point, and numba's heap arrays cost
     # as much as this arithmetic (with the element's own, 30 % of the Q3T beam's energy and
     # gradient on one thread: 3.55 ms, 2.52 without)
@@ -262,7 +261,7 @@ def neo_hookean_h(H, mu, lam, want_tangent, P, C, FiT):
     for i in range(3):  # P = mu F + a F^-T, rounded as mu (H + I) + a F^-T
         for j in range(3):
             P[i, j] = mu * (H[i, j] + (1.0 if i == j else 0.0)) + a * FiT[i, j]
-    return W, a
+    return W
 
 
 @njit(cache=True)
@@ -294,8 +293,8 @@ def stress_tangent_h(model, H, params, ep_n, want_tangent, project, P, C):
     come from the closed form in H (so an energy or a gradient does not depend on whether the
     Hessian is projected); only a projected tangent goes through the principal frame."""
     if model == NEO_HOOKEAN:
-        W, _ = neo_hookean_h(H, params[0], params[1], want_tangent and not project, P, C,
-                              np.empty((3, 3)))
+        W = neo_hookean_h(H, params[0], params[1], want_tangent and not project, P, C,
+                          np.empty((3, 3)))
         if want_tangent and project and np.isfinite(W):
             F = H.copy()
             for i in range(3):

@@ -89,7 +89,7 @@ def _element(x, rest, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, wa
                 for J in range(3):
                     G[i, J] += fp_inv[q, i, J] - (1.0 if i == J else 0.0)
         if closed:
-            W, _ = neo_hookean_h(G, mu, lam, want == 2, P, C, FiT)
+            W = neo_hookean_h(G, mu, lam, want == 2, P, C, FiT)
         else:
             W = stress_tangent_h(model, G, params, ep[q] if plastic else 0.0, want == 2,
                                  want == 2 and project == PROJECT_QP, P, C)
