@@ -238,13 +238,19 @@ def test_spurious_zero_energy_modes(name, rule, shape):
 
 
 @pytest.mark.parametrize("name", ["linear", "q3t", "quadratic"])
-def test_scatter_colours_partition_elements_without_shared_nodes(name):
-    """The parallel scatter is race-free only if no two elements of a colour share a node."""
-    from sim.assembly import greedy_colors
+def test_scatter_schedule_blocks_of_a_colour_share_no_node(name):
+    """The parallel scatter is race-free only if no two blocks of a colour share a node; every
+    element is scattered once; and the blocks are patches (each touches few others), or the
+    schedule has lost the locality it exists for."""
+    from sim.assembly import scatter_schedule
 
-    sh = shell.extrude(mesh.annulus(0.0, 0.03, 0.004), 0.001, ELEMENTS[name])
-    groups = greedy_colors(sh.conn, sh.n_nodes)
-    assert sorted(np.concatenate(groups).tolist()) == list(range(len(sh.conn)))
-    for g in groups:
-        nodes = sh.conn[g].ravel()
-        assert len(np.unique(nodes)) == len(nodes)
+    sh = shell.extrude(mesh.annulus(0.0, 0.03, 0.002), 0.001, ELEMENTS[name])
+    sc = scatter_schedule(sh.conn, sh.n_nodes, block=16)
+    assert sorted(sc.order.tolist()) == list(range(len(sh.conn)))
+    n_colors = len(sc.color_ptr) - 1
+    assert 2 <= n_colors <= 8  # a patch meets the patches around it, not the whole mesh
+    for c in range(n_colors):
+        owner = {}
+        for b, elems in enumerate(sc.blocks(c)):
+            for n in np.unique(sh.conn[elems]):
+                assert owner.setdefault(n, b) == b

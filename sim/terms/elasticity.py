@@ -12,7 +12,7 @@ b = dN/dX Fp^{-1}.
 from __future__ import annotations
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import njit, prange
 
 from sim.materials.isotropic import (
     NEO_HOOKEAN,
@@ -205,28 +205,26 @@ def packed_positions(n_en: int) -> np.ndarray:
 
 @njit(cache=True, parallel=True)
 def elastic_kernel(x, rest, conn, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want,
-                   project, colors, color_ptr, slots, pos, grad, data, n_chunks):
+                   project, order, block_ptr, color_ptr, slots, pos, grad, data):
     """Total energy; adds the gradient into ``grad (n_nodes, 3)`` (want >= 1) and the Hessian
     into ``data`` through the packed upper-triangle ``slots (n_elem, k (k+1) / 2)``
-    (want == 2). Elements of one colour share no node, so each colour is scattered in parallel
-    without races. Returns inf on inversion."""
+    (want == 2). Blocks of one colour share no node (:class:`sim.assembly.Schedule`), so each
+    colour runs a block per thread without races. Returns inf on inversion."""
     n_e, n_en = conn.shape
     k = 3 * n_en
     energies = np.zeros(n_e)
-    # ``n_chunks`` (a few per thread), each with its own scratch: numba's heap arrays, made
-    # per element, cost as much as a linear prism's arithmetic
     for c in range(len(color_ptr) - 1):
-        lo, n = color_ptr[c], color_ptr[c + 1] - color_ptr[c]
-        for ch in prange(n_chunks):
-            # scratch per chunk; g is handed back zeroed by the scatter that drains it
+        for blk in prange(color_ptr[c], color_ptr[c + 1]):
+            # scratch per block (numba's heap arrays, made per element, cost as much as a
+            # linear prism's arithmetic); g is handed back zeroed by the scatter that drains it
             g = np.zeros(k)
             Kp = np.empty(k * (k + 1) // 2 if want == 2 else 0)
             Kf = np.empty(k * k if want == 2 else 0)
             CB, C = np.empty((3, 9, k)), np.empty((9, 9))
             G, P = np.empty((3, 3)), np.empty((3, 3))
             bT, u, FiT = np.empty((3, 3, n_en)), np.empty((n_en, 3)), np.empty((3, 3))
-            for t in range(lo + ch * n // n_chunks, lo + (ch + 1) * n // n_chunks):
-                e = colors[t]
+            for t in range(block_ptr[blk], block_ptr[blk + 1]):
+                e = order[t]
                 E = _element(x, rest, conn[e], dNdX[e], wdetJ[e], model, params, fp_inv[e],
                              ep[e], plastic, want, project, g, Kp, Kf, pos, CB, G, P, C, bT, u,
                              FiT)
@@ -238,12 +236,11 @@ def elastic_kernel(x, rest, conn, dNdX, wdetJ, model, params, fp_inv, ep, plasti
                             if ok:
                                 grad[conn[e, a], i] += g[3 * a + i]
                             g[3 * a + i] = 0.0
-                if want == 2:
+                if want == 2 and ok:
                     s = slots[e]
-                    if ok:
-                        for p in range(Kp.shape[0]):
-                            # slots are >= 0: unsigned, numba skips the wraparound test
-                            data[np.uint64(s[p])] += Kp[p]
+                    for p in range(Kp.shape[0]):
+                        # slots are >= 0: unsigned, numba skips the wraparound test
+                        data[np.uint64(s[p])] += Kp[p]
     return energies.sum()
 
 
@@ -338,15 +335,13 @@ class Elasticity(Term):
             self.fp_inv = np.zeros((n_e, 0, 3, 3))
             self.ep = np.zeros((n_e, 0))
         self._pos = packed_positions(self.conn.shape[1])
-        self._colors = np.concatenate(pattern.colors)
-        self._color_ptr = np.concatenate([[0], np.cumsum([len(c) for c in pattern.colors])])
 
     def _run(self, x, want, grad, data):
+        sc = self.pattern.schedule
         return elastic_kernel(x, self.rest, self.conn, self.dNdX, self.wdetJ, self.model,
                               self.params, self.fp_inv, self.ep, self.plastic, want,
-                              self.project, self._colors, self._color_ptr,
-                              self.pattern.elem_slots, self._pos, grad, data,
-                              4 * get_num_threads())
+                              self.project, sc.order, sc.block_ptr, sc.color_ptr,
+                              self.pattern.elem_slots, self._pos, grad, data)
 
     def energy(self, x):
         return self._run(x, 0, np.zeros((0, 3)), np.zeros(0))
