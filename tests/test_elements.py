@@ -164,6 +164,15 @@ def _fan(n: int) -> mesh.TriMesh:
     return _tri(V, [(0, 1 + i, 1 + (i + 1) % n) for i in range(n)])
 
 
+def _hang(p0, p1, new) -> mesh.TriMesh:
+    g = mesh.rectangle((2 * L, 2 * L), L)
+    V = g.vertices[:, :2]
+    near = [int(np.argmin(np.linalg.norm(V - p, axis=1))) for p in (p0, p1) if p is not None]
+    ids = list(range(len(V), len(V) + len(new)))
+    tri = [near[0], ids[0], near[1]] if len(near) == 2 else [near[0], ids[0], ids[1]]
+    return _tri(np.vstack([V, new]), np.vstack([g.faces, [tri]]))
+
+
 RANK_MESHES = {
     "single": lambda: _tri([(0, 0), (L, 0), (0, L)], [(0, 1, 2)]),
     "two": lambda: mesh.rectangle((L, L), L),
@@ -175,20 +184,26 @@ RANK_MESHES = {
     "grid4": lambda: mesh.rectangle((4 * L, 4 * L), L),
     "disk": lambda: mesh.annulus(0.0, 2 * L, L),
     "clamped": lambda: mesh.rectangle((4 * L, 4 * L), L),
+    # a 2 x 2 grid with one more triangle on its edge x = 2L, attached by that edge only ...
+    "edge_hang": lambda: _hang((2 * L, 0), (2 * L, L), [(3 * L, 0.5 * L)]),
+    # ... or by its vertex (2L, 2L) only (a bowtie): a real mechanism, the triangle turning
+    # about the vertex's line of nodes, so one zero mode under every rule
+    "vertex_hang": lambda: _hang((2 * L, 2 * L), None, [(3 * L, 2 * L), (2 * L, 3 * L)]),
 }
-# Spurious zero-energy modes (beyond the 6 rigid ones; none may remain when clamped), measured
-# 2026-12-01 and stated in the README ('Quadrature and spurious modes'): per (element, rule),
-# the meshes that have any (all others: 0). First the paper's default rule, then the
-# alternative without modes (quartic: a lower rule, to show that one is not free of them).
+# Zero-energy modes (beyond the 6 rigid ones; none may remain when clamped; all spurious but
+# vertex_hang's first), measured 2026-12-01 and stated in the README ('Quadrature and spurious
+# modes'): per (element, rule), the meshes that have any (all others: 0). First the paper's
+# default rule, then the alternative without modes (quartic: a lower rule, to show that one
+# is not free of them).
 RANK_RULES = {
-    ("linear", (1, 2)): {"single": 1},
-    ("linear", (3, 2)): {},
-    ("q3t", (1, 3)): {"single": 4, "two": 1},
-    ("q3t", (3, 3)): {},
-    ("quadratic", (7, 3)): {},
-    ("quadratic", (3, 3)): {},
-    ("quartic", (25, 5)): {},
-    ("quartic", (16, 4)): {"single": 8, "two": 6, "fan3": 6, "fan6": 6},
+    ("linear", (1, 2)): {"single": 1, "vertex_hang": 2},
+    ("linear", (3, 2)): {"vertex_hang": 1},
+    ("q3t", (1, 3)): {"single": 4, "two": 1, "vertex_hang": 3},
+    ("q3t", (3, 3)): {"vertex_hang": 1},
+    ("quadratic", (7, 3)): {"vertex_hang": 1},
+    ("quadratic", (3, 3)): {"vertex_hang": 1},
+    ("quartic", (25, 5)): {"vertex_hang": 1},
+    ("quartic", (16, 4)): {"single": 8, "two": 6, "fan3": 6, "fan6": 6, "vertex_hang": 5},
 }
 # quartic grids of 32+ elements take 20-100 s per dense eigen-decomposition: clamped on 2 x 2
 SLOW_FOR_QUARTIC = {"grid4", "disk"}
