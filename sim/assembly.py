@@ -83,7 +83,7 @@ class Schedule:
     thread per block scatters them in parallel without races. A block's elements touch the
     same Hessian rows, which stay in cache while the block runs: colouring single elements
     instead spreads every colour over the whole mesh, and each of its 9 colours swept the whole
-    Hessian (5 MB for the Q3T beam, 33 MB for the cup) through memory again. The order does
+    Hessian (5 MB for the Q3T beam, about 30 MB for the cup) through memory again. The order does
     not depend on the thread count, so neither do the sums."""
 
     order: np.ndarray
@@ -131,7 +131,7 @@ def scatter_schedule(conn: np.ndarray, n_nodes: int, block: int = BLOCK) -> Sche
     order = np.argsort(conn.min(axis=1), kind="stable")
     n_b = max(1, -(-len(order) // block))
     block_ptr = np.minimum(np.arange(n_b + 1) * block, len(order))
-    # a block meets only the blocks around it; 64 colours cover every mesh we make (3 to 5
+    # a block meets only the blocks around it; 64 colours cover every mesh we make (2 to 5
     # for the meshes here); more raises below
     color = _color_blocks(conn, order, block_ptr, n_nodes, 64)
     if np.any(color < 0):
