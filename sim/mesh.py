@@ -162,6 +162,20 @@ def edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return uniq, inv.reshape(3, -1).T
 
 
+def small_patches(faces: np.ndarray, size: int = 2) -> np.ndarray:
+    """Faces in edge-connected patches of at most ``size`` faces (a lone triangle, a pair, or
+    such a patch hanging off the rest by a vertex only)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    _, face_edges = edges(faces)
+    n_f = len(faces)
+    f = np.repeat(np.arange(n_f), 3)
+    A = coo_matrix((np.ones(3 * n_f), (f, face_edges.ravel())))
+    _, label = connected_components(A @ A.T, directed=False)
+    return np.flatnonzero(np.bincount(label)[label] <= size)
+
+
 def boundary_edges(faces: np.ndarray) -> np.ndarray:
     """Edges used by exactly one face, as sorted vertex pairs ``(n_b, 2)``."""
     uniq, face_edges = edges(faces)

@@ -187,6 +187,7 @@ class Model:
     regions: dict[str, np.ndarray]  # name -> in-plane node mask
     settings: NewtonSettings
     built: dict = field(default_factory=dict)
+    quadrature: dict = field(default_factory=dict)  # the rule and why it was chosen
 
     released: np.ndarray | None = None  # (n_nodes, 3) bool: DoFs freed for springback
     release_support: np.ndarray | None = None  # (n_nodes, 3) bool: held only for springback
@@ -236,11 +237,29 @@ class Model:
         return np.concatenate([k * n + idx for k in ks])
 
 
+def quadrature_rule(scene: Scene, elem, mesh) -> tuple[tuple[int, int], str]:
+    """The scene's rule, else the element's default, unless the default has spurious
+    zero-energy modes on this mesh: on edge-connected patches of one or two triangles (a lone
+    element, a pair, or a patch hanging by a vertex) the paper's one-point in-plane rules
+    leave some, and the mode-free rule (stiffer: it locks in transverse shear) is taken for
+    the whole sheet. Every other mesh keeps the paper's rule, which has none there."""
+    if scene.shell.quadrature:
+        return tuple(scene.shell.quadrature), "scene"
+    if elem.small_mesh_quadrature is not None:
+        small = meshes.small_patches(mesh.faces)
+        if len(small):
+            return elem.small_mesh_quadrature, (
+                f"{len(small)} triangle(s) in edge-connected patches of 1-2 triangles (first: "
+                f"{small[:5].tolist()}), where the default {list(elem.default_quadrature)} "
+                "admits spurious zero-energy modes")
+    return elem.default_quadrature, "default"
+
+
 def build_model(scene: Scene) -> Model:
     elem = get_element(scene.shell.element)
     mesh, h = mesh_and_thickness(scene)
     shell = extrude(mesh, h, elem)
-    rule_spec = scene.shell.quadrature or elem.default_quadrature
+    rule_spec, why = quadrature_rule(scene, elem, mesh)
     if scene.shell.thickness_points:
         rule_spec = (rule_spec[0], scene.shell.thickness_points)
     rule = elem.quadrature(rule_spec)
@@ -322,6 +341,7 @@ def build_model(scene: Scene) -> Model:
                                     max_iterations=scene.solver.max_iterations)
     solver = make_solver(pattern, scene.solver.linear_solver)
     model.problem = Problem(terms, pattern, solver, fixed)
+    model.quadrature = {"rule": list(rule_spec), "why": why}
     model.built = describe(model)
     return model
 
@@ -348,6 +368,7 @@ def describe(model: Model) -> dict:
     sc = model.scene
     return {"terms": [t.name for t in model.terms], "plastic_state": el.plastic,
             "state": state, "linear_solver": model.problem.solver.name,
+            "quadrature": model.quadrature,
             "outputs": {"probes": [p.name for p in sc.probes],
                         "sections": [s.name for s in sc.sections],
                         "frame_fields": frame_fields(model),

@@ -269,3 +269,26 @@ def test_scatter_schedule_blocks_of_a_colour_share_no_node(name):
         for b, elems in enumerate(sc.blocks(c)):
             for n in np.unique(sh.conn[elems]):
                 assert owner.setdefault(n, b) == b
+
+
+@pytest.mark.parametrize("name", ["linear", "q3t", "quadratic"])
+@pytest.mark.parametrize("shape", [s for s in RANK_MESHES if s != "clamped"])
+def test_chosen_rule_has_no_spurious_mode_on_any_mesh(name, shape):
+    """Without a scene rule, a mesh with edge-connected patches of one or two triangles (where
+    the paper's rules leave modes) gets the mode-free rule; every other mesh keeps the paper's
+    rule, and neither leaves a spurious mode (vertex_hang's one mode is its real mechanism)."""
+    from types import SimpleNamespace
+
+    from sim.model import quadrature_rule
+
+    e = ELEMENTS[name]
+    scene = SimpleNamespace(shell=SimpleNamespace(quadrature=None))
+    rule, why = quadrature_rule(scene, e, RANK_MESHES[shape]())
+    small = shape in ("single", "two", "vertex_hang")
+    if e.small_mesh_quadrature is not None and small:
+        assert rule == e.small_mesh_quadrature and "spurious" in why
+    else:
+        assert rule == e.default_quadrature and why == "default"
+    assert _spurious_modes(name, rule, shape) == (1 if shape == "vertex_hang" else 0)
+    scene.shell.quadrature = (1, 2)  # a scene's rule always wins
+    assert quadrature_rule(scene, e, RANK_MESHES[shape]()) == ((1, 2), "scene")

@@ -60,12 +60,15 @@ def _line_lagrange(q: int, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class Prism:
-    """A prism element: in-plane degree ``p``, thickness degree ``q`` and a default quadrature."""
+    """A prism element: in-plane degree ``p``, thickness degree ``q`` and a default quadrature;
+    ``small_mesh_quadrature``: the rule without spurious modes, when the default has some on
+    patches of one or two triangles (README, 'Quadrature and spurious modes')."""
 
     name: str
     p: int
     q: int
     default_quadrature: tuple[int, int]
+    small_mesh_quadrature: tuple[int, int] | None = None
 
     @cached_property
     def triangle_multi_indices(self) -> list[tuple[int, int, int]]:
