@@ -355,7 +355,8 @@ def frame_fields(model: Model) -> list[str]:
 
 def describe(model: Model) -> dict:
     """What ``model`` holds: ``terms`` (names), ``plastic_state``, ``state`` (array name ->
-    shape: what a step carries over besides the positions), ``linear_solver``, ``outputs``."""
+    shape: what a step carries over besides the positions), ``linear_solver``, ``quadrature``
+    (the rule and why: :func:`quadrature_rule`), ``outputs``."""
     el, inertia = model.elasticity, model.inertia
     tools = [t for t in model.terms if isinstance(t, ToolContact)]
     state: dict[str, list[int]] = {"positions": list(model.x0.shape)}
