@@ -101,13 +101,7 @@ def _element(x, rest, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, wa
             # G - I = sum_a u_a (x) b_a: the displacement part, plus Fp^-1 - I under a
             # plastic state (zero before it flows, so an unyielded plastic scene runs on the
             # elastic bits)
-            for i in range(3):  # loops: inlined into a prange body, G[:] = 0 is a parfor
-                for J in range(3):
-                    G[i, J] = 0.0
-            for a in range(n_en):
-                for i in range(3):
-                    for J in range(3):
-                        G[i, J] += u[a, i] * bT[j, J, a]
+            _displacement_gradient(u, bT[j], G)
             if plastic:
                 for i in range(3):
                     for J in range(3):
@@ -245,15 +239,15 @@ def elastic_kernel(x, rest, conn, dNdX, wdetJ, model, params, fp_inv, ep, plasti
 
 
 @njit(cache=True, inline='always')
-def _displacement_gradient(u, b, H):
-    """H = sum_a u_a (x) b_a into ``H (3, 3)``; u ``(n_en, 3)``."""
+def _displacement_gradient(u, bT, H):
+    """H = sum_a u_a (x) b_a into ``H (3, 3)``; u ``(n_en, 3)``, b transposed ``(3, n_en)``."""
     for i in range(3):  # loops: inlined into a prange body, H[:] = 0 would be a nested parfor
         for J in range(3):
             H[i, J] = 0.0
     for a in range(u.shape[0]):
         for i in range(3):
             for J in range(3):
-                H[i, J] += u[a, i] * b[a, J]
+                H[i, J] += u[a, i] * bT[J, a]
 
 
 @njit(cache=True)
@@ -264,7 +258,7 @@ def _deformation_gradient(x, rest, nodes, b, G0):
         for i in range(3):
             u[a, i] = x[nodes[a], i] - rest[nodes[a], i]
     G = np.empty((3, 3))
-    _displacement_gradient(u, b, G)
+    _displacement_gradient(u, b.T, G)
     return G + G0
 
 
