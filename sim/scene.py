@@ -6,36 +6,105 @@ validation, so an override is checked exactly like the file. Errors name the fie
 
 from __future__ import annotations
 
-import math
 import tomllib
 from pathlib import Path
 from typing import Annotated, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
-Vec3 = tuple[float, float, float]
-Pos = Annotated[float, Field(gt=0)]
+# Every float of a scene is finite (Strict's allow_inf_nan=False). Magnitudes the model
+# multiplies into others are bounded too, far beyond any forming process in any consistent unit
+# system the solver is run in (SI, or mm-N-s-tonne as in tests/test_check.py), so that no real
+# scene meets a bound while products such as E h^3, rho g V or m / dt^2 stay many orders of
+# magnitude inside float range: a value past a bound is a typo or an attack, never physics.
+MAX_LENGTH = 1e6  # a kilometre in mm: lengths, coordinates, displacements
+MAX_STRESS = 1e13  # Pa: ten times diamond's modulus; moduli, flow stresses, tractions
+MAX_DENSITY = 1e5  # kg/m^3: four times osmium (tonne/mm^3 are 1e-12 of these)
+MAX_ACCELERATION = 1e10  # a million g in mm/s^2
+MAX_SPEED = 1e7  # 10 km/s in mm/s: faster than sound in steel, so faster than any tool
+MAX_FORCE = 1e15  # N: a million times the largest press
+MAX_STIFFNESS = MAX_STRESS * MAX_LENGTH  # N/m: a penalty spring's stress per unit length
+# s: a picosecond, below any continuum time scale (sound in steel crosses 6 nm in it); with it
+# and the bounds above, the inertia term's m / dt^2 stays representable
+MIN_TIME_STEP = 1e-12
+MAX_TIME = 1e6  # s: eleven days of process time
+MAX_STRAIN = 10.0  # hardening strain offsets; (e0 + ep)^n must not overflow
+
+
+def _bounded(lo: float | None, hi: float, lo_open: bool = True):
+    """A float in ``(lo, hi]`` (``[lo, hi]`` when not ``lo_open``; no lower bound for None)."""
+    low = {} if lo is None else ({"gt": lo} if lo_open else {"ge": lo})
+    return Annotated[float, Field(le=hi, **low)]
+
+
+Length = _bounded(0.0, MAX_LENGTH)  # m, positive
+Extent = _bounded(0.0, MAX_LENGTH, lo_open=False)  # m, zero allowed (radii, fillets)
+Coord = _bounded(-MAX_LENGTH, MAX_LENGTH, lo_open=False)  # m: positions, displacements
+Stress = _bounded(0.0, MAX_STRESS)  # Pa, positive
+Point = tuple[Coord, Coord, Coord]
+Vec3 = tuple[float, float, float]  # finite, unbounded: slopes, rotation vectors
+Speed = _bounded(-MAX_SPEED, MAX_SPEED, lo_open=False)
+
+
+def _nonzero(v: tuple[float, ...]) -> tuple[float, ...]:
+    # a direction is normalised by its length: its square must be a normal, finite float
+    if not 1e-300 <= sum(c * c for c in v) <= 1e300:
+        raise ValueError(f"a direction needs a length between 1e-150 and 1e150 (got {list(v)})")
+    return v
+
+
+Direction = Annotated[Vec3, AfterValidator(_nonzero)]
+Direction2 = Annotated[tuple[float, float], AfterValidator(_nonzero)]
+
+
+def check_magnitude(values, bound: float, unit: str) -> None:
+    """Each of ``values`` (finite already) within ``bound`` in size."""
+    big = max((abs(v) for v in values), default=0.0)
+    if big > bound:
+        raise ValueError(f"{big:.3g} {unit} is beyond the bound {bound:.0e} {unit} "
+                         "(see sim.scene: far beyond any forming process)")
+
+
+def check_keyframes(rows: list[list[float]], lengths_end: int) -> None:
+    """Keyframe rows ``[t, ...]``: times within MAX_TIME, columns 1 .. lengths_end - 1 lengths
+    (displacements, offsets) within MAX_LENGTH; the rest (rotations) finite only."""
+    for i, row in enumerate(rows):
+        try:
+            check_magnitude(row[:1], MAX_TIME, "s")
+            check_magnitude(row[1:lengths_end], MAX_LENGTH, "m")
+        except ValueError as exc:
+            raise ValueError(f"keyframes.{i}: {exc}") from None
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class MeshSpec(Strict):
     kind: Literal["rectangle", "annulus", "disk", "cylinder_band", "file"]
-    edge_length: Pos | None = None
-    size: tuple[Pos, Pos] | None = None  # rectangle: (Lx, Ly)
-    origin: tuple[float, float] = (0.0, 0.0)
-    r_inner: Annotated[float, Field(ge=0)] = 0.0
-    r_outer: Pos | None = None
-    radius: Pos | None = None  # cylinder_band
-    height: Pos | None = None  # cylinder_band
+    edge_length: Length | None = None
+    size: tuple[Length, Length] | None = None  # rectangle: (Lx, Ly)
+    origin: tuple[Coord, Coord] = (0.0, 0.0)
+    r_inner: Extent = 0.0
+    r_outer: Length | None = None
+    radius: Length | None = None  # cylinder_band
+    height: Length | None = None  # cylinder_band
     path: str | None = None
-    scale: Pos = 1.0  # file units to metres
+    # file units to metres (1e-3 for mm): between nanometres and kilometres
+    scale: Annotated[float, Field(ge=1e-9, le=1e3)] = 1.0
     # out-of-plane imperfection of a flat mid-surface (m): z += a sin(pi s) sin(pi t), with
     # (s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to
     # leave its plane, so buckling (Fig. 4 at nu = 0.499) needs a seed
-    imperfection: float = 0.0
+    imperfection: Coord = 0.0
 
     @model_validator(mode="after")
     def _needs(self):
@@ -57,7 +126,7 @@ class ShellSpec(Strict):
     ``thickness_attribute``, a vertex property of a PLY mesh file. Relative paths are taken
     from the scene file's folder."""
 
-    thickness: Pos | None = None
+    thickness: Length | None = None
     # a tapered sheet: thickness + gradient . X at every vertex (m per m); must stay positive
     thickness_gradient: Vec3 = (0.0, 0.0, 0.0)
     thickness_file: str | None = None
@@ -80,10 +149,6 @@ class ShellSpec(Strict):
         return self
 
 
-FinitePos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-FiniteNonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-
-
 class Hardening(Strict):
     """Isotropic hardening Y(ep) of sim.materials.plasticity. The initial flow stress is always
     ``material.yield_stress``; each law takes its own fields only (a field of another law is an
@@ -102,12 +167,13 @@ class Hardening(Strict):
     """
 
     law: Literal["perfect", "linear", "swift", "voce"] = "perfect"
-    modulus: FiniteNonNeg | None = None  # linear: H (Pa)
-    K: FinitePos | None = None  # swift strength coefficient (Pa)
-    n: FiniteNonNeg | None = None  # swift exponent
-    e0: FinitePos | None = None  # swift strain offset
-    saturation: FinitePos | None = None  # voce Ysat (Pa)
-    rate: FinitePos | None = None  # voce C
+    modulus: _bounded(0.0, MAX_STRESS, lo_open=False) | None = None  # linear: H (Pa)
+    K: Stress | None = None  # swift strength coefficient (Pa)
+    # swift exponent: metals' are below 1, and (e0 + ep)^n stays representable up to 10
+    n: _bounded(0.0, 10.0, lo_open=False) | None = None
+    e0: _bounded(0.0, MAX_STRAIN) | None = None  # swift strain offset
+    saturation: Stress | None = None  # voce Ysat (Pa)
+    rate: _bounded(0.0, 1e6) | None = None  # voce C: 1e6 saturates within a micro-strain
 
     FIELDS: ClassVar[dict[str, tuple[str, ...]]] = {
         "perfect": (), "linear": ("modulus",), "swift": ("K", "n", "e0"),
@@ -132,10 +198,10 @@ class Hardening(Strict):
 
 class MaterialSpec(Strict):
     model: Literal["neo_hookean", "hencky", "plastic"] = "neo_hookean"
-    E: FinitePos
+    E: Stress
     nu: Annotated[float, Field(ge=0.0, lt=0.5)]
-    density: FinitePos = 1000.0
-    yield_stress: FinitePos | None = None  # initial flow stress (Pa), plastic model only
+    density: _bounded(0.0, MAX_DENSITY) = 1000.0
+    yield_stress: Stress | None = None  # initial flow stress (Pa), plastic model only
     hardening: Hardening = Hardening()
 
     @model_validator(mode="after")
@@ -190,21 +256,21 @@ class MaterialSpec(Strict):
 
 
 class BoxSpec(Strict):
-    min: Vec3
-    max: Vec3
+    min: Point
+    max: Point
 
 
 class PlaneSpec(Strict):
-    point: Vec3
-    normal: Vec3
-    tolerance: Pos = 1e-9
+    point: Point
+    normal: Direction
+    tolerance: Length = 1e-9
 
 
 class RingSpec(Strict):
     """Nodes whose rest distance from the z axis lies in [r_min, r_max]."""
 
-    r_min: Annotated[float, Field(ge=0)] = 0.0
-    r_max: Pos
+    r_min: Extent = 0.0
+    r_max: Length
 
 
 class RegionSpec(Strict):
@@ -229,7 +295,7 @@ class BendSpec(Strict):
     (no shear force: a pure end moment), "xyz" moves it rigidly."""
 
     angle: float
-    length: Pos
+    length: Length
 
 
 class BCSpec(Strict):
@@ -246,7 +312,7 @@ class BCSpec(Strict):
     region: str
     components: Annotated[str, Field(pattern=r"^[xyz]{1,3}$")] = "xyz"
     layers: Literal["all", "bottom", "mid", "top"] = "all"
-    displacement: Vec3 = (0.0, 0.0, 0.0)
+    displacement: Point = (0.0, 0.0, 0.0)
     keyframes: list[list[float]] = []
     bend: BendSpec | None = None
     release: bool = False  # removed in the release (springback) stage
@@ -267,9 +333,8 @@ class BCSpec(Strict):
                 raise ValueError(f"keyframes.{i}: needs [t, {', '.join(self.components)}] "
                                  f"({n} numbers) for components {self.components!r}, "
                                  f"got {len(row)}")
-            if not all(math.isfinite(v) for v in row):
-                raise ValueError(f"keyframes.{i}: not a finite number")
         times = [r[0] for r in self.keyframes]
+        check_keyframes(self.keyframes, 1 + len(self.components))
         if times[0] < 0:
             raise ValueError("keyframes: times must be >= 0")
         if any(b <= a for a, b in zip(times, times[1:], strict=False)):
@@ -282,10 +347,23 @@ class BCSpec(Strict):
 class LoadSpec(Strict):
     kind: Literal["gravity", "traction", "pressure", "point"]
     vector: Vec3 | None = None  # gravity (m/s^2), traction (Pa), point (N)
-    value: float | None = None  # pressure (Pa)
+    value: _bounded(-MAX_STRESS, MAX_STRESS, lo_open=False) | None = None  # pressure (Pa)
     region: str | None = None
-    point: Vec3 | None = None
+    point: Point | None = None
     skin: Literal["top", "bottom"] = "top"
+
+    # the bound of each kind's vector, and its unit
+    BOUNDS: ClassVar[dict[str, tuple[float, str]]] = {
+        "gravity": (MAX_ACCELERATION, "m/s^2"), "traction": (MAX_STRESS, "Pa"),
+        "point": (MAX_FORCE, "N"), "pressure": (0.0, "")}
+
+    @field_validator("vector")
+    @classmethod
+    def _magnitude(cls, v: Vec3 | None, info: ValidationInfo) -> Vec3 | None:
+        kind = info.data.get("kind")
+        if v is not None and kind in cls.BOUNDS:
+            check_magnitude(v, *cls.BOUNDS[kind])
+        return v
 
     @model_validator(mode="after")
     def _fields(self):
@@ -300,10 +378,11 @@ class LoadSpec(Strict):
 class SteppingSpec(Strict):
     kind: Literal["static", "dynamic"] = "static"
     steps: Annotated[int, Field(ge=1, le=100000)] = 1
-    dt: Pos | None = None  # dynamic: time step (s); duration = steps * dt
+    # dynamic: time step (s); duration = steps * dt
+    dt: _bounded(MIN_TIME_STEP, MAX_TIME, lo_open=False) | None = None
     # dynamic: loads ramp over this time (s), 0 = applied at once; also the default ramp of
     # prescribed displacements (BCSpec), which take 1 s when it is 0
-    load_ramp: Annotated[float, Field(ge=0)] = 0.0
+    load_ramp: _bounded(0.0, MAX_TIME, lo_open=False) = 0.0
     max_cutbacks: Annotated[int, Field(ge=0, le=30)] = 10  # down to 1/1024 of a step
     # after the last step: remove loads and the BCs marked release, solve static equilibrium
     release: bool = False
@@ -332,7 +411,7 @@ class ProbeSpec(Strict):
                   "plastic_strain", "von_mises", "tool_force", "penetration", "contact_nodes",
                   "fibre_tilt", "height_range", "tool_position", "springback", "cup_height"]
     tool: str | None = None
-    point: Vec3 | None = None
+    point: Point | None = None
     component: Literal["x", "y", "z", "norm"] = "norm"
     stat: Literal["min", "max", "mean"] = "mean"
     region: str | None = None
@@ -369,10 +448,10 @@ class StudySpec(Strict):
     field: Literal["thickness", "radius", "z"] = "thickness"
     step: Annotated[int, Field(ge=0)] | None = None
     norm: Literal["l2", "max"] = "l2"
-    edge_lengths: list[Pos] | None = None  # default: 4x, 2x, 1x the mesh's own
+    edge_lengths: list[Length] | None = None  # default: 4x, 2x, 1x the mesh's own
     elements: list[str] = ["linear", "q3t", "quadratic"]
     reference_element: str = "quadratic"
-    reference_edge_length: Pos | None = None
+    reference_edge_length: Length | None = None
     analytic: Literal["euler_bernoulli", "springback"] | None = None
 
     @model_validator(mode="after")
@@ -399,27 +478,27 @@ class _Shape(Strict):
     (m) and ``rotation`` (an axis-angle vector, rad: axis * angle), e.g. a punch lying along
     y: rotation [1.5708, 0, 0]."""
 
-    point: Vec3 = (0.0, 0.0, 0.0)  # plane
-    normal: Vec3 = (0.0, 0.0, 1.0)  # plane
-    half_extents: tuple[Pos, Pos, Pos] | None = None  # box
-    center: Vec3 = (0.0, 0.0, 0.0)  # box
-    radius: Annotated[float, Field(ge=0)] = 0.0  # punch radius / box corner radius
-    height: Pos = 0.05
-    edge_radius: Annotated[float, Field(ge=0)] = 0.0
-    inner_radius: Annotated[float, Field(ge=0)] = 0.0  # die opening, holder inner
-    outer_radius: Pos = 0.1
+    point: Point = (0.0, 0.0, 0.0)  # plane
+    normal: Direction = (0.0, 0.0, 1.0)  # plane
+    half_extents: tuple[Length, Length, Length] | None = None  # box
+    center: Point = (0.0, 0.0, 0.0)  # box
+    radius: Extent = 0.0  # punch radius / box corner radius
+    height: Length = 0.05
+    edge_radius: Extent = 0.0
+    inner_radius: Extent = 0.0  # die opening, holder inner
+    outer_radius: Length = 0.1
     n_points: Annotated[int, Field(ge=3, le=32)] = 5  # star
-    r_outer: Pos = 0.05
-    r_inner: Pos = 0.03
-    corner_radius: Annotated[float, Field(ge=0)] = 0.0  # star tips, convex polygon corners
+    r_outer: Length = 0.05
+    r_inner: Length = 0.03
+    corner_radius: Extent = 0.0  # star tips, convex polygon corners
     # star and star_die valleys (star_die default max(corner_radius, edge_radius), star 0),
     # reflex polygon corners
-    reflex_radius: Annotated[float, Field(ge=0)] | None = None
+    reflex_radius: Extent | None = None
     phase: float = 0.0
     # polygon: a prism 0 <= z <= height over these (x, y) vertices (either orientation)
-    points: list[tuple[float, float]] = []
-    blend: Annotated[float, Field(ge=0)] = 0.0
-    offset: Vec3 = (0.0, 0.0, 0.0)
+    points: list[tuple[Coord, Coord]] = []
+    blend: Extent = 0.0
+    offset: Point = (0.0, 0.0, 0.0)
     rotation: Vec3 = (0.0, 0.0, 0.0)
 
     @model_validator(mode="after")
@@ -442,8 +521,6 @@ class _Shape(Strict):
         elif shapes:
             raise ValueError(f"shapes: only union, subtract and intersect have operands, "
                              f"not {self.kind!r}")
-        if not all(map(math.isfinite, self.rotation + self.offset)):
-            raise ValueError("offset and rotation must be finite")
         if self.kind in PRIMITIVES:  # the builders' own checks (radii fit, polygon simple)
             from sim.model import tool_program
 
@@ -478,14 +555,15 @@ class ToolSpec(Strict):
 
     name: str
     shape: ShapeSpec
-    position: Vec3 = (0.0, 0.0, 0.0)
-    velocity: Vec3 = (0.0, 0.0, 0.0)
+    position: Point = (0.0, 0.0, 0.0)
+    velocity: tuple[Speed, Speed, Speed] = (0.0, 0.0, 0.0)
     friction: Annotated[float, Field(ge=0, le=2)] = 0.0
-    stiffness: Pos | None = None  # N/m per node; default: sim.contact.auto_stiffness
+    # N/m per node; default: sim.contact.auto_stiffness
+    stiffness: _bounded(0.0, MAX_STIFFNESS) | None = None
     release: bool = False  # retracted in the release (springback) stage
     # force control: the tool presses along -z with this force (N) and its z is solved with
     # the sheet (a blank holder); velocity must then have no z component
-    force: Pos | None = None
+    force: _bounded(0.0, MAX_FORCE) | None = None
     # a path: [t, dx, dy, dz] rows, offsets from `position` (m) at scene times t (static: 0-1),
     # or [t, dx, dy, dz, rx, ry, rz] with a rotation vector (axis * angle, rad) about the
     # tool's origin; piecewise linear in between (rotations: exact for a fixed axis), held
@@ -493,7 +571,7 @@ class ToolSpec(Strict):
     keyframes: list[list[float]] = []
     # force control: the lowest z offset (m, from the start position) the tool can reach, the
     # press's distance blocks; without it a holder falls once the flange has been drawn in
-    stop: float | None = None
+    stop: Coord | None = None
 
     @model_validator(mode="after")
     def _force_axis(self):
@@ -506,8 +584,7 @@ class ToolSpec(Strict):
         if len(lengths) > 1 or not lengths <= {4, 7}:
             raise ValueError("keyframes: rows must all be [t, dx, dy, dz] or all "
                              "[t, dx, dy, dz, rx, ry, rz]")
-        if not all(math.isfinite(v) for k in self.keyframes for v in k):
-            raise ValueError("keyframes: values must be finite")
+        check_keyframes(self.keyframes, 4)
         if self.force is not None and any(k[3] != 0.0 for k in self.keyframes):
             raise ValueError("keyframes: a force-controlled tool has no z path")
         if self.force is not None and any(any(k[4:]) for k in self.keyframes):
@@ -521,8 +598,8 @@ class SectionSpec(Strict):
     thickness are recorded at every step listed (all steps when empty)."""
 
     name: str
-    direction: tuple[float, float] = (1.0, 0.0)
-    width: Pos = 1e-4
+    direction: Direction2 = (1.0, 0.0)
+    width: Length = 1e-4
     steps: list[Annotated[int, Field(ge=0)]] = []
 
 
