@@ -16,7 +16,6 @@ viser viewer (so viser encodes and sends every update, as to a browser):
 from __future__ import annotations
 
 import functools
-import json
 import multiprocessing as mp
 import os
 import queue
@@ -33,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from server.settings import ROOT
+from sim import results
 
 CUP_40K = {"mesh.edge_length": 0.00038, "stepping.steps": 50}  # 39,686 display vertices
 PARAMETERS = {"load_scale": (0.0, 100.0)}
@@ -361,7 +361,7 @@ def run(args) -> int:
               f"{d['status']['cpu_pressure_avg60_pct']} %")
     path = Path(args.out)
     path.mkdir(parents=True, exist_ok=True)
-    (path / "bench_service.json").write_text(json.dumps(out, indent=1))
+    (path / "bench_service.json").write_text(results.dumps(out, nulls=True, indent=1))
     return 0
 
 

@@ -34,10 +34,13 @@ def serve_settings(args, token: str | None) -> Settings:
         print(EXPOSED_VIEWER.format(host=args.host, port=args.viewer_port), file=sys.stderr)
     if args.record_every < 1:
         raise SystemExit("q3t: --record-every must be at least 1")
+    if not args.max_memory > 0:
+        raise SystemExit("q3t: --max-memory must be a positive size (GiB)")
     return Settings(scenes_dir=Path(args.scenes_dir), runs_dir=Path(args.runs_dir),
                     token=token, viewer=not args.no_viewer, viewer_host=viewer_host,
                     viewer_port=args.viewer_port, step_delay=args.step_delay,
-                    record_every=args.record_every, default_scene=args.scene)
+                    record_every=args.record_every, default_scene=args.scene,
+                    max_model_bytes=args.max_memory * 2**30)
 
 
 def cmd_serve(args) -> int:
@@ -117,6 +120,9 @@ def add_parser(sub) -> None:
     s.add_argument("--record-every", type=int, default=Settings.record_every, metavar="N",
                    help="steps between sheet meshes in each run's run.rrd (scalars are "
                         "recorded every step; the first and last step always)")
+    s.add_argument("--max-memory", type=float, default=Settings.max_model_bytes / 2**30,
+                   metavar="GIB", help="refuse a run whose model would need more memory to "
+                   "build (GiB; default %(default)g: half of a 24 GiB machine)")
     s.add_argument("--no-viewer", action="store_true", help="no viser viewer")
     s.add_argument("--expose-viewer", action="store_true",
                    help="bind the viser viewer to --host too. It has no token check: anyone "

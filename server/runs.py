@@ -30,7 +30,8 @@ from server.settings import Settings, check_name
 from server.store import SceneStore, atomic_write
 from server.worker import worker_main
 from server.workerhandle import WorkerHandle
-from sim.scene import SceneError
+from sim import results, size
+from sim.scene import SceneError, scene_from_toml
 
 ACTIVE = {"starting", "building", "running", "paused"}
 HEARTBEAT_S = 5.0  # a bridge silent for longer than this is reported dead
@@ -83,6 +84,7 @@ class RunManager:
         self.history = FrameHistory(settings.history_frames, settings.history_bytes)
         self._target = worker_target
         self.worker = self._new_worker()
+        self._retired: list[WorkerHandle] = []  # ended by a stop during a build; the bridge closes
         self.restarts = 0
         self._stop = threading.Event()
         self.bridge = threading.Thread(target=self._bridge, name="q3t-bridge", daemon=True)
@@ -117,6 +119,7 @@ class RunManager:
                 time.sleep(0.02)
         self._stop.set()
         self.bridge.join(2.0)
+        self._close_retired()
         clean = self.worker.close()  # a solver still inside a step is asked, then killed
         note = self._repair(run) if run is not None and not clean else ""
         with self.lock:
@@ -161,7 +164,7 @@ class RunManager:
     def _save(self, run: Run) -> None:
         with self.lock:  # a consistent snapshot; the encoding and the write come after
             data = {**run.summary(), "records": list(run.records)}
-        text = json.dumps(data, indent=1)
+        text = results.dumps(data, indent=1)
         with self._save_lock:
             atomic_write(self.dir(run.id) / "run.json", text)
 
@@ -218,6 +221,9 @@ class RunManager:
         for name, value in (parameters or {}).items():
             self.check_parameter(name, value)
         solver_overrides = {**overrides, **self.store.solver_overrides(spec)}
+        # as the solver will read it (mesh files by their full paths): refused before any build
+        size.check(scene_from_toml(text, solver_overrides), self.settings.max_model_bytes,
+                   "the server's --max-memory")
         with self.lock:
             if self.active:
                 raise Conflict(f"run {self.active!r} is {self.runs[self.active].state}; "
@@ -228,7 +234,7 @@ class RunManager:
             out = self.dir(run.id)
             out.mkdir(parents=True)
             atomic_write(out / "scene.toml", text)
-            atomic_write(out / "run.json", json.dumps(asdict(run), indent=1))
+            atomic_write(out / "run.json", results.dumps(asdict(run), indent=1))
             self.runs[run.id], self.active = run, run.id
             self.history.reset(run.id)
             self.worker.send("start", run=run.id, out=str(out), scene_toml=text,
@@ -241,12 +247,52 @@ class RunManager:
             run = self.get(run_id)
             if run.id != self.active:
                 raise Conflict(f"run {run_id!r} is {run.state}, not active")
-            if cmd in ("pause", "step"):
-                run.state = "paused"  # at once, so a status read after the request agrees
-            elif cmd == "resume" and run.state == "paused":
-                run.state = "running"
-            self.worker.send(cmd)
-            return run.summary()
+            if cmd == "stop" and run.state in ("starting", "building"):
+                old = self._end_build(run)
+            else:
+                if cmd in ("pause", "step"):
+                    run.state = "paused"  # at once, so a status read after the request agrees
+                elif cmd == "resume" and run.state == "paused":
+                    run.state = "running"
+                self.worker.send(cmd)
+                return run.summary()
+        self._after_build_ended(run, old)
+        return run.summary()
+
+    def _end_build(self, run: Run) -> WorkerHandle:
+        """Under ``lock``: stop a run that is still building. The solver process reads commands
+        only between steps, and a build is one long call (minutes for a large model), so the
+        process is killed and a new one started: the stop takes effect at once, and the memory
+        the build held is freed. Returns the old process's handle."""
+        old = self.worker
+        old.process.kill()
+        self.worker = self._new_worker()
+        self.restarts += 1
+        self._finish(run, "stopped", "stopped during the build (its solver process was ended "
+                                     "and a new one started)")
+        return old
+
+    def _after_build_ended(self, run: Run, old: WorkerHandle) -> None:
+        """The files of a run whose build was stopped: result.json, its recording repaired if
+        the build had finished after all and steps were recorded, run.json."""
+        old.process.join(5.0)
+        self._retired.append(old)
+        d = self.dir(run.id)
+        try:
+            results.write(d / "result.json", results.unbuilt(run.scene, run.element, run.reason))
+        except (OSError, ValueError) as exc:
+            self._note(run.id, f"{run.reason}; writing result.json failed: {exc}")
+        if (d / "run.rrd").is_file():
+            note = self._repair(run)
+            if note:
+                self._note(run.id, run.reason + note)
+        self._save(run)
+        if self.viewer:
+            self.viewer.set_recordings(self.recorded())
+
+    def _close_retired(self) -> None:
+        while self._retired:
+            self._retired.pop().close(timeout=0.1)
 
     def check_parameter(self, name: str, value) -> float:
         if not self.ready.wait(self.settings.ack_timeout):
@@ -462,22 +508,24 @@ class RunManager:
             if run is not None:
                 run.reason = text
 
-    def _worker_died(self) -> None:
-        code = self.worker.process.exitcode
+    def _worker_died(self, w: WorkerHandle) -> None:
+        code = w.process.exitcode
         why = f"killed by signal {-code}" if code and code < 0 else f"exit code {code}"
         with self.lock:
+            if w is not self.worker:  # already replaced (a build stopped by request)
+                return
             run = self.runs.get(self.active) if self.active else None
         # the solver wrote the recording and could not close it: repair it before the run
         # reads as failed, so a download after that verifies
         note = self._repair(run) if run is not None else ""
         with self.lock:
-            if self._stop.is_set():
+            if self._stop.is_set() or w is not self.worker:
                 return
             if run is not None and run.id == self.active:
                 self._finish(run, "failed", f"solver process died ({why}){note}")
-            old, self.worker = self.worker, self._new_worker()
+            self.worker = self._new_worker()
             self.restarts += 1
-        old.close(timeout=0.1)
+        w.close(timeout=0.1)
         if run is not None:
             self._save(run)
             if self.viewer:
@@ -503,6 +551,7 @@ class RunManager:
                 time.sleep(0.05)
 
     def _bridge_step(self) -> None:
+        self._close_retired()  # here, the one thread that reads their queues
         w = self.worker
         try:
             events = [w.events.get(timeout=0.05)] + self._drain(w.events)
@@ -530,7 +579,7 @@ class RunManager:
             self._next_push = max(self._next_push + period, now)
             self._newest, self._final = None, False
         if not events and not w.alive() and not self._stop.is_set():
-            self._worker_died()
+            self._worker_died(w)
 
     def _push(self, frame: dict, final: bool) -> None:
         run = self.runs.get(frame["run"])

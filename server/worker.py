@@ -28,7 +28,13 @@ import numpy as np
 
 
 def _frame_msg(run: str, sim) -> dict:
+    """The frame message of the current state. A frame holding a number that is not finite
+    is an error: it must reach neither the recording nor the server (which colours by it)."""
     f = sim.frame()
+    bad = [k for k, v in {"positions": f.positions, **f.fields}.items()
+           if not np.isfinite(v).all()]
+    if bad:
+        raise ValueError(f"the frame of step {f.step} is not finite in {', '.join(bad)}")
     return {"kind": "frame", "run": run, "step": f.step, "time": f.time,
             "positions": f.positions, "fields": {k: v.astype("float32") for k, v in
                                                  f.fields.items()},
@@ -128,12 +134,7 @@ class _Solver:
         self.record_every = max(1, int(msg.get("record_every") or self.record_every))
         self.emit("state", state="building")
         t0 = time.perf_counter()
-        try:
-            self.recorder = None
-            self.recorder = Recorder(self.out / "run.rrd", self.run)
-        except Exception as exc:
-            self.emit("state", state="failed", reason=f"recording failed: {exc}")
-            raise
+        scene = None
         try:
             scene = scene_from_toml(msg["scene_toml"], msg.get("overrides") or {})
             self.sim = Simulation.from_scene(scene)
@@ -143,10 +144,16 @@ class _Solver:
             rest = _frame_msg(self.run, self.sim)
         except Exception as exc:
             self.sim = None
-            self._close_recording()
-            self.emit("state", state="failed", reason=f"build failed: {exc}")
+            self._unbuilt(scene, f"build failed: {type(exc).__name__}: {exc}")
             raise
         t2 = time.perf_counter()
+        try:  # after the build: a run stopped while building (server.runs) leaves no file
+            self.recorder = None
+            self.recorder = Recorder(self.out / "run.rrd", self.run)
+        except Exception as exc:
+            self.sim = None
+            self._unbuilt(scene, f"recording failed: {exc}")
+            raise
         try:  # display only: a tool that cannot be meshed must not stop the run
             tools = tool_meshes(scene, plane_size(rest["positions"]), self.mesh_cache)
         except Exception:
@@ -168,6 +175,17 @@ class _Solver:
             self.finish("failed", str(exc))
             return
         self.emit("state", state="paused" if self.paused else "running")
+
+    def _unbuilt(self, scene, reason: str) -> None:
+        """A run that ends before it has a model: its result.json says why, then its state."""
+        from sim import results
+
+        try:
+            results.write(self.out / "result.json", results.unbuilt(
+                scene.name if scene else None, scene.shell.element if scene else None, reason))
+        except Exception as exc:
+            reason += f"; writing results failed: {exc}"
+        self.emit("state", state="failed", reason=reason)
 
     def _need_run(self) -> None:
         if self.sim is None:
@@ -216,6 +234,15 @@ class _Solver:
 
     # ---- stepping -----------------------------------------------------------------------------
     def step(self) -> None:
+        """One step of the active run. Whatever goes wrong fails the run with the reason (and
+        its result.json); the process goes on to the next run."""
+        try:
+            self._step()
+        except Exception as exc:
+            self.emit("log", text=traceback.format_exc())
+            self.finish("failed", f"{type(exc).__name__}: {exc}")
+
+    def _step(self) -> None:
         from sim.simulation import SolverFailure
 
         single = self.pending_steps > 0

@@ -7,12 +7,13 @@ Medians of ``--repeat`` runs; the machines are noisy, so compare ratios more tha
 
 from __future__ import annotations
 
-import json
 import platform
 import time
 from pathlib import Path
 
 import numpy as np
+
+from sim import results
 
 # (case, element, edge length): the beam is the paper's 70 x 7 cm plate (4,504 triangles), the
 # cup a 60 mm disk (about 26,700 triangles); quadratic at half the edge count has the same nodes.
@@ -229,7 +230,8 @@ def run(args) -> int:
             platform.machine(), "cpus": __import__("os").cpu_count(), "repeat": args.repeat}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "bench.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    (out / "bench.json").write_text(results.dumps({"meta": meta, "rows": rows}, nulls=True,
+                                                  indent=1))
     print(f"wrote {out / 'bench.json'}")
     return 0
 

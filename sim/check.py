@@ -16,7 +16,6 @@ Q3T, 10 for quartic.
 
 from __future__ import annotations
 
-import json
 import math
 import multiprocessing as mp
 import signal
@@ -27,6 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from sim import results
 
 BASE = "cantilever"
 TOOLS = "beam_forming"
@@ -383,8 +384,8 @@ def run(args) -> int:
           + "\n".join(f"- **{c.name}**: {c.what}" for c in cases) + "\n\n" + summary(rows)
           + "\n" + table(rows))
     (out / "check.md").write_text(md)
-    (out / "check.json").write_text(json.dumps({"wall": wall, "budget": args.budget,
-                                                "rows": rows}, indent=1))
+    (out / "check.json").write_text(results.dumps({"wall": wall, "budget": args.budget,
+                                                   "rows": rows}, nulls=True, indent=1))
     print(md)
     return 1 if bad else 0
 

@@ -45,20 +45,31 @@ def _progress(sim, rec) -> None:
 
 
 def cmd_run(args) -> int:
+    from sim import results, size
     from sim.scene import SceneError, load_scene
     from sim.simulation import Simulation
 
     overrides = parse_sets(args.set)
     if args.element:
         overrides["shell.element"] = args.element
-    try:
-        scene = load_scene(resolve_scene(args.scene), overrides)
-        sim = Simulation.from_scene(scene)
-    except (SceneError, ValueError) as exc:
-        print(f"q3t: {exc}", file=sys.stderr)
-        return 2
+    if not args.max_memory > 0:
+        raise SceneError(f"--max-memory: {args.max_memory:g} GiB is not a positive size")
+    scene = load_scene(resolve_scene(args.scene), overrides)  # SceneError: exit 2 (main)
+    size.check(scene, args.max_memory * 2**30)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = Path(args.out or f"runs/{scene.name}-{scene.shell.element}-{stamp}")
+    try:
+        sim = Simulation.from_scene(scene)
+    except ValueError as exc:  # bad input the build finds (a region selecting no node, ...)
+        print(f"q3t: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # a failed run, not bad input: say why, with a result.json
+        reason = f"build failed: {type(exc).__name__}: {exc}"
+        out.mkdir(parents=True, exist_ok=True)
+        results.write(out / "result.json", results.unbuilt(scene.name, scene.shell.element,
+                                                           reason))
+        print(f"q3t: FAILED: {reason}\nwrote {out}/result.json", file=sys.stderr)
+        return 1
     c = sim.result()["counts"]
     print(f"{scene.name}: {scene.shell.element}, {c['elements']} elements, {c['dofs']} DoFs, "
           f"solver {sim.model.built['linear_solver']}", file=sys.stderr)
@@ -72,6 +83,8 @@ def cmd_run(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from sim.size import DEFAULT_LIMIT
+
     ap = argparse.ArgumentParser(prog="q3t", description=__doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="run a scene headless and write result.json")
@@ -81,6 +94,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="override a scene value, e.g. material.nu=0.3 (repeatable)")
     r.add_argument("--out", help="output folder (default runs/<scene>-<element>-<time>)")
     r.add_argument("--quiet", action="store_true")
+    r.add_argument("--max-memory", type=float, default=DEFAULT_LIMIT / 2**30, metavar="GIB",
+                   help="refuse a scene whose model would need more memory to build (GiB; "
+                        "default %(default)g: half of a 24 GiB machine)")
     r.set_defaults(func=cmd_run)
     from sim import bench, check, study, sweep
 

@@ -33,11 +33,15 @@ def _grid(nx: int, ny: int) -> np.ndarray:
     return np.concatenate([a, b]).astype(np.int64)
 
 
+def divisions(length: float, edge_length: float) -> int:
+    """Cells of about ``edge_length`` along ``length`` (at least one)."""
+    return max(1, int(round(length / edge_length)))
+
+
 def rectangle(size: tuple[float, float], edge_length: float,
               origin: tuple[float, float] = (0.0, 0.0)) -> TriMesh:
     """A plate of ``size`` (Lx, Ly) in the z = 0 plane, lower-left corner at ``origin``."""
-    nx = max(1, int(round(size[0] / edge_length)))
-    ny = max(1, int(round(size[1] / edge_length)))
+    nx, ny = divisions(size[0], edge_length), divisions(size[1], edge_length)
     x, y = np.meshgrid(np.linspace(0, size[0], nx + 1), np.linspace(0, size[1], ny + 1),
                        indexing="ij")
     V = np.column_stack([x.ravel() + origin[0], y.ravel() + origin[1], np.zeros(x.size)])
@@ -49,9 +53,8 @@ def annulus(r_inner: float, r_outer: float, edge_length: float) -> TriMesh:
 
     Rings of vertices at roughly ``edge_length`` spacing, each ring triangulated to the next.
     """
-    n_rings = max(1, int(round((r_outer - r_inner) / edge_length)))
-    radii = np.linspace(r_inner, r_outer, n_rings + 1)
-    counts = [1 if r == 0 else max(6, int(round(2 * np.pi * r / edge_length))) for r in radii]
+    radii, counts = rings(r_inner, r_outer, edge_length)
+    n_rings = len(radii) - 1
     starts = np.concatenate([[0], np.cumsum(counts)])
     verts, faces = [], []
     for r, n in zip(radii, counts, strict=True):
@@ -60,6 +63,20 @@ def annulus(r_inner: float, r_outer: float, edge_length: float) -> TriMesh:
     for k in range(n_rings):
         faces.append(_stitch(starts[k], counts[k], starts[k + 1], counts[k + 1]))
     return TriMesh(np.concatenate(verts), np.concatenate(faces).astype(np.int64))
+
+
+def rings(r_inner: float, r_outer: float, edge_length: float) -> tuple[np.ndarray, list[int]]:
+    """The radii of an annulus's vertex rings and the vertices on each (one at radius 0)."""
+    radii = np.linspace(r_inner, r_outer, divisions(r_outer - r_inner, edge_length) + 1)
+    return radii, [1 if r == 0 else max(6, int(round(2 * np.pi * r / edge_length)))
+                   for r in radii]
+
+
+def band_divisions(radius: float, height: float, edge_length: float) -> tuple[int, int]:
+    """Columns around and rows up a cylinder_band: a multiple of 4 columns puts vertices on
+    both axes, where scenes hold the band."""
+    return (max(8, 4 * int(round(2 * np.pi * radius / edge_length / 4))),
+            divisions(height, edge_length))
 
 
 def _stitch(s0: int, n0: int, s1: int, n1: int) -> np.ndarray:
@@ -81,9 +98,7 @@ def _stitch(s0: int, n0: int, s1: int, n1: int) -> np.ndarray:
 
 def cylinder_band(radius: float, height: float, edge_length: float) -> TriMesh:
     """A cylindrical band (the cookie-cutter strip): axis z, z in [0, height], normals outward."""
-    # a multiple of 4 columns puts vertices on both axes, where scenes hold the band
-    nt = max(8, 4 * int(round(2 * np.pi * radius / edge_length / 4)))
-    nz = max(1, int(round(height / edge_length)))
+    nt, nz = band_divisions(radius, height, edge_length)
     t, z = np.meshgrid(np.arange(nt + 1) * 2 * np.pi / nt, np.linspace(0, height, nz + 1),
                        indexing="ij")
     V = np.column_stack([radius * np.cos(t.ravel()), radius * np.sin(t.ravel()), z.ravel()])

@@ -6,14 +6,13 @@ Data flows one way: Scene -> Model -> Simulation.step() -> StepRecord / Frame.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from sim import probes
+from sim import probes, results
 from sim.display import DisplayMesh
 from sim.model import Model, build_model, frame_fields
 from sim.newton import NewtonResult, Timing, minimise
@@ -252,13 +251,36 @@ class Simulation:
         return rec
 
     def step(self) -> StepRecord:
+        """The next step (the release stage after the last). Whatever goes wrong in it is a
+        SolverFailure naming it (``failure``), so a caller ends the run failed with the reason,
+        never dies of it; so is a record holding a number that is not finite."""
+        if self.done:
+            raise RuntimeError("simulation already finished")
+        try:
+            if self.step_index == self.model.scene.stepping.steps:
+                rec = self._release()
+            else:
+                rec = self._advance()
+        except SolverFailure:
+            raise
+        except Exception as exc:
+            self.failure = {"step": self.step_index + 1, "t": self.t, "cutbacks": 0,
+                            "reason": f"{type(exc).__name__}: {exc}", "iterations": 0,
+                            "residuals": []}
+            raise SolverFailure(self.failure) from exc
+        bad = results.finite(asdict(rec))[1]
+        if bad:
+            self.records.pop()
+            self.failure = {"step": rec.step, "t": rec.time, "cutbacks": rec.cutbacks,
+                            "reason": f"not finite: {', '.join(bad)}",
+                            "iterations": rec.iterations, "residuals": []}
+            raise SolverFailure(self.failure)
+        return rec
+
+    def _advance(self) -> StepRecord:
         """Advance one nominal step, halving the increment on failure and doubling it back
         after a success; the step fails when the increment would fall below 1 / 2^max_cutbacks
         of the nominal one (a bound on the sub-steps, not on the failures over the step)."""
-        if self.done:
-            raise RuntimeError("simulation already finished")
-        if self.step_index == self.model.scene.stepping.steps:
-            return self._release()
         start = time.perf_counter()
         nominal = self._dt()
         t_target = self.t + nominal
@@ -354,6 +376,18 @@ class Simulation:
                      rec.residual if rec else 0.0)
 
     def result(self) -> dict:
+        """What the run did, in numbers JSON carries: a value that is not finite is written
+        as null, listed in ``non_finite``, and the run did not converge."""
+        out, bad = results.finite(self._result())
+        if bad:
+            out["non_finite"] = bad
+            out["converged"] = False
+            out["failure"] = out["failure"] or {
+                "step": self.step_index, "t": self.t, "cutbacks": 0, "iterations": 0,
+                "reason": f"not finite: {', '.join(bad[:5])}", "residuals": []}
+        return out
+
+    def _result(self) -> dict:
         m = self.model
         t = self.timing
         n_it = max(t.iterations, 1)
@@ -389,6 +423,4 @@ class Simulation:
                             faces=sh.mesh.faces, conn=sh.conn, rest_thickness=self.h0,
                             **probes.output_fields(self.model, self.x, self.h0))
         tmp.replace(out / "final.npz")
-        tmp = out / "result.tmp.json"
-        tmp.write_text(json.dumps(self.result(), indent=1))
-        tmp.replace(out / "result.json")
+        results.write(out / "result.json", self.result())

@@ -3,12 +3,13 @@ matplotlib): error against run time and DoFs, factorisation time against element
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import platform
 import time
 from pathlib import Path
+
+from sim import results
 
 MARKERS = {"linear": "o", "q3t": "s", "quadratic": "^", "quartic": "D"}
 
@@ -156,8 +157,8 @@ def write_study(study: dict, overheads: list[dict], out: Path, workers: int = 1,
     if overheads:
         md += ["\n## Leave out what a scene does not need\n\n", overhead_md(overheads)]
     (out / "report.md").write_text("".join(md))
-    (out / "report.json").write_text(json.dumps({"study": study, "overhead": overheads},
-                                                indent=1, default=float))
+    (out / "report.json").write_text(results.dumps({"study": study, "overhead": overheads},
+                                                   nulls=True, indent=1, default=float))
 
 
 def write_overhead(overheads: list[dict], out: Path, cluster: str) -> None:
@@ -165,7 +166,8 @@ def write_overhead(overheads: list[dict], out: Path, cluster: str) -> None:
     md = (f"# Leave out what a scene does not need\n\n{_meta()}; ran on {cluster}.\n\n"
           + overhead_md(overheads))
     (out / "report.md").write_text(md)
-    (out / "report.json").write_text(json.dumps({"overhead": overheads}, indent=1))
+    (out / "report.json").write_text(results.dumps({"overhead": overheads}, nulls=True,
+                                                   indent=1))
 
 
 def write_factorisation(scene: str, rows: list[dict], out: Path, cluster: str = "") -> None:
@@ -179,6 +181,6 @@ def write_factorisation(scene: str, rows: list[dict], out: Path, cluster: str = 
           + _table(rows, FACTOR_COLS) + "\n" + "".join(f"![{f}]({f})\n" for f in plots
                                                        if f.endswith(".png")))
     (out / "report.md").write_text(md)
-    (out / "report.json").write_text(json.dumps({"scene": scene, "factorisation": rows},
-                                                indent=1))
+    (out / "report.json").write_text(results.dumps({"scene": scene, "factorisation": rows},
+                                                   nulls=True, indent=1))
 

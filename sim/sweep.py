@@ -15,7 +15,6 @@ finish and ``sweep.json`` is rewritten after each one, so whatever finished is a
 from __future__ import annotations
 
 import itertools
-import json
 import math
 import multiprocessing as mp
 import os
@@ -25,6 +24,8 @@ import time
 from collections.abc import Callable
 from multiprocessing.context import ForkServerProcess
 from pathlib import Path
+
+from sim import results
 
 # Numba's own pool would give every worker all cores: one thread each, the cluster is the pool.
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -323,7 +324,7 @@ def _as_x(v):
 def _write(out: Path, name: str, data: dict) -> None:
     """Through a temporary name: an interrupted sweep never leaves half a file."""
     tmp = out / f"{name}.tmp"
-    tmp.write_text(json.dumps(data, indent=1))
+    tmp.write_text(results.dumps(data, nulls=True, indent=1))
     tmp.replace(out / name)
 
 
