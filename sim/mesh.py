@@ -114,17 +114,25 @@ class MeshFileError(ValueError):
     """A mesh file that is missing or cannot be read."""
 
 
-def load(path: str | Path, scale: float = 1.0) -> TriMesh:
+def load(path: str | Path, scale: float = 1.0, merge: bool | None = None) -> TriMesh:
     """Any OBJ/PLY/STL trimesh reads; ``scale`` converts the file's length unit to metres."""
-    return load_with_values(path, scale)[0]
+    return load_with_values(path, scale, merge=merge)[0]
 
 
 def load_with_values(path: str | Path, scale: float = 1.0, values: np.ndarray | None = None,
-                     attribute: str | None = None) -> tuple[TriMesh, np.ndarray | None]:
-    """:func:`load`, carrying one value per vertex of the file (``values (n_file,)`` in the
-    file's vertex order, or the PLY vertex property ``attribute``) through trimesh's merging
-    of duplicate vertices (the first of duplicates keeps its value) and removal of unused
-    ones. Returns the mesh and the values per mesh vertex (None without any)."""
+                     attribute: str | None = None, merge: bool | None = None,
+                     ) -> tuple[TriMesh, np.ndarray | None, dict]:
+    """A mesh file as its file says: every vertex and triangle as written (a slit whose sides
+    are two rows of coincident vertices stays open). Coincident vertices are merged only when
+    ``merge`` is true, or when it is None and the file is an STL, which stores every
+    triangle's corners apart. Vertices no triangle uses are dropped. Carries one value per
+    vertex of the file (``values (n_file,)`` in the file's vertex order, or the PLY vertex
+    property ``attribute``) through both (the first of merged vertices keeps its value).
+
+    Returns the mesh, the values per mesh vertex (None without any) and a report of what was
+    read: ``file_vertices``, ``vertices``, ``triangles``, ``merged`` (vertices merged into an
+    earlier coincident one), ``merged_groups`` (the first ten groups, as file vertex indices)
+    and ``unused`` (vertices dropped)."""
     import trimesh
 
     path = Path(path)
@@ -137,23 +145,67 @@ def load_with_values(path: str | Path, scale: float = 1.0, values: np.ndarray | 
     if not hasattr(m, "faces") or len(m.faces) == 0:
         raise MeshFileError(f"{path.name}: no triangles")
     if attribute is not None:
-        raw = m.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
-        # ASCII PLY: a dict of columns; binary: a structured array
-        names = tuple(raw) if isinstance(raw, dict) else (raw.dtype.names or ()) \
-            if raw is not None else ()
-        if attribute not in names:
-            raise ValueError(f"{path.name}: no vertex property {attribute!r} "
-                             f"(has {', '.join(n for n in names) or 'none'})")
-        values = np.asarray(raw[attribute], float)
+        values = _ply_property(m, path, attribute)
+    V, F = np.asarray(m.vertices, float) * scale, np.asarray(m.faces, np.int64)
+    _check_coordinates(V, path)
     if values is not None:
         values = np.asarray(values, float).ravel()
-        if len(values) != len(m.vertices):
-            raise ValueError(f"{len(values)} values for the {len(m.vertices)} vertices of "
-                             f"{path.name}")
-        m.vertex_attributes["value"] = values
-    m.process()  # merge duplicates (STL has no shared vertices), drop unused
-    out = np.asarray(m.vertex_attributes["value"], float) if values is not None else None
-    return TriMesh(np.asarray(m.vertices, float) * scale, np.asarray(m.faces, np.int64)), out
+        if len(values) != len(V):
+            raise ValueError(f"{len(values)} values for the {len(V)} vertices of {path.name}")
+    if merge is None:
+        merge = path.suffix.lower() == ".stl"
+    keep, F, groups = _merged(V, F) if merge else (np.arange(len(V)), F, [])
+    collapsed = np.flatnonzero((F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2])
+                               | (F[:, 2] == F[:, 0]))
+    if len(collapsed):
+        raise MeshFileError(f"{path.name}: {len(collapsed)} triangles have a repeated vertex "
+                            f"(first: {collapsed[:5].tolist()})"
+                            f"{' once coincident vertices are merged' if groups else ''}")
+    used = np.unique(F)  # the vertices triangles use, in file order
+    renumber = np.full(len(keep), -1)
+    renumber[used] = np.arange(len(used))
+    report = {"file": path.name, "file_vertices": len(V), "vertices": len(used),
+              "triangles": len(F), "merged": len(V) - len(keep), "merged_groups": groups,
+              "unused": len(keep) - len(used)}
+    keep = keep[used]
+    out = values[keep] if values is not None else None
+    return TriMesh(V[keep], renumber[F]), out, report
+
+
+def _ply_property(m, path: Path, attribute: str) -> np.ndarray:
+    raw = m.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
+    # ASCII PLY: a dict of columns; binary: a structured array
+    names = tuple(raw) if isinstance(raw, dict) else (raw.dtype.names or ()) \
+        if raw is not None else ()
+    if attribute not in names:
+        raise ValueError(f"{path.name}: no vertex property {attribute!r} "
+                         f"(has {', '.join(n for n in names) or 'none'})")
+    return np.asarray(raw[attribute], float)
+
+
+def _check_coordinates(V: np.ndarray, path: Path) -> None:
+    """Finite, and within the scene's bound on lengths (sim.scene.MAX_LENGTH) once scaled."""
+    from sim.scene import MAX_LENGTH
+
+    bad = np.flatnonzero(~np.isfinite(V).all(1) | (np.abs(V) > MAX_LENGTH).any(1))
+    if len(bad):
+        raise MeshFileError(f"{path.name}: vertex {bad[0]} at {V[bad[0]].tolist()} m is not "
+                            f"finite or beyond {MAX_LENGTH:.0e} m ({len(bad)} such vertices)")
+
+
+def _merged(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[list[int]]]:
+    """Coincident vertices (equal to 1e-9 of the mesh's extent) merged into the first of
+    them: the file vertex each merged vertex is (``(n,)``, in file order), the faces on the
+    merged vertices, and the first ten groups merged (file indices, in file order)."""
+    extent = float(np.ptp(V, axis=0).max()) or 1.0
+    _, first, inverse = np.unique(np.round(V / (1e-9 * extent)), axis=0, return_index=True,
+                                  return_inverse=True)
+    order = np.argsort(first)  # merged vertices keep the file's order
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    new = rank[inverse.ravel()]
+    multiple = np.flatnonzero(np.bincount(new) > 1)[:10]
+    return first[order], new[F], [np.flatnonzero(new == g).tolist() for g in multiple]
 
 
 def vertex_normals(mesh: TriMesh) -> np.ndarray:

@@ -18,7 +18,7 @@ from sim.elements import get_element
 from sim.linsolve import make_solver
 from sim.materials.plasticity import LINEAR, PERFECT, SWIFT, VOCE
 from sim.newton import NewtonSettings, Problem
-from sim.scene import MaterialSpec, MeshSpec, RegionSpec, Scene
+from sim.scene import MAX_LENGTH, MaterialSpec, MeshSpec, RegionSpec, Scene
 from sim.shell import Shell, extrude
 from sim.terms import Term
 from sim.terms import loads as L
@@ -45,7 +45,7 @@ def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
         return meshes.annulus(r0, spec.r_outer, spec.edge_length)
     if spec.kind == "cylinder_band":
         return meshes.cylinder_band(spec.radius, spec.height, spec.edge_length)
-    return meshes.load(spec.path, spec.scale)
+    return meshes.load(spec.path, spec.scale, spec.merge_vertices)
 
 
 def imperfect(mesh: meshes.TriMesh, amplitude: float) -> meshes.TriMesh:
@@ -77,18 +77,21 @@ def _read_values(path: str) -> np.ndarray:
         raise ValueError(f"{p.name} is not an array of numbers ({exc})") from None
 
 
-def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray]:
-    """The mid-surface and the thickness at each of its vertices ``(n_v,)`` (m); errors name
-    the shell field they come from."""
+def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray, dict]:
+    """The mid-surface, the thickness at each of its vertices ``(n_v,)`` (m) and a report of
+    the mesh (a file's: what was read, merged and dropped, sim.mesh.load_with_values); errors
+    name the field they come from."""
     sh, spec = scene.shell, scene.mesh
     field_name = "shell.thickness_file" if sh.thickness_file else "shell.thickness_attribute"
     try:
         values = _read_values(sh.thickness_file) if sh.thickness_file else None
         if spec.kind == "file":
-            mesh, h = meshes.load_with_values(spec.path, spec.scale, values,
-                                              sh.thickness_attribute)
+            mesh, h, report = meshes.load_with_values(spec.path, spec.scale, values,
+                                                      sh.thickness_attribute,
+                                                      spec.merge_vertices)
         else:
             mesh, h = build_mesh(spec), values
+            report = {"vertices": len(mesh.vertices), "triangles": len(mesh.faces)}
             if h is not None and len(h) != len(mesh.vertices):
                 raise ValueError(f"{len(h)} values for the {len(mesh.vertices)} vertices of "
                                  f"the {spec.kind} mesh")
@@ -100,12 +103,13 @@ def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray]:
     if h is None:
         h = sh.thickness + mesh.vertices @ np.asarray(sh.thickness_gradient)
         field_name = "shell.thickness_gradient"
-    bad = ~np.isfinite(h) | (h <= 0)
+    bad = ~np.isfinite(h) | (h <= 0) | (h > MAX_LENGTH)
     if bad.any():
         v = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"{field_name}: thickness must be positive at every vertex "
-                         f"({int(bad.sum())} are not; vertex {v}: {h[v]:.3g} m)")
-    return mesh, np.asarray(h, float)
+        raise ValueError(f"{field_name}: thickness must be positive (and at most "
+                         f"{MAX_LENGTH:.0e} m) at every vertex ({int(bad.sum())} are not; "
+                         f"vertex {v}: {h[v]:.3g} m)")
+    return mesh, np.asarray(h, float), {"kind": spec.kind, **report}
 
 
 def lame(E: float, nu: float) -> tuple[float, float]:
@@ -188,6 +192,7 @@ class Model:
     settings: NewtonSettings
     built: dict = field(default_factory=dict)
     quadrature: dict = field(default_factory=dict)  # the rule and why it was chosen
+    mesh_report: dict = field(default_factory=dict)  # sim.model.mesh_and_thickness
 
     released: np.ndarray | None = None  # (n_nodes, 3) bool: DoFs freed for springback
     release_support: np.ndarray | None = None  # (n_nodes, 3) bool: held only for springback
@@ -257,7 +262,7 @@ def quadrature_rule(scene: Scene, elem, mesh) -> tuple[tuple[int, int], str]:
 
 def build_model(scene: Scene) -> Model:
     elem = get_element(scene.shell.element)
-    mesh, h = mesh_and_thickness(scene)
+    mesh, h, mesh_report = mesh_and_thickness(scene)
     shell = extrude(mesh, h, elem)
     rule_spec, why = quadrature_rule(scene, elem, mesh)
     if scene.shell.thickness_points:
@@ -342,6 +347,7 @@ def build_model(scene: Scene) -> Model:
     solver = make_solver(pattern, scene.solver.linear_solver)
     model.problem = Problem(terms, pattern, solver, fixed)
     model.quadrature = {"rule": list(rule_spec), "why": why}
+    model.mesh_report = mesh_report
     model.built = describe(model)
     return model
 
@@ -354,9 +360,10 @@ def frame_fields(model: Model) -> list[str]:
 
 
 def describe(model: Model) -> dict:
-    """What ``model`` holds: ``terms`` (names), ``plastic_state``, ``state`` (array name ->
-    shape: what a step carries over besides the positions), ``linear_solver``, ``quadrature``
-    (the rule and why: :func:`quadrature_rule`), ``outputs``."""
+    """What ``model`` holds: ``mesh`` (what was read or generated, and for a file what was
+    merged: :func:`mesh_and_thickness`), ``terms`` (names), ``plastic_state``, ``state`` (array
+    name -> shape: what a step carries over besides the positions), ``linear_solver``,
+    ``quadrature`` (the rule and why: :func:`quadrature_rule`), ``outputs``."""
     el, inertia = model.elasticity, model.inertia
     tools = [t for t in model.terms if isinstance(t, ToolContact)]
     state: dict[str, list[int]] = {"positions": list(model.x0.shape)}
@@ -367,7 +374,8 @@ def describe(model: Model) -> dict:
     for t in tools:  # committed tool position; contact is tested on these skin nodes
         state |= {f"{t.name}.position": [3], f"{t.name}.candidates": [len(t.nodes)]}
     sc = model.scene
-    return {"terms": [t.name for t in model.terms], "plastic_state": el.plastic,
+    return {"mesh": model.mesh_report, "terms": [t.name for t in model.terms],
+            "plastic_state": el.plastic,
             "state": state, "linear_solver": model.problem.solver.name,
             "quadrature": model.quadrature,
             "outputs": {"probes": [p.name for p in sc.probes],

@@ -99,6 +99,10 @@ class MeshSpec(Strict):
     radius: Length | None = None  # cylinder_band
     height: Length | None = None  # cylinder_band
     path: str | None = None
+    # a file's coincident vertices merged into one (a slit whose sides are two rows of
+    # coincident vertices closes); default: only for STL, which stores every triangle's corners
+    # apart. result.json's built.mesh says what was merged
+    merge_vertices: bool | None = None
     # file units to metres (1e-3 for mm): between nanometres and kilometres
     scale: Annotated[float, Field(ge=1e-9, le=1e3)] = 1.0
     # out-of-plane imperfection of a flat mid-surface (m): z += a sin(pi s) sin(pi t), with
@@ -116,6 +120,8 @@ class MeshSpec(Strict):
             raise ValueError(f"mesh kind {self.kind!r} needs {', '.join(missing)}")
         if self.kind == "annulus" and self.r_inner >= self.r_outer:
             raise ValueError("r_inner must be smaller than r_outer")
+        if self.merge_vertices is not None and self.kind != "file":
+            raise ValueError(f"merge_vertices: only for mesh kind 'file', not {self.kind!r}")
         return self
 
 

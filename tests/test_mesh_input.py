@@ -163,3 +163,88 @@ def test_imperfection_seeds_one_smooth_bump(tmp_path):
                                  'edge_length = 0.02')
     with pytest.raises(ValueError, match="mesh.imperfection: needs a flat mesh"):
         Simulation.from_scene(load_scene(band, {"mesh.imperfection": 1e-5}))
+
+
+SLIT = """
+name = "slit"
+[mesh]
+kind = "file"
+path = "slit.obj"
+{merge}
+[shell]
+thickness = 0.002
+element = "linear"
+[material]
+E = 1e6
+nu = 0.3
+[[regions]]
+name = "bottom"
+plane = {{ point = [0.0, 0.0, 0.0], normal = [0.0, 1.0, 0.0], tolerance = 1e-6 }}
+[[regions]]
+name = "top"
+plane = {{ point = [0.0, 0.1, 0.0], normal = [0.0, 1.0, 0.0], tolerance = 1e-6 }}
+[[bcs]]
+region = "bottom"
+[[bcs]]
+region = "top"
+displacement = [0.0, 1e-4, 0.0]
+"""
+
+
+def _slit_plate_obj(path) -> None:
+    """A 10 x 10 cm plate, a 6 x 6 vertex grid (vertex (i, j) is number 6 j + i), with a slit
+    from the left edge along y = 4 cm to x = 6 cm: the cells above the slit use copies of its
+    vertices at x = 0, 2 and 4 cm (numbers 36-38), the tip at 6 cm is shared. 39 vertices,
+    two rows of them coincident."""
+    xs = np.linspace(0.0, 0.1, 6)
+    V = [(x, y, 0.0) for y in xs for x in xs] + [(xs[i], xs[2], 0.0) for i in range(3)]
+
+    def vid(i, j, above_slit):
+        return 36 + i if above_slit and j == 2 and i <= 2 else 6 * j + i
+
+    F = []
+    for j in range(5):
+        for i in range(5):
+            a, b, c, d = (vid(i, j, j == 2), vid(i + 1, j, j == 2),
+                          vid(i + 1, j + 1, j == 2), vid(i, j + 1, j == 2))
+            F += [(a, b, c), (a, c, d)]
+    path.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in V)
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F))
+
+
+def test_a_mesh_file_keeps_its_topology_and_merges_only_on_request(tmp_path):
+    """The slit plate pulled apart: read as the file has it, the slit opens (its two sides
+    are different vertices); merged on request, it is a closed plate, and built.mesh says
+    which vertices were merged."""
+    _slit_plate_obj(tmp_path / "slit.obj")
+    gaps, built = {}, {}
+    for merge in (None, True):
+        path = tmp_path / "scene.toml"
+        path.write_text(SLIT.format(merge="" if merge is None else "merge_vertices = true"))
+        sim = Simulation.from_scene(load_scene(path))
+        assert sim.run(), sim.failure
+        built[merge] = sim.result()["built"]["mesh"]
+        sheet = sim.model.shell.mesh
+        x = sim.x[: len(sheet.vertices)]  # the bottom skin nodes of the mid-surface vertices
+        at = np.flatnonzero(np.isclose(sheet.vertices[:, 0], 0.0)
+                            & np.isclose(sheet.vertices[:, 1], 0.04))
+        gaps[merge] = np.ptp(x[at, 1]) if len(at) > 1 else 0.0
+        assert len(mesh.boundary_edges(sheet.faces)) == (26 if merge is None else 20)
+    assert built[None] == {"kind": "file", "file": "slit.obj", "file_vertices": 39,
+                           "vertices": 39, "triangles": 50, "merged": 0, "merged_groups": [],
+                           "unused": 0}
+    assert built[True] == {**built[None], "vertices": 36, "merged": 3,
+                           "merged_groups": [[12, 36], [13, 37], [14, 38]]}
+    # the mouth of the slit opens by a good part of the 0.1 mm the plate is stretched by
+    assert gaps[None] > 2e-5 and gaps[True] == 0.0
+
+
+def test_merging_that_collapses_a_triangle_names_the_file(tmp_path):
+    (tmp_path / "sliver.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1e-12 0\nv 0 1 0\n"
+                                         "f 1 2 4\nf 2 3 4\n")
+    path = write_scene(tmp_path, 'kind = "file"\npath = "sliver.obj"\nmerge_vertices = true')
+    with pytest.raises(ValueError, match=r"mesh.path: sliver.obj: 1 triangles have a repeated "
+                                         r"vertex \(first: \[1\]\) once coincident"):
+        Simulation.from_scene(load_scene(path))
+    with pytest.raises(SceneError, match=r"^mesh\b.*merge_vertices: only for mesh kind 'file'"):
+        load_scene(write_scene(tmp_path, RECT + "\nmerge_vertices = true"))
