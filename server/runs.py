@@ -126,6 +126,7 @@ class RunManager:
             if self.active:
                 self._finish(self.runs[self.active], "stopped", "server shut down" + note)
         if run is not None:
+            self._result_if_missing(run)
             self._save(run)
 
     def _load(self) -> dict[str, Run]:
@@ -278,10 +279,7 @@ class RunManager:
         old.process.join(5.0)
         self._retired.append(old)
         d = self.dir(run.id)
-        try:
-            results.write(d / "result.json", results.unbuilt(run.scene, run.element, run.reason))
-        except (OSError, ValueError) as exc:
-            self._note(run.id, f"{run.reason}; writing result.json failed: {exc}")
+        self._result_if_missing(run)
         if (d / "run.rrd").is_file():
             note = self._repair(run)
             if note:
@@ -289,6 +287,19 @@ class RunManager:
         self._save(run)
         if self.viewer:
             self.viewer.set_recordings(self.recorded())
+
+    def _result_if_missing(self, run: Run) -> None:
+        """A run whose solver ended without writing result.json (killed while building or
+        stepping) gets one from what the server knows: the reason and the step records."""
+        path = self.dir(run.id) / "result.json"
+        if path.exists():
+            return
+        with self.lock:
+            reason, steps = run.reason or run.state, list(run.records)
+        try:
+            results.write(path, results.interrupted(run.scene, run.element, reason, steps))
+        except (OSError, ValueError) as exc:
+            self._note(run.id, f"{reason}; writing result.json failed: {exc}")
 
     def _close_retired(self) -> None:
         while self._retired:
@@ -527,6 +538,7 @@ class RunManager:
             self.restarts += 1
         w.close(timeout=0.1)
         if run is not None:
+            self._result_if_missing(run)
             self._save(run)
             if self.viewer:
                 self.viewer.set_recordings(self.recorded())

@@ -181,7 +181,7 @@ class _Solver:
         from sim import results
 
         try:
-            results.write(self.out / "result.json", results.unbuilt(
+            results.write(self.out / "result.json", results.interrupted(
                 scene.name if scene else None, scene.shell.element if scene else None, reason))
         except Exception as exc:
             reason += f"; writing results failed: {exc}"

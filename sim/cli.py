@@ -66,7 +66,7 @@ def cmd_run(args) -> int:
     except Exception as exc:  # a failed run, not bad input: say why, with a result.json
         reason = f"build failed: {type(exc).__name__}: {exc}"
         out.mkdir(parents=True, exist_ok=True)
-        results.write(out / "result.json", results.unbuilt(scene.name, scene.shell.element,
+        results.write(out / "result.json", results.interrupted(scene.name, scene.shell.element,
                                                            reason))
         print(f"q3t: FAILED: {reason}\nwrote {out}/result.json", file=sys.stderr)
         return 1

@@ -49,10 +49,14 @@ def write(path: Path, obj, indent: int = 1) -> None:
     os.replace(tmp, path)
 
 
-def unbuilt(scene: str | None, element: str | None, reason: str) -> dict:
-    """result.json of a run that ended before it had a model (its build failed or was
-    stopped): the keys of ``Simulation.result`` that mean something without one."""
+def interrupted(scene: str | None, element: str | None, reason: str,
+                steps: list[dict] = ()) -> dict:
+    """result.json of a run whose solver could not write one (its build failed or was
+    stopped, or its process died): the keys of ``Simulation.result`` that mean something
+    without a model, and the ``steps`` records known of it."""
+    steps = list(steps)
     return {"scene": scene, "element": element, "built": None, "parameters": [],
-            "converged": False, "steps": [],
-            "failure": {"step": 0, "t": 0.0, "cutbacks": 0, "reason": reason,
-                        "iterations": 0, "residuals": []}}
+            "converged": False, "steps": steps,
+            "failure": {"step": steps[-1]["step"] + 1 if steps else 0,
+                        "t": steps[-1]["time"] if steps else 0.0, "cutbacks": 0,
+                        "reason": reason, "iterations": 0, "residuals": []}}
