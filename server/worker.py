@@ -144,7 +144,9 @@ class _Solver:
             rest = _frame_msg(self.run, self.sim)
         except Exception as exc:
             self.sim = None
-            self._unbuilt(scene, f"build failed: {type(exc).__name__}: {exc}")
+            # a ValueError is the scene's (its message names the field); anything else a bug
+            what = "" if isinstance(exc, ValueError) else f"{type(exc).__name__}: "
+            self._unbuilt(scene, f"build failed: {what}{exc}")
             raise
         t2 = time.perf_counter()
         try:  # after the build: a run stopped while building (server.runs) leaves no file

@@ -40,10 +40,9 @@ MAX_TIME = 1e6  # s: eleven days of process time
 MAX_STRAIN = 10.0  # hardening strain offsets; (e0 + ep)^n must not overflow
 
 
-def _bounded(lo: float | None, hi: float, lo_open: bool = True):
-    """A float in ``(lo, hi]`` (``[lo, hi]`` when not ``lo_open``; no lower bound for None)."""
-    low = {} if lo is None else ({"gt": lo} if lo_open else {"ge": lo})
-    return Annotated[float, Field(le=hi, **low)]
+def _bounded(lo: float, hi: float, lo_open: bool = True):
+    """A float in ``(lo, hi]`` (``[lo, hi]`` when not ``lo_open``)."""
+    return Annotated[float, Field(le=hi, **({"gt": lo} if lo_open else {"ge": lo}))]
 
 
 Length = _bounded(0.0, MAX_LENGTH)  # m, positive
@@ -339,8 +338,8 @@ class BCSpec(Strict):
                 raise ValueError(f"keyframes.{i}: needs [t, {', '.join(self.components)}] "
                                  f"({n} numbers) for components {self.components!r}, "
                                  f"got {len(row)}")
+        check_keyframes(self.keyframes, n)
         times = [r[0] for r in self.keyframes]
-        check_keyframes(self.keyframes, 1 + len(self.components))
         if times[0] < 0:
             raise ValueError("keyframes: times must be >= 0")
         if any(b <= a for a, b in zip(times, times[1:], strict=False)):
@@ -358,10 +357,10 @@ class LoadSpec(Strict):
     point: Point | None = None
     skin: Literal["top", "bottom"] = "top"
 
-    # the bound of each kind's vector, and its unit
+    # the bound of each kind's vector, and its unit (a pressure has none)
     BOUNDS: ClassVar[dict[str, tuple[float, str]]] = {
         "gravity": (MAX_ACCELERATION, "m/s^2"), "traction": (MAX_STRESS, "Pa"),
-        "point": (MAX_FORCE, "N"), "pressure": (0.0, "")}
+        "point": (MAX_FORCE, "N")}
 
     @field_validator("vector")
     @classmethod
