@@ -40,6 +40,7 @@ def create_app(settings: Settings | None = None, worker_target=None) -> FastAPI:
     app = FastAPI(title="q3t-forming preview", version="0.1.0", lifespan=lifespan)
     app.state.settings = settings
     errors.install(app, settings)
+    every = errors.documented(401) if settings.token else None
     for module in (scenes, runs, meta, web):
-        app.include_router(module.router)
+        app.include_router(module.router, responses=every)
     return app

@@ -7,11 +7,12 @@ from fastapi import APIRouter, Request, Response
 from pydantic import BaseModel, ConfigDict
 
 from server import sceneform
-from server.settings import check_name
+from server.errors import BODY, CheckedRoute, documented
+from server.settings import SceneName
 from server.store import SceneStore
 from sim.scene import Scene
 
-router = APIRouter(prefix="/api/scenes", tags=["scenes"])
+router = APIRouter(prefix="/api/scenes", tags=["scenes"], route_class=CheckedRoute)
 
 
 class Body(BaseModel):
@@ -23,12 +24,12 @@ class SceneText(Body):
 
 
 class NewScene(Body):
-    name: str
+    name: SceneName
     toml: str
 
 
 class NewName(Body):
-    name: str
+    name: SceneName
 
 
 class SceneJSON(Body):
@@ -59,12 +60,12 @@ def schema() -> dict:
     return Scene.model_json_schema()
 
 
-@router.post("/validate")
+@router.post("/validate", responses=documented(*BODY))
 def validate(body: SceneText, request: Request) -> dict:
     return {"ok": True, "scene": _store(request).validate(body.toml).model_dump(mode="json")}
 
 
-@router.post("/render")
+@router.post("/render", responses=documented(*BODY))
 def render(body: SceneJSON) -> dict:
     """Scene JSON (the page's form) to TOML text, with validation errors naming the field
     (``{"loc": "material.nu", "msg": ...}``). A valid scene is written without its defaults.
@@ -72,44 +73,43 @@ def render(body: SceneJSON) -> dict:
     return sceneform.render(body.scene)
 
 
-@router.post("/parse")
+@router.post("/parse", responses=documented(*BODY))
 def parse(body: SceneText) -> dict:
-    """TOML text to scene JSON: ``scene`` (validated, defaults filled in) or ``raw`` and
+    """TOML to scene JSON: ``scene`` (validated, defaults filled in) or ``raw`` and
     ``errors`` naming the fields. Never saves."""
     return sceneform.parse(body.toml)
 
 
-@router.get("/{name}")
-def read_scene(name: str, request: Request) -> dict:
+@router.get("/{name}", responses=documented(404, 422))
+def read_scene(name: SceneName, request: Request) -> dict:
     return _read(_store(request), name)
 
 
-@router.post("", status_code=201)
+@router.post("", status_code=201, responses=documented(409, *BODY))
 def create_scene(body: NewScene, request: Request, response: Response) -> dict:
     store = _store(request)
-    check_name(body.name, "scene name")
     store.create(body.name, body.toml)  # atomic: of two creates of one name, one wins
     response.headers["Location"] = f"/api/scenes/{body.name}"
     return _read(store, body.name)
 
 
-@router.put("/{name}")
-def update_scene(name: str, body: SceneText, request: Request) -> dict:
+@router.put("/{name}", responses=documented(*BODY))
+def update_scene(name: SceneName, body: SceneText, request: Request) -> dict:
     store = _store(request)
     store.save(name, body.toml)
     return _read(store, name)
 
 
-@router.delete("/{name}", status_code=204)
-def delete_scene(name: str, request: Request) -> Response:
+@router.delete("/{name}", status_code=204, responses=documented(404, 422))
+def delete_scene(name: SceneName, request: Request) -> Response:
     _store(request).delete(name)
     return Response(status_code=204)
 
 
-@router.post("/{name}/duplicate", status_code=201)
-def duplicate_scene(name: str, body: NewName, request: Request) -> dict:
+@router.post("/{name}/duplicate", status_code=201, responses=documented(404, 409, *BODY))
+def duplicate_scene(name: SceneName, body: NewName, request: Request,
+                    response: Response) -> dict:
     store = _store(request)
-    text = store.text(name)
-    check_name(body.name, "scene name")
-    store.create(body.name, text)
+    store.create(body.name, store.text(name))
+    response.headers["Location"] = f"/api/scenes/{body.name}"
     return _read(store, body.name)
