@@ -36,7 +36,8 @@ ERRORS = {
     400: "The request cannot be read (e.g. a Content-Length that is not a number)",
     401: "Missing or wrong access token",
     404: "No such scene, run, frame or file",
-    405: "Method not allowed here; the Allow header lists those that are",
+    405: "Method not allowed here (the Allow header lists those that are); a reserved scene "
+         "name (parse, render, schema, validate) is a route of its own",
     408: "The request body did not arrive in time",
     409: "The request does not fit the run's state, or the name is taken",
     413: "The request body is too large",

@@ -26,7 +26,7 @@ from server.estimate import estimate as study_estimate
 from server.estimate import find_study
 from server.history import FrameHistory
 from server.problems import Conflict, Invalid, NotFound, NotReady
-from server.settings import RUN_ID_MAX, Settings, check_name
+from server.settings import Settings, check_run_id
 from server.store import SceneStore, atomic_write
 from server.worker import worker_main
 from server.workerhandle import WorkerHandle
@@ -156,7 +156,7 @@ class RunManager:
             self.heartbeat = time.monotonic()
 
     def dir(self, run_id: str) -> Path:
-        return self.root / check_name(run_id, "run id", RUN_ID_MAX)
+        return self.root / check_run_id(run_id)
 
     def _save(self, run: Run) -> None:
         with self.lock:  # a consistent snapshot; the encoding and the write come after
@@ -178,7 +178,7 @@ class RunManager:
 
     # ---- requests ---------------------------------------------------------------------------
     def get(self, run_id: str) -> Run:
-        check_name(run_id, "run id", RUN_ID_MAX)
+        check_run_id(run_id)
         try:
             return self.runs[run_id]
         except KeyError:

@@ -11,8 +11,8 @@ import os
 import secrets
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
-from server.problems import Conflict, NotFound
-from server.settings import check_name
+from server.problems import Conflict, Invalid, NotFound
+from server.settings import check_scene_name
 from sim.scene import Scene, SceneError, read_toml, scene_from_toml
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl")  # what sim.mesh.load reads
@@ -58,16 +58,25 @@ def exclusive_write(path: Path, data: str | bytes) -> bool:
         tmp.unlink(missing_ok=True)
 
 
+def _is_name(text: str) -> bool:
+    try:
+        return bool(check_scene_name(text))
+    except Invalid:
+        return False
+
+
 class SceneStore:
     def __init__(self, root: Path):
         self.root = root
         root.mkdir(parents=True, exist_ok=True)
 
     def path(self, name: str) -> Path:
-        return self.root / f"{check_name(name, 'scene name')}.toml"
+        return self.root / f"{check_scene_name(name)}.toml"
 
     def names(self) -> list[str]:
-        return sorted(p.stem for p in self.root.glob("*.toml") if not p.name.startswith("."))
+        """The scenes: the folder's TOML files whose names are scene names (a file named
+        otherwise, put there by hand, could not be addressed)."""
+        return sorted(p.stem for p in self.root.glob("*.toml") if _is_name(p.stem))
 
     def text(self, name: str) -> str:
         p = self.path(name)

@@ -5,14 +5,26 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request, Response
 from pydantic import BaseModel, ConfigDict
+from starlette.convertors import StringConvertor, register_url_convertor
 
 from server import sceneform
 from server.errors import BODY, CheckedRoute, documented
-from server.settings import SceneName
+from server.settings import RESERVED_SCENE_NAMES, SceneName, ScenePath
 from server.store import SceneStore
 from sim.scene import Scene
 
 router = APIRouter(prefix="/api/scenes", tags=["scenes"], route_class=CheckedRoute)
+
+
+class SceneSegment(StringConvertor):
+    """A ``{name:scene}`` path segment: any but the names of the routes beside it, so that
+    ``PUT /api/scenes/schema`` is a 405 (the schema is read-only), not a scene named "schema"."""
+
+    regex = f"(?!(?:{'|'.join(RESERVED_SCENE_NAMES)})(?:/|$))[^/]+"
+
+
+register_url_convertor("scene", SceneSegment())
+NAMED = (405, 422)  # a route naming a scene: a reserved name is another route (405)
 
 
 class Body(BaseModel):
@@ -80,8 +92,8 @@ def parse(body: SceneText) -> dict:
     return sceneform.parse(body.toml)
 
 
-@router.get("/{name}", responses=documented(404, 422))
-def read_scene(name: SceneName, request: Request) -> dict:
+@router.get("/{name:scene}", responses=documented(404, *NAMED))
+def read_scene(name: ScenePath, request: Request) -> dict:
     return _read(_store(request), name)
 
 
@@ -93,21 +105,22 @@ def create_scene(body: NewScene, request: Request, response: Response) -> dict:
     return _read(store, body.name)
 
 
-@router.put("/{name}", responses=documented(*BODY))
-def update_scene(name: SceneName, body: SceneText, request: Request) -> dict:
+@router.put("/{name:scene}", responses=documented(*NAMED, *BODY))
+def update_scene(name: ScenePath, body: SceneText, request: Request) -> dict:
     store = _store(request)
     store.save(name, body.toml)
     return _read(store, name)
 
 
-@router.delete("/{name}", status_code=204, responses=documented(404, 422))
-def delete_scene(name: SceneName, request: Request) -> Response:
+@router.delete("/{name:scene}", status_code=204, responses=documented(404, *NAMED))
+def delete_scene(name: ScenePath, request: Request) -> Response:
     _store(request).delete(name)
     return Response(status_code=204)
 
 
-@router.post("/{name}/duplicate", status_code=201, responses=documented(404, 409, *BODY))
-def duplicate_scene(name: SceneName, body: NewName, request: Request,
+@router.post("/{name:scene}/duplicate", status_code=201,
+             responses=documented(404, 409, *NAMED, *BODY))
+def duplicate_scene(name: ScenePath, body: NewName, request: Request,
                     response: Response) -> dict:
     store = _store(request)
     store.create(body.name, store.text(name))
