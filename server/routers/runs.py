@@ -20,11 +20,11 @@ Scalar = float | int | bool | str | list[float]
 RUN = documented(404, 422)  # any route naming a run
 
 
-class Body(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class NewRun(Body):
+class NewRun(BaseModel):
+    # strict: a JSON 0 is no boolean, as the schema says
+    model_config = ConfigDict(strict=True, extra="forbid", json_schema_extra={"examples": [{
+        "scene": "cantilever", "element": "linear", "overrides": {"mesh.edge_length": 0.035},
+        "paused": True}]})
     scene: SceneName
     element: str | None = None
     overrides: dict[str, Scalar] = Field(default_factory=dict,
@@ -33,8 +33,16 @@ class NewRun(Body):
     paused: bool = False
 
 
-class ParameterValue(Body):
+class ParameterValue(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid",
+                              json_schema_extra={"examples": [{"value": 1.5}]})
     value: float
+
+
+# what a new run's id leads to (OpenAPI links: clients and fuzzers follow them)
+RUN_LINKS = {op: {"operationId": op, "parameters": {"run_id": "$response.body#/id"}}
+             for op in ("status", "pause", "resume", "step", "stop", "set_parameter", "result",
+                        "frames", "recording", "delete_run")}
 
 
 def _runs(request: Request) -> RunManager:
@@ -46,7 +54,8 @@ def list_runs(request: Request) -> list[dict]:
     return _runs(request).list()
 
 
-@router.post("", status_code=201, responses=documented(404, 409, 503, *BODY))
+@router.post("", status_code=201,
+             responses={201: {"links": RUN_LINKS}, **documented(404, 409, 503, *BODY)})
 def start_run(body: NewRun, request: Request) -> dict:
     run = _runs(request).start_run(body.scene, body.element, body.overrides, body.parameters,
                                    body.paused)

@@ -27,25 +27,52 @@ register_url_convertor("scene", SceneSegment())
 NAMED = (405, 422)  # a route naming a scene: a reserved name is another route (405)
 
 
-class Body(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+EXAMPLE_TOML = """name = "plate"
+[mesh]
+kind = "rectangle"
+size = [0.7, 0.07]
+edge_length = 0.035
+[shell]
+thickness = 0.007
+[material]
+E = 1.0e9
+nu = 0.3
+"""
 
 
-class SceneText(Body):
+def _example(**values) -> ConfigDict:
+    """A request body's config: strict (a JSON 0 is no boolean), no unknown fields, and an
+    example for the schema."""
+    return ConfigDict(strict=True, extra="forbid", json_schema_extra={"examples": [values]})
+
+
+class SceneText(BaseModel):
+    model_config = _example(toml=EXAMPLE_TOML)
     toml: str
 
 
-class NewScene(Body):
+class NewScene(BaseModel):
+    model_config = _example(name="plate", toml=EXAMPLE_TOML)
     name: SceneName
     toml: str
 
 
-class NewName(Body):
+class NewName(BaseModel):
+    model_config = _example(name="cantilever-copy")
     name: SceneName
 
 
-class SceneJSON(Body):
+class SceneJSON(BaseModel):
+    model_config = _example(scene={"name": "plate", "mesh": {"size": [0.7, 0.07]},
+                                   "shell": {"thickness": 0.007},
+                                   "material": {"E": 1.0e9, "nu": 0.3}})
     scene: dict
+
+
+# what a new scene's name leads to (OpenAPI links: clients and fuzzers follow them)
+NAME_LINKS = {op: {"operationId": op, "parameters": {"name": "$response.body#/name"}}
+              for op in ("read_scene", "update_scene", "delete_scene", "duplicate_scene")}
+CREATED = {201: {"links": NAME_LINKS}}
 
 
 def _store(request: Request) -> SceneStore:
@@ -97,7 +124,7 @@ def read_scene(name: ScenePath, request: Request) -> dict:
     return _read(_store(request), name)
 
 
-@router.post("", status_code=201, responses=documented(409, *BODY))
+@router.post("", status_code=201, responses={**CREATED, **documented(409, *BODY)})
 def create_scene(body: NewScene, request: Request, response: Response) -> dict:
     store = _store(request)
     store.create(body.name, body.toml)  # atomic: of two creates of one name, one wins
@@ -119,7 +146,7 @@ def delete_scene(name: ScenePath, request: Request) -> Response:
 
 
 @router.post("/{name:scene}/duplicate", status_code=201,
-             responses=documented(404, 409, *NAMED, *BODY))
+             responses={**CREATED, **documented(404, 409, *NAMED, *BODY)})
 def duplicate_scene(name: ScenePath, body: NewName, request: Request,
                     response: Response) -> dict:
     store = _store(request)
