@@ -4,7 +4,7 @@ delete. Every call returns at once; the solver process does the work."""
 from __future__ import annotations
 
 import json
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import FileResponse
@@ -39,6 +39,56 @@ class ParameterValue(BaseModel):
     value: float
 
 
+class RunSummary(BaseModel):
+    """A run as the server holds it (fields added later pass through)."""
+
+    model_config = ConfigDict(extra="allow")
+    id: str
+    scene: str
+    element: str
+    overrides: dict
+    created: float = Field(description="Unix time")
+    state: Literal["starting", "building", "running", "paused", "finished", "failed",
+                   "stopped"]
+    reason: str | None = Field(description="why it failed or stopped, or a note")
+    step: int
+    n_steps: int | None
+    estimate: dict | None = Field(description="a finished run's error estimate and cost")
+
+
+class RunStatus(RunSummary):
+    records: list[dict] = Field(description="step records after ``since``, in step order")
+    records_left: int = Field(description="records after these: ask again from the last step")
+
+
+class ParameterAnswer(BaseModel):
+    run: str
+    name: str
+    value: float
+    applied: bool = Field(description="the solver has answered (else it is inside a step)")
+    applies_from_step: int | None
+    detail: str | None = None
+
+
+class KeptFrames(BaseModel):
+    run: str | None
+    steps: list[int]
+    stride: int = Field(description="every stride-th step is kept")
+    bytes: int
+    max_frames: int
+    max_bytes: int
+
+
+class FrameStats(BaseModel):
+    step: int
+    time: float
+    n_vertices: int
+    tools: dict[str, list[float]] = Field(description="each tool's translation")
+    fields: dict[str, dict[str, float]] = Field(description="min, max and mean of each field")
+    bounds: list[list[float]]
+    probes: dict
+
+
 # what a new run's id leads to (OpenAPI links: clients and fuzzers follow them)
 RUN_LINKS = {op: {"operationId": op, "parameters": {"run_id": "$response.body#/id"}}
              for op in ("status", "pause", "resume", "step", "stop", "set_parameter", "result",
@@ -49,12 +99,12 @@ def _runs(request: Request) -> RunManager:
     return request.app.state.manager
 
 
-@router.get("")
+@router.get("", response_model=list[RunSummary])
 def list_runs(request: Request) -> list[dict]:
     return _runs(request).list()
 
 
-@router.post("", status_code=201,
+@router.post("", status_code=201, response_model=RunSummary,
              responses={201: {"links": RUN_LINKS}, **documented(404, 409, 503, *BODY)})
 def start_run(body: NewRun, request: Request) -> dict:
     run = _runs(request).start_run(body.scene, body.element, body.overrides, body.parameters,
@@ -62,7 +112,7 @@ def start_run(body: NewRun, request: Request) -> dict:
     return run.summary()
 
 
-@router.get("/{run_id}", responses=RUN)
+@router.get("/{run_id}", response_model=RunStatus, responses=RUN)
 def status(run_id: RunId, request: Request, since: int = 0,
            limit: Annotated[int, Query(ge=1, le=100_000)] = 1000) -> dict:
     """The run's state and its step records after step ``since``, at most ``limit`` of them
@@ -72,30 +122,34 @@ def status(run_id: RunId, request: Request, since: int = 0,
     return _runs(request).status(run_id, since, limit)
 
 
-@router.post("/{run_id}/pause", responses=documented(409, 404, 422))
+@router.post("/{run_id}/pause", response_model=RunSummary,
+             responses=documented(409, 404, 422))
 def pause(run_id: RunId, request: Request) -> dict:
     """Pause after the current step."""
     return _runs(request).command(run_id, "pause")
 
 
-@router.post("/{run_id}/resume", responses=documented(409, 404, 422))
+@router.post("/{run_id}/resume", response_model=RunSummary,
+             responses=documented(409, 404, 422))
 def resume(run_id: RunId, request: Request) -> dict:
     return _runs(request).command(run_id, "resume")
 
 
-@router.post("/{run_id}/step", responses=documented(409, 404, 422))
+@router.post("/{run_id}/step", response_model=RunSummary,
+             responses=documented(409, 404, 422))
 def step(run_id: RunId, request: Request) -> dict:
     """One step, then paused (a running run pauses after its current step)."""
     return _runs(request).command(run_id, "step")
 
 
-@router.post("/{run_id}/stop", responses=documented(409, 404, 422))
+@router.post("/{run_id}/stop", response_model=RunSummary,
+             responses=documented(409, 404, 422))
 def stop(run_id: RunId, request: Request) -> dict:
     """Stop the run: it ends as ``stopped``, with its result.json and a closed recording."""
     return _runs(request).command(run_id, "stop")
 
 
-@router.put("/{run_id}/parameters/{name}", status_code=202,
+@router.put("/{run_id}/parameters/{name}", status_code=202, response_model=ParameterAnswer,
             responses=documented(404, 409, 503, *BODY))
 def set_parameter(run_id: RunId, name: str, body: ParameterValue, request: Request) -> dict:
     """Applied from the next step. Waits briefly for the solver: ``applied`` and
@@ -115,7 +169,7 @@ def result(run_id: RunId, request: Request) -> dict:
     return {**json.loads(path.read_text()), "estimate": m.estimate(run)}
 
 
-@router.get("/{run_id}/frames", responses=RUN)
+@router.get("/{run_id}/frames", response_model=KeptFrames, responses=RUN)
 def frames(run_id: RunId, request: Request) -> dict:
     """The steps whose frames the server keeps (the latest run only; every k-th when long)."""
     m = _runs(request)
@@ -126,7 +180,7 @@ def frames(run_id: RunId, request: Request) -> dict:
     return summary
 
 
-@router.get("/{run_id}/frames/{step}", responses=RUN)
+@router.get("/{run_id}/frames/{step}", response_model=FrameStats, responses=RUN)
 def frame(run_id: RunId, step: int, request: Request) -> dict:
     """One kept frame (the one at ``step`` or the nearest before): tool translations, probes,
     and each field's min, max and mean over the display vertices."""

@@ -4,7 +4,7 @@ form's conversions (render: scene JSON to TOML, parse: TOML to scene JSON), whic
 from __future__ import annotations
 
 from fastapi import APIRouter, Request, Response
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 from starlette.convertors import StringConvertor, register_url_convertor
 
 from server import sceneform
@@ -69,6 +69,47 @@ class SceneJSON(BaseModel):
     scene: dict
 
 
+class SceneSummary(BaseModel):
+    name: str
+    description: str
+    valid: bool = Field(description="whether its TOML reads (not whether the scene is valid)")
+
+
+class SceneDocument(BaseModel):
+    name: str
+    toml: str
+    scene: dict | None = Field(description="the validated scene, defaults filled in; null when "
+                                           "the scene is invalid")
+    error: str | None = Field(description="why the scene is invalid, naming the field")
+
+
+class Validated(BaseModel):
+    ok: bool
+    scene: dict
+
+
+class FieldError(BaseModel):
+    loc: str = Field(description="the field's dotted path, e.g. material.nu")
+    msg: str
+
+
+class Converted(BaseModel):
+    """A conversion between the form's scene JSON and TOML, and what is wrong with the scene."""
+
+    ok: bool
+    scene: dict | None = Field(description="the validated scene; null when invalid")
+    errors: list[FieldError]
+    error: str | None = Field(description="the errors in one line")
+
+
+class Rendered(Converted):
+    toml: str | None = Field(description="the TOML (null when the form's JSON has none)")
+
+
+class Parsed(Converted):
+    raw: dict | None = Field(description="the tables as read (null when the TOML does not read)")
+
+
 # what a new scene's name leads to (OpenAPI links: clients and fuzzers follow them)
 NAME_LINKS = {op: {"operationId": op, "parameters": {"name": "$response.body#/name"}}
               for op in ("read_scene", "update_scene", "delete_scene", "duplicate_scene")}
@@ -88,7 +129,7 @@ def _read(store: SceneStore, name: str) -> dict:
     return {"name": name, "toml": text, "scene": scene, "error": error}
 
 
-@router.get("")
+@router.get("", response_model=list[SceneSummary])
 def list_scenes(request: Request) -> list[dict]:
     store = _store(request)
     return [store.summary(n) for n in store.names()]
@@ -99,12 +140,12 @@ def schema() -> dict:
     return Scene.model_json_schema()
 
 
-@router.post("/validate", responses=documented(*BODY))
+@router.post("/validate", response_model=Validated, responses=documented(*BODY))
 def validate(body: SceneText, request: Request) -> dict:
     return {"ok": True, "scene": _store(request).validate(body.toml).model_dump(mode="json")}
 
 
-@router.post("/render", responses=documented(*BODY))
+@router.post("/render", response_model=Rendered, responses=documented(*BODY))
 def render(body: SceneJSON) -> dict:
     """Scene JSON (the page's form) to TOML text, with validation errors naming the field
     (``{"loc": "material.nu", "msg": ...}``). A valid scene is written without its defaults.
@@ -112,19 +153,21 @@ def render(body: SceneJSON) -> dict:
     return sceneform.render(body.scene)
 
 
-@router.post("/parse", responses=documented(*BODY))
+@router.post("/parse", response_model=Parsed, responses=documented(*BODY))
 def parse(body: SceneText) -> dict:
     """TOML to scene JSON: ``scene`` (validated, defaults filled in) or ``raw`` and
     ``errors`` naming the fields. Never saves."""
     return sceneform.parse(body.toml)
 
 
-@router.get("/{name:scene}", responses=documented(404, *NAMED))
+@router.get("/{name:scene}", response_model=SceneDocument,
+            responses=documented(404, *NAMED))
 def read_scene(name: ScenePath, request: Request) -> dict:
     return _read(_store(request), name)
 
 
-@router.post("", status_code=201, responses={**CREATED, **documented(409, *BODY)})
+@router.post("", status_code=201, response_model=SceneDocument,
+             responses={**CREATED, **documented(409, *BODY)})
 def create_scene(body: NewScene, request: Request, response: Response) -> dict:
     store = _store(request)
     store.create(body.name, body.toml)  # atomic: of two creates of one name, one wins
@@ -132,7 +175,8 @@ def create_scene(body: NewScene, request: Request, response: Response) -> dict:
     return _read(store, body.name)
 
 
-@router.put("/{name:scene}", responses=documented(*NAMED, *BODY))
+@router.put("/{name:scene}", response_model=SceneDocument,
+            responses=documented(*NAMED, *BODY))
 def update_scene(name: ScenePath, body: SceneText, request: Request) -> dict:
     store = _store(request)
     store.save(name, body.toml)
@@ -145,7 +189,7 @@ def delete_scene(name: ScenePath, request: Request) -> Response:
     return Response(status_code=204)
 
 
-@router.post("/{name:scene}/duplicate", status_code=201,
+@router.post("/{name:scene}/duplicate", status_code=201, response_model=SceneDocument,
              responses={**CREATED, **documented(404, 409, *NAMED, *BODY)})
 def duplicate_scene(name: ScenePath, body: NewName, request: Request,
                     response: Response) -> dict:
