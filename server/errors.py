@@ -108,7 +108,7 @@ class CheckedRoute(APIRoute):
 class BodyLimit:
     """Pure ASGI middleware: 413 when the declared or the received body exceeds ``limit`` bytes,
     408 when it has not all arrived within ``timeout`` seconds (a client that stops sending
-    would otherwise hold the connection, and a server thread, for ever).
+    would otherwise hold its connection, and the request, open for ever).
 
     The body is read here in full (at most ``limit`` bytes) before the app sees it: a chunked
     body has no length to check up front, and an error raised while the app reads the body
