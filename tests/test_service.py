@@ -872,3 +872,23 @@ def test_sigterm_stops_the_server_cleanly(tmp_path):
             proc.wait(10)
     assert proc.returncode == 0, out.decode()
     assert b"leaked semaphore" not in out, out.decode()
+
+
+def test_a_scene_file_put_there_by_hand_never_breaks_the_list(env):
+    """A scene file that is not UTF-8, or nested past the parser's recursion, or named so that
+    no request could address it: the list still answers (the first two as not valid), reading
+    the bad one is a 422 naming why."""
+    client, settings = env
+    bad = {"latin1.toml": "description = 'Gr\xfc\xdfe'".encode("latin-1"),
+           "deep.toml": ("a = " + _nested(5000)).encode(), "has space.toml": b"x = 1"}
+    for name, data in bad.items():
+        (settings.scenes_dir / name).write_bytes(data)
+    try:
+        listed = {s["name"]: s["valid"] for s in client.get("/api/scenes").json()}
+        assert listed["latin1"] is False and listed["deep"] is False
+        assert "has space" not in listed
+        r = client.get("/api/scenes/latin1")
+        assert r.status_code == 422 and "not UTF-8" in r.json()["detail"], r.text
+    finally:
+        for name in bad:
+            (settings.scenes_dir / name).unlink()
