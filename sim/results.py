@@ -1,6 +1,6 @@
 """Result files: strict JSON (``NaN`` and ``Infinity`` are not JSON; Python's json writes them
-unless told not to, and strict readers then refuse the whole file), and the result of a run that
-ended before its model was built. Light on purpose: the server writes results without importing
+unless told not to, and strict readers then refuse the whole file), and the result of a run
+whose solver could not write one. Light on purpose: the server writes results without importing
 the solver."""
 
 from __future__ import annotations
