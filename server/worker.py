@@ -75,7 +75,6 @@ class _Solver:
         self.recorder = None
         self.last_mesh = -1  # step of the last sheet mesh written to the recording
         self.paused = False
-        self.pending_steps = 0
         self.produced = self.dropped = 0  # frames of this run made / dropped (queue full)
         self.mesh_cache: dict = {}  # tool meshes by shape: a repeated run skips the meshing
 
@@ -84,7 +83,7 @@ class _Solver:
 
     @property
     def stepping(self) -> bool:
-        return self.sim is not None and (not self.paused or self.pending_steps > 0)
+        return self.sim is not None and not self.paused
 
     def handle(self, msg: dict) -> None:
         cmd = msg["cmd"]
@@ -122,7 +121,7 @@ class _Solver:
         if self.sim is not None:
             self.finish("stopped", "replaced by a new run")
         self.run, self.out = msg["run"], Path(msg["out"])
-        self.paused, self.pending_steps = bool(msg.get("paused")), 0
+        self.paused = bool(msg.get("paused"))
         self.produced = self.dropped = 0
         self.last_mesh = -1
         self.record_every = max(1, int(msg.get("record_every") or self.record_every))
@@ -182,7 +181,6 @@ class _Solver:
 
     def cmd_pause(self, msg: dict) -> None:
         self._need_run()
-        self.pending_steps = 0
         self._pause()
 
     def cmd_resume(self, msg: dict) -> None:
@@ -191,10 +189,13 @@ class _Solver:
         self.emit("state", state="running")
 
     def cmd_step(self, msg: dict) -> None:
-        """One step, then paused (a running run pauses after the step under way)."""
+        """One step, then paused (a running run pauses after the step under way). The step is
+        made here, so the reply says it is done."""
         self._need_run()
-        self._pause()
-        self.pending_steps += 1
+        if not self.paused:
+            self.paused = True
+            self.emit("state", state="paused")
+        self.step(single=True)
 
     def cmd_stop(self, msg: dict) -> None:
         self._need_run()
@@ -215,12 +216,10 @@ class _Solver:
         pass
 
     # ---- stepping -----------------------------------------------------------------------------
-    def step(self) -> None:
+    def step(self, single: bool = False) -> None:
+        """One step; ``single``: of a paused run, whose frame must arrive."""
         from sim.simulation import SolverFailure
 
-        single = self.pending_steps > 0
-        if single:
-            self.pending_steps -= 1
         try:
             rec = self.sim.step()
         except SolverFailure as exc:
@@ -239,7 +238,7 @@ class _Solver:
         if self.sim.done:
             self.finish("finished", None, msg)
             return
-        if single:  # a single step of a paused run: its frame must arrive
+        if single:
             self.events.put({**msg, "final": True})
         else:
             try:
@@ -281,7 +280,7 @@ class _Solver:
             reason = "; ".join([reason or state, *problems])
         self.emit("state", state=state, reason=reason,
                   frames={"produced": self.produced, "dropped": self.dropped})
-        self.sim, self.paused, self.pending_steps = None, False, 0
+        self.sim, self.paused = None, False
 
 
 def worker_main(commands, events, frames, record_every: int = 10,

@@ -52,8 +52,9 @@ def start_run(body: NewRun, request: Request) -> dict:
 
 @router.get("/{run_id}")
 def status(run_id: str, request: Request, since: int = 0) -> dict:
-    """The run's state and its step records after step ``since``; for a finished run also
-    ``estimate``: its error from a study of the scene (``q3t study``) and its cost."""
+    """The run's state and its step records after step ``since``; ``pending``: the commands
+    the solver has not acted on yet; for a finished run also ``estimate``: its error from a
+    study of the scene (``q3t study``) and its cost."""
     return _runs(request).status(run_id, since)
 
 
