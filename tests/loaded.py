@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 
@@ -21,6 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--busy", type=int, default=os.cpu_count() or 2,
                     help="busy processes beside the tests (default: one per core)")
     args, pytest_args = ap.parse_known_args(argv)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # through the finally below
     spinners = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(args.busy)]
     print(f"tests.loaded: {args.busy} busy process(es) {[p.pid for p in spinners]}",
           file=sys.stderr, flush=True)

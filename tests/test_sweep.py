@@ -1,7 +1,9 @@
 """q3t sweep: grid parsing, one case's summary (converged, invalid, solver failure), a real
-sweep on a 2-worker local Dask cluster whose --timeout keeps what finished, and one on an
-existing cluster (--scheduler) whose per-case budget kills a hung case; each runs as a child
-process group that must end with the command."""
+sweep on a 2-worker local Dask cluster, one whose --timeout cuts cases that never end in time
+and keeps the invalid rows (sorted out before any clock starts), and one on an existing
+cluster (--scheduler) whose per-case budget kills hung cases in turn; each runs as a child
+process group that must end with the command. No test races a clock: a case is either done
+long before any limit or one that runs for minutes, cut by it."""
 
 import json
 import math
