@@ -160,8 +160,8 @@ class RunManager:
             elif result["failure"]:
                 reason = result["failure"]["reason"]
         except (OSError, ValueError, KeyError, TypeError):
-            try:
-                run.records = read_steps(d / "run.rrd")
+            try:  # none when the server died before the solver began the recording
+                run.records = read_steps(d / "run.rrd") if (d / "run.rrd").is_file() else []
             except Exception as exc:  # an unreadable recording: the run keeps no records
                 note += f"; its steps could not be read: {exc}"
         run.step = run.records[-1]["step"] if run.records else 0
