@@ -478,10 +478,11 @@ def test_frames_are_dropped_for_a_slow_viewer(env, monkeypatch):
     read.join(HANG)
     assert not read.is_alive(), "a status read waited for the viewer"
     assert client.post(f"/api/runs/{run_id}/resume").status_code == 200
-    # from the resume on, the events queue holds (a paused state,) the running state, the
-    # reply and a record per step; the record goes before its frame: frame_queue + 2 records
-    # mean a frame was offered to the full queue
-    need = 3 + settings.frame_queue + 2
+    # behind the rest frame the events queue holds at most 4 events besides the steps' (the
+    # paused state, the start's reply, the running state, the resume's reply) and a record
+    # per step, each sent before its frame: frame_queue + 2 records mean a frame was offered
+    # to the full queue
+    need = 4 + settings.frame_queue + 2
     until(lambda: m.worker.events.qsize() >= need, "the solver did not step")
     assert m.worker.frames.qsize() == settings.frame_queue  # full, not more
     viewer.release.set()
