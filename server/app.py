@@ -37,9 +37,13 @@ def create_app(settings: Settings | None = None, worker_target=None) -> FastAPI:
         if manager.viewer:
             manager.viewer.stop()
 
-    app = FastAPI(title="q3t-forming preview", version="0.1.0", lifespan=lifespan)
+    # operation ids are the route functions' names (read_scene, start_run, ...): the links
+    # between operations name them
+    app = FastAPI(title="q3t-forming preview", version="0.1.0", lifespan=lifespan,
+                  generate_unique_id_function=lambda route: route.name)
     app.state.settings = settings
     errors.install(app, settings)
+    every = errors.documented(401) if settings.token else None
     for module in (scenes, runs, meta, web):
-        app.include_router(module.router)
+        app.include_router(module.router, responses=every)
     return app

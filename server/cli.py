@@ -40,7 +40,13 @@ def serve_settings(args, token: str | None) -> Settings:
                     record_every=args.record_every, default_scene=args.scene)
 
 
+def _stop_as_exit(signum, frame) -> None:
+    raise SystemExit(0)
+
+
 def cmd_serve(args) -> int:
+    import signal
+
     import uvicorn
 
     from server.app import create_app
@@ -62,7 +68,16 @@ def cmd_serve(args) -> int:
     query = f"?token={token}" if token else ""
     print(f"q3t: open http://{args.host}:{args.port}/{query}  (API docs at /docs)",
           file=sys.stderr, flush=True)
-    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level="warning")
+    # uvicorn shuts the app down on SIGTERM, then raises the signal again with the handler it
+    # found: by default that kills the process before Python's exit handlers run, among them
+    # multiprocessing's, which release the solver queues' semaphores ("leaked semaphore
+    # objects" at every shutdown). Ended this way, SIGTERM is a clean exit like Ctrl-C.
+    signal.signal(signal.SIGTERM, _stop_as_exit)
+    # a connection left open by a client is closed after timeout_keep_alive; a request body
+    # that does not arrive is answered 408 after settings.body_timeout; at shutdown requests
+    # still in flight get timeout_graceful_shutdown
+    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level="warning",
+                timeout_keep_alive=5, timeout_graceful_shutdown=5)
     return 0
 
 

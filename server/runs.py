@@ -26,7 +26,7 @@ from server.estimate import estimate as study_estimate
 from server.estimate import find_study
 from server.history import FrameHistory
 from server.problems import Conflict, Invalid, NotFound, NotReady
-from server.settings import Settings, check_name
+from server.settings import Settings, check_run_id
 from server.store import SceneStore, atomic_write
 from server.worker import worker_main
 from server.workerhandle import WorkerHandle
@@ -185,7 +185,7 @@ class RunManager:
             self.heartbeat = time.monotonic()
 
     def dir(self, run_id: str) -> Path:
-        return self.root / check_name(run_id, "run id")
+        return self.root / check_run_id(run_id)
 
     def _save(self, run: Run) -> None:
         with self.lock:  # a consistent snapshot; the encoding and the write come after
@@ -207,7 +207,7 @@ class RunManager:
 
     # ---- requests ---------------------------------------------------------------------------
     def get(self, run_id: str) -> Run:
-        check_name(run_id, "run id")
+        check_run_id(run_id)
         try:
             return self.runs[run_id]
         except KeyError:
@@ -217,10 +217,14 @@ class RunManager:
         with self.lock:
             return [r.summary() for r in sorted(self.runs.values(), key=lambda r: -r.created)]
 
-    def status(self, run_id: str, since: int = 0) -> dict:
+    def status(self, run_id: str, since: int = 0, limit: int | None = None) -> dict:
+        """The run's summary, its step records after step ``since`` (at most ``limit``) and
+        ``records_left``: how many more follow those."""
         with self.lock:
             run = self.get(run_id)
-            out = {**run.summary(), "records": [r for r in run.records if r["step"] > since]}
+            after = [r for r in run.records if r["step"] > since]
+            page = after[:limit]
+            out = {**run.summary(), "records": page, "records_left": len(after) - len(page)}
         out["estimate"] = self.estimate(run)  # reads files: outside the lock
         return out
 

@@ -4,43 +4,17 @@
 
 from __future__ import annotations
 
-import re
-import tomllib
-
 from pydantic import ValidationError
 
 from server.tomlout import drop_none, to_toml
-from sim.scene import Scene
-
-PATH_PREFIX = re.compile(r"^([A-Za-z_]\w*(?:\.\w+)*): (.+)$", re.S)
-
-
-def errors_of(err: ValidationError) -> list[dict]:
-    """pydantic's errors as ``{loc, msg}``. A model check raised on the whole scene often names
-    its field in the message (``bcs.0.region: unknown region 'x'``): that becomes the loc."""
-    out = []
-    for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"])
-        msg = e["msg"].removeprefix("Value error, ")
-        if not loc:
-            m = PATH_PREFIX.match(msg)
-            if m and m.group(1).split(".")[0] in Scene.model_fields:
-                loc, msg = m.group(1), m.group(2)
-            else:
-                loc = "scene"
-        out.append({"loc": loc, "msg": msg})
-    return out
-
-
-def joined(errors: list[dict]) -> str | None:
-    return "; ".join(f"{e['loc']}: {e['msg']}" for e in errors) or None
+from sim.scene import Scene, SceneError, joined, read_toml, scene_errors
 
 
 def validate(raw: dict) -> tuple[Scene | None, list[dict]]:
     try:
         return Scene.model_validate(raw), []
     except ValidationError as err:
-        return None, errors_of(err)
+        return None, scene_errors(err)
 
 
 def scene_toml(scene: Scene, *, emitter: str = "auto") -> str:
@@ -60,7 +34,8 @@ def render(raw: dict, *, emitter: str = "auto") -> dict:
     except (ValueError, TypeError) as exc:  # e.g. a null inside an array: no TOML for it
         text = None
         errors = errors or [{"loc": "scene", "msg": str(exc)}]
-    return {"ok": scene is not None, "toml": text, "errors": errors, "error": joined(errors),
+    return {"ok": scene is not None, "toml": text, "errors": errors,
+            "error": joined(errors) or None,
             "scene": scene.model_dump(mode="json") if scene is not None else None}
 
 
@@ -68,12 +43,12 @@ def parse(text: str) -> dict:
     """TOML to scene JSON: the validated scene (every field, defaults filled in) when it is
     valid; else the raw tables (when the TOML itself reads) and the errors."""
     try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        errors = [{"loc": "toml", "msg": str(exc)}]
+        raw = read_toml(text)
+    except SceneError as exc:
+        errors = [{"loc": "toml", "msg": str(exc).removeprefix("TOML: ")}]
         return {"ok": False, "scene": None, "raw": None, "errors": errors,
-                "error": joined(errors)}
+                "error": joined(errors) or None}
     scene, errors = validate(raw)
     return {"ok": scene is not None, "raw": drop_none(raw), "errors": errors,
-            "error": joined(errors),
+            "error": joined(errors) or None,
             "scene": scene.model_dump(mode="json") if scene is not None else None}

@@ -5,19 +5,60 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
+
+from pydantic import AfterValidator, WithJsonSchema
 
 from server.problems import Invalid
 
 ROOT = Path(__file__).resolve().parent.parent
-NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,79}")
+# A file-system-safe name: starts with a letter or digit, then letters, digits, '_', '-' and
+# single dots (never '..', never a path). The same rule is in the API schema (``name_type``).
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_-]*(?:\.[A-Za-z0-9_-]+)*\.?$"
+NAME = re.compile(NAME_PATTERN)
+SCENE_NAME_MAX = 80
+# /api/scenes/<these> are routes of their own, never a scene
+RESERVED_SCENE_NAMES = ("parse", "render", "schema", "validate")
+# a run id is its scene's name, then "-<element>-<yyyymmdd-hhmmss>-<4 hex>": room for the
+# longest scene name and an element name of up to 26 characters
+RUN_ID_MAX = SCENE_NAME_MAX + 48
 
 
-def check_name(name: str, what: str = "name") -> str:
-    """A file-system-safe name: letters, digits, ``_ . -``; never ``..`` or a path."""
-    if not isinstance(name, str) or not NAME.fullmatch(name) or ".." in name:  # fullmatch:
-        # ``$`` would let a trailing newline through
-        raise Invalid(f"{what} {name!r}: use letters, digits, '_', '-', '.' (no paths)")
+def check_name(name: str, what: str = "name", max_length: int = SCENE_NAME_MAX,
+               reserved: tuple[str, ...] = ()) -> str:
+    """``name`` if it follows ``NAME``, is at most ``max_length`` long and not ``reserved``;
+    else Invalid (422)."""
+    if not isinstance(name, str) or len(name) > max_length or not NAME.fullmatch(name):
+        raise Invalid(f"{what} {name!r}: 1 to {max_length} letters, digits, '_', '-' or '.', "
+                      "starting with a letter or digit, no '..' (no paths)")
+    if name in reserved:
+        raise Invalid(f"{what} {name!r} is reserved (not one of {', '.join(reserved)})")
     return name
+
+
+def check_scene_name(name: str) -> str:
+    return check_name(name, "scene name", SCENE_NAME_MAX, RESERVED_SCENE_NAMES)
+
+
+def check_run_id(name: str) -> str:
+    return check_name(name, "run id", RUN_ID_MAX)
+
+
+def name_type(check, max_length: int, reserved: tuple[str, ...] = ()):
+    """A pydantic type for a ``check_name`` rule: the rule in the JSON schema, ``check``'s
+    message on error."""
+    schema = {"type": "string", "pattern": NAME_PATTERN, "minLength": 1,
+              "maxLength": max_length}
+    if reserved:
+        schema["not"] = {"enum": list(reserved)}
+    return Annotated[str, AfterValidator(check), WithJsonSchema(schema)]
+
+
+SceneName = name_type(check_scene_name, SCENE_NAME_MAX, RESERVED_SCENE_NAMES)
+# in a path: /api/scenes/schema is the concrete route, which OpenAPI matches before the
+# templated one, so the template's schema need not (and must not) exclude the reserved names
+ScenePath = name_type(check_scene_name, SCENE_NAME_MAX)
+RunId = name_type(check_run_id, RUN_ID_MAX)
 
 
 @dataclass(frozen=True)
@@ -29,6 +70,7 @@ class Settings:
     viewer_port: int = 8081
     token: str | None = None  # required on every request when set
     max_body: int = 256 * 1024  # bytes; larger request bodies get 413
+    body_timeout: float = 30.0  # seconds for a request body to arrive in full; then 408
     frame_queue: int = 4  # frames in flight from worker to bridge; extra frames are dropped
     record_every: int = 10  # steps between sheet meshes in run.rrd (and its first and last)
     push_hz: float = 20.0  # most frames per second pushed to the viewer

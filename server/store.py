@@ -8,26 +8,28 @@ any other file."""
 from __future__ import annotations
 
 import os
-import tempfile
-import tomllib
+import secrets
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
-from server.problems import Conflict, NotFound
-from server.settings import check_name
-from sim.scene import Scene, SceneError, scene_from_toml
+from server.problems import Conflict, Invalid, NotFound
+from server.settings import check_scene_name
+from sim.scene import Scene, SceneError, read_toml, scene_from_toml
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl")  # what sim.mesh.load reads
 VALUE_SUFFIXES = (".npy", ".txt", ".csv")  # what sim.model reads as per-vertex values
 
 
-def _temp(path: Path, data: str | bytes) -> str:
+def _temp(path: Path, data: str | bytes) -> Path:
+    """A new hidden file beside ``path`` holding ``data``. Created with mode 0666 less the
+    umask, as any file (mkstemp's 0600 would make saved scenes unreadable to other users)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(8)}.tmp"
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data.encode() if isinstance(data, str) else data)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
     return tmp
 
@@ -38,7 +40,7 @@ def atomic_write(path: Path, data: str | bytes) -> None:
     try:
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
 
 
@@ -53,7 +55,14 @@ def exclusive_write(path: Path, data: str | bytes) -> bool:
     except FileExistsError:
         return False
     finally:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
+
+
+def _is_name(text: str) -> bool:
+    try:
+        return bool(check_scene_name(text))
+    except Invalid:
+        return False
 
 
 class SceneStore:
@@ -62,22 +71,29 @@ class SceneStore:
         root.mkdir(parents=True, exist_ok=True)
 
     def path(self, name: str) -> Path:
-        return self.root / f"{check_name(name, 'scene name')}.toml"
+        return self.root / f"{check_scene_name(name)}.toml"
 
     def names(self) -> list[str]:
-        return sorted(p.stem for p in self.root.glob("*.toml") if not p.name.startswith("."))
+        """The scenes: the folder's TOML files whose names are scene names (a file named
+        otherwise, put there by hand, could not be addressed)."""
+        return sorted(p.stem for p in self.root.glob("*.toml") if _is_name(p.stem))
 
     def text(self, name: str) -> str:
         p = self.path(name)
         if not p.is_file():
             raise NotFound(f"no scene {name!r}")
-        return p.read_text()
+        try:
+            return p.read_bytes().decode("utf-8")
+        except UnicodeDecodeError as exc:  # a file put there by hand
+            raise SceneError(f"scene {name!r}: the file is not UTF-8 text ({exc.reason} at "
+                             f"byte {exc.start})") from None
 
     def summary(self, name: str) -> dict:
         try:
-            raw = tomllib.loads(self.text(name))
-            return {"name": name, "description": raw.get("description", ""), "valid": True}
-        except tomllib.TOMLDecodeError:
+            raw = read_toml(self.text(name))
+            return {"name": name, "description": str(raw.get("description", "")),
+                    "valid": True}
+        except SceneError:
             return {"name": name, "description": "", "valid": False}
 
     def scene_files(self, scene: Scene) -> dict[str, Path]:

@@ -198,10 +198,11 @@ def auto_stiffness(E_young, thickness, area, *, pressure=None, penetration=0.01)
     strength of sheet metals (steel 210 GPa -> 840 MPa, aluminium 70 GPa -> 280 MPa), which
     the contact pressure under a punch nose approaches; blank-holder pressures (a few MPa) are
     far below it. Pass ``pressure`` when it is known.
-    Penetration: the model starts the spring a contact layer delta = alpha t outside the tool
-    (sim.model), so the tool surface itself is penetrated by s - delta <= alpha t (p_c / p - 1)
-    at a contact pressure p_c: not at all up to the design pressure, by at most alpha t up to
-    twice it (tests/test_contact.py measures both).
+    Penetration: the model uses the C2 law with a contact layer delta = 2 alpha t outside the
+    tool (sim.model), whose force beyond the layer is k (s - delta / 2) = k (alpha t - d): the
+    linear spring starting alpha t out, smoothed over the layer. The tool surface itself is
+    penetrated by -d <= alpha t (p_c / p - 1) at a contact pressure p_c: not at all up to the
+    design pressure, by at most alpha t up to twice it (tests/test_contact.py measures both).
     Conditioning: the through-thickness stiffness of the sheet under one node is about
     E A / t, so k / (E A / t) = p / (alpha E) = 0.4 with the defaults: the penalty is stiff
     enough to keep penetrations at 1 % of t and still softer than the sheet under it, which

@@ -76,6 +76,10 @@ class Pardiso:
         self.iparm[9] = 8  # pivot perturbation 1e-8 (only used for indefinite types)
         self.iparm[7] = 0  # no automatic refinement: the caller refines only when needed
         self.iparm[34] = 1  # zero-based indexing
+        # conditional numerical reproducibility with MKL's thread count: PARDISO's threads
+        # otherwise sum in an order that changes from call to call, so the same run repeated
+        # took other Newton paths wherever a solve was near-singular
+        self.iparm[33] = max(1, int(lib.MKL_Get_Max_Threads()))
         self.data = np.zeros(len(self.ja))
         self._call(11, np.zeros(self.n))
 

@@ -438,7 +438,8 @@ def _tools(scene, shell, pattern, nodes) -> list[ToolContact]:
         except ValueError as exc:
             raise ValueError(f"tools.{i}.shape: {exc}") from None
         # auto_stiffness: at its design pressure (4e-3 E, about the tensile strength) the
-        # spring is compressed by 1 % of t, the contact layer delta below
+        # spring is compressed by 1 % of t; the C2 law's layer delta is twice that, so the
+        # tool surface is reached at the design pressure (sim.contact.auto_stiffness)
         k = t.stiffness or auto_stiffness(scene.material.E, h, area)
         # slip below 1 % of the thickness counts as sticking (IPC's eps_v)
         kw = {}
@@ -448,7 +449,7 @@ def _tools(scene, shell, pattern, nodes) -> list[ToolContact]:
                   "stop": t.stop}
             vdof += 1
         out.append(ToolContact(t.name, prog, nodes, t.position, t.velocity, k, t.friction,
-                               1e-2 * h, pattern, delta=1e-2 * h, keyframes=t.keyframes, **kw))
+                               1e-2 * h, pattern, delta=2e-2 * h, keyframes=t.keyframes, **kw))
     return out
 
 

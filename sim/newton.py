@@ -338,12 +338,15 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
             g1[~free] = 0.0
             r1 = float(np.linalg.norm(g1))
             # the floor is stiff self-balanced pairs (top and bottom of a fibre), which cancel
-            # in the resultant: it must still balance what is applied, or the soft (bending)
-            # modes are off. Measured at the floor: 1e-14..3e-6 of the applied resultants;
-            # 0.8-0.9 where the Hessian's soft stiffness is lost to its round-off (h/L = 1e-4)
+            # in the resultant: a residual left at the floor must still balance what is
+            # applied, or the soft (bending) modes are off. Measured at the floor: 1e-14..3e-6
+            # of the applied resultants; 0.8-0.9 where the Hessian's soft stiffness is lost to
+            # its round-off (h/L = 1e-4). A Newton correction below xtol needs no such proof:
+            # it is the distance to equilibrium, whatever the loads (a tool that grazes the
+            # sheet applies less than the floor, and its resultant is all round-off)
             off = float(np.linalg.norm(g1.sum(0))) / scale if scale > 0 else 0.0
-            if (np.isfinite(trial[0]) and newton and off <= 1e-4
-                    and (small or r1 <= FLOOR_MARGIN * floor.force)):
+            if (np.isfinite(trial[0]) and newton
+                    and (small or (r1 <= FLOOR_MARGIN * floor.force and off <= 1e-4))):
                 res.append(r1)  # the residual of the state returned
                 return result(x + dx, True, it + 1, trial[0])
             # at the floor the residual cannot guide the iteration any more: a few tries

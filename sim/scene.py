@@ -6,12 +6,16 @@ validation, so an override is checked exactly like the file. Errors name the fie
 
 from __future__ import annotations
 
+import json
 import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Annotated, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from sim.tree import MAX_DEPTH, tree_problem
 
 Vec3 = tuple[float, float, float]
 Pos = Annotated[float, Field(gt=0)]
@@ -600,12 +604,38 @@ class SceneError(ValueError):
     """A scene that cannot be loaded; the message names the field and the reason."""
 
 
-def _format(err: ValidationError) -> str:
-    lines = []
+PATH_PREFIX = re.compile(r"^([A-Za-z_]\w*(?:\.\w+)*): (.+)$", re.S)
+
+
+BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def _key(part) -> str:
+    """A part of a field's path as TOML writes it: bare when it can be, else quoted (so an
+    empty key shows as "")."""
+    return str(part) if BARE_KEY.fullmatch(str(part)) else json.dumps(part)
+
+
+def scene_errors(err: ValidationError) -> list[dict]:
+    """pydantic's errors as ``{loc, msg}``, ``loc`` the field's dotted path. A check on the
+    whole scene names its field in the message (``bcs.0.region: unknown region 'x'``): that
+    becomes the loc; pydantic's "Value error, " is dropped."""
+    out = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "scene"
-        lines.append(f"{loc}: {e['msg']}")
-    return "; ".join(lines)
+        loc = ".".join(_key(p) for p in e["loc"])
+        msg = e["msg"].removeprefix("Value error, ")
+        if not loc:
+            m = PATH_PREFIX.match(msg)
+            if m and m.group(1).split(".")[0] in Scene.model_fields:
+                loc, msg = m.group(1), m.group(2)
+            else:
+                loc = "scene"
+        out.append({"loc": loc, "msg": msg})
+    return out
+
+
+def joined(errors: list[dict]) -> str:
+    return "; ".join(f"{e['loc']}: {e['msg']}" for e in errors)
 
 
 def parse_value(text: str):
@@ -619,6 +649,9 @@ def parse_value(text: str):
 def apply_override(raw: dict, key: str, value) -> None:
     """Set ``raw[a][b]...`` for ``key = "a.b..."``; list items by index (``loads.0.vector``)."""
     parts = key.split(".")
+    if not all(parts):
+        raise SceneError(f"{json.dumps(key)}: an override key is a field's dotted path, e.g. "
+                         "material.nu or loads.0.vector")
     node = raw
     for p in parts[:-1]:
         if isinstance(node, list):
@@ -642,17 +675,29 @@ def scene_from_dict(raw: dict) -> Scene:
     try:
         return Scene.model_validate(raw)
     except ValidationError as err:
-        raise SceneError(_format(err)) from None
+        raise SceneError(joined(scene_errors(err))) from None
+
+
+def read_toml(text: str) -> dict:
+    """The tables of a TOML text. Raises SceneError for bad TOML and for arrays or tables
+    nested deeper than a scene can be (tomllib recurses once per level)."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"TOML: {err}") from None
+    except RecursionError:
+        raise SceneError(f"TOML: nested deeper than {MAX_DEPTH} levels") from None
+    problem = tree_problem(raw)
+    if problem:
+        raise SceneError(problem)
+    return raw
 
 
 def scene_from_toml(text: str, overrides: dict | None = None,
                     folder: Path | None = None) -> Scene:
     """The scene of a TOML text with ``overrides`` applied; relative file paths are taken from
     ``folder`` when given (a scene file's own folder)."""
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise SceneError(f"TOML: {err}") from None
+    raw = read_toml(text)
     for k, v in (overrides or {}).items():
         apply_override(raw, k, v)
     if folder is not None:

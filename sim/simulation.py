@@ -17,6 +17,7 @@ from sim import probes
 from sim.display import DisplayMesh
 from sim.model import Model, build_model, frame_fields
 from sim.newton import NewtonResult, Timing, minimise
+from sim.rigid import determinate_support
 from sim.scene import Scene
 from sim.terms.contact import ToolContact, settle_friction
 
@@ -94,6 +95,7 @@ class Simulation:
                           for sp in self.model.scene.sections}
         self.sections: dict[str, list[dict]] = {name: [] for name in self._sections}
         self._last_dt = 1.0
+        self.release_support: list[dict] = []  # added for springback (_release_supports)
         self.x = self.model.x0.copy()
         self.display = DisplayMesh.from_shell(self.model.shell)
         self.h0 = probes.thickness(self.model, self.x)
@@ -211,7 +213,7 @@ class Simulation:
         m = self.model
         start = time.perf_counter()
         self.formed = probes.mid_surface(m, self.x)  # the shape in the closed tools
-        m.problem.set_fixed((m.fixed & ~m.released) | m.release_support)
+        m.problem.set_fixed(self._release_supports())
         released = {t.name for t in m.scene.tools if t.release}
         # springback is a static equilibrium: a dynamic run's inertia goes too (kept, the
         # release would be one more time step of a sheet still moving)
@@ -242,6 +244,10 @@ class Simulation:
             raise SolverFailure(self.failure)
         self._commit(x, res, final)
         res = final
+        # what the added supports carry: nothing but the residual, when they are determinate
+        g = m.problem.gradient(self.x)
+        for s in self.release_support:
+            s["force"] = -float(g[s["node"], "xyz".index(s["component"])])
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iterations + extra, res.residuals[-1],
                          res.energy, 0, probes.evaluate(m, self.x, formed=self.formed),
@@ -250,6 +256,21 @@ class Simulation:
         self._record_sections()
         self.wall += time.perf_counter() - start
         return rec
+
+    def _release_supports(self) -> np.ndarray:
+        """The DoFs held for springback: the scene's (its BCs less the released ones, plus its
+        release-only ones) and one more per rigid-body mode those leave free, on the bottom
+        skin (sim.rigid): the part is then held statically determinately, never by round-off.
+        The added supports are kept in ``self.release_support`` for the result."""
+        m = self.model
+        held = (m.fixed & ~m.released) | m.release_support
+        n = m.shell.n_nodes
+        added = determinate_support(self.x[:n], held[:n], m.shell.layer_nodes(0))
+        for node, c in added:
+            held[node, c] = True
+        self.release_support = [{"node": node, "component": "xyz"[c],
+                                 "position": self.x[node].tolist()} for node, c in added]
+        return held
 
     def step(self) -> StepRecord:
         """Advance one nominal step, halving the increment on failure and doubling it back
@@ -369,6 +390,9 @@ class Simulation:
             "parameters": self.parameter_log,
             "converged": self.failure is None and self.step_index == self.n_steps,
             "failure": self.failure,
+            # the DoFs springback added to hold the rigid-body modes the scene left free: node,
+            # component, position (m) where the release started, force (N) once released
+            "release_support": self.release_support,
             "steps": [asdict(r) for r in self.records],
             "sections": self.sections,
             "fields": probes.field_summary(probes.output_fields(m, self.x, self.h0)),

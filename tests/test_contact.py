@@ -420,10 +420,12 @@ def test_tool_follows_its_keyframes():
 
 
 def _fd_term(term, x, pattern, rng, h, n_dirs=3):
-    """Central differences of one contact term along random directions v: (E(x + h v) -
-    E(x - h v)) / 2h against g.v, and (g(x + h v) - g(x - h v)) / 2h against H v (exact
-    Hessian: no PSD projection). Returns (gradient errors, gradient scales, Hessian errors,
-    Hessian scales), one entry per direction."""
+    """Central differences of one contact term along random directions v: the five-point
+    difference of E against g.v, and (g(x + h v) - g(x - h v)) / 2h against H v (exact
+    Hessian: no PSD projection). Inside its layer the C2 penalty is cubic in the distance: the
+    two-point difference of E would be off by h^2 k / (6 delta) per node, the five-point one is
+    exact for cubics, as the two-point one of g is for its quadratic. Returns (gradient errors,
+    gradient scales, Hessian errors, Hessian scales), one entry per direction."""
     from sim.assembly import sym_matvec
 
     def grad(y):
@@ -441,7 +443,8 @@ def _fd_term(term, x, pattern, rng, h, n_dirs=3):
         v[term.nodes] = rng.normal(size=(len(term.nodes), 3))
         if term.vdof is not None:
             v[term.vdof, 2] = rng.normal()
-        dE = (term.energy(x + h * v) - term.energy(x - h * v)) / (2 * h)
+        dE = (8 * (term.energy(x + h * v) - term.energy(x - h * v))
+              - (term.energy(x + 2 * h * v) - term.energy(x - 2 * h * v))) / (12 * h)
         dg = (grad(x + h * v) - grad(x - h * v)) / (2 * h)
         Hv = sym_matvec(pattern.indptr, pattern.indices, data, v.ravel()).reshape(x.shape)
         out.append((abs(dE - np.sum(g0 * v)), np.abs(g0 * v).sum(),

@@ -242,7 +242,8 @@ def test_scene_crud(env):
     ("get", "/api/runs/%2e%2e", None, 422, ["run id"]),
     ("delete", "/api/runs/..%5Csecret", None, 422, ["run id"]),
     ("post", "/api/runs/nope-run/pause", None, 404, ["nope-run"]),
-    ("post", "/api/runs/nope-run/explode", None, 422, []),
+    # the run actions are routes of their own: an unknown one is no route, not a bad value
+    ("post", "/api/runs/nope-run/explode", None, 404, []),
     ("put", "/api/runs/nope-run/parameters/load_scale", {"value": "abc"}, 422, ["value"]),
 ])
 def test_bad_input(env, method, url, body, status, words):
@@ -753,3 +754,183 @@ def test_health_counts_a_long_recording_repair_as_alive(env, monkeypatch):
     assert seen["health"]["bridge_alive"] and seen["health"]["repairing_recording"] == "r-repair"
     after = m.health()
     assert after["bridge_alive"] and after["repairing_recording"] is None
+
+
+def _nested(depth: int) -> str:
+    return "[" * depth + "]" * depth
+
+
+@pytest.mark.parametrize("method,url,body,words", [
+    # TOML nested past Python's recursion limit (tomllib recurses once per level)
+    ("post", "/api/scenes/validate", {"toml": "a = " + _nested(5000)}, ["TOML", "nested"]),
+    ("post", "/api/scenes", {"name": "deep", "toml": "a = " + _nested(5000)}, ["nested"]),
+    ("put", "/api/scenes/deep", {"toml": "a = " + _nested(5000)}, ["nested"]),
+    # nested less than that, but deeper than any scene: the walks after the parser overflow
+    ("put", "/api/scenes/deep", {"toml": "a = " + _nested(100)}, ["a.0.0", "nested"]),
+    # a lone surrogate: valid JSON, no text (no UTF-8 for it, in a file or in the answer)
+    ("post", "/api/scenes/validate", {"toml": 'description = "\ud800"'},
+     ["body.toml", "surrogate"]),
+    ("post", "/api/scenes/parse", {"toml": 'description = "\ud800"'},
+     ["body.toml", "surrogate"]),
+    ("post", "/api/scenes", {"name": "sur", "toml": tiny_toml() + '\n# "\ud800"'},
+     ["body.toml", "surrogate"]),
+    ("put", "/api/scenes/sur", {"toml": tiny_toml().replace("tiny", "\ud800")},
+     ["body.toml", "surrogate"]),
+    ("post", "/api/scenes/render", {"scene": {"\ud800": 1}}, ["body.scene", "a key"]),
+    ("post", "/api/runs", {"scene": "tiny", "overrides": {"material.E": "\udfff"}},
+     ["body.overrides.material.E", "surrogate"]),
+])
+def test_hostile_bodies_are_422_naming_where(env, method, url, body, words):
+    client, settings = env
+    before = sorted(settings.scenes_dir.iterdir())
+    content = json.dumps(body).encode()  # ASCII: surrogates escaped, as any client sends them
+    r = client.request(method.upper(), url, content=content,
+                       headers={"Content-Type": "application/json"})
+    assert r.status_code == 422, r.text
+    for w in words:
+        assert w in r.json()["detail"], (w, r.text)
+    assert sorted(settings.scenes_dir.iterdir()) == before
+
+
+@pytest.mark.parametrize("depth", [900, 5000])
+def test_render_of_a_deeply_nested_scene_is_422(env, depth):
+    """The form's JSON scene, nested past the recursion limit of any walk over it (900) and of
+    the JSON parser itself (5000)."""
+    client, _ = env
+    body = '{"scene": {"description": ' + _nested(depth) + "}}"
+    r = client.post("/api/scenes/render", content=body,
+                    headers={"Content-Type": "application/json"})
+    assert r.status_code == 422, r.text
+    assert "nested deeper than 32 levels" in r.json()["detail"]
+
+
+def test_the_longest_scene_name_can_run(env):
+    """A run id is the scene name plus "-<element>-<time>-<4 hex>": an 80-character scene name
+    (the most a scene may have) runs with every element, and its run is addressable."""
+    from server.settings import RUN_ID_MAX, SCENE_NAME_MAX
+    from sim.elements import ELEMENTS
+
+    client, _ = env
+    name = "n" * SCENE_NAME_MAX
+    assert client.post("/api/scenes", json={"name": name, "toml": tiny_toml()}).status_code == 201
+    assert client.post("/api/scenes", json={"name": name + "n", "toml": tiny_toml()}
+                       ).status_code == 422
+    longest = max(ELEMENTS, key=len)
+    r = client.post("/api/runs", json={"scene": name, "element": longest, "paused": True})
+    assert r.status_code == 201, r.text
+    run_id = r.json()["id"]
+    try:
+        assert len(run_id) <= RUN_ID_MAX
+        assert client.get(f"/api/runs/{run_id}").status_code == 200
+    finally:
+        client.post(f"/api/runs/{run_id}/stop")
+        wait_state(client, run_id, {"stopped", "finished", "failed"})
+        client.delete(f"/api/scenes/{name}")
+    assert client.delete(f"/api/runs/{run_id}").status_code == 204
+
+
+def test_scene_errors_name_the_field_without_pydantic_noise(env):
+    client, _ = env
+    r = client.post("/api/runs", json={"scene": "tiny", "overrides": {"": 1}})
+    assert r.status_code == 422 and r.json()["detail"].startswith('"": an override key'), r.text
+    r = client.post("/api/runs", json={"scene": "tiny", "element": "nonesuch"})
+    assert r.json()["detail"].startswith("shell.element: unknown 'nonesuch'"), r.text
+    r = client.post("/api/scenes/validate", json={"toml": '"" = 1\n' + tiny_toml()})
+    assert r.json()["detail"] == '"": Extra inputs are not permitted', r.text
+
+
+def test_files_the_server_writes_have_the_usual_mode(env):
+    """Scenes and run files are created 0666 less the umask, as the shipped scenes were
+    (mkstemp's 0600 made them unreadable to anyone else)."""
+    client, settings = env
+    umask = os.umask(0o022)
+    os.umask(umask)
+    mode = 0o666 & ~umask
+    assert client.put("/api/scenes/moded", json={"toml": tiny_toml()}).status_code == 200
+    run_id = client.post("/api/runs", json={"scene": "moded", "paused": True}).json()["id"]
+    client.post(f"/api/runs/{run_id}/stop")
+    wait_state(client, run_id, {"stopped", "finished", "failed"})
+    written = [settings.scenes_dir / "moded.toml", settings.runs_dir / run_id / "run.json",
+               settings.runs_dir / run_id / "scene.toml"]
+    assert {p.name: oct(p.stat().st_mode & 0o777) for p in written} == \
+        {p.name: oct(mode) for p in written}
+    assert client.delete("/api/scenes/moded").status_code == 204
+
+
+def test_status_pages_its_records(env):
+    """The status sends at most ``limit`` records after ``since`` and says how many are left;
+    asking again from the last step returned gets the rest, as the page does."""
+    client, settings = env
+    (settings.scenes_dir / "paged.toml").write_text(tiny_toml(steps=12))
+    run_id = client.post("/api/runs", json={"scene": "paged", "element": "linear"}).json()["id"]
+    st = wait_state(client, run_id, {"finished", "failed", "stopped"})
+    assert st["state"] == "finished", st["reason"]
+    assert len(st["records"]) == 12 and st["records_left"] == 0  # the default page holds them
+    steps, since = [], 0
+    while True:
+        page = client.get(f"/api/runs/{run_id}?since={since}&limit=5").json()
+        steps += [r["step"] for r in page["records"]]
+        assert len(page["records"]) <= 5 and page["records_left"] == 12 - len(steps)
+        if not page["records_left"]:
+            break
+        since = steps[-1]
+    assert steps == list(range(1, 13))
+    assert client.get(f"/api/runs/{run_id}?limit=0").status_code == 422
+
+
+def test_sigterm_stops_the_server_cleanly(tmp_path):
+    """SIGTERM (systemd, docker stop, kill): the server shuts down as on Ctrl-C, exits 0, and
+    multiprocessing's exit handlers run (no "leaked semaphore objects" warning)."""
+    import subprocess
+    import sys
+
+    import httpx
+
+    from tests.test_browser import free_port
+
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "scenes" / "tiny.toml").write_text(tiny_toml())
+    port = free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim.cli", "serve", "tiny", "--port", str(port), "--no-viewer",
+         "--scenes-dir", str(tmp_path / "scenes"), "--runs-dir", str(tmp_path / "runs")],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        deadline = time.time() + 120
+        while True:  # up, and the solver process too (it owns the queues' other ends)
+            try:
+                if httpx.get(f"http://127.0.0.1:{port}/api/config", timeout=1).json()["ready"]:
+                    break
+            except httpx.HTTPError:
+                pass
+            assert time.time() < deadline and proc.poll() is None
+            time.sleep(0.2)
+        proc.terminate()
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+    assert proc.returncode == 0, out.decode()
+    assert b"leaked semaphore" not in out, out.decode()
+
+
+def test_a_scene_file_put_there_by_hand_never_breaks_the_list(env):
+    """A scene file that is not UTF-8, or nested past the parser's recursion, or named so that
+    no request could address it: the list still answers (the first two as not valid), reading
+    the bad one is a 422 naming why."""
+    client, settings = env
+    bad = {"latin1.toml": "description = 'Gr\xfc\xdfe'".encode("latin-1"),
+           "deep.toml": ("a = " + _nested(5000)).encode(), "has space.toml": b"x = 1"}
+    for name, data in bad.items():
+        (settings.scenes_dir / name).write_bytes(data)
+    try:
+        listed = {s["name"]: s["valid"] for s in client.get("/api/scenes").json()}
+        assert listed["latin1"] is False and listed["deep"] is False
+        assert "has space" not in listed
+        r = client.get("/api/scenes/latin1")
+        assert r.status_code == 422 and "not UTF-8" in r.json()["detail"], r.text
+    finally:
+        for name in bad:
+            (settings.scenes_dir / name).unlink()

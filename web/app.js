@@ -234,9 +234,13 @@ async function poll() {
   try {
     await loadRuns();
     if (state.run) {
-      const since = state.records.length ? state.records[state.records.length - 1].step : 0;
-      const st = await api("GET", `/api/runs/${state.run}?since=${since}`);
-      state.records.push(...st.records);
+      // the status pages its records: ask from the last step we have until none are left
+      let st;
+      do {
+        const since = state.records.length ? state.records[state.records.length - 1].step : 0;
+        st = await api("GET", `/api/runs/${state.run}?since=${since}`);
+        state.records.push(...st.records);
+      } while (st.records_left > 0 && st.records.length);
       $("status").textContent = `${st.id}: ${st.state}, step ${st.step}/${st.n_steps ?? "?"}` +
         (st.reason ? ` — ${st.reason}` : "");
       $("status").dataset.state = st.state;

@@ -3,11 +3,37 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Request
+from pydantic import BaseModel, Field
 
 router = APIRouter(prefix="/api", tags=["meta"])
 
 
-@router.get("/config")
+class Range(BaseModel):
+    min: float
+    max: float
+
+
+class Config(BaseModel):
+    ready: bool = Field(description="the solver process is up and has named the parameters")
+    elements: list[str]
+    parameters: dict[str, Range] = Field(description="the live parameters and their ranges")
+    viewer_port: int | None
+    default_scene: str
+
+
+class Health(BaseModel):
+    ok: bool
+    worker_alive: bool
+    worker_pid: int | None
+    worker_restarts: int
+    bridge_alive: bool
+    repairing_recording: str | None
+    bridge_errors: int
+    bridge_error: str | None
+    active: str | None = Field(description="the active run's id")
+
+
+@router.get("/config", response_model=Config)
 def config(request: Request) -> dict:
     from sim.elements import ELEMENTS
 
@@ -21,6 +47,6 @@ def config(request: Request) -> dict:
             "default_scene": m.settings.default_scene}
 
 
-@router.get("/health")
+@router.get("/health", response_model=Health)
 def health(request: Request) -> dict:
     return request.app.state.manager.health()

@@ -4,25 +4,28 @@ delete. Every call returns at once; the solver process does the work."""
 from __future__ import annotations
 
 import json
-from typing import Literal
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, Request, Response
+from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field
 
+from server.errors import BODY, CheckedRoute, documented
 from server.problems import NotFound
 from server.runs import RunManager
+from server.settings import RunId, SceneName
 
-router = APIRouter(prefix="/api/runs", tags=["runs"])
+router = APIRouter(prefix="/api/runs", tags=["runs"], route_class=CheckedRoute)
 Scalar = float | int | bool | str | list[float]
+RUN = documented(404, 422)  # any route naming a run
 
 
-class Body(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class NewRun(Body):
-    scene: str
+class NewRun(BaseModel):
+    # strict: a JSON 0 is no boolean, as the schema says
+    model_config = ConfigDict(strict=True, extra="forbid", json_schema_extra={"examples": [{
+        "scene": "cantilever", "element": "linear", "overrides": {"mesh.edge_length": 0.035},
+        "paused": True}]})
+    scene: SceneName
     element: str | None = None
     overrides: dict[str, Scalar] = Field(default_factory=dict,
                                          description='scene overrides, e.g. {"material.nu": 0.3}')
@@ -30,50 +33,136 @@ class NewRun(Body):
     paused: bool = False
 
 
-class ParameterValue(Body):
+class ParameterValue(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid",
+                              json_schema_extra={"examples": [{"value": 1.5}]})
     value: float
+
+
+class RunSummary(BaseModel):
+    """A run as the server holds it (fields added later pass through)."""
+
+    model_config = ConfigDict(extra="allow")
+    id: str
+    scene: str
+    element: str
+    overrides: dict
+    created: float = Field(description="Unix time")
+    state: Literal["starting", "building", "running", "paused", "finished", "failed",
+                   "stopped"]
+    reason: str | None = Field(description="why it failed or stopped, or a note")
+    step: int
+    n_steps: int | None
+    estimate: dict | None = Field(description="a finished run's error estimate and cost")
+    pending: list[str] = Field(description="commands sent to the solver that it has not acted "
+                               "on yet, in order: empty once a pause has taken effect and a "
+                               "step asked for is made")
+
+
+class RunStatus(RunSummary):
+    records: list[dict] = Field(description="step records after ``since``, in step order")
+    records_left: int = Field(description="records after these: ask again from the last step")
+
+
+class ParameterAnswer(BaseModel):
+    run: str
+    name: str
+    value: float
+    applied: bool = Field(description="the solver has answered (else it is inside a step)")
+    applies_from_step: int | None
+    detail: str | None = None
+
+
+class KeptFrames(BaseModel):
+    run: str | None
+    steps: list[int]
+    stride: int = Field(description="every stride-th step is kept")
+    bytes: int
+    max_frames: int
+    max_bytes: int
+
+
+class FrameStats(BaseModel):
+    step: int
+    time: float
+    n_vertices: int
+    tools: dict[str, list[float]] = Field(description="each tool's translation")
+    fields: dict[str, dict[str, float]] = Field(description="min, max and mean of each field")
+    bounds: list[list[float]]
+    probes: dict
+
+
+# what a new run's id leads to (OpenAPI links: clients and fuzzers follow them)
+RUN_LINKS = {op: {"operationId": op, "parameters": {"run_id": "$response.body#/id"}}
+             for op in ("status", "pause", "resume", "step", "stop", "set_parameter", "result",
+                        "frames", "recording", "delete_run")}
 
 
 def _runs(request: Request) -> RunManager:
     return request.app.state.manager
 
 
-@router.get("")
+@router.get("", response_model=list[RunSummary])
 def list_runs(request: Request) -> list[dict]:
     return _runs(request).list()
 
 
-@router.post("", status_code=201)
+@router.post("", status_code=201, response_model=RunSummary,
+             responses={201: {"links": RUN_LINKS}, **documented(404, 409, 503, *BODY)})
 def start_run(body: NewRun, request: Request) -> dict:
     run = _runs(request).start_run(body.scene, body.element, body.overrides, body.parameters,
                                    body.paused)
     return run.summary()
 
 
-@router.get("/{run_id}")
-def status(run_id: str, request: Request, since: int = 0) -> dict:
-    """The run's state and its step records after step ``since``; ``pending``: the commands
-    the solver has not acted on yet; for a finished run also ``estimate``: its error from a
-    study of the scene (``q3t study``) and its cost."""
-    return _runs(request).status(run_id, since)
+@router.get("/{run_id}", response_model=RunStatus, responses=RUN)
+def status(run_id: RunId, request: Request, since: int = 0,
+           limit: Annotated[int, Query(ge=1, le=100_000)] = 1000) -> dict:
+    """The run's state and its step records after step ``since``, at most ``limit`` of them
+    (``records_left`` says how many more there are: ask again from the last step returned);
+    for a finished run also ``estimate``: its error from a study of the scene (``q3t study``)
+    and its cost."""
+    return _runs(request).status(run_id, since, limit)
 
 
-@router.post("/{run_id}/{action}")
-def control(run_id: str, action: Literal["pause", "resume", "step", "stop"],
-            request: Request) -> dict:
-    return _runs(request).command(run_id, action)
+@router.post("/{run_id}/pause", response_model=RunSummary,
+             responses=documented(409, 404, 422))
+def pause(run_id: RunId, request: Request) -> dict:
+    """Pause after the current step."""
+    return _runs(request).command(run_id, "pause")
 
 
-@router.put("/{run_id}/parameters/{name}", status_code=202)
-def set_parameter(run_id: str, name: str, body: ParameterValue, request: Request) -> dict:
+@router.post("/{run_id}/resume", response_model=RunSummary,
+             responses=documented(409, 404, 422))
+def resume(run_id: RunId, request: Request) -> dict:
+    return _runs(request).command(run_id, "resume")
+
+
+@router.post("/{run_id}/step", response_model=RunSummary,
+             responses=documented(409, 404, 422))
+def step(run_id: RunId, request: Request) -> dict:
+    """One step, then paused (a running run pauses after its current step)."""
+    return _runs(request).command(run_id, "step")
+
+
+@router.post("/{run_id}/stop", response_model=RunSummary,
+             responses=documented(409, 404, 422))
+def stop(run_id: RunId, request: Request) -> dict:
+    """Stop the run: it ends as ``stopped``, with its result.json and a closed recording."""
+    return _runs(request).command(run_id, "stop")
+
+
+@router.put("/{run_id}/parameters/{name}", status_code=202, response_model=ParameterAnswer,
+            responses=documented(404, 409, 503, *BODY))
+def set_parameter(run_id: RunId, name: str, body: ParameterValue, request: Request) -> dict:
     """Applied from the next step. Waits briefly for the solver: ``applied`` and
     ``applies_from_step`` say from which step it acts (the step is also in the run's
     ``parameter_log``); a solver inside a long step answers later (``applied`` false)."""
     return _runs(request).set_parameter(run_id, name, body.value)
 
 
-@router.get("/{run_id}/result")
-def result(run_id: str, request: Request) -> dict:
+@router.get("/{run_id}/result", responses=RUN)
+def result(run_id: RunId, request: Request) -> dict:
     """The run's result.json, with ``estimate`` as in the status."""
     m = _runs(request)
     run = m.get(run_id)
@@ -83,8 +172,8 @@ def result(run_id: str, request: Request) -> dict:
     return {**json.loads(path.read_text()), "estimate": m.estimate(run)}
 
 
-@router.get("/{run_id}/frames")
-def frames(run_id: str, request: Request) -> dict:
+@router.get("/{run_id}/frames", response_model=KeptFrames, responses=RUN)
+def frames(run_id: RunId, request: Request) -> dict:
     """The steps whose frames the server keeps (the latest run only; every k-th when long)."""
     m = _runs(request)
     m.get(run_id)
@@ -94,8 +183,8 @@ def frames(run_id: str, request: Request) -> dict:
     return summary
 
 
-@router.get("/{run_id}/frames/{step}")
-def frame(run_id: str, step: int, request: Request) -> dict:
+@router.get("/{run_id}/frames/{step}", response_model=FrameStats, responses=RUN)
+def frame(run_id: RunId, step: int, request: Request) -> dict:
     """One kept frame (the one at ``step`` or the nearest before): tool translations, probes,
     and each field's min, max and mean over the display vertices."""
     f = _runs(request).frame_at(run_id, step)
@@ -108,8 +197,10 @@ def frame(run_id: str, step: int, request: Request) -> dict:
             "probes": f["probes"]}
 
 
-@router.get("/{run_id}/recording")
-def recording(run_id: str, request: Request) -> FileResponse:
+@router.get("/{run_id}/recording", response_class=FileResponse, responses={
+    **RUN, 200: {"content": {"application/octet-stream": {}},
+                 "description": "The run's rerun recording (run.rrd)"}})
+def recording(run_id: RunId, request: Request) -> FileResponse:
     m = _runs(request)
     path = m.dir(m.get(run_id).id) / "run.rrd"
     if not path.is_file():
@@ -117,7 +208,7 @@ def recording(run_id: str, request: Request) -> FileResponse:
     return FileResponse(path, media_type="application/octet-stream", filename=f"{run_id}.rrd")
 
 
-@router.delete("/{run_id}", status_code=204)
-def delete_run(run_id: str, request: Request) -> Response:
+@router.delete("/{run_id}", status_code=204, responses=documented(404, 409, 422))
+def delete_run(run_id: RunId, request: Request) -> Response:
     _runs(request).delete(run_id)
     return Response(status_code=204)

@@ -4,35 +4,116 @@ form's conversions (render: scene JSON to TOML, parse: TOML to scene JSON), whic
 from __future__ import annotations
 
 from fastapi import APIRouter, Request, Response
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
+from starlette.convertors import StringConvertor, register_url_convertor
 
 from server import sceneform
-from server.settings import check_name
+from server.errors import BODY, CheckedRoute, documented
+from server.settings import RESERVED_SCENE_NAMES, SceneName, ScenePath
 from server.store import SceneStore
 from sim.scene import Scene
 
-router = APIRouter(prefix="/api/scenes", tags=["scenes"])
+router = APIRouter(prefix="/api/scenes", tags=["scenes"], route_class=CheckedRoute)
 
 
-class Body(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class SceneSegment(StringConvertor):
+    """A ``{name:scene}`` path segment: any but the names of the routes beside it, so that
+    ``PUT /api/scenes/schema`` is a 405 (the schema is read-only), not a scene named "schema"."""
+
+    regex = f"(?!(?:{'|'.join(RESERVED_SCENE_NAMES)})(?:/|$))[^/]+"
 
 
-class SceneText(Body):
+register_url_convertor("scene", SceneSegment())
+NAMED = (405, 422)  # a route naming a scene: a reserved name is another route (405)
+
+
+EXAMPLE_TOML = """name = "plate"
+[mesh]
+kind = "rectangle"
+size = [0.7, 0.07]
+edge_length = 0.035
+[shell]
+thickness = 0.007
+[material]
+E = 1.0e9
+nu = 0.3
+"""
+
+
+def _example(**values) -> ConfigDict:
+    """A request body's config: strict (a JSON 0 is no boolean), no unknown fields, and an
+    example for the schema."""
+    return ConfigDict(strict=True, extra="forbid", json_schema_extra={"examples": [values]})
+
+
+class SceneText(BaseModel):
+    model_config = _example(toml=EXAMPLE_TOML)
     toml: str
 
 
-class NewScene(Body):
-    name: str
+class NewScene(BaseModel):
+    model_config = _example(name="plate", toml=EXAMPLE_TOML)
+    name: SceneName
     toml: str
 
 
-class NewName(Body):
-    name: str
+class NewName(BaseModel):
+    model_config = _example(name="cantilever-copy")
+    name: SceneName
 
 
-class SceneJSON(Body):
+class SceneJSON(BaseModel):
+    model_config = _example(scene={"name": "plate", "mesh": {"size": [0.7, 0.07]},
+                                   "shell": {"thickness": 0.007},
+                                   "material": {"E": 1.0e9, "nu": 0.3}})
     scene: dict
+
+
+class SceneSummary(BaseModel):
+    name: str
+    description: str
+    valid: bool = Field(description="whether its TOML reads (not whether the scene is valid)")
+
+
+class SceneDocument(BaseModel):
+    name: str
+    toml: str
+    scene: dict | None = Field(description="the validated scene, defaults filled in; null when "
+                                           "the scene is invalid")
+    error: str | None = Field(description="why the scene is invalid, naming the field")
+
+
+class Validated(BaseModel):
+    ok: bool
+    scene: dict
+
+
+class FieldError(BaseModel):
+    loc: str = Field(description="the field's dotted path, e.g. material.nu")
+    msg: str
+
+
+class Converted(BaseModel):
+    """A conversion between the form's scene JSON and TOML, and what is wrong with the scene."""
+
+    ok: bool
+    scene: dict | None = Field(description="the validated scene; null when invalid")
+    errors: list[FieldError]
+    error: str | None = Field(description="the errors in one line")
+
+
+class Rendered(Converted):
+    toml: str | None = Field(description="the TOML (null when the form's JSON has none)")
+
+
+class Parsed(Converted):
+    raw: dict | None = Field(description="the tables as read (null when the TOML does not read)")
+
+
+# what a new scene's name leads to (OpenAPI links: clients and fuzzers follow them)
+NAME_LINKS = {op: {"operationId": op, "parameters": {"name": "$response.body#/name"}}
+              for op in ("read_scene", "update_scene", "delete_scene", "duplicate_scene")}
+CREATED = {201: {"links": NAME_LINKS}}
 
 
 def _store(request: Request) -> SceneStore:
@@ -48,7 +129,7 @@ def _read(store: SceneStore, name: str) -> dict:
     return {"name": name, "toml": text, "scene": scene, "error": error}
 
 
-@router.get("")
+@router.get("", response_model=list[SceneSummary])
 def list_scenes(request: Request) -> list[dict]:
     store = _store(request)
     return [store.summary(n) for n in store.names()]
@@ -59,12 +140,12 @@ def schema() -> dict:
     return Scene.model_json_schema()
 
 
-@router.post("/validate")
+@router.post("/validate", response_model=Validated, responses=documented(*BODY))
 def validate(body: SceneText, request: Request) -> dict:
     return {"ok": True, "scene": _store(request).validate(body.toml).model_dump(mode="json")}
 
 
-@router.post("/render")
+@router.post("/render", response_model=Rendered, responses=documented(*BODY))
 def render(body: SceneJSON) -> dict:
     """Scene JSON (the page's form) to TOML text, with validation errors naming the field
     (``{"loc": "material.nu", "msg": ...}``). A valid scene is written without its defaults.
@@ -72,44 +153,47 @@ def render(body: SceneJSON) -> dict:
     return sceneform.render(body.scene)
 
 
-@router.post("/parse")
+@router.post("/parse", response_model=Parsed, responses=documented(*BODY))
 def parse(body: SceneText) -> dict:
-    """TOML text to scene JSON: ``scene`` (validated, defaults filled in) or ``raw`` and
+    """TOML to scene JSON: ``scene`` (validated, defaults filled in) or ``raw`` and
     ``errors`` naming the fields. Never saves."""
     return sceneform.parse(body.toml)
 
 
-@router.get("/{name}")
-def read_scene(name: str, request: Request) -> dict:
+@router.get("/{name:scene}", response_model=SceneDocument,
+            responses=documented(404, *NAMED))
+def read_scene(name: ScenePath, request: Request) -> dict:
     return _read(_store(request), name)
 
 
-@router.post("", status_code=201)
+@router.post("", status_code=201, response_model=SceneDocument,
+             responses={**CREATED, **documented(409, *BODY)})
 def create_scene(body: NewScene, request: Request, response: Response) -> dict:
     store = _store(request)
-    check_name(body.name, "scene name")
     store.create(body.name, body.toml)  # atomic: of two creates of one name, one wins
     response.headers["Location"] = f"/api/scenes/{body.name}"
     return _read(store, body.name)
 
 
-@router.put("/{name}")
-def update_scene(name: str, body: SceneText, request: Request) -> dict:
+@router.put("/{name:scene}", response_model=SceneDocument,
+            responses=documented(*NAMED, *BODY))
+def update_scene(name: ScenePath, body: SceneText, request: Request) -> dict:
     store = _store(request)
     store.save(name, body.toml)
     return _read(store, name)
 
 
-@router.delete("/{name}", status_code=204)
-def delete_scene(name: str, request: Request) -> Response:
+@router.delete("/{name:scene}", status_code=204, responses=documented(404, *NAMED))
+def delete_scene(name: ScenePath, request: Request) -> Response:
     _store(request).delete(name)
     return Response(status_code=204)
 
 
-@router.post("/{name}/duplicate", status_code=201)
-def duplicate_scene(name: str, body: NewName, request: Request) -> dict:
+@router.post("/{name:scene}/duplicate", status_code=201, response_model=SceneDocument,
+             responses={**CREATED, **documented(404, 409, *NAMED, *BODY)})
+def duplicate_scene(name: ScenePath, body: NewName, request: Request,
+                    response: Response) -> dict:
     store = _store(request)
-    text = store.text(name)
-    check_name(body.name, "scene name")
-    store.create(body.name, text)
+    store.create(body.name, store.text(name))
+    response.headers["Location"] = f"/api/scenes/{body.name}"
     return _read(store, body.name)

@@ -6,8 +6,13 @@ Friction lags the normal force (sim.contact); ``settle_friction`` refreshes it f
 converged state and re-solves until it no longer changes, so a converged step slides with
 |f_t| = mu f_n of its own normal force.
 
-The contact layer starts ``delta`` (1 % of the thickness) outside the tool surface, so a skin
-placed exactly on a tool is already held by it (no free rigid mode at the first step).
+The normal force is the C2 penalty (sim.contact, ``c2=True``): its stiffness ramps up over a
+contact layer ``delta`` (2 % of the thickness) outside the tool surface instead of jumping by
+k where a node enters it. With the jump, a node that ends a Newton step at the layer's edge
+sees a Hessian that is wrong by k times its last move, and the residual stalls there at a
+level set by the last bits of that move (measured: 1e-5 N against a floor of 1e-7 N, on one CPU
+code path and not another). A skin placed exactly on a tool is inside the layer and already
+held by it (no free rigid mode at the first step).
 The tool moves rigidly: a translation (velocity plus keyframed offsets) and a keyframed
 rotation about its origin, given as a rotation vector (axis * angle, rad) interpolated
 linearly between keyframes (exact for a fixed axis). Its pose (R, t) places the SDF
@@ -135,7 +140,7 @@ class ToolContact(Term):
         if self.mu > 0:
             here = self.position + (x[self.vdof] if self.vdof is not None else 0.0)
             self._lag(*normal_forces(self._start, self.prog, self._R0, here, self.k,
-                                     self.delta))
+                                     self.delta, c2=True))
 
     def _lag(self, lam, nrm):
         act = lam > 0
@@ -156,7 +161,7 @@ class ToolContact(Term):
         if self.mu == 0:
             return 0.0
         lam, nrm = normal_forces(x[self.nodes], self.prog, self.R_now, self.translation(x),
-                                 self.k, self.delta)
+                                 self.k, self.delta, c2=True)
         old = self._lagged[5] if self._lagged is not None else np.zeros_like(lam)
         if take:
             self._lag(lam, nrm)
@@ -171,7 +176,7 @@ class ToolContact(Term):
         """(E, penalty gradient (m,3), penalty Hessian (m,3,3), friction gradient, Hessian)."""
         X = x[self.nodes]
         E, g, H, _, _ = penalty_contact(X, self.prog, self.R_now, self.translation(x), self.k,
-                                        self.delta, project_psd=bool(self.project))
+                                        self.delta, c2=True, project_psd=bool(self.project))
         gf = np.zeros_like(g)
         Hf = np.zeros_like(H)
         if self.mu > 0 and self._lagged is not None and self._lagged[0].any():
