@@ -101,6 +101,28 @@ class Recorder:
         self.rec.disconnect()  # writes the footer
 
 
+def read_steps(path: Path) -> list[dict]:
+    """The step records the recording holds (what ``step`` wrote: time, probes and the
+    solver's numbers), for a run whose result.json was never written. A step whose solver
+    numbers are not all there (the writer was killed within it) is left out."""
+    from rerun.chunk import RrdReader
+
+    steps: dict[int, dict] = {}
+    for chunk in RrdReader(str(path)).stream():
+        kind, _, name = str(chunk.entity_path).lstrip("/").partition("/")
+        if kind != "probes" and not (kind == "solver" and name in SOLVER):
+            continue
+        rb = chunk.to_record_batch()
+        for k, t, v in zip(rb.column("step").to_pylist(), rb.column("sim_time").to_pylist(),
+                           rb.column("Scalars:scalars").to_pylist(), strict=True):
+            rec = steps.setdefault(k, {"step": k, "time": t.total_seconds(), "probes": {}})
+            (rec["probes"] if kind == "probes" else rec)[name] = v[0]
+    out = [r for _, r in sorted(steps.items()) if all(n in r for n in SOLVER)]
+    for r in out:
+        r["iterations"], r["cutbacks"] = int(r["iterations"]), int(r["cutbacks"])
+    return out
+
+
 def rerun_cli() -> str:
     exe = Path(sys.executable).with_name("rerun")
     return str(exe) if exe.exists() else (shutil.which("rerun") or "rerun")

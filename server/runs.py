@@ -35,6 +35,7 @@ from sim.scene import SceneError, scene_from_toml
 
 ACTIVE = {"starting", "building", "running", "paused"}
 HEARTBEAT_S = 5.0  # a bridge silent for longer than this is reported dead
+LOST = "the server stopped during the run"
 
 
 @dataclass
@@ -57,6 +58,9 @@ class Run:
     # frames made and dropped (queue full) by the solver; received and pushed to the viewer here
     frames: dict = field(default_factory=dict)
     records: list[dict] = field(default_factory=list)
+    # commands sent to the solver that it has not done yet, in order (pause, step, set, ...):
+    # empty once it has acted on every request (a step asked for is then made)
+    pending: list[str] = field(default_factory=list)
     # finished runs: error estimate from a study of the scene, and the run's cost
     estimate: dict | None = None
 
@@ -94,6 +98,7 @@ class RunManager:
         self.bridge_error: str | None = None
         self.logs: collections.deque = collections.deque(maxlen=50)  # the solver's log events
         self._pending: dict[int, dict] = {}  # request id -> {"event", "reply"}
+        self._sent: dict[int, str] = {}  # request id -> run id, until the solver replies
         self._facts: dict[str, tuple] = {}  # run id -> (edge length, result.json)
         self._estimate_keys: dict[str, tuple] = {}  # run id -> the study report it used
 
@@ -138,10 +143,34 @@ class RunManager:
                 continue
             runs[run.id] = run
             if run.state in ACTIVE:  # the server died during the run
-                run.state = "failed"
-                run.reason = "the server stopped during the run" + self._repair(run)
+                self._recover(run, self._repair(run))
                 self._save(run)
         return runs
+
+    def _recover(self, run: Run, note: str) -> None:
+        """The status of a run the server lost track of, rebuilt from what the solver left on
+        disk (``run.json`` is saved at the run's start and end only): result.json when it was
+        written - the solver finishes its run when the server dies - else the steps the
+        recording holds. ``note``: what the recording's repair said."""
+        from server.recording import read_steps  # imports rerun: see _repair
+
+        d = self.dir(run.id)
+        state, reason = "failed", LOST
+        try:
+            result = json.loads((d / "result.json").read_text())
+            run.records, run.counts = result["steps"], result["counts"]
+            if result["converged"]:
+                state, reason = "finished", None
+            elif result["failure"]:
+                reason = result["failure"]["reason"]
+        except (OSError, ValueError, KeyError, TypeError):
+            try:  # none when the server died before the solver began the recording
+                run.records = read_steps(d / "run.rrd") if (d / "run.rrd").is_file() else []
+            except Exception as exc:  # an unreadable recording: the run keeps no records
+                note += f"; its steps could not be read: {exc}"
+        run.step = run.records[-1]["step"] if run.records else 0
+        run.state, run.reason = state, ((reason or "") + note).removeprefix("; ") or None
+        run.pending.clear()
 
     def _repair(self, run: Run) -> str:
         """Make the recording of a run whose recording process was killed verifiable again.
@@ -259,7 +288,7 @@ class RunManager:
                     run.state = "paused"  # at once, so a status read after the request agrees
                 elif cmd == "resume" and run.state == "paused":
                     run.state = "running"
-                self.worker.send(cmd)
+                self._send(run, cmd)
                 return run.summary()
         self._after_build_ended(run, old)
         return run.summary()
@@ -309,6 +338,14 @@ class RunManager:
         while self._retired:
             self._retired.pop().close(timeout=0.1)
 
+    def _send(self, run: Run, cmd: str, **kw) -> int:
+        """Under ``lock``: a command for the active ``run``, listed in its ``pending`` until
+        the solver replies."""
+        rid = self.worker.send(cmd, **kw)
+        self._sent[rid] = run.id
+        run.pending.append(cmd)
+        return rid
+
     def check_parameter(self, name: str, value) -> float:
         if not self.ready.wait(self.settings.ack_timeout):
             raise NotReady("the solver process is still starting (it names the live "
@@ -331,7 +368,7 @@ class RunManager:
             run = self.get(run_id)
             if run.id != self.active:
                 raise Conflict(f"run {run_id!r} is {run.state}, not active")
-            rid = self.worker.send("set", name=name, value=value)
+            rid = self._send(run, "set", name=name, value=value)
             self._pending[rid] = waiter
         answered = waiter["event"].wait(self.settings.ack_timeout)
         with self.lock:
@@ -406,6 +443,8 @@ class RunManager:
     def _finish(self, run: Run, state: str, reason: str | None) -> None:
         """Under ``lock``: the run is over. The caller saves it (outside the lock)."""
         run.state, run.reason = state, reason
+        run.pending.clear()  # what the solver did not do, it will not do for this run
+        self._sent = {rid: r for rid, r in self._sent.items() if r != run.id}
         if run.id == self.active:
             self.active = None
 
@@ -433,6 +472,9 @@ class RunManager:
                 if waiter is not None:
                     waiter["reply"] = ev
                     waiter["event"].set()
+                sender = self.runs.get(self._sent.pop(ev.get("id"), ""))
+                if sender is not None and ev["cmd"] in sender.pending:
+                    sender.pending.remove(ev["cmd"])
             run = self.runs.get(ev.get("run") or "")
             if run is None or run.id != self.active:
                 return later, None

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -79,7 +80,7 @@ class Viewer:
         self.options = field_options(FIELDS)  # dropdown label -> field key
         self.last_colour = 0.0
         self.frame: dict | None = None
-        self.echo = False  # set while code (not a user) moves a slider
+        self._code = threading.local()  # .on while this thread's GUI changes are the code's
         self.live_faces: np.ndarray | None = None
         self.live_tools: list[dict] = []
         self.replay = None  # a recorded run being shown (server.replay.Replay)
@@ -88,6 +89,23 @@ class Viewer:
     @property
     def port(self) -> int:
         return self.server.get_port()
+
+    @contextmanager
+    def _from_code(self):
+        """GUI values set inside are the code's, not a user's: their callbacks do nothing.
+        viser runs the callbacks of a value set in code at once, in the thread that set it, so
+        the mark is per thread: a user's change arriving meanwhile (in viser's threads, or a
+        test's) is still the user's."""
+        before = getattr(self._code, "on", False)
+        self._code.on = True
+        try:
+            yield
+        finally:
+            self._code.on = before
+
+    def _by_user(self, action):
+        """An ``on_update`` callback that runs ``action()`` for a user's change only."""
+        return lambda _e: None if getattr(self._code, "on", False) else action()
 
     def _build_gui(self, elements: list[str]) -> Gui:
         g = self.server.gui
@@ -108,14 +126,14 @@ class Viewer:
                                        hint="the live run, or an older run's recording")
             time_slider = g.add_slider("Step", min=0, max=1, step=1, initial_value=0,
                                        hint="pause the run (or let it finish), then drag")
-        recording.on_update(lambda _e: None if self.echo else self._choose_recording())
-        time_slider.on_update(lambda _e: None if self.echo else self._scrub())
+        recording.on_update(self._by_user(self._choose_recording))
+        time_slider.on_update(self._by_user(self._scrub))
         self.param_folder = g.add_folder("Live parameters")
         with g.add_folder("Colour"):
             field = g.add_dropdown("Colour by", tuple(field_options(FIELDS)),
                                    initial_value=field_label(DEFAULT_FIELD))
             legend = g.add_html("")
-        field.on_update(lambda _e: None if self.echo else self._recolour())
+        field.on_update(self._by_user(self._recolour))
         return Gui(status, field, legend, element, {}, time_slider, recording, buttons)
 
     def add_parameters(self, parameters: dict[str, tuple[float, float]]) -> None:
@@ -124,7 +142,7 @@ class Viewer:
             for name, (lo, hi) in parameters.items():
                 s = self.server.gui.add_slider(name, min=lo, max=hi, step=(hi - lo) / 1000,
                                                initial_value=min(max(1.0, lo), hi))
-                s.on_update(lambda _e, n=name, h=s: self._on_slider(n, h))
+                s.on_update(self._by_user(lambda n=name, h=s: self._on_slider(n, h)))
                 self.gui.sliders[name] = s
 
     def _status(self, text: str) -> None:
@@ -133,16 +151,12 @@ class Viewer:
     set_status = _status
 
     def _on_slider(self, name: str, handle) -> None:
-        if not self.echo:
-            self._status(self.actions.viewer_set(name, float(handle.value)))
+        self._status(self.actions.viewer_set(name, float(handle.value)))
 
     def set_parameter_value(self, name: str, value: float) -> None:
         if name in self.gui.sliders:
-            self.echo = True
-            try:
+            with self._from_code():
                 self.gui.sliders[name].value = value
-            finally:
-                self.echo = False
 
     def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict] = (),
                 element: str | None = None) -> None:
@@ -155,12 +169,9 @@ class Viewer:
             self.live_tools = list(tools)
             self.frame = None
             self.replay = None
-            self.echo = True
-            try:
+            with self._from_code():
                 self.gui.recording.value = LIVE
                 self.gui.time.value, self.gui.time.max = 0, 1
-            finally:
-                self.echo = False
             self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
                                               for t in self.live_tools])
         self._status(f"Run `{run_id}`: building")
@@ -186,13 +197,8 @@ class Viewer:
             options = (LIVE, *run_ids)
             if tuple(self.gui.recording.options) == options:
                 return
-            keep = self.gui.recording.value if self.gui.recording.value in options else LIVE
-            self.echo = True
-            try:
+            with self._from_code():  # viser keeps the choice while offered, else picks LIVE
                 self.gui.recording.options = options
-                self.gui.recording.value = keep
-            finally:
-                self.echo = False
 
     def _choose_recording(self) -> None:
         choice = self.gui.recording.value
@@ -211,21 +217,15 @@ class Viewer:
         rep, message = self.actions.viewer_recording(choice)
         if rep is None:
             self._status(message)
-            self.echo = True
-            try:
+            with self._from_code():
                 self.gui.recording.value = LIVE
-            finally:
-                self.echo = False
             return
         with self.lock:
             self.replay = rep
             self._set_scene(rep.faces, [(n, V, F) for n, (V, F) in rep.tools.items()])
-            self.echo = True
-            try:
+            with self._from_code():
                 self.gui.time.max = max(1, rep.steps[-1])
                 self.gui.time.value = rep.steps[-1]
-            finally:
-                self.echo = False
             self._show_recorded(rep.steps[-1], message)
             self._aim(rep.positions[-1])
 
@@ -255,21 +255,15 @@ class Viewer:
         keep = next((lab for lab, k in options.items() if k == current),
                     next((lab for lab, k in options.items() if k == DEFAULT_FIELD),
                          next(iter(options))))
-        self.echo = True
-        try:
+        with self._from_code():
             self.gui.field.options = tuple(options)
             self.gui.field.value = keep
-        finally:
-            self.echo = False
 
     def _set_time(self, step: int) -> None:
         """Move the time slider to the live step (its end grows with the run)."""
-        self.echo = True
-        try:
+        with self._from_code():
             self.gui.time.max = max(1, int(step), int(self.gui.time.max))
             self.gui.time.value = int(step)
-        finally:
-            self.echo = False
 
     def _scrub(self) -> None:
         with self.lock:

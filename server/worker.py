@@ -81,7 +81,6 @@ class _Solver:
         self.recorder = None
         self.last_mesh = -1  # step of the last sheet mesh written to the recording
         self.paused = False
-        self.pending_steps = 0
         self.produced = self.dropped = 0  # frames of this run made / dropped (queue full)
         self.mesh_cache: dict = {}  # tool meshes by shape: a repeated run skips the meshing
 
@@ -90,7 +89,7 @@ class _Solver:
 
     @property
     def stepping(self) -> bool:
-        return self.sim is not None and (not self.paused or self.pending_steps > 0)
+        return self.sim is not None and not self.paused
 
     def handle(self, msg: dict) -> None:
         cmd = msg["cmd"]
@@ -128,7 +127,7 @@ class _Solver:
         if self.sim is not None:
             self.finish("stopped", "replaced by a new run")
         self.run, self.out = msg["run"], Path(msg["out"])
-        self.paused, self.pending_steps = bool(msg.get("paused")), 0
+        self.paused = bool(msg.get("paused"))
         self.produced = self.dropped = 0
         self.last_mesh = -1
         self.record_every = max(1, int(msg.get("record_every") or self.record_every))
@@ -202,7 +201,6 @@ class _Solver:
 
     def cmd_pause(self, msg: dict) -> None:
         self._need_run()
-        self.pending_steps = 0
         self._pause()
 
     def cmd_resume(self, msg: dict) -> None:
@@ -211,10 +209,13 @@ class _Solver:
         self.emit("state", state="running")
 
     def cmd_step(self, msg: dict) -> None:
-        """One step, then paused (a running run pauses after the step under way)."""
+        """One step, then paused (a running run pauses after the step under way). The step is
+        made here, so the reply says it is done."""
         self._need_run()
-        self._pause()
-        self.pending_steps += 1
+        if not self.paused:
+            self.paused = True
+            self.emit("state", state="paused")
+        self.step(single=True)
 
     def cmd_stop(self, msg: dict) -> None:
         self._need_run()
@@ -235,21 +236,19 @@ class _Solver:
         pass
 
     # ---- stepping -----------------------------------------------------------------------------
-    def step(self) -> None:
-        """One step of the active run. Whatever goes wrong fails the run with the reason (and
-        its result.json); the process goes on to the next run."""
+    def step(self, single: bool = False) -> None:
+        """One step of the active run (``single``: of a paused run, whose frame must arrive).
+        Whatever goes wrong fails the run with the reason (and its result.json); the process
+        goes on to the next run."""
         try:
-            self._step()
+            self._step(single)
         except Exception as exc:
             self.emit("log", text=traceback.format_exc())
             self.finish("failed", f"{type(exc).__name__}: {exc}")
 
-    def _step(self) -> None:
+    def _step(self, single: bool) -> None:
         from sim.simulation import SolverFailure
 
-        single = self.pending_steps > 0
-        if single:
-            self.pending_steps -= 1
         try:
             rec = self.sim.step()
         except SolverFailure as exc:
@@ -268,7 +267,7 @@ class _Solver:
         if self.sim.done:
             self.finish("finished", None, msg)
             return
-        if single:  # a single step of a paused run: its frame must arrive
+        if single:
             self.events.put({**msg, "final": True})
         else:
             try:
@@ -310,7 +309,7 @@ class _Solver:
             reason = "; ".join([reason or state, *problems])
         self.emit("state", state=state, reason=reason,
                   frames={"produced": self.produced, "dropped": self.dropped})
-        self.sim, self.paused, self.pending_steps = None, False, 0
+        self.sim, self.paused = None, False
 
 
 def worker_main(commands, events, frames, record_every: int = 10,

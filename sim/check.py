@@ -207,12 +207,14 @@ def _child(conn, scene_path: str, overrides: dict) -> None:
 
 
 def run_isolated(scene_path: str, overrides: dict, budget: float, ctx=None) -> dict:
-    """``run_case`` in a child process; killed after ``budget`` seconds (status ``timeout``)."""
+    """``run_case`` in a child process; killed after ``budget`` seconds (status ``timeout``).
+    The budget and ``elapsed`` start once the child is forked: the first ``start`` also starts
+    the forkserver, whose imports are no case's time."""
     ctx = ctx or _context()
     parent, child = ctx.Pipe(duplex=False)
     p = ctx.Process(target=_child, args=(child, scene_path, overrides), daemon=True)
-    t0 = time.perf_counter()
     p.start()
+    t0 = time.perf_counter()
     child.close()
     try:
         if parent.poll(budget):

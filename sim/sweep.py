@@ -5,11 +5,13 @@ or whose solver fails is a row of the table, never the end of the sweep. By defa
 ``LocalCluster`` of single-threaded worker processes runs the cases; ``--scheduler`` sends them
 to an existing cluster instead (its workers need this package).
 
-Two clocks bound a sweep. Each case runs in a child process of its worker
-(``sim.check.run_isolated``) that is killed after ``--budget`` seconds (status ``timeout``), so
-one hung case costs its budget and the worker moves on. ``--timeout`` bounds the whole sweep:
-cases not finished by then are cancelled and marked ``timeout``. Results are gathered as they
-finish and ``sweep.json`` is rewritten after each one, so whatever finished is always on disk.
+A case whose scene does not validate is an ``invalid`` row before anything starts, so no
+clock runs for it. Two clocks bound the others. Each case runs in a child process of its
+worker (``sim.check.run_isolated``) that is killed after ``--budget`` seconds (status
+``timeout``), so one hung case costs its budget and the worker moves on. ``--timeout`` bounds
+the whole sweep: cases not finished by then are cancelled and marked ``timeout``. Results are
+gathered as they finish and ``sweep.json`` is rewritten after each one, so whatever finished is
+always on disk.
 """
 
 from __future__ import annotations
@@ -55,9 +57,7 @@ def run_case(scene_path: str, overrides: dict, series: bool = False, measure=Non
     from sim.scene import load_scene
     from sim.simulation import Simulation
 
-    out = {"overrides": dict(overrides), "status": "invalid", "converged": False,
-           "reason": None, "probes": {}, "wall": 0.0, "build": 0.0, "dofs": None,
-           "elements": None, "iterations": 0, "cutbacks": 0, "residual": None}
+    out = _invalid_row(overrides, None)
     t0 = time.perf_counter()
     try:
         sim = Simulation.from_scene(load_scene(scene_path, overrides))
@@ -102,6 +102,25 @@ def run_case(scene_path: str, overrides: dict, series: bool = False, measure=Non
     else:
         out.update(status="nan", reason="non-finite probe after a converged run")
     return out
+
+
+def _invalid_row(overrides: dict, reason: str | None) -> dict:
+    return {"overrides": dict(overrides), "status": "invalid", "converged": False,
+            "reason": reason, "probes": {}, "wall": 0.0, "build": 0.0, "dofs": None,
+            "elements": None, "iterations": 0, "cutbacks": 0, "residual": None}
+
+
+def scene_row(scene_path: str, overrides: dict) -> dict | None:
+    """The ``invalid`` row of a case whose scene does not validate, else None. Cheap (no
+    model is built): a sweep sorts these out before any case starts, so no clock - a case's
+    budget, the sweep's --timeout - ever runs for them."""
+    from sim.scene import load_scene
+
+    try:
+        load_scene(scene_path, overrides)
+    except ValueError as exc:
+        return _invalid_row(overrides, str(exc))
+    return None
 
 
 class _WatchedProcess(ForkServerProcess):
@@ -265,10 +284,22 @@ def _row(future, label: dict) -> dict:
 def run_sweep(scene_path: str, overrides: list[dict], workers: int = 2,
               scheduler: str | None = None, timeout: float | None = None,
               budget: float = DEFAULT_BUDGET, on_result=None) -> tuple[list[dict], bool]:
-    """Every case through ``isolated_case``; see ``run_tasks``."""
-    return run_tasks([(isolated_case, scene_path, o, budget) for o in overrides],
-                     [{"overrides": o} for o in overrides], workers, 1, scheduler, timeout,
-                     on_result)
+    """Every case with a valid scene through ``isolated_case`` (see ``run_tasks``); the others
+    are ``invalid`` rows at once (``scene_row``), and never reach the cluster."""
+    rows = [scene_row(scene_path, o) for o in overrides]
+    todo = [i for i, r in enumerate(rows) if r is None]
+    for i, r in enumerate(rows):
+        if r is not None and on_result:
+            on_result(i, r)
+    if not todo:
+        return rows, True
+    done, finished = run_tasks(
+        [(isolated_case, scene_path, overrides[i], budget) for i in todo],
+        [{"overrides": overrides[i]} for i in todo], workers, 1, scheduler, timeout,
+        on_result and (lambda k, row: on_result(todo[k], row)))
+    for k, i in enumerate(todo):
+        rows[i] = done[k]
+    return rows, finished
 
 
 def table(rows: list[dict], grid_keys: list[str]) -> str:

@@ -23,10 +23,11 @@ import pytest
 from server import sceneform
 from server.colormap import VIRIDIS
 from server.tomlout import drop_none
-from tests.test_service import tiny_toml
+from tests.test_service import HANG, tiny_toml, until
 
 ROOT = Path(__file__).resolve().parent.parent
 CHROMIUM = "/usr/bin/chromium"
+WAIT_MS = int(HANG * 1000)  # Playwright's waits: hang guards (its default is 30 s)
 pytestmark = pytest.mark.browser
 if not Path(CHROMIUM).exists():
     pytest.skip(f"{CHROMIUM} missing (apt-get install chromium)", allow_module_level=True)
@@ -69,7 +70,7 @@ def served(tmp_path_factory):
          "--runs-dir", str(tmp / "runs"), "--step-delay", "0.2"],
         env={**env, "PYTHONPATH": str(ROOT)}, stdout=log, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
-    deadline = time.time() + 60
+    deadline = time.time() + HANG
     while time.time() < deadline:
         try:
             if httpx.get(url + "/api/health", timeout=1).status_code == 200:
@@ -119,28 +120,37 @@ def spread(bins: np.ndarray) -> int:
     return int((bins >= 0.05 * max(bins.sum(), 1)).sum())
 
 
+def settled(url: str, run: str) -> dict:
+    """The run's status once the solver has acted on every command sent for it."""
+    def idle():
+        st = httpx.get(f"{url}/api/runs/{run}").json()
+        return st if not st["pending"] else None
+
+    return until(idle, f"the solver never acted on the commands for {run}")
+
+
 def test_page_run_viewer_pause(server, tmp_path):
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM,
                                     args=["--use-angle=swiftshader", "--enable-unsafe-swiftshader"])
         page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        page.set_default_timeout(WAIT_MS)
         page.goto(server + "/")
         page.wait_for_selector("#scenes li[data-name=tiny]")
         assert "name = \"tiny\"" in page.input_value("#toml")
         page.select_option("#element", "linear")
         page.click("#start")
-        page.wait_for_function("+document.getElementById('status').dataset.step >= 2",
-                               timeout=60_000)
+        page.wait_for_function("+document.getElementById('status').dataset.step >= 2")
         frame = page.frame_locator("#viewer")
-        frame.locator("canvas").first.wait_for(timeout=30_000)
-        frame.get_by_text("Colour by").first.wait_for(timeout=30_000)
+        frame.locator("canvas").first.wait_for()
+        frame.get_by_text("Colour by").first.wait_for()
         page.click("#pause")  # software WebGL is slow: pause before the screenshot
-        time.sleep(1.0)  # the step under way when pause arrived may still finish
+        page.wait_for_function("document.getElementById('status').dataset.state == 'paused'")
         run = page.get_attribute("#status", "data-run")
-        step = httpx.get(f"{server}/api/runs/{run}").json()["step"]
+        step = settled(server, run)["step"]  # after the step under way when pause arrived
         # software WebGL draws 2-3 frames/s and, on a cold start, the coloured mesh can take a
-        # while to arrive: look again for up to 40 s before calling the viewer empty
-        deadline = time.time() + 40.0
+        # while to arrive: look again for up to 2 minutes before calling the viewer empty
+        deadline = time.time() + 120.0
         while True:
             time.sleep(2.0)
             png = page.locator("#viewer").screenshot()
@@ -157,26 +167,19 @@ def test_page_run_viewer_pause(server, tmp_path):
         assert spread(bins) >= 3, f"colour-map bins {bins.tolist()}: {tmp_path}"
         # the viewer's own buttons: Play, Pause, Step (viser GUI in the iframe)
         frame.get_by_role("button", name="Play").click()
-        page.wait_for_function(
-            f"+document.getElementById('status').dataset.step > {step}", timeout=30_000)
+        page.wait_for_function(f"+document.getElementById('status').dataset.step > {step}")
         frame.get_by_role("button", name="Pause").click()
-        page.wait_for_function("document.getElementById('status').dataset.state == 'paused'",
-                               timeout=30_000)
-        time.sleep(1.0)
-        step = httpx.get(f"{server}/api/runs/{run}").json()["step"]
+        page.wait_for_function("document.getElementById('status').dataset.state == 'paused'")
+        step = settled(server, run)["step"]
         frame.get_by_role("button", name="Step").click()
-        page.wait_for_function(
-            f"+document.getElementById('status').dataset.step == {step + 1}", timeout=30_000)
-        time.sleep(1.0)
-        st = httpx.get(f"{server}/api/runs/{run}").json()
+        page.wait_for_function(f"+document.getElementById('status').dataset.step == {step + 1}")
+        st = settled(server, run)
         assert st["step"] == step + 1 and st["state"] == "paused", st
         step += 1
         page.click("#resume")
-        page.wait_for_function(
-            f"+document.getElementById('status').dataset.step > {step}", timeout=30_000)
+        page.wait_for_function(f"+document.getElementById('status').dataset.step > {step}")
         page.click("#stop")
-        page.wait_for_function("document.getElementById('status').dataset.state == 'stopped'",
-                               timeout=30_000)
+        page.wait_for_function("document.getElementById('status').dataset.state == 'stopped'")
         browser.close()
 
 
@@ -192,12 +195,13 @@ def test_scene_form_and_run_estimate(served):
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM)
         page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        page.set_default_timeout(WAIT_MS)
         errors = []  # uncaught errors of our scripts (not of the embedded viewer)
         page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
         page.goto(url + "/")
         field = lambda path: page.locator(f'#scene-form [data-path="{path}"]')  # noqa: E731
         nu = field("material.nu").locator("input")
-        nu.wait_for(timeout=60_000)
+        nu.wait_for()
         assert nu.input_value() == "0.49" and nu.get_attribute("max") == "0.5"
         assert field("material.model").locator("select").input_value() == "neo_hookean"
         # every shipped scene: the form built from its JSON gives that JSON back
@@ -267,13 +271,12 @@ def test_scene_form_and_run_estimate(served):
         active = httpx.get(f"{url}/api/health").json()["active"]
         if active:  # left running by a failed test before this one
             httpx.post(f"{url}/api/runs/{active}/stop")
-            deadline = time.time() + 30
-            while httpx.get(f"{url}/api/health").json()["active"] and time.time() < deadline:
-                time.sleep(0.1)
+            until(lambda: not httpx.get(f"{url}/api/health").json()["active"],
+                  "the run left active did not stop")
         page.select_option("#element", "linear")
         page.click("#start")
         est = page.locator("#estimate .estimate-text")
-        est.wait_for(timeout=60_000)
+        est.wait_for()
         text = est.text_content()
         assert text.startswith("error estimate: 10 % vs quadratic at 3.5 mm (study of "
                                "2026-11-22); cost "), text

@@ -29,7 +29,7 @@ from server.settings import Settings  # noqa: E402
 from sim.model import build_model  # noqa: E402
 from sim.scene import load_scene, scene_from_toml  # noqa: E402
 from sim.simulation import Simulation  # noqa: E402
-from tests.test_service import tiny_toml, wait_state, wait_step  # noqa: E402
+from tests.test_service import HANG, tiny_toml, until, wait_state, wait_step  # noqa: E402
 from tests.test_viewer import PRESS_TOML  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -42,7 +42,7 @@ def client(tmp_path_factory):
     os.environ.setdefault("XDG_CONFIG_HOME", str(tmp / "config"))
     os.environ.setdefault("XDG_DATA_HOME", str(tmp / "data"))
     if RERUN.exists():  # the config lives in the temporary XDG_CONFIG_HOME
-        subprocess.run([str(RERUN), "analytics", "disable"], capture_output=True, timeout=30)
+        subprocess.run([str(RERUN), "analytics", "disable"], capture_output=True, timeout=HANG)
     (tmp / "scenes").mkdir()
     (tmp / "scenes" / "tiny.toml").write_text(tiny_toml(steps=5))
     (tmp / "scenes" / "press.toml").write_text(PRESS_TOML)
@@ -80,7 +80,7 @@ def verify(path: Path) -> subprocess.CompletedProcess:
     if not RERUN.exists():
         pytest.skip("the rerun CLI is not installed next to python")
     return subprocess.run([str(RERUN), "rrd", "verify", str(path)], capture_output=True,
-                          text=True, timeout=60)
+                          text=True, timeout=HANG)
 
 
 def assert_verifies(path: Path) -> None:
@@ -125,7 +125,7 @@ def test_killed_solver_leaves_a_verifiable_recording(client):
     run_id = c.post("/api/runs", json={"scene": "long", "element": "linear"}).json()["id"]
     wait_step(c, run_id, 3)
     os.kill(c.get("/api/health").json()["worker_pid"], signal.SIGKILL)
-    st = wait_state(c, run_id, {"failed"}, timeout=20)
+    st = wait_state(c, run_id, {"failed"})
     assert "killed by signal 9" in st["reason"]
     path = settings.runs_dir / run_id / "run.rrd"
     assert_verifies(path)
@@ -145,7 +145,7 @@ def start_server(tmp: Path, log_name: str) -> tuple[subprocess.Popen, str]:
         env={**os.environ, "PYTHONPATH": str(ROOT)})
     log.close()
     url = f"http://127.0.0.1:{port}"
-    deadline = time.time() + 60
+    deadline = time.time() + HANG
     while True:
         try:
             if httpx.get(url + "/api/health", timeout=1).json()["ok"]:
@@ -161,22 +161,20 @@ def start_server(tmp: Path, log_name: str) -> tuple[subprocess.Popen, str]:
 def run_to_step(url: str, step: int) -> tuple[str, int]:
     run_id = httpx.post(url + "/api/runs", json={"scene": "long", "element": "linear"}).json()
     run_id = run_id["id"]
-    deadline = time.time() + 60
-    while httpx.get(f"{url}/api/runs/{run_id}").json()["step"] < step:
-        assert time.time() < deadline
-        time.sleep(0.05)
+    until(lambda: httpx.get(f"{url}/api/runs/{run_id}").json()["step"] >= step,
+          f"run {run_id} did not reach step {step}")
     return run_id, httpx.get(url + "/api/health").json()["worker_pid"]
 
 
-def gone(pid: int, timeout: float) -> bool:
-    deadline = time.time() + timeout
-    while time.time() < deadline:
+def wait_gone(pid: int, what: str) -> None:
+    def dead() -> bool:
         try:
             os.kill(pid, 0)
         except ProcessLookupError:
             return True
-        time.sleep(0.05)
-    return False
+        return False
+
+    until(dead, what)
 
 
 def test_killed_server_leaves_verifiable_recordings(tmp_path):
@@ -192,7 +190,7 @@ def test_killed_server_leaves_verifiable_recordings(tmp_path):
         first, worker = run_to_step(url, 3)
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(10)
-        assert gone(worker, 20), "the solver process outlived its server"
+        wait_gone(worker, "the solver process outlived its server")
         assert_verifies(tmp_path / "runs" / first / "run.rrd")
 
         proc, url = start_server(tmp_path, "server2.log")
@@ -200,7 +198,7 @@ def test_killed_server_leaves_verifiable_recordings(tmp_path):
         second, worker = run_to_step(url, 3)
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(10)
-        assert gone(worker, 10)
+        wait_gone(worker, "the solver process outlived the SIGKILL")
     finally:
         for p in procs:
             if p.poll() is None:
@@ -208,18 +206,51 @@ def test_killed_server_leaves_verifiable_recordings(tmp_path):
                 p.wait(10)
     path = tmp_path / "runs" / second / "run.rrd"
     assert verify(path).returncode != 0  # no footer: this is what needs the repair
+    # the first run's solver outlived its server and wrote the result; the second's did not
+    result = json.loads((tmp_path / "runs" / first / "result.json").read_text())
+    assert len(result["steps"]) >= 3 and not (tmp_path / "runs" / second / "result.json").exists()
     settings = Settings(scenes_dir=tmp_path / "scenes", runs_dir=tmp_path / "runs",
                         viewer=False)
     with TestClient(create_app(settings)) as c:
-        for run_id in (first, second):
-            st = c.get(f"/api/runs/{run_id}").json()
-            assert st["state"] == "failed", st
-            assert st["reason"].startswith(("the server process died",
-                                            "the server stopped during the run")), st
+        lost = {run_id: c.get(f"/api/runs/{run_id}").json() for run_id in (first, second)}
+    for st in lost.values():
+        assert st["state"] == "failed" and st["reason"] == "the server stopped during the run", st
+    # what the status shows is rebuilt from disk: the result's steps, else the recording's
+    assert lost[first]["records"] == result["steps"]
+    assert lost[first]["step"] == result["steps"][-1]["step"]
     assert_verifies(path)
-    assert len(series(path, "/probes/tip_deflection")) >= 3
+    tip = series(path, "/probes/tip_deflection")
+    assert len(tip) >= 3
+    assert {r["step"]: r["probes"]["tip_deflection"] for r in lost[second]["records"]} == tip
+    assert lost[second]["step"] == max(tip)
+    assert all(r["iterations"] > 0 for r in lost[second]["records"])
     saved = json.loads((tmp_path / "runs" / second / "run.json").read_text())
-    assert saved["state"] == "failed"
+    assert saved["state"] == "failed" and saved["records"] == lost[second]["records"]
+
+
+def test_a_lost_run_that_finished_reads_finished(tmp_path):
+    """The server died after its solver had finished the run but before it heard so: run.json
+    still says running, without records; result.json is the truth."""
+    run_id = "tiny-linear-20260101-000000-abcd"
+    d = tmp_path / "runs" / run_id
+    d.mkdir(parents=True)
+    (tmp_path / "scenes").mkdir()
+    (d / "scene.toml").write_text(tiny_toml(steps=2))
+    steps = [{"step": k, "time": k / 2, "iterations": 3, "residual": 1e-9, "energy": -1.0,
+              "cutbacks": 0, "probes": {"tip_deflection": -0.001 * k}, "tools": {},
+              "friction_change": 0.0} for k in (1, 2)]
+    (d / "result.json").write_text(json.dumps({"converged": True, "failure": None,
+                                               "steps": steps, "counts": {"dofs": 66}}))
+    (d / "run.json").write_text(json.dumps({"id": run_id, "scene": "tiny", "element": "linear",
+                                            "overrides": {}, "created": 0.0,
+                                            "state": "running", "n_steps": 2}))
+    settings = Settings(scenes_dir=tmp_path / "scenes", runs_dir=tmp_path / "runs",
+                        viewer=False)
+    with TestClient(create_app(settings)) as c:
+        st = c.get(f"/api/runs/{run_id}").json()
+    assert st["state"] == "finished" and st["reason"] is None, st
+    assert st["records"] == steps and st["step"] == 2 and st["counts"] == {"dofs": 66}
+    assert json.loads((d / "run.json").read_text())["state"] == "finished"
 
 
 def test_play_command(tmp_path):

@@ -1,7 +1,9 @@
 """q3t sweep: grid parsing, one case's summary (converged, invalid, solver failure), a real
-sweep on a 2-worker local Dask cluster whose --timeout keeps what finished, and one on an
-existing cluster (--scheduler) whose per-case budget kills a hung case; each runs as a child
-process group that must end with the command."""
+sweep on a 2-worker local Dask cluster, one whose --timeout cuts cases that never end in time
+and keeps the invalid rows (sorted out before any clock starts), and one on an existing
+cluster (--scheduler) whose per-case budget kills hung cases in turn; each runs as a child
+process group that must end with the command. No test races a clock: a case is either done
+long before any limit or one that runs for minutes, cut by it."""
 
 import json
 import math
@@ -56,7 +58,13 @@ def _gone(pgid: int) -> bool:
     return False
 
 
-def _run(cmd: list[str], limit: float) -> tuple[int, str, int]:
+# Cases of 100,000 steps (the most a scene allows) run for minutes: cases that block until a
+# clock kills them
+HUNG = "99999,100000"
+HANG = 300  # s: a hang guard for a whole command, far above its time on a loaded machine
+
+
+def _run(cmd: list[str], limit: float = HANG) -> tuple[int, str, int]:
     """``cmd`` in its own process group, killed whole past ``limit`` s; (rc, output, pgid)."""
     p = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                          text=True, start_new_session=True)
@@ -70,8 +78,9 @@ def _run(cmd: list[str], limit: float) -> tuple[int, str, int]:
 
 
 def _assert_group_ends(pgid: int, what: str) -> None:
-    """Workers, forkservers and case children all stay in the command's process group."""
-    deadline = time.monotonic() + 10  # a case child notices its worker is gone within 1 s
+    """Workers, forkservers and case children all stay in the command's process group; a case
+    child notices its worker is gone within a second (hang guard: 60 s)."""
+    deadline = time.monotonic() + 60
     while not _gone(pgid) and time.monotonic() < deadline:
         time.sleep(0.2)
     if not _gone(pgid):
@@ -79,30 +88,56 @@ def _assert_group_ends(pgid: int, what: str) -> None:
         pytest.fail(f"processes outlived {what}")
 
 
-def test_sweep_on_a_local_cluster_reports_failures_and_keeps_what_finished(tmp_path):
-    """8 cases: 4 invalid, 2 solver failures, 1 converged, and 1 of 100,000 steps that the
-    sweep's --timeout cuts: it is marked timeout, the rest is written, the exit code is 1."""
+def _statuses(res: dict, *keys: str) -> dict:
+    return {tuple(c["overrides"][k] for k in keys): c["status"] for c in res["cases"]}
+
+
+def test_sweep_on_a_local_cluster_reports_failures(tmp_path):
+    """8 cases on 2 workers: 4 invalid, 2 solver failures, 2 converged; every case has its
+    row, the sweep is complete."""
     cmd = [sys.executable, "-m", "sim.cli", "sweep", "cantilever",
            "--grid", "material.nu=0.3,0.5", "--grid", "solver.max_iterations=1,30",
-           "--grid", "stepping.steps=1,100000",
+           "--grid", "stepping.steps=1,2",
            "--set", "mesh.edge_length=0.07", "--set", "stepping.max_cutbacks=0",
-           "--workers", "2", "--timeout", "20", "--out", str(tmp_path)]
-    rc, out, pgid = _run(cmd, 150)
-    assert rc == 1, out
+           "--workers", "2", "--out", str(tmp_path)]
+    rc, out, pgid = _run(cmd)
+    assert rc == 0, out
     res = json.loads((tmp_path / "sweep.json").read_text())
-    assert not res["complete"] and len(res["cases"]) == 8
-    status = {(c["overrides"]["material.nu"], c["overrides"]["solver.max_iterations"],
-               c["overrides"]["stepping.steps"]): c["status"] for c in res["cases"]}
+    assert res["complete"] and len(res["cases"]) == 8
     # one Newton iteration cannot solve the step and no cut-back is allowed: a solver failure
-    assert status == {(0.3, 1, 1): "failed", (0.3, 1, 100000): "failed",
-                      (0.3, 30, 1): "converged", (0.3, 30, 100000): "timeout",
-                      **{(0.5, m, s): "invalid" for m in (1, 30) for s in (1, 100000)}}
-    ok = next(c for c in res["cases"] if c["status"] == "converged")
-    assert ok["probes"]["tip_deflection"] < 0 and ok["dofs"] > 0 and ok["wall"] > 0
+    assert _statuses(res, "material.nu", "solver.max_iterations", "stepping.steps") == {
+        **{(0.3, 1, s): "failed" for s in (1, 2)}, **{(0.3, 30, s): "converged" for s in (1, 2)},
+        **{(0.5, m, s): "invalid" for m in (1, 30) for s in (1, 2)}}
+    ok = [c for c in res["cases"] if c["status"] == "converged"]
+    assert all(c["probes"]["tip_deflection"] < 0 and c["dofs"] > 0 and c["wall"] > 0
+               for c in ok)
     md = (tmp_path / "sweep.md").read_text()
     assert md.count("| invalid |") == 4 and "material.nu: Input should be less than 0.5" in md
-    assert "no convergence in 1 iterations" in md and "--timeout of 20 s" in md
+    assert "no convergence in 1 iterations" in md and "--timeout" not in md
     assert (tmp_path / "sweep.png").stat().st_size > 0 and (tmp_path / "sweep.svg").is_file()
+    _assert_group_ends(pgid, "q3t sweep")
+
+
+def test_sweep_timeout_keeps_what_finished_and_ends_every_case(tmp_path):
+    """--timeout on a single worker busy with a case that never ends in time, another queued
+    behind it: both are cut and marked timeout, the exit code is 1, the invalid cases (sorted
+    out before any clock starts) keep their rows, and the running case's child ends with the
+    sweep."""
+    cmd = [sys.executable, "-m", "sim.cli", "sweep", "cantilever",
+           "--grid", "material.nu=0.3,0.5", "--grid", f"stepping.steps={HUNG}",
+           "--set", "mesh.edge_length=0.07", "--workers", "1", "--timeout", "3",
+           "--out", str(tmp_path)]
+    rc, out, pgid = _run(cmd)
+    assert rc == 1, out
+    res = json.loads((tmp_path / "sweep.json").read_text())
+    assert not res["complete"] and len(res["cases"]) == 4
+    assert _statuses(res, "material.nu", "stepping.steps") == {
+        **{(0.3, s): "timeout" for s in (99999, 100000)},
+        **{(0.5, s): "invalid" for s in (99999, 100000)}}
+    assert all("--timeout of 3 s" in c["reason"] for c in res["cases"]
+               if c["status"] == "timeout")
+    md = (tmp_path / "sweep.md").read_text()
+    assert md.count("| invalid |") == 2 and "The sweep's --timeout of 3 s ended it" in md
     _assert_group_ends(pgid, "q3t sweep")
 
 
@@ -117,17 +152,19 @@ with dask.config.set({"distributed.worker.daemon": False}), LocalCluster(
 """
 
 
-def test_sweep_on_an_existing_cluster_kills_a_hung_case_at_its_budget(tmp_path):
-    """--scheduler ADDRESS: the cases go to a cluster the sweep did not start; the case of
-    100,000 steps is killed at its 6 s budget and the worker goes on with the next case."""
+def test_sweep_on_an_existing_cluster_kills_hung_cases_at_their_budget(tmp_path):
+    """--scheduler ADDRESS: the cases go to a cluster the sweep did not start. Its one worker
+    runs a case that never ends in time, which is killed at its 3 s budget, then goes on with
+    the next one, killed at its budget too."""
     cmd = [sys.executable, "-c", CLUSTER, "sweep", "cantilever",
-           "--grid", "stepping.steps=100000,1", "--set", "mesh.edge_length=0.07",
-           "--budget", "6", "--out", str(tmp_path)]
-    rc, out, pgid = _run(cmd, 150)
+           "--grid", f"stepping.steps={HUNG}", "--set", "mesh.edge_length=0.07",
+           "--budget", "3", "--out", str(tmp_path)]
+    rc, out, pgid = _run(cmd)
     assert rc == 0, out
     res = json.loads((tmp_path / "sweep.json").read_text())
     assert res["complete"] and res["scheduler"].startswith("tcp://")
-    by = {c["overrides"]["stepping.steps"]: c for c in res["cases"]}
-    assert by[100000]["status"] == "timeout" and "6 s budget" in by[100000]["reason"]
-    assert by[1]["status"] == "converged" and by[1]["budget"] == 6
+    assert len(res["cases"]) == 2
+    for c in res["cases"]:
+        assert c["status"] == "timeout" and "killed after the 3 s budget" in c["reason"], c
+        assert c["budget"] == 3
     _assert_group_ends(pgid, "the cluster")

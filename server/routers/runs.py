@@ -54,6 +54,9 @@ class RunSummary(BaseModel):
     step: int
     n_steps: int | None
     estimate: dict | None = Field(description="a finished run's error estimate and cost")
+    pending: list[str] = Field(description="commands sent to the solver that it has not acted "
+                               "on yet, in order: empty once a pause has taken effect and a "
+                               "step asked for is made")
 
 
 class RunStatus(RunSummary):
