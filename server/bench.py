@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from server.settings import ROOT
-from sim import results
+from sim.frames import results
 
 CUP_40K = {"mesh.edge_length": 0.00038, "stepping.steps": 50}  # 39,686 display vertices
 PARAMETERS = {"load_scale": (0.0, 100.0)}

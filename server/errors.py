@@ -22,8 +22,8 @@ from starlette.routing import Match
 
 from server.problems import Conflict, Invalid, NotFound, NotReady
 from server.settings import Settings
-from sim.scene import SceneError
-from sim.tree import MAX_DEPTH, tree_problem
+from sim.scene.load import SceneError
+from sim.scene.tree import MAX_DEPTH, tree_problem
 
 
 class Problem(BaseModel):

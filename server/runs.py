@@ -30,8 +30,9 @@ from server.settings import Settings, check_run_id
 from server.store import SceneStore, atomic_write
 from server.worker import worker_main
 from server.workerhandle import WorkerHandle
-from sim import results, size
-from sim.scene import SceneError, scene_from_toml
+from sim.frames import results
+from sim.model import size
+from sim.scene.load import SceneError, scene_from_toml
 
 ACTIVE = {"starting", "building", "running", "paused"}
 HEARTBEAT_S = 5.0  # a bridge silent for longer than this is reported dead
@@ -403,7 +404,7 @@ class RunManager:
     # ---- error estimate -----------------------------------------------------------------------
     def _run_facts(self, run: Run) -> tuple[float | None, dict | None]:
         if run.id not in self._facts:
-            from sim.scene import scene_from_toml
+            from sim.scene.load import scene_from_toml
 
             d = self.dir(run.id)
             try:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pydantic import ValidationError
 
 from server.tomlout import drop_none, to_toml
-from sim.scene import Scene, SceneError, joined, read_toml, scene_errors
+from sim.scene.load import Scene, SceneError, joined, read_toml, scene_errors
 
 
 def validate(raw: dict) -> tuple[Scene | None, list[dict]]:

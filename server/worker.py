@@ -53,8 +53,8 @@ def plane_size(positions: np.ndarray) -> float:
 def tool_meshes(scene, size: float, cache: dict) -> list[dict]:
     """Display meshes of the scene's tools in their local frames (world = local + translation):
     ``[{name, kind, vertices (m, 3) float32, faces (k, 3) uint32}]``. Cached per shape."""
-    from sim.model import tool_program
-    from sim.tools.meshes import tool_mesh
+    from sim.tools.shapes import tool_program
+    from sim.tools.surface import tool_mesh
 
     out = []
     for spec in scene.tools:
@@ -121,8 +121,8 @@ class _Solver:
     # ---- commands -----------------------------------------------------------------------------
     def cmd_start(self, msg: dict) -> None:
         from server.recording import Recorder
-        from sim.scene import scene_from_toml
-        from sim.simulation import Simulation
+        from sim.scene.load import scene_from_toml
+        from sim.stepping.simulation import Simulation
 
         if self.sim is not None:
             self.finish("stopped", "replaced by a new run")
@@ -179,7 +179,7 @@ class _Solver:
 
     def _unbuilt(self, scene, reason: str) -> None:
         """A run that ends before it has a model: its result.json says why, then its state."""
-        from sim import results
+        from sim.frames import results
 
         try:
             results.write(self.out / "result.json", results.interrupted(
@@ -247,7 +247,7 @@ class _Solver:
             self.finish("failed", f"{type(exc).__name__}: {exc}")
 
     def _step(self, single: bool) -> None:
-        from sim.simulation import SolverFailure
+        from sim.stepping.simulation import SolverFailure
 
         try:
             rec = self.sim.step()
@@ -321,7 +321,7 @@ def worker_main(commands, events, frames, record_every: int = 10,
     solver = _Solver(events, frames, record_every, step_delay)
     parameters = {}
     try:  # import and compile here, so the server answers while this takes seconds
-        from sim.simulation import Simulation
+        from sim.stepping.simulation import Simulation
 
         parameters = dict(Simulation.PARAMETERS)
     except Exception:

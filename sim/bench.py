@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim import results
+from sim.frames import results
 
 # (case, element, edge length): the beam is the paper's 70 x 7 cm plate (4,504 triangles), the
 # cup a 60 mm disk (about 26,700 triangles); quadratic at half the edge count has the same nodes.
@@ -32,7 +32,7 @@ PAPER = {("beam", "linear"): 0.184, ("beam", "q3t"): 0.298, ("beam", "quadratic"
 
 def _scene(case: str, element: str, edge: float, extra: dict | None = None):
     from sim.cli import resolve_scene
-    from sim.scene import load_scene
+    from sim.scene.load import load_scene
 
     overrides = {"shell.element": element, "mesh.edge_length": edge, **(extra or {})}
     return load_scene(resolve_scene(CASES[case]["scene"]), overrides)
@@ -45,7 +45,7 @@ def _prepare(case: str, element: str, edge: float, extra=None):
     """(sim, state, build seconds): the scene at a smooth deflection of a tenth of the
     thickness, a state Newton meets (random noise compresses fibres locally and makes the exact
     Hessian indefinite, which no run does), compiled and warmed up."""
-    from sim.simulation import Simulation
+    from sim.stepping.simulation import Simulation
 
     t0 = time.perf_counter()
     sim = Simulation.from_scene(_scene(case, element, edge, extra))
@@ -68,8 +68,8 @@ def _iteration(sim, x) -> dict:
     pass (the line search's full step, reused by the next iteration), factorisation (with the
     projected Hessian evaluated again if the exact one is not positive definite), one solve;
     plus an energy-only evaluation (paid only when a full step is rejected)."""
-    from sim.linsolve import SingularMatrix
-    from sim.newton import _solve
+    from sim.solve.linsolve import SingularMatrix
+    from sim.solve.newton import _solve
 
     m, P = sim.model, sim.model.problem
     t = time.perf_counter()
@@ -158,8 +158,8 @@ def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
     iterations per step while the punch nose, the die shoulder and the holder are in contact,
     with friction (its fixed point included) and plastic flow (mid-stroke by default)."""
     from sim.cli import resolve_scene
-    from sim.scene import load_scene
-    from sim.simulation import Simulation
+    from sim.scene.load import load_scene
+    from sim.stepping.simulation import Simulation
 
     sim = Simulation.from_scene(load_scene(resolve_scene("cup_drawing"), {
         "shell.element": element, "mesh.edge_length": edge}))

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim import results
+from sim.frames import results
 
 BASE = "cantilever"
 TOOLS = "beam_forming"
@@ -137,7 +137,7 @@ def write_sliver_obj(path: Path, size=(0.7, 0.07), edge=DEFAULT_EDGE, eps=1e-3,
     is inside the vertex's convex star, so no triangle inverts. ``kind`` "flat": one vertex moved
     onto the midpoint (a zero-area triangle); "inverted": one triangle wound the other way.
     Returns the number of triangles."""
-    from sim.mesh import boundary_edges, rectangle
+    from sim.geometry.trimesh import boundary_edges, rectangle
 
     m = rectangle(size, edge)
     V, F = m.vertices.copy(), m.faces.copy()
@@ -171,7 +171,7 @@ def measure(sim) -> dict:
     gradient of the loads, inertia and tools over the shell's nodes (the weight, for the
     static cantilever). ``balance`` = |support - applied| over the sum of the magnitudes (a
     punch and a die balance each other: their sum is no scale)."""
-    from sim.newton import measure_floor
+    from sim.solve.newton import measure_floor
 
     m = sim.model
     n = m.shell.n_nodes
@@ -242,7 +242,7 @@ def _context():
     """Children forked from a clean server that has the solver imported (saves ~1 s a case);
     never forked from this process, whose numba/MKL threads may hold locks."""
     ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["sim.sweep", "sim.simulation", "sim.scene"])
+    ctx.set_forkserver_preload(["sim.sweep", "sim.stepping.simulation", "sim.scene.load"])
     return ctx
 
 
@@ -365,7 +365,7 @@ def select(cases: list[Case], names: str | None) -> list[Case]:
 
 def run(args) -> int:
     from sim.cli import resolve_scene
-    from sim.scene import load_scene
+    from sim.scene.load import load_scene
 
     # a terminated check exits through Python, which stops its running child and server
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))

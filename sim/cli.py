@@ -12,7 +12,7 @@ SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
 def resolve_scene(name: str) -> Path:
     """A TOML path or a scene name in scenes/; SceneError (exit 2) otherwise."""
-    from sim.scene import SceneError
+    from sim.scene.load import SceneError
 
     p = Path(name)
     if p.is_file():
@@ -24,7 +24,7 @@ def resolve_scene(name: str) -> Path:
 
 
 def parse_sets(items: list[str]) -> dict:
-    from sim.scene import SceneError, parse_value
+    from sim.scene.load import SceneError, parse_value
 
     out = {}
     for it in items:
@@ -45,9 +45,10 @@ def _progress(sim, rec) -> None:
 
 
 def cmd_run(args) -> int:
-    from sim import results, size
-    from sim.scene import SceneError, load_scene
-    from sim.simulation import Simulation
+    from sim.frames import results
+    from sim.model import size
+    from sim.scene.load import SceneError, load_scene
+    from sim.stepping.simulation import Simulation
 
     overrides = parse_sets(args.set)
     if args.element:
@@ -83,7 +84,7 @@ def cmd_run(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from sim.size import DEFAULT_LIMIT
+    from sim.model.size import DEFAULT_LIMIT
 
     ap = argparse.ArgumentParser(prog="q3t", description=__doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -110,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     if server_cli is not None:
         server_cli.add_parser(sub)
     args = ap.parse_args(argv)
-    from sim.scene import SceneError
+    from sim.scene.load import SceneError
 
     try:
         return args.func(args)

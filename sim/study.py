@@ -74,7 +74,7 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
     ``study`` keys given on the command line); without one, its first probe at 4, 2 and 1 times
     its own edge length."""
     from sim.elements import ELEMENTS
-    from sim.scene import load_scene
+    from sim.scene.load import load_scene
 
     overrides = dict(overrides or {})
     sc = load_scene(scene_path, {**overrides, **{f"study.{k}": v for k, v in
@@ -268,8 +268,8 @@ def run_study(plan: Plan, progress=print, workers: int = 1, threads: int = 1,
 def factorisation_case(scene_path: str, element: str, edge: float, repeat: int,
                        overrides: dict) -> dict:
     """Times of ``repeat`` calls of ``solver.factor`` on the Hessian at rest (paper Fig. 7)."""
-    from sim.scene import load_scene
-    from sim.simulation import Simulation
+    from sim.scene.load import load_scene
+    from sim.stepping.simulation import Simulation
 
     sim = Simulation.from_scene(load_scene(scene_path, {**overrides, "shell.element": element,
                                                         "mesh.edge_length": edge}))
@@ -344,7 +344,7 @@ def _inputs(args) -> tuple[str, Plan]:
 def run(args) -> int:
     """Exit 0 on success, 1 when the reference run failed (no errors to give), 2 on bad input
     (as ``q3t run``: 1 = a run failed, 2 = bad input)."""
-    from sim.scene import SceneError
+    from sim.scene.load import SceneError
 
     try:
         scene, plan = _inputs(args)

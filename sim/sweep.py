@@ -27,7 +27,7 @@ from collections.abc import Callable
 from multiprocessing.context import ForkServerProcess
 from pathlib import Path
 
-from sim import results
+from sim.frames import results
 
 # Numba's own pool would give every worker all cores: one thread each, the cluster is the pool.
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -54,8 +54,8 @@ def run_case(scene_path: str, overrides: dict, series: bool = False, measure=Non
     ``series``: also every step's time and probes (``history``) and the recorded sections.
     ``measure(sim) -> dict``, when given, adds its numbers as ``measured`` after the run.
     """
-    from sim.scene import load_scene
-    from sim.simulation import Simulation
+    from sim.scene.load import load_scene
+    from sim.stepping.simulation import Simulation
 
     out = _invalid_row(overrides, None)
     t0 = time.perf_counter()
@@ -114,7 +114,7 @@ def scene_row(scene_path: str, overrides: dict) -> dict | None:
     """The ``invalid`` row of a case whose scene does not validate, else None. Cheap (no
     model is built): a sweep sorts these out before any case starts, so no clock - a case's
     budget, the sweep's --timeout - ever runs for them."""
-    from sim.scene import load_scene
+    from sim.scene.load import load_scene
 
     try:
         load_scene(scene_path, overrides)
@@ -192,7 +192,7 @@ def split_values(text: str) -> list[str]:
 
 def parse_grid(items: list[str]) -> dict[str, list]:
     """``["key=v1,v2", ...]`` -> ``{key: [v1, v2]}`` with values parsed as TOML."""
-    from sim.scene import parse_value
+    from sim.scene.load import parse_value
 
     grid: dict[str, list] = {}
     for it in items:

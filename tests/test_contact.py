@@ -6,8 +6,8 @@ import functools
 import numpy as np
 import pytest
 
-from sim.scene import load_scene, scene_from_dict
-from sim.simulation import Simulation
+from sim.scene.load import load_scene, scene_from_dict
+from sim.stepping.simulation import Simulation
 
 T = 0.002
 
@@ -302,7 +302,7 @@ def test_cup_rim_thickens_to_the_free_edge_value_then_is_ironed():
     thickest rim node (1.51 mm) still sits on the die shoulder, where the gap to the punch
     is 1.5 mm, while the section's point from rest radius 26 mm, thickened to 1.25 mm at
     20 mm of stroke, is 1.19 mm in the gap at 25 mm."""
-    from sim import probes
+    from sim.frames import probes
 
     sim = cup("q3t")
     m, x = sim.model, sim.x
@@ -426,7 +426,7 @@ def _fd_term(term, x, pattern, rng, h, n_dirs=3):
     two-point difference of E would be off by h^2 k / (6 delta) per node, the five-point one is
     exact for cubics, as the two-point one of g is for its quadratic. Returns (gradient errors,
     gradient scales, Hessian errors, Hessian scales), one entry per direction."""
-    from sim.assembly import sym_matvec
+    from sim.solve.assembly import sym_matvec
 
     def grad(y):
         g = np.zeros_like(y)

@@ -288,7 +288,7 @@ def test_scene_with_a_mesh_file_in_the_scenes_folder_runs(env):
     """A relative mesh.path is read from the scenes folder (not the server's working folder)."""
     import trimesh
 
-    from sim.mesh import rectangle
+    from sim.geometry.trimesh import rectangle
 
     client, settings = env
     m = rectangle((0.7, 0.07), 0.035)

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from sim.cli import main
-from sim.model import build_model, frame_fields
+from sim.model.build import build_model, frame_fields
 from sim.overhead import all_terms_model, all_terms_overrides, terms_overhead
-from sim.scene import SceneError, load_scene
-from sim.simulation import Simulation
+from sim.scene.load import SceneError, load_scene
+from sim.stepping.simulation import Simulation
 from sim.study import curve_error, factorisation_times, make_plan, run_study
 from sim.study_report import write_factorisation, write_study
 

@@ -16,7 +16,7 @@ from itertools import product
 
 import numpy as np
 
-from sim.quadrature import Rule, prism_rule
+from sim.geometry.quadrature import Rule, prism_rule
 
 
 def _triangle_indices(p: int) -> list[tuple[int, int, int]]:

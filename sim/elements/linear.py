@@ -12,6 +12,6 @@ from sim.elements.base import Prism
 # triangle hanging by a vertex, none on any other mesh of two or more triangles or under any
 # clamp. The 3 x 2 rule has none anywhere but is stiffer still (0.39 against 0.53 of the
 # reference cantilever deflection at 8.75 mm, nu = 0.49); it is taken for meshes with patches
-# of one or two triangles (sim.model.quadrature_rule).
+# of one or two triangles (sim.model.build.quadrature_rule).
 LINEAR = register(Prism("linear", p=1, q=1, default_quadrature=(1, 2),
                             small_mesh_quadrature=(3, 2)))

@@ -202,7 +202,7 @@ def elastic_kernel(x, rest, conn, dNdX, wdetJ, model, params, fp_inv, ep, plasti
                    project, order, block_ptr, color_ptr, slots, pos, grad, data):
     """Total energy; adds the gradient into ``grad (n_nodes, 3)`` (want >= 1) and the Hessian
     into ``data`` through the packed upper-triangle ``slots (n_elem, k (k+1) / 2)``
-    (want == 2). Blocks of one colour share no node (:class:`sim.assembly.Schedule`), so each
+    (want == 2). Blocks of one colour share no node (:class:`sim.solve.assembly.Schedule`), so each
     colour runs a block per thread without races. Returns inf on inversion."""
     n_e, n_en = conn.shape
     k = 3 * n_en

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.quadrature import line_rule, triangle_rule
+from sim.geometry.quadrature import line_rule, triangle_rule
 from sim.terms import Term
 
 
@@ -69,7 +69,7 @@ def _edge_faces(shell, plane_nodes_mask: np.ndarray):
     """(element, local edge) of rim faces whose both vertices are selected boundary nodes."""
     F = shell.mesh.faces
     out = []
-    from sim.mesh import edges
+    from sim.geometry.trimesh import edges
 
     uniq, fe = edges(F)
     count = np.bincount(fe.ravel(), minlength=len(uniq))

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim.assembly import sym_matvec
-from sim.linsolve import SingularMatrix
+from sim.solve.assembly import sym_matvec
+from sim.solve.linsolve import SingularMatrix
 
 
 @dataclass(frozen=True)

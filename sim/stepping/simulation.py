@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sim import probes, results
-from sim.display import DisplayMesh
-from sim.model import Model, build_model, frame_fields
-from sim.newton import NewtonResult, Timing, minimise
-from sim.rigid import determinate_support
-from sim.scene import Scene
-from sim.terms.contact import ToolContact, settle_friction
+from sim.frames import probes, results
+from sim.frames.display import DisplayMesh
+from sim.geometry.rigid import determinate_support
+from sim.model.build import Model, build_model, frame_fields
+from sim.scene.load import Scene
+from sim.solve.newton import NewtonResult, Timing, minimise
+from sim.terms.tool_contact import ToolContact, settle_friction
 
 
 class SolverFailure(RuntimeError):
@@ -43,7 +43,7 @@ class StepRecord:
     # per tool: force the sheet exerts on it (N), nodes in contact, deepest penetration (m), z
     tools: dict[str, dict] = field(default_factory=dict)
     # friction: how far from settled the lagged normal forces are at the state (largest change,
-    # relative to the largest force; settled at <= 1e-3, sim.terms.contact.settle_friction)
+    # relative to the largest force; settled at <= 1e-3, sim.terms.tool_contact.settle_friction)
     friction_change: float = 0.0
 
 
@@ -191,7 +191,7 @@ class Simulation:
 
     def _settle(self, res: NewtonResult) -> tuple[np.ndarray, NewtonResult, int, float]:
         """Settle friction's lagged normal force at a converged solve (re-solving from there,
-        sim.terms.contact). Returns the settled state, the solve it comes from (the last
+        sim.terms.tool_contact). Returns the settled state, the solve it comes from (the last
         re-solve, or ``res``), the re-solves' Newton iterations, which belong to the step, and
         how far from settled the state is (for the step record)."""
         x, settled, extra, change = settle_friction(
@@ -258,8 +258,8 @@ class Simulation:
 
     def _release_supports(self) -> np.ndarray:
         """The DoFs held for springback: the scene's (its BCs less the released ones, plus its
-        release-only ones) and one more per rigid-body mode those leave free, on the bottom
-        skin (sim.rigid): the part is then held statically determinately, never by round-off.
+        release-only ones) and one more per rigid-body mode those leave free, on the bottom skin
+        (sim.geometry.rigid): the part is then held statically determinately, never by round-off.
         The added supports are kept in ``self.release_support`` for the result."""
         m = self.model
         held = (m.fixed & ~m.released) | m.release_support
@@ -376,7 +376,7 @@ class Simulation:
 
     def tool_rotations(self) -> dict[str, np.ndarray]:
         """Current orientation of every tool as a unit quaternion (w, x, y, z)."""
-        from sim.terms.contact import quaternion_wxyz
+        from sim.terms.tool_contact import quaternion_wxyz
 
         return {t.tool: quaternion_wxyz(t.R_now) for t in self.tools}
 

@@ -1,24 +1,23 @@
 """Contact of the sheet's skins with one rigid tool: penalty normal force plus lagged smoothed
-Coulomb friction (sim.contact), as one energy term. A scene builds one such term per tool and
-none without tools.
+Coulomb friction (sim.terms.contact_kernels), as one energy term. A scene builds one such term per
+tool and none without tools.
 
-Friction lags the normal force (sim.contact); ``settle_friction`` refreshes it from the
-converged state and re-solves until it no longer changes, so a converged step slides with
-|f_t| = mu f_n of its own normal force.
+Friction lags the normal force (sim.terms.contact_kernels); ``settle_friction`` refreshes it
+from the converged state and re-solves until it no longer changes, so a converged step slides
+with |f_t| = mu f_n of its own normal force.
 
-The normal force is the C2 penalty (sim.contact, ``c2=True``): its stiffness ramps up over a
-contact layer ``delta`` (2 % of the thickness) outside the tool surface instead of jumping by
-k where a node enters it. With the jump, a node that ends a Newton step at the layer's edge
-sees a Hessian that is wrong by k times its last move, and the residual stalls there at a
-level set by the last bits of that move (measured: 1e-5 N against a floor of 1e-7 N, on one CPU
-code path and not another). A skin placed exactly on a tool is inside the layer and already
-held by it (no free rigid mode at the first step).
-The tool moves rigidly: a translation (velocity plus keyframed offsets) and a keyframed
-rotation about its origin, given as a rotation vector (axis * angle, rad) interpolated
-linearly between keyframes (exact for a fixed axis). Its pose (R, t) places the SDF
-(x_world = R x_local + t) for contact, friction (the tool's displacement over a step at each
-node, sim.contact.tool_displacement) and display. Both are integrated step by step from their
-increments, so a speed changed between steps takes effect from the next step on.
+The normal force is the C2 penalty (sim.terms.contact_kernels, ``c2=True``): its stiffness ramps up
+over a contact layer ``delta`` (2 % of the thickness) outside the tool surface instead of jumping by
+k where a node enters it. With the jump, a node that ends a Newton step at the layer's edge sees a
+Hessian that is wrong by k times its last move, and the residual stalls there at a level set by the
+last bits of that move (measured: 1e-5 N against a floor of 1e-7 N, on one CPU code path and not
+another). A skin placed exactly on a tool is inside the layer and already held by it (no free rigid
+mode at the first step). The tool moves rigidly: a translation (velocity plus keyframed offsets) and
+a keyframed rotation about its origin, given as a rotation vector (axis * angle, rad) interpolated
+linearly between keyframes (exact for a fixed axis). Its pose (R, t) places the SDF (x_world = R
+x_local + t) for contact, friction (the tool's displacement over a step at each node,
+sim.terms.contact_kernels.tool_displacement) and display. Both are integrated step by step from
+their increments, so a speed changed between steps takes effect from the next step on.
 
 Force control (a blank holder): the tool's z offset is an unknown of the system, stored as an
 extra "node" row ``x[vdof]`` whose x and y are held. The term then adds the work of the
@@ -32,10 +31,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.assembly import scatter_node_blocks
-from sim.contact import friction, normal_forces, penalty_contact, tool_displacement
+from sim.solve.assembly import scatter_node_blocks
 from sim.terms import Term
-from sim.tools.sdf import rotation, sdf_world_distance
+from sim.terms.contact_kernels import friction, normal_forces, penalty_contact, tool_displacement
+from sim.tools.evaluate import sdf_world_distance
+from sim.tools.pose import rotation
 
 EYE = np.eye(3)
 
@@ -271,7 +271,7 @@ def settle_friction(problem, x, settings, force_level, timing, reactions=False, 
     from settled the state is: the largest change of its normal forces from the lagged ones,
     relative to the largest (at most ``tol`` when settled; more after ``max_solves`` re-solves
     or a failed one, which the step record then shows)."""
-    from sim.newton import minimise
+    from sim.solve.newton import minimise
 
     tools = [t for t in problem.terms if isinstance(t, ToolContact) and t.mu > 0]
     last, iterations = None, 0

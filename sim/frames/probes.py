@@ -26,7 +26,7 @@ def fibre_tilt(model, x: np.ndarray) -> np.ndarray:
     """Angle (degrees) per vertex between the through-thickness fibre (bottom to top skin) and
     the normal of the deformed mid-surface: transverse shear, zero in pure bending and
     stretching; linear prisms escape volumetric locking by shearing (paper Fig. 11)."""
-    from sim.mesh import TriMesh, vertex_normals
+    from sim.geometry.trimesh import TriMesh, vertex_normals
 
     sh = model.shell
     fibre = x[sh.skin_nodes(True)] - x[sh.skin_nodes(False)]

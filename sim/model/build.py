@@ -12,17 +12,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim import mesh as meshes
-from sim.assembly import Pattern, build_pattern
 from sim.elements import get_element
-from sim.linsolve import make_solver
+from sim.geometry import trimesh as meshes
+from sim.geometry.shell import Shell, extrude
 from sim.materials.plasticity import LINEAR, PERFECT, SWIFT, VOCE
-from sim.newton import NewtonSettings, Problem
-from sim.scene import MAX_LENGTH, MaterialSpec, MeshSpec, RegionSpec, Scene
-from sim.shell import Shell, extrude
+from sim.scene.boundary import RegionSpec
+from sim.scene.fields import MAX_LENGTH
+from sim.scene.load import Scene
+from sim.scene.sheet import MaterialSpec, MeshSpec
+from sim.solve.assembly import Pattern, build_pattern
+from sim.solve.linsolve import make_solver
+from sim.solve.newton import NewtonSettings, Problem
 from sim.terms import Term
 from sim.terms import loads as L
-from sim.terms.contact import ToolContact
 from sim.terms.elasticity import (
     PROJECT_ELEMENT,
     PROJECT_NONE,
@@ -30,6 +32,8 @@ from sim.terms.elasticity import (
     Elasticity,
 )
 from sim.terms.inertia import Inertia, lumped_mass
+from sim.terms.tool_contact import ToolContact
+from sim.tools.shapes import tool_program
 
 MODEL_IDS = {"neo_hookean": 0, "hencky": 1, "plastic": 2}
 LAWS = {"perfect": PERFECT, "linear": LINEAR, "swift": SWIFT, "voce": VOCE}
@@ -78,9 +82,9 @@ def _read_values(path: str) -> np.ndarray:
 
 
 def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray, dict]:
-    """The mid-surface, the thickness at each of its vertices ``(n_v,)`` (m) and a report of
-    the mesh (a file's: what was read, merged and dropped, sim.mesh.load_with_values); errors
-    name the field they come from."""
+    """The mid-surface, the thickness at each of its vertices ``(n_v,)`` (m) and a report of the
+    mesh (a file's: what was read, merged and dropped, sim.geometry.trimesh.load_with_values);
+    errors name the field they come from."""
     sh, spec = scene.shell, scene.mesh
     field_name = "shell.thickness_file" if sh.thickness_file else "shell.thickness_attribute"
     try:
@@ -192,7 +196,7 @@ class Model:
     settings: NewtonSettings
     built: dict = field(default_factory=dict)
     quadrature: dict = field(default_factory=dict)  # the rule and why it was chosen
-    mesh_report: dict = field(default_factory=dict)  # sim.model.mesh_and_thickness
+    mesh_report: dict = field(default_factory=dict)  # sim.model.build.mesh_and_thickness
 
     released: np.ndarray | None = None  # (n_nodes, 3) bool: DoFs freed for springback
     release_support: np.ndarray | None = None  # (n_nodes, 3) bool: held only for springback
@@ -209,7 +213,8 @@ class Model:
         return bool(self.motions or self.bends or np.any(self.prescribed != 0.0))
 
     def ramp(self, t: float) -> float:
-        """Default time curve of prescribed displacements and bends (sim.scene.BCSpec): linear
+        """Default time curve of prescribed displacements and bends (sim.scene.boundary.BCSpec):
+        linear
         from 0 to 1 over the run (static) or over stepping.load_ramp, else 1 s (dynamic)."""
         st = self.scene.stepping
         length = 1.0 if st.kind == "static" or st.load_ramp == 0 else st.load_ramp
@@ -339,7 +344,7 @@ def build_model(scene: Scene) -> Model:
                 release_support[t.vdof] = True
         model.released = released
         model.release_support = release_support
-    # the residual's round-off floor is measured by Newton where it matters (sim.newton.Floor)
+    # the residual's round-off floor is measured by Newton where it matters (sim.solve.newton.Floor)
     h = float(np.mean(shell.thickness))
     model.settings = NewtonSettings(rtol=scene.solver.rtol, xtol=scene.solver.xtol * h,
                                     try_exact=scene.solver.hessian_projection == "auto",
@@ -384,43 +389,6 @@ def describe(model: Model) -> dict:
                         "tools": [t.tool for t in tools]}}
 
 
-def tool_program(s) -> np.ndarray:
-    """SDF program of a ShapeSpec (sim.tools.sdf), CSG operands and placements included."""
-    from sim.tools import sdf
-
-    if s.kind in ("union", "subtract", "intersect"):
-        op = getattr(sdf, s.kind)
-        progs = [tool_program(c) for c in s.shapes]
-        prog = progs[0]
-        for other in progs[1:]:
-            prog = op(prog, other, s.blend)
-    elif s.kind == "plane":
-        prog = sdf.plane(s.point, s.normal)
-    elif s.kind == "box":
-        prog = sdf.rounded_box(s.half_extents, s.radius, s.center)
-    elif s.kind == "punch":
-        prog = sdf.punch(s.radius, s.height, s.edge_radius)
-    elif s.kind == "die_ring":
-        prog = sdf.die_ring(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
-    elif s.kind == "blank_holder":
-        prog = sdf.blank_holder(s.inner_radius, s.outer_radius, s.height, s.edge_radius)
-    elif s.kind == "star":
-        prog = sdf.star(s.n_points, s.r_outer, s.r_inner, s.height, s.corner_radius,
-                        s.edge_radius, s.phase, s.reflex_radius or 0.0)
-    elif s.kind == "polygon":
-        prog = sdf.extruded_polygon(s.points, 0.0, s.height, s.corner_radius, s.edge_radius,
-                                    s.reflex_radius or 0.0)
-    else:
-        prog = sdf.star_die(s.n_points, s.r_outer, s.r_inner, s.height, s.edge_radius,
-                            s.corner_radius, phase=s.phase, valley_radius=s.reflex_radius)
-    if any(s.rotation) or any(s.offset):
-        rv = np.asarray(s.rotation, float)
-        angle = float(np.linalg.norm(rv))
-        R = sdf.rotation(rv / angle, angle) if angle > 0 else np.eye(3)
-        prog = sdf.moved(prog, R, s.offset)
-    return prog
-
-
 def _contact_nodes(shell) -> np.ndarray:
     """Both skins, every in-plane node (so the edge nodes of quadratic elements too)."""
     return np.concatenate([shell.layer_nodes(0), shell.layer_nodes(shell.element.q)])
@@ -431,8 +399,8 @@ def _tools(scene, shell, pattern, nodes) -> list[ToolContact]:
     next extra row of x for their z offset."""
     if not scene.tools:
         return []
-    from sim.assembly import pair_slots
-    from sim.contact import auto_stiffness
+    from sim.solve.assembly import pair_slots
+    from sim.terms.contact_kernels import auto_stiffness
 
     vdof = shell.n_nodes
     h = float(np.mean(shell.thickness))
@@ -447,7 +415,7 @@ def _tools(scene, shell, pattern, nodes) -> list[ToolContact]:
             raise ValueError(f"tools.{i}.shape: {exc}") from None
         # auto_stiffness: at its design pressure (4e-3 E, about the tensile strength) the
         # spring is compressed by 1 % of t; the C2 law's layer delta is twice that, so the
-        # tool surface is reached at the design pressure (sim.contact.auto_stiffness)
+        # tool surface is reached at the design pressure (sim.terms.contact_kernels.auto_stiffness)
         k = t.stiffness or auto_stiffness(scene.material.E, h, area)
         # slip below 1 % of the thickness counts as sticking (IPC's eps_v)
         kw = {}
