@@ -69,7 +69,7 @@ def _iteration(sim, x) -> dict:
     projected Hessian evaluated again if the exact one is not positive definite), one solve;
     plus an energy-only evaluation (paid only when a full step is rejected)."""
     from sim.solve.linsolve import SingularMatrix
-    from sim.solve.newton import _solve
+    from sim.solve.problem import solve_refined as _solve
 
     m, P = sim.model, sim.model.problem
     t = time.perf_counter()

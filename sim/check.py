@@ -171,7 +171,7 @@ def measure(sim) -> dict:
     gradient of the loads, inertia and tools over the shell's nodes (the weight, for the
     static cantilever). ``balance`` = |support - applied| over the sum of the magnitudes (a
     punch and a die balance each other: their sum is no scale)."""
-    from sim.solve.newton import measure_floor
+    from sim.solve.problem import measure_floor
 
     m = sim.model
     n = m.shell.n_nodes

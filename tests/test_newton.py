@@ -9,7 +9,8 @@ import pytest
 
 import sim.solve.newton
 from sim.scene.load import load_scene
-from sim.solve.newton import NewtonResult, measure_floor
+from sim.solve.newton import NewtonResult
+from sim.solve.problem import measure_floor
 from sim.stepping.simulation import Simulation, SolverFailure
 
 COARSE = {"mesh.edge_length": 0.035}  # 80 triangles

@@ -22,7 +22,8 @@ from sim.scene.load import Scene
 from sim.scene.sheet import MaterialSpec, MeshSpec
 from sim.solve.assembly import Pattern, build_pattern
 from sim.solve.linsolve import make_solver
-from sim.solve.newton import NewtonSettings, Problem
+from sim.solve.newton import NewtonSettings
+from sim.solve.problem import Problem
 from sim.terms import Term
 from sim.terms import loads as L
 from sim.terms.elasticity import (
@@ -344,7 +345,7 @@ def build_model(scene: Scene) -> Model:
                 release_support[t.vdof] = True
         model.released = released
         model.release_support = release_support
-    # the residual's round-off floor is measured by Newton where it matters (sim.solve.newton.Floor)
+    # the residual's round-off floor is measured by Newton where it matters (sim.solve.problem.Floor)
     h = float(np.mean(shell.thickness))
     model.settings = NewtonSettings(rtol=scene.solver.rtol, xtol=scene.solver.xtol * h,
                                     try_exact=scene.solver.hessian_projection == "auto",
