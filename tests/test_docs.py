@@ -1,6 +1,7 @@
 """The documentation stays true: the scene reference is what the schema renders, the README's
 example scene loads and runs as it stands, the README names every shipped scene and every
-``q3t`` command, and every relative link in README.md and docs/ leads to a file."""
+``q3t`` command, and every relative link in README.md and docs/ leads to a file (and
+heading)."""
 
 import importlib
 import io
@@ -61,9 +62,19 @@ def test_the_readme_names_every_scene_and_command():
         assert f"`q3t {cmd}" in README, f"q3t {cmd} is not in the README's command table"
 
 
+def _anchors(page: Path) -> set[str]:
+    """The anchors GitHub gives a page's headings: lower case, punctuation dropped, spaces
+    to hyphens."""
+    heads = re.findall(r"^#+ (.+)$", page.read_text(), re.M)
+    return {re.sub(r"[^\w\- ]", "", h.lower()).replace(" ", "-") for h in heads}
+
+
 @pytest.mark.parametrize("page", PAGES, ids=[str(p.relative_to(ROOT)) for p in PAGES])
-def test_relative_links_lead_to_files(page):
-    for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", page.read_text()):
+def test_relative_links_lead_to_files_and_headings(page):
+    for target, anchor in re.findall(r"\]\(([^)#\s]*)(?:#([^)\s]*))?\)", page.read_text()):
         if "://" in target:
             continue
-        assert (page.parent / target).exists(), f"{page.name}: no {target}"
+        path = page.parent / target if target else page
+        assert path.exists(), f"{page.name}: no {target}"
+        if anchor:
+            assert anchor in _anchors(path), f"{page.name}: no heading #{anchor} in {target}"
