@@ -33,7 +33,8 @@ def all_terms_model(scene):
     element kernel maps through Fp^-1 at every quadrature point), and inertia with zero mass
     (its energy, gradient and Hessian are evaluated and are zero)."""
     from sim.materials.plasticity import PERFECT
-    from sim.model.build import build_model, describe, lame
+    from sim.model.build import build_model, describe
+    from sim.model.terms import lame
     from sim.terms.elasticity import Elasticity
     from sim.terms.inertia import Inertia
 

@@ -281,7 +281,7 @@ def test_chosen_rule_has_no_spurious_mode_on_any_mesh(name, shape):
     rule, and neither leaves a spurious mode (vertex_hang's one mode is its real mechanism)."""
     from types import SimpleNamespace
 
-    from sim.model.build import quadrature_rule
+    from sim.model.sheet import quadrature_rule
 
     e = ELEMENTS[name]
     scene = SimpleNamespace(shell=SimpleNamespace(quadrature=None))

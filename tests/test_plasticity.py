@@ -10,7 +10,7 @@ import pytest
 from scipy.optimize import brentq
 
 from sim.elements import ELEMENTS
-from sim.frames.probes import curvature_xz, mid_surface
+from sim.frames.fields import curvature_xz, mid_surface
 from sim.materials.plasticity import net_plastic_strain
 from sim.scene.load import load_scene, scene_from_dict
 from sim.stepping.simulation import Simulation

@@ -1,96 +1,58 @@
-"""Probes: named scalar outputs recorded every step (displacement, thickness, reaction, volume),
-plus the per-vertex fields the viewer colours by."""
+"""Probes: named scalar outputs of a state, recorded every step. One registry knows the probe
+kinds: each registers what its spec must name (a point, a region, a tool; a plastic material)
+and how its value is read. The scene validates probe specs against it (sim.scene.run)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 
-from sim.elements.base import _line_lagrange
+from sim.frames.fields import curvature_xz, fibre_tilt, mid_surface, thickness, volume
 
 
-def mid_surface(model, x: np.ndarray) -> np.ndarray:
-    """Positions at w = 0 of every mid-surface vertex column ``(n_v, 3)``."""
-    sh = model.shell
-    L, _ = _line_lagrange(sh.element.q, np.zeros(1))
-    cols = [x[k * sh.n_plane: k * sh.n_plane + sh.n_vertices] for k in range(sh.element.q + 1)]
-    return sum(w * c for w, c in zip(L[0], cols, strict=True))
+@dataclass
+class State:
+    """What a probe reads: the model, the state x, the total energy gradient (the support
+    reactions, computed when a probe first needs it) and the mid-surface (n_v, 3) formed in the
+    closed tools (the springback reference; None before the release stage)."""
+
+    model: object
+    x: np.ndarray
+    gradient_: np.ndarray | None = None
+    formed: np.ndarray | None = None
+
+    @property
+    def gradient(self) -> np.ndarray:
+        if self.gradient_ is None:
+            self.gradient_ = self.model.problem.gradient(self.x)
+        return self.gradient_
+
+    def vertices(self, region: str | None) -> np.ndarray:
+        """The mid-surface vertex mask of ``region`` (every vertex when None)."""
+        sh = self.model.shell
+        if region is None:
+            return np.ones(sh.n_vertices, bool)
+        return self.model.regions[region][: sh.n_vertices]
 
 
-def thickness(model, x: np.ndarray) -> np.ndarray:
-    """Fibre length between the skins at every mid-surface vertex ``(n_v,)``."""
-    sh = model.shell
-    return np.linalg.norm(x[sh.skin_nodes(True)] - x[sh.skin_nodes(False)], axis=1)
+@dataclass(frozen=True)
+class ProbeKind:
+    value: Callable  # (State, ProbeSpec) -> float
+    needs: tuple[str, ...] = ()  # the spec's fields it reads: "point", "region", "tool"
+    plastic: bool = False  # reads the plastic state: a plastic material only
 
 
-def fibre_tilt(model, x: np.ndarray) -> np.ndarray:
-    """Angle (degrees) per vertex between the through-thickness fibre (bottom to top skin) and
-    the normal of the deformed mid-surface: transverse shear, zero in pure bending and
-    stretching; linear prisms escape volumetric locking by shearing (paper Fig. 11)."""
-    from sim.geometry.trimesh import TriMesh, vertex_normals
-
-    sh = model.shell
-    fibre = x[sh.skin_nodes(True)] - x[sh.skin_nodes(False)]
-    n = vertex_normals(TriMesh(mid_surface(model, x), sh.mesh.faces))
-    c = np.abs(np.einsum("ij,ij->i", fibre, n)) / np.linalg.norm(fibre, axis=1)
-    return np.degrees(np.arccos(np.clip(c, 0.0, 1.0)))
+PROBES: dict[str, ProbeKind] = {}
 
 
-def volume(model, x: np.ndarray) -> float:
-    el = model.elasticity
-    F = np.einsum("ead,eqaj->eqdj", x[el.conn], el.dNdX)
-    return float(np.sum(np.linalg.det(F) * el.wdetJ))
-
-
-def curvature_xz(P: np.ndarray) -> float:
-    """Curvature 1/R of the least-squares circle through points ``(n, 3)`` projected on x-z
-    (algebraic fit: x^2 + z^2 + D x + E z + F = 0); 0 for collinear points."""
-    x, z = P[:, 0] - P[:, 0].mean(), P[:, 2] - P[:, 2].mean()
-    A = np.column_stack([x, z, np.ones_like(x)])
-    (D, E, F), *_ = np.linalg.lstsq(A, -(x * x + z * z), rcond=None)
-    r2 = D * D / 4 + E * E / 4 - F
-    return float(1.0 / np.sqrt(r2)) if r2 > 0 and np.isfinite(r2) else 0.0
-
-
-def vertex_average(model, per_qp: np.ndarray) -> np.ndarray:
-    """Element means of a quadrature-point field ``(n_elem, n_qp)`` averaged onto the
-    mid-surface vertices ``(n_v,)`` (element e sits on mid-surface face e)."""
-    F = model.shell.mesh.faces
-    elem = per_qp.mean(1)
-    acc = np.zeros(model.shell.n_vertices)
-    cnt = np.zeros(model.shell.n_vertices)
-    for c in range(3):
-        np.add.at(acc, F[:, c], elem)
-        np.add.at(cnt, F[:, c], 1.0)
-    return acc / np.maximum(cnt, 1)
-
-
-def output_fields(model, x: np.ndarray, h0: np.ndarray) -> dict[str, np.ndarray]:
-    """Result fields at state x, per mid-surface vertex ``(n_v,)`` and per element
-    (``*_elem``, ``(n_elem,)``): thickness (m), thinning (% of the rest thickness ``h0``),
-    von Mises stress (Pa) and, for a plastic scene, the accumulated and the net (retained)
-    equivalent plastic strain. Element values are quadrature-point means; vertex values the
-    mean of the adjacent elements (thickness: measured at the vertex, as in the viewer)."""
-    from sim.materials.plasticity import net_plastic_strain
-
-    el, faces = model.elasticity, model.shell.mesh.faces
-    h = thickness(model, x)
-    per_qp = {"von_mises": el.von_mises(x)}
-    if el.plastic:  # an elastic scene has no plastic state to report
-        per_qp["eq_plastic_strain"] = el.ep
-        per_qp["net_plastic_strain"] = net_plastic_strain(el.fp_inv)
-    out = {"thickness": h, "thinning_pct": 100 * (1 - h / h0),
-           "thickness_elem": h[faces].mean(1), "thinning_pct_elem": 100 * (1 - h[faces].mean(1)
-                                                                           / h0[faces].mean(1))}
-    for name, q in per_qp.items():
-        out[name] = vertex_average(model, q)
-        out[f"{name}_elem"] = q.mean(1)
-    return out
-
-
-def field_summary(fields: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
-    """min / mean / max of each per-vertex field of :func:`output_fields` (result.json)."""
-    return {k: {"min": float(v.min()), "mean": float(v.mean()), "max": float(v.max())}
-            for k, v in fields.items() if not k.endswith("_elem")}
+def probe(kind: str, needs: tuple[str, ...] = (), plastic: bool = False):
+    """Register the decorated ``value(state, spec)`` as probe kind ``kind``."""
+    def register(value: Callable) -> Callable:
+        PROBES[kind] = ProbeKind(value, needs, plastic)
+        return value
+    return register
 
 
 def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None,
@@ -99,91 +61,112 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None,
     support reactions), computed here when a reaction probe needs it; ``formed`` the
     mid-surface (n_v, 3) at the end of the stroke, the reference of springback probes (they
     read 0 before the release stage)."""
-    out = {}
-    sh = model.shell
-    for p in model.scene.probes:
-        if p.kind == "displacement":
-            v = int(np.argmin(np.linalg.norm(sh.mesh.vertices - np.array(p.point), axis=1)))
-            mid0 = mid_surface(model, sh.rest)[v]
-            u = mid_surface(model, x)[v] - mid0
-            out[p.name] = float(np.linalg.norm(u) if p.component == "norm"
-                                else u["xyz".index(p.component)])
-        elif p.kind == "thickness":
-            h = thickness(model, x)
-            out[p.name] = float(getattr(np, p.stat)(h))
-        elif p.kind == "volume":
-            out[p.name] = volume(model, x)
-        elif p.kind == "cup_height":  # rim (the region, mean) above the lowest point
-            z = mid_surface(model, x)[:, 2]
-            out[p.name] = float(z[model.regions[p.region][: sh.n_vertices]].mean() - z.min())
-        elif p.kind == "height_range":  # out-of-plane amplitude, e.g. of flange wrinkles
-            v = model.regions[p.region][: sh.n_vertices]
-            z = mid_surface(model, x)[v, 2]
-            out[p.name] = float(z.max() - z.min())
-        elif p.kind == "fibre_tilt":
-            tilt = fibre_tilt(model, x)
-            if p.region:
-                tilt = tilt[model.regions[p.region][: sh.n_vertices]]
-            out[p.name] = float(getattr(np, p.stat)(tilt))
-        elif p.kind == "springback":  # deviation from the shape in the closed tools
-            if formed is None:
-                out[p.name] = 0.0
-                continue
-            v = (model.regions[p.region][: sh.n_vertices] if p.region
-                 else np.ones(sh.n_vertices, bool))
-            dev = np.linalg.norm(mid_surface(model, x)[v] - formed[v], axis=1)
-            out[p.name] = float(getattr(np, p.stat)(dev))
-        elif p.kind == "curvature":
-            v = model.regions[p.region][: sh.n_vertices]
-            out[p.name] = curvature_xz(mid_surface(model, x)[v])
-        elif p.kind == "plastic_strain":
-            ep = model.elasticity.ep
-            out[p.name] = float(getattr(np, p.stat)(ep)) if ep.size else 0.0
-        elif p.kind in ("tool_force", "penetration", "contact_nodes", "tool_position"):
-            term = next((t for t in model.problem.terms if getattr(t, "tool", None) == p.tool),
-                        None)
-            if term is None:  # retracted for springback: it carries nothing
-                out[p.name] = 0.0
-                continue
-            rep = term.report(x)
-            if p.kind == "tool_force":
-                f = np.array([rep["fx"], rep["fy"], rep["fz"]])
-                out[p.name] = float(np.linalg.norm(f) if p.component == "norm"
-                                    else f["xyz".index(p.component)])
-            elif p.kind == "tool_position":
-                out[p.name] = rep["z"]
-            else:
-                out[p.name] = float(rep[p.kind])
-        elif p.kind == "von_mises":
-            out[p.name] = float(getattr(np, p.stat)(model.elasticity.von_mises(x)))
-        else:
-            if gradient is None:
-                gradient = model.problem.gradient(x)
-            nodes = model.column_nodes(model.regions[p.region])
-            r = gradient[nodes].sum(0)
-            out[p.name] = float(np.linalg.norm(r) if p.component == "norm"
-                                else r["xyz".index(p.component)])
-    return out
+    state = State(model, x, gradient, formed)
+    return {p.name: PROBES[p.kind].value(state, p) for p in model.scene.probes}
 
 
-def section_vertices(model, spec) -> np.ndarray:
-    """Mid-surface vertices on the section ray, sorted by rest radius ``(m,)``."""
-    V = model.shell.mesh.vertices
-    d = np.asarray(spec.direction, float)
-    d /= np.linalg.norm(d)
-    along = V[:, :2] @ d
-    across = np.abs(V[:, 0] * d[1] - V[:, 1] * d[0])
-    idx = np.flatnonzero((along >= -1e-12) & (across <= spec.width))
-    if len(idx) < 2:
-        raise ValueError(f"sections.{spec.name}: fewer than two vertices on the ray")
-    return idx[np.argsort(along[idx])]
+def _stat(values: np.ndarray, p) -> float:
+    return float(getattr(np, p.stat)(values))
 
 
-def section(model, x, idx) -> dict[str, list[float]]:
-    """Rest radius, current radius (from the z axis) and thickness along a section (m)."""
-    mid = mid_surface(model, x)[idx]
-    rest = model.shell.mesh.vertices[idx]
-    return {"rest_radius": np.hypot(rest[:, 0], rest[:, 1]).tolist(),
-            "radius": np.hypot(mid[:, 0], mid[:, 1]).tolist(),
-            "z": mid[:, 2].tolist(),
-            "thickness": thickness(model, x)[idx].tolist()}
+def _component(v: np.ndarray, p) -> float:
+    return float(np.linalg.norm(v) if p.component == "norm" else v["xyz".index(p.component)])
+
+
+@probe("displacement", needs=("point",))
+def _displacement(s: State, p) -> float:
+    sh = s.model.shell
+    v = int(np.argmin(np.linalg.norm(sh.mesh.vertices - np.array(p.point), axis=1)))
+    mid0 = mid_surface(s.model, sh.rest)[v]
+    return _component(mid_surface(s.model, s.x)[v] - mid0, p)
+
+
+@probe("thickness")
+def _thickness(s: State, p) -> float:
+    return _stat(thickness(s.model, s.x), p)
+
+
+@probe("reaction", needs=("region",))
+def _reaction(s: State, p) -> float:
+    nodes = s.model.column_nodes(s.model.regions[p.region])
+    return _component(s.gradient[nodes].sum(0), p)
+
+
+@probe("volume")
+def _volume(s: State, p) -> float:
+    return volume(s.model, s.x)
+
+
+@probe("curvature", needs=("region",))
+def _curvature(s: State, p) -> float:
+    return curvature_xz(mid_surface(s.model, s.x)[s.vertices(p.region)])
+
+
+@probe("plastic_strain", plastic=True)
+def _plastic_strain(s: State, p) -> float:
+    ep = s.model.elasticity.ep
+    return _stat(ep, p) if ep.size else 0.0
+
+
+@probe("von_mises")
+def _von_mises(s: State, p) -> float:
+    return _stat(s.model.elasticity.von_mises(s.x), p)
+
+
+def _tool_report(s: State, p) -> dict | None:
+    """The report of the probe's tool, None once it is retracted (it then carries nothing)."""
+    term = next((t for t in s.model.problem.terms if getattr(t, "tool", None) == p.tool), None)
+    return None if term is None else term.report(s.x)
+
+
+@probe("tool_force", needs=("tool",))
+def _tool_force(s: State, p) -> float:
+    rep = _tool_report(s, p)
+    return 0.0 if rep is None else _component(np.array([rep["fx"], rep["fy"], rep["fz"]]), p)
+
+
+@probe("penetration", needs=("tool",))
+def _penetration(s: State, p) -> float:
+    rep = _tool_report(s, p)
+    return 0.0 if rep is None else float(rep["penetration"])
+
+
+@probe("contact_nodes", needs=("tool",))
+def _contact_nodes(s: State, p) -> float:
+    rep = _tool_report(s, p)
+    return 0.0 if rep is None else float(rep["contact_nodes"])
+
+
+@probe("fibre_tilt")
+def _fibre_tilt(s: State, p) -> float:
+    tilt = fibre_tilt(s.model, s.x)
+    return _stat(tilt[s.vertices(p.region)] if p.region else tilt, p)
+
+
+@probe("height_range", needs=("region",))
+def _height_range(s: State, p) -> float:
+    """Out-of-plane amplitude, e.g. of flange wrinkles."""
+    z = mid_surface(s.model, s.x)[s.vertices(p.region), 2]
+    return float(z.max() - z.min())
+
+
+@probe("tool_position", needs=("tool",))
+def _tool_position(s: State, p) -> float:
+    rep = _tool_report(s, p)
+    return 0.0 if rep is None else rep["z"]
+
+
+@probe("springback")
+def _springback(s: State, p) -> float:
+    """Deviation from the shape in the closed tools."""
+    if s.formed is None:
+        return 0.0
+    v = s.vertices(p.region)
+    return _stat(np.linalg.norm(mid_surface(s.model, s.x)[v] - s.formed[v], axis=1), p)
+
+
+@probe("cup_height", needs=("region",))
+def _cup_height(s: State, p) -> float:
+    """The rim (the region, mean) above the lowest point."""
+    z = mid_surface(s.model, s.x)[:, 2]
+    return float(z[s.vertices(p.region)].mean() - z.min())

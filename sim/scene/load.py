@@ -15,6 +15,7 @@ from pydantic import ValidationError, model_validator
 
 from sim.analytic import reference
 from sim.elements import ELEMENTS
+from sim.frames.probes import PROBES
 from sim.scene.boundary import BCSpec, LoadSpec, RegionSpec
 from sim.scene.fields import Strict
 from sim.scene.run import ProbeSpec, SectionSpec, SolverSpec, SteppingSpec, StudySpec
@@ -63,8 +64,8 @@ class Scene(Strict):
                              "'file', mesh.path ending in .ply)")
         plastic = self.material.model == "plastic"
         for i, p in enumerate(self.probes):  # nothing is recorded of a quantity the scene lacks
-            if p.kind == "plastic_strain" and not plastic:
-                raise ValueError(f"probes.{i}: a plastic_strain probe needs material.model = "
+            if PROBES[p.kind].plastic and not plastic:
+                raise ValueError(f"probes.{i}: a {p.kind} probe needs material.model = "
                                  "'plastic' (an elastic scene has no plastic strain)")
         if self.study:
             self._check_study(self.study)

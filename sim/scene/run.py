@@ -7,6 +7,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
+from sim.frames.probes import PROBES
 from sim.scene.fields import MAX_TIME, MIN_TIME_STEP, Direction2, Length, Point, Strict, bounded
 
 
@@ -42,9 +43,7 @@ class SolverSpec(Strict):
 
 class ProbeSpec(Strict):
     name: str
-    kind: Literal["displacement", "thickness", "reaction", "volume", "curvature",
-                  "plastic_strain", "von_mises", "tool_force", "penetration", "contact_nodes",
-                  "fibre_tilt", "height_range", "tool_position", "springback", "cup_height"]
+    kind: Literal[tuple(PROBES)]
     tool: str | None = None
     point: Point | None = None
     component: Literal["x", "y", "z", "norm"] = "norm"
@@ -53,14 +52,9 @@ class ProbeSpec(Strict):
 
     @model_validator(mode="after")
     def _fields(self):
-        if self.kind == "displacement" and self.point is None:
-            raise ValueError("a displacement probe needs point")
-        if (self.kind in ("reaction", "curvature", "height_range", "cup_height")
-                and self.region is None):
-            raise ValueError(f"a {self.kind} probe needs region")
-        if (self.kind in ("tool_force", "penetration", "contact_nodes", "tool_position")
-                and self.tool is None):
-            raise ValueError(f"a {self.kind} probe needs tool")
+        for need in PROBES[self.kind].needs:
+            if getattr(self, need) is None:
+                raise ValueError(f"a {self.kind} probe needs {need}")
         return self
 
 

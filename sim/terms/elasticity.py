@@ -48,8 +48,12 @@ def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
     return np.ascontiguousarray(dNdX), det * weights[None, :]
 
 
+# the element kernel, inlined into the parallel loops over elements: its scratch arrays come from
+# the caller so no element allocates, and its branches (material law, plastic state, what is
+# wanted, projection) are one loop body the compiler specialises; split into calls or given its
+# scratch as a tuple it would allocate or lose that inlining in the innermost loop
 @njit(cache=True, inline='always')
-def _element(x, rest, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project, g,
+def _element(x, rest, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project, g,  # noqa: C901
              Kp, Kf, pos, CB, G, P, C, bT, u, FiT):
     """Energy of one element; adds its gradient into ``g (n_en*3,)`` (want >= 1) and writes the
     upper triangle of its Hessian, packed row by row, into ``Kp (k (k+1) / 2,)`` (want == 2).

@@ -106,8 +106,10 @@ _F3 = numba.float64[:, :, ::1]
 _B = numba.boolean
 
 
+# the stack machine's dispatch: one branch per opcode in the per-point loop of every contact
+# evaluation; it stays one kernel so the branches share the point's workspace in registers
 @numba.njit(numba.float64(_F1, _F1, _B, _F1, _F2, _F3, _F3, _F2, _F1, _F1, _F2), cache=True)
-def _eval_point(prog, x, derivs, st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp):
+def _eval_point(prog, x, derivs, st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp):  # noqa: C901
     """Run the program at one point x (tool frame). Result in st_d[0], st_g[0], st_H[0]."""
     if prog.shape[0] < HEADER + 2 or prog[0] != MAGIC:
         raise ValueError("not an SDF program (bad magic)")

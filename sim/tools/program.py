@@ -160,9 +160,18 @@ def validate(prog):
     n = HEADER + int(prog[1])
     if n != prog.size:
         raise ValueError("SDF program length does not match its header")
-    pc = HEADER
     sp = 0
     frames = []
+    for op in _checked_records(prog, n):
+        sp = _stack_step(op, sp, frames)
+    if sp != 1 or frames:
+        raise ValueError("SDF program: does not leave exactly one value")
+    return True
+
+
+def _checked_records(prog, n):
+    """Yield the opcode of each record of ``prog[:n]``, its structure and parameters checked."""
+    pc = HEADER
     while pc < n:
         if pc + 2 > n:
             raise ValueError("SDF program: truncated record")
@@ -179,26 +188,28 @@ def validate(prog):
                 raise ValueError("SDF program: bad RSWEEP record")
         elif op not in _NPARAM or npar != _NPARAM[op]:
             raise ValueError(f"SDF program: unknown opcode {op} or bad parameter count")
-        if op in _PRIMITIVES:
-            sp += 1
-            if sp > MAX_STACK:
-                raise ValueError(f"SDF program: stack deeper than {MAX_STACK}")
-        elif op in _BINARY:
-            if sp - (frames[-1] if frames else 0) < 2:
-                raise ValueError("SDF program: stack underflow")
-            sp -= 1
-        elif op == OP_PUSH_FRAME:
-            frames.append(sp)
-            if len(frames) > MAX_FRAMES:
-                raise ValueError("SDF program: frames nested too deep")
-        elif op == OP_POP_FRAME:
-            if not frames or sp != frames.pop() + 1:
-                raise ValueError("SDF program: a frame must wrap exactly one value")
+        yield op
         pc += 2 + npar
-    if sp != 1 or frames:
-        raise ValueError("SDF program: does not leave exactly one value")
-    return True
 
+
+def _stack_step(op: int, sp: int, frames: list[int]) -> int:
+    """The value stack's depth after record ``op``; ``frames`` the depths at the open frames."""
+    if op in _PRIMITIVES:
+        sp += 1
+        if sp > MAX_STACK:
+            raise ValueError(f"SDF program: stack deeper than {MAX_STACK}")
+    elif op in _BINARY:
+        if sp - (frames[-1] if frames else 0) < 2:
+            raise ValueError("SDF program: stack underflow")
+        sp -= 1
+    elif op == OP_PUSH_FRAME:
+        frames.append(sp)
+        if len(frames) > MAX_FRAMES:
+            raise ValueError("SDF program: frames nested too deep")
+    elif op == OP_POP_FRAME:
+        if not frames or sp != frames.pop() + 1:
+            raise ValueError("SDF program: a frame must wrap exactly one value")
+    return sp
 
 
 def parse(prog):

@@ -1,0 +1,114 @@
+"""Fields of a state: the mid-surface, thickness, fibre tilt, volume and curvature the probes
+read, the per-vertex fields the viewer colours by and the result holds, and radial sections."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.elements.base import line_lagrange
+from sim.geometry.trimesh import TriMesh, vertex_normals
+from sim.materials.plasticity import net_plastic_strain
+
+
+def mid_surface(model, x: np.ndarray) -> np.ndarray:
+    """Positions at w = 0 of every mid-surface vertex column ``(n_v, 3)``."""
+    sh = model.shell
+    L, _ = line_lagrange(sh.element.q, np.zeros(1))
+    cols = [x[k * sh.n_plane: k * sh.n_plane + sh.n_vertices] for k in range(sh.element.q + 1)]
+    return sum(w * c for w, c in zip(L[0], cols, strict=True))
+
+
+def thickness(model, x: np.ndarray) -> np.ndarray:
+    """Fibre length between the skins at every mid-surface vertex ``(n_v,)``."""
+    sh = model.shell
+    return np.linalg.norm(x[sh.skin_nodes(True)] - x[sh.skin_nodes(False)], axis=1)
+
+
+def fibre_tilt(model, x: np.ndarray) -> np.ndarray:
+    """Angle (degrees) per vertex between the through-thickness fibre (bottom to top skin) and
+    the normal of the deformed mid-surface: transverse shear, zero in pure bending and
+    stretching; linear prisms escape volumetric locking by shearing (paper Fig. 11)."""
+    sh = model.shell
+    fibre = x[sh.skin_nodes(True)] - x[sh.skin_nodes(False)]
+    n = vertex_normals(TriMesh(mid_surface(model, x), sh.mesh.faces))
+    c = np.abs(np.einsum("ij,ij->i", fibre, n)) / np.linalg.norm(fibre, axis=1)
+    return np.degrees(np.arccos(np.clip(c, 0.0, 1.0)))
+
+
+def volume(model, x: np.ndarray) -> float:
+    el = model.elasticity
+    F = np.einsum("ead,eqaj->eqdj", x[el.conn], el.dNdX)
+    return float(np.sum(np.linalg.det(F) * el.wdetJ))
+
+
+def curvature_xz(P: np.ndarray) -> float:
+    """Curvature 1/R of the least-squares circle through points ``(n, 3)`` projected on x-z
+    (algebraic fit: x^2 + z^2 + D x + E z + F = 0); 0 for collinear points."""
+    x, z = P[:, 0] - P[:, 0].mean(), P[:, 2] - P[:, 2].mean()
+    A = np.column_stack([x, z, np.ones_like(x)])
+    (D, E, F), *_ = np.linalg.lstsq(A, -(x * x + z * z), rcond=None)
+    r2 = D * D / 4 + E * E / 4 - F
+    return float(1.0 / np.sqrt(r2)) if r2 > 0 and np.isfinite(r2) else 0.0
+
+
+def vertex_average(model, per_qp: np.ndarray) -> np.ndarray:
+    """Element means of a quadrature-point field ``(n_elem, n_qp)`` averaged onto the
+    mid-surface vertices ``(n_v,)`` (element e sits on mid-surface face e)."""
+    F = model.shell.mesh.faces
+    elem = per_qp.mean(1)
+    acc = np.zeros(model.shell.n_vertices)
+    cnt = np.zeros(model.shell.n_vertices)
+    for c in range(3):
+        np.add.at(acc, F[:, c], elem)
+        np.add.at(cnt, F[:, c], 1.0)
+    return acc / np.maximum(cnt, 1)
+
+
+def output_fields(model, x: np.ndarray, h0: np.ndarray) -> dict[str, np.ndarray]:
+    """Result fields at state x, per mid-surface vertex ``(n_v,)`` and per element
+    (``*_elem``, ``(n_elem,)``): thickness (m), thinning (% of the rest thickness ``h0``),
+    von Mises stress (Pa) and, for a plastic scene, the accumulated and the net (retained)
+    equivalent plastic strain. Element values are quadrature-point means; vertex values the
+    mean of the adjacent elements (thickness: measured at the vertex, as in the viewer)."""
+    el, faces = model.elasticity, model.shell.mesh.faces
+    h = thickness(model, x)
+    per_qp = {"von_mises": el.von_mises(x)}
+    if el.plastic:  # an elastic scene has no plastic state to report
+        per_qp["eq_plastic_strain"] = el.ep
+        per_qp["net_plastic_strain"] = net_plastic_strain(el.fp_inv)
+    out = {"thickness": h, "thinning_pct": 100 * (1 - h / h0),
+           "thickness_elem": h[faces].mean(1), "thinning_pct_elem": 100 * (1 - h[faces].mean(1)
+                                                                           / h0[faces].mean(1))}
+    for name, q in per_qp.items():
+        out[name] = vertex_average(model, q)
+        out[f"{name}_elem"] = q.mean(1)
+    return out
+
+
+def field_summary(fields: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
+    """min / mean / max of each per-vertex field of :func:`output_fields` (result.json)."""
+    return {k: {"min": float(v.min()), "mean": float(v.mean()), "max": float(v.max())}
+            for k, v in fields.items() if not k.endswith("_elem")}
+
+
+def section_vertices(model, spec) -> np.ndarray:
+    """Mid-surface vertices on the section ray, sorted by rest radius ``(m,)``."""
+    V = model.shell.mesh.vertices
+    d = np.asarray(spec.direction, float)
+    d /= np.linalg.norm(d)
+    along = V[:, :2] @ d
+    across = np.abs(V[:, 0] * d[1] - V[:, 1] * d[0])
+    idx = np.flatnonzero((along >= -1e-12) & (across <= spec.width))
+    if len(idx) < 2:
+        raise ValueError(f"sections.{spec.name}: fewer than two vertices on the ray")
+    return idx[np.argsort(along[idx])]
+
+
+def section(model, x, idx) -> dict[str, list[float]]:
+    """Rest radius, current radius (from the z axis) and thickness along a section (m)."""
+    mid = mid_surface(model, x)[idx]
+    rest = model.shell.mesh.vertices[idx]
+    return {"rest_radius": np.hypot(rest[:, 0], rest[:, 1]).tolist(),
+            "radius": np.hypot(mid[:, 0], mid[:, 1]).tolist(),
+            "z": mid[:, 2].tolist(),
+            "thickness": thickness(model, x)[idx].tolist()}
