@@ -60,13 +60,13 @@ def _tools():
         "star": star(5, 0.05, 0.025, 0.04, corner_radius=0.004, edge_radius=0.003),
         "star_die": star_die(5, 0.05, 0.025, 0.03, 0.005, corner_radius=0.003),
         "union_smooth": union(punch(0.03, 0.05, 0.004),
-                                  rounded_box([0.02, 0.02, 0.01], 0.003, [0.03, 0, 0.05]),
-                                  blend=0.006),
+                              rounded_box([0.02, 0.02, 0.01], 0.003, [0.03, 0, 0.05]),
+                              blend=0.006),
         "subtract_smooth": subtract(rounded_box([0.05, 0.05, 0.015], 0.004),
-                                        punch(0.025, 0.05, 0.004), blend=0.004),
+                                    punch(0.025, 0.05, 0.004), blend=0.004),
         "intersect": intersect(box([0.04, 0.04, 0.04]), revolved(0, 0.05, -1, 1)),
         "moved": moved(star(4, 0.04, 0.02, 0.03, 0.004, 0.002),
-                           rotation([1.0, 2.0, 0.5], 0.7), [0.01, -0.02, 0.03]),
+                       rotation([1.0, 2.0, 0.5], 0.7), [0.01, -0.02, 0.03]),
     }
 
 
@@ -196,7 +196,7 @@ def test_exact_die_shoulder():
     np.testing.assert_allclose(d, delta, atol=1e-15)
     # opening wall and top face
     d, _, _ = sdf_eval(prog, _revolve_points(np.full(n, Ro - 0.004), np.full(n, -0.015),
-                                                 theta))
+                                             theta))
     np.testing.assert_allclose(d, 0.004, atol=1e-15)
     d, _, _ = sdf_eval(prog, _revolve_points(np.full(n, 0.07), np.full(n, 0.003), theta))
     np.testing.assert_allclose(d, 0.003, atol=1e-15)
@@ -475,7 +475,7 @@ def test_scene_shapes_csg_polygons_and_placement():
     assert die.kind == "subtract" and [s.kind for s in die.shapes] == ["box", "punch"]
     R = rotation([1, 0, 0], 0.5 * np.pi)
     ref = subtract(rounded_box([0.06, 0.02, 0.02], 0.0, [0, 0, -0.017]),
-                       moved(punch(0.101, 0.04, 0.0), R, [0, 0.02, 0.08675]), 0.002)
+                   moved(punch(0.101, 0.04, 0.0), R, [0, 0.02, 0.08675]), 0.002)
     np.testing.assert_allclose(tool_program(die), ref, rtol=1e-15, atol=1e-15)
     # the cavity's lowest point sits 14.25 mm below the blank's mid-plane
     d, g, _ = sdf_eval(tool_program(die), np.array([[0.0, 0.0, -0.01425]]))
@@ -486,7 +486,7 @@ def test_scene_shapes_csg_polygons_and_placement():
     o = {"tools.0.shape": {"kind": "union", "shapes": [poly, {"kind": "plane"}], "blend": 0.001}}
     prog = tool_program(load_scene("scenes/beam_forming.toml", o).tools[0].shape)
     ref = union(extruded_polygon(poly["points"], 0.0, 0.02, 0.004, 0.002, 0.005),
-                    plane([0, 0, 0], [0, 0, 1]), 0.001)
+                plane([0, 0, 0], [0, 0, 1]), 0.001)
     np.testing.assert_array_equal(prog, ref)
     bad = [({"kind": "subtract", "shapes": [poly]}, "exactly two"),
            ({"kind": "union", "shapes": [poly]}, "at least two"),

@@ -64,9 +64,8 @@ def tool_pairs(shell: Shell, candidates: np.ndarray, n_tool_dofs: int) -> np.nda
     """The (node, tool row) pairs of the force-controlled tools, for the sparsity pattern."""
     if not n_tool_dofs:
         return None
-    return np.concatenate([np.column_stack([candidates, np.full_like(candidates,
-                                                                     shell.n_nodes + j)])
-                           for j in range(n_tool_dofs)])
+    return np.concatenate([np.column_stack([candidates, np.full_like(candidates, row)])
+                           for row in range(shell.n_nodes, shell.n_nodes + n_tool_dofs)])
 
 
 def tools(scene, shell, pattern, nodes) -> list[ToolContact]:
@@ -77,8 +76,8 @@ def tools(scene, shell, pattern, nodes) -> list[ToolContact]:
     vdof = shell.n_nodes
     h = float(np.mean(shell.thickness))
     # the largest tributary area of a skin node: its share of a unit pressure on the skin
-    area = float(np.linalg.norm(loads.pressure(shell, np.ones(len(shell.conn), bool), 1.0, False),
-                                axis=1).max())
+    unit = loads.pressure(shell, np.ones(len(shell.conn), bool), 1.0, False)
+    area = float(np.linalg.norm(unit, axis=1).max())
     out = []
     for i, t in enumerate(scene.tools):
         try:
@@ -110,7 +109,7 @@ def external_force(scene, shell, rule, elastic, regions, x0) -> loads.ExternalFo
         try:
             if ld.kind == "gravity":
                 f[:n] += loads.body_force(shell, elastic.wdetJ, rule,
-                                  scene.material.density * np.array(ld.vector))
+                                          scene.material.density * np.array(ld.vector))
             elif ld.kind == "traction":
                 f[:n] += loads.traction(shell, regions[ld.region], np.array(ld.vector))
             elif ld.kind == "pressure":
