@@ -12,6 +12,7 @@ from server.routers import meta, runs, scenes, web
 from server.runs import RunManager
 from server.settings import Settings
 from server.store import SceneStore
+from sim.elements import ELEMENTS
 
 
 def create_app(settings: Settings | None = None, worker_target=None) -> FastAPI:
@@ -24,12 +25,12 @@ def create_app(settings: Settings | None = None, worker_target=None) -> FastAPI:
         store = SceneStore(settings.scenes_dir)
         manager = RunManager(settings, store, **({"worker_target": worker_target}
                                                   if worker_target else {}))
-        if settings.viewer:
+        if settings.viewer:  # imports viser: only when the viewer is on
+            from server.actions import ViewerActions
             from server.viewer import Viewer
-            from sim.elements import ELEMENTS
 
-            manager.viewer = Viewer(settings.viewer_host, settings.viewer_port, manager,
-                                    sorted(ELEMENTS))
+            manager.viewer = Viewer(settings.viewer_host, settings.viewer_port,
+                                    ViewerActions(manager), sorted(ELEMENTS))
         app.state.store, app.state.manager = store, manager
         manager.start()
         yield

@@ -18,8 +18,12 @@ from __future__ import annotations
 import json
 import math
 import re
+import threading
 import time
 from pathlib import Path
+
+from server.records import Run
+from sim.scene import scene_from_toml
 
 DATE = re.compile(r"^(\d{4}-\d{2}-\d{2})\b", re.M)
 SAME_EDGE = 1e-3  # relative: levels are written with 5-6 significant digits
@@ -208,3 +212,54 @@ def estimate(root: Path, scene: str, element: str, edge_length: float | None,
         head += f" at the nearest studied level {length(row['edge_length'])}"
     head += f" ({when})"
     return done(head)
+
+
+class EstimateCache:
+    """Each finished run's estimate, kept until a study report of its scene appears or
+    changes. Reads files: never call it holding the run lock."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        self._lock = threading.Lock()
+        self._facts: dict[str, tuple] = {}  # run id -> (edge length, result.json)
+        self._keys: dict[str, tuple | None] = {}  # run id -> the study report it used
+
+    def get(self, run: Run, finished: bool = False) -> dict | None:
+        """The estimate of ``run``, stored on it; None unless it is
+        finished. ``finished``: the run is finishing (its state is set after this)."""
+        if run.state != "finished" and not finished:
+            return None
+        with self._lock:
+            try:
+                found = find_study(self.root, run.scene)
+                key = (str(found[0]), found[0].stat().st_mtime_ns) if found else None
+                if run.estimate is None or self._keys.get(run.id, "?") != key:
+                    edge, result = self._facts_of(run)
+                    run.estimate = estimate(self.root, run.scene, run.element, edge, result,
+                                            run.overrides)
+                    self._keys[run.id] = key
+            except Exception as exc:  # never let the estimate break a status request
+                run.estimate = {"available": False, "reason": "error",
+                                "text": f"no error estimate: {exc}", "notes": []}
+            return run.estimate
+
+    def forget(self, run_id: str) -> None:
+        with self._lock:
+            self._facts.pop(run_id, None)
+            self._keys.pop(run_id, None)
+
+    def _facts_of(self, run: Run) -> tuple[float | None, dict | None]:
+        """The run's edge length (from its scene.toml) and result.json; read once."""
+        if run.id not in self._facts:
+            d = self.root / run.id
+            try:
+                edge = scene_from_toml((d / "scene.toml").read_text(),
+                                       run.overrides).mesh.edge_length
+            except (OSError, ValueError):
+                edge = None
+            try:
+                result = json.loads((d / "result.json").read_text())
+            except (OSError, ValueError):
+                result = None
+            self._facts[run.id] = (edge, result)
+        return self._facts[run.id]

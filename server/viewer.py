@@ -1,7 +1,7 @@
 """The viser viewer: the sheet coloured by a field, a legend, the tools, and run controls.
 
 It never sees the solver: the bridge hands it frames (dicts of arrays) and it calls back into
-the run manager through ``ViewerActions``. Positions stream to a wireframe every push (about
+the run manager through ``Actions``. Positions stream to a wireframe every push (about
 0.1 ms at 40k vertices); the coloured surface is a glTF re-sent at most ``colour_hz`` times a
 second (about 10 ms and 1.5 MB at 40k vertices), always on the last frame of a run. Each tool is
 one single-colour, semi-transparent mesh sent once per run; frames only move it (``.position``).
@@ -25,6 +25,7 @@ import trimesh
 import viser
 
 from server.colormap import MIN_SPAN, colorize, legend_html, tool_colour, value_range
+from server.replay import Replay
 
 # field key -> (label, unit); the dropdown shows "label (unit)"
 FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%"),
@@ -44,12 +45,15 @@ def field_options(keys) -> dict[str, str]:
     return {field_label(k): k for k in ordered}
 
 
-class ViewerActions(Protocol):
-    def viewer_command(self, cmd: str) -> str: ...
-    def viewer_reset(self, element: str | None) -> str: ...
-    def viewer_set(self, name: str, value: float) -> str: ...
-    def viewer_scrub(self, step: int) -> tuple[dict | None, str]: ...
-    def viewer_recording(self, run_id: str): ...
+class Actions(Protocol):
+    """What the controls call (``server.actions.ViewerActions``); each answers with the status
+    line to show."""
+
+    def command(self, cmd: str) -> str: ...
+    def reset(self, element: str | None) -> str: ...
+    def set_parameter(self, name: str, value: float) -> str: ...
+    def scrub(self, step: int) -> tuple[dict | None, str]: ...
+    def recording(self, run_id: str) -> tuple[Replay | None, str]: ...
 
 
 @dataclass
@@ -68,7 +72,7 @@ LIVE = "live run"
 
 
 class Viewer:
-    def __init__(self, host: str, port: int, actions: ViewerActions, elements: list[str],
+    def __init__(self, host: str, port: int, actions: Actions, elements: list[str],
                  colour_hz: float = 4.0):
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.actions = actions
@@ -83,7 +87,7 @@ class Viewer:
         self._code = threading.local()  # .on while this thread's GUI changes are the code's
         self.live_faces: np.ndarray | None = None
         self.live_tools: list[dict] = []
-        self.replay = None  # a recorded run being shown (server.replay.Replay)
+        self.replay: Replay | None = None  # a recorded run being shown
         self.gui = self._build_gui(elements)
 
     @property
@@ -115,12 +119,12 @@ class Viewer:
             for label, cmd in (("Play", "resume"), ("Pause", "pause"), ("Step", "step")):
                 buttons[label] = g.add_button(label)
                 buttons[label].on_click(lambda _e, c=cmd: self._status(
-                    self.actions.viewer_command(c)))
+                    self.actions.command(c)))
             element = g.add_dropdown("Element", tuple(elements),
                                      initial_value="q3t" if "q3t" in elements else elements[0])
             buttons["Reset"] = g.add_button("Reset")
             buttons["Reset"].on_click(
-                lambda _e: self._status(self.actions.viewer_reset(element.value)))
+                lambda _e: self._status(self.actions.reset(element.value)))
         with g.add_folder("Time"):
             recording = g.add_dropdown("Run", (LIVE,), initial_value=LIVE,
                                        hint="the live run, or an older run's recording")
@@ -151,7 +155,7 @@ class Viewer:
     set_status = _status
 
     def _on_slider(self, name: str, handle) -> None:
-        self._status(self.actions.viewer_set(name, float(handle.value)))
+        self._status(self.actions.set_parameter(name, float(handle.value)))
 
     def set_parameter_value(self, name: str, value: float) -> None:
         if name in self.gui.sliders:
@@ -214,7 +218,7 @@ class Viewer:
             else:
                 self._status("Showing the live run")
             return
-        rep, message = self.actions.viewer_recording(choice)
+        rep, message = self.actions.recording(choice)
         if rep is None:
             self._status(message)
             with self._from_code():
@@ -271,7 +275,7 @@ class Viewer:
                 self._show_recorded(int(self.gui.time.value),
                                     f"Recording of `{self.gui.recording.value}`")
                 return
-        frame, message = self.actions.viewer_scrub(int(self.gui.time.value))
+        frame, message = self.actions.scrub(int(self.gui.time.value))
         if frame is None:
             self._status(message)
             live = self.frame

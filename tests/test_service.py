@@ -16,7 +16,7 @@ pytest.importorskip("fastapi")
 from fastapi.testclient import TestClient  # noqa: E402
 
 from server.app import create_app  # noqa: E402
-from server.runs import ACTIVE  # noqa: E402
+from server.records import ACTIVE  # noqa: E402
 from server.settings import Settings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -739,18 +739,19 @@ def test_serve_refuses_other_hosts_without_a_token(monkeypatch, capsys):
 def test_health_counts_a_long_recording_repair_as_alive(env, monkeypatch):
     """The bridge repairs a killed solver's recording itself (rerun rrd merge, up to minutes on
     a long run): health reports the repair, not a dead bridge, while it lasts."""
-    from server import runs
+    from server.bridge import HEARTBEAT_S
+    from server.records import Run
 
     client, _ = env
     m = client.app.state.manager
     seen = {}
 
     def slow_repair(path):  # the heartbeat is long stale when health is asked
-        monkeypatch.setattr(m, "heartbeat", m.heartbeat - 10 * runs.HEARTBEAT_S)
+        monkeypatch.setattr(m.bridge, "heartbeat", m.bridge.heartbeat - 10 * HEARTBEAT_S)
         seen["health"] = m.health()
 
     monkeypatch.setattr("server.recording.repair", slow_repair)
-    assert m._repair(runs.Run("r-repair", "tiny", "q3t", {}, 0.0)) == ""
+    assert m.repair(Run("r-repair", "tiny", "q3t", {}, 0.0)) == ""
     assert seen["health"]["bridge_alive"] and seen["health"]["repairing_recording"] == "r-repair"
     after = m.health()
     assert after["bridge_alive"] and after["repairing_recording"] is None
