@@ -540,10 +540,10 @@ def test_a_recording_error_in_the_solver_fails_the_run(tmp_path, monkeypatch):
     import queue
 
     from server import recording
-    from server.worker import _Solver
+    from server.worker import Solver
 
     events, frames = queue.Queue(), queue.Queue(maxsize=4)
-    solver = _Solver(events, frames, record_every=1, step_delay=0.0)
+    solver = Solver(events, frames, record_every=1, step_delay=0.0)
     calls = {"n": 0}
     real = recording.Recorder.frame
 
