@@ -14,10 +14,14 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from server.colormap import tool_colour
+
+if TYPE_CHECKING:  # rerun's arrow tables: imported when a recording is read
+    from pyarrow import RecordBatch
 
 
 @dataclass
@@ -61,6 +65,7 @@ def _rgb(cell) -> np.ndarray:
 
 
 def load(path: Path) -> Replay:
+    """The sheet's keyframes, the tools' meshes and poses of the recording at ``path``."""
     from rerun.chunk import RrdReader
 
     rep, sheet = Replay(), {}
@@ -70,44 +75,53 @@ def load(path: Path) -> Replay:
         cols = set(rb.schema.names)
         steps = rb.column("step").to_pylist() if "step" in cols else [None] * rb.num_rows
         if entity == "/sheet":
-            # the triangles are static (logged once); positions and colours come per keyframe
-            if "Mesh3D:triangle_indices" in cols and rep.faces is None:
-                tri = rb.column("Mesh3D:triangle_indices")
-                rep.faces = next((_vec3(tri[i]).astype(np.uint32) for i in range(rb.num_rows)
-                                  if tri[i].is_valid), None)
-            if "Mesh3D:vertex_positions" in cols:
-                pos = rb.column("Mesh3D:vertex_positions")
-                col = rb.column("Mesh3D:vertex_colors") if "Mesh3D:vertex_colors" in cols \
-                    else None
-                for i, step in enumerate(steps):
-                    if step is None or not pos[i].is_valid:
-                        continue
-                    p = _vec3(pos[i]).astype(np.float32)
-                    c = _rgb(col[i]) if col is not None and col[i].is_valid \
-                        else np.full((len(p), 3), 180, np.uint8)
-                    sheet[int(step)] = (p, c)
+            _read_sheet(rep, sheet, rb, cols, steps)
         elif entity.startswith("/tools/"):
-            name = entity.removeprefix("/tools/")
-            if "Mesh3D:vertex_positions" in cols:
-                rep.tools[name] = (_vec3(rb.column("Mesh3D:vertex_positions")[0]),
-                                   _vec3(rb.column("Mesh3D:triangle_indices")[0]).astype(np.uint32))
-            if "Transform3D:translation" in cols:
-                tr = rb.column("Transform3D:translation")
-                for i, step in enumerate(steps):
-                    if step is not None:
-                        rep.poses.setdefault(name, {})[int(step)] = _vec3(tr[i])[0]
-            if "Transform3D:quaternion" in cols:
-                q = rb.column("Transform3D:quaternion")
-                for i, step in enumerate(steps):
-                    if step is not None and q[i].is_valid:  # rerun stores (x, y, z, w)
-                        xyzw = np.asarray(q[i].values.flatten().to_numpy(zero_copy_only=False),
-                                          np.float64).reshape(-1, 4)[0]
-                        rep.rotations.setdefault(name, {})[int(step)] = np.roll(xyzw, 1)
+            _read_tool(rep, entity.removeprefix("/tools/"), rb, cols, steps)
     for step in sorted(sheet):
         rep.steps.append(step)
         rep.positions.append(sheet[step][0])
         rep.colors.append(sheet[step][1])
     return rep
+
+
+def _read_sheet(rep: Replay, sheet: dict, rb: RecordBatch, cols: set, steps: list) -> None:
+    """The triangles are static (logged once) and go to ``rep``; positions and colours come
+    per keyframe and go to ``sheet`` (step -> (positions, colours))."""
+    if "Mesh3D:triangle_indices" in cols and rep.faces is None:
+        tri = rb.column("Mesh3D:triangle_indices")
+        rep.faces = next((_vec3(tri[i]).astype(np.uint32) for i in range(rb.num_rows)
+                          if tri[i].is_valid), None)
+    if "Mesh3D:vertex_positions" not in cols:
+        return
+    pos = rb.column("Mesh3D:vertex_positions")
+    col = rb.column("Mesh3D:vertex_colors") if "Mesh3D:vertex_colors" in cols else None
+    for i, step in enumerate(steps):
+        if step is None or not pos[i].is_valid:
+            continue
+        p = _vec3(pos[i]).astype(np.float32)
+        c = _rgb(col[i]) if col is not None and col[i].is_valid \
+            else np.full((len(p), 3), 180, np.uint8)
+        sheet[int(step)] = (p, c)
+
+
+def _read_tool(rep: Replay, name: str, rb: RecordBatch, cols: set, steps: list) -> None:
+    """A tool's mesh (static) and its translations and rotations per step."""
+    if "Mesh3D:vertex_positions" in cols:
+        rep.tools[name] = (_vec3(rb.column("Mesh3D:vertex_positions")[0]),
+                           _vec3(rb.column("Mesh3D:triangle_indices")[0]).astype(np.uint32))
+    if "Transform3D:translation" in cols:
+        tr = rb.column("Transform3D:translation")
+        for i, step in enumerate(steps):
+            if step is not None:
+                rep.poses.setdefault(name, {})[int(step)] = _vec3(tr[i])[0]
+    if "Transform3D:quaternion" in cols:
+        q = rb.column("Transform3D:quaternion")
+        for i, step in enumerate(steps):
+            if step is not None and q[i].is_valid:  # rerun stores (x, y, z, w)
+                xyzw = np.asarray(q[i].values.flatten().to_numpy(zero_copy_only=False),
+                                  np.float64).reshape(-1, 4)[0]
+                rep.rotations.setdefault(name, {})[int(step)] = np.roll(xyzw, 1)
 
 
 def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "",

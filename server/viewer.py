@@ -207,16 +207,7 @@ class Viewer:
     def _choose_recording(self) -> None:
         choice = self.gui.recording.value
         if choice == LIVE:
-            with self.lock:
-                self.replay = None
-                if self.live_faces is not None:
-                    self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
-                                                      for t in self.live_tools])
-                live = self.frame
-            if live is not None:
-                self.show(live, "Showing the live run", final=True)
-            else:
-                self._status("Showing the live run")
+            self._show_live()
             return
         rep, message = self.actions.recording(choice)
         if rep is None:
@@ -232,6 +223,19 @@ class Viewer:
                 self.gui.time.value = rep.steps[-1]
             self._show_recorded(rep.steps[-1], message)
             self._aim(rep.positions[-1])
+
+    def _show_live(self) -> None:
+        """Back from a replay: the live run's sheet and tools, and its latest frame."""
+        with self.lock:
+            self.replay = None
+            if self.live_faces is not None:
+                self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
+                                                  for t in self.live_tools])
+            live = self.frame
+        if live is not None:
+            self.show(live, "Showing the live run", final=True)
+        else:
+            self._status("Showing the live run")
 
     def _show_recorded(self, step: int, message: str) -> None:
         """The recorded frame at ``step`` or the nearest before it (under lock)."""
