@@ -15,6 +15,7 @@ viser viewer (so viser encodes and sends every update, as to a browser):
 
 from __future__ import annotations
 
+import argparse
 import functools
 import multiprocessing as mp
 import os
@@ -27,11 +28,13 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from server.settings import ROOT
+from server.settings import ROOT, Settings
+from server.worker import Channel
 from sim import results
 
 CUP_40K = {"mesh.edge_length": 0.00038, "stepping.steps": 50}  # 39,686 display vertices
@@ -49,7 +52,8 @@ def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
     return V, F.astype(np.uint32)
 
 
-def frame_generator(commands, events, frames, record_every: int, step_delay: float,
+def frame_generator(commands: Channel, events: Channel, frames: Channel, record_every: int,
+                    step_delay: float,
                     n_vertices: int = 40_000, rate: float = 100.0) -> None:
     """Stands in for ``worker.worker_main``: on ``start`` it makes ``rate`` frames a second of
     an ``n_vertices`` sheet (positions and four fields, as the solver sends them), puts them on
@@ -64,7 +68,7 @@ def frame_generator(commands, events, frames, record_every: int, step_delay: flo
     step = produced = dropped = 0
     t_next = time.perf_counter()
 
-    def emit(kind, **kw):
+    def emit(kind: str, **kw: object) -> None:
         events.put({"kind": kind, "run": run, **kw})
 
     def frame(k: int) -> dict:
@@ -165,7 +169,8 @@ class ViewerClient:
         self.ws.close()
 
 
-def _wait_http(url: str, cond, timeout: float, proc=None) -> float:
+def _wait_http(url: str, cond: Callable[[dict], bool], timeout: float,
+               proc: subprocess.Popen | None = None) -> float:
     """Seconds until ``cond(response json)`` holds for GET url."""
     import httpx
 
@@ -213,7 +218,7 @@ def _pcts(lat: np.ndarray) -> dict:
             "cpu_pressure_avg60_pct": cpu_pressure()}
 
 
-def _serve_app(settings, port: int, n_vertices: int, rate: float) -> None:
+def _serve_app(settings: Settings, port: int, n_vertices: int, rate: float) -> None:
     """Child process: uvicorn with the service app, the frame generator as its solver."""
     import uvicorn
 
@@ -333,7 +338,7 @@ def start_and_latency(seconds: float, tmp: Path) -> dict:
     return out
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     out = {"date": time.strftime("%Y-%m-%d")}
     with tempfile.TemporaryDirectory() as tmp:
         out["start"] = start_and_latency(args.seconds_solver, Path(tmp))
@@ -365,7 +370,7 @@ def run(args) -> int:
     return 0
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: argparse._SubParsersAction) -> None:
     b = sub.add_parser("bench-service", help="viewer frame rate, API latency, start-up time")
     b.add_argument("--vertices", type=int, default=40_000)
     b.add_argument("--rate", type=float, default=100.0,

@@ -25,13 +25,17 @@ import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from server.estimate import EstimateCache
 from server.history import FrameHistory
 from server.records import ACTIVE, Run
 from server.settings import Settings
+from server.worker import Channel
 from server.workerhandle import WorkerHandle
+
+if TYPE_CHECKING:  # imports viser
+    from server.viewer import Viewer
 
 HEARTBEAT_S = 5.0  # a bridge silent for longer than this is reported dead
 EMPTY = (queue.Empty, OSError, ValueError, EOFError)  # a queue with nothing (more) to read
@@ -51,7 +55,7 @@ class Books(Protocol):
     estimates: EstimateCache
     waiters: dict[int, dict]
     sent: dict[int, str]
-    viewer: Any
+    viewer: Viewer | None
     worker: WorkerHandle
     closing: threading.Event
 
@@ -218,7 +222,7 @@ def _book(m: Books, ev: dict) -> Booked:
     return handler(m, ev)
 
 
-def drain(q: Any, limit: int = 1000) -> list:
+def drain(q: Channel, limit: int = 1000) -> list:
     """What ``q`` holds now, at most ``limit`` items, without waiting."""
     out = []
     for _ in range(limit):

@@ -29,7 +29,7 @@ DATE = re.compile(r"^(\d{4}-\d{2}-\d{2})\b", re.M)
 SAME_EDGE = 1e-3  # relative: levels are written with 5-6 significant digits
 
 
-def _stem(path) -> str:
+def _stem(path: str | Path) -> str:
     return Path(str(path)).stem
 
 

@@ -21,6 +21,8 @@ import numpy as np
 from server.colormap import tool_colour
 
 if TYPE_CHECKING:  # rerun's arrow tables: imported when a recording is read
+    import pyarrow as pa
+    import viser
     from pyarrow import RecordBatch
 
 
@@ -53,12 +55,12 @@ def _latest(known: dict | None, step: int, default: np.ndarray) -> np.ndarray:
     return known[max(before)] if before else known[min(known)]
 
 
-def _vec3(cell) -> np.ndarray:
+def _vec3(cell: pa.Scalar) -> np.ndarray:
     """One row of a list<fixed_size_list<float, 3>> column -> (n, 3)."""
     return np.asarray(cell.values.flatten().to_numpy(zero_copy_only=False)).reshape(-1, 3)
 
 
-def _rgb(cell) -> np.ndarray:
+def _rgb(cell: pa.Scalar) -> np.ndarray:
     """One row of packed RGBA uint32 colours (0xRRGGBBAA) -> (n, 3) uint8."""
     c = np.asarray(cell.values.to_numpy(zero_copy_only=False), np.uint32)
     return np.stack([(c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255], axis=1).astype(np.uint8)
@@ -125,7 +127,7 @@ def _read_tool(rep: Replay, name: str, rb: RecordBatch, cols: set, steps: list) 
 
 
 def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "",
-          block: bool = True):
+          block: bool = True) -> viser.ViserServer | None:
     """A viser viewer of ``rep``: sheet, tools, a step slider and Play/Pause. Returns the
     server when ``block`` is false (tests); otherwise runs until Ctrl-C."""
     import trimesh

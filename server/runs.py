@@ -14,6 +14,7 @@ import collections
 import secrets
 import threading
 import time
+from typing import TYPE_CHECKING
 
 from server.bridge import Bridge
 from server.estimate import EstimateCache
@@ -27,6 +28,9 @@ from server.workerhandle import WorkerHandle, WorkerTarget
 from sim import size
 from sim.elements import get_element
 from sim.scene import scene_from_toml
+
+if TYPE_CHECKING:  # imports viser
+    from server.viewer import Viewer
 
 
 class RunManager:
@@ -46,7 +50,7 @@ class RunManager:
         self.waiters: dict[int, dict] = {}  # request id -> {"event", "reply"}
         self.sent: dict[int, str] = {}  # request id -> run id, until the solver replies
         self.logs: collections.deque = collections.deque(maxlen=50)  # the solver's log events
-        self.viewer = None
+        self.viewer: Viewer | None = None  # set by the app when the viewer is on
         self._target = worker_target
         self.worker = self._new_worker()
         self._retired: list[WorkerHandle] = []  # ended by a stop during a build; the bridge closes

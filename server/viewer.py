@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Protocol
@@ -39,7 +40,7 @@ def field_label(key: str) -> str:
     return f"{label} ({unit})" if unit else label
 
 
-def field_options(keys) -> dict[str, str]:
+def field_options(keys: Collection[str]) -> dict[str, str]:
     """Dropdown label -> field key for the fields a frame carries, known fields first."""
     ordered = [k for k in FIELDS if k in keys] + sorted(k for k in keys if k not in FIELDS)
     return {field_label(k): k for k in ordered}
@@ -95,7 +96,7 @@ class Viewer:
         return self.server.get_port()
 
     @contextmanager
-    def _from_code(self):
+    def _from_code(self) -> Iterator[None]:
         """GUI values set inside are the code's, not a user's: their callbacks do nothing.
         viser runs the callbacks of a value set in code at once, in the thread that set it, so
         the mark is per thread: a user's change arriving meanwhile (in viser's threads, or a
@@ -107,7 +108,7 @@ class Viewer:
         finally:
             self._code.on = before
 
-    def _by_user(self, action):
+    def _by_user(self, action: Callable[[], object]) -> Callable[[object], None]:
         """An ``on_update`` callback that runs ``action()`` for a user's change only."""
         return lambda _e: None if getattr(self._code, "on", False) else action()
 
@@ -154,7 +155,7 @@ class Viewer:
 
     set_status = _status
 
-    def _on_slider(self, name: str, handle) -> None:
+    def _on_slider(self, name: str, handle: viser.GuiSliderHandle) -> None:
         self._status(self.actions.set_parameter(name, float(handle.value)))
 
     def set_parameter_value(self, name: str, value: float) -> None:
@@ -253,7 +254,7 @@ class Viewer:
                                        "recorded (each frame's min to max)</div>")
             self.gui.status.content = f"{message}  \nshowing recorded step {k}"
 
-    def _set_fields(self, keys) -> None:
+    def _set_fields(self, keys: Collection[str]) -> None:
         """Offer exactly the fields this frame carries; keep the choice when still offered."""
         options = field_options(keys)
         if options == self.options:

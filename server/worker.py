@@ -37,7 +37,7 @@ if TYPE_CHECKING:  # the solver is imported in the solver process only, when it 
 Channel = Queue | queue.Queue
 
 
-def _frame_msg(run: str, sim) -> dict:
+def _frame_msg(run: str, sim: Simulation) -> dict:
     """The frame message of the current state. A frame holding a number that is not finite
     is an error: it must reach neither the recording nor the server (which colours by it)."""
     f = sim.frame()
@@ -60,7 +60,7 @@ def plane_size(positions: np.ndarray) -> float:
     return float(2.0 * max(float(np.max(extent)), 1e-3))
 
 
-def tool_meshes(scene, size: float, cache: dict) -> list[dict]:
+def tool_meshes(scene: Scene, size: float, cache: dict) -> list[dict]:
     """Display meshes of the scene's tools in their local frames (world = local + translation):
     ``[{name, kind, vertices (m, 3) float32, faces (k, 3) uint32}]``. Cached per shape."""
     from sim.model import tool_program
@@ -98,7 +98,7 @@ class Solver:
         self.produced = self.dropped = 0  # frames of this run made / dropped (queue full)
         self.mesh_cache: dict = {}  # tool meshes by shape: a repeated run skips the meshing
 
-    def emit(self, kind: str, **kw) -> None:
+    def emit(self, kind: str, **kw: object) -> None:
         self.events.put({"kind": kind, "run": self.run, **kw})
 
     @property
@@ -116,7 +116,7 @@ class Solver:
                              "error": str(exc), "run": self.run})
 
     # ---- the recording: any error in it fails the run, naming it ------------------------------
-    def record(self, method: str, *args, **kw) -> None:
+    def record(self, method: str, *args: object, **kw: object) -> None:
         if self.recorder is None:
             return
         try:
@@ -205,7 +205,7 @@ class Solver:
             self.emit("log", text=f"tool meshes failed:\n{traceback.format_exc()}")
             return []
 
-    def _unbuilt(self, scene, reason: str) -> None:
+    def _unbuilt(self, scene: Scene | None, reason: str) -> None:
         """A run that ends before it has a model: its result.json says why, then its state."""
         from sim import results
 
