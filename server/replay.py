@@ -137,12 +137,7 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
         raise ValueError("the recording holds no sheet mesh")
     server = viser.ViserServer(host=host, port=port, verbose=False)
     lock = threading.Lock()
-    handles = {}
-    for i, (name, (V, F)) in enumerate(rep.tools.items()):
-        rgb, alpha = tool_colour(i)
-        handles[name] = server.scene.add_mesh_simple(
-            f"/tools/{name}", V.astype(np.float32), F, color=rgb, opacity=alpha, side="double",
-            cast_shadow=False, receive_shadow=False)
+    handles = _add_tools(server, rep)
     g = server.gui
     status = g.add_markdown(f"Recording `{title}`: {len(rep.steps)} frames, steps "
                             f"{rep.steps[0]}-{rep.steps[-1]} (sheet coloured by thickness)")
@@ -164,21 +159,44 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
             status.content = f"Recording `{title}`: step {step} ({i + 1}/{len(rep.steps)})"
 
     slider.on_update(lambda _e: show(slider.value))
-    lo, hi = rep.positions[0].min(0), rep.positions[0].max(0)
+    _aim(server, rep.positions[0])
+    show(0)
+    if not block:
+        return server
+    _play(server, slider, playing, fps, len(rep.steps))
+    return None
+
+
+def _add_tools(server: viser.ViserServer, rep: Replay) -> dict:
+    """One mesh per tool, in its own colour: tool name -> viser handle."""
+    handles = {}
+    for i, (name, (V, F)) in enumerate(rep.tools.items()):
+        rgb, alpha = tool_colour(i)
+        handles[name] = server.scene.add_mesh_simple(
+            f"/tools/{name}", V.astype(np.float32), F, color=rgb, opacity=alpha, side="double",
+            cast_shadow=False, receive_shadow=False)
+    return handles
+
+
+def _aim(server: viser.ViserServer, positions: np.ndarray) -> None:
+    """Look at the sheet from the front, a little above it."""
+    lo, hi = positions.min(0), positions.max(0)
     centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) or 1.0
     cam = server.initial_camera
     cam.look_at, cam.up = tuple(centre), (0.0, 0.0, 1.0)
     cam.position = tuple(centre + size * np.array([0.1, -0.9, 0.6]))
-    show(0)
-    if not block:
-        return server
+
+
+def _play(server: viser.ViserServer, slider: viser.GuiSliderHandle,
+          playing: viser.GuiCheckboxHandle, fps: viser.GuiSliderHandle, n: int) -> None:
+    """Advance ``slider`` through the ``n`` frames at ``fps`` while ``playing`` is ticked,
+    until Ctrl-C."""
     try:
         while True:
             time.sleep(1.0 / fps.value)
             if playing.value:
-                slider.value = (slider.value + 1) % len(rep.steps)
+                slider.value = (slider.value + 1) % n
     except KeyboardInterrupt:
         pass
     finally:
         server.stop()
-    return None
