@@ -201,10 +201,13 @@ def _parameter(m: Books, ev: dict) -> Booked:
 
 @handles("frame")
 def _frame(m: Books, ev: dict) -> Booked:
-    """Kept in the history (for scrubbing), and shown."""
+    """Kept in the history (for scrubbing), and shown. Frames and the run's states come by
+    two queues, so a frame the solver made before the run ended can be read after its end:
+    it is still kept (the history takes the latest run's frames only), not shown or counted."""
     with m.lock:
         run = _active(m, ev)
         if run is None:
+            m.history.add(ev)
             return Booked()
         if "first_frame_s" not in run.timing:
             run.timing["first_frame_s"] = time.time() - run.created

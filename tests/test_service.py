@@ -508,6 +508,37 @@ def test_frames_are_dropped_for_a_slow_viewer(env, monkeypatch):
     assert sorted(series(path, "/solver/iterations")) == list(range(1, last + 1))  # all
 
 
+def test_frames_read_after_the_run_ended_are_kept(env, monkeypatch):
+    """Frames come by one queue, the run's states by another: a bridge that reads both late
+    (a loaded machine) books the run's end before the frames the solver made earlier. Those
+    frames are still kept for scrubbing. Here the bridge is held until the solver is done."""
+    from server.bridge import Bridge
+
+    client, settings = env
+    m = client.app.state.manager
+    parked, go = threading.Event(), threading.Event()
+    step = Bridge._step
+
+    def late(self):
+        parked.set()
+        go.wait(HANG)
+        step(self)
+
+    (settings.scenes_dir / "three.toml").write_text(tiny_toml(steps=3))
+    monkeypatch.setattr(Bridge, "_step", late)
+    try:
+        assert parked.wait(HANG), "the bridge never came round"
+        run_id = client.post("/api/runs", json={"scene": "three"}).json()["id"]
+        # building, meta, the rest frame, running, the start's reply, 3 step records, the
+        # last frame and the finished state; frames 1 and 2 wait on the frame queue
+        until(lambda: m.worker.events.qsize() >= 10, "the solver did not finish the run")
+    finally:
+        go.set()
+    st = wait_state(client, run_id, {"finished", "failed", "stopped"})
+    assert st["state"] == "finished", st["reason"]
+    assert client.get(f"/api/runs/{run_id}/frames").json()["steps"] == [0, 1, 2, 3]
+
+
 def test_a_bridge_error_fails_the_run_and_the_service_goes_on(env, monkeypatch):
     """An exception while the bridge books an event (here: the disk is full) fails the active
     run with the reason; the bridge stays alive, /api/health says so, the next run runs."""
