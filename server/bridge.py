@@ -249,8 +249,20 @@ class Bridge:
         self._final = False
         self._next_push = 0.0
 
+    def start(self) -> None:
+        self.thread.start()
+
+    def join(self, timeout: float) -> None:
+        """Wait for the loop to end (it ends once the manager is ``closing``)."""
+        self.thread.join(timeout)
+
     # ---- health -----------------------------------------------------------------------------
+    def running(self) -> bool:
+        return self.thread.is_alive()
+
     def alive(self) -> bool:
+        """Running, and not stuck: it came round within ``HEARTBEAT_S`` or is repairing a
+        recording."""
         return self.thread.is_alive() and (
             self.repairing is not None or time.monotonic() - self.heartbeat < HEARTBEAT_S)
 

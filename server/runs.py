@@ -66,20 +66,20 @@ class RunManager:
     def start(self) -> None:
         if self.viewer:
             self.viewer.set_recordings(self.recorded())
-        self.bridge.thread.start()
+        self.bridge.start()
 
     def close(self) -> None:
         """Shut down: the active run is stopped by the solver (result.json and a closed
         recording) when it answers within ``stop_timeout``; no new solver process starts."""
         with self.lock:
             run = self.runs.get(self.active) if self.active else None
-        if run is not None and self.worker.alive() and self.bridge.thread.is_alive():
+        if run is not None and self.worker.alive() and self.bridge.running():
             self.worker.send("stop", reason="server shut down")
             deadline = time.monotonic() + self.settings.stop_timeout
             while self.active == run.id and time.monotonic() < deadline:
                 time.sleep(0.02)
-        self.closing.set()
-        self.bridge.thread.join(2.0)
+        self.closing.set()  # the bridge ends its loop
+        self.bridge.join(2.0)
         self.close_retired()
         clean = self.worker.close()  # a solver still inside a step is asked, then killed
         note = self.repair(run) if run is not None and not clean else ""
