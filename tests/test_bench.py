@@ -3,8 +3,8 @@ the per-iteration cost; here at two coarse levels."""
 
 import json
 
-from sim import bench
-from sim.cli import main
+from sim.apps import bench
+from sim.apps.cli import main
 
 
 def test_bench_includes_the_factorisation_comparison(tmp_path, monkeypatch, capsys):

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.check import (
+from sim.apps.check import (
     BALANCE,
     FAILURES,
     Case,

@@ -391,7 +391,7 @@ def test_plastic_bench_yields_half_the_points(monkeypatch):
     """`q3t bench --cases plastic` at a coarse size: the Swift sheet is partly yielded (its
     yield stress is the median von Mises stress) and the ratios against both elastic sheets are
     reported."""
-    from sim import bench
+    from sim.apps import bench
 
     monkeypatch.setitem(bench.CASES["beam"]["edge"], "q3t", 0.035)
     rows = bench.plastic(repeat=2)

@@ -1,7 +1,7 @@
 """``q3t study``: accuracy against cost under refinement (paper Fig. 8), the factorisation
 comparison of Fig. 7 (``--factorisation``), and what building only the needed terms saves.
 
-Every (element, edge length) pair is one case, run as a Dask task through ``sim.sweep``'s
+Every (element, edge length) pair is one case, run as a Dask task through ``sim.apps.sweep``'s
 ``run_tasks`` (a local cluster by default, ``--scheduler`` for an existing one). A study
 measures run time, so by default one worker process with one thread (numba, OpenMP and MKL
 pinned) runs one case at a time: cases running side by side on a 2-core machine would slow each
@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.overhead import OVERHEAD_REPEAT, terms_overhead
-from sim.study_report import (
+from sim.apps.overhead import OVERHEAD_REPEAT, terms_overhead
+from sim.apps.study_report import (
     FACTOR_COLS,
     STUDY_COLS,
     _table,
@@ -36,7 +36,7 @@ from sim.study_report import (
     write_overhead,
     write_study,
 )
-from sim.sweep import cluster_text, run_case, run_tasks
+from sim.apps.sweep import cluster_text, run_case, run_tasks
 
 FACTOR_REPEAT = 15  # factorisations per case: medians and minima of >= 10 calls
 
@@ -316,7 +316,7 @@ def factorisation_report(scene_path: str, elements: list[str], levels: list[floa
 
 def _inputs(args) -> tuple[str, Plan]:
     """The plan from the command line; ValueError / SceneError on bad input."""
-    from sim.cli import parse_sets, resolve_scene
+    from sim.apps.cli import parse_sets, resolve_scene
 
     scene = str(resolve_scene(args.scene))
     ref = None

@@ -7,7 +7,7 @@ to an existing cluster instead (its workers need this package).
 
 A case whose scene does not validate is an ``invalid`` row before anything starts, so no
 clock runs for it. Two clocks bound the others. Each case runs in a child process of its
-worker (``sim.check.run_isolated``) that is killed after ``--budget`` seconds (status
+worker (``sim.apps.check.run_isolated``) that is killed after ``--budget`` seconds (status
 ``timeout``), so one hung case costs its budget and the worker moves on. ``--timeout`` bounds
 the whole sweep: cases not finished by then are cancelled and marked ``timeout``. Results are
 gathered as they finish and ``sweep.json`` is rewritten after each one, so whatever finished is
@@ -146,11 +146,11 @@ class _WatchedProcess(ForkServerProcess):
 
 
 class _WatchedContext:
-    """The ``ctx`` that ``run_isolated`` takes: sim.check's forkserver context (children forked
+    """The ``ctx`` that ``run_isolated`` takes: sim.apps.check's forkserver context (children forked
     from a clean server with the solver imported), its processes watched."""
 
     def __init__(self):
-        from sim.check import _context
+        from sim.apps.check import _context
 
         self._ctx = _context()
         self.Pipe = self._ctx.Pipe
@@ -164,7 +164,7 @@ def isolated_case(scene_path: str, overrides: dict, budget: float) -> dict:
 
     A daemonic worker (an external cluster's default) may not start children: the case then
     runs in the worker itself, without a budget, and the row says so."""
-    from sim.check import run_isolated
+    from sim.apps.check import run_isolated
 
     if mp.current_process().daemon:
         out = run_case(scene_path, overrides)
@@ -362,7 +362,7 @@ def _write(out: Path, name: str, data: dict) -> None:
 def run(args) -> int:
     """Exit 0 when every case has a row of its own; 1 when ``--timeout`` cut the sweep short
     (the rows that finished are still written); 2 on bad input."""
-    from sim.cli import parse_sets, resolve_scene
+    from sim.apps.cli import parse_sets, resolve_scene
 
     scene = str(resolve_scene(args.scene))
     try:

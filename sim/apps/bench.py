@@ -1,6 +1,6 @@
 """``q3t bench``: per-Newton-iteration cost (assembly, factorisation, solve) at the paper's
 Table 1 sizes, and the factorisation comparison of its Fig. 7 on the cantilever (same elements /
-same nodes; ``sim.study.factorisation_report``, also ``q3t study --factorisation``).
+same nodes; ``sim.apps.study.factorisation_report``, also ``q3t study --factorisation``).
 
 Medians of ``--repeat`` runs; the machines are noisy, so compare ratios more than seconds.
 """
@@ -31,7 +31,7 @@ PAPER = {("beam", "linear"): 0.184, ("beam", "q3t"): 0.298, ("beam", "quadratic"
 
 
 def _scene(case: str, element: str, edge: float, extra: dict | None = None):
-    from sim.cli import resolve_scene
+    from sim.apps.cli import resolve_scene
     from sim.scene import load_scene
 
     overrides = {"shell.element": element, "mesh.edge_length": edge, **(extra or {})}
@@ -157,7 +157,7 @@ def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
     ``until``; the last ``steps`` of them are timed: seconds per Newton iteration and
     iterations per step while the punch nose, the die shoulder and the holder are in contact,
     with friction (its fixed point included) and plastic flow (mid-stroke by default)."""
-    from sim.cli import resolve_scene
+    from sim.apps.cli import resolve_scene
     from sim.scene import load_scene
     from sim.simulation import Simulation
 
@@ -206,8 +206,8 @@ def run(args) -> int:
                   "iteration, Hencky)", flush=True)
             continue
         if case == "factorisation":
-            from sim.cli import resolve_scene
-            from sim.study import factorisation_report
+            from sim.apps.cli import resolve_scene
+            from sim.apps.study import factorisation_report
 
             fig7 = factorisation_report(str(resolve_scene("cantilever")), elements, FIG7_LEVELS,
                                         Path(args.out) / "factorisation", args.repeat)

@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-SCENES = Path(__file__).resolve().parent.parent / "scenes"
+SCENES = Path(__file__).resolve().parents[2] / "scenes"
 
 
 def resolve_scene(name: str) -> Path:
@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="refuse a scene whose model would need more memory to build (GiB; "
                         "default %(default)g: half of a 24 GiB machine)")
     r.set_defaults(func=cmd_run)
-    from sim import bench, check, study, sweep
+    from sim.apps import bench, check, study, sweep
 
     bench.add_parser(sub)
     for mod in (study, sweep, check):  # matplotlib and dask are imported only when run
@@ -117,7 +117,3 @@ def main(argv: list[str] | None = None) -> int:
     except SceneError as exc:  # bad input, whichever command read it: exit 2 like argparse
         print(f"q3t: {exc}", file=sys.stderr)
         return 2
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -195,7 +195,7 @@ def measure(sim) -> dict:
 
 
 def _child(conn, scene_path: str, overrides: dict) -> None:
-    from sim.sweep import run_case
+    from sim.apps.sweep import run_case
 
     # on SIGTERM exit through Python, so numba's process lock is released and not reported as a
     # leaked semaphore; a child stuck in a kernel gets SIGKILL after a grace period
@@ -242,7 +242,7 @@ def _context():
     """Children forked from a clean server that has the solver imported (saves ~1 s a case);
     never forked from this process, whose numba/MKL threads may hold locks."""
     ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["sim.sweep", "sim.simulation", "sim.scene"])
+    ctx.set_forkserver_preload(["sim.apps.sweep", "sim.simulation", "sim.scene"])
     return ctx
 
 
@@ -281,7 +281,7 @@ def run_check(cases: list[Case], elements: list[str], budget: float, progress=No
 
 
 def _run_all(cases, elements, budget, tmp: Path, progress, edges) -> list[dict]:
-    from sim.cli import resolve_scene
+    from sim.apps.cli import resolve_scene
 
     rows = []
     ctx = _context()
@@ -364,7 +364,7 @@ def select(cases: list[Case], names: str | None) -> list[Case]:
 
 
 def run(args) -> int:
-    from sim.cli import resolve_scene
+    from sim.apps.cli import resolve_scene
     from sim.scene import load_scene
 
     # a terminated check exits through Python, which stops its running child and server
