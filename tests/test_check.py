@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sim.apps.cases import run_isolated
 from sim.apps.check import (
     BALANCE,
     FAILURES,
@@ -19,7 +20,6 @@ from sim.apps.check import (
     make_cases,
     outcome,
     run_check,
-    run_isolated,
     select,
     summary,
     table,

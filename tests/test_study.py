@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from sim.apps.cli import main
+from sim.apps.factorisation import factorisation_times
 from sim.apps.overhead import all_terms_model, all_terms_overrides, terms_overhead
-from sim.apps.study import curve_error, factorisation_times, make_plan, run_study
+from sim.apps.study import curve_error, make_plan, run_study
 from sim.apps.study_report import write_factorisation, write_study
 from sim.model import build_model, frame_fields
 from sim.scene import SceneError, load_scene
@@ -153,7 +154,7 @@ def test_study_command_line_and_its_exit_codes(tmp_path, capsys):
 def test_a_case_over_its_budget_stops_after_a_step_and_the_study_goes_on(tmp_path):
     """--budget: a case that has spent its seconds stops after the step that used them up,
     marked timeout with where it stood; the others and the report go on."""
-    from sim.apps.sweep import run_case
+    from sim.apps.cases import run_case
 
     # a budget of 1 ns is spent before the first step ends: the case stops after it
     r = run_case(CONVERGENCE, {"mesh.edge_length": 0.07, "stepping.steps": 3}, budget=1e-9)

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from sim.apps.sweep import cases, parse_grid, run_case, split_values
+from sim.apps.cases import run_case
+from sim.apps.sweep import cases, parse_grid, split_values
 
 ROOT = Path(__file__).resolve().parent.parent
 CANTILEVER = str(ROOT / "scenes" / "cantilever.toml")

@@ -1,6 +1,6 @@
 """``q3t bench``: per-Newton-iteration cost (assembly, factorisation, solve) at the paper's
 Table 1 sizes, and the factorisation comparison of its Fig. 7 on the cantilever (same elements /
-same nodes; ``sim.apps.study.factorisation_report``, also ``q3t study --factorisation``).
+same nodes; ``sim.apps.factorisation``, also ``q3t study --factorisation``).
 
 Medians of ``--repeat`` runs; the machines are noisy, so compare ratios more than seconds.
 """
@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from sim import results
+from sim.apps.common import OK, load, resolve_scene
+from sim.apps.factorisation import factorisation_report
 
 # (case, element, edge length): the beam is the paper's 70 x 7 cm plate (4,504 triangles), the
 # cup a 60 mm disk (about 26,700 triangles); quadratic at half the edge count has the same nodes.
@@ -31,11 +33,8 @@ PAPER = {("beam", "linear"): 0.184, ("beam", "q3t"): 0.298, ("beam", "quadratic"
 
 
 def _scene(case: str, element: str, edge: float, extra: dict | None = None):
-    from sim.apps.cli import resolve_scene
-    from sim.scene import load_scene
-
     overrides = {"shell.element": element, "mesh.edge_length": edge, **(extra or {})}
-    return load_scene(resolve_scene(CASES[case]["scene"]), overrides)
+    return load(CASES[case]["scene"], overrides)
 
 
 HENCKY = {"material.model": "hencky"}
@@ -157,12 +156,10 @@ def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
     ``until``; the last ``steps`` of them are timed: seconds per Newton iteration and
     iterations per step while the punch nose, the die shoulder and the holder are in contact,
     with friction (its fixed point included) and plastic flow (mid-stroke by default)."""
-    from sim.apps.cli import resolve_scene
-    from sim.scene import load_scene
     from sim.simulation import Simulation
 
-    sim = Simulation.from_scene(load_scene(resolve_scene("cup_drawing"), {
-        "shell.element": element, "mesh.edge_length": edge}))
+    sim = Simulation.from_scene(load("cup_drawing", {"shell.element": element,
+                                                     "mesh.edge_length": edge}))
     until = min(until, sim.n_steps)
     first = max(0, until - steps)
     while sim.step_index < first:
@@ -206,9 +203,6 @@ def run(args) -> int:
                   "iteration, Hencky)", flush=True)
             continue
         if case == "factorisation":
-            from sim.apps.cli import resolve_scene
-            from sim.apps.study import factorisation_report
-
             fig7 = factorisation_report(str(resolve_scene("cantilever")), elements, FIG7_LEVELS,
                                         Path(args.out) / "factorisation", args.repeat)
             rows += [{"case": "fig7", **r} for r in fig7]
@@ -233,7 +227,7 @@ def run(args) -> int:
     (out / "bench.json").write_text(results.dumps({"meta": meta, "rows": rows}, nulls=True,
                                                   indent=1))
     print(f"wrote {out / 'bench.json'}")
-    return 0
+    return OK
 
 
 def add_parser(sub) -> None:

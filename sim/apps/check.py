@@ -2,9 +2,9 @@
 
 Each (case, element) runs in a child process with a wall-clock budget and is killed when over it.
 Every case states the outcome it must end in, per element where they differ: ``converged`` (and
-then physically right: the supports carry what is applied, see :func:`measure`), ``rejected``
-(input that is wrong, with an error naming the field or the element), or a failure class
-(:data:`FAILURES`: what the solver's diagnostic names as the cause). Anything else - another
+then physically right: the supports carry what is applied, see ``sim.apps.cases.force_balance``),
+``rejected`` (input that is wrong, with an error naming the field or the element), or a failure
+class (:data:`FAILURES`: what the solver's diagnostic names as the cause). Anything else - another
 outcome, an unclassified failure, a crash, a non-finite probe, a timeout - is a problem.
 
 The base is the cantilever plate (paper Fig. 5) at a coarse size with the same in-plane node
@@ -16,8 +16,6 @@ Q3T, 10 for quartic.
 
 from __future__ import annotations
 
-import math
-import multiprocessing as mp
 import signal
 import sys
 import tempfile
@@ -28,6 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from sim import results
+from sim.apps.cases import isolated_context, run_isolated
+from sim.apps.common import FAILED, OK, load, resolve_scene
 
 BASE = "cantilever"
 TOOLS = "beam_forming"
@@ -162,90 +162,6 @@ def write_sliver_obj(path: Path, size=(0.7, 0.07), edge=DEFAULT_EDGE, eps=1e-3,
     return len(F)
 
 
-def measure(sim) -> dict:
-    """Force balance in z and the residual's round-off floor at the final state.
-
-    The elastic forces sum to zero over the nodes (translation invariance), so at equilibrium
-    the supports carry exactly what the other terms apply: ``support`` = sum of the total
-    gradient's z over the DoFs held in z (the clamp reaction), ``applied`` = sum of the z
-    gradient of the loads, inertia and tools over the shell's nodes (the weight, for the
-    static cantilever). ``balance`` = |support - applied| over the sum of the magnitudes (a
-    punch and a die balance each other: their sum is no scale)."""
-    from sim.newton import measure_floor
-
-    m = sim.model
-    n = m.shell.n_nodes
-    x = sim.x
-    g = m.problem.gradient(x)
-    support = float(g[:n, 2][m.problem.fixed[:n, 2]].sum())
-    applied = scale = abs(support)
-    applied = 0.0
-    for t in m.problem.terms:
-        if t.name != "elasticity":
-            gt = np.zeros_like(x)
-            t.add_gradient(x, gt)
-            applied += (s := float(gt[:n, 2].sum()))
-            scale += abs(s)
-    free = ~m.problem.fixed
-    gf = np.where(free, g, 0.0)
-    E = m.problem.energy(x)
-    floor = measure_floor(m.problem, x, E, gf, free, abs(E)).force if np.isfinite(E) else None
-    return {"support_z": support, "applied_z": applied,
-            "balance": abs(support - applied) / scale if scale > 0 else 0.0, "floor": floor}
-
-
-def _child(conn, scene_path: str, overrides: dict) -> None:
-    from sim.apps.sweep import run_case
-
-    # on SIGTERM exit through Python, so numba's process lock is released and not reported as a
-    # leaked semaphore; a child stuck in a kernel gets SIGKILL after a grace period
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
-    try:
-        conn.send(run_case(scene_path, overrides, measure=measure))
-    except Exception as exc:  # noqa: BLE001 - anything but a diagnosed failure is a crash
-        conn.send({"status": "crashed", "reason": f"{type(exc).__name__}: {exc}", "probes": {}})
-
-
-def run_isolated(scene_path: str, overrides: dict, budget: float, ctx=None) -> dict:
-    """``run_case`` in a child process; killed after ``budget`` seconds (status ``timeout``).
-    The budget and ``elapsed`` start once the child is forked: the first ``start`` also starts
-    the forkserver, whose imports are no case's time."""
-    ctx = ctx or _context()
-    parent, child = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, args=(child, scene_path, overrides), daemon=True)
-    p.start()
-    t0 = time.perf_counter()
-    child.close()
-    try:
-        if parent.poll(budget):
-            out = parent.recv()
-        else:
-            p.terminate()
-            p.join(2)
-            if p.is_alive():
-                p.kill()
-            out = {"status": "timeout", "reason": f"killed after the {budget:g} s budget",
-                   "probes": {}}
-    except EOFError:  # the child died without a word: a signal or a hard exit
-        p.join(5)
-        out = {"status": "crashed", "reason": f"child exited with code {p.exitcode}",
-               "probes": {}}
-    p.join(5)
-    parent.close()
-    out["elapsed"] = time.perf_counter() - t0
-    if any(not math.isfinite(v) for v in out.get("probes", {}).values()):
-        out.update(status="nan", reason=f"non-finite probe ({out.get('reason')})")
-    return out
-
-
-def _context():
-    """Children forked from a clean server that has the solver imported (saves ~1 s a case);
-    never forked from this process, whose numba/MKL threads may hold locks."""
-    ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["sim.apps.sweep", "sim.simulation", "sim.scene"])
-    return ctx
-
-
 def outcome(out: dict) -> str:
     """The run's outcome: converged, rejected, a failure class from its diagnostic, or what
     went wrong (timeout, crashed, nan, unclassified failure)."""
@@ -281,10 +197,8 @@ def run_check(cases: list[Case], elements: list[str], budget: float, progress=No
 
 
 def _run_all(cases, elements, budget, tmp: Path, progress, edges) -> list[dict]:
-    from sim.apps.cli import resolve_scene
-
     rows = []
-    ctx = _context()
+    ctx = isolated_context()
     for c in cases:
         for el in elements:
             row = {"case": c.name, "what": c.what, "element": el, "expect": c.expected(el)}
@@ -364,16 +278,13 @@ def select(cases: list[Case], names: str | None) -> list[Case]:
 
 
 def run(args) -> int:
-    from sim.apps.cli import resolve_scene
-    from sim.scene import load_scene
-
     # a terminated check exits through Python, which stops its running child and server
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     elements = args.elements.split(",")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    cases = select(make_cases(load_scene(resolve_scene(BASE))), args.cases)
+    cases = select(make_cases(load(BASE)), args.cases)
     rows = run_check(cases, elements, args.budget, progress=lambda r: print(
         f"{r['case']:20s} {r['element']:9s} {r['outcome']:26s} {r['elapsed']:6.1f} s "
         f"{r['verdict']}", file=sys.stderr, flush=True))
@@ -389,7 +300,7 @@ def run(args) -> int:
     (out / "check.json").write_text(results.dumps({"wall": wall, "budget": args.budget,
                                                    "rows": rows}, nulls=True, indent=1))
     print(md)
-    return 1 if bad else 0
+    return FAILED if bad else OK
 
 
 def add_parser(sub) -> None:

@@ -1,0 +1,72 @@
+"""``q3t run``: one scene headless, with a progress bar, to result.json and final.npz."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from sim.apps.common import BAD_INPUT, FAILED, OK, load, parse_sets
+
+
+def _progress(sim, rec) -> None:
+    n = sim.n_steps
+    bar = "#" * int(30 * rec.step / n)
+    probes = " ".join(f"{k}={v:.4g}" for k, v in list(rec.probes.items())[:3])
+    print(f"\r[{bar:<30}] step {rec.step}/{n} t={rec.time:.3g} newton={rec.iterations} "
+          f"res={rec.residual:.2e} {probes}", end="" if rec.step < n else "\n",
+          file=sys.stderr, flush=True)
+
+
+def run(args) -> int:
+    from sim import results, size
+    from sim.scene import SceneError
+    from sim.simulation import Simulation
+
+    overrides = parse_sets(args.set)
+    if args.element:
+        overrides["shell.element"] = args.element
+    if not args.max_memory > 0:
+        raise SceneError(f"--max-memory: {args.max_memory:g} GiB is not a positive size")
+    scene = load(args.scene, overrides)  # SceneError: exit 2 (sim.apps.cli.main)
+    size.check(scene, args.max_memory * 2**30)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    out = Path(args.out or f"runs/{scene.name}-{scene.shell.element}-{stamp}")
+    try:
+        sim = Simulation.from_scene(scene)
+    except ValueError as exc:  # bad input the build finds (a region selecting no node, ...)
+        print(f"q3t: {exc}", file=sys.stderr)
+        return BAD_INPUT
+    except Exception as exc:  # a failed run, not bad input: say why, with a result.json
+        reason = f"build failed: {type(exc).__name__}: {exc}"
+        out.mkdir(parents=True, exist_ok=True)
+        results.write(out / "result.json", results.interrupted(scene.name, scene.shell.element,
+                                                           reason))
+        print(f"q3t: FAILED: {reason}\nwrote {out}/result.json", file=sys.stderr)
+        return FAILED
+    c = sim.result()["counts"]
+    print(f"{scene.name}: {scene.shell.element}, {c['elements']} elements, {c['dofs']} DoFs, "
+          f"solver {sim.model.built['linear_solver']}", file=sys.stderr)
+    ok = sim.run(progress=None if args.quiet else _progress)
+    sim.write(out)
+    if not ok:
+        print(f"\nq3t: FAILED: {sim.failure['reason']} at step {sim.failure['step']}",
+              file=sys.stderr)
+    print(f"wrote {out}/result.json ({sim.wall:.2f} s)", file=sys.stderr)
+    return OK if ok else FAILED
+
+
+def add_parser(sub) -> None:
+    from sim.size import DEFAULT_LIMIT
+
+    r = sub.add_parser("run", help="run a scene headless and write result.json")
+    r.add_argument("scene", help="scene name in scenes/ or a TOML path")
+    r.add_argument("--element", help="override shell.element (linear, q3t, quadratic, quartic)")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene value, e.g. material.nu=0.3 (repeatable)")
+    r.add_argument("--out", help="output folder (default runs/<scene>-<element>-<time>)")
+    r.add_argument("--quiet", action="store_true")
+    r.add_argument("--max-memory", type=float, default=DEFAULT_LIMIT / 2**30, metavar="GIB",
+                   help="refuse a scene whose model would need more memory to build (GiB; "
+                        "default %(default)g: half of a 24 GiB machine)")
+    r.set_defaults(func=run)
