@@ -68,7 +68,7 @@ def _iteration(sim, x) -> dict:
     projected Hessian evaluated again if the exact one is not positive definite), one solve;
     plus an energy-only evaluation (paid only when a full step is rejected)."""
     from sim.linsolve import SingularMatrix
-    from sim.newton import _solve
+    from sim.newton import solve_refined
 
     m, P = sim.model, sim.model.problem
     t = time.perf_counter()
@@ -82,7 +82,7 @@ def _iteration(sim, x) -> dict:
         P.solver.factor(data)
         projected = True
     t2 = time.perf_counter()
-    _solve(P, data, g.ravel())
+    solve_refined(P, data, g.ravel())
     t3 = time.perf_counter()
     P.energy(x)
     t4 = time.perf_counter()
