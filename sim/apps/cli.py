@@ -4,9 +4,25 @@ from __future__ import annotations
 
 import argparse
 import sys
+from importlib.metadata import entry_points
 
 from sim.apps import bench, check, run, study, sweep
 from sim.apps.common import BAD_INPUT
+
+# Entry-point group of commands from other installed packages, each an ``add_parser(sub)``:
+# the service's (serve, play, bench-service) come from server/ this way (pyproject.toml)
+COMMANDS = "q3t.commands"
+
+
+def add_plugins(sub) -> None:
+    """The commands of the ``q3t.commands`` entry points whose package imports here: the
+    service's exist only where the service stack is installed."""
+    for ep in entry_points(group=COMMANDS):
+        try:
+            add_parser = ep.load()
+        except ImportError:
+            continue
+        add_parser(sub)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -14,12 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = ap.add_subparsers(dest="cmd", required=True)
     for app in (run, bench, study, sweep, check):  # matplotlib and dask load only when run
         app.add_parser(sub)
-    try:  # the service commands exist only where the service stack is installed
-        from server import cli as server_cli
-    except ImportError:
-        server_cli = None
-    if server_cli is not None:
-        server_cli.add_parser(sub)
+    add_plugins(sub)
     args = ap.parse_args(argv)
     from sim.scene import SceneError
 
