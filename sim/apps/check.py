@@ -8,7 +8,8 @@ class (:data:`FAILURES`: what the solver's diagnostic names as the cause). Anyth
 outcome, an unclassified failure, a crash, a non-finite probe, a timeout - is a problem.
 
 The base is the cantilever plate (paper Fig. 5) at a coarse size with the same in-plane node
-spacing for every element (the paper's same-nodes comparison): 320 triangles for linear and Q3T,
+spacing for every element (the paper's same-nodes comparison, edge lengths from the element
+registry: ``Prism.edge_for_spacing``): 320 triangles for linear and Q3T,
 80 for quadratic, 20 for quartic, about 1,200-3,000 DoFs each. The tool cases use the beam
 forming scene (paper Fig. 1) at the same node spacing, 2.5 mm: 160 triangles for linear and
 Q3T, 10 for quartic.
@@ -28,13 +29,12 @@ import numpy as np
 from sim import results
 from sim.apps.cases import isolated_context, run_isolated
 from sim.apps.common import FAILED, OK, load, resolve_scene
+from sim.elements import ELEMENTS, get_element
 
 BASE = "cantilever"
 TOOLS = "beam_forming"
-EDGE = {"quadratic": 0.035, "quartic": 0.07}  # p nodes per edge: p times the edge length
-DEFAULT_EDGE = 0.0175
-TOOL_EDGE = 0.0025 / DEFAULT_EDGE  # the tool scene's edge, relative
-ELEMENTS = ["linear", "q3t", "quadratic", "quartic"]
+SPACING = 0.0175  # in-plane node spacing of every element on the base scene (m)
+TOOL_EDGE = 0.0025 / SPACING  # the tool scene's spacing, relative
 
 # Failure classes, each with the words of the solver's diagnostic that name it, in the order
 # they are looked for (a round-off floor message wraps the way the iteration ended).
@@ -130,7 +130,12 @@ def make_cases(scene) -> list[Case]:
     return cs
 
 
-def write_sliver_obj(path: Path, size=(0.7, 0.07), edge=DEFAULT_EDGE, eps=1e-3,
+def base_edge(element: str) -> float:
+    """The base scene's mesh edge length for ``element``: its nodes ``SPACING`` apart."""
+    return get_element(element).edge_for_spacing(SPACING)
+
+
+def write_sliver_obj(path: Path, size=(0.7, 0.07), edge=SPACING, eps=1e-3,
                      kind: str = "sliver") -> int:
     """The rectangle mesh with 4 interior vertices moved to ``eps`` of the way from the midpoint
     of an opposite edge (of one of their triangles): slivers of aspect ratio ~1/eps. The midpoint
@@ -190,8 +195,10 @@ def verdict(case: Case, element: str, out: dict) -> str:
 
 def run_check(cases: list[Case], elements: list[str], budget: float, progress=None,
               edges: dict | None = None) -> list[dict]:
-    """Every case with every element; ``edges`` overrides the mesh edge length per element."""
-    edges = {**EDGE, **(edges or {})}
+    """Every case with every element; ``edges`` overrides the mesh edge length per element
+    (default: ``base_edge``, the same node spacing for all; a name the registry does not know runs
+    at ``SPACING``, for its scene to reject)."""
+    edges = {**{el: base_edge(el) for el in elements if el in ELEMENTS}, **(edges or {})}
     with tempfile.TemporaryDirectory() as tmp:
         return _run_all(cases, elements, budget, Path(tmp), progress, edges)
 
@@ -207,13 +214,13 @@ def _run_all(cases, elements, budget, tmp: Path, progress, edges) -> list[dict]:
                              "reason": c.skip[el], "verdict": "skipped"})
                 continue
             # the same node spacing for every element, on the tool scene too (2.5 mm)
-            edge = edges.get(el, DEFAULT_EDGE) * (1.0 if c.scene == BASE else TOOL_EDGE)
-            o = {"shell.element": el, "mesh.edge_length": edge, **c.overrides}
+            h = edges.get(el, SPACING) * (1.0 if c.scene == BASE else TOOL_EDGE)
+            o = {"shell.element": el, "mesh.edge_length": h, **c.overrides}
             if c.mesh:
-                edge = min(o["mesh.edge_length"], 0.035)  # two rows of cells at least
-                obj = tmp / f"{c.mesh}-{edge}.obj"
+                h = min(o["mesh.edge_length"], 0.035)  # two rows of cells at least
+                obj = tmp / f"{c.mesh}-{h}.obj"
                 if not obj.exists():
-                    write_sliver_obj(obj, edge=edge, kind=c.mesh)
+                    write_sliver_obj(obj, edge=h, kind=c.mesh)
                 o.update({"mesh.kind": "file", "mesh.path": str(obj)})
             out = run_isolated(str(resolve_scene(c.scene)), o, budget, ctx)
             rows.append({**row, **out, "overrides": o, "outcome": outcome(out),
@@ -290,8 +297,9 @@ def run(args) -> int:
         f"{r['verdict']}", file=sys.stderr, flush=True))
     wall = time.perf_counter() - t0
     bad = [r for r in rows if r["verdict"].startswith("PROBLEM")]
-    md = (f"# q3t check\n\nBase: `{BASE}` scene, edge {DEFAULT_EDGE} m "
-          f"({', '.join(f'{k} {v} m' for k, v in EDGE.items())}); tool cases: `{TOOLS}`; budget "
+    wider = {el: base_edge(el) for el in ELEMENTS if base_edge(el) != SPACING}
+    md = (f"# q3t check\n\nBase: `{BASE}` scene, edge {SPACING} m "
+          f"({', '.join(f'{k} {v} m' for k, v in wider.items())}); tool cases: `{TOOLS}`; budget "
           f"{args.budget:g} s per run; {len(rows)} runs in {wall:.0f} s; {len(bad)} "
           f"problem(s).\n\n"
           + "\n".join(f"- **{c.name}**: {c.what}" for c in cases) + "\n\n" + summary(rows)
