@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: serve test test-loaded bench lint clean clean-cache venv
+.PHONY: serve test test-loaded bench docs lint clean clean-cache venv
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/pip || $(MAKE) --no-print-directory venv
@@ -28,6 +28,10 @@ test-loaded: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/q3t bench
+
+# the scene field reference, rendered from the schema (tests/test_docs.py fails when it is stale)
+docs: $(STAMP)
+	$(BIN)/python -m sim.scene_reference docs/scene-reference.md
 
 lint: $(STAMP)
 	$(BIN)/ruff check sim server tests

@@ -39,7 +39,11 @@ class FrameHistory:
         return step % self.stride == 0
 
     def add(self, frame: dict) -> None:
-        """Keep one frame of the current run (ignored if from another run or not newer)."""
+        """Keep one frame of the current run (ignored if from another run, or kept already).
+        Frames may arrive out of order: the rest frame and a paused run's frames come on the
+        solver's event queue, the running frames on the frame queue, and the bridge reads
+        both, so a loaded machine may hand it step 1 before step 0. An older frame is put in
+        its place if the stride keeps it (the first step always)."""
         kept = {"step": int(frame["step"]), "time": float(frame["time"]),
                 "positions": np.asarray(frame["positions"], np.float32),
                 "fields": {k: np.asarray(v, np.float32) for k, v in frame["fields"].items()},
@@ -49,13 +53,19 @@ class FrameHistory:
                                    (frame.get("tool_rotations") or {}).items()},
                 "probes": dict(frame.get("probes") or {}),
                 "iterations": frame.get("iterations", 0), "residual": frame.get("residual", 0.0)}
+        step = kept["step"]
         with self.lock:
-            if frame.get("run") != self.run or (self.steps and kept["step"] <= self.steps[-1]):
+            i = bisect.bisect_left(self.steps, step)
+            if frame.get("run") != self.run or (i < len(self.steps) and self.steps[i] == step):
                 return
-            if len(self.steps) > 1 and not self._keep(self.steps[-1]):
+            if i < len(self.steps):  # older than the newest
+                if i > 0 and not self._keep(step):
+                    return
+            elif len(self.steps) > 1 and not self._keep(self.steps[-1]):
                 self._pop(-1)  # the previous newest was only kept for being the newest
-            self.steps.append(kept["step"])
-            self.frames.append(kept)
+                i -= 1
+            self.steps.insert(i, step)
+            self.frames.insert(i, kept)
             self.bytes += frame_bytes(kept)
             while len(self.steps) > self.max_frames or (self.bytes > self.max_bytes
                                                         and len(self.steps) > 2):

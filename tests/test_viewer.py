@@ -211,6 +211,13 @@ def test_history_keeps_every_kth_frame_past_the_cap():
     assert h.at(13)["step"] == 8 and h.at(1000)["step"] == 37
     h.add(frame(38))
     assert h.summary()["steps"][-2:] == [32, 38]  # the old newest (off the grid) made way
+    h.add(frame(38))  # a frame kept already is not kept twice
+    assert h.summary()["steps"][-2:] == [32, 38]
+    late = FrameHistory(max_frames=10)  # the rest frame after step 1 (it came by the other queue)
+    late.reset("r")
+    for k in (1, 0, 2, 3):
+        late.add(frame(k))
+    assert late.summary()["steps"] == [0, 1, 2, 3] and late.at(0)["step"] == 0
     small = FrameHistory(max_frames=400, max_bytes=5 * 80)  # 80 bytes a frame
     small.reset("r")
     for k in range(20):
