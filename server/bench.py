@@ -290,7 +290,7 @@ def delivery(n_vertices: int, seconds: float, push_hz: float, rate: float) -> di
 def _serve(tmp: Path, port: int, vport: int, env: dict) -> subprocess.Popen:
     log = open(tmp / f"serve-{port}.log", "wb")  # noqa: SIM115 - the child holds it
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.cli", "serve", "cantilever", "--port", str(port),
+        [sys.executable, "-m", "sim.apps", "serve", "cantilever", "--port", str(port),
          "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
          "--runs-dir", str(tmp / "runs")], stdout=log, stderr=subprocess.STDOUT,
         env=env, start_new_session=True)

@@ -123,7 +123,7 @@ class Problem:
         return (E if np.isfinite(E) else np.inf), mag, g, data, (level, applied)
 
 
-def _solve(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinements: int = 2):
+def solve_refined(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinements: int = 2):
     """Solve with iterative refinement against the unshifted matrix: thin, nearly
     incompressible shells have condition numbers near 1e12 and one solve alone leaves residuals
     that stall Newton well above its tolerance. A refinement that does not lower the residual
@@ -309,7 +309,7 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
             return result(x0, False, it, E, f"singular factorisation: {exc}")
         t2 = time.perf_counter()
         timing.factorisation += t2 - t1
-        dx, rel = _solve(problem, data, g.ravel())
+        dx, rel = solve_refined(problem, data, g.ravel())
         dx = -dx.reshape(x.shape)
         dx[~free] = 0.0
         timing.solve += time.perf_counter() - t2

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from sim import size
-from sim.cli import main
+from sim.apps.cli import main
 from sim.scene import SceneError, load_scene
 from sim.simulation import Simulation
 

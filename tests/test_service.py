@@ -682,7 +682,7 @@ def test_ctrl_c_stops_the_run_and_the_server(tmp_path):
     port = free_port()
     log = open(tmp_path / "server.log", "wb")  # noqa: SIM115 - closed below
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.cli", "serve", "long", "--port", str(port), "--no-viewer",
+        [sys.executable, "-m", "sim.apps", "serve", "long", "--port", str(port), "--no-viewer",
          "--scenes-dir", str(tmp_path / "scenes"), "--runs-dir", str(tmp_path / "runs")],
         stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
         env={**os.environ, "PYTHONPATH": str(ROOT)})
@@ -924,7 +924,7 @@ def test_sigterm_stops_the_server_cleanly(tmp_path):
     (tmp_path / "scenes" / "tiny.toml").write_text(tiny_toml())
     port = free_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.cli", "serve", "tiny", "--port", str(port), "--no-viewer",
+        [sys.executable, "-m", "sim.apps", "serve", "tiny", "--port", str(port), "--no-viewer",
          "--scenes-dir", str(tmp_path / "scenes"), "--runs-dir", str(tmp_path / "runs")],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
         env={**os.environ, "PYTHONPATH": str(ROOT)})

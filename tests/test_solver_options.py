@@ -37,7 +37,7 @@ def test_point_load_tip_deflection_matches_euler_bernoulli():
 
 def test_scipy_fallback_matches_pardiso():
     """Same Newton path, different factorisation: both solves are refined to 1e-10 of the
-    right-hand side (sim.newton._solve), so the answers agree far below Newton's rtol
+    right-hand side (sim.newton.solve_refined), so the answers agree far below Newton's rtol
     (measured 8e-14 relative)."""
     sims = {}
     for name in ("pardiso", "scipy"):
