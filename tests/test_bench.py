@@ -3,8 +3,8 @@ the per-iteration cost; here at two coarse levels."""
 
 import json
 
-from sim import bench
-from sim.cli import main
+from sim.apps import bench
+from sim.apps.cli import main
 
 
 def test_bench_includes_the_factorisation_comparison(tmp_path, monkeypatch, capsys):
@@ -25,3 +25,14 @@ def test_bench_includes_the_factorisation_comparison(tmp_path, monkeypatch, caps
     assert by[("q3t", 0.0175)]["nodes"] == by[("quadratic", 0.035)]["nodes"]
     assert (out / "factorisation" / "report.json").is_file()
     assert "median [s]" in capsys.readouterr().out
+
+
+def test_bench_refuses_an_unknown_case_or_element_before_timing_anything(tmp_path, capsys):
+    """Bad input exits 2 naming the option (it was a KeyError traceback), and writes nothing."""
+    for opts, words in ((["--cases", "beam,cupp"], "--cases: unknown cupp"),
+                        (["--cases", "beam", "--elements", "linear,cubic"],
+                         "--elements: unknown element 'cubic'")):
+        assert main(["bench", *opts, "--out", str(tmp_path / "b")]) == 2
+        err = capsys.readouterr().err
+        assert words in err and "Traceback" not in err
+    assert not (tmp_path / "b").exists()

@@ -65,7 +65,7 @@ def served(tmp_path_factory):
     # warnings on a cold cache) and then blocks the server mid-write
     log = open(tmp / "server.log", "wb")  # noqa: SIM115 - closed after the server stops
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.cli", "serve", "tiny", "--port", str(port),
+        [sys.executable, "-m", "sim.apps", "serve", "tiny", "--port", str(port),
          "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
          "--runs-dir", str(tmp / "runs"), "--step-delay", "0.2"],
         env={**env, "PYTHONPATH": str(ROOT)}, stdout=log, stderr=subprocess.STDOUT)

@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.check import (
+from sim.apps.cases import run_isolated
+from sim.apps.check import (
     BALANCE,
     FAILURES,
     Case,
     make_cases,
     outcome,
     run_check,
-    run_isolated,
     select,
     summary,
     table,

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from sim.cli import main
+from sim.apps.cli import main
 
 COARSE = ["--set", "mesh.edge_length=0.035", "--set", "stepping.steps=2"]
 

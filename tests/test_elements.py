@@ -294,3 +294,14 @@ def test_chosen_rule_has_no_spurious_mode_on_any_mesh(name, shape):
     assert _spurious_modes(name, rule, shape) == (1 if shape == "vertex_hang" else 0)
     scene.shell.quadrature = (1, 2)  # a scene's rule always wins
     assert quadrature_rule(scene, e, RANK_MESHES[shape]()) == ((1, 2), "scene")
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_edge_for_spacing_puts_the_in_plane_nodes_that_far_apart(name):
+    """The same-nodes comparison (q3t check, q3t bench): at ``edge_for_spacing(s)`` every
+    element's nodes sit on one grid of spacing s, whatever its degree."""
+    e, s = ELEMENTS[name], 0.01
+    sh = shell.extrude(mesh.rectangle((0.08, 0.04), e.edge_for_spacing(s)), 0.001, e)
+    for axis, length in ((0, 0.08), (1, 0.04)):
+        coords = np.unique(np.round(sh.rest[:, axis], 12))  # 1e-12 m: round-off of the grid
+        assert np.allclose(np.diff(coords), s) and len(coords) == round(length / s) + 1

@@ -391,9 +391,9 @@ def test_plastic_bench_yields_half_the_points(monkeypatch):
     """`q3t bench --cases plastic` at a coarse size: the Swift sheet is partly yielded (its
     yield stress is the median von Mises stress) and the ratios against both elastic sheets are
     reported."""
-    from sim import bench
+    from sim.apps import bench
 
-    monkeypatch.setitem(bench.CASES["beam"]["edge"], "q3t", 0.035)
+    monkeypatch.setitem(bench.CASES["beam"], "spacing", 0.035)
     rows = bench.plastic(repeat=2)
     assert [r["case"] for r in rows] == ["beam_neo_hookean", "beam_hencky", "beam_plastic"]
     assert len({r["dofs"] for r in rows}) == 1  # the same size

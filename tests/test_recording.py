@@ -139,7 +139,7 @@ def start_server(tmp: Path, log_name: str) -> tuple[subprocess.Popen, str]:
     port = free_port()
     log = open(tmp / log_name, "wb")  # noqa: SIM115 - the child keeps it; closed with the test
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.cli", "serve", "long", "--port", str(port), "--no-viewer",
+        [sys.executable, "-m", "sim.apps", "serve", "long", "--port", str(port), "--no-viewer",
          "--scenes-dir", str(tmp / "scenes"), "--runs-dir", str(tmp / "runs")],
         stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
         env={**os.environ, "PYTHONPATH": str(ROOT)})

@@ -11,13 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.cli import main
+from sim.apps.cli import main
+from sim.apps.factorisation import factorisation_times
+from sim.apps.overhead import all_terms_model, all_terms_overrides, terms_overhead
+from sim.apps.study import curve_error, make_plan, run_study
+from sim.apps.study_report import write_factorisation, write_study
 from sim.model.build import build_model, frame_fields
-from sim.overhead import all_terms_model, all_terms_overrides, terms_overhead
 from sim.scene.load import SceneError, load_scene
 from sim.stepping.simulation import Simulation
-from sim.study import curve_error, factorisation_times, make_plan, run_study
-from sim.study_report import write_factorisation, write_study
 
 ROOT = Path(__file__).resolve().parent.parent
 CONVERGENCE = str(ROOT / "scenes" / "convergence.toml")
@@ -153,7 +154,7 @@ def test_study_command_line_and_its_exit_codes(tmp_path, capsys):
 def test_a_case_over_its_budget_stops_after_a_step_and_the_study_goes_on(tmp_path):
     """--budget: a case that has spent its seconds stops after the step that used them up,
     marked timeout with where it stood; the others and the report go on."""
-    from sim.sweep import run_case
+    from sim.apps.cases import run_case
 
     # a budget of 1 ns is spent before the first step ends: the case stops after it
     r = run_case(CONVERGENCE, {"mesh.edge_length": 0.07, "stepping.steps": 3}, budget=1e-9)

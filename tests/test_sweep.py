@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from sim.sweep import cases, parse_grid, run_case, split_values
+from sim.apps.cases import run_case
+from sim.apps.sweep import cases, parse_grid, split_values
 
 ROOT = Path(__file__).resolve().parent.parent
 CANTILEVER = str(ROOT / "scenes" / "cantilever.toml")
@@ -95,7 +96,7 @@ def _statuses(res: dict, *keys: str) -> dict:
 def test_sweep_on_a_local_cluster_reports_failures(tmp_path):
     """8 cases on 2 workers: 4 invalid, 2 solver failures, 2 converged; every case has its
     row, the sweep is complete."""
-    cmd = [sys.executable, "-m", "sim.cli", "sweep", "cantilever",
+    cmd = [sys.executable, "-m", "sim.apps", "sweep", "cantilever",
            "--grid", "material.nu=0.3,0.5", "--grid", "solver.max_iterations=1,30",
            "--grid", "stepping.steps=1,2",
            "--set", "mesh.edge_length=0.07", "--set", "stepping.max_cutbacks=0",
@@ -123,7 +124,7 @@ def test_sweep_timeout_keeps_what_finished_and_ends_every_case(tmp_path):
     behind it: both are cut and marked timeout, the exit code is 1, the invalid cases (sorted
     out before any clock starts) keep their rows, and the running case's child ends with the
     sweep."""
-    cmd = [sys.executable, "-m", "sim.cli", "sweep", "cantilever",
+    cmd = [sys.executable, "-m", "sim.apps", "sweep", "cantilever",
            "--grid", "material.nu=0.3,0.5", "--grid", f"stepping.steps={HUNG}",
            "--set", "mesh.edge_length=0.07", "--workers", "1", "--timeout", "3",
            "--out", str(tmp_path)]
@@ -144,7 +145,7 @@ def test_sweep_timeout_keeps_what_finished_and_ends_every_case(tmp_path):
 CLUSTER = """
 import sys, dask
 from distributed import LocalCluster
-from sim.cli import main
+from sim.apps.cli import main
 # non-daemonic workers may start the child processes that enforce per-case budgets
 with dask.config.set({"distributed.worker.daemon": False}), LocalCluster(
         n_workers=1, threads_per_worker=1, dashboard_address=None, silence_logs=40) as c:

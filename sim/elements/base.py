@@ -86,6 +86,11 @@ class Prism:
     def n_nodes(self) -> int:
         return self.n_tri * self.n_layers
 
+    def edge_for_spacing(self, spacing: float) -> float:
+        """The mesh edge length that puts this element's in-plane nodes ``spacing`` apart: an
+        edge of degree p carries p + 1 nodes, p spacings (the paper's same-nodes comparison)."""
+        return self.p * spacing
+
     def triangle_basis(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """In-plane shape functions at ``uv (n, 2)``: values (n, n_tri), d/du d/dv (n, n_tri, 2)."""
         lam = np.stack([uv[:, 0], uv[:, 1], 1.0 - uv[:, 0] - uv[:, 1]], axis=1)

@@ -2,13 +2,14 @@
 
 Each (case, element) runs in a child process with a wall-clock budget and is killed when over it.
 Every case states the outcome it must end in, per element where they differ: ``converged`` (and
-then physically right: the supports carry what is applied, see :func:`measure`), ``rejected``
-(input that is wrong, with an error naming the field or the element), or a failure class
-(:data:`FAILURES`: what the solver's diagnostic names as the cause). Anything else - another
+then physically right: the supports carry what is applied, see ``sim.apps.cases.force_balance``),
+``rejected`` (input that is wrong, with an error naming the field or the element), or a failure
+class (:data:`FAILURES`: what the solver's diagnostic names as the cause). Anything else - another
 outcome, an unclassified failure, a crash, a non-finite probe, a timeout - is a problem.
 
 The base is the cantilever plate (paper Fig. 5) at a coarse size with the same in-plane node
-spacing for every element (the paper's same-nodes comparison): 320 triangles for linear and Q3T,
+spacing for every element (the paper's same-nodes comparison, edge lengths from the element
+registry: ``Prism.edge_for_spacing``): 320 triangles for linear and Q3T,
 80 for quadratic, 20 for quartic, about 1,200-3,000 DoFs each. The tool cases use the beam
 forming scene (paper Fig. 1) at the same node spacing, 2.5 mm: 160 triangles for linear and
 Q3T, 10 for quartic.
@@ -16,8 +17,6 @@ Q3T, 10 for quartic.
 
 from __future__ import annotations
 
-import math
-import multiprocessing as mp
 import signal
 import sys
 import tempfile
@@ -27,14 +26,15 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.apps.cases import isolated_context, run_isolated
+from sim.apps.common import FAILED, OK, load, resolve_scene
+from sim.elements import ELEMENTS, get_element
 from sim.frames import results
 
 BASE = "cantilever"
 TOOLS = "beam_forming"
-EDGE = {"quadratic": 0.035, "quartic": 0.07}  # p nodes per edge: p times the edge length
-DEFAULT_EDGE = 0.0175
-TOOL_EDGE = 0.0025 / DEFAULT_EDGE  # the tool scene's edge, relative
-ELEMENTS = ["linear", "q3t", "quadratic", "quartic"]
+SPACING = 0.0175  # in-plane node spacing of every element on the base scene (m)
+TOOL_EDGE = 0.0025 / SPACING  # the tool scene's spacing, relative
 
 # Failure classes, each with the words of the solver's diagnostic that name it, in the order
 # they are looked for (a round-off floor message wraps the way the iteration ended).
@@ -130,7 +130,12 @@ def make_cases(scene) -> list[Case]:
     return cs
 
 
-def write_sliver_obj(path: Path, size=(0.7, 0.07), edge=DEFAULT_EDGE, eps=1e-3,
+def base_edge(element: str) -> float:
+    """The base scene's mesh edge length for ``element``: its nodes ``SPACING`` apart."""
+    return get_element(element).edge_for_spacing(SPACING)
+
+
+def write_sliver_obj(path: Path, size=(0.7, 0.07), edge=SPACING, eps=1e-3,
                      kind: str = "sliver") -> int:
     """The rectangle mesh with 4 interior vertices moved to ``eps`` of the way from the midpoint
     of an opposite edge (of one of their triangles): slivers of aspect ratio ~1/eps. The midpoint
@@ -162,90 +167,6 @@ def write_sliver_obj(path: Path, size=(0.7, 0.07), edge=DEFAULT_EDGE, eps=1e-3,
     return len(F)
 
 
-def measure(sim) -> dict:
-    """Force balance in z and the residual's round-off floor at the final state.
-
-    The elastic forces sum to zero over the nodes (translation invariance), so at equilibrium
-    the supports carry exactly what the other terms apply: ``support`` = sum of the total
-    gradient's z over the DoFs held in z (the clamp reaction), ``applied`` = sum of the z
-    gradient of the loads, inertia and tools over the shell's nodes (the weight, for the
-    static cantilever). ``balance`` = |support - applied| over the sum of the magnitudes (a
-    punch and a die balance each other: their sum is no scale)."""
-    from sim.solve.problem import measure_floor
-
-    m = sim.model
-    n = m.shell.n_nodes
-    x = sim.x
-    g = m.problem.gradient(x)
-    support = float(g[:n, 2][m.problem.fixed[:n, 2]].sum())
-    applied = scale = abs(support)
-    applied = 0.0
-    for t in m.problem.terms:
-        if t.name != "elasticity":
-            gt = np.zeros_like(x)
-            t.add_gradient(x, gt)
-            applied += (s := float(gt[:n, 2].sum()))
-            scale += abs(s)
-    free = ~m.problem.fixed
-    gf = np.where(free, g, 0.0)
-    E = m.problem.energy(x)
-    floor = measure_floor(m.problem, x, E, gf, free, abs(E)).force if np.isfinite(E) else None
-    return {"support_z": support, "applied_z": applied,
-            "balance": abs(support - applied) / scale if scale > 0 else 0.0, "floor": floor}
-
-
-def _child(conn, scene_path: str, overrides: dict) -> None:
-    from sim.sweep import run_case
-
-    # on SIGTERM exit through Python, so numba's process lock is released and not reported as a
-    # leaked semaphore; a child stuck in a kernel gets SIGKILL after a grace period
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
-    try:
-        conn.send(run_case(scene_path, overrides, measure=measure))
-    except Exception as exc:  # noqa: BLE001 - anything but a diagnosed failure is a crash
-        conn.send({"status": "crashed", "reason": f"{type(exc).__name__}: {exc}", "probes": {}})
-
-
-def run_isolated(scene_path: str, overrides: dict, budget: float, ctx=None) -> dict:
-    """``run_case`` in a child process; killed after ``budget`` seconds (status ``timeout``).
-    The budget and ``elapsed`` start once the child is forked: the first ``start`` also starts
-    the forkserver, whose imports are no case's time."""
-    ctx = ctx or _context()
-    parent, child = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, args=(child, scene_path, overrides), daemon=True)
-    p.start()
-    t0 = time.perf_counter()
-    child.close()
-    try:
-        if parent.poll(budget):
-            out = parent.recv()
-        else:
-            p.terminate()
-            p.join(2)
-            if p.is_alive():
-                p.kill()
-            out = {"status": "timeout", "reason": f"killed after the {budget:g} s budget",
-                   "probes": {}}
-    except EOFError:  # the child died without a word: a signal or a hard exit
-        p.join(5)
-        out = {"status": "crashed", "reason": f"child exited with code {p.exitcode}",
-               "probes": {}}
-    p.join(5)
-    parent.close()
-    out["elapsed"] = time.perf_counter() - t0
-    if any(not math.isfinite(v) for v in out.get("probes", {}).values()):
-        out.update(status="nan", reason=f"non-finite probe ({out.get('reason')})")
-    return out
-
-
-def _context():
-    """Children forked from a clean server that has the solver imported (saves ~1 s a case);
-    never forked from this process, whose numba/MKL threads may hold locks."""
-    ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["sim.sweep", "sim.stepping.simulation", "sim.scene.load"])
-    return ctx
-
-
 def outcome(out: dict) -> str:
     """The run's outcome: converged, rejected, a failure class from its diagnostic, or what
     went wrong (timeout, crashed, nan, unclassified failure)."""
@@ -274,17 +195,17 @@ def verdict(case: Case, element: str, out: dict) -> str:
 
 def run_check(cases: list[Case], elements: list[str], budget: float, progress=None,
               edges: dict | None = None) -> list[dict]:
-    """Every case with every element; ``edges`` overrides the mesh edge length per element."""
-    edges = {**EDGE, **(edges or {})}
+    """Every case with every element; ``edges`` overrides the mesh edge length per element
+    (default: ``base_edge``, the same node spacing for all; a name the registry does not know runs
+    at ``SPACING``, for its scene to reject)."""
+    edges = {**{el: base_edge(el) for el in elements if el in ELEMENTS}, **(edges or {})}
     with tempfile.TemporaryDirectory() as tmp:
         return _run_all(cases, elements, budget, Path(tmp), progress, edges)
 
 
 def _run_all(cases, elements, budget, tmp: Path, progress, edges) -> list[dict]:
-    from sim.cli import resolve_scene
-
     rows = []
-    ctx = _context()
+    ctx = isolated_context()
     for c in cases:
         for el in elements:
             row = {"case": c.name, "what": c.what, "element": el, "expect": c.expected(el)}
@@ -293,13 +214,13 @@ def _run_all(cases, elements, budget, tmp: Path, progress, edges) -> list[dict]:
                              "reason": c.skip[el], "verdict": "skipped"})
                 continue
             # the same node spacing for every element, on the tool scene too (2.5 mm)
-            edge = edges.get(el, DEFAULT_EDGE) * (1.0 if c.scene == BASE else TOOL_EDGE)
-            o = {"shell.element": el, "mesh.edge_length": edge, **c.overrides}
+            h = edges.get(el, SPACING) * (1.0 if c.scene == BASE else TOOL_EDGE)
+            o = {"shell.element": el, "mesh.edge_length": h, **c.overrides}
             if c.mesh:
-                edge = min(o["mesh.edge_length"], 0.035)  # two rows of cells at least
-                obj = tmp / f"{c.mesh}-{edge}.obj"
+                h = min(o["mesh.edge_length"], 0.035)  # two rows of cells at least
+                obj = tmp / f"{c.mesh}-{h}.obj"
                 if not obj.exists():
-                    write_sliver_obj(obj, edge=edge, kind=c.mesh)
+                    write_sliver_obj(obj, edge=h, kind=c.mesh)
                 o.update({"mesh.kind": "file", "mesh.path": str(obj)})
             out = run_isolated(str(resolve_scene(c.scene)), o, budget, ctx)
             rows.append({**row, **out, "overrides": o, "outcome": outcome(out),
@@ -364,23 +285,21 @@ def select(cases: list[Case], names: str | None) -> list[Case]:
 
 
 def run(args) -> int:
-    from sim.cli import resolve_scene
-    from sim.scene.load import load_scene
-
     # a terminated check exits through Python, which stops its running child and server
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     elements = args.elements.split(",")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    cases = select(make_cases(load_scene(resolve_scene(BASE))), args.cases)
+    cases = select(make_cases(load(BASE)), args.cases)
     rows = run_check(cases, elements, args.budget, progress=lambda r: print(
         f"{r['case']:20s} {r['element']:9s} {r['outcome']:26s} {r['elapsed']:6.1f} s "
         f"{r['verdict']}", file=sys.stderr, flush=True))
     wall = time.perf_counter() - t0
     bad = [r for r in rows if r["verdict"].startswith("PROBLEM")]
-    md = (f"# q3t check\n\nBase: `{BASE}` scene, edge {DEFAULT_EDGE} m "
-          f"({', '.join(f'{k} {v} m' for k, v in EDGE.items())}); tool cases: `{TOOLS}`; budget "
+    wider = {el: base_edge(el) for el in ELEMENTS if base_edge(el) != SPACING}
+    md = (f"# q3t check\n\nBase: `{BASE}` scene, edge {SPACING} m "
+          f"({', '.join(f'{k} {v} m' for k, v in wider.items())}); tool cases: `{TOOLS}`; budget "
           f"{args.budget:g} s per run; {len(rows)} runs in {wall:.0f} s; {len(bad)} "
           f"problem(s).\n\n"
           + "\n".join(f"- **{c.name}**: {c.what}" for c in cases) + "\n\n" + summary(rows)
@@ -389,7 +308,7 @@ def run(args) -> int:
     (out / "check.json").write_text(results.dumps({"wall": wall, "budget": args.budget,
                                                    "rows": rows}, nulls=True, indent=1))
     print(md)
-    return 1 if bad else 0
+    return FAILED if bad else OK
 
 
 def add_parser(sub) -> None:

@@ -1,38 +1,12 @@
-"""The ``q3t`` command: run, bench, serve, play, study, check."""
+"""``q3t run``: one scene headless, with a progress bar, to result.json and final.npz."""
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
 
-SCENES = Path(__file__).resolve().parent.parent / "scenes"
-
-
-def resolve_scene(name: str) -> Path:
-    """A TOML path or a scene name in scenes/; SceneError (exit 2) otherwise."""
-    from sim.scene.load import SceneError
-
-    p = Path(name)
-    if p.is_file():
-        return p
-    q = SCENES / f"{name}.toml"
-    if q.is_file():
-        return q
-    raise SceneError(f"no scene {name!r} (not a file, not in {SCENES})")
-
-
-def parse_sets(items: list[str]) -> dict:
-    from sim.scene.load import SceneError, parse_value
-
-    out = {}
-    for it in items:
-        if "=" not in it:
-            raise SceneError(f"--set needs key.path=value, got {it!r}")
-        k, v = it.split("=", 1)
-        out[k.strip()] = parse_value(v.strip())
-    return out
+from sim.apps.common import BAD_INPUT, FAILED, OK, load, parse_sets
 
 
 def _progress(sim, rec) -> None:
@@ -44,10 +18,10 @@ def _progress(sim, rec) -> None:
           file=sys.stderr, flush=True)
 
 
-def cmd_run(args) -> int:
+def run(args) -> int:
     from sim.frames import results
     from sim.model import size
-    from sim.scene.load import SceneError, load_scene
+    from sim.scene.load import SceneError
     from sim.stepping.simulation import Simulation
 
     overrides = parse_sets(args.set)
@@ -55,7 +29,7 @@ def cmd_run(args) -> int:
         overrides["shell.element"] = args.element
     if not args.max_memory > 0:
         raise SceneError(f"--max-memory: {args.max_memory:g} GiB is not a positive size")
-    scene = load_scene(resolve_scene(args.scene), overrides)  # SceneError: exit 2 (main)
+    scene = load(args.scene, overrides)  # SceneError: exit 2 (sim.apps.cli.main)
     size.check(scene, args.max_memory * 2**30)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = Path(args.out or f"runs/{scene.name}-{scene.shell.element}-{stamp}")
@@ -63,14 +37,14 @@ def cmd_run(args) -> int:
         sim = Simulation.from_scene(scene)
     except ValueError as exc:  # bad input the build finds (a region selecting no node, ...)
         print(f"q3t: {exc}", file=sys.stderr)
-        return 2
+        return BAD_INPUT
     except Exception as exc:  # a failed run, not bad input: say why, with a result.json
         reason = f"build failed: {type(exc).__name__}: {exc}"
         out.mkdir(parents=True, exist_ok=True)
         results.write(out / "result.json", results.interrupted(scene.name, scene.shell.element,
                                                            reason))
         print(f"q3t: FAILED: {reason}\nwrote {out}/result.json", file=sys.stderr)
-        return 1
+        return FAILED
     c = sim.result()["counts"]
     print(f"{scene.name}: {scene.shell.element}, {c['elements']} elements, {c['dofs']} DoFs, "
           f"solver {sim.model.built['linear_solver']}", file=sys.stderr)
@@ -80,14 +54,12 @@ def cmd_run(args) -> int:
         print(f"\nq3t: FAILED: {sim.failure['reason']} at step {sim.failure['step']}",
               file=sys.stderr)
     print(f"wrote {out}/result.json ({sim.wall:.2f} s)", file=sys.stderr)
-    return 0 if ok else 1
+    return OK if ok else FAILED
 
 
-def main(argv: list[str] | None = None) -> int:
+def add_parser(sub) -> None:
     from sim.model.size import DEFAULT_LIMIT
 
-    ap = argparse.ArgumentParser(prog="q3t", description=__doc__)
-    sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="run a scene headless and write result.json")
     r.add_argument("scene", help="scene name in scenes/ or a TOML path")
     r.add_argument("--element", help="override shell.element (linear, q3t, quadratic, quartic)")
@@ -98,27 +70,4 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--max-memory", type=float, default=DEFAULT_LIMIT / 2**30, metavar="GIB",
                    help="refuse a scene whose model would need more memory to build (GiB; "
                         "default %(default)g: half of a 24 GiB machine)")
-    r.set_defaults(func=cmd_run)
-    from sim import bench, check, study, sweep
-
-    bench.add_parser(sub)
-    for mod in (study, sweep, check):  # matplotlib and dask are imported only when run
-        mod.add_parser(sub)
-    try:  # the service commands exist only where the service stack is installed
-        from server import cli as server_cli
-    except ImportError:
-        server_cli = None
-    if server_cli is not None:
-        server_cli.add_parser(sub)
-    args = ap.parse_args(argv)
-    from sim.scene.load import SceneError
-
-    try:
-        return args.func(args)
-    except SceneError as exc:  # bad input, whichever command read it: exit 2 like argparse
-        print(f"q3t: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    r.set_defaults(func=run)

@@ -1,6 +1,6 @@
 """``q3t bench``: per-Newton-iteration cost (assembly, factorisation, solve) at the paper's
 Table 1 sizes, and the factorisation comparison of its Fig. 7 on the cantilever (same elements /
-same nodes; ``sim.study.factorisation_report``, also ``q3t study --factorisation``).
+same nodes; ``sim.apps.factorisation``, also ``q3t study --factorisation``).
 
 Medians of ``--repeat`` runs; the machines are noisy, so compare ratios more than seconds.
 """
@@ -8,20 +8,25 @@ Medians of ``--repeat`` runs; the machines are noisy, so compare ratios more tha
 from __future__ import annotations
 
 import platform
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from sim.apps.common import BAD_INPUT, OK, load, resolve_scene
+from sim.apps.factorisation import factorisation_report
+from sim.elements import get_element
 from sim.frames import results
 
-# (case, element, edge length): the beam is the paper's 70 x 7 cm plate (4,504 triangles), the
-# cup a 60 mm disk (about 26,700 triangles); quadratic at half the edge count has the same nodes.
+# Each case: a scene and the in-plane node spacing of every element (the edge lengths follow
+# from the registry, ``case_edge``), at the paper's Table 1 sizes. The beam is its 70 x 7 cm plate:
+# 150 x 15 cells of linear and Q3T (4,500 triangles), a hair under 0.7 m / 150 so that the
+# quadratic's 7.5 cells across round up, to 75 x 8. The cup is a 60 mm disk (about 26,700
+# triangles of linear and Q3T).
 CASES = {
-    "beam": {"scene": "cantilever", "edge": {"linear": 0.0046667, "q3t": 0.0046667,
-                                              "quadratic": 0.0093333}},
-    "cup": {"scene": "cup_blank", "edge": {"linear": 0.00046, "q3t": 0.00046,
-                                            "quadratic": 0.00092}},
+    "beam": {"scene": "cantilever", "spacing": 0.00466665},
+    "cup": {"scene": "cup_blank", "spacing": 0.00046},
 }
 # Fig. 7 levels: the cantilever at 80 to 4,500 triangles; equal edge lengths give equal
 # elements, and Q3T at one level has the nodes of quadratic at the next coarser (about 2x edge)
@@ -30,12 +35,14 @@ PAPER = {("beam", "linear"): 0.184, ("beam", "q3t"): 0.298, ("beam", "quadratic"
          ("cup", "linear"): 0.812, ("cup", "q3t"): 1.887, ("cup", "quadratic"): 2.525}
 
 
-def _scene(case: str, element: str, edge: float, extra: dict | None = None):
-    from sim.cli import resolve_scene
-    from sim.scene.load import load_scene
+def case_edge(case: str, element: str) -> float:
+    """The mesh edge length of ``element`` in ``case``: its nodes at the case's spacing."""
+    return get_element(element).edge_for_spacing(CASES[case]["spacing"])
 
+
+def _scene(case: str, element: str, edge: float, extra: dict | None = None):
     overrides = {"shell.element": element, "mesh.edge_length": edge, **(extra or {})}
-    return load_scene(resolve_scene(CASES[case]["scene"]), overrides)
+    return load(CASES[case]["scene"], overrides)
 
 
 HENCKY = {"material.model": "hencky"}
@@ -69,7 +76,7 @@ def _iteration(sim, x) -> dict:
     projected Hessian evaluated again if the exact one is not positive definite), one solve;
     plus an energy-only evaluation (paid only when a full step is rejected)."""
     from sim.solve.linsolve import SingularMatrix
-    from sim.solve.problem import solve_refined as _solve
+    from sim.solve.problem import solve_refined
 
     m, P = sim.model, sim.model.problem
     t = time.perf_counter()
@@ -83,7 +90,7 @@ def _iteration(sim, x) -> dict:
         P.solver.factor(data)
         projected = True
     t2 = time.perf_counter()
-    _solve(P, data, g.ravel())
+    solve_refined(P, data, g.ravel())
     t3 = time.perf_counter()
     P.energy(x)
     t4 = time.perf_counter()
@@ -117,13 +124,13 @@ def plastic(repeat: int, element: str = "q3t") -> list[dict]:
     with the default Neo-Hookean (closed-form, SVD-free). Runs are interleaved, one iteration of
     each per round, so drifts of a shared machine hit all three alike; ratios are medians of the
     per-round ratios."""
-    edge = CASES["beam"]["edge"][element]
-    hencky = _prepare("beam", element, edge, HENCKY)
+    h = case_edge("beam", element)
+    hencky = _prepare("beam", element, h, HENCKY)
     y0 = float(np.median(hencky[0].model.elasticity.von_mises(hencky[1])))
     swift = {"material.model": "plastic", "material.yield_stress": y0,
              "material.hardening": {"law": "swift", "K": 3 * y0, "n": 0.2}}
-    cases = {"beam_neo_hookean": _prepare("beam", element, edge),
-             "beam_hencky": hencky, "beam_plastic": _prepare("beam", element, edge, swift)}
+    cases = {"beam_neo_hookean": _prepare("beam", element, h),
+             "beam_hencky": hencky, "beam_plastic": _prepare("beam", element, h, swift)}
     el = cases["beam_plastic"][0].model.elasticity
     fp, ep = el.fp_inv.copy(), el.ep.copy()
     el.commit(cases["beam_plastic"][1])  # which points would flow at this state
@@ -157,12 +164,10 @@ def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
     ``until``; the last ``steps`` of them are timed: seconds per Newton iteration and
     iterations per step while the punch nose, the die shoulder and the holder are in contact,
     with friction (its fixed point included) and plastic flow (mid-stroke by default)."""
-    from sim.cli import resolve_scene
-    from sim.scene.load import load_scene
     from sim.stepping.simulation import Simulation
 
-    sim = Simulation.from_scene(load_scene(resolve_scene("cup_drawing"), {
-        "shell.element": element, "mesh.edge_length": edge}))
+    sim = Simulation.from_scene(load("cup_drawing", {"shell.element": element,
+                                                     "mesh.edge_length": edge}))
     until = min(until, sim.n_steps)
     first = max(0, until - steps)
     while sim.step_index < first:
@@ -187,10 +192,30 @@ def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
             "total": sim.wall - wall, "paper_s": 1.887}
 
 
+KINDS = ("beam", "cup", "factorisation", "plastic", "forming")  # what --cases may name
+
+
+def _check_input(cases: list[str], elements: list[str]) -> None:
+    """ValueError naming the option, before anything is timed."""
+    unknown = [c for c in cases if c not in KINDS]
+    if unknown:
+        raise ValueError(f"--cases: unknown {', '.join(unknown)}; known: {', '.join(KINDS)}")
+    for el in elements:
+        try:
+            get_element(el)
+        except ValueError as exc:
+            raise ValueError(f"--elements: {exc}") from None
+
+
 def run(args) -> int:
     rows = []
     cases = args.cases.split(",")
     elements = args.elements.split(",")
+    try:
+        _check_input(cases, elements)
+    except ValueError as exc:
+        print(f"q3t bench: {exc}", file=sys.stderr)
+        return BAD_INPUT
     for case in cases:
         if case == "plastic":
             for r in plastic(args.repeat):
@@ -206,15 +231,12 @@ def run(args) -> int:
                   "iteration, Hencky)", flush=True)
             continue
         if case == "factorisation":
-            from sim.cli import resolve_scene
-            from sim.study import factorisation_report
-
             fig7 = factorisation_report(str(resolve_scene("cantilever")), elements, FIG7_LEVELS,
                                         Path(args.out) / "factorisation", args.repeat)
             rows += [{"case": "fig7", **r} for r in fig7]
             continue
         if case == "forming":
-            r = forming(CASES["cup"]["edge"]["q3t"], args.forming_steps, args.forming_to)
+            r = forming(case_edge("cup", "q3t"), args.forming_steps, args.forming_to)
             rows.append(r)
             print(f"cup_forming q3t {r['elements']} el {r['dofs']} dof: "
                   f"{r['per_iteration']:.3f} s per Newton iteration, "
@@ -223,7 +245,7 @@ def run(args) -> int:
                   f"converged {r['converged']})  paper {r['paper_s']}", flush=True)
             continue
         for el in elements:
-            r = measure(case, el, CASES[case]["edge"][el], args.repeat)
+            r = measure(case, el, case_edge(case, el), args.repeat)
             rows.append(r)
             _print(r)
     meta = {"date": time.strftime("%Y-%m-%d"), "machine": platform.processor() or
@@ -233,7 +255,7 @@ def run(args) -> int:
     (out / "bench.json").write_text(results.dumps({"meta": meta, "rows": rows}, nulls=True,
                                                   indent=1))
     print(f"wrote {out / 'bench.json'}")
-    return 0
+    return OK
 
 
 def add_parser(sub) -> None:

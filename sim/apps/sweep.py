@@ -7,7 +7,7 @@ to an existing cluster instead (its workers need this package).
 
 A case whose scene does not validate is an ``invalid`` row before anything starts, so no
 clock runs for it. Two clocks bound the others. Each case runs in a child process of its
-worker (``sim.check.run_isolated``) that is killed after ``--budget`` seconds (status
+worker (``sim.apps.cases.run_isolated``) that is killed after ``--budget`` seconds (status
 ``timeout``), so one hung case costs its budget and the worker moves on. ``--timeout`` bounds
 the whole sweep: cases not finished by then are cancelled and marked ``timeout``. Results are
 gathered as they finish and ``sweep.json`` is rewritten after each one, so whatever finished is
@@ -17,146 +17,17 @@ always on disk.
 from __future__ import annotations
 
 import itertools
-import math
 import multiprocessing as mp
-import os
 import sys
-import threading
 import time
-from collections.abc import Callable
-from multiprocessing.context import ForkServerProcess
 from pathlib import Path
 
+from sim.apps.cases import WatchedContext, run_case, run_isolated, scene_row
+from sim.apps.common import BAD_INPUT, FAILED, OK, parse_sets, resolve_scene
+from sim.apps.tasks import cluster_text, run_tasks
 from sim.frames import results
 
-# Numba's own pool would give every worker all cores: one thread each, the cluster is the pool.
-WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 DEFAULT_BUDGET = 600.0  # s per case: the slowest shipped scene at its default size takes ~60 s
-
-
-def worker_env(threads: int = 1) -> dict[str, str]:
-    """Thread counts of a worker's numba, OpenMP and MKL pools, pinned before they start."""
-    return {k: str(threads) for k in WORKER_ENV}
-
-
-class _OverBudget(Exception):
-    """A case that spent its budget (``run_case``), raised between two steps."""
-
-
-def run_case(scene_path: str, overrides: dict, series: bool = False, measure=None,
-             budget: float | None = None) -> dict:
-    """Run one scene with ``overrides``; a summary that pickles small (no arrays).
-
-    status: ``converged``, ``failed`` (solver diagnostic in ``reason``), ``invalid`` (the scene
-    was rejected, message in ``reason``), ``nan`` (converged with a non-finite probe) or
-    ``timeout`` (``budget`` seconds of building and stepping spent before the last step: the
-    run stops after the step that used it up, so a single step is never cut short).
-    ``series``: also every step's time and probes (``history``) and the recorded sections.
-    ``measure(sim) -> dict``, when given, adds its numbers as ``measured`` after the run.
-    """
-    from sim.scene.load import load_scene
-    from sim.stepping.simulation import Simulation
-
-    out = _invalid_row(overrides, None)
-    t0 = time.perf_counter()
-    try:
-        sim = Simulation.from_scene(load_scene(scene_path, overrides))
-    except ValueError as exc:  # SceneError is a ValueError; so are model-building errors
-        out["reason"] = str(exc)
-        return out
-    out["build"] = time.perf_counter() - t0
-    def check_budget(sim, rec):
-        spent = time.perf_counter() - t0
-        if spent > budget and not sim.done:
-            raise _OverBudget(f"over its budget of {budget:g} s after step {sim.step_index} "
-                              f"of {sim.n_steps} ({spent:.1f} s)")
-
-    over = None
-    try:
-        ok = sim.run(progress=None if budget is None else check_budget)
-    except _OverBudget as exc:
-        ok, over = False, str(exc)
-    res = sim.result()
-    out.update(converged=ok, wall=sim.wall, dofs=res["counts"]["dofs"],
-               elements=res["counts"]["elements"], iterations=res["timing"]["newton_iterations"],
-               cutbacks=sum(r.cutbacks for r in sim.records))
-    if series:  # the loading steps only: a release (springback) stage does not advance time
-        recs = [r for r in sim.records if r.step <= sim.model.scene.stepping.steps]
-        out["history"] = {"time": [r.time for r in recs],
-                          **{k: [r.probes[k] for r in recs]
-                             for k in (recs[0].probes if recs else {})}}
-        out["sections"] = sim.sections
-    if sim.records:
-        out["probes"] = dict(sim.records[-1].probes)
-        out["residual"] = float(sim.records[-1].residual)
-    if measure is not None:
-        out["measured"] = measure(sim)
-    if over is not None:
-        out.update(status="timeout", converged=False, reason=over)
-    elif not ok:
-        f = sim.failure
-        out.update(status="failed", reason=f["reason"], cutbacks=out["cutbacks"] + f["cutbacks"],
-                   residual=float(f["residuals"][-1]) if f["residuals"] else None)
-    elif all(math.isfinite(v) for v in out["probes"].values()):
-        out["status"] = "converged"
-    else:
-        out.update(status="nan", reason="non-finite probe after a converged run")
-    return out
-
-
-def _invalid_row(overrides: dict, reason: str | None) -> dict:
-    return {"overrides": dict(overrides), "status": "invalid", "converged": False,
-            "reason": reason, "probes": {}, "wall": 0.0, "build": 0.0, "dofs": None,
-            "elements": None, "iterations": 0, "cutbacks": 0, "residual": None}
-
-
-def scene_row(scene_path: str, overrides: dict) -> dict | None:
-    """The ``invalid`` row of a case whose scene does not validate, else None. Cheap (no
-    model is built): a sweep sorts these out before any case starts, so no clock - a case's
-    budget, the sweep's --timeout - ever runs for them."""
-    from sim.scene.load import load_scene
-
-    try:
-        load_scene(scene_path, overrides)
-    except ValueError as exc:
-        return _invalid_row(overrides, str(exc))
-    return None
-
-
-class _WatchedProcess(ForkServerProcess):
-    """A case's child that exits once the Dask worker that started it is gone: a worker closed
-    with its cluster (a sweep's --timeout) would otherwise leave a hung case running until its
-    budget, as an orphan of the forkserver."""
-
-    def __init__(self, *args, **kw):
-        super().__init__(*args, **kw)
-        self.watch_pid = os.getpid()
-
-    def run(self):
-        def watch() -> None:
-            while True:
-                time.sleep(1.0)
-                try:
-                    os.kill(self.watch_pid, 0)
-                except ProcessLookupError:
-                    os._exit(143)
-
-        threading.Thread(target=watch, daemon=True).start()
-        super().run()
-
-
-class _WatchedContext:
-    """The ``ctx`` that ``run_isolated`` takes: sim.check's forkserver context (children forked
-    from a clean server with the solver imported), its processes watched."""
-
-    def __init__(self):
-        from sim.check import _context
-
-        self._ctx = _context()
-        self.Pipe = self._ctx.Pipe
-
-    def Process(self, **kw):  # noqa: N802 - the multiprocessing context's name
-        return _WatchedProcess(**kw)
 
 
 def isolated_case(scene_path: str, overrides: dict, budget: float) -> dict:
@@ -164,17 +35,16 @@ def isolated_case(scene_path: str, overrides: dict, budget: float) -> dict:
 
     A daemonic worker (an external cluster's default) may not start children: the case then
     runs in the worker itself, without a budget, and the row says so."""
-    from sim.check import run_isolated
-
     if mp.current_process().daemon:
         out = run_case(scene_path, overrides)
         out["budget"] = ("none: daemonic Dask worker (start it with "
                          "DASK_DISTRIBUTED__WORKER__DAEMON=False)")
         return out
-    out = run_isolated(scene_path, overrides, budget, _WatchedContext())
+    out = run_isolated(scene_path, overrides, budget, WatchedContext())
     out.setdefault("overrides", dict(overrides))
     out["budget"] = budget
     return out
+
 
 def split_values(text: str) -> list[str]:
     """Split ``v1,v2,...`` at top-level commas, so ``[0,0,-9.81],[0,0,-1]`` is two values."""
@@ -210,75 +80,6 @@ def cases(grid: dict[str, list], fixed: dict | None = None) -> list[dict]:
     keys = list(grid)
     return [{**(fixed or {}), **dict(zip(keys, combo, strict=True))}
             for combo in itertools.product(*(grid[k] for k in keys))]
-
-
-def cluster_text(workers: int, threads: int, scheduler: str | None) -> str:
-    if scheduler:
-        return f"the Dask cluster at {scheduler}"
-    return (f"a local Dask cluster of {workers} worker process{'es' * (workers != 1)}, one "
-            f"task at a time each, numba/OpenMP/MKL pinned to {threads} thread"
-            f"{'s' * (threads != 1)}")
-
-
-def run_tasks(calls: list[tuple], labels: list[dict], workers: int = 1, threads: int = 1,
-              scheduler: str | None = None, timeout: float | None = None,
-              on_result: Callable[[int, dict], None] | None = None) -> tuple[list[dict], bool]:
-    """Every ``(fn, *args)`` of ``calls`` as a Dask task, gathered as they finish; rows in the
-    order of ``calls``, which is also the order of their priorities on the cluster.
-
-    A task that raised is an ``error`` row, one still unfinished after ``timeout`` s is
-    cancelled and becomes a ``timeout`` row (``labels[i]`` is merged into both). ``on_result(i,
-    row)`` runs after each result; an exception it raises ends the run (and propagates).
-    Returns (rows, finished: no timeout hit). The local cluster is closed on every way out,
-    which ends its worker processes and any case still running in them."""
-    import dask
-    from distributed import Client, LocalCluster, as_completed
-
-    rows: list[dict | None] = [None] * len(calls)
-    finished = True
-
-    def gather(client) -> None:
-        nonlocal finished
-        futures = [client.submit(fn, *args, pure=False, priority=len(calls) - i)
-                   for i, (fn, *args) in enumerate(calls)]
-        where = {f.key: i for i, f in enumerate(futures)}
-        try:
-            for f in as_completed(futures, timeout=timeout):
-                i = where[f.key]
-                rows[i] = _row(f, labels[i])
-                if on_result:
-                    on_result(i, rows[i])
-        except TimeoutError:
-            finished = False
-        finally:
-            client.cancel([f for f in futures if not f.done()])
-        for i, r in enumerate(rows):
-            if r is None:
-                rows[i] = {**labels[i], "status": "timeout", "converged": False, "probes": {},
-                           "reason": f"not finished within the --timeout of {timeout:g} s"}
-
-    if scheduler:
-        with Client(scheduler, timeout=30) as client:
-            gather(client)
-        return rows, finished
-    # non-daemonic workers may start the child processes that enforce per-case budgets
-    with (dask.config.set({"distributed.worker.daemon": False}),
-          LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                       dashboard_address=None, env=worker_env(threads), silence_logs=40)
-          as cluster, Client(cluster) as client):
-        gather(client)
-    return rows, finished
-
-
-def _row(future, label: dict) -> dict:
-    """A task that raised (a bug, a lost worker) is still a row, not the end of the sweep."""
-    if future.status == "finished":
-        return future.result()
-    try:
-        reason = repr(future.exception(timeout=1))
-    except Exception as exc:  # noqa: BLE001 - cancelled or lost: say which
-        reason = f"{future.status}: {exc!r}"
-    return {**label, "status": "error", "converged": False, "reason": reason, "probes": {}}
 
 
 def run_sweep(scene_path: str, overrides: list[dict], workers: int = 2,
@@ -362,8 +163,6 @@ def _write(out: Path, name: str, data: dict) -> None:
 def run(args) -> int:
     """Exit 0 when every case has a row of its own; 1 when ``--timeout`` cut the sweep short
     (the rows that finished are still written); 2 on bad input."""
-    from sim.cli import parse_sets, resolve_scene
-
     scene = str(resolve_scene(args.scene))
     try:
         grid = parse_grid(args.grid)
@@ -373,7 +172,7 @@ def run(args) -> int:
             raise ValueError("--workers must be at least 1")
     except ValueError as exc:
         print(f"q3t sweep: {exc}", file=sys.stderr)
-        return 2
+        return BAD_INPUT
     fixed = parse_sets(args.set)
     todo = cases(grid, fixed)
     where = cluster_text(args.workers, 1, args.scheduler)
@@ -409,7 +208,7 @@ def run(args) -> int:
         print(f"q3t sweep: --timeout {args.timeout:g} s reached; "
               f"{sum(r['status'] == 'timeout' for r in rows)} case(s) unfinished",
               file=sys.stderr)
-    return 0 if finished else 1
+    return OK if finished else FAILED
 
 
 def add_parser(sub) -> None:

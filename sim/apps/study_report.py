@@ -68,7 +68,7 @@ def plot_factorisation(rows: list[dict], out: Path) -> list[str]:
     return files
 
 
-def _table(rows: list[dict], cols: list[tuple[str, str, str]]) -> str:
+def markdown_table(rows: list[dict], cols: list[tuple[str, str, str]]) -> str:
     lines = ["| " + " | ".join(c[1] for c in cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
         lines.append("| " + " | ".join(format(r[k], f) if r.get(k) is not None else ""
@@ -110,7 +110,7 @@ def overhead_md(overheads: list[dict]) -> str:
             "has no tool, a zero load where it has none, plastic state under a yield stress of "
             "1e30 Pa with the scene's own elastic law, inertia with zero mass: the same answer "
             "(the probes agree to round-off) with the work of every term done. The fastest of "
-            f"{repeat} interleaved runs each.\n\n" + _table(rows, cols))
+            f"{repeat} interleaved runs each.\n\n" + markdown_table(rows, cols))
 
 
 def _meta() -> str:
@@ -152,7 +152,7 @@ def write_study(study: dict, overheads: list[dict], out: Path, workers: int = 1,
           _how(study["cluster"], workers, scheduler) + "\n\n",
           *[f"- overrides of every case: `{p['overrides']}`\n" for _ in [0] if p["overrides"]],
           *[f"- {n}\n" for n in notes], "\n" if notes or p["overrides"] else "",
-          _table(study["rows"], STUDY_COLS), "\n",
+          markdown_table(study["rows"], STUDY_COLS), "\n",
           *[f"![{f}]({f})\n" for f in plots if f.endswith(".png")]]
     if overheads:
         md += ["\n## Leave out what a scene does not need\n\n", overhead_md(overheads)]
@@ -178,7 +178,7 @@ def write_factorisation(scene: str, rows: list[dict], out: Path, cluster: str = 
           f"{_meta()}; solver {ok[0]['solver'] if ok else '-'}; median and minimum of "
           f"{ok[0]['repeat'] if ok else 0} `solver.factor` calls per case (after one dropped "
           f"call); ran on {cluster}.\n\n"
-          + _table(rows, FACTOR_COLS) + "\n" + "".join(f"![{f}]({f})\n" for f in plots
+          + markdown_table(rows, FACTOR_COLS) + "\n" + "".join(f"![{f}]({f})\n" for f in plots
                                                        if f.endswith(".png")))
     (out / "report.md").write_text(md)
     (out / "report.json").write_text(results.dumps({"scene": scene, "factorisation": rows},

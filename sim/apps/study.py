@@ -1,11 +1,11 @@
 """``q3t study``: accuracy against cost under refinement (paper Fig. 8), the factorisation
 comparison of Fig. 7 (``--factorisation``), and what building only the needed terms saves.
 
-Every (element, edge length) pair is one case, run as a Dask task through ``sim.sweep``'s
-``run_tasks`` (a local cluster by default, ``--scheduler`` for an existing one). A study
-measures run time, so by default one worker process with one thread (numba, OpenMP and MKL
-pinned) runs one case at a time: cases running side by side on a 2-core machine would slow each
-other down. Each worker first runs every element once on the coarsest level (a warm-up, not
+Every (element, edge length) pair is one case, run as a Dask task through
+``sim.apps.tasks.run_tasks`` (a local cluster by default, ``--scheduler`` for an existing one).
+A study measures run time, so by default one worker process with one thread (numba, OpenMP and
+MKL pinned) runs one case at a time: cases running side by side on a 2-core machine would slow
+each other down. Each worker first runs every element once on the coarsest level (a warm-up, not
 timed), so numba's cache loading is not counted. ``report.md`` says how the cases ran.
 
 The error of a case is that of the study's measure (``[study]`` table, sim.scene.StudySpec)
@@ -20,25 +20,23 @@ from __future__ import annotations
 import json
 import math
 import sys
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from sim.overhead import OVERHEAD_REPEAT, terms_overhead
-from sim.study_report import (
-    FACTOR_COLS,
+from sim.apps.cases import run_case
+from sim.apps.common import BAD_INPUT, FAILED, OK, parse_sets, resolve_scene
+from sim.apps.factorisation import FACTOR_REPEAT, factorisation_report
+from sim.apps.overhead import OVERHEAD_REPEAT, terms_overhead
+from sim.apps.study_report import (
     STUDY_COLS,
-    _table,
+    markdown_table,
     overhead_md,
-    write_factorisation,
     write_overhead,
     write_study,
 )
-from sim.sweep import cluster_text, run_case, run_tasks
-
-FACTOR_REPEAT = 15  # factorisations per case: medians and minima of >= 10 calls
+from sim.apps.tasks import cluster_text, run_tasks
 
 
 class StudyError(RuntimeError):
@@ -265,59 +263,8 @@ def run_study(plan: Plan, progress=print, workers: int = 1, threads: int = 1,
     return out
 
 
-def factorisation_case(scene_path: str, element: str, edge: float, repeat: int,
-                       overrides: dict) -> dict:
-    """Times of ``repeat`` calls of ``solver.factor`` on the Hessian at rest (paper Fig. 7)."""
-    from sim.scene.load import load_scene
-    from sim.stepping.simulation import Simulation
-
-    sim = Simulation.from_scene(load_scene(scene_path, {**overrides, "shell.element": element,
-                                                        "mesh.edge_length": edge}))
-    P = sim.model.problem
-    _, data = P.gradient_hessian(sim.model.shell.rest)
-    times = []
-    for _ in range(repeat + 1):  # the first includes one-off allocations: dropped
-        t0 = time.perf_counter()
-        P.solver.factor(data)
-        times.append(time.perf_counter() - t0)
-    c = sim.result()["counts"]
-    t = np.array(times[1:])
-    return {"element": element, "edge_length": edge, "elements": c["elements"],
-            "nodes": c["nodes"], "dofs": c["dofs"], "nnz_upper": int(P.pattern.nnz),
-            "solver": P.solver.name, "factorisation": float(np.median(t)),
-            "factorisation_min": float(t.min()), "repeat": repeat, "status": "converged"}
-
-
-def factorisation_times(scene_path: str, elements: list[str], levels: list[float],
-                        repeat: int = FACTOR_REPEAT, overrides: dict | None = None,
-                        workers: int = 1, threads: int = 1, scheduler: str | None = None,
-                        timeout: float | None = None) -> list[dict]:
-    """``factorisation_case`` of every element at every level, on Dask (one case at a time
-    by default: the times are the point)."""
-    calls = [(factorisation_case, scene_path, el, edge, repeat, dict(overrides or {}))
-             for el in elements for edge in levels]
-    labels = [{"element": el, "edge_length": edge} for el in elements for edge in levels]
-    rows, _ = run_tasks(calls, labels, workers, threads, scheduler, timeout)
-    return rows
-
-
-def factorisation_report(scene_path: str, elements: list[str], levels: list[float], out: Path,
-                         repeat: int = FACTOR_REPEAT, overrides: dict | None = None,
-                         **cluster) -> list[dict]:
-    """Fig. 7: time the factorisations, print the table, write report.md / .json and plots.
-    ``q3t bench`` runs this too."""
-    rows = factorisation_times(scene_path, elements, levels, repeat, overrides, **cluster)
-    print(_table(rows, FACTOR_COLS), flush=True)
-    write_factorisation(scene_path, rows, out, cluster_text(cluster.get("workers", 1),
-                                                            cluster.get("threads", 1),
-                                                            cluster.get("scheduler")))
-    return rows
-
-
 def _inputs(args) -> tuple[str, Plan]:
     """The plan from the command line; ValueError / SceneError on bad input."""
-    from sim.cli import parse_sets, resolve_scene
-
     scene = str(resolve_scene(args.scene))
     ref = None
     if args.reference:
@@ -350,7 +297,7 @@ def run(args) -> int:
         scene, plan = _inputs(args)
     except (SceneError, ValueError) as exc:
         print(f"q3t study: {exc}", file=sys.stderr)
-        return 2
+        return BAD_INPUT
     out = Path(args.out or f"runs/study-{Path(scene).stem}")
     kw = {"workers": args.workers, "threads": args.threads, "scheduler": args.scheduler,
           "timeout": args.timeout}
@@ -366,7 +313,7 @@ def run(args) -> int:
         if "lean" not in rows[0]:
             print(f"q3t study: the timing run ended {rows[0]['status']}: {rows[0]['reason']}",
                   file=sys.stderr)
-            return 1
+            return FAILED
         write_overhead(rows, out, where)
         print(overhead_md(rows))
     else:
@@ -379,12 +326,13 @@ def run(args) -> int:
                               overhead=overhead, budget=args.budget, **kw)
         except StudyError as exc:
             print(f"q3t study: {exc}", file=sys.stderr)
-            return 1
+            return FAILED
         overheads = [study["overhead"]] if study["overhead"] else []
         write_study(study, overheads, out, args.workers, args.scheduler)
-        print(_table(study["rows"], STUDY_COLS) + (overhead_md(overheads) if overheads else ""))
+        print(markdown_table(study["rows"], STUDY_COLS)
+              + (overhead_md(overheads) if overheads else ""))
     print(f"wrote {out}/report.md, report.json and plots")
-    return 0
+    return OK
 
 
 def add_parser(sub) -> None:

@@ -1,0 +1,225 @@
+"""Running one case of a scene: in this process (``run_case``), or in a child process with a
+wall-clock budget (``run_isolated``), which ``q3t check`` and each task of ``q3t sweep`` use.
+
+A case is a scene file and overrides; its result is a small dict that pickles small (no
+arrays), whatever happened: a scene that does not validate, a solver that fails, a case over
+its budget, a child that crashes or hangs are each a ``status`` with a ``reason``.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import os
+import signal
+import sys
+import threading
+import time
+from multiprocessing.context import ForkServerProcess
+
+import numpy as np
+
+# what a case needs, imported once by the forkserver its children are forked from
+PRELOAD = ["sim.apps.cases", "sim.stepping.simulation", "sim.scene.load"]
+
+
+class _OverBudget(Exception):
+    """A case that spent its budget (``run_case``), raised between two steps."""
+
+
+def run_case(scene_path: str, overrides: dict, series: bool = False, measure=None,
+             budget: float | None = None) -> dict:
+    """Run one scene with ``overrides``; a summary that pickles small (no arrays).
+
+    status: ``converged``, ``failed`` (solver diagnostic in ``reason``), ``invalid`` (the scene
+    was rejected, message in ``reason``), ``nan`` (converged with a non-finite probe) or
+    ``timeout`` (``budget`` seconds of building and stepping spent before the last step: the
+    run stops after the step that used it up, so a single step is never cut short).
+    ``series``: also every step's time and probes (``history``) and the recorded sections.
+    ``measure(sim) -> dict``, when given, adds its numbers as ``measured`` after the run.
+    """
+    from sim.scene.load import load_scene
+    from sim.stepping.simulation import Simulation
+
+    out = _invalid_row(overrides, None)
+    t0 = time.perf_counter()
+    try:
+        sim = Simulation.from_scene(load_scene(scene_path, overrides))
+    except ValueError as exc:  # SceneError is a ValueError; so are model-building errors
+        out["reason"] = str(exc)
+        return out
+    out["build"] = time.perf_counter() - t0
+    def check_budget(sim, rec):
+        spent = time.perf_counter() - t0
+        if spent > budget and not sim.done:
+            raise _OverBudget(f"over its budget of {budget:g} s after step {sim.step_index} "
+                              f"of {sim.n_steps} ({spent:.1f} s)")
+
+    over = None
+    try:
+        ok = sim.run(progress=None if budget is None else check_budget)
+    except _OverBudget as exc:
+        ok, over = False, str(exc)
+    res = sim.result()
+    out.update(converged=ok, wall=sim.wall, dofs=res["counts"]["dofs"],
+               elements=res["counts"]["elements"], iterations=res["timing"]["newton_iterations"],
+               cutbacks=sum(r.cutbacks for r in sim.records))
+    if series:  # the loading steps only: a release (springback) stage does not advance time
+        recs = [r for r in sim.records if r.step <= sim.model.scene.stepping.steps]
+        out["history"] = {"time": [r.time for r in recs],
+                          **{k: [r.probes[k] for r in recs]
+                             for k in (recs[0].probes if recs else {})}}
+        out["sections"] = sim.sections
+    if sim.records:
+        out["probes"] = dict(sim.records[-1].probes)
+        out["residual"] = float(sim.records[-1].residual)
+    if measure is not None:
+        out["measured"] = measure(sim)
+    if over is not None:
+        out.update(status="timeout", converged=False, reason=over)
+    elif not ok:
+        f = sim.failure
+        out.update(status="failed", reason=f["reason"], cutbacks=out["cutbacks"] + f["cutbacks"],
+                   residual=float(f["residuals"][-1]) if f["residuals"] else None)
+    elif all(math.isfinite(v) for v in out["probes"].values()):
+        out["status"] = "converged"
+    else:
+        out.update(status="nan", reason="non-finite probe after a converged run")
+    return out
+
+
+def _invalid_row(overrides: dict, reason: str | None) -> dict:
+    return {"overrides": dict(overrides), "status": "invalid", "converged": False,
+            "reason": reason, "probes": {}, "wall": 0.0, "build": 0.0, "dofs": None,
+            "elements": None, "iterations": 0, "cutbacks": 0, "residual": None}
+
+
+def scene_row(scene_path: str, overrides: dict) -> dict | None:
+    """The ``invalid`` row of a case whose scene does not validate, else None. Cheap (no
+    model is built): a sweep sorts these out before any case starts, so no clock - a case's
+    budget, the sweep's --timeout - ever runs for them."""
+    from sim.scene.load import load_scene
+
+    try:
+        load_scene(scene_path, overrides)
+    except ValueError as exc:
+        return _invalid_row(overrides, str(exc))
+    return None
+
+
+def force_balance(sim) -> dict:
+    """Force balance in z and the residual's round-off floor at the final state.
+
+    The elastic forces sum to zero over the nodes (translation invariance), so at equilibrium
+    the supports carry exactly what the other terms apply: ``support`` = sum of the total
+    gradient's z over the DoFs held in z (the clamp reaction), ``applied`` = sum of the z
+    gradient of the loads, inertia and tools over the shell's nodes (the weight, for the
+    static cantilever). ``balance`` = |support - applied| over the sum of the magnitudes (a
+    punch and a die balance each other: their sum is no scale)."""
+    from sim.solve.problem import measure_floor
+
+    m = sim.model
+    n = m.shell.n_nodes
+    x = sim.x
+    g = m.problem.gradient(x)
+    support = float(g[:n, 2][m.problem.fixed[:n, 2]].sum())
+    applied = scale = abs(support)
+    applied = 0.0
+    for t in m.problem.terms:
+        if t.name != "elasticity":
+            gt = np.zeros_like(x)
+            t.add_gradient(x, gt)
+            applied += (s := float(gt[:n, 2].sum()))
+            scale += abs(s)
+    free = ~m.problem.fixed
+    gf = np.where(free, g, 0.0)
+    E = m.problem.energy(x)
+    floor = measure_floor(m.problem, x, E, gf, free, abs(E)).force if np.isfinite(E) else None
+    return {"support_z": support, "applied_z": applied,
+            "balance": abs(support - applied) / scale if scale > 0 else 0.0, "floor": floor}
+
+
+def _child(conn, scene_path: str, overrides: dict) -> None:
+    # on SIGTERM exit through Python, so numba's process lock is released and not reported as a
+    # leaked semaphore; a child stuck in a kernel gets SIGKILL after a grace period
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    try:
+        conn.send(run_case(scene_path, overrides, measure=force_balance))
+    except Exception as exc:  # noqa: BLE001 - anything but a diagnosed failure is a crash
+        conn.send({"status": "crashed", "reason": f"{type(exc).__name__}: {exc}", "probes": {}})
+
+
+def run_isolated(scene_path: str, overrides: dict, budget: float, ctx=None) -> dict:
+    """``run_case`` in a child process, with its ``force_balance`` as ``measured``; killed
+    after ``budget`` seconds (status ``timeout``). The budget and ``elapsed`` start once the
+    child is forked: the first ``start`` also starts the forkserver, whose imports are no
+    case's time. ``ctx``: ``isolated_context()`` by default, a ``WatchedContext`` on a Dask
+    worker."""
+    ctx = ctx or isolated_context()
+    parent, child = ctx.Pipe(duplex=False)
+    p = ctx.Process(target=_child, args=(child, scene_path, overrides), daemon=True)
+    p.start()
+    t0 = time.perf_counter()
+    child.close()
+    try:
+        if parent.poll(budget):
+            out = parent.recv()
+        else:
+            p.terminate()
+            p.join(2)
+            if p.is_alive():
+                p.kill()
+            out = {"status": "timeout", "reason": f"killed after the {budget:g} s budget",
+                   "probes": {}}
+    except EOFError:  # the child died without a word: a signal or a hard exit
+        p.join(5)
+        out = {"status": "crashed", "reason": f"child exited with code {p.exitcode}",
+               "probes": {}}
+    p.join(5)
+    parent.close()
+    out["elapsed"] = time.perf_counter() - t0
+    if any(not math.isfinite(v) for v in out.get("probes", {}).values()):
+        out.update(status="nan", reason=f"non-finite probe ({out.get('reason')})")
+    return out
+
+
+def isolated_context():
+    """Children forked from a clean server that has the solver imported (saves ~1 s a case);
+    never forked from this process, whose numba/MKL threads may hold locks."""
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload(PRELOAD)
+    return ctx
+
+
+class _WatchedProcess(ForkServerProcess):
+    """A case's child that exits once the Dask worker that started it is gone: a worker closed
+    with its cluster (a sweep's --timeout) would otherwise leave a hung case running until its
+    budget, as an orphan of the forkserver."""
+
+    def __init__(self, *args, **kw):
+        super().__init__(*args, **kw)
+        self.watch_pid = os.getpid()
+
+    def run(self):
+        def watch() -> None:
+            while True:
+                time.sleep(1.0)
+                try:
+                    os.kill(self.watch_pid, 0)
+                except ProcessLookupError:
+                    os._exit(143)
+
+        threading.Thread(target=watch, daemon=True).start()
+        super().run()
+
+
+class WatchedContext:
+    """The ``ctx`` that ``run_isolated`` takes on a Dask worker: ``isolated_context()``, its
+    processes watched (``_WatchedProcess``)."""
+
+    def __init__(self):
+        self._ctx = isolated_context()
+        self.Pipe = self._ctx.Pipe
+
+    def Process(self, **kw):  # noqa: N802 - the multiprocessing context's name
+        return _WatchedProcess(**kw)
