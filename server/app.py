@@ -3,6 +3,7 @@ bridge thread and the viewer; routers hold one resource each."""
 
 from __future__ import annotations
 
+from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
@@ -12,24 +13,27 @@ from server.routers import meta, runs, scenes, web
 from server.runs import RunManager
 from server.settings import Settings
 from server.store import SceneStore
+from server.workerhandle import WorkerTarget
+from sim.elements import ELEMENTS
 
 
-def create_app(settings: Settings | None = None, worker_target=None) -> FastAPI:
+def create_app(settings: Settings | None = None,
+               worker_target: WorkerTarget | None = None) -> FastAPI:
     """``worker_target``: the solver process's entry point (default ``worker_main``; the
     benchmark passes a frame generator)."""
     settings = settings or Settings()
 
     @asynccontextmanager
-    async def lifespan(app: FastAPI):
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         store = SceneStore(settings.scenes_dir)
         manager = RunManager(settings, store, **({"worker_target": worker_target}
                                                   if worker_target else {}))
-        if settings.viewer:
+        if settings.viewer:  # imports viser: only when the viewer is on
+            from server.actions import ViewerActions
             from server.viewer import Viewer
-            from sim.elements import ELEMENTS
 
-            manager.viewer = Viewer(settings.viewer_host, settings.viewer_port, manager,
-                                    sorted(ELEMENTS))
+            manager.viewer = Viewer(settings.viewer_host, settings.viewer_port,
+                                    ViewerActions(manager), sorted(ELEMENTS))
         app.state.store, app.state.manager = store, manager
         manager.start()
         yield

@@ -15,6 +15,7 @@ viser viewer (so viser encodes and sends every update, as to a browser):
 
 from __future__ import annotations
 
+import argparse
 import functools
 import multiprocessing as mp
 import os
@@ -27,11 +28,13 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from server.settings import ROOT
+from server.settings import ROOT, Settings
+from server.worker import Channel
 from sim import results
 
 CUP_40K = {"mesh.edge_length": 0.00038, "stepping.steps": 50}  # 39,686 display vertices
@@ -49,78 +52,96 @@ def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
     return V, F.astype(np.uint32)
 
 
-def frame_generator(commands, events, frames, record_every: int, step_delay: float,
-                    n_vertices: int = 40_000, rate: float = 100.0) -> None:
-    """Stands in for ``worker.worker_main``: on ``start`` it makes ``rate`` frames a second of
-    an ``n_vertices`` sheet (positions and four fields, as the solver sends them), puts them on
-    the bounded queue (dropped when full), sends step records and writes the recording like
-    the solver process does; until ``stop``."""
-    from server.recording import Recorder
+class _Synthetic:
+    """The frame generator's one run: a rippling square sheet, its records and recording."""
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    V, F = _grid(n_vertices)
-    events.put({"kind": "ready", "run": None, "parameters": PARAMETERS})
-    run = rec = None
-    step = produced = dropped = 0
-    t_next = time.perf_counter()
+    def __init__(self, events: Channel, frames: Channel, record_every: int, n_vertices: int,
+                 rate: float):
+        self.events, self.frames = events, frames
+        self.record_every, self.rate = record_every, rate
+        self.V, self.F = _grid(n_vertices)
+        self.run: str | None = None
+        self.rec = None
+        self.step = self.produced = self.dropped = 0
+        self.t_next = time.perf_counter()
 
-    def emit(kind, **kw):
-        events.put({"kind": kind, "run": run, **kw})
+    def emit(self, kind: str, **kw: object) -> None:
+        self.events.put({"kind": kind, "run": self.run, **kw})
 
-    def frame(k: int) -> dict:
+    def frame(self, k: int) -> dict:
+        V = self.V
         W = V.copy()
         W[:, 2] = 0.01 * np.sin(k / 10 + V[:, 0] * 6)
         h = (1.0 - 0.1 * V[:, 0] * np.sin(k / 20)).astype(np.float32)
-        return {"kind": "frame", "run": run, "step": k, "time": 0.01 * k, "positions": W,
+        return {"kind": "frame", "run": self.run, "step": k, "time": 0.01 * k, "positions": W,
                 "fields": {"thickness_mm": h, "thinning_pct": 100 * (1 - h),
                            "von_mises_MPa": 100 * h, "eq_plastic_strain": 0 * h},
                 "tools": {}, "probes": {"tip": float(W[0, 2])}, "iterations": 1,
                 "residual": 1e-9}
 
+    def command(self, msg: dict) -> None:
+        """``start`` and ``stop`` as the solver does them (other commands are only replied
+        to)."""
+        from server.recording import Recorder
+
+        if msg["cmd"] == "start":
+            self.run, self.step, self.produced, self.dropped = msg["run"], 0, 0, 0
+            self.rec = Recorder(Path(msg["out"]) / "run.rrd", self.run)
+            self.emit("state", state="building")
+            self.emit("meta", faces=self.F, n_steps=10**6, counts={}, element="synthetic",
+                      probes=["tip"], tools=[], timing={})
+            self.rec.meta(self.F)
+            self.events.put(self.frame(0))
+            self.emit("state", state="running")
+        elif msg["cmd"] == "stop" and self.run:
+            self.rec.close()
+            self.emit("state", state="stopped", reason=msg.get("reason") or "stopped",
+                      frames={"produced": self.produced, "dropped": self.dropped})
+            self.run = None
+        self.events.put({"kind": "reply", "id": msg.get("id"), "ok": True, "run": self.run,
+                         "result": None})
+
+    def tick(self) -> None:
+        """The next frame, ``rate`` a second: its record, its recording, the bounded queue."""
+        now = time.perf_counter()
+        if now < self.t_next:
+            time.sleep(self.t_next - now)
+        self.t_next = max(self.t_next + 1.0 / self.rate, time.perf_counter() - 1.0 / self.rate)
+        self.step += 1
+        f = self.frame(self.step)
+        self.produced += 1
+        record = {"step": self.step, "time": f["time"], "probes": f["probes"], "iterations": 1,
+                  "residual": 1e-9, "energy": 0.0, "cutbacks": 0}
+        self.emit("step", record=record,
+                  frames={"produced": self.produced, "dropped": self.dropped})
+        self.rec.step(record)
+        self.rec.frame(f, mesh=self.step % self.record_every == 0)
+        try:
+            self.frames.put_nowait(f)
+        except queue.Full:
+            self.dropped += 1
+
+
+def frame_generator(commands: Channel, events: Channel, frames: Channel, record_every: int,
+                    step_delay: float, n_vertices: int = 40_000, rate: float = 100.0) -> None:
+    """Stands in for ``worker.worker_main``: on ``start`` it makes ``rate`` frames a second of
+    an ``n_vertices`` sheet (positions and four fields, as the solver sends them), puts them on
+    the bounded queue (dropped when full), sends step records and writes the recording like
+    the solver process does; until ``stop``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    gen = _Synthetic(events, frames, record_every, n_vertices, rate)
+    events.put({"kind": "ready", "run": None, "parameters": PARAMETERS})
     while True:
         try:
-            msg = commands.get_nowait() if run else commands.get(timeout=0.2)
+            msg = commands.get_nowait() if gen.run else commands.get(timeout=0.2)
         except queue.Empty:
             msg = None
         if msg is not None:
             if msg["cmd"] == "shutdown":
                 break
-            if msg["cmd"] == "start":
-                run, step, produced, dropped = msg["run"], 0, 0, 0
-                rec = Recorder(Path(msg["out"]) / "run.rrd", run)
-                emit("state", state="building")
-                emit("meta", faces=F, n_steps=10**6, counts={}, element="synthetic",
-                     probes=["tip"], tools=[], timing={})
-                rec.meta(F)
-                events.put(frame(0))
-                emit("state", state="running")
-            elif msg["cmd"] == "stop" and run:
-                rec.close()
-                emit("state", state="stopped", reason=msg.get("reason") or "stopped",
-                     frames={"produced": produced, "dropped": dropped})
-                run = None
-            events.put({"kind": "reply", "id": msg.get("id"), "ok": True, "run": run,
-                        "result": None})
-            continue
-        if run is None:
-            continue
-        now = time.perf_counter()
-        if now < t_next:
-            time.sleep(t_next - now)
-        t_next = max(t_next + 1.0 / rate, time.perf_counter() - 1.0 / rate)
-        step += 1
-        f = frame(step)
-        produced += 1
-        emit("step", record={"step": step, "time": f["time"], "probes": f["probes"],
-                             "iterations": 1, "residual": 1e-9, "energy": 0.0, "cutbacks": 0},
-             frames={"produced": produced, "dropped": dropped})
-        rec.step({"step": step, "time": f["time"], "probes": f["probes"], "iterations": 1,
-                  "residual": 1e-9, "energy": 0.0, "cutbacks": 0})
-        rec.frame(f, mesh=step % record_every == 0)
-        try:
-            frames.put_nowait(f)
-        except queue.Full:
-            dropped += 1
+            gen.command(msg)
+        elif gen.run is not None:
+            gen.tick()
     events.close()
     frames.close()
 
@@ -165,7 +186,8 @@ class ViewerClient:
         self.ws.close()
 
 
-def _wait_http(url: str, cond, timeout: float, proc=None) -> float:
+def _wait_http(url: str, cond: Callable[[dict], bool], timeout: float,
+               proc: subprocess.Popen | None = None) -> float:
     """Seconds until ``cond(response json)`` holds for GET url."""
     import httpx
 
@@ -213,7 +235,7 @@ def _pcts(lat: np.ndarray) -> dict:
             "cpu_pressure_avg60_pct": cpu_pressure()}
 
 
-def _serve_app(settings, port: int, n_vertices: int, rate: float) -> None:
+def _serve_app(settings: Settings, port: int, n_vertices: int, rate: float) -> None:
     """Child process: uvicorn with the service app, the frame generator as its solver."""
     import uvicorn
 
@@ -333,7 +355,7 @@ def start_and_latency(seconds: float, tmp: Path) -> dict:
     return out
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     out = {"date": time.strftime("%Y-%m-%d")}
     with tempfile.TemporaryDirectory() as tmp:
         out["start"] = start_and_latency(args.seconds_solver, Path(tmp))
@@ -365,7 +387,7 @@ def run(args) -> int:
     return 0
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: argparse._SubParsersAction) -> None:
     b = sub.add_parser("bench-service", help="viewer frame rate, API latency, start-up time")
     b.add_argument("--vertices", type=int, default=40_000)
     b.add_argument("--rate", type=float, default=100.0,

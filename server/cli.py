@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
 import ipaddress
 import os
 import subprocess
 import sys
 from pathlib import Path
+from types import FrameType
 
 from server.settings import ROOT, Settings
 
@@ -26,7 +28,7 @@ EXPOSED_VIEWER = ("q3t: warning: --expose-viewer: the viser viewer on {host}:{po
                   "live-parameter sliders. Expose it only on a network you trust.")
 
 
-def serve_settings(args, token: str | None) -> Settings:
+def serve_settings(args: argparse.Namespace, token: str | None) -> Settings:
     """Settings of ``q3t serve``. viser has no token check of its own: it stays on loopback
     unless --expose-viewer asks otherwise, with a warning that its controls are open too."""
     viewer_host = args.host if args.expose_viewer else "127.0.0.1"
@@ -43,11 +45,11 @@ def serve_settings(args, token: str | None) -> Settings:
                     max_model_bytes=args.max_memory * 2**30)
 
 
-def _stop_as_exit(signum, frame) -> None:
+def _stop_as_exit(signum: int, frame: FrameType | None) -> None:
     raise SystemExit(0)
 
 
-def cmd_serve(args) -> int:
+def cmd_serve(args: argparse.Namespace) -> int:
     import signal
 
     import uvicorn
@@ -93,7 +95,7 @@ def play_command(path: Path, web: bool, port: int) -> list[str]:
     return [rerun_cli(), str(path)]
 
 
-def cmd_play(args) -> int:
+def cmd_play(args: argparse.Namespace) -> int:
     path = Path(args.run)
     if path.is_dir():
         path = path / "run.rrd"
@@ -116,7 +118,7 @@ def cmd_play(args) -> int:
     return subprocess.call(cmd)
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: argparse._SubParsersAction) -> None:
     from server import bench
 
     bench.add_parser(sub)

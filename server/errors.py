@@ -11,6 +11,8 @@ from __future__ import annotations
 import asyncio
 import hmac
 import json
+from collections.abc import Awaitable, Callable, Iterable
+from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -19,6 +21,7 @@ from fastapi.routing import APIRoute
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException
 from starlette.routing import Match
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server.problems import Conflict, Invalid, NotFound, NotReady
 from server.settings import Settings
@@ -46,6 +49,8 @@ ERRORS = {
 }
 
 
+Endpoint = Callable[[Request], Awaitable[Response]]  # a request in, its answer out
+
 BODY = (400, 408, 413, 422)  # what any request with a JSON body can get
 
 
@@ -58,18 +63,18 @@ def _json(status: int, detail: str, headers: dict | None = None) -> JSONResponse
     return JSONResponse({"detail": detail}, status_code=status, headers=headers)
 
 
-def _where(loc) -> str:
+def _where(loc: Iterable) -> str:
     return ".".join(str(p) for p in loc)
 
 
-def validation_text(errors) -> str:
+def validation_text(errors: Iterable[dict]) -> str:
     """FastAPI's request errors as one line naming each field: ``body.value: Input should
     be a valid number``."""
     return "; ".join(f"{_where(e['loc'])}: {e['msg'].removeprefix('Value error, ')}"
                      for e in errors)
 
 
-def checked_json(body: bytes):
+def checked_json(body: bytes) -> Any:
     """The request's JSON, refused (422 naming where) when it nests deeper than any request
     needs or holds a lone surrogate (``"\\ud800"``: valid JSON, but no text: it cannot be
     written to a file or sent back)."""
@@ -87,7 +92,7 @@ def checked_json(body: bytes):
 
 
 class CheckedRequest(Request):
-    async def json(self):
+    async def json(self) -> Any:
         if not hasattr(self, "_json"):
             self._json = checked_json(await self.body())
         return self._json
@@ -96,7 +101,7 @@ class CheckedRequest(Request):
 class CheckedRoute(APIRoute):
     """Routes whose JSON body goes through ``checked_json``."""
 
-    def get_route_handler(self):
+    def get_route_handler(self) -> Endpoint:
         handler = super().get_route_handler()
 
         async def route(request: Request) -> Response:
@@ -114,10 +119,10 @@ class BodyLimit:
     body has no length to check up front, and an error raised while the app reads the body
     would reach FastAPI's body parser, which turns every error into a 400."""
 
-    def __init__(self, app, limit: int, timeout: float):
+    def __init__(self, app: ASGIApp, limit: int, timeout: float):
         self.app, self.limit, self.timeout = app, limit, timeout
 
-    async def __call__(self, scope, receive, send):
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         declared = dict(scope["headers"]).get(b"content-length")
@@ -139,7 +144,7 @@ class BodyLimit:
             return await self._too_big(scope, receive, send)
         done = False
 
-        async def replay():
+        async def replay() -> Message:
             nonlocal done
             if not done:
                 done = True
@@ -148,7 +153,7 @@ class BodyLimit:
 
         await self.app(scope, replay, send)
 
-    async def _read(self, receive) -> bytes | None:
+    async def _read(self, receive: Receive) -> bytes | None:
         """The body, or None when the client went away; stops a byte past ``limit``."""
         chunks, seen = [], 0
         while True:
@@ -160,14 +165,14 @@ class BodyLimit:
             if seen > self.limit or not msg.get("more_body"):
                 return b"".join(chunks)
 
-    def _too_big(self, scope, receive, send):
+    def _too_big(self, scope: Scope, receive: Receive, send: Send) -> Awaitable[None]:
         return _json(413, f"request body larger than {self.limit} bytes")(scope, receive, send)
 
 
 METHODS = ("GET", "POST", "PUT", "DELETE", "PATCH")
 
 
-def allowed_methods(app: FastAPI, scope) -> list[str]:
+def allowed_methods(app: FastAPI, scope: Scope) -> list[str]:
     """The methods some route answers at this path (Starlette's 405 names only those of the
     first route that matches the path)."""
     return [m for m in METHODS
@@ -204,7 +209,7 @@ def install(app: FastAPI, settings: Settings) -> None:
         token = _token_bytes(settings.token)
 
         @app.middleware("http")
-        async def require_token(request: Request, call_next):
+        async def require_token(request: Request, call_next: Endpoint) -> Response:
             given = (request.query_params.get("token") or request.cookies.get("q3t_token")
                      or request.headers.get("authorization", "").removeprefix("Bearer "))
             if not hmac.compare_digest(_token_bytes(given or ""), token):

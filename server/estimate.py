@@ -18,14 +18,18 @@ from __future__ import annotations
 import json
 import math
 import re
+import threading
 import time
 from pathlib import Path
+
+from server.records import Run
+from sim.scene import scene_from_toml
 
 DATE = re.compile(r"^(\d{4}-\d{2}-\d{2})\b", re.M)
 SAME_EDGE = 1e-3  # relative: levels are written with 5-6 significant digits
 
 
-def _stem(path) -> str:
+def _stem(path: str | Path) -> str:
     return Path(str(path)).stem
 
 
@@ -157,54 +161,125 @@ def estimate(root: Path, scene: str, element: str, edge_length: float | None,
     cost = cost_of(result)
     out: dict = {"available": False, "scene": scene, "element": element,
                  "edge_length": edge_length, "cost": cost, "notes": []}
+    head = _compare(out, root, scene, element, edge_length, overrides or {})
+    out["text"] = "; ".join(s for s in (head, cost_text(cost)) if s)
+    return out
 
-    def done(head: str) -> dict:
-        out["text"] = "; ".join(s for s in (head, cost_text(cost)) if s)
-        return out
 
+def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float | None,
+             overrides: dict) -> str:
+    """Fill ``out`` from the study row of the run's element and edge length; returns the
+    head line, or why there is no estimate (then ``out["reason"]`` says so in a word)."""
     found = find_study(root, scene)
     if found is None:
         out["reason"] = "no_study"
-        return done(f"no study for this scene: run `q3t study {scene}`")
+        return f"no study for this scene: run `q3t study {scene}`"
     path, study = found
     ref = reference_of(study)
-    out["study"] = {"path": str(path), "date": study.get("date"),
-                    "probe": study["plan"].get("probe"),
-                    "elements": study["plan"].get("elements"),
-                    "levels": study["plan"].get("levels")}
+    plan = study["plan"]
+    out["study"] = {"path": str(path), "date": study.get("date"), "probe": plan.get("probe"),
+                    "elements": plan.get("elements"), "levels": plan.get("levels")}
     out["reference"] = ref
     when = f"study of {study.get('date')}"
-    rows = [r for r in study["rows"] if r.get("element") == element
-            and isinstance(r.get("edge_length"), (int, float)) and r["edge_length"] > 0]
-    if not rows:
-        out["reason"] = "element_not_studied"
-        studied = ", ".join(sorted({str(r.get("element")) for r in study["rows"]}))
-        return done(f"the {when} has no {element} rows (it has {studied}): run "
-                    f"`q3t study {scene} --elements {element}`")
-    if edge_length is None or edge_length <= 0:
-        out["reason"] = "no_edge_length"
-        return done(f"the run's mesh has no edge length to match the {when}")
-    row = min(rows, key=lambda r: abs(math.log(r["edge_length"] / edge_length)))
+    row, missing = _nearest_row(study, scene, element, edge_length, when)
+    if row is None:
+        out["reason"], head = missing
+        return head
     exact = abs(row["edge_length"] / edge_length - 1) <= SAME_EDGE
     err = row_error(row, ref)
     if err is None:
         out["reason"] = "no_error"
-        return done(f"the {when} has no error for {element} at {length(row['edge_length'])}")
+        return f"the {when} has no error for {element} at {length(row['edge_length'])}"
     out.update(available=True, relative_error=err, row=row,
                match="exact" if exact else "nearest")
-    if not exact:
-        out["notes"].append(f"nearest studied level: {length(row['edge_length'])} (the run "
-                            f"used {length(edge_length)})")
-    if row.get("status") not in (None, "converged"):
-        out["notes"].append(f"the study's run at this level ended {row['status']}")
-    if ref["kind"] == "numerical" and ref.get("element") == element:
-        out["notes"].append(f"{element} against {element} on a finer mesh: self-convergence, "
-                            "an underestimate")
-    other = sorted(k for k in (overrides or {}) if k not in ("shell.element", "mesh.edge_length"))
-    if other:
-        out["notes"].append(f"the run overrides {', '.join(other)}; the study did not")
+    out["notes"] += _notes(row, ref, element, edge_length, exact, overrides)
     head = f"error estimate: {percent(err)} vs {ref['label']}"
     if not exact:
         head += f" at the nearest studied level {length(row['edge_length'])}"
-    head += f" ({when})"
-    return done(head)
+    return head + f" ({when})"
+
+
+def _nearest_row(study: dict, scene: str, element: str, edge_length: float | None,
+                 when: str) -> tuple[dict | None, tuple[str, str]]:
+    """The study's row of ``element`` nearest to ``edge_length`` (on a log scale), or None
+    with (reason, text)."""
+    rows = [r for r in study["rows"] if r.get("element") == element
+            and isinstance(r.get("edge_length"), (int, float)) and r["edge_length"] > 0]
+    if not rows:
+        studied = ", ".join(sorted({str(r.get("element")) for r in study["rows"]}))
+        return None, ("element_not_studied",
+                      f"the {when} has no {element} rows (it has {studied}): run "
+                      f"`q3t study {scene} --elements {element}`")
+    if edge_length is None or edge_length <= 0:
+        return None, ("no_edge_length", f"the run's mesh has no edge length to match the {when}")
+    return min(rows, key=lambda r: abs(math.log(r["edge_length"] / edge_length))), ("", "")
+
+
+def _notes(row: dict, ref: dict, element: str, edge_length: float, exact: bool,
+           overrides: dict) -> list[str]:
+    """What qualifies the estimate: a level not the run's, a study run that did not
+    converge, self-convergence, overrides the study did not have."""
+    notes = []
+    if not exact:
+        notes.append(f"nearest studied level: {length(row['edge_length'])} (the run used "
+                     f"{length(edge_length)})")
+    if row.get("status") not in (None, "converged"):
+        notes.append(f"the study's run at this level ended {row['status']}")
+    if ref["kind"] == "numerical" and ref.get("element") == element:
+        notes.append(f"{element} against {element} on a finer mesh: self-convergence, "
+                     "an underestimate")
+    other = sorted(k for k in overrides if k not in ("shell.element", "mesh.edge_length"))
+    if other:
+        notes.append(f"the run overrides {', '.join(other)}; the study did not")
+    return notes
+
+
+class EstimateCache:
+    """Each finished run's estimate, kept until a study report of its scene appears or
+    changes. Reads files: never call it holding the run lock."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        self._lock = threading.Lock()
+        self._facts: dict[str, tuple] = {}  # run id -> (edge length, result.json)
+        self._keys: dict[str, tuple | None] = {}  # run id -> the study report it used
+
+    def get(self, run: Run, finished: bool = False) -> dict | None:
+        """The estimate of ``run``, stored on it; None unless it is
+        finished. ``finished``: the run is finishing (its state is set after this)."""
+        if run.state != "finished" and not finished:
+            return None
+        with self._lock:
+            try:
+                found = find_study(self.root, run.scene)
+                key = (str(found[0]), found[0].stat().st_mtime_ns) if found else None
+                if run.estimate is None or self._keys.get(run.id, "?") != key:
+                    edge, result = self._facts_of(run)
+                    run.estimate = estimate(self.root, run.scene, run.element, edge, result,
+                                            run.overrides)
+                    self._keys[run.id] = key
+            except Exception as exc:  # never let the estimate break a status request
+                run.estimate = {"available": False, "reason": "error",
+                                "text": f"no error estimate: {exc}", "notes": []}
+            return run.estimate
+
+    def forget(self, run_id: str) -> None:
+        with self._lock:
+            self._facts.pop(run_id, None)
+            self._keys.pop(run_id, None)
+
+    def _facts_of(self, run: Run) -> tuple[float | None, dict | None]:
+        """The run's edge length (from its scene.toml) and result.json; read once."""
+        if run.id not in self._facts:
+            d = self.root / run.id
+            try:
+                edge = scene_from_toml((d / "scene.toml").read_text(),
+                                       run.overrides).mesh.edge_length
+            except (OSError, ValueError):
+                edge = None
+            try:
+                result = json.loads((d / "result.json").read_text())
+            except (OSError, ValueError):
+                result = None
+            self._facts[run.id] = (edge, result)
+        return self._facts[run.id]

@@ -14,10 +14,16 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from server.colormap import tool_colour
+
+if TYPE_CHECKING:  # rerun's arrow tables: imported when a recording is read
+    import pyarrow as pa
+    import viser
+    from pyarrow import RecordBatch
 
 
 @dataclass
@@ -49,18 +55,19 @@ def _latest(known: dict | None, step: int, default: np.ndarray) -> np.ndarray:
     return known[max(before)] if before else known[min(known)]
 
 
-def _vec3(cell) -> np.ndarray:
+def _vec3(cell: pa.Scalar) -> np.ndarray:
     """One row of a list<fixed_size_list<float, 3>> column -> (n, 3)."""
     return np.asarray(cell.values.flatten().to_numpy(zero_copy_only=False)).reshape(-1, 3)
 
 
-def _rgb(cell) -> np.ndarray:
+def _rgb(cell: pa.Scalar) -> np.ndarray:
     """One row of packed RGBA uint32 colours (0xRRGGBBAA) -> (n, 3) uint8."""
     c = np.asarray(cell.values.to_numpy(zero_copy_only=False), np.uint32)
     return np.stack([(c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255], axis=1).astype(np.uint8)
 
 
 def load(path: Path) -> Replay:
+    """The sheet's keyframes, the tools' meshes and poses of the recording at ``path``."""
     from rerun.chunk import RrdReader
 
     rep, sheet = Replay(), {}
@@ -70,39 +77,9 @@ def load(path: Path) -> Replay:
         cols = set(rb.schema.names)
         steps = rb.column("step").to_pylist() if "step" in cols else [None] * rb.num_rows
         if entity == "/sheet":
-            # the triangles are static (logged once); positions and colours come per keyframe
-            if "Mesh3D:triangle_indices" in cols and rep.faces is None:
-                tri = rb.column("Mesh3D:triangle_indices")
-                rep.faces = next((_vec3(tri[i]).astype(np.uint32) for i in range(rb.num_rows)
-                                  if tri[i].is_valid), None)
-            if "Mesh3D:vertex_positions" in cols:
-                pos = rb.column("Mesh3D:vertex_positions")
-                col = rb.column("Mesh3D:vertex_colors") if "Mesh3D:vertex_colors" in cols \
-                    else None
-                for i, step in enumerate(steps):
-                    if step is None or not pos[i].is_valid:
-                        continue
-                    p = _vec3(pos[i]).astype(np.float32)
-                    c = _rgb(col[i]) if col is not None and col[i].is_valid \
-                        else np.full((len(p), 3), 180, np.uint8)
-                    sheet[int(step)] = (p, c)
+            _read_sheet(rep, sheet, rb, cols, steps)
         elif entity.startswith("/tools/"):
-            name = entity.removeprefix("/tools/")
-            if "Mesh3D:vertex_positions" in cols:
-                rep.tools[name] = (_vec3(rb.column("Mesh3D:vertex_positions")[0]),
-                                   _vec3(rb.column("Mesh3D:triangle_indices")[0]).astype(np.uint32))
-            if "Transform3D:translation" in cols:
-                tr = rb.column("Transform3D:translation")
-                for i, step in enumerate(steps):
-                    if step is not None:
-                        rep.poses.setdefault(name, {})[int(step)] = _vec3(tr[i])[0]
-            if "Transform3D:quaternion" in cols:
-                q = rb.column("Transform3D:quaternion")
-                for i, step in enumerate(steps):
-                    if step is not None and q[i].is_valid:  # rerun stores (x, y, z, w)
-                        xyzw = np.asarray(q[i].values.flatten().to_numpy(zero_copy_only=False),
-                                          np.float64).reshape(-1, 4)[0]
-                        rep.rotations.setdefault(name, {})[int(step)] = np.roll(xyzw, 1)
+            _read_tool(rep, entity.removeprefix("/tools/"), rb, cols, steps)
     for step in sorted(sheet):
         rep.steps.append(step)
         rep.positions.append(sheet[step][0])
@@ -110,8 +87,47 @@ def load(path: Path) -> Replay:
     return rep
 
 
+def _read_sheet(rep: Replay, sheet: dict, rb: RecordBatch, cols: set, steps: list) -> None:
+    """The triangles are static (logged once) and go to ``rep``; positions and colours come
+    per keyframe and go to ``sheet`` (step -> (positions, colours))."""
+    if "Mesh3D:triangle_indices" in cols and rep.faces is None:
+        tri = rb.column("Mesh3D:triangle_indices")
+        rep.faces = next((_vec3(tri[i]).astype(np.uint32) for i in range(rb.num_rows)
+                          if tri[i].is_valid), None)
+    if "Mesh3D:vertex_positions" not in cols:
+        return
+    pos = rb.column("Mesh3D:vertex_positions")
+    col = rb.column("Mesh3D:vertex_colors") if "Mesh3D:vertex_colors" in cols else None
+    for i, step in enumerate(steps):
+        if step is None or not pos[i].is_valid:
+            continue
+        p = _vec3(pos[i]).astype(np.float32)
+        c = _rgb(col[i]) if col is not None and col[i].is_valid \
+            else np.full((len(p), 3), 180, np.uint8)
+        sheet[int(step)] = (p, c)
+
+
+def _read_tool(rep: Replay, name: str, rb: RecordBatch, cols: set, steps: list) -> None:
+    """A tool's mesh (static) and its translations and rotations per step."""
+    if "Mesh3D:vertex_positions" in cols:
+        rep.tools[name] = (_vec3(rb.column("Mesh3D:vertex_positions")[0]),
+                           _vec3(rb.column("Mesh3D:triangle_indices")[0]).astype(np.uint32))
+    if "Transform3D:translation" in cols:
+        tr = rb.column("Transform3D:translation")
+        for i, step in enumerate(steps):
+            if step is not None:
+                rep.poses.setdefault(name, {})[int(step)] = _vec3(tr[i])[0]
+    if "Transform3D:quaternion" in cols:
+        q = rb.column("Transform3D:quaternion")
+        for i, step in enumerate(steps):
+            if step is not None and q[i].is_valid:  # rerun stores (x, y, z, w)
+                xyzw = np.asarray(q[i].values.flatten().to_numpy(zero_copy_only=False),
+                                  np.float64).reshape(-1, 4)[0]
+                rep.rotations.setdefault(name, {})[int(step)] = np.roll(xyzw, 1)
+
+
 def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "",
-          block: bool = True):
+          block: bool = True) -> viser.ViserServer | None:
     """A viser viewer of ``rep``: sheet, tools, a step slider and Play/Pause. Returns the
     server when ``block`` is false (tests); otherwise runs until Ctrl-C."""
     import trimesh
@@ -121,12 +137,7 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
         raise ValueError("the recording holds no sheet mesh")
     server = viser.ViserServer(host=host, port=port, verbose=False)
     lock = threading.Lock()
-    handles = {}
-    for i, (name, (V, F)) in enumerate(rep.tools.items()):
-        rgb, alpha = tool_colour(i)
-        handles[name] = server.scene.add_mesh_simple(
-            f"/tools/{name}", V.astype(np.float32), F, color=rgb, opacity=alpha, side="double",
-            cast_shadow=False, receive_shadow=False)
+    handles = _add_tools(server, rep)
     g = server.gui
     status = g.add_markdown(f"Recording `{title}`: {len(rep.steps)} frames, steps "
                             f"{rep.steps[0]}-{rep.steps[-1]} (sheet coloured by thickness)")
@@ -148,21 +159,44 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
             status.content = f"Recording `{title}`: step {step} ({i + 1}/{len(rep.steps)})"
 
     slider.on_update(lambda _e: show(slider.value))
-    lo, hi = rep.positions[0].min(0), rep.positions[0].max(0)
+    _aim(server, rep.positions[0])
+    show(0)
+    if not block:
+        return server
+    _play(server, slider, playing, fps, len(rep.steps))
+    return None
+
+
+def _add_tools(server: viser.ViserServer, rep: Replay) -> dict:
+    """One mesh per tool, in its own colour: tool name -> viser handle."""
+    handles = {}
+    for i, (name, (V, F)) in enumerate(rep.tools.items()):
+        rgb, alpha = tool_colour(i)
+        handles[name] = server.scene.add_mesh_simple(
+            f"/tools/{name}", V.astype(np.float32), F, color=rgb, opacity=alpha, side="double",
+            cast_shadow=False, receive_shadow=False)
+    return handles
+
+
+def _aim(server: viser.ViserServer, positions: np.ndarray) -> None:
+    """Look at the sheet from the front, a little above it."""
+    lo, hi = positions.min(0), positions.max(0)
     centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) or 1.0
     cam = server.initial_camera
     cam.look_at, cam.up = tuple(centre), (0.0, 0.0, 1.0)
     cam.position = tuple(centre + size * np.array([0.1, -0.9, 0.6]))
-    show(0)
-    if not block:
-        return server
+
+
+def _play(server: viser.ViserServer, slider: viser.GuiSliderHandle,
+          playing: viser.GuiCheckboxHandle, fps: viser.GuiSliderHandle, n: int) -> None:
+    """Advance ``slider`` through the ``n`` frames at ``fps`` while ``playing`` is ticked,
+    until Ctrl-C."""
     try:
         while True:
             time.sleep(1.0 / fps.value)
             if playing.value:
-                slider.value = (slider.value + 1) % len(rep.steps)
+                slider.value = (slider.value + 1) % n
     except KeyboardInterrupt:
         pass
     finally:
         server.stop()
-    return None

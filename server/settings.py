@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 from pydantic import AfterValidator, WithJsonSchema
 
@@ -45,7 +46,8 @@ def check_run_id(name: str) -> str:
     return check_name(name, "run id", RUN_ID_MAX)
 
 
-def name_type(check, max_length: int, reserved: tuple[str, ...] = ()):
+def name_type(check: Callable[[str], str], max_length: int,
+              reserved: tuple[str, ...] = ()) -> Any:
     """A pydantic type for a ``check_name`` rule: the rule in the JSON schema, ``check``'s
     message on error."""
     schema = {"type": "string", "pattern": NAME_PATTERN, "minLength": 1,

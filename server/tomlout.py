@@ -32,7 +32,7 @@ def to_toml(data: dict, *, emitter: str = "auto") -> str:
     return dumps(data)
 
 
-def drop_none(value):
+def drop_none(value: object) -> object:
     """The value without ``None`` entries in tables (TOML cannot say null)."""
     if isinstance(value, dict):
         return {k: drop_none(v) for k, v in value.items() if v is not None}
@@ -81,7 +81,7 @@ def number(x: float) -> str:
     return f"{mant}e{int(exp)}"
 
 
-def value(v, where: str = "value") -> str:
+def value(v: object, where: str = "value") -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, int):
@@ -102,7 +102,7 @@ def value(v, where: str = "value") -> str:
     raise ValueError(f"{where}: cannot write {type(v).__name__} as TOML")
 
 
-def _is_table_array(v) -> bool:
+def _is_table_array(v: object) -> bool:
     return isinstance(v, list) and bool(v) and all(isinstance(x, dict) for x in v)
 
 

@@ -1,7 +1,7 @@
 """The viser viewer: the sheet coloured by a field, a legend, the tools, and run controls.
 
 It never sees the solver: the bridge hands it frames (dicts of arrays) and it calls back into
-the run manager through ``ViewerActions``. Positions stream to a wireframe every push (about
+the run manager through ``Actions``. Positions stream to a wireframe every push (about
 0.1 ms at 40k vertices); the coloured surface is a glTF re-sent at most ``colour_hz`` times a
 second (about 10 ms and 1.5 MB at 40k vertices), always on the last frame of a run. Each tool is
 one single-colour, semi-transparent mesh sent once per run; frames only move it (``.position``).
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Protocol
@@ -25,6 +26,7 @@ import trimesh
 import viser
 
 from server.colormap import MIN_SPAN, colorize, legend_html, tool_colour, value_range
+from server.replay import Replay
 
 # field key -> (label, unit); the dropdown shows "label (unit)"
 FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%"),
@@ -38,18 +40,21 @@ def field_label(key: str) -> str:
     return f"{label} ({unit})" if unit else label
 
 
-def field_options(keys) -> dict[str, str]:
+def field_options(keys: Collection[str]) -> dict[str, str]:
     """Dropdown label -> field key for the fields a frame carries, known fields first."""
     ordered = [k for k in FIELDS if k in keys] + sorted(k for k in keys if k not in FIELDS)
     return {field_label(k): k for k in ordered}
 
 
-class ViewerActions(Protocol):
-    def viewer_command(self, cmd: str) -> str: ...
-    def viewer_reset(self, element: str | None) -> str: ...
-    def viewer_set(self, name: str, value: float) -> str: ...
-    def viewer_scrub(self, step: int) -> tuple[dict | None, str]: ...
-    def viewer_recording(self, run_id: str): ...
+class Actions(Protocol):
+    """What the controls call (``server.actions.ViewerActions``); each answers with the status
+    line to show."""
+
+    def command(self, cmd: str) -> str: ...
+    def reset(self, element: str | None) -> str: ...
+    def set_parameter(self, name: str, value: float) -> str: ...
+    def scrub(self, step: int) -> tuple[dict | None, str]: ...
+    def recording(self, run_id: str) -> tuple[Replay | None, str]: ...
 
 
 @dataclass
@@ -68,7 +73,7 @@ LIVE = "live run"
 
 
 class Viewer:
-    def __init__(self, host: str, port: int, actions: ViewerActions, elements: list[str],
+    def __init__(self, host: str, port: int, actions: Actions, elements: list[str],
                  colour_hz: float = 4.0):
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.actions = actions
@@ -83,7 +88,7 @@ class Viewer:
         self._code = threading.local()  # .on while this thread's GUI changes are the code's
         self.live_faces: np.ndarray | None = None
         self.live_tools: list[dict] = []
-        self.replay = None  # a recorded run being shown (server.replay.Replay)
+        self.replay: Replay | None = None  # a recorded run being shown
         self.gui = self._build_gui(elements)
 
     @property
@@ -91,7 +96,7 @@ class Viewer:
         return self.server.get_port()
 
     @contextmanager
-    def _from_code(self):
+    def _from_code(self) -> Iterator[None]:
         """GUI values set inside are the code's, not a user's: their callbacks do nothing.
         viser runs the callbacks of a value set in code at once, in the thread that set it, so
         the mark is per thread: a user's change arriving meanwhile (in viser's threads, or a
@@ -103,7 +108,7 @@ class Viewer:
         finally:
             self._code.on = before
 
-    def _by_user(self, action):
+    def _by_user(self, action: Callable[[], object]) -> Callable[[object], None]:
         """An ``on_update`` callback that runs ``action()`` for a user's change only."""
         return lambda _e: None if getattr(self._code, "on", False) else action()
 
@@ -115,12 +120,12 @@ class Viewer:
             for label, cmd in (("Play", "resume"), ("Pause", "pause"), ("Step", "step")):
                 buttons[label] = g.add_button(label)
                 buttons[label].on_click(lambda _e, c=cmd: self._status(
-                    self.actions.viewer_command(c)))
+                    self.actions.command(c)))
             element = g.add_dropdown("Element", tuple(elements),
                                      initial_value="q3t" if "q3t" in elements else elements[0])
             buttons["Reset"] = g.add_button("Reset")
             buttons["Reset"].on_click(
-                lambda _e: self._status(self.actions.viewer_reset(element.value)))
+                lambda _e: self._status(self.actions.reset(element.value)))
         with g.add_folder("Time"):
             recording = g.add_dropdown("Run", (LIVE,), initial_value=LIVE,
                                        hint="the live run, or an older run's recording")
@@ -150,8 +155,8 @@ class Viewer:
 
     set_status = _status
 
-    def _on_slider(self, name: str, handle) -> None:
-        self._status(self.actions.viewer_set(name, float(handle.value)))
+    def _on_slider(self, name: str, handle: viser.GuiSliderHandle) -> None:
+        self._status(self.actions.set_parameter(name, float(handle.value)))
 
     def set_parameter_value(self, name: str, value: float) -> None:
         if name in self.gui.sliders:
@@ -203,18 +208,9 @@ class Viewer:
     def _choose_recording(self) -> None:
         choice = self.gui.recording.value
         if choice == LIVE:
-            with self.lock:
-                self.replay = None
-                if self.live_faces is not None:
-                    self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
-                                                      for t in self.live_tools])
-                live = self.frame
-            if live is not None:
-                self.show(live, "Showing the live run", final=True)
-            else:
-                self._status("Showing the live run")
+            self._show_live()
             return
-        rep, message = self.actions.viewer_recording(choice)
+        rep, message = self.actions.recording(choice)
         if rep is None:
             self._status(message)
             with self._from_code():
@@ -228,6 +224,19 @@ class Viewer:
                 self.gui.time.value = rep.steps[-1]
             self._show_recorded(rep.steps[-1], message)
             self._aim(rep.positions[-1])
+
+    def _show_live(self) -> None:
+        """Back from a replay: the live run's sheet and tools, and its latest frame."""
+        with self.lock:
+            self.replay = None
+            if self.live_faces is not None:
+                self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
+                                                  for t in self.live_tools])
+            live = self.frame
+        if live is not None:
+            self.show(live, "Showing the live run", final=True)
+        else:
+            self._status("Showing the live run")
 
     def _show_recorded(self, step: int, message: str) -> None:
         """The recorded frame at ``step`` or the nearest before it (under lock)."""
@@ -245,7 +254,7 @@ class Viewer:
                                        "recorded (each frame's min to max)</div>")
             self.gui.status.content = f"{message}  \nshowing recorded step {k}"
 
-    def _set_fields(self, keys) -> None:
+    def _set_fields(self, keys: Collection[str]) -> None:
         """Offer exactly the fields this frame carries; keep the choice when still offered."""
         options = field_options(keys)
         if options == self.options:
@@ -271,7 +280,7 @@ class Viewer:
                 self._show_recorded(int(self.gui.time.value),
                                     f"Recording of `{self.gui.recording.value}`")
                 return
-        frame, message = self.actions.viewer_scrub(int(self.gui.time.value))
+        frame, message = self.actions.scrub(int(self.gui.time.value))
         if frame is None:
             self._status(message)
             live = self.frame

@@ -22,12 +22,22 @@ import signal
 import time
 import traceback
 from dataclasses import asdict
+from multiprocessing.process import BaseProcess
+from multiprocessing.queues import Queue
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:  # the solver is imported in the solver process only, when it starts
+    from sim.scene import Scene
+    from sim.simulation import Simulation
 
-def _frame_msg(run: str, sim) -> dict:
+# a multiprocessing queue; a queue.Queue when a test drives the solver in its own process
+Channel = Queue | queue.Queue
+
+
+def _frame_msg(run: str, sim: Simulation) -> dict:
     """The frame message of the current state. A frame holding a number that is not finite
     is an error: it must reach neither the recording nor the server (which colours by it)."""
     f = sim.frame()
@@ -50,7 +60,7 @@ def plane_size(positions: np.ndarray) -> float:
     return float(2.0 * max(float(np.max(extent)), 1e-3))
 
 
-def tool_meshes(scene, size: float, cache: dict) -> list[dict]:
+def tool_meshes(scene: Scene, size: float, cache: dict) -> list[dict]:
     """Display meshes of the scene's tools in their local frames (world = local + translation):
     ``[{name, kind, vertices (m, 3) float32, faces (k, 3) uint32}]``. Cached per shape."""
     from sim.model import tool_program
@@ -71,11 +81,15 @@ class RecordingFailed(RuntimeError):
     pass
 
 
-class _Solver:
-    def __init__(self, events, frames, record_every: int, step_delay: float):
+class Solver:
+    """The run being stepped in this process: its simulation, recording and command
+    handlers (``cmd_<name>``)."""
+
+    def __init__(self, events: Channel, frames: Channel, record_every: int,
+                 step_delay: float):
         self.events, self.frames = events, frames
         self.record_every, self.step_delay = max(1, record_every), step_delay
-        self.sim = None
+        self.sim: Simulation | None = None
         self.run: str | None = None
         self.out: Path | None = None
         self.recorder = None
@@ -84,7 +98,7 @@ class _Solver:
         self.produced = self.dropped = 0  # frames of this run made / dropped (queue full)
         self.mesh_cache: dict = {}  # tool meshes by shape: a repeated run skips the meshing
 
-    def emit(self, kind: str, **kw) -> None:
+    def emit(self, kind: str, **kw: object) -> None:
         self.events.put({"kind": kind, "run": self.run, **kw})
 
     @property
@@ -102,7 +116,7 @@ class _Solver:
                              "error": str(exc), "run": self.run})
 
     # ---- the recording: any error in it fails the run, naming it ------------------------------
-    def record(self, method: str, *args, **kw) -> None:
+    def record(self, method: str, *args: object, **kw: object) -> None:
         if self.recorder is None:
             return
         try:
@@ -120,10 +134,8 @@ class _Solver:
 
     # ---- commands -----------------------------------------------------------------------------
     def cmd_start(self, msg: dict) -> None:
-        from server.recording import Recorder
-        from sim.scene import scene_from_toml
-        from sim.simulation import Simulation
-
+        """Build the run's model, open its recording, send its meta and rest frame. A build
+        that fails ends the run as failed (with its result.json) and the reply says why."""
         if self.sim is not None:
             self.finish("stopped", "replaced by a new run")
         self.run, self.out = msg["run"], Path(msg["out"])
@@ -132,6 +144,31 @@ class _Solver:
         self.last_mesh = -1
         self.record_every = max(1, int(msg.get("record_every") or self.record_every))
         self.emit("state", state="building")
+        scene, rest, timing = self._build(msg)
+        t0 = time.perf_counter()
+        self._open_recording(scene)  # after the build: a run stopped while building leaves none
+        tools = self._tool_meshes(scene, rest)
+        timing["tool_meshes_s"] = time.perf_counter() - t0
+        self.emit("meta", faces=self.sim.display.faces, n_steps=self.sim.n_steps,
+                  counts=self.sim.result()["counts"], element=scene.shell.element,
+                  probes=[p.name for p in scene.probes], tools=tools, timing=timing)
+        self.events.put(rest)  # the rest state, before the first step (which may take seconds)
+        try:
+            self.record("meta", self.sim.display.faces, tools)
+            for entry in self.sim.parameter_log:
+                self.record("parameter", entry)
+            self.record_frame(rest)
+        except RecordingFailed as exc:
+            self.finish("failed", str(exc))
+            return
+        self.emit("state", state="paused" if self.paused else "running")
+
+    def _build(self, msg: dict) -> tuple[Scene, dict, dict]:
+        """The run's simulation, with its live parameters set: its scene, its rest frame and
+        the build's timing."""
+        from sim.scene import scene_from_toml
+        from sim.simulation import Simulation
+
         t0 = time.perf_counter()
         scene = None
         try:
@@ -147,37 +184,28 @@ class _Solver:
             what = "" if isinstance(exc, ValueError) else f"{type(exc).__name__}: "
             self._unbuilt(scene, f"build failed: {what}{exc}")
             raise
-        t2 = time.perf_counter()
-        try:  # after the build: a run stopped while building (server.runs) leaves no file
+        return scene, rest, {"build_s": t1 - t0, "rest_frame_s": time.perf_counter() - t1}
+
+    def _open_recording(self, scene: Scene) -> None:
+        from server.recording import Recorder
+
+        try:
             self.recorder = None
             self.recorder = Recorder(self.out / "run.rrd", self.run)
         except Exception as exc:
             self.sim = None
             self._unbuilt(scene, f"recording failed: {exc}")
             raise
-        try:  # display only: a tool that cannot be meshed must not stop the run
-            tools = tool_meshes(scene, plane_size(rest["positions"]), self.mesh_cache)
-        except Exception:
-            tools = []
-            self.emit("log", text=f"tool meshes failed:\n{traceback.format_exc()}")
-        t3 = time.perf_counter()
-        self.emit("meta", faces=self.sim.display.faces, n_steps=self.sim.n_steps,
-                  counts=self.sim.result()["counts"], element=scene.shell.element,
-                  probes=[p.name for p in scene.probes], tools=tools,
-                  timing={"build_s": t1 - t0, "rest_frame_s": t2 - t1,
-                          "tool_meshes_s": t3 - t2})
-        self.events.put(rest)  # the rest state, before the first step (which may take seconds)
-        try:
-            self.record("meta", self.sim.display.faces, tools)
-            for entry in self.sim.parameter_log:
-                self.record("parameter", entry)
-            self.record_frame(rest)
-        except RecordingFailed as exc:
-            self.finish("failed", str(exc))
-            return
-        self.emit("state", state="paused" if self.paused else "running")
 
-    def _unbuilt(self, scene, reason: str) -> None:
+    def _tool_meshes(self, scene: Scene, rest: dict) -> list[dict]:
+        """Display only: a tool that cannot be meshed must not stop the run."""
+        try:
+            return tool_meshes(scene, plane_size(rest["positions"]), self.mesh_cache)
+        except Exception:
+            self.emit("log", text=f"tool meshes failed:\n{traceback.format_exc()}")
+            return []
+
+    def _unbuilt(self, scene: Scene | None, reason: str) -> None:
         """A run that ends before it has a model: its result.json says why, then its state."""
         from sim import results
 
@@ -312,43 +340,51 @@ class _Solver:
         self.sim, self.paused = None, False
 
 
-def worker_main(commands, events, frames, record_every: int = 10,
+def worker_main(commands: Channel, events: Channel, frames: Channel, record_every: int = 10,
                 step_delay: float = 0.0) -> None:
     """Entry point of the spawned process. Exits on a ``shutdown`` command, or when the server
     process is gone."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    parent = mp.parent_process()
-    solver = _Solver(events, frames, record_every, step_delay)
-    parameters = {}
-    try:  # import and compile here, so the server answers while this takes seconds
-        from sim.simulation import Simulation
-
-        parameters = dict(Simulation.PARAMETERS)
-    except Exception:
-        events.put({"kind": "log", "run": None, "text": traceback.format_exc()})
-    events.put({"kind": "ready", "run": None, "parameters": parameters})
-    orphaned = False
-    while True:
-        if parent is not None and not parent.is_alive():
-            orphaned = True
-            if solver.sim is not None:
-                solver.finish("failed", "the server process died")
-            break
-        try:
-            msg = commands.get_nowait() if solver.stepping else commands.get(timeout=0.2)
-        except queue.Empty:
-            msg = None
-        if msg is not None:
-            if msg["cmd"] == "shutdown":
-                if solver.sim is not None:
-                    solver.finish("stopped", "server shut down")
-                break
-            solver.handle(msg)
-            continue
-        if solver.stepping:
-            solver.step()
-    if orphaned:  # nobody reads the queues any more: do not wait to flush them
+    solver = Solver(events, frames, record_every, step_delay)
+    events.put({"kind": "ready", "run": None, "parameters": _parameters(events)})
+    if _serve(solver, commands, mp.parent_process()):
+        # orphaned: nobody reads the queues any more, do not wait to flush them
         events.cancel_join_thread()
         frames.cancel_join_thread()
     events.close()
     frames.close()
+
+
+def _parameters(events: Channel) -> dict:
+    """The live parameters and their ranges. Imports and compiles the solver: here, in this
+    process, so the server answers while this takes seconds."""
+    try:
+        from sim.simulation import Simulation
+
+        return dict(Simulation.PARAMETERS)
+    except Exception:
+        events.put({"kind": "log", "run": None, "text": traceback.format_exc()})
+        return {}
+
+
+def _serve(solver: Solver, commands: Channel, parent: BaseProcess | None) -> bool:
+    """Answer commands and step the active run between them, until a ``shutdown`` (returns
+    False) or the server process's death (returns True)."""
+    while True:
+        if parent is not None and not parent.is_alive():
+            if solver.sim is not None:
+                solver.finish("failed", "the server process died")
+            return True
+        try:
+            msg = commands.get_nowait() if solver.stepping else commands.get(timeout=0.2)
+        except queue.Empty:
+            msg = None
+        if msg is None:
+            if solver.stepping:
+                solver.step()
+        elif msg["cmd"] == "shutdown":
+            if solver.sim is not None:
+                solver.finish("stopped", "server shut down")
+            return False
+        else:
+            solver.handle(msg)

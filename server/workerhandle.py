@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import itertools
 import multiprocessing as mp
+from collections.abc import Callable
 
 from server.worker import worker_main
 
+# the process's entry point: (commands, events, frames, record_every, step_delay) -> None
+WorkerTarget = Callable[..., None]
 _ids = itertools.count(1)
 
 
 class WorkerHandle:
     def __init__(self, frame_queue: int, record_every: int, step_delay: float,
-                 target=worker_main):
+                 target: WorkerTarget = worker_main):
         """``target``: the process's entry point (``worker_main``; the benchmark passes a
         frame generator with the same signature)."""
         ctx = mp.get_context("spawn")
@@ -30,7 +33,7 @@ class WorkerHandle:
     def alive(self) -> bool:
         return self.process.is_alive()
 
-    def send(self, cmd: str, **kw) -> int:
+    def send(self, cmd: str, **kw: object) -> int:
         rid = next(_ids)
         self.commands.put({"id": rid, "cmd": cmd, **kw})
         return rid

@@ -164,10 +164,10 @@ def tiny_toml(**over) -> str:
 def run_in_process(tmp_path, run: str, overrides: dict):
     """Start a run on an in-process solver and step it to its end: the solver, its (state,
     reason) events and the run's folder."""
-    from server.worker import _Solver
+    from server.worker import Solver
 
     events = queue.Queue()
-    solver = _Solver(events, queue.Queue(maxsize=4), record_every=1, step_delay=0.0)
+    solver = Solver(events, queue.Queue(maxsize=4), record_every=1, step_delay=0.0)
     out = tmp_path / run
     out.mkdir()
     solver.handle({"id": 1, "cmd": "start", "run": run, "out": str(out),

@@ -16,7 +16,7 @@ pytest.importorskip("fastapi")
 from fastapi.testclient import TestClient  # noqa: E402
 
 from server.app import create_app  # noqa: E402
-from server.runs import ACTIVE  # noqa: E402
+from server.records import ACTIVE  # noqa: E402
 from server.settings import Settings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -508,6 +508,37 @@ def test_frames_are_dropped_for_a_slow_viewer(env, monkeypatch):
     assert sorted(series(path, "/solver/iterations")) == list(range(1, last + 1))  # all
 
 
+def test_frames_read_after_the_run_ended_are_kept(env, monkeypatch):
+    """Frames come by one queue, the run's states by another: a bridge that reads both late
+    (a loaded machine) books the run's end before the frames the solver made earlier. Those
+    frames are still kept for scrubbing. Here the bridge is held until the solver is done."""
+    from server.bridge import Bridge
+
+    client, settings = env
+    m = client.app.state.manager
+    parked, go = threading.Event(), threading.Event()
+    step = Bridge._step
+
+    def late(self):
+        parked.set()
+        go.wait(HANG)
+        step(self)
+
+    (settings.scenes_dir / "three.toml").write_text(tiny_toml(steps=3))
+    monkeypatch.setattr(Bridge, "_step", late)
+    try:
+        assert parked.wait(HANG), "the bridge never came round"
+        run_id = client.post("/api/runs", json={"scene": "three"}).json()["id"]
+        # building, meta, the rest frame, running, the start's reply, 3 step records, the
+        # last frame and the finished state; frames 1 and 2 wait on the frame queue
+        until(lambda: m.worker.events.qsize() >= 10, "the solver did not finish the run")
+    finally:
+        go.set()
+    st = wait_state(client, run_id, {"finished", "failed", "stopped"})
+    assert st["state"] == "finished", st["reason"]
+    assert client.get(f"/api/runs/{run_id}/frames").json()["steps"] == [0, 1, 2, 3]
+
+
 def test_a_bridge_error_fails_the_run_and_the_service_goes_on(env, monkeypatch):
     """An exception while the bridge books an event (here: the disk is full) fails the active
     run with the reason; the bridge stays alive, /api/health says so, the next run runs."""
@@ -540,10 +571,10 @@ def test_a_recording_error_in_the_solver_fails_the_run(tmp_path, monkeypatch):
     import queue
 
     from server import recording
-    from server.worker import _Solver
+    from server.worker import Solver
 
     events, frames = queue.Queue(), queue.Queue(maxsize=4)
-    solver = _Solver(events, frames, record_every=1, step_delay=0.0)
+    solver = Solver(events, frames, record_every=1, step_delay=0.0)
     calls = {"n": 0}
     real = recording.Recorder.frame
 
@@ -739,18 +770,19 @@ def test_serve_refuses_other_hosts_without_a_token(monkeypatch, capsys):
 def test_health_counts_a_long_recording_repair_as_alive(env, monkeypatch):
     """The bridge repairs a killed solver's recording itself (rerun rrd merge, up to minutes on
     a long run): health reports the repair, not a dead bridge, while it lasts."""
-    from server import runs
+    from server.bridge import HEARTBEAT_S
+    from server.records import Run
 
     client, _ = env
     m = client.app.state.manager
     seen = {}
 
     def slow_repair(path):  # the heartbeat is long stale when health is asked
-        monkeypatch.setattr(m, "heartbeat", m.heartbeat - 10 * runs.HEARTBEAT_S)
+        monkeypatch.setattr(m.bridge, "heartbeat", m.bridge.heartbeat - 10 * HEARTBEAT_S)
         seen["health"] = m.health()
 
     monkeypatch.setattr("server.recording.repair", slow_repair)
-    assert m._repair(runs.Run("r-repair", "tiny", "q3t", {}, 0.0)) == ""
+    assert m.repair(Run("r-repair", "tiny", "q3t", {}, 0.0)) == ""
     assert seen["health"]["bridge_alive"] and seen["health"]["repairing_recording"] == "r-repair"
     after = m.health()
     assert after["bridge_alive"] and after["repairing_recording"] is None

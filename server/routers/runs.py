@@ -166,10 +166,10 @@ def result(run_id: RunId, request: Request) -> dict:
     """The run's result.json, with ``estimate`` as in the status."""
     m = _runs(request)
     run = m.get(run_id)
-    path = m.dir(run.id) / "result.json"
+    path = m.files.dir(run.id) / "result.json"
     if not path.is_file():
         raise NotFound(f"run {run_id!r} has no result yet")
-    return {**json.loads(path.read_text()), "estimate": m.estimate(run)}
+    return {**json.loads(path.read_text()), "estimate": m.estimates.get(run)}
 
 
 @router.get("/{run_id}/frames", response_model=KeptFrames, responses=RUN)
@@ -202,7 +202,7 @@ def frame(run_id: RunId, step: int, request: Request) -> dict:
                  "description": "The run's rerun recording (run.rrd)"}})
 def recording(run_id: RunId, request: Request) -> FileResponse:
     m = _runs(request)
-    path = m.dir(m.get(run_id).id) / "run.rrd"
+    path = m.files.recording(m.get(run_id).id)
     if not path.is_file():
         raise NotFound(f"run {run_id!r} has no recording")
     return FileResponse(path, media_type="application/octet-stream", filename=f"{run_id}.rrd")

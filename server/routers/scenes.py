@@ -40,7 +40,7 @@ nu = 0.3
 """
 
 
-def _example(**values) -> ConfigDict:
+def _example(**values: object) -> ConfigDict:
     """A request body's config: strict (a JSON 0 is no boolean), no unknown fields, and an
     example for the schema."""
     return ConfigDict(strict=True, extra="forbid", json_schema_extra={"examples": [values]})
