@@ -31,7 +31,8 @@ bench: $(STAMP)
 
 # Every measured table in docs/results/, each written and stamped (commit, date, CPU, load,
 # command) by the command that measures it (docs/results/README.md lists them). One after the
-# other, never side by side: they measure time. About 1.5 h on the 2-core machine.
+# other, never side by side: they measure time. About 35 min on the 2-core machine, most of it
+# the forming bench.
 R := docs/results
 results: $(STAMP)
 	$(BIN)/q3t check --results $(R)/check.md
@@ -46,6 +47,12 @@ results: $(STAMP)
 	  --results $(R)/overhead-plastic_bending.md
 	$(BIN)/q3t study cup_blank --overhead-only --levels 0.001 --results $(R)/overhead-cup_blank.md
 	$(BIN)/q3t study convergence --overhead-only --results $(R)/overhead-convergence.md
+	$(BIN)/q3t study cantilever --set material.nu=0.49 --set material.E=1e11 --elements linear,q3t \
+	  --levels 0.0175,0.00875,0.0046667,0.0035 --reference quadratic:0.0046667 --no-overhead \
+	  --out runs/accuracy --results $(R)/accuracy-refinement.md
+	$(BIN)/q3t study cantilever --set material.nu=0 --set material.E=1e11 --elements quadratic \
+	  --levels 0.0046667 --analytic euler_bernoulli --no-overhead --out runs/accuracy-eb \
+	  --results $(R)/accuracy-euler-bernoulli.md
 	$(BIN)/q3t bench-service --results $(R)/service.md
 
 # the scene field reference, rendered from the schema (tests/test_docs.py fails when it is stale)
