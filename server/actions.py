@@ -10,7 +10,7 @@ import time
 from server import replay
 from server.problems import Conflict, Invalid, NotFound, NotReady
 from server.runs import RunManager
-from sim.scene import SceneError
+from sim.scene.load import SceneError
 
 STOP_WAIT_S = 10.0  # Reset: how long the stopped run may take to end before the new one starts
 

@@ -36,7 +36,7 @@ import numpy as np
 
 from server.settings import ROOT, Settings
 from server.worker import Channel
-from sim import results
+from sim.frames import results
 from sim.stamp import Stamp, add_results_option, write_results
 
 CUP_40K = {"mesh.edge_length": 0.00038, "stepping.steps": 50}  # 39,686 display vertices

@@ -25,8 +25,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server.problems import Conflict, Invalid, NotFound, NotReady
 from server.settings import Settings
-from sim.scene import SceneError
-from sim.tree import MAX_DEPTH, tree_problem
+from sim.scene.load import SceneError
+from sim.scene.tree import MAX_DEPTH, tree_problem
 
 
 class Problem(BaseModel):

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from server.records import Run
-from sim.scene import scene_from_toml
+from sim.scene.load import scene_from_toml
 
 DATE = re.compile(r"^(\d{4}-\d{2}-\d{2})\b", re.M)
 SAME_EDGE = 1e-3  # relative: levels are written with 5-6 significant digits

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from server.settings import check_run_id
 from server.store import atomic_write
-from sim import results
+from sim.frames import results
 
 ACTIVE = {"starting", "building", "running", "paused"}
 LOST = "the server stopped during the run"

@@ -25,9 +25,9 @@ from server.settings import Settings, check_run_id
 from server.store import SceneStore
 from server.worker import worker_main
 from server.workerhandle import WorkerHandle, WorkerTarget
-from sim import size
 from sim.elements import get_element
-from sim.scene import scene_from_toml
+from sim.model import size
+from sim.scene.load import scene_from_toml
 
 if TYPE_CHECKING:  # imports viser
     from server.viewer import Viewer

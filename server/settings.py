@@ -11,7 +11,7 @@ from typing import Annotated, Any
 from pydantic import AfterValidator, WithJsonSchema
 
 from server.problems import Invalid
-from sim.size import DEFAULT_LIMIT
+from sim.model.size import DEFAULT_LIMIT
 
 ROOT = Path(__file__).resolve().parent.parent
 # A file-system-safe name: starts with a letter or digit, then letters, digits, '_', '-' and
@@ -83,7 +83,7 @@ class Settings:
     history_frames: int = 400  # frames of the current run kept for scrubbing; then every k-th
     history_bytes: int = 256 * 2**20  # and at most this many bytes of them (server process)
     default_scene: str = "cup_drawing"  # selected first on the page; the viewer's Play starts it
-    # a run whose model would need more memory to build is refused (sim.size: the estimate and
+    # a run whose model would need more memory to build is refused (sim.model.size: the estimate and
     # why the default is half of this 24 GiB machine)
     max_model_bytes: float = DEFAULT_LIMIT
     extra: dict = field(default_factory=dict)

@@ -13,9 +13,9 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 
 from server.problems import Conflict, Invalid, NotFound
 from server.settings import check_scene_name
-from sim.scene import Scene, SceneError, read_toml, scene_from_toml
+from sim.scene.load import Scene, SceneError, read_toml, scene_from_toml
 
-MESH_SUFFIXES = (".obj", ".ply", ".stl")  # what sim.mesh.load reads
+MESH_SUFFIXES = (".obj", ".ply", ".stl")  # what sim.geometry.trimesh.load reads
 VALUE_SUFFIXES = (".npy", ".txt", ".csv")  # what sim.model reads as per-vertex values
 
 

@@ -30,8 +30,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # the solver is imported in the solver process only, when it starts
-    from sim.scene import Scene
-    from sim.simulation import Simulation
+    from sim.scene.load import Scene
+    from sim.stepping.simulation import Simulation
 
 # a multiprocessing queue; a queue.Queue when a test drives the solver in its own process
 Channel = Queue | queue.Queue
@@ -63,8 +63,8 @@ def plane_size(positions: np.ndarray) -> float:
 def tool_meshes(scene: Scene, size: float, cache: dict) -> list[dict]:
     """Display meshes of the scene's tools in their local frames (world = local + translation):
     ``[{name, kind, vertices (m, 3) float32, faces (k, 3) uint32}]``. Cached per shape."""
-    from sim.model import tool_program
-    from sim.tools.meshes import tool_mesh
+    from sim.tools.shapes import tool_program
+    from sim.tools.surface import tool_mesh
 
     out = []
     for spec in scene.tools:
@@ -166,8 +166,8 @@ class Solver:
     def _build(self, msg: dict) -> tuple[Scene, dict, dict]:
         """The run's simulation, with its live parameters set: its scene, its rest frame and
         the build's timing."""
-        from sim.scene import scene_from_toml
-        from sim.simulation import Simulation
+        from sim.scene.load import scene_from_toml
+        from sim.stepping.simulation import Simulation
 
         t0 = time.perf_counter()
         scene = None
@@ -207,7 +207,7 @@ class Solver:
 
     def _unbuilt(self, scene: Scene | None, reason: str) -> None:
         """A run that ends before it has a model: its result.json says why, then its state."""
-        from sim import results
+        from sim.frames import results
 
         try:
             results.write(self.out / "result.json", results.interrupted(
@@ -275,7 +275,7 @@ class Solver:
             self.finish("failed", f"{type(exc).__name__}: {exc}")
 
     def _step(self, single: bool) -> None:
-        from sim.simulation import SolverFailure
+        from sim.stepping.simulation import SolverFailure
 
         try:
             rec = self.sim.step()
@@ -326,6 +326,8 @@ class Solver:
                 self.record_frame(last, final=True)  # unless step() recorded it already
         except Exception as exc:
             problems.append(str(exc))
+        if state != "finished":  # result.json says why, as the status does
+            self.sim.end(reason or state, stopped=state == "stopped")
         try:
             self.sim.write(self.out)
         except Exception as exc:  # the state still goes up; the reason says what broke
@@ -359,7 +361,7 @@ def _parameters(events: Channel) -> dict:
     """The live parameters and their ranges. Imports and compiles the solver: here, in this
     process, so the server answers while this takes seconds."""
     try:
-        from sim.simulation import Simulation
+        from sim.stepping.simulation import Simulation
 
         return dict(Simulation.PARAMETERS)
     except Exception:

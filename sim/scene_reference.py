@@ -21,7 +21,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from sim.scene import Scene
+from sim.scene.load import Scene
 
 TOP = "top level"  # the scene's own fields
 OUT = Path(__file__).resolve().parent.parent / "docs" / "scene-reference.md"

@@ -6,8 +6,8 @@ import functools
 import numpy as np
 import pytest
 
-from sim.scene import load_scene
-from sim.simulation import Simulation
+from sim.scene.load import load_scene
+from sim.stepping.simulation import Simulation
 
 E, RHO, L, H = 1e11, 1000.0, 0.7, 0.007
 # Self-weight tip deflection of the beam: q L^4 / (8 E I), q = rho g b h, I = b h^3 / 12.

@@ -26,9 +26,9 @@ from sim.apps.check import (
     verdict,
     write_sliver_obj,
 )
-from sim.mesh import load
-from sim.scene import load_scene
-from sim.simulation import Simulation
+from sim.geometry.trimesh import load
+from sim.scene.load import load_scene
+from sim.stepping.simulation import Simulation
 
 ROOT = Path(__file__).resolve().parent.parent
 CANTILEVER = str(ROOT / "scenes" / "cantilever.toml")

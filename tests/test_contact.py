@@ -6,8 +6,8 @@ import functools
 import numpy as np
 import pytest
 
-from sim.scene import load_scene, scene_from_dict
-from sim.simulation import Simulation
+from sim.scene.load import load_scene, scene_from_dict
+from sim.stepping.simulation import Simulation
 
 T = 0.002
 
@@ -143,7 +143,7 @@ def test_friction_on_a_moving_curved_tool():
         assert rec.probes["px"] < 0  # dragged by +2 mm per step, the sheet holds it back
         # sliding (slip >= eps_v) nodes: |f_t| = mu lam exactly for the lagged lam, which the
         # fixed point leaves within 1e-3 of the largest normal force of the converged one
-        slide = f > (1 - 1e-6) * mu * term._lagged[5]
+        slide = f > (1 - 1e-6) * mu * term.lagged[5]
         assert slide.sum() >= 10
         assert np.all(np.abs(f[slide] - mu * lam[slide]) <= 1e-3 * mu * lam.max())
         # some of them on the rounded rim (beyond the flat face, rho > 5 mm)
@@ -302,14 +302,14 @@ def test_cup_rim_thickens_to_the_free_edge_value_then_is_ironed():
     thickest rim node (1.51 mm) still sits on the die shoulder, where the gap to the punch
     is 1.5 mm, while the section's point from rest radius 26 mm, thickened to 1.25 mm at
     20 mm of stroke, is 1.19 mm in the gap at 25 mm."""
-    from sim import probes
+    from sim.frames import fields
 
     sim = cup("q3t")
     m, x = sim.model, sim.x
     V = m.shell.mesh.vertices
     rim = np.hypot(V[:, 0], V[:, 1]) > 0.0295
-    h = probes.thickness(m, x)[rim]
-    mid = probes.mid_surface(m, x)[rim]
+    h = fields.thickness(m, x)[rim]
+    mid = fields.mid_surface(m, x)[rim]
     free_edge = 1e-3 * np.sqrt(0.03 / np.hypot(mid[:, 0], mid[:, 1]).mean())
     assert 1.2e-3 < h.mean() < free_edge
 
@@ -426,7 +426,7 @@ def _fd_term(term, x, pattern, rng, h, n_dirs=3):
     two-point difference of E would be off by h^2 k / (6 delta) per node, the five-point one is
     exact for cubics, as the two-point one of g is for its quadratic. Returns (gradient errors,
     gradient scales, Hessian errors, Hessian scales), one entry per direction."""
-    from sim.assembly import sym_matvec
+    from sim.solve.assembly import sym_matvec
 
     def grad(y):
         g = np.zeros_like(y)
@@ -509,7 +509,7 @@ def test_fd_of_the_holder_term_with_its_coupling():
     for _ in range(2):
         sim.step()
     holder = next(t for t in sim.tools if t.tool == "blank_holder")
-    assert holder.vdof is not None and holder.mu > 0 and holder._lagged[0].sum() > 20
+    assert holder.vdof is not None and holder.mu > 0 and holder.lagged[0].sum() > 20
     sim.tools[0].begin_step(sim.t + 0.04, 0.04, sim.x)
     holder.begin_step(sim.t + 0.04, 0.04, sim.x)  # friction lags this state, slip from it
     x = sim.x.copy()

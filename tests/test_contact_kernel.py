@@ -1,4 +1,5 @@
-"""Penalty contact and smoothed Coulomb friction kernels (sim.contact) against SDF tools.
+"""Penalty contact and smoothed Coulomb friction kernels (sim.terms.contact_kernels) against SDF
+tools.
 
 Scales: tools ~ 1e-2 m, contact layer delta = 1 mm, k = 1e6 N/m, slip length eps_v = 1e-5 m.
 Central finite differences:
@@ -16,24 +17,24 @@ Nodes within 10 h of the kink at d = delta (Hessian jump of the quadratic penalt
 import numpy as np
 import pytest
 
-from sim import contact
-from sim.tools import sdf
+from sim.terms import contact_kernels as contact
+from sim.tools import builders, evaluate, pose
 
 K = 1.0e6
 DELTA = 1.0e-3
-R_POSE = sdf.rotation([0.2, 1.0, -0.3], 0.5)
+R_POSE = pose.rotation([0.2, 1.0, -0.3], 0.5)
 T_POSE = np.array([0.01, -0.02, 0.03])
-PUNCH = sdf.punch(0.03, 0.05, 0.005)
+PUNCH = builders.punch(0.03, 0.05, 0.005)
 
 
 def _nodes_in_layer(prog, R, t, n, seed, spread=2.5e-3):
     """Nodes around the tool surface (flat nose, rounded rim, wall), world frame."""
-    from sim.tools.meshes import tool_mesh
+    from sim.tools.surface import tool_mesh
 
     rng = np.random.default_rng(seed)
     V, _ = tool_mesh(prog, R, t, n_segments=32, n_arc=8)
     X = V[rng.choice(len(V), n, replace=False)] + rng.normal(scale=spread, size=(n, 3))
-    d = sdf.sdf_world_distance(prog, R, t, X)
+    d = evaluate.sdf_world_distance(prog, R, t, X)
     return X[np.abs(d - DELTA) > 1e-6]
 
 
@@ -76,7 +77,7 @@ def test_curvature_term_on_rounded_rim():
     z = re + (re + DELTA - s) * np.sin(phi)
     X = np.array([[rho, 0.0, z]])
     _, grad, hess, active, gap = contact.penalty_contact(X, PUNCH, None, None, K, DELTA)
-    d, g, H = sdf.sdf_eval(PUNCH, X)
+    d, g, H = evaluate.sdf_eval(PUNCH, X)
     assert active[0] and gap[0] == pytest.approx(DELTA - s, abs=1e-15)
     np.testing.assert_allclose(grad[0], -K * s * g[0], rtol=1e-12)
     np.testing.assert_allclose(hess[0], K * np.outer(g[0], g[0]) - K * s * H[0], rtol=1e-10,
@@ -88,7 +89,7 @@ def test_plane_push_force_and_far_nodes():
     n = np.array([0.3, -0.4, 1.0])
     n /= np.linalg.norm(n)
     p0 = np.array([0.01, 0.02, -0.005])
-    tool = sdf.plane(p0, n)
+    tool = builders.plane(p0, n)
     s = np.array([0.2e-3, 1.0e-3, 2.5e-3])  # into the layer, to the surface, through it
     X = p0 + (DELTA - s)[:, None] * n
     X = np.concatenate([X, p0 + np.array([[0.0, 0.0, 0.0]]) + 5 * DELTA * n])
@@ -101,9 +102,9 @@ def test_plane_push_force_and_far_nodes():
     assert np.all(force[3] == 0) and np.all(hess[3] == 0)
     np.testing.assert_allclose(gap, np.r_[DELTA - s, 5 * DELTA], atol=1e-16)
     # a pose moves the plane with the tool
-    R = sdf.rotation([1, 0, 0], 0.3)
+    R = pose.rotation([1, 0, 0], 0.3)
     t = np.array([0.0, 0.01, 0.02])
-    E2, grad2, *_ = contact.penalty_contact(sdf.transform(X, R, t), tool, R, t, K, DELTA)
+    E2, grad2, *_ = contact.penalty_contact(pose.transform(X, R, t), tool, R, t, K, DELTA)
     assert E2 == pytest.approx(E, rel=1e-12)
     np.testing.assert_allclose(grad2, grad @ R.T, rtol=1e-10, atol=1e-9)
     # all nodes far away: zero energy and the cheap path
@@ -139,7 +140,7 @@ def test_auto_stiffness_rule():
     p = 4e-3 * E
     assert k == pytest.approx(p * h * h / (0.01 * t))
     # a node loaded by p h^2 on a plane settles at a penetration of 1 % of the thickness
-    tool = sdf.plane([0, 0, 0], [0, 0, 1])
+    tool = builders.plane([0, 0, 0], [0, 0, 1])
     s = p * h * h / k
     _, grad, *_ = contact.penalty_contact(np.array([[0, 0, -s]]), tool, None, None, k, 0.0)
     assert -grad[0, 2] == pytest.approx(p * h * h)
@@ -151,7 +152,7 @@ def test_auto_stiffness_rule():
 
 
 def test_normal_forces_for_lagging():
-    tool = sdf.plane([0, 0, 0], [0, 0, 1])
+    tool = builders.plane([0, 0, 0], [0, 0, 1])
     X = np.array([[0, 0, 0.5e-3], [0, 0, -1e-3], [0, 0, 5e-3]])
     lam, nrm = contact.normal_forces(X, tool, None, None, K, DELTA)
     np.testing.assert_allclose(lam, [K * 0.5e-3, K * 2e-3, 0.0])
@@ -244,11 +245,11 @@ def test_friction_force_saturates_and_opposes_slip():
 def test_tool_displacement_and_reaction():
     rng = np.random.default_rng(5)
     X0 = rng.uniform(-0.05, 0.05, (20, 3))
-    R0, t0 = sdf.rotation([0, 0, 1], 0.1), np.array([0.0, 0.0, 0.1])
-    R1, t1 = sdf.rotation([0, 0, 1], 0.3), np.array([0.0, 0.0, 0.09])
+    R0, t0 = pose.rotation([0, 0, 1], 0.1), np.array([0.0, 0.0, 0.1])
+    R1, t1 = pose.rotation([0, 0, 1], 0.3), np.array([0.0, 0.0, 0.09])
     U = contact.tool_displacement(X0, R0, t0, R1, t1)
     # the tool point at X0 has local coordinates R0^T (X0 - t0) before and after the step
-    np.testing.assert_allclose(sdf.to_local(X0 + U, R1, t1), sdf.to_local(X0, R0, t0),
+    np.testing.assert_allclose(pose.to_local(X0 + U, R1, t1), pose.to_local(X0, R0, t0),
                                atol=1e-15)
     np.testing.assert_allclose(contact.tool_displacement(X0, None, t0, None, t1),
                                np.tile(t1 - t0, (20, 1)), atol=1e-15)
@@ -257,7 +258,7 @@ def test_tool_displacement_and_reaction():
     _, g, _ = contact.friction(X0 + U, X0, U, lam, nrm, MU, EPS_V)
     np.testing.assert_allclose(g, 0.0, atol=1e-9 * MU * lam.max())
     # reaction on the tool = minus the sum of the contact forces on the nodes
-    tool = sdf.plane([0, 0, 0], [0, 0, 1])
+    tool = builders.plane([0, 0, 0], [0, 0, 1])
     Xc = np.array([[0.0, 0.0, -1e-4], [0.01, 0.0, 2e-4], [0.0, 0.0, 0.1]])
     _, gp, *_ = contact.penalty_contact(Xc, tool, None, None, K, DELTA)
     lam, nrm = contact.normal_forces(Xc, tool, None, None, K, DELTA)

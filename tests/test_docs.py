@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from sim.scene import scene_from_toml
+from sim.scene.load import scene_from_toml
 from sim.scene_reference import reference
-from sim.simulation import Simulation
+from sim.stepping.simulation import Simulation
 
 ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text()

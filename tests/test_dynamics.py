@@ -4,8 +4,8 @@ ramp and keyframes) with the support reaction it takes to move the sheet's mass.
 import numpy as np
 import pytest
 
-from sim.scene import SceneError, scene_from_dict
-from sim.simulation import Simulation
+from sim.scene.load import SceneError, scene_from_dict
+from sim.stepping.simulation import Simulation
 
 RHO, SIDE, H = 1000.0, 0.1, 0.004
 G = 9.81

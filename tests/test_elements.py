@@ -4,10 +4,12 @@ derivatives against finite differences, quadrature volume, patch test, and stiff
 import numpy as np
 import pytest
 
-from sim import assembly, mesh, shell
 from sim.elements import ELEMENTS
+from sim.geometry import shell
+from sim.geometry import trimesh as mesh
+from sim.geometry.quadrature import prism_rule, triangle_rule
 from sim.materials.isotropic import stress_tangent
-from sim.quadrature import prism_rule, triangle_rule
+from sim.solve import assembly
 from sim.terms.elasticity import PROJECT_NONE, Elasticity
 
 NAMES = sorted(ELEMENTS)
@@ -257,7 +259,7 @@ def test_scatter_schedule_blocks_of_a_colour_share_no_node(name):
     """The parallel scatter is race-free only if no two blocks of a colour share a node; every
     element is scattered once; and the blocks are patches (each touches few others), or the
     schedule has lost the locality it exists for."""
-    from sim.assembly import scatter_schedule
+    from sim.solve.assembly import scatter_schedule
 
     sh = shell.extrude(mesh.annulus(0.0, 0.03, 0.002), 0.001, ELEMENTS[name])
     sc = scatter_schedule(sh.conn, sh.n_nodes, block=16)
@@ -279,7 +281,7 @@ def test_chosen_rule_has_no_spurious_mode_on_any_mesh(name, shape):
     rule, and neither leaves a spurious mode (vertex_hang's one mode is its real mechanism)."""
     from types import SimpleNamespace
 
-    from sim.model import quadrature_rule
+    from sim.model.sheet import quadrature_rule
 
     e = ELEMENTS[name]
     scene = SimpleNamespace(shell=SimpleNamespace(quadrature=None))

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from sim.materials.isotropic import principal_stress_tangent_into, stress_tangent
-from sim.scene import load_scene
-from sim.simulation import Simulation
+from sim.scene.load import load_scene
+from sim.stepping.simulation import Simulation
 
 RNG = np.random.default_rng(7)
 

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim import size
 from sim.apps.cli import main
-from sim.scene import SceneError, load_scene
-from sim.simulation import Simulation
+from sim.model import size
+from sim.scene.load import SceneError, load_scene
+from sim.stepping.simulation import Simulation
 
 ROOT = Path(__file__).resolve().parent.parent
 CANTILEVER = ROOT / "scenes" / "cantilever.toml"
@@ -62,7 +62,7 @@ def test_an_error_inside_a_step_is_a_failure_naming_it(monkeypatch, tmp_path):
 
 
 def test_a_record_that_is_not_finite_fails_the_step(monkeypatch, tmp_path):
-    from sim import probes
+    from sim.frames import probes
 
     real = probes.evaluate
     monkeypatch.setattr(probes, "evaluate", lambda *a, **k: {**real(*a, **k), "volume": np.nan})
@@ -110,7 +110,7 @@ def test_cli_run_failing_inside_a_step_exits_1_with_a_result(monkeypatch, tmp_pa
 
 
 def test_cli_build_failing_exits_1_with_a_result(monkeypatch, tmp_path, capsys):
-    from sim import simulation
+    from sim.stepping import simulation
 
     def broken(scene):
         raise TypeError("a bug in the build")
@@ -216,7 +216,7 @@ def test_a_frame_that_is_not_finite_reaches_neither_recording_nor_server(monkeyp
 
 
 def test_a_build_error_fails_the_run_with_a_result(monkeypatch, tmp_path):
-    from sim import simulation
+    from sim.stepping import simulation
 
     def broken(scene):
         raise TypeError("a bug in the build")
@@ -241,7 +241,7 @@ from server.worker import worker_main  # noqa: E402
 def slow_build_worker(commands, events, frames, record_every, step_delay):
     """The solver process, whose build of a scene named 'slow' never ends (a model that takes
     minutes to build, without the minutes)."""
-    from sim import simulation
+    from sim.stepping import simulation
 
     real = simulation.build_model
 

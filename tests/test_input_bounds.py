@@ -1,6 +1,6 @@
 """Hostile values in a scene: every float is finite, magnitudes that would overflow the model are
 refused, directions are not degenerate; each is a validation error naming its field, read from
-a file (sim.scene.load_scene) and over the API (/api/scenes/validate and overrides of
+a file (sim.scene.load.load_scene) and over the API (/api/scenes/validate and overrides of
 POST /api/runs, whose JSON may carry NaN and Infinity tokens)."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from sim.scene import SceneError, apply_override, load_scene
+from sim.scene.load import SceneError, apply_override, load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 CANTILEVER = ROOT / "scenes" / "cantilever.toml"

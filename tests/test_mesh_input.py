@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from sim import mesh
-from sim.scene import SceneError, load_scene
-from sim.simulation import Simulation
+from sim.geometry import trimesh as mesh
+from sim.scene.load import SceneError, load_scene
+from sim.stepping.simulation import Simulation
 
 SCENE = """
 name = "plate"

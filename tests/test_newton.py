@@ -7,10 +7,11 @@ import types
 import numpy as np
 import pytest
 
-import sim.newton
-from sim.newton import NewtonResult, measure_floor
-from sim.scene import load_scene
-from sim.simulation import Simulation, SolverFailure
+import sim.solve.newton
+from sim.scene.load import load_scene
+from sim.solve.newton import NewtonResult
+from sim.solve.problem import measure_floor
+from sim.stepping.simulation import Simulation, SolverFailure
 
 COARSE = {"mesh.edge_length": 0.035}  # 80 triangles
 
@@ -130,7 +131,8 @@ def test_timing_counts_every_assembly_as_assembly(monkeypatch):
         return evaluate(*a, **k)
 
     p.evaluate = timed
-    monkeypatch.setattr(sim.newton, "time", types.SimpleNamespace(perf_counter=lambda: now[0]))
+    clock = types.SimpleNamespace(perf_counter=lambda: now[0])
+    monkeypatch.setattr(sim.solve.newton, "time", clock)
     assert sim_.run(), sim_.failure
     t = sim_.timing
     assert calls[0] > t.iterations > 0  # full-step evaluations besides the first assemblies

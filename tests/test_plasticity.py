@@ -10,10 +10,10 @@ import pytest
 from scipy.optimize import brentq
 
 from sim.elements import ELEMENTS
+from sim.frames.fields import curvature_xz, mid_surface
 from sim.materials.plasticity import net_plastic_strain
-from sim.probes import curvature_xz, mid_surface
-from sim.scene import load_scene, scene_from_dict
-from sim.simulation import Simulation
+from sim.scene.load import load_scene, scene_from_dict
+from sim.stepping.simulation import Simulation
 
 E, NU, Y0 = 200e9, 0.3, 200e6
 MU = E / (2 * (1 + NU))
@@ -136,7 +136,7 @@ def test_simple_shear_follows_the_hardening_law(law):
 
 
 def _boundary_mask(model):
-    from sim.mesh import boundary_edges
+    from sim.geometry.trimesh import boundary_edges
 
     mask = np.zeros(model.shell.n_plane, bool)
     mask[np.unique(boundary_edges(model.shell.mesh.faces))] = True

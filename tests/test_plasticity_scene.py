@@ -4,8 +4,8 @@ belonging to another law is an error that names the field; nothing is silently i
 import numpy as np
 import pytest
 
-from sim.model import material_params
-from sim.scene import SceneError, load_scene
+from sim.model.terms import material_params
+from sim.scene.load import SceneError, load_scene
 
 PLASTIC = {"material.model": "plastic", "material.yield_stress": 200e6}
 

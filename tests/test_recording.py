@@ -26,9 +26,9 @@ from server.app import create_app  # noqa: E402
 from server.cli import play_command  # noqa: E402
 from server.recording import Recorder, channels  # noqa: E402
 from server.settings import Settings  # noqa: E402
-from sim.model import build_model  # noqa: E402
-from sim.scene import load_scene, scene_from_toml  # noqa: E402
-from sim.simulation import Simulation  # noqa: E402
+from sim.model.build import build_model  # noqa: E402
+from sim.scene.load import load_scene, scene_from_toml  # noqa: E402
+from sim.stepping.simulation import Simulation  # noqa: E402
 from tests.test_service import HANG, tiny_toml, until, wait_state, wait_step  # noqa: E402
 from tests.test_viewer import PRESS_TOML  # noqa: E402
 

@@ -1,14 +1,15 @@
-"""The statically determinate support of a released part (sim.rigid): exactly one held DoF per
+"""The statically determinate support of a released part (sim.geometry.rigid): exactly one held DoF
+per
 rigid-body mode the scene leaves free, a regular Hessian with it, and no force in it once the
 part has sprung back."""
 
 import numpy as np
 import pytest
 
-from sim.model import build_model
-from sim.rigid import determinate_support, free_modes, rigid_modes
-from sim.scene import load_scene
-from sim.simulation import Simulation
+from sim.geometry.rigid import determinate_support, free_modes, rigid_modes
+from sim.model.build import build_model
+from sim.scene.load import load_scene
+from sim.stepping.simulation import Simulation
 from tests.test_scenes import coarse
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.simulation import Simulation
+from sim.stepping.simulation import Simulation
 from tests.test_scenes import coarse
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -25,7 +25,7 @@ CHILD = """
 import json, sys
 sys.path.insert(0, {root!r})
 import sim
-from sim.simulation import Simulation
+from sim.stepping.simulation import Simulation
 from tests.test_scenes import coarse
 out = {{}}
 for scene in {scenes!r}:
@@ -87,7 +87,7 @@ def test_springback_converges_on_other_mkl_code_paths_with_the_same_probes(here,
 
 
 def test_a_run_repeated_gives_the_same_probes():
-    """PARDISO in MKL's conditional reproducibility mode (sim.linsolve) and numba's kernels
+    """PARDISO in MKL's conditional reproducibility mode (sim.solve.linsolve) and numba's kernels
     summing in a fixed order: the same run twice gives the same numbers, bit for bit, at every
     step. The issue asked for 1e-9; without the mode, PARDISO's two threads gave 2 different
     solutions in 40 factorisations of the same matrix."""
@@ -104,9 +104,9 @@ def test_pardiso_gives_the_same_bits_twice():
     """The same Hessian factored and solved 60 times (13,806 DoFs, where PARDISO runs its two
     threads): one answer. Without MKL's reproducibility mode 2 distinct answers came out of 40
     in two of three trials here (1e-18 apart: enough to send a near-singular solve elsewhere)."""
-    from sim.linsolve import Pardiso, mkl
-    from sim.model import build_model
-    from sim.scene import load_scene
+    from sim.model.build import build_model
+    from sim.scene.load import load_scene
+    from sim.solve.linsolve import Pardiso, mkl
 
     if mkl() is None:
         pytest.skip("MKL not installed")

@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.scene import SceneError, load_scene, scene_from_toml
-from sim.simulation import Simulation
+from sim.scene.load import SceneError, load_scene, scene_from_toml
+from sim.stepping.simulation import Simulation
 
 SCENES = sorted((Path(__file__).parent.parent / "scenes").glob("*.toml"))
 

@@ -1,4 +1,4 @@
-"""Tool SDF programs (sim.tools.sdf) and their display meshes (sim.tools.meshes).
+"""Tool SDF programs (sim.tools: program, evaluate, builders) and their display meshes (surface).
 
 Length scale of the tools below: 1e-2 .. 1e-1 m, smallest rounding radius 2 mm.
 Finite differences are central with step FD_H = 1e-7 m:
@@ -16,8 +16,27 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from sim.tools import sdf
-from sim.tools.meshes import tool_mesh
+from sim.tools.builders import (
+    blank_holder,
+    box,
+    die_ring,
+    extruded_polygon,
+    intersect,
+    moved,
+    plane,
+    punch,
+    revolved,
+    rounded_box,
+    star,
+    star_die,
+    subtract,
+    union,
+)
+from sim.tools.evaluate import sdf_distance, sdf_eval, sdf_world, sdf_world_distance
+from sim.tools.polygon import rounded_polygon
+from sim.tools.pose import rotation, to_local, to_world_derivatives, transform
+from sim.tools.program import parse, validate
+from sim.tools.surface import tool_mesh
 
 FD_H = 1e-7
 RNG_SEED = 1234
@@ -25,29 +44,29 @@ RNG_SEED = 1234
 
 def _tools():
     return {
-        "plane": sdf.plane([0.01, -0.02, 0.005], [0.3, -0.2, 1.0]),
-        "box": sdf.box([0.04, 0.03, 0.02], center=[0.01, 0.0, -0.005]),
-        "rounded_box": sdf.rounded_box([0.04, 0.03, 0.02], 0.006),
-        "punch": sdf.punch(0.04, 0.06, 0.006),
-        "die_ring": sdf.die_ring(0.043, 0.09, 0.03, 0.005),
-        "blank_holder": sdf.blank_holder(0.045, 0.09, 0.02, 0.002),
-        "revolved": sdf.revolved(0.01, 0.05, -0.02, 0.03, 0.004),
-        "polygon": sdf.extruded_polygon(
+        "plane": plane([0.01, -0.02, 0.005], [0.3, -0.2, 1.0]),
+        "box": box([0.04, 0.03, 0.02], center=[0.01, 0.0, -0.005]),
+        "rounded_box": rounded_box([0.04, 0.03, 0.02], 0.006),
+        "punch": punch(0.04, 0.06, 0.006),
+        "die_ring": die_ring(0.043, 0.09, 0.03, 0.005),
+        "blank_holder": blank_holder(0.045, 0.09, 0.02, 0.002),
+        "revolved": revolved(0.01, 0.05, -0.02, 0.03, 0.004),
+        "polygon": extruded_polygon(
             [[0.0, 0.0], [0.06, 0.0], [0.06, 0.04], [0.03, 0.015], [0.0, 0.04]],
             -0.01, 0.02, 0.004, 0.002),
-        "polygon_reflex": sdf.extruded_polygon(
+        "polygon_reflex": extruded_polygon(
             [[0.0, 0.0], [0.06, 0.0], [0.06, 0.04], [0.03, 0.015], [0.0, 0.04]],
             -0.01, 0.02, 0.004, 0.002, reflex_radius=0.005),
-        "star": sdf.star(5, 0.05, 0.025, 0.04, corner_radius=0.004, edge_radius=0.003),
-        "star_die": sdf.star_die(5, 0.05, 0.025, 0.03, 0.005, corner_radius=0.003),
-        "union_smooth": sdf.union(sdf.punch(0.03, 0.05, 0.004),
-                                  sdf.rounded_box([0.02, 0.02, 0.01], 0.003, [0.03, 0, 0.05]),
-                                  blend=0.006),
-        "subtract_smooth": sdf.subtract(sdf.rounded_box([0.05, 0.05, 0.015], 0.004),
-                                        sdf.punch(0.025, 0.05, 0.004), blend=0.004),
-        "intersect": sdf.intersect(sdf.box([0.04, 0.04, 0.04]), sdf.revolved(0, 0.05, -1, 1)),
-        "moved": sdf.moved(sdf.star(4, 0.04, 0.02, 0.03, 0.004, 0.002),
-                           sdf.rotation([1.0, 2.0, 0.5], 0.7), [0.01, -0.02, 0.03]),
+        "star": star(5, 0.05, 0.025, 0.04, corner_radius=0.004, edge_radius=0.003),
+        "star_die": star_die(5, 0.05, 0.025, 0.03, 0.005, corner_radius=0.003),
+        "union_smooth": union(punch(0.03, 0.05, 0.004),
+                              rounded_box([0.02, 0.02, 0.01], 0.003, [0.03, 0, 0.05]),
+                              blend=0.006),
+        "subtract_smooth": subtract(rounded_box([0.05, 0.05, 0.015], 0.004),
+                                    punch(0.025, 0.05, 0.004), blend=0.004),
+        "intersect": intersect(box([0.04, 0.04, 0.04]), revolved(0, 0.05, -1, 1)),
+        "moved": moved(star(4, 0.04, 0.02, 0.03, 0.004, 0.002),
+                       rotation([1.0, 2.0, 0.5], 0.7), [0.01, -0.02, 0.03]),
     }
 
 
@@ -94,29 +113,29 @@ def _assert_fd(fun, X):
 def test_fd_gradient_and_hessian(name):
     prog = TOOLS[name]
     X = _sample(prog)
-    d, g, H = _assert_fd(lambda Y: sdf.sdf_eval(prog, Y), X)
+    d, g, H = _assert_fd(lambda Y: sdf_eval(prog, Y), X)
     if name != "plane":
         assert (d > 0).sum() > 20 and (d < 0).sum() > 20  # both sides covered
     if name not in ("plane", "box"):
         # curved regions (rounded edges, corners, fillets) are covered too
         assert (np.abs(H).max(axis=(1, 2)) > 1.0).sum() > 20
     # the value-only kernel agrees with the full one
-    np.testing.assert_array_equal(sdf.sdf_distance(prog, X), d)
+    np.testing.assert_array_equal(sdf_distance(prog, X), d)
 
 
 @pytest.mark.parametrize("name", ["rounded_box", "punch", "star_die", "union_smooth"])
 def test_fd_through_world_pose(name):
     prog = TOOLS[name]
-    R = sdf.rotation([0.3, -1.0, 0.4], 1.1)
+    R = rotation([0.3, -1.0, 0.4], 1.1)
     t = np.array([0.02, -0.01, 0.05])
-    X = sdf.transform(_sample(prog, seed=7), R, t)
-    d, g, H = _assert_fd(lambda Y: sdf.sdf_world(prog, R, t, Y), X)
-    dl, gl, Hl = sdf.sdf_eval(prog, sdf.to_local(X, R, t))
+    X = transform(_sample(prog, seed=7), R, t)
+    d, g, H = _assert_fd(lambda Y: sdf_world(prog, R, t, Y), X)
+    dl, gl, Hl = sdf_eval(prog, to_local(X, R, t))
     np.testing.assert_allclose(d, dl, atol=1e-15)
-    gw, Hw = sdf.to_world_derivatives(gl, Hl, R)
+    gw, Hw = to_world_derivatives(gl, Hl, R)
     np.testing.assert_allclose(g, gw, atol=1e-13)
     np.testing.assert_allclose(H, Hw, atol=1e-9 * (1 + np.abs(H).max()))
-    np.testing.assert_array_equal(sdf.sdf_world_distance(prog, R, t, X), d)
+    np.testing.assert_array_equal(sdf_world_distance(prog, R, t, X), d)
 
 
 @pytest.mark.parametrize("name", [n for n in TOOLS if n not in
@@ -124,7 +143,7 @@ def test_fd_through_world_pose(name):
 def test_unit_gradient_for_exact_primitives(name):
     # exact distances (and hard min/max of them) have |g| = 1 everywhere, medial axis included
     prog = TOOLS[name]
-    _, g, _ = sdf.sdf_eval(prog, _sample(prog, seed=3))
+    _, g, _ = sdf_eval(prog, _sample(prog, seed=3))
     np.testing.assert_allclose(np.linalg.norm(g, axis=1), 1.0, atol=1e-12)
 
 
@@ -134,7 +153,7 @@ def _revolve_points(rho, z, theta):
 
 def test_exact_punch_nose_torus_and_faces():
     R, height, re = 0.04, 0.06, 0.006
-    prog = sdf.punch(R, height, re)
+    prog = punch(R, height, re)
     rng = np.random.default_rng(0)
     n = 200
     phi = rng.uniform(-0.5 * np.pi, 0.0, n)  # outer-lower quadrant of the nose torus
@@ -142,7 +161,7 @@ def test_exact_punch_nose_torus_and_faces():
     theta = rng.uniform(0, 2 * np.pi, n)
     X = _revolve_points(R - re + (re + delta) * np.cos(phi), re + (re + delta) * np.sin(phi),
                         theta)
-    d, g, _ = sdf.sdf_eval(prog, X)
+    d, g, _ = sdf_eval(prog, X)
     np.testing.assert_allclose(d, delta, atol=1e-15)
     e_r = np.stack([np.cos(theta), np.sin(theta), 0 * theta], axis=1)
     g_exp = np.cos(phi)[:, None] * e_r + np.sin(phi)[:, None] * np.array([0, 0, 1.0])
@@ -150,12 +169,12 @@ def test_exact_punch_nose_torus_and_faces():
     # flat nose face, below (outside) and just above (inside) it
     rho = rng.uniform(0, R - re, n)
     dz = rng.uniform(-0.02, 0.9 * re, n)
-    d, g, H = sdf.sdf_eval(prog, _revolve_points(rho, dz, theta))
+    d, g, H = sdf_eval(prog, _revolve_points(rho, dz, theta))
     np.testing.assert_allclose(d, -dz, atol=1e-15)
     np.testing.assert_allclose(g, np.tile([0, 0, -1.0], (n, 1)), atol=0)
     # cylindrical wall at mid height
     delta = rng.uniform(-0.01, 0.02, n)
-    d, _, H = sdf.sdf_eval(prog, _revolve_points(R + delta, np.full(n, 0.5 * height), theta))
+    d, _, H = sdf_eval(prog, _revolve_points(R + delta, np.full(n, 0.5 * height), theta))
     np.testing.assert_allclose(d, delta, atol=1e-15)
     # Hessian of the wall distance = e_theta e_theta^T / rho
     e_t = np.stack([-np.sin(theta), np.cos(theta), 0 * theta], axis=1)
@@ -165,7 +184,7 @@ def test_exact_punch_nose_torus_and_faces():
 
 def test_exact_die_shoulder():
     Ro, Rout, h, r = 0.043, 0.09, 0.03, 0.005
-    prog = sdf.die_ring(Ro, Rout, h, r)
+    prog = die_ring(Ro, Rout, h, r)
     rng = np.random.default_rng(1)
     n = 200
     phi = rng.uniform(0.5 * np.pi, np.pi, n)  # inner-upper quadrant: the shoulder
@@ -173,13 +192,13 @@ def test_exact_die_shoulder():
     theta = rng.uniform(0, 2 * np.pi, n)
     X = _revolve_points(Ro + r + (r + delta) * np.cos(phi), -r + (r + delta) * np.sin(phi),
                         theta)
-    d, g, H = sdf.sdf_eval(prog, X)
+    d, g, H = sdf_eval(prog, X)
     np.testing.assert_allclose(d, delta, atol=1e-15)
     # opening wall and top face
-    d, _, _ = sdf.sdf_eval(prog, _revolve_points(np.full(n, Ro - 0.004), np.full(n, -0.015),
-                                                 theta))
+    d, _, _ = sdf_eval(prog, _revolve_points(np.full(n, Ro - 0.004), np.full(n, -0.015),
+                                             theta))
     np.testing.assert_allclose(d, 0.004, atol=1e-15)
-    d, _, _ = sdf.sdf_eval(prog, _revolve_points(np.full(n, 0.07), np.full(n, 0.003), theta))
+    d, _, _ = sdf_eval(prog, _revolve_points(np.full(n, 0.07), np.full(n, 0.003), theta))
     np.testing.assert_allclose(d, 0.003, atol=1e-15)
 
 
@@ -193,26 +212,26 @@ def test_exact_box_corners_edges_faces():
     delta = rng.uniform(0, 0.02, n)
     # sharp box: outside a corner the distance is to the corner point
     corner = np.sign(v) * h
-    d, _, _ = sdf.sdf_eval(sdf.box(h, c), c + corner + np.abs(v) * np.sign(v) * delta[:, None])
+    d, _, _ = sdf_eval(box(h, c), c + corner + np.abs(v) * np.sign(v) * delta[:, None])
     np.testing.assert_allclose(d, delta, atol=1e-15)
     # rounded box: sphere octant around (h - r) at every corner, including inside
     r = 0.008
     delta = rng.uniform(-0.9 * r, 0.02, n)
     X = c + np.sign(v) * (h - r) + v * (r + delta)[:, None]
-    d, g, _ = sdf.sdf_eval(sdf.rounded_box(h, r, c), X)
+    d, g, _ = sdf_eval(rounded_box(h, r, c), X)
     np.testing.assert_allclose(d, delta, atol=1e-15)
     np.testing.assert_allclose(g, v, atol=1e-12)
     # inside, closest to the z faces
     X = c + np.stack([rng.uniform(-0.01, 0.01, n), rng.uniform(-0.01, 0.01, n),
                       rng.uniform(-0.015, 0.015, n)], axis=1)
-    d, _, _ = sdf.sdf_eval(sdf.box(h, c), X)
+    d, _, _ = sdf_eval(box(h, c), X)
     np.testing.assert_allclose(d, np.abs(X[:, 2] - c[2]) - h[2], atol=1e-15)
 
 
 def test_exact_star_die_shoulder_and_punch_tip():
     n_pts, ro, ri, height, rs, rc = 5, 0.05, 0.025, 0.03, 0.005, 0.003
-    prog = sdf.star_die(n_pts, ro, ri, height, rs, corner_radius=rc)
-    C = sdf.parse(prog)[6]  # rounded outline of the opening: edges b_k -> a_{k+1}
+    prog = star_die(n_pts, ro, ri, height, rs, corner_radius=rc)
+    C = parse(prog)[6]  # rounded outline of the opening: edges b_k -> a_{k+1}
     rng = np.random.default_rng(3)
     n = 200
     k = rng.integers(0, len(C), n)
@@ -225,7 +244,7 @@ def test_exact_star_die_shoulder_and_punch_tip():
     w = rs + (rs + delta) * np.cos(phi)  # distance to the outline
     z = -rs + (rs + delta) * np.sin(phi)
     X = np.concatenate([foot + w[:, None] * nrm, z[:, None]], axis=1)
-    d, _, _ = sdf.sdf_eval(prog, X)
+    d, _, _ = sdf_eval(prog, X)
     np.testing.assert_allclose(d, delta, atol=1e-15)
     # the wall next to a valley: an arc of radius max(rc, rs) about a centre in the plate
     v = C[1]
@@ -234,16 +253,16 @@ def test_exact_star_die_shoulder_and_punch_tip():
     delta = rng.uniform(-0.5 * rs, 0.5 * rs, n)  # > 0: in the opening, towards the centre
     X = np.stack([v[0] + (rs + delta) * np.cos(ang), v[1] + (rs + delta) * np.sin(ang),
                   np.full(n, -0.5 * height)], axis=1)
-    d, _, _ = sdf.sdf_eval(prog, X)
+    d, _, _ = sdf_eval(prog, X)
     np.testing.assert_allclose(d, delta, atol=1e-15)
     # rounded star tip of a star punch: arc of radius rc about the inner tip vertex
-    prog = sdf.star(n_pts, ro, ri, 0.04, corner_radius=rc)
-    tip = sdf.parse(prog)[6][0]  # vertex 0 is a tip (angle 0)
+    prog = star(n_pts, ro, ri, 0.04, corner_radius=rc)
+    tip = parse(prog)[6][0]  # vertex 0 is a tip (angle 0)
     ang = rng.uniform(-0.2, 0.2, n)
     delta = rng.uniform(-0.5 * rc, 0.01, n)
     X = np.stack([tip[0] + (rc + delta) * np.cos(ang), tip[1] + (rc + delta) * np.sin(ang),
                   np.full(n, 0.02)], axis=1)
-    d, _, _ = sdf.sdf_eval(prog, X)
+    d, _, _ = sdf_eval(prog, X)
     np.testing.assert_allclose(d, delta, atol=1e-15)
 
 
@@ -259,7 +278,7 @@ def test_distance_matches_dense_surface_sampling(name):
     rng = np.random.default_rng(4)
     lo, hi = mesh.vertices.min(0) - 0.02, mesh.vertices.max(0) + 0.02
     X = rng.uniform(lo, hi, (400, 3))
-    d = sdf.sdf_distance(prog, X)
+    d = sdf_distance(prog, X)
     dv, _ = cKDTree(np.concatenate([S, mesh.vertices])).query(X)
     out = d > 0
     assert out.sum() > 100
@@ -268,67 +287,67 @@ def test_distance_matches_dense_surface_sampling(name):
 
 
 def test_smooth_union_bounds_and_hard_min_outside_blend():
-    a, b = sdf.punch(0.03, 0.05, 0.004), sdf.rounded_box([0.02, 0.02, 0.01], 0.003, [0.03, 0, 0.05])
+    a, b = punch(0.03, 0.05, 0.004), rounded_box([0.02, 0.02, 0.01], 0.003, [0.03, 0, 0.05])
     k = 0.006
-    X = _sample(sdf.union(a, b), seed=11)
-    da, db = sdf.sdf_distance(a, X), sdf.sdf_distance(b, X)
-    ds = sdf.sdf_distance(sdf.union(a, b, blend=k), X)
-    dh = sdf.sdf_distance(sdf.union(a, b), X)
+    X = _sample(union(a, b), seed=11)
+    da, db = sdf_distance(a, X), sdf_distance(b, X)
+    ds = sdf_distance(union(a, b, blend=k), X)
+    dh = sdf_distance(union(a, b), X)
     np.testing.assert_array_equal(dh, np.minimum(da, db))
     assert np.all(ds <= dh + 1e-18) and np.all(ds >= dh - k / 6 - 1e-15)
     far = np.abs(da - db) >= k
     np.testing.assert_array_equal(ds[far], dh[far])
     # subtract and intersect are the hard max
-    np.testing.assert_array_equal(sdf.sdf_distance(sdf.subtract(a, b), X), np.maximum(da, -db))
-    np.testing.assert_array_equal(sdf.sdf_distance(sdf.intersect(a, b), X), np.maximum(da, db))
+    np.testing.assert_array_equal(sdf_distance(subtract(a, b), X), np.maximum(da, -db))
+    np.testing.assert_array_equal(sdf_distance(intersect(a, b), X), np.maximum(da, db))
 
 
 def test_medial_axis_values_are_finite():
     X = np.zeros((1, 3))
     cases = [
-        (sdf.box([0.02, 0.02, 0.02]), np.zeros((1, 3))),  # centre: all six faces tie
-        (sdf.punch(0.02, 0.1, 0.003), np.array([[0, 0, 0.05]])),  # on the axis, wall closest
-        (sdf.die_ring(0.02, 0.05, 0.02, 0.003), np.array([[0, 0, -0.01]])),  # ring axis
-        (sdf.revolved(0.0, 0.02, -0.01, 0.01, 0.0), np.array([[0.0, 0.0, 0.02]])),
-        (sdf.star(5, 0.05, 0.025, 0.02), np.array([[0.05, 0.0, 0.01]])),  # on a tip vertex
-        (sdf.star(5, 0.05, 0.025, 0.02), np.array([[0.0, 0.0, 0.01]])),  # star centre
-        (sdf.union(sdf.box([0.01] * 3, [-0.02, 0, 0]), sdf.box([0.01] * 3, [0.02, 0, 0])), X),
+        (box([0.02, 0.02, 0.02]), np.zeros((1, 3))),  # centre: all six faces tie
+        (punch(0.02, 0.1, 0.003), np.array([[0, 0, 0.05]])),  # on the axis, wall closest
+        (die_ring(0.02, 0.05, 0.02, 0.003), np.array([[0, 0, -0.01]])),  # ring axis
+        (revolved(0.0, 0.02, -0.01, 0.01, 0.0), np.array([[0.0, 0.0, 0.02]])),
+        (star(5, 0.05, 0.025, 0.02), np.array([[0.05, 0.0, 0.01]])),  # on a tip vertex
+        (star(5, 0.05, 0.025, 0.02), np.array([[0.0, 0.0, 0.01]])),  # star centre
+        (union(box([0.01] * 3, [-0.02, 0, 0]), box([0.01] * 3, [0.02, 0, 0])), X),
     ]
     for prog, P in cases:
-        d, g, H = sdf.sdf_eval(prog, P)
+        d, g, H = sdf_eval(prog, P)
         assert np.all(np.isfinite(d)) and np.all(np.isfinite(g)) and np.all(np.isfinite(H))
         np.testing.assert_allclose(np.linalg.norm(g, axis=1), 1.0, atol=1e-12)
     # under the punch nose on the axis the Hessian is the smooth limit (0 on a flat face)
-    d, g, H = sdf.sdf_eval(sdf.punch(0.02, 0.1, 0.003), np.array([[0.0, 0.0, -0.01]]))
+    d, g, H = sdf_eval(punch(0.02, 0.1, 0.003), np.array([[0.0, 0.0, -0.01]]))
     assert d[0] == pytest.approx(0.01) and np.all(H == 0.0)
 
 
 def test_program_validation():
-    p = sdf.punch(0.02, 0.05, 0.003)
-    sdf.validate(p)
+    p = punch(0.02, 0.05, 0.003)
+    validate(p)
     bad = p.copy()
     bad[0] = 1.0
     with pytest.raises(ValueError):
-        sdf.validate(bad)
+        validate(bad)
     with pytest.raises(ValueError):
-        sdf.sdf_eval(bad, np.zeros((1, 3)))
+        sdf_eval(bad, np.zeros((1, 3)))
     with pytest.raises(ValueError):
-        sdf.validate(p[:-1])
+        validate(p[:-1])
     with pytest.raises(ValueError):
-        sdf.punch(0.02, 0.05, 0.03)  # edge radius larger than half the height
+        punch(0.02, 0.05, 0.03)  # edge radius larger than half the height
     with pytest.raises(ValueError):
-        sdf.extruded_polygon([[0, 0], [1, 0], [0, 1]], 0, 1, 0.01, 0.02)  # edge > corner
+        extruded_polygon([[0, 0], [1, 0], [0, 1]], 0, 1, 0.01, 0.02)  # edge > corner
     with pytest.raises(ValueError):
-        sdf.star_die(5, 0.05, 0.025, 0.03, 0.005, width=0.008)  # narrower than 2 shoulders
+        star_die(5, 0.05, 0.025, 0.03, 0.005, width=0.008)  # narrower than 2 shoulders
     with pytest.raises(ValueError):
-        sdf.star(5, 0.05, 0.025, 0.03, corner_radius=0.025)  # > inradius 22 mm: inverts
-    tree = sdf.parse(sdf.moved(sdf.union(p, sdf.box([1, 1, 1]), 0.1), None, [0, 0, 1]))
+        star(5, 0.05, 0.025, 0.03, corner_radius=0.025)  # > inradius 22 mm: inverts
+    tree = parse(moved(union(p, box([1, 1, 1]), 0.1), None, [0, 0, 1]))
     assert tree[0] == "frame" and tree[3][0] == "union" and tree[3][1] == 0.1
     # clockwise polygons are reoriented
-    cw = sdf.extruded_polygon([[0, 0], [0, 1], [1, 1], [1, 0]], 0, 1)
-    ccw = sdf.extruded_polygon([[0, 0], [1, 0], [1, 1], [0, 1]], 0, 1)
+    cw = extruded_polygon([[0, 0], [0, 1], [1, 1], [1, 0]], 0, 1)
+    ccw = extruded_polygon([[0, 0], [1, 0], [1, 1], [0, 1]], 0, 1)
     X = np.random.default_rng(0).uniform(-1, 2, (50, 3))
-    np.testing.assert_allclose(sdf.sdf_distance(cw, X), sdf.sdf_distance(ccw, X), atol=1e-15)
+    np.testing.assert_allclose(sdf_distance(cw, X), sdf_distance(ccw, X), atol=1e-15)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -344,7 +363,7 @@ def test_mesh_on_zero_level_set_and_watertight(name):
     V, F = tool_mesh(prog, plane_size=0.2, resolution=40)
     assert V.dtype == np.float64 and F.dtype == np.int64 and V.shape[1] == F.shape[1] == 3
     size = np.ptp(V, axis=0).max()
-    d = sdf.sdf_distance(prog, V)
+    d = sdf_distance(prog, V)
     # explicit meshes put vertices on the analytic surface: only float round-off (~1e-16 of
     # the size) is left. Implicit (CSG) meshes are Newton-projected (quadratic convergence
     # from an O(cell^2) start) to well below 1e-10 of the size.
@@ -354,7 +373,7 @@ def test_mesh_on_zero_level_set_and_watertight(name):
         assert mesh.is_watertight and mesh.is_winding_consistent
         assert mesh.volume > 0  # outward normals
         # normals agree with the SDF gradient at face centroids (display shading)
-        _, g, _ = sdf.sdf_eval(prog, mesh.triangles_center)
+        _, g, _ = sdf_eval(prog, mesh.triangles_center)
         assert np.mean(np.einsum("ij,ij->i", g, mesh.face_normals) > 0.5) > 0.99
     else:
         assert not mesh.is_watertight  # a plane is shown as an open square
@@ -362,7 +381,7 @@ def test_mesh_on_zero_level_set_and_watertight(name):
 
 def test_mesh_volume_of_punch_matches_pappus():
     R, H, r = 0.04, 0.06, 0.006
-    V, F = tool_mesh(sdf.punch(R, H, r), n_segments=720, n_arc=64)
+    V, F = tool_mesh(punch(R, H, r), n_segments=720, n_arc=64)
     # profile = rectangle [0, R] x [0, H] minus two corner spandrels at rho = R
     moment_s = r * r * (R - r / 2) - np.pi * r * r * (R - r) / 4 - r**3 / 3
     exact = 2 * np.pi * (H * R * R / 2 - 2 * moment_s)
@@ -372,13 +391,13 @@ def test_mesh_volume_of_punch_matches_pappus():
 
 def test_mesh_world_pose_and_methods():
     prog = TOOLS["punch"]
-    R = sdf.rotation([0, 1, 0], 0.4)
+    R = rotation([0, 1, 0], 0.4)
     t = np.array([0.1, 0.0, 0.2])
     V, F = tool_mesh(prog, R, t)
-    np.testing.assert_allclose(sdf.sdf_world_distance(prog, R, t, V), 0.0, atol=1e-15)
+    np.testing.assert_allclose(sdf_world_distance(prog, R, t, V), 0.0, atol=1e-15)
     Vi, Fi = tool_mesh(prog, method="implicit", resolution=32)
     assert trimesh.Trimesh(Vi, Fi).is_watertight
-    assert np.abs(sdf.sdf_distance(prog, Vi)).max() < 1e-12
+    assert np.abs(sdf_distance(prog, Vi)).max() < 1e-12
     with pytest.raises(ValueError):
         tool_mesh(TOOLS["union_smooth"], method="explicit")
 
@@ -386,21 +405,21 @@ def test_mesh_world_pose_and_methods():
 def test_mesh_of_wide_star_die_falls_back_to_implicit():
     # 80 mm around the star: the mitred outer outline would fold (beyond ~62 mm the edges
     # next to the valleys vanish), the SDF does not
-    prog = sdf.star_die(5, 0.05, 0.025, 0.02, 0.004, width=0.08)
+    prog = star_die(5, 0.05, 0.025, 0.02, 0.004, width=0.08)
     with pytest.raises(ValueError):
         tool_mesh(prog, method="explicit")
     V, F = tool_mesh(prog, resolution=40)
     mesh = trimesh.Trimesh(V, F)
     assert mesh.is_watertight and mesh.volume > 0
-    assert np.abs(sdf.sdf_distance(prog, V)).max() <= 1e-10 * np.ptp(V, axis=0).max()
+    assert np.abs(sdf_distance(prog, V)).max() <= 1e-10 * np.ptp(V, axis=0).max()
 
 
 def test_star_die_valleys_are_c1():
     """The cookie cutter's die: its valleys (reflex corners of the opening, where the band
     comes closest) are rounded arcs, so the gradient is continuous across their bisectors.
     With sharp valleys it jumped from (-0.746, -0.666) to (-0.864, -0.504) there."""
-    prog = sdf.star_die(5, 0.04, 0.03, 0.02, 0.001, corner_radius=0.002)
-    C = sdf.parse(prog)[6]
+    prog = star_die(5, 0.04, 0.03, 0.02, 0.001, corner_radius=0.002)
+    C = parse(prog)[6]
     valleys = C[C[:, 3] < 0]
     assert len(valleys) == 5 and np.all(valleys[:, 2] == 0.002)
     mid = 0.5 * (valleys[:, 4:6] + valleys[:, 6:8]) - valleys[:, :2]
@@ -411,7 +430,7 @@ def test_star_die_valleys_are_c1():
         jumps = []
         for h in (1e-6, 1e-9):
             sides = [np.column_stack([P + sgn * h * tang, np.full(5, -0.01)]) for sgn in (1, -1)]
-            (d1, g1, H1), (d2, g2, _) = (sdf.sdf_eval(prog, X) for X in sides)
+            (d1, g1, H1), (d2, g2, _) = (sdf_eval(prog, X) for X in sides)
             # reflex arc about a centre in the plate: d = |p - c| - rc
             np.testing.assert_allclose(d1, np.hypot(0.002 + gap, h) - 0.002, atol=1e-15)
             jump = np.linalg.norm(g1 - g2, axis=1)
@@ -428,46 +447,46 @@ def test_star_die_valleys_are_c1():
     dirs = np.stack([e[k, 0] * np.cos(ang) - e[k, 1] * np.sin(ang),
                      e[k, 0] * np.sin(ang) + e[k, 1] * np.cos(ang)], axis=1)
     X = np.column_stack([valleys[k, :2] + rad[:, None] * dirs, rng.uniform(-4e-3, 1e-3, 400)])
-    d, _, H = _assert_fd(lambda Y: sdf.sdf_eval(prog, Y), X)
+    d, _, H = _assert_fd(lambda Y: sdf_eval(prog, Y), X)
     assert (d > 0).sum() > 100 and (d < 0).sum() > 50
     assert (np.abs(H).max(axis=(1, 2)) > 100.0).sum() > 100  # the curved valley walls
 
 
 def test_rounded_polygon_validation_and_orientation():
     sq = [[0, 0], [1, 0], [1, 1], [0, 1]]
-    C = sdf.rounded_polygon(sq, [0.1, 0.2, 0.0, 0.3])
-    Cr = sdf.rounded_polygon(sq[::-1], [0.3, 0.0, 0.2, 0.1])  # clockwise: radii follow
+    C = rounded_polygon(sq, [0.1, 0.2, 0.0, 0.3])
+    Cr = rounded_polygon(sq[::-1], [0.3, 0.0, 0.2, 0.1])  # clockwise: radii follow
     assert np.allclose(np.sort(C[:, 2]), np.sort(Cr[:, 2]))
     assert np.all(C[:, 3] == 1.0)
     with pytest.raises(ValueError, match="overlap"):
-        sdf.rounded_polygon(sq, 0.6)
+        rounded_polygon(sq, 0.6)
     with pytest.raises(ValueError, match="valley_radius"):
-        sdf.star_die(5, 0.04, 0.03, 0.02, 0.002, corner_radius=0.002, valley_radius=0.001)
+        star_die(5, 0.04, 0.03, 0.02, 0.002, corner_radius=0.002, valley_radius=0.001)
 
 
 def test_scene_shapes_csg_polygons_and_placement():
     """ShapeSpec: CSG, polygons and placed shapes from a scene file build the same program as
     the builders; bad shapes name the field."""
-    from sim.model import tool_program
-    from sim.scene import SceneError, load_scene
+    from sim.scene.load import SceneError, load_scene
+    from sim.tools.shapes import tool_program
 
     sc = load_scene("scenes/beam_forming.toml")
     die = sc.tools[0].shape
     assert die.kind == "subtract" and [s.kind for s in die.shapes] == ["box", "punch"]
-    R = sdf.rotation([1, 0, 0], 0.5 * np.pi)
-    ref = sdf.subtract(sdf.rounded_box([0.06, 0.02, 0.02], 0.0, [0, 0, -0.017]),
-                       sdf.moved(sdf.punch(0.101, 0.04, 0.0), R, [0, 0.02, 0.08675]), 0.002)
+    R = rotation([1, 0, 0], 0.5 * np.pi)
+    ref = subtract(rounded_box([0.06, 0.02, 0.02], 0.0, [0, 0, -0.017]),
+                   moved(punch(0.101, 0.04, 0.0), R, [0, 0.02, 0.08675]), 0.002)
     np.testing.assert_allclose(tool_program(die), ref, rtol=1e-15, atol=1e-15)
     # the cavity's lowest point sits 14.25 mm below the blank's mid-plane
-    d, g, _ = sdf.sdf_eval(tool_program(die), np.array([[0.0, 0.0, -0.01425]]))
+    d, g, _ = sdf_eval(tool_program(die), np.array([[0.0, 0.0, -0.01425]]))
     assert abs(d[0]) < 1e-12 and np.allclose(g[0], [0, 0, 1], atol=1e-12)
     poly = {"kind": "polygon", "points": [[0, 0], [0.06, 0], [0.06, 0.04], [0.03, 0.015],
                                           [0, 0.04]], "height": 0.02, "corner_radius": 0.004,
             "reflex_radius": 0.005, "edge_radius": 0.002}
     o = {"tools.0.shape": {"kind": "union", "shapes": [poly, {"kind": "plane"}], "blend": 0.001}}
     prog = tool_program(load_scene("scenes/beam_forming.toml", o).tools[0].shape)
-    ref = sdf.union(sdf.extruded_polygon(poly["points"], 0.0, 0.02, 0.004, 0.002, 0.005),
-                    sdf.plane([0, 0, 0], [0, 0, 1]), 0.001)
+    ref = union(extruded_polygon(poly["points"], 0.0, 0.02, 0.004, 0.002, 0.005),
+                plane([0, 0, 0], [0, 0, 1]), 0.001)
     np.testing.assert_array_equal(prog, ref)
     bad = [({"kind": "subtract", "shapes": [poly]}, "exactly two"),
            ({"kind": "union", "shapes": [poly]}, "at least two"),

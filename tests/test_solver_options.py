@@ -5,8 +5,8 @@ cut-back that rescues a step."""
 import numpy as np
 import pytest
 
-from sim.scene import load_scene
-from sim.simulation import Simulation
+from sim.scene.load import load_scene
+from sim.stepping.simulation import Simulation
 
 E, L, B, H = 1e11, 0.7, 0.07, 0.007
 
@@ -37,7 +37,7 @@ def test_point_load_tip_deflection_matches_euler_bernoulli():
 
 def test_scipy_fallback_matches_pardiso():
     """Same Newton path, different factorisation: both solves are refined to 1e-10 of the
-    right-hand side (sim.newton.solve_refined), so the answers agree far below Newton's rtol
+    right-hand side (sim.solve.problem.solve_refined), so the answers agree far below Newton's rtol
     (measured 8e-14 relative)."""
     sims = {}
     for name in ("pardiso", "scipy"):

@@ -16,9 +16,9 @@ from sim.apps.factorisation import factorisation_times
 from sim.apps.overhead import all_terms_model, all_terms_overrides, terms_overhead
 from sim.apps.study import curve_error, make_plan, run_study
 from sim.apps.study_report import write_factorisation, write_study
-from sim.model import build_model, frame_fields
-from sim.scene import SceneError, load_scene
-from sim.simulation import Simulation
+from sim.model.build import build_model, frame_fields
+from sim.scene.load import SceneError, load_scene
+from sim.stepping.simulation import Simulation
 
 ROOT = Path(__file__).resolve().parent.parent
 CONVERGENCE = str(ROOT / "scenes" / "convergence.toml")

@@ -26,7 +26,8 @@ from server.app import create_app  # noqa: E402
 from server.estimate import estimate  # noqa: E402
 from server.settings import Settings  # noqa: E402
 from server.tomlout import dumps, have_tomli_w, number  # noqa: E402
-from sim.scene import Scene, SolverSpec  # noqa: E402
+from sim.scene.load import Scene  # noqa: E402
+from sim.scene.run import SolverSpec
 from tests.test_service import tiny_toml  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -11,7 +11,7 @@ from server import sceneform
 from server.errors import BODY, CheckedRoute, documented
 from server.settings import RESERVED_SCENE_NAMES, SceneName, ScenePath
 from server.store import SceneStore
-from sim.scene import Scene
+from sim.scene.load import Scene
 
 router = APIRouter(prefix="/api/scenes", tags=["scenes"], route_class=CheckedRoute)
 

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sim import results
 from sim.apps.bench_report import bench_md
 from sim.apps.common import BAD_INPUT, OK, load, resolve_scene
 from sim.apps.factorisation import factorisation_report
 from sim.elements import get_element
+from sim.frames import results
 from sim.stamp import Stamp, add_results_option, write_results
 
 # Each case: a scene and the in-plane node spacing of every element (the edge lengths follow
@@ -54,7 +54,7 @@ def _prepare(case: str, element: str, edge: float, extra=None):
     """(sim, state, build seconds): the scene at a smooth deflection of a tenth of the
     thickness, a state Newton meets (random noise compresses fibres locally and makes the exact
     Hessian indefinite, which no run does), compiled and warmed up."""
-    from sim.simulation import Simulation
+    from sim.stepping.simulation import Simulation
 
     t0 = time.perf_counter()
     sim = Simulation.from_scene(_scene(case, element, edge, extra))
@@ -77,8 +77,8 @@ def _iteration(sim, x) -> dict:
     pass (the line search's full step, reused by the next iteration), factorisation (with the
     projected Hessian evaluated again if the exact one is not positive definite), one solve;
     plus an energy-only evaluation (paid only when a full step is rejected)."""
-    from sim.linsolve import SingularMatrix
-    from sim.newton import solve_refined
+    from sim.solve.linsolve import SingularMatrix
+    from sim.solve.problem import solve_refined
 
     m, P = sim.model, sim.model.problem
     t = time.perf_counter()
@@ -166,7 +166,7 @@ def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
     ``until``; the last ``steps`` of them are timed: seconds per Newton iteration and
     iterations per step while the punch nose, the die shoulder and the holder are in contact,
     with friction (its fixed point included) and plastic flow (mid-stroke by default)."""
-    from sim.simulation import Simulation
+    from sim.stepping.simulation import Simulation
 
     sim = Simulation.from_scene(load("cup_drawing", {"shell.element": element,
                                                      "mesh.edge_length": edge}))

@@ -20,7 +20,7 @@ from multiprocessing.context import ForkServerProcess
 import numpy as np
 
 # what a case needs, imported once by the forkserver its children are forked from
-PRELOAD = ["sim.apps.cases", "sim.simulation", "sim.scene"]
+PRELOAD = ["sim.apps.cases", "sim.stepping.simulation", "sim.scene.load"]
 
 
 class _OverBudget(Exception):
@@ -38,8 +38,8 @@ def run_case(scene_path: str, overrides: dict, series: bool = False, measure=Non
     ``series``: also every step's time and probes (``history``) and the recorded sections.
     ``measure(sim) -> dict``, when given, adds its numbers as ``measured`` after the run.
     """
-    from sim.scene import load_scene
-    from sim.simulation import Simulation
+    from sim.scene.load import load_scene
+    from sim.stepping.simulation import Simulation
 
     out = _invalid_row(overrides, None)
     t0 = time.perf_counter()
@@ -98,7 +98,7 @@ def scene_row(scene_path: str, overrides: dict) -> dict | None:
     """The ``invalid`` row of a case whose scene does not validate, else None. Cheap (no
     model is built): a sweep sorts these out before any case starts, so no clock - a case's
     budget, the sweep's --timeout - ever runs for them."""
-    from sim.scene import load_scene
+    from sim.scene.load import load_scene
 
     try:
         load_scene(scene_path, overrides)
@@ -116,7 +116,7 @@ def force_balance(sim) -> dict:
     gradient of the loads, inertia and tools over the shell's nodes (the weight, for the
     static cantilever). ``balance`` = |support - applied| over the sum of the magnitudes (a
     punch and a die balance each other: their sum is no scale)."""
-    from sim.newton import measure_floor
+    from sim.solve.problem import measure_floor
 
     m = sim.model
     n = m.shell.n_nodes

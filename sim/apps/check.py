@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sim import results
 from sim.apps.cases import isolated_context, run_isolated
 from sim.apps.common import FAILED, OK, load, resolve_scene
 from sim.elements import ELEMENTS, get_element
+from sim.frames import results
 from sim.stamp import Stamp, add_results_option, write_results
 
 BASE = "cantilever"
@@ -143,7 +143,7 @@ def write_sliver_obj(path: Path, size=(0.7, 0.07), edge=SPACING, eps=1e-3,
     is inside the vertex's convex star, so no triangle inverts. ``kind`` "flat": one vertex moved
     onto the midpoint (a zero-area triangle); "inverted": one triangle wound the other way.
     Returns the number of triangles."""
-    from sim.mesh import boundary_edges, rectangle
+    from sim.geometry.trimesh import boundary_edges, rectangle
 
     m = rectangle(size, edge)
     V, F = m.vertices.copy(), m.faces.copy()

@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = ap.parse_args(argv)
     args.command = shlex.join(["q3t", *argv])  # as typed: the stamp of a results file says it
-    from sim.scene import SceneError
+    from sim.scene.load import SceneError
 
     try:
         return args.func(args)

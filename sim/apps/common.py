@@ -14,7 +14,7 @@ BAD_INPUT = 2
 
 def resolve_scene(name: str) -> Path:
     """A TOML path or a scene name in scenes/; SceneError (exit 2) otherwise."""
-    from sim.scene import SceneError
+    from sim.scene.load import SceneError
 
     p = Path(name)
     if p.is_file():
@@ -27,7 +27,7 @@ def resolve_scene(name: str) -> Path:
 
 def parse_sets(items: list[str]) -> dict:
     """``["key.path=value", ...]`` (``--set``) -> ``{key.path: value}``, values parsed as TOML."""
-    from sim.scene import SceneError, parse_value
+    from sim.scene.load import SceneError, parse_value
 
     out = {}
     for it in items:
@@ -41,6 +41,6 @@ def parse_sets(items: list[str]) -> dict:
 def load(name: str, overrides: dict | None = None):
     """The validated scene ``name`` (``resolve_scene``) with ``overrides``; SceneError (a
     ValueError naming the field) on bad input."""
-    from sim.scene import load_scene
+    from sim.scene.load import load_scene
 
     return load_scene(resolve_scene(name), overrides)

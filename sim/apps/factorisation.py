@@ -17,8 +17,8 @@ FACTOR_REPEAT = 15  # factorisations per case: medians and minima of >= 10 calls
 def factorisation_case(scene_path: str, element: str, edge: float, repeat: int,
                        overrides: dict) -> dict:
     """Times of ``repeat`` calls of ``solver.factor`` on the Hessian at rest (paper Fig. 7)."""
-    from sim.scene import load_scene
-    from sim.simulation import Simulation
+    from sim.scene.load import load_scene
+    from sim.stepping.simulation import Simulation
 
     sim = Simulation.from_scene(load_scene(scene_path, {**overrides, "shell.element": element,
                                                         "mesh.edge_length": edge}))

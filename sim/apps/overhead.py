@@ -33,7 +33,8 @@ def all_terms_model(scene):
     element kernel maps through Fp^-1 at every quadrature point), and inertia with zero mass
     (its energy, gradient and Hessian are evaluated and are zero)."""
     from sim.materials.plasticity import PERFECT
-    from sim.model import build_model, describe, lame
+    from sim.model.build import build_model, describe
+    from sim.model.terms import lame
     from sim.terms.elasticity import Elasticity
     from sim.terms.inertia import Inertia
 
@@ -57,9 +58,9 @@ def terms_overhead(scene_path: str, overrides: dict | None = None,
     """Run time of the scene as it is against the same scene with every term built
     (``all_terms_model``): the two interleaved, after one warm-up each, and the fastest of
     ``repeat`` (other processes on the machine only ever add time)."""
-    from sim.model import build_model
-    from sim.scene import load_scene
-    from sim.simulation import Simulation
+    from sim.model.build import build_model
+    from sim.scene.load import load_scene
+    from sim.stepping.simulation import Simulation
 
     base = dict(overrides or {})
     lean_scene = load_scene(scene_path, base)

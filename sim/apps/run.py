@@ -19,9 +19,10 @@ def _progress(sim, rec) -> None:
 
 
 def run(args) -> int:
-    from sim import results, size
-    from sim.scene import SceneError
-    from sim.simulation import Simulation
+    from sim.frames import results
+    from sim.model import size
+    from sim.scene.load import SceneError
+    from sim.stepping.simulation import Simulation
 
     overrides = parse_sets(args.set)
     if args.element:
@@ -47,17 +48,18 @@ def run(args) -> int:
     c = sim.result()["counts"]
     print(f"{scene.name}: {scene.shell.element}, {c['elements']} elements, {c['dofs']} DoFs, "
           f"solver {sim.model.built['linear_solver']}", file=sys.stderr)
-    ok = sim.run(progress=None if args.quiet else _progress)
-    sim.write(out)
-    if not ok:
-        print(f"\nq3t: FAILED: {sim.failure['reason']} at step {sim.failure['step']}",
+    sim.run(progress=None if args.quiet else _progress)
+    # converged as result.json says: a run whose values are not finite did not
+    res = sim.write(out)
+    if not res["converged"]:
+        print(f"\nq3t: FAILED: {res['failure']['reason']} at step {res['failure']['step']}",
               file=sys.stderr)
     print(f"wrote {out}/result.json ({sim.wall:.2f} s)", file=sys.stderr)
-    return OK if ok else FAILED
+    return OK if res["converged"] else FAILED
 
 
 def add_parser(sub) -> None:
-    from sim.size import DEFAULT_LIMIT
+    from sim.model.size import DEFAULT_LIMIT
 
     r = sub.add_parser("run", help="run a scene headless and write result.json")
     r.add_argument("scene", help="scene name in scenes/ or a TOML path")

@@ -76,7 +76,7 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
     ``study`` keys given on the command line); without one, its first probe at 4, 2 and 1 times
     its own edge length."""
     from sim.elements import ELEMENTS
-    from sim.scene import load_scene
+    from sim.scene.load import load_scene
 
     overrides = dict(overrides or {})
     sc = load_scene(scene_path, {**overrides, **{f"study.{k}": v for k, v in
@@ -339,7 +339,7 @@ def _where(kw: dict) -> dict:
 def run(args) -> int:
     """Exit 0 on success, 1 when the reference run failed (no errors to give), 2 on bad input
     (as ``q3t run``: 1 = a run failed, 2 = bad input)."""
-    from sim.scene import SceneError
+    from sim.scene.load import SceneError
 
     stamp = Stamp.begin(args.command)
     try:

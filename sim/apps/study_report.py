@@ -9,7 +9,7 @@ import platform
 import time
 from pathlib import Path
 
-from sim import results
+from sim.frames import results
 
 MARKERS = {"linear": "o", "q3t": "s", "quadratic": "^", "quartic": "D"}
 

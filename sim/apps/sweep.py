@@ -22,10 +22,10 @@ import sys
 import time
 from pathlib import Path
 
-from sim import results
 from sim.apps.cases import WatchedContext, run_case, run_isolated, scene_row
 from sim.apps.common import BAD_INPUT, FAILED, OK, parse_sets, resolve_scene
 from sim.apps.tasks import cluster_text, run_tasks
+from sim.frames import results
 
 DEFAULT_BUDGET = 600.0  # s per case: the slowest shipped scene at its default size takes ~60 s
 
@@ -62,7 +62,7 @@ def split_values(text: str) -> list[str]:
 
 def parse_grid(items: list[str]) -> dict[str, list]:
     """``["key=v1,v2", ...]`` -> ``{key: [v1, v2]}`` with values parsed as TOML."""
-    from sim.scene import parse_value
+    from sim.scene.load import parse_value
 
     grid: dict[str, list] = {}
     for it in items:

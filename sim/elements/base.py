@@ -16,7 +16,7 @@ from itertools import product
 
 import numpy as np
 
-from sim.quadrature import Rule, prism_rule
+from sim.geometry.quadrature import Rule, prism_rule
 
 
 def _triangle_indices(p: int) -> list[tuple[int, int, int]]:
@@ -43,7 +43,7 @@ def _lagrange_1d_factor(m: int, p: int, lam: np.ndarray) -> tuple[np.ndarray, np
     return val, der
 
 
-def _line_lagrange(q: int, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def line_lagrange(q: int, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Lagrange basis on equispaced nodes of [-1, 1]: values and derivatives, shape (n, q+1)."""
     nodes = np.linspace(-1.0, 1.0, q + 1)
     val = np.ones((len(w), q + 1))
@@ -111,7 +111,7 @@ class Prism:
         """Shape functions at reference points ``(n, 3)``: values (n, n_nodes), gradient in (u,v,w)
         of shape (n, n_nodes, 3)."""
         tv, tg = self.triangle_basis(pts[:, :2])
-        lv, lg = _line_lagrange(self.q, pts[:, 2])
+        lv, lg = line_lagrange(self.q, pts[:, 2])
         val = np.einsum("nk,na->nka", lv, tv).reshape(len(pts), -1)
         g_uv = np.einsum("nk,nad->nkad", lv, tg)
         g_w = np.einsum("nk,na->nka", lg, tv)[..., None]

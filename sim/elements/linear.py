@@ -4,7 +4,6 @@ The paper prints Eq. (6) as x = (w-1)/2 x_b + (w+1)/2 x_t; the bottom weight mus
 the interpolation to be nodal (it is -x_b at w = -1 as printed). Our basis is the correct one.
 """
 
-from sim.elements import register
 from sim.elements.base import Prism
 
 # The paper's rule, 1 in-plane x 2 thickness points. Trade-off (README, "Quadrature and spurious
@@ -12,6 +11,5 @@ from sim.elements.base import Prism
 # triangle hanging by a vertex, none on any other mesh of two or more triangles or under any
 # clamp. The 3 x 2 rule has none anywhere but is stiffer still (0.39 against 0.53 of the
 # reference cantilever deflection at 8.75 mm, nu = 0.49); it is taken for meshes with patches
-# of one or two triangles (sim.model.quadrature_rule).
-LINEAR = register(Prism("linear", p=1, q=1, default_quadrature=(1, 2),
-                            small_mesh_quadrature=(3, 2)))
+# of one or two triangles (sim.model.sheet.quadrature_rule).
+LINEAR = Prism("linear", p=1, q=1, default_quadrature=(1, 2), small_mesh_quadrature=(3, 2))

@@ -5,7 +5,6 @@ prints (1-w)^2 for the mid-surface weight, which is 4 at w = -1: neither nodal n
 unity. tests/test_elements.py checks the printed form fails and ours passes.
 """
 
-from sim.elements import register
 from sim.elements.base import Prism
 
 # The paper's rule, 1 in-plane x 3 thickness points. Trade-off (README, "Quadrature and spurious
@@ -14,5 +13,5 @@ from sim.elements.base import Prism
 # or more triangles, or any clamp, has none. The 3 x 3 rule has no spurious mode anywhere but
 # locks in transverse shear: 15 % too stiff on the paper's cantilever against 4.9 % for 1 x 3,
 # which would break the 5 % accuracy claim. So 1 x 3 is the default, and 3 x 3 is taken for
-# meshes with patches of one or two triangles (sim.model.quadrature_rule).
-Q3T = register(Prism("q3t", p=1, q=2, default_quadrature=(1, 3), small_mesh_quadrature=(3, 3)))
+# meshes with patches of one or two triangles (sim.model.sheet.quadrature_rule).
+Q3T = Prism("q3t", p=1, q=2, default_quadrature=(1, 3), small_mesh_quadrature=(3, 3))

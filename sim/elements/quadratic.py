@@ -3,7 +3,6 @@
 The reference element of the paper (Sec. 4); edge mid-nodes are shared between neighbours.
 """
 
-from sim.elements import register
 from sim.elements.base import Prism
 
-QUADRATIC = register(Prism("quadratic", p=2, q=2, default_quadrature=(7, 3)))
+QUADRATIC = Prism("quadratic", p=2, q=2, default_quadrature=(7, 3))

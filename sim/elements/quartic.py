@@ -4,7 +4,6 @@ In-plane rule: collapsed Gauss with 5 x 5 points (exact to degree 9 >= 2*(4-1) +
 points through the thickness.
 """
 
-from sim.elements import register
 from sim.elements.base import Prism
 
-QUARTIC = register(Prism("quartic", p=4, q=4, default_quadrature=(25, 5)))
+QUARTIC = Prism("quartic", p=4, q=4, default_quadrature=(25, 5))

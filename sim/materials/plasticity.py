@@ -44,8 +44,8 @@ Hardening laws: integer `law`, float64 parameter array `hp`:
     2 Swift    Y = K (e0 + ep)^n                        hp = [K, e0, n]   (e0 > 0, 0 <= n)
     3 Voce     Y = Y0 + (Ysat - Y0)(1 - exp(-C ep))     hp = [Y0, Ysat, C]
 Requirements: Y > 0 and H > -3 mu along the path for the return to be unique, H >= 0 for W to be
-convex; sim.scene.Hardening admits only nonsoftening parameters (K, e0 > 0, n >= 0, Ysat >= Y0,
-C > 0, H >= 0), and derives Swift's e0 = (Y0 / K)^(1/n) from the yield stress.
+convex; sim.scene.sheet.Hardening admits only nonsoftening parameters (K, e0 > 0, n >= 0,
+Ysat >= Y0, C > 0, H >= 0), and derives Swift's e0 = (Y0 / K)^(1/n) from the yield stress.
 """
 
 import math

@@ -48,8 +48,12 @@ def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
     return np.ascontiguousarray(dNdX), det * weights[None, :]
 
 
+# the element kernel, inlined into the parallel loops over elements: its scratch arrays come from
+# the caller so no element allocates, and its branches (material law, plastic state, what is
+# wanted, projection) are one loop body the compiler specialises; split into calls or given its
+# scratch as a tuple it would allocate or lose that inlining in the innermost loop
 @njit(cache=True, inline='always')
-def _element(x, rest, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project, g,
+def _element(x, rest, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project, g,  # noqa: C901
              Kp, Kf, pos, CB, G, P, C, bT, u, FiT):
     """Energy of one element; adds its gradient into ``g (n_en*3,)`` (want >= 1) and writes the
     upper triangle of its Hessian, packed row by row, into ``Kp (k (k+1) / 2,)`` (want == 2).
@@ -202,7 +206,7 @@ def elastic_kernel(x, rest, conn, dNdX, wdetJ, model, params, fp_inv, ep, plasti
                    project, order, block_ptr, color_ptr, slots, pos, grad, data):
     """Total energy; adds the gradient into ``grad (n_nodes, 3)`` (want >= 1) and the Hessian
     into ``data`` through the packed upper-triangle ``slots (n_elem, k (k+1) / 2)``
-    (want == 2). Blocks of one colour share no node (:class:`sim.assembly.Schedule`), so each
+    (want == 2). Blocks of one colour share no node (:class:`sim.solve.assembly.Schedule`), so each
     colour runs a block per thread without races. Returns inf on inversion."""
     n_e, n_en = conn.shape
     k = 3 * n_en

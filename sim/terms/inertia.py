@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.assembly import scatter_node_blocks
+from sim.solve.assembly import scatter_node_blocks
 from sim.terms import Term
 
 

@@ -8,25 +8,23 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.quadrature import line_rule, triangle_rule
+from sim.elements.base import line_lagrange
+from sim.geometry.quadrature import line_rule, triangle_rule
+from sim.geometry.trimesh import edges
 from sim.terms import Term
 
 
 class ExternalForce(Term):
-    """E(x) = -s(t) f . (x - X), ``f (n_nodes, 3)``; ``scale(t)`` the load curve. Measured from
-    the rest state X so the energy carries no large constant that would drown its changes in
-    round-off near convergence."""
+    """E(x) = -s f . (x - X), ``f (n_nodes, 3)``; ``factor`` s the load curve's value, set by
+    the stepping (sim.model.curves.load_factor). Measured from the rest state X so the energy
+    carries no large constant that would drown its changes in round-off near convergence."""
 
     name = "external_force"
 
-    def __init__(self, f: np.ndarray, rest: np.ndarray, scale=lambda t: t):
+    def __init__(self, f: np.ndarray, rest: np.ndarray):
         self.f = f
         self.rest = rest
-        self.scale = scale
         self.factor = 0.0
-
-    def begin_step(self, t, dt, x):
-        self.factor = float(self.scale(t))
 
     def energy(self, x):
         return -self.factor * float(np.sum(self.f * (x - self.rest)))
@@ -69,8 +67,6 @@ def _edge_faces(shell, plane_nodes_mask: np.ndarray):
     """(element, local edge) of rim faces whose both vertices are selected boundary nodes."""
     F = shell.mesh.faces
     out = []
-    from sim.mesh import edges
-
     uniq, fe = edges(F)
     count = np.bincount(fe.ravel(), minlength=len(uniq))
     for le, (a, b) in enumerate([(0, 1), (1, 2), (2, 0)]):
@@ -125,9 +121,7 @@ def point_force(shell, vertex: int, force: np.ndarray) -> np.ndarray:
     """A force on the node column of mid-surface vertex ``vertex``, split over its layers by the
     through-thickness integrals of the line basis (1/2, 1/2 linear; 1/6, 2/3, 1/6 quadratic)."""
     wp, ww = line_rule(shell.element.q + 1)
-    from sim.elements.base import _line_lagrange
-
-    L, _ = _line_lagrange(shell.element.q, wp)
+    L, _ = line_lagrange(shell.element.q, wp)
     share = (L * ww[:, None]).sum(0) / 2
     f = np.zeros((shell.n_nodes, 3))
     for k, s in enumerate(share):

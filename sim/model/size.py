@@ -15,9 +15,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from sim import mesh as meshes
 from sim.elements import get_element
-from sim.scene import MeshSpec, Scene, SceneError
+from sim.geometry import trimesh as meshes
+from sim.scene.load import Scene, SceneError
+from sim.scene.sheet import MeshSpec
 
 BASE_BYTES = 0.3 * 2**30  # the solver process before any model (numpy, numba, MKL)
 BYTES_PER_ENTRY = 48

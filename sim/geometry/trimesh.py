@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.scene.fields import MAX_LENGTH
+
 
 @dataclass(frozen=True)
 class TriMesh:
@@ -184,9 +186,7 @@ def _ply_property(m, path: Path, attribute: str) -> np.ndarray:
 
 
 def _check_coordinates(V: np.ndarray, path: Path) -> None:
-    """Finite, and within the scene's bound on lengths (sim.scene.MAX_LENGTH) once scaled."""
-    from sim.scene import MAX_LENGTH
-
+    """Finite, and within the scene's bound on lengths (sim.scene.fields.MAX_LENGTH) once scaled."""
     bad = np.flatnonzero(~np.isfinite(V).all(1) | (np.abs(V) > MAX_LENGTH).any(1))
     if len(bad):
         raise MeshFileError(f"{path.name}: vertex {bad[0]} at {V[bad[0]].tolist()} m is not "

@@ -1,24 +1,23 @@
 """Contact of the sheet's skins with one rigid tool: penalty normal force plus lagged smoothed
-Coulomb friction (sim.contact), as one energy term. A scene builds one such term per tool and
-none without tools.
+Coulomb friction (sim.terms.contact_kernels), as one energy term. A scene builds one such term per
+tool and none without tools.
 
-Friction lags the normal force (sim.contact); ``settle_friction`` refreshes it from the
-converged state and re-solves until it no longer changes, so a converged step slides with
-|f_t| = mu f_n of its own normal force.
+Friction lags the normal force (sim.terms.contact_kernels): ``relag`` refreshes it from a
+converged state, and the stepping re-solves until it no longer changes
+(sim.stepping.friction), so a converged step slides with |f_t| = mu f_n of its own normal force.
 
-The normal force is the C2 penalty (sim.contact, ``c2=True``): its stiffness ramps up over a
-contact layer ``delta`` (2 % of the thickness) outside the tool surface instead of jumping by
-k where a node enters it. With the jump, a node that ends a Newton step at the layer's edge
-sees a Hessian that is wrong by k times its last move, and the residual stalls there at a
-level set by the last bits of that move (measured: 1e-5 N against a floor of 1e-7 N, on one CPU
-code path and not another). A skin placed exactly on a tool is inside the layer and already
-held by it (no free rigid mode at the first step).
-The tool moves rigidly: a translation (velocity plus keyframed offsets) and a keyframed
-rotation about its origin, given as a rotation vector (axis * angle, rad) interpolated
-linearly between keyframes (exact for a fixed axis). Its pose (R, t) places the SDF
-(x_world = R x_local + t) for contact, friction (the tool's displacement over a step at each
-node, sim.contact.tool_displacement) and display. Both are integrated step by step from their
-increments, so a speed changed between steps takes effect from the next step on.
+The normal force is the C2 penalty (sim.terms.contact_kernels, ``c2=True``): its stiffness ramps up
+over a contact layer ``delta`` (2 % of the thickness) outside the tool surface instead of jumping by
+k where a node enters it. With the jump, a node that ends a Newton step at the layer's edge sees a
+Hessian that is wrong by k times its last move, and the residual stalls there at a level set by the
+last bits of that move (measured: 1e-5 N against a floor of 1e-7 N, on one CPU code path and not
+another). A skin placed exactly on a tool is inside the layer and already held by it (no free rigid
+mode at the first step). The tool moves rigidly: a translation (velocity plus keyframed offsets) and
+a keyframed rotation about its origin, given as a rotation vector (axis * angle, rad) interpolated
+linearly between keyframes (exact for a fixed axis). Its pose (R, t) places the SDF (x_world = R
+x_local + t) for contact, friction (the tool's displacement over a step at each node,
+sim.terms.contact_kernels.tool_displacement) and display. Both are integrated step by step from
+their increments, so a speed changed between steps takes effect from the next step on.
 
 Force control (a blank holder): the tool's z offset is an unknown of the system, stored as an
 extra "node" row ``x[vdof]`` whose x and y are held. The term then adds the work of the
@@ -32,10 +31,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.assembly import scatter_node_blocks
-from sim.contact import friction, normal_forces, penalty_contact, tool_displacement
+from sim.solve.assembly import scatter_node_blocks
 from sim.terms import Term
-from sim.tools.sdf import rotation, sdf_world_distance
+from sim.terms.contact_kernels import friction, normal_forces, penalty_contact, tool_displacement
+from sim.tools.evaluate import sdf_world_distance
+from sim.tools.pose import rotation
 
 EYE = np.eye(3)
 
@@ -95,7 +95,7 @@ class ToolContact(Term):
         # steps of at most F / k_floor each, the line search keeping the energy decreasing
         self.k_floor = 1e-4 * self.k * len(self.nodes)
         self.t_now = self.position.copy()
-        self._lagged = None
+        self.lagged = None
         # Newton's protocol (as Elasticity): nonzero = PSD-project each node block; the exact
         # block is indefinite next to convex tool edges (e' H with e' < 0)
         self.project = 1
@@ -136,7 +136,7 @@ class ToolContact(Term):
         # placed on a tool sits in the contact layer and carries k delta: a first guess.)
         self._start = x[self.nodes].copy()
         self._start_u = x[self.vdof].copy() if self.vdof is not None else 0.0
-        self._lagged = None
+        self.lagged = None
         if self.mu > 0:
             here = self.position + (x[self.vdof] if self.vdof is not None else 0.0)
             self._lag(*normal_forces(self._start, self.prog, self._R0, here, self.k,
@@ -147,7 +147,7 @@ class ToolContact(Term):
         # the prescribed motion over the step of the tool points under the nodes
         disp = tool_displacement(self._start[act], self._R0, self.position, self.R_now,
                                  self.t_now)
-        self._lagged = (act, self._start[act], np.ascontiguousarray(disp), lam[act], nrm[act],
+        self.lagged = (act, self._start[act], np.ascontiguousarray(disp), lam[act], nrm[act],
                         lam)
 
     def relag(self, x) -> float:
@@ -162,7 +162,7 @@ class ToolContact(Term):
             return 0.0
         lam, nrm = normal_forces(x[self.nodes], self.prog, self.R_now, self.translation(x),
                                  self.k, self.delta, c2=True)
-        old = self._lagged[5] if self._lagged is not None else np.zeros_like(lam)
+        old = self.lagged[5] if self.lagged is not None else np.zeros_like(lam)
         if take:
             self._lag(lam, nrm)
         top = float(lam.max()) if lam.size else 0.0
@@ -179,8 +179,8 @@ class ToolContact(Term):
                                         self.delta, c2=True, project_psd=bool(self.project))
         gf = np.zeros_like(g)
         Hf = np.zeros_like(H)
-        if self.mu > 0 and self._lagged is not None and self._lagged[0].any():
-            act, X0, disp, lam, nrm, _ = self._lagged
+        if self.mu > 0 and self.lagged is not None and self.lagged[0].any():
+            act, X0, disp, lam, nrm, _ = self.lagged
             Xa = X[act]
             if self.vdof is not None:  # slip relative to the tool, whose height is solved
                 Xa = Xa - (x[self.vdof] - self._start_u)
@@ -257,35 +257,3 @@ class ToolContact(Term):
 def _scatter_pairs(data, slots, blocks):
     """data[slots] += blocks for the (node, tool) blocks; every slot is above the diagonal."""
     np.add.at(data, slots.reshape(-1), blocks.reshape(-1))
-
-
-def settle_friction(problem, x, settings, force_level, timing, reactions=False, tol=1e-3,
-                    max_solves=4):
-    """Fixed point of the lagged normal force within a step: friction uses the normal forces
-    frozen at the start of the solve (a potential, so Newton applies); after convergence they
-    are refreshed from the converged state and the step is solved again from there until they
-    change by at most ``tol`` of the largest one (usually once or twice), so a sliding node's
-    drag is mu times its own converged normal force. A re-solve that fails keeps the last
-    converged state and its lag. Returns the state, the last converged re-solve's
-    NewtonResult (None when none ran), the Newton iterations of all re-solves, and how far
-    from settled the state is: the largest change of its normal forces from the lagged ones,
-    relative to the largest (at most ``tol`` when settled; more after ``max_solves`` re-solves
-    or a failed one, which the step record then shows)."""
-    from sim.newton import minimise
-
-    tools = [t for t in problem.terms if isinstance(t, ToolContact) and t.mu > 0]
-    last, iterations = None, 0
-    for _ in range(max_solves):
-        saved = [t._lagged for t in tools]
-        change = max((t.relag(x) for t in tools), default=0.0)
-        if change <= tol:
-            return x, last, iterations, change
-        res = minimise(problem, x, settings, force_level, reactions)
-        timing.add(res.timing)
-        iterations += res.iterations
-        if not res.converged:
-            for t, lag in zip(tools, saved, strict=True):
-                t._lagged = lag
-            break
-        x, last = res.x, res
-    return x, last, iterations, max((t.lag_change(x) for t in tools), default=0.0)

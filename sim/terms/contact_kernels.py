@@ -7,7 +7,7 @@ The contact force on node i is f_i = -grad_i.
 
 Normal contact (``penalty_contact``)
 ------------------------------------
-With d_i the signed distance of node i to the tool surface (``sim.tools.sdf``, > 0 in the air),
+With d_i the signed distance of node i to the tool surface (``sim.tools``, > 0 in the air),
 g_i its gradient (outward tool normal) and H_i its Hessian, and s = delta - d the penetration
 into the contact layer of thickness delta:
 
@@ -67,8 +67,9 @@ import math
 import numba
 import numpy as np
 
-from .materials.isotropic import eigh3
-from .tools.sdf import _pose, sdf_world, sdf_world_distance
+from sim.materials.isotropic import eigh3
+from sim.tools.evaluate import sdf_world, sdf_world_distance
+from sim.tools.pose import pose
 
 # design contact pressure of auto_stiffness, as a fraction of Young's modulus
 DESIGN_PRESSURE = 4e-3
@@ -146,7 +147,7 @@ def penalty_contact(X, prog, R, t, k, delta, *, c2=False, project_psd=False):
     delta: contact offset (m). See the module docstring for the energy and the variants.
     """
     X = _check(X, k, delta, c2)
-    R, t = _pose(R, t)
+    R, t = pose(R, t)
     prog = np.asarray(prog, dtype=np.float64)
     n = X.shape[0]
     gap = sdf_world_distance(prog, R, t, X)
@@ -170,7 +171,7 @@ def normal_forces(X, prog, R, t, k, delta, *, c2=False):
     normals the outward tool normal g at the node (zero where lam_n = 0).
     """
     X = _check(X, k, delta, c2)
-    R, t = _pose(R, t)
+    R, t = pose(R, t)
     prog = np.asarray(prog, dtype=np.float64)
     gap = sdf_world_distance(prog, R, t, X)
     idx = np.flatnonzero(gap < delta)
@@ -279,8 +280,8 @@ def tool_displacement(X_start, R0, t0, R1, t1):
     The tool moves from pose (R0, t0) to (R1, t1): the point at x maps to
     R1 R0^T (x - t0) + t1, so u_tool = R1 R0^T (x - t0) + t1 - x.
     """
-    R0, t0 = _pose(R0, t0)
-    R1, t1 = _pose(R1, t1)
+    R0, t0 = pose(R0, t0)
+    R1, t1 = pose(R1, t1)
     X = np.asarray(X_start, dtype=np.float64)
     return ((X - t0) @ R0) @ R1.T + t1 - X
 

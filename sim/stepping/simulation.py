@@ -12,13 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
-from sim import probes, results
-from sim.display import DisplayMesh
-from sim.model import Model, build_model, frame_fields
-from sim.newton import NewtonResult, Timing, minimise
-from sim.rigid import determinate_support
-from sim.scene import Scene
-from sim.terms.contact import ToolContact, settle_friction
+from sim.frames import fields, output, probes, results
+from sim.frames.display import DisplayMesh
+from sim.frames.output import Frame
+from sim.geometry.rigid import determinate_support
+from sim.model.build import Model, build_model
+from sim.model.curves import load_factor
+from sim.scene.load import Scene
+from sim.solve.newton import NewtonResult, Timing, minimise
+from sim.stepping.friction import settle_friction
+from sim.terms.tool_contact import ToolContact, quaternion_wxyz
 
 
 class SolverFailure(RuntimeError):
@@ -43,22 +46,8 @@ class StepRecord:
     # per tool: force the sheet exerts on it (N), nodes in contact, deepest penetration (m), z
     tools: dict[str, dict] = field(default_factory=dict)
     # friction: how far from settled the lagged normal forces are at the state (largest change,
-    # relative to the largest force; settled at <= 1e-3, sim.terms.contact.settle_friction)
+    # relative to the largest force; settled at <= 1e-3, sim.stepping.friction)
     friction_change: float = 0.0
-
-
-@dataclass
-class Frame:
-    """What a viewer needs of one step. positions ``(n_display, 3)`` float32; fields per display
-    vertex (``thickness_mm``, ``thinning_pct``)."""
-
-    step: int
-    time: float
-    positions: np.ndarray
-    fields: dict[str, np.ndarray]
-    probes: dict[str, float]
-    iterations: int
-    residual: float
 
 
 @dataclass
@@ -70,6 +59,16 @@ class Simulation:
     timing: Timing = field(default_factory=Timing)
     wall: float = 0.0
     failure: dict | None = None
+    stopped: str | None = None  # why the run ended before its last step, when not a failure
+
+    def end(self, reason: str, stopped: bool = True) -> None:
+        """The run ends here, not by the solver: ``stopped`` by a user or the service, or
+        failed for ``reason`` (the recording broke); result() then says why."""
+        if stopped:
+            self.stopped = reason
+        elif self.failure is None:
+            self.failure = {"step": self.step_index, "t": self.t, "cutbacks": 0,
+                            "reason": reason, "iterations": 0, "residuals": []}
 
     @classmethod
     def from_scene(cls, scene: Scene) -> Simulation:
@@ -90,14 +89,14 @@ class Simulation:
         # prescribed motion drives the run) met at a converged state; the floor of Newton's
         # reference in later steps (a slow sub-step's own forces can be tiny)
         self._force_level = 0.0
-        self._sections = {sp.name: probes.section_vertices(self.model, sp)
+        self._sections = {sp.name: fields.section_vertices(self.model, sp)
                           for sp in self.model.scene.sections}
         self.sections: dict[str, list[dict]] = {name: [] for name in self._sections}
         self._last_dt = 1.0
         self.release_support: list[dict] = []  # added for springback (_release_supports)
         self.x = self.model.x0.copy()
         self.display = DisplayMesh.from_shell(self.model.shell)
-        self.h0 = probes.thickness(self.model, self.x)
+        self.h0 = fields.thickness(self.model, self.x)
         self._record_sections()  # the rest state, when a section asks for step 0
 
     @property
@@ -112,12 +111,6 @@ class Simulation:
     def _dt(self) -> float:
         st = self.model.scene.stepping
         return st.dt if st.kind == "dynamic" else 1.0 / st.steps
-
-    def load_factor(self, t: float) -> float:
-        st = self.model.scene.stepping
-        if st.kind == "static":
-            return t
-        return min(1.0, t / st.load_ramp) if st.load_ramp > 0 else 1.0
 
     def set_parameter(self, name: str, value: float) -> None:
         """Change a live parameter from the next step on; recorded with that step number."""
@@ -137,9 +130,10 @@ class Simulation:
     def _attempt(self, t_new: float, dt: float) -> NewtonResult:
         m = self.model
         for term in m.terms:
-            term.begin_step(t_new if m.scene.stepping.kind == "static" else t_new, dt, self.x)
+            term.begin_step(t_new, dt, self.x)
         if m.external is not None:
-            m.external.factor = float(self.load_factor(t_new)) * self.parameters["load_scale"]
+            scale = self.parameters["load_scale"]
+            m.external.factor = float(load_factor(m.scene.stepping, t_new)) * scale
         target = m.dirichlet_positions(t_new)  # each BC's own time curve
         # predictor: continue the last converged increment (quasi-static paths are smooth), so
         # a prescribed motion does not start as a jump concentrated on the boundary elements
@@ -191,7 +185,7 @@ class Simulation:
 
     def _settle(self, res: NewtonResult) -> tuple[np.ndarray, NewtonResult, int, float]:
         """Settle friction's lagged normal force at a converged solve (re-solving from there,
-        sim.terms.contact). Returns the settled state, the solve it comes from (the last
+        sim.terms.tool_contact). Returns the settled state, the solve it comes from (the last
         re-solve, or ``res``), the re-solves' Newton iterations, which belong to the step, and
         how far from settled the state is (for the step record)."""
         x, settled, extra, change = settle_friction(
@@ -211,7 +205,7 @@ class Simulation:
         (remaining BCs hold their current positions)."""
         m = self.model
         start = time.perf_counter()
-        self.formed = probes.mid_surface(m, self.x)  # the shape in the closed tools
+        self.formed = fields.mid_surface(m, self.x)  # the shape in the closed tools
         m.problem.set_fixed(self._release_supports())
         released = {t.name for t in m.scene.tools if t.release}
         # springback is a static equilibrium: a dynamic run's inertia goes too (kept, the
@@ -258,8 +252,8 @@ class Simulation:
 
     def _release_supports(self) -> np.ndarray:
         """The DoFs held for springback: the scene's (its BCs less the released ones, plus its
-        release-only ones) and one more per rigid-body mode those leave free, on the bottom
-        skin (sim.rigid): the part is then held statically determinately, never by round-off.
+        release-only ones) and one more per rigid-body mode those leave free, on the bottom skin
+        (sim.geometry.rigid): the part is then held statically determinately, never by round-off.
         The added supports are kept in ``self.release_support`` for the result."""
         m = self.model
         held = (m.fixed & ~m.released) | m.release_support
@@ -353,7 +347,7 @@ class Simulation:
             if not sp.steps or self.step_index in sp.steps:
                 self.sections[sp.name].append(
                     {"step": self.step_index, "time": self.t,
-                     **probes.section(self.model, self.x, self._sections[sp.name])})
+                     **fields.section(self.model, self.x, self._sections[sp.name])})
 
     def run(self, progress=None) -> bool:
         """Step to the end; returns converged. ``progress(sim, record)`` after each step."""
@@ -376,75 +370,16 @@ class Simulation:
 
     def tool_rotations(self) -> dict[str, np.ndarray]:
         """Current orientation of every tool as a unit quaternion (w, x, y, z)."""
-        from sim.terms.contact import quaternion_wxyz
-
         return {t.tool: quaternion_wxyz(t.R_now) for t in self.tools}
 
     def frame(self) -> Frame:
-        """The viewer's frame: positions and the fields ``model.frame_fields`` names (the one
-        list of them: the recording's channels and ``built`` read it too)."""
-        m, x = self.model, self.x
-        rec = self.records[-1] if self.records else None
-        h = probes.thickness(m, x)
-        field_of = {"thickness_mm": lambda: 1e3 * h,
-                    "thinning_pct": lambda: 100 * (1 - h / self.h0),
-                    "von_mises_MPa": lambda: 1e-6 * probes.vertex_average(
-                        m, m.elasticity.von_mises(x)),
-                    "eq_plastic_strain": lambda: probes.vertex_average(m, m.elasticity.ep)}
-        fields = {name: self.display.per_vertex(field_of[name]()) for name in frame_fields(m)}
-        return Frame(self.step_index, self.t, self.display.positions(self.x), fields,
-                     rec.probes if rec else {}, rec.iterations if rec else 0,
-                     rec.residual if rec else 0.0)
+        """The viewer's frame of the current state (sim.frames.output.frame)."""
+        return output.frame(self)
 
     def result(self) -> dict:
-        """What the run did, in numbers JSON carries: a value that is not finite is written
-        as null, listed in ``non_finite``, and the run did not converge."""
-        out, bad = results.finite(self._result())
-        if bad:
-            out["non_finite"] = bad
-            out["converged"] = False
-            out["failure"] = out["failure"] or {
-                "step": self.step_index, "t": self.t, "cutbacks": 0, "iterations": 0,
-                "reason": f"not finite: {', '.join(bad[:5])}", "residuals": []}
-        return out
+        """What the run did, in numbers JSON carries (sim.frames.output.result)."""
+        return output.result(self)
 
-    def _result(self) -> dict:
-        m = self.model
-        t = self.timing
-        n_it = max(t.iterations, 1)
-        return {
-            "scene": m.scene.name,
-            "element": m.shell.element.name,
-            "quadrature": [len(np.unique(m.elasticity.rule.points[:, :2], axis=0)),
-                           len(np.unique(m.elasticity.rule.points[:, 2]))],
-            "counts": {"vertices": m.shell.n_vertices, "nodes": m.shell.n_nodes,
-                       "elements": len(m.shell.conn), "dofs": 3 * len(m.x0),
-                       "free_dofs": int((~m.fixed).sum())},
-            "built": m.built,
-            "parameters": self.parameter_log,
-            "converged": self.failure is None and self.step_index == self.n_steps,
-            "failure": self.failure,
-            # the DoFs springback added to hold the rigid-body modes the scene left free: node,
-            # component, position (m) where the release started, force (N) once released
-            "release_support": self.release_support,
-            "steps": [asdict(r) for r in self.records],
-            "sections": self.sections,
-            "fields": probes.field_summary(probes.output_fields(m, self.x, self.h0)),
-            "timing": {"total": self.wall, "assembly": t.assembly,
-                       "factorisation": t.factorisation, "solve": t.solve,
-                       "line_search": t.line_search, "newton_iterations": t.iterations,
-                       "per_iteration": (t.assembly + t.factorisation + t.solve
-                                         + t.line_search) / n_it},
-        }
-
-    def write(self, out: Path) -> None:
-        """result.json and final.npz, each written to a temporary name first so an interrupted
-        run never leaves a half-written file."""
-        out.mkdir(parents=True, exist_ok=True)
-        sh = self.model.shell
-        tmp = out / "final.tmp.npz"
-        np.savez_compressed(tmp, rest=sh.rest, deformed=self.x[: sh.n_nodes],
-                            faces=sh.mesh.faces, conn=sh.conn, rest_thickness=self.h0,
-                            **probes.output_fields(self.model, self.x, self.h0))
-        tmp.replace(out / "final.npz")
-        results.write(out / "result.json", self.result())
+    def write(self, out: Path) -> dict:
+        """result.json and final.npz in ``out`` (sim.frames.output.write); the result."""
+        return output.write(self, out)

@@ -30,14 +30,15 @@ Meshes are for display only: Python-level loops here run over corners and arcs, 
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from . import sdf as _sdf
+from sim.tools.implicit import mesh_implicit, tool_bounds
+from sim.tools.polygon import edge_normals, is_simple_polygon
+from sim.tools.pose import transform
+from sim.tools.program import RCORNER, parse
 
 
 def _dedup_cyclic(P, closed, tol):
@@ -84,7 +85,7 @@ def _offset_ring(poly, u, n_arc):
     segments (n_arc + 1 points, all equal to the vertex when u = 0), reflex (and straight)
     vertices the mitre point. The point count depends on the polygon only.
     """
-    n = _sdf.edge_normals(poly)
+    n = edge_normals(poly)
     n_prev = np.roll(n, 1, axis=0)
     e = np.roll(poly, -1, axis=0) - poly
     e_prev = np.roll(e, 1, axis=0)
@@ -218,12 +219,12 @@ def _mesh_profile(lo, hi, z0, z1, r, poly, n_segments, n_arc):
         c, s = np.cos(th), np.sin(th)
         rings = [np.stack([u * c, u * s, np.full_like(c, z)], axis=1) for u, z in P]
         scale = max(np.abs(P).max(), 1e-300)
-    elif poly.shape[1] == _sdf.RCORNER:  # rounded polygon: offsets either way
+    elif poly.shape[1] == RCORNER:  # rounded polygon: offsets either way
         scale = max(np.abs(poly[:, 4:]).max() + abs(hi), abs(z0), abs(z1))
         rings = []
         for u, z in P:
             q = _offset_ring_rounded(poly, u, n_arc)
-            if q is None or not _sdf.is_simple_polygon(_dedup_cyclic(q, True, 1e-12 * scale)):
+            if q is None or not is_simple_polygon(_dedup_cyclic(q, True, 1e-12 * scale)):
                 return None  # the offset outline folds: leave it to the implicit mesher
             rings.append(np.concatenate([q, np.full((len(q), 1), z)], axis=1))
     else:
@@ -231,7 +232,7 @@ def _mesh_profile(lo, hi, z0, z1, r, poly, n_segments, n_arc):
         if P[:, 0].min() < 0.0:
             return None  # inward offsets of the polygon: not built explicitly
         widest = _dedup_cyclic(_offset_ring(poly, P[:, 0].max(), n_arc), True, 1e-12 * scale)
-        if not _sdf.is_simple_polygon(widest):
+        if not is_simple_polygon(widest):
             return None  # the offset outline folds: leave it to the implicit mesher
         rings = []
         for u, z in P:
@@ -331,154 +332,6 @@ def _explicit(node, n_segments, n_arc, plane_size):
     return None
 
 
-def tool_bounds(node):
-    """Axis-aligned box (lo (3,), hi (3,)) of a parsed program in its frame; +-inf if open."""
-    inf = np.full(3, np.inf)
-    kind = node[0]
-    if kind == "plane":
-        return -inf, inf
-    if kind == "box":
-        return node[1] - node[2], node[1] + node[2]
-    if kind == "revolve":
-        hi = node[2]
-        return np.array([-hi, -hi, node[3]]), np.array([hi, hi, node[4]])
-    if kind == "sweep":
-        poly, hi = node[6], node[2]
-        return (np.r_[poly.min(0) - hi, node[3]], np.r_[poly.max(0) + hi, node[4]])
-    if kind == "rsweep":  # outline within its tangent points and arcs (centre +- radius)
-        C, hi = node[6], node[2]
-        P = np.concatenate([C[:, 4:6], C[:, 6:8], C[:, :2] - C[:, 2:3], C[:, :2] + C[:, 2:3]])
-        return (np.r_[P.min(0) - max(hi, 0.0), node[3]], np.r_[P.max(0) + max(hi, 0.0), node[4]])
-    if kind == "frame":
-        lo, hi = tool_bounds(node[3])
-        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-            return -inf, inf
-        corners = np.array(list(itertools.product(*zip(lo, hi, strict=True))))
-        W = corners @ node[1].T + node[2]
-        return W.min(0), W.max(0)
-    la, ha = tool_bounds(node[2])
-    lb, hb = tool_bounds(node[3])
-    k = node[1]
-    if kind == "union":
-        return np.minimum(la, lb) - k, np.maximum(ha, hb) + k
-    if kind == "intersect":
-        return np.maximum(la, lb) - k, np.minimum(ha, hb) + k
-    return la - k, ha + k  # subtract
-
-
-def _marching_tets(f, origin, h):
-    """Closed, outward-oriented isosurface {f = 0} of grid values f (nx, ny, nz).
-
-    Returns V (linear interpolation on the grid edges), F, and the two grid nodes (flat
-    indices, f < 0 at one end, f >= 0 at the other) of each vertex's edge.
-    """
-    nx, ny, nz = f.shape
-    ff = f.ravel()
-    I, J, K = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1), np.arange(nz - 1),
-                          indexing="ij")
-    I, J, K = I.ravel(), J.ravel(), K.ravel()
-    base = (I * ny + J) * nz + K
-    step = np.array([ny * nz, nz, 1])
-    corners = np.array(list(itertools.product((0, 1), repeat=3)))
-    cv = ff[base[:, None] + corners @ step]
-    mixed = (cv >= 0).any(1) & (cv < 0).any(1)
-    base = base[mixed]
-    tets = []
-    for p in itertools.permutations(range(3)):
-        e0, e1 = np.eye(3, dtype=np.int64)[p[0]], np.eye(3, dtype=np.int64)[p[1]]
-        offs = np.array([[0, 0, 0], e0, e0 + e1, [1, 1, 1]]) @ step
-        tets.append(base[:, None] + offs)
-    T = np.concatenate(tets)
-    vals = ff[T]
-    pos = vals >= 0
-    npos = pos.sum(1)
-    T, vals, pos, npos = (a[(npos > 0) & (npos < 4)] for a in (T, vals, pos, npos))
-
-    def coords(idx):
-        i, rem = np.divmod(idx, ny * nz)
-        j, k = np.divmod(rem, nz)
-        return origin + h * np.stack([i, j, k], axis=-1)
-
-    pos_c = (coords(T) * pos[..., None]).sum(1) / npos[:, None]
-    neg_c = (coords(T) * (~pos)[..., None]).sum(1) / (4 - npos)[:, None]
-    direction = pos_c - neg_c
-    tri_edges, tri_dir = [], []
-    odd = (npos == 1) | (npos == 3)
-    if odd.any():
-        minority = np.where((npos == 1)[:, None], pos, ~pos)[odd]
-        order = np.argsort(~minority, axis=1, kind="stable")
-        To = np.take_along_axis(T[odd], order, axis=1)
-        o = To[:, 0]
-        tri_edges.append(np.stack([np.stack([o, To[:, q]], -1) for q in (1, 2, 3)], 1))
-        tri_dir.append(direction[odd])
-    two = npos == 2
-    if two.any():
-        order = np.argsort(~pos[two], axis=1, kind="stable")
-        Tt = np.take_along_axis(T[two], order, axis=1)
-        a, b, c, d = Tt.T
-        ac, ad, bd, bc = (np.stack(e, -1) for e in ((a, c), (a, d), (b, d), (b, c)))
-        tri_edges += [np.stack([ac, ad, bd], 1), np.stack([ac, bd, bc], 1)]
-        tri_dir += [direction[two], direction[two]]
-    E = np.concatenate(tri_edges)  # (ntri, 3 vertices, 2 grid nodes)
-    D = np.concatenate(tri_dir)
-    E = np.sort(E, axis=2)
-    keys = E[..., 0] * ff.size + E[..., 1]
-    ukeys, F = np.unique(keys.ravel(), return_inverse=True)
-    F = F.reshape(-1, 3).astype(np.int64)
-    na, nb = np.divmod(ukeys, ff.size)
-    fa, fb = ff[na], ff[nb]
-    t = fa / (fa - fb)
-    V = coords(na) + t[:, None] * (coords(nb) - coords(na))
-    nrm = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    flip = np.einsum("ij,ij->i", nrm, D) < 0
-    F[flip] = F[flip][:, ::-1]
-    return V, F, na, nb
-
-
-def _edge_roots(prog, A, B, fa, fb, tol, iters=60):
-    """Points on the segments A -> B where the SDF vanishes (fa < 0 <= fb or fa >= 0 > fb).
-
-    Illinois (modified regula falsi) on every segment at once: superlinear, always bracketed,
-    so each vertex stays on its own grid edge and vertices never merge, even at CSG creases.
-    """
-    ta, tb = np.zeros(len(A)), np.ones(len(A))
-    t = (ta * fb - tb * fa) / (fb - fa)
-    side = np.zeros(len(A), dtype=np.int8)
-    D = B - A
-    todo = np.arange(len(A))  # segments not converged yet
-    for _ in range(iters):
-        i = todo
-        t[i] = (ta[i] * fb[i] - tb[i] * fa[i]) / (fb[i] - fa[i])
-        f = _sdf.sdf_distance(prog, A[i] + t[i, None] * D[i])
-        same = (f >= 0) == (fa[i] >= 0)
-        # replace the endpoint on f's side; halve the other end's value if it was kept twice
-        ta[i] = np.where(same, t[i], ta[i])
-        tb[i] = np.where(same, tb[i], t[i])
-        fa_i = np.where(same, f, np.where(side[i] == -1, 0.5 * fa[i], fa[i]))
-        fb[i] = np.where(same, np.where(side[i] == 1, 0.5 * fb[i], fb[i]), f)
-        fa[i] = fa_i
-        side[i] = np.where(same, 1, -1)
-        todo = i[np.abs(f) > tol]
-        if todo.size == 0:
-            break
-    return A + t[:, None] * D
-
-
-def _mesh_implicit(prog, lo, hi, resolution):
-    size = hi - lo
-    h = size.max() / resolution
-    # pad by two cells; the irrational shift keeps grid nodes off planes aligned with the box
-    lo = lo - (2.0 + 1.0 / np.pi) * h
-    n = np.ceil((size + 5.0 * h) / h).astype(int) + 1
-    axes = [lo[i] + h * np.arange(n[i]) for i in range(3)]
-    G = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    f = _sdf.sdf_distance(prog, G)
-    V, F, na, nb = _marching_tets(f.reshape(tuple(n)), lo, h)
-    # move each vertex along its grid edge onto the zero level set
-    V = _edge_roots(prog, G[na], G[nb], f[na].copy(), f[nb].copy(), 1e-13 * size.max())
-    return V, F
-
-
 def tool_mesh(prog, R=None, t=None, *, n_segments=96, n_arc=12, resolution=64,
               plane_size=1.0, bounds=None, method="auto"):
     """Triangle mesh (V (m, 3) float64, F (k, 3) int64) of a tool surface, outward normals.
@@ -490,7 +343,7 @@ def tool_mesh(prog, R=None, t=None, *, n_segments=96, n_arc=12, resolution=64,
     bounds: optional (lo (3,), hi (3,)) box for implicit meshing; method: "auto" (explicit
     for a single primitive, implicit otherwise), "explicit" or "implicit".
     """
-    tree = _sdf.parse(prog)
+    tree = parse(prog)
     mesh = None
     if method in ("auto", "explicit"):
         mesh = _explicit(tree, n_segments, n_arc, plane_size)
@@ -506,10 +359,10 @@ def tool_mesh(prog, R=None, t=None, *, n_segments=96, n_arc=12, resolution=64,
             hi = np.where(np.isfinite(hi), hi, half)
         else:
             lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
-        mesh = _mesh_implicit(np.asarray(prog, dtype=np.float64), lo, hi, resolution)
+        mesh = mesh_implicit(np.asarray(prog, dtype=np.float64), lo, hi, resolution)
     V, F = mesh
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
     if R is not None or t is not None:
-        V = _sdf.transform(V, R, t)
+        V = transform(V, R, t)
     return V, F

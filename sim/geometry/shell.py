@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.elements.base import Prism
-from sim.mesh import TriMesh, edges, vertex_normals
+from sim.geometry.trimesh import TriMesh, edges, vertex_normals
 
 
 @dataclass(frozen=True)

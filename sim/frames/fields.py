@@ -1,17 +1,19 @@
-"""Probes: named scalar outputs recorded every step (displacement, thickness, reaction, volume),
-plus the per-vertex fields the viewer colours by."""
+"""Fields of a state: the mid-surface, thickness, fibre tilt, volume and curvature the probes
+read, the per-vertex fields the viewer colours by and the result holds, and radial sections."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from sim.elements.base import _line_lagrange
+from sim.elements.base import line_lagrange
+from sim.geometry.trimesh import TriMesh, vertex_normals
+from sim.materials.plasticity import net_plastic_strain
 
 
 def mid_surface(model, x: np.ndarray) -> np.ndarray:
     """Positions at w = 0 of every mid-surface vertex column ``(n_v, 3)``."""
     sh = model.shell
-    L, _ = _line_lagrange(sh.element.q, np.zeros(1))
+    L, _ = line_lagrange(sh.element.q, np.zeros(1))
     cols = [x[k * sh.n_plane: k * sh.n_plane + sh.n_vertices] for k in range(sh.element.q + 1)]
     return sum(w * c for w, c in zip(L[0], cols, strict=True))
 
@@ -26,8 +28,6 @@ def fibre_tilt(model, x: np.ndarray) -> np.ndarray:
     """Angle (degrees) per vertex between the through-thickness fibre (bottom to top skin) and
     the normal of the deformed mid-surface: transverse shear, zero in pure bending and
     stretching; linear prisms escape volumetric locking by shearing (paper Fig. 11)."""
-    from sim.mesh import TriMesh, vertex_normals
-
     sh = model.shell
     fibre = x[sh.skin_nodes(True)] - x[sh.skin_nodes(False)]
     n = vertex_normals(TriMesh(mid_surface(model, x), sh.mesh.faces))
@@ -70,8 +70,6 @@ def output_fields(model, x: np.ndarray, h0: np.ndarray) -> dict[str, np.ndarray]
     von Mises stress (Pa) and, for a plastic scene, the accumulated and the net (retained)
     equivalent plastic strain. Element values are quadrature-point means; vertex values the
     mean of the adjacent elements (thickness: measured at the vertex, as in the viewer)."""
-    from sim.materials.plasticity import net_plastic_strain
-
     el, faces = model.elasticity, model.shell.mesh.faces
     h = thickness(model, x)
     per_qp = {"von_mises": el.von_mises(x)}
@@ -91,79 +89,6 @@ def field_summary(fields: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
     """min / mean / max of each per-vertex field of :func:`output_fields` (result.json)."""
     return {k: {"min": float(v.min()), "mean": float(v.mean()), "max": float(v.max())}
             for k, v in fields.items() if not k.endswith("_elem")}
-
-
-def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None,
-             formed: np.ndarray | None = None) -> dict[str, float]:
-    """Every probe of the scene at state ``x``; ``gradient`` is the total energy gradient (the
-    support reactions), computed here when a reaction probe needs it; ``formed`` the
-    mid-surface (n_v, 3) at the end of the stroke, the reference of springback probes (they
-    read 0 before the release stage)."""
-    out = {}
-    sh = model.shell
-    for p in model.scene.probes:
-        if p.kind == "displacement":
-            v = int(np.argmin(np.linalg.norm(sh.mesh.vertices - np.array(p.point), axis=1)))
-            mid0 = mid_surface(model, sh.rest)[v]
-            u = mid_surface(model, x)[v] - mid0
-            out[p.name] = float(np.linalg.norm(u) if p.component == "norm"
-                                else u["xyz".index(p.component)])
-        elif p.kind == "thickness":
-            h = thickness(model, x)
-            out[p.name] = float(getattr(np, p.stat)(h))
-        elif p.kind == "volume":
-            out[p.name] = volume(model, x)
-        elif p.kind == "cup_height":  # rim (the region, mean) above the lowest point
-            z = mid_surface(model, x)[:, 2]
-            out[p.name] = float(z[model.regions[p.region][: sh.n_vertices]].mean() - z.min())
-        elif p.kind == "height_range":  # out-of-plane amplitude, e.g. of flange wrinkles
-            v = model.regions[p.region][: sh.n_vertices]
-            z = mid_surface(model, x)[v, 2]
-            out[p.name] = float(z.max() - z.min())
-        elif p.kind == "fibre_tilt":
-            tilt = fibre_tilt(model, x)
-            if p.region:
-                tilt = tilt[model.regions[p.region][: sh.n_vertices]]
-            out[p.name] = float(getattr(np, p.stat)(tilt))
-        elif p.kind == "springback":  # deviation from the shape in the closed tools
-            if formed is None:
-                out[p.name] = 0.0
-                continue
-            v = (model.regions[p.region][: sh.n_vertices] if p.region
-                 else np.ones(sh.n_vertices, bool))
-            dev = np.linalg.norm(mid_surface(model, x)[v] - formed[v], axis=1)
-            out[p.name] = float(getattr(np, p.stat)(dev))
-        elif p.kind == "curvature":
-            v = model.regions[p.region][: sh.n_vertices]
-            out[p.name] = curvature_xz(mid_surface(model, x)[v])
-        elif p.kind == "plastic_strain":
-            ep = model.elasticity.ep
-            out[p.name] = float(getattr(np, p.stat)(ep)) if ep.size else 0.0
-        elif p.kind in ("tool_force", "penetration", "contact_nodes", "tool_position"):
-            term = next((t for t in model.problem.terms if getattr(t, "tool", None) == p.tool),
-                        None)
-            if term is None:  # retracted for springback: it carries nothing
-                out[p.name] = 0.0
-                continue
-            rep = term.report(x)
-            if p.kind == "tool_force":
-                f = np.array([rep["fx"], rep["fy"], rep["fz"]])
-                out[p.name] = float(np.linalg.norm(f) if p.component == "norm"
-                                    else f["xyz".index(p.component)])
-            elif p.kind == "tool_position":
-                out[p.name] = rep["z"]
-            else:
-                out[p.name] = float(rep[p.kind])
-        elif p.kind == "von_mises":
-            out[p.name] = float(getattr(np, p.stat)(model.elasticity.von_mises(x)))
-        else:
-            if gradient is None:
-                gradient = model.problem.gradient(x)
-            nodes = model.column_nodes(model.regions[p.region])
-            r = gradient[nodes].sum(0)
-            out[p.name] = float(np.linalg.norm(r) if p.component == "norm"
-                                else r["xyz".index(p.component)])
-    return out
 
 
 def section_vertices(model, spec) -> np.ndarray:

@@ -1,0 +1,104 @@
+"""What a run gives out of a Simulation (sim.stepping.simulation): the viewer's frame of its
+state, its result (result.json) and the final state (final.npz)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sim.frames import fields, results
+from sim.model.build import frame_fields
+
+
+@dataclass
+class Frame:
+    """What a viewer needs of one step. positions ``(n_display, 3)`` float32; fields per display
+    vertex (``thickness_mm``, ``thinning_pct``)."""
+
+    step: int
+    time: float
+    positions: np.ndarray
+    fields: dict[str, np.ndarray]
+    probes: dict[str, float]
+    iterations: int
+    residual: float
+
+
+def frame(sim) -> Frame:
+    """The viewer's frame: positions and the fields ``model.frame_fields`` names (the one
+    list of them: the recording's channels and ``built`` read it too)."""
+    m, x = sim.model, sim.x
+    rec = sim.records[-1] if sim.records else None
+    h = fields.thickness(m, x)
+    field_of = {"thickness_mm": lambda: 1e3 * h,
+                "thinning_pct": lambda: 100 * (1 - h / sim.h0),
+                "von_mises_MPa": lambda: 1e-6 * fields.vertex_average(
+                    m, m.elasticity.von_mises(x)),
+                "eq_plastic_strain": lambda: fields.vertex_average(m, m.elasticity.ep)}
+    values = {name: sim.display.per_vertex(field_of[name]()) for name in frame_fields(m)}
+    return Frame(sim.step_index, sim.t, sim.display.positions(sim.x), values,
+                 rec.probes if rec else {}, rec.iterations if rec else 0,
+                 rec.residual if rec else 0.0)
+
+
+def result(sim) -> dict:
+    """What the run did, in numbers JSON carries: a value that is not finite is written
+    as null, listed in ``non_finite``, and the run did not converge."""
+    out, bad = results.finite(_result(sim))
+    if bad:
+        out["non_finite"] = bad
+        out["converged"] = False
+        out["failure"] = out["failure"] or {
+            "step": sim.step_index, "t": sim.t, "cutbacks": 0, "iterations": 0,
+            "reason": f"not finite: {', '.join(bad[:5])}", "residuals": []}
+    return out
+
+
+def _result(sim) -> dict:
+    m = sim.model
+    t = sim.timing
+    n_it = max(t.iterations, 1)
+    return {
+        "scene": m.scene.name,
+        "element": m.shell.element.name,
+        "quadrature": [len(np.unique(m.elasticity.rule.points[:, :2], axis=0)),
+                       len(np.unique(m.elasticity.rule.points[:, 2]))],
+        "counts": {"vertices": m.shell.n_vertices, "nodes": m.shell.n_nodes,
+                   "elements": len(m.shell.conn), "dofs": 3 * len(m.x0),
+                   "free_dofs": int((~m.fixed).sum())},
+        "built": m.built,
+        "parameters": sim.parameter_log,
+        "converged": sim.failure is None and sim.step_index == sim.n_steps,
+        "failure": sim.failure,
+        # why a run that neither finished nor failed ended early (a user's stop, the service
+        # shutting down); None otherwise
+        "stopped": sim.stopped,
+        # the DoFs springback added to hold the rigid-body modes the scene left free: node,
+        # component, position (m) where the release started, force (N) once released
+        "release_support": sim.release_support,
+        "steps": [asdict(r) for r in sim.records],
+        "sections": sim.sections,
+        "fields": fields.field_summary(fields.output_fields(m, sim.x, sim.h0)),
+        "timing": {"total": sim.wall, "assembly": t.assembly,
+                   "factorisation": t.factorisation, "solve": t.solve,
+                   "line_search": t.line_search, "newton_iterations": t.iterations,
+                   "per_iteration": (t.assembly + t.factorisation + t.solve
+                                     + t.line_search) / n_it},
+    }
+
+
+def write(sim, out: Path) -> dict:
+    """result.json and final.npz, each written to a temporary name first so an interrupted
+    run never leaves a half-written file. Returns the result written."""
+    out.mkdir(parents=True, exist_ok=True)
+    sh = sim.model.shell
+    tmp = out / "final.tmp.npz"
+    np.savez_compressed(tmp, rest=sh.rest, deformed=sim.x[: sh.n_nodes],
+                        faces=sh.mesh.faces, conn=sh.conn, rest_thickness=sim.h0,
+                        **fields.output_fields(sim.model, sim.x, sim.h0))
+    tmp.replace(out / "final.npz")
+    res = sim.result()
+    results.write(out / "result.json", res)
+    return res

@@ -1,0 +1,172 @@
+"""Probes: named scalar outputs of a state, recorded every step. One registry knows the probe
+kinds: each registers what its spec must name (a point, a region, a tool; a plastic material)
+and how its value is read. The scene validates probe specs against it (sim.scene.run)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.frames.fields import curvature_xz, fibre_tilt, mid_surface, thickness, volume
+
+
+@dataclass
+class State:
+    """What a probe reads: the model, the state x, the total energy gradient (the support
+    reactions, computed when a probe first needs it) and the mid-surface (n_v, 3) formed in the
+    closed tools (the springback reference; None before the release stage)."""
+
+    model: object
+    x: np.ndarray
+    gradient_: np.ndarray | None = None
+    formed: np.ndarray | None = None
+
+    @property
+    def gradient(self) -> np.ndarray:
+        if self.gradient_ is None:
+            self.gradient_ = self.model.problem.gradient(self.x)
+        return self.gradient_
+
+    def vertices(self, region: str | None) -> np.ndarray:
+        """The mid-surface vertex mask of ``region`` (every vertex when None)."""
+        sh = self.model.shell
+        if region is None:
+            return np.ones(sh.n_vertices, bool)
+        return self.model.regions[region][: sh.n_vertices]
+
+
+@dataclass(frozen=True)
+class ProbeKind:
+    value: Callable  # (State, ProbeSpec) -> float
+    needs: tuple[str, ...] = ()  # the spec's fields it reads: "point", "region", "tool"
+    plastic: bool = False  # reads the plastic state: a plastic material only
+
+
+PROBES: dict[str, ProbeKind] = {}
+
+
+def probe(kind: str, needs: tuple[str, ...] = (), plastic: bool = False):
+    """Register the decorated ``value(state, spec)`` as probe kind ``kind``."""
+    def register(value: Callable) -> Callable:
+        PROBES[kind] = ProbeKind(value, needs, plastic)
+        return value
+    return register
+
+
+def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None,
+             formed: np.ndarray | None = None) -> dict[str, float]:
+    """Every probe of the scene at state ``x``; ``gradient`` is the total energy gradient (the
+    support reactions), computed here when a reaction probe needs it; ``formed`` the
+    mid-surface (n_v, 3) at the end of the stroke, the reference of springback probes (they
+    read 0 before the release stage)."""
+    state = State(model, x, gradient, formed)
+    return {p.name: PROBES[p.kind].value(state, p) for p in model.scene.probes}
+
+
+def _stat(values: np.ndarray, p) -> float:
+    return float(getattr(np, p.stat)(values))
+
+
+def _component(v: np.ndarray, p) -> float:
+    return float(np.linalg.norm(v) if p.component == "norm" else v["xyz".index(p.component)])
+
+
+@probe("displacement", needs=("point",))
+def _displacement(s: State, p) -> float:
+    sh = s.model.shell
+    v = int(np.argmin(np.linalg.norm(sh.mesh.vertices - np.array(p.point), axis=1)))
+    mid0 = mid_surface(s.model, sh.rest)[v]
+    return _component(mid_surface(s.model, s.x)[v] - mid0, p)
+
+
+@probe("thickness")
+def _thickness(s: State, p) -> float:
+    return _stat(thickness(s.model, s.x), p)
+
+
+@probe("reaction", needs=("region",))
+def _reaction(s: State, p) -> float:
+    nodes = s.model.column_nodes(s.model.regions[p.region])
+    return _component(s.gradient[nodes].sum(0), p)
+
+
+@probe("volume")
+def _volume(s: State, p) -> float:
+    return volume(s.model, s.x)
+
+
+@probe("curvature", needs=("region",))
+def _curvature(s: State, p) -> float:
+    return curvature_xz(mid_surface(s.model, s.x)[s.vertices(p.region)])
+
+
+@probe("plastic_strain", plastic=True)
+def _plastic_strain(s: State, p) -> float:
+    ep = s.model.elasticity.ep
+    return _stat(ep, p) if ep.size else 0.0
+
+
+@probe("von_mises")
+def _von_mises(s: State, p) -> float:
+    return _stat(s.model.elasticity.von_mises(s.x), p)
+
+
+def _tool_report(s: State, p) -> dict | None:
+    """The report of the probe's tool, None once it is retracted (it then carries nothing)."""
+    term = next((t for t in s.model.problem.terms if getattr(t, "tool", None) == p.tool), None)
+    return None if term is None else term.report(s.x)
+
+
+@probe("tool_force", needs=("tool",))
+def _tool_force(s: State, p) -> float:
+    rep = _tool_report(s, p)
+    return 0.0 if rep is None else _component(np.array([rep["fx"], rep["fy"], rep["fz"]]), p)
+
+
+@probe("penetration", needs=("tool",))
+def _penetration(s: State, p) -> float:
+    rep = _tool_report(s, p)
+    return 0.0 if rep is None else float(rep["penetration"])
+
+
+@probe("contact_nodes", needs=("tool",))
+def _contact_nodes(s: State, p) -> float:
+    rep = _tool_report(s, p)
+    return 0.0 if rep is None else float(rep["contact_nodes"])
+
+
+@probe("fibre_tilt")
+def _fibre_tilt(s: State, p) -> float:
+    tilt = fibre_tilt(s.model, s.x)
+    return _stat(tilt[s.vertices(p.region)] if p.region else tilt, p)
+
+
+@probe("height_range", needs=("region",))
+def _height_range(s: State, p) -> float:
+    """Out-of-plane amplitude, e.g. of flange wrinkles."""
+    z = mid_surface(s.model, s.x)[s.vertices(p.region), 2]
+    return float(z.max() - z.min())
+
+
+@probe("tool_position", needs=("tool",))
+def _tool_position(s: State, p) -> float:
+    rep = _tool_report(s, p)
+    return 0.0 if rep is None else rep["z"]
+
+
+@probe("springback")
+def _springback(s: State, p) -> float:
+    """Deviation from the shape in the closed tools."""
+    if s.formed is None:
+        return 0.0
+    v = s.vertices(p.region)
+    return _stat(np.linalg.norm(mid_surface(s.model, s.x)[v] - s.formed[v], axis=1), p)
+
+
+@probe("cup_height", needs=("region",))
+def _cup_height(s: State, p) -> float:
+    """The rim (the region, mean) above the lowest point."""
+    z = mid_surface(s.model, s.x)[:, 2]
+    return float(z[s.vertices(p.region)].mean() - z.min())

@@ -1,0 +1,2 @@
+"""Discretisation: a validated Scene becomes a Model (build), and its size before it is built
+(size)."""

@@ -1,0 +1,115 @@
+"""The sheet of a scene: its mid-surface mesh (generated or read), the thickness at every
+vertex, and the quadrature rule its elements take. Errors name the field they come from."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from sim.geometry import trimesh as meshes
+from sim.scene.fields import MAX_LENGTH
+from sim.scene.load import Scene
+from sim.scene.sheet import MeshSpec
+
+
+def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
+    if spec.kind == "rectangle":
+        return meshes.rectangle(spec.size, spec.edge_length, spec.origin)
+    if spec.kind in ("annulus", "disk"):
+        r0 = 0.0 if spec.kind == "disk" else spec.r_inner
+        return meshes.annulus(r0, spec.r_outer, spec.edge_length)
+    if spec.kind == "cylinder_band":
+        return meshes.cylinder_band(spec.radius, spec.height, spec.edge_length)
+    return meshes.load(spec.path, spec.scale, spec.merge_vertices)
+
+
+def imperfect(mesh: meshes.TriMesh, amplitude: float) -> meshes.TriMesh:
+    """``MeshSpec.imperfection``: one smooth out-of-plane bump over a flat mesh's extent."""
+    if amplitude == 0.0:
+        return mesh
+    V = mesh.vertices
+    if np.ptp(V[:, 2]) > 1e-12 * np.ptp(V, axis=0).max():
+        raise ValueError("mesh.imperfection: needs a flat mesh (z = const)")
+    lo, span = V.min(0), np.ptp(V, axis=0)
+    s, t = (V[:, 0] - lo[0]) / span[0], (V[:, 1] - lo[1]) / span[1]
+    out = V.copy()
+    out[:, 2] += amplitude * np.sin(np.pi * s) * np.sin(np.pi * t)
+    return meshes.TriMesh(out, mesh.faces)
+
+
+def read_values(path: str) -> np.ndarray:
+    """A .npy array or a text file of numbers (whitespace or comma separated)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"no file {path!r}")
+    try:
+        if p.suffix == ".npy":
+            return np.asarray(np.load(p, allow_pickle=False), float).ravel()
+        return np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, ndmin=1).ravel()
+    except ValueError as exc:
+        raise ValueError(f"{p.name} is not an array of numbers ({exc})") from None
+
+
+def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray, dict]:
+    """The mid-surface, the thickness at each of its vertices ``(n_v,)`` (m) and a report of the
+    mesh (a file's: what was read, merged and dropped, sim.geometry.trimesh.load_with_values);
+    errors name the field they come from."""
+    sh, spec = scene.shell, scene.mesh
+    field_name = "shell.thickness_file" if sh.thickness_file else "shell.thickness_attribute"
+    try:
+        values = read_values(sh.thickness_file) if sh.thickness_file else None
+        if spec.kind == "file":
+            mesh, h, report = meshes.load_with_values(spec.path, spec.scale, values,
+                                                      sh.thickness_attribute,
+                                                      spec.merge_vertices)
+        else:
+            mesh, h = build_mesh(spec), values
+            report = {"vertices": len(mesh.vertices), "triangles": len(mesh.faces)}
+            if h is not None and len(h) != len(mesh.vertices):
+                raise ValueError(f"{len(h)} values for the {len(mesh.vertices)} vertices of "
+                                 f"the {spec.kind} mesh")
+    except meshes.MeshFileError as exc:
+        raise ValueError(f"mesh.path: {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"{field_name}: {exc}") from None
+    mesh = imperfect(mesh, spec.imperfection)
+    if h is None:
+        h = sh.thickness + mesh.vertices @ np.asarray(sh.thickness_gradient)
+        field_name = "shell.thickness_gradient"
+    bad = ~np.isfinite(h) | (h <= 0) | (h > MAX_LENGTH)
+    if bad.any():
+        v = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{field_name}: thickness must be positive (and at most "
+                         f"{MAX_LENGTH:.0e} m) at every vertex ({int(bad.sum())} are not; "
+                         f"vertex {v}: {h[v]:.3g} m)")
+    return mesh, np.asarray(h, float), {"kind": spec.kind, **report}
+
+
+
+def quadrature_rule(scene: Scene, elem, mesh) -> tuple[tuple[int, int], str]:
+    """The scene's rule, else the element's default, unless the default has spurious
+    zero-energy modes on this mesh: on edge-connected patches of one or two triangles (a lone
+    element, a pair, or a patch hanging by a vertex) the paper's one-point in-plane rules
+    leave some, and the mode-free rule (stiffer: it locks in transverse shear) is taken for
+    the whole sheet. Every other mesh keeps the paper's rule, which has none there."""
+    if scene.shell.quadrature:
+        return tuple(scene.shell.quadrature), "scene"
+    if elem.small_mesh_quadrature is not None:
+        small = meshes.small_patches(mesh.faces)
+        if len(small):
+            return elem.small_mesh_quadrature, (
+                f"{len(small)} triangle(s) in edge-connected patches of 1-2 triangles (first: "
+                f"{small[:5].tolist()}), where the default {list(elem.default_quadrature)} "
+                "admits spurious zero-energy modes")
+    return elem.default_quadrature, "default"
+
+
+
+
+def rule_of(scene: Scene, elem, mesh) -> tuple[tuple[int, int], str]:
+    """:func:`quadrature_rule` with the scene's thickness point count, when it gives one."""
+    rule_spec, why = quadrature_rule(scene, elem, mesh)
+    if scene.shell.thickness_points:
+        rule_spec = (rule_spec[0], scene.shell.thickness_points)
+    return rule_spec, why

@@ -1,0 +1,126 @@
+"""The energy terms a scene needs, and only those: elasticity (plastic state only for a
+plastic material), the external loads, inertia in dynamic stepping, one contact term per tool."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.geometry.shell import Shell
+from sim.materials.plasticity import LINEAR, PERFECT, SWIFT, VOCE
+from sim.scene.load import Scene
+from sim.scene.sheet import MaterialSpec
+from sim.solve.assembly import Pattern, pair_slots
+from sim.terms import loads
+from sim.terms.contact_kernels import auto_stiffness
+from sim.terms.elasticity import PROJECT_ELEMENT, PROJECT_NONE, PROJECT_QP, Elasticity
+from sim.terms.inertia import Inertia, lumped_mass
+from sim.terms.tool_contact import ToolContact
+from sim.tools.shapes import tool_program
+
+MODEL_IDS = {"neo_hookean": 0, "hencky": 1, "plastic": 2}
+LAWS = {"perfect": PERFECT, "linear": LINEAR, "swift": SWIFT, "voce": VOCE}
+PROJECTIONS = {"auto": PROJECT_QP, "qp": PROJECT_QP, "element": PROJECT_ELEMENT,
+               "none": PROJECT_NONE}
+
+
+
+def lame(E: float, nu: float) -> tuple[float, float]:
+    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+
+
+def material_params(m: MaterialSpec) -> np.ndarray:
+    """[mu, lam, law, hp...] as the numba kernels expect (sim.materials.isotropic)."""
+    mu, lam = lame(m.E, m.nu)
+    if m.model != "plastic":
+        return np.array([mu, lam, 0.0, 0.0])
+    return np.array([mu, lam, float(LAWS[m.hardening.law]), *m.hardening_params()])
+
+
+
+
+def elasticity(scene: Scene, shell: Shell, rule, pattern: Pattern) -> Elasticity:
+    m = scene.material
+    return Elasticity(shell, rule, MODEL_IDS[m.model], material_params(m), pattern,
+                      PROJECTIONS[scene.solver.hessian_projection],
+                      plastic=m.model == "plastic")
+
+
+def inertia(scene: Scene, shell: Shell, rule, elastic: Elasticity, pattern: Pattern,
+            x0: np.ndarray, n_tool_dofs: int) -> Inertia | None:
+    """Dynamic stepping's inertia (lumped mass; the force-controlled tools' rows massless)."""
+    if scene.stepping.kind != "dynamic":
+        return None
+    mass = np.concatenate([lumped_mass(shell, rule, elastic.wdetJ, scene.material.density),
+                           np.zeros(n_tool_dofs)])
+    return Inertia(mass, pattern, x0)
+
+
+def contact_nodes(shell: Shell) -> np.ndarray:
+    """Both skins, every in-plane node (so the edge nodes of quadratic elements too)."""
+    return np.concatenate([shell.layer_nodes(0), shell.layer_nodes(shell.element.q)])
+
+
+def tool_pairs(shell: Shell, candidates: np.ndarray, n_tool_dofs: int) -> np.ndarray | None:
+    """The (node, tool row) pairs of the force-controlled tools, for the sparsity pattern."""
+    if not n_tool_dofs:
+        return None
+    return np.concatenate([np.column_stack([candidates, np.full_like(candidates, row)])
+                           for row in range(shell.n_nodes, shell.n_nodes + n_tool_dofs)])
+
+
+def tools(scene, shell, pattern, nodes) -> list[ToolContact]:
+    """One contact term per tool over the candidate skin nodes; force-controlled tools get the
+    next extra row of x for their z offset."""
+    if not scene.tools:
+        return []
+    vdof = shell.n_nodes
+    h = float(np.mean(shell.thickness))
+    # the largest tributary area of a skin node: its share of a unit pressure on the skin
+    unit = loads.pressure(shell, np.ones(len(shell.conn), bool), 1.0, False)
+    area = float(np.linalg.norm(unit, axis=1).max())
+    out = []
+    for i, t in enumerate(scene.tools):
+        try:
+            prog = tool_program(t.shape)
+        except ValueError as exc:
+            raise ValueError(f"tools.{i}.shape: {exc}") from None
+        # auto_stiffness: at its design pressure (4e-3 E, about the tensile strength) the
+        # spring is compressed by 1 % of t; the C2 law's layer delta is twice that, so the
+        # tool surface is reached at the design pressure (sim.terms.contact_kernels.auto_stiffness)
+        k = t.stiffness or auto_stiffness(scene.material.E, h, area)
+        # slip below 1 % of the thickness counts as sticking (IPC's eps_v)
+        kw = {}
+        if t.force is not None:
+            pairs = np.column_stack([nodes, np.full_like(nodes, vdof)])
+            kw = {"vdof": vdof, "force": t.force, "pair_slots": pair_slots(pattern, pairs),
+                  "stop": t.stop}
+            vdof += 1
+        out.append(ToolContact(t.name, prog, nodes, t.position, t.velocity, k, t.friction,
+                               1e-2 * h, pattern, delta=2e-2 * h, keyframes=t.keyframes, **kw))
+    return out
+
+
+def external_force(scene, shell, rule, elastic, regions, x0) -> loads.ExternalForce | None:
+    if not scene.loads:
+        return None
+    f = np.zeros((len(x0), 3))
+    n = shell.n_nodes
+    for i, ld in enumerate(scene.loads):
+        try:
+            if ld.kind == "gravity":
+                f[:n] += loads.body_force(shell, elastic.wdetJ, rule,
+                                          scene.material.density * np.array(ld.vector))
+            elif ld.kind == "traction":
+                f[:n] += loads.traction(shell, regions[ld.region], np.array(ld.vector))
+            elif ld.kind == "pressure":
+                sel = np.ones(len(shell.conn), bool)
+                if ld.region:
+                    v_mask = regions[ld.region][: shell.n_vertices]
+                    sel = v_mask[shell.mesh.faces].all(1)
+                f[:n] += loads.pressure(shell, sel, ld.value, ld.skin == "top")
+            else:
+                v = int(np.argmin(np.linalg.norm(shell.mesh.vertices - ld.point, axis=1)))
+                f[:n] += loads.point_force(shell, v, np.array(ld.vector))
+        except ValueError as exc:
+            raise ValueError(f"loads.{i}: {exc}") from None
+    return loads.ExternalForce(f, x0)

@@ -1,0 +1,224 @@
+"""Scene files: TOML validated into a frozen :class:`Scene` of the tables (sim.scene's modules).
+
+``load_scene(path, overrides)`` applies ``key.path=value`` overrides to the raw TOML before
+validation, so an override is checked exactly like the file. Errors name the field.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import tomllib
+from pathlib import Path
+
+from pydantic import ValidationError, model_validator
+
+from sim.analytic import reference
+from sim.elements import ELEMENTS
+from sim.frames.probes import PROBES
+from sim.scene.boundary import BCSpec, LoadSpec, RegionSpec
+from sim.scene.fields import Strict
+from sim.scene.run import ProbeSpec, SectionSpec, SolverSpec, SteppingSpec, StudySpec
+from sim.scene.shapes import ToolSpec
+from sim.scene.sheet import MaterialSpec, MeshSpec, ShellSpec
+from sim.scene.tree import MAX_DEPTH, tree_problem
+
+
+class Scene(Strict):
+    name: str
+    description: str = ""
+    mesh: MeshSpec
+    shell: ShellSpec
+    material: MaterialSpec
+    regions: list[RegionSpec] = []
+    bcs: list[BCSpec] = []
+    loads: list[LoadSpec] = []
+    stepping: SteppingSpec = SteppingSpec()
+    solver: SolverSpec = SolverSpec()
+    tools: list[ToolSpec] = []
+    probes: list[ProbeSpec] = []
+    sections: list[SectionSpec] = []
+    study: StudySpec | None = None
+
+    @model_validator(mode="after")
+    def _references(self):
+        if self.shell.element not in ELEMENTS:
+            raise ValueError(f"shell.element: unknown {self.shell.element!r}, "
+                             f"known: {sorted(ELEMENTS)}")
+        names = [r.name for r in self.regions]
+        if len(set(names)) != len(names):
+            raise ValueError("regions: names must be unique")
+        for where, items in (("bcs", self.bcs), ("loads", self.loads), ("probes", self.probes)):
+            for i, it in enumerate(items):
+                if getattr(it, "region", None) and it.region not in names:
+                    raise ValueError(f"{where}.{i}.region: unknown region {it.region!r}")
+        tools = [t.name for t in self.tools]
+        if len(set(tools)) != len(tools):
+            raise ValueError("tools: names must be unique")
+        for i, p in enumerate(self.probes):
+            if p.tool is not None and p.tool not in tools:
+                raise ValueError(f"probes.{i}.tool: unknown tool {p.tool!r}")
+        if self.shell.thickness_attribute and not (
+                self.mesh.kind == "file" and str(self.mesh.path).lower().endswith(".ply")):
+            raise ValueError("shell.thickness_attribute: needs a PLY mesh file (mesh.kind = "
+                             "'file', mesh.path ending in .ply)")
+        plastic = self.material.model == "plastic"
+        for i, p in enumerate(self.probes):  # nothing is recorded of a quantity the scene lacks
+            if PROBES[p.kind].plastic and not plastic:
+                raise ValueError(f"probes.{i}: a {p.kind} probe needs material.model = "
+                                 "'plastic' (an elastic scene has no plastic strain)")
+        if self.study:
+            self._check_study(self.study)
+        return self
+
+    def _check_study(self, st: StudySpec) -> None:
+        probes = [p.name for p in self.probes]
+        if st.probe is not None and st.probe not in probes:
+            raise ValueError(f"study.probe: no probe named {st.probe!r}")
+        if st.measure != "profile" and st.probe is None and not probes:
+            raise ValueError("study.probe: the scene has no probe to study")
+        if st.measure == "curve" and st.over != "time" and st.over not in probes:
+            raise ValueError(f"study.over: 'time' or a probe name, not {st.over!r}")
+        if st.measure == "profile":
+            sec = next((s for s in self.sections if s.name == st.section), None)
+            if sec is None:
+                raise ValueError(f"study.section: no section named {st.section!r}")
+            if st.step is not None and sec.steps and st.step not in sec.steps:
+                raise ValueError(f"study.step: section {sec.name!r} records steps {sec.steps}, "
+                                 f"not {st.step}")
+        if st.analytic:
+            reference(self, st.analytic, st.probe or probes[0])
+
+
+class SceneError(ValueError):
+    """A scene that cannot be loaded; the message names the field and the reason."""
+
+
+PATH_PREFIX = re.compile(r"^([A-Za-z_]\w*(?:\.\w+)*): (.+)$", re.S)
+
+
+BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def _key(part) -> str:
+    """A part of a field's path as TOML writes it: bare when it can be, else quoted (so an
+    empty key shows as "")."""
+    return str(part) if BARE_KEY.fullmatch(str(part)) else json.dumps(part)
+
+
+def scene_errors(err: ValidationError) -> list[dict]:
+    """pydantic's errors as ``{loc, msg}``, ``loc`` the field's dotted path. A check on the
+    whole scene names its field in the message (``bcs.0.region: unknown region 'x'``): that
+    becomes the loc; pydantic's "Value error, " is dropped."""
+    out = []
+    for e in err.errors():
+        loc = ".".join(_key(p) for p in e["loc"])
+        msg = e["msg"].removeprefix("Value error, ")
+        if not loc:
+            m = PATH_PREFIX.match(msg)
+            if m and m.group(1).split(".")[0] in Scene.model_fields:
+                loc, msg = m.group(1), m.group(2)
+            else:
+                loc = "scene"
+        out.append({"loc": loc, "msg": msg})
+    return out
+
+
+def joined(errors: list[dict]) -> str:
+    return "; ".join(f"{e['loc']}: {e['msg']}" for e in errors)
+
+
+def parse_value(text: str):
+    """A TOML value (number, bool, array, quoted string); bare words are strings."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_override(raw: dict, key: str, value) -> None:
+    """Set ``raw[a][b]...`` for ``key = "a.b..."``; list items by index (``loads.0.vector``)."""
+    parts = key.split(".")
+    if not all(parts):
+        raise SceneError(f"{json.dumps(key)}: an override key is a field's dotted path, e.g. "
+                         "material.nu or loads.0.vector")
+    node = raw
+    for p in parts[:-1]:
+        if isinstance(node, list):
+            if not p.isdigit() or int(p) >= len(node):
+                raise SceneError(f"{key}: no item {p!r}")
+            node = node[int(p)]
+        else:
+            node = node.setdefault(p, {})
+        if not isinstance(node, (dict, list)):
+            raise SceneError(f"{key}: {p!r} is not a table")
+    last = parts[-1]
+    if isinstance(node, list):
+        if not last.isdigit() or int(last) >= len(node):
+            raise SceneError(f"{key}: no item {last!r}")
+        node[int(last)] = value
+    else:
+        node[last] = value
+
+
+def validate(raw: dict) -> Scene:
+    """The scene of parsed TOML or JSON, every value of the type its field declares: a number
+    where a number is due (an integer is one), never a boolean or a text that reads as one
+    (``E = true`` would otherwise be 1 Pa, ``"1e9"`` a modulus). pydantic's strict mode does
+    that, in its JSON mode, where an array is a tuple as TOML and JSON write one. Raises
+    ValidationError."""
+    try:
+        text = json.dumps(raw, allow_nan=True)
+    except (TypeError, ValueError) as exc:  # a TOML date or time: no field takes one
+        raise SceneError(f"scene: {exc}") from None
+    return Scene.model_validate_json(text, strict=True)
+
+
+def scene_from_dict(raw: dict) -> Scene:
+    try:
+        return validate(raw)
+    except ValidationError as err:
+        raise SceneError(joined(scene_errors(err))) from None
+
+
+def read_toml(text: str) -> dict:
+    """The tables of a TOML text. Raises SceneError for bad TOML and for arrays or tables
+    nested deeper than a scene can be (tomllib recurses once per level)."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"TOML: {err}") from None
+    except RecursionError:
+        raise SceneError(f"TOML: nested deeper than {MAX_DEPTH} levels") from None
+    problem = tree_problem(raw)
+    if problem:
+        raise SceneError(problem)
+    return raw
+
+
+def scene_from_toml(text: str, overrides: dict | None = None,
+                    folder: Path | None = None) -> Scene:
+    """The scene of a TOML text with ``overrides`` applied; relative file paths are taken from
+    ``folder`` when given (a scene file's own folder)."""
+    raw = read_toml(text)
+    for k, v in (overrides or {}).items():
+        apply_override(raw, k, v)
+    if folder is not None:
+        _from_folder(raw, folder)
+    return scene_from_dict(raw)
+
+
+def _from_folder(raw: dict, folder: Path) -> None:
+    """Relative file paths of a scene file are taken from its folder."""
+    for table, key in (("mesh", "path"), ("shell", "thickness_file")):
+        node = raw.get(table)
+        if isinstance(node, dict) and isinstance(node.get(key), str):
+            p = Path(node[key]).expanduser()
+            node[key] = str(p if p.is_absolute() else folder / p)
+
+
+def load_scene(path: str | Path, overrides: dict | None = None) -> Scene:
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"scene file {str(path)!r} does not exist")
+    return scene_from_toml(path.read_text(), overrides, path.resolve().parent)

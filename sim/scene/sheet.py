@@ -1,0 +1,194 @@
+"""The sheet's tables: ``[mesh]``, ``[shell]`` and ``[material]`` (with its hardening law)."""
+
+from __future__ import annotations
+
+from typing import Annotated, ClassVar, Literal
+
+from pydantic import Field, model_validator
+
+from sim.scene.fields import (
+    MAX_DENSITY,
+    MAX_STRAIN,
+    MAX_STRESS,
+    Coord,
+    Extent,
+    Length,
+    Slope,
+    Stress,
+    Strict,
+    bounded,
+)
+
+
+class MeshSpec(Strict):
+    kind: Literal["rectangle", "annulus", "disk", "cylinder_band", "file"]
+    edge_length: Length | None = None
+    size: tuple[Length, Length] | None = None  # rectangle: (Lx, Ly)
+    origin: tuple[Coord, Coord] = (0.0, 0.0)
+    r_inner: Extent = 0.0
+    r_outer: Length | None = None
+    radius: Length | None = None  # cylinder_band
+    height: Length | None = None  # cylinder_band
+    path: str | None = None
+    # a file's coincident vertices merged into one (a slit whose sides are two rows of
+    # coincident vertices closes); default: only for STL, which stores every triangle's corners
+    # apart. result.json's built.mesh says what was merged
+    merge_vertices: bool | None = None
+    # file units to metres (1e-3 for mm): between nanometres and kilometres
+    scale: Annotated[float, Field(ge=1e-9, le=1e3)] = 1.0
+    # out-of-plane imperfection of a flat mid-surface (m): z += a sin(pi s) sin(pi t), with
+    # (s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to
+    # leave its plane, so buckling (Fig. 4 at nu = 0.499) needs a seed
+    imperfection: Coord = 0.0
+
+    @model_validator(mode="after")
+    def _needs(self):
+        need = {"rectangle": ["size", "edge_length"], "annulus": ["r_outer", "edge_length"],
+                "disk": ["r_outer", "edge_length"],
+                "cylinder_band": ["radius", "height", "edge_length"], "file": ["path"]}[self.kind]
+        missing = [k for k in need if getattr(self, k) is None]
+        if missing:
+            raise ValueError(f"mesh kind {self.kind!r} needs {', '.join(missing)}")
+        if self.kind == "annulus" and self.r_inner >= self.r_outer:
+            raise ValueError("r_inner must be smaller than r_outer")
+        if self.merge_vertices is not None and self.kind != "file":
+            raise ValueError(f"merge_vertices: only for mesh kind 'file', not {self.kind!r}")
+        return self
+
+
+class ShellSpec(Strict):
+    """Thickness (m), one of: ``thickness`` (constant, or at the origin of a taper
+    ``thickness + thickness_gradient . X``); ``thickness_file``, a .npy or text file of one value
+    per mesh vertex (generated meshes: the generator's vertex order; mesh files: the file's);
+    ``thickness_attribute``, a vertex property of a PLY mesh file. Relative paths are taken
+    from the scene file's folder."""
+
+    thickness: Length | None = None
+    # a tapered sheet: thickness + gradient . X at every vertex (m per m); must stay positive
+    thickness_gradient: tuple[Slope, Slope, Slope] = (0.0, 0.0, 0.0)
+    thickness_file: str | None = None
+    thickness_attribute: str | None = None
+    element: str = "q3t"
+    quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = None
+    # section points through the thickness, keeping the element's in-plane rule: plastic
+    # bending needs more than the 2-3 of the defaults to integrate the elastic-plastic profile
+    thickness_points: Annotated[int, Field(ge=1, le=20)] | None = None
+
+    @model_validator(mode="after")
+    def _one_thickness(self):
+        given = [k for k in ("thickness", "thickness_file", "thickness_attribute")
+                 if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give exactly one of thickness, thickness_file, thickness_attribute"
+                             f" (got {', '.join(given) or 'none'})")
+        if self.thickness is None and any(self.thickness_gradient):
+            raise ValueError("thickness_gradient tapers a constant thickness: it needs thickness")
+        return self
+
+
+class Hardening(Strict):
+    """Isotropic hardening Y(ep) of sim.materials.plasticity. The initial flow stress is always
+    ``material.yield_stress``; each law takes its own fields only (a field of another law is an
+    error, never silently ignored):
+
+    - perfect: Y = yield_stress
+    - linear: Y = yield_stress + modulus ep, modulus >= 0
+    - swift: Y = K (e0 + ep)^n, K > 0, n >= 0; e0 defaults to (yield_stress / K)^(1/n) so that
+      Y(0) = yield_stress; an e0 given explicitly must satisfy K e0^n = yield_stress
+    - voce: Y = yield_stress + (saturation - yield_stress)(1 - exp(-rate ep)), saturation >=
+      yield_stress, rate > 0 (rate 0 is perfect plasticity: use law 'perfect')
+
+    Softening (modulus < 0, saturation < yield_stress) is rejected: the incremental potential is
+    convex, and its Hessian positive semi-definite, only for a nondecreasing Y (module docstring
+    of sim.materials.plasticity), and a softening law localises into a mesh-dependent band.
+    """
+
+    law: Literal["perfect", "linear", "swift", "voce"] = "perfect"
+    modulus: bounded(0.0, MAX_STRESS, lo_open=False) | None = None  # linear: H (Pa)
+    K: Stress | None = None  # swift strength coefficient (Pa)
+    # swift exponent: metals' are below 1, and (e0 + ep)^n stays representable up to 10
+    n: bounded(0.0, 10.0, lo_open=False) | None = None
+    e0: bounded(0.0, MAX_STRAIN) | None = None  # swift strain offset
+    saturation: Stress | None = None  # voce Ysat (Pa)
+    rate: bounded(0.0, 1e6) | None = None  # voce C: 1e6 saturates within a micro-strain
+
+    FIELDS: ClassVar[dict[str, tuple[str, ...]]] = {
+        "perfect": (), "linear": ("modulus",), "swift": ("K", "n", "e0"),
+        "voce": ("saturation", "rate")}
+    REQUIRED: ClassVar[dict[str, tuple[str, ...]]] = {
+        "perfect": (), "linear": ("modulus",), "swift": ("K", "n"), "voce": ("saturation", "rate")}
+
+    @model_validator(mode="after")
+    def _own_fields(self):
+        for other, names in self.FIELDS.items():
+            for name in names:
+                if other != self.law and getattr(self, name) is not None \
+                        and name not in self.FIELDS[self.law]:
+                    raise ValueError(f"{name}: a parameter of law {other!r}, not of "
+                                     f"{self.law!r} (which takes "
+                                     f"{', '.join(self.FIELDS[self.law]) or 'none'})")
+        missing = [k for k in self.REQUIRED[self.law] if getattr(self, k) is None]
+        if missing:
+            raise ValueError(f"law {self.law!r} needs {', '.join(missing)}")
+        return self
+
+
+class MaterialSpec(Strict):
+    model: Literal["neo_hookean", "hencky", "plastic"] = "neo_hookean"
+    E: Stress
+    nu: Annotated[float, Field(ge=0.0, lt=0.5)]
+    density: bounded(0.0, MAX_DENSITY) = 1000.0
+    yield_stress: Stress | None = None  # initial flow stress (Pa), plastic model only
+    hardening: Hardening = Hardening()
+
+    @model_validator(mode="after")
+    def _plastic_fields(self):
+        if self.model != "plastic":
+            if self.yield_stress is not None:
+                raise ValueError(f"yield_stress: only used by model 'plastic' (not "
+                                 f"{self.model!r})")
+            if self.hardening.law != "perfect":
+                raise ValueError(f"hardening: only used by model 'plastic' (not "
+                                 f"{self.model!r})")
+            return self
+        if self.yield_stress is None:
+            raise ValueError("a plastic material needs yield_stress")
+        h, y0 = self.hardening, self.yield_stress
+        if h.law == "voce" and h.saturation < y0:
+            raise ValueError(f"hardening.saturation: {h.saturation:.6g} Pa is below yield_stress "
+                             f"{y0:.6g} Pa (a softening law; see Hardening)")
+        if h.law == "swift":
+            self._swift_e0()
+        return self
+
+    def _swift_e0(self) -> float:
+        h, y0 = self.hardening, self.yield_stress
+        if h.e0 is not None:
+            y_swift = h.K * h.e0**h.n
+            # the two spellings of the initial yield must agree to round-off of the inputs
+            if abs(y_swift / y0 - 1) > 1e-6:
+                raise ValueError(f"hardening.e0: K e0^n = {y_swift:.6g} Pa differs from "
+                                 f"yield_stress = {y0:.6g} Pa (omit e0 to derive it from them)")
+            return h.e0
+        if h.n == 0.0:  # Y = K whatever e0: it must be the yield stress
+            if abs(h.K / y0 - 1) > 1e-6:
+                raise ValueError(f"hardening.K: with n = 0 Swift is Y = K = {h.K:.6g} Pa, which "
+                                 f"differs from yield_stress = {y0:.6g} Pa")
+            return 1.0
+        try:
+            e0 = (y0 / h.K) ** (1.0 / h.n)
+        except OverflowError:
+            e0 = float("inf")
+        if not (0.0 < e0 < float("inf")):
+            raise ValueError(f"hardening: e0 = (yield_stress / K)^(1/n) = {e0:.3g} is not a "
+                             "positive finite strain; check K and n")
+        return e0
+
+    def hardening_params(self) -> list[float]:
+        """Kernel parameters ``hp`` of sim.materials.plasticity for this law (plastic only)."""
+        h, y0 = self.hardening, self.yield_stress
+        return {"perfect": lambda: [y0], "linear": lambda: [y0, h.modulus],
+                "swift": lambda: [h.K, self._swift_e0(), h.n],
+                "voce": lambda: [y0, h.saturation, h.rate]}[h.law]()
+
+

@@ -1,0 +1,343 @@
+"""Projected Newton with a backtracking line search on the total energy.
+
+Newton only sums energy terms (sim.solve.problem). One minimisation's state is a
+:class:`Newton`; each iteration takes the Newton direction, exits at the round-off floor when
+the residual carries no more information than rounding the state does, or searches along the
+direction for a decrease.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim.solve.linsolve import SingularMatrix
+from sim.solve.problem import (
+    FLOOR_MARGIN,
+    Floor,
+    Problem,
+    factor_shifted,
+    measure_floor,
+    solve_refined,
+)
+
+
+@dataclass(frozen=True)
+class NewtonSettings:
+    rtol: float = 1e-8  # residual relative to the step's force level (see minimise)
+    # at the round-off floor of the residual, a Newton correction below this length (m) ends
+    # the iteration: the state is then as accurate as its floating-point representation
+    xtol: float = 0.0
+    # the cap; an iteration without real progress (an energy decrease above its noise, or the
+    # residual 10 % below all before) for ``patience`` iterations in a row ends sooner
+    max_iterations: int = 200
+    patience: int = 10
+    max_line_search: int = 30
+    armijo: float = 1e-4
+    try_exact: bool = True  # exact Hessian when positive definite, projected otherwise
+
+
+@dataclass
+class Timing:
+    """Seconds in: assembly (every energy + gradient + Hessian evaluation, wherever it runs),
+    factorisation, solve, line_search (the energy and gradient evaluations of backtracking and
+    of the round-off floor, nothing else)."""
+
+    assembly: float = 0.0
+    factorisation: float = 0.0
+    solve: float = 0.0
+    line_search: float = 0.0
+    iterations: int = 0
+
+    def add(self, other: Timing) -> None:
+        for k in ("assembly", "factorisation", "solve", "line_search", "iterations"):
+            setattr(self, k, getattr(self, k) + getattr(other, k))
+
+
+@dataclass
+class NewtonResult:
+    x: np.ndarray
+    converged: bool
+    iterations: int
+    energy: float
+    residuals: list[float] = field(default_factory=list)  # at every iterate, the last at x
+    reason: str = ""
+    timing: Timing = field(default_factory=Timing)
+    ref: float = 0.0  # the force level the residual was measured against (N)
+    floor: float | None = None  # measured force round-off floor (N), when it was needed
+
+
+@dataclass
+class Iterate:
+    """An iterate and what one evaluation gives of it."""
+
+    x: np.ndarray
+    E: float
+    mag: float  # the energy's round-off scale (sum of the terms' absolute energies)
+    g: np.ndarray  # gradient, zero on the held DoFs
+    data: np.ndarray  # Hessian data, identity on the held DoFs
+    r: float = 0.0  # residual: the gradient's 2-norm
+    # the resultants: what the supports carry and what is applied (N); self-balanced
+    # reactions (a block sheared between two faces) cancel in it, the force level not
+    scale: float = 0.0
+
+
+@dataclass
+class Newton:
+    """One minimisation's state, carried from iteration to iteration."""
+
+    problem: Problem
+    settings: NewtonSettings
+    x0: np.ndarray  # the start, returned by an attempt that breaks down
+    free: np.ndarray  # (n, 3) bool
+    timing: Timing = field(default_factory=Timing)
+    res: list[float] = field(default_factory=list)  # the residual at every iterate
+    ref: float = 0.0  # the force level the residual is measured against (N)
+    floor: Floor | None = None  # measured at (or near) the current iterate
+    idle: int = 0  # iterations in a row without real progress
+    rel: float = 0.0  # relative residual of the last linear solve
+    inexact: int = 0  # such solves in a row leaving over 1 % of the residual
+    at_floor: int = 0  # iterations in a row at the round-off floor
+    trial: tuple | None = None  # the full step's evaluation (Problem.evaluate at x + dx)
+
+    def result(self, x, ok, it, E, reason="") -> NewtonResult:
+        self.timing.iterations = it
+        return NewtonResult(x, ok, it, E, self.res, reason, self.timing, self.ref,
+                            self.floor.force if self.floor else None)
+
+    def evaluate(self, y):
+        t = time.perf_counter()
+        out = self.problem.evaluate(y, exact=self.settings.try_exact)
+        self.timing.assembly += time.perf_counter() - t
+        return out
+
+    def measured_floor(self, cur: Iterate) -> Floor:
+        if self.floor is None:
+            t = time.perf_counter()
+            self.floor = measure_floor(self.problem, cur.x, cur.E, cur.g, self.free, cur.mag)
+            self.timing.line_search += time.perf_counter() - t
+        return self.floor
+
+    def failure(self, cur: Iterate, it: int, why: str) -> NewtonResult:
+        """The failed result, saying whether the residual target is below what rounding x
+        produces, not only how it ended. The load is below the floor only if it is so where
+        the attempt started as well (an iterate far from equilibrium is stiffer, and so is its
+        floor)."""
+        fl = self.measured_floor(cur)
+        if self.ref < fl.force and it > 0:
+            t = time.perf_counter()
+            E0, g0 = self.problem.energy(self.x0), self.problem.gradient(self.x0)
+            g0[~self.free] = 0.0
+            fl = min(fl, measure_floor(self.problem, self.x0, E0, g0, self.free, abs(E0)),
+                     key=lambda f: f.force)
+            self.timing.line_search += time.perf_counter() - t
+        if self.rel > 1e-2 and "numerically singular" not in why:
+            why += (f"; Hessian numerically singular (its shifted factors leave {self.rel:.0%} "
+                    "of the residual)")
+        if self.ref < fl.force:
+            why = (f"load below force round-off floor (load {self.ref:.3e} N, floor "
+                   f"{fl.force:.3e} N; {why})")
+        elif self.settings.rtol * self.ref < fl.force:
+            why += f"; round-off floor {fl.force:.3e} N above the target"
+        return self.result(cur.x, False, it, cur.E, why)
+
+
+def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
+             force_level: float = 0.0, reactions: bool = False) -> NewtonResult:
+    """Minimise the total energy from ``x0`` (Dirichlet DoFs already at their values).
+
+    Converged when the residual (gradient 2-norm on the free DoFs) is below ``rtol`` times the
+    step's force level: the largest of ``force_level`` (the caller's: the run's force level so
+    far), the applied forces (loads, inertia, tools) and, with ``reactions`` (a prescribed
+    motion drives the step), the support reactions, all at the current iterate and never the
+    residual of the predicted start. Or when the residual is at its measured round-off floor
+    (:class:`Floor`), the Newton correction is Newton's (its solve exact to 1 %) and either
+    below ``xtol`` or leaves the residual at the floor, and the residual's resultant still
+    balances what is applied: the state is then as accurate as its representation allows."""
+    nt = Newton(problem, settings, x0, ~problem.fixed)
+    x = x0.copy()
+    E = problem.energy(x)
+    if not np.isfinite(E):
+        return NewtonResult(x0, False, 0, E, [], "inverted element at the start of the step",
+                            nt.timing)
+    cached = None  # a full evaluation at x from the last iteration, reused as its assembly
+    for it in range(settings.max_iterations + 1):
+        # exact Hessian first: where it is positive definite Newton converges quadratically;
+        # the projected one is the fallback when the factorisation finds it indefinite
+        cur, bad = _iterate(nt, x, cached or nt.evaluate(x), force_level, reactions)
+        if bad:
+            return nt.result(x0, False, it, cur.E, bad)
+        if cur.r <= settings.rtol * nt.ref:
+            return nt.result(x, True, it, cur.E)
+        # real progress, besides an energy decrease above its noise (the line search's): the
+        # residual falling below all before it by a tenth, as in a linear convergence
+        stalled = len(nt.res) > 1 and cur.r >= 0.9 * min(nt.res[:-1])
+        dx = _direction(nt, cur, it)
+        if isinstance(dx, NewtonResult):
+            return dx
+        stop = _stop(nt, cur, it, dx, stalled)
+        if stop is not None:
+            return stop
+        step = _line_search(nt, cur, it, dx, nt.trial)
+        if isinstance(step, NewtonResult):
+            return step
+        x, cached, by_energy = step
+        nt.idle = 0 if by_energy or not stalled else nt.idle + 1
+    raise AssertionError("unreachable")
+
+
+def _iterate(nt: Newton, x: np.ndarray, out, force_level: float,
+             reactions: bool) -> tuple[Iterate, str]:
+    """The iterate x of an evaluation ``out`` (Problem.evaluate), its residual recorded and
+    the force level updated; a reason when it cannot be iterated from."""
+    E, mag, g, data, (level, applied) = out
+    cur = Iterate(x, E, mag, g, data)
+    if not np.isfinite(E):
+        return cur, "inverted element"
+    held = np.where(nt.free, 0.0, g)
+    support = float(np.linalg.norm(held)) if reactions else 0.0
+    g[~nt.free] = 0.0
+    cur.r = float(np.linalg.norm(g))
+    if not np.isfinite(cur.r):
+        return cur, "non-finite gradient"
+    nt.res.append(cur.r)
+    nt.ref = max(force_level, level, support)
+    cur.scale = max(applied + float(np.linalg.norm(held.sum(0))), nt.ref)
+    return cur, ""
+
+
+def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:
+    """The Newton correction at ``cur``: the exact Hessian's when it factors, the projected
+    one's (shifted if need be) otherwise; the failed result when nothing factors."""
+    problem, timing, data = nt.problem, nt.timing, cur.data
+    t1 = time.perf_counter()
+    try:
+        if nt.settings.try_exact:
+            try:
+                problem.solver.factor(data)
+            except SingularMatrix:
+                t_a = time.perf_counter()
+                _, data = problem.gradient_hessian(cur.x)
+                t1 += time.perf_counter() - t_a
+                timing.assembly += time.perf_counter() - t_a
+                factor_shifted(problem, data)
+        else:
+            factor_shifted(problem, data)
+    except SingularMatrix as exc:
+        return nt.result(nt.x0, False, it, cur.E, f"singular factorisation: {exc}")
+    t2 = time.perf_counter()
+    timing.factorisation += t2 - t1
+    dx, nt.rel = solve_refined(problem, data, cur.g.ravel())
+    dx = -dx.reshape(cur.x.shape)
+    dx[~nt.free] = 0.0
+    timing.solve += time.perf_counter() - t2
+    return dx
+
+
+def _stop(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
+          stalled: bool) -> NewtonResult | None:
+    """The result when the iteration ends at ``cur`` (at the round-off floor, or out of
+    iterations or progress), else None with the full step's evaluation in ``nt.trial``."""
+    settings = nt.settings
+    # only a correction that is Newton's (to 1 %) measures how far the state is off; one
+    # from factors shifted far from the Hessian (numerically singular) does not. Measured:
+    # below 3e-6 in every shipped scene; 0.01-300 where the Hessian's soft stiffness is
+    # below its round-off (h/L = 1e-4), where descent along such directions crawls
+    newton = nt.rel <= 1e-2
+    nt.inexact = 0 if newton else nt.inexact + 1
+    if nt.inexact == 5:
+        return nt.failure(cur, it, "singular factorisation: Hessian numerically singular (5 "
+                          "solves in a row leave over 1 % of the residual, the last "
+                          f"{nt.rel:.1e})")
+    small = newton and float(np.abs(dx).max()) <= settings.xtol
+    # the floor is measured where it can matter: a negligible correction, a residual that
+    # stopped falling or has nothing to be measured against; again near it, since it
+    # moves with the state (the stresses change the stiffness)
+    if (small or stalled or nt.ref == 0.0) if nt.floor is None else cur.r <= 10 * nt.floor.force:
+        nt.floor = None
+        nt.measured_floor(cur)
+    nt.trial = nt.evaluate(cur.x + dx)  # the full step is usually taken: the next assembly
+    done = _floor_exit(nt, cur, it, dx, newton, small)
+    if done is not None:
+        return done
+    if it == settings.max_iterations:
+        return nt.failure(cur, it, f"no convergence in {it} iterations (residual "
+                          f"{cur.r:.3e}, target {settings.rtol * nt.ref:.3e})")
+    if nt.idle == settings.patience:
+        return nt.failure(cur, it, f"line search stalled: no progress in {nt.idle} "
+                          f"iterations (residual {cur.r:.3e}, target "
+                          f"{settings.rtol * nt.ref:.3e})")
+    return None
+
+
+def _floor_exit(nt: Newton, cur: Iterate, it: int, dx: np.ndarray, newton: bool,
+                small: bool) -> NewtonResult | None:
+    """At the round-off floor the residual carries no more information than rounding x does:
+    apply the correction and stop if it is negligible or the residual stays at the floor; a
+    few tries (converged states leave it in one or two), then say where it stands."""
+    if nt.floor is None or not cur.r <= FLOOR_MARGIN * nt.floor.force:
+        nt.at_floor = 0
+        return None
+    trial = nt.trial
+    g1 = trial[2].copy()
+    g1[~nt.free] = 0.0
+    r1 = float(np.linalg.norm(g1))
+    # the floor is stiff self-balanced pairs (top and bottom of a fibre), which cancel
+    # in the resultant: a residual left at the floor must still balance what is
+    # applied, or the soft (bending) modes are off. Measured at the floor: 1e-14..3e-6
+    # of the applied resultants; 0.8-0.9 where the Hessian's soft stiffness is lost to
+    # its round-off (h/L = 1e-4). A Newton correction below xtol needs no such proof:
+    # it is the distance to equilibrium, whatever the loads (a tool that grazes the
+    # sheet applies less than the floor, and its resultant is all round-off)
+    off = float(np.linalg.norm(g1.sum(0))) / cur.scale if cur.scale > 0 else 0.0
+    if (np.isfinite(trial[0]) and newton
+            and (small or (r1 <= FLOOR_MARGIN * nt.floor.force and off <= 1e-4))):
+        nt.res.append(r1)  # the residual of the state returned
+        return nt.result(cur.x + dx, True, it + 1, trial[0])
+    nt.at_floor += 1
+    if nt.at_floor == 5:
+        return nt.failure(cur, it, "line search stalled at the round-off floor (5 "
+                          f"iterations; residual {cur.r:.3e}, resultant off by {off:.1e} of "
+                          "the applied)")
+    return None
+
+
+def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray, trial):
+    """Backtracking along ``dx`` from the full step (evaluated: ``trial``). Returns the new
+    iterate, its full evaluation when it is the full step (else None) and whether the energy
+    decided; or the failed result."""
+    problem, settings, timing = nt.problem, nt.settings, nt.timing
+    x, E, g, r, mag = cur.x, cur.E, cur.g, cur.r, cur.mag
+    slope = float(np.sum(g * dx))
+    if slope >= 0:  # not a descent direction (cannot happen with a PD matrix): use -g
+        dx, slope, trial = -g, -r * r, None
+    alpha = 1.0
+    for _ in range(settings.max_line_search):
+        x_new = x + alpha * dx
+        t3 = time.perf_counter()
+        if alpha == 1.0 and trial is not None:
+            E_new = trial[0]
+        else:
+            trial = None
+            E_new = problem.energy(x_new)
+            timing.line_search += time.perf_counter() - t3
+        dE = E_new - E
+        if not np.isfinite(dE):
+            alpha *= 0.5
+            continue
+        # a decrease the energy's round-off could fake proves nothing: within 1e-6 of its
+        # scale (far above any jitter measured, 1e-14) compare with the measured noise
+        noise = nt.measured_floor(cur).energy * mag if abs(dE) <= 1e-6 * mag else 0.0
+        if dE <= settings.armijo * alpha * slope and -dE > noise:
+            return x_new, trial, True
+        if abs(dE) <= noise:  # the energy cannot tell: the residual decides
+            t3 = time.perf_counter()
+            g_new = trial[2].copy() if trial else problem.gradient(x_new)
+            g_new[~nt.free] = 0.0
+            timing.line_search += time.perf_counter() - t3
+            if np.linalg.norm(g_new) <= (1 - settings.armijo * alpha) * r:
+                return x_new, trial, False
+        alpha *= 0.5
+    return nt.failure(cur, it + 1, f"line search stalled (residual {r:.3e})")

@@ -1,0 +1,153 @@
+"""The problem Newton solves: the sum of energy terms with Dirichlet DoFs held by zeroing their
+rows and columns and putting 1 on the diagonal, so the sparsity pattern and its symbolic
+factorisation never change; its linear solves (shifted factors, refinement) and the
+round-off floor of its state."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.solve.assembly import sym_matvec
+from sim.solve.linsolve import SingularMatrix
+
+
+class Problem:
+    """The sum of energy terms with Dirichlet DoFs ``fixed (n_nodes, 3) bool``."""
+
+    def __init__(self, terms, pattern, solver, fixed: np.ndarray):
+        self.terms, self.pattern, self.solver = terms, pattern, solver
+        self.set_fixed(fixed)
+
+    def set_fixed(self, fixed: np.ndarray) -> None:
+        self.fixed = fixed
+        fdof = fixed.ravel()
+        rows = np.repeat(np.arange(self.pattern.n_dof), np.diff(self.pattern.indptr))
+        self._zero = np.flatnonzero(fdof[rows] | fdof[self.pattern.indices])
+        self._diag = self.pattern.indptr[:-1][fdof]  # upper CSR: the diagonal comes first
+
+    def energy(self, x: np.ndarray) -> float:
+        total = 0.0
+        for t in self.terms:
+            total += t.energy(x)
+            if not np.isfinite(total):
+                return np.inf
+        return total
+
+    def gradient(self, x: np.ndarray) -> np.ndarray:
+        g = np.zeros_like(x)
+        for t in self.terms:
+            t.add_gradient(x, g)
+        return g
+
+    def hessian(self, x: np.ndarray) -> np.ndarray:
+        return self.evaluate(x)[3]
+
+    def gradient_hessian(self, x: np.ndarray, exact: bool = False):
+        return self.evaluate(x, exact)[2:4]
+
+    def evaluate(self, x: np.ndarray, exact: bool = False):
+        """Energy, its round-off scale (sum of the terms' absolute energies), gradient, Hessian
+        data with Dirichlet rows/columns replaced by identity, and the applied forces as
+        (largest 2-norm, sum of the resultants' magnitudes) of the gradients of the terms other
+        than the elastic one (loads, inertia, tools), in one pass over the terms. ``exact`` skips
+        the PSD projection of terms that project."""
+        g = np.zeros_like(x)
+        data = np.zeros(self.pattern.nnz)
+        E = mag = level = applied = 0.0
+        for t in self.terms:
+            saved = getattr(t, "project", None)
+            if exact and saved is not None:
+                t.project = 0
+            before = None if t.name == "elasticity" else g.copy()
+            try:
+                e = t.add_gradient_hessian(x, g, data)
+            finally:
+                if saved is not None:
+                    t.project = saved
+            if before is not None:
+                level = max(level, float(np.linalg.norm(g - before)))
+                applied += float(np.linalg.norm((g - before).sum(0)))
+            E += e
+            mag += abs(e)
+        data[self._zero] = 0.0
+        data[self._diag] = 1.0
+        return (E if np.isfinite(E) else np.inf), mag, g, data, (level, applied)
+
+
+def solve_refined(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinements: int = 2):
+    """Solve with iterative refinement against the unshifted matrix: thin, nearly
+    incompressible shells have condition numbers near 1e12 and one solve alone leaves residuals
+    that stall Newton well above its tolerance. A refinement that does not lower the residual
+    is dropped: with factors shifted to get past a zero-energy mode (a sheet free to turn on a
+    frictionless tool) it would amplify the round-off in that mode by 1 / shift. Returns the
+    solution and its relative residual |rhs - K x| / |rhs|."""
+    p = problem.pattern
+    scale = np.linalg.norm(rhs)
+    x = problem.solver.solve(rhs)
+    r = rhs - sym_matvec(p.indptr, p.indices, data, x)
+    rel = float(np.linalg.norm(r)) / scale if scale > 0 else 0.0
+    # 1e-10: well below Newton's rtol, above what refinement can reach at cond ~ 1e12
+    for _ in range(refinements):
+        if rel <= 1e-10:
+            break
+        y = x + problem.solver.solve(r)
+        ry = rhs - sym_matvec(p.indptr, p.indices, data, y)
+        rel_y = float(np.linalg.norm(ry)) / scale
+        if not rel_y < rel:
+            break
+        x, r, rel = y, ry, rel_y
+    return x, rel
+
+
+def factor_shifted(problem: Problem, data: np.ndarray) -> None:
+    """Factor, adding a growing multiple of the mean diagonal if a pivot is not positive."""
+    shift = 0.0
+    mean_diag = np.abs(data[problem.pattern.indptr[:-1]]).mean()
+    diag = problem.pattern.indptr[:-1]
+    for _ in range(8):
+        try:
+            trial = data.copy()
+            trial[diag] += shift
+            problem.solver.factor(trial)
+            return
+        except SingularMatrix:
+            shift = max(1e-10 * mean_diag, 10 * shift)
+    raise SingularMatrix(f"Hessian not positive definite even with shift {shift:.3g}")
+
+
+@dataclass
+class Floor:
+    """What rounding the state costs, measured at x for d = one unit in the last place of every
+    free coordinate, with random signs: ``force`` = |g(x + d) - g(x)| (N) and ``energy`` =
+    |E(x + d) - E(x) - g . d| relative to the energy's scale. No iteration can push the residual
+    much below what moving x by its own rounding error does, nor see an energy change smaller
+    than the energy's jitter. Positions carry eps |X|, not eps |u|, so on thin shells this is
+    far above rtol times the load (cantilever h/L = 1e-2: 2.6e-7 N against 1.8e-9 N)."""
+
+    force: float
+    energy: float
+
+
+EPS = float(np.finfo(float).eps)
+
+
+# The floor is one sample of a random quantity: the residuals Newton reached after an exact
+# step from near the solution measured 0.3-1.2 times it (q3t check), so a residual within twice
+# the sample is at the floor.
+FLOOR_MARGIN = 2.0
+
+
+def measure_floor(problem: Problem, x: np.ndarray, E: float, g: np.ndarray,
+                  free: np.ndarray, mag: float) -> Floor:
+    rng = np.random.default_rng(0)
+    d = np.where(free, rng.choice([-1.0, 1.0], x.shape) * np.spacing(np.abs(x)), 0.0)
+    y = x + d  # exact: x plus or minus one ulp is the neighbouring double
+    gy = problem.gradient(y)
+    gy[~free] = 0.0
+    de = problem.energy(y) - E - float(np.sum(g * d))
+    # the jitter sample can vanish by chance; 64 eps |E| is a floor under it (measured jitter
+    # 1-4 eps |E| on the cantilever)
+    return Floor(float(np.linalg.norm(gy - g)),
+                 max(4 * abs(de), 64 * EPS * mag) / mag if mag > 0 else 0.0)

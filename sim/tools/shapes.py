@@ -1,0 +1,45 @@
+"""The SDF program of a scene's tool shape (sim.scene's ShapeSpec): its primitive or CSG of
+operands, placed by its offset and rotation. The scene's shape validator runs it, so a shape
+the builders refuse (radii that do not fit, a polygon that is not simple) is a scene error."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.tools import builders as b
+from sim.tools.pose import rotation
+
+# primitive kind -> its builder, called with the shape's fields
+PRIMITIVES = {
+    "plane": lambda s: b.plane(s.point, s.normal),
+    "box": lambda s: b.rounded_box(s.half_extents, s.radius, s.center),
+    "punch": lambda s: b.punch(s.radius, s.height, s.edge_radius),
+    "die_ring": lambda s: b.die_ring(s.inner_radius, s.outer_radius, s.height, s.edge_radius),
+    "blank_holder": lambda s: b.blank_holder(s.inner_radius, s.outer_radius, s.height,
+                                             s.edge_radius),
+    "star_die": lambda s: b.star_die(s.n_points, s.r_outer, s.r_inner, s.height, s.edge_radius,
+                                     s.corner_radius, phase=s.phase,
+                                     valley_radius=s.reflex_radius),
+    "star": lambda s: b.star(s.n_points, s.r_outer, s.r_inner, s.height, s.corner_radius,
+                             s.edge_radius, s.phase, s.reflex_radius or 0.0),
+    "polygon": lambda s: b.extruded_polygon(s.points, 0.0, s.height, s.corner_radius,
+                                            s.edge_radius, s.reflex_radius or 0.0),
+}
+CSG = {"union": b.union, "subtract": b.subtract, "intersect": b.intersect}
+
+
+def tool_program(s) -> np.ndarray:
+    """SDF program of a ShapeSpec, CSG operands (folded left) and placements included."""
+    if s.kind in CSG:
+        progs = [tool_program(c) for c in s.shapes]
+        prog = progs[0]
+        for other in progs[1:]:
+            prog = CSG[s.kind](prog, other, s.blend)
+    else:
+        prog = PRIMITIVES[s.kind](s)
+    if any(s.rotation) or any(s.offset):
+        rv = np.asarray(s.rotation, float)
+        angle = float(np.linalg.norm(rv))
+        R = rotation(rv / angle, angle) if angle > 0 else np.eye(3)
+        prog = b.moved(prog, R, s.offset)
+    return prog
