@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: serve test test-loaded bench docs lint clean clean-cache venv
+.PHONY: serve test test-loaded bench results docs lint clean clean-cache venv
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/pip || $(MAKE) --no-print-directory venv
@@ -28,6 +28,32 @@ test-loaded: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/q3t bench
+
+# Every measured table in docs/results/, each written and stamped (commit, date, CPU, load,
+# command) by the command that measures it (docs/results/README.md lists them). One after the
+# other, never side by side: they measure time. About 35 min on the 2-core machine, most of it
+# the forming bench.
+R := docs/results
+results: $(STAMP)
+	$(BIN)/q3t check --results $(R)/check.md
+	$(BIN)/q3t bench --cases beam,cup,plastic --repeat 5 --results $(R)/bench.md
+	$(BIN)/q3t bench --cases forming --results $(R)/bench-forming.md
+	$(BIN)/q3t study cantilever --factorisation --levels 0.035,0.0175,0.00875,0.0046667 \
+	  --out runs/fig7 --results $(R)/fig7-factorisation.md
+	$(BIN)/q3t study convergence --out runs/fig8 --results $(R)/fig8-convergence.md
+	$(BIN)/q3t study convergence --elements quartic --levels 0.035,0.0175,0.00875 --no-overhead \
+	  --out runs/fig8-quartic --results $(R)/fig8-quartic.md
+	$(BIN)/q3t study plastic_bending --overhead-only --levels 0.002 \
+	  --results $(R)/overhead-plastic_bending.md
+	$(BIN)/q3t study cup_blank --overhead-only --levels 0.001 --results $(R)/overhead-cup_blank.md
+	$(BIN)/q3t study convergence --overhead-only --results $(R)/overhead-convergence.md
+	$(BIN)/q3t study cantilever --set material.nu=0.49 --set material.E=1e11 --elements linear,q3t \
+	  --levels 0.0175,0.00875,0.0046667,0.0035 --reference quadratic:0.0046667 --no-overhead \
+	  --out runs/accuracy --results $(R)/accuracy-refinement.md
+	$(BIN)/q3t study cantilever --set material.nu=0 --set material.E=1e11 --elements quadratic \
+	  --levels 0.0046667 --analytic euler_bernoulli --no-overhead --out runs/accuracy-eb \
+	  --results $(R)/accuracy-euler-bernoulli.md
+	$(BIN)/q3t bench-service --results $(R)/service.md
 
 # the scene field reference, rendered from the schema (tests/test_docs.py fails when it is stale)
 docs: $(STAMP)

@@ -7,17 +7,19 @@ Medians of ``--repeat`` runs; the machines are noisy, so compare ratios more tha
 
 from __future__ import annotations
 
-import platform
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
+from sim.apps.bench_report import bench_md
 from sim.apps.common import BAD_INPUT, OK, load, resolve_scene
 from sim.apps.factorisation import factorisation_report
 from sim.elements import get_element
 from sim.frames import results
+from sim.stamp import Stamp, add_results_option, write_results
 
 # Each case: a scene and the in-plane node spacing of every element (the edge lengths follow
 # from the registry, ``case_edge``), at the paper's Table 1 sizes. The beam is its 70 x 7 cm plate:
@@ -195,8 +197,10 @@ def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
 KINDS = ("beam", "cup", "factorisation", "plastic", "forming")  # what --cases may name
 
 
-def _check_input(cases: list[str], elements: list[str]) -> None:
+def _check_input(cases: list[str], elements: list[str], forming_edge: float | None) -> None:
     """ValueError naming the option, before anything is timed."""
+    if forming_edge is not None and not forming_edge > 0:
+        raise ValueError(f"--forming-edge must be a positive length (m), got {forming_edge:g}")
     unknown = [c for c in cases if c not in KINDS]
     if unknown:
         raise ValueError(f"--cases: unknown {', '.join(unknown)}; known: {', '.join(KINDS)}")
@@ -208,11 +212,12 @@ def _check_input(cases: list[str], elements: list[str]) -> None:
 
 
 def run(args) -> int:
+    stamp = Stamp.begin(args.command)
     rows = []
     cases = args.cases.split(",")
     elements = args.elements.split(",")
     try:
-        _check_input(cases, elements)
+        _check_input(cases, elements, args.forming_edge)
     except ValueError as exc:
         print(f"q3t bench: {exc}", file=sys.stderr)
         return BAD_INPUT
@@ -236,7 +241,8 @@ def run(args) -> int:
             rows += [{"case": "fig7", **r} for r in fig7]
             continue
         if case == "forming":
-            r = forming(case_edge("cup", "q3t"), args.forming_steps, args.forming_to)
+            r = forming(args.forming_edge or case_edge("cup", "q3t"), args.forming_steps,
+                        args.forming_to)
             rows.append(r)
             print(f"cup_forming q3t {r['elements']} el {r['dofs']} dof: "
                   f"{r['per_iteration']:.3f} s per Newton iteration, "
@@ -248,13 +254,16 @@ def run(args) -> int:
             r = measure(case, el, case_edge(case, el), args.repeat)
             rows.append(r)
             _print(r)
-    meta = {"date": time.strftime("%Y-%m-%d"), "machine": platform.processor() or
-            platform.machine(), "cpus": __import__("os").cpu_count(), "repeat": args.repeat}
+    meta = {**asdict(stamp), "repeat": args.repeat}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench.json").write_text(results.dumps({"meta": meta, "rows": rows}, nulls=True,
                                                   indent=1))
     print(f"wrote {out / 'bench.json'}")
+    if args.results:
+        write_results(args.results, "Cost per Newton iteration (`q3t bench`)", bench_md(rows),
+                      stamp)
+        print(f"wrote {args.results}")
     return OK
 
 
@@ -268,7 +277,10 @@ def add_parser(sub) -> None:
                    help="forming: how many steps are timed (the last ones before --forming-to)")
     b.add_argument("--forming-to", type=int, default=25,
                    help="forming: the step (of 50) the cup is run to; 25 = 12.5 mm, mid-stroke")
+    b.add_argument("--forming-edge", type=float, default=None,
+                   help="forming: the mesh edge length in m (default: the paper's cup size)")
     b.add_argument("--elements", default="linear,q3t,quadratic")
     b.add_argument("--repeat", type=int, default=5)
     b.add_argument("--out", default="runs/bench")
+    add_results_option(b, "bench.md")
     b.set_defaults(func=run)

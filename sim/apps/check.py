@@ -30,6 +30,7 @@ from sim.apps.cases import isolated_context, run_isolated
 from sim.apps.common import FAILED, OK, load, resolve_scene
 from sim.elements import ELEMENTS, get_element
 from sim.frames import results
+from sim.stamp import Stamp, add_results_option, write_results
 
 BASE = "cantilever"
 TOOLS = "beam_forming"
@@ -284,9 +285,25 @@ def select(cases: list[Case], names: str | None) -> list[Case]:
     return [c for c in cases if any(w in c.name for w in want)]
 
 
+def report(cases: list[Case], rows: list[dict], budget: float, wall: float) -> str:
+    """The check's markdown below its title: the set-up, the cases, the summary and every run."""
+    bad = [r for r in rows if r["verdict"].startswith("PROBLEM")]
+    wider = {el: base_edge(el) for el in ELEMENTS if base_edge(el) != SPACING}
+    return (f"Base: `{BASE}` scene, edge {SPACING} m "
+            f"({', '.join(f'{k} {v} m' for k, v in wider.items())}); tool cases: `{TOOLS}`; "
+            f"budget {budget:g} s per run; {len(rows)} runs in {wall:.0f} s; {len(bad)} "
+            f"problem(s).\n\n"
+            + "\n".join(f"- **{c.name}**: {c.what}" for c in cases) + "\n\n" + summary(rows)
+            + "\n" + table(rows))
+
+
+TITLE = "The stability check (`q3t check`)"
+
+
 def run(args) -> int:
     # a terminated check exits through Python, which stops its running child and server
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    stamp = Stamp.begin(args.command)
     elements = args.elements.split(",")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -296,19 +313,14 @@ def run(args) -> int:
         f"{r['case']:20s} {r['element']:9s} {r['outcome']:26s} {r['elapsed']:6.1f} s "
         f"{r['verdict']}", file=sys.stderr, flush=True))
     wall = time.perf_counter() - t0
-    bad = [r for r in rows if r["verdict"].startswith("PROBLEM")]
-    wider = {el: base_edge(el) for el in ELEMENTS if base_edge(el) != SPACING}
-    md = (f"# q3t check\n\nBase: `{BASE}` scene, edge {SPACING} m "
-          f"({', '.join(f'{k} {v} m' for k, v in wider.items())}); tool cases: `{TOOLS}`; budget "
-          f"{args.budget:g} s per run; {len(rows)} runs in {wall:.0f} s; {len(bad)} "
-          f"problem(s).\n\n"
-          + "\n".join(f"- **{c.name}**: {c.what}" for c in cases) + "\n\n" + summary(rows)
-          + "\n" + table(rows))
-    (out / "check.md").write_text(md)
+    md = report(cases, rows, args.budget, wall)
+    for path in (out / "check.md", args.results):
+        if path:
+            write_results(path, TITLE, md, stamp)
     (out / "check.json").write_text(results.dumps({"wall": wall, "budget": args.budget,
                                                    "rows": rows}, nulls=True, indent=1))
     print(md)
-    return FAILED if bad else OK
+    return FAILED if any(r["verdict"].startswith("PROBLEM") for r in rows) else OK
 
 
 def add_parser(sub) -> None:
@@ -317,4 +329,5 @@ def add_parser(sub) -> None:
     c.add_argument("--budget", type=float, default=60.0, help="wall-clock seconds per run")
     c.add_argument("--cases", help="comma-separated substrings of case names (default: all)")
     c.add_argument("--out", default="runs/check")
+    add_results_option(c, "check.md")
     c.set_defaults(func=run)

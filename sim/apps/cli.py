@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from importlib.metadata import entry_points
 
@@ -31,7 +32,9 @@ def main(argv: list[str] | None = None) -> int:
     for app in (run, bench, study, sweep, check):  # matplotlib and dask load only when run
         app.add_parser(sub)
     add_plugins(sub)
+    argv = sys.argv[1:] if argv is None else argv
     args = ap.parse_args(argv)
+    args.command = shlex.join(["q3t", *argv])  # as typed: the stamp of a results file says it
     from sim.scene.load import SceneError
 
     try:

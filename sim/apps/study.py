@@ -31,12 +31,16 @@ from sim.apps.factorisation import FACTOR_REPEAT, factorisation_report
 from sim.apps.overhead import OVERHEAD_REPEAT, terms_overhead
 from sim.apps.study_report import (
     STUDY_COLS,
+    factorisation_md,
     markdown_table,
     overhead_md,
+    overhead_report,
+    study_md,
     write_overhead,
     write_study,
 )
 from sim.apps.tasks import cluster_text, run_tasks
+from sim.stamp import Stamp, add_results_option, write_results
 
 
 class StudyError(RuntimeError):
@@ -288,11 +292,56 @@ def _inputs(args) -> tuple[str, Plan]:
     return scene, plan
 
 
+def _factorisation(args, scene: str, plan: Plan, out: Path, kw: dict) -> tuple[str, str]:
+    rows = factorisation_report(scene, plan.elements, plan.levels, out,
+                                args.repeat or FACTOR_REPEAT, plan.overrides, **kw)
+    return (f"Factorisation time against elements: {Path(scene).stem} (paper Fig. 7)",
+            factorisation_md(rows, cluster_text(**_where(kw))))
+
+
+def _overhead(args, scene: str, plan: Plan, out: Path, kw: dict) -> tuple[str, str] | None:
+    o = {"overrides": {**plan.overrides, "mesh.edge_length": plan.levels[-1]},
+         "repeat": args.repeat or OVERHEAD_REPEAT}
+    rows, _ = run_tasks([(terms_overhead, scene, o["overrides"], o["repeat"])], [{}], **kw)
+    if "lean" not in rows[0]:
+        print(f"q3t study: the timing run ended {rows[0]['status']}: {rows[0]['reason']}",
+              file=sys.stderr)
+        return None
+    where = cluster_text(**_where(kw))
+    write_overhead(rows, out, where)
+    print(overhead_md(rows))
+    return (f"What leaving unused terms out saves: {Path(scene).stem}",
+            overhead_report(rows, where))
+
+
+def _study(args, scene: str, plan: Plan, out: Path, kw: dict) -> tuple[str, str] | None:
+    overhead = None if args.no_overhead else {
+        "overrides": {**plan.overrides, "mesh.edge_length": plan.levels[len(plan.levels) // 2]},
+        "repeat": args.repeat or OVERHEAD_REPEAT}
+    try:
+        study = run_study(plan, lambda s: print(s, file=sys.stderr, flush=True),
+                          overhead=overhead, budget=args.budget, **kw)
+    except StudyError as exc:
+        print(f"q3t study: {exc}", file=sys.stderr)
+        return None
+    overheads = [study["overhead"]] if study["overhead"] else []
+    write_study(study, overheads, out, args.workers, args.scheduler)
+    print(markdown_table(study["rows"], STUDY_COLS)
+          + (overhead_md(overheads) if overheads else ""))
+    return (f"Refinement study: {Path(scene).stem}",
+            study_md(study, overheads, args.workers, args.scheduler))
+
+
+def _where(kw: dict) -> dict:
+    return {k: kw[k] for k in ("workers", "threads", "scheduler")}
+
+
 def run(args) -> int:
     """Exit 0 on success, 1 when the reference run failed (no errors to give), 2 on bad input
     (as ``q3t run``: 1 = a run failed, 2 = bad input)."""
     from sim.scene.load import SceneError
 
+    stamp = Stamp.begin(args.command)
     try:
         scene, plan = _inputs(args)
     except (SceneError, ValueError) as exc:
@@ -301,37 +350,15 @@ def run(args) -> int:
     out = Path(args.out or f"runs/study-{Path(scene).stem}")
     kw = {"workers": args.workers, "threads": args.threads, "scheduler": args.scheduler,
           "timeout": args.timeout}
-    where = cluster_text(args.workers, args.threads, args.scheduler)
-    if args.factorisation:
-        factorisation_report(scene, plan.elements, plan.levels, out,
-                             args.repeat or FACTOR_REPEAT, plan.overrides, **kw)
-    elif args.overhead_only:
-        o = {"overrides": {**plan.overrides, "mesh.edge_length": plan.levels[-1]},
-             "repeat": args.repeat or OVERHEAD_REPEAT}
-        rows, _ = run_tasks([(terms_overhead, scene, o["overrides"], o["repeat"])], [{}],
-                            **kw)
-        if "lean" not in rows[0]:
-            print(f"q3t study: the timing run ended {rows[0]['status']}: {rows[0]['reason']}",
-                  file=sys.stderr)
-            return FAILED
-        write_overhead(rows, out, where)
-        print(overhead_md(rows))
-    else:
-        overhead = None if args.no_overhead else {
-            "overrides": {**plan.overrides, "mesh.edge_length":
-                          plan.levels[len(plan.levels) // 2]},
-            "repeat": args.repeat or OVERHEAD_REPEAT}
-        try:
-            study = run_study(plan, lambda s: print(s, file=sys.stderr, flush=True),
-                              overhead=overhead, budget=args.budget, **kw)
-        except StudyError as exc:
-            print(f"q3t study: {exc}", file=sys.stderr)
-            return FAILED
-        overheads = [study["overhead"]] if study["overhead"] else []
-        write_study(study, overheads, out, args.workers, args.scheduler)
-        print(markdown_table(study["rows"], STUDY_COLS)
-              + (overhead_md(overheads) if overheads else ""))
+    mode = _factorisation if args.factorisation else (
+        _overhead if args.overhead_only else _study)
+    made = mode(args, scene, plan, out, kw)
+    if made is None:
+        return FAILED
     print(f"wrote {out}/report.md, report.json and plots")
+    if args.results:
+        write_results(args.results, *made, stamp)
+        print(f"wrote {args.results}")
     return OK
 
 
@@ -368,4 +395,5 @@ def add_parser(sub) -> None:
                    help="seconds per case (not the reference run), checked after each step: "
                         "a case over it stops there, marked timeout, and the study goes on")
     s.add_argument("--out", help="output folder (default runs/study-<scene>)")
+    add_results_option(s, "fig8-convergence.md")
     s.set_defaults(func=run)

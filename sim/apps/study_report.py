@@ -127,10 +127,10 @@ def _how(cluster: str, workers: int, scheduler: str | None) -> str:
     return s
 
 
-def write_study(study: dict, overheads: list[dict], out: Path, workers: int = 1,
-                scheduler: str | None = None) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    plots = plot_study(study, out)
+def study_md(study: dict, overheads: list[dict], workers: int = 1,
+             scheduler: str | None = None) -> str:
+    """The study below its title: reference, how the cases ran, notes, the table and the
+    overhead (report.md, and ``q3t study --results``)."""
     p, ref = study["plan"], study["reference"]
     notes = list(p["notes"])
     if p["reference"] and p["reference"][0] in p["elements"]:  # its rows converge to themselves
@@ -147,40 +147,57 @@ def write_study(study: dict, overheads: list[dict], out: Path, workers: int = 1,
         value = f": {ref['value']:.8g}" if "value" in ref else ""
         head = (f"reference **{el} at edge {edge:.6g} m** (a numerical run, {ref['dofs']} "
                 f"DoFs){value}.")
-    md = [f"# Refinement study: {Path(p['scene']).stem}\n\n", f"{_meta()}.\n\n",
-          f"Measure `{p['probe']}`; {head}\n\n",
+    md = [f"Measure `{p['probe']}`; {head}\n\n",
           _how(study["cluster"], workers, scheduler) + "\n\n",
           *[f"- overrides of every case: `{p['overrides']}`\n" for _ in [0] if p["overrides"]],
           *[f"- {n}\n" for n in notes], "\n" if notes or p["overrides"] else "",
-          markdown_table(study["rows"], STUDY_COLS), "\n",
-          *[f"![{f}]({f})\n" for f in plots if f.endswith(".png")]]
+          markdown_table(study["rows"], STUDY_COLS)]
     if overheads:
         md += ["\n## Leave out what a scene does not need\n\n", overhead_md(overheads)]
-    (out / "report.md").write_text("".join(md))
+    return "".join(md)
+
+
+def _images(plots: list[str]) -> str:
+    return "".join(f"![{f}]({f})\n" for f in plots if f.endswith(".png"))
+
+
+def write_study(study: dict, overheads: list[dict], out: Path, workers: int = 1,
+                scheduler: str | None = None) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    plots = plot_study(study, out)
+    md = (f"# Refinement study: {Path(study['plan']['scene']).stem}\n\n{_meta()}.\n\n"
+          + study_md(study, overheads, workers, scheduler) + "\n" + _images(plots))
+    (out / "report.md").write_text(md)
     (out / "report.json").write_text(results.dumps({"study": study, "overhead": overheads},
                                                    nulls=True, indent=1, default=float))
 
 
+def overhead_report(overheads: list[dict], cluster: str) -> str:
+    return f"Ran on {cluster}.\n\n" + overhead_md(overheads)
+
+
 def write_overhead(overheads: list[dict], out: Path, cluster: str) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    md = (f"# Leave out what a scene does not need\n\n{_meta()}; ran on {cluster}.\n\n"
-          + overhead_md(overheads))
+    md = (f"# Leave out what a scene does not need\n\n{_meta()}.\n\n"
+          + overhead_report(overheads, cluster))
     (out / "report.md").write_text(md)
     (out / "report.json").write_text(results.dumps({"overhead": overheads}, nulls=True,
                                                    indent=1))
 
 
+def factorisation_md(rows: list[dict], cluster: str = "") -> str:
+    """The factorisation times below their title (report.md, ``--results``)."""
+    ok = [r for r in rows if "factorisation" in r]
+    return (f"Solver {ok[0]['solver'] if ok else '-'}; median and minimum of "
+            f"{ok[0]['repeat'] if ok else 0} `solver.factor` calls per case (after one dropped "
+            f"call); ran on {cluster}.\n\n" + markdown_table(rows, FACTOR_COLS))
+
+
 def write_factorisation(scene: str, rows: list[dict], out: Path, cluster: str = "") -> None:
     out.mkdir(parents=True, exist_ok=True)
     plots = plot_factorisation(rows, out)
-    ok = [r for r in rows if "factorisation" in r]
     md = (f"# Factorisation of the Hessian at rest: {Path(scene).stem} (paper Fig. 7)\n\n"
-          f"{_meta()}; solver {ok[0]['solver'] if ok else '-'}; median and minimum of "
-          f"{ok[0]['repeat'] if ok else 0} `solver.factor` calls per case (after one dropped "
-          f"call); ran on {cluster}.\n\n"
-          + markdown_table(rows, FACTOR_COLS) + "\n" + "".join(f"![{f}]({f})\n" for f in plots
-                                                       if f.endswith(".png")))
+          f"{_meta()}.\n\n" + factorisation_md(rows, cluster) + "\n" + _images(plots))
     (out / "report.md").write_text(md)
     (out / "report.json").write_text(results.dumps({"scene": scene, "factorisation": rows},
                                                    nulls=True, indent=1))
-

@@ -1,0 +1,128 @@
+"""Measured results are written by the commands that measure them (``--results FILE.md``),
+stamped with the command, commit, date, CPU, load and software: each generator of
+``make results`` at its smallest size, the stamp's fields, the commit's ``+dirty``, and bad
+``--results`` paths refused before anything runs."""
+
+import re
+import shlex
+import subprocess
+
+import pytest
+
+from sim import stamp
+from sim.apps import bench
+from sim.apps.cli import main
+
+# one line per field of the header (Stamp.render); each must be there and filled in
+FIELDS = {
+    "command": r"^- command: `(?P<v>q3t [^`]+)`$",
+    "commit": r"^- commit: `(?P<v>([0-9a-f]{7,40}(\+dirty)?|unknown))`$",
+    "date": r"^- date: (?P<v>\d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC), took \d+ s$",
+    "cpu": r"^- CPU: (?P<v>.+), \d+ cores$",
+    "load": r"^- load average \(1 / 5 / 15 min\): (?P<v>[\d.]+ / [\d.]+ / [\d.]+) at the start, "
+            r"[\d.]+ / [\d.]+ / [\d.]+ at the end$",
+    "software": r"^- software: (?P<v>Python 3[\d.]+, numpy [\d.]+.*)$",
+}
+
+
+def stamp_fields(text: str) -> dict:
+    found = {k: re.search(p, text, re.M) for k, p in FIELDS.items()}
+    missing = [k for k, m in found.items() if m is None]
+    assert not missing, f"stamp fields missing: {missing}\n{text[:800]}"
+    return {k: m.group("v") for k, m in found.items()}
+
+
+def tables(text: str) -> list[str]:
+    """The header rows of the markdown tables in ``text``."""
+    lines = text.splitlines()
+    return [a for a, b in zip(lines, lines[1:], strict=False)
+            if a.startswith("|") and re.fullmatch(r"\|(-+\|)+", b)]
+
+
+# the generators of `make results`, each at its smallest size, and a column its table has
+GENERATORS = {
+    # --budget: a hang guard, not a clock (on a cold numba cache the child compiles first)
+    "check": (["check", "--cases", "nu=0.49", "--elements", "linear", "--budget", "600"],
+              "| case | linear |"),
+    "bench": (["bench", "--cases", "beam,plastic,forming", "--elements", "linear,q3t",
+               "--repeat", "1", "--forming-edge", "0.006", "--forming-to", "1",
+               "--forming-steps", "1"], "| case | element | elements | DoFs | iteration [s]"),
+    "fig7": (["study", "cantilever", "--factorisation", "--levels", "0.07", "--elements",
+              "linear", "--repeat", "2"], "| element | edge [m] | elements | nodes |"),
+    "fig8": (["study", "convergence", "--elements", "q3t", "--levels", "0.07", "--reference",
+              "quadratic:0.07", "--no-overhead"], "| element | edge [m] | triangles | DoFs |"),
+    "overhead": (["study", "convergence", "--overhead-only", "--levels", "0.07", "--repeat",
+                  "1"], "| scene | run | terms |"),
+    # starts `q3t serve` twice, once compiling every kernel into an empty numba cache
+    "service": (["bench-service", "--vertices", "400", "--seconds", "1", "--seconds-solver",
+                 "1"], "| measurement | result | target |"),
+}
+SLOW = {"service"}
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n
+                                  for n in GENERATORS])
+def test_each_generator_writes_its_results_file_stamped(name, tmp_path, monkeypatch):
+    # the bench's beam at the paper's Table 1 size, 4,500 triangles, is its real size: here
+    # the plate at 80 (the edge length follows from the spacing for every element)
+    monkeypatch.setitem(bench.CASES, "beam", {"scene": "cantilever", "spacing": 0.035})
+    argv, column = GENERATORS[name]
+    path = tmp_path / "docs" / f"{name}.md"  # a folder that does not exist yet
+    argv = [*argv, "--out", str(tmp_path / "runs"), "--results", str(path)]
+    assert main(argv) == 0
+    text = path.read_text()
+    assert text.startswith("# ")
+    fields = stamp_fields(text)
+    assert fields["command"] == shlex.join(["q3t", *argv])  # exactly as typed
+    heads = tables(text)
+    assert any(h.startswith(column) for h in heads), heads
+    assert not list(path.parent.glob("*.tmp"))  # written through a temporary name
+    if name == "bench":  # every section its cases give: Table 1, targets, plastic, forming
+        assert {"## Against the targets", "## Plasticity's cost",
+                "## Forming (`cup_drawing`)"} <= set(re.findall(r"^## .+$", text, re.M))
+        assert re.search(r"^\| beam Q3T iteration \[s\] < 0.1 \| [\d.e-]+ \| (met|NOT met) \|$",
+                         text, re.M)
+
+
+def test_the_stamp_names_the_machine_and_the_code():
+    s = stamp.Stamp.begin("q3t bench --repeat 5")
+    f = stamp_fields(s.render())
+    assert f["command"] == "q3t bench --repeat 5"
+    assert f["cpu"] and f["cpu"] != "unknown"
+    assert f["commit"] != "unknown"  # the tests run in the project's checkout
+
+
+def _git(cwd, *args):
+    subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args], cwd=cwd,
+                   check=True, capture_output=True)
+
+
+def test_the_commit_is_dirty_when_code_differs_but_not_when_results_do(tmp_path, monkeypatch):
+    """``make results`` writes one file after the other: a results file written before must
+    not make the next command's stamp say +dirty; a changed source file must."""
+    monkeypatch.setattr(stamp, "ROOT", tmp_path)
+    assert stamp.commit() == "unknown"  # not a git checkout
+    (tmp_path / "docs" / "results").mkdir(parents=True)
+    (tmp_path / "docs" / "results" / "bench.md").write_text("old\n")
+    (tmp_path / "code.py").write_text("x = 1\n")
+    _git(tmp_path, "init", "-q")
+    _git(tmp_path, "add", ".")
+    _git(tmp_path, "commit", "-qm", "c")
+    head = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=tmp_path, check=True,
+                          capture_output=True, text=True).stdout.strip()
+    assert stamp.commit() == head
+    (tmp_path / "docs" / "results" / "bench.md").write_text("regenerated\n")
+    (tmp_path / "scratch.txt").write_text("untracked\n")
+    assert stamp.commit() == head
+    (tmp_path / "code.py").write_text("x = 2\n")
+    assert stamp.commit() == head + "+dirty"
+
+
+@pytest.mark.parametrize("bad", ["results.txt", "."])
+def test_a_results_path_that_is_not_a_markdown_file_is_refused_before_measuring(
+        bad, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["check", "--out", str(tmp_path / "runs"), "--results", bad])
+    assert exc.value.code == 2
+    assert "--results" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()
