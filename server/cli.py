@@ -36,7 +36,7 @@ def serve_settings(args: argparse.Namespace, token: str | None) -> Settings:
         print(EXPOSED_VIEWER.format(host=args.host, port=args.viewer_port), file=sys.stderr)
     if args.record_every < 1:
         raise SystemExit("q3t: --record-every must be at least 1")
-    if not args.max_memory > 0:
+    if not 0 < args.max_memory < float("inf"):
         raise SystemExit("q3t: --max-memory must be a positive size (GiB)")
     return Settings(scenes_dir=Path(args.scenes_dir), runs_dir=Path(args.runs_dir),
                     token=token, viewer=not args.no_viewer, viewer_host=viewer_host,

@@ -13,28 +13,36 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
-def _numba_cache_dir() -> str:
+def numba_cache_dir(src: Path) -> str:
     """numba keys a cached kernel on its own file's time stamp only, so a kernel that calls or
     inlines a helper from another module (the elastic kernel inlines the material laws) would
     keep the old helper after an edit, silently. The cache lives in a folder named by a hash of
-    every source of this package instead: any edit starts a fresh one, and the stale ones go."""
-    src = Path(__file__).resolve().parent
+    every source of the solver instead (sim/apps, which no kernel can reach, left out): any edit
+    starts a fresh one. The newest few stay, so a suite still running on the code before an edit
+    keeps its kernels; older ones go."""
     h = hashlib.sha1()
     for p in sorted(src.rglob("*.py")):
-        h.update(str(p.relative_to(src)).encode())
+        rel = p.relative_to(src)
+        if rel.parts[0] == "apps":
+            continue
+        h.update(str(rel).encode())
         h.update(p.read_bytes())
     root = src.parent / ".numba-cache"
     here = root / h.hexdigest()[:12]
     if root.is_dir():
-        for old in root.iterdir():
-            if old != here:
-                shutil.rmtree(old, ignore_errors=True)
+        others = sorted((d for d in root.iterdir() if d != here),
+                        key=lambda d: d.stat().st_mtime, reverse=True)
+        for old in others[KEEP_CACHES - 1:]:
+            shutil.rmtree(old, ignore_errors=True)
     return str(here)
+
+
+KEEP_CACHES = 3  # this one and the two before it
 
 
 # an explicit NUMBA_CACHE_DIR wins (q3t bench-service times a cold start in an empty one)
 if "NUMBA_CACHE_DIR" not in os.environ:
     try:
-        os.environ["NUMBA_CACHE_DIR"] = _numba_cache_dir()
+        os.environ["NUMBA_CACHE_DIR"] = numba_cache_dir(Path(__file__).resolve().parent)
     except OSError:  # a read-only install: numba's own default (__pycache__) then
         pass

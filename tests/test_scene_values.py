@@ -124,3 +124,35 @@ def test_a_stopped_run_says_why_in_its_result(tmp_path):
     res = json.loads((out / "result.json").read_text())
     assert not res["converged"] and res["failure"] is None
     assert res["stopped"] == "stopped by request" and len(res["steps"]) == 1
+
+
+def test_max_memory_must_be_a_finite_size(tmp_path):
+    """--max-memory inf switched the size check off (and a build of 1e-5 m edges was killed by
+    the kernel for memory)."""
+    assert main(["run", "cantilever", "--max-memory", "inf", "--out", str(tmp_path)]) == 2
+
+
+def test_the_kernel_cache_follows_the_solver_not_its_apps(tmp_path):
+    """numba's cache folder is named by a hash of the solver's sources: an edit of an app (which
+    no kernel reaches) keeps it, an edit of the solver starts a new one; the newest three stay,
+    so a suite running on the code before an edit keeps its kernels."""
+    import os
+
+    from sim import KEEP_CACHES, numba_cache_dir
+
+    src = tmp_path / "sim"
+    (src / "apps").mkdir(parents=True)
+    (src / "kernel.py").write_text("x = 1\n")
+    (src / "apps" / "run.py").write_text("y = 1\n")
+    first = numba_cache_dir(src)
+    (src / "apps" / "run.py").write_text("y = 2\n")
+    assert numba_cache_dir(src) == first
+    made = []
+    for i in range(5):
+        (src / "kernel.py").write_text(f"x = {i + 2}\n")
+        d = numba_cache_dir(src)
+        os.makedirs(d)
+        os.utime(d, (1e9 + i, 1e9 + i))
+        made.append(d)
+    kept = sorted(str(p) for p in (tmp_path / ".numba-cache").iterdir())
+    assert len(made) == 5 and kept == sorted(made[-KEEP_CACHES:])

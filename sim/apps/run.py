@@ -27,7 +27,7 @@ def run(args) -> int:
     overrides = parse_sets(args.set)
     if args.element:
         overrides["shell.element"] = args.element
-    if not args.max_memory > 0:
+    if not 0 < args.max_memory < float("inf"):
         raise SceneError(f"--max-memory: {args.max_memory:g} GiB is not a positive size")
     scene = load(args.scene, overrides)  # SceneError: exit 2 (sim.apps.cli.main)
     size.check(scene, args.max_memory * 2**30)
