@@ -15,17 +15,39 @@ field and the reason, never compared against a formula that does not hold for it
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, NoReturn, Protocol
+
+if TYPE_CHECKING:
+    from sim.scene.boundary import BCSpec, LoadSpec, RegionSpec
+    from sim.scene.run import ProbeSpec, SteppingSpec
+    from sim.scene.shapes import ToolSpec
+    from sim.scene.sheet import MaterialSpec, MeshSpec, ShellSpec
 
 
-def _fail(name: str, why: str):
+class Tables(Protocol):
+    """The tables of a scene the formulas check: sim.scene.load.Scene, which checks its study
+    against them (``reference``) and so cannot be imported here."""
+
+    material: MaterialSpec
+    mesh: MeshSpec
+    shell: ShellSpec
+    regions: list[RegionSpec]
+    bcs: list[BCSpec]
+    loads: list[LoadSpec]
+    stepping: SteppingSpec
+    tools: list[ToolSpec]
+    probes: list[ProbeSpec]
+
+
+def _fail(name: str, why: str) -> NoReturn:
     raise ValueError(f"study.analytic: {name} needs {why}")
 
 
-def _probe(scene, name: str):
+def _probe(scene: Tables, name: str) -> ProbeSpec:
     return next(p for p in scene.probes if p.name == name)
 
 
-def euler_bernoulli(scene, probe: str) -> dict:
+def euler_bernoulli(scene: Tables, probe: str) -> dict:
     n = "euler_bernoulli"
     m, mesh, sh = scene.material, scene.mesh, scene.shell
     if m.model == "plastic":
@@ -59,7 +81,7 @@ def euler_bernoulli(scene, probe: str) -> dict:
                      f"{(w / L) ** 2:.1g}), shear ~(h/L)^2 = {(sh.thickness / L) ** 2:.1g}"}
 
 
-def springback(scene, probe: str) -> dict:
+def springback(scene: Tables, probe: str) -> dict:
     n = "springback"
     m = scene.material
     if m.model != "plastic" or m.hardening.law != "perfect":
@@ -87,7 +109,7 @@ def springback(scene, probe: str) -> dict:
 FORMULAS = {"euler_bernoulli": euler_bernoulli, "springback": springback}
 
 
-def reference(scene, name: str, probe: str) -> dict:
+def reference(scene: Tables, name: str, probe: str) -> dict:
     """``{"name", "value", "about"}`` of formula ``name`` for ``probe`` of ``scene``; raises
     ValueError naming the field when the scene does not meet the formula's assumptions."""
     if name not in FORMULAS:

@@ -179,7 +179,7 @@ def _default(s: dict) -> str:
     return f"`{_toml(v)}`"
 
 
-def _toml(v) -> str:
+def _toml(v: object) -> str:
     """A default as a scene file writes it."""
     if isinstance(v, bool):
         return "true" if v else "false"

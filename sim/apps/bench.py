@@ -7,10 +7,12 @@ Medians of ``--repeat`` runs; the machines are noisy, so compare ratios more tha
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +22,10 @@ from sim.apps.factorisation import factorisation_report
 from sim.elements import get_element
 from sim.frames import results
 from sim.stamp import Stamp, add_results_option, write_results
+
+if TYPE_CHECKING:
+    from sim.scene.load import Scene
+    from sim.stepping.simulation import Simulation
 
 # Each case: a scene and the in-plane node spacing of every element (the edge lengths follow
 # from the registry, ``case_edge``), at the paper's Table 1 sizes. The beam is its 70 x 7 cm plate:
@@ -42,7 +48,7 @@ def case_edge(case: str, element: str) -> float:
     return get_element(element).edge_for_spacing(CASES[case]["spacing"])
 
 
-def _scene(case: str, element: str, edge: float, extra: dict | None = None):
+def _scene(case: str, element: str, edge: float, extra: dict | None = None) -> Scene:
     overrides = {"shell.element": element, "mesh.edge_length": edge, **(extra or {})}
     return load(CASES[case]["scene"], overrides)
 
@@ -50,7 +56,8 @@ def _scene(case: str, element: str, edge: float, extra: dict | None = None):
 HENCKY = {"material.model": "hencky"}
 
 
-def _prepare(case: str, element: str, edge: float, extra=None):
+def _prepare(case: str, element: str, edge: float,
+             extra: dict | None = None) -> tuple[Simulation, np.ndarray, float]:
     """(sim, state, build seconds): the scene at a smooth deflection of a tenth of the
     thickness, a state Newton meets (random noise compresses fibres locally and makes the exact
     Hessian indefinite, which no run does), compiled and warmed up."""
@@ -72,7 +79,7 @@ def _prepare(case: str, element: str, edge: float, extra=None):
     return sim, x, build
 
 
-def _iteration(sim, x) -> dict:
+def _iteration(sim: Simulation, x: np.ndarray) -> dict:
     """One Newton iteration as Newton does it, timed: energy + gradient + exact Hessian in one
     pass (the line search's full step, reused by the next iteration), factorisation (with the
     projected Hessian evaluated again if the exact one is not positive definite), one solve;
@@ -100,7 +107,7 @@ def _iteration(sim, x) -> dict:
             "projected": projected}
 
 
-def _row(case, element, sim, build, times: list[dict]) -> dict:
+def _row(case: str, element: str, sim: Simulation, build: float, times: list[dict]) -> dict:
     m = sim.model
     med = {k: float(np.median([t[k] for t in times]))
            for k in ("assembly", "factorisation", "solve", "energy")}
@@ -113,7 +120,7 @@ def _row(case, element, sim, build, times: list[dict]) -> dict:
             "paper_s": PAPER.get((case, element))}
 
 
-def measure(case: str, element: str, edge: float, repeat: int, extra=None) -> dict:
+def measure(case: str, element: str, edge: float, repeat: int, extra: dict | None = None) -> dict:
     sim, x, build = _prepare(case, element, edge, extra)
     return _row(case, element, sim, build, [_iteration(sim, x) for _ in range(repeat)])
 
@@ -211,7 +218,7 @@ def _check_input(cases: list[str], elements: list[str], forming_edge: float | No
             raise ValueError(f"--elements: {exc}") from None
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     stamp = Stamp.begin(args.command)
     rows = []
     cases = args.cases.split(",")
@@ -267,7 +274,7 @@ def run(args) -> int:
     return OK
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: argparse._SubParsersAction) -> None:
     b = sub.add_parser("bench", help="per-iteration cost at the paper's Table 1 sizes")
     b.add_argument("--cases", default="beam,cup,factorisation,plastic,forming",
                    help="beam, cup (Table 1 sizes), factorisation (Fig. 7: the cantilever "

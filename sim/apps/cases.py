@@ -15,9 +15,15 @@ import signal
 import sys
 import threading
 import time
-from multiprocessing.context import ForkServerProcess
+from collections.abc import Callable
+from multiprocessing.connection import Connection
+from multiprocessing.context import ForkServerContext, ForkServerProcess
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from sim.stepping.simulation import Simulation, StepRecord
 
 # what a case needs, imported once by the forkserver its children are forked from
 PRELOAD = ["sim.apps.cases", "sim.stepping.simulation", "sim.scene.load"]
@@ -27,7 +33,8 @@ class _OverBudget(Exception):
     """A case that spent its budget (``run_case``), raised between two steps."""
 
 
-def run_case(scene_path: str, overrides: dict, series: bool = False, measure=None,
+def run_case(scene_path: str, overrides: dict, series: bool = False,
+             measure: Callable[[Simulation], dict] | None = None,
              budget: float | None = None) -> dict:
     """Run one scene with ``overrides``; a summary that pickles small (no arrays).
 
@@ -49,7 +56,7 @@ def run_case(scene_path: str, overrides: dict, series: bool = False, measure=Non
         out["reason"] = str(exc)
         return out
     out["build"] = time.perf_counter() - t0
-    def check_budget(sim, rec):
+    def check_budget(sim: Simulation, rec: StepRecord) -> None:
         spent = time.perf_counter() - t0
         if spent > budget and not sim.done:
             raise _OverBudget(f"over its budget of {budget:g} s after step {sim.step_index} "
@@ -107,7 +114,7 @@ def scene_row(scene_path: str, overrides: dict) -> dict | None:
     return None
 
 
-def force_balance(sim) -> dict:
+def force_balance(sim: Simulation) -> dict:
     """Force balance in z and the residual's round-off floor at the final state.
 
     The elastic forces sum to zero over the nodes (translation invariance), so at equilibrium
@@ -139,7 +146,7 @@ def force_balance(sim) -> dict:
             "balance": abs(support - applied) / scale if scale > 0 else 0.0, "floor": floor}
 
 
-def _child(conn, scene_path: str, overrides: dict) -> None:
+def _child(conn: Connection, scene_path: str, overrides: dict) -> None:
     # on SIGTERM exit through Python, so numba's process lock is released and not reported as a
     # leaked semaphore; a child stuck in a kernel gets SIGKILL after a grace period
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
@@ -149,7 +156,8 @@ def _child(conn, scene_path: str, overrides: dict) -> None:
         conn.send({"status": "crashed", "reason": f"{type(exc).__name__}: {exc}", "probes": {}})
 
 
-def run_isolated(scene_path: str, overrides: dict, budget: float, ctx=None) -> dict:
+def run_isolated(scene_path: str, overrides: dict, budget: float,
+                 ctx: ForkServerContext | WatchedContext | None = None) -> dict:
     """``run_case`` in a child process, with its ``force_balance`` as ``measured``; killed
     after ``budget`` seconds (status ``timeout``). The budget and ``elapsed`` start once the
     child is forked: the first ``start`` also starts the forkserver, whose imports are no
@@ -183,7 +191,7 @@ def run_isolated(scene_path: str, overrides: dict, budget: float, ctx=None) -> d
     return out
 
 
-def isolated_context():
+def isolated_context() -> ForkServerContext:
     """Children forked from a clean server that has the solver imported (saves ~1 s a case);
     never forked from this process, whose numba/MKL threads may hold locks."""
     ctx = mp.get_context("forkserver")
@@ -196,11 +204,11 @@ class _WatchedProcess(ForkServerProcess):
     with its cluster (a sweep's --timeout) would otherwise leave a hung case running until its
     budget, as an orphan of the forkserver."""
 
-    def __init__(self, *args, **kw):
+    def __init__(self, *args: Any, **kw: Any):
         super().__init__(*args, **kw)
         self.watch_pid = os.getpid()
 
-    def run(self):
+    def run(self) -> None:
         def watch() -> None:
             while True:
                 time.sleep(1.0)
@@ -217,9 +225,9 @@ class WatchedContext:
     """The ``ctx`` that ``run_isolated`` takes on a Dask worker: ``isolated_context()``, its
     processes watched (``_WatchedProcess``)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._ctx = isolated_context()
         self.Pipe = self._ctx.Pipe
 
-    def Process(self, **kw):  # noqa: N802 - the multiprocessing context's name
+    def Process(self, **kw: Any) -> _WatchedProcess:  # noqa: N802 - multiprocessing's name
         return _WatchedProcess(**kw)

@@ -17,12 +17,15 @@ Q3T, 10 for quartic.
 
 from __future__ import annotations
 
+import argparse
 import signal
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +34,9 @@ from sim.apps.common import FAILED, OK, load, resolve_scene
 from sim.elements import ELEMENTS, get_element
 from sim.frames import results
 from sim.stamp import Stamp, add_results_option, write_results
+
+if TYPE_CHECKING:
+    from sim.scene.load import Scene
 
 BASE = "cantilever"
 TOOLS = "beam_forming"
@@ -68,7 +74,7 @@ class Case:
         return self.expect if isinstance(self.expect, str) else self.expect[element]
 
 
-def load_overrides(scene, factor: float) -> dict:
+def load_overrides(scene: Scene, factor: float) -> dict:
     """Every load of ``scene`` times ``factor``, as overrides."""
     out = {}
     for i, ld in enumerate(scene.loads):
@@ -79,7 +85,7 @@ def load_overrides(scene, factor: float) -> dict:
     return out
 
 
-def make_cases(scene) -> list[Case]:
+def make_cases(scene: Scene) -> list[Case]:
     """The suite on ``scene`` (the cantilever)."""
     h0, L = scene.shell.thickness, scene.mesh.size[0]
     cs = [Case(f"nu={nu}", "Poisson locking, near-incompressible", {"material.nu": nu})
@@ -136,8 +142,8 @@ def base_edge(element: str) -> float:
     return get_element(element).edge_for_spacing(SPACING)
 
 
-def write_sliver_obj(path: Path, size=(0.7, 0.07), edge=SPACING, eps=1e-3,
-                     kind: str = "sliver") -> int:
+def write_sliver_obj(path: Path, size: tuple[float, float] = (0.7, 0.07), edge: float = SPACING,
+                     eps: float = 1e-3, kind: str = "sliver") -> int:
     """The rectangle mesh with 4 interior vertices moved to ``eps`` of the way from the midpoint
     of an opposite edge (of one of their triangles): slivers of aspect ratio ~1/eps. The midpoint
     is inside the vertex's convex star, so no triangle inverts. ``kind`` "flat": one vertex moved
@@ -194,7 +200,8 @@ def verdict(case: Case, element: str, out: dict) -> str:
     return "ok"
 
 
-def run_check(cases: list[Case], elements: list[str], budget: float, progress=None,
+def run_check(cases: list[Case], elements: list[str], budget: float,
+              progress: Callable[[dict], None] | None = None,
               edges: dict | None = None) -> list[dict]:
     """Every case with every element; ``edges`` overrides the mesh edge length per element
     (default: ``base_edge``, the same node spacing for all; a name the registry does not know runs
@@ -204,7 +211,8 @@ def run_check(cases: list[Case], elements: list[str], budget: float, progress=No
         return _run_all(cases, elements, budget, Path(tmp), progress, edges)
 
 
-def _run_all(cases, elements, budget, tmp: Path, progress, edges) -> list[dict]:
+def _run_all(cases: list[Case], elements: list[str], budget: float, tmp: Path,
+             progress: Callable[[dict], None] | None, edges: dict[str, float]) -> list[dict]:
     rows = []
     ctx = isolated_context()
     for c in cases:
@@ -300,7 +308,7 @@ def report(cases: list[Case], rows: list[dict], budget: float, wall: float) -> s
 TITLE = "The stability check (`q3t check`)"
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     # a terminated check exits through Python, which stops its running child and server
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     stamp = Stamp.begin(args.command)
@@ -323,7 +331,7 @@ def run(args) -> int:
     return FAILED if any(r["verdict"].startswith("PROBLEM") for r in rows) else OK
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: argparse._SubParsersAction) -> None:
     c = sub.add_parser("check", help="stability suite of hard cases (child process each)")
     c.add_argument("--elements", default=",".join(ELEMENTS))
     c.add_argument("--budget", type=float, default=60.0, help="wall-clock seconds per run")

@@ -15,7 +15,7 @@ from sim.apps.common import BAD_INPUT
 COMMANDS = "q3t.commands"
 
 
-def add_plugins(sub) -> None:
+def add_plugins(sub: argparse._SubParsersAction) -> None:
     """The commands of the ``q3t.commands`` entry points whose package imports here: the
     service's exist only where the service stack is installed."""
     for ep in entry_points(group=COMMANDS):

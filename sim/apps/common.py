@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from sim.scene.load import Scene
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
 
@@ -38,7 +42,7 @@ def parse_sets(items: list[str]) -> dict:
     return out
 
 
-def load(name: str, overrides: dict | None = None):
+def load(name: str, overrides: dict | None = None) -> Scene:
     """The validated scene ``name`` (``resolve_scene``) with ``overrides``; SceneError (a
     ValueError naming the field) on bad input."""
     from sim.scene.load import load_scene

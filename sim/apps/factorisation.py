@@ -52,7 +52,7 @@ def factorisation_times(scene_path: str, elements: list[str], levels: list[float
 
 def factorisation_report(scene_path: str, elements: list[str], levels: list[float], out: Path,
                          repeat: int = FACTOR_REPEAT, overrides: dict | None = None,
-                         **cluster) -> list[dict]:
+                         **cluster: float | str | None) -> list[dict]:
     """Fig. 7: time the factorisations, print the table, write report.md / .json and plots.
     ``q3t bench`` runs this too."""
     rows = factorisation_times(scene_path, elements, levels, repeat, overrides, **cluster)

@@ -4,8 +4,13 @@ term built, each added term without effect on the answer (``q3t study --overhead
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from sim.model.build import Model
+    from sim.scene.load import Scene
 
 OVERHEAD_REPEAT = 3
 
@@ -13,7 +18,7 @@ OVERHEAD_REPEAT = 3
 FAR_TOOL = {"name": "far_plane", "shape": {"kind": "plane", "point": [0.0, 0.0, -1.0e3]}}
 
 
-def all_terms_overrides(scene) -> dict:
+def all_terms_overrides(scene: Scene) -> dict:
     """Scene overrides that add, with no effect on the answer, the terms a scene can add
     through its file: a contact term with a plane 1 km below the sheet (every skin node is
     tested against it at every evaluation and none ever reaches it), and a zero gravity
@@ -26,7 +31,7 @@ def all_terms_overrides(scene) -> dict:
     return o
 
 
-def all_terms_model(scene):
+def all_terms_model(scene: Scene) -> Model:
     """The model of ``scene`` (see ``all_terms_overrides``) with every other term too, each
     without effect and with the scene's own material law: plastic state under a yield stress
     of 1e30 Pa (never reached: the return map never flows, but runs at every commit and the

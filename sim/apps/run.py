@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sim.apps.common import BAD_INPUT, FAILED, OK, load, parse_sets
 
+if TYPE_CHECKING:
+    from sim.stepping.simulation import Simulation, StepRecord
 
-def _progress(sim, rec) -> None:
+
+def _progress(sim: Simulation, rec: StepRecord) -> None:
     n = sim.n_steps
     bar = "#" * int(30 * rec.step / n)
     probes = " ".join(f"{k}={v:.4g}" for k, v in list(rec.probes.items())[:3])
@@ -18,7 +23,7 @@ def _progress(sim, rec) -> None:
           file=sys.stderr, flush=True)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from sim.frames import results
     from sim.model import size
     from sim.scene.load import SceneError
@@ -58,7 +63,7 @@ def run(args) -> int:
     return OK if res["converged"] else FAILED
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: argparse._SubParsersAction) -> None:
     from sim.model.size import DEFAULT_LIMIT
 
     r = sub.add_parser("run", help="run a scene headless and write result.json")

@@ -17,9 +17,11 @@ over the run or a section's profile (relative L2 or max difference on the common
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import sys
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -134,7 +136,7 @@ def study_case(scene_path: str, overrides: dict, warmup: dict,
     return run_case(scene_path, overrides, series=True, budget=budget)
 
 
-def measured(r: dict, m: dict):
+def measured(r: dict, m: dict) -> float | tuple[np.ndarray, np.ndarray] | None:
     """What a case gives for measure ``m``: a float (final), or (x, y) arrays."""
     if m["measure"] == "final":
         return r.get("probes", {}).get(m["probe"], math.nan)
@@ -151,7 +153,8 @@ def measured(r: dict, m: dict):
     return np.asarray(recs[-1]["rest_radius"], float), np.asarray(recs[-1][m["field"]], float)
 
 
-def curve_error(x, y, xr, yr, norm: str = "l2") -> float:
+def curve_error(x: np.ndarray, y: np.ndarray, xr: np.ndarray, yr: np.ndarray,
+                norm: str = "l2") -> float:
     """Relative difference of curve (x, y) from the reference (xr, yr) on their common range of
     x, both interpolated (piecewise linear) onto the union of their abscissae there:
     ``l2``: sqrt(int (y - yr)^2 dx / int yr^2 dx), ``max``: max |y - yr| / max |yr|. NaN when
@@ -176,7 +179,7 @@ def curve_error(x, y, xr, yr, norm: str = "l2") -> float:
     return float(np.sqrt(np.trapezoid((a - b) ** 2, grid) / np.trapezoid(b * b, grid)))
 
 
-def case_error(r: dict, ref, m: dict) -> float:
+def case_error(r: dict, ref: float | tuple[np.ndarray, np.ndarray], m: dict) -> float:
     """Relative error of case ``r`` against the reference's ``measured`` value ``ref``."""
     if r.get("status") != "converged":
         return math.nan
@@ -199,8 +202,8 @@ def _case(plan: Plan, element: str, edge: float, budget: float | None) -> tuple:
     return (study_case, plan.scene, o, warm, budget)
 
 
-def run_study(plan: Plan, progress=print, workers: int = 1, threads: int = 1,
-              scheduler: str | None = None, timeout: float | None = None,
+def run_study(plan: Plan, progress: Callable[[str], None] = print, workers: int = 1,
+              threads: int = 1, scheduler: str | None = None, timeout: float | None = None,
               overhead: dict | None = None, budget: float | None = None) -> dict:
     """The reference run (unless analytic), then every element at every level, on Dask; rows
     carry the relative error. ``overhead``: also ``terms_overhead(**overhead)`` as the last
@@ -267,7 +270,7 @@ def run_study(plan: Plan, progress=print, workers: int = 1, threads: int = 1,
     return out
 
 
-def _inputs(args) -> tuple[str, Plan]:
+def _inputs(args: argparse.Namespace) -> tuple[str, Plan]:
     """The plan from the command line; ValueError / SceneError on bad input."""
     scene = str(resolve_scene(args.scene))
     ref = None
@@ -292,14 +295,16 @@ def _inputs(args) -> tuple[str, Plan]:
     return scene, plan
 
 
-def _factorisation(args, scene: str, plan: Plan, out: Path, kw: dict) -> tuple[str, str]:
+def _factorisation(args: argparse.Namespace, scene: str, plan: Plan, out: Path,
+                   kw: dict) -> tuple[str, str]:
     rows = factorisation_report(scene, plan.elements, plan.levels, out,
                                 args.repeat or FACTOR_REPEAT, plan.overrides, **kw)
     return (f"Factorisation time against elements: {Path(scene).stem} (paper Fig. 7)",
             factorisation_md(rows, cluster_text(**_where(kw))))
 
 
-def _overhead(args, scene: str, plan: Plan, out: Path, kw: dict) -> tuple[str, str] | None:
+def _overhead(args: argparse.Namespace, scene: str, plan: Plan, out: Path,
+              kw: dict) -> tuple[str, str] | None:
     o = {"overrides": {**plan.overrides, "mesh.edge_length": plan.levels[-1]},
          "repeat": args.repeat or OVERHEAD_REPEAT}
     rows, _ = run_tasks([(terms_overhead, scene, o["overrides"], o["repeat"])], [{}], **kw)
@@ -314,7 +319,8 @@ def _overhead(args, scene: str, plan: Plan, out: Path, kw: dict) -> tuple[str, s
             overhead_report(rows, where))
 
 
-def _study(args, scene: str, plan: Plan, out: Path, kw: dict) -> tuple[str, str] | None:
+def _study(args: argparse.Namespace, scene: str, plan: Plan, out: Path,
+           kw: dict) -> tuple[str, str] | None:
     overhead = None if args.no_overhead else {
         "overrides": {**plan.overrides, "mesh.edge_length": plan.levels[len(plan.levels) // 2]},
         "repeat": args.repeat or OVERHEAD_REPEAT}
@@ -336,7 +342,7 @@ def _where(kw: dict) -> dict:
     return {k: kw[k] for k in ("workers", "threads", "scheduler")}
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Exit 0 on success, 1 when the reference run failed (no errors to give), 2 on bad input
     (as ``q3t run``: 1 = a run failed, 2 = bad input)."""
     from sim.scene.load import SceneError
@@ -362,7 +368,7 @@ def run(args) -> int:
     return OK
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("study", help="error against run time and DoFs under refinement")
     s.add_argument("scene", help="scene name in scenes/ or a TOML path")
     s.add_argument("--elements", help="comma-separated (default: the scene's study table)")

@@ -8,13 +8,17 @@ import os
 import platform
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sim.frames import results
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 MARKERS = {"linear": "o", "q3t": "s", "quadratic": "^", "quartic": "D"}
 
 
-def _save(fig, out: Path, stem: str) -> list[str]:
+def _save(fig: Figure, out: Path, stem: str) -> list[str]:
     names = [f"{stem}.png", f"{stem}.svg"]
     for n in names:
         fig.savefig(out / n, dpi=120)

@@ -16,10 +16,12 @@ always on disk.
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import multiprocessing as mp
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from sim.apps.cases import WatchedContext, run_case, run_isolated, scene_row
@@ -84,7 +86,8 @@ def cases(grid: dict[str, list], fixed: dict | None = None) -> list[dict]:
 
 def run_sweep(scene_path: str, overrides: list[dict], workers: int = 2,
               scheduler: str | None = None, timeout: float | None = None,
-              budget: float = DEFAULT_BUDGET, on_result=None) -> tuple[list[dict], bool]:
+              budget: float = DEFAULT_BUDGET,
+              on_result: Callable[[int, dict], None] | None = None) -> tuple[list[dict], bool]:
     """Every case with a valid scene through ``isolated_case`` (see ``run_tasks``); the others
     are ``invalid`` rows at once (``scene_row``), and never reach the cluster."""
     rows = [scene_row(scene_path, o) for o in overrides]
@@ -149,7 +152,7 @@ def plot(rows: list[dict], grid_keys: list[str], probe: str, out: Path) -> list[
     return paths
 
 
-def _as_x(v):
+def _as_x(v: object) -> float | str:
     return v if isinstance(v, (int, float)) else str(v)
 
 
@@ -160,7 +163,7 @@ def _write(out: Path, name: str, data: dict) -> None:
     tmp.replace(out / name)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Exit 0 when every case has a row of its own; 1 when ``--timeout`` cut the sweep short
     (the rows that finished are still written); 2 on bad input."""
     scene = str(resolve_scene(args.scene))
@@ -211,7 +214,7 @@ def run(args) -> int:
     return OK if finished else FAILED
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("sweep", help="run the cartesian product of overrides on Dask")
     s.add_argument("scene", help="scene name in scenes/ or a TOML path")
     s.add_argument("--grid", action="append", required=True, metavar="KEY=V1,V2",

@@ -6,6 +6,10 @@ and the words a report uses for where they ran.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from distributed import Client, Future
 
 # Numba's own pool would give every worker all cores: one thread each, the cluster is the pool.
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -42,7 +46,7 @@ def run_tasks(calls: list[tuple], labels: list[dict], workers: int = 1, threads:
     rows: list[dict | None] = [None] * len(calls)
     finished = True
 
-    def gather(client) -> None:
+    def gather(client: Client) -> None:
         nonlocal finished
         futures = [client.submit(fn, *args, pure=False, priority=len(calls) - i)
                    for i, (fn, *args) in enumerate(calls)]
@@ -75,7 +79,7 @@ def run_tasks(calls: list[tuple], labels: list[dict], workers: int = 1, threads:
     return rows, finished
 
 
-def _row(future, label: dict) -> dict:
+def _row(future: Future, label: dict) -> dict:
     """A task that raised (a bug, a lost worker) is still a row, not the end of the sweep."""
     if future.status == "finished":
         return future.result()

@@ -4,8 +4,12 @@ skin, rim) over the corner-vertex columns, and per-vertex fields. No solver obje
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from sim.geometry.shell import Shell
 
 
 @dataclass(frozen=True)
@@ -17,7 +21,7 @@ class DisplayMesh:
     nodes: np.ndarray
 
     @classmethod
-    def from_shell(cls, shell) -> DisplayMesh:
+    def from_shell(cls, shell: Shell) -> DisplayMesh:
         n_v = shell.n_vertices
         F = shell.mesh.faces
         top, bot = shell.skin_nodes(True), shell.skin_nodes(False)

@@ -3,14 +3,38 @@ read, the per-vertex fields the viewer colours by and the result holds, and radi
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Protocol
+
 import numpy as np
 
 from sim.elements.base import line_lagrange
 from sim.geometry.trimesh import TriMesh, vertex_normals
 from sim.materials.plasticity import net_plastic_strain
 
+if TYPE_CHECKING:  # the scene's validation imports this module: it loads no solver term
+    from sim.geometry.shell import Shell
+    from sim.terms.elasticity import Elasticity
 
-def mid_surface(model, x: np.ndarray) -> np.ndarray:
+
+class Discretised(Protocol):
+    """What the fields read of a model (sim.model.build.Model): its shell and elastic term.
+    The scene's probes read these fields and the model is built from the scene, so this
+    module cannot import the model."""
+
+    shell: Shell
+    elasticity: Elasticity
+
+
+class Ray(Protocol):
+    """A section's ray (sim.scene.run.SectionSpec: the scene imports this module through its
+    probes)."""
+
+    name: str
+    direction: tuple[float, float]
+    width: float
+
+
+def mid_surface(model: Discretised, x: np.ndarray) -> np.ndarray:
     """Positions at w = 0 of every mid-surface vertex column ``(n_v, 3)``."""
     sh = model.shell
     L, _ = line_lagrange(sh.element.q, np.zeros(1))
@@ -18,13 +42,13 @@ def mid_surface(model, x: np.ndarray) -> np.ndarray:
     return sum(w * c for w, c in zip(L[0], cols, strict=True))
 
 
-def thickness(model, x: np.ndarray) -> np.ndarray:
+def thickness(model: Discretised, x: np.ndarray) -> np.ndarray:
     """Fibre length between the skins at every mid-surface vertex ``(n_v,)``."""
     sh = model.shell
     return np.linalg.norm(x[sh.skin_nodes(True)] - x[sh.skin_nodes(False)], axis=1)
 
 
-def fibre_tilt(model, x: np.ndarray) -> np.ndarray:
+def fibre_tilt(model: Discretised, x: np.ndarray) -> np.ndarray:
     """Angle (degrees) per vertex between the through-thickness fibre (bottom to top skin) and
     the normal of the deformed mid-surface: transverse shear, zero in pure bending and
     stretching; linear prisms escape volumetric locking by shearing (paper Fig. 11)."""
@@ -35,7 +59,7 @@ def fibre_tilt(model, x: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(c, 0.0, 1.0)))
 
 
-def volume(model, x: np.ndarray) -> float:
+def volume(model: Discretised, x: np.ndarray) -> float:
     el = model.elasticity
     F = np.einsum("ead,eqaj->eqdj", x[el.conn], el.dNdX)
     return float(np.sum(np.linalg.det(F) * el.wdetJ))
@@ -51,7 +75,7 @@ def curvature_xz(P: np.ndarray) -> float:
     return float(1.0 / np.sqrt(r2)) if r2 > 0 and np.isfinite(r2) else 0.0
 
 
-def vertex_average(model, per_qp: np.ndarray) -> np.ndarray:
+def vertex_average(model: Discretised, per_qp: np.ndarray) -> np.ndarray:
     """Element means of a quadrature-point field ``(n_elem, n_qp)`` averaged onto the
     mid-surface vertices ``(n_v,)`` (element e sits on mid-surface face e)."""
     F = model.shell.mesh.faces
@@ -64,7 +88,7 @@ def vertex_average(model, per_qp: np.ndarray) -> np.ndarray:
     return acc / np.maximum(cnt, 1)
 
 
-def output_fields(model, x: np.ndarray, h0: np.ndarray) -> dict[str, np.ndarray]:
+def output_fields(model: Discretised, x: np.ndarray, h0: np.ndarray) -> dict[str, np.ndarray]:
     """Result fields at state x, per mid-surface vertex ``(n_v,)`` and per element
     (``*_elem``, ``(n_elem,)``): thickness (m), thinning (% of the rest thickness ``h0``),
     von Mises stress (Pa) and, for a plastic scene, the accumulated and the net (retained)
@@ -91,7 +115,7 @@ def field_summary(fields: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
             for k, v in fields.items() if not k.endswith("_elem")}
 
 
-def section_vertices(model, spec) -> np.ndarray:
+def section_vertices(model: Discretised, spec: Ray) -> np.ndarray:
     """Mid-surface vertices on the section ray, sorted by rest radius ``(m,)``."""
     V = model.shell.mesh.vertices
     d = np.asarray(spec.direction, float)
@@ -104,8 +128,9 @@ def section_vertices(model, spec) -> np.ndarray:
     return idx[np.argsort(along[idx])]
 
 
-def section(model, x, idx) -> dict[str, list[float]]:
-    """Rest radius, current radius (from the z axis) and thickness along a section (m)."""
+def section(model: Discretised, x: np.ndarray, idx: np.ndarray) -> dict[str, list[float]]:
+    """Rest radius, current radius (from the z axis) and thickness along a section (m): at the
+    vertices ``idx (m,)`` of :func:`section_vertices`, state ``x (n, 3)``."""
     mid = mid_surface(model, x)[idx]
     rest = model.shell.mesh.vertices[idx]
     return {"rest_radius": np.hypot(rest[:, 0], rest[:, 1]).tolist(),

@@ -5,11 +5,38 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
 from sim.frames import fields, results
-from sim.model.build import frame_fields
+from sim.frames.display import DisplayMesh
+from sim.model.build import Model, frame_fields
+from sim.solve.newton import Timing
+
+
+class Run(Protocol):
+    """What this module reads of a run: sim.stepping.simulation.Simulation, which imports it."""
+
+    model: Model
+    x: np.ndarray
+    h0: np.ndarray  # rest thickness per mid-surface vertex (n_v,)
+    t: float
+    step_index: int
+    records: list  # its StepRecords (dataclasses)
+    display: DisplayMesh
+    timing: Timing
+    wall: float
+    parameter_log: list[dict]
+    failure: dict | None
+    stopped: str | None
+    release_support: list[dict]
+    sections: dict[str, list[dict]]
+
+    @property
+    def n_steps(self) -> int: ...
+
+    def result(self) -> dict: ...
 
 
 @dataclass
@@ -26,7 +53,7 @@ class Frame:
     residual: float
 
 
-def frame(sim) -> Frame:
+def frame(sim: Run) -> Frame:
     """The viewer's frame: positions and the fields ``model.frame_fields`` names (the one
     list of them: the recording's channels and ``built`` read it too)."""
     m, x = sim.model, sim.x
@@ -43,7 +70,7 @@ def frame(sim) -> Frame:
                  rec.residual if rec else 0.0)
 
 
-def result(sim) -> dict:
+def result(sim: Run) -> dict:
     """What the run did, in numbers JSON carries: a value that is not finite is written
     as null, listed in ``non_finite``, and the run did not converge."""
     out, bad = results.finite(_result(sim))
@@ -56,7 +83,7 @@ def result(sim) -> dict:
     return out
 
 
-def _result(sim) -> dict:
+def _result(sim: Run) -> dict:
     m = sim.model
     t = sim.timing
     n_it = max(t.iterations, 1)
@@ -89,7 +116,7 @@ def _result(sim) -> dict:
     }
 
 
-def write(sim, out: Path) -> dict:
+def write(sim: Run, out: Path) -> dict:
     """result.json and final.npz, each written to a temporary name first so an interrupted
     run never leaves a half-written file. Returns the result written."""
     out.mkdir(parents=True, exist_ok=True)

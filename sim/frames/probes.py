@@ -4,12 +4,51 @@ and how its value is read. The scene validates probe specs against it (sim.scene
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from sim.frames.fields import curvature_xz, fibre_tilt, mid_surface, thickness, volume
+from sim.frames.fields import (
+    Discretised,
+    curvature_xz,
+    fibre_tilt,
+    mid_surface,
+    thickness,
+    volume,
+)
+
+if TYPE_CHECKING:  # the scene's validation imports this module: it loads no solver
+    from sim.solve.problem import Problem
+
+
+class Spec(Protocol):
+    """A probe's spec (sim.scene.run.ProbeSpec, which validates against PROBES): its kind, the
+    point, region or tool it names and how a field is reduced to a number."""
+
+    name: str
+    kind: str
+    tool: str | None
+    point: tuple[float, float, float] | None
+    component: str  # x, y, z or norm
+    stat: str  # min, max or mean
+    region: str | None
+
+
+class _Scene(Protocol):
+    probes: Sequence[Spec]
+
+
+class Probed(Discretised, Protocol):
+    """What the probes read of a model (sim.model.build.Model, built from the scene that
+    imports this module)."""
+
+    scene: _Scene
+    problem: Problem
+    regions: dict[str, np.ndarray]
+
+    def column_nodes(self, plane_mask: np.ndarray, layers: str = "all") -> np.ndarray: ...
 
 
 @dataclass
@@ -18,7 +57,7 @@ class State:
     reactions, computed when a probe first needs it) and the mid-surface (n_v, 3) formed in the
     closed tools (the springback reference; None before the release stage)."""
 
-    model: object
+    model: Probed
     x: np.ndarray
     gradient_: np.ndarray | None = None
     formed: np.ndarray | None = None
@@ -37,9 +76,13 @@ class State:
         return self.model.regions[region][: sh.n_vertices]
 
 
+# a probe kind's reading of a state
+Value = Callable[[State, Spec], float]
+
+
 @dataclass(frozen=True)
 class ProbeKind:
-    value: Callable  # (State, ProbeSpec) -> float
+    value: Value
     needs: tuple[str, ...] = ()  # the spec's fields it reads: "point", "region", "tool"
     plastic: bool = False  # reads the plastic state: a plastic material only
 
@@ -47,15 +90,16 @@ class ProbeKind:
 PROBES: dict[str, ProbeKind] = {}
 
 
-def probe(kind: str, needs: tuple[str, ...] = (), plastic: bool = False):
+def probe(kind: str, needs: tuple[str, ...] = (),
+          plastic: bool = False) -> Callable[[Value], Value]:
     """Register the decorated ``value(state, spec)`` as probe kind ``kind``."""
-    def register(value: Callable) -> Callable:
+    def register(value: Value) -> Value:
         PROBES[kind] = ProbeKind(value, needs, plastic)
         return value
     return register
 
 
-def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None,
+def evaluate(model: Probed, x: np.ndarray, gradient: np.ndarray | None = None,
              formed: np.ndarray | None = None) -> dict[str, float]:
     """Every probe of the scene at state ``x``; ``gradient`` is the total energy gradient (the
     support reactions), computed here when a reaction probe needs it; ``formed`` the
@@ -65,16 +109,16 @@ def evaluate(model, x: np.ndarray, gradient: np.ndarray | None = None,
     return {p.name: PROBES[p.kind].value(state, p) for p in model.scene.probes}
 
 
-def _stat(values: np.ndarray, p) -> float:
+def _stat(values: np.ndarray, p: Spec) -> float:
     return float(getattr(np, p.stat)(values))
 
 
-def _component(v: np.ndarray, p) -> float:
+def _component(v: np.ndarray, p: Spec) -> float:
     return float(np.linalg.norm(v) if p.component == "norm" else v["xyz".index(p.component)])
 
 
 @probe("displacement", needs=("point",))
-def _displacement(s: State, p) -> float:
+def _displacement(s: State, p: Spec) -> float:
     sh = s.model.shell
     v = int(np.argmin(np.linalg.norm(sh.mesh.vertices - np.array(p.point), axis=1)))
     mid0 = mid_surface(s.model, sh.rest)[v]
@@ -82,82 +126,82 @@ def _displacement(s: State, p) -> float:
 
 
 @probe("thickness")
-def _thickness(s: State, p) -> float:
+def _thickness(s: State, p: Spec) -> float:
     return _stat(thickness(s.model, s.x), p)
 
 
 @probe("reaction", needs=("region",))
-def _reaction(s: State, p) -> float:
+def _reaction(s: State, p: Spec) -> float:
     nodes = s.model.column_nodes(s.model.regions[p.region])
     return _component(s.gradient[nodes].sum(0), p)
 
 
 @probe("volume")
-def _volume(s: State, p) -> float:
+def _volume(s: State, p: Spec) -> float:
     return volume(s.model, s.x)
 
 
 @probe("curvature", needs=("region",))
-def _curvature(s: State, p) -> float:
+def _curvature(s: State, p: Spec) -> float:
     return curvature_xz(mid_surface(s.model, s.x)[s.vertices(p.region)])
 
 
 @probe("plastic_strain", plastic=True)
-def _plastic_strain(s: State, p) -> float:
+def _plastic_strain(s: State, p: Spec) -> float:
     ep = s.model.elasticity.ep
     return _stat(ep, p) if ep.size else 0.0
 
 
 @probe("von_mises")
-def _von_mises(s: State, p) -> float:
+def _von_mises(s: State, p: Spec) -> float:
     return _stat(s.model.elasticity.von_mises(s.x), p)
 
 
-def _tool_report(s: State, p) -> dict | None:
+def _tool_report(s: State, p: Spec) -> dict | None:
     """The report of the probe's tool, None once it is retracted (it then carries nothing)."""
     term = next((t for t in s.model.problem.terms if getattr(t, "tool", None) == p.tool), None)
     return None if term is None else term.report(s.x)
 
 
 @probe("tool_force", needs=("tool",))
-def _tool_force(s: State, p) -> float:
+def _tool_force(s: State, p: Spec) -> float:
     rep = _tool_report(s, p)
     return 0.0 if rep is None else _component(np.array([rep["fx"], rep["fy"], rep["fz"]]), p)
 
 
 @probe("penetration", needs=("tool",))
-def _penetration(s: State, p) -> float:
+def _penetration(s: State, p: Spec) -> float:
     rep = _tool_report(s, p)
     return 0.0 if rep is None else float(rep["penetration"])
 
 
 @probe("contact_nodes", needs=("tool",))
-def _contact_nodes(s: State, p) -> float:
+def _contact_nodes(s: State, p: Spec) -> float:
     rep = _tool_report(s, p)
     return 0.0 if rep is None else float(rep["contact_nodes"])
 
 
 @probe("fibre_tilt")
-def _fibre_tilt(s: State, p) -> float:
+def _fibre_tilt(s: State, p: Spec) -> float:
     tilt = fibre_tilt(s.model, s.x)
     return _stat(tilt[s.vertices(p.region)] if p.region else tilt, p)
 
 
 @probe("height_range", needs=("region",))
-def _height_range(s: State, p) -> float:
+def _height_range(s: State, p: Spec) -> float:
     """Out-of-plane amplitude, e.g. of flange wrinkles."""
     z = mid_surface(s.model, s.x)[s.vertices(p.region), 2]
     return float(z.max() - z.min())
 
 
 @probe("tool_position", needs=("tool",))
-def _tool_position(s: State, p) -> float:
+def _tool_position(s: State, p: Spec) -> float:
     rep = _tool_report(s, p)
     return 0.0 if rep is None else rep["z"]
 
 
 @probe("springback")
-def _springback(s: State, p) -> float:
+def _springback(s: State, p: Spec) -> float:
     """Deviation from the shape in the closed tools."""
     if s.formed is None:
         return 0.0
@@ -166,7 +210,7 @@ def _springback(s: State, p) -> float:
 
 
 @probe("cup_height", needs=("region",))
-def _cup_height(s: State, p) -> float:
+def _cup_height(s: State, p: Spec) -> float:
     """The rim (the region, mean) above the lowest point."""
     z = mid_surface(s.model, s.x)[:, 2]
     return float(z[s.vertices(p.region)].mean() - z.min())

@@ -9,11 +9,12 @@ import json
 import math
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 
-def finite(obj, path: str = "") -> tuple[object, list[str]]:
+def finite(obj: object, path: str = "") -> tuple[object, list[str]]:
     """``obj`` with every non-finite number replaced by None, and the dotted paths of those."""
     if isinstance(obj, dict):
         pairs = [(k, finite(v, f"{path}.{k}" if path else str(k))) for k, v in obj.items()]
@@ -26,7 +27,7 @@ def finite(obj, path: str = "") -> tuple[object, list[str]]:
     return obj, []
 
 
-def dumps(obj, nulls: bool = False, **kw) -> str:
+def dumps(obj: object, nulls: bool = False, **kw: Any) -> str:
     """JSON text of ``obj``; a non-finite number is an error naming where it is, or with
     ``nulls`` (reports, where it means "not measured") written as null."""
     if nulls:
@@ -41,7 +42,7 @@ def dumps(obj, nulls: bool = False, **kw) -> str:
                          f"{' ...' if len(bad) > 5 else ''}") from None
 
 
-def write(path: Path, obj, indent: int = 1) -> None:
+def write(path: Path, obj: object, indent: int = 1) -> None:
     """``dumps(obj)`` to a temporary name first, then renamed: never a half-written file."""
     text = dumps(obj, indent=indent)
     tmp = path.with_name(f".{path.name}.tmp")

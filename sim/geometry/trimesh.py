@@ -8,10 +8,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sim.scene.fields import MAX_LENGTH
+
+if TYPE_CHECKING:  # loaded when a mesh file is read
+    import trimesh
 
 
 @dataclass(frozen=True)
@@ -174,7 +178,7 @@ def load_with_values(path: str | Path, scale: float = 1.0, values: np.ndarray | 
     return TriMesh(V[keep], renumber[F]), out, report
 
 
-def _ply_property(m, path: Path, attribute: str) -> np.ndarray:
+def _ply_property(m: trimesh.Trimesh, path: Path, attribute: str) -> np.ndarray:
     raw = m.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
     # ASCII PLY: a dict of columns; binary: a structured array
     names = tuple(raw) if isinstance(raw, dict) else (raw.dtype.names or ()) \

@@ -40,8 +40,10 @@ def dlog(a: float, b: float) -> float:
 
 
 @njit(cache=True)
-def _from_log(s, W, tau, D, a_dd):
-    """Principal derivatives in stretches from those in log strains (Kirchhoff tau = dW/deps)."""
+def _from_log(s: np.ndarray, W: float, tau: np.ndarray, D: np.ndarray,
+              a_dd: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Principal derivatives in stretches s (3,) from those in log strains (Kirchhoff
+    tau = dW/deps (3,), D = dtau/deps (3, 3))."""
     g = tau / s
     H = np.empty((3, 3))
     for i in range(3):
@@ -58,7 +60,7 @@ def _from_log(s, W, tau, D, a_dd):
 
 
 @njit(cache=True)
-def _sq_minus_log(s):
+def _sq_minus_log(s: float) -> float:
     """s^2 - 1 - 2 ln s without cancellation near s = 1 (it is O((s-1)^2) there)."""
     d = s - 1.0
     if abs(d) < 1e-2:  # series of d - log1p(d), truncation below 1e-20 relative
@@ -68,7 +70,8 @@ def _sq_minus_log(s):
 
 
 @njit(cache=True)
-def _neo_hookean(s, mu, lam):
+def _neo_hookean(s: np.ndarray, mu: float,
+                 lam: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     lj = np.log(s[0]) + np.log(s[1]) + np.log(s[2])
     c = mu - lam * lj
     # mu/2 (I1 - 3) - mu ln J summed per stretch: the two O(s-1) parts cancel analytically,
@@ -91,7 +94,8 @@ def _neo_hookean(s, mu, lam):
 
 
 @njit(cache=True)
-def _hencky(s, mu, lam):
+def _hencky(s: np.ndarray, mu: float,
+            lam: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     eps = np.log(s)
     tr = eps.sum()
     W = mu * (eps @ eps) + 0.5 * lam * tr * tr
@@ -101,9 +105,10 @@ def _hencky(s, mu, lam):
 
 
 @njit(cache=True)
-def principal(model, s, params, ep_n):
-    """Principal energy: (W, dW/ds (3,), d2W/ds2 (3,3), sym (3,), twist (3,)) for pairs
-    (0,1), (0,2), (1,2)."""
+def principal(model: int, s: np.ndarray, params: np.ndarray,
+              ep_n: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Principal energy at stretches s (3,): (W, dW/ds (3,), d2W/ds2 (3,3), sym (3,),
+    twist (3,)) for pairs (0,1), (0,2), (1,2)."""
     mu, lam = params[0], params[1]
     if model == NEO_HOOKEAN:
         return _neo_hookean(s, mu, lam)
@@ -114,7 +119,7 @@ def principal(model, s, params, ep_n):
 
 
 @njit(cache=True)
-def eigh3(A):
+def eigh3(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eigen-decomposition of a symmetric 3x3 by cyclic Jacobi rotations: (w (3,), V (3,3)),
     ascending. About 20x cheaper than a LAPACK call from numba at this size, and accurate to
     round-off relative to |A|."""
@@ -157,15 +162,15 @@ def eigh3(A):
 
 
 @njit(cache=True)
-def det3(F):
+def det3(F: np.ndarray) -> float:
     return (F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1])
             - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
             + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]))
 
 
 @njit(cache=True)
-def polar_svd(F):
-    """F = U diag(s) V^T with s > 0 for det F > 0, via the eigen-decomposition of F^T F.
+def polar_svd(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """F (3, 3) = U diag(s) V^T with s > 0 for det F > 0, via the eigen-decomposition of F^T F.
 
     Returns (U, s, V, ok); ok is False for det F <= 0 (inverted or flat), where the energies are
     +inf by definition.
@@ -187,7 +192,7 @@ def polar_svd(F):
 
 
 @njit(cache=True)
-def _y_minus_log1p(y):
+def _y_minus_log1p(y: float) -> float:
     """y - ln(1 + y) without cancellation near y = 0 (it is O(y^2) there)."""
     if abs(y) < 1e-2:  # alternating series, truncation below 1e-20 relative
         return y * y * (1 / 2 - y * (1 / 3 - y * (1 / 4 - y * (1 / 5 - y * (1 / 6 - y * (
@@ -196,9 +201,10 @@ def _y_minus_log1p(y):
 
 
 @njit(cache=True, inline='always')
-def neo_hookean_h(H, mu, lam, want_tangent, P, C, FiT):
-    """Neo-Hookean W, P and dP/dF at F = I + H from the displacement gradient H (no SVD, about
-    5x cheaper): the exact tangent only, since its PSD projection needs the principal frame.
+def neo_hookean_h(H: np.ndarray, mu: float, lam: float, want_tangent: bool, P: np.ndarray,
+                  C: np.ndarray, FiT: np.ndarray) -> float:
+    """Neo-Hookean W, P and dP/dF at F = I + H from the displacement gradient H (3, 3) (no SVD,
+    about 5x cheaper): the exact tangent only, since its PSD projection needs the principal frame.
     ``FiT (3, 3)`` is scratch (it receives F^-T), so that no array is made per call.
 
     The energy goes through E = F^T F - I = H + H^T + H^T H and J - 1 = tr H + c2(H) + det H
@@ -265,9 +271,11 @@ def neo_hookean_h(H, mu, lam, want_tangent, P, C, FiT):
 
 
 @njit(cache=True)
-def stress_tangent(model, F, params, ep_n, want_tangent, project):
-    """Energy density W, first Piola-Kirchhoff P (3,3) and tangent C = dP/dF (9,9) in row-major
-    vec(F) order. ``project`` clamps C to positive semi-definite. W = inf when det F <= 0."""
+def stress_tangent(model: int, F: np.ndarray, params: np.ndarray, ep_n: float, want_tangent: bool,
+                   project: bool) -> tuple[float, np.ndarray, np.ndarray]:
+    """Energy density W, first Piola-Kirchhoff P (3,3) and tangent C = dP/dF (9,9) at F (3,3), in
+    row-major vec(F) order. ``project`` clamps C to positive semi-definite. W = inf when
+    det F <= 0."""
     P = np.zeros((3, 3))
     C = np.zeros((9, 9))
     W = stress_tangent_into(model, F, params, ep_n, want_tangent, project, P, C)
@@ -275,7 +283,8 @@ def stress_tangent(model, F, params, ep_n, want_tangent, project):
 
 
 @njit(cache=True)
-def stress_tangent_into(model, F, params, ep_n, want_tangent, project, P, C):
+def stress_tangent_into(model: int, F: np.ndarray, params: np.ndarray, ep_n: float,
+                        want_tangent: bool, project: bool, P: np.ndarray, C: np.ndarray) -> float:
     """:func:`stress_tangent` writing P and C (when ``want_tangent``) into the given arrays
     (the element loop reuses them: allocation per quadrature point costs as much as the
     arithmetic). Returns W."""
@@ -288,7 +297,8 @@ def stress_tangent_into(model, F, params, ep_n, want_tangent, project, P, C):
 
 
 @njit(cache=True)
-def stress_tangent_h(model, H, params, ep_n, want_tangent, project, P, C):
+def stress_tangent_h(model: int, H: np.ndarray, params: np.ndarray, ep_n: float, want_tangent: bool,
+                     project: bool, P: np.ndarray, C: np.ndarray) -> float:
     """:func:`stress_tangent_into` at F = I + H, from H = F - I. Neo-Hookean's W and P always
     come from the closed form in H (so an energy or a gradient does not depend on whether the
     Hessian is projected); only a projected tangent goes through the principal frame."""
@@ -309,7 +319,9 @@ def stress_tangent_h(model, H, params, ep_n, want_tangent, project, P, C):
 
 
 @njit(cache=True)
-def principal_stress_tangent_into(model, F, params, ep_n, want_tangent, project, P, C):
+def principal_stress_tangent_into(model: int, F: np.ndarray, params: np.ndarray, ep_n: float,
+                                  want_tangent: bool, project: bool, P: np.ndarray,
+                                  C: np.ndarray) -> float:
     """W, P and C through the principal stretches of F (any model)."""
     U, s, V, ok = polar_svd(F)
     if not ok:

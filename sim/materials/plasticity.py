@@ -48,6 +48,8 @@ convex; sim.scene.sheet.Hardening admits only nonsoftening parameters (K, e0 > 0
 Ysat >= Y0, C > 0, H >= 0), and derives Swift's e0 = (Y0 / K)^(1/n) from the yield stress.
 """
 
+from __future__ import annotations
+
 import math
 
 import numba
@@ -60,7 +62,7 @@ _SQRT3_2 = math.sqrt(1.5)
 
 
 @numba.njit(cache=True)
-def yield_stress(law, hp, ep):
+def yield_stress(law: int, hp: np.ndarray, ep: float) -> tuple[float, float]:
     """Flow stress and its slope at equivalent plastic strain ep: returns (Y, dY/dep)."""
     if law == PERFECT:
         return hp[0], 0.0
@@ -76,7 +78,7 @@ def yield_stress(law, hp, ep):
 
 
 @numba.njit(cache=True)
-def hardening_work(law, hp, ep_a, ep_b):
+def hardening_work(law: int, hp: np.ndarray, ep_a: float, ep_b: float) -> float:
     """Closed-form integral of Y(s) ds from ep_a to ep_b (cancellation-free for ep_b ~ ep_a)."""
     d = ep_b - ep_a
     if law == PERFECT:
@@ -95,7 +97,7 @@ def hardening_work(law, hp, ep_a, ep_b):
 
 
 @numba.njit(cache=True)
-def _trial(eps_tr):
+def _trial(eps_tr: np.ndarray) -> tuple[float, np.ndarray, float]:
     """Trace, deviator (3,) and deviator norm of the trial strain."""
     tr = eps_tr[0] + eps_tr[1] + eps_tr[2]
     e = eps_tr - tr / 3.0
@@ -103,7 +105,7 @@ def _trial(eps_tr):
 
 
 @numba.njit(cache=True)
-def _solve_dgamma(q_tr, ep_n, mu, law, hp):
+def _solve_dgamma(q_tr: float, ep_n: float, mu: float, law: int, hp: np.ndarray) -> float:
     """Root of q_tr - 3 mu dg - Y(ep_n + dg) = 0 on [0, q_tr / (3 mu)] (R(0) > 0 >= R(hi)).
 
     Newton kept inside a shrinking bracket, bisection when a step leaves it. Converged when the
@@ -134,7 +136,7 @@ def _solve_dgamma(q_tr, ep_n, mu, law, hp):
 
 
 @numba.njit(cache=True)
-def _dgamma(eps_tr, ep_n, mu, law, hp):
+def _dgamma(eps_tr: np.ndarray, ep_n: float, mu: float, law: int, hp: np.ndarray) -> float:
     """Plastic multiplier dg >= 0 for trial strain eps_tr (0 in the elastic branch)."""
     _, _, r = _trial(eps_tr)
     q_tr = _SQRT6 * mu * r
@@ -145,7 +147,8 @@ def _dgamma(eps_tr, ep_n, mu, law, hp):
 
 
 @numba.njit(cache=True)
-def return_map(eps_tr, ep_n, mu, lam, law, hp):
+def return_map(eps_tr: np.ndarray, ep_n: float, mu: float, lam: float, law: int,
+               hp: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, float, float]:
     """Incremental potential at one quadrature point.
 
     eps_tr (3,) principal trial log strains, ep_n equivalent plastic strain at step start.
@@ -183,7 +186,8 @@ def net_plastic_strain(fp_inv: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def plastic_flow(eps_tr, ep_n, mu, law, hp):
+def plastic_flow(eps_tr: np.ndarray, ep_n: float, mu: float, law: int,
+                 hp: np.ndarray) -> tuple[np.ndarray, float]:
     """Principal plastic log-strain increment dg N, shape (3,), trace zero to round-off, and dg:
     the one return the commit needs (the multiplier is solved once)."""
     dg = _dgamma(eps_tr, ep_n, mu, law, hp)
@@ -196,6 +200,7 @@ def plastic_flow(eps_tr, ep_n, mu, law, hp):
 
 
 @numba.njit(cache=True)
-def plastic_strain_increment(eps_tr, ep_n, mu, lam, law, hp):
+def plastic_strain_increment(eps_tr: np.ndarray, ep_n: float, mu: float, lam: float, law: int,
+                             hp: np.ndarray) -> np.ndarray:
     """Principal plastic log-strain increment dg N, shape (3,), trace zero to round-off."""
     return plastic_flow(eps_tr, ep_n, mu, law, hp)[0]

@@ -55,7 +55,7 @@ class Model:
     motions: list
     built: dict = field(init=False)  # describe(self)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         self.built = describe(self)
 
     @property

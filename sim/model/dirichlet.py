@@ -9,7 +9,7 @@ import numpy as np
 
 from sim.geometry import trimesh as meshes
 from sim.geometry.shell import Shell
-from sim.scene.boundary import RegionSpec
+from sim.scene.boundary import BCSpec, RegionSpec
 from sim.scene.load import Scene
 
 
@@ -125,7 +125,7 @@ def dirichlet(scene: Scene, shell: Shell, regions: dict[str, np.ndarray], tools:
     return out
 
 
-def _hold(out: Dirichlet, i: int, bc, nodes: np.ndarray, comps: list[int]) -> None:
+def _hold(out: Dirichlet, i: int, bc: BCSpec, nodes: np.ndarray, comps: list[int]) -> None:
     """BC ``i`` holds ``comps`` of ``nodes``: displaced, bent or moved along keyframes."""
     if bc.bend is not None:
         # 'x' alone: the end section is turned like a rotated wall but free to move

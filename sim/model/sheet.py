@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.elements.base import Prism
 from sim.geometry import trimesh as meshes
 from sim.scene.fields import MAX_LENGTH
 from sim.scene.load import Scene
@@ -87,7 +88,7 @@ def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray, dict]:
 
 
 
-def quadrature_rule(scene: Scene, elem, mesh) -> tuple[tuple[int, int], str]:
+def quadrature_rule(scene: Scene, elem: Prism, mesh: meshes.TriMesh) -> tuple[tuple[int, int], str]:
     """The scene's rule, else the element's default, unless the default has spurious
     zero-energy modes on this mesh: on edge-connected patches of one or two triangles (a lone
     element, a pair, or a patch hanging by a vertex) the paper's one-point in-plane rules
@@ -107,7 +108,7 @@ def quadrature_rule(scene: Scene, elem, mesh) -> tuple[tuple[int, int], str]:
 
 
 
-def rule_of(scene: Scene, elem, mesh) -> tuple[tuple[int, int], str]:
+def rule_of(scene: Scene, elem: Prism, mesh: meshes.TriMesh) -> tuple[tuple[int, int], str]:
     """:func:`quadrature_rule` with the scene's thickness point count, when it gives one."""
     rule_spec, why = quadrature_rule(scene, elem, mesh)
     if scene.shell.thickness_points:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim.geometry.quadrature import Rule
 from sim.geometry.shell import Shell
 from sim.materials.plasticity import LINEAR, PERFECT, SWIFT, VOCE
 from sim.scene.load import Scene
@@ -38,14 +39,14 @@ def material_params(m: MaterialSpec) -> np.ndarray:
 
 
 
-def elasticity(scene: Scene, shell: Shell, rule, pattern: Pattern) -> Elasticity:
+def elasticity(scene: Scene, shell: Shell, rule: Rule, pattern: Pattern) -> Elasticity:
     m = scene.material
     return Elasticity(shell, rule, MODEL_IDS[m.model], material_params(m), pattern,
                       PROJECTIONS[scene.solver.hessian_projection],
                       plastic=m.model == "plastic")
 
 
-def inertia(scene: Scene, shell: Shell, rule, elastic: Elasticity, pattern: Pattern,
+def inertia(scene: Scene, shell: Shell, rule: Rule, elastic: Elasticity, pattern: Pattern,
             x0: np.ndarray, n_tool_dofs: int) -> Inertia | None:
     """Dynamic stepping's inertia (lumped mass; the force-controlled tools' rows massless)."""
     if scene.stepping.kind != "dynamic":
@@ -68,7 +69,7 @@ def tool_pairs(shell: Shell, candidates: np.ndarray, n_tool_dofs: int) -> np.nda
                            for row in range(shell.n_nodes, shell.n_nodes + n_tool_dofs)])
 
 
-def tools(scene, shell, pattern, nodes) -> list[ToolContact]:
+def tools(scene: Scene, shell: Shell, pattern: Pattern, nodes: np.ndarray) -> list[ToolContact]:
     """One contact term per tool over the candidate skin nodes; force-controlled tools get the
     next extra row of x for their z offset."""
     if not scene.tools:
@@ -100,7 +101,8 @@ def tools(scene, shell, pattern, nodes) -> list[ToolContact]:
     return out
 
 
-def external_force(scene, shell, rule, elastic, regions, x0) -> loads.ExternalForce | None:
+def external_force(scene: Scene, shell: Shell, rule: Rule, elastic: Elasticity,
+                   regions: dict[str, np.ndarray], x0: np.ndarray) -> loads.ExternalForce | None:
     if not scene.loads:
         return None
     f = np.zeros((len(x0), 3))

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, ClassVar, Literal
+from typing import Annotated, ClassVar, Literal, Self
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
@@ -50,7 +50,7 @@ class RegionSpec(Strict):
     boundary: bool = False  # only nodes on the mesh boundary
 
     @model_validator(mode="after")
-    def _one_shape(self):
+    def _one_shape(self) -> Self:
         if sum(s is not None for s in (self.box, self.plane, self.ring)) != 1:
             raise ValueError("a region needs exactly one of box, plane or ring")
         return self
@@ -89,7 +89,7 @@ class BCSpec(Strict):
     release_only: bool = False
 
     @model_validator(mode="after")
-    def _motion(self):
+    def _motion(self) -> Self:
         if len(set(self.components)) != len(self.components):
             raise ValueError(f"components: {self.components!r} names a component twice")
         if not self.keyframes:
@@ -135,7 +135,7 @@ class LoadSpec(Strict):
         return v
 
     @model_validator(mode="after")
-    def _fields(self):
+    def _fields(self) -> Self:
         need = {"gravity": ["vector"], "traction": ["vector", "region"],
                 "pressure": ["value"], "point": ["vector", "point"]}[self.kind]
         missing = [k for k in need if getattr(self, k) is None]

@@ -3,6 +3,7 @@ and the strict base model of every table. Units SI (m, Pa, kg, s, N)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Annotated
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
@@ -35,8 +36,9 @@ MAX_ANGLE = 1e3
 MAX_SLOPE = 1e6  # a thickness gradient: a kilometre of thickness per millimetre
 
 
-def bounded(lo: float, hi: float, lo_open: bool = True):
-    """A float in ``(lo, hi]`` (``[lo, hi]`` when not ``lo_open``)."""
+def bounded(lo: float, hi: float, lo_open: bool = True) -> type[float]:
+    """A float in ``(lo, hi]`` (``[lo, hi]`` when not ``lo_open``): an ``Annotated`` float,
+    typed as pydantic types its own constrained floats (``confloat``)."""
     return Annotated[float, Field(le=hi, **({"gt": lo} if lo_open else {"ge": lo}))]
 
 
@@ -63,7 +65,7 @@ Direction = Annotated[Vec3, AfterValidator(_nonzero)]
 Direction2 = Annotated[tuple[float, float], AfterValidator(_nonzero)]
 
 
-def check_magnitude(values, bound: float, unit: str) -> None:
+def check_magnitude(values: Iterable[float], bound: float, unit: str) -> None:
     """Each of ``values`` (finite already) within ``bound`` in size."""
     big = max((abs(v) for v in values), default=0.0)
     if big > bound:

@@ -10,6 +10,7 @@ import json
 import re
 import tomllib
 from pathlib import Path
+from typing import Any, Self
 
 from pydantic import ValidationError, model_validator
 
@@ -41,7 +42,7 @@ class Scene(Strict):
     study: StudySpec | None = None
 
     @model_validator(mode="after")
-    def _references(self):
+    def _references(self) -> Self:
         if self.shell.element not in ELEMENTS:
             raise ValueError(f"shell.element: unknown {self.shell.element!r}, "
                              f"known: {sorted(ELEMENTS)}")
@@ -100,7 +101,7 @@ PATH_PREFIX = re.compile(r"^([A-Za-z_]\w*(?:\.\w+)*): (.+)$", re.S)
 BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 
 
-def _key(part) -> str:
+def _key(part: str | int) -> str:
     """A part of a field's path as TOML writes it: bare when it can be, else quoted (so an
     empty key shows as "")."""
     return str(part) if BARE_KEY.fullmatch(str(part)) else json.dumps(part)
@@ -128,7 +129,7 @@ def joined(errors: list[dict]) -> str:
     return "; ".join(f"{e['loc']}: {e['msg']}" for e in errors)
 
 
-def parse_value(text: str):
+def parse_value(text: str) -> Any:
     """A TOML value (number, bool, array, quoted string); bare words are strings."""
     try:
         return tomllib.loads(f"v = {text}")["v"]
@@ -136,7 +137,7 @@ def parse_value(text: str):
         return text
 
 
-def apply_override(raw: dict, key: str, value) -> None:
+def apply_override(raw: dict, key: str, value: Any) -> None:
     """Set ``raw[a][b]...`` for ``key = "a.b..."``; list items by index (``loads.0.vector``)."""
     parts = key.split(".")
     if not all(parts):

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Self
 
 from pydantic import Field, model_validator
 
@@ -24,7 +24,7 @@ class SteppingSpec(Strict):
     release: bool = False
 
     @model_validator(mode="after")
-    def _dt(self):
+    def _dt(self) -> Self:
         if self.kind == "dynamic" and self.dt is None:
             raise ValueError("dynamic stepping needs dt")
         return self
@@ -51,7 +51,7 @@ class ProbeSpec(Strict):
     region: str | None = None
 
     @model_validator(mode="after")
-    def _fields(self):
+    def _fields(self) -> Self:
         for need in PROBES[self.kind].needs:
             if getattr(self, need) is None:
                 raise ValueError(f"a {self.kind} probe needs {need}")
@@ -84,7 +84,7 @@ class StudySpec(Strict):
     analytic: Literal["euler_bernoulli", "springback"] | None = None
 
     @model_validator(mode="after")
-    def _what(self):
+    def _what(self) -> Self:
         if self.measure == "profile" and self.section is None:
             raise ValueError("a profile study needs section")
         if self.analytic and self.measure != "final":

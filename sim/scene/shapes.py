@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Self
 
 from pydantic import Field, model_validator
 
@@ -61,7 +61,7 @@ class _Shape(Strict):
     rotation: Rotation = (0.0, 0.0, 0.0)
 
     @model_validator(mode="after")
-    def _needs(self):
+    def _needs(self) -> Self:
         if self.kind == "box" and self.half_extents is None:
             raise ValueError("a box needs half_extents")
         if self.kind in ("die_ring", "blank_holder") and self.inner_radius >= self.outer_radius:
@@ -131,7 +131,7 @@ class ToolSpec(Strict):
     stop: Coord | None = None
 
     @model_validator(mode="after")
-    def _force_axis(self):
+    def _force_axis(self) -> Self:
         if self.force is not None and self.velocity[2] != 0.0:
             raise ValueError("a force-controlled tool moves in z by itself: velocity z must be 0")
         times = [k[0] for k in self.keyframes]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, ClassVar, Literal
+from typing import Annotated, ClassVar, Literal, Self
 
 from pydantic import Field, model_validator
 
@@ -42,7 +42,7 @@ class MeshSpec(Strict):
     imperfection: Coord = 0.0
 
     @model_validator(mode="after")
-    def _needs(self):
+    def _needs(self) -> Self:
         need = {"rectangle": ["size", "edge_length"], "annulus": ["r_outer", "edge_length"],
                 "disk": ["r_outer", "edge_length"],
                 "cylinder_band": ["radius", "height", "edge_length"], "file": ["path"]}[self.kind]
@@ -75,7 +75,7 @@ class ShellSpec(Strict):
     thickness_points: Annotated[int, Field(ge=1, le=20)] | None = None
 
     @model_validator(mode="after")
-    def _one_thickness(self):
+    def _one_thickness(self) -> Self:
         given = [k for k in ("thickness", "thickness_file", "thickness_attribute")
                  if getattr(self, k) is not None]
         if len(given) != 1:
@@ -119,7 +119,7 @@ class Hardening(Strict):
         "perfect": (), "linear": ("modulus",), "swift": ("K", "n"), "voce": ("saturation", "rate")}
 
     @model_validator(mode="after")
-    def _own_fields(self):
+    def _own_fields(self) -> Self:
         for other, names in self.FIELDS.items():
             for name in names:
                 if other != self.law and getattr(self, name) is not None \
@@ -142,7 +142,7 @@ class MaterialSpec(Strict):
     hardening: Hardening = Hardening()
 
     @model_validator(mode="after")
-    def _plastic_fields(self):
+    def _plastic_fields(self) -> Self:
         if self.model != "plastic":
             if self.yield_stress is not None:
                 raise ValueError(f"yield_stress: only used by model 'plastic' (not "

@@ -22,7 +22,7 @@ def _not_text(s: str) -> str | None:
         return f"{s[exc.start]!r} at character {exc.start} is not text (a lone surrogate)"
 
 
-def tree_problem(data, limit: int = MAX_DEPTH, prefix: tuple = ()) -> str | None:
+def tree_problem(data: object, limit: int = MAX_DEPTH, prefix: tuple = ()) -> str | None:
     """A problem of ``data`` as ``"<path>: <reason>"`` (the path of keys and indices
     from ``prefix``), or None. Iterative: it must not overflow on what it checks."""
     stack = [(prefix, data)]

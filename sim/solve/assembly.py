@@ -42,10 +42,11 @@ def element_dofs(conn: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _packed_slots(indptr, indices, dofs):
-    """Global slot of each upper-triangle entry (r <= c) of each element matrix, packed row by
-    row ``(n_elem, k (k+1) / 2)``, int32: half the entries of a full k x k map at half the
-    width, which is what the scatter streams through memory every assembly."""
+def _packed_slots(indptr: np.ndarray, indices: np.ndarray, dofs: np.ndarray) -> np.ndarray:
+    """Global slot of each upper-triangle entry (r <= c) of each element matrix (its DoFs
+    ``dofs (n_elem, k)``), packed row by row ``(n_elem, k (k+1) / 2)``, int32: half the
+    entries of a full k x k map at half the width, which is what the scatter streams through
+    memory every assembly."""
     n_e, k = dofs.shape
     out = np.empty((n_e, k * (k + 1) // 2), np.int32)
     for e in range(n_e):
@@ -62,7 +63,7 @@ def _packed_slots(indptr, indices, dofs):
 
 
 @njit(cache=True)
-def _slots(indptr, indices, dofs):
+def _slots(indptr: np.ndarray, indices: np.ndarray, dofs: np.ndarray) -> np.ndarray:
     n_e, k = dofs.shape
     out = np.full((n_e, k, k), -1, np.int64)
     for e in range(n_e):
@@ -101,7 +102,8 @@ BLOCK = 64
 
 
 @njit(cache=True)
-def _color_blocks(conn, order, block_ptr, n_nodes, max_colors):
+def _color_blocks(conn: np.ndarray, order: np.ndarray, block_ptr: np.ndarray, n_nodes: int,
+                  max_colors: int) -> np.ndarray:
     """First colour, per block, none of whose blocks touches any of its nodes."""
     n_b = len(block_ptr) - 1
     color = np.full(n_b, -1, np.int64)
@@ -168,8 +170,10 @@ def build_pattern(conn: np.ndarray, n_nodes: int, pairs: np.ndarray | None = Non
 
 
 @njit(cache=True)
-def scatter_node_blocks(data, node_slots, nodes, blocks):
-    """data[slots] += blocks for 3x3 node blocks ``(n, 3, 3)`` at ``nodes (n,)``."""
+def scatter_node_blocks(data: np.ndarray, node_slots: np.ndarray, nodes: np.ndarray,
+                        blocks: np.ndarray) -> None:
+    """data[slots] += blocks for 3x3 node blocks ``(n, 3, 3)`` at ``nodes (n,)``; node_slots
+    ``(n_nodes, 3, 3)`` (:class:`Pattern`)."""
     for t in range(len(nodes)):
         s = node_slots[nodes[t]]
         for i in range(3):
@@ -179,8 +183,10 @@ def scatter_node_blocks(data, node_slots, nodes, blocks):
 
 
 @njit(cache=True)
-def sym_matvec(indptr, indices, data, x):
-    """y = A x for the symmetric A stored as its upper triangle in CSR."""
+def sym_matvec(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray,
+               x: np.ndarray) -> np.ndarray:
+    """y = A x (n,) for the symmetric A stored as its upper triangle in CSR (indptr (n + 1,),
+    indices and data (nnz,))."""
     n = len(indptr) - 1
     y = np.zeros(n)
     for r in range(n):

@@ -17,14 +17,28 @@ import ctypes
 import glob
 import os
 import sys
+from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from sim.solve.assembly import Pattern
+
 
 class SingularMatrix(RuntimeError):
     """The matrix is not positive definite (zero/negative pivot)."""
+
+
+class LinearSolver(Protocol):
+    """What ``make_solver`` returns: ``factor`` the Hessian data ``(nnz,)`` of its pattern,
+    then ``solve`` for right-hand sides ``(n_dof,)``."""
+
+    name: str
+
+    def factor(self, data: np.ndarray) -> None: ...
+
+    def solve(self, b: np.ndarray) -> np.ndarray: ...
 
 
 def _find_mkl() -> ctypes.CDLL | None:
@@ -56,7 +70,7 @@ class Pardiso:
 
     name = "pardiso"
 
-    def __init__(self, pattern):
+    def __init__(self, pattern: Pattern):
         lib = mkl()
         if lib is None:
             raise ImportError("libmkl_rt not found (pip install pypardiso)")
@@ -87,7 +101,7 @@ class Pardiso:
         x = np.zeros_like(b)
         err = ctypes.c_int32(0)
 
-        def i32(v):
+        def i32(v: int) -> ctypes._CArgObject:
             return ctypes.byref(ctypes.c_int32(v))
 
         self._f(self.pt.ctypes.data, i32(1), i32(1), i32(2), i32(phase), i32(self.n),
@@ -108,7 +122,7 @@ class Pardiso:
     def solve(self, b: np.ndarray) -> np.ndarray:
         return self._call(33, np.ascontiguousarray(b, float))
 
-    def __del__(self):
+    def __del__(self) -> None:
         try:
             self._call(-1, np.zeros(self.n))
         except Exception:  # noqa: BLE001 - interpreter shutdown
@@ -121,7 +135,7 @@ class SciPyLU:
 
     name = "scipy"
 
-    def __init__(self, pattern):
+    def __init__(self, pattern: Pattern):
         self.pattern = pattern
         self._lu = None
 
@@ -143,7 +157,7 @@ class SciPyLU:
 BACKENDS = {"pardiso": Pardiso, "scipy": SciPyLU}
 
 
-def make_solver(pattern, backend: str = "auto"):
+def make_solver(pattern: Pattern, backend: str = "auto") -> Pardiso | SciPyLU:
     """``auto`` picks PARDISO when MKL is installed, else SciPy."""
     if backend == "auto":
         backend = "pardiso" if mkl() is not None else "scipy"
@@ -152,5 +166,5 @@ def make_solver(pattern, backend: str = "auto"):
     return BACKENDS[backend](pattern)
 
 
-def full_matrix(pattern, data) -> sp.csr_matrix:
+def full_matrix(pattern: Pattern, data: np.ndarray) -> sp.csr_matrix:
     return pattern.matrix(data)

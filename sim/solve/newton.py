@@ -16,6 +16,7 @@ import numpy as np
 from sim.solve.linsolve import SingularMatrix
 from sim.solve.problem import (
     FLOOR_MARGIN,
+    Evaluation,
     Floor,
     Problem,
     factor_shifted,
@@ -100,14 +101,14 @@ class Newton:
     rel: float = 0.0  # relative residual of the last linear solve
     inexact: int = 0  # such solves in a row leaving over 1 % of the residual
     at_floor: int = 0  # iterations in a row at the round-off floor
-    trial: tuple | None = None  # the full step's evaluation (Problem.evaluate at x + dx)
+    trial: Evaluation | None = None  # the full step's evaluation (Problem.evaluate at x + dx)
 
-    def result(self, x, ok, it, E, reason="") -> NewtonResult:
+    def result(self, x: np.ndarray, ok: bool, it: int, E: float, reason: str = "") -> NewtonResult:
         self.timing.iterations = it
         return NewtonResult(x, ok, it, E, self.res, reason, self.timing, self.ref,
                             self.floor.force if self.floor else None)
 
-    def evaluate(self, y):
+    def evaluate(self, y: np.ndarray) -> Evaluation:
         t = time.perf_counter()
         out = self.problem.evaluate(y, exact=self.settings.try_exact)
         self.timing.assembly += time.perf_counter() - t
@@ -188,7 +189,7 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
     raise AssertionError("unreachable")
 
 
-def _iterate(nt: Newton, x: np.ndarray, out, force_level: float,
+def _iterate(nt: Newton, x: np.ndarray, out: Evaluation, force_level: float,
              reactions: bool) -> tuple[Iterate, str]:
     """The iterate x of an evaluation ``out`` (Problem.evaluate), its residual recorded and
     the force level updated; a reason when it cannot be iterated from."""
@@ -304,7 +305,9 @@ def _floor_exit(nt: Newton, cur: Iterate, it: int, dx: np.ndarray, newton: bool,
     return None
 
 
-def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray, trial):
+def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
+                 trial: Evaluation | None) -> (tuple[np.ndarray, Evaluation | None, bool]
+                                               | NewtonResult):
     """Backtracking along ``dx`` from the full step (evaluated: ``trial``). Returns the new
     iterate, its full evaluation when it is the full step (else None) and whether the energy
     decided; or the failed result."""

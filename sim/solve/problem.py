@@ -9,14 +9,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.solve.assembly import sym_matvec
-from sim.solve.linsolve import SingularMatrix
+from sim.solve.assembly import Pattern, sym_matvec
+from sim.solve.linsolve import LinearSolver, SingularMatrix
+from sim.terms import Term
+
+# Problem.evaluate's result: energy, its round-off scale, gradient (n, 3), Hessian data (nnz,)
+# and the applied forces (largest 2-norm, sum of the resultants' magnitudes)
+Evaluation = tuple[float, float, np.ndarray, np.ndarray, tuple[float, float]]
 
 
 class Problem:
     """The sum of energy terms with Dirichlet DoFs ``fixed (n_nodes, 3) bool``."""
 
-    def __init__(self, terms, pattern, solver, fixed: np.ndarray):
+    def __init__(self, terms: list[Term], pattern: Pattern, solver: LinearSolver,
+                 fixed: np.ndarray):
         self.terms, self.pattern, self.solver = terms, pattern, solver
         self.set_fixed(fixed)
 
@@ -44,10 +50,10 @@ class Problem:
     def hessian(self, x: np.ndarray) -> np.ndarray:
         return self.evaluate(x)[3]
 
-    def gradient_hessian(self, x: np.ndarray, exact: bool = False):
+    def gradient_hessian(self, x: np.ndarray, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
         return self.evaluate(x, exact)[2:4]
 
-    def evaluate(self, x: np.ndarray, exact: bool = False):
+    def evaluate(self, x: np.ndarray, exact: bool = False) -> Evaluation:
         """Energy, its round-off scale (sum of the terms' absolute energies), gradient, Hessian
         data with Dirichlet rows/columns replaced by identity, and the applied forces as
         (largest 2-norm, sum of the resultants' magnitudes) of the gradients of the terms other
@@ -76,7 +82,8 @@ class Problem:
         return (E if np.isfinite(E) else np.inf), mag, g, data, (level, applied)
 
 
-def solve_refined(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinements: int = 2):
+def solve_refined(problem: Problem, data: np.ndarray, rhs: np.ndarray,
+                  refinements: int = 2) -> tuple[np.ndarray, float]:
     """Solve with iterative refinement against the unshifted matrix: thin, nearly
     incompressible shells have condition numbers near 1e12 and one solve alone leaves residuals
     that stall Newton well above its tolerance. A refinement that does not lower the residual

@@ -4,12 +4,16 @@ a converged solve the stepping refreshes them and solves again until they no lon
 
 from __future__ import annotations
 
-from sim.solve.newton import minimise
+import numpy as np
+
+from sim.solve.newton import NewtonResult, NewtonSettings, Timing, minimise
+from sim.solve.problem import Problem
 from sim.terms.tool_contact import ToolContact
 
 
-def settle_friction(problem, x, settings, force_level, timing, reactions=False, tol=1e-3,
-                    max_solves=4):
+def settle_friction(problem: Problem, x: np.ndarray, settings: NewtonSettings, force_level: float,
+                    timing: Timing, reactions: bool = False, tol: float = 1e-3,
+                    max_solves: int = 4) -> tuple[np.ndarray, NewtonResult | None, int, float]:
     """Fixed point of the lagged normal force within a step: friction uses the normal forces
     frozen at the start of the solve (a potential, so Newton applies); after convergence they
     are refreshed from the converged state and the step is solved again from there until they

@@ -7,6 +7,7 @@ Data flows one way: Scene -> Model -> Simulation.step() -> StepRecord / Frame.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -79,7 +80,7 @@ class Simulation:
     PARAMETERS = {"load_scale": (0.0, 100.0), "tool_speed": (0.0, 10.0),
                   "friction_scale": (0.0, 10.0), "holder_force_scale": (0.0, 10.0)}
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         self.parameters = {k: 1.0 for k in self.PARAMETERS}
         self.tools = [t for t in self.model.terms if isinstance(t, ToolContact)]
         self._mu0 = {t.tool: t.mu for t in self.tools}
@@ -349,7 +350,7 @@ class Simulation:
                     {"step": self.step_index, "time": self.t,
                      **fields.section(self.model, self.x, self._sections[sp.name])})
 
-    def run(self, progress=None) -> bool:
+    def run(self, progress: Callable[[Simulation, StepRecord], None] | None = None) -> bool:
         """Step to the end; returns converged. ``progress(sim, record)`` after each step."""
         while not self.done:
             try:

@@ -66,6 +66,7 @@ import math
 
 import numba
 import numpy as np
+import numpy.typing as npt
 
 from sim.materials.isotropic import eigh3
 from sim.tools.evaluate import sdf_world, sdf_world_distance
@@ -80,7 +81,7 @@ DESIGN_PRESSURE = 4e-3
 
 
 @numba.njit(cache=True)
-def _penalty_scalar(d, k, delta, c2):
+def _penalty_scalar(d: float, k: float, delta: float, c2: bool) -> tuple[float, float, float]:
     """(e, e', e'') of the per-node penalty as a function of the distance d."""
     s = delta - d
     if s <= 0.0:
@@ -95,14 +96,15 @@ def _penalty_scalar(d, k, delta, c2):
 
 
 @numba.njit(cache=True)
-def _psd3(A):
+def _psd3(A: np.ndarray) -> np.ndarray:
     """Projection of a symmetric 3 x 3 matrix onto the PSD cone (negative eigenvalues -> 0)."""
     w, V = eigh3(A)
     return (V * np.maximum(w, 0.0)) @ np.ascontiguousarray(V.T)
 
 
 @numba.njit(cache=True)
-def _penalty_kernel(d, g, H, k, delta, c2, project_psd):
+def _penalty_kernel(d: np.ndarray, g: np.ndarray, H: np.ndarray, k: float, delta: float, c2: bool,
+                    project_psd: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n = d.shape[0]
     e = np.empty(n)
     grad = np.empty((n, 3))
@@ -123,14 +125,14 @@ def _penalty_kernel(d, g, H, k, delta, c2, project_psd):
 
 
 @numba.njit(cache=True)
-def _normal_force_kernel(d, k, delta, c2):
+def _normal_force_kernel(d: np.ndarray, k: float, delta: float, c2: bool) -> np.ndarray:
     lam = np.empty(d.shape[0])
     for p in range(d.shape[0]):
         lam[p] = -_penalty_scalar(d[p], k, delta, c2)[1]
     return lam
 
 
-def _check(X, k, delta, c2):
+def _check(X: npt.ArrayLike, k: float, delta: float, c2: bool) -> np.ndarray:
     X = np.ascontiguousarray(X, dtype=np.float64)
     if X.ndim != 2 or X.shape[1] != 3:
         raise ValueError("X must have shape (n, 3)")
@@ -139,7 +141,10 @@ def _check(X, k, delta, c2):
     return X
 
 
-def penalty_contact(X, prog, R, t, k, delta, *, c2=False, project_psd=False):
+def penalty_contact(X: npt.ArrayLike, prog: npt.ArrayLike, R: npt.ArrayLike | None,
+                    t: npt.ArrayLike | None, k: float, delta: float, *, c2: bool = False,
+                    project_psd: bool = False) -> tuple[float, np.ndarray, np.ndarray,
+                                                        np.ndarray, np.ndarray]:
     """Penalty energy of nodes X (n, 3) (world) against the tool ``prog`` with pose (R, t).
 
     Returns E (float), grad (n, 3), hess (n, 3, 3), active (n,) bool (d < delta), gap (n,)
@@ -164,7 +169,9 @@ def penalty_contact(X, prog, R, t, k, delta, *, c2=False, project_psd=False):
     return float(e.sum()), grad, hess, active, gap
 
 
-def normal_forces(X, prog, R, t, k, delta, *, c2=False):
+def normal_forces(X: npt.ArrayLike, prog: npt.ArrayLike, R: npt.ArrayLike | None,
+                  t: npt.ArrayLike | None, k: float, delta: float, *,
+                  c2: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Lagged contact data for friction: (lam_n (n,) >= 0, normals (n, 3)).
 
     lam_n = -e'(d) is the magnitude of the penalty force on each node (0 outside the layer),
@@ -184,7 +191,8 @@ def normal_forces(X, prog, R, t, k, delta, *, c2=False):
     return lam, normals
 
 
-def auto_stiffness(E_young, thickness, area, *, pressure=None, penetration=0.01):
+def auto_stiffness(E_young: float, thickness: float, area: float, *, pressure: float | None = None,
+                   penetration: float = 0.01) -> float:
     """Penalty stiffness k (N/m per node) from the sheet data.
 
     Rule: a skin node carries the contact pressure p on its tributary area; ``area`` is the
@@ -221,7 +229,8 @@ def auto_stiffness(E_young, thickness, area, *, pressure=None, penetration=0.01)
 
 
 @numba.njit(cache=True)
-def _friction_kernel(X, X0, U_tool, lam, N, mu, eps):
+def _friction_kernel(X: np.ndarray, X0: np.ndarray, U_tool: np.ndarray, lam: np.ndarray,
+                     N: np.ndarray, mu: float, eps: float) -> tuple[float, np.ndarray, np.ndarray]:
     n = X.shape[0]
     E = 0.0
     grad = np.zeros((n, 3))
@@ -255,7 +264,9 @@ def _friction_kernel(X, X0, U_tool, lam, N, mu, eps):
     return E, grad, hess
 
 
-def friction(X, X_start, tool_disp, lam_n, normals, mu, eps_v):
+def friction(X: npt.ArrayLike, X_start: npt.ArrayLike, tool_disp: npt.ArrayLike,
+             lam_n: npt.ArrayLike, normals: npt.ArrayLike, mu: float,
+             eps_v: float) -> tuple[float, np.ndarray, np.ndarray]:
     """Smoothed Coulomb friction potential (IPC) with lagged normal force.
 
     X, X_start: node positions now and at the start of the step (n, 3); tool_disp (n, 3): the
@@ -274,7 +285,8 @@ def friction(X, X_start, tool_disp, lam_n, normals, mu, eps_v):
     return _friction_kernel(arrs[0], arrs[1], arrs[2], lam, arrs[3], float(mu), float(eps_v))
 
 
-def tool_displacement(X_start, R0, t0, R1, t1):
+def tool_displacement(X_start: npt.ArrayLike, R0: npt.ArrayLike | None, t0: npt.ArrayLike | None,
+                      R1: npt.ArrayLike | None, t1: npt.ArrayLike | None) -> np.ndarray:
     """Displacement (n, 3) over a step of the tool material points at X_start (world).
 
     The tool moves from pose (R0, t0) to (R1, t1): the point at x maps to
@@ -286,7 +298,7 @@ def tool_displacement(X_start, R0, t0, R1, t1):
     return ((X - t0) @ R0) @ R1.T + t1 - X
 
 
-def reaction_force(*grads):
+def reaction_force(*grads: npt.ArrayLike) -> np.ndarray:
     """Force (3,) the sheet exerts on the tool: sum of the node gradients of the contact terms.
 
     Contact forces on the nodes are f_i = -grad_i, the tool takes -sum f_i = sum grad_i; pass
@@ -295,7 +307,7 @@ def reaction_force(*grads):
     return np.sum([np.asarray(g, dtype=np.float64).sum(axis=0) for g in grads], axis=0)
 
 
-def reaction_moment(X, point, *grads):
+def reaction_moment(X: npt.ArrayLike, point: npt.ArrayLike, *grads: npt.ArrayLike) -> np.ndarray:
     """Moment (3,) about ``point`` of the force the sheet exerts on the tool through nodes X."""
     r = np.asarray(X, dtype=np.float64) - np.asarray(point, dtype=np.float64)
     return np.sum([np.cross(r, np.asarray(g, dtype=np.float64)).sum(axis=0) for g in grads],

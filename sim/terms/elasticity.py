@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from sim.geometry.quadrature import Rule
+from sim.geometry.shell import Shell
 from sim.materials.isotropic import (
     NEO_HOOKEAN,
     neo_hookean_h,
@@ -22,6 +24,7 @@ from sim.materials.isotropic import (
     stress_tangent_h,
 )
 from sim.materials.plasticity import plastic_flow
+from sim.solve.assembly import Pattern
 from sim.terms import Term
 
 PROJECT_NONE, PROJECT_QP, PROJECT_ELEMENT = 0, 1, 2
@@ -53,10 +56,17 @@ def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
 # wanted, projection) are one loop body the compiler specialises; split into calls or given its
 # scratch as a tuple it would allocate or lose that inlining in the innermost loop
 @njit(cache=True, inline='always')
-def _element(x, rest, nodes, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want, project, g,  # noqa: C901
-             Kp, Kf, pos, CB, G, P, C, bT, u, FiT):
+def _element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNdX: np.ndarray,  # noqa: C901
+             wdetJ: np.ndarray, model: int, params: np.ndarray, fp_inv: np.ndarray,
+             ep: np.ndarray, plastic: bool, want: int, project: int, g: np.ndarray,
+             Kp: np.ndarray, Kf: np.ndarray, pos: np.ndarray, CB: np.ndarray, G: np.ndarray,
+             P: np.ndarray, C: np.ndarray, bT: np.ndarray, u: np.ndarray,
+             FiT: np.ndarray) -> float:
     """Energy of one element; adds its gradient into ``g (n_en*3,)`` (want >= 1) and writes the
     upper triangle of its Hessian, packed row by row, into ``Kp (k (k+1) / 2,)`` (want == 2).
+    The element: its ``nodes (n_en,)`` in x and rest ``(n_nodes, 3)``, ``dNdX (n_qp, n_en, 3)``,
+    ``wdetJ (n_qp,)``, material ``params`` (sim.materials.isotropic) and plastic state
+    ``fp_inv (n_qp, 3, 3)``, ``ep (n_qp,)`` (read when ``plastic``).
     Scratch, reused from element to element: ``Kf (k*k,)``, ``CB (3, 9, k)``,
     ``G, P, FiT (3, 3)``, ``C (9, 9)``, ``bT (3, 3, n_en)``, ``u (n_en, 3)``; ``pos`` maps a
     packed entry to its place in Kf (:func:`packed_positions`).
@@ -202,12 +212,18 @@ def packed_positions(n_en: int) -> np.ndarray:
 
 
 @njit(cache=True, parallel=True)
-def elastic_kernel(x, rest, conn, dNdX, wdetJ, model, params, fp_inv, ep, plastic, want,
-                   project, order, block_ptr, color_ptr, slots, pos, grad, data):
+def elastic_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.ndarray,
+                   wdetJ: np.ndarray, model: int, params: np.ndarray, fp_inv: np.ndarray,
+                   ep: np.ndarray, plastic: bool, want: int, project: int, order: np.ndarray,
+                   block_ptr: np.ndarray, color_ptr: np.ndarray, slots: np.ndarray, pos: np.ndarray,
+                   grad: np.ndarray, data: np.ndarray) -> float:
     """Total energy; adds the gradient into ``grad (n_nodes, 3)`` (want >= 1) and the Hessian
-    into ``data`` through the packed upper-triangle ``slots (n_elem, k (k+1) / 2)``
+    into ``data (nnz,)`` through the packed upper-triangle ``slots (n_elem, k (k+1) / 2)``
     (want == 2). Blocks of one colour share no node (:class:`sim.solve.assembly.Schedule`), so each
-    colour runs a block per thread without races. Returns inf on inversion."""
+    colour runs a block per thread without races. Returns inf on inversion.
+    x, rest ``(n_nodes, 3)``; conn ``(n_elem, n_en)``; dNdX ``(n_elem, n_qp, n_en, 3)``; wdetJ
+    ``(n_elem, n_qp)``; fp_inv ``(n_elem, n_qp, 3, 3)`` and ep ``(n_elem, n_qp)``, or their
+    empty ``(n_elem, 0, ...)`` versions when not ``plastic``; pos as in :func:`_element`."""
     n_e, n_en = conn.shape
     k = 3 * n_en
     energies = np.zeros(n_e)
@@ -243,7 +259,7 @@ def elastic_kernel(x, rest, conn, dNdX, wdetJ, model, params, fp_inv, ep, plasti
 
 
 @njit(cache=True, inline='always')
-def _displacement_gradient(u, bT, H):
+def _displacement_gradient(u: np.ndarray, bT: np.ndarray, H: np.ndarray) -> None:
     """H = sum_a u_a (x) b_a into ``H (3, 3)``; u ``(n_en, 3)``, b transposed ``(3, n_en)``."""
     for i in range(3):  # loops: inlined into a prange body, H[:] = 0 would be a nested parfor
         for J in range(3):
@@ -255,7 +271,8 @@ def _displacement_gradient(u, bT, H):
 
 
 @njit(cache=True)
-def _deformation_gradient(x, rest, nodes, b, G0):
+def _deformation_gradient(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, b: np.ndarray,
+                          G0: np.ndarray) -> np.ndarray:
     """G = G0 + sum_a (x_a - X_a) (x) b_a, G0 the gradient at rest (I, or Fp^-1)."""
     u = np.empty((nodes.shape[0], 3))
     for a in range(nodes.shape[0]):
@@ -267,7 +284,8 @@ def _deformation_gradient(x, rest, nodes, b, G0):
 
 
 @njit(cache=True, parallel=True)
-def plastic_commit_kernel(x, rest, conn, dNdX, params, fp_inv, ep):
+def plastic_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.ndarray,
+                          params: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray) -> None:
     """Return-map every quadrature point at the converged state x and update, in place,
     Fp^-1 (n_elem, n_qp, 3, 3) <- Fp_n^-1 V diag(exp(-deps_p)) V^T and ep (n_elem, n_qp) += dgamma
     (the flow is isochoric: det Fp^-1 stays 1 to round-off)."""
@@ -287,7 +305,9 @@ def plastic_commit_kernel(x, rest, conn, dNdX, params, fp_inv, ep):
 
 
 @njit(cache=True, parallel=True)
-def stress_kernel(x, rest, conn, dNdX, model, params, fp_inv, ep, plastic):
+def stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.ndarray, model: int,
+                  params: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray,
+                  plastic: bool) -> np.ndarray:
     """Von Mises equivalent of the Cauchy stress (n_elem, n_qp) at state x (with the trial
     return map at the committed plastic state)."""
     out = np.zeros(dNdX.shape[:2])
@@ -315,8 +335,8 @@ class Elasticity(Term):
 
     name = "elasticity"
 
-    def __init__(self, shell, rule, model: int, params: np.ndarray, pattern, project: int,
-                 plastic: bool = False):
+    def __init__(self, shell: Shell, rule: Rule, model: int, params: np.ndarray, pattern: Pattern,
+                 project: int, plastic: bool = False):
         _, dN = shell.element.basis(rule.points)
         self.rule = rule
         self.conn = shell.conn
@@ -334,31 +354,31 @@ class Elasticity(Term):
             self.ep = np.zeros((n_e, 0))
         self._pos = packed_positions(self.conn.shape[1])
 
-    def _run(self, x, want, grad, data):
+    def _run(self, x: np.ndarray, want: int, grad: np.ndarray, data: np.ndarray) -> float:
         sc = self.pattern.schedule
         return elastic_kernel(x, self.rest, self.conn, self.dNdX, self.wdetJ, self.model,
                               self.params, self.fp_inv, self.ep, self.plastic, want,
                               self.project, sc.order, sc.block_ptr, sc.color_ptr,
                               self.pattern.elem_slots, self._pos, grad, data)
 
-    def energy(self, x):
+    def energy(self, x: np.ndarray) -> float:
         return self._run(x, 0, np.zeros((0, 3)), np.zeros(0))
 
-    def add_gradient(self, x, g):
+    def add_gradient(self, x: np.ndarray, g: np.ndarray) -> float:
         return self._run(x, 1, g, np.zeros(0))
 
-    def add_hessian(self, x, data):
+    def add_hessian(self, x: np.ndarray, data: np.ndarray) -> float:
         return self._run(x, 2, np.zeros(x.shape), data)
 
-    def add_gradient_hessian(self, x, g, data):
+    def add_gradient_hessian(self, x: np.ndarray, g: np.ndarray, data: np.ndarray) -> float:
         return self._run(x, 2, g, data)
 
-    def commit(self, x):
+    def commit(self, x: np.ndarray) -> None:
         if self.plastic:
             plastic_commit_kernel(x, self.rest, self.conn, self.dNdX, self.params, self.fp_inv,
                                   self.ep)
 
-    def von_mises(self, x) -> np.ndarray:
+    def von_mises(self, x: np.ndarray) -> np.ndarray:
         """Von Mises stress (Pa) per element and quadrature point ``(n_elem, n_qp)``."""
         return stress_kernel(x, self.rest, self.conn, self.dNdX, self.model, self.params,
                              self.fp_inv, self.ep, self.plastic)

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.solve.assembly import scatter_node_blocks
+from sim.geometry.quadrature import Rule
+from sim.geometry.shell import Shell
+from sim.solve.assembly import Pattern, scatter_node_blocks
 from sim.terms import Term
 
 
-def lumped_mass(shell, rule, wdetJ: np.ndarray, density: float) -> np.ndarray:
+def lumped_mass(shell: Shell, rule: Rule, wdetJ: np.ndarray, density: float) -> np.ndarray:
     """HRZ lumping: diagonal of the consistent mass, rescaled to the element mass. Row sums would
     give negative corner masses for quadratic triangles. Shape (n_nodes,)."""
     N, _ = shell.element.basis(rule.points)  # (n_qp, n_en)
@@ -24,7 +26,7 @@ def lumped_mass(shell, rule, wdetJ: np.ndarray, density: float) -> np.ndarray:
 class Inertia(Term):
     name = "inertia"
 
-    def __init__(self, mass: np.ndarray, pattern, x0: np.ndarray):
+    def __init__(self, mass: np.ndarray, pattern: Pattern, x0: np.ndarray):
         self.m = mass
         self.pattern = pattern
         self.x_n = x0.copy()
@@ -33,22 +35,22 @@ class Inertia(Term):
         self.x_pred = x0.copy()
         self._nodes = np.arange(len(mass))
 
-    def begin_step(self, t, dt, x):
+    def begin_step(self, t: float, dt: float, x: np.ndarray) -> None:
         self.dt = dt
         self.x_pred = self.x_n + dt * self.v
 
-    def commit(self, x):
+    def commit(self, x: np.ndarray) -> None:
         self.v = (x - self.x_n) / self.dt
         self.x_n = x.copy()
 
-    def energy(self, x):
+    def energy(self, x: np.ndarray) -> float:
         d = x - self.x_pred
         return 0.5 / self.dt**2 * float(np.sum(self.m[:, None] * d * d))
 
-    def add_gradient(self, x, g):
+    def add_gradient(self, x: np.ndarray, g: np.ndarray) -> None:
         g += (self.m / self.dt**2)[:, None] * (x - self.x_pred)
 
-    def add_hessian(self, x, data):
+    def add_hessian(self, x: np.ndarray, data: np.ndarray) -> None:
         blocks = np.zeros((len(self.m), 3, 3))
         blocks[:, [0, 1, 2], [0, 1, 2]] = (self.m / self.dt**2)[:, None]
         scatter_node_blocks(data, self.pattern.node_slots, self._nodes, blocks)

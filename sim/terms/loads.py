@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from sim.elements.base import line_lagrange
-from sim.geometry.quadrature import line_rule, triangle_rule
+from sim.geometry.quadrature import Rule, line_rule, triangle_rule
+from sim.geometry.shell import Shell
 from sim.geometry.trimesh import edges
 from sim.terms import Term
 
@@ -26,14 +27,15 @@ class ExternalForce(Term):
         self.rest = rest
         self.factor = 0.0
 
-    def energy(self, x):
+    def energy(self, x: np.ndarray) -> float:
         return -self.factor * float(np.sum(self.f * (x - self.rest)))
 
-    def add_gradient(self, x, g):
+    def add_gradient(self, x: np.ndarray, g: np.ndarray) -> None:
         g -= self.factor * self.f
 
 
-def _scatter(shell, elems, pts, weights_vec):
+def _scatter(shell: Shell, elems: np.ndarray, pts: np.ndarray,
+             weights_vec: np.ndarray) -> np.ndarray:
     """Sum N_a(pts) * weights_vec over quadrature points into nodal forces.
 
     elems (m,), pts (m, nq, 3) reference points, weights_vec (m, nq, 3)."""
@@ -46,7 +48,7 @@ def _scatter(shell, elems, pts, weights_vec):
     return f
 
 
-def _map(shell, elems, pts):
+def _map(shell: Shell, elems: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Rest positions and reference Jacobians at reference points (m, nq, 3)."""
     m, nq = pts.shape[:2]
     N, dN = shell.element.basis(pts.reshape(-1, 3))
@@ -55,16 +57,18 @@ def _map(shell, elems, pts):
     return np.einsum("mqaj,mad->mqdj", dN, Xe)
 
 
-def body_force(shell, wdetJ: np.ndarray, rule, density_times_accel: np.ndarray) -> np.ndarray:
-    """f_a = int rho g N_a dV over every element. wdetJ (n_elem, n_qp)."""
+def body_force(shell: Shell, wdetJ: np.ndarray, rule: Rule,
+               density_times_accel: np.ndarray) -> np.ndarray:
+    """f_a = int rho g N_a dV over every element. wdetJ (n_elem, n_qp), rho g (3,)."""
     n_e = len(shell.conn)
     pts = np.broadcast_to(rule.points, (n_e,) + rule.points.shape)
     w = wdetJ[:, :, None] * np.asarray(density_times_accel)[None, None, :]
     return _scatter(shell, np.arange(n_e), pts, w)
 
 
-def _edge_faces(shell, plane_nodes_mask: np.ndarray):
-    """(element, local edge) of rim faces whose both vertices are selected boundary nodes."""
+def _edge_faces(shell: Shell, plane_nodes_mask: np.ndarray) -> list[tuple[int, int, int]]:
+    """(element, local edge) of rim faces whose both vertices are selected boundary nodes
+    (``plane_nodes_mask (n_plane,)``)."""
     F = shell.mesh.faces
     out = []
     uniq, fe = edges(F)
@@ -78,8 +82,9 @@ def _edge_faces(shell, plane_nodes_mask: np.ndarray):
 _CORNER_UV = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])  # barycentric (u, v, 1-u-v)
 
 
-def traction(shell, plane_mask: np.ndarray, t_vec: np.ndarray) -> np.ndarray:
-    """Traction ``t_vec`` (Pa, per rest area) on the rim faces of the selected boundary edges."""
+def traction(shell: Shell, plane_mask: np.ndarray, t_vec: np.ndarray) -> np.ndarray:
+    """Traction ``t_vec (3,)`` (Pa, per rest area) on the rim faces of the boundary edges
+    between selected in-plane nodes ``plane_mask (n_plane,)``."""
     faces = _edge_faces(shell, plane_mask)
     if not faces:
         raise ValueError("traction region contains no boundary edge")
@@ -102,9 +107,9 @@ def traction(shell, plane_mask: np.ndarray, t_vec: np.ndarray) -> np.ndarray:
     return _scatter(shell, elems, pts, dA[..., None] * np.asarray(t_vec)[None, None, :])
 
 
-def pressure(shell, elem_mask: np.ndarray, p: float, top: bool) -> np.ndarray:
-    """Pressure ``p`` (Pa) pushing on the top (or bottom) skin of the selected elements, along
-    the rest inward normal of that skin (a dead load)."""
+def pressure(shell: Shell, elem_mask: np.ndarray, p: float, top: bool) -> np.ndarray:
+    """Pressure ``p`` (Pa) pushing on the top (or bottom) skin of the selected elements
+    ``elem_mask (n_elem,)``, along the rest inward normal of that skin (a dead load)."""
     elems = np.flatnonzero(elem_mask)
     if len(elems) == 0:
         raise ValueError("pressure region contains no element")
@@ -117,9 +122,10 @@ def pressure(shell, elem_mask: np.ndarray, p: float, top: bool) -> np.ndarray:
     return _scatter(shell, elems, np.ascontiguousarray(pts), force)
 
 
-def point_force(shell, vertex: int, force: np.ndarray) -> np.ndarray:
-    """A force on the node column of mid-surface vertex ``vertex``, split over its layers by the
-    through-thickness integrals of the line basis (1/2, 1/2 linear; 1/6, 2/3, 1/6 quadratic)."""
+def point_force(shell: Shell, vertex: int, force: np.ndarray) -> np.ndarray:
+    """A force (3,) on the node column of mid-surface vertex ``vertex``, split over its layers by
+    the through-thickness integrals of the line basis (1/2, 1/2 linear; 1/6, 2/3, 1/6
+    quadratic)."""
     wp, ww = line_rule(shell.element.q + 1)
     L, _ = line_lagrange(shell.element.q, wp)
     share = (L * ww[:, None]).sum(0) / 2

@@ -29,9 +29,12 @@ d2E/dx_i du = -H_i, with g, H the sum of both.
 
 from __future__ import annotations
 
-import numpy as np
+from collections.abc import Sequence
 
-from sim.solve.assembly import scatter_node_blocks
+import numpy as np
+import numpy.typing as npt
+
+from sim.solve.assembly import Pattern, scatter_node_blocks
 from sim.terms import Term
 from sim.terms.contact_kernels import friction, normal_forces, penalty_contact, tool_displacement
 from sim.tools.evaluate import sdf_world_distance
@@ -40,13 +43,13 @@ from sim.tools.pose import rotation
 EYE = np.eye(3)
 
 
-def rotation_matrix(rv) -> np.ndarray:
+def rotation_matrix(rv: npt.ArrayLike) -> np.ndarray:
     """Rotation (3, 3) of a rotation vector (axis * angle, rad)."""
     angle = float(np.linalg.norm(rv))
     return rotation(rv, angle) if angle > 0 else EYE.copy()
 
 
-def quaternion_wxyz(R) -> np.ndarray:
+def quaternion_wxyz(R: np.ndarray) -> np.ndarray:
     """Unit quaternion (w, x, y, z) of a rotation matrix (for display poses)."""
     from scipy.spatial.transform import Rotation
 
@@ -61,8 +64,11 @@ class ToolContact(Term):
     presses the tool along -z; ``pair_slots (m, 3, 3)`` the CSR slots of the (node, vdof)
     blocks."""
 
-    def __init__(self, name, prog, nodes, position, velocity, k, mu, eps_v, pattern,
-                 delta=0.0, vdof=None, force=0.0, pair_slots=None, stop=None, keyframes=()):
+    def __init__(self, name: str, prog: npt.ArrayLike, nodes: npt.ArrayLike,
+                 position: npt.ArrayLike, velocity: npt.ArrayLike, k: float, mu: float,
+                 eps_v: float, pattern: Pattern, delta: float = 0.0, vdof: int | None = None,
+                 force: float = 0.0, pair_slots: np.ndarray | None = None,
+                 stop: float | None = None, keyframes: Sequence[Sequence[float]] = ()):
         self.name = f"contact:{name}"
         self.tool = name
         self.prog = np.ascontiguousarray(prog, float)
@@ -100,7 +106,7 @@ class ToolContact(Term):
         # block is indefinite next to convex tool edges (e' H with e' < 0)
         self.project = 1
 
-    def translation(self, x) -> np.ndarray:
+    def translation(self, x: np.ndarray) -> np.ndarray:
         """Where the tool is at state x (its offset is part of x under force control)."""
         return self.t_now + x[self.vdof] if self.vdof is not None else self.t_now
 
@@ -123,7 +129,7 @@ class ToolContact(Term):
         reach = float(np.linalg.norm(points - self.t_now, axis=1).max()) if turn else 0.0
         return float(np.linalg.norm(d[:3])) + turn * reach
 
-    def begin_step(self, t, dt, x):
+    def begin_step(self, t: float, dt: float, x: np.ndarray) -> None:
         step = self.path(t) - self.path(t - dt)
         step[:3] += dt * self.velocity
         step = self.speed_scale * step if self.moving else 0.0 * step
@@ -142,7 +148,7 @@ class ToolContact(Term):
             self._lag(*normal_forces(self._start, self.prog, self._R0, here, self.k,
                                      self.delta, c2=True))
 
-    def _lag(self, lam, nrm):
+    def _lag(self, lam: np.ndarray, nrm: np.ndarray) -> None:
         act = lam > 0
         # the prescribed motion over the step of the tool points under the nodes
         disp = tool_displacement(self._start[act], self._R0, self.position, self.R_now,
@@ -150,12 +156,12 @@ class ToolContact(Term):
         self.lagged = (act, self._start[act], np.ascontiguousarray(disp), lam[act], nrm[act],
                         lam)
 
-    def relag(self, x) -> float:
+    def relag(self, x: np.ndarray) -> float:
         """Take the normal forces of state x as the lagged ones; returns their largest change
         relative to the largest normal force (0 without friction)."""
         return self.lag_change(x, take=True)
 
-    def lag_change(self, x, take: bool = False) -> float:
+    def lag_change(self, x: np.ndarray, take: bool = False) -> float:
         """Largest change of the normal forces at state x from the lagged ones, relative to the
         largest (0 without friction); ``take``: they become the lagged ones."""
         if self.mu == 0:
@@ -168,11 +174,12 @@ class ToolContact(Term):
         top = float(lam.max()) if lam.size else 0.0
         return float(np.abs(lam - old).max()) / top if top > 0 else 0.0
 
-    def commit(self, x):
+    def commit(self, x: np.ndarray) -> None:
         self.position = self.t_now.copy()
         self.rot = self.rot_now.copy()
 
-    def _eval(self, x, derivs=True):
+    def _eval(self, x: np.ndarray,
+              derivs: bool = True) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(E, penalty gradient (m,3), penalty Hessian (m,3,3), friction gradient, Hessian)."""
         X = x[self.nodes]
         E, g, H, _, _ = penalty_contact(X, self.prog, self.R_now, self.translation(x), self.k,
@@ -195,23 +202,23 @@ class ToolContact(Term):
                 E += 0.5 * self.k_stop * (self.stop - u) ** 2
         return E, g, H, gf, Hf
 
-    def _stop_force(self, x) -> tuple[float, float]:
+    def _stop_force(self, x: np.ndarray) -> tuple[float, float]:
         """Derivative and stiffness of the stop spring in the tool's z."""
         u = x[self.vdof, 2]
         if self.stop is None or u >= self.stop:
             return 0.0, 0.0
         return -self.k_stop * (self.stop - u), self.k_stop
 
-    def energy(self, x):
+    def energy(self, x: np.ndarray) -> float:
         return self._eval(x)[0]
 
-    def _add_gradient(self, x, g, gp, gf):
+    def _add_gradient(self, x: np.ndarray, g: np.ndarray, gp: np.ndarray, gf: np.ndarray) -> None:
         np.add.at(g, self.nodes, gp + gf)
         if self.vdof is not None:
             g[self.vdof] -= (gp + gf).sum(0)
             g[self.vdof, 2] += self.force * self.force_scale + self._stop_force(x)[0]
 
-    def _add_hessian(self, x, data, Hp, Hf):
+    def _add_hessian(self, x: np.ndarray, data: np.ndarray, Hp: np.ndarray, Hf: np.ndarray) -> None:
         H = Hp + Hf
         scatter_node_blocks(data, self.pattern.node_slots, self.nodes, H)
         if self.vdof is not None:
@@ -221,25 +228,25 @@ class ToolContact(Term):
                                 block[None])
             _scatter_pairs(data, self.pair_slots, -H)
 
-    def add_gradient(self, x, g):
+    def add_gradient(self, x: np.ndarray, g: np.ndarray) -> None:
         _, gp, _, gf, _ = self._eval(x)
         self._add_gradient(x, g, gp, gf)
 
-    def add_hessian(self, x, data):
+    def add_hessian(self, x: np.ndarray, data: np.ndarray) -> None:
         _, _, Hp, _, Hf = self._eval(x)
         self._add_hessian(x, data, Hp, Hf)
 
-    def add_gradient_hessian(self, x, g, data):
+    def add_gradient_hessian(self, x: np.ndarray, g: np.ndarray, data: np.ndarray) -> float:
         E, gp, Hp, gf, Hf = self._eval(x)
         self._add_gradient(x, g, gp, gf)
         self._add_hessian(x, data, Hp, Hf)
         return E
 
-    def gap(self, x) -> np.ndarray:
+    def gap(self, x: np.ndarray) -> np.ndarray:
         """Signed distance (m) of each candidate node to the tool surface, negative inside."""
         return sdf_world_distance(self.prog, self.R_now, self.translation(x), x[self.nodes])
 
-    def report(self, x) -> dict[str, float]:
+    def report(self, x: np.ndarray) -> dict[str, float]:
         """Force the sheet exerts on the tool (N), nodes in contact, deepest penetration (m),
         the tool's position (x, y, z, m) and rotation vector (rx, ry, rz, rad)."""
         _, gp, _, gf, _ = self._eval(x)
@@ -254,6 +261,6 @@ class ToolContact(Term):
                 "rz": float(self.rot_now[2])}
 
 
-def _scatter_pairs(data, slots, blocks):
+def _scatter_pairs(data: np.ndarray, slots: np.ndarray, blocks: np.ndarray) -> None:
     """data[slots] += blocks for the (node, tool) blocks; every slot is above the diagonal."""
     np.add.at(data, slots.reshape(-1), blocks.reshape(-1))

@@ -6,6 +6,7 @@ nest freely."""
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from sim.tools.polygon import ccw, offset_polygon, rounded_polygon, star_points
 from sim.tools.pose import pose
@@ -27,15 +28,16 @@ from sim.tools.program import (
 )
 
 
-def plane(point, normal):
-    """Half-space tool {n.(x - p) <= 0}: the material lies opposite to ``normal``."""
+def plane(point: npt.ArrayLike, normal: npt.ArrayLike) -> np.ndarray:
+    """Half-space tool {n.(x - p) <= 0}: the material lies opposite to ``normal``; p, n (3,)."""
     n = np.asarray(normal, dtype=np.float64)
     n = n / np.linalg.norm(n)
     return program(record(OP_PLANE, np.concatenate([np.asarray(point, float), n])))
 
 
-def rounded_box(half_extents, radius, center=(0.0, 0.0, 0.0)):
-    """Box of half extents ``half_extents`` centred at ``center``, edges rounded by radius."""
+def rounded_box(half_extents: npt.ArrayLike, radius: float,
+                center: npt.ArrayLike = (0.0, 0.0, 0.0)) -> np.ndarray:
+    """Box of half extents ``half_extents`` (3,) centred at ``center`` (3,), edges rounded."""
     h = np.asarray(half_extents, dtype=np.float64)
     if h.shape != (3,) or np.any(h <= 0):
         raise ValueError("half_extents must be 3 positive numbers")
@@ -44,12 +46,12 @@ def rounded_box(half_extents, radius, center=(0.0, 0.0, 0.0)):
     return program(record(OP_BOX, np.concatenate([np.asarray(center, float), h, [radius]])))
 
 
-def box(half_extents, center=(0.0, 0.0, 0.0)):
+def box(half_extents: npt.ArrayLike, center: npt.ArrayLike = (0.0, 0.0, 0.0)) -> np.ndarray:
     """Sharp-edged box (a rounded box with radius 0)."""
     return rounded_box(half_extents, 0.0, center)
 
 
-def revolved(r0, r1, z0, z1, radius=0.0):
+def revolved(r0: float, r1: float, z0: float, z1: float, radius: float = 0.0) -> np.ndarray:
     """Solid of revolution about z of the rounded rectangle [r0, r1] x [z0, z1] (rho, z).
 
     r0 <= 0: the solid reaches the axis (a capped cylinder; no corner at the axis).
@@ -63,7 +65,7 @@ def revolved(r0, r1, z0, z1, radius=0.0):
     return program(record(OP_REVOLVE, [lo, r1, z0, z1, radius]))
 
 
-def punch(radius, height, edge_radius):
+def punch(radius: float, height: float, edge_radius: float) -> np.ndarray:
     """Cylindrical punch: rho <= radius, 0 <= z <= height, nose (z = 0) edge rounded.
 
     The local origin is the centre of the nose face; both rims are rounded with edge_radius
@@ -72,7 +74,8 @@ def punch(radius, height, edge_radius):
     return revolved(0.0, radius, 0.0, height, edge_radius)
 
 
-def die_ring(opening_radius, outer_radius, height, shoulder_radius):
+def die_ring(opening_radius: float, outer_radius: float, height: float,
+             shoulder_radius: float) -> np.ndarray:
     """Die: opening_radius <= rho <= outer_radius, -height <= z <= 0, shoulder rounded.
 
     The top face is z = 0, the shoulder is the rounded rim at (opening_radius, 0); the other
@@ -81,13 +84,15 @@ def die_ring(opening_radius, outer_radius, height, shoulder_radius):
     return revolved(opening_radius, outer_radius, -height, 0.0, shoulder_radius)
 
 
-def blank_holder(inner_radius, outer_radius, height, edge_radius=0.0):
+def blank_holder(inner_radius: float, outer_radius: float, height: float,
+                 edge_radius: float = 0.0) -> np.ndarray:
     """Blank holder ring: inner_radius <= rho <= outer_radius, 0 <= z <= height."""
     return revolved(inner_radius, outer_radius, 0.0, height, edge_radius)
 
 
-def sweep(points2d, lo, hi, z0, z1, radius=0.0):
-    """Raw SWEEP primitive (see module docstring); points2d are made counter-clockwise."""
+def sweep(points2d: npt.ArrayLike, lo: float, hi: float, z0: float, z1: float,
+          radius: float = 0.0) -> np.ndarray:
+    """Raw SWEEP primitive (see module docstring); points2d (m, 2), made counter-clockwise."""
     p = ccw(points2d)
     if not (z1 > z0 and hi > lo and not (np.isinf(lo) and np.isinf(hi))):
         raise ValueError("sweep: need lo < hi (not both infinite) and z0 < z1")
@@ -98,7 +103,8 @@ def sweep(points2d, lo, hi, z0, z1, radius=0.0):
                                                       p.ravel()])))
 
 
-def rounded_sweep(corners, lo, hi, z0, z1, radius=0.0):
+def rounded_sweep(corners: npt.ArrayLike, lo: float, hi: float, z0: float, z1: float,
+                  radius: float = 0.0) -> np.ndarray:
     """Raw RSWEEP primitive: SWEEP (see the module docstring) over a rounded polygon
     (``rounded_polygon``), w its exact signed distance."""
     C = np.asarray(corners, dtype=np.float64)
@@ -113,9 +119,9 @@ def rounded_sweep(corners, lo, hi, z0, z1, radius=0.0):
                                                        C.ravel()])))
 
 
-def extruded_polygon(points2d, z0, z1, corner_radius=0.0, edge_radius=0.0,
-                     reflex_radius=0.0):
-    """Prism over a simple 2-D polygon between z0 and z1.
+def extruded_polygon(points2d: npt.ArrayLike, z0: float, z1: float, corner_radius: float = 0.0,
+                     edge_radius: float = 0.0, reflex_radius: float = 0.0) -> np.ndarray:
+    """Prism over a simple 2-D polygon ``points2d`` (m, 2) between z0 and z1.
 
     corner_radius rounds the convex vertical edges, reflex_radius the reflex ones (0: sharp,
     a C0 ridge of the distance on the bisector outside). edge_radius rounds the rims of both
@@ -139,16 +145,17 @@ def extruded_polygon(points2d, z0, z1, corner_radius=0.0, edge_radius=0.0,
     return sweep(inner, -np.inf, corner_radius, z0, z1, edge_radius)
 
 
-def star(n_points, r_outer, r_inner, height, corner_radius=0.0, edge_radius=0.0, phase=0.0,
-         valley_radius=0.0):
+def star(n_points: int, r_outer: float, r_inner: float, height: float, corner_radius: float = 0.0,
+         edge_radius: float = 0.0, phase: float = 0.0, valley_radius: float = 0.0) -> np.ndarray:
     """Star-shaped prism (punch, or a form block), 0 <= z <= height; tips rounded by
     corner_radius, valleys (reflex corners) by valley_radius (0: sharp)."""
     return extruded_polygon(star_points(n_points, r_outer, r_inner, phase), 0.0, height,
                             corner_radius, edge_radius, valley_radius)
 
 
-def star_die(n_points, r_outer, r_inner, height, shoulder_radius, corner_radius=0.0,
-             width=None, phase=0.0, valley_radius=None):
+def star_die(n_points: int, r_outer: float, r_inner: float, height: float, shoulder_radius: float,
+             corner_radius: float = 0.0, width: float | None = None, phase: float = 0.0,
+             valley_radius: float | None = None) -> np.ndarray:
     """Die plate with a star-shaped opening: top face z = 0, bottom z = -height.
 
     The opening is the star with its tips rounded by corner_radius and its valleys by
@@ -174,29 +181,30 @@ def star_die(n_points, r_outer, r_inner, height, shoulder_radius, corner_radius=
                          shoulder_radius)
 
 
-def _combine(op, a, b, blend):
+def _combine(op: int, a: np.ndarray, b: np.ndarray, blend: float) -> np.ndarray:
     if blend < 0.0:
         raise ValueError("blend must be >= 0")
     return program(np.concatenate([body(a), body(b), record(op, [blend])]))
 
 
-def union(a, b, blend=0.0):
+def union(a: np.ndarray, b: np.ndarray, blend: float = 0.0) -> np.ndarray:
     """a or b: exact min for blend = 0 (C0 crease), cubic smooth min (C2) of width blend."""
     return _combine(OP_UNION, a, b, blend)
 
 
-def intersect(a, b, blend=0.0):
+def intersect(a: np.ndarray, b: np.ndarray, blend: float = 0.0) -> np.ndarray:
     """a and b: exact max for blend = 0, smooth max of width blend."""
     return _combine(OP_INTERSECT, a, b, blend)
 
 
-def subtract(a, b, blend=0.0):
+def subtract(a: np.ndarray, b: np.ndarray, blend: float = 0.0) -> np.ndarray:
     """a minus b = max(a, -b): exact for blend = 0, smooth (filleted) for blend > 0."""
     return _combine(OP_SUBTRACT, a, b, blend)
 
 
-def moved(a, R=None, t=None):
-    """Place program a with pose (R, t) inside a tool: x_a = R^T (x - t)."""
+def moved(a: np.ndarray, R: npt.ArrayLike | None = None,
+          t: npt.ArrayLike | None = None) -> np.ndarray:
+    """Place program a with pose (R (3, 3), t (3,)) inside a tool: x_a = R^T (x - t)."""
     R, t = pose(R, t)
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-12) or np.linalg.det(R) < 0:
         raise ValueError("R must be a proper rotation")

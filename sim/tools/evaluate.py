@@ -27,7 +27,8 @@ from sim.tools.program import (
 
 
 @numba.njit(cache=True)
-def _smin(st_d, st_g, st_H, ia, ib, k, derivs):
+def _smin(st_d: np.ndarray, st_g: np.ndarray, st_H: np.ndarray, ia: int, ib: int, k: float,
+          derivs: bool) -> None:
     """Stack slot ia := smin(slot ia, slot ib) (cubic polynomial blend, exact min if k <= 0)."""
     a = st_d[ia]
     b = st_d[ib]
@@ -60,7 +61,7 @@ def _smin(st_d, st_g, st_H, ia, ib, k, derivs):
 
 
 @numba.njit(cache=True)
-def _negate(st_d, st_g, st_H, i0, derivs):
+def _negate(st_d: np.ndarray, st_g: np.ndarray, st_H: np.ndarray, i0: int, derivs: bool) -> None:
     st_d[i0] = -st_d[i0]
     if derivs:
         for i in range(3):
@@ -70,8 +71,9 @@ def _negate(st_d, st_g, st_H, i0, derivs):
 
 
 @numba.njit(cache=True)
-def _rotate_back(R, g, H, tmp, derivs):
-    """g := R g, H := R H R^T (R: part frame -> tool frame)."""
+def _rotate_back(R: np.ndarray, g: np.ndarray, H: np.ndarray, tmp: np.ndarray,
+                 derivs: bool) -> None:
+    """g := R g, H := R H R^T (R (3, 3): part frame -> tool frame; g (3,), H, tmp (3, 3))."""
     if not derivs:
         return
     for i in range(3):
@@ -87,7 +89,7 @@ def _rotate_back(R, g, H, tmp, derivs):
 
 
 @numba.njit(cache=True)
-def _workspace():
+def _workspace() -> tuple[np.ndarray, ...]:
     st_d = np.empty(MAX_STACK)
     st_g = np.empty((MAX_STACK, 3))
     st_H = np.empty((MAX_STACK, 3, 3))
@@ -109,8 +111,15 @@ _B = numba.boolean
 # the stack machine's dispatch: one branch per opcode in the per-point loop of every contact
 # evaluation; it stays one kernel so the branches share the point's workspace in registers
 @numba.njit(numba.float64(_F1, _F1, _B, _F1, _F2, _F3, _F3, _F2, _F1, _F1, _F2), cache=True)
-def _eval_point(prog, x, derivs, st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp):  # noqa: C901
-    """Run the program at one point x (tool frame). Result in st_d[0], st_g[0], st_H[0]."""
+def _eval_point(prog: np.ndarray, x: np.ndarray, derivs: bool,  # noqa: C901
+                st_d: np.ndarray, st_g: np.ndarray, st_H: np.ndarray, fr_R: np.ndarray,
+                fr_x: np.ndarray, sc: np.ndarray, sc2: np.ndarray, tmp: np.ndarray) -> float:
+    """Run the program at one point x (3,) (tool frame). Result in st_d[0], st_g[0], st_H[0].
+
+    Workspace (``_workspace``): st_d (MAX_STACK,), st_g (MAX_STACK, 3), st_H (MAX_STACK, 3, 3)
+    the value stack; fr_R (MAX_FRAMES + 1, 3, 3), fr_x (MAX_FRAMES + 1, 3) each open frame's
+    rotation to the tool frame and local point; sc (8,), sc2 (4,), tmp (3, 3) scratch.
+    """
     if prog.shape[0] < HEADER + 2 or prog[0] != MAGIC:
         raise ValueError("not an SDF program (bad magic)")
     n = HEADER + int(prog[1])
@@ -196,7 +205,8 @@ def _eval_point(prog, x, derivs, st_d, st_g, st_H, fr_R, fr_x, sc, sc2, tmp):  #
 
 
 @numba.njit(numba.types.Tuple((_F1, _F2, _F3))(_F1, _F2, _F1, _F2, _B, _B), cache=True)
-def _run(prog, R, t, X, posed, derivs):
+def _run(prog: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray, posed: bool,
+         derivs: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """All points: x_local = R^T (x - t) when posed; g, H rotated back by R when posed."""
     n = X.shape[0]
     d = np.empty(n)
@@ -224,22 +234,23 @@ def _run(prog, R, t, X, posed, derivs):
 
 
 @numba.njit(cache=True)
-def sdf_eval(prog, X):
+def sdf_eval(prog: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """d (n,), g (n, 3), H (n, 3, 3) of the program at points X (n, 3) in the tool frame."""
     return _run(np.ascontiguousarray(prog), np.eye(3), np.zeros(3), np.ascontiguousarray(X),
                 False, True)
 
 
 @numba.njit(cache=True)
-def sdf_distance(prog, X):
+def sdf_distance(prog: np.ndarray, X: np.ndarray) -> np.ndarray:
     """Signed distance only (no derivatives, cheaper) at points X (n, 3) in the tool frame."""
     return _run(np.ascontiguousarray(prog), np.eye(3), np.zeros(3), np.ascontiguousarray(X),
                 False, False)[0]
 
 
 @numba.njit(cache=True)
-def sdf_world(prog, R, t, X):
-    """d, g, H at world points X (n, 3) of a tool with pose (R, t).
+def sdf_world(prog: np.ndarray, R: np.ndarray, t: np.ndarray,
+              X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """d, g, H at world points X (n, 3) of a tool with pose (R (3, 3), t (3,)).
 
     x_local = R^T (x - t); g_world = R g_local, H_world = R H_local R^T.
     """
@@ -248,7 +259,7 @@ def sdf_world(prog, R, t, X):
 
 
 @numba.njit(cache=True)
-def sdf_world_distance(prog, R, t, X):
+def sdf_world_distance(prog: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
     """Signed distance only at world points X (n, 3) of a tool with pose (R, t)."""
     return _run(np.ascontiguousarray(prog), np.ascontiguousarray(R), np.ascontiguousarray(t),
                 np.ascontiguousarray(X), True, False)[0]

@@ -9,9 +9,10 @@ import itertools
 import numpy as np
 
 from sim.tools.evaluate import sdf_distance
+from sim.tools.program import Node
 
 
-def tool_bounds(node):
+def tool_bounds(node: Node) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box (lo (3,), hi (3,)) of a parsed program in its frame; +-inf if open."""
     inf = np.full(3, np.inf)
     kind = node[0]
@@ -46,8 +47,10 @@ def tool_bounds(node):
     return la - k, ha + k  # subtract
 
 
-def _marching_tets(f, origin, h):
-    """Closed, outward-oriented isosurface {f = 0} of grid values f (nx, ny, nz).
+def _marching_tets(f: np.ndarray, origin: np.ndarray,
+                   h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Closed, outward-oriented isosurface {f = 0} of grid values f (nx, ny, nz) at
+    origin (3,) + h (i, j, k).
 
     Returns V (linear interpolation on the grid edges), F, and the two grid nodes (flat
     indices, f < 0 at one end, f >= 0 at the other) of each vertex's edge.
@@ -74,7 +77,7 @@ def _marching_tets(f, origin, h):
     npos = pos.sum(1)
     T, vals, pos, npos = (a[(npos > 0) & (npos < 4)] for a in (T, vals, pos, npos))
 
-    def coords(idx):
+    def coords(idx: np.ndarray) -> np.ndarray:
         i, rem = np.divmod(idx, ny * nz)
         j, k = np.divmod(rem, nz)
         return origin + h * np.stack([i, j, k], axis=-1)
@@ -115,8 +118,10 @@ def _marching_tets(f, origin, h):
     return V, F, na, nb
 
 
-def _edge_roots(prog, A, B, fa, fb, tol, iters=60):
-    """Points on the segments A -> B where the SDF vanishes (fa < 0 <= fb or fa >= 0 > fb).
+def _edge_roots(prog: np.ndarray, A: np.ndarray, B: np.ndarray, fa: np.ndarray, fb: np.ndarray,
+                tol: float, iters: int = 60) -> np.ndarray:
+    """Points (n, 3) on the segments A -> B (n, 3) where the SDF vanishes (fa < 0 <= fb or
+    fa >= 0 > fb, values (n,) at A and B, updated in place).
 
     Illinois (modified regula falsi) on every segment at once: superlinear, always bracketed,
     so each vertex stays on its own grid edge and vertices never merge, even at CSG creases.
@@ -144,7 +149,9 @@ def _edge_roots(prog, A, B, fa, fb, tol, iters=60):
     return A + t[:, None] * D
 
 
-def mesh_implicit(prog, lo, hi, resolution):
+def mesh_implicit(prog: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                  resolution: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mesh (V (m, 3), F (k, 3)) of the program's zero level set inside the box lo, hi (3,)."""
     size = hi - lo
     h = size.max() / resolution
     # pad by two cells; the irrational shift keeps grid nodes off planes aligned with the box

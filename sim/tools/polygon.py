@@ -4,16 +4,17 @@ rounded corners (the RSWEEP outline) and star outlines."""
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 
-def polygon_area(points):
+def polygon_area(points: npt.ArrayLike) -> float:
     """Signed area of a 2-D polygon (> 0 when counter-clockwise)."""
     p = np.asarray(points, dtype=np.float64)
     q = np.roll(p, -1, axis=0)
     return 0.5 * float(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]))
 
 
-def ccw(points):
+def ccw(points: npt.ArrayLike) -> np.ndarray:
     p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     if p.shape[0] < 3:
         raise ValueError("polygon needs at least 3 vertices")
@@ -23,7 +24,7 @@ def ccw(points):
     return p if a > 0 else p[::-1].copy()
 
 
-def edge_normals(points):
+def edge_normals(points: npt.ArrayLike) -> np.ndarray:
     """Outward unit normals (m, 2) of the edges i -> i + 1 of a CCW polygon."""
     p = np.asarray(points, dtype=np.float64)
     e = np.roll(p, -1, axis=0) - p
@@ -31,13 +32,13 @@ def edge_normals(points):
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
-def is_simple_polygon(P):
+def is_simple_polygon(P: np.ndarray) -> bool:
     """True if the closed polyline P (n, 2) has no two non-adjacent edges that intersect."""
     A = P
     B = np.roll(P, -1, axis=0)
     n = len(P)
 
-    def orient(p, q, r):
+    def orient(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
         return np.sign((q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1])
                        - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0]))
 
@@ -49,7 +50,7 @@ def is_simple_polygon(P):
     return not np.any(cross[i, j] & ~adjacent)
 
 
-def offset_polygon(points, dist):
+def offset_polygon(points: npt.ArrayLike, dist: float) -> np.ndarray:
     """Mitred offset of a CCW polygon by ``dist`` (> 0 outward, < 0 inward).
 
     Every edge moves by dist along its outward normal and vertices are the intersections of
@@ -69,7 +70,7 @@ def offset_polygon(points, dist):
     return q
 
 
-def rounded_polygon(points, radii):
+def rounded_polygon(points: npt.ArrayLike, radii: npt.ArrayLike) -> np.ndarray:
     """Corners (m, 8) of a simple polygon whose vertex i is rounded by an arc of radius
     radii[i] tangent to both edges: convex and reflex corners alike (0 keeps it sharp).
 
@@ -116,7 +117,7 @@ def rounded_polygon(points, radii):
     return np.column_stack([c, r, s, a, b])
 
 
-def star_points(n_points, r_outer, r_inner, phase=0.0):
+def star_points(n_points: int, r_outer: float, r_inner: float, phase: float = 0.0) -> np.ndarray:
     """Vertices (2 n_points, 2) of a star, CCW, tips at r_outer, valleys at r_inner."""
     if n_points < 2 or not 0.0 < r_inner < r_outer:
         raise ValueError("star: need n_points >= 2 and 0 < r_inner < r_outer")

@@ -1,6 +1,11 @@
 """numba kernels of the SDF primitives (sim.tools.program): plane, rounded box, the
 rounded-rectangle profile revolved about z or swept along a (rounded) polygon. Each
-writes d and, with ``derivs``, g and H of one point into the caller's workspace."""
+writes d and, with ``derivs``, g and H of one point into the caller's workspace.
+
+Shapes: prog (n_prog,) the program, b the index of the record's first parameter in it,
+x (3,) the point in the primitive's frame, g (3,) and H (3, 3) the results; scratch q, s
+(3,), prof (6,) the profile's (f, f_u, f_z, f_uu, f_uz, f_zz), gw (2,) and Hw (2, 2) the
+gradient and Hessian of the in-plane distance w."""
 
 from __future__ import annotations
 
@@ -13,7 +18,7 @@ from sim.tools.program import RCORNER
 
 
 @numba.njit(cache=True)
-def _clear(g, H):
+def _clear(g: np.ndarray, H: np.ndarray) -> None:
     for i in range(3):
         g[i] = 0.0
         for j in range(3):
@@ -21,7 +26,8 @@ def _clear(g, H):
 
 
 @numba.njit(cache=True)
-def prim_plane(prog, b, x, derivs, g, H):
+def prim_plane(prog: np.ndarray, b: int, x: np.ndarray, derivs: bool, g: np.ndarray,
+               H: np.ndarray) -> float:
     d = 0.0
     for i in range(3):
         d += prog[b + 3 + i] * (x[i] - prog[b + i])
@@ -33,7 +39,8 @@ def prim_plane(prog, b, x, derivs, g, H):
 
 
 @numba.njit(cache=True)
-def prim_box(prog, b, x, derivs, g, H, q, s):
+def prim_box(prog: np.ndarray, b: int, x: np.ndarray, derivs: bool, g: np.ndarray, H: np.ndarray,
+             q: np.ndarray, s: np.ndarray) -> float:
     """Rounded box: d = |q+| + min(max q, 0) - r with q = |x - c| - (h - r)."""
     r = prog[b + 6]
     for i in range(3):
@@ -67,7 +74,8 @@ def prim_box(prog, b, x, derivs, g, H, q, s):
 
 
 @numba.njit(cache=True)
-def _rrect2(u, z, lo, hi, z0, z1, r, out):
+def _rrect2(u: float, z: float, lo: float, hi: float, z0: float, z1: float, r: float,
+            out: np.ndarray) -> None:
     """Rounded rectangle [lo, hi] x [z0, z1] (radius r) in the (u, z) plane.
 
     out = (f, f_u, f_z, f_uu, f_uz, f_zz); lo may be -inf, hi may be +inf.
@@ -115,7 +123,8 @@ def _rrect2(u, z, lo, hi, z0, z1, r, out):
 
 
 @numba.njit(cache=True)
-def _segment_nearest(wx, wy, ex, ey, L2):
+def _segment_nearest(wx: float, wy: float, ex: float, ey: float,
+                     L2: float) -> tuple[float, float, int]:
     """The point of segment a + t e, t in [0, 1], nearest to p, with w = p - a and L2 = |e|^2:
     (squared distance, t, 1 if it is an end point else 0)."""
     t = (wx * ex + wy * ey) / L2
@@ -132,7 +141,9 @@ def _segment_nearest(wx, wy, ex, ey, L2):
 
 
 @numba.njit(cache=True)
-def _edge_or_point(px, py, qx, qy, nx, ny, best, inside, on_edge, derivs, gw, Hw):
+def _edge_or_point(px: float, py: float, qx: float, qy: float, nx: float, ny: float, best: float,
+                   inside: bool, on_edge: bool, derivs: bool, gw: np.ndarray,
+                   Hw: np.ndarray) -> float:
     """The nearest feature of a polygon scan: an edge's interior (``on_edge``: the line through
     q with outward normal n; w = n.(p - q), gw = n, Hw = 0) or a point q at squared distance
     ``best`` (w = +-|p - q|, gw = +-e, Hw = +-(I - e e^T) / |p - q|, the sign from the
@@ -163,7 +174,8 @@ def _edge_or_point(px, py, qx, qy, nx, ny, best, inside, on_edge, derivs, gw, Hw
 
 
 @numba.njit(cache=True)
-def _polygon_sd(prog, base, m, px, py, derivs, gw, Hw):
+def _polygon_sd(prog: np.ndarray, base: int, m: int, px: float, py: float, derivs: bool,
+                gw: np.ndarray, Hw: np.ndarray) -> float:
     """Signed distance w to the CCW polygon stored at prog[base: base + 2 m] (> 0 outside).
 
     Fills gw (2,) and Hw (2, 2) when derivs. Edge interior nearest: w = n.(p - a), gw = n,
@@ -204,7 +216,8 @@ def _polygon_sd(prog, base, m, px, py, derivs, gw, Hw):
 
 
 @numba.njit(cache=True)
-def _compose_profile(prof, gw, Hw, hw_scale, derivs, g, H):
+def _compose_profile(prof: np.ndarray, gw: np.ndarray, Hw: np.ndarray, hw_scale: float,
+                     derivs: bool, g: np.ndarray, H: np.ndarray) -> float:
     """d = f(w(x, y), z): chain rule from the profile derivatives and those of w.
 
     g = f_u grad w + f_z e_z,
@@ -226,7 +239,8 @@ def _compose_profile(prof, gw, Hw, hw_scale, derivs, g, H):
 
 
 @numba.njit(cache=True)
-def prim_revolve(prog, b, x, derivs, g, H, prof, gw, Hw):
+def prim_revolve(prog: np.ndarray, b: int, x: np.ndarray, derivs: bool, g: np.ndarray,
+                 H: np.ndarray, prof: np.ndarray, gw: np.ndarray, Hw: np.ndarray) -> float:
     rho = math.sqrt(x[0] * x[0] + x[1] * x[1])
     _rrect2(rho, x[2], prog[b], prog[b + 1], prog[b + 2], prog[b + 3], prog[b + 4], prof)
     if derivs:
@@ -250,7 +264,8 @@ def prim_revolve(prog, b, x, derivs, g, H, prof, gw, Hw):
 
 
 @numba.njit(cache=True)
-def prim_sweep(prog, b, x, derivs, g, H, prof, gw, Hw):
+def prim_sweep(prog: np.ndarray, b: int, x: np.ndarray, derivs: bool, g: np.ndarray, H: np.ndarray,
+               prof: np.ndarray, gw: np.ndarray, Hw: np.ndarray) -> float:
     m = int(prog[b + 5])
     w = _polygon_sd(prog, b + 6, m, x[0], x[1], derivs, gw, Hw)
     _rrect2(w, x[2], prog[b], prog[b + 1], prog[b + 2], prog[b + 3], prog[b + 4], prof)
@@ -258,7 +273,8 @@ def prim_sweep(prog, b, x, derivs, g, H, prof, gw, Hw):
 
 
 @numba.njit(cache=True)
-def _rpolygon_sd(prog, base, m, px, py, derivs, gw, Hw):
+def _rpolygon_sd(prog: np.ndarray, base: int, m: int, px: float, py: float, derivs: bool,
+                 gw: np.ndarray, Hw: np.ndarray) -> float:
     """Signed distance w to the rounded polygon stored at prog[base: base + 8 m] (> 0 outside).
 
     Corner i is an arc of radius rc about (cx, cy) from its tangent point a on the incoming
@@ -348,7 +364,8 @@ def _rpolygon_sd(prog, base, m, px, py, derivs, gw, Hw):
 
 
 @numba.njit(cache=True)
-def prim_rsweep(prog, b, x, derivs, g, H, prof, gw, Hw):
+def prim_rsweep(prog: np.ndarray, b: int, x: np.ndarray, derivs: bool, g: np.ndarray, H: np.ndarray,
+                prof: np.ndarray, gw: np.ndarray, Hw: np.ndarray) -> float:
     m = int(prog[b + 5])
     w = _rpolygon_sd(prog, b + 6, m, x[0], x[1], derivs, gw, Hw)
     _rrect2(w, x[2], prog[b], prog[b + 1], prog[b + 2], prog[b + 3], prog[b + 4], prof)

@@ -95,7 +95,10 @@ H = R H_local R^T.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
+import numpy.typing as npt
 
 MAGIC = 1503.0
 HEADER = 2
@@ -120,26 +123,29 @@ _BINARY = (OP_UNION, OP_INTERSECT, OP_SUBTRACT)
 
 RCORNER = 8  # values per corner of a rounded polygon: cx cy rc s ax ay bx by
 
+# a node of a parsed program (``parse``): a tuple whose first item names its kind
+Node = tuple
 
-def record(op, params):
+
+def record(op: int, params: npt.ArrayLike) -> np.ndarray:
     params = np.asarray(params, dtype=np.float64).ravel()
     return np.concatenate([[float(op), float(params.size)], params])
 
 
-def program(body):
+def program(body: npt.ArrayLike) -> np.ndarray:
     body = np.asarray(body, dtype=np.float64)
     prog = np.concatenate([[MAGIC, float(body.size)], body])
     validate(prog)
     return prog
 
 
-def body(prog):
+def body(prog: npt.ArrayLike) -> np.ndarray:
     prog = np.asarray(prog, dtype=np.float64)
     validate(prog)
     return prog[HEADER:]
 
 
-def records(prog):
+def records(prog: np.ndarray) -> Iterator[tuple[int, np.ndarray]]:
     """Yield (opcode, params) of a validated program."""
     n = HEADER + int(prog[1])
     pc = HEADER
@@ -150,7 +156,7 @@ def records(prog):
         pc += 2 + npar
 
 
-def validate(prog):
+def validate(prog: npt.ArrayLike) -> bool:
     """Check magic, record structure, stack discipline and parameters; raise ValueError."""
     prog = np.asarray(prog)
     if prog.ndim != 1 or prog.dtype != np.float64:
@@ -169,7 +175,7 @@ def validate(prog):
     return True
 
 
-def _checked_records(prog, n):
+def _checked_records(prog: np.ndarray, n: int) -> Iterator[int]:
     """Yield the opcode of each record of ``prog[:n]``, its structure and parameters checked."""
     pc = HEADER
     while pc < n:
@@ -212,7 +218,7 @@ def _stack_step(op: int, sp: int, frames: list[int]) -> int:
     return sp
 
 
-def parse(prog):
+def parse(prog: npt.ArrayLike) -> Node:
     """Expression tree of a program, for inspection and meshing.
 
     Nodes: ("plane", p, n), ("box", c, h, r), ("revolve", lo, hi, z0, z1, r),

@@ -4,6 +4,9 @@ the builders refuse (radii that do not fit, a polygon that is not simple) is a s
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Protocol
+
 import numpy as np
 
 from sim.tools import builders as b
@@ -28,7 +31,18 @@ PRIMITIVES = {
 CSG = {"union": b.union, "subtract": b.subtract, "intersect": b.intersect}
 
 
-def tool_program(s) -> np.ndarray:
+class Shape(Protocol):
+    """A scene's shape as tool_program reads it: sim.scene.shapes' specs, which run
+    tool_program in their validator and so cannot be imported here. A CSG kind also has its
+    operands in ``shapes``, a primitive the fields its builder reads (PRIMITIVES)."""
+
+    kind: str
+    blend: float
+    offset: Sequence[float]
+    rotation: Sequence[float]
+
+
+def tool_program(s: Shape) -> np.ndarray:
     """SDF program of a ShapeSpec, CSG operands (folded left) and placements included."""
     if s.kind in CSG:
         progs = [tool_program(c) for c in s.shapes]

@@ -31,6 +31,7 @@ Meshes are for display only: Python-level loops here run over corners and arcs, 
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
@@ -38,10 +39,13 @@ from scipy.spatial import cKDTree
 from sim.tools.implicit import mesh_implicit, tool_bounds
 from sim.tools.polygon import edge_normals, is_simple_polygon
 from sim.tools.pose import transform
-from sim.tools.program import RCORNER, parse
+from sim.tools.program import RCORNER, Node, parse
+
+# a triangle mesh: vertices V (m, 3) float64 and faces F (k, 3) int64, outward normals
+Mesh = tuple[np.ndarray, np.ndarray]
 
 
-def _dedup_cyclic(P, closed, tol):
+def _dedup_cyclic(P: np.ndarray, closed: bool, tol: float) -> np.ndarray:
     """Drop consecutive (and, for closed chains, wrap-around) duplicate points."""
     keep = np.ones(len(P), dtype=bool)
     keep[1:] = np.linalg.norm(np.diff(P, axis=0), axis=1) > tol
@@ -51,7 +55,8 @@ def _dedup_cyclic(P, closed, tol):
     return P
 
 
-def _profile(lo, hi, z0, z1, r, n_arc, axis):
+def _profile(lo: float, hi: float, z0: float, z1: float, r: float, n_arc: int,
+             axis: bool) -> tuple[np.ndarray, bool]:
     """Boundary of the rounded rectangle in the (u, z) plane, counter-clockwise.
 
     Returns (P (J, 2), closed). For lo = -inf the chain is open: it runs from the bottom cap
@@ -61,7 +66,7 @@ def _profile(lo, hi, z0, z1, r, n_arc, axis):
     lo_, hi_, a0, a1 = lo + r, hi - r, z0 + r, z1 - r
     k = n_arc if r > 0.0 else 0
 
-    def arc(cu, cz, t0):
+    def arc(cu: float, cz: float, t0: float) -> np.ndarray:
         th = t0 + np.linspace(0.0, 0.5 * np.pi, k + 1)
         return np.stack([cu + r * np.cos(th), cz + r * np.sin(th)], axis=1)
 
@@ -78,7 +83,7 @@ def _profile(lo, hi, z0, z1, r, n_arc, axis):
     return _dedup_cyclic(P, closed, 1e-13 * scale), closed
 
 
-def _offset_ring(poly, u, n_arc):
+def _offset_ring(poly: np.ndarray, u: float, n_arc: int) -> np.ndarray:
     """Points (M, 2) of the level set {w = u >= 0} of a CCW polygon's signed distance.
 
     Edges move by u along their outward normals; convex vertices become arcs of n_arc
@@ -103,7 +108,7 @@ def _offset_ring(poly, u, n_arc):
     return np.concatenate(pts)
 
 
-def _offset_ring_rounded(C, u, n_arc):
+def _offset_ring_rounded(C: np.ndarray, u: float, n_arc: int) -> np.ndarray | None:
     """Points (M, 2) of the level set {w = u} of a rounded polygon (RSWEEP corners C (m, 8)),
     or None where it folds (an arc of radius rc + s u < 0). Arc i becomes n_arc + 1 points at
     radius rc + s u about its centre; a sharp corner an arc of radius u about the vertex
@@ -135,7 +140,8 @@ def _offset_ring_rounded(C, u, n_arc):
     return np.concatenate(pts)
 
 
-def _weld(V, F, tol):
+def _weld(V: np.ndarray, F: np.ndarray,
+          tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Merge vertices closer than tol, drop faces that became degenerate and unused vertices."""
     pairs = cKDTree(V).query_pairs(tol, output_type="ndarray")
     if len(pairs):
@@ -154,7 +160,7 @@ def _weld(V, F, tol):
     return V[used], inv.reshape(F.shape).astype(np.int64), used, rep
 
 
-def _loft(rings, closed):
+def _loft(rings: np.ndarray, closed: bool) -> np.ndarray:
     """Faces joining consecutive rings (J, M) of vertex indices, both cyclic in M."""
     J, M = rings.shape
     F = []
@@ -168,7 +174,7 @@ def _loft(rings, closed):
     return np.concatenate(F)
 
 
-def _earcut(P):
+def _earcut(P: np.ndarray) -> np.ndarray:
     """Ear-clipping triangulation of a simple CCW polygon P (n, 2): CCW triangles (k, 3)."""
     idx = list(range(len(P)))
     tris = []
@@ -189,7 +195,7 @@ def _earcut(P):
             others[[(k - 1) % n, k, (k + 1) % n]] = False
             R = Q[others]
 
-            def side(p0, p1, R=R):
+            def side(p0: np.ndarray, p1: np.ndarray, R: np.ndarray = R) -> np.ndarray:
                 return (p1[0] - p0[0]) * (R[:, 1] - p0[1]) - (p1[1] - p0[1]) * (R[:, 0] - p0[0])
 
             inside = (side(a, b) >= 0) & (side(b, c) >= 0) & (side(c, a) >= 0)
@@ -206,12 +212,13 @@ def _earcut(P):
     return np.array(tris, dtype=np.int64)
 
 
-def _orient_outward(V, F):
+def _orient_outward(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     vol = np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum()
     return F[:, ::-1].copy() if vol < 0 else F
 
 
-def _mesh_profile(lo, hi, z0, z1, r, poly, n_segments, n_arc):
+def _mesh_profile(lo: float, hi: float, z0: float, z1: float, r: float, poly: np.ndarray | None,
+                  n_segments: int, n_arc: int) -> Mesh | None:
     """Revolved (poly is None) or swept (offsets of poly) rounded-rectangle profile."""
     P, closed = _profile(lo, hi, z0, z1, r, n_arc, axis=poly is None)
     if poly is None:
@@ -260,10 +267,10 @@ def _mesh_profile(lo, hi, z0, z1, r, poly, n_segments, n_arc):
     return V, _orient_outward(V, F)
 
 
-def _mesh_box(c, h, r, n_arc):
+def _mesh_box(c: np.ndarray, h: np.ndarray, r: float, n_arc: int) -> Mesh:
     half = max(1, n_arc // 2)
 
-    def samples(hk):
+    def samples(hk: float) -> np.ndarray:
         if r == 0.0:
             return np.array([-hk, hk])
         arc = (hk - r) + r * np.tan(np.linspace(0.0, 0.25 * np.pi, half + 1))
@@ -298,7 +305,7 @@ def _mesh_box(c, h, r, n_arc):
     return V + c, _orient_outward(V, F)
 
 
-def _mesh_plane(p, n, size):
+def _mesh_plane(p: np.ndarray, n: np.ndarray, size: float) -> Mesh:
     a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     u = np.cross(n, a)
     u /= np.linalg.norm(u)
@@ -311,7 +318,7 @@ def _mesh_plane(p, n, size):
     return V, F
 
 
-def _explicit(node, n_segments, n_arc, plane_size):
+def _explicit(node: Node, n_segments: int, n_arc: int, plane_size: float) -> Mesh | None:
     """Explicit mesh of a primitive (or a framed one), None when it has to be implicit."""
     kind = node[0]
     if kind == "plane":
@@ -332,8 +339,10 @@ def _explicit(node, n_segments, n_arc, plane_size):
     return None
 
 
-def tool_mesh(prog, R=None, t=None, *, n_segments=96, n_arc=12, resolution=64,
-              plane_size=1.0, bounds=None, method="auto"):
+def tool_mesh(prog: npt.ArrayLike, R: npt.ArrayLike | None = None, t: npt.ArrayLike | None = None,
+              *, n_segments: int = 96, n_arc: int = 12, resolution: int = 64,
+              plane_size: float = 1.0, bounds: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
+              method: str = "auto") -> Mesh:
     """Triangle mesh (V (m, 3) float64, F (k, 3) int64) of a tool surface, outward normals.
 
     prog: SDF program; R, t: optional pose, vertices then returned in world coordinates.
