@@ -158,7 +158,7 @@ def test_a_model_beyond_the_limit_is_refused_naming_the_edge_length():
         size.check(load_scene(path), size.DEFAULT_LIMIT)
 
 
-# ---- the service's solver process, in this process (as tests/test_service.py does) ------------
+# ---- the service's solver process, in this process (as tests/service/test_service.py does) ---
 def tiny_toml(**over) -> str:
     text = CANTILEVER.read_text().replace("edge_length = 0.0046667", "edge_length = 0.035")
     return text.replace('name = "cantilever"', 'name = "tiny"')

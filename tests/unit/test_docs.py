@@ -1,8 +1,9 @@
 """The documentation stays true: the scene reference is what the schema renders, the README's
 example scene loads and runs as it stands, the README names every shipped scene and every
-``q3t`` command, and every relative link in README.md and docs/ leads to a file (and
-heading)."""
+``q3t`` command, every relative link in README.md and docs/ leads to a file (and heading), and
+every test a page names exists."""
 
+import ast
 import importlib
 import io
 import re
@@ -78,3 +79,35 @@ def test_relative_links_lead_to_files_and_headings(page):
         assert path.exists(), f"{page.name}: no {target}"
         if anchor:
             assert anchor in _anchors(path), f"{page.name}: no heading #{anchor} in {target}"
+
+
+# tests/<tier>/test_x.py, or test_x.py alone (verification.md), with an optional ::test_name
+TEST_REF = re.compile(r"(?<![\w/.])((?:tests/[\w/]*)?test_\w+\.py)(?:::(\w+))?")
+
+
+def _test_files() -> dict[str, list[Path]]:
+    by_name: dict[str, list[Path]] = {}
+    for path in sorted((ROOT / "tests").rglob("test_*.py")):
+        by_name.setdefault(path.name, []).append(path)
+    return by_name
+
+
+def _functions(path: Path) -> set[str]:
+    return {n.name for n in ast.walk(ast.parse(path.read_text())) if isinstance(n, ast.FunctionDef)}
+
+
+@pytest.mark.parametrize("page", PAGES, ids=[str(p.relative_to(ROOT)) for p in PAGES])
+def test_the_tests_a_page_names_exist(page):
+    """A path under tests/ is a file there; a bare file name is one file of the tiers; a
+    ``::test`` is a function of that file. A test file moved or renamed, or a test renamed,
+    fails here until the pages follow."""
+    by_name = _test_files()
+    for ref, test in TEST_REF.findall(page.read_text()):
+        if ref.startswith("tests/"):
+            path = ROOT / ref
+            assert path.is_file(), f"{page.name}: no {ref}"
+        else:
+            found = by_name.get(ref, [])
+            assert len(found) == 1, f"{page.name}: {ref} is {len(found)} files under tests/"
+            path = found[0]
+        assert not test or test in _functions(path), f"{page.name}: no {test} in {ref}"

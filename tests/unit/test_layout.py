@@ -1,7 +1,8 @@
 """The import graph keeps the layout: the solver (sim outside sim/apps) imports neither its
 command-line apps nor the server, the server does not import the apps, no two project modules
 import each other round a circle, and the service's commands join ``q3t`` through the
-``q3t.commands`` entry points declared in pyproject.toml (so sim never imports server).
+``q3t.commands`` entry points declared in pyproject.toml (so sim never imports server). The tests
+keep a layout too: each test file in a tier folder, no test module importing another.
 
 Imports are read from the source with ast, those inside functions included: a lazy import is
 still an arrow of the graph."""
@@ -199,3 +200,29 @@ def test_the_installed_entry_points_are_the_declared_ones():
     declared = {(ep.name, ep.value) for ep in _declared()}
     assert installed == declared, ("the installed package metadata is stale: reinstall "
                                    "(make, or pip install -e .)")
+
+
+def _imports_of(path: Path) -> set[str]:
+    """Every module an import in ``path`` names, with the names it imports from one (``from
+    tests.unit import test_x`` names tests.unit.test_x)."""
+    out = set()
+    for n in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(n, ast.Import):
+            out |= {a.name for a in n.names}
+        elif isinstance(n, ast.ImportFrom):
+            base = n.module or ""
+            out |= {base, *(f"{base}.{a.name}" for a in n.names)}
+    return out
+
+
+def test_test_files_sit_in_tiers_and_no_test_module_imports_another():
+    """tests/ holds tier folders and tests/support/, no test file of its own. What test modules
+    share is a helper in tests/support/: importing a test module would run its module-level
+    set-up (and skips) in the importer and tie two tiers together."""
+    tests = ROOT / "tests"
+    files = sorted(tests.rglob("test_*.py"))
+    assert files and all(p.parent.parent == tests and p.parent.name != "support" for p in files)
+    for path in sorted(tests.rglob("*.py")):
+        named = [m for m in _imports_of(path) if any(part.startswith("test_")
+                                                     for part in m.split("."))]
+        assert not named, f"{path.relative_to(ROOT)} imports the test modules {named}"

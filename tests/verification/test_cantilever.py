@@ -86,7 +86,7 @@ def test_refinement_linear_converges_to_a_stiffer_answer():
 
 @pytest.mark.slow
 def test_mode_free_rule_locks():
-    """The rules without spurious modes (tests/test_elements.py) lock in transverse shear: on
+    """The rules without spurious modes (tests/unit/test_elements.py) lock in transverse shear: on
     the cantilever at nu = 0.49 and 8.75 mm, Q3T's 3 x 3 rule gives 0.63 of the reference
     deflection against 0.85 for the paper's 1 x 3, and linear's 3 x 2 0.39 against 0.53
     (README, 'Quadrature and spurious modes')."""

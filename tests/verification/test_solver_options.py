@@ -73,7 +73,8 @@ def test_hessian_projections_reach_the_same_answer(element):
 
 def test_scene_quadrature_changes_the_rule():
     """shell.quadrature replaces the element's default rule (and changes the answer: the
-    3 x 3 rule locks, tests/test_cantilever.py); thickness_points only the thickness part."""
+    3 x 3 rule locks, tests/verification/test_cantilever.py); thickness_points only the thickness
+    part."""
     default = cantilever()
     full = cantilever(**{"shell.quadrature": [3, 3]})
     thick = cantilever(**{"shell.thickness_points": 5})
