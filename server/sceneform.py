@@ -8,13 +8,16 @@ from pydantic import ValidationError
 
 from server.tomlout import drop_none, to_toml
 from sim.scene.load import Scene, SceneError, joined, read_toml, scene_errors
+from sim.scene.load import validate as validate_scene
 
 
 def validate(raw: dict) -> tuple[Scene | None, list[dict]]:
     try:
-        return Scene.model_validate(raw), []
+        return validate_scene(raw), []
     except ValidationError as err:
         return None, scene_errors(err)
+    except SceneError as err:
+        return None, [{"loc": "scene", "msg": str(err).removeprefix("scene: ")}]
 
 
 def scene_toml(scene: Scene, *, emitter: str = "auto") -> str:

@@ -326,6 +326,8 @@ class Solver:
                 self.record_frame(last, final=True)  # unless step() recorded it already
         except Exception as exc:
             problems.append(str(exc))
+        if state != "finished":  # result.json says why, as the status does
+            self.sim.end(reason or state, stopped=state == "stopped")
         try:
             self.sim.write(self.out)
         except Exception as exc:  # the state still goes up; the reason says what broke

@@ -48,13 +48,14 @@ def run(args) -> int:
     c = sim.result()["counts"]
     print(f"{scene.name}: {scene.shell.element}, {c['elements']} elements, {c['dofs']} DoFs, "
           f"solver {sim.model.built['linear_solver']}", file=sys.stderr)
-    ok = sim.run(progress=None if args.quiet else _progress)
-    sim.write(out)
-    if not ok:
-        print(f"\nq3t: FAILED: {sim.failure['reason']} at step {sim.failure['step']}",
+    sim.run(progress=None if args.quiet else _progress)
+    # converged as result.json says: a run whose values are not finite did not
+    res = sim.write(out)
+    if not res["converged"]:
+        print(f"\nq3t: FAILED: {res['failure']['reason']} at step {res['failure']['step']}",
               file=sys.stderr)
     print(f"wrote {out}/result.json ({sim.wall:.2f} s)", file=sys.stderr)
-    return OK if ok else FAILED
+    return OK if res["converged"] else FAILED
 
 
 def add_parser(sub) -> None:

@@ -72,6 +72,9 @@ def _result(sim) -> dict:
         "parameters": sim.parameter_log,
         "converged": sim.failure is None and sim.step_index == sim.n_steps,
         "failure": sim.failure,
+        # why a run that neither finished nor failed ended early (a user's stop, the service
+        # shutting down); None otherwise
+        "stopped": sim.stopped,
         # the DoFs springback added to hold the rigid-body modes the scene left free: node,
         # component, position (m) where the release started, force (N) once released
         "release_support": sim.release_support,
@@ -86,9 +89,9 @@ def _result(sim) -> dict:
     }
 
 
-def write(sim, out: Path) -> None:
+def write(sim, out: Path) -> dict:
     """result.json and final.npz, each written to a temporary name first so an interrupted
-    run never leaves a half-written file."""
+    run never leaves a half-written file. Returns the result written."""
     out.mkdir(parents=True, exist_ok=True)
     sh = sim.model.shell
     tmp = out / "final.tmp.npz"
@@ -96,4 +99,6 @@ def write(sim, out: Path) -> None:
                         faces=sh.mesh.faces, conn=sh.conn, rest_thickness=sim.h0,
                         **fields.output_fields(sim.model, sim.x, sim.h0))
     tmp.replace(out / "final.npz")
-    results.write(out / "result.json", sim.result())
+    res = sim.result()
+    results.write(out / "result.json", res)
+    return res

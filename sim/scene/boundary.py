@@ -11,6 +11,7 @@ from sim.scene.fields import (
     MAX_ACCELERATION,
     MAX_FORCE,
     MAX_STRESS,
+    Angle,
     Direction,
     Extent,
     Length,
@@ -62,7 +63,7 @@ class BendSpec(Strict):
     held: ``components = "x"`` turns the section like a rotated wall that it may slide along
     (no shear force: a pure end moment), "xyz" moves it rigidly."""
 
-    angle: float
+    angle: Angle
     length: Length
 
 

@@ -13,6 +13,11 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 # scene meets a bound while products such as E h^3, rho g V or m / dt^2 stay many orders of
 # magnitude inside float range: a value past a bound is a typo or an attack, never physics.
 MAX_LENGTH = 1e6  # a kilometre in mm: lengths, coordinates, displacements
+# and from below, so that no positive magnitude is a denormal or underflows in a product
+# (h^3, E h^3): a picometre is below any atom, a micropascal softer than any solid (gels
+# have 1e2 Pa); in mm-N-s-tonne both bounds are a thousand or a million times further out
+MIN_LENGTH = 1e-12
+MIN_STRESS = 1e-6
 MAX_STRESS = 1e13  # Pa: ten times diamond's modulus; moduli, flow stresses, tractions
 MAX_DENSITY = 1e5  # kg/m^3: four times osmium (tonne/mm^3 are 1e-12 of these)
 MAX_ACCELERATION = 1e10  # a million g in mm/s^2
@@ -24,6 +29,10 @@ MAX_STIFFNESS = MAX_STRESS * MAX_LENGTH  # N/m: a penalty spring's stress per un
 MIN_TIME_STEP = 1e-12
 MAX_TIME = 1e6  # s: eleven days of process time
 MAX_STRAIN = 10.0  # hardening strain offsets; (e0 + ep)^n must not overflow
+# rad: 160 turns, more than any tool or bent end turns in a run, while sin and cos of it keep
+# 13 digits (a rotation vector of 1e308 made math.sin fail)
+MAX_ANGLE = 1e3
+MAX_SLOPE = 1e6  # a thickness gradient: a kilometre of thickness per millimetre
 
 
 def bounded(lo: float, hi: float, lo_open: bool = True):
@@ -31,12 +40,15 @@ def bounded(lo: float, hi: float, lo_open: bool = True):
     return Annotated[float, Field(le=hi, **({"gt": lo} if lo_open else {"ge": lo}))]
 
 
-Length = bounded(0.0, MAX_LENGTH)  # m, positive
+Length = bounded(MIN_LENGTH, MAX_LENGTH, lo_open=False)  # m, positive
 Extent = bounded(0.0, MAX_LENGTH, lo_open=False)  # m, zero allowed (radii, fillets)
 Coord = bounded(-MAX_LENGTH, MAX_LENGTH, lo_open=False)  # m: positions, displacements
-Stress = bounded(0.0, MAX_STRESS)  # Pa, positive
+Stress = bounded(MIN_STRESS, MAX_STRESS, lo_open=False)  # Pa, positive
 Point = tuple[Coord, Coord, Coord]
-Vec3 = tuple[float, float, float]  # finite, unbounded: slopes, rotation vectors
+Vec3 = tuple[float, float, float]  # finite; bounded by the field that uses it
+Angle = bounded(-MAX_ANGLE, MAX_ANGLE, lo_open=False)  # rad
+Rotation = tuple[Angle, Angle, Angle]  # a rotation vector: axis times angle (rad)
+Slope = bounded(-MAX_SLOPE, MAX_SLOPE, lo_open=False)
 Speed = bounded(-MAX_SPEED, MAX_SPEED, lo_open=False)
 
 
@@ -61,11 +73,12 @@ def check_magnitude(values, bound: float, unit: str) -> None:
 
 def check_keyframes(rows: list[list[float]], lengths_end: int) -> None:
     """Keyframe rows ``[t, ...]``: times within MAX_TIME, columns 1 .. lengths_end - 1 lengths
-    (displacements, offsets) within MAX_LENGTH; the rest (rotations) finite only."""
+    (displacements, offsets) within MAX_LENGTH; the rest (rotations) within MAX_ANGLE."""
     for i, row in enumerate(rows):
         try:
             check_magnitude(row[:1], MAX_TIME, "s")
             check_magnitude(row[1:lengths_end], MAX_LENGTH, "m")
+            check_magnitude(row[lengths_end:], MAX_ANGLE, "rad")
         except ValueError as exc:
             raise ValueError(f"keyframes.{i}: {exc}") from None
 

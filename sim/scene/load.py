@@ -161,9 +161,22 @@ def apply_override(raw: dict, key: str, value) -> None:
         node[last] = value
 
 
+def validate(raw: dict) -> Scene:
+    """The scene of parsed TOML or JSON, every value of the type its field declares: a number
+    where a number is due (an integer is one), never a boolean or a text that reads as one
+    (``E = true`` would otherwise be 1 Pa, ``"1e9"`` a modulus). pydantic's strict mode does
+    that, in its JSON mode, where an array is a tuple as TOML and JSON write one. Raises
+    ValidationError."""
+    try:
+        text = json.dumps(raw, allow_nan=True)
+    except (TypeError, ValueError) as exc:  # a TOML date or time: no field takes one
+        raise SceneError(f"scene: {exc}") from None
+    return Scene.model_validate_json(text, strict=True)
+
+
 def scene_from_dict(raw: dict) -> Scene:
     try:
-        return Scene.model_validate(raw)
+        return validate(raw)
     except ValidationError as err:
         raise SceneError(joined(scene_errors(err))) from None
 

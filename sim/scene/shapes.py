@@ -9,14 +9,15 @@ from pydantic import Field, model_validator
 from sim.scene.fields import (
     MAX_FORCE,
     MAX_STIFFNESS,
+    Angle,
     Coord,
     Direction,
     Extent,
     Length,
     Point,
+    Rotation,
     Speed,
     Strict,
-    Vec3,
     bounded,
     check_keyframes,
 )
@@ -52,12 +53,12 @@ class _Shape(Strict):
     # star and star_die valleys (star_die default max(corner_radius, edge_radius), star 0),
     # reflex polygon corners
     reflex_radius: Extent | None = None
-    phase: float = 0.0
+    phase: Angle = 0.0
     # polygon: a prism 0 <= z <= height over these (x, y) vertices (either orientation)
     points: list[tuple[Coord, Coord]] = []
     blend: Extent = 0.0
     offset: Point = (0.0, 0.0, 0.0)
-    rotation: Vec3 = (0.0, 0.0, 0.0)
+    rotation: Rotation = (0.0, 0.0, 0.0)
 
     @model_validator(mode="after")
     def _needs(self):

@@ -13,9 +13,9 @@ from sim.scene.fields import (
     Coord,
     Extent,
     Length,
+    Slope,
     Stress,
     Strict,
-    Vec3,
     bounded,
 )
 
@@ -65,7 +65,7 @@ class ShellSpec(Strict):
 
     thickness: Length | None = None
     # a tapered sheet: thickness + gradient . X at every vertex (m per m); must stay positive
-    thickness_gradient: Vec3 = (0.0, 0.0, 0.0)
+    thickness_gradient: tuple[Slope, Slope, Slope] = (0.0, 0.0, 0.0)
     thickness_file: str | None = None
     thickness_attribute: str | None = None
     element: str = "q3t"

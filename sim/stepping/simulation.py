@@ -59,6 +59,16 @@ class Simulation:
     timing: Timing = field(default_factory=Timing)
     wall: float = 0.0
     failure: dict | None = None
+    stopped: str | None = None  # why the run ended before its last step, when not a failure
+
+    def end(self, reason: str, stopped: bool = True) -> None:
+        """The run ends here, not by the solver: ``stopped`` by a user or the service, or
+        failed for ``reason`` (the recording broke); result() then says why."""
+        if stopped:
+            self.stopped = reason
+        elif self.failure is None:
+            self.failure = {"step": self.step_index, "t": self.t, "cutbacks": 0,
+                            "reason": reason, "iterations": 0, "residuals": []}
 
     @classmethod
     def from_scene(cls, scene: Scene) -> Simulation:
@@ -370,6 +380,6 @@ class Simulation:
         """What the run did, in numbers JSON carries (sim.frames.output.result)."""
         return output.result(self)
 
-    def write(self, out: Path) -> None:
-        """result.json and final.npz in ``out`` (sim.frames.output.write)."""
-        output.write(self, out)
+    def write(self, out: Path) -> dict:
+        """result.json and final.npz in ``out`` (sim.frames.output.write); the result."""
+        return output.write(self, out)
