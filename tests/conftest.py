@@ -1,5 +1,5 @@
-"""The tiers are folders: unit (one piece at a time, in-process), scenes (the shipped scenes and
-scene files through the solver at coarse size), verification (numbers against closed forms,
+"""The tiers are folders: unit (one piece at a time, in-process), scenes (scene input, and the
+shipped scenes through the solver at coarse size), verification (numbers against closed forms,
 the paper and references), apps (the q3t commands: child processes, Dask clusters) and service
 (the server end to end: its solver process, uvicorn, the recording, the viewer, Chromium).
 Shared helpers are plain modules in tests/support/."""

@@ -15,8 +15,6 @@ import pytest
 from sim.scene.load import SceneError, apply_override, load_scene
 from tests.support import ROOT
 
-pytestmark = pytest.mark.fast  # seconds: make test-fast runs it
-
 CANTILEVER = ROOT / "scenes" / "cantilever.toml"
 NAN, INF = math.nan, math.inf
 DYNAMIC = {"stepping.kind": "dynamic", "stepping.dt": 0.01}

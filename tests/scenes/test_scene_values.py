@@ -4,14 +4,13 @@ run's exit code, and a stopped run's result.json that did not say why."""
 
 import json
 import queue
-from pathlib import Path
 
 import pytest
 
 from sim.apps.cli import main
 from sim.scene.load import SceneError, load_scene, scene_from_toml
+from tests.support import ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
 CANTILEVER = ROOT / "scenes" / "cantilever.toml"
 COARSE = {"mesh.edge_length": 0.035, "stepping.steps": 1}
 
