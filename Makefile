@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: serve test test-loaded bench results docs lint clean clean-cache venv
+.PHONY: serve test test-fast test-loaded bench results docs lint clean clean-cache venv
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/pip || $(MAKE) --no-print-directory venv
@@ -17,12 +17,21 @@ serve: $(STAMP)
 	$(BIN)/q3t serve
 
 # pytest exits 5 when it collected no test: that is a failure here, never a silent pass.
-test: $(STAMP)
-	$(BIN)/python -m pytest -q; rc=$$?; \
+pytest = $(BIN)/python -m pytest -q $(1); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests" >&2; exit 1; fi; exit $$rc
 
+# every tier (CI)
+test: $(STAMP)
+	$(call pytest)
+
+# the edit loop: tests/unit, tests/scenes and the quick modules of the other tiers (marker
+# fast), without the slow tests
+test-fast: $(STAMP)
+	$(call pytest,-m "fast and not slow")
+
 # The suite beside one busy process per core: a test that races the clock fails here.
-# ARGS picks tests (e.g. make test-loaded ARGS=tests/test_sweep.py); tests/loaded.py says more.
+# ARGS picks tests (e.g. make test-loaded ARGS=tests/apps/test_sweep.py); tests/loaded.py says
+# more.
 test-loaded: $(STAMP)
 	$(BIN)/python -m tests.loaded $(ARGS)
 
@@ -55,7 +64,8 @@ results: $(STAMP)
 	  --results $(R)/accuracy-euler-bernoulli.md
 	$(BIN)/q3t bench-service --results $(R)/service.md
 
-# the scene field reference, rendered from the schema (tests/test_docs.py fails when it is stale)
+# the scene field reference, rendered from the schema (tests/unit/test_docs.py fails when it is
+# stale)
 docs: $(STAMP)
 	$(BIN)/python -m sim.scene_reference docs/scene-reference.md
 

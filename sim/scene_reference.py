@@ -3,7 +3,7 @@
 Each table of a scene is a section listing its fields with their type, bounds, default and the
 comment the schema's source gives them, so the reference says exactly what ``load_scene``
 accepts. ``python -m sim.scene_reference [PATH]`` writes it (``make docs``);
-tests/test_docs.py fails when the file differs from what this renders.
+tests/unit/test_docs.py fails when the file differs from what this renders.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ HEADER = """\
 # Scene field reference
 
 Generated from the scene schema by `make docs` (`python -m sim.scene_reference`); do not edit
-by hand: `tests/test_docs.py` fails when this file and the schema differ. How the tables fit
+by hand: `tests/unit/test_docs.py` fails when this file and the schema differ. How the tables fit
 together, with examples: [scenes.md](scenes.md). Units are SI (m, Pa, kg, s, N). A field without
 a default is required; "unset" means the field may be left out, and what then happens is in its
 note or the table's description. Checks that tie fields together (a mesh kind's required

@@ -13,6 +13,9 @@ from sim.elements.quadratic import QUADRATIC
 from sim.elements.quartic import QUARTIC
 
 ELEMENTS: dict[str, Prism] = {e.name: e for e in (LINEAR, Q3T, QUADRATIC, QUARTIC)}
+# where every element is meant but each run costs (every scene, every energy term through a
+# model): the routine ones, in registry order
+ROUTINE: tuple[str, ...] = tuple(n for n, e in ELEMENTS.items() if e.routine)
 
 
 def get_element(name: str) -> Prism:

@@ -2,13 +2,13 @@
 
 Through-thickness weights are w(w-1)/2 (bottom), 1 - w^2 (mid-surface), w(w+1)/2 (top). The paper
 prints (1-w)^2 for the mid-surface weight, which is 4 at w = -1: neither nodal nor a partition of
-unity. tests/test_elements.py checks the printed form fails and ours passes.
+unity. tests/unit/test_elements.py checks the printed form fails and ours passes.
 """
 
 from sim.elements.base import Prism
 
 # The paper's rule, 1 in-plane x 3 thickness points. Trade-off (README, "Quadrature and spurious
-# modes"; tests/test_elements.py): it leaves spurious zero-energy modes on a free mesh of one
+# modes"; tests/unit/test_elements.py): it leaves spurious zero-energy modes on a free mesh of one
 # prism (4), two triangles (1), or a triangle hanging by a vertex (2); any other mesh of three
 # or more triangles, or any clamp, has none. The 3 x 3 rule has no spurious mode anywhere but
 # locks in transverse shear: 15 % too stiff on the paper's cantilever against 4.9 % for 1 x 3,

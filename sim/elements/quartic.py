@@ -6,4 +6,5 @@ points through the thickness.
 
 from sim.elements.base import Prism
 
-QUARTIC = Prism("quartic", p=4, q=4, default_quadrature=(25, 5))
+# 75 nodes a prism: the reference of studies and checks, too slow to run every scene with
+QUARTIC = Prism("quartic", p=4, q=4, default_quadrature=(25, 5), routine=False)

@@ -10,7 +10,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 # Every float of a scene is finite (Strict's allow_inf_nan=False). Magnitudes the model
 # multiplies into others are bounded too, far beyond any forming process in any consistent unit
-# system the solver is run in (SI, or mm-N-s-tonne as in tests/test_check.py), so that no real
+# system the solver is run in (SI, or mm-N-s-tonne as in tests/apps/test_check.py), so that no real
 # scene meets a bound while products such as E h^3, rho g V or m / dt^2 stay many orders of
 # magnitude inside float range: a value past a bound is a typo or an attack, never physics.
 MAX_LENGTH = 1e6  # a kilometre in mm: lengths, coordinates, displacements

@@ -211,7 +211,8 @@ def auto_stiffness(E_young: float, thickness: float, area: float, *, pressure: f
     tool (sim.model), whose force beyond the layer is k (s - delta / 2) = k (alpha t - d): the
     linear spring starting alpha t out, smoothed over the layer. The tool surface itself is
     penetrated by -d <= alpha t (p_c / p - 1) at a contact pressure p_c: not at all up to the
-    design pressure, by at most alpha t up to twice it (tests/test_contact.py measures both).
+    design pressure, by at most alpha t up to twice it (tests/verification/test_contact.py
+    measures both).
     Conditioning: the through-thickness stiffness of the sheet under one node is about
     E A / t, so k / (E A / t) = p / (alpha E) = 0.4 with the defaults: the penalty is stiff
     enough to keep penetrations at 1 % of t and still softer than the sheet under it, which

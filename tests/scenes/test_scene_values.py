@@ -1,0 +1,157 @@
+"""What a review of issue 12's hardening found past its reproducers: scene values of the wrong
+type taken for numbers, magnitudes so small they underflow, angles without bounds, a failed
+run's exit code, and a stopped run's result.json that did not say why."""
+
+import json
+import queue
+
+import pytest
+
+from sim.apps.cli import main
+from sim.scene.load import SceneError, load_scene, scene_from_toml
+from tests.support import ROOT
+
+CANTILEVER = ROOT / "scenes" / "cantilever.toml"
+COARSE = {"mesh.edge_length": 0.035, "stepping.steps": 1}
+
+WRONG_TYPE = [
+    ("material.E", True, "Input should be a valid number"),  # was E = 1 Pa
+    ("material.E", "1e9", "Input should be a valid number"),  # was a modulus read from text
+    ("stepping.steps", True, "Input should be a valid integer"),  # was 1 step
+    ("stepping.steps", 2.5, "Input should be a valid integer"),
+    ("loads.0.vector", [0, 0, "x"], "Input should be a valid number"),
+]
+
+
+@pytest.mark.parametrize("key,value,why", WRONG_TYPE, ids=[f"{k}={v!r}" for k, v, _ in
+                                                            WRONG_TYPE])
+def test_a_value_of_the_wrong_type_is_refused_naming_the_field(key, value, why):
+    with pytest.raises(SceneError) as err:
+        load_scene(CANTILEVER, {key: value})
+    assert str(err.value).startswith(key) and why in str(err.value)
+
+
+def test_toml_of_the_wrong_type_is_refused_and_integers_are_numbers():
+    text = CANTILEVER.read_text()
+    with pytest.raises(SceneError, match="material.E: Input should be a valid number"):
+        scene_from_toml(text.replace("E = ", "E = true #", 1))
+    # an integer where a float is due is a number (TOML writes 200 for 200.0)
+    assert load_scene(CANTILEVER, {"material.E": 200}).material.E == 200.0
+
+
+TOO_SMALL_OR_LARGE = [
+    ("shell.thickness", 1e-300, "shell.thickness"),  # was a run ending in NaN fields, exit 0
+    ("shell.thickness", 4.9e-324, "shell.thickness"),
+    ("material.E", 1e-300, "material.E"),  # was 'load below force round-off floor'
+    ("mesh.edge_length", 1e-200, "mesh.edge_length"),
+    ("tools.0.shape.rotation", [1e308, 0.0, 0.0], "tools.0.shape.rotation.0"),
+    ("tools.0.shape.phase", 1e300, "tools.0.shape.phase"),
+]
+
+
+@pytest.mark.parametrize("key,value,field", TOO_SMALL_OR_LARGE,
+                         ids=[f"{k}={v!r}" for k, v, _ in TOO_SMALL_OR_LARGE])
+def test_magnitudes_that_underflow_or_overflow_are_refused(key, value, field):
+    scene = "beam_forming" if key.startswith("tools") else "cantilever"
+    with pytest.raises(SceneError) as err:
+        load_scene(ROOT / "scenes" / f"{scene}.toml", {key: value})
+    assert str(err.value).startswith(field)
+
+
+def test_a_bend_angle_and_keyframe_rotations_are_bounded():
+    with pytest.raises(SceneError, match=r"bcs\.\d+\.bend\.angle"):
+        load_scene(ROOT / "scenes" / "plastic_bending.toml",
+                   {"bcs.3.bend.angle": 1e308})  # was 'inverted element at the start'
+    with pytest.raises(SceneError, match=r"tools\.1: keyframes\.0: .* rad is beyond"):
+        load_scene(ROOT / "scenes" / "beam_forming.toml",
+                   {"tools.1.keyframes": [[0.5, 0, 0, 0, 1e300, 0, 0]]})
+
+
+def test_wrong_types_over_the_api_are_a_422_naming_the_field(tmp_path):
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+    from server.settings import Settings
+
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    (scenes / "cantilever.toml").write_text(CANTILEVER.read_text())
+    # the frame generator in the solver's place: nothing here runs
+    from server.bench import frame_generator
+
+    app = create_app(Settings(scenes_dir=scenes, runs_dir=tmp_path / "runs", viewer=False),
+                     worker_target=frame_generator)
+    with TestClient(app) as client:
+        r = client.post("/api/scenes/validate",
+                        json={"toml": CANTILEVER.read_text().replace("E = ", "E = true #", 1)})
+        assert r.status_code == 422 and r.json()["detail"].startswith("material.E")
+        r = client.post("/api/scenes/render", json={"scene": {"name": "x", "material": {
+            "E": "1e9"}}})
+        assert any(e["loc"] == "material.E" for e in r.json()["errors"])
+
+
+def test_a_run_whose_values_are_not_finite_exits_1(monkeypatch, tmp_path, capsys):
+    """result.json says converged false when a value is not finite (written as null); the
+    command line said 0, from the solver's own verdict."""
+    from sim.frames import fields
+
+    real = fields.field_summary
+    monkeypatch.setattr(fields, "field_summary",
+                        lambda f: {**real(f), "thickness_mm": {"min": float("nan")}})
+    code = main(["run", "cantilever", "--quiet", "--out", str(tmp_path), *sum(
+        (["--set", f"{k}={v}"] for k, v in COARSE.items()), [])])
+    res = json.loads((tmp_path / "result.json").read_text())
+    assert code == 1 and not res["converged"] and res["non_finite"]
+    assert "not finite" in capsys.readouterr().err
+
+
+def test_a_stopped_run_says_why_in_its_result(tmp_path):
+    """A run ended by a stop (or by the service) is neither finished nor failed: its
+    result.json says who ended it, as its status does (it held converged false and no
+    reason at all)."""
+    from server.worker import Solver
+
+    events = queue.Queue()
+    solver = Solver(events, queue.Queue(maxsize=4), record_every=1, step_delay=0.0)
+    out = tmp_path / "r"
+    out.mkdir()
+    text = CANTILEVER.read_text().replace("edge_length = 0.0046667", "edge_length = 0.035")
+    solver.handle({"id": 1, "cmd": "start", "run": "r", "out": str(out), "scene_toml": text,
+                   "overrides": {}})
+    solver.step()
+    solver.handle({"id": 2, "cmd": "stop", "reason": "stopped by request"})
+    res = json.loads((out / "result.json").read_text())
+    assert not res["converged"] and res["failure"] is None
+    assert res["stopped"] == "stopped by request" and len(res["steps"]) == 1
+
+
+def test_max_memory_must_be_a_finite_size(tmp_path):
+    """--max-memory inf switched the size check off (and a build of 1e-5 m edges was killed by
+    the kernel for memory)."""
+    assert main(["run", "cantilever", "--max-memory", "inf", "--out", str(tmp_path)]) == 2
+
+
+def test_the_kernel_cache_follows_the_solver_not_its_apps(tmp_path):
+    """numba's cache folder is named by a hash of the solver's sources: an edit of an app (which
+    no kernel reaches) keeps it, an edit of the solver starts a new one; the newest three stay,
+    so a suite running on the code before an edit keeps its kernels."""
+    import os
+
+    from sim import KEEP_CACHES, numba_cache_dir
+
+    src = tmp_path / "sim"
+    (src / "apps").mkdir(parents=True)
+    (src / "kernel.py").write_text("x = 1\n")
+    (src / "apps" / "run.py").write_text("y = 1\n")
+    first = numba_cache_dir(src)
+    (src / "apps" / "run.py").write_text("y = 2\n")
+    assert numba_cache_dir(src) == first
+    made = []
+    for i in range(5):
+        (src / "kernel.py").write_text(f"x = {i + 2}\n")
+        d = numba_cache_dir(src)
+        os.makedirs(d)
+        os.utime(d, (1e9 + i, 1e9 + i))
+        made.append(d)
+    kept = sorted(str(p) for p in (tmp_path / ".numba-cache").iterdir())
+    assert len(made) == 5 and kept == sorted(made[-KEEP_CACHES:])

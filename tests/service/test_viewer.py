@@ -1,0 +1,257 @@
+"""A run with tools through the service (TestClient, viser viewer on, no browser): a 20 x 20 mm,
+0.5 mm plastic plate on a ground plane, pressed 0.2 mm by a punch in 3 steps. The run finishes,
+frames carry every field (plastic strain included) and the tools' translations, the punch moves
+down step by step, the viewer draws one mesh per tool and moves it, offers every field in its
+dropdown and scrubs kept frames, and the recording holds the tool meshes and transforms (read
+back, and replayed by ``q3t play --viser``'s loader and by the service's viewer); the viewer's
+Play/Pause/Step/Reset buttons drive a run (pressed through viser's server-side handles)."""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser")
+pytest.importorskip("rerun")
+from fastapi.testclient import TestClient  # noqa: E402
+from rerun.chunk import RrdReader  # noqa: E402
+
+from server.app import create_app  # noqa: E402
+from server.history import FrameHistory  # noqa: E402
+from server.settings import Settings  # noqa: E402
+from tests.support.scenes import PRESS_TOML, tiny_toml  # noqa: E402
+from tests.support.service import HANG, free_port, until, wait_done, wait_state, wait_step  # noqa: E402,E501
+
+FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain"}
+
+
+@pytest.fixture(scope="module")
+def done(tmp_path_factory):
+    """One finished press run: (client, settings, run status)."""
+    tmp = tmp_path_factory.mktemp("viewer")
+    os.environ.setdefault("XDG_CONFIG_HOME", str(tmp / "config"))
+    os.environ.setdefault("XDG_DATA_HOME", str(tmp / "data"))
+    (tmp / "scenes").mkdir()
+    (tmp / "scenes" / "press.toml").write_text(PRESS_TOML)
+    (tmp / "scenes" / "long.toml").write_text(tiny_toml(steps=4000))
+    settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs", viewer=True,
+                        viewer_port=free_port(), record_every=2)
+    with TestClient(create_app(settings)) as client:
+        r = client.post("/api/runs", json={"scene": "press", "element": "linear"})
+        assert r.status_code == 201, r.text
+        st = wait_state(client, r.json()["id"], {"finished", "failed", "stopped"})
+        assert st["state"] == "finished", st["reason"]
+        yield client, settings, st
+
+
+def test_tool_run_frames_and_poses(done):
+    client, _, st = done
+    run = st["id"]
+    assert st["tools"] == ["ground", "punch"]
+    assert [r["step"] for r in st["records"]] == [1, 2, 3]
+    assert {"build_s", "tool_meshes_s", "first_frame_s"} <= set(st["timing"])
+    kept = client.get(f"/api/runs/{run}/frames").json()
+    assert kept["steps"] == [0, 1, 2, 3] and kept["stride"] == 1
+    frames = [client.get(f"/api/runs/{run}/frames/{k}").json() for k in range(4)]
+    for f in frames:
+        assert set(f["fields"]) == FIELDS
+        assert f["fields"]["thickness_mm"]["min"] > 0
+    assert frames[0]["fields"]["eq_plastic_strain"]["max"] == 0.0
+    assert frames[-1]["fields"]["eq_plastic_strain"]["max"] > 0.0  # the press yields
+    punch_z = [f["tools"]["punch"][2] for f in frames]
+    assert np.all(np.diff(punch_z) < 0), punch_z  # the punch moves down every step
+    assert punch_z[-1] == pytest.approx(0.00025 - 0.0002, abs=1e-7)
+    for f in frames:  # the ground stays put
+        assert f["tools"]["ground"] == pytest.approx([0.0, 0.0, -0.00025], abs=1e-9)
+    assert st["records"][-1]["probes"]["punch_force"] > 0
+    assert client.get("/api/runs/nope-run/frames").status_code == 404
+
+
+def test_viewer_draws_moves_recolours_and_scrubs(done):
+    client, _, st = done
+    viewer = client.app.state.manager.viewer
+    # the bridge pushes the last frame to the viewer after the run's state reads finished
+    until(lambda: viewer.gui.time.value == 3, "the last frame was not shown")
+    last = client.get(f"/api/runs/{st['id']}/frames/3").json()["tools"]
+    assert sorted(viewer.tools) == ["ground", "punch"]
+    assert viewer.gui.element.value == st["element"] == "linear"  # the scene says q3t
+    np.testing.assert_allclose(viewer.tools["punch"].position, last["punch"], atol=1e-9)
+    options = viewer.gui.field.options
+    assert len(options) == 4 and "Equivalent plastic strain (-)" in options
+    viewer.gui.field.value = "Equivalent plastic strain (-)"
+    assert "Equivalent plastic strain" in viewer.gui.legend.content
+    viewer.gui.field.value = "von Mises stress (MPa)"
+    assert "MPa" in viewer.gui.legend.content
+    assert viewer.gui.time.value == 3 and viewer.gui.time.max == 3  # followed the live run
+    viewer.gui.time.value = 1  # as a user dragging the slider of the finished run
+    step1 = client.get(f"/api/runs/{st['id']}/frames/1").json()["tools"]["punch"]
+    np.testing.assert_allclose(viewer.tools["punch"].position, step1, atol=1e-9)
+    assert "showing step 1/3" in viewer.gui.status.content
+    assert viewer.frame["step"] == 1
+
+
+def tool_chunks(path: Path) -> tuple[dict, dict]:
+    """Static tool meshes (name -> vertex count) and translations (name -> {step: xyz})."""
+    meshes, poses = {}, {}
+    for chunk in RrdReader(str(path)).stream():
+        entity = str(chunk.entity_path)
+        if not entity.startswith("/tools/"):
+            continue
+        rb, name = chunk.to_record_batch(), entity.removeprefix("/tools/")
+        if "Mesh3D:vertex_positions" in rb.schema.names:
+            meshes[name] = len(rb.column("Mesh3D:vertex_positions")[0])
+        if "Transform3D:translation" in rb.schema.names:
+            for step, t in zip(rb.column("step").to_pylist(),
+                               rb.column("Transform3D:translation").to_pylist(), strict=True):
+                poses.setdefault(name, {})[step] = t[0]
+    return meshes, poses
+
+
+def test_recording_has_tool_meshes_and_transforms(done):
+    client, settings, st = done
+    path = settings.runs_dir / st["id"] / "run.rrd"
+    meshes, poses = tool_chunks(path)
+    assert set(meshes) == {"ground", "punch"} and meshes["punch"] > 100
+    assert sorted(poses["punch"]) == [0, 1, 2, 3]
+    for k in range(4):
+        want = client.get(f"/api/runs/{st['id']}/frames/{k}").json()["tools"]["punch"]
+        assert poses["punch"][k] == pytest.approx(want, abs=1e-9)
+
+
+def test_replay_loads_the_recording(done):
+    from server import replay
+
+    _, settings, st = done
+    rep = replay.load(settings.runs_dir / st["id"] / "run.rrd")
+    assert rep.steps == [0, 2, 3] and rep.faces is not None  # record_every = 2, and the last
+    assert all(p.shape == rep.positions[0].shape for p in rep.positions)
+    assert sorted(rep.tools) == ["ground", "punch"]
+    assert rep.pose("punch", 3)[2] < rep.pose("punch", 0)[2]
+    server = replay.serve(rep, port=free_port(), block=False)
+    server.stop()
+
+
+def test_history_keeps_every_kth_frame_past_the_cap():
+    h = FrameHistory(max_frames=10)
+    h.reset("r")
+
+    def frame(k: int, run: str = "r") -> dict:
+        return {"run": run, "step": k, "time": float(k), "positions": np.zeros((5, 3)),
+                "fields": {"thickness_mm": np.full(5, k, np.float32)}}
+
+    for k in range(38):
+        h.add(frame(k))
+    h.add(frame(99, run="other"))  # another run's frame is ignored
+    s = h.summary()
+    assert s["steps"] == [0, 8, 16, 24, 32, 37] and s["stride"] == 8  # even spacing + newest
+    assert h.at(13)["step"] == 8 and h.at(1000)["step"] == 37
+    h.add(frame(38))
+    assert h.summary()["steps"][-2:] == [32, 38]  # the old newest (off the grid) made way
+    h.add(frame(38))  # a frame kept already is not kept twice
+    assert h.summary()["steps"][-2:] == [32, 38]
+    late = FrameHistory(max_frames=10)  # the rest frame after step 1 (it came by the other queue)
+    late.reset("r")
+    for k in (1, 0, 2, 3):
+        late.add(frame(k))
+    assert late.summary()["steps"] == [0, 1, 2, 3] and late.at(0)["step"] == 0
+    small = FrameHistory(max_frames=400, max_bytes=5 * 80)  # 80 bytes a frame
+    small.reset("r")
+    for k in range(20):
+        small.add(frame(k))
+    assert small.summary()["bytes"] <= 5 * 80
+
+
+def test_viewer_buttons_drive_the_run(done):
+    """Pause, Step, Play and Reset pressed in the viewer (``button.value = True`` runs the
+    click handlers, as a click from a browser does)."""
+    client, _, _ = done
+    viewer = client.app.state.manager.viewer
+    b = viewer.gui.buttons
+    run = client.post("/api/runs", json={"scene": "long", "element": "linear"}).json()["id"]
+    status = lambda: client.get(f"/api/runs/{run}").json()  # noqa: E731
+    try:
+        wait_step(client, run, 2)
+        b["Pause"].value = True
+        assert viewer.gui.status.content.startswith("pause: ")
+        st = wait_done(client, run)  # the step under way when Pause arrived, then paused
+        assert st["state"] == "paused", st
+        at = st["step"]
+        b["Step"].value = True
+        st = wait_done(client, run)  # the solver made the step it was asked for
+        assert st["step"] == at + 1 and st["state"] == "paused", st  # one step, still paused
+        b["Play"].value = True
+        until(lambda: status()["step"] > at + 3 and status()["state"] == "running", "Play")
+        viewer.gui.element.value = "q3t"
+        b["Reset"].value = True  # stops this run and starts the last scene with the element
+        assert status()["state"] == "stopped"
+        new = client.get("/api/health").json()["active"]
+        assert new and new != run and new.startswith("long-q3t-")
+        # "Started `new`"; then the bridge's news of either run may come in: the old run's end
+        # first (it is over before the new one starts), so the status ends up naming the new
+        until(lambda: f"`{new}`" in viewer.gui.status.content, viewer.gui.status.content)
+    finally:
+        active = client.get("/api/health").json()["active"]
+        if active:
+            client.post(f"/api/runs/{active}/stop")
+            wait_state(client, active, {"stopped", "finished", "failed"})
+
+
+def test_viewer_replays_an_older_recorded_run(done):
+    """The "Run" dropdown offers finished runs; picking one shows its recording, the time
+    slider scrubs it, and "live run" goes back."""
+    from server import replay
+    from server.viewer import LIVE
+
+    client, settings, st = done
+    viewer = client.app.state.manager.viewer
+    # the bridge offers a run once its state reads finished
+    until(lambda: st["id"] in viewer.gui.recording.options, "the run is not offered")
+    assert viewer.gui.recording.options[0] == LIVE
+    rep = replay.load(settings.runs_dir / st["id"] / "run.rrd")
+    viewer.gui.recording.value = st["id"]
+    assert viewer.replay is not None and viewer.replay.steps == [0, 2, 3]
+    assert "Recording of" in viewer.gui.status.content, viewer.gui.status.content
+    assert viewer.gui.time.max == 3 and viewer.gui.time.value == 3
+    assert sorted(viewer.tools) == ["ground", "punch"]
+    viewer.gui.time.value = 1  # recorded at 0 and 2: shows 0, the nearest before
+    assert viewer.gui.status.content.endswith("showing recorded step 0")
+    np.testing.assert_allclose(viewer.tools["punch"].position, rep.pose("punch", 0), atol=1e-9)
+    viewer.gui.time.value = 2
+    assert viewer.gui.status.content.endswith("showing recorded step 2")
+    np.testing.assert_allclose(viewer.tools["punch"].position, rep.pose("punch", 2), atol=1e-9)
+    assert rep.pose("punch", 2)[2] < rep.pose("punch", 0)[2]
+    viewer.gui.recording.value = LIVE
+    assert viewer.replay is None
+
+
+def test_a_users_choice_counts_while_the_code_updates_the_viewer(done):
+    """viser runs the callbacks of a value set in code in the thread that set it; the code's
+    own updates (the bridge's, in its thread) are told apart per thread, so a user's choice
+    made meanwhile is acted on, not taken for an echo of the code's."""
+    from server.viewer import LIVE
+
+    client, _, st = done
+    viewer = client.app.state.manager.viewer
+    until(lambda: st["id"] in viewer.gui.recording.options, "the run is not offered")
+    inside, release = threading.Event(), threading.Event()
+
+    def bridge() -> None:  # the bridge, halfway through an update of its own
+        with viewer._from_code():
+            inside.set()
+            release.wait(HANG)
+
+    t = threading.Thread(target=bridge)
+    t.start()
+    try:
+        assert inside.wait(HANG)
+        viewer.gui.recording.value = st["id"]  # a user picks the run meanwhile
+        assert viewer.replay is not None and viewer.replay.steps == [0, 2, 3]
+        viewer.gui.recording.value = LIVE
+        assert viewer.replay is None
+    finally:
+        release.set()
+        t.join()

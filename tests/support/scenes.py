@@ -1,0 +1,107 @@
+"""Scenes made small for tests: the shipped ones coarsened (two ways, named for what a test
+keeps of the scene), and the tiny scenes the service tests run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from sim.scene.load import Scene, load_scene
+from tests.support import ROOT
+
+SCENES = sorted((ROOT / "scenes").glob("*.toml"))
+
+
+def coarse(scene_path: str | Path, element: str | None = None) -> Scene:
+    """A run's first steps: the mesh at about 200 triangles, the steps capped at 2, tools at
+    the stroke per step of the real path; ``element`` overrides the scene's."""
+    sc = load_scene(scene_path)
+    if sc.mesh.kind == "rectangle":
+        e = max(sc.mesh.size) / 14
+    elif sc.mesh.kind in ("annulus", "disk"):
+        e = sc.mesh.r_outer / 6
+    else:
+        e = sc.mesh.edge_length * 3 if sc.mesh.edge_length else None
+    o = {"stepping.steps": min(sc.stepping.steps, 2)}
+    # the first two steps of the real path: tools keep their stroke per step
+    for i, t in enumerate(sc.tools):
+        o[f"tools.{i}.velocity"] = [v * o["stepping.steps"] / sc.stepping.steps
+                                    for v in t.velocity]
+    if element:
+        o["shell.element"] = element
+    if e:
+        o["mesh.edge_length"] = e
+    return load_scene(scene_path, o)
+
+
+def coarsest_mesh(sc: Scene) -> dict:
+    """Overrides that leave about 20-60 triangles, for a model that is built and not run: what
+    it builds and records depends on the scene, not on the mesh. A mesh file stays as it is."""
+    m = sc.mesh
+    edge = {"rectangle": lambda: max(m.size or (0,)) / 8, "disk": lambda: m.r_outer / 4,
+            "annulus": lambda: m.r_outer / 4, "cylinder_band": lambda: m.height / 2}
+    return {"mesh.edge_length": edge[m.kind]()} if m.kind in edge else {}
+
+
+def tiny_toml(steps: int = 4) -> str:
+    """The cantilever at a coarse mesh and stiff material: a step takes well under a second."""
+    text = (ROOT / "scenes/cantilever.toml").read_text()
+    text = text.replace("edge_length = 0.0046667", "edge_length = 0.035")
+    text = text.replace("steps = 4", f"steps = {steps}")
+    return text.replace('name = "cantilever"', 'name = "tiny"')
+
+
+# A 20 x 20 mm, 0.5 mm plastic plate on a ground plane, pressed 0.2 mm by a punch in 3 steps
+PRESS_TOML = """
+name = "press"
+description = "A small plastic plate on a plane, pressed by a punch (service tests)"
+
+[mesh]
+kind = "rectangle"
+size = [0.02, 0.02]
+origin = [-0.01, -0.01]
+edge_length = 0.005
+
+[shell]
+thickness = 0.0005
+element = "q3t"
+
+[material]
+model = "plastic"
+E = 70.0e9
+nu = 0.33
+yield_stress = 100.0e6
+hardening = { law = "perfect" }
+
+[[regions]]
+name = "centre"
+box = { min = [-0.001, -0.001, -1.0], max = [0.001, 0.001, 1.0] }
+
+[[bcs]]
+region = "centre"
+components = "xy"
+
+[[tools]]
+name = "ground"
+shape = { kind = "plane", point = [0.0, 0.0, 0.0], normal = [0.0, 0.0, 1.0] }
+position = [0.0, 0.0, -0.00025]
+
+[[tools]]
+name = "punch"
+shape = { kind = "punch", radius = 0.004, height = 0.01, edge_radius = 0.001 }
+position = [0.0, 0.0, 0.00025]
+velocity = [0.0, 0.0, -0.0002]
+
+[stepping]
+steps = 3
+
+[[probes]]
+name = "punch_force"
+kind = "tool_force"
+tool = "punch"
+component = "z"
+
+[[probes]]
+name = "max_plastic_strain"
+kind = "plastic_strain"
+stat = "max"
+"""
