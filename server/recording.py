@@ -3,8 +3,9 @@
 last step), the tool meshes once (static, ``tools/<name>``) with their pose (``rr.Transform3D``:
 translation, and rotation for a tool whose keyframes turn it) every step, and time series of
 every probe, energy, Newton iterations, residual, max thinning (and max plastic strain where
-there is a plastic state) and live parameters. ``channels`` lists them from what the model
-built, so a recording has no channel for a quantity the scene lacks.
+there is a plastic state) and live parameters, and at the end the run's summary
+(sim.frames.summary) as a markdown table, ``summary``. ``channels`` lists them from what the
+model built, so a recording has no channel for a quantity the scene lacks.
 
 Every step is flushed. A recording stream writes its footer only when it is closed, and
 ``rerun rrd verify`` refuses a file without one; so when the process that records is killed,
@@ -37,7 +38,8 @@ def channels(outputs: dict) -> list[str]:
     parameter adds ``parameters/<name>`` once it is changed."""
     return ["sheet", *(f"tools/{t}" for t in outputs["tools"]),
             *(f"probes/{p}" for p in outputs["probes"]), *(f"solver/{n}" for n in SOLVER),
-            *(FIELD_MAXIMA[f] for f in outputs["frame_fields"] if f in FIELD_MAXIMA)]
+            *(FIELD_MAXIMA[f] for f in outputs["frame_fields"] if f in FIELD_MAXIMA),
+            "summary"]
 
 
 class Recorder:
@@ -94,6 +96,12 @@ class Recorder:
                 else None
             self.rec.log(f"tools/{name}", rr.Transform3D(
                 translation=np.asarray(pose, np.float32), quaternion=rot))
+        self.rec.flush()
+
+    def summary(self, step: int, t: float, table: str) -> None:
+        """The run's summary (sim.frames.summary.table) at its last step."""
+        self._time(step, t)
+        self.rec.log("summary", rr.TextDocument(table, media_type=rr.MediaType.MARKDOWN))
         self.rec.flush()
 
     def close(self) -> None:

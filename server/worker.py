@@ -305,6 +305,11 @@ class Solver:
         if self.step_delay:
             time.sleep(self.step_delay)
 
+    def _record_summary(self, entries: list[dict]) -> None:
+        from sim.frames.summary import table
+
+        self.record("summary", self.sim.step_index, self.sim.t, table(entries))
+
     def _close_recording(self) -> str | None:
         try:
             if self.recorder is not None:
@@ -329,7 +334,10 @@ class Solver:
         if state != "finished":  # result.json says why, as the status does
             self.sim.end(reason or state, stopped=state == "stopped")
         try:
-            self.sim.write(self.out)
+            result = self.sim.write(self.out)
+            self._record_summary(result["summary"])
+        except RecordingFailed as exc:
+            problems.append(str(exc))
         except Exception as exc:  # the state still goes up; the reason says what broke
             problems.append(f"writing results failed: {exc}")
         problems.append(self._close_recording())

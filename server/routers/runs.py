@@ -95,7 +95,7 @@ class FrameStats(BaseModel):
 # what a new run's id leads to (OpenAPI links: clients and fuzzers follow them)
 RUN_LINKS = {op: {"operationId": op, "parameters": {"run_id": "$response.body#/id"}}
              for op in ("status", "pause", "resume", "step", "stop", "set_parameter", "result",
-                        "frames", "recording", "delete_run")}
+                        "summary", "forming_limits", "frames", "recording", "delete_run")}
 
 
 def _runs(request: Request) -> RunManager:
@@ -161,15 +161,88 @@ def set_parameter(run_id: RunId, name: str, body: ParameterValue, request: Reque
     return _runs(request).set_parameter(run_id, name, body.value)
 
 
-@router.get("/{run_id}/result", responses=RUN)
-def result(run_id: RunId, request: Request) -> dict:
-    """The run's result.json, with ``estimate`` as in the status."""
+class Measure(BaseModel):
+    value: float | list[float]
+    unit: str = Field(description="SI: N, m, 1 (a ratio), deg")
+    display: dict = Field(description="the same value in the unit the page shows: "
+                          '{"value", "unit"} in kN, mm, %, deg')
+
+
+class SummaryEntry(Measure):
+    """One quantity of the run summary (sim.frames.summary)."""
+
+    model_config = ConfigDict(extra="allow")
+    name: str = Field(description="e.g. peak_punch_force, min_thickness, max_draw_in")
+    label: str
+    at: dict = Field(description="where or when: step and vertex as numbers, stroke, point "
+                     "and the like as a Measure")
+    tool: str | None = Field(None, description="the punch, for a punch's quantity")
+    note: str | None = Field(None, description="how the quantity is defined, where needed")
+
+
+class RunResultSummary(BaseModel):
+    run: str
+    converged: bool
+    step: int = Field(description="the last step the run made: the state summarised")
+    summary: list[SummaryEntry] = Field(description="what applies to the scene, in order")
+
+
+class FormingLimits(BaseModel):
+    """The forming limit diagram at the end of the stroke (sim.frames.forming_limits)."""
+
+    model_config = ConfigDict(extra="allow")
+    run: str
+    strain: str
+    step: int
+    minor: list[float] = Field(description="per element, true strain")
+    major: list[float] = Field(description="per element, true strain")
+    curve: dict | None = Field(description="the forming limit curve {kind, minor, major, flc0}"
+                               ", null without one in the material card")
+    zone: list[int] | None = Field(None, description="per element zone code (with a curve)")
+    zones: dict[str, str] | None = Field(None, description="zone code -> name")
+    zone_counts: dict[str, int] | None = None
+    margin: float | None = Field(None, description="marginal zone: this far below the curve")
+    insufficient_stretch: float | None = None
+
+
+def _result(request: Request, run_id: str) -> tuple[RunManager, object, dict]:
     m = _runs(request)
     run = m.get(run_id)
     path = m.files.dir(run.id) / "result.json"
     if not path.is_file():
         raise NotFound(f"run {run_id!r} has no result yet")
-    return {**json.loads(path.read_text()), "estimate": m.estimates.get(run)}
+    return m, run, json.loads(path.read_text())
+
+
+@router.get("/{run_id}/result", responses=RUN)
+def result(run_id: RunId, request: Request) -> dict:
+    """The run's result.json, with ``estimate`` as in the status."""
+    m, run, res = _result(request, run_id)
+    return {**res, "estimate": m.estimates.get(run)}
+
+
+@router.get("/{run_id}/summary", response_model=RunResultSummary, responses=RUN)
+def summary(run_id: RunId, request: Request) -> dict:
+    """The run's summary (result.json's ``summary``): peak punch force and its stroke,
+    thinning, draw-in, part height, wrinkles, springback, volume change, as the scene has
+    them; SI values with their display values (kN, mm, %)."""
+    _, run, res = _result(request, run_id)
+    steps = res.get("steps") or []
+    return {"run": run.id, "converged": bool(res.get("converged")),
+            "step": steps[-1]["step"] if steps else 0, "summary": res.get("summary") or []}
+
+
+@router.get("/{run_id}/forming_limits", response_model=FormingLimits, responses=RUN)
+def forming_limits(run_id: RunId, request: Request) -> dict:
+    """The forming limit diagram of the run's end of stroke: each element's minor and major
+    true strain, and with a forming limit curve in the material card the curve and each
+    element's zone (0 safe, 1 insufficient stretch, 2 wrinkling tendency, 3 marginal,
+    4 failure)."""
+    _, run, res = _result(request, run_id)
+    fl = res.get("forming_limits")
+    if fl is None:
+        raise NotFound(f"run {run_id!r} has no forming limits (its material is not plastic)")
+    return {"run": run.id, **fl}
 
 
 @router.get("/{run_id}/frames", response_model=KeptFrames, responses=RUN)

@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sim.geometry.trimesh import oriented_boundary_edges
+
 if TYPE_CHECKING:
     from sim.geometry.shell import Shell
 
@@ -28,7 +30,7 @@ class DisplayMesh:
         faces = [F, F[:, ::-1] + n_v]
         # rim: each boundary edge (a, b) in its face's orientation gives a quad top-a, top-b,
         # bottom-b, bottom-a
-        be = _oriented_boundary(F)
+        be = oriented_boundary_edges(F)
         a, b = be[:, 0], be[:, 1]
         faces += [np.column_stack([a, a + n_v, b]), np.column_stack([b, a + n_v, b + n_v])]
         return cls(np.concatenate(faces).astype(np.int32), np.concatenate([top, bot]))
@@ -40,10 +42,3 @@ class DisplayMesh:
         """Repeat a per-mid-surface-vertex field on both skins."""
         return np.concatenate([values, values])
 
-
-def _oriented_boundary(F: np.ndarray) -> np.ndarray:
-    """Boundary edges ``(n_b, 2)`` in the orientation of the one face that holds each."""
-    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    _, inv, count = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True,
-                              return_counts=True)
-    return directed[count[inv.ravel()] == 1]

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from sim.elements.base import line_lagrange
+from sim.frames import forming_limits
 from sim.geometry.trimesh import TriMesh, vertex_normals
 from sim.materials.plasticity import net_plastic_strain
 
@@ -88,12 +89,38 @@ def vertex_average(model: Discretised, per_qp: np.ndarray) -> np.ndarray:
     return acc / np.maximum(cnt, 1)
 
 
+def element_strains(model: Discretised, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Major and minor true strain of the mid-surface of each element between the rest state
+    and ``x`` (sim.frames.forming_limits.membrane_strains). Shapes: (n_elem,), (n_elem,)."""
+    return forming_limits.membrane_strains(mid_surface(model, model.x0), mid_surface(model, x),
+                                           model.shell.mesh.faces)
+
+
+def limit_fields(model: Discretised, x: np.ndarray) -> dict[str, np.ndarray]:
+    """Major and minor strain (true) per element and per vertex (the mean of its elements) and,
+    with a forming limit curve, the FLD zone code per element and per vertex (the worst of its
+    elements; sim.frames.forming_limits). Empty for an elastic scene."""
+    if not model.elasticity.plastic:
+        return {}
+    major, minor = element_strains(model, x)
+    out = {"major_strain": vertex_average(model, major[:, None]), "major_strain_elem": major,
+           "minor_strain": vertex_average(model, minor[:, None]), "minor_strain_elem": minor}
+    flc = forming_limits.curve_of(model.scene.material, model.scene.shell)
+    if flc is not None:
+        zone = forming_limits.zones(major, minor, flc)
+        out |= {"fld_zone": forming_limits.worst_per_vertex(zone, model.shell.mesh.faces,
+                                                            model.shell.n_vertices),
+                "fld_zone_elem": zone}
+    return out
+
+
 def output_fields(model: Discretised, x: np.ndarray, h0: np.ndarray) -> dict[str, np.ndarray]:
     """Result fields at state x, per mid-surface vertex ``(n_v,)`` and per element
     (``*_elem``, ``(n_elem,)``): thickness (m), thinning (% of the rest thickness ``h0``),
     von Mises stress (Pa) and, for a plastic scene, the accumulated and the net (retained)
-    equivalent plastic strain. Element values are quadrature-point means; vertex values the
-    mean of the adjacent elements (thickness: measured at the vertex, as in the viewer)."""
+    equivalent plastic strain and the forming limit fields (:func:`limit_fields`). Element
+    values are quadrature-point means; vertex values the mean of the adjacent elements
+    (thickness: measured at the vertex, as in the viewer)."""
     el, faces = model.elasticity, model.shell.mesh.faces
     h = thickness(model, x)
     per_qp = {"von_mises": el.von_mises(x)}
@@ -106,7 +133,7 @@ def output_fields(model: Discretised, x: np.ndarray, h0: np.ndarray) -> dict[str
     for name, q in per_qp.items():
         out[name] = vertex_average(model, q)
         out[f"{name}_elem"] = q.mean(1)
-    return out
+    return out | limit_fields(model, x)
 
 
 def field_summary(fields: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:

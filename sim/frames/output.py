@@ -3,14 +3,16 @@ state, its result (result.json) and the final state (final.npz)."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
-from sim.frames import fields, results
+from sim.frames import fields, forming_limits, results
 from sim.frames.display import DisplayMesh
+from sim.frames.summary import Summary
 from sim.model.build import Model, frame_fields
 from sim.solve.newton import Timing
 
@@ -30,6 +32,8 @@ class Run(Protocol):
     parameter_log: list[dict]
     failure: dict | None
     stopped: str | None
+    summary: Summary
+    loaded: np.ndarray | None  # the state at the end of the stroke, before any release
     release_support: list[dict]
     sections: dict[str, list[dict]]
 
@@ -59,11 +63,14 @@ def frame(sim: Run) -> Frame:
     m, x = sim.model, sim.x
     rec = sim.records[-1] if sim.records else None
     h = fields.thickness(m, x)
+    limits = functools.cache(lambda: fields.limit_fields(m, x))  # three fields, one computation
     field_of = {"thickness_mm": lambda: 1e3 * h,
                 "thinning_pct": lambda: 100 * (1 - h / sim.h0),
                 "von_mises_MPa": lambda: 1e-6 * fields.vertex_average(
                     m, m.elasticity.von_mises(x)),
-                "eq_plastic_strain": lambda: fields.vertex_average(m, m.elasticity.ep)}
+                "eq_plastic_strain": lambda: fields.vertex_average(m, m.elasticity.ep),
+                **{name: functools.partial(lambda k: limits()[k], name)
+                   for name in ("major_strain", "minor_strain", "fld_zone")}}
     values = {name: sim.display.per_vertex(field_of[name]()) for name in frame_fields(m)}
     return Frame(sim.step_index, sim.t, sim.display.positions(sim.x), values,
                  rec.probes if rec else {}, rec.iterations if rec else 0,
@@ -108,12 +115,42 @@ def _result(sim: Run) -> dict:
         "steps": [asdict(r) for r in sim.records],
         "sections": sim.sections,
         "fields": fields.field_summary(fields.output_fields(m, sim.x, sim.h0)),
+        "summary": sim.summary.result(sim),
+        "forming_limits": forming_limit_diagram(sim),
         "timing": {"total": sim.wall, "assembly": t.assembly,
                    "factorisation": t.factorisation, "solve": t.solve,
                    "line_search": t.line_search, "newton_iterations": t.iterations,
                    "per_iteration": (t.assembly + t.factorisation + t.solve
                                      + t.line_search) / n_it},
     }
+
+
+def forming_limit_diagram(sim: Run) -> dict | None:
+    """The FLD of a plastic scene (None for an elastic one): each element's minor and major
+    true strain of the mid-surface (sim.frames.forming_limits) at the end of the stroke (before
+    any release), and with a forming limit curve the curve over the points' range, the zone
+    thresholds, each element's zone code and how many elements each zone holds."""
+    m = sim.model
+    if not m.elasticity.plastic:
+        return None
+    x = sim.loaded if sim.loaded is not None else sim.x
+    step = min(sim.step_index, m.scene.stepping.steps)
+    major, minor = fields.element_strains(m, x)
+    out = {"strain": "true (log) in-plane principal strains of the mid-surface, per element",
+           "step": step, "minor": np.round(minor, 6).tolist(),
+           "major": np.round(major, 6).tolist(), "curve": None}
+    flc = forming_limits.curve_of(m.scene.material, m.scene.shell)
+    if flc is None:
+        return out
+    zone = forming_limits.zones(major, minor, flc)
+    lo, hi = min(-0.3, 1.1 * float(minor.min())), max(0.3, 1.1 * float(minor.max()))
+    return out | {
+        "curve": {"kind": flc.kind, **flc.sample(lo, hi),
+                  "flc0": float(flc(0.0))},
+        "margin": flc.margin, "insufficient_stretch": flc.insufficient_stretch,
+        "zone": zone.tolist(), "zones": forming_limits.ZONES,
+        "zone_counts": {name: int((zone == code).sum())
+                        for code, name in forming_limits.ZONES.items()}}
 
 
 def write(sim: Run, out: Path) -> dict:

@@ -252,3 +252,12 @@ def boundary_edges(faces: np.ndarray) -> np.ndarray:
     uniq, face_edges = edges(faces)
     count = np.bincount(face_edges.ravel(), minlength=len(uniq))
     return uniq[count == 1]
+
+
+def oriented_boundary_edges(faces: np.ndarray) -> np.ndarray:
+    """Boundary edges ``(n_b, 2)`` in the orientation of the one face that holds each (so the
+    sheet lies to the left of each, seen along the faces' normal)."""
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    _, inv, count = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True,
+                              return_counts=True)
+    return directed[count[inv.ravel()] == 1]

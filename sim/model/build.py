@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sim.elements import get_element
+from sim.frames import summary
 from sim.geometry.shell import Shell, extrude
 from sim.model import terms as parts
 from sim.model.curves import motion_factor
@@ -117,10 +118,13 @@ def newton_settings(scene: Scene, shell: Shell) -> NewtonSettings:
 
 
 def frame_fields(model: Model) -> list[str]:
-    """Per-vertex fields of every frame (``Simulation.frame``): plastic strain only where there
-    is a plastic state."""
+    """Per-vertex fields of every frame (``Simulation.frame``): plastic strain, and the major
+    and minor strain of the forming limits, only where there is a plastic state; the FLD zone
+    only with a forming limit curve (sim.frames.forming_limits)."""
+    plastic = model.elasticity.plastic
     return ["thickness_mm", "thinning_pct", "von_mises_MPa",
-            *(["eq_plastic_strain"] if model.elasticity.plastic else [])]
+            *(["eq_plastic_strain", "major_strain", "minor_strain"] if plastic else []),
+            *(["fld_zone"] if model.scene.material.flc is not None else [])]
 
 
 def describe(model: Model) -> dict:
@@ -145,6 +149,7 @@ def describe(model: Model) -> dict:
             "outputs": {"probes": [p.name for p in sc.probes],
                         "sections": [s.name for s in sc.sections],
                         "frame_fields": frame_fields(model),
-                        "tools": [t.tool for t in tools]}}
+                        "tools": [t.tool for t in tools],
+                        "summary": summary.applicable(summary.features(model)[0])}}
 
 

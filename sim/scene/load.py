@@ -68,6 +68,11 @@ class Scene(Strict):
             if PROBES[p.kind].plastic and not plastic:
                 raise ValueError(f"probes.{i}: a {p.kind} probe needs material.model = "
                                  "'plastic' (an elastic scene has no plastic strain)")
+        flc = self.material.flc
+        if flc and flc.kind == "keeler_brazier" and flc.thickness is None \
+                and self.shell.thickness is None:
+            raise ValueError("material.flc.thickness: Keeler-Brazier needs the sheet thickness; "
+                             "the shell's is not one constant (give flc.thickness)")
         if self.study:
             self._check_study(self.study)
         return self

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Literal, Self
 
 from pydantic import Field, model_validator
@@ -25,6 +26,12 @@ from sim.tools import shapes as tool_shapes
 
 PRIMITIVES = tuple(tool_shapes.PRIMITIVES)  # the kinds sim.tools.shapes builds
 CSG = tuple(tool_shapes.CSG)
+ROLES = ("punch", "die", "blank_holder", "other")
+# the roles a tool's name or shape kind implies when it does not declare one (tool_role)
+ROLE_WORDS = ((re.compile("punch"), "punch"), (re.compile("holder"), "blank_holder"),
+              (re.compile("(?<![a-z])die"), "die"))
+ROLE_SHAPES = {"punch": "punch", "die_ring": "die", "star_die": "die",
+               "blank_holder": "blank_holder"}
 
 
 class _Shape(Strict):
@@ -129,6 +136,10 @@ class ToolSpec(Strict):
     # force control: the lowest z offset (m, from the start position) the tool can reach, the
     # press's distance blocks; without it a holder falls once the flange has been drawn in
     stop: Coord | None = None
+    # what the tool does, for the run summary (punch force, flange); default: from the name
+    # (punch*, *holder*, die*), else the shape (punch, die_ring / star_die, blank_holder),
+    # else a force-controlled tool is a blank holder; see tool_role
+    role: Literal[ROLES] | None = None
 
     @model_validator(mode="after")
     def _force_axis(self) -> Self:
@@ -149,3 +160,19 @@ class ToolSpec(Strict):
         return self
 
 
+
+
+def tool_role(spec: ToolSpec) -> str:
+    """The tool's role: its ``role``, else the first of: a word of its name (lower case:
+    ``punch`` anywhere, ``holder`` anywhere, ``die`` at the start of a word, so ``die``,
+    ``lower_die`` and ``die2`` are dies, ``studied`` is not), its shape's kind, force control
+    (a blank holder); else ``other``."""
+    if spec.role is not None:
+        return spec.role
+    name = spec.name.lower()
+    for word, role in ROLE_WORDS:
+        if word.search(name):
+            return role
+    if spec.shape.kind in ROLE_SHAPES:
+        return ROLE_SHAPES[spec.shape.kind]
+    return "blank_holder" if spec.force is not None else "other"

@@ -133,6 +133,44 @@ class Hardening(Strict):
         return self
 
 
+class FLCSpec(Strict):
+    """A forming limit curve (sim.frames.forming_limits): the limit major strain over the minor
+    strain, both true (log) in-plane strains of the mid-surface, and the zone thresholds of the
+    forming limit diagram. ``kind = "points"``: ``points`` [minor, major] with minor increasing
+    (a measured curve; interpolated linearly, held constant beyond its ends);
+    ``kind = "keeler_brazier"``: the curve from thickness and hardening exponent,
+    FLD0 [%] = (23.3 + 14.13 t [mm]) n / 0.21 (engineering major strain at plane strain; Keeler
+    and Brazier 1977), a correlation for steels. Plastic materials only."""
+
+    kind: Literal["points", "keeler_brazier"]
+    # points: [minor, major] true strains, minor increasing, major > 0
+    points: list[tuple[bounded(-MAX_STRAIN, MAX_STRAIN, lo_open=False),
+                       bounded(0.0, MAX_STRAIN)]] = []
+    # keeler_brazier: hardening exponent; default: hardening.n of a swift law
+    n: bounded(0.0, 1.0) | None = None
+    # keeler_brazier: sheet thickness (m); default: shell.thickness
+    thickness: Length | None = None
+    # the marginal zone: this far (true major strain) below the curve
+    margin: bounded(0.0, 1.0, lo_open=False) = 0.1
+    # insufficient stretch: both strains smaller than this in size
+    insufficient_stretch: bounded(0.0, 1.0, lo_open=False) = 0.02
+
+    @model_validator(mode="after")
+    def _own_fields(self) -> Self:
+        if self.kind == "points":
+            if len(self.points) < 2:
+                raise ValueError("points: a curve needs at least 2 [minor, major] points")
+            minor = [p[0] for p in self.points]
+            if any(b <= a for a, b in zip(minor, minor[1:], strict=False)):
+                raise ValueError("points: the minor strains must increase")
+            if self.n is not None or self.thickness is not None:
+                raise ValueError("n, thickness: parameters of kind 'keeler_brazier', not of "
+                                 "'points'")
+        elif self.points:
+            raise ValueError("points: only for kind 'points'")
+        return self
+
+
 class MaterialSpec(Strict):
     model: Literal["neo_hookean", "hencky", "plastic"] = "neo_hookean"
     E: Stress
@@ -140,10 +178,15 @@ class MaterialSpec(Strict):
     density: bounded(0.0, MAX_DENSITY) = 1000.0
     yield_stress: Stress | None = None  # initial flow stress (Pa), plastic model only
     hardening: Hardening = Hardening()
+    # forming limit curve: major and minor strains, zones and the FLD of a run
+    flc: FLCSpec | None = None
 
     @model_validator(mode="after")
     def _plastic_fields(self) -> Self:
         if self.model != "plastic":
+            if self.flc is not None:
+                raise ValueError(f"flc: forming limits are for model 'plastic' (not "
+                                 f"{self.model!r})")
             if self.yield_stress is not None:
                 raise ValueError(f"yield_stress: only used by model 'plastic' (not "
                                  f"{self.model!r})")
@@ -159,6 +202,11 @@ class MaterialSpec(Strict):
                              f"{y0:.6g} Pa (a softening law; see Hardening)")
         if h.law == "swift":
             self._swift_e0()
+        if self.flc and self.flc.kind == "keeler_brazier" and self.flc.n is None \
+                and not (h.law == "swift" and h.n > 0):
+            raise ValueError(f"flc.n: Keeler-Brazier needs a hardening exponent n > 0 (the "
+                             f"default, a swift law's n, is not there: law {h.law!r}"
+                             f"{f', n = {h.n}' if h.law == 'swift' else ''})")
         return self
 
     def _swift_e0(self) -> float:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.frames import fields, output, probes, results
+from sim.frames import fields, output, probes, results, summary
 from sim.frames.display import DisplayMesh
 from sim.frames.output import Frame
 from sim.geometry.rigid import determinate_support
@@ -98,6 +98,8 @@ class Simulation:
         self.x = self.model.x0.copy()
         self.display = DisplayMesh.from_shell(self.model.shell)
         self.h0 = fields.thickness(self.model, self.x)
+        self.loaded: np.ndarray | None = None  # the state at the end of the stroke (release)
+        self.summary = summary.Summary(self.model)
         self._record_sections()  # the rest state, when a section asks for step 0
 
     @property
@@ -206,7 +208,8 @@ class Simulation:
         (remaining BCs hold their current positions)."""
         m = self.model
         start = time.perf_counter()
-        self.formed = fields.mid_surface(m, self.x)  # the shape in the closed tools
+        self.loaded = self.x.copy()
+        self.formed = fields.mid_surface(m, self.loaded)  # the shape in the closed tools
         m.problem.set_fixed(self._release_supports())
         released = {t.name for t in m.scene.tools if t.release}
         # springback is a static equilibrium: a dynamic run's inertia goes too (kept, the
@@ -291,6 +294,7 @@ class Simulation:
                             "reason": f"not finite: {', '.join(bad)}",
                             "iterations": rec.iterations, "residuals": []}
             raise SolverFailure(self.failure)
+        self.summary.observe(self)
         return rec
 
     def _advance(self) -> StepRecord:

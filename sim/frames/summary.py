@@ -1,0 +1,398 @@
+"""The run summary: the numbers an engineer reads of a forming run, in result.json's
+``summary``. One registry knows the quantities: each declares what the scene must have for it
+(a punch, a release stage, a flat blank's edge, a flange) and is computed only where it has
+them, so a scene without a punch reports no punch force.
+
+Each entry is ``{"name", "label", "value", "unit", "display": {"value", "unit"}, "at": {...}}``
+(plus ``tool`` for a tool's quantity, ``note`` where the definition needs saying): ``value`` in
+SI (N, m; ratios as fractions, unit "1"), ``display`` the same in the unit the page shows (kN,
+mm, %). ``at`` says where or when: ``step`` and ``vertex`` (mid-surface vertex id) as plain
+numbers, every dimensioned one (``stroke``, ``point``: mid-surface position) as a
+``{"value", "unit", "display"}`` of its own.
+
+The quantities, and the state they read (final: the last state of the run, after the release
+when there is one; loaded: the end of the stroke):
+
+- ``peak_punch_force``, ``final_punch_force`` (per punch; ``tool``): the force resisting the
+  punch's motion, -(F . d), F the force the sheet exerts on the punch and d the unit direction
+  of its largest excursion from where it started; the stroke (its travel along d) where it
+  peaks; final: at the last step of the stroke. A punch that never moves: |F|.
+- ``min_thickness``, ``max_thinning``, ``max_thickening``: over the mid-surface vertices
+  (thickness: the fibre length between the skins), final state.
+- ``max_draw_in``, ``min_draw_in`` (a flat blank's outer edge): sim.frames.blank.draw_in,
+  final state.
+- ``part_height`` (punches moving along one direction d): the extent of the mid-surface along
+  d, final state.
+- ``flange_wrinkle_amplitude`` (a flange: the blank's whole outer edge rests on a die at the
+  start): half the peak-to-valley of the edge's heights about its least-squares plane
+  (sim.frames.blank.waviness), its largest over the steps of the stroke while the whole edge
+  is on the die's face (``Summary.observe``).
+- ``springback_max``, ``springback_mean`` (a release stage that ran): the distance of each
+  mid-surface vertex of the released part from the loaded shape, after the best-fit rigid
+  motion of released onto loaded (the release holds the part statically determinately,
+  sim.geometry.rigid: its position is that of the supports chosen, its shape is not).
+- ``tool_deviation_max``, ``tool_deviation_mean`` (a release stage that ran, tools in contact
+  at the end of the stroke): the distance from each tool of the skin nodes that touched it
+  (within its contact layer) at the end of the stroke, the released part placed by the same
+  best-fit motion, the tool where the stroke left it.
+- ``volume_change``: V / V0 - 1 of the sheet, final state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sim.frames import blank
+from sim.frames.fields import mid_surface, thickness, volume
+from sim.scene.shapes import tool_role
+from sim.terms.tool_contact import ToolContact
+from sim.tools.evaluate import sdf_world_distance
+
+if TYPE_CHECKING:
+    from sim.frames.output import Run
+    from sim.model.build import Model
+
+# SI unit -> (the unit the page shows, factor)
+DISPLAY = {"N": ("kN", 1e-3), "m": ("mm", 1e3), "1": ("%", 100.0), "deg": ("deg", 1.0)}
+# a flat blank: every rest mid-surface vertex within this many thicknesses of one plane
+FLAT = 0.5
+# an edge resting on a die: within this many thicknesses of the die's surface at the start
+RESTS = 0.05
+# punches moving along one direction: their directions within a degree of each other
+PARALLEL = np.cos(np.radians(1.0))
+
+
+def measure(value: float | np.ndarray | list, unit: str) -> dict:
+    """``{"value", "unit", "display": {"value", "unit"}}`` of an SI number or list of them."""
+    shown, factor = DISPLAY[unit]
+    scaled = (np.asarray(value, float) * factor).tolist()
+    value = np.asarray(value, float).tolist()
+    return {"value": value, "unit": unit, "display": {"value": scaled, "unit": shown}}
+
+
+def entry(name: str, label: str, value: float, unit: str, at: dict | None = None,
+          **extra: object) -> dict:
+    return {"name": name, "label": label, **measure(value, unit), "at": at or {}, **extra}
+
+
+def at_vertex(v: int, points: np.ndarray) -> dict:
+    return {"vertex": int(v), "point": measure(points[v], "m")}
+
+
+@dataclass
+class View:
+    """What a quantity reads: the run (``sim``), its final state ``x``, the state at the end
+    of the stroke ``loaded`` (None before a release ran), the records of the stroke's steps,
+    and the tracker (``summary``: the blank's edge, the tools' starts, the wrinkle history)."""
+
+    sim: Run
+    summary: Summary
+    x: np.ndarray
+    loaded: np.ndarray | None
+    stroke: list
+
+    @property
+    def model(self) -> Model:
+        return self.sim.model
+
+    def mid(self, x: np.ndarray | None = None) -> np.ndarray:
+        return mid_surface(self.model, self.x if x is None else x)
+
+
+@dataclass(frozen=True)
+class Quantity:
+    value: Callable  # (View) -> list of entries
+    needs: tuple[str, ...] = ()  # "tools", "punch", "edge", "flange", "release" (features)
+
+
+QUANTITIES: dict[str, Quantity] = {}
+
+
+def quantity(name: str, needs: tuple[str, ...] = ()) -> Callable[[Callable], Callable]:
+    """Register the decorated ``value(view) -> [entries]`` as ``name``."""
+    def register(value: Callable) -> Callable:
+        QUANTITIES[name] = Quantity(value, needs)
+        return value
+    return register
+
+
+# ---- what the scene has ----------------------------------------------------------------------
+def tools_of(model: Model, role: str) -> list[ToolContact]:
+    roles = {spec.name: tool_role(spec) for spec in model.scene.tools}
+    return [t for t in model.terms if isinstance(t, ToolContact) and roles[t.tool] == role]
+
+
+def flat_edge(model: Model) -> blank.Edge | None:
+    """The outer edge of a flat blank (sim.frames.blank), None for a curved one or no edge."""
+    sh = model.shell
+    V, F = sh.mesh.vertices, sh.mesh.faces
+    if not blank.is_flat(V, F, FLAT * float(sh.thickness.min())):
+        return None
+    return blank.outer_edge(V, F)
+
+
+def into_die(model: Model, edge: blank.Edge) -> np.ndarray | None:
+    """The unit direction from the blank into the die its whole outer edge rests on at the
+    start (every edge vertex has a skin within ``RESTS`` thicknesses of the die's surface): a
+    flange. None when no die holds the whole edge."""
+    sh, x0 = model.shell, model.x0
+    top, bottom = (x0[sh.skin_nodes(s)][edge.vertices] for s in (True, False))
+    for die in tools_of(model, "die"):
+        d = sdf_world_distance(die.prog, die.R_now, die.translation(x0),
+                               np.concatenate([top, bottom])).reshape(2, -1)
+        if np.all(d.min(0) <= RESTS * sh.thickness[edge.vertices]):
+            towards = np.where((d[1] <= d[0])[:, None], bottom - top, top - bottom).sum(0)
+            return towards / np.linalg.norm(towards)
+    return None
+
+
+def features(model: Model) -> tuple[set[str], blank.Edge | None, np.ndarray | None]:
+    """What the scene has that a quantity may need, the blank's outer edge and, for a flange,
+    the direction into its die."""
+    have = {"tools"} if any(isinstance(t, ToolContact) for t in model.terms) else set()
+    if tools_of(model, "punch"):
+        have.add("punch")
+    if model.scene.stepping.release:
+        have.add("release")
+    edge = flat_edge(model)
+    die = None
+    if edge is not None:
+        have.add("edge")
+        die = into_die(model, edge) if "punch" in have else None
+        if die is not None:
+            have.add("flange")
+    return have, edge, die
+
+
+def applicable(have: set[str]) -> list[str]:
+    """The quantities a scene with ``have`` reports."""
+    return [name for name, q in QUANTITIES.items() if set(q.needs) <= have]
+
+
+# ---- the tracker -----------------------------------------------------------------------------
+@dataclass
+class Summary:
+    """Follows a run for its summary: what it needs of the rest state, and of each step of the
+    stroke what the final state no longer shows (the flange's wrinkles)."""
+
+    model: Model
+    have: set[str] = field(init=False)
+    edge: blank.Edge | None = field(init=False)
+    into_die: np.ndarray | None = field(init=False)  # a flange's direction into its die
+    volume0: float = field(init=False)
+    starts: dict[str, np.ndarray] = field(init=False)
+    # (step, peak-to-valley) of the edge while it is a flange: on the die's face
+    wrinkles: list[tuple[int, float]] = field(default_factory=list)
+    flange_left: int | None = None  # the step at which part of the edge left the die's face
+
+    def __post_init__(self) -> None:
+        m = self.model
+        self.have, self.edge, self.into_die = features(m)
+        self.volume0 = volume(m, m.x0)
+        self.starts = {t.tool: np.array(t.translation(m.x0)) for t in m.terms
+                       if isinstance(t, ToolContact)}
+
+    @property
+    def names(self) -> list[str]:
+        return applicable(self.have)
+
+    def observe(self, sim: Run) -> None:
+        """After each step of the stroke, while the edge is a flange: its waviness. The edge
+        has left the die's face (into its opening, around its shoulder) once a vertex has moved
+        into the die by half a thickness: the die blocks that motion, wrinkles lift the flange
+        off it, so only the shoulder lets the edge go that way; the edge's heights then follow
+        the shoulder's shape, not wrinkles."""
+        m, v = self.model, self.edge.vertices if self.edge is not None else None
+        if "flange" not in self.have or self.flange_left is not None \
+                or sim.step_index > m.scene.stepping.steps:
+            return
+        P = mid_surface(m, sim.x)[v]
+        if np.any((P - m.shell.mesh.vertices[v]) @ self.into_die > 0.5 * m.shell.thickness[v]):
+            self.flange_left = sim.step_index
+            return
+        self.wrinkles.append((sim.step_index, blank.waviness(P)))
+
+    def result(self, sim: Run) -> list[dict]:
+        steps = self.model.scene.stepping.steps
+        released = self.model.scene.stepping.release and sim.step_index > steps
+        view = View(sim, self, sim.x, sim.loaded if released else None,
+                    [r for r in sim.records if r.step <= steps])
+        return [e for name in self.names for e in QUANTITIES[name].value(view)]
+
+
+# ---- the quantities --------------------------------------------------------------------------
+def punch_history(rows: list[tuple[int, dict]], start: np.ndarray) -> dict:
+    """A punch's history from its step reports ``rows`` [(step, {fx, fy, fz, x, y, z})] and
+    its start translation: ``steps``, ``force`` resisting its motion (N) and ``stroke`` (m) at
+    each, and ``direction``, the unit direction of its largest excursion from the start. A
+    punch that never moves: the force's size, no stroke or direction. Shapes: (k,)."""
+    steps = np.array([s for s, _ in rows], int)
+    F = np.array([[r["fx"], r["fy"], r["fz"]] for _, r in rows], float).reshape(-1, 3)
+    T = np.array([[r["x"], r["y"], r["z"]] for _, r in rows], float).reshape(-1, 3) - start
+    reach = np.linalg.norm(T, axis=1)
+    if not len(rows) or reach.max() == 0.0:
+        return {"steps": steps, "force": np.linalg.norm(F, axis=1), "stroke": None,
+                "direction": None}
+    d = T[int(np.argmax(reach))] / reach.max()
+    return {"steps": steps, "force": -F @ d, "stroke": T @ d, "direction": d}
+
+
+def punches(view: View) -> dict[str, dict]:
+    """:func:`punch_history` of every punch that was active in the stroke."""
+    out = {}
+    for t in tools_of(view.model, "punch"):
+        rows = [(r.step, r.tools[t.tool]) for r in view.stroke if t.tool in r.tools]
+        if rows:
+            out[t.tool] = punch_history(rows, view.summary.starts[t.tool])
+    return out
+
+
+@quantity("punch_force", needs=("punch",))
+def _punch_force(view: View) -> list[dict]:
+    out = []
+    for tool, h in punches(view).items():
+        steps, force, stroke = h["steps"], h["force"], h["stroke"]
+        for name, label, k in (("peak_punch_force", "Peak punch force", int(np.argmax(force))),
+                               ("final_punch_force", "Punch force at the end of the stroke",
+                                len(force) - 1)):
+            at = {"step": int(steps[k])}
+            if stroke is not None:
+                at["stroke"] = measure(stroke[k], "m")
+            out.append(entry(name, label, force[k], "N", at, tool=tool))
+    return out
+
+
+@quantity("thickness")
+def _thickness(view: View) -> list[dict]:
+    h, h0, mid = thickness(view.model, view.x), view.sim.h0, view.mid()
+    thin, i = 1 - h / h0, int(np.argmin(h))
+    j, k = int(np.argmax(thin)), int(np.argmin(thin))
+    return [entry("min_thickness", "Minimum thickness", h[i], "m", at_vertex(i, mid)),
+            entry("max_thinning", "Maximum thinning", thin[j], "1", at_vertex(j, mid)),
+            entry("max_thickening", "Maximum thickening", -thin[k], "1", at_vertex(k, mid))]
+
+
+@quantity("draw_in", needs=("punch", "edge"))
+def _draw_in(view: View) -> list[dict]:
+    edge = view.summary.edge
+    rest = view.model.shell.mesh.vertices
+    d = blank.draw_in(rest, view.mid(), edge)
+    note = "in-plane displacement of the blank's outer edge towards the inside"
+    return [entry(name, label, d[k], "m", {"vertex": int(edge.vertices[k]),
+                                            "rest_point": measure(rest[edge.vertices[k]], "m")},
+                  note=note)
+            for name, label, k in (("max_draw_in", "Largest draw-in", int(np.argmax(d))),
+                                   ("min_draw_in", "Smallest draw-in", int(np.argmin(d))))]
+
+
+@quantity("part_height", needs=("punch",))
+def _part_height(view: View) -> list[dict]:
+    dirs = [h["direction"] for h in punches(view).values() if h["direction"] is not None]
+    if not dirs or any(abs(d @ dirs[0]) < PARALLEL for d in dirs):
+        return []
+    z = view.mid() @ dirs[0]
+    return [entry("part_height", "Part height", z.max() - z.min(), "m",
+                  {"direction": [float(c) for c in dirs[0]]},
+                  note="extent of the mid-surface along the punch's direction")]
+
+
+@quantity("flange_wrinkle_amplitude", needs=("flange",))
+def _wrinkles(view: View) -> list[dict]:
+    if not view.summary.wrinkles:
+        return []
+    step, ptv = max(view.summary.wrinkles, key=lambda w: w[1])
+    return [entry("flange_wrinkle_amplitude", "Flange wrinkle amplitude", ptv / 2, "m",
+                  {"step": step, "peak_to_valley": measure(ptv, "m"),
+                   "edge_left_die_face": view.summary.flange_left},
+                  note="half the peak-to-valley of the blank edge's heights about its "
+                       "best-fit plane, the largest over the stroke while the edge is on the "
+                       "die's face")]
+
+
+def aligned(view: View) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation and translation that best fit the released mid-surface onto the loaded."""
+    return blank.best_fit(view.mid(), view.mid(view.loaded))
+
+
+@quantity("springback", needs=("release",))
+def _springback(view: View) -> list[dict]:
+    if view.loaded is None:
+        return []
+    R, c = aligned(view)
+    Q = view.mid(view.loaded)
+    dev = np.linalg.norm(view.mid() @ R.T + c - Q, axis=1)
+    k = int(np.argmax(dev))
+    angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))
+    note = ("released part against its loaded shape after the best-fit rigid motion (the "
+            "release holds the part only up to a rigid motion)")
+    fit = {"rigid_rotation": measure(angle, "deg"), "rigid_translation": measure(c, "m")}
+    return [entry("springback_max", "Springback, largest deviation", dev[k], "m",
+                  at_vertex(k, Q) | fit, note=note),
+            entry("springback_mean", "Springback, mean deviation", dev.mean(), "m", note=note)]
+
+
+def tool_deviations(view: View, R: np.ndarray, c: np.ndarray) -> list[tuple[str, int, float]]:
+    """(tool, node, distance) of every skin node in a tool's contact layer at the end of the
+    stroke: its distance from that tool, the released part moved by (R, c)."""
+    out = []
+    for t in (t for t in view.model.terms if isinstance(t, ToolContact)):
+        touch = t.nodes[t.gap(view.loaded) < t.delta]
+        if not len(touch):
+            continue
+        X = view.x[touch] @ R.T + c
+        d = sdf_world_distance(t.prog, t.R_now, t.translation(view.loaded), X)
+        out += [(t.tool, int(n), abs(float(v))) for n, v in zip(touch, d, strict=True)]
+    return out
+
+
+@quantity("tool_deviation", needs=("release", "tools"))
+def _tool_deviation(view: View) -> list[dict]:
+    if view.loaded is None:
+        return []
+    rows = tool_deviations(view, *aligned(view))
+    if not rows:
+        return []
+    d = np.array([r[2] for r in rows])
+    tool, node, dist = rows[int(np.argmax(d))]
+    note = ("distance of the released part's skin from the tools it touched at the end of the "
+            "stroke, after the best-fit rigid motion onto the loaded shape")
+    return [entry("tool_deviation_max", "Deviation from the tool surface, largest", dist, "m",
+                  {"tool": tool, "node": node}, note=note),
+            entry("tool_deviation_mean", "Deviation from the tool surface, mean", d.mean(), "m",
+                  note=note)]
+
+
+@quantity("volume_change")
+def _volume_change(view: View) -> list[dict]:
+    return [entry("volume_change", "Volume change",
+                  volume(view.model, view.x) / view.summary.volume0 - 1, "1")]
+
+
+# ---- as text ---------------------------------------------------------------------------------
+def _shown(m: dict) -> str:
+    v, unit = m["display"]["value"], m["display"]["unit"]
+    text = f"({', '.join(f'{c:.4g}' for c in v)})" if isinstance(v, list) else f"{v:.4g}"
+    return f"{text} {unit}"
+
+
+def _where(at: dict) -> str:
+    parts = []
+    for key, v in at.items():
+        if isinstance(v, dict) and "display" in v:
+            parts.append(f"{key.replace('_', ' ')} {_shown(v)}")
+        elif v is not None and key != "direction":
+            parts.append(f"{key.replace('_', ' ')} {v}")
+    return ", ".join(parts)
+
+
+def table(entries: list[dict]) -> str:
+    """The summary as a markdown table (the recording's ``summary`` document, ``q3t run``)."""
+    rows = ["| quantity | value | where |", "|---|---|---|"]
+    for e in entries:
+        label = f"{e['label']} ({e['tool']})" if "tool" in e else e["label"]
+        rows.append(f"| {label} | {_shown(e)} | {_where(e['at'])} |")
+    return "\n".join(rows)
