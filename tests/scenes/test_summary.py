@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import tomllib
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,8 +30,8 @@ from sim.geometry.trimesh import annulus, rectangle
 from sim.scene.load import SceneError, scene_from_dict
 from sim.scene.shapes import tool_role
 from sim.stepping.simulation import Simulation
+from tests.support import ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
 E, NU, Y0, H = 200e9, 0.3, 200e6, 2e9
 
 
