@@ -448,10 +448,11 @@ class BlockingViewer:
         self.shown.append(frame["step"])
 
     def new_run(self, *a, **k): pass
-    def set_status(self, *a): pass
+    def run_status(self, *a): pass
+    def show_run(self, *a): pass
     def add_parameters(self, *a): pass
     def set_parameter_value(self, *a): pass
-    def set_recordings(self, *a): pass
+    def set_runs(self, *a): pass
 
 
 def test_frames_are_dropped_for_a_slow_viewer(env, monkeypatch):
