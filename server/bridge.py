@@ -356,8 +356,8 @@ class Bridge:
         if run is None:
             return
         probes = ", ".join(f"{k} = {v:.4g}" for k, v in list(frame["probes"].items())[:3])
-        status = (f"Run `{run.id}`  \n{run.state}, step {frame['step']}/{run.n_steps}, "
-                  f"{frame['iterations']} Newton iterations  \n{probes}")
+        status = (f"{run.line()}  \nstep {frame['step']}: {frame['iterations']} Newton "
+                  f"iterations  \n{probes}")
         try:
             self.m.viewer.show(frame, status, final=final)
         except Exception as exc:  # a viewer problem must never stop the bridge

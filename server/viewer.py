@@ -154,7 +154,7 @@ class Viewer:
         with self.lock, self.param_folder:
             active = not self.gui.buttons["Pause"].disabled
             for name, (lo, hi) in parameters.items():
-                value = self.parameters.get(name, lo)
+                value = self.parameters.get(name, 1.0)  # no run shown: as written
                 s = self.server.gui.add_slider(name, min=lo, max=hi, step=(hi - lo) / 1000,
                                                initial_value=min(max(value, lo), hi),
                                                disabled=not active)

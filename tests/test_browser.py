@@ -1,7 +1,7 @@
 """The real server in a subprocess, driven by Playwright in Debian's chromium: open the page,
 start a run on a tapered sheet, see the coloured shell in the viser viewer (pixel colours from
 the colour map, several of its bins: the thickness varies along the sheet), pause and see the
-step count stop; press the viewer's own Play, Pause and Step; edit a scene in the schema form
+step count stop; press the viewer's own Resume, Pause and Step; edit a scene in the schema form
 (errors next to the field, lists, optional fields, the TOML view in sync both ways), save it,
 run it and read the run's error estimate from a study report."""
 
@@ -165,8 +165,8 @@ def test_page_run_viewer_pause(server, tmp_path):
         # the sheet tapers from 7 to 3.5 mm: its colours span the map, not one hue of it (a
         # one-colour mesh fills a single bin)
         assert spread(bins) >= 3, f"colour-map bins {bins.tolist()}: {tmp_path}"
-        # the viewer's own buttons: Play, Pause, Step (viser GUI in the iframe)
-        frame.get_by_role("button", name="Play").click()
+        # the viewer's own buttons: Resume, Pause, Step (viser GUI in the iframe)
+        frame.get_by_role("button", name="Resume").click()
         page.wait_for_function(f"+document.getElementById('status').dataset.step > {step}")
         frame.get_by_role("button", name="Pause").click()
         page.wait_for_function("document.getElementById('status').dataset.state == 'paused'")

@@ -430,7 +430,7 @@ def test_viewer_stays_on_loopback_unless_exposed(capsys):
     args = serve_args("--host", "0.0.0.0", "--token", "t", "--expose-viewer")
     assert serve_settings(args, "t").viewer_host == "0.0.0.0"
     err = capsys.readouterr().err
-    assert "no token check" in err and "Play, Pause, Step and Reset" in err
+    assert "no token check" in err and "Pause, Resume, Step and Stop" in err
     assert serve_settings(serve_args("--record-every", "3"), None).record_every == 3
 
 

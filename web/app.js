@@ -197,9 +197,10 @@ async function buildSliders() {
     const inp = document.createElement("input");
     // the whole range the server accepts (load_scale goes to 100), in 1000 steps
     Object.assign(inp, { type: "range", name, min: r.min, max: r.max,
-                         step: (r.max - r.min) / 1000, disabled: true });
+                         step: (r.max - r.min) / 1000, value: 1, disabled: true });
     inp.id = `param-${name}`;
     out.id = `param-${name}-value`;
+    out.textContent = "1";  // no run shown yet: as written
     inp.oninput = () => { inp.dataset.busy = "1"; out.textContent = inp.value; };
     inp.onchange = () => setParameter(inp, out);
     label.append(name + " ", inp, " ", out);
@@ -270,6 +271,7 @@ async function selectRun(id) {
   try {
     const v = await api("PUT", "/api/view", { run: id });
     if (seq === state.viewSeq) adoptRun(v.run);
+    say("");  // a message about the run shown before would read as about this one
   } catch (e) { say(e.message, true); }
 }
 
@@ -325,6 +327,7 @@ async function showRun(id) {
 
 function showNoRun() {
   $("status").textContent = "No run selected";
+  $("status").dataset.run = "";
   for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = true;
 }
 
