@@ -283,13 +283,14 @@ class Viewer:
             if rep is None:
                 self.gui.status.content = f"{line}  \n{message}"
                 return
-            self.mode, self.replay = "replay", rep
+            self.replay = rep
             self._set_scene(rep.faces, [(n, V, F) for n, (V, F) in rep.tools.items()])
             with self._from_code():
                 self.gui.time.max = max(1, rep.steps[-1])
                 self.gui.time.value = rep.steps[-1]
             self._show_recorded(rep.steps[-1], f"{line}  \n{message}")
             self._aim(rep.positions[-1])
+            self.mode = "replay"  # last: a reader outside the lock finds it all drawn
 
     def _show_live(self, line: str) -> None:
         """The latest run's sheet and tools, and its latest frame (under lock)."""

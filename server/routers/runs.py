@@ -7,7 +7,7 @@ import json
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Request, Response
-from fastapi.responses import FileResponse, PlainTextResponse
+from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field
 
 from server.errors import BODY, CheckedRoute, documented
@@ -182,16 +182,17 @@ def result(run_id: RunId, request: Request) -> dict:
     return {**json.loads(path.read_text()), "estimate": m.estimates.get(run)}
 
 
-@router.get("/{run_id}/scene", response_class=PlainTextResponse, responses={
+# response_class Response, as for the recording: the errors stay documented as JSON
+@router.get("/{run_id}/scene", response_class=Response, responses={
     **RUN, 200: {"content": {"text/plain": {}}, "description": "The scene as it ran"}})
-def scene(run_id: RunId, request: Request) -> PlainTextResponse:
+def scene(run_id: RunId, request: Request) -> Response:
     """The scene's TOML as the run ran it (its scene.toml: with unsaved edits when
     ``edited``)."""
     m = _runs(request)
     path = m.files.dir(m.get(run_id).id) / "scene.toml"
     if not path.is_file():
         raise NotFound(f"run {run_id!r} has no scene.toml")
-    return PlainTextResponse(path.read_text(), media_type="text/plain")
+    return Response(path.read_text(), media_type="text/plain; charset=utf-8")
 
 
 @router.get("/{run_id}/frames", response_model=KeptFrames, responses=RUN)
