@@ -9,12 +9,11 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 
 from server import errors
-from server.routers import meta, runs, scenes, web
+from server.routers import meta, runs, scenes, view, web
 from server.runs import RunManager
 from server.settings import Settings
 from server.store import SceneStore
 from server.workerhandle import WorkerTarget
-from sim.elements import ELEMENTS
 
 
 def create_app(settings: Settings | None = None,
@@ -33,7 +32,7 @@ def create_app(settings: Settings | None = None,
             from server.viewer import Viewer
 
             manager.viewer = Viewer(settings.viewer_host, settings.viewer_port,
-                                    ViewerActions(manager), sorted(ELEMENTS))
+                                    ViewerActions(manager))
         app.state.store, app.state.manager = store, manager
         manager.start()
         yield
@@ -48,6 +47,6 @@ def create_app(settings: Settings | None = None,
     app.state.settings = settings
     errors.install(app, settings)
     every = errors.documented(401) if settings.token else None
-    for module in (scenes, runs, meta, web):
+    for module in (scenes, runs, view, meta, web):
         app.include_router(module.router, responses=every)
     return app

@@ -62,7 +62,6 @@ class Books(Protocol):
     def finish(self, run: Run, state: str, reason: str | None) -> None: ...
     def save(self, run: Run) -> None: ...
     def note(self, run_id: str | None, text: str) -> None: ...
-    def recorded(self) -> list[str]: ...
     def fail_active(self, reason: str) -> None: ...
     def worker_died(self, w: WorkerHandle) -> None: ...
     def close_retired(self) -> None: ...
@@ -147,12 +146,9 @@ def _state(m: Books, ev: dict) -> Booked:
         else:
             m.finish(run, ev["state"], ev.get("reason"))
             booked.later.append(lambda: m.save(run))
-            if m.viewer:
-                booked.later.append(lambda: m.viewer.set_recordings(m.recorded()))
         if m.viewer:
-            status = (f"Run `{run.id}`  \n{run.state}, step {run.step}/{run.n_steps}"
-                      f"  \n{run.reason or ''}")
-            booked.later.append(lambda: m.viewer.set_status(status))
+            line, active = run.line(), run.state in ACTIVE
+            booked.later.append(lambda: m.viewer.run_status(run.id, line, active))
     return booked
 
 
@@ -168,9 +164,13 @@ def _meta(m: Books, ev: dict) -> Booked:
         tools = ev.get("tools") or []
         run.tools = [t["name"] for t in tools]
         run.timing.update(ev.get("timing") or {})
+        # the solver's values of every live parameter (those it was given applied): what the
+        # page's and the viewer's sliders show
+        run.parameters.update(ev.get("parameters") or {})
+        line, values = run.line(), dict(run.parameters)
     booked.later.append(lambda: m.save(run))
     if m.viewer:
-        booked.later.append(lambda: m.viewer.new_run(run.id, ev["faces"], tools, run.element))
+        booked.later.append(lambda: m.viewer.new_run(run.id, ev["faces"], tools, line, values))
     return booked
 
 
@@ -195,7 +195,8 @@ def _parameter(m: Books, ev: dict) -> Booked:
         run.parameter_log.append(entry)
         run.parameters[entry["name"]] = entry["value"]
     if m.viewer:
-        booked.later.append(lambda: m.viewer.set_parameter_value(entry["name"], entry["value"]))
+        booked.later.append(lambda: m.viewer.set_parameter_value(run.id, entry["name"],
+                                                                 entry["value"]))
     return booked
 
 
@@ -355,8 +356,8 @@ class Bridge:
         if run is None:
             return
         probes = ", ".join(f"{k} = {v:.4g}" for k, v in list(frame["probes"].items())[:3])
-        status = (f"Run `{run.id}`  \n{run.state}, step {frame['step']}/{run.n_steps}, "
-                  f"{frame['iterations']} Newton iterations  \n{probes}")
+        status = (f"{run.line()}  \nstep {frame['step']}: {frame['iterations']} Newton "
+                  f"iterations  \n{probes}")
         try:
             self.m.viewer.show(frame, status, final=final)
         except Exception as exc:  # a viewer problem must never stop the bridge

@@ -24,8 +24,8 @@ def _loopback(host: str) -> bool:
 
 EXPOSED_VIEWER = ("q3t: warning: --expose-viewer: the viser viewer on {host}:{port} has no "
                   "token check. Anyone who can reach that port can watch every run AND use its "
-                  "controls: Play, Pause, Step and Reset (which stop and start runs) and the "
-                  "live-parameter sliders. Expose it only on a network you trust.")
+                  "controls: Pause, Resume, Step and Stop (which stop runs), the run selection "
+                  "and the live-parameter sliders. Expose it only on a network you trust.")
 
 
 def serve_settings(args: argparse.Namespace, token: str | None) -> Settings:
@@ -124,8 +124,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     bench.add_parser(sub)
     s = sub.add_parser("serve", help="start the browser preview service")
     s.add_argument("scene", nargs="?", default="cup_drawing",
-                   help="default scene name (selected first on the page; the viewer's Play "
-                        "starts it)")
+                   help="default scene name (selected first on the page)")
     s.add_argument("--host", default="127.0.0.1")
     s.add_argument("--port", type=int, default=8080)
     s.add_argument("--viewer-port", type=int, default=8081, help="viser viewer port")
@@ -143,7 +142,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--no-viewer", action="store_true", help="no viser viewer")
     s.add_argument("--expose-viewer", action="store_true",
                    help="bind the viser viewer to --host too. It has no token check: anyone "
-                        "who reaches it can use its Play/Pause/Step/Reset and parameter "
+                        "who reaches it can use its Pause/Resume/Step/Stop and parameter "
                         "controls. By default it stays on 127.0.0.1")
     s.set_defaults(func=cmd_serve)
     p = sub.add_parser("play", help="open a run's rerun recording")

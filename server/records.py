@@ -31,6 +31,8 @@ class Run:
     element: str
     overrides: dict
     created: float
+    # the scene it ran is not the saved file: the page's unsaved edits (scene.toml holds it)
+    edited: bool = False
     state: str = "starting"
     reason: str | None = None
     step: int = 0
@@ -54,6 +56,13 @@ class Run:
         """Everything but the records, copied (the bridge may change the run meanwhile)."""
         return {f.name: copy.deepcopy(getattr(self, f.name)) for f in fields(self)
                 if f.name != "records"}
+
+    def line(self) -> str:
+        """The viewer's status line (markdown)."""
+        edited = "  \nran the page's unsaved edits of its scene" if self.edited else ""
+        reason = f"  \n{self.reason}" if self.reason else ""
+        return (f"Run `{self.id}` ({self.element})  \n{self.state}, step {self.step}/"
+                f"{self.n_steps if self.n_steps is not None else '?'}{edited}{reason}")
 
     def snapshot(self) -> dict:
         """What run.json holds: the summary and the step records."""

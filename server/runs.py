@@ -27,10 +27,13 @@ from server.worker import worker_main
 from server.workerhandle import WorkerHandle, WorkerTarget
 from sim.elements import get_element
 from sim.model import size
-from sim.scene.load import scene_from_toml
+from sim.scene.load import SceneError, scene_from_toml
 
 if TYPE_CHECKING:  # imports viser
     from server.viewer import Viewer
+
+# every live parameter multiplies a value of the scene: at this value the scene runs as written
+AS_WRITTEN = 1.0
 
 
 class RunManager:
@@ -47,6 +50,10 @@ class RunManager:
         self.lock = threading.RLock()
         self.runs: dict[str, Run] = self.files.load()
         self.active: str | None = None
+        # the run the page and the viewer show (one for every browser, until each has its own
+        # view): a new run, else the newest
+        self.selected: str | None = self._newest()
+        self._showing = threading.Lock()
         self.waiters: dict[int, dict] = {}  # request id -> {"event", "reply"}
         self.sent: dict[int, str] = {}  # request id -> run id, until the solver replies
         self.logs: collections.deque = collections.deque(maxlen=50)  # the solver's log events
@@ -65,7 +72,8 @@ class RunManager:
 
     def start(self) -> None:
         if self.viewer:
-            self.viewer.set_recordings(self.recorded())
+            self.viewer.set_runs(self.run_ids())
+            self._show_selected()
         self.bridge.start()
 
     def close(self) -> None:
@@ -130,15 +138,42 @@ class RunManager:
             after = [r for r in run.records if r["step"] > since]
             page = after[:limit]
             out = {**run.summary(), "records": page, "records_left": len(after) - len(page)}
+            # a run saved before its status held every parameter: the others were as written
+            out["parameters"] = self._start_values(out["parameters"])
         out["estimate"] = self.estimates.get(run)  # reads files: outside the lock
         return out
 
-    def recorded(self) -> list[str]:
-        """Runs with a recording to replay, newest first (not the active one)."""
+    def run_ids(self) -> list[str]:
+        """Every run, newest first."""
         with self.lock:
-            runs = sorted(self.runs.values(), key=lambda r: -r.created)
-            return [r.id for r in runs if r.id != self.active
-                    and self.files.recording(r.id).is_file()]
+            return [r.id for r in sorted(self.runs.values(), key=lambda r: -r.created)]
+
+    def _newest(self) -> str | None:
+        return max(self.runs.values(), key=lambda r: r.created).id if self.runs else None
+
+    # ---- the selected run: what the page and the viewer show ----------------------------------
+    def view(self) -> dict:
+        return {"run": self.selected}
+
+    def select(self, run_id: str) -> dict:
+        """Show ``run_id`` on the page (every browser's) and in the viewer."""
+        with self.lock:
+            self.selected = self.get(run_id).id
+        self._show_selected()
+        return self.view()
+
+    def _show_selected(self) -> None:
+        """The viewer shows the selected run: live while it is the latest, else its recording
+        (loaded by the viewer in the background)."""
+        if not self.viewer:
+            return
+        # in order: of two selections made at once, the viewer ends on the later one
+        with self._showing:
+            with self.lock:
+                run = self.runs.get(self.selected or "")
+                shown = None if run is None else (run.id, dict(run.parameters),
+                                                    run.id == self.active, run.line())
+            self.viewer.show_run(*(shown or (None, {}, False, "No run yet")))
 
     def frame_at(self, run_id: str, step: int) -> dict:
         """A kept frame of the current (latest) run: the one at ``step`` or the nearest before."""
@@ -149,10 +184,14 @@ class RunManager:
         return frame
 
     def start_run(self, scene: str, element: str | None = None, overrides: dict | None = None,
-                  parameters: dict | None = None, paused: bool = False) -> Run:
+                  parameters: dict | None = None, paused: bool = False,
+                  toml: str | None = None) -> Run:
         """Validate the run (scene, element, parameters, model size), then hand it to the
-        solver process; refused with a reason naming the field before anything is written."""
-        text = self.store.text(scene)
+        solver process; refused with a reason naming the field before anything is written.
+        ``toml``: the scene as the page shows it, edits not saved yet; it is validated as a
+        saved scene is, and runs (kept as the run's scene.toml) instead of the saved file. The
+        new run is the selected one."""
+        text, edited = self._scene_text(scene, toml)
         overrides = dict(overrides or {})
         if element:
             overrides["shell.element"] = element
@@ -173,14 +212,39 @@ class RunManager:
                                "stop it first")
             stamp = time.strftime("%Y%m%d-%H%M%S")
             run = Run(f"{scene}-{spec.shell.element}-{stamp}-{secrets.token_hex(2)}", scene,
-                      spec.shell.element, overrides, time.time(), parameters=dict(parameters or {}))
+                      spec.shell.element, overrides, time.time(), edited=edited,
+                      parameters=self._start_values(parameters or {}))
             out = self.files.create(run, text)
-            self.runs[run.id], self.active = run, run.id
+            self.runs[run.id], self.active, self.selected = run, run.id, run.id
             self.history.reset(run.id)
             self.worker.send("start", run=run.id, out=str(out), scene_toml=text,
                              overrides=solver_overrides, parameters=parameters or {},
                              paused=paused, record_every=self.settings.record_every)
+        if self.viewer:
+            self.viewer.set_runs(self.run_ids())
+        self._show_selected()
         return run
+
+    def _scene_text(self, scene: str, toml: str | None) -> tuple[str, bool]:
+        """The text a run of ``scene`` runs, and whether it is not the saved scene: ``toml``
+        when it says something else than the saved file (compared as validated scenes, so the
+        form's re-rendering of an unchanged scene is no edit), else the saved file itself (its
+        comments kept)."""
+        if toml is None:
+            return self.store.text(scene), False
+        edited = self.store.validate(toml)  # SceneError naming the field -> 422
+        try:
+            saved = self.store.text(scene)
+            if self.store.validate(saved) == edited:
+                return saved, False
+        except (NotFound, SceneError):  # not saved yet, or the saved file is invalid
+            pass
+        return toml, True
+
+    def _start_values(self, given: dict) -> dict:
+        """Every live parameter's value at the start: as written unless ``given``. The solver's
+        own values replace these once it has built the run (its ``meta``)."""
+        return {**dict.fromkeys(self.parameter_ranges, AS_WRITTEN), **given}
 
     def command(self, run_id: str, cmd: str) -> dict:
         """pause, resume, step or stop the active run."""
@@ -246,10 +310,15 @@ class RunManager:
             del self.runs[run.id]
             if self.history.run == run.id:
                 self.history.reset(None)
+            moved = self.selected == run.id
+            if moved:
+                self.selected = self._newest()
         self.estimates.forget(run.id)
         self.files.delete(run.id)
         if self.viewer:
-            self.viewer.set_recordings(self.recorded())
+            self.viewer.set_runs(self.run_ids())
+            if moved:
+                self._show_selected()
 
     # ---- the run records: changed under ``lock`` ----------------------------------------------
     def _send(self, run: Run, cmd: str, **kw: object) -> int:
@@ -267,6 +336,13 @@ class RunManager:
         self.sent = {rid: r for rid, r in self.sent.items() if r != run.id}
         if run.id == self.active:
             self.active = None
+
+    def run_ended(self, run: Run) -> None:
+        """The viewer's line and controls for a run that is over (when it is shown)."""
+        if self.viewer:
+            with self.lock:
+                line = run.line()
+            self.viewer.run_status(run.id, line, active=False)
 
     def note(self, run_id: str | None, text: str) -> None:
         """Replace the run's reason (a problem that does not end it)."""
@@ -320,8 +396,7 @@ class RunManager:
             if note:
                 self.note(run.id, run.reason + note)
         self.save(run)
-        if self.viewer:
-            self.viewer.set_recordings(self.recorded())
+        self.run_ended(run)
 
     def close_retired(self) -> None:
         """Close the handles of processes ended by a stop during a build (the bridge calls
@@ -350,5 +425,5 @@ class RunManager:
         if run is not None:
             self._result_if_missing(run)
             self.save(run)
-            if self.viewer:
-                self.viewer.set_recordings(self.recorded())
+            self.run_ended(run)
+

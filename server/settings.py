@@ -82,7 +82,7 @@ class Settings:
     stop_timeout: float = 5.0  # seconds shutdown waits for the solver to stop the run
     history_frames: int = 400  # frames of the current run kept for scrubbing; then every k-th
     history_bytes: int = 256 * 2**20  # and at most this many bytes of them (server process)
-    default_scene: str = "cup_drawing"  # selected first on the page; the viewer's Play starts it
+    default_scene: str = "cup_drawing"  # the scene the page selects first
     # a run whose model would need more memory to build is refused (sim.model.size: the estimate and
     # why the default is half of this 24 GiB machine)
     max_model_bytes: float = DEFAULT_LIMIT

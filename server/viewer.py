@@ -1,15 +1,21 @@
-"""The viser viewer: the sheet coloured by a field, a legend, the tools, and run controls.
+"""The viser viewer: the selected run's sheet coloured by a field, a legend, the tools, and the
+page's run controls mirrored.
 
-It never sees the solver: the bridge hands it frames (dicts of arrays) and it calls back into
-the run manager through ``Actions``. Positions stream to a wireframe every push (about
-0.1 ms at 40k vertices); the coloured surface is a glTF re-sent at most ``colour_hz`` times a
-second (about 10 ms and 1.5 MB at 40k vertices), always on the last frame of a run. Each tool is
-one single-colour, semi-transparent mesh sent once per run; frames only move it (``.position``).
-The colour dropdown offers every field the frames carry. The time slider follows the live step;
-when the run is paused or over, moving it shows a kept frame (``RunManager.history``). The
-"Run" dropdown above it picks an older run's recording instead (``run.rrd``, read with
-``server.replay``): the slider then scrubs its recorded frames, coloured by thickness as
-recorded, until "live run" is picked again or a new run starts.
+It never sees the solver: the bridge hands it frames (dicts of arrays), the run manager tells it
+which run is selected, and it calls back into the run manager through ``Actions``. Positions
+stream to a wireframe every push (about 0.1 ms at 40k vertices); the coloured surface is a glTF
+re-sent at most ``colour_hz`` times a second (about 10 ms and 1.5 MB at 40k vertices), always on
+the last frame of a run. Each tool is one single-colour, semi-transparent mesh sent once per
+run; frames only move it (``.position``). The colour dropdown offers every field the frames carry.
+
+It shows the run selected on the server (``RunManager.select``: the page's Runs table, its own
+"Run" dropdown, a new run), the same one the page shows. The latest run is shown live: frames as
+the bridge pushes them, and the time slider follows the live step; when the run is paused or
+over, moving it shows a kept frame (``RunManager.history``). An older run is shown from its
+recording (``run.rrd``, read with ``server.replay`` in the background): the slider scrubs its
+recorded frames, coloured by thickness as recorded. The buttons and the live-parameter sliders
+act on the selected run, with the page's words (Pause, Resume, Step, Stop); they are disabled
+while it is not active. Nothing here starts a run: that is the page's Start.
 """
 
 from __future__ import annotations
@@ -51,7 +57,7 @@ class Actions(Protocol):
     line to show."""
 
     def command(self, cmd: str) -> str: ...
-    def reset(self, element: str | None) -> str: ...
+    def select(self, run_id: str) -> str: ...  # "" once selected, else why not
     def set_parameter(self, name: str, value: float) -> str: ...
     def scrub(self, step: int) -> tuple[dict | None, str]: ...
     def recording(self, run_id: str) -> tuple[Replay | None, str]: ...
@@ -62,19 +68,19 @@ class Gui:
     status: viser.GuiMarkdownHandle
     field: viser.GuiDropdownHandle
     legend: viser.GuiHtmlHandle
-    element: viser.GuiDropdownHandle
     sliders: dict
     time: viser.GuiSliderHandle
-    recording: viser.GuiDropdownHandle
-    buttons: dict  # label -> button handle (Play, Pause, Step, Reset)
+    run: viser.GuiDropdownHandle
+    buttons: dict  # label -> button handle (Pause, Resume, Step, Stop: the page's words)
 
 
-LIVE = "live run"
+# the page's run controls and what each sends, in the page's order and words
+COMMANDS = {"Pause": "pause", "Resume": "resume", "Step": "step", "Stop": "stop"}
+NO_RUN = "(no runs yet)"  # the "Run" dropdown's one option before any run (viser needs one)
 
 
 class Viewer:
-    def __init__(self, host: str, port: int, actions: Actions, elements: list[str],
-                 colour_hz: float = 4.0):
+    def __init__(self, host: str, port: int, actions: Actions, colour_hz: float = 4.0):
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.actions = actions
         self.colour_period = 1.0 / colour_hz
@@ -86,10 +92,15 @@ class Viewer:
         self.last_colour = 0.0
         self.frame: dict | None = None
         self._code = threading.local()  # .on while this thread's GUI changes are the code's
+        self.selected: str | None = None  # the run shown (the server's selection)
+        self.parameters: dict[str, float] = {}  # its live parameters
+        self.live_run: str | None = None  # the latest run, whose frames the bridge pushes
         self.live_faces: np.ndarray | None = None
         self.live_tools: list[dict] = []
+        # what is drawn: "live" (the latest run's frames), "replay" (a recording) or "none"
+        self.mode = "none"
         self.replay: Replay | None = None  # a recorded run being shown
-        self.gui = self._build_gui(elements)
+        self.gui = self._build_gui()
 
     @property
     def port(self) -> int:
@@ -112,26 +123,22 @@ class Viewer:
         """An ``on_update`` callback that runs ``action()`` for a user's change only."""
         return lambda _e: None if getattr(self._code, "on", False) else action()
 
-    def _build_gui(self, elements: list[str]) -> Gui:
+    def _build_gui(self) -> Gui:
         g = self.server.gui
         status = g.add_markdown("No run yet")
         buttons = {}
         with g.add_folder("Run"):
-            for label, cmd in (("Play", "resume"), ("Pause", "pause"), ("Step", "step")):
-                buttons[label] = g.add_button(label)
+            run = g.add_dropdown("Run", (NO_RUN,), initial_value=NO_RUN,
+                                 hint="the run shown here and on the page (its Runs table "
+                                      "picks it too)")
+            for label, cmd in COMMANDS.items():
+                buttons[label] = g.add_button(label, disabled=True)
                 buttons[label].on_click(lambda _e, c=cmd: self._status(
                     self.actions.command(c)))
-            element = g.add_dropdown("Element", tuple(elements),
-                                     initial_value="q3t" if "q3t" in elements else elements[0])
-            buttons["Reset"] = g.add_button("Reset")
-            buttons["Reset"].on_click(
-                lambda _e: self._status(self.actions.reset(element.value)))
         with g.add_folder("Time"):
-            recording = g.add_dropdown("Run", (LIVE,), initial_value=LIVE,
-                                       hint="the live run, or an older run's recording")
             time_slider = g.add_slider("Step", min=0, max=1, step=1, initial_value=0,
                                        hint="pause the run (or let it finish), then drag")
-        recording.on_update(self._by_user(self._choose_recording))
+        run.on_update(self._by_user(lambda: self._choose_run(run.value)))
         time_slider.on_update(self._by_user(self._scrub))
         self.param_folder = g.add_folder("Live parameters")
         with g.add_folder("Colour"):
@@ -139,50 +146,121 @@ class Viewer:
                                    initial_value=field_label(DEFAULT_FIELD))
             legend = g.add_html("")
         field.on_update(self._by_user(self._recolour))
-        return Gui(status, field, legend, element, {}, time_slider, recording, buttons)
+        return Gui(status, field, legend, {}, time_slider, run, buttons)
 
     def add_parameters(self, parameters: dict[str, tuple[float, float]]) -> None:
-        """One slider per live parameter, once the solver process has said which exist."""
-        with self.param_folder:
+        """One slider per live parameter, once the solver process has said which exist; each
+        shows the selected run's value."""
+        with self.lock, self.param_folder:
+            active = not self.gui.buttons["Pause"].disabled
             for name, (lo, hi) in parameters.items():
+                value = self.parameters.get(name, 1.0)  # no run shown: as written
                 s = self.server.gui.add_slider(name, min=lo, max=hi, step=(hi - lo) / 1000,
-                                               initial_value=min(max(1.0, lo), hi))
+                                               initial_value=min(max(value, lo), hi),
+                                               disabled=not active)
                 s.on_update(self._by_user(lambda n=name, h=s: self._on_slider(n, h)))
                 self.gui.sliders[name] = s
+
+    def _choose_run(self, run_id: str) -> None:
+        """A user picked a run: selected on the server, which shows it here (``show_run``)."""
+        refused = self.actions.select(run_id)
+        if refused:
+            self._status(refused)
 
     def _status(self, text: str) -> None:
         self.gui.status.content = text
 
-    set_status = _status
-
     def _on_slider(self, name: str, handle: viser.GuiSliderHandle) -> None:
         self._status(self.actions.set_parameter(name, float(handle.value)))
 
-    def set_parameter_value(self, name: str, value: float) -> None:
-        if name in self.gui.sliders:
-            with self._from_code():
-                self.gui.sliders[name].value = value
-
-    def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict] = (),
-                element: str | None = None) -> None:
-        """A new run: drop the old sheet and tools (and a replay), add this run's tools (meshes
-        sent once)."""
+    def set_parameter_value(self, run_id: str, name: str, value: float) -> None:
+        """A live parameter of ``run_id`` changed: its slider follows if the run is shown."""
         with self.lock:
-            if element in self.gui.element.options:
-                self.gui.element.value = element  # Reset restarts with what is shown
+            if run_id != self.selected:
+                return
+            self.parameters[name] = value
+            if name in self.gui.sliders:
+                with self._from_code():
+                    self.gui.sliders[name].value = value
+
+    def _show_parameters(self, values: dict[str, float]) -> None:
+        """The sliders show the selected run's values (under lock)."""
+        self.parameters = dict(values)
+        with self._from_code():
+            for name, s in self.gui.sliders.items():
+                if name in values:
+                    s.value = min(max(values[name], s.min), s.max)
+
+    def _enable(self, active: bool) -> None:
+        """Run controls act on the selected run: only while it is active (under lock)."""
+        for h in (*self.gui.buttons.values(), *self.gui.sliders.values()):
+            h.disabled = not active
+
+    def set_runs(self, run_ids: list[str]) -> None:
+        """The runs the "Run" dropdown offers (newest first)."""
+        with self.lock:
+            options = tuple(run_ids) or (NO_RUN,)
+            if tuple(self.gui.run.options) == options:
+                return
+            with self._from_code():  # viser keeps the value while offered, else the first
+                self.gui.run.options = options
+                self.gui.run.value = self.selected if self.selected in options else options[0]
+
+    def show_run(self, run_id: str | None, parameters: dict[str, float], active: bool,
+                 line: str) -> None:
+        """Show the selected run: live if it is the latest, else its recording (loaded in the
+        background: a large one takes seconds); nothing else meanwhile. ``line``: its status
+        line; ``active``: whether the run controls act on it."""
+        with self.lock:
+            self.selected = run_id
+            if run_id is not None and run_id in self.gui.run.options:
+                with self._from_code():
+                    self.gui.run.value = run_id
+            self._show_parameters(parameters)
+            self._enable(active)
+            if run_id is not None and run_id == self.live_run:
+                if self.mode == "live":
+                    self.gui.status.content = line
+                else:
+                    self._show_live(line)
+                return
+            self._clear(line)
+            if run_id is None or active:
+                return  # an active run not built yet: its meta (``new_run``) shows it
+            self.gui.status.content = f"{line}  \nloading its recording…"
+        threading.Thread(target=self._load, args=(run_id, line), daemon=True,
+                         name="q3t-viewer-load").start()
+
+    def run_status(self, run_id: str, line: str, active: bool) -> None:
+        """A run's state changed: its line and whether the controls act on it, if it is shown."""
+        with self.lock:
+            if run_id == self.selected:
+                self.gui.status.content = line
+                self._enable(active)
+
+    def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict], line: str,
+                parameters: dict[str, float]) -> None:
+        """The latest run is built: its sheet's faces and its tools (meshes sent once), shown
+        live when it is the selected run."""
+        with self.lock:
+            self.live_run = run_id
             self.live_faces = np.asarray(faces, np.uint32)
             self.live_tools = list(tools)
             self.frame = None
-            self.replay = None
-            with self._from_code():
-                self.gui.recording.value = LIVE
-                self.gui.time.value, self.gui.time.max = 0, 1
-            self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
-                                              for t in self.live_tools])
-        self._status(f"Run `{run_id}`: building")
+            if run_id == self.selected:
+                self._show_parameters(parameters)
+                self._show_live(line)
 
-    def _set_scene(self, faces: np.ndarray, tools: list[tuple]) -> None:
-        """Replace the sheet's faces and the tool meshes ``[(name, V, F)]`` (under lock)."""
+    def _clear(self, line: str) -> None:
+        """Nothing drawn, the line shown (under lock)."""
+        self.mode, self.replay = "none", None
+        self._set_scene(None, [])
+        self.gui.legend.content = ""
+        self.gui.status.content = line
+
+    def _set_scene(self, faces: np.ndarray | None, tools: list[tuple]) -> None:
+        """Replace the sheet's faces (None: no sheet) and the tool meshes ``[(name, V, F)]``
+        (under lock)."""
         for h in (self.surface, self.wire, *self.tools.values()):
             if h is not None:
                 h.remove()
@@ -196,47 +274,35 @@ class Viewer:
                 color=rgb, opacity=alpha, side="double", cast_shadow=False,
                 receive_shadow=False)
 
-    def set_recordings(self, run_ids: list[str]) -> None:
-        """The runs the "Run" dropdown offers to replay (newest first)."""
+    def _load(self, run_id: str, line: str) -> None:
+        """Read ``run_id``'s recording and show it, unless another run was selected since."""
+        rep, message = self.actions.recording(run_id)
         with self.lock:
-            options = (LIVE, *run_ids)
-            if tuple(self.gui.recording.options) == options:
+            if self.selected != run_id or self.mode != "none":
                 return
-            with self._from_code():  # viser keeps the choice while offered, else picks LIVE
-                self.gui.recording.options = options
-
-    def _choose_recording(self) -> None:
-        choice = self.gui.recording.value
-        if choice == LIVE:
-            self._show_live()
-            return
-        rep, message = self.actions.recording(choice)
-        if rep is None:
-            self._status(message)
-            with self._from_code():
-                self.gui.recording.value = LIVE
-            return
-        with self.lock:
+            if rep is None:
+                self.gui.status.content = f"{line}  \n{message}"
+                return
             self.replay = rep
             self._set_scene(rep.faces, [(n, V, F) for n, (V, F) in rep.tools.items()])
             with self._from_code():
                 self.gui.time.max = max(1, rep.steps[-1])
                 self.gui.time.value = rep.steps[-1]
-            self._show_recorded(rep.steps[-1], message)
+            self._show_recorded(rep.steps[-1], f"{line}  \n{message}")
             self._aim(rep.positions[-1])
+            self.mode = "replay"  # last: a reader outside the lock finds it all drawn
 
-    def _show_live(self) -> None:
-        """Back from a replay: the live run's sheet and tools, and its latest frame."""
-        with self.lock:
-            self.replay = None
-            if self.live_faces is not None:
-                self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
-                                                  for t in self.live_tools])
-            live = self.frame
-        if live is not None:
-            self.show(live, "Showing the live run", final=True)
+    def _show_live(self, line: str) -> None:
+        """The latest run's sheet and tools, and its latest frame (under lock)."""
+        self.mode, self.replay = "live", None
+        self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
+                                          for t in self.live_tools])
+        with self._from_code():
+            self.gui.time.value, self.gui.time.max = 0, 1
+        if self.frame is not None:
+            self.show(self.frame, line, final=True)
         else:
-            self._status("Showing the live run")
+            self.gui.status.content = line
 
     def _show_recorded(self, step: int, message: str) -> None:
         """The recorded frame at ``step`` or the nearest before it (under lock)."""
@@ -276,9 +342,11 @@ class Viewer:
 
     def _scrub(self) -> None:
         with self.lock:
-            if self.replay is not None:
+            if self.mode == "replay":
                 self._show_recorded(int(self.gui.time.value),
-                                    f"Recording of `{self.gui.recording.value}`")
+                                    f"Recording of `{self.selected}`")
+                return
+            if self.mode == "none":
                 return
         frame, message = self.actions.scrub(int(self.gui.time.value))
         if frame is None:
@@ -303,10 +371,12 @@ class Viewer:
         """Push one frame: positions always, colours when due or final. A live frame also moves
         the time slider; a scrubbed one (``live=False``) leaves it where the user put it."""
         with self.lock:
+            if live and frame.get("run") != self.live_run:
+                return  # a frame of an earlier run, pushed late
             if live:
                 self.frame = frame
-            if self.faces is None or (self.replay is not None and live):
-                return  # a replay is shown: the live run is kept, not drawn
+            if self.faces is None or self.mode != "live":
+                return  # another run is shown: the live run is kept, not drawn
             self.frame = frame
             now = time.perf_counter()
             with self.server.atomic():
@@ -328,7 +398,7 @@ class Viewer:
 
     def _recolour(self) -> None:
         with self.lock:
-            if self.frame is not None and self.faces is not None and self.replay is None:
+            if self.frame is not None and self.faces is not None and self.mode == "live":
                 self._send_surface(self.frame)
 
     def _send_surface(self, frame: dict) -> None:

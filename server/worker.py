@@ -151,7 +151,8 @@ class Solver:
         timing["tool_meshes_s"] = time.perf_counter() - t0
         self.emit("meta", faces=self.sim.display.faces, n_steps=self.sim.n_steps,
                   counts=self.sim.result()["counts"], element=scene.shell.element,
-                  probes=[p.name for p in scene.probes], tools=tools, timing=timing)
+                  probes=[p.name for p in scene.probes], tools=tools, timing=timing,
+                  parameters=dict(self.sim.parameters))
         self.events.put(rest)  # the rest state, before the first step (which may take seconds)
         try:
             self.record("meta", self.sim.display.faces, tools)

@@ -1,8 +1,13 @@
 // The preview page: plain JS, no build step. Talks to /api and embeds the viser viewer.
 "use strict";
 const $ = (id) => document.getElementById(id);
+// run: the selected run, as the server holds it (/api/view: the viewer shows the same one);
+// viewSeq / paramSeq count the page's own changes, so an answer to a request sent before one
+// of them is not taken for the server's state after it
 const state = { scene: null, run: null, records: [], config: null, form: null, syncSeq: 0,
-                syncTimer: null, syncPending: null, syncRunning: null };
+                syncTimer: null, syncPending: null, syncRunning: null, viewSeq: 0,
+                paramSeq: 0, status: null };
+const ACTIVE = ["starting", "building", "running", "paused"];
 const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b"];
 
 async function api(method, url, body) {
@@ -153,14 +158,16 @@ async function saveScene() {
 }
 
 async function startRun() {
+  // runs the scene as shown (the form's or the TOML view's edits, saved or not); the server
+  // validates it as a saved scene and says whether it differs from the saved file
   try {
     await flushSync();
-    const params = {};
-    for (const inp of document.querySelectorAll("#sliders input")) params[inp.name] = +inp.value;
+    if (state.tomlStale) throw new Error("the form has errors (see the fields): not started");
     const run = await api("POST", "/api/runs",
-      { scene: state.scene, element: $("element").value, parameters: params });
-    selectRun(run.id);
-    say(`started ${run.id}`);
+      { scene: state.scene, element: $("element").value, toml: $("toml").value });
+    state.viewSeq++;  // the server selected the new run
+    adoptRun(run.id);
+    say(`started ${run.id}` + (run.edited ? " with the unsaved edits of " + run.scene : ""));
     await loadRuns();
   } catch (e) { say(e.message, true); }
 }
@@ -174,6 +181,8 @@ async function control(action) {
 }
 
 async function buildSliders() {
+  // the selected run's live parameters: they show its values (its status) and change them
+  // from the next step; disabled while the run is not active
   // the solver process names the live parameters a few seconds after the server is up
   while (!state.config.ready) {
     $("sliders").textContent = "live parameters: waiting for the solver process…";
@@ -188,21 +197,50 @@ async function buildSliders() {
     const inp = document.createElement("input");
     // the whole range the server accepts (load_scale goes to 100), in 1000 steps
     Object.assign(inp, { type: "range", name, min: r.min, max: r.max,
-                         step: (r.max - r.min) / 1000, value: 1 });
+                         step: (r.max - r.min) / 1000, value: 1, disabled: true });
     inp.id = `param-${name}`;
-    out.textContent = "1";
-    inp.oninput = () => { out.textContent = inp.value; };
-    inp.onchange = async () => {
-      if (!state.run) return;
-      try {
-        const r = await api("PUT", `/api/runs/${state.run}/parameters/${name}`,
-                            { value: +inp.value });
-        say(r.applied ? `${name} = ${r.value} from step ${r.applies_from_step}`
-                      : `${name} = ${r.value} from the next step (the solver is mid-step)`);
-      } catch (e) { say(e.message, true); }
-    };
+    out.id = `param-${name}-value`;
+    out.textContent = "1";  // no run shown yet: as written
+    inp.oninput = () => { inp.dataset.busy = "1"; out.textContent = inp.value; };
+    inp.onchange = () => setParameter(inp, out);
     label.append(name + " ", inp, " ", out);
     box.appendChild(label);
+  }
+  if (state.status) showParameters(state.status);
+}
+
+async function setParameter(inp, out) {
+  const run = state.run;
+  state.paramSeq++;
+  try {
+    const r = await api("PUT", `/api/runs/${run}/parameters/${inp.name}`, { value: +inp.value });
+    say(r.applied ? `${inp.name} = ${r.value} from step ${r.applies_from_step}`
+                  : `${inp.name} = ${r.value} from the next step (the solver is mid-step)`);
+  } catch (e) {
+    say(e.message, true);
+    showValue(inp, out, state.status && state.status.parameters[inp.name]);  // unchanged
+  } finally {
+    delete inp.dataset.busy;
+    state.paramSeq++;
+  }
+}
+
+function showValue(inp, out, value) {
+  if (value === undefined || value === null) return;
+  inp.value = value;
+  out.textContent = String(+(+value).toPrecision(6));
+}
+
+function showParameters(st, paramSeq = state.paramSeq) {
+  // the sliders follow the run's values, except one being moved or a change the solver has
+  // not answered yet (the status would show the value before it)
+  const active = ACTIVE.includes(st.state);
+  const settled = paramSeq === state.paramSeq && !(st.pending || []).includes("set");
+  for (const inp of document.querySelectorAll("#sliders input")) {
+    inp.disabled = !active;
+    inp.title = active ? "" : `run ${st.id} is ${st.state}: its values, as it ended`;
+    if (settled && !inp.dataset.busy)
+      showValue(inp, $(`param-${inp.name}-value`), st.parameters[inp.name]);
   }
 }
 
@@ -215,42 +253,82 @@ async function loadRuns() {
     tr.className = r.id === state.run ? "sel" : "";
     tr.dataset.id = r.id;
     const link = `<a href="/api/runs/${r.id}/recording" download>rrd</a> ` +
-                 `<a href="/api/runs/${r.id}/result" target="_blank">result</a>`;
-    tr.innerHTML = `<td>${r.id}</td><td class="state">${r.state}</td>` +
+                 `<a href="/api/runs/${r.id}/result" target="_blank">result</a> ` +
+                 `<a href="/api/runs/${r.id}/scene" target="_blank">scene</a>`;
+    const edited = r.edited ? ` <span class="edited" title="it ran the page's unsaved edits ` +
+                              `of ${r.scene}, not the saved file">unsaved edits</span>` : "";
+    tr.innerHTML = `<td>${r.id}${edited}</td><td class="state">${r.state}</td>` +
                    `<td>${r.step}/${r.n_steps ?? "?"}</td><td>${link}</td>`;
-    tr.onclick = () => selectRun(r.id);
+    tr.dataset.edited = String(!!r.edited);
+    tr.onclick = (ev) => { if (ev.target.tagName !== "A") selectRun(r.id); };
     body.appendChild(tr);
   }
-  if (!state.run && runs.length) selectRun(runs[0].id);
 }
 
-function selectRun(id) {
-  if (state.run !== id) { state.run = id; state.records = []; }
+async function selectRun(id) {
+  // a click in the Runs table: the server's selection, which the viewer shows too
+  const seq = ++state.viewSeq;
+  try {
+    const v = await api("PUT", "/api/view", { run: id });
+    if (seq === state.viewSeq) adoptRun(v.run);
+    say("");  // a message about the run shown before would read as about this one
+  } catch (e) { say(e.message, true); }
+}
+
+function adoptRun(id) {
+  // the selection the server holds, from this page's click or another's (or the viewer's)
+  if (state.run !== id) {
+    state.run = id;
+    state.records = [];
+    state.status = null;
+  }
   for (const tr of $("runs").querySelectorAll("tbody tr"))
     tr.className = tr.dataset.id === id ? "sel" : "";
+}
+
+async function followView() {
+  const seq = state.viewSeq;
+  const v = await api("GET", "/api/view");
+  if (seq === state.viewSeq) adoptRun(v.run);
 }
 
 async function poll() {
   try {
     await loadRuns();
-    if (state.run) {
-      // the status pages its records: ask from the last step we have until none are left
-      let st;
-      do {
-        const since = state.records.length ? state.records[state.records.length - 1].step : 0;
-        st = await api("GET", `/api/runs/${state.run}?since=${since}`);
-        state.records.push(...st.records);
-      } while (st.records_left > 0 && st.records.length);
-      $("status").textContent = `${st.id}: ${st.state}, step ${st.step}/${st.n_steps ?? "?"}` +
-        (st.reason ? ` — ${st.reason}` : "");
-      $("status").dataset.state = st.state;
-      $("status").dataset.run = st.id;
-      $("status").dataset.step = st.step;
-      showEstimate(st);
-      drawPlots(st.probes);
-    }
+    await followView();
+    if (state.run) await showRun(state.run);
+    else showNoRun();
   } catch (e) { say(e.message, true); }
   setTimeout(poll, 500);
+}
+
+async function showRun(id) {
+  // the status pages its records: ask from the last step we have until none are left; a
+  // selection that moved meanwhile drops what was read for the old one
+  const paramSeq = state.paramSeq;
+  let st;
+  do {
+    const since = state.records.length ? state.records[state.records.length - 1].step : 0;
+    st = await api("GET", `/api/runs/${id}?since=${since}`);
+    if (state.run !== id) return;
+    state.records.push(...st.records);
+  } while (st.records_left > 0 && st.records.length);
+  state.status = st;
+  $("status").textContent = `${st.id}: ${st.state}, step ${st.step}/${st.n_steps ?? "?"}` +
+    (st.edited ? ` — ran unsaved edits of ${st.scene}` : "") +
+    (st.reason ? ` — ${st.reason}` : "");
+  Object.assign($("status").dataset, { state: st.state, run: st.id, step: st.step,
+                                       edited: String(!!st.edited) });
+  for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = !ACTIVE.includes(st.state);
+  showParameters(st, paramSeq);
+  showEstimate(st);
+  drawPlots(st.probes);
+}
+
+function showNoRun() {
+  $("status").textContent = "No run selected";
+  $("status").dataset.run = "";
+  for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = true;
 }
 
 function showEstimate(st) {

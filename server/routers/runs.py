@@ -31,6 +31,10 @@ class NewRun(BaseModel):
                                          description='scene overrides, e.g. {"material.nu": 0.3}')
     parameters: dict[str, float] = Field(default_factory=dict, description="live parameters")
     paused: bool = False
+    toml: str | None = Field(default=None, description=(
+        "the scene's text as the page shows it, edits not saved yet: validated as a saved "
+        "scene is, it runs instead of the saved file (kept as the run's scene.toml; the run "
+        "says `edited` when it differs from the saved scene)"))
 
 
 class ParameterValue(BaseModel):
@@ -47,6 +51,8 @@ class RunSummary(BaseModel):
     scene: str
     element: str
     overrides: dict
+    edited: bool = Field(default=False, description="it ran unsaved edits of its scene, not "
+                         "the saved file (its scene.toml holds what ran)")
     created: float = Field(description="Unix time")
     state: Literal["starting", "building", "running", "paused", "finished", "failed",
                    "stopped"]
@@ -57,6 +63,8 @@ class RunSummary(BaseModel):
     pending: list[str] = Field(description="commands sent to the solver that it has not acted "
                                "on yet, in order: empty once a pause has taken effect and a "
                                "step asked for is made")
+    parameters: dict[str, float] = Field(default_factory=dict, description=(
+        "every live parameter's value from the next step on (as the solver last said)"))
 
 
 class RunStatus(RunSummary):
@@ -95,7 +103,7 @@ class FrameStats(BaseModel):
 # what a new run's id leads to (OpenAPI links: clients and fuzzers follow them)
 RUN_LINKS = {op: {"operationId": op, "parameters": {"run_id": "$response.body#/id"}}
              for op in ("status", "pause", "resume", "step", "stop", "set_parameter", "result",
-                        "summary", "forming_limits", "frames", "recording", "delete_run")}
+                        "summary", "forming_limits", "scene", "frames", "recording", "delete_run")}
 
 
 def _runs(request: Request) -> RunManager:
@@ -110,8 +118,10 @@ def list_runs(request: Request) -> list[dict]:
 @router.post("", status_code=201, response_model=RunSummary,
              responses={201: {"links": RUN_LINKS}, **documented(404, 409, 503, *BODY)})
 def start_run(body: NewRun, request: Request) -> dict:
+    """Start a run of the saved scene, or of ``toml`` (the page's unsaved edits). The new run
+    is the selected one (``/api/view``)."""
     run = _runs(request).start_run(body.scene, body.element, body.overrides, body.parameters,
-                                   body.paused)
+                                   body.paused, body.toml)
     return run.summary()
 
 
@@ -243,6 +253,19 @@ def forming_limits(run_id: RunId, request: Request) -> dict:
     if fl is None:
         raise NotFound(f"run {run_id!r} has no forming limits (its material is not plastic)")
     return {"run": run.id, **fl}
+
+
+# response_class Response, as for the recording: the errors stay documented as JSON
+@router.get("/{run_id}/scene", response_class=Response, responses={
+    **RUN, 200: {"content": {"text/plain": {}}, "description": "The scene as it ran"}})
+def scene(run_id: RunId, request: Request) -> Response:
+    """The scene's TOML as the run ran it (its scene.toml: with unsaved edits when
+    ``edited``)."""
+    m = _runs(request)
+    path = m.files.dir(m.get(run_id).id) / "scene.toml"
+    if not path.is_file():
+        raise NotFound(f"run {run_id!r} has no scene.toml")
+    return Response(path.read_text(), media_type="text/plain; charset=utf-8")
 
 
 @router.get("/{run_id}/frames", response_model=KeptFrames, responses=RUN)

@@ -1,7 +1,7 @@
 """The real server in a subprocess, driven by Playwright in Debian's chromium: open the page,
 start a run on a tapered sheet, see the coloured shell in the viser viewer (pixel colours from
 the colour map, several of its bins: the thickness varies along the sheet), pause and see the
-step count stop; press the viewer's own Play, Pause and Step; edit a scene in the schema form
+step count stop; press the viewer's own Resume, Pause and Step; edit a scene in the schema form
 (errors next to the field, lists, optional fields, the TOML view in sync both ways), save it,
 run it and read the run's error estimate from a study report."""
 
@@ -23,11 +23,10 @@ from server import sceneform
 from server.colormap import VIRIDIS
 from server.tomlout import drop_none
 from tests.support import ROOT
+from tests.support.browser import CHROMIUM, WAIT_MS, settled
 from tests.support.scenes import tiny_toml
 from tests.support.service import HANG, free_port, until
 
-CHROMIUM = "/usr/bin/chromium"
-WAIT_MS = int(HANG * 1000)  # Playwright's waits: hang guards (its default is 30 s)
 pytestmark = pytest.mark.browser
 if not Path(CHROMIUM).exists():
     pytest.skip(f"{CHROMIUM} missing (apt-get install chromium)", allow_module_level=True)
@@ -114,15 +113,6 @@ def spread(bins: np.ndarray) -> int:
     return int((bins >= 0.05 * max(bins.sum(), 1)).sum())
 
 
-def settled(url: str, run: str) -> dict:
-    """The run's status once the solver has acted on every command sent for it."""
-    def idle():
-        st = httpx.get(f"{url}/api/runs/{run}").json()
-        return st if not st["pending"] else None
-
-    return until(idle, f"the solver never acted on the commands for {run}")
-
-
 def test_page_run_viewer_pause(server, tmp_path):
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM,
@@ -159,8 +149,8 @@ def test_page_run_viewer_pause(server, tmp_path):
         # the sheet tapers from 7 to 3.5 mm: its colours span the map, not one hue of it (a
         # one-colour mesh fills a single bin)
         assert spread(bins) >= 3, f"colour-map bins {bins.tolist()}: {tmp_path}"
-        # the viewer's own buttons: Play, Pause, Step (viser GUI in the iframe)
-        frame.get_by_role("button", name="Play").click()
+        # the viewer's own buttons: Resume, Pause, Step (viser GUI in the iframe)
+        frame.get_by_role("button", name="Resume").click()
         page.wait_for_function(f"+document.getElementById('status').dataset.step > {step}")
         frame.get_by_role("button", name="Pause").click()
         page.wait_for_function("document.getElementById('status').dataset.state == 'paused'")

@@ -389,7 +389,7 @@ def test_viewer_stays_on_loopback_unless_exposed(capsys):
     args = serve_args("--host", "0.0.0.0", "--token", "t", "--expose-viewer")
     assert serve_settings(args, "t").viewer_host == "0.0.0.0"
     err = capsys.readouterr().err
-    assert "no token check" in err and "Play, Pause, Step and Reset" in err
+    assert "no token check" in err and "Pause, Resume, Step and Stop" in err
     assert serve_settings(serve_args("--record-every", "3"), None).record_every == 3
 
 
@@ -407,10 +407,11 @@ class BlockingViewer:
         self.shown.append(frame["step"])
 
     def new_run(self, *a, **k): pass
-    def set_status(self, *a): pass
+    def run_status(self, *a): pass
+    def show_run(self, *a): pass
     def add_parameters(self, *a): pass
     def set_parameter_value(self, *a): pass
-    def set_recordings(self, *a): pass
+    def set_runs(self, *a): pass
 
 
 def test_frames_are_dropped_for_a_slow_viewer(env, monkeypatch):

@@ -3,8 +3,9 @@
 frames carry every field (plastic strain included) and the tools' translations, the punch moves
 down step by step, the viewer draws one mesh per tool and moves it, offers every field in its
 dropdown and scrubs kept frames, and the recording holds the tool meshes and transforms (read
-back, and replayed by ``q3t play --viser``'s loader and by the service's viewer); the viewer's
-Play/Pause/Step/Reset buttons drive a run (pressed through viser's server-side handles)."""
+back, and replayed by ``q3t play --viser``'s loader and by the service's viewer, which shows
+the selected run); the viewer's Pause/Resume/Step/Stop buttons drive the selected run and never
+start one (pressed through viser's server-side handles)."""
 
 from __future__ import annotations
 
@@ -78,7 +79,7 @@ def test_viewer_draws_moves_recolours_and_scrubs(done):
     until(lambda: viewer.gui.time.value == 3, "the last frame was not shown")
     last = client.get(f"/api/runs/{st['id']}/frames/3").json()["tools"]
     assert sorted(viewer.tools) == ["ground", "punch"]
-    assert viewer.gui.element.value == st["element"] == "linear"  # the scene says q3t
+    assert viewer.selected == viewer.gui.run.value == st["id"]  # the new run is selected
     np.testing.assert_allclose(viewer.tools["punch"].position, last["punch"], atol=1e-9)
     options = viewer.gui.field.options
     assert len(options) == 4 and "Equivalent plastic strain (-)" in options
@@ -166,15 +167,18 @@ def test_history_keeps_every_kth_frame_past_the_cap():
 
 
 def test_viewer_buttons_drive_the_run(done):
-    """Pause, Step, Play and Reset pressed in the viewer (``button.value = True`` runs the
-    click handlers, as a click from a browser does)."""
+    """Pause, Step, Resume and Stop pressed in the viewer act on the selected run
+    (``button.value = True`` runs the click handlers, as a click from a browser does); none
+    starts a run, and they are disabled once the run is over."""
     client, _, _ = done
     viewer = client.app.state.manager.viewer
     b = viewer.gui.buttons
+    assert list(b) == ["Pause", "Resume", "Step", "Stop"]  # the page's words, in its order
     run = client.post("/api/runs", json={"scene": "long", "element": "linear"}).json()["id"]
     status = lambda: client.get(f"/api/runs/{run}").json()  # noqa: E731
     try:
         wait_step(client, run, 2)
+        assert not b["Pause"].disabled
         b["Pause"].value = True
         assert viewer.gui.status.content.startswith("pause: ")
         st = wait_done(client, run)  # the step under way when Pause arrived, then paused
@@ -183,16 +187,15 @@ def test_viewer_buttons_drive_the_run(done):
         b["Step"].value = True
         st = wait_done(client, run)  # the solver made the step it was asked for
         assert st["step"] == at + 1 and st["state"] == "paused", st  # one step, still paused
-        b["Play"].value = True
-        until(lambda: status()["step"] > at + 3 and status()["state"] == "running", "Play")
-        viewer.gui.element.value = "q3t"
-        b["Reset"].value = True  # stops this run and starts the last scene with the element
-        assert status()["state"] == "stopped"
-        new = client.get("/api/health").json()["active"]
-        assert new and new != run and new.startswith("long-q3t-")
-        # "Started `new`"; then the bridge's news of either run may come in: the old run's end
-        # first (it is over before the new one starts), so the status ends up naming the new
-        until(lambda: f"`{new}`" in viewer.gui.status.content, viewer.gui.status.content)
+        b["Resume"].value = True
+        until(lambda: status()["step"] > at + 3 and status()["state"] == "running", "Resume")
+        b["Stop"].value = True
+        assert wait_state(client, run, {"stopped", "finished", "failed"})["state"] == "stopped"
+        until(lambda: b["Resume"].disabled, "the buttons stayed enabled after the run ended")
+        b["Resume"].value = True  # pressed anyway (a stale client): refused, no new run
+        assert "not active" in viewer.gui.status.content, viewer.gui.status.content
+        assert client.get("/api/health").json()["active"] is None
+        assert [r["id"] for r in client.get("/api/runs").json()][0] == run
     finally:
         active = client.get("/api/health").json()["active"]
         if active:
@@ -201,20 +204,21 @@ def test_viewer_buttons_drive_the_run(done):
 
 
 def test_viewer_replays_an_older_recorded_run(done):
-    """The "Run" dropdown offers finished runs; picking one shows its recording, the time
-    slider scrubs it, and "live run" goes back."""
+    """Selecting an older run (the viewer's "Run" dropdown) shows its recording, the time
+    slider scrubs it, and selecting the latest run shows it live again."""
     from server import replay
-    from server.viewer import LIVE
 
     client, settings, st = done
     viewer = client.app.state.manager.viewer
-    # the bridge offers a run once its state reads finished
-    until(lambda: st["id"] in viewer.gui.recording.options, "the run is not offered")
-    assert viewer.gui.recording.options[0] == LIVE
+    until(lambda: st["id"] in viewer.gui.run.options, "the run is not offered")
+    latest = viewer.live_run
+    assert latest != st["id"], "needs a later run (test_viewer_buttons_drive_the_run)"
     rep = replay.load(settings.runs_dir / st["id"] / "run.rrd")
-    viewer.gui.recording.value = st["id"]
-    assert viewer.replay is not None and viewer.replay.steps == [0, 2, 3]
-    assert "Recording of" in viewer.gui.status.content, viewer.gui.status.content
+    viewer.gui.run.value = st["id"]  # as a user picking it
+    assert client.get("/api/view").json()["run"] == st["id"]  # the page follows
+    until(lambda: viewer.mode == "replay", "the recording was not shown")  # read in background
+    assert viewer.replay.steps == [0, 2, 3]
+    assert "coloured by thickness, as recorded" in viewer.gui.status.content
     assert viewer.gui.time.max == 3 and viewer.gui.time.value == 3
     assert sorted(viewer.tools) == ["ground", "punch"]
     viewer.gui.time.value = 1  # recorded at 0 and 2: shows 0, the nearest before
@@ -224,19 +228,19 @@ def test_viewer_replays_an_older_recorded_run(done):
     assert viewer.gui.status.content.endswith("showing recorded step 2")
     np.testing.assert_allclose(viewer.tools["punch"].position, rep.pose("punch", 2), atol=1e-9)
     assert rep.pose("punch", 2)[2] < rep.pose("punch", 0)[2]
-    viewer.gui.recording.value = LIVE
-    assert viewer.replay is None
+    viewer.gui.run.value = latest
+    assert viewer.mode == "live" and viewer.replay is None
+    assert client.get("/api/view").json()["run"] == latest
 
 
 def test_a_users_choice_counts_while_the_code_updates_the_viewer(done):
     """viser runs the callbacks of a value set in code in the thread that set it; the code's
     own updates (the bridge's, in its thread) are told apart per thread, so a user's choice
     made meanwhile is acted on, not taken for an echo of the code's."""
-    from server.viewer import LIVE
-
     client, _, st = done
     viewer = client.app.state.manager.viewer
-    until(lambda: st["id"] in viewer.gui.recording.options, "the run is not offered")
+    until(lambda: st["id"] in viewer.gui.run.options, "the run is not offered")
+    latest = viewer.live_run
     inside, release = threading.Event(), threading.Event()
 
     def bridge() -> None:  # the bridge, halfway through an update of its own
@@ -248,10 +252,11 @@ def test_a_users_choice_counts_while_the_code_updates_the_viewer(done):
     t.start()
     try:
         assert inside.wait(HANG)
-        viewer.gui.recording.value = st["id"]  # a user picks the run meanwhile
-        assert viewer.replay is not None and viewer.replay.steps == [0, 2, 3]
-        viewer.gui.recording.value = LIVE
-        assert viewer.replay is None
+        viewer.gui.run.value = st["id"]  # a user picks the run meanwhile
+        assert client.get("/api/view").json()["run"] == st["id"]
+        until(lambda: viewer.mode == "replay", "the recording was not shown")
+        viewer.gui.run.value = latest
+        assert viewer.mode == "live" and client.get("/api/view").json()["run"] == latest
     finally:
         release.set()
         t.join()

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sim.scene.load import Scene, load_scene
+from sim.model.sheet import build_mesh
+from sim.scene.load import Scene, load_scene, scene_from_toml
 from tests.support import ROOT
 
 SCENES = sorted((ROOT / "scenes").glob("*.toml"))
@@ -105,3 +106,11 @@ name = "max_plastic_strain"
 kind = "plastic_strain"
 stat = "max"
 """
+
+
+EDITED_EDGE = 0.0175  # half tiny's saved 35 mm edge: about three times the vertices
+
+
+def vertices(text: str) -> int:
+    """How many mid-surface vertices the scene ``text`` meshes into."""
+    return len(build_mesh(scene_from_toml(text).mesh).vertices)
