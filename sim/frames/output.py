@@ -12,9 +12,12 @@ import numpy as np
 
 from sim.frames import fields, forming_limits, results
 from sim.frames.display import DisplayMesh
-from sim.frames.summary import Summary
 from sim.model.build import Model, frame_fields
 from sim.solve.newton import Timing
+
+
+class RunSummary(Protocol):
+    def result(self, sim: Run) -> list[dict]: ...
 
 
 class Run(Protocol):
@@ -32,7 +35,7 @@ class Run(Protocol):
     parameter_log: list[dict]
     failure: dict | None
     stopped: str | None
-    summary: Summary
+    summary: RunSummary  # sim.frames.summary.Summary
     loaded: np.ndarray | None  # the state at the end of the stroke, before any release
     release_support: list[dict]
     sections: dict[str, list[dict]]

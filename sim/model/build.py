@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sim.elements import get_element
-from sim.frames import summary
 from sim.geometry.shell import Shell, extrude
 from sim.model import terms as parts
 from sim.model.curves import motion_factor
@@ -149,7 +148,6 @@ def describe(model: Model) -> dict:
             "outputs": {"probes": [p.name for p in sc.probes],
                         "sections": [s.name for s in sc.sections],
                         "frame_fields": frame_fields(model),
-                        "tools": [t.tool for t in tools],
-                        "summary": summary.applicable(summary.features(model)[0])}}
+                        "tools": [t.tool for t in tools]}}
 
 

@@ -100,6 +100,8 @@ class Simulation:
         self.h0 = fields.thickness(self.model, self.x)
         self.loaded: np.ndarray | None = None  # the state at the end of the stroke (release)
         self.summary = summary.Summary(self.model)
+        # the summary's quantities among what the run computes (the model knows no frames)
+        self.model.built["outputs"]["summary"] = self.summary.names
         self._record_sections()  # the rest state, when a section asks for step 0
 
     @property
