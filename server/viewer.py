@@ -1,21 +1,31 @@
-"""The viser viewer: the selected run's sheet coloured by a field, a legend, the tools, and the
+"""The viser viewer: the selected run's sheet coloured by a field on a fixed scale, a legend that
+stays in view, the tools (translucent, or cut by a section plane), a scene's preview, and the
 page's run controls mirrored.
 
 It never sees the solver: the bridge hands it frames (dicts of arrays), the run manager tells it
-which run is selected, and it calls back into the run manager through ``Actions``. Positions
-stream to a wireframe every push (about 0.1 ms at 40k vertices); the coloured surface is a glTF
-re-sent at most ``colour_hz`` times a second (about 10 ms and 1.5 MB at 40k vertices), always on
-the last frame of a run. Each tool is one single-colour, semi-transparent mesh sent once per
-run; frames only move it (``.position``). The colour dropdown offers every field the frames carry.
+which run is selected (or which scene to preview), and it calls back into the run manager
+through ``Actions``. Positions stream to a wireframe every push (about 0.1 ms at 40k vertices);
+the coloured surface is a glTF re-sent at most ``colour_hz`` times a second (about 10 ms and
+1.5 MB at 40k vertices), always on the last frame of a run. Each tool is one single-colour mesh
+sent once per run; frames only move it (``.position``).
+
+Colours (server.palette, server.colormap): every field has a named scale that gives a value the
+same colour in every frame: continuous fields over the run's own range (the range of every
+frame of it shown so far, fixed once the run is over) or a range the user fixed, kept across
+runs; thinning in bands at user-set limits; the FLD zones in one colour each. The legend and the
+"Colour by" choice sit in a small panel of their own, floated over the bottom-left corner of the
+view, and the control panel is docked to the right: neither hides the part, and the legend is
+in view whatever is folded.
 
 It shows the run selected on the server (``RunManager.select``: the page's Runs table, its own
 "Run" dropdown, a new run), the same one the page shows. The latest run is shown live: frames as
 the bridge pushes them, and the time slider follows the live step; when the run is paused or
 over, moving it shows a kept frame (``RunManager.history``). An older run is shown from its
 recording (``run.rrd``, read with ``server.replay`` in the background): the slider scrubs its
-recorded frames, coloured by thickness as recorded. The buttons and the live-parameter sliders
-act on the selected run, with the page's words (Pause, Resume, Step, Stop); they are disabled
-while it is not active. Nothing here starts a run: that is the page's Start.
+recorded frames. A scene chosen on the page is previewed (``show_preview``): its blank and tools
+at the start, built by the solver process before any run. The buttons and the live-parameter
+sliders act on the selected run, with the page's words (Pause, Resume, Step, Stop); they are
+disabled while it is not active. Nothing here starts a run: that is the page's Start.
 """
 
 from __future__ import annotations
@@ -31,25 +41,10 @@ import numpy as np
 import trimesh
 import viser
 
-from server.colormap import MIN_SPAN, colorize, legend_html, tool_colour, value_range
+from server.colormap import TOOL_OPACITY, grow, tool_colour
+from server.palette import DEFAULT_FIELD, FIELDS, Palette, field_label, field_options
 from server.replay import Replay
-
-# field key -> (label, unit); the dropdown shows "label (unit)"
-FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%"),
-          "eq_plastic_strain": ("Equivalent plastic strain", "-"),
-          "von_mises_MPa": ("von Mises stress", "MPa")}
-DEFAULT_FIELD = "thickness_mm"
-
-
-def field_label(key: str) -> str:
-    label, unit = FIELDS.get(key, (key, ""))
-    return f"{label} ({unit})" if unit else label
-
-
-def field_options(keys: Collection[str]) -> dict[str, str]:
-    """Dropdown label -> field key for the fields a frame carries, known fields first."""
-    ordered = [k for k in FIELDS if k in keys] + sorted(k for k in keys if k not in FIELDS)
-    return {field_label(k): k for k in ordered}
+from server.section import AXES, Section
 
 
 class Actions(Protocol):
@@ -72,11 +67,17 @@ class Gui:
     time: viser.GuiSliderHandle
     run: viser.GuiDropdownHandle
     buttons: dict  # label -> button handle (Pause, Resume, Step, Stop: the page's words)
+    colour: dict  # "range", "min", "max", "marginal", "failure": the colour settings
+    view: dict  # "opacity", "section", "at": tools and the section plane
 
 
 # the page's run controls and what each sends, in the page's order and words
 COMMANDS = {"Pause": "pause", "Resume": "resume", "Step": "step", "Stop": "stop"}
 NO_RUN = "(no runs yet)"  # the "Run" dropdown's one option before any run (viser needs one)
+RUN_RANGE, FIXED_RANGE = "this run's", "fixed"
+NO_SECTION = "off"
+SECTIONS = {NO_SECTION: None, "x plane (keep x ≥ at)": "x", "y plane (keep y ≥ at)": "y"}
+LEGEND_WIDTH = 250  # px: the legend panel, floated over the view's bottom-left corner
 
 
 class Viewer:
@@ -88,18 +89,27 @@ class Viewer:
         self.faces: np.ndarray | None = None
         self.surface = self.wire = None
         self.tools: dict[str, object] = {}  # tool name -> viser mesh handle
+        self.tool_meshes: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # name -> V, F (own frame)
+        self.tool_poses: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # name -> t, wxyz
         self.options = field_options(FIELDS)  # dropdown label -> field key
+        self.palette = Palette()
+        self.section = Section()
         self.last_colour = 0.0
-        self.frame: dict | None = None
+        self.frame: dict | None = None  # the frame drawn (live, scrubbed, recorded, preview)
         self._code = threading.local()  # .on while this thread's GUI changes are the code's
         self.selected: str | None = None  # the run shown (the server's selection)
+        self.active = False  # whether it is active (its own colour ranges still grow)
         self.parameters: dict[str, float] = {}  # its live parameters
         self.live_run: str | None = None  # the latest run, whose frames the bridge pushes
         self.live_faces: np.ndarray | None = None
         self.live_tools: list[dict] = []
-        # what is drawn: "live" (the latest run's frames), "replay" (a recording) or "none"
+        self.live_frame: dict | None = None  # the latest run's newest frame
+        self.live_seen: dict[str, tuple[float, float]] = {}  # its fields' ranges so far
+        # what is drawn: "live" (the latest run's frames), "replay" (a recording), "preview"
+        # (a scene's rest state) or "none"
         self.mode = "none"
         self.replay: Replay | None = None  # a recorded run being shown
+        self.previewed: str | None = None  # the scene previewed
         self.gui = self._build_gui()
 
     @property
@@ -123,8 +133,11 @@ class Viewer:
         """An ``on_update`` callback that runs ``action()`` for a user's change only."""
         return lambda _e: None if getattr(self._code, "on", False) else action()
 
+    # ---- the GUI ------------------------------------------------------------------------------
     def _build_gui(self) -> Gui:
         g = self.server.gui
+        # docked, the control panel narrows the view instead of covering the part
+        g.main_panel.dock_right()
         status = g.add_markdown("No run yet")
         buttons = {}
         with g.add_folder("Run"):
@@ -141,12 +154,56 @@ class Viewer:
         run.on_update(self._by_user(lambda: self._choose_run(run.value)))
         time_slider.on_update(self._by_user(self._scrub))
         self.param_folder = g.add_folder("Live parameters")
-        with g.add_folder("Colour"):
+        colour, view = self._colour_controls(), self._view_controls()
+        field, legend = self._legend_panel()
+        return Gui(status, field, legend, {}, time_slider, run, buttons, colour, view)
+
+    def _legend_panel(self) -> tuple[viser.GuiDropdownHandle, viser.GuiHtmlHandle]:
+        """The colour choice and the legend in a panel of their own, floated over the view's
+        bottom-left corner: in view whatever the control panel shows or folds."""
+        g = self.server.gui
+        panel = g.add_panel()
+        with panel.add_tab("Legend"):
             field = g.add_dropdown("Colour by", tuple(field_options(FIELDS)),
                                    initial_value=field_label(DEFAULT_FIELD))
             legend = g.add_html("")
-        field.on_update(self._by_user(self._recolour))
-        return Gui(status, field, legend, {}, time_slider, run, buttons)
+        panel.float(x=12, y=-12, width=LEGEND_WIDTH)
+        field.on_update(self._by_user(self._field_chosen))
+        return field, legend
+
+    def _colour_controls(self) -> dict:
+        g = self.server.gui
+        with g.add_folder("Colour scale"):
+            c = {"range": g.add_dropdown("Range", (RUN_RANGE, FIXED_RANGE),
+                                         initial_value=RUN_RANGE,
+                                         hint="the shown field's colour range: the run's own, "
+                                              "or fixed (kept for every run: compare runs)"),
+                 "min": g.add_number("Min", 0.0, disabled=True, hint="in the field's unit"),
+                 "max": g.add_number("Max", 1.0, disabled=True, hint="in the field's unit"),
+                 "marginal": g.add_number("Thinning marginal from (%)",
+                                          self.palette.thinning.bounds[1], step=0.5),
+                 "failure": g.add_number("Thinning failure from (%)",
+                                         self.palette.thinning.bounds[2], step=0.5)}
+        c["range"].on_update(self._by_user(self._range_chosen))
+        for k in ("min", "max"):
+            c[k].on_update(self._by_user(self._range_set))
+        for k in ("marginal", "failure"):
+            c[k].on_update(self._by_user(self._limits_set))
+        return c
+
+    def _view_controls(self) -> dict:
+        g = self.server.gui
+        with g.add_folder("View"):
+            v = {"opacity": g.add_slider("Tool opacity", min=0.0, max=1.0, step=0.05,
+                                         initial_value=TOOL_OPACITY, hint="0 hides the tools"),
+                 "section": g.add_dropdown("Section", tuple(SECTIONS), initial_value=NO_SECTION,
+                                           hint="cut the part and the tools by a plane"),
+                 "at": g.add_slider("Section at (mm)", min=-1.0, max=1.0, step=0.1,
+                                    initial_value=0.0, disabled=True)}
+        v["opacity"].on_update(self._by_user(self._opacity_set))
+        v["section"].on_update(self._by_user(self._section_set))
+        v["at"].on_update(self._by_user(self._section_set))
+        return v
 
     def add_parameters(self, parameters: dict[str, tuple[float, float]]) -> None:
         """One slider per live parameter, once the solver process has said which exist; each
@@ -193,6 +250,7 @@ class Viewer:
 
     def _enable(self, active: bool) -> None:
         """Run controls act on the selected run: only while it is active (under lock)."""
+        self.active = active
         for h in (*self.gui.buttons.values(), *self.gui.sliders.values()):
             h.disabled = not active
 
@@ -234,9 +292,13 @@ class Viewer:
     def run_status(self, run_id: str, line: str, active: bool) -> None:
         """A run's state changed: its line and whether the controls act on it, if it is shown."""
         with self.lock:
-            if run_id == self.selected:
+            if run_id == self.selected and self.mode != "preview":
                 self.gui.status.content = line
+            if run_id == self.selected:
+                was = self.active
                 self._enable(active)
+                if was and not active and self.mode == "live" and self.frame is not None:
+                    self._send_surface(self.frame)  # the legend: the run's range, no more growing
 
     def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict], line: str,
                 parameters: dict[str, float]) -> None:
@@ -246,14 +308,35 @@ class Viewer:
             self.live_run = run_id
             self.live_faces = np.asarray(faces, np.uint32)
             self.live_tools = list(tools)
-            self.frame = None
+            self.live_frame = None
+            self.live_seen = {}
             if run_id == self.selected:
                 self._show_parameters(parameters)
                 self._show_live(line)
 
+    def show_preview(self, scene: str, faces: np.ndarray, tools: list[dict], frame: dict,
+                     line: str) -> None:
+        """A scene's rest state before any run: its blank (``frame``: the solver's frame of the
+        built model at step 0) and its tools at their start positions."""
+        with self.lock:
+            self.mode, self.replay, self.previewed = "preview", None, scene
+            self._set_scene(np.asarray(faces, np.uint32),
+                            [(t["name"], t["vertices"], t["faces"]) for t in tools])
+            self.palette.ranges.seen = {}
+            self.palette.ranges.add(frame["fields"])
+            with self._from_code():
+                self.gui.time.value, self.gui.time.max = 0, 1
+            self._draw(frame, colour=True)
+            self.gui.status.content = line
+
+    def preview_status(self, line: str) -> None:
+        """Why a preview is not shown (yet): building, or its build failed."""
+        with self.lock:
+            self.gui.status.content = line
+
     def _clear(self, line: str) -> None:
         """Nothing drawn, the line shown (under lock)."""
-        self.mode, self.replay = "none", None
+        self.mode, self.replay, self.previewed, self.frame = "none", None, None, None
         self._set_scene(None, [])
         self.gui.legend.content = ""
         self.gui.status.content = line
@@ -266,13 +349,15 @@ class Viewer:
                 h.remove()
         self.surface = self.wire = None
         self.faces = faces
-        self.tools = {}
+        self.tools, self.tool_meshes, self.tool_poses = {}, {}, {}
+        opacity = float(self.gui.view["opacity"].value)
         for i, (name, V, F) in enumerate(tools):
-            rgb, alpha = tool_colour(i)
+            rgb, _ = tool_colour(i)
+            V, F = np.asarray(V, np.float32), np.asarray(F, np.uint32)
+            self.tool_meshes[name] = (V, F)
             self.tools[name] = self.server.scene.add_mesh_simple(
-                f"/tools/{name}", np.asarray(V, np.float32), np.asarray(F, np.uint32),
-                color=rgb, opacity=alpha, side="double", cast_shadow=False,
-                receive_shadow=False)
+                f"/tools/{name}", V, F, color=rgb, opacity=opacity, side="double",
+                cast_shadow=False, receive_shadow=False, visible=opacity > 0)
 
     def _load(self, run_id: str, line: str) -> None:
         """Read ``run_id``'s recording and show it, unless another run was selected since."""
@@ -285,22 +370,26 @@ class Viewer:
                 return
             self.replay = rep
             self._set_scene(rep.faces, [(n, V, F) for n, (V, F) in rep.tools.items()])
+            self.palette.ranges.seen = {}
+            for fields in rep.fields:  # a recorded run is over: its range is known at once
+                self.palette.ranges.add(fields)
             with self._from_code():
                 self.gui.time.max = max(1, rep.steps[-1])
                 self.gui.time.value = rep.steps[-1]
             self._show_recorded(rep.steps[-1], f"{line}  \n{message}")
-            self._aim(rep.positions[-1])
             self.mode = "replay"  # last: a reader outside the lock finds it all drawn
 
     def _show_live(self, line: str) -> None:
         """The latest run's sheet and tools, and its latest frame (under lock)."""
-        self.mode, self.replay = "live", None
+        self.mode, self.replay, self.previewed = "live", None, None
         self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
                                           for t in self.live_tools])
+        self.palette.ranges.seen = self.live_seen
+        self.frame = None
         with self._from_code():
             self.gui.time.value, self.gui.time.max = 0, 1
-        if self.frame is not None:
-            self.show(self.frame, line, final=True)
+        if self.live_frame is not None:
+            self.show(self.live_frame, line, final=True)
         else:
             self.gui.status.content = line
 
@@ -308,22 +397,14 @@ class Viewer:
         """The recorded frame at ``step`` or the nearest before it (under lock)."""
         rep = self.replay
         i = max(int(np.searchsorted(rep.steps, step, side="right")) - 1, 0)
-        k = rep.steps[i]
-        rgba = np.c_[rep.colors[i], np.full(len(rep.colors[i]), 255, np.uint8)]
-        mesh = trimesh.Trimesh(rep.positions[i], rep.faces, process=False, vertex_colors=rgba)
         with self.server.atomic():
-            self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
-            for name, h in self.tools.items():
-                h.position = np.asarray(rep.pose(name, k), np.float64)
-                h.wxyz = rep.rotation(name, k)
-            self.gui.legend.content = ("<div class='q3t-legend'><b>Thickness</b>, colours as "
-                                       "recorded (each frame's min to max)</div>")
-            self.gui.status.content = f"{message}  \nshowing recorded step {k}"
+            self._draw(rep.frame(i), colour=True)
+            self.gui.status.content = f"{message}  \nshowing recorded step {rep.steps[i]}"
 
     def _set_fields(self, keys: Collection[str]) -> None:
         """Offer exactly the fields this frame carries; keep the choice when still offered."""
         options = field_options(keys)
-        if options == self.options:
+        if not options or options == self.options:
             return
         current = self.options.get(self.gui.field.value, DEFAULT_FIELD)
         self.options = options
@@ -346,26 +427,31 @@ class Viewer:
                 self._show_recorded(int(self.gui.time.value),
                                     f"Recording of `{self.selected}`")
                 return
-            if self.mode == "none":
+            if self.mode != "live":
                 return
         frame, message = self.actions.scrub(int(self.gui.time.value))
         if frame is None:
             self._status(message)
-            live = self.frame
+            live = self.live_frame
             if live is not None:
                 self._set_time(live["step"])
             return
         self.show(frame, message, final=True, live=False)
 
     def _move_tools(self, frame: dict) -> None:
+        rotations = frame.get("tool_rotations") or {}
         for name, pose in (frame.get("tools") or {}).items():
             h = self.tools.get(name)
-            if h is not None:
-                h.position = np.asarray(pose, np.float64)
-        for name, wxyz in (frame.get("tool_rotations") or {}).items():
-            h = self.tools.get(name)
-            if h is not None:
-                h.wxyz = np.asarray(wxyz, np.float64)
+            if h is None:
+                continue
+            t = np.asarray(pose, np.float64)
+            q = np.asarray(rotations.get(name, (1.0, 0.0, 0.0, 0.0)), np.float64)
+            h.position = t
+            if name in rotations:
+                h.wxyz = q
+            self.tool_poses[name] = (t, q)
+        if self.section.axis is not None:
+            self._cut_tools()
 
     def show(self, frame: dict, status: str, final: bool = False, live: bool = True) -> None:
         """Push one frame: positions always, colours when due or final. A live frame also moves
@@ -374,45 +460,164 @@ class Viewer:
             if live and frame.get("run") != self.live_run:
                 return  # a frame of an earlier run, pushed late
             if live:
-                self.frame = frame
+                self.live_frame = frame
+            self.live_seen_add(frame)
             if self.faces is None or self.mode != "live":
                 return  # another run is shown: the live run is kept, not drawn
-            self.frame = frame
             now = time.perf_counter()
             with self.server.atomic():
-                self._set_fields(frame["fields"])
-                self._move_tools(frame)
                 if live:
                     self._set_time(frame["step"])
-                if self.wire is None:
-                    self.wire = self.server.scene.add_mesh_simple(
-                        "/sheet/wire", frame["positions"], self.faces, wireframe=True,
-                        color=(60, 60, 60), opacity=0.25)
-                    self._aim(frame["positions"])
-                else:
-                    self.wire.vertices = frame["positions"]
-                if final or self.surface is None or now - self.last_colour >= self.colour_period:
-                    self._send_surface(frame)
+                due = final or self.surface is None or now - self.last_colour >= \
+                    self.colour_period
+                self._draw(frame, colour=due)
+                if due:
                     self.last_colour = now
                 self.gui.status.content = status
 
-    def _recolour(self) -> None:
+    def live_seen_add(self, frame: dict) -> None:
+        """The latest run's colour ranges hold every frame of it shown or kept for showing."""
+        if frame.get("run") == self.live_run:
+            grow(self.live_seen, frame["fields"])
+
+    def _draw(self, frame: dict, colour: bool) -> None:
+        """Draw ``frame``: its fields offered, tools placed, wireframe moved, and the coloured
+        surface when ``colour`` (under lock)."""
+        self.frame = frame
+        self._set_fields(frame["fields"])
+        self._move_tools(frame)
+        if self.wire is None:
+            self.wire = self.server.scene.add_mesh_simple(
+                "/sheet/wire", frame["positions"], self._kept(frame["positions"]),
+                wireframe=True, color=(60, 60, 60), opacity=0.25)
+            self._aim(frame["positions"])
+        else:
+            self.wire.vertices = frame["positions"]
+        if colour or self.surface is None:
+            self._send_surface(frame)
+
+    # ---- colours ------------------------------------------------------------------------------
+    def _key(self) -> str:
+        """The field chosen in "Colour by" (under lock)."""
+        return self.options.get(self.gui.field.value, DEFAULT_FIELD)
+
+    def _field_chosen(self) -> None:
         with self.lock:
-            if self.frame is not None and self.faces is not None and self.mode == "live":
-                self._send_surface(self.frame)
+            self._show_range_controls()
+            self._recolour()
+
+    def _show_range_controls(self) -> None:
+        """The Range controls show the chosen field's setting; a banded or categorical field
+        has no range (under lock)."""
+        c, key = self.gui.colour, self._key()
+        scale = self.palette.scale(key)
+        ranged = hasattr(scale, "lo")
+        fixed = key in self.palette.ranges.fixed
+        with self._from_code():
+            c["range"].disabled = not ranged
+            c["range"].value = FIXED_RANGE if fixed else RUN_RANGE
+            for k in ("min", "max"):
+                c[k].disabled = not (ranged and fixed)
+            if ranged:
+                c["min"].value, c["max"].value = float(scale.lo), float(scale.hi)
+
+    def _range_chosen(self) -> None:
+        """Fixed: the range shown now is kept (for every run, until changed); the run's own:
+        the fixed one is dropped."""
+        with self.lock:
+            key = self._key()
+            if self.gui.colour["range"].value == FIXED_RANGE:
+                scale = self.palette.scale(key)
+                self.palette.ranges.fix(key, scale.lo, scale.hi)
+            else:
+                self.palette.ranges.release(key)
+            self._show_range_controls()
+            self._recolour()
+
+    def _range_set(self) -> None:
+        with self.lock:
+            c = self.gui.colour
+            try:
+                self.palette.ranges.fix(self._key(), float(c["min"].value), float(c["max"].value))
+            except ValueError as exc:
+                self.gui.status.content = str(exc)
+                return
+            self._recolour()
+
+    def _limits_set(self) -> None:
+        with self.lock:
+            c = self.gui.colour
+            try:
+                self.palette.set_thinning(float(c["marginal"].value), float(c["failure"].value))
+            except ValueError as exc:
+                self.gui.status.content = str(exc)
+                return
+            self._recolour()
+
+    def _recolour(self) -> None:
+        """The frame drawn, coloured again (under lock)."""
+        if self.frame is not None and self.faces is not None and self.mode != "none":
+            self._send_surface(self.frame)
 
     def _send_surface(self, frame: dict) -> None:
-        key = self.options.get(self.gui.field.value, DEFAULT_FIELD)
-        if key not in frame["fields"]:
-            key = next(iter(frame["fields"]))
-        values = frame["fields"][key]
-        lo, hi = value_range(values, MIN_SPAN.get(key, 1e-6))
-        rgb = colorize(values, lo, hi)
-        mesh = trimesh.Trimesh(frame["positions"], self.faces, process=False,
-                               vertex_colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
-        self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
-        label, unit = FIELDS.get(key, (key, ""))
-        self.gui.legend.content = legend_html(label, unit, lo, hi)
+        key = self._key()
+        fields = frame["fields"]
+        if fields and key not in fields:
+            key = next(iter(fields))
+        positions = frame["positions"]
+        faces = self._kept(positions)
+        if self.surface is not None:
+            self.surface.remove()
+            self.surface = None
+        if fields:
+            scale = self.palette.scale(key, growing=self.mode == "live" and self.active)
+            rgb, legend = scale.colours(fields[key]), scale.legend()
+        else:  # a recording made before it held the fields: its colours, as recorded
+            rgb = frame["colours"]
+            legend = ("<div class='q3t-legend'><b>Thickness</b>, colours as recorded (each "
+                      "frame's min to max)</div>")
+        if len(faces):
+            mesh = trimesh.Trimesh(positions, faces, process=False,
+                                   vertex_colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
+            self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
+        if self.wire is not None and self.section.axis is not None:
+            self.wire.faces = faces if len(faces) else self.faces[:1]
+        if self.gui.legend.content != legend:
+            self.gui.legend.content = legend
+
+    # ---- tools and the section plane ----------------------------------------------------------
+    def _opacity_set(self) -> None:
+        with self.lock:
+            alpha = float(self.gui.view["opacity"].value)
+            for h in self.tools.values():
+                h.opacity = alpha
+            self._cut_tools()
+
+    def _section_set(self) -> None:
+        with self.lock:
+            v = self.gui.view
+            axis = SECTIONS.get(v["section"].value)
+            self.section = Section(AXES[axis] if axis else None, float(v["at"].value) / 1e3)
+            v["at"].disabled = axis is None
+            if self.wire is not None and axis is None:
+                self.wire.faces = self.faces
+            self._cut_tools()
+            self._recolour()
+
+    def _kept(self, positions: np.ndarray) -> np.ndarray:
+        return self.section.faces(positions, self.faces)
+
+    def _cut_tools(self) -> None:
+        """Each tool's triangles left by the section, at its current pose; a tool shows while
+        its opacity is above 0 and some of it is left (under lock)."""
+        alpha = float(self.gui.view["opacity"].value)
+        for name, h in self.tools.items():
+            V, F = self.tool_meshes[name]
+            t, q = self.tool_poses.get(name, (np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])))
+            kept = self.section.tool_faces(V, F, t, q)
+            if len(kept) and (len(kept) != len(h.faces) or not np.array_equal(kept, h.faces)):
+                h.faces = kept
+            h.visible = alpha > 0 and len(kept) > 0
 
     def _aim(self, positions: np.ndarray) -> None:
         lo, hi = positions.min(0), positions.max(0)
@@ -420,6 +625,7 @@ class Viewer:
         eye = centre + size * np.array([0.1, -0.9, 0.6])
         cam = self.server.initial_camera
         cam.look_at, cam.position, cam.up = tuple(centre), tuple(eye), (0.0, 0.0, 1.0)
+        self._section_range(lo, hi)
         for client in self.server.get_clients().values():
             # a client camera's position setter drags look_at along with it: place the eye
             # first, then aim (the other order leaves the sheet out of view)
@@ -429,6 +635,15 @@ class Viewer:
                 client.camera.look_at = tuple(centre)
             except AssertionError:
                 pass  # its camera state has not arrived yet; initial_camera places it
+
+    def _section_range(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        """The section slider spans the part (mm), across both axes it may cut."""
+        a, b = 1e3 * float(min(lo[:2])), 1e3 * float(max(hi[:2]))
+        at = self.gui.view["at"]
+        with self._from_code():
+            at.min, at.max = round(a, 1), round(b, 1)
+            at.step = max(round((b - a) / 200, 2), 0.01)
+            at.value = min(max(float(at.value), at.min), at.max)
 
     def stop(self) -> None:
         self.server.stop()

@@ -27,7 +27,9 @@ from server.settings import Settings  # noqa: E402
 from tests.support.scenes import PRESS_TOML, tiny_toml  # noqa: E402
 from tests.support.service import HANG, free_port, until, wait_done, wait_state, wait_step  # noqa: E402,E501
 
-FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain"}
+# a plastic scene without a forming limit curve: no FLD zone, but its strains
+FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain", "major_strain",
+          "minor_strain"}
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +84,7 @@ def test_viewer_draws_moves_recolours_and_scrubs(done):
     assert viewer.selected == viewer.gui.run.value == st["id"]  # the new run is selected
     np.testing.assert_allclose(viewer.tools["punch"].position, last["punch"], atol=1e-9)
     options = viewer.gui.field.options
-    assert len(options) == 4 and "Equivalent plastic strain (-)" in options
+    assert len(options) == len(FIELDS) and "Equivalent plastic strain (-)" in options
     viewer.gui.field.value = "Equivalent plastic strain (-)"
     assert "Equivalent plastic strain" in viewer.gui.legend.content
     viewer.gui.field.value = "von Mises stress (MPa)"
@@ -218,7 +220,9 @@ def test_viewer_replays_an_older_recorded_run(done):
     assert client.get("/api/view").json()["run"] == st["id"]  # the page follows
     until(lambda: viewer.mode == "replay", "the recording was not shown")  # read in background
     assert viewer.replay.steps == [0, 2, 3]
-    assert "coloured by thickness, as recorded" in viewer.gui.status.content
+    # the recording holds the field values: coloured on the viewer's scales, not as recorded
+    assert set(viewer.replay.fields[-1]) == FIELDS
+    assert "as recorded" not in viewer.gui.status.content
     assert viewer.gui.time.max == 3 and viewer.gui.time.value == 3
     assert sorted(viewer.tools) == ["ground", "punch"]
     viewer.gui.time.value = 1  # recorded at 0 and 2: shows 0, the nearest before
