@@ -110,6 +110,8 @@ class Viewer:
         self.mode = "none"
         self.replay: Replay | None = None  # a recorded run being shown
         self.previewed: str | None = None  # the scene previewed
+        # the surface last sent: its field (None: recorded colours), RGB per vertex and faces
+        self.painted: tuple[str | None, np.ndarray, np.ndarray] | None = None
         self.gui = self._build_gui()
 
     @property
@@ -576,6 +578,7 @@ class Viewer:
             rgb = frame["colours"]
             legend = ("<div class='q3t-legend'><b>Thickness</b>, colours as recorded (each "
                       "frame's min to max)</div>")
+        self.painted = (key if fields else None, rgb, faces)
         if len(faces):
             mesh = trimesh.Trimesh(positions, faces, process=False,
                                    vertex_colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
