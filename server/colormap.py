@@ -91,7 +91,7 @@ def _title(label: str, unit: str, note: str) -> str:
 
 def _swatches(rows: list[tuple[tuple[int, int, int], str]]) -> str:
     return "".join(
-        f'<div style="display:flex;align-items:center;gap:6px;margin:1px 0">'
+        f'<div style="display:flex;align-items:center;gap:6px;line-height:1.25">'
         f'<span style="width:14px;height:11px;border:1px solid #777;flex:none;'
         f'background:rgb{rgb}"></span><span>{escape(text)}</span></div>' for rgb, text in rows)
 
@@ -163,14 +163,14 @@ def thinning_scale(marginal: float = MARGINAL_PCT, failure: float = FAILURE_PCT)
         2: (f"marginal {_fmt(marginal)}–{_fmt(failure)} %", c["marginal"]),
         1: (f"safe 0–{_fmt(marginal)} %", c["safe"]),
         0: ("thickened < 0 %", c["thickened"])},
-        note="% of the rest thickness; limits set under Colour", bounds=(0.0, marginal, failure))
+        note="% of the rest thickness", bounds=(0.0, marginal, failure))
 
 
 def zone_scale() -> Categories:
     """The FLD zones (sim.frames.forming_limits.ZONES), worst first."""
     order = (FAILURE, MARGINAL, SAFE, INSUFFICIENT, WRINKLING)
     return Categories("FLD zone", {z: (ZONES[z], ZONE_COLOURS[z]) for z in order},
-                      note="forming limit curve of the material card")
+                      note="by the material's forming limit curve")
 
 
 def grow(seen: dict[str, tuple[float, float]], fields: dict[str, np.ndarray]) -> None:

@@ -77,7 +77,10 @@ NO_RUN = "(no runs yet)"  # the "Run" dropdown's one option before any run (vise
 RUN_RANGE, FIXED_RANGE = "this run's", "fixed"
 NO_SECTION = "off"
 SECTIONS = {NO_SECTION: None, "x plane (keep x ≥ at)": "x", "y plane (keep y ≥ at)": "y"}
-LEGEND_WIDTH = 250  # px: the legend panel, floated over the view's bottom-left corner
+# px: the legend panel, floated over the view's bottom-left corner. Its height is fixed, to
+# hold the tallest legend (the five FLD zones): a floating panel is placed by its height when
+# placed, and a taller legend later would push it past the view's bottom edge
+LEGEND_WIDTH, LEGEND_HEIGHT = 250, 232
 
 
 class Viewer:
@@ -169,7 +172,7 @@ class Viewer:
             field = g.add_dropdown("Colour by", tuple(field_options(FIELDS)),
                                    initial_value=field_label(DEFAULT_FIELD))
             legend = g.add_html("")
-        panel.float(x=12, y=-12, width=LEGEND_WIDTH)
+        panel.float(x=12, y=-12, width=LEGEND_WIDTH, height=LEGEND_HEIGHT)
         field.on_update(self._by_user(self._field_chosen))
         return field, legend
 
@@ -182,9 +185,9 @@ class Viewer:
                                               "or fixed (kept for every run: compare runs)"),
                  "min": g.add_number("Min", 0.0, disabled=True, hint="in the field's unit"),
                  "max": g.add_number("Max", 1.0, disabled=True, hint="in the field's unit"),
-                 "marginal": g.add_number("Thinning marginal from (%)",
+                 "marginal": g.add_number("Thinning marginal %",
                                           self.palette.thinning.bounds[1], step=0.5),
-                 "failure": g.add_number("Thinning failure from (%)",
+                 "failure": g.add_number("Thinning failure %",
                                          self.palette.thinning.bounds[2], step=0.5)}
         c["range"].on_update(self._by_user(self._range_chosen))
         for k in ("min", "max"):
