@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 
 pytest.importorskip("viser")
+from server.canvas import FIXED_RANGE, RUN_RANGE  # noqa: E402
 from server.colormap import THINNING_COLOURS, ZONE_COLOURS  # noqa: E402
 from server.replay import Replay  # noqa: E402
-from server.viewer import FIXED_RANGE, RUN_RANGE, Viewer  # noqa: E402
+from server.viewer import Viewer  # noqa: E402
 from sim.frames.forming_limits import ZONES  # noqa: E402
 from tests.support.service import free_port, until  # noqa: E402
 
@@ -74,12 +75,12 @@ def live(v: Viewer, run: str, *frames: dict, active: bool = False) -> None:
 
 
 def colour_of(v: Viewer, vertex: int) -> tuple[int, ...]:
-    key, rgb, _ = v.painted
+    key, rgb, _ = v.canvas.painted
     return tuple(int(c) for c in rgb[vertex])
 
 
 def choose(v: Viewer, label_start: str) -> None:
-    v.gui.field.value = next(o for o in v.gui.field.options if o.startswith(label_start))
+    v.canvas.field.value = next(o for o in v.canvas.field.options if o.startswith(label_start))
 
 
 def test_a_value_keeps_its_colour_across_the_frames_of_a_recording(viewer):
@@ -95,39 +96,40 @@ def test_a_value_keeps_its_colour_across_the_frames_of_a_recording(viewer):
     until(lambda: viewer.mode == "replay", "the recording was not shown")
     last = colour_of(viewer, 0)
     viewer.gui.time.value = 0  # a user scrubbing back
-    assert viewer.frame["step"] == 0
+    assert viewer.canvas.frame["step"] == 0
     assert colour_of(viewer, 0) == last
     # each frame over its own min..max (as before) would have painted vertex 0 of step 0 with
     # the colour map's start and of step 5 part way up
     assert colour_of(viewer, 0) != colour_of(viewer, 4)
-    assert "0.7" in viewer.gui.legend.content and "range of this run" in viewer.gui.legend.content
+    legend = viewer.canvas.legend.content
+    assert "0.7" in legend and "range of this run" in legend
 
 
 def test_a_fixed_range_is_kept_across_runs(viewer):
     live(viewer, "a", frame("a", 1, thickness_mm=[0.5, 0.6, 0.7, 0.8, 0.9, 1.0]))
-    assert viewer.gui.colour["min"].disabled  # the run's own range: nothing to type
-    viewer.gui.colour["range"].value = FIXED_RANGE  # keep run a's range
-    assert not viewer.gui.colour["min"].disabled
-    assert (viewer.gui.colour["min"].value, viewer.gui.colour["max"].value) == \
+    assert viewer.canvas.colour["min"].disabled  # the run's own range: nothing to type
+    viewer.canvas.colour["range"].value = FIXED_RANGE  # keep run a's range
+    assert not viewer.canvas.colour["min"].disabled
+    assert (viewer.canvas.colour["min"].value, viewer.canvas.colour["max"].value) == \
         pytest.approx((0.5, 1.0))
     in_a = colour_of(viewer, 2)  # 0.7 mm
     live(viewer, "b", frame("b", 1, thickness_mm=[0.7, 0.7, 0.7, 0.7, 0.75, 2.0]))
     assert colour_of(viewer, 0) == in_a  # 0.7 mm in run b: the colour it had in run a
-    assert "fixed" in viewer.gui.legend.content
-    viewer.gui.colour["max"].value = 2.0  # the user widens it: both ends typed hold
-    assert viewer.palette.ranges.fixed["thickness_mm"] == (0.5, 2.0)
-    viewer.gui.colour["range"].value = RUN_RANGE  # back to run b's own range
+    assert "fixed" in viewer.canvas.legend.content
+    viewer.canvas.colour["max"].value = 2.0  # the user widens it: both ends typed hold
+    assert viewer.canvas.palette.ranges.fixed["thickness_mm"] == (0.5, 2.0)
+    viewer.canvas.colour["range"].value = RUN_RANGE  # back to run b's own range
     assert colour_of(viewer, 0) == colour_of(viewer, 1) != in_a
-    assert "fixed" not in viewer.gui.legend.content
+    assert "fixed" not in viewer.canvas.legend.content
 
 
 def test_a_bad_fixed_range_is_refused_with_the_reason(viewer):
     live(viewer, "a", frame("a", 1, thickness_mm=[0.5, 0.6, 0.7, 0.8, 0.9, 1.0]))
-    viewer.gui.colour["range"].value = FIXED_RANGE
-    before = viewer.painted[1].copy()
-    viewer.gui.colour["min"].value = 3.0  # above max
+    viewer.canvas.colour["range"].value = FIXED_RANGE
+    before = viewer.canvas.painted[1].copy()
+    viewer.canvas.colour["min"].value = 3.0  # above max
     assert "need min < max" in viewer.gui.status.content
-    np.testing.assert_array_equal(viewer.painted[1], before)
+    np.testing.assert_array_equal(viewer.canvas.painted[1], before)
 
 
 def test_thinning_is_coloured_in_bands_at_the_users_limits(viewer):
@@ -138,17 +140,17 @@ def test_thinning_is_coloured_in_bands_at_the_users_limits(viewer):
     # defaults: marginal from 10 %, failure from 20 %; a value on a limit is the worse band
     want = ["thickened", "safe", "marginal", "marginal", "failure", "failure"]
     assert [colour_of(viewer, i) for i in range(6)] == [c[b] for b in want]
-    legend = viewer.gui.legend.content
+    legend = viewer.canvas.legend.content
     assert "marginal 10–20 %" in legend and "failure ≥ 20 %" in legend
-    assert viewer.gui.colour["range"].disabled  # bands, not a range
-    viewer.gui.colour["marginal"].value = 5.0
-    viewer.gui.colour["failure"].value = 15.0
+    assert viewer.canvas.colour["range"].disabled  # bands, not a range
+    viewer.canvas.colour["marginal"].value = 5.0
+    viewer.canvas.colour["failure"].value = 15.0
     want = ["thickened", "marginal", "marginal", "failure", "failure", "failure"]
     assert [colour_of(viewer, i) for i in range(6)] == [c[b] for b in want]
-    assert "marginal 5–15 %" in viewer.gui.legend.content
+    assert "marginal 5–15 %" in viewer.canvas.legend.content
     live(viewer, "b", frame("b", 1, thickness_mm=[1.0] * 6, thinning_pct=values))
     assert colour_of(viewer, 1) == c["marginal"]  # the limits hold for the next run too
-    viewer.gui.colour["marginal"].value = 30.0  # above failure: refused, naming both
+    viewer.canvas.colour["marginal"].value = 30.0  # above failure: refused, naming both
     assert "marginal (30.0) < failure (15.0)" in viewer.gui.status.content
     assert colour_of(viewer, 1) == c["marginal"]
 
@@ -158,7 +160,7 @@ def test_fld_zones_have_one_colour_each_and_a_legend(viewer):
     live(viewer, "a", frame("a", 1, thickness_mm=[1.0] * 6, fld_zone=codes))
     choose(viewer, "FLD zone")
     assert [colour_of(viewer, i) for i in range(6)] == [ZONE_COLOURS[z] for z in codes]
-    legend = viewer.gui.legend.content
+    legend = viewer.canvas.legend.content
     for name in ZONES.values():
         assert name in legend
     assert legend.index("failure") < legend.index("marginal") < legend.index("safe")
@@ -166,29 +168,29 @@ def test_fld_zones_have_one_colour_each_and_a_legend(viewer):
 
 def test_the_legend_says_a_live_runs_range_grows(viewer):
     live(viewer, "a", frame("a", 1, thickness_mm=[1.0, 1.0, 1.0, 1.0, 1.0, 0.9]), active=True)
-    assert "range of this run so far" in viewer.gui.legend.content
+    assert "range of this run so far" in viewer.canvas.legend.content
     viewer.show(frame("a", 2, thickness_mm=[1.0, 1.0, 1.0, 1.0, 1.0, 0.8]), "a", final=True)
-    assert "0.8" in viewer.gui.legend.content  # the range grew to hold the new frame
+    assert "0.8" in viewer.canvas.legend.content  # the range grew to hold the new frame
     viewer.run_status("a", "a finished", active=False)
-    assert "so far" not in viewer.gui.legend.content
+    assert "so far" not in viewer.canvas.legend.content
 
 
 def test_tool_opacity_and_the_section_plane(viewer):
     live(viewer, "a", frame("a", 1, thickness_mm=[1.0] * 6))
-    punch = viewer.tools["punch"]
-    viewer.gui.view["opacity"].value = 0.8
+    punch = viewer.canvas.tools["punch"]
+    viewer.canvas.view["opacity"].value = 0.8
     assert punch.opacity == pytest.approx(0.8) and punch.visible
-    viewer.gui.view["opacity"].value = 0.0
+    viewer.canvas.view["opacity"].value = 0.0
     assert not punch.visible
-    viewer.gui.view["opacity"].value = 0.35
-    assert viewer.gui.view["at"].min <= 1.0 <= viewer.gui.view["at"].max  # spans the part, mm
-    viewer.gui.view["section"].value = next(o for o in viewer.gui.view["section"].options
+    viewer.canvas.view["opacity"].value = 0.35
+    assert viewer.canvas.view["at"].min <= 1.0 <= viewer.canvas.view["at"].max  # spans the part, mm
+    viewer.canvas.view["section"].value = next(o for o in viewer.canvas.view["section"].options
                                             if o.startswith("x"))
-    viewer.gui.view["at"].value = 1.0  # mm: keep x >= 1 mm
-    _, _, faces = viewer.painted
+    viewer.canvas.view["at"].value = 1.0  # mm: keep x >= 1 mm
+    _, _, faces = viewer.canvas.painted
     assert 0 < len(faces) < len(FACES)
     assert np.all(X[faces, 0].mean(1) >= 1e-3)  # no triangle of the cut half is drawn
     assert 0 < len(punch.faces) < len(BOX_FACES)  # the punch is cut too
-    np.testing.assert_array_equal(viewer.wire.faces, faces)
-    viewer.gui.view["section"].value = "off"
-    assert len(viewer.painted[2]) == len(FACES) and len(punch.faces) == len(BOX_FACES)
+    np.testing.assert_array_equal(viewer.canvas.wire.faces, faces)
+    viewer.canvas.view["section"].value = "off"
+    assert len(viewer.canvas.painted[2]) == len(FACES) and len(punch.faces) == len(BOX_FACES)

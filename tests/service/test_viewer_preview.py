@@ -57,16 +57,17 @@ def test_a_scene_previews_its_blank_and_tools_before_any_run(client):
     assert view["run"] is None  # no run was made for it
     until(lambda: viewer.mode == "preview", "the viewer did not show the preview")
     sim = rest(PRESS_TOML)
-    np.testing.assert_array_equal(viewer.faces, sim.display.faces)
-    np.testing.assert_allclose(viewer.frame["positions"], sim.display.positions(sim.x))
-    assert viewer.frame["step"] == 0
-    assert sorted(viewer.tools) == ["ground", "punch"]
+    np.testing.assert_array_equal(viewer.canvas.faces, sim.display.faces)
+    np.testing.assert_allclose(viewer.canvas.frame["positions"], sim.display.positions(sim.x))
+    assert viewer.canvas.frame["step"] == 0
+    assert sorted(viewer.canvas.tools) == ["ground", "punch"]
     # the tools where the scene puts them at the start (the punch above the plate)
-    np.testing.assert_allclose(viewer.tools["punch"].position, [0.0, 0.0, 0.00025], atol=1e-9)
-    np.testing.assert_allclose(viewer.tools["ground"].position, [0.0, 0.0, -0.00025],
+    np.testing.assert_allclose(viewer.canvas.tools["punch"].position, [0.0, 0.0, 0.00025],
+                               atol=1e-9)
+    np.testing.assert_allclose(viewer.canvas.tools["ground"].position, [0.0, 0.0, -0.00025],
                                atol=1e-9)
     assert "Preview of scene `press`" in viewer.gui.status.content
-    assert "Thickness" in viewer.gui.legend.content  # coloured, with its legend
+    assert "Thickness" in viewer.canvas.legend.content  # coloured, with its legend
     assert client.get("/api/runs").json() == []
 
 
@@ -76,9 +77,9 @@ def test_an_edited_scene_previews_as_shown(client):
     assert r.status_code == 200, r.text
     assert shown(client, "press")["preview"] == "shown"
     viewer = client.app.state.manager.viewer
-    until(lambda: len(viewer.faces) == len(rest(edited).display.faces),
+    until(lambda: len(viewer.canvas.faces) == len(rest(edited).display.faces),
           "the preview is not the edited mesh")
-    assert len(viewer.faces) > len(rest(PRESS_TOML).display.faces)
+    assert len(viewer.canvas.faces) > len(rest(PRESS_TOML).display.faces)
 
 
 @pytest.mark.parametrize(("body", "status", "names"), [
