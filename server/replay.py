@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -160,6 +161,7 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
     g = server.gui
     status = g.add_markdown(f"Recording `{title}`: {len(rep.steps)} frames, steps "
                             f"{rep.steps[0]}-{rep.steps[-1]} (sheet coloured by thickness)")
+    colours = _thickness_colours(rep)
     slider = g.add_slider("Step", min=0, max=max(1, len(rep.steps) - 1), step=1,
                           initial_value=0, hint="index into the recorded frames")
     playing = g.add_checkbox("Play", initial_value=False)
@@ -168,7 +170,7 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
     def show(i: int) -> None:
         i = int(min(max(i, 0), len(rep.steps) - 1))
         step = rep.steps[i]
-        rgba = np.c_[rep.colors[i], np.full(len(rep.colors[i]), 255, np.uint8)]
+        rgba = np.c_[colours(i), np.full(len(rep.colors[i]), 255, np.uint8)]
         mesh = trimesh.Trimesh(rep.positions[i], rep.faces, vertex_colors=rgba, process=False)
         with lock, server.atomic():
             server.scene.add_mesh_trimesh("/sheet", mesh)
@@ -184,6 +186,19 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
         return server
     _play(server, slider, playing, fps, len(rep.steps))
     return None
+
+
+def _thickness_colours(rep: Replay) -> Callable[[int], np.ndarray]:
+    """The RGB of the ``i``-th frame's thickness on one scale for the whole recording, its
+    range over every frame (server.palette), so a thickness looks the same at every step; a
+    recording without field values gives the colours it was recorded with."""
+    from server.palette import Palette
+
+    palette = Palette()
+    for fields in rep.fields:
+        palette.ranges.add(fields)
+    return lambda i: (palette.colours("thickness_mm", rep.fields[i]["thickness_mm"])
+                      if "thickness_mm" in rep.fields[i] else rep.colors[i])
 
 
 def _add_tools(server: viser.ViserServer, rep: Replay) -> dict:
