@@ -171,8 +171,8 @@ class Canvas:
         self._move_tools(frame)
         if self.wire is None:
             self.wire = self.server.scene.add_mesh_simple(
-                "/sheet/wire", frame["positions"], self._kept(frame["positions"]),
-                wireframe=True, color=(60, 60, 60), opacity=0.25)
+                "/sheet/wire", frame["positions"], self.faces, wireframe=True,
+                color=(60, 60, 60), opacity=0.25)
             self.aim(frame["positions"])
         else:
             self.wire.vertices = frame["positions"]
@@ -195,13 +195,16 @@ class Canvas:
         scale = self.palette.scale(key)
         ranged = hasattr(scale, "lo")
         fixed = key in self.palette.ranges.fixed
+        shown = {(c["range"], "disabled"): not ranged,
+                 (c["range"], "value"): FIXED_RANGE if fixed else RUN_RANGE,
+                 (c["min"], "disabled"): not (ranged and fixed),
+                 (c["max"], "disabled"): not (ranged and fixed)}
+        if ranged:
+            shown |= {(c["min"], "value"): float(scale.lo), (c["max"], "value"): float(scale.hi)}
         with self.from_code():
-            c["range"].disabled = not ranged
-            c["range"].value = FIXED_RANGE if fixed else RUN_RANGE
-            for k in ("min", "max"):
-                c[k].disabled = not (ranged and fixed)
-            if ranged:
-                c["min"].value, c["max"].value = float(scale.lo), float(scale.hi)
+            for (handle, prop), value in shown.items():
+                if getattr(handle, prop) != value:  # each change is a message to every client
+                    setattr(handle, prop, value)
 
     def _range_chosen(self) -> None:
         """Fixed: the range shown now is kept (for every run, until changed); the run's own:
@@ -248,9 +251,6 @@ class Canvas:
             key = next(iter(fields))
         positions = frame["positions"]
         faces = self._kept(positions)
-        if self.surface is not None:
-            self.surface.remove()
-            self.surface = None
         if fields:
             scale = self.palette.scale(key, growing=self.growing())
             rgb, legend = scale.colours(fields[key]), scale.legend()
@@ -259,14 +259,27 @@ class Canvas:
             legend = ("<div class='q3t-legend'><b>Thickness</b>, colours as recorded (each "
                       "frame's min to max)</div>")
         self.painted = (key if fields else None, rgb, faces)
-        if len(faces):
+        if len(faces):  # the same name: the new surface replaces the old
             mesh = trimesh.Trimesh(positions, faces, process=False,
                                    vertex_colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
             self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
-        if self.wire is not None and self.section.axis is not None:
-            self.wire.faces = faces if len(faces) else self.faces[:1]
+        elif self.surface is not None:  # the section left nothing of the sheet
+            self.surface.remove()
+            self.surface = None
+        self._cut_wire(faces)
         if self.legend.content != legend:
             self.legend.content = legend
+        if fields:
+            self._show_range_controls()  # a run's own range grows with it
+
+    def _cut_wire(self, faces: np.ndarray) -> None:
+        """The wireframe over the triangles the section left (hidden when none are)."""
+        if self.wire is None:
+            return
+        if len(faces) and (len(faces) != len(self.wire.faces)
+                           or not np.array_equal(faces, self.wire.faces)):
+            self.wire.faces = faces
+        self.wire.visible = len(faces) > 0
 
     def _opacity_set(self) -> None:
         with self.lock:
@@ -281,8 +294,6 @@ class Canvas:
             axis = SECTIONS.get(v["section"].value)
             self.section = Section(AXES[axis] if axis else None, float(v["at"].value) / 1e3)
             v["at"].disabled = axis is None
-            if self.wire is not None and axis is None:
-                self.wire.faces = self.faces
             self._cut_tools()
             self.recolour()
 
@@ -326,3 +337,4 @@ class Canvas:
             at.min, at.max = round(a, 1), round(b, 1)
             at.step = max(round((b - a) / 200, 2), 0.01)
             at.value = min(max(float(at.value), at.min), at.max)
+        self.section = Section(self.section.axis, float(at.value) / 1e3)
