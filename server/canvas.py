@@ -195,14 +195,14 @@ class Canvas:
         scale = self.palette.scale(key)
         ranged = hasattr(scale, "lo")
         fixed = key in self.palette.ranges.fixed
-        shown = {(c["range"], "disabled"): not ranged,
-                 (c["range"], "value"): FIXED_RANGE if fixed else RUN_RANGE,
-                 (c["min"], "disabled"): not (ranged and fixed),
-                 (c["max"], "disabled"): not (ranged and fixed)}
+        shown = [(c["range"], "disabled", not ranged),
+                 (c["range"], "value", FIXED_RANGE if fixed else RUN_RANGE),
+                 (c["min"], "disabled", not (ranged and fixed)),
+                 (c["max"], "disabled", not (ranged and fixed))]
         if ranged:
-            shown |= {(c["min"], "value"): float(scale.lo), (c["max"], "value"): float(scale.hi)}
+            shown += [(c["min"], "value", float(scale.lo)), (c["max"], "value", float(scale.hi))]
         with self.from_code():
-            for (handle, prop), value in shown.items():
+            for handle, prop, value in shown:
                 if getattr(handle, prop) != value:  # each change is a message to every client
                     setattr(handle, prop, value)
 
