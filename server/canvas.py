@@ -224,8 +224,8 @@ class Canvas:
             c = self.colour
             try:
                 self.palette.ranges.fix(self._key(), float(c["min"].value), float(c["max"].value))
-            except ValueError as exc:
-                self.status(str(exc))
+            except ValueError as exc:  # both values are read: the other one may follow
+                self.status(f"{exc}; the colours keep the last valid ones")
                 return
             self.recolour()
 
@@ -234,8 +234,8 @@ class Canvas:
             c = self.colour
             try:
                 self.palette.set_thinning(float(c["marginal"].value), float(c["failure"].value))
-            except ValueError as exc:
-                self.status(str(exc))
+            except ValueError as exc:  # both values are read: the other one may follow
+                self.status(f"{exc}; the colours keep the last valid ones")
                 return
             self.recolour()
 

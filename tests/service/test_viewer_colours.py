@@ -130,6 +130,8 @@ def test_a_bad_fixed_range_is_refused_with_the_reason(viewer):
     viewer.canvas.colour["min"].value = 3.0  # above max
     assert "need min < max" in viewer.gui.status.content
     np.testing.assert_array_equal(viewer.canvas.painted[1], before)
+    viewer.canvas.colour["max"].value = 5.0  # the other end follows: both typed now hold
+    assert viewer.canvas.palette.ranges.fixed["thickness_mm"] == (3.0, 5.0)
 
 
 def test_thinning_is_coloured_in_bands_at_the_users_limits(viewer):
