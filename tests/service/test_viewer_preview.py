@@ -108,3 +108,27 @@ def test_a_run_shows_again_once_started_or_selected(client):
     assert client.put("/api/view", json={"run": run}).status_code == 200
     until(lambda: viewer.mode == "live", "selecting the run did not show it again")
     assert client.get("/api/view").json()["scene"] is None
+
+
+def test_a_preview_that_cannot_be_built_says_why(client):
+    """The solver process answers a scene it cannot build with the reason (its reply is still
+    ok: the active run is never marked by a preview); the view and the viewer say why."""
+    import queue
+
+    from server.worker import Solver
+
+    events: queue.Queue = queue.Queue()
+    solver = Solver(events, queue.Queue(), record_every=1, step_delay=0.0)
+    solver.handle({"cmd": "preview", "id": 7, "scene": "broken", "scene_toml": "name = ["})
+    ev, reply = events.get_nowait(), events.get_nowait()
+    assert ev["kind"] == "preview" and ev["request"] == 7 and "error" in ev
+    assert reply["kind"] == "reply" and reply["ok"]
+    m = client.app.state.manager
+    with m.lock:
+        m.preview = {"scene": "broken", "request": 7, "state": "building"}
+    m.show_preview(ev)
+    view = client.get("/api/view").json()
+    assert view["preview"] == "failed" and view["preview_error"] == ev["error"]
+    assert "Preview of scene `broken` failed" in m.viewer.gui.status.content
+    m.show_preview({**ev, "request": 6})  # an earlier request answered late: ignored
+    assert client.get("/api/view").json() == view
