@@ -37,7 +37,8 @@ from server.replay import Replay
 # field key -> (label, unit); the dropdown shows "label (unit)"
 FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%"),
           "eq_plastic_strain": ("Equivalent plastic strain", "-"),
-          "von_mises_MPa": ("von Mises stress", "MPa")}
+          "von_mises_MPa": ("von Mises stress", "MPa"),
+          "major_strain": ("Major true strain", "-"), "minor_strain": ("Minor true strain", "-")}
 DEFAULT_FIELD = "thickness_mm"
 
 
