@@ -20,6 +20,8 @@ from sim.apps.progress import clock
 from tests.support import ROOT
 from tests.support.scenes import PRESS_TOML
 
+pytestmark = pytest.mark.fast  # seconds: make test-fast runs it
+
 COLUMNS = 72  # the pseudo-terminal's width: narrower than a full bar line, which must not wrap
 
 
