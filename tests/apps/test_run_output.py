@@ -8,6 +8,7 @@ import fcntl
 import json
 import os
 import pty
+import select
 import struct
 import subprocess
 import sys
@@ -19,6 +20,7 @@ from sim.apps.cli import main
 from sim.apps.progress import clock
 from tests.support import ROOT
 from tests.support.scenes import PRESS_TOML
+from tests.support.service import HANG
 
 pytestmark = pytest.mark.fast  # seconds: make test-fast runs it
 
@@ -35,7 +37,7 @@ def press(tmp_path_factory):
 def q3t_run(press, out, stderr) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "sim.apps", "run", str(press), "--out",
                            str(out)], stdout=subprocess.PIPE, stderr=stderr,
-                          env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=600)
+                          env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=HANG)
 
 
 def test_summary_table_has_the_results_values_and_units(press, tmp_path, capsys):
@@ -68,6 +70,7 @@ def test_no_punch_no_punch_force(tmp_path, capsys):
 def test_progress_on_a_terminal_is_one_bar(press, tmp_path):
     main_fd, term = pty.openpty()
     fcntl.ioctl(term, termios.TIOCSWINSZ, struct.pack("HHHH", 24, COLUMNS, 0, 0))
+    proc = None
     try:
         proc = subprocess.Popen(
             [sys.executable, "-m", "sim.apps", "run", str(press), "--out", str(tmp_path)],
@@ -76,9 +79,12 @@ def test_progress_on_a_terminal_is_one_bar(press, tmp_path):
         err = b""
         while chunk := _read(main_fd):
             err += chunk
-        out = proc.communicate(timeout=600)[0].decode()
+        out = proc.communicate(timeout=HANG)[0].decode()
     finally:
         os.close(main_fd)
+        if proc and proc.poll() is None:  # a failed wait above: leave no process behind
+            proc.kill()
+            proc.wait()
     assert proc.returncode == 0
     err = err.decode()
     bars = [b for line in err.split("\n") for b in line.split("\r") if b.startswith("[")]
@@ -102,7 +108,8 @@ def test_progress_in_a_log_is_a_plain_line_per_step(press, tmp_path):
 
 
 def _read(fd: int) -> bytes:
-    """What the terminal got, b"" once the child has closed it (Linux: EIO)."""
+    """What the terminal got next, b"" once the child has closed it (Linux: EIO)."""
+    assert select.select([fd], [], [], HANG)[0], "q3t run wrote nothing to its terminal"
     try:
         return os.read(fd, 4096)
     except OSError:
