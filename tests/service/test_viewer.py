@@ -27,7 +27,8 @@ from server.settings import Settings  # noqa: E402
 from tests.support.scenes import PRESS_TOML, tiny_toml  # noqa: E402
 from tests.support.service import HANG, free_port, until, wait_done, wait_state, wait_step  # noqa: E402,E501
 
-# a plastic scene without a forming limit curve: no FLD zone, but its strains
+# a plastic scene's frame: its major and minor strain too (forming limits), no FLD zone
+# without a forming limit curve
 FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain", "major_strain",
           "minor_strain"}
 
@@ -85,6 +86,7 @@ def test_viewer_draws_moves_recolours_and_scrubs(done):
     np.testing.assert_allclose(viewer.canvas.tools["punch"].position, last["punch"], atol=1e-9)
     options = viewer.canvas.field.options
     assert len(options) == len(FIELDS) and "Equivalent plastic strain (-)" in options
+    assert "Major true strain (-)" in options
     viewer.canvas.field.value = "Equivalent plastic strain (-)"
     assert "Equivalent plastic strain" in viewer.canvas.legend.content
     viewer.canvas.field.value = "von Mises stress (MPa)"
