@@ -164,7 +164,6 @@ class RunManager:
         """Show ``run_id`` on the page (every browser's) and in the viewer."""
         with self.lock:
             self.selected = self.get(run_id).id
-            self.preview = None
         self._show_selected()
         return self.view()
 
@@ -183,18 +182,18 @@ class RunManager:
             rid = self.worker.send("preview", scene=scene, scene_toml=text,
                                    overrides=overrides)
             self.preview = {"scene": scene, "request": rid, "state": "building"}
-        if self.viewer:
-            self.viewer.preview_status(f"Preview of scene `{scene}`: building its model…")
+        self.viewer.preview_status(f"Preview of scene `{scene}`: building its model…")
         return self.view()
 
     def _show_selected(self) -> None:
-        """The viewer shows the selected run: live while it is the latest, else its recording
-        (loaded by the viewer in the background)."""
+        """The viewer shows the selected run, instead of any scene's preview: live while it is
+        the latest, else its recording (loaded by the viewer in the background)."""
         if not self.viewer:
             return
         # in order: of two selections made at once, the viewer ends on the later one
         with self._showing:
             with self.lock:
+                self.preview = None
                 run = self.runs.get(self.selected or "")
                 shown = None if run is None else (run.id, dict(run.parameters),
                                                     run.id == self.active, run.line())
@@ -253,7 +252,6 @@ class RunManager:
                       parameters=self._start_values(parameters or {}))
             out = self.files.create(run, text)
             self.runs[run.id], self.active, self.selected = run, run.id, run.id
-            self.preview = None
             self.history.reset(run.id)
             self.worker.send("start", run=run.id, out=str(out), scene_toml=text,
                              overrides=solver_overrides, parameters=parameters or {},
