@@ -17,43 +17,81 @@ from sim.scene.fields import (
     Stress,
     Strict,
     bounded,
+    doc,
 )
 
 
-class MeshSpec(Strict):
-    kind: Literal["rectangle", "annulus", "disk", "cylinder_band", "file"]
-    edge_length: Length | None = None
-    size: tuple[Length, Length] | None = None  # rectangle: (Lx, Ly)
-    origin: tuple[Coord, Coord] = (0.0, 0.0)
-    r_inner: Extent = 0.0
-    r_outer: Length | None = None
-    radius: Length | None = None  # cylinder_band
-    height: Length | None = None  # cylinder_band
-    path: str | None = None
-    # a file's coincident vertices merged into one (a slit whose sides are two rows of
-    # coincident vertices closes); default: only for STL, which stores every triangle's corners
-    # apart. result.json's built.mesh says what was merged
-    merge_vertices: bool | None = None
-    # file units to metres (1e-3 for mm): between nanometres and kilometres
-    scale: Annotated[float, Field(ge=1e-9, le=1e3)] = 1.0
-    # out-of-plane imperfection of a flat mid-surface (m): z += a sin(pi s) sin(pi t), with
-    # (s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to
-    # leave its plane, so buckling (Fig. 4 at nu = 0.499) needs a seed
-    imperfection: Coord = 0.0
+class _Mesh(Strict):
+    """The sheet's mid-surface: a generated mesh of one ``kind`` or a mesh file; each kind
+    takes its own fields only."""
+
+    kind: str = doc("what mesh: rectangle, annulus, disk, cylinder_band or file")
+    imperfection: Coord = doc(
+        "out-of-plane imperfection of a flat mid-surface: z += a sin(pi s) sin(pi t), with "
+        "(s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to "
+        "leave its plane, so buckling (Fig. 4 at nu = 0.499) needs a seed", "m", 0.0)
+
+
+class _Generated(_Mesh):
+    edge_length: Length = doc("the triangles' edge length: the mesh's resolution", "m")
+
+
+class RectangleMesh(_Generated):
+    """A rectangle in the plane z = 0, from ``origin`` to ``origin + size``."""
+
+    kind: Literal["rectangle"] = doc("a rectangle in z = 0")
+    size: tuple[Length, Length] = doc("its sides (Lx, Ly)", "m")
+    origin: tuple[Coord, Coord] = doc("its corner of least x and y", "m", (0.0, 0.0))
+
+
+class AnnulusMesh(_Generated):
+    """A ring in the plane z = 0 around the z axis."""
+
+    kind: Literal["annulus"] = doc("a ring in z = 0 around the z axis")
+    r_inner: Extent = doc("the hole's radius", "m", 0.0)
+    r_outer: Length = doc("the outer radius", "m")
 
     @model_validator(mode="after")
-    def _needs(self) -> Self:
-        need = {"rectangle": ["size", "edge_length"], "annulus": ["r_outer", "edge_length"],
-                "disk": ["r_outer", "edge_length"],
-                "cylinder_band": ["radius", "height", "edge_length"], "file": ["path"]}[self.kind]
-        missing = [k for k in need if getattr(self, k) is None]
-        if missing:
-            raise ValueError(f"mesh kind {self.kind!r} needs {', '.join(missing)}")
-        if self.kind == "annulus" and self.r_inner >= self.r_outer:
+    def _radii(self) -> Self:
+        if self.r_inner >= self.r_outer:
             raise ValueError("r_inner must be smaller than r_outer")
-        if self.merge_vertices is not None and self.kind != "file":
-            raise ValueError(f"merge_vertices: only for mesh kind 'file', not {self.kind!r}")
         return self
+
+
+class DiskMesh(_Generated):
+    """A disk in the plane z = 0 centred on the z axis (a round blank)."""
+
+    kind: Literal["disk"] = doc("a disk in z = 0 centred on the z axis")
+    r_outer: Length = doc("the disk's radius", "m")
+
+
+class CylinderBandMesh(_Generated):
+    """The side of a cylinder around the z axis, from z = 0 up to ``height`` (a tube)."""
+
+    kind: Literal["cylinder_band"] = doc("a cylinder's side around the z axis (a tube)")
+    radius: Length = doc("the cylinder's radius", "m")
+    height: Length = doc("its height along z", "m")
+
+
+class FileMesh(_Mesh):
+    """A triangle mesh file (STL, OBJ, PLY, ...), read with trimesh; a relative path is taken
+    from the scene file's folder."""
+
+    kind: Literal["file"] = doc("a triangle mesh file")
+    path: str = doc("the mesh file")
+    merge_vertices: bool | None = doc(
+        "a file's coincident vertices merged into one (a slit whose sides are two rows of "
+        "coincident vertices closes); unset: only for STL, which stores every triangle's "
+        "corners apart. result.json's built.mesh says what was merged", default=None)
+    scale: Annotated[float, Field(ge=1e-9, le=1e3)] = doc(
+        "file units to metres (1e-3 for a file in mm): between nanometres and kilometres",
+        "m per file unit", 1.0)
+
+
+# the mesh of the chosen kind: only its own fields are accepted (pydantic tells the kinds
+# apart by ``kind`` and names a field of another kind as not permitted)
+MeshSpec = Annotated[RectangleMesh | AnnulusMesh | DiskMesh | CylinderBandMesh | FileMesh,
+                     Field(discriminator="kind")]
 
 
 class ShellSpec(Strict):
@@ -63,16 +101,24 @@ class ShellSpec(Strict):
     ``thickness_attribute``, a vertex property of a PLY mesh file. Relative paths are taken
     from the scene file's folder."""
 
-    thickness: Length | None = None
-    # a tapered sheet: thickness + gradient . X at every vertex (m per m); must stay positive
-    thickness_gradient: tuple[Slope, Slope, Slope] = (0.0, 0.0, 0.0)
-    thickness_file: str | None = None
-    thickness_attribute: str | None = None
-    element: str = "q3t"
-    quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = None
-    # section points through the thickness, keeping the element's in-plane rule: plastic
-    # bending needs more than the 2-3 of the defaults to integrate the elastic-plastic profile
-    thickness_points: Annotated[int, Field(ge=1, le=20)] | None = None
+    thickness: Length | None = doc("a constant thickness (or a taper's at the origin)", "m",
+                                   None)
+    thickness_gradient: tuple[Slope, Slope, Slope] = doc(
+        "a tapered sheet: thickness + gradient . X at every vertex; must stay positive",
+        "m/m", (0.0, 0.0, 0.0))
+    thickness_file: str | None = doc("a .npy or text file of one thickness (m) per vertex",
+                                     default=None)
+    thickness_attribute: str | None = doc(
+        "the PLY mesh file's vertex property holding the thickness (m)", default=None)
+    element: str = doc("the prism element: linear, q3t or quadratic (sim.elements)",
+                       default="q3t")
+    quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = doc(
+        "the quadrature (in-plane points, points through the thickness); unset: the "
+        "element's own", "1", None)
+    thickness_points: Annotated[int, Field(ge=1, le=20)] | None = doc(
+        "section points through the thickness, keeping the element's in-plane rule: plastic "
+        "bending needs more than the 2-3 of the defaults to integrate the elastic-plastic "
+        "profile", "1", None)
 
     @model_validator(mode="after")
     def _one_thickness(self) -> Self:
@@ -103,14 +149,19 @@ class Hardening(Strict):
     of sim.materials.plasticity), and a softening law localises into a mesh-dependent band.
     """
 
-    law: Literal["perfect", "linear", "swift", "voce"] = "perfect"
-    modulus: bounded(0.0, MAX_STRESS, lo_open=False) | None = None  # linear: H (Pa)
-    K: Stress | None = None  # swift strength coefficient (Pa)
-    # swift exponent: metals' are below 1, and (e0 + ep)^n stays representable up to 10
-    n: bounded(0.0, 10.0, lo_open=False) | None = None
-    e0: bounded(0.0, MAX_STRAIN) | None = None  # swift strain offset
-    saturation: Stress | None = None  # voce Ysat (Pa)
-    rate: bounded(0.0, 1e6) | None = None  # voce C: 1e6 saturates within a micro-strain
+    law: Literal["perfect", "linear", "swift", "voce"] = doc("the hardening law",
+                                                             default="perfect")
+    modulus: bounded(0.0, MAX_STRESS, lo_open=False) | None = doc(
+        "linear: the hardening modulus H", "Pa", None)
+    K: Stress | None = doc("swift: the strength coefficient", "Pa", None)
+    n: bounded(0.0, 10.0, lo_open=False) | None = doc(
+        "swift: the hardening exponent; metals' are below 1, and (e0 + ep)^n stays "
+        "representable up to 10", "1", None)
+    e0: bounded(0.0, MAX_STRAIN) | None = doc(
+        "swift: the strain offset; unset: (yield_stress / K)^(1/n)", "1", None)
+    saturation: Stress | None = doc("voce: the saturation flow stress Ysat", "Pa", None)
+    rate: bounded(0.0, 1e6) | None = doc(
+        "voce: the saturation rate C; 1e6 saturates within a micro-strain", "1", None)
 
     FIELDS: ClassVar[dict[str, tuple[str, ...]]] = {
         "perfect": (), "linear": ("modulus",), "swift": ("K", "n", "e0"),
@@ -142,18 +193,18 @@ class FLCSpec(Strict):
     FLD0 [%] = (23.3 + 14.13 t [mm]) n / 0.21 (engineering major strain at plane strain; Keeler
     and Brazier 1977), a correlation for steels. Plastic materials only."""
 
-    kind: Literal["points", "keeler_brazier"]
-    # points: [minor, major] true strains, minor increasing, major > 0
+    kind: Literal["points", "keeler_brazier"] = doc("a measured curve or Keeler-Brazier")
     points: list[tuple[bounded(-MAX_STRAIN, MAX_STRAIN, lo_open=False),
-                       bounded(0.0, MAX_STRAIN)]] = []
-    # keeler_brazier: hardening exponent; default: hardening.n of a swift law
-    n: bounded(0.0, 1.0) | None = None
-    # keeler_brazier: sheet thickness (m); default: shell.thickness
-    thickness: Length | None = None
-    # the marginal zone: this far (true major strain) below the curve
-    margin: bounded(0.0, 1.0, lo_open=False) = 0.1
-    # insufficient stretch: both strains smaller than this in size
-    insufficient_stretch: bounded(0.0, 1.0, lo_open=False) = 0.02
+                       bounded(0.0, MAX_STRAIN)]] = doc(
+        "points: [minor, major] true strains, minor increasing, major > 0", "1", [])
+    n: bounded(0.0, 1.0) | None = doc(
+        "keeler_brazier: the hardening exponent; unset: hardening.n of a swift law", "1", None)
+    thickness: Length | None = doc(
+        "keeler_brazier: the sheet thickness; unset: shell.thickness", "m", None)
+    margin: bounded(0.0, 1.0, lo_open=False) = doc(
+        "the marginal zone: this far (true major strain) below the curve", "1", 0.1)
+    insufficient_stretch: bounded(0.0, 1.0, lo_open=False) = doc(
+        "insufficient stretch: both strains smaller than this in size", "1", 0.02)
 
     @model_validator(mode="after")
     def _own_fields(self) -> Self:
@@ -172,14 +223,21 @@ class FLCSpec(Strict):
 
 
 class MaterialSpec(Strict):
-    model: Literal["neo_hookean", "hencky", "plastic"] = "neo_hookean"
-    E: Stress
-    nu: Annotated[float, Field(ge=0.0, lt=0.5)]
-    density: bounded(0.0, MAX_DENSITY) = 1000.0
-    yield_stress: Stress | None = None  # initial flow stress (Pa), plastic model only
-    hardening: Hardening = Hardening()
-    # forming limit curve: major and minor strains, zones and the FLD of a run
-    flc: FLCSpec | None = None
+    """The sheet's material: a hyperelastic model, or elastic-plastic (von Mises with
+    isotropic hardening, sim.materials.plasticity)."""
+
+    model: Literal["neo_hookean", "hencky", "plastic"] = doc(
+        "neo_hookean or hencky (elastic), or plastic", default="neo_hookean")
+    E: Stress = doc("Young's modulus", "Pa")
+    nu: Annotated[float, Field(ge=0.0, lt=0.5)] = doc("Poisson's ratio", "1")
+    density: bounded(0.0, MAX_DENSITY) = doc("the mass density (inertia, gravity)", "kg/m^3",
+                                             1000.0)
+    yield_stress: Stress | None = doc("the initial flow stress; plastic model only", "Pa",
+                                      None)
+    hardening: Hardening = doc("the hardening law; plastic model only", default=Hardening())
+    flc: FLCSpec | None = doc(
+        "the forming limit curve: major and minor strains, zones and the FLD of a run; "
+        "plastic model only", default=None)
 
     @model_validator(mode="after")
     def _plastic_fields(self) -> Self:
