@@ -53,6 +53,7 @@ async function selectScene(name) {
   state.scene = name;
   $("scene-name").value = name;
   $("toml").value = s.toml;
+  state.base = s.toml;  // the form's edits are written into this text (comments kept)
   clearTimeout(state.syncTimer);
   state.syncTimer = null;
   state.syncSeq++;  // answers to edits of the previous scene are stale now
@@ -95,13 +96,15 @@ async function flushSync() {
 async function syncFromForm() {
   const seq = ++state.syncSeq;
   $("sync").textContent = "…";
-  const job = api("POST", "/api/scenes/render", { scene: state.form.value() });
+  // base: the scene's TOML before this edit, which the server writes the change into
+  const job = api("POST", "/api/scenes/render", { scene: state.form.value(), base: state.base });
   state.syncRunning = job.catch(() => null);
   try {
     const r = await job;
     if (seq !== state.syncSeq) return;
     state.tomlStale = r.toml === null;  // the form holds what TOML cannot say (a null)
     if (r.toml !== null) $("toml").value = r.toml;
+    if (r.ok) state.base = r.toml;  // an invalid form's TOML has lost the comments
     showSceneErrors(r.errors);
     $("sync").textContent = r.ok ? "valid" : `${r.errors.length} error(s)`;
   } catch (e) { say(e.message, true); }
@@ -116,6 +119,7 @@ async function syncFromToml() {
     const r = await job;
     if (seq !== state.syncSeq) return;
     state.tomlStale = false;
+    if (r.ok) state.base = $("toml").value;
     if (r.scene || r.raw) state.form.build(r.scene || r.raw);
     showSceneErrors(r.errors);
     $("sync").textContent = r.ok ? "valid" : `${r.errors.length} error(s)`;
@@ -144,16 +148,21 @@ function showTab(which) {
 
 async function saveScene() {
   const name = $("scene-name").value.trim();
+  say("");  // a message of an earlier save must not stand over this one's outcome
   try {
     await flushSync();
-    if (state.tomlStale) throw new Error("the form has errors (see the fields): not saved");
+    if (state.tomlStale) throw new Error("the form has errors (see the fields)");
     await api("PUT", `/api/scenes/${encodeURIComponent(name)}`, { toml: $("toml").value });
     $("scene-error").textContent = "";
     state.scene = name;
     say(`saved ${name}`);
     await loadScenes();
   } catch (e) {
+    say(`${name} not saved: ${e.message}`, true);
     $("scene-error").textContent = e.message;
+    // the error where the user looks: the first field named, else the error box
+    const where = $("scene-form").querySelector(".has-error") || $("scene-error");
+    where.scrollIntoView({ block: "center" });
   }
 }
 
