@@ -33,6 +33,7 @@ import viser
 
 from server.colormap import MIN_SPAN, colorize, legend_html, tool_colour, value_range
 from server.replay import Replay
+from sim.stepping.parameters import LABELS
 
 # field key -> (label, unit); the dropdown shows "label (unit)"
 FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%"),
@@ -155,9 +156,10 @@ class Viewer:
             active = not self.gui.buttons["Pause"].disabled
             for name, (lo, hi) in parameters.items():
                 value = self.parameters.get(name, 1.0)  # no run shown: as written
-                s = self.server.gui.add_slider(name, min=lo, max=hi, step=(hi - lo) / 1000,
+                label, hint = LABELS.get(name, (name, ""))
+                s = self.server.gui.add_slider(label, min=lo, max=hi, step=(hi - lo) / 1000,
                                                initial_value=min(max(value, lo), hi),
-                                               disabled=not active)
+                                               disabled=not active, hint=f"{name}: {hint}")
                 s.on_update(self._by_user(lambda n=name, h=s: self._on_slider(n, h)))
                 self.gui.sliders[name] = s
 

@@ -201,21 +201,55 @@ async function buildSliders() {
   const box = $("sliders");
   box.replaceChildren();
   for (const [name, r] of Object.entries(state.config.parameters)) {
+    const row = document.createElement("div");
+    row.className = "param";
     const label = document.createElement("label");
     const out = document.createElement("output");
+    const result = document.createElement("span");
     const inp = document.createElement("input");
     // the whole range the server accepts (load_scale goes to 100), in 1000 steps
     Object.assign(inp, { type: "range", name, min: r.min, max: r.max,
                          step: (r.max - r.min) / 1000, value: 1, disabled: true });
     inp.id = `param-${name}`;
     out.id = `param-${name}-value`;
+    result.id = `param-${name}-result`;
+    result.className = "param-result";
     out.textContent = "1";  // no run shown yet: as written
-    inp.oninput = () => { inp.dataset.busy = "1"; out.textContent = inp.value; };
+    inp.oninput = () => {
+      inp.dataset.busy = "1";
+      out.textContent = inp.value;
+      showResult(name, +inp.value, state.status);
+    };
     inp.onchange = () => setParameter(inp, out);
-    label.append(name + " ", inp, " ", out);
-    box.appendChild(label);
+    const text = document.createElement("span");
+    text.className = "param-name";
+    text.textContent = r.label || name;
+    label.title = `${name}: ${r.hint || ""}`;
+    label.append(text, inp, out);
+    row.append(label, result);
+    box.appendChild(row);
   }
   if (state.status) showParameters(state.status);
+}
+
+// the scene's value each multiplier scales, and the result, in the units engineers read
+const SCALED_UNITS = { "m/step": ["mm/step", 1e3], N: ["kN", 1e-3], Pa: ["MPa", 1e-6],
+                       "m/s^2": ["m/s²", 1], "1": ["", 1] };
+const num = (v) => String(+v.toPrecision(4));
+
+function showResult(name, value, st) {
+  // friction 0.1 × 2 = 0.2 for each tool; the run's step count under tool_speed
+  const box = $(`param-${name}-result`);
+  if (!box) return;
+  const items = (st && st.scaled && st.scaled[name]) || [];
+  const parts = items.map((it) => {
+    const [unit, f] = SCALED_UNITS[it.unit] || [it.unit, 1];
+    const u = unit ? ` ${unit}` : "";
+    return `${it.what} ${num(it.value * f)} × ${num(value)} = ${num(it.value * f * value)}${u}`;
+  });
+  if (name === "tool_speed" && st && st.n_steps) parts.push(`run: ${st.n_steps} steps`);
+  box.textContent = parts.join("; ");
+  box.title = box.textContent;
 }
 
 async function setParameter(inp, out) {
@@ -250,6 +284,7 @@ function showParameters(st, paramSeq = state.paramSeq) {
     inp.title = active ? "" : `run ${st.id} is ${st.state}: its values, as it ended`;
     if (settled && !inp.dataset.busy)
       showValue(inp, $(`param-${inp.name}-value`), st.parameters[inp.name]);
+    if (!inp.dataset.busy) showResult(inp.name, +inp.value, st);
   }
 }
 

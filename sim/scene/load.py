@@ -9,9 +9,9 @@ from __future__ import annotations
 import json
 import re
 import tomllib
-from pathlib import Path
 import types
 import typing
+from pathlib import Path
 from typing import Any, Self
 
 from pydantic import BaseModel, ValidationError, model_validator

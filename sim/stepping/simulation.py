@@ -22,6 +22,7 @@ from sim.model.build import Model, build_model
 from sim.model.curves import load_factor
 from sim.scene.load import Scene
 from sim.solve.newton import NewtonResult, Timing, minimise
+from sim.stepping import parameters
 from sim.stepping.friction import settle_friction
 from sim.terms.tool_contact import ToolContact, quaternion_wxyz
 
@@ -76,15 +77,13 @@ class Simulation:
     def from_scene(cls, scene: Scene) -> Simulation:
         return cls(build_model(scene))
 
-    # live parameters, all multipliers of the scene's values (1 = as written): name -> range;
-    # applied from the next step on. tool_speed is the rate of the stroke: a step covers that
-    # many of the planned steps' scene time (which moves the tools, and the prescribed
-    # displacements and load ramp with them), so the planned stroke is kept and done in fewer
-    # steps (or more); the run ends where the scene's time does. Static stepping only: there
-    # scene time is the stroke, while a dynamic run's time is seconds, whose step is dt. Not
-    # 0, a stroke that would never end.
-    PARAMETERS = {"load_scale": (0.0, 100.0), "tool_speed": (0.1, 10.0),
-                  "friction_scale": (0.0, 10.0), "holder_force_scale": (0.0, 10.0)}
+    # live parameters (sim.stepping.parameters), applied from the next step on. tool_speed is
+    # the rate of the stroke: a step covers that many of the planned steps' scene time (which
+    # moves the tools, and the prescribed displacements and load ramp with them), so the
+    # planned stroke is kept and done in fewer steps (or more); the run ends where the scene's
+    # time does. Static stepping only: there scene time is the stroke, while a dynamic run's
+    # time is seconds, whose step is dt.
+    PARAMETERS = parameters.RANGES
 
     def __post_init__(self) -> None:
         self.parameters = {k: 1.0 for k in self.PARAMETERS}
