@@ -20,6 +20,7 @@ while it is not active. Nothing here starts a run: that is the page's Start.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable, Collection, Iterator
@@ -157,7 +158,9 @@ class Viewer:
             for name, (lo, hi) in parameters.items():
                 value = self.parameters.get(name, 1.0)  # no run shown: as written
                 label, hint = LABELS.get(name, (name, ""))
-                s = self.server.gui.add_slider(label, min=lo, max=hi, step=(hi - lo) / 1000,
+                # about 1000 steps of a round size: 1 (as written) is one of them
+                step = 10.0 ** math.floor(math.log10((hi - lo) / 1000))
+                s = self.server.gui.add_slider(label, min=lo, max=hi, step=step,
                                                initial_value=min(max(value, lo), hi),
                                                disabled=not active, hint=f"{name}: {hint}")
                 s.on_update(self._by_user(lambda n=name, h=s: self._on_slider(n, h)))

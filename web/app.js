@@ -207,9 +207,11 @@ async function buildSliders() {
     const out = document.createElement("output");
     const result = document.createElement("span");
     const inp = document.createElement("input");
-    // the whole range the server accepts (load_scale goes to 100), in 1000 steps
-    Object.assign(inp, { type: "range", name, min: r.min, max: r.max,
-                         step: (r.max - r.min) / 1000, value: 1, disabled: true });
+    // the whole range the server accepts (load_scale goes to 100), in about 1000 steps of a
+    // round size, so that 1 (as written) is one of them whatever the lowest value
+    const step = 10 ** Math.floor(Math.log10((r.max - r.min) / 1000));
+    Object.assign(inp, { type: "range", name, min: r.min, max: r.max, step, value: 1,
+                         disabled: true });
     inp.id = `param-${name}`;
     out.id = `param-${name}-value`;
     result.id = `param-${name}-result`;
@@ -284,7 +286,7 @@ function showParameters(st, paramSeq = state.paramSeq) {
     inp.title = active ? "" : `run ${st.id} is ${st.state}: its values, as it ended`;
     if (settled && !inp.dataset.busy)
       showValue(inp, $(`param-${inp.name}-value`), st.parameters[inp.name]);
-    if (!inp.dataset.busy) showResult(inp.name, +inp.value, st);
+    if (!inp.dataset.busy) showResult(inp.name, st.parameters[inp.name] ?? +inp.value, st);
   }
 }
 

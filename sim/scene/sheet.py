@@ -184,42 +184,49 @@ class Hardening(Strict):
         return self
 
 
-class FLCSpec(Strict):
+class _FLC(Strict):
     """A forming limit curve (sim.frames.forming_limits): the limit major strain over the minor
     strain, both true (log) in-plane strains of the mid-surface, and the zone thresholds of the
-    forming limit diagram. ``kind = "points"``: ``points`` [minor, major] with minor increasing
-    (a measured curve; interpolated linearly, held constant beyond its ends);
-    ``kind = "keeler_brazier"``: the curve from thickness and hardening exponent,
-    FLD0 [%] = (23.3 + 14.13 t [mm]) n / 0.21 (engineering major strain at plane strain; Keeler
-    and Brazier 1977), a correlation for steels. Plastic materials only."""
+    forming limit diagram. Plastic materials only."""
 
-    kind: Literal["points", "keeler_brazier"] = doc("a measured curve or Keeler-Brazier")
-    points: list[tuple[bounded(-MAX_STRAIN, MAX_STRAIN, lo_open=False),
-                       bounded(0.0, MAX_STRAIN)]] = doc(
-        "points: [minor, major] true strains, minor increasing, major > 0", "1", [])
-    n: bounded(0.0, 1.0) | None = doc(
-        "keeler_brazier: the hardening exponent; unset: hardening.n of a swift law", "1", None)
-    thickness: Length | None = doc(
-        "keeler_brazier: the sheet thickness; unset: shell.thickness", "m", None)
+    kind: str = doc("points (a measured curve) or keeler_brazier")
     margin: bounded(0.0, 1.0, lo_open=False) = doc(
         "the marginal zone: this far (true major strain) below the curve", "1", 0.1)
     insufficient_stretch: bounded(0.0, 1.0, lo_open=False) = doc(
         "insufficient stretch: both strains smaller than this in size", "1", 0.02)
 
+
+class PointsFLC(_FLC):
+    """A measured curve: interpolated linearly, held constant beyond its ends."""
+
+    kind: Literal["points"] = doc("a measured curve")
+    points: list[tuple[bounded(-MAX_STRAIN, MAX_STRAIN, lo_open=False),
+                       bounded(0.0, MAX_STRAIN)]] = doc(
+        "[minor, major] true strains, minor increasing, major > 0; at least 2", "1")
+
     @model_validator(mode="after")
-    def _own_fields(self) -> Self:
-        if self.kind == "points":
-            if len(self.points) < 2:
-                raise ValueError("points: a curve needs at least 2 [minor, major] points")
-            minor = [p[0] for p in self.points]
-            if any(b <= a for a, b in zip(minor, minor[1:], strict=False)):
-                raise ValueError("points: the minor strains must increase")
-            if self.n is not None or self.thickness is not None:
-                raise ValueError("n, thickness: parameters of kind 'keeler_brazier', not of "
-                                 "'points'")
-        elif self.points:
-            raise ValueError("points: only for kind 'points'")
+    def _curve(self) -> Self:
+        if len(self.points) < 2:
+            raise ValueError("points: a curve needs at least 2 [minor, major] points")
+        minor = [p[0] for p in self.points]
+        if any(b <= a for a, b in zip(minor, minor[1:], strict=False)):
+            raise ValueError("points: the minor strains must increase")
         return self
+
+
+class KeelerBrazierFLC(_FLC):
+    """The curve from thickness and hardening exponent, FLD0 [%] = (23.3 + 14.13 t [mm]) n /
+    0.21 (engineering major strain at plane strain; Keeler and Brazier 1977), a correlation
+    for steels."""
+
+    kind: Literal["keeler_brazier"] = doc("the Keeler-Brazier correlation")
+    n: bounded(0.0, 1.0) | None = doc(
+        "the hardening exponent; unset: hardening.n of a swift law", "1", None)
+    thickness: Length | None = doc("the sheet thickness; unset: shell.thickness", "m", None)
+
+
+# a forming limit curve of one kind, with that kind's fields only
+FLCSpec = Annotated[PointsFLC | KeelerBrazierFLC, Field(discriminator="kind")]
 
 
 class MaterialSpec(Strict):

@@ -20,6 +20,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from sim.stepping.parameters import LABELS
 from tests.support import ROOT
 from tests.support.browser import CHROMIUM, SWIFTSHADER, WAIT_MS, settled
 from tests.support.scenes import EDITED_EDGE, tiny_toml, vertices
@@ -126,13 +127,13 @@ def wait_viewer_run(page, run: str) -> None:
 
 
 def viewer_slider(page, name: str) -> float:
-    """The value of the viewer's live-parameter slider ``name``."""
+    """The value of the viewer's live-parameter slider ``name`` (labelled in words)."""
     frame = page.frame_locator("#viewer").locator("body")
     return float(frame.evaluate("""(body, name) => {
         const label = [...body.querySelectorAll('label')].find(l => l.textContent === name);
         return document.getElementById(label.htmlFor).querySelector('[role=slider]')
             .getAttribute('aria-valuenow');
-    }""", name))
+    }""", LABELS[name][0]))
 
 
 def page_slider(page, name: str) -> float:
