@@ -39,7 +39,8 @@ from sim.stepping.parameters import LABELS
 # field key -> (label, unit); the dropdown shows "label (unit)"
 FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%"),
           "eq_plastic_strain": ("Equivalent plastic strain", "-"),
-          "von_mises_MPa": ("von Mises stress", "MPa")}
+          "von_mises_MPa": ("von Mises stress", "MPa"),
+          "major_strain": ("Major true strain", "-"), "minor_strain": ("Minor true strain", "-")}
 DEFAULT_FIELD = "thickness_mm"
 
 

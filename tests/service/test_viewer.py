@@ -27,7 +27,10 @@ from server.settings import Settings  # noqa: E402
 from tests.support.scenes import PRESS_TOML, tiny_toml  # noqa: E402
 from tests.support.service import HANG, free_port, until, wait_done, wait_state, wait_step  # noqa: E402,E501
 
-FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain"}
+# a plastic scene's frame: its major and minor strain too (forming limits), no FLD zone
+# without a forming limit curve
+FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain", "major_strain",
+          "minor_strain"}
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +85,8 @@ def test_viewer_draws_moves_recolours_and_scrubs(done):
     assert viewer.selected == viewer.gui.run.value == st["id"]  # the new run is selected
     np.testing.assert_allclose(viewer.tools["punch"].position, last["punch"], atol=1e-9)
     options = viewer.gui.field.options
-    assert len(options) == 4 and "Equivalent plastic strain (-)" in options
+    assert len(options) == 6 and "Equivalent plastic strain (-)" in options
+    assert "Major true strain (-)" in options
     viewer.gui.field.value = "Equivalent plastic strain (-)"
     assert "Equivalent plastic strain" in viewer.gui.legend.content
     viewer.gui.field.value = "von Mises stress (MPa)"
