@@ -164,8 +164,8 @@ class Simulation:
     def scaled(self) -> dict[str, list[dict]]:
         """What each live parameter multiplies, as the scene gives it (SI), so a page can
         show the result beside the multiplier (friction 0.1 x 2 = 0.2): per tool its friction
-        coefficient, its force (force control) and its planned travel per step (tool_speed);
-        per load its magnitude. ``{name: [{"what", "value", "unit"}]}``."""
+        coefficient, its force (force control) and, if it moves, its planned travel per step
+        (tool_speed); per load its magnitude. ``{name: [{"what", "value", "unit"}]}``."""
         sc = self.model.scene
         units = {"gravity": "m/s^2", "traction": "Pa", "pressure": "Pa", "point": "N"}
         end = sc.stepping.steps * self._dt()
@@ -174,14 +174,20 @@ class Simulation:
                             "value": float(ld.value if ld.kind == "pressure"
                                            else np.linalg.norm(ld.vector))}
                            for i, ld in enumerate(sc.loads)],
-            "tool_speed": [{"what": t.tool, "unit": "m/step", "value": float(np.linalg.norm(
-                               t.path(end)[:3] - t.path(0.0)[:3] + end * t.velocity))
-                            / sc.stepping.steps} for t in self.tools],
+            "tool_speed": [{"what": name, "unit": "m/step", "value": travel}
+                           for name, travel in self._travel_per_step(end) if travel > 0],
             "friction_scale": [{"what": t.tool, "unit": "1", "value": self._mu0[t.tool]}
                                for t in self.tools],
             "holder_force_scale": [{"what": t.tool, "unit": "N", "value": t.force}
                                    for t in self.tools if t.vdof is not None],
         }
+
+    def _travel_per_step(self, end: float) -> list[tuple[str, float]]:
+        """Each tool's planned travel (m) per planned step: its offset over the run, divided
+        by the steps."""
+        steps = self.model.scene.stepping.steps
+        return [(t.tool, float(np.linalg.norm(t.path(end)[:3] - t.path(0.0)[:3]
+                                              + end * t.velocity)) / steps) for t in self.tools]
 
     def _attempt(self, t_new: float, dt: float) -> NewtonResult:
         m = self.model
