@@ -15,7 +15,7 @@ import re
 import sys
 from pathlib import Path
 
-from sim.scene.load import Scene
+from sim.scene.load import TAGS, Scene
 
 TOP = "top level"  # the scene's own fields
 OUT = Path(__file__).resolve().parent.parent / "docs" / "scene-reference.md"
@@ -87,9 +87,10 @@ def _heading(path: str, node: dict, of_kinds: bool) -> str:
     """``[mesh]``, kind `disk`: the table and, of a table of several kinds, its kind."""
     if path == TOP:
         return "The scene file's top level"
-    kind = node["properties"].get("kind", {})
+    tag = next((t for t in TAGS if t in node["properties"]), "kind")
+    kind = node["properties"].get(tag, {})
     kinds = ([kind["const"]] if "const" in kind else kind.get("enum", [])) if of_kinds else []
-    return f"`{_title(path)}`" + (f", kind {' / '.join(f'`{k}`' for k in kinds)}"
+    return f"`{_title(path)}`" + (f", {tag} {' / '.join(f'`{k}`' for k in kinds)}"
                                   if kinds else "")
 
 

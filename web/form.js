@@ -113,36 +113,38 @@ const SceneForm = (() => {
     // a table of several kinds: a kind select, then the fields of that kind only (a new
     // kind keeps the values of the fields it shares with the old one)
     kinds(s, value, path, key, meta) {
+      const tag = (s.discriminator || {}).propertyName || "kind";  // kind, or a law
       const members = s.oneOf.map((m) => this.resolve(m));
       const kindsOf = (m) => {
-        const k = (m.properties || {}).kind || {};
+        const k = (m.properties || {})[tag] || {};
         return k.const !== undefined ? [k.const] : k.enum || [];
       };
       const all = members.flatMap(kindsOf);
       value = value && typeof value === "object" ? value : {};
-      const sel = el("select", { name: `${path}.kind` });
-      if (!all.includes(value.kind)) {
-        sel.append(el("option", { value: "", textContent: "— choose a kind —" }));
-        if (value.kind !== undefined)  // kept, so the server's error names it
-          sel.append(el("option", { value: String(value.kind),
-                                    textContent: `${value.kind} (unknown)` }));
+      const sel = el("select", { name: `${path}.${tag}` });
+      if (!all.includes(value[tag])) {
+        sel.append(el("option", { value: "", textContent: `— choose a ${tag} —` }));
+        if (value[tag] !== undefined)  // kept, so the server's error names it
+          sel.append(el("option", { value: String(value[tag]),
+                                    textContent: `${value[tag]} (unknown)` }));
       }
       for (const k of all) sel.append(el("option", { value: k, textContent: k }));
-      sel.value = value.kind === undefined ? "" : String(value.kind);
+      sel.value = value[tag] === undefined ? "" : String(value[tag]);
+      sel.dataset.tag = tag;
       const holder = el("div", { class: "kinds" });
       let node;
       const show = (v) => {
-        const member = members.find((m) => kindsOf(m).includes(v.kind)) || { properties: {} };
+        const member = members.find((m) => kindsOf(m).includes(v[tag])) || { properties: {} };
         this.meta = meta;
         node = this.object({ ...member, description: meta.description || member.description },
                            v, path, key, true, sel);
         holder.replaceChildren(node.el);
       };
-      sel.addEventListener("change", () => show({ ...node.get(), kind: sel.value }));
+      sel.addEventListener("change", () => show({ ...node.get(), [tag]: sel.value }));
       show(value);
       return { el: holder, get: () => {
         const v = node.get();
-        if (sel.value !== "") v.kind = all.includes(sel.value) ? sel.value : value.kind;
+        if (sel.value !== "") v[tag] = all.includes(sel.value) ? sel.value : value[tag];
         return v;
       } };
     }
@@ -159,7 +161,7 @@ const SceneForm = (() => {
       for (const [k, sub] of Object.entries(s.properties || {})) {
         const sub_path = path ? `${path}.${k}` : k;
         let node;
-        if (k === "kind" && kindSelect) {
+        if (kindSelect && k === kindSelect.dataset.tag) {
           this.meta = { description: sub.description };
           node = { el: this.wrap(sub_path, k, kindSelect), get: () => undefined };
         } else node = this.field(sub, value[k], sub_path, k, req.has(k));

@@ -124,9 +124,12 @@ def scene_errors(err: ValidationError) -> list[dict]:
         parts, kind, tag = _untagged(e["loc"])
         loc = ".".join(_key(p) for p in parts)
         msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "union_tag_not_found":  # a table of several kinds without its kind
+            msg = f"give its {e['ctx']['discriminator'].strip(chr(39))} (which kind it is)"
         if e["type"] == "extra_forbidden" and kind is not None:  # a field of another kind
-            takes = ", ".join(f for f in kind.model_fields if f != "kind")
-            msg = f"not a field of kind {tag!r} (it takes {takes})"
+            tag_field = next(t for t in TAGS if t in kind.model_fields)
+            takes = ", ".join(f for f in kind.model_fields if f != tag_field) or "none"
+            msg = f"not a field of {tag_field} {tag!r} (it takes {takes})"
         if not loc:
             m = PATH_PREFIX.match(msg)
             if m and m.group(1).split(".")[0] in Scene.model_fields:
@@ -180,9 +183,13 @@ def _untagged(loc: tuple) -> tuple[list, type[BaseModel] | None, str | None]:
     return out, table, tag if table is not None else None
 
 
+# the fields that tell the kinds of a table of several kinds apart
+TAGS = ("kind", "law")
+
+
 def _kinds(model: type[BaseModel]) -> tuple[str, ...]:
-    """The kinds a table of several kinds validates as (``kind: Literal[...]``)."""
-    field = model.model_fields.get("kind")
+    """The kinds a table of several kinds validates as (``kind: Literal[...]``, or law)."""
+    field = next((model.model_fields[t] for t in TAGS if t in model.model_fields), None)
     return typing.get_args(field.annotation) if field is not None else ()
 
 

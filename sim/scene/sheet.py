@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, ClassVar, Literal, Self
+from typing import Annotated, Literal, Self
 
 from pydantic import Field, model_validator
 
@@ -132,10 +132,10 @@ class ShellSpec(Strict):
         return self
 
 
-class Hardening(Strict):
+class _Hardening(Strict):
     """Isotropic hardening Y(ep) of sim.materials.plasticity. The initial flow stress is always
     ``material.yield_stress``; each law takes its own fields only (a field of another law is an
-    error, never silently ignored):
+    error naming it, never silently ignored):
 
     - perfect: Y = yield_stress
     - linear: Y = yield_stress + modulus ep, modulus >= 0
@@ -149,39 +149,47 @@ class Hardening(Strict):
     of sim.materials.plasticity), and a softening law localises into a mesh-dependent band.
     """
 
-    law: Literal["perfect", "linear", "swift", "voce"] = doc("the hardening law",
-                                                             default="perfect")
-    modulus: bounded(0.0, MAX_STRESS, lo_open=False) | None = doc(
-        "linear: the hardening modulus H", "Pa", None)
-    K: Stress | None = doc("swift: the strength coefficient", "Pa", None)
-    n: bounded(0.0, 10.0, lo_open=False) | None = doc(
-        "swift: the hardening exponent; metals' are below 1, and (e0 + ep)^n stays "
-        "representable up to 10", "1", None)
+    law: str = doc("the hardening law: perfect, linear, swift or voce")
+
+
+class PerfectHardening(_Hardening):
+    """Perfect plasticity: Y = yield_stress."""
+
+    law: Literal["perfect"] = doc("perfect plasticity")
+
+
+class LinearHardening(_Hardening):
+    """Y = yield_stress + modulus ep."""
+
+    law: Literal["linear"] = doc("linear hardening")
+    modulus: bounded(0.0, MAX_STRESS, lo_open=False) = doc("the hardening modulus H", "Pa")
+
+
+class SwiftHardening(_Hardening):
+    """Y = K (e0 + ep)^n; e0 by default such that Y(0) = yield_stress."""
+
+    law: Literal["swift"] = doc("Swift's power law")
+    K: Stress = doc("the strength coefficient", "Pa")
+    n: bounded(0.0, 10.0, lo_open=False) = doc(
+        "the hardening exponent; metals' are below 1, and (e0 + ep)^n stays representable up "
+        "to 10", "1")
     e0: bounded(0.0, MAX_STRAIN) | None = doc(
-        "swift: the strain offset; unset: (yield_stress / K)^(1/n)", "1", None)
-    saturation: Stress | None = doc("voce: the saturation flow stress Ysat", "Pa", None)
-    rate: bounded(0.0, 1e6) | None = doc(
-        "voce: the saturation rate C; 1e6 saturates within a micro-strain", "1", None)
+        "the strain offset; unset: (yield_stress / K)^(1/n)", "1", None)
 
-    FIELDS: ClassVar[dict[str, tuple[str, ...]]] = {
-        "perfect": (), "linear": ("modulus",), "swift": ("K", "n", "e0"),
-        "voce": ("saturation", "rate")}
-    REQUIRED: ClassVar[dict[str, tuple[str, ...]]] = {
-        "perfect": (), "linear": ("modulus",), "swift": ("K", "n"), "voce": ("saturation", "rate")}
 
-    @model_validator(mode="after")
-    def _own_fields(self) -> Self:
-        for other, names in self.FIELDS.items():
-            for name in names:
-                if other != self.law and getattr(self, name) is not None \
-                        and name not in self.FIELDS[self.law]:
-                    raise ValueError(f"{name}: a parameter of law {other!r}, not of "
-                                     f"{self.law!r} (which takes "
-                                     f"{', '.join(self.FIELDS[self.law]) or 'none'})")
-        missing = [k for k in self.REQUIRED[self.law] if getattr(self, k) is None]
-        if missing:
-            raise ValueError(f"law {self.law!r} needs {', '.join(missing)}")
-        return self
+class VoceHardening(_Hardening):
+    """Y = yield_stress + (saturation - yield_stress)(1 - exp(-rate ep))."""
+
+    law: Literal["voce"] = doc("Voce's saturating law")
+    saturation: Stress = doc("the saturation flow stress Ysat", "Pa")
+    rate: bounded(0.0, 1e6) = doc(
+        "the saturation rate C (> 0: rate 0 is law perfect); 1e6 saturates within a "
+        "micro-strain", "1")
+
+
+# the hardening of one law, with that law's fields only
+Hardening = Annotated[PerfectHardening | LinearHardening | SwiftHardening | VoceHardening,
+                      Field(discriminator="law")]
 
 
 class _FLC(Strict):
@@ -241,7 +249,11 @@ class MaterialSpec(Strict):
                                              1000.0)
     yield_stress: Stress | None = doc("the initial flow stress; plastic model only", "Pa",
                                       None)
-    hardening: Hardening = doc("the hardening law; plastic model only", default=Hardening())
+    hardening: Hardening = doc(
+        "the isotropic hardening law Y(ep) (sim.materials.plasticity), its initial flow stress "
+        "yield_stress; plastic model only. A softening law is rejected: the incremental "
+        "potential is convex only for a nondecreasing Y, and softening localises into a "
+        "mesh-dependent band", default=PerfectHardening(law="perfect"))
     flc: FLCSpec | None = doc(
         "the forming limit curve: major and minor strains, zones and the FLD of a run; "
         "plastic model only", default=None)
