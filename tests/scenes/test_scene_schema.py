@@ -1,14 +1,12 @@
 """The scene schema as the editor reads it: every field described with its unit, a table of
-several kinds taking its kind's fields only (naming a field of another kind), the form's
-edits written into the file's own TOML (comments and number formats kept), and the live
-tool_speed as a rate of the planned stroke."""
+several kinds taking its kind's fields only (naming a field of another kind); and the live
+tool_speed as a rate of the planned stroke. (The form's save: tests/service/test_editor.py.)"""
 
 import tomllib
 
 import numpy as np
 import pytest
 
-from server import sceneform, tomlout
 from sim.scene.load import Scene, SceneError, scene_from_dict, scene_from_toml
 from sim.stepping.simulation import Simulation
 from tests.support import ROOT
@@ -100,57 +98,6 @@ def test_kind_comes_first_and_each_kind_lists_its_own_fields():
     punch = defs["PunchShape"]["properties"]
     assert next(iter(punch)) == "kind"
     assert set(punch) == {"kind", "radius", "height", "edge_radius", "offset", "rotation"}
-
-
-# ---- the form's save: the edit written into the file's own text ------------------------------
-def test_an_edit_keeps_the_files_comments_and_number_formats():
-    base = (ROOT / "scenes/cup_drawing.toml").read_text()
-    scene = sceneform.parse(base)["scene"]
-    scene["material"]["nu"] = 0.3
-    scene["tools"][0]["friction"] = 0.15
-    scene["tools"][1]["shape"]["edge_radius"] = 0.004
-    out = sceneform.render(scene, base=base)
-    assert out["ok"], out["error"]
-    text = out["toml"]
-    # every comment line of the file is still there, and the unchanged numbers as written
-    comments = [ln for ln in base.splitlines() if ln.lstrip().startswith("#")]
-    assert comments and all(c in text.splitlines() for c in comments)
-    assert "velocity = [0.0, 0.0, -0.025]   # 25 mm stroke" in text
-    for kept in ("E = 68.0e9", "yield_stress = 102.75e6", "saturation = 292.14e6"):
-        assert kept in text
-    assert "nu = 0.3\n" in text and "friction = 0.15" in text and "edge_radius = 0.004" in text
-    # only the three edited lines differ
-    changed = [(a, b) for a, b in zip(base.splitlines(), text.splitlines(), strict=True)
-               if a != b]
-    assert len(changed) == 3, changed
-    assert scene_from_toml(text) == Scene.model_validate(scene)
-
-
-def test_an_edit_of_kind_tables_and_lists_reads_back_as_the_edited_scene():
-    """A new mesh kind drops the old kind's fields and adds the new one's; an added tool is a
-    new [[tools]] table, a removed probe is gone; the comments stay."""
-    base = (ROOT / "scenes/cup_drawing.toml").read_text()
-    scene = sceneform.parse(base)["scene"]
-    scene["mesh"] = {"kind": "rectangle", "size": [0.06, 0.06], "origin": [-0.03, -0.03],
-                     "edge_length": 0.002}
-    scene["tools"].append({"name": "ground", "shape": {"kind": "plane"},
-                           "position": [0.0, 0.0, -0.1]})
-    scene["probes"].pop()
-    out = sceneform.render(scene, base=base)
-    assert out["ok"], out["error"]
-    text = out["toml"]
-    assert scene_from_toml(text) == Scene.model_validate(scene)
-    assert "r_outer = 0.03" not in text and "size = [0.06, 0.06]" in text
-    assert text.count("[[tools]]") == 4 and "holder_height" not in text
-    assert "# Deep drawing of a cylindrical cup" in text and "E = 68.0e9" in text
-
-
-def test_a_copy_takes_its_new_name_and_keeps_the_rest():
-    base = (ROOT / "scenes/cup_drawing.toml").read_text()
-    text = tomlout.renamed(base, "my cup")
-    assert tomllib.loads(text)["name"] == "my cup"
-    assert text.replace('name = "my cup"', 'name = "cup_drawing"', 1) == base
-    assert tomlout.renamed("name = [1,", "x") == "name = [1,"  # not TOML: as it was
 
 
 # ---- tool_speed: the rate of the planned stroke ---------------------------------------------
