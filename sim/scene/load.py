@@ -227,7 +227,35 @@ def apply_override(raw: dict, key: str, value: Any) -> None:
             raise SceneError(f"{key}: no item {last!r}")
         node[int(last)] = value
     else:
+        if last in TAGS and node.get(last) != value:
+            _switch_kind(raw, parts, node, value)
         node[last] = value
+
+
+def _switch_kind(raw: dict, parts: list[str], table: dict, kind: object) -> None:
+    """An override of a table's kind (``mesh.kind=file``) switches the table to that kind: the
+    fields of its old kind that the new one does not take go (as the page's form does), so
+    that later overrides complete the new kind."""
+    tp, node = Scene, raw
+    for p in parts[:-1]:
+        models = _members(tp)
+        if isinstance(node, list):
+            tp, node = _item(tp), node[int(p)]
+            continue
+        if len(models) > 1:  # the table's current kind says which model it is
+            models = [m for m in models if node.get(_tag(m)) in _kinds(m)]
+        field = models[0].model_fields.get(p) if len(models) == 1 else None
+        if field is None:
+            return  # not a field of the schema: validation names it
+        tp, node = field.annotation, node[p]
+    new = [m for m in _members(tp) if kind in _kinds(m)]
+    if len(_members(tp)) > 1 and len(new) == 1:
+        for k in [k for k in table if k not in new[0].model_fields]:
+            del table[k]
+
+
+def _tag(model: type[BaseModel]) -> str | None:
+    return next((t for t in TAGS if t in model.model_fields), None)
 
 
 def validate(raw: dict) -> Scene:

@@ -7,7 +7,7 @@ import tomllib
 import numpy as np
 import pytest
 
-from sim.scene.load import Scene, SceneError, scene_from_dict, scene_from_toml
+from sim.scene.load import Scene, SceneError, load_scene, scene_from_dict, scene_from_toml
 from sim.stepping.simulation import Simulation
 from tests.support import ROOT
 from tests.support.scenes import PRESS_TOML
@@ -84,6 +84,19 @@ def test_a_field_of_another_kind_is_refused_naming_it(where, change, loc, kind):
     with pytest.raises(SceneError) as err:
         scene_from_dict(raw)
     assert str(err.value).startswith(f"{loc}: not a field of kind '{kind}' (it takes ")
+
+
+def test_an_override_of_kind_switches_the_table_to_that_kind():
+    """mesh.kind=disk on a rectangle: the rectangle's size and origin go, its edge length
+    (a disk's field too) stays, a later override completes the disk; so for a law."""
+    sc = load_scene(ROOT / "scenes/cantilever.toml", {"mesh.kind": "disk",
+                                                      "mesh.r_outer": 0.05})
+    assert sc.mesh.kind == "disk" and sc.mesh.edge_length == 0.0046667
+    sc = load_scene(ROOT / "scenes/cup_drawing.toml", {"material.hardening.law": "linear",
+                                                       "material.hardening.modulus": 1e9})
+    assert sc.material.hardening.model_dump() == {"law": "linear", "modulus": 1e9}
+    with pytest.raises(SceneError, match=r"^mesh.r_outer: Field required"):
+        load_scene(ROOT / "scenes/cantilever.toml", {"mesh.kind": "disk"})
 
 
 def test_kind_comes_first_and_each_kind_lists_its_own_fields():
