@@ -155,8 +155,8 @@ def test_start_with_unsaved_edits_runs_the_edit(served, browser):
     saved = (tmp / "scenes" / "tiny.toml").read_text()
     page, errors = open_page(browser, url)
     edge = page.locator('#scene-form [data-path="mesh.edge_length"] input.num')
-    assert float(edge.input_value()) == 0.035
-    edge.fill(str(EDITED_EDGE))
+    assert float(edge.input_value()) == 35.0  # the form shows mm (the file: 0.035 m)
+    edge.fill(f"{EDITED_EDGE * 1e3:g}")
     page.wait_for_function(f"document.getElementById('toml').value.includes("
                            f"'edge_length = {EDITED_EDGE}')")
     page.wait_for_function("document.getElementById('sync').textContent === 'valid'")
