@@ -128,6 +128,13 @@ def test_fields_show_units_descriptions_and_their_kinds_fields_only(page):
     names = punch.locator(":scope > .field > label > .key").all_text_contents()
     assert names[0] == "kind" and "n_points" not in names and "r_outer" not in names, names
     shot(page, "01-units-descriptions-kinds")
+    # a Voce law: its own parameters only
+    law = page.locator("#scene-form fieldset[data-path='material.hardening']")
+    law.scroll_into_view_if_needed()
+    names = law.locator(":scope > .field > label > .key").all_text_contents()
+    assert names == ["law", "saturation", "rate"], names
+    assert page.input_value("[name='material.hardening.saturation']") == "292.14"  # MPa
+    shot(page, "01b-hardening-law")
     # another kind: its fields, the shared ones kept
     page.select_option("[name='mesh.kind']", "rectangle")
     names = mesh.locator(":scope > .field > label > .key").all_text_contents()
