@@ -110,6 +110,15 @@ const SceneForm = (() => {
       return el("div", { class: "field", dataset: { path } }, label, extra, help, err);
     }
 
+    // put ``extra`` next to a field's name: its legend or label (a table of several kinds:
+    // that of the kind shown, and of any kind chosen later)
+    byName(fieldEl, extra) {
+      if (fieldEl.heads) fieldEl.heads.push(extra);
+      const head = fieldEl.querySelector(":scope > legend, :scope > label, " +
+                                         ":scope > fieldset > legend");
+      (head || fieldEl).append(extra);
+    }
+
     // a table of several kinds: a kind select, then the fields of that kind only (a new
     // kind keeps the values of the fields it shares with the old one)
     kinds(s, value, path, key, meta) {
@@ -132,12 +141,14 @@ const SceneForm = (() => {
       sel.value = value[tag] === undefined ? "" : String(value[tag]);
       sel.dataset.tag = tag;
       const holder = el("div", { class: "kinds" });
+      holder.heads = [];  // what others put by the name (unset, remove): kept across kinds
       let node;
       const show = (v) => {
         const member = members.find((m) => kindsOf(m).includes(v[tag])) || { properties: {} };
         this.meta = meta;
         node = this.object({ ...member, description: meta.description || member.description },
                            v, path, key, true, sel);
+        node.el.querySelector(":scope > legend").append(...holder.heads);
         holder.replaceChildren(node.el);
       };
       sel.addEventListener("change", () => show({ ...node.get(), [tag]: sel.value }));
@@ -201,8 +212,7 @@ const SceneForm = (() => {
       unset.show = show;
       unset.addEventListener("change", show);
       // the "unset" box goes next to the field's name (a fieldset's legend or label)
-      const head = node.el.querySelector(":scope > legend, :scope > label");
-      (head || node.el).append(tag);
+      this.byName(node.el, tag);
       node.el.classList.add("optional");
       show();
       return { el: node.el, get: () => (unset.checked ? null : node.get()) };
@@ -359,8 +369,7 @@ const SceneForm = (() => {
             render(vals);
             this.onChange();
           };
-          const head = n.el.querySelector(":scope > legend, :scope > label");
-          (head || n.el).append(rm);
+          this.byName(n.el, rm);
           n.el.classList.add("item");
           box.append(n.el);
           return n;

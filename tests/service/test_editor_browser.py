@@ -134,6 +134,11 @@ def test_fields_show_units_descriptions_and_their_kinds_fields_only(page):
     names = law.locator(":scope > .field > label > .key").all_text_contents()
     assert names == ["law", "saturation", "rate"], names
     assert page.input_value("[name='material.hardening.saturation']") == "292.14"  # MPa
+    # an optional table of several kinds: its "unset" box by its name, for any kind chosen
+    flc = "#scene-form fieldset[data-path='material.flc'] > legend .unset-label"
+    assert page.locator(flc).count() == 1
+    page.select_option("[name='material.flc.kind']", "points")
+    assert page.locator(flc).count() == 1
     shot(page, "01b-hardening-law")
     # another kind: its fields, the shared ones kept
     page.select_option("[name='mesh.kind']", "rectangle")
