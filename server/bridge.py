@@ -168,6 +168,7 @@ def _meta(m: Books, ev: dict) -> Booked:
         # the solver's values of every live parameter (those it was given applied): what the
         # page's and the viewer's sliders show
         run.parameters.update(ev.get("parameters") or {})
+        run.scaled = ev.get("scaled") or {}
         line, values = run.line(), dict(run.parameters)
     booked.later.append(lambda: m.save(run))
     if m.viewer:
@@ -188,6 +189,7 @@ def _step(m: Books, ev: dict) -> Booked:
         if run is not None:
             run.records.append(ev["record"])
             run.step = ev["record"]["step"]
+            run.n_steps = ev.get("n_steps", run.n_steps)  # tool_speed changes the count
             run.frames.update(ev.get("frames") or {})
     return Booked()
 
@@ -201,6 +203,7 @@ def _parameter(m: Books, ev: dict) -> Booked:
             return booked
         run.parameter_log.append(entry)
         run.parameters[entry["name"]] = entry["value"]
+        run.n_steps = ev.get("n_steps", run.n_steps)
     if m.viewer:
         booked.later.append(lambda: m.viewer.set_parameter_value(run.id, entry["name"],
                                                                  entry["value"]))
