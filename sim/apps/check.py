@@ -78,7 +78,7 @@ def load_overrides(scene: Scene, factor: float) -> dict:
     """Every load of ``scene`` times ``factor``, as overrides."""
     out = {}
     for i, ld in enumerate(scene.loads):
-        if ld.value is not None:
+        if ld.kind == "pressure":  # a magnitude; the other kinds carry a vector
             out[f"loads.{i}.value"] = ld.value * factor
         else:
             out[f"loads.{i}.vector"] = [v * factor for v in ld.vector]

@@ -168,8 +168,8 @@ def to_mm(sc) -> dict:
     o = {"shell.thickness": sc.shell.thickness * L, "material.E": sc.material.E * S,
          "material.density": sc.material.density * 1e-12}
     m = sc.mesh
-    for k in ("size", "edge_length", "r_outer", "radius", "height"):
-        if getattr(m, k) is not None:
+    for k in ("size", "edge_length", "r_outer", "radius", "height"):  # those its kind has
+        if getattr(m, k, None) is not None:
             v = getattr(m, k)
             o[f"mesh.{k}"] = [x * L for x in v] if isinstance(v, tuple) else v * L
     o["mesh.origin"] = [x * L for x in m.origin]
@@ -182,11 +182,11 @@ def to_mm(sc) -> dict:
             o[f"regions.{i}.box.max"] = [x * L for x in r.box.max]
     for i, ld in enumerate(sc.loads):
         f = {"gravity": L, "traction": S, "pressure": S, "point": 1.0}[ld.kind]
-        if ld.vector is not None:
+        if getattr(ld, "vector", None) is not None:
             o[f"loads.{i}.vector"] = [x * f for x in ld.vector]
-        if ld.value is not None:
+        if getattr(ld, "value", None) is not None:
             o[f"loads.{i}.value"] = ld.value * f
-        if ld.point is not None:
+        if getattr(ld, "point", None) is not None:
             o[f"loads.{i}.point"] = [x * L for x in ld.point]
     for i, bc in enumerate(sc.bcs):
         o[f"bcs.{i}.displacement"] = [x * L for x in bc.displacement]
