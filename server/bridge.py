@@ -167,6 +167,7 @@ def _meta(m: Books, ev: dict) -> Booked:
         # the solver's values of every live parameter (those it was given applied): what the
         # page's and the viewer's sliders show
         run.parameters.update(ev.get("parameters") or {})
+        run.punches, run.probe_units = ev.get("punches") or {}, ev.get("probe_units") or {}
         line, values = run.line(), dict(run.parameters)
     booked.later.append(lambda: m.save(run))
     if m.viewer:
@@ -181,6 +182,7 @@ def _step(m: Books, ev: dict) -> Booked:
         if run is not None:
             run.records.append(ev["record"])
             run.step = ev["record"]["step"]
+            run.stepping_s += ev.get("wall_s") or 0.0
             run.frames.update(ev.get("frames") or {})
     return Booked()
 

@@ -43,6 +43,18 @@ class ParameterValue(BaseModel):
     value: float
 
 
+class Progress(BaseModel):
+    step: int = Field(description="steps done")
+    steps: int | None = Field(description="steps of the run (release included); null while "
+                              "it builds")
+    fraction: float | None = Field(description="step / steps")
+    elapsed_s: float | None = Field(description="wall time since the start, to the end once "
+                                    "it ended (null for a run whose end was not recorded)")
+    remaining_s: float | None = Field(description="the steps left at the mean wall time of "
+                                      "those done: 0 once finished, null before the first "
+                                      "step and for a run that ended early")
+
+
 class RunSummary(BaseModel):
     """A run as the server holds it (fields added later pass through)."""
 
@@ -65,6 +77,7 @@ class RunSummary(BaseModel):
                                "step asked for is made")
     parameters: dict[str, float] = Field(default_factory=dict, description=(
         "every live parameter's value from the next step on (as the solver last said)"))
+    progress: Progress
 
 
 class RunStatus(RunSummary):

@@ -1,0 +1,70 @@
+"""The data of the page's plots of a run, in the units an engineer reads (kN, mm, MPa, %):
+each punch's force against its stroke, each probe against the step in its own unit, the
+solver's residual and Newton iterations, the live-parameter changes (marks), and the thickness
+along the scene's sections at their steps (result.json's, once the run has written it)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.frames import results
+from sim.frames.punch import punch_history
+from sim.frames.units import DISPLAY, measure
+
+
+def plots(status: dict, result: dict | None) -> dict:
+    """``status``: the run's status with all its records (RunManager.status); ``result``: its
+    result.json, None before it is written."""
+    records = status["records"]
+    out = {"run": status["id"], "step": status["step"],
+           "punches": punch_curves(records, status.get("punches") or {}),
+           "probes": probe_series(records, status.get("probe_units") or {}),
+           "solver": {"steps": [r["step"] for r in records],
+                      "residual": [r["residual"] for r in records],
+                      "iterations": [r["iterations"] for r in records]},
+           "parameter_log": status.get("parameter_log") or [],
+           "sections": sections((result or {}).get("sections") or {})}
+    return results.finite(out)[0]  # JSON has no NaN: a missing value is null
+
+
+def shown(values: list | np.ndarray, unit: str) -> dict:
+    """``{"unit", "values"}`` in the unit the page shows."""
+    d = measure(values, unit)["display"]
+    return {"unit": d["unit"], "values": d["value"]}
+
+
+def punch_curves(records: list[dict], punches: dict[str, list[float]]) -> list[dict]:
+    """Each punch's force (kN) against its stroke (mm) at the steps it is active; a punch that
+    never moved has no stroke (null): its force is then plotted against the step."""
+    out = []
+    for tool, start in punches.items():
+        rows = [(r["step"], r["tools"][tool]) for r in records if tool in (r.get("tools") or {})]
+        if not rows:
+            continue
+        h = punch_history(rows, np.asarray(start, float))
+        out.append({"tool": tool, "steps": h["steps"].tolist(), "force": shown(h["force"], "N"),
+                    "stroke": None if h["stroke"] is None else shown(h["stroke"], "m")})
+    return out
+
+
+def probe_series(records: list[dict], units: dict[str, str]) -> list[dict]:
+    """Each probe against the step, in the unit the page shows (SI when its unit is unknown:
+    a run recorded before probes named their units)."""
+    names = list(records[-1]["probes"]) if records else []
+    out = []
+    for name in names:
+        rows = [(r["step"], r["probes"].get(name)) for r in records]
+        values = [np.nan if v is None else v for _, v in rows]
+        unit = units.get(name)
+        series = shown(values, unit) if unit in DISPLAY else {"unit": "", "values": values}
+        out.append({"name": name, "steps": [s for s, _ in rows], **series,
+                    "si_unit": unit if unit in DISPLAY else None})
+    return out
+
+
+def sections(found: dict[str, list[dict]]) -> list[dict]:
+    """Each section's thickness (mm) against the rest radius (mm) at its steps."""
+    return [{"name": name,
+             "steps": [{"step": s["step"], "position": shown(s["rest_radius"], "m"),
+                        "thickness": shown(s["thickness"], "m")} for s in rows]}
+            for name, rows in found.items()]
