@@ -167,7 +167,7 @@ def _meta(m: Books, ev: dict) -> Booked:
         # the solver's values of every live parameter (those it was given applied): what the
         # page's and the viewer's sliders show
         run.parameters.update(ev.get("parameters") or {})
-        run.punches, run.probe_units = ev.get("punches") or {}, ev.get("probe_units") or {}
+        run.punches, run.probe_kinds = ev.get("punches") or {}, ev.get("probe_kinds") or {}
         line, values = run.line(), dict(run.parameters)
     booked.later.append(lambda: m.save(run))
     if m.viewer:

@@ -8,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from sim.frames import results
+from sim.frames.probes import PROBES
 from sim.frames.punch import punch_history
-from sim.frames.units import DISPLAY, measure
+from sim.frames.units import measure
 
 
 def plots(status: dict, result: dict | None) -> dict:
@@ -18,7 +19,7 @@ def plots(status: dict, result: dict | None) -> dict:
     records = status["records"]
     out = {"run": status["id"], "step": status["step"],
            "punches": punch_curves(records, status.get("punches") or {}),
-           "probes": probe_series(records, status.get("probe_units") or {}),
+           "probes": probe_series(records, status.get("probe_kinds") or {}),
            "solver": {"steps": [r["step"] for r in records],
                       "residual": [r["residual"] for r in records],
                       "iterations": [r["iterations"] for r in records]},
@@ -47,18 +48,19 @@ def punch_curves(records: list[dict], punches: dict[str, list[float]]) -> list[d
     return out
 
 
-def probe_series(records: list[dict], units: dict[str, str]) -> list[dict]:
-    """Each probe against the step, in the unit the page shows (SI when its unit is unknown:
-    a run recorded before probes named their units)."""
+def probe_series(records: list[dict], kinds: dict[str, str]) -> list[dict]:
+    """Each probe against the step, in the unit its kind says, as the page shows it (SI, unit
+    unknown, for a run recorded before its probes' kinds were kept)."""
     names = list(records[-1]["probes"]) if records else []
     out = []
     for name in names:
         rows = [(r["step"], r["probes"].get(name)) for r in records]
         values = [np.nan if v is None else v for _, v in rows]
-        unit = units.get(name)
-        series = shown(values, unit) if unit in DISPLAY else {"unit": "", "values": values}
-        out.append({"name": name, "steps": [s for s, _ in rows], **series,
-                    "si_unit": unit if unit in DISPLAY else None})
+        kind = PROBES.get(kinds.get(name, ""))
+        series = shown(values, kind.unit) if kind else {"unit": "", "values": values}
+        out.append({"name": name, "kind": kinds.get(name) if kind else None,
+                    "steps": [s for s, _ in rows], **series,
+                    "si_unit": kind.unit if kind else None})
     return out
 
 

@@ -53,9 +53,9 @@ class Run:
     # finished runs: error estimate from a study of the scene, and the run's cost
     estimate: dict | None = None
     # what the plots need that the records do not say: each punch's start translation (m),
-    # each probe's SI unit (from the solver's meta)
+    # each probe's kind (from the solver's meta)
     punches: dict[str, list[float]] = field(default_factory=dict)
-    probe_units: dict[str, str] = field(default_factory=dict)
+    probe_kinds: dict[str, str] = field(default_factory=dict)
     stepping_s: float = 0.0  # wall time the solver spent in the steps made
     ended: float | None = None  # Unix time it ended
 

@@ -57,15 +57,14 @@ def _frame_msg(run: str, sim: Simulation) -> dict:
 def _plotted(scene: Scene, sim: Simulation) -> dict:
     """What the page's plots need of a run that its step records do not say: each punch's
     start translation (its stroke is read from there, sim.frames.punch) and each probe's
-    unit."""
-    from sim.frames.probes import PROBES
+    kind (which says its unit)."""
     from sim.scene.shapes import tool_role
 
     starts = sim.tool_poses()
     punches = {t.name: [float(c) for c in starts[t.name]] for t in scene.tools
                if tool_role(t) == "punch" and t.name in starts}
     return {"punches": punches,
-            "probe_units": {p.name: PROBES[p.kind].unit for p in scene.probes}}
+            "probe_kinds": {p.name: p.kind for p in scene.probes}}
 
 
 def plane_size(positions: np.ndarray) -> float:

@@ -6,8 +6,6 @@ const Plots = (() => {
   const CONFIG = { displaylogo: false, responsive: true,
                    modeBarButtonsToRemove: ["lasso2d", "select2d", "autoScale2d"] };
   const FONT = { family: "system-ui, sans-serif", size: 11 };
-  const QUANTITY = { kN: "force", mm: "length", "cm³": "volume", "%": "strain or ratio",
-                     deg: "angle", MPa: "stress", "1/m": "curvature", "": "count" };
   const ZONE_COLOURS = { failure: "#d62728", marginal: "#ff9f1c", safe: "#2ca02c",
                          "insufficient stretch": "#8c8c8c", "wrinkling tendency": "#9467bd" };
   const MARK = "#b15928";
@@ -71,23 +69,25 @@ const Plots = (() => {
   }
 
   function probes(div, series, log) {
-    // one y axis per unit (a quantity), stacked, the steps shared below
-    const units = [...new Set(series.map((s) => (s.si_unit === null ? "?" : s.unit)))];
+    // one y axis per quantity (the probes' kind: thickness, tool force, ...), stacked, the
+    // steps shared below
+    const kindOf = (s) => s.kind || "?";
+    const kinds = [...new Set(series.map(kindOf))];
     const traces = series.map((s) => {
-      const k = units.indexOf(s.si_unit === null ? "?" : s.unit);
+      const k = kinds.indexOf(kindOf(s));
       return { x: s.steps, y: s.values, name: s.name, type: "scatter", mode: "lines+markers",
                marker: { size: 3 }, xaxis: "x", yaxis: k ? `y${k + 1}` : "y",
                hovertemplate: `${s.name}: %{y:.4g} ${s.unit}<br>step %{x}<extra></extra>` };
     });
-    const layout = { ...base("Probes", 70 + 120 * units.length),
-                     grid: { rows: units.length, columns: 1, pattern: "coupled",
-                             roworder: "top to bottom" },
+    const layout = { ...base("Probes", 70 + 110 * kinds.length),
+                     grid: { rows: kinds.length, columns: 1, pattern: "coupled",
+                             roworder: "top to bottom", ygap: 0.25 },
                      xaxis: axis("step"), ...marks(log, (s) => s - 0.5) };
-    units.forEach((u, k) => {
-      const names = series.filter((s) => (s.si_unit === null ? "?" : s.unit) === u)
-        .map((s) => s.name);
-      const title = u === "?" ? "SI units" :
-        names.length === 1 ? `${names[0]} (${u || "count"})` : `${QUANTITY[u] || u} (${u})`;
+    kinds.forEach((kind, k) => {
+      const of = series.filter((s) => kindOf(s) === kind);
+      const unit = of[0].unit;
+      const title = kind === "?" ? "SI units" :
+        `${of.length === 1 ? of[0].name : kind.replaceAll("_", " ")} (${unit || "count"})`;
       layout[k ? `yaxis${k + 1}` : "yaxis"] = axis(title, { title: { text: title,
         font: { size: 10 } } });
     });
@@ -137,8 +137,16 @@ const Plots = (() => {
                       type: "scatter", mode: "lines", name: "marginal",
                       line: { color: "#000", dash: "dash", width: 1 }, hoverinfo: "skip" });
     }
+    // the elements' strains and the curve's lowest point (FLC0) in view, not the curve's
+    // whole span: a preview's strains are often a few per cent
+    const lo = (xs) => Math.min(0, ...xs), hi = (xs) => Math.max(0, ...xs);
+    const flc0 = fl.curve ? 100 * fl.curve.flc0 : 0;
+    const xr = [Math.min(-10, 1.3 * lo(pct(fl.minor))), Math.max(10, 1.3 * hi(pct(fl.minor)))];
+    const yr = [Math.min(-2, 1.2 * lo(pct(fl.major))),
+                Math.max(1.3 * flc0, 1.2 * hi(pct(fl.major)), 10)];
     const layout = { ...base(`Forming limit diagram (step ${fl.step})`, 320),
-                     xaxis: axis("minor true strain (%)"), yaxis: axis("major true strain (%)") };
+                     xaxis: axis("minor true strain (%)", { range: xr }),
+                     yaxis: axis("major true strain (%)", { range: yr }) };
     return draw(div, traces, layout);
   }
 

@@ -30,6 +30,8 @@ class PunchCurve(BaseModel):
 
 class ProbeSeries(Series):
     name: str
+    kind: str | None = Field(description="the probe's kind (sim.frames.probes), null: not "
+                             "known (a run recorded before its probes' kinds were kept)")
     steps: list[int]
     si_unit: str | None = Field(description="the probe's SI unit (null: not known)")
 
