@@ -62,9 +62,9 @@ def line_lagrange(q: int, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class Prism:
     """A prism element: in-plane degree ``p``, thickness degree ``q`` and a default quadrature;
     ``small_mesh_quadrature``: the rule without spurious modes, when the default has some on
-    patches of one or two triangles (README, 'Quadrature and spurious modes'); ``routine``:
-    run wherever every element is meant (each shipped scene in the tests); an element too
-    costly for that (the quartic reference) runs only where it is named."""
+    patches of one or two triangles (docs/verification.md, 'Quadrature and spurious
+    modes'); ``routine``: run wherever every element is meant (each shipped scene in the
+    tests); an element too costly for that (the quartic reference) runs only where it is named."""
 
     name: str
     p: int

@@ -5,7 +5,7 @@ symbolic analysis (fill-reducing ordering) is done once per pattern and reused f
 iteration of a run. Backends:
 
 - ``pardiso``: MKL PARDISO (from the ``mkl`` wheel that ``pypardiso`` installs) through a thin
-  ctypes wrapper: phase 11 once, then 22 / 33. Measured here 4-8x faster than SuperLU.
+  ctypes wrapper: phase 11 once, then 22 / 33; several times faster than SuperLU (q3t bench).
 - ``scipy``: SuperLU with a symmetric ordering, always available (slower, no reuse of analysis).
 
 ``factor`` raises ``SingularMatrix`` on a zero or negative pivot, so the caller can regularise.
@@ -43,7 +43,7 @@ class LinearSolver(Protocol):
 
 def _find_mkl() -> ctypes.CDLL | None:
     # MKL's OpenMP threads spin 200 ms after each call by default, stealing both cores from
-    # the numba assembly that follows: measured 1.7x slower assembly on the Q3T beam
+    # the numba assembly that follows (q3t bench's assembly time shows it)
     os.environ.setdefault("KMP_BLOCKTIME", "0")
     paths = [os.environ.get("Q3T_MKL_RT", "")]
     paths += sorted(glob.glob(f"{sys.prefix}/lib*/libmkl_rt.so*"), key=len)

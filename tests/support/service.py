@@ -5,9 +5,11 @@ from __future__ import annotations
 import socket
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from server.records import ACTIVE
+from tests.support.scenes import tiny_toml
 
 # s: how long a test waits for something that must happen - a hang guard, never a clock it
 # races (a run of the tiny scene takes a second; on a loaded machine, or compiling the
@@ -53,3 +55,29 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def no_temp_files(root: Path) -> list[Path]:
+    return [p for p in root.rglob("*") if p.name.startswith(".") or ".tmp" in p.name]
+
+
+def outside_scenes(settings) -> dict:
+    """Every file in the test folder outside scenes/ and runs/, with its content and mtime."""
+    root = settings.scenes_dir.parent
+    keep = (settings.scenes_dir, settings.runs_dir, root / "config", root / "data")
+    return {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in root.rglob("*")
+            if p.is_file() and not any(p.is_relative_to(k) for k in keep)}
+
+
+def file_scene(path: str) -> str:
+    """tiny, its mesh read from ``path``."""
+    return tiny_toml().replace('kind = "rectangle"', f"kind = \"file\"\npath = '{path}'")
+
+
+def thickness_scene(path: str) -> str:
+    """tiny, its per-vertex thickness read from ``path``."""
+    return tiny_toml().replace("thickness = 0.007", f"thickness_file = '{path}'")
+
+
+def nested(depth: int) -> str:
+    return "[" * depth + "]" * depth

@@ -193,10 +193,10 @@ RANK_MESHES = {
     "vertex_hang": lambda: _hang((2 * L, 2 * L), None, [(3 * L, 2 * L), (2 * L, 3 * L)]),
 }
 # Zero-energy modes (beyond the 6 rigid ones; none may remain when clamped; all spurious but
-# vertex_hang's first), measured 2026-12-01 and stated in the README ('Quadrature and spurious
-# modes'): per (element, rule), the meshes that have any (all others: 0). First the paper's
-# default rule, then the alternative without modes (quartic: a lower rule, to show that one
-# is not free of them).
+# vertex_hang's first), measured 2026-12-01 and stated in docs/verification.md ('Quadrature and
+# spurious modes'): per (element, rule), the meshes that have any (all others: 0). First the paper's
+# default rule, then the alternative without modes (quartic: a lower rule, to show that one is not
+# free of them).
 RANK_RULES = {
     ("linear", (1, 2)): {"single": 1, "vertex_hang": 2},
     ("linear", (3, 2)): {"vertex_hang": 1},
@@ -247,7 +247,8 @@ def test_spurious_zero_energy_modes(name, rule, shape):
     """Rank of the stiffness at rest: one prism, two triangles, 3+ triangles (strips, fans, a
     grid, a disk) and a clamped patch, for every element at its default rule and the
     alternative. The paper's rules for linear (1 x 2) and Q3T (1 x 3) leave modes on one or two
-    elements only; the fuller rules have none but lock (README, test_cantilever.py)."""
+    elements only; the fuller rules have none but lock (docs/verification.md,
+    tests/verification/test_cantilever.py)."""
     expected = RANK_RULES[(name, rule)].get(shape, 0)
     assert _spurious_modes(name, rule, shape) == expected
     if rule == ELEMENTS[name].default_quadrature and shape in ("clamped", "grid4", "disk"):

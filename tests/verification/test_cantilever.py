@@ -89,7 +89,7 @@ def test_mode_free_rule_locks():
     """The rules without spurious modes (tests/unit/test_elements.py) lock in transverse shear: on
     the cantilever at nu = 0.49 and 8.75 mm, Q3T's 3 x 3 rule gives 0.63 of the reference
     deflection against 0.85 for the paper's 1 x 3, and linear's 3 x 2 0.39 against 0.53
-    (README, 'Quadrature and spurious modes')."""
+    (docs/verification.md, 'Quadrature and spurious modes')."""
     ref = tip("quadratic", 0.49)
     h = 0.00875
     paper_q3t, full_q3t = tip("q3t", 0.49, h, (1, 3)) / ref, tip("q3t", 0.49, h, (3, 3)) / ref

@@ -251,7 +251,7 @@ def test_springback_matches_the_classical_formula(element, X):
     nearly a hinge: at X = 0.05 (99.7 %) its tangent bending stiffness is (2X)^3 = 1e-3 of the
     elastic one, so a 1e-4 difference of moment capacity between elements (a Gauss point just
     inside or outside the elastic core) moves the curvature by 10 % and the loaded shape is
-    no longer the uniform arc the formula describes (README, Plasticity).
+    no longer the uniform arc the formula describes (docs/verification.md, Plasticity).
     Measured (formula error on the fine mesh, tp = 20): Q3T -0.1 % / -1.2 %, quadratic -0.1 % /
     -1.2 % at X = 0.1 / 0.2; the quartic prism gives -0.1 % at X = 0.2, so the -1.2 % is the
     thickness strain being only linear through the thickness in both, not the plasticity."""
