@@ -79,15 +79,15 @@ const Plots = (() => {
                marker: { size: 3 }, xaxis: "x", yaxis: k ? `y${k + 1}` : "y",
                hovertemplate: `${s.name}: %{y:.4g} ${s.unit}<br>step %{x}<extra></extra>` };
     });
-    const layout = { ...base("Probes", 70 + 110 * kinds.length),
+    const layout = { ...base("Probes", 80 + 125 * kinds.length),
                      grid: { rows: kinds.length, columns: 1, pattern: "coupled",
                              roworder: "top to bottom", ygap: 0.25 },
                      xaxis: axis("step"), ...marks(log, (s) => s - 0.5) };
     kinds.forEach((kind, k) => {
       const of = series.filter((s) => kindOf(s) === kind);
       const unit = of[0].unit;
-      const title = kind === "?" ? "SI units" :
-        `${of.length === 1 ? of[0].name : kind.replaceAll("_", " ")} (${unit || "count"})`;
+      const title = kind === "?" ? "SI units"
+                                 : `${kind.replaceAll("_", " ")} (${unit || "count"})`;
       layout[k ? `yaxis${k + 1}` : "yaxis"] = axis(title, { title: { text: title,
         font: { size: 10 } } });
     });

@@ -216,8 +216,14 @@ const Results = (() => {
     showStatus(st);
     showProgress(st);
     showEstimate(st);
-    await showPlots(st);
     await showSummary(st);
+    if (!window.Plotly) {
+      // /static/vendor/plotly.min.js comes from the plotly Python package
+      document.getElementById("no-plots").textContent = "No plots: plotly.js did not load " +
+        "(the server serves it from the plotly package: pip install 'q3t-forming[service]').";
+      return;
+    }
+    await showPlots(st);
     await showFld(st);
   }
 

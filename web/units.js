@@ -17,6 +17,7 @@ const Units = (() => {
 
   function duration(s) {
     if (s === null || s === undefined || !Number.isFinite(s)) return "–";
+    if (s < 1) return "under 1 s";
     s = Math.round(s);
     if (s < 60) return `${s} s`;
     const m = Math.floor(s / 60);

@@ -116,7 +116,8 @@ class FrameStats(BaseModel):
 # what a new run's id leads to (OpenAPI links: clients and fuzzers follow them)
 RUN_LINKS = {op: {"operationId": op, "parameters": {"run_id": "$response.body#/id"}}
              for op in ("status", "pause", "resume", "step", "stop", "set_parameter", "result",
-                        "summary", "forming_limits", "scene", "frames", "recording", "delete_run")}
+                        "summary", "forming_limits", "run_plots", "scene", "frames", "recording",
+                        "delete_run")}
 
 
 def _runs(request: Request) -> RunManager:
