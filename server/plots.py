@@ -12,12 +12,25 @@ from sim.frames.probes import PROBES
 from sim.frames.punch import punch_history
 from sim.frames.units import measure
 
+# the most steps a plot shows: a longer run's every k-th step and its last (a browser draws a
+# few thousand points at once; the summary holds the exact peaks)
+MAX_POINTS = 2000
+
+
+def thinned(records: list[dict], most: int = MAX_POINTS) -> tuple[list[dict], int]:
+    """Every k-th record and the last, at most about ``most``; and k."""
+    k = max(1, -(-len(records) // most))
+    if k == 1:
+        return records, 1
+    kept = records[k - 1::k]
+    return (kept if kept[-1] is records[-1] else [*kept, records[-1]]), k
+
 
 def plots(status: dict, result: dict | None) -> dict:
     """``status``: the run's status with all its records (RunManager.status); ``result``: its
     result.json, None before it is written."""
-    records = status["records"]
-    out = {"run": status["id"], "step": status["step"],
+    records, stride = thinned(status["records"])
+    out = {"run": status["id"], "step": status["step"], "stride": stride,
            "punches": punch_curves(records, status.get("punches") or {}),
            "probes": probe_series(records, status.get("probe_kinds") or {}),
            "solver": {"steps": [r["step"] for r in records],

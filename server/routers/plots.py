@@ -50,6 +50,8 @@ class Section(BaseModel):
 class Plots(BaseModel):
     run: str
     step: int
+    stride: int = Field(description="every stride-th step is plotted (and the last): a long "
+                        "run's plots are thinned to about 2000 points")
     punches: list[PunchCurve]
     probes: list[ProbeSeries]
     solver: dict[str, list[float | None]] = Field(description="steps, residual, iterations")

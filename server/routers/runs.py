@@ -11,7 +11,7 @@ from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field
 
 from server.errors import BODY, CheckedRoute, documented
-from server.problems import NotFound
+from server.problems import Conflict, NotFound
 from server.runs import RunManager
 from server.settings import RunId, SceneName
 
@@ -116,8 +116,7 @@ class FrameStats(BaseModel):
 # what a new run's id leads to (OpenAPI links: clients and fuzzers follow them)
 RUN_LINKS = {op: {"operationId": op, "parameters": {"run_id": "$response.body#/id"}}
              for op in ("status", "pause", "resume", "step", "stop", "set_parameter", "result",
-                        "summary", "forming_limits", "run_plots", "scene", "frames", "recording",
-                        "delete_run")}
+                        "summary", "forming_limits", "scene", "frames", "recording", "delete_run")}
 
 
 def _runs(request: Request) -> RunManager:
@@ -308,11 +307,17 @@ def frame(run_id: RunId, step: int, request: Request) -> dict:
 
 
 @router.get("/{run_id}/recording", response_class=FileResponse, responses={
-    **RUN, 200: {"content": {"application/octet-stream": {}},
-                 "description": "The run's rerun recording (run.rrd)"}})
+    **documented(404, 409, 422), 200: {"content": {"application/octet-stream": {}},
+                                       "description": "The run's rerun recording (run.rrd)"}})
 def recording(run_id: RunId, request: Request) -> FileResponse:
+    """The recording of a run that has ended (an active run's grows while it is sent: its
+    length would not match what was promised, and the file would end mid-record)."""
     m = _runs(request)
-    path = m.files.recording(m.get(run_id).id)
+    run = m.get(run_id)
+    if run.id == m.active:
+        raise Conflict(f"run {run_id!r} is {run.state}: its recording is complete when it "
+                       "ends")
+    path = m.files.recording(run.id)
     if not path.is_file():
         raise NotFound(f"run {run_id!r} has no recording")
     return FileResponse(path, media_type="application/octet-stream", filename=f"{run_id}.rrd")

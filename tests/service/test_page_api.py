@@ -18,6 +18,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from server.app import create_app
+from server.plots import thinned
 from server.settings import Settings
 from sim.frames.probes import PROBES
 from sim.frames.units import DISPLAY
@@ -156,3 +157,28 @@ def test_plotly_is_served_by_the_app(env):
     assert b"plotly.js" in r.content[:2000]
     missing = client.get("/static/vendor/d3.js")
     assert missing.status_code == 404 and "d3.js" in missing.json()["detail"]
+
+
+def test_a_long_run_is_thinned_for_the_plots():
+    """Every k-th step and the last: a browser is not handed 10^5 points per curve."""
+    records = [{"step": k} for k in range(1, 10_002)]
+    kept, k = thinned(records, 2000)
+    assert k == 6 and kept[0]["step"] == 6 and kept[-1]["step"] == 10_001
+    assert all(b["step"] - a["step"] == 6 for a, b in zip(kept[:-2], kept[1:-1], strict=True))
+    assert thinned(records[:2000], 2000) == (records[:2000], 1)
+
+
+def test_recording_of_an_active_run_is_refused(env):
+    """A recording still being written would be sent shorter than the length promised (the
+    server broke the connection mid-answer): it is a 409 until the run ends."""
+    client, _ = env
+    run = client.post("/api/runs", json={"scene": "tiny_cup", "paused": True}).json()["id"]
+    try:
+        wait_state(client, run, {"paused"})
+        r = client.get(f"/api/runs/{run}/recording")
+        assert r.status_code == 409 and "complete when it ends" in r.json()["detail"]
+    finally:
+        client.post(f"/api/runs/{run}/stop")
+        wait_state(client, run, ENDED)
+    r = client.get(f"/api/runs/{run}/recording")
+    assert r.status_code == 200 and len(r.content) > 0
