@@ -266,6 +266,7 @@ function adoptRun(id) {
   if (state.run !== id) {
     state.run = id;
     state.status = null;
+    Results.forget();  // nothing of the run shown before stays on screen
   }
   for (const tr of $("runs").querySelectorAll("tbody tr"))
     tr.className = tr.dataset.id === id ? "sel" : "";
@@ -318,6 +319,7 @@ async function main() {
     $("viewer").src = `${location.protocol}//${location.hostname}:${state.config.viewer_port}/`;
   }
   Layout.init();
+  Results.init();
   $("save").onclick = saveScene;
   state.form = new SceneForm.Form($("scene-form"), await api("GET", "/api/scenes/schema"),
                                   () => scheduleSync(syncFromForm, 300), suggestNames);

@@ -96,6 +96,7 @@ const Results = (() => {
       if (e.status !== 404) throw e;
       s = { summary: [] };
     }
+    if (st.id !== shown) return;
     drawn.summary = k;
     const tools = new Set(s.summary.filter((e) => e.tool).map((e) => e.tool)).size;
     const cards = s.summary.map((e) => card(e, tools));
@@ -163,6 +164,7 @@ const Results = (() => {
     const k = key(st);
     if (drawn.plots === k) return;
     const data = await api("GET", `/api/runs/${st.id}/plots`);
+    if (data.run !== shown) return;  // another run was selected meanwhile
     drawn.plots = k;
     plotsData = data;
     const $ = (id) => document.getElementById(id);
@@ -174,9 +176,16 @@ const Results = (() => {
                                                 data.parameter_log);
     Plots.show("section-fig", data.sections.length > 0);
     if (data.sections.length) await Plots.sections($("section-plot"), data.sections, force[0]);
-    if (data.solver.steps.length) await Plots.solver($("solver-plot"), data.solver);
+    await drawSolver();
     $("no-plots").hidden = data.solver.steps.length > 0;
     document.getElementById("plots").dataset.step = String(data.step);
+  }
+
+  async function drawSolver() {
+    // only while its box is open: a live run redraws at every step
+    const s = plotsData && plotsData.solver;
+    if (s && s.steps.length && document.getElementById("solver-box").open)
+      await Plots.solver(document.getElementById("solver-plot"), s);
   }
 
   async function showFld(st) {
@@ -190,13 +199,16 @@ const Results = (() => {
     } catch (e) {
       if (e.status !== 404) throw e;  // an elastic run, or one without a result
     }
+    if (st.id !== shown) return;
     drawn.fld = k;
     Plots.show("fld-fig", !!fl && fl.minor.length > 0);
     if (fl && fl.minor.length) await Plots.fld(document.getElementById("fld-plot"), fl);
   }
 
   function forget() {
-    // another run is shown: nothing of the last one may stay on screen
+    // another run is shown: nothing of the last one may stay on screen (and an answer about
+    // it that arrives later is dropped: it is no longer ``shown``)
+    shown = null;
     drawn.plots = drawn.summary = drawn.fld = null;
     plotsData = null;
     for (const f of ["force", "probes", "section", "fld"]) {
@@ -204,8 +216,12 @@ const Results = (() => {
       Plots.purge(document.getElementById(`${f}-plot`));
     }
     Plots.purge(document.getElementById("solver-plot"));
-    document.getElementById("no-plots").hidden = false;
+    const none = document.getElementById("no-plots");
+    none.hidden = false;
+    none.textContent = "The selected run's plots appear here as its steps arrive.";
     document.getElementById("summary").replaceChildren();
+    document.getElementById("estimate").hidden = true;
+    document.getElementById("estimate").replaceChildren();
   }
 
   async function show(st) {
@@ -223,13 +239,37 @@ const Results = (() => {
         "(the server serves it from the plotly package: pip install 'q3t-forming[service]').";
       return;
     }
-    await showPlots(st);
-    await showFld(st);
+    refreshPlots(st);  // not awaited: drawing never holds the status line back
+  }
+
+  // one drawing at a time; a status that arrives meanwhile is drawn next (the newest only)
+  let drawing = false, next = null;
+
+  async function refreshPlots(st) {
+    if (drawing) { next = st; return; }
+    drawing = true;
+    try {
+      await showPlots(st);
+      await showFld(st);
+    } catch (e) {
+      document.getElementById("no-plots").textContent = `Plots: ${e.message}`;
+      document.getElementById("no-plots").hidden = false;
+    } finally {
+      drawing = false;
+      if (next) {
+        const later = next;
+        next = null;
+        refreshPlots(later);
+      }
+    }
+  }
+
+  function init() {
+    document.getElementById("solver-box").addEventListener("toggle", () => drawSolver());
   }
 
   function none() {
     forget();
-    shown = null;
     const box = document.getElementById("status");
     box.textContent = "No run selected";
     box.dataset.run = "";
@@ -237,5 +277,5 @@ const Results = (() => {
     document.getElementById("estimate").hidden = true;
   }
 
-  return { show, none, forget };
+  return { show, none, forget, init };
 })();
