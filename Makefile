@@ -63,6 +63,8 @@ results: $(STAMP)
 	  --levels 0.0046667 --analytic euler_bernoulli --no-overhead --out runs/accuracy-eb \
 	  --results $(R)/accuracy-euler-bernoulli.md
 	$(BIN)/q3t bench-service --results $(R)/service.md
+	$(BIN)/q3t reference cup_drawing --check tests/data/reference/cup_drawing-q3t-2mm.json \
+	  --results $(R)/stroke-cup_drawing.md
 
 # the scene field reference, rendered from the schema (tests/unit/test_docs.py fails when it is
 # stale)

@@ -77,5 +77,6 @@ class ViewerActions:
             return None, f"Cannot read its recording: {exc}"
         if not rep.steps or rep.faces is None:
             return None, "Its recording holds no sheet mesh"
+        colours = "" if rep.fields[-1] else " (coloured by thickness, as recorded)"
         return rep, (f"Recording: {len(rep.steps)} frames, steps {rep.steps[0]}-"
-                     f"{rep.steps[-1]} (coloured by thickness, as recorded)")
+                     f"{rep.steps[-1]}{colours}")

@@ -7,6 +7,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
+from fastapi_offline import FastAPIOffline
 
 from server import errors
 from server.routers import meta, plots, runs, scenes, view, web
@@ -42,8 +43,13 @@ def create_app(settings: Settings | None = None,
 
     # operation ids are the route functions' names (read_scene, start_run, ...): the links
     # between operations name them
-    app = FastAPI(title="q3t-forming preview", version="0.1.0", lifespan=lifespan,
-                  generate_unique_id_function=lambda route: route.name)
+    # /docs loads Swagger UI from the app, not from a CDN: forming shops are often air-gapped.
+    # No online validator (it would be sent the schema); no /redoc (ReDoc fetches its logo
+    # from a CDN, and one docs page is enough).
+    app = FastAPIOffline(title="q3t-forming preview", version="0.1.0", lifespan=lifespan,
+                         redoc_url=None,
+                         generate_unique_id_function=lambda route: route.name,
+                         swagger_ui_parameters={"validatorUrl": None})
     app.state.settings = settings
     errors.install(app, settings)
     every = errors.documented(401) if settings.token else None

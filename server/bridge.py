@@ -65,6 +65,7 @@ class Books(Protocol):
     def fail_active(self, reason: str) -> None: ...
     def worker_died(self, w: WorkerHandle) -> None: ...
     def close_retired(self) -> None: ...
+    def show_preview(self, ev: dict) -> None: ...
 
 
 @dataclass
@@ -173,6 +174,12 @@ def _meta(m: Books, ev: dict) -> Booked:
     if m.viewer:
         booked.later.append(lambda: m.viewer.new_run(run.id, ev["faces"], tools, line, values))
     return booked
+
+
+@handles("preview")
+def _preview(m: Books, ev: dict) -> Booked:
+    """A scene's rest state for the viewer (``RunManager.show_scene``)."""
+    return Booked(later=[lambda: m.show_preview(ev)])
 
 
 @handles("step")

@@ -1,11 +1,12 @@
 """A run's rerun recording, written by the solver process: the sheet's triangles once
-(static), its positions coloured by thickness every ``record_every`` steps (and at the first and
-last step), the tool meshes once (static, ``tools/<name>``) with their pose (``rr.Transform3D``:
-translation, and rotation for a tool whose keyframes turn it) every step, and time series of
-every probe, energy, Newton iterations, residual, max thinning (and max plastic strain where
-there is a plastic state) and live parameters, and at the end the run's summary
-(sim.frames.summary) as a markdown table, ``summary``. ``channels`` lists them from what the
-model built, so a recording has no channel for a quantity the scene lacks.
+(static), its positions coloured by thickness, with the values of every frame field, every
+``record_every`` steps (and at the first and last step), the tool meshes once (static,
+``tools/<name>``) with their pose (``rr.Transform3D``: translation, and rotation for a tool
+whose keyframes turn it) every step, and time series of every probe, energy, Newton
+iterations, residual, max thinning (and max plastic strain where there is a plastic state)
+and live parameters, and at the end the run's summary (sim.frames.summary) as a markdown
+table, ``summary``. ``channels`` lists them from what the model built, so a recording has no
+channel for a quantity the scene lacks.
 
 Every step is flushed. A recording stream writes its footer only when it is closed, and
 ``rerun rrd verify`` refuses a file without one; so when the process that records is killed,
@@ -26,6 +27,7 @@ import numpy as np
 import rerun as rr
 
 from server.colormap import MIN_SPAN, colorize, tool_colour, value_range
+from server.replay import FIELD_PREFIX
 
 SOLVER = ("energy", "iterations", "residual", "cutbacks")
 # per-frame maxima of the frame fields that have one: a scalar series beside the coloured mesh
@@ -87,8 +89,13 @@ class Recorder:
         if mesh and self.faces is not None:
             h = frame["fields"]["thickness_mm"]
             colors = colorize(h, *value_range(h, MIN_SPAN["thickness_mm"]))
+            # the field values beside the mesh (``field:<name>``): a replay colours them on the
+            # viewer's scales; the colours are for rerun's own viewer
+            values = {f"{FIELD_PREFIX}{k}": np.asarray(v, np.float32)
+                      for k, v in frame["fields"].items()}
             self.rec.log("sheet", rr.Mesh3D.from_fields(vertex_positions=frame["positions"],
-                                                        vertex_colors=colors))
+                                                        vertex_colors=colors),
+                         rr.AnyValues(**values))
         rotations = frame.get("tool_rotations") or {}
         for name, pose in (frame.get("tools") or {}).items():
             q = rotations.get(name)  # (w, x, y, z); rerun takes (x, y, z, w)

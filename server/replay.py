@@ -1,17 +1,19 @@
 """``q3t play RUN --viser``: a recorded run (``run.rrd``) in a viser viewer with a time slider.
 
 The recording is read back with ``rerun.chunk.RrdReader``: the sheet (``/sheet``: its triangles
-static, then per keyframe its positions with the thickness colours they were recorded with),
+static, then per keyframe its positions, the values of its fields and the thickness colours they
+were recorded with),
 the tool meshes (``/tools/<name>``, static) and their poses (``Transform3D`` per step: the
 translation, and the rotation of a tool whose keyframes turn it).
-Only what the recording holds can be shown: the sheet is coloured by thickness, as recorded.
-The same loader feeds the service's viewer when it replays an older run.
+The same loader feeds the service's viewer when it replays an older run, and colours the fields
+on its scales; a recording made before the fields were recorded has its colours only.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -26,16 +28,29 @@ if TYPE_CHECKING:  # rerun's arrow tables: imported when a recording is read
     from pyarrow import RecordBatch
 
 
+FIELD_PREFIX = "field:"  # the sheet's per-vertex field columns (server.recording writes them)
+
+
 @dataclass
 class Replay:
     steps: list[int] = field(default_factory=list)
     positions: list[np.ndarray] = field(default_factory=list)  # per step (n, 3) float32
     colors: list[np.ndarray] = field(default_factory=list)  # per step (n, 3) uint8
+    fields: list[dict[str, np.ndarray]] = field(default_factory=list)  # per step name -> (n,)
     faces: np.ndarray | None = None
     tools: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # V, F
     poses: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)  # tool -> step -> t
     # tool -> step -> unit quaternion (w, x, y, z), for tools the recording turns
     rotations: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)
+
+    def frame(self, i: int) -> dict:
+        """The ``i``-th recorded frame as the viewer draws it (a live frame's keys); a
+        recording without field values brings its ``colours``."""
+        k = self.steps[i]
+        return {"step": k, "positions": self.positions[i], "fields": self.fields[i],
+                "colours": self.colors[i],
+                "tools": {name: self.pose(name, k) for name in self.tools},
+                "tool_rotations": {name: self.rotation(name, k) for name in self.tools}}
 
     def pose(self, tool: str, step: int) -> np.ndarray:
         """The tool's translation at ``step``: the latest recorded at or before it."""
@@ -84,12 +99,13 @@ def load(path: Path) -> Replay:
         rep.steps.append(step)
         rep.positions.append(sheet[step][0])
         rep.colors.append(sheet[step][1])
+        rep.fields.append(sheet[step][2])
     return rep
 
 
 def _read_sheet(rep: Replay, sheet: dict, rb: RecordBatch, cols: set, steps: list) -> None:
-    """The triangles are static (logged once) and go to ``rep``; positions and colours come
-    per keyframe and go to ``sheet`` (step -> (positions, colours))."""
+    """The triangles are static (logged once) and go to ``rep``; positions, colours and field
+    values come per keyframe and go to ``sheet`` (step -> (positions, colours, fields))."""
     if "Mesh3D:triangle_indices" in cols and rep.faces is None:
         tri = rb.column("Mesh3D:triangle_indices")
         rep.faces = next((_vec3(tri[i]).astype(np.uint32) for i in range(rb.num_rows)
@@ -98,13 +114,17 @@ def _read_sheet(rep: Replay, sheet: dict, rb: RecordBatch, cols: set, steps: lis
         return
     pos = rb.column("Mesh3D:vertex_positions")
     col = rb.column("Mesh3D:vertex_colors") if "Mesh3D:vertex_colors" in cols else None
+    named = {c.removeprefix(FIELD_PREFIX): rb.column(c) for c in cols
+             if c.startswith(FIELD_PREFIX)}
     for i, step in enumerate(steps):
         if step is None or not pos[i].is_valid:
             continue
         p = _vec3(pos[i]).astype(np.float32)
         c = _rgb(col[i]) if col is not None and col[i].is_valid \
             else np.full((len(p), 3), 180, np.uint8)
-        sheet[int(step)] = (p, c)
+        values = {k: np.asarray(v[i].values.to_numpy(zero_copy_only=False), np.float32)
+                  for k, v in named.items() if v[i].is_valid}
+        sheet[int(step)] = (p, c, values)
 
 
 def _read_tool(rep: Replay, name: str, rb: RecordBatch, cols: set, steps: list) -> None:
@@ -141,6 +161,7 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
     g = server.gui
     status = g.add_markdown(f"Recording `{title}`: {len(rep.steps)} frames, steps "
                             f"{rep.steps[0]}-{rep.steps[-1]} (sheet coloured by thickness)")
+    colours = _thickness_colours(rep)
     slider = g.add_slider("Step", min=0, max=max(1, len(rep.steps) - 1), step=1,
                           initial_value=0, hint="index into the recorded frames")
     playing = g.add_checkbox("Play", initial_value=False)
@@ -149,7 +170,7 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
     def show(i: int) -> None:
         i = int(min(max(i, 0), len(rep.steps) - 1))
         step = rep.steps[i]
-        rgba = np.c_[rep.colors[i], np.full(len(rep.colors[i]), 255, np.uint8)]
+        rgba = np.c_[colours(i), np.full(len(rep.colors[i]), 255, np.uint8)]
         mesh = trimesh.Trimesh(rep.positions[i], rep.faces, vertex_colors=rgba, process=False)
         with lock, server.atomic():
             server.scene.add_mesh_trimesh("/sheet", mesh)
@@ -165,6 +186,19 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
         return server
     _play(server, slider, playing, fps, len(rep.steps))
     return None
+
+
+def _thickness_colours(rep: Replay) -> Callable[[int], np.ndarray]:
+    """The RGB of the ``i``-th frame's thickness on one scale for the whole recording, its
+    range over every frame (server.palette), so a thickness looks the same at every step; a
+    recording without field values gives the colours it was recorded with."""
+    from server.palette import Palette
+
+    palette = Palette()
+    for fields in rep.fields:
+        palette.ranges.add(fields)
+    return lambda i: (palette.colours("thickness_mm", rep.fields[i]["thickness_mm"])
+                      if "thickness_mm" in rep.fields[i] else rep.colors[i])
 
 
 def _add_tools(server: viser.ViserServer, rep: Replay) -> dict:

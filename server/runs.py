@@ -27,7 +27,7 @@ from server.worker import worker_main
 from server.workerhandle import WorkerHandle, WorkerTarget
 from sim.elements import get_element
 from sim.model import size
-from sim.scene.load import SceneError, scene_from_toml
+from sim.scene.load import Scene, SceneError, scene_from_toml
 
 if TYPE_CHECKING:  # imports viser
     from server.viewer import Viewer
@@ -53,6 +53,9 @@ class RunManager:
         # the run the page and the viewer show (one for every browser, until each has its own
         # view): a new run, else the newest
         self.selected: str | None = self._newest()
+        # the scene the viewer previews instead (before any run): {"scene", "request" (the
+        # solver's request id), "state" (building, shown, failed), "error"}; None: the run
+        self.preview: dict | None = None
         self._showing = threading.Lock()
         self.waiters: dict[int, dict] = {}  # request id -> {"event", "reply"}
         self.sent: dict[int, str] = {}  # request id -> run id, until the solver replies
@@ -153,7 +156,9 @@ class RunManager:
 
     # ---- the selected run: what the page and the viewer show ----------------------------------
     def view(self) -> dict:
-        return {"run": self.selected}
+        preview = self.preview or {}
+        return {"run": self.selected, "scene": preview.get("scene"),
+                "preview": preview.get("state"), "preview_error": preview.get("error")}
 
     def select(self, run_id: str) -> dict:
         """Show ``run_id`` on the page (every browser's) and in the viewer."""
@@ -162,18 +167,57 @@ class RunManager:
         self._show_selected()
         return self.view()
 
+    def show_scene(self, scene: str, toml: str | None = None) -> dict:
+        """Preview ``scene`` in the viewer before any run: its blank and tools at the start
+        (``toml``: as the page shows it, edits not saved yet). Validated here (422 naming the
+        field, 404 for an unknown scene); the solver process builds it between the steps of
+        an active run, which goes on, and the viewer shows it when built. The selected run
+        stays selected: selecting it again, or a new run, shows it."""
+        if not self.viewer:
+            raise Conflict("the viewer is off (the server runs without it): nothing to "
+                           "preview on")
+        text, _ = self._scene_text(scene, toml)
+        _, overrides = self._checked(text, {})
+        with self.lock:
+            rid = self.worker.send("preview", scene=scene, scene_toml=text,
+                                   overrides=overrides)
+            self.preview = {"scene": scene, "request": rid, "state": "building"}
+        self.viewer.preview_status(f"Preview of scene `{scene}`: building its model…")
+        return self.view()
+
     def _show_selected(self) -> None:
-        """The viewer shows the selected run: live while it is the latest, else its recording
-        (loaded by the viewer in the background)."""
+        """The viewer shows the selected run, instead of any scene's preview: live while it is
+        the latest, else its recording (loaded by the viewer in the background)."""
         if not self.viewer:
             return
         # in order: of two selections made at once, the viewer ends on the later one
         with self._showing:
             with self.lock:
+                self.preview = None
                 run = self.runs.get(self.selected or "")
                 shown = None if run is None else (run.id, dict(run.parameters),
                                                     run.id == self.active, run.line())
             self.viewer.show_run(*(shown or (None, {}, False, "No run yet")))
+
+    def show_preview(self, ev: dict) -> None:
+        """The solver built the preview ``ev`` (its ``preview`` event): shown unless another
+        scene or a run was chosen since (checked in the order of ``_show_selected``)."""
+        with self._showing:
+            with self.lock:
+                p = self.preview
+                if p is None or p["request"] != ev["request"]:
+                    return
+                p["state"], p["error"] = ("failed", ev["error"]) if "error" in ev \
+                    else ("shown", None)
+            if not self.viewer:
+                return
+            scene = ev["scene"]
+            if "error" in ev:
+                self.viewer.preview_status(f"Preview of scene `{scene}` failed: {ev['error']}")
+                return
+            self.viewer.show_preview(scene, ev["faces"], ev["tools"], ev["frame"],
+                                     f"Preview of scene `{scene}`: its blank and tools at the "
+                                     "start, before any run  \n(choose a run to show it)")
 
     def frame_at(self, run_id: str, step: int) -> dict:
         """A kept frame of the current (latest) run: the one at ``step`` or the nearest before."""
@@ -195,17 +239,9 @@ class RunManager:
         overrides = dict(overrides or {})
         if element:
             overrides["shell.element"] = element
-        spec = self.store.validate(text, overrides)  # SceneError -> 422
-        try:
-            get_element(spec.shell.element)
-        except ValueError as exc:  # names the known elements
-            raise Invalid(f"shell.element: {exc}") from None
+        spec, solver_overrides = self._checked(text, overrides)
         for name, value in (parameters or {}).items():
             self.check_parameter(name, value)
-        solver_overrides = {**overrides, **self.store.solver_overrides(spec)}
-        # as the solver will read it (mesh files by their full paths): refused before any build
-        size.check(scene_from_toml(text, solver_overrides), self.settings.max_model_bytes,
-                   "the server's --max-memory")
         with self.lock:
             if self.active:
                 raise Conflict(f"run {self.active!r} is {self.runs[self.active].state}; "
@@ -224,6 +260,21 @@ class RunManager:
             self.viewer.set_runs(self.run_ids())
         self._show_selected()
         return run
+
+    def _checked(self, text: str, overrides: dict) -> tuple[Scene, dict]:
+        """The scene of ``text`` validated (SceneError naming the field -> 422), its element
+        known, and its model within the server's memory limit, as the solver will read it (mesh
+        files by their full paths): refused before any build. Returns the scene and the
+        overrides the solver reads it with."""
+        spec = self.store.validate(text, overrides)
+        try:
+            get_element(spec.shell.element)
+        except ValueError as exc:  # names the known elements
+            raise Invalid(f"shell.element: {exc}") from None
+        solver_overrides = {**overrides, **self.store.solver_overrides(spec)}
+        size.check(scene_from_toml(text, solver_overrides), self.settings.max_model_bytes,
+                   "the server's --max-memory")
+        return spec, solver_overrides
 
     def _scene_text(self, scene: str, toml: str | None) -> tuple[str, bool]:
         """The text a run of ``scene`` runs, and whether it is not the saved scene: ``toml``

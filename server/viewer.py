@@ -1,55 +1,40 @@
-"""The viser viewer: the selected run's sheet coloured by a field, a legend, the tools, and the
+"""The viser viewer: the selected run's sheet coloured by a field on a fixed scale, a legend that
+stays in view, the tools (translucent, or cut by a section plane), a scene's preview, and the
 page's run controls mirrored.
 
 It never sees the solver: the bridge hands it frames (dicts of arrays), the run manager tells it
-which run is selected, and it calls back into the run manager through ``Actions``. Positions
-stream to a wireframe every push (about 0.1 ms at 40k vertices); the coloured surface is a glTF
-re-sent at most ``colour_hz`` times a second (about 10 ms and 1.5 MB at 40k vertices), always on
-the last frame of a run. Each tool is one single-colour, semi-transparent mesh sent once per
-run; frames only move it (``.position``). The colour dropdown offers every field the frames carry.
+which run is selected (or which scene to preview), and it calls back into the run manager
+through ``Actions``. What is drawn, its colours and the controls of how are the canvas's
+(server.canvas); here, which frames it draws: the coloured surface at most ``colour_hz`` times a
+second (a glTF of the whole sheet), always the last frame of a run, positions in between. The
+control panel is docked to the right, so it narrows the view instead of hiding the part.
 
 It shows the run selected on the server (``RunManager.select``: the page's Runs table, its own
 "Run" dropdown, a new run), the same one the page shows. The latest run is shown live: frames as
 the bridge pushes them, and the time slider follows the live step; when the run is paused or
 over, moving it shows a kept frame (``RunManager.history``). An older run is shown from its
 recording (``run.rrd``, read with ``server.replay`` in the background): the slider scrubs its
-recorded frames, coloured by thickness as recorded. The buttons and the live-parameter sliders
-act on the selected run, with the page's words (Pause, Resume, Step, Stop); they are disabled
-while it is not active. Nothing here starts a run: that is the page's Start.
+recorded frames. A scene chosen on the page is previewed (``show_preview``): its blank and tools
+at the start, built by the solver process before any run. The buttons and the live-parameter
+sliders act on the selected run, with the page's words (Pause, Resume, Step, Stop); they are
+disabled while it is not active. Nothing here starts a run: that is the page's Start.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-import trimesh
 import viser
 
-from server.colormap import MIN_SPAN, colorize, legend_html, tool_colour, value_range
+from server.canvas import Canvas
+from server.colormap import grow
 from server.replay import Replay
-
-# field key -> (label, unit); the dropdown shows "label (unit)"
-FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%"),
-          "eq_plastic_strain": ("Equivalent plastic strain", "-"),
-          "von_mises_MPa": ("von Mises stress", "MPa")}
-DEFAULT_FIELD = "thickness_mm"
-
-
-def field_label(key: str) -> str:
-    label, unit = FIELDS.get(key, (key, ""))
-    return f"{label} ({unit})" if unit else label
-
-
-def field_options(keys: Collection[str]) -> dict[str, str]:
-    """Dropdown label -> field key for the fields a frame carries, known fields first."""
-    ordered = [k for k in FIELDS if k in keys] + sorted(k for k in keys if k not in FIELDS)
-    return {field_label(k): k for k in ordered}
 
 
 class Actions(Protocol):
@@ -66,8 +51,6 @@ class Actions(Protocol):
 @dataclass
 class Gui:
     status: viser.GuiMarkdownHandle
-    field: viser.GuiDropdownHandle
-    legend: viser.GuiHtmlHandle
     sliders: dict
     time: viser.GuiSliderHandle
     run: viser.GuiDropdownHandle
@@ -85,21 +68,22 @@ class Viewer:
         self.actions = actions
         self.colour_period = 1.0 / colour_hz
         self.lock = threading.RLock()  # viser runs update callbacks in the assigning thread
-        self.faces: np.ndarray | None = None
-        self.surface = self.wire = None
-        self.tools: dict[str, object] = {}  # tool name -> viser mesh handle
-        self.options = field_options(FIELDS)  # dropdown label -> field key
         self.last_colour = 0.0
-        self.frame: dict | None = None
         self._code = threading.local()  # .on while this thread's GUI changes are the code's
         self.selected: str | None = None  # the run shown (the server's selection)
+        self.active = False  # whether it is active (its own colour ranges still grow)
         self.parameters: dict[str, float] = {}  # its live parameters
         self.live_run: str | None = None  # the latest run, whose frames the bridge pushes
         self.live_faces: np.ndarray | None = None
         self.live_tools: list[dict] = []
-        # what is drawn: "live" (the latest run's frames), "replay" (a recording) or "none"
+        self.live_frame: dict | None = None  # the latest run's newest frame
+        self.live_seen: dict[str, tuple[float, float]] = {}  # its fields' ranges so far
+        # what is drawn: "live" (the latest run's frames), "replay" (a recording), "preview"
+        # (a scene's rest state) or "none"
         self.mode = "none"
         self.replay: Replay | None = None  # a recorded run being shown
+        self.previewed: str | None = None  # the scene previewed
+        self.canvas: Canvas  # what is drawn: made with the GUI, its folders after ours
         self.gui = self._build_gui()
 
     @property
@@ -123,8 +107,11 @@ class Viewer:
         """An ``on_update`` callback that runs ``action()`` for a user's change only."""
         return lambda _e: None if getattr(self._code, "on", False) else action()
 
+    # ---- the GUI ------------------------------------------------------------------------------
     def _build_gui(self) -> Gui:
         g = self.server.gui
+        # docked, the control panel narrows the view instead of covering the part
+        g.main_panel.dock_right()
         status = g.add_markdown("No run yet")
         buttons = {}
         with g.add_folder("Run"):
@@ -141,12 +128,9 @@ class Viewer:
         run.on_update(self._by_user(lambda: self._choose_run(run.value)))
         time_slider.on_update(self._by_user(self._scrub))
         self.param_folder = g.add_folder("Live parameters")
-        with g.add_folder("Colour"):
-            field = g.add_dropdown("Colour by", tuple(field_options(FIELDS)),
-                                   initial_value=field_label(DEFAULT_FIELD))
-            legend = g.add_html("")
-        field.on_update(self._by_user(self._recolour))
-        return Gui(status, field, legend, {}, time_slider, run, buttons)
+        self.canvas = Canvas(self.server, self.lock, self._status, self._by_user,
+                             self._from_code, lambda: self.mode == "live" and self.active)
+        return Gui(status, {}, time_slider, run, buttons)
 
     def add_parameters(self, parameters: dict[str, tuple[float, float]]) -> None:
         """One slider per live parameter, once the solver process has said which exist; each
@@ -193,6 +177,7 @@ class Viewer:
 
     def _enable(self, active: bool) -> None:
         """Run controls act on the selected run: only while it is active (under lock)."""
+        self.active = active
         for h in (*self.gui.buttons.values(), *self.gui.sliders.values()):
             h.disabled = not active
 
@@ -234,9 +219,13 @@ class Viewer:
     def run_status(self, run_id: str, line: str, active: bool) -> None:
         """A run's state changed: its line and whether the controls act on it, if it is shown."""
         with self.lock:
-            if run_id == self.selected:
+            if run_id == self.selected and self.mode != "preview":
                 self.gui.status.content = line
+            if run_id == self.selected:
+                was = self.active
                 self._enable(active)
+                if was and not active and self.mode == "live":
+                    self.canvas.recolour()  # the legend: the run's range, no longer growing
 
     def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict], line: str,
                 parameters: dict[str, float]) -> None:
@@ -246,33 +235,37 @@ class Viewer:
             self.live_run = run_id
             self.live_faces = np.asarray(faces, np.uint32)
             self.live_tools = list(tools)
-            self.frame = None
+            self.live_frame = None
+            self.live_seen = {}
             if run_id == self.selected:
                 self._show_parameters(parameters)
                 self._show_live(line)
 
+    def show_preview(self, scene: str, faces: np.ndarray, tools: list[dict], frame: dict,
+                     line: str) -> None:
+        """A scene's rest state before any run: its blank (``frame``: the solver's frame of the
+        built model at step 0) and its tools at their start positions."""
+        with self.lock:
+            self.mode, self.replay, self.previewed = "preview", None, scene
+            self.canvas.set_scene(np.asarray(faces, np.uint32),
+                                  [(t["name"], t["vertices"], t["faces"]) for t in tools])
+            self.canvas.palette.ranges.seen = {}
+            self.canvas.palette.ranges.add(frame["fields"])
+            with self._from_code():
+                self.gui.time.value, self.gui.time.max = 0, 1
+            self.canvas.draw(frame, colour=True)
+            self.gui.status.content = line
+
+    def preview_status(self, line: str) -> None:
+        """Why a preview is not shown (yet): building, or its build failed."""
+        with self.lock:
+            self.gui.status.content = line
+
     def _clear(self, line: str) -> None:
         """Nothing drawn, the line shown (under lock)."""
-        self.mode, self.replay = "none", None
-        self._set_scene(None, [])
-        self.gui.legend.content = ""
+        self.mode, self.replay, self.previewed = "none", None, None
+        self.canvas.clear()
         self.gui.status.content = line
-
-    def _set_scene(self, faces: np.ndarray | None, tools: list[tuple]) -> None:
-        """Replace the sheet's faces (None: no sheet) and the tool meshes ``[(name, V, F)]``
-        (under lock)."""
-        for h in (self.surface, self.wire, *self.tools.values()):
-            if h is not None:
-                h.remove()
-        self.surface = self.wire = None
-        self.faces = faces
-        self.tools = {}
-        for i, (name, V, F) in enumerate(tools):
-            rgb, alpha = tool_colour(i)
-            self.tools[name] = self.server.scene.add_mesh_simple(
-                f"/tools/{name}", np.asarray(V, np.float32), np.asarray(F, np.uint32),
-                color=rgb, opacity=alpha, side="double", cast_shadow=False,
-                receive_shadow=False)
 
     def _load(self, run_id: str, line: str) -> None:
         """Read ``run_id``'s recording and show it, unless another run was selected since."""
@@ -284,23 +277,26 @@ class Viewer:
                 self.gui.status.content = f"{line}  \n{message}"
                 return
             self.replay = rep
-            self._set_scene(rep.faces, [(n, V, F) for n, (V, F) in rep.tools.items()])
+            self.canvas.set_scene(rep.faces, [(n, V, F) for n, (V, F) in rep.tools.items()])
+            self.canvas.palette.ranges.seen = {}
+            for fields in rep.fields:  # a recorded run is over: its range is known at once
+                self.canvas.palette.ranges.add(fields)
             with self._from_code():
                 self.gui.time.max = max(1, rep.steps[-1])
                 self.gui.time.value = rep.steps[-1]
             self._show_recorded(rep.steps[-1], f"{line}  \n{message}")
-            self._aim(rep.positions[-1])
             self.mode = "replay"  # last: a reader outside the lock finds it all drawn
 
     def _show_live(self, line: str) -> None:
         """The latest run's sheet and tools, and its latest frame (under lock)."""
-        self.mode, self.replay = "live", None
-        self._set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
-                                          for t in self.live_tools])
+        self.mode, self.replay, self.previewed = "live", None, None
+        self.canvas.set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
+                                                for t in self.live_tools])
+        self.canvas.palette.ranges.seen = self.live_seen
         with self._from_code():
             self.gui.time.value, self.gui.time.max = 0, 1
-        if self.frame is not None:
-            self.show(self.frame, line, final=True)
+        if self.live_frame is not None:
+            self.show(self.live_frame, line, final=True)
         else:
             self.gui.status.content = line
 
@@ -308,31 +304,9 @@ class Viewer:
         """The recorded frame at ``step`` or the nearest before it (under lock)."""
         rep = self.replay
         i = max(int(np.searchsorted(rep.steps, step, side="right")) - 1, 0)
-        k = rep.steps[i]
-        rgba = np.c_[rep.colors[i], np.full(len(rep.colors[i]), 255, np.uint8)]
-        mesh = trimesh.Trimesh(rep.positions[i], rep.faces, process=False, vertex_colors=rgba)
         with self.server.atomic():
-            self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
-            for name, h in self.tools.items():
-                h.position = np.asarray(rep.pose(name, k), np.float64)
-                h.wxyz = rep.rotation(name, k)
-            self.gui.legend.content = ("<div class='q3t-legend'><b>Thickness</b>, colours as "
-                                       "recorded (each frame's min to max)</div>")
-            self.gui.status.content = f"{message}  \nshowing recorded step {k}"
-
-    def _set_fields(self, keys: Collection[str]) -> None:
-        """Offer exactly the fields this frame carries; keep the choice when still offered."""
-        options = field_options(keys)
-        if options == self.options:
-            return
-        current = self.options.get(self.gui.field.value, DEFAULT_FIELD)
-        self.options = options
-        keep = next((lab for lab, k in options.items() if k == current),
-                    next((lab for lab, k in options.items() if k == DEFAULT_FIELD),
-                         next(iter(options))))
-        with self._from_code():
-            self.gui.field.options = tuple(options)
-            self.gui.field.value = keep
+            self.canvas.draw(rep.frame(i), colour=True)
+            self.gui.status.content = f"{message}  \nshowing recorded step {rep.steps[i]}"
 
     def _set_time(self, step: int) -> None:
         """Move the time slider to the live step (its end grows with the run)."""
@@ -346,26 +320,16 @@ class Viewer:
                 self._show_recorded(int(self.gui.time.value),
                                     f"Recording of `{self.selected}`")
                 return
-            if self.mode == "none":
+            if self.mode != "live":
                 return
         frame, message = self.actions.scrub(int(self.gui.time.value))
         if frame is None:
             self._status(message)
-            live = self.frame
+            live = self.live_frame
             if live is not None:
                 self._set_time(live["step"])
             return
         self.show(frame, message, final=True, live=False)
-
-    def _move_tools(self, frame: dict) -> None:
-        for name, pose in (frame.get("tools") or {}).items():
-            h = self.tools.get(name)
-            if h is not None:
-                h.position = np.asarray(pose, np.float64)
-        for name, wxyz in (frame.get("tool_rotations") or {}).items():
-            h = self.tools.get(name)
-            if h is not None:
-                h.wxyz = np.asarray(wxyz, np.float64)
 
     def show(self, frame: dict, status: str, final: bool = False, live: bool = True) -> None:
         """Push one frame: positions always, colours when due or final. A live frame also moves
@@ -374,61 +338,24 @@ class Viewer:
             if live and frame.get("run") != self.live_run:
                 return  # a frame of an earlier run, pushed late
             if live:
-                self.frame = frame
-            if self.faces is None or self.mode != "live":
+                self.live_frame = frame
+            self.live_seen_add(frame)
+            if self.canvas.faces is None or self.mode != "live":
                 return  # another run is shown: the live run is kept, not drawn
-            self.frame = frame
             now = time.perf_counter()
             with self.server.atomic():
-                self._set_fields(frame["fields"])
-                self._move_tools(frame)
                 if live:
                     self._set_time(frame["step"])
-                if self.wire is None:
-                    self.wire = self.server.scene.add_mesh_simple(
-                        "/sheet/wire", frame["positions"], self.faces, wireframe=True,
-                        color=(60, 60, 60), opacity=0.25)
-                    self._aim(frame["positions"])
-                else:
-                    self.wire.vertices = frame["positions"]
-                if final or self.surface is None or now - self.last_colour >= self.colour_period:
-                    self._send_surface(frame)
+                due = final or now - self.last_colour >= self.colour_period
+                self.canvas.draw(frame, colour=due)
+                if due:
                     self.last_colour = now
                 self.gui.status.content = status
 
-    def _recolour(self) -> None:
-        with self.lock:
-            if self.frame is not None and self.faces is not None and self.mode == "live":
-                self._send_surface(self.frame)
-
-    def _send_surface(self, frame: dict) -> None:
-        key = self.options.get(self.gui.field.value, DEFAULT_FIELD)
-        if key not in frame["fields"]:
-            key = next(iter(frame["fields"]))
-        values = frame["fields"][key]
-        lo, hi = value_range(values, MIN_SPAN.get(key, 1e-6))
-        rgb = colorize(values, lo, hi)
-        mesh = trimesh.Trimesh(frame["positions"], self.faces, process=False,
-                               vertex_colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
-        self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
-        label, unit = FIELDS.get(key, (key, ""))
-        self.gui.legend.content = legend_html(label, unit, lo, hi)
-
-    def _aim(self, positions: np.ndarray) -> None:
-        lo, hi = positions.min(0), positions.max(0)
-        centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) or 1.0
-        eye = centre + size * np.array([0.1, -0.9, 0.6])
-        cam = self.server.initial_camera
-        cam.look_at, cam.position, cam.up = tuple(centre), tuple(eye), (0.0, 0.0, 1.0)
-        for client in self.server.get_clients().values():
-            # a client camera's position setter drags look_at along with it: place the eye
-            # first, then aim (the other order leaves the sheet out of view)
-            try:
-                client.camera.up_direction = (0.0, 0.0, 1.0)
-                client.camera.position = tuple(eye)
-                client.camera.look_at = tuple(centre)
-            except AssertionError:
-                pass  # its camera state has not arrived yet; initial_camera places it
+    def live_seen_add(self, frame: dict) -> None:
+        """The latest run's colour ranges hold every frame of it shown or kept for showing."""
+        if frame.get("run") == self.live_run:
+            grow(self.live_seen, frame["fields"])
 
     def stop(self) -> None:
         self.server.stop()

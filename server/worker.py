@@ -37,7 +37,7 @@ if TYPE_CHECKING:  # the solver is imported in the solver process only, when it 
 Channel = Queue | queue.Queue
 
 
-def _frame_msg(run: str, sim: Simulation) -> dict:
+def _frame_msg(run: str | None, sim: Simulation) -> dict:
     """The frame message of the current state. A frame holding a number that is not finite
     is an error: it must reach neither the recording nor the server (which colours by it)."""
     f = sim.frame()
@@ -88,6 +88,19 @@ def tool_meshes(scene: Scene, size: float, cache: dict) -> list[dict]:
         V, F = cache[key]
         out.append({"name": spec.name, "kind": spec.shape.kind, "vertices": V, "faces": F})
     return out
+
+
+def preview(scene_toml: str, overrides: dict, cache: dict) -> dict:
+    """The rest state of a scene's model: ``faces`` of its display surface, ``tools`` (as
+    :func:`tool_meshes`) and ``frame``, the frame message of step 0 (tools at their start)."""
+    from sim.scene.load import scene_from_toml
+    from sim.stepping.simulation import Simulation
+
+    scene = scene_from_toml(scene_toml, overrides)
+    sim = Simulation.from_scene(scene)
+    frame = _frame_msg(None, sim)
+    return {"faces": sim.display.faces, "frame": frame,
+            "tools": tool_meshes(scene, plane_size(frame["positions"]), cache)}
 
 
 class RecordingFailed(RuntimeError):
@@ -276,6 +289,20 @@ class Solver:
 
     def cmd_ping(self, msg: dict) -> None:
         pass
+
+    def cmd_preview(self, msg: dict) -> None:
+        """A scene's rest state for the viewer, before any run: its model built apart from
+        the active run's (which goes on), its rest frame and its tools at their start. The
+        answer is a ``preview`` event (the sheet's faces, the tool meshes, the frame, or the
+        error naming why it could not be built); the reply itself is always ok, so a scene that
+        fails to build never marks the active run."""
+        out = {"kind": "preview", "run": None, "request": msg["id"], "scene": msg["scene"]}
+        try:
+            out |= preview(msg["scene_toml"], msg.get("overrides") or {}, self.mesh_cache)
+        except Exception as exc:
+            what = "" if isinstance(exc, ValueError) else f"{type(exc).__name__}: "
+            out["error"] = f"{what}{exc}"
+        self.events.put(out)
 
     # ---- stepping -----------------------------------------------------------------------------
     def step(self, single: bool = False) -> None:

@@ -113,10 +113,11 @@ class FrameStats(BaseModel):
     probes: dict
 
 
-# what a new run's id leads to (OpenAPI links: clients and fuzzers follow them)
+# what a new run's id leads to (OpenAPI links: clients and fuzzers follow them); not
+# forming_limits, which only a plastic scene's run has (a link promises the resource)
 RUN_LINKS = {op: {"operationId": op, "parameters": {"run_id": "$response.body#/id"}}
              for op in ("status", "pause", "resume", "step", "stop", "set_parameter", "result",
-                        "summary", "forming_limits", "scene", "frames", "recording", "delete_run")}
+                        "summary", "scene", "frames", "recording", "delete_run")}
 
 
 def _runs(request: Request) -> RunManager:

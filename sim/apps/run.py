@@ -6,21 +6,9 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from sim.apps.common import BAD_INPUT, FAILED, OK, load, parse_sets
-
-if TYPE_CHECKING:
-    from sim.stepping.simulation import Simulation, StepRecord
-
-
-def _progress(sim: Simulation, rec: StepRecord) -> None:
-    n = sim.n_steps
-    bar = "#" * int(30 * rec.step / n)
-    probes = " ".join(f"{k}={v:.4g}" for k, v in list(rec.probes.items())[:3])
-    print(f"\r[{bar:<30}] step {rec.step}/{n} t={rec.time:.3g} newton={rec.iterations} "
-          f"res={rec.residual:.2e} {probes}", end="" if rec.step < n else "\n",
-          file=sys.stderr, flush=True)
+from sim.apps.progress import Progress, summary_text
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,13 +41,21 @@ def run(args: argparse.Namespace) -> int:
     c = sim.result()["counts"]
     print(f"{scene.name}: {scene.shell.element}, {c['elements']} elements, {c['dofs']} DoFs, "
           f"solver {sim.model.built['linear_solver']}", file=sys.stderr)
-    sim.run(progress=None if args.quiet else _progress)
+    progress = Progress(sys.stderr, sys.stderr.isatty())
+    sim.run(progress=None if args.quiet else progress)
+    progress.close()
     # converged as result.json says: a run whose values are not finite did not
     res = sim.write(out)
     if not res["converged"]:
-        print(f"\nq3t: FAILED: {res['failure']['reason']} at step {res['failure']['step']}",
+        print(f"q3t: FAILED: {res['failure']['reason']} at step {res['failure']['step']}",
               file=sys.stderr)
-    print(f"wrote {out}/result.json ({sim.wall:.2f} s)", file=sys.stderr)
+    t = res["timing"]
+    print(f"wrote {out}/result.json (solver {sim.wall:.2f} s, {t['newton_iterations']} Newton "
+          "iterations)", file=sys.stderr)
+    # the run's result on stdout, what it did on stderr: ``q3t run ... > summary.txt``
+    if res["summary"]:
+        print(("Summary of the steps done (the run failed)" if not res["converged"]
+               else "Summary") + "\n" + summary_text(res["summary"]))
     return OK if res["converged"] else FAILED
 
 

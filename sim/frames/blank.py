@@ -55,11 +55,15 @@ def outer_edge(V: np.ndarray, F: np.ndarray) -> Edge | None:
     N = plane_normal(V, F)
     out = np.cross(d[keep], N)
     out /= np.linalg.norm(out, axis=1, keepdims=True)
-    acc = np.zeros_like(V)
+    acc, first = np.zeros_like(V), np.zeros_like(V)
     for c in range(2):
         np.add.at(acc, be[keep, c], out)
+    first[be[keep, 0]] = out  # each vertex of a loop starts one of its edges
     verts = np.unique(be[keep])
-    normals = acc[verts] / np.linalg.norm(acc[verts], axis=1, keepdims=True)
+    size = np.linalg.norm(acc[verts], axis=1, keepdims=True)
+    # where the boundary doubles back on itself (a cusp) the two edges' normals cancel: the
+    # vertex takes the normal of the edge it starts, never 0 / 0
+    normals = np.where(size > 1e-9, acc[verts] / np.maximum(size, 1e-300), first[verts])
     return Edge(verts, normals, N)
 
 

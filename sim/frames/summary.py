@@ -365,10 +365,13 @@ def _where(at: dict) -> str:
     return ", ".join(parts)
 
 
+def rows(entries: list[dict]) -> list[tuple[str, str, str]]:
+    """(quantity, value with its unit, where) of each entry, as shown to an engineer."""
+    return [(f"{e['label']} ({e['tool']})" if "tool" in e else e["label"], _shown(e),
+             _where(e["at"])) for e in entries]
+
+
 def table(entries: list[dict]) -> str:
-    """The summary as a markdown table (the recording's ``summary`` document, ``q3t run``)."""
-    rows = ["| quantity | value | where |", "|---|---|---|"]
-    for e in entries:
-        label = f"{e['label']} ({e['tool']})" if "tool" in e else e["label"]
-        rows.append(f"| {label} | {_shown(e)} | {_where(e['at'])} |")
-    return "\n".join(rows)
+    """The summary as a markdown table (the recording's ``summary`` document)."""
+    lines = ["| quantity | value | where |", "|---|---|---|"]
+    return "\n".join(lines + [f"| {q} | {v} | {w} |" for q, v, w in rows(entries)])

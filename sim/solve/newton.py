@@ -1,9 +1,21 @@
-"""Projected Newton with a backtracking line search on the total energy.
+"""Projected Newton with a backtracking line search on the total energy, and a watchdog.
 
 Newton only sums energy terms (sim.solve.problem). One minimisation's state is a
 :class:`Newton`; each iteration takes the Newton direction, exits at the round-off floor when
 the residual carries no more information than rounding the state does, or searches along the
 direction for a decrease.
+
+The watchdog (Chamberlain, Powell, Lemarechal and Pedersen, "The watchdog technique for forcing
+convergence in algorithms for constrained optimization", Math. Programming Study 16, 1982): the
+first Newton step of a minimisation is taken whole even when it raises the energy, and the
+energy must fall below the sufficient decrease the line search asked of it within
+``watchdog`` more full steps, or the iteration returns to where the step was taken and
+backtracks from there. A thin sheet bent from flat is why: the linear step moves it normal to
+itself, which stretches its mid-surface, so the energy at the full step is far above the
+start's while the next Newton step, from that stretched state, lands next to the solution;
+backtracking shortens every other step instead and see-saws. Not where a contact term's
+energy rises (past its layer Newton's model of the barrier fails), nor at later iterations
+(mostly plastic flow the model missed): there the watch came back and cost iterations.
 """
 
 from __future__ import annotations
@@ -37,6 +49,9 @@ class NewtonSettings:
     patience: int = 10
     max_line_search: int = 30
     armijo: float = 1e-4
+    # full Newton steps allowed after one that raised the energy, before the energy must be
+    # below the sufficient decrease asked of that step (0: backtrack at once)
+    watchdog: int = 1
     try_exact: bool = True  # exact Hessian when positive definite, projected otherwise
 
 
@@ -85,6 +100,17 @@ class Iterate:
     scale: float = 0.0
 
 
+@dataclass(frozen=True)
+class Watch:
+    """A full step taken although it failed the sufficient decrease (the watchdog): where it
+    was taken, along what, the energy the iteration must get below, full steps left."""
+
+    origin: Iterate
+    dx: np.ndarray
+    target: float
+    left: int
+
+
 @dataclass
 class Newton:
     """One minimisation's state, carried from iteration to iteration."""
@@ -102,6 +128,7 @@ class Newton:
     inexact: int = 0  # such solves in a row leaving over 1 % of the residual
     at_floor: int = 0  # iterations in a row at the round-off floor
     trial: Evaluation | None = None  # the full step's evaluation (Problem.evaluate at x + dx)
+    watch: Watch | None = None
 
     def result(self, x: np.ndarray, ok: bool, it: int, E: float, reason: str = "") -> NewtonResult:
         self.timing.iterations = it
@@ -168,6 +195,12 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
         # exact Hessian first: where it is positive definite Newton converges quadratically;
         # the projected one is the fallback when the factorisation finds it indefinite
         cur, bad = _iterate(nt, x, cached or nt.evaluate(x), force_level, reactions)
+        if nt.watch is not None and _watch_fails(nt, cur, bad, settings.rtol * nt.ref):
+            step = _give_up_watch(nt, it)
+            if isinstance(step, NewtonResult):
+                return step
+            x, cached, _ = step
+            continue
         if bad:
             return nt.result(x0, False, it, cur.E, bad)
         if cur.r <= settings.rtol * nt.ref:
@@ -181,12 +214,46 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
         stop = _stop(nt, cur, it, dx, stalled)
         if stop is not None:
             return stop
-        step = _line_search(nt, cur, it, dx, nt.trial)
+        if nt.watch is not None:  # watched: the full step, unless its energy is not finite
+            if np.isfinite(nt.trial[0]):
+                x, cached = cur.x + dx, nt.trial
+                continue
+            step = _give_up_watch(nt, it)
+        else:
+            step = _line_search(nt, cur, it, dx, nt.trial)
         if isinstance(step, NewtonResult):
             return step
         x, cached, by_energy = step
         nt.idle = 0 if by_energy or not stalled else nt.idle + 1
     raise AssertionError("unreachable")
+
+
+def _watch_fails(nt: Newton, cur: Iterate, bad: str, target: float) -> bool:
+    """Whether the watched iteration must return to its origin at ``cur``: its energy is not
+    below the target yet and no full step is left, or it cannot go on (bad), or it converged
+    to a stationary point above the origin's energy. Clears the watch once the energy is
+    below its target; counts a full step otherwise."""
+    w = nt.watch
+    if not bad and cur.E <= w.target:
+        nt.watch = None
+        return False
+    if bad or w.left == 0 or cur.r <= target:
+        return True
+    nt.watch = Watch(w.origin, w.dx, w.target, w.left - 1)
+    return False
+
+
+def _give_up_watch(nt: Newton,
+                   it: int) -> tuple[np.ndarray, Evaluation | None, bool] | NewtonResult:
+    """Back to the watch's origin and backtrack from there, the full step known to fail."""
+    w, nt.watch = nt.watch, None
+    return _line_search(nt, w.origin, it, w.dx, None, alpha=0.5, watch=False)
+
+
+def _barrier_rose(problem: Problem, x: np.ndarray, x_new: np.ndarray, dE: float) -> bool:
+    """Whether a barrier term (contact) takes more than a thousandth of the energy's rise
+    ``dE`` from x to x_new: the watchdog is for the sheet's own energy."""
+    return problem.barrier_energy(x_new) - problem.barrier_energy(x) > 1e-3 * abs(dE)
 
 
 def _iterate(nt: Newton, x: np.ndarray, out: Evaluation, force_level: float,
@@ -306,17 +373,17 @@ def _floor_exit(nt: Newton, cur: Iterate, it: int, dx: np.ndarray, newton: bool,
 
 
 def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
-                 trial: Evaluation | None) -> (tuple[np.ndarray, Evaluation | None, bool]
-                                               | NewtonResult):
-    """Backtracking along ``dx`` from the full step (evaluated: ``trial``). Returns the new
-    iterate, its full evaluation when it is the full step (else None) and whether the energy
-    decided; or the failed result."""
+                 trial: Evaluation | None, alpha: float = 1.0,
+                 watch: bool = True) -> tuple[np.ndarray, Evaluation | None, bool] | NewtonResult:
+    """Backtracking along ``dx`` from the step ``alpha`` (the full step evaluated: ``trial``).
+    A full step that fails the sufficient decrease is taken and watched (``watch``, see the
+    module's doc) when its energy is finite. Returns the new iterate, its full evaluation when
+    it is the full step (else None) and whether the energy decided; or the failed result."""
     problem, settings, timing = nt.problem, nt.settings, nt.timing
     x, E, g, r, mag = cur.x, cur.E, cur.g, cur.r, cur.mag
     slope = float(np.sum(g * dx))
     if slope >= 0:  # not a descent direction (cannot happen with a PD matrix): use -g
         dx, slope, trial = -g, -r * r, None
-    alpha = 1.0
     for _ in range(settings.max_line_search):
         x_new = x + alpha * dx
         t3 = time.perf_counter()
@@ -334,6 +401,10 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
         # scale (far above any jitter measured, 1e-14) compare with the measured noise
         noise = nt.measured_floor(cur).energy * mag if abs(dE) <= 1e-6 * mag else 0.0
         if dE <= settings.armijo * alpha * slope and -dE > noise:
+            return x_new, trial, True
+        if (alpha == 1.0 and watch and it == 0 and settings.watchdog > 0 and trial is not None
+                and abs(dE) > noise and not _barrier_rose(problem, x, x_new, dE)):
+            nt.watch = Watch(cur, dx, E + settings.armijo * slope, settings.watchdog)
             return x_new, trial, True
         if abs(dE) <= noise:  # the energy cannot tell: the residual decides
             t3 = time.perf_counter()

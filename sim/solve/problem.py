@@ -41,6 +41,10 @@ class Problem:
                 return np.inf
         return total
 
+    def barrier_energy(self, x: np.ndarray) -> float:
+        """The energy of the barrier terms (contact) alone."""
+        return sum((t.energy(x) for t in self.terms if t.barrier), 0.0)
+
     def gradient(self, x: np.ndarray) -> np.ndarray:
         g = np.zeros_like(x)
         for t in self.terms:

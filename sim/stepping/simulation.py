@@ -49,6 +49,8 @@ class StepRecord:
     # friction: how far from settled the lagged normal forces are at the state (largest change,
     # relative to the largest force; settled at <= 1e-3, sim.stepping.friction)
     friction_change: float = 0.0
+    # of ``iterations``, those of friction's re-solves (sim.stepping.friction)
+    friction_iterations: int = 0
 
 
 @dataclass
@@ -250,7 +252,7 @@ class Simulation:
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iterations + extra, res.residuals[-1],
                          res.energy, 0, probes.evaluate(m, self.x, formed=self.formed),
-                         self._tool_reports(), change)
+                         self._tool_reports(), change, extra)
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start
@@ -309,7 +311,7 @@ class Simulation:
         # cut-backs count from the increment the tools' travel allows (it may already be a
         # fraction of the nominal one), so a fast punch keeps all of its cut-backs
         dt_min = self._travel_limit(nominal) / 2 ** self.model.scene.stepping.max_cutbacks
-        dt, cutbacks, iters = nominal, 0, 0
+        dt, cutbacks, iters, resolves = nominal, 0, 0, 0
         while self.t < t_target - 1e-12 * t_target:
             dt = self._travel_limit(min(dt, t_target - self.t))
             res = self._attempt(self.t + dt, dt)
@@ -320,6 +322,7 @@ class Simulation:
                 # re-solves, which move the sheet along (and into) the tools
                 x, final, extra, change = self._settle(res)
                 iters += extra
+                resolves += extra
                 if deep := self._penetration(x):
                     res.converged, res.reason = False, deep
             if not res.converged:
@@ -343,7 +346,8 @@ class Simulation:
             dt = min(2 * dt, nominal)  # grow back after a successful sub-step
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iters, res.residuals[-1], res.energy, cutbacks,
-                         probes.evaluate(self.model, self.x), self._tool_reports(), change)
+                         probes.evaluate(self.model, self.x), self._tool_reports(), change,
+                         resolves)
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start

@@ -64,6 +64,8 @@ class ToolContact(Term):
     presses the tool along -z; ``pair_slots (m, 3, 3)`` the CSR slots of the (node, vdof)
     blocks."""
 
+    barrier = True
+
     def __init__(self, name: str, prog: npt.ArrayLike, nodes: npt.ArrayLike,
                  position: npt.ArrayLike, velocity: npt.ArrayLike, k: float, mu: float,
                  eps_v: float, pattern: Pattern, delta: float = 0.0, vdof: int | None = None,

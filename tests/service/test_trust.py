@@ -30,6 +30,11 @@ ENDED = {"finished", "failed", "stopped"}
 
 
 
+
+def view(run: str) -> dict:
+    """``/api/view`` showing ``run`` (no scene previewed)."""
+    return {"run": run, "scene": None, "preview": None, "preview_error": None}
+
 def edited_toml() -> str:
     text = tiny_toml()
     assert "edge_length = 0.035\n" in text
@@ -117,28 +122,28 @@ def test_one_selected_run_for_page_and_viewer(env):
     viewer = client.app.state.manager.viewer
     older = run_to_end(client, scene="tiny")["id"]
     newer = run_to_end(client, scene="tiny")["id"]
-    assert client.get("/api/view").json() == {"run": newer}  # a new run is selected
+    assert client.get("/api/view").json() == view(newer)  # a new run is selected
     assert viewer.selected == viewer.gui.run.value == newer
     until(lambda: viewer.mode == "live", "the latest run is not shown live")
     # the page selects the older run: the viewer shows its recording
-    assert client.put("/api/view", json={"run": older}).json() == {"run": older}
-    assert client.get("/api/view").json() == {"run": older}
+    assert client.put("/api/view", json={"run": older}).json() == view(older)
+    assert client.get("/api/view").json() == view(older)
     assert viewer.selected == viewer.gui.run.value == older
     until(lambda: viewer.mode == "replay", "the older run's recording is not shown")
     assert f"`{older}`" in viewer.gui.status.content
     # the viewer's dropdown selects for the page too
     viewer.gui.run.value = newer
-    assert client.get("/api/view").json() == {"run": newer} and viewer.mode == "live"
+    assert client.get("/api/view").json() == view(newer) and viewer.mode == "live"
     # refused selections change nothing
     assert client.put("/api/view", json={"run": "nope-linear-1"}).status_code == 404
     assert client.put("/api/view", json={"run": "../x"}).status_code == 422
     assert client.put("/api/view", json={}).status_code == 422
-    assert client.get("/api/view").json() == {"run": newer}
+    assert client.get("/api/view").json() == view(newer)
     # the selected run deleted: the newest left is selected
     client.put("/api/view", json={"run": older})
     assert client.delete(f"/api/runs/{older}").status_code == 204
     newest = client.get("/api/runs").json()[0]["id"]
-    assert client.get("/api/view").json() == {"run": newest}
+    assert client.get("/api/view").json() == view(newest)
     until(lambda: viewer.selected == newest and older not in viewer.gui.run.options,
           "the viewer kept the deleted run")
 

@@ -198,7 +198,7 @@ def test_selecting_a_run_moves_page_and_viewer(served, browser):
     assert page.get_attribute("#runs tbody tr.sel", "data-id") == older
     wait_viewer_run(page, older)
     viewer = page.frame_locator("#viewer")
-    viewer.get_by_text("as recorded").first.wait_for()  # its recording is shown
+    viewer.get_by_text("showing recorded step").first.wait_for()  # its recording is shown
     viewer.locator("code", has_text=older).first.wait_for()
     wait_status(other, run=older)  # the other window follows the server's selection
     shot(page, "04-older-run-selected-in-table")

@@ -27,7 +27,10 @@ from server.settings import Settings  # noqa: E402
 from tests.support.scenes import PRESS_TOML, tiny_toml  # noqa: E402
 from tests.support.service import HANG, free_port, until, wait_done, wait_state, wait_step  # noqa: E402,E501
 
-FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain"}
+# a plastic scene's frame: its major and minor strain too (forming limits), no FLD zone
+# without a forming limit curve
+FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain", "major_strain",
+          "minor_strain"}
 
 
 @pytest.fixture(scope="module")
@@ -78,21 +81,22 @@ def test_viewer_draws_moves_recolours_and_scrubs(done):
     # the bridge pushes the last frame to the viewer after the run's state reads finished
     until(lambda: viewer.gui.time.value == 3, "the last frame was not shown")
     last = client.get(f"/api/runs/{st['id']}/frames/3").json()["tools"]
-    assert sorted(viewer.tools) == ["ground", "punch"]
+    assert sorted(viewer.canvas.tools) == ["ground", "punch"]
     assert viewer.selected == viewer.gui.run.value == st["id"]  # the new run is selected
-    np.testing.assert_allclose(viewer.tools["punch"].position, last["punch"], atol=1e-9)
-    options = viewer.gui.field.options
-    assert len(options) == 4 and "Equivalent plastic strain (-)" in options
-    viewer.gui.field.value = "Equivalent plastic strain (-)"
-    assert "Equivalent plastic strain" in viewer.gui.legend.content
-    viewer.gui.field.value = "von Mises stress (MPa)"
-    assert "MPa" in viewer.gui.legend.content
+    np.testing.assert_allclose(viewer.canvas.tools["punch"].position, last["punch"], atol=1e-9)
+    options = viewer.canvas.field.options
+    assert len(options) == len(FIELDS) and "Equivalent plastic strain (-)" in options
+    assert "Major true strain (-)" in options
+    viewer.canvas.field.value = "Equivalent plastic strain (-)"
+    assert "Equivalent plastic strain" in viewer.canvas.legend.content
+    viewer.canvas.field.value = "von Mises stress (MPa)"
+    assert "MPa" in viewer.canvas.legend.content
     assert viewer.gui.time.value == 3 and viewer.gui.time.max == 3  # followed the live run
     viewer.gui.time.value = 1  # as a user dragging the slider of the finished run
     step1 = client.get(f"/api/runs/{st['id']}/frames/1").json()["tools"]["punch"]
-    np.testing.assert_allclose(viewer.tools["punch"].position, step1, atol=1e-9)
+    np.testing.assert_allclose(viewer.canvas.tools["punch"].position, step1, atol=1e-9)
     assert "showing step 1/3" in viewer.gui.status.content
-    assert viewer.frame["step"] == 1
+    assert viewer.canvas.frame["step"] == 1
 
 
 def tool_chunks(path: Path) -> tuple[dict, dict]:
@@ -218,15 +222,19 @@ def test_viewer_replays_an_older_recorded_run(done):
     assert client.get("/api/view").json()["run"] == st["id"]  # the page follows
     until(lambda: viewer.mode == "replay", "the recording was not shown")  # read in background
     assert viewer.replay.steps == [0, 2, 3]
-    assert "coloured by thickness, as recorded" in viewer.gui.status.content
+    # the recording holds the field values: coloured on the viewer's scales, not as recorded
+    assert set(viewer.replay.fields[-1]) == FIELDS
+    assert "as recorded" not in viewer.gui.status.content
     assert viewer.gui.time.max == 3 and viewer.gui.time.value == 3
-    assert sorted(viewer.tools) == ["ground", "punch"]
+    assert sorted(viewer.canvas.tools) == ["ground", "punch"]
     viewer.gui.time.value = 1  # recorded at 0 and 2: shows 0, the nearest before
     assert viewer.gui.status.content.endswith("showing recorded step 0")
-    np.testing.assert_allclose(viewer.tools["punch"].position, rep.pose("punch", 0), atol=1e-9)
+    np.testing.assert_allclose(viewer.canvas.tools["punch"].position, rep.pose("punch", 0),
+                               atol=1e-9)
     viewer.gui.time.value = 2
     assert viewer.gui.status.content.endswith("showing recorded step 2")
-    np.testing.assert_allclose(viewer.tools["punch"].position, rep.pose("punch", 2), atol=1e-9)
+    np.testing.assert_allclose(viewer.canvas.tools["punch"].position, rep.pose("punch", 2),
+                               atol=1e-9)
     assert rep.pose("punch", 2)[2] < rep.pose("punch", 0)[2]
     viewer.gui.run.value = latest
     assert viewer.mode == "live" and viewer.replay is None

@@ -1,0 +1,177 @@
+"""The 3-D viewer in Debian's chromium (Playwright), embedded in the page and on its own, against
+the real server in a subprocess, on a coarse cup (punch, die and blank holder; a forming limit
+curve):
+
+- a scene is previewed before any run: the blank and the three tools;
+- the legend is in the window wherever the viewer is shown (its box inside the viewport and
+  inside the embedded viewer's frame), and stays so when the colour changes to thinning bands
+  or FLD zones;
+- the tools are translucent (the blank shows through the blank holder) and the section plane
+  cuts them.
+
+Screenshots of each step go to $Q3T_SHOTS (default /tmp/shots-viewer): look at them."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.support import ROOT
+from tests.support.browser import CHROMIUM, SWIFTSHADER, WAIT_MS
+from tests.support.service import free_port, until
+
+SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-viewer"))
+pytestmark = pytest.mark.browser
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
+
+
+def cup_toml() -> str:
+    """cup_drawing at a 4 mm edge, 8 mm of its stroke in 4 steps: a few seconds a step."""
+    text = (ROOT / "scenes" / "cup_drawing.toml").read_text()
+    for old, new in (('name = "cup_drawing"', 'name = "cup"'),
+                     ("edge_length = 0.002", "edge_length = 0.004"),
+                     ("steps = 50", "steps = 4"),
+                     ("velocity = [0.0, 0.0, -0.025]", "velocity = [0.0, 0.0, -0.008]")):
+        assert old in text, old
+        text = text.replace(old, new)
+    return text
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """The server's url and its viewer's."""
+    tmp = tmp_path_factory.mktemp("viewer-browser")
+    (tmp / "scenes").mkdir()
+    (tmp / "scenes" / "cup.toml").write_text(cup_toml())
+    port, vport = free_port(), free_port()
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data"),
+           "PYTHONPATH": str(ROOT)}
+    log = open(tmp / "server.log", "wb")  # noqa: SIM115 - closed after the server stops
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim.apps", "serve", "cup", "--port", str(port),
+         "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
+         "--runs-dir", str(tmp / "runs")],
+        env=env, stdout=log, stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        until(lambda: _ready(url), f"server not up: {tmp / 'server.log'}")
+        yield url, f"http://127.0.0.1:{vport}/"
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        log.close()
+
+
+def _ready(url: str) -> bool:
+    try:
+        return httpx.get(url + "/api/config", timeout=1).json()["ready"]
+    except (httpx.HTTPError, ValueError):
+        return False
+
+
+@pytest.fixture(scope="module")
+def browser():
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=SWIFTSHADER)
+        yield b
+        b.close()
+
+
+def shot(page, name: str, frame=None) -> None:
+    """A screenshot once the viewer has had time to draw (software WebGL: 2-3 frames/s), the
+    browser's notice of software WebGL closed (it covers the view's top-left corner)."""
+    notice = (frame or page).locator(".mantine-Notification-closeButton")
+    if notice.count():
+        notice.first.click()
+    page.wait_for_timeout(3000)
+    page.screenshot(path=str(SHOTS / f"{name}.png"))
+
+
+def inside(box: dict, outer: dict) -> bool:
+    return (box["x"] >= outer["x"] - 0.5 and box["y"] >= outer["y"] - 0.5
+            and box["x"] + box["width"] <= outer["x"] + outer["width"] + 0.5
+            and box["y"] + box["height"] <= outer["y"] + outer["height"] + 0.5)
+
+
+def legend_in_view(page, frame, within: str | None = None) -> dict:
+    """The legend's box, checked to lie in the window (and in the box of the element
+    ``within``, the viewer's frame, measured now: the page's lines above it come and go)."""
+    legend = frame.locator(".q3t-legend").first
+    legend.wait_for()
+    box = legend.bounding_box()
+    window = {"x": 0, "y": 0, **page.viewport_size}
+    assert box is not None and box["width"] > 100 and box["height"] > 20, box
+    assert inside(box, window), f"legend {box} outside the window {window}"
+    if within is not None:
+        outer = page.locator(within).bounding_box()
+        assert inside(box, outer), f"legend {box} outside the viewer {outer}"
+    return box
+
+
+def choose(frame, name: str, option: str) -> None:
+    """Pick ``option`` in the viewer's dropdown ``name`` (viser's Mantine select)."""
+    frame.get_by_role("combobox", name=name).click()
+    frame.get_by_role("option", name=option).click()
+
+
+def preview(url: str, scene: str) -> None:
+    r = httpx.put(f"{url}/api/view/scene", json={"scene": scene})
+    assert r.status_code == 200, r.text
+    until(lambda: httpx.get(f"{url}/api/view").json()["preview"] == "shown",
+          f"the preview of {scene} was not shown")
+
+
+def test_embedded_viewer_legend_preview_zones_and_section(served, browser):
+    url, _ = served
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    page.set_default_timeout(WAIT_MS)
+    page.goto(url + "/")
+    frame = page.frame_locator("#viewer")
+    frame.get_by_text("Colour by").first.wait_for()
+    preview(url, "cup")
+    frame.get_by_text("Preview of scene").first.wait_for()
+    legend_in_view(page, frame, "#viewer")
+    assert "Thickness" in frame.locator(".q3t-legend").first.inner_text()
+    shot(page, "01-embedded-preview", frame)
+
+    run = httpx.post(f"{url}/api/runs", json={"scene": "cup"}).json()["id"]
+    until(lambda: httpx.get(f"{url}/api/runs/{run}").json()["state"] in
+          ("finished", "failed", "stopped"), "the run did not end")
+    assert httpx.get(f"{url}/api/runs/{run}").json()["state"] == "finished"
+    frame.get_by_text("finished").first.wait_for()
+    shot(page, "02-embedded-run-thickness", frame)
+
+    choose(frame, "Colour by", "Thinning (%)")
+    frame.get_by_text("failure ≥ 20 %").first.wait_for()
+    legend_in_view(page, frame, "#viewer")
+    shot(page, "03-embedded-thinning", frame)
+
+    choose(frame, "Colour by", "FLD zone")
+    frame.get_by_text("wrinkling tendency").first.wait_for()
+    legend_in_view(page, frame, "#viewer")
+    shot(page, "04-embedded-fld-zones", frame)
+
+    choose(frame, "Section", "y plane (keep y ≥ at)")
+    shot(page, "05-embedded-section", frame)
+    page.close()
+
+
+def test_viewer_alone_legend_in_view(served, browser):
+    url, viewer_url = served
+    page = browser.new_page(viewport={"width": 1100, "height": 700})
+    page.set_default_timeout(WAIT_MS)
+    page.goto(viewer_url)
+    page.get_by_text("Colour by").first.wait_for()
+    legend_in_view(page, page)
+    shot(page, "06-viewer-alone")
+    preview(url, "cup")  # the viewer shows it whoever asked
+    page.get_by_text("Preview of scene").first.wait_for()
+    legend_in_view(page, page)
+    shot(page, "07-viewer-alone-preview")
+    page.close()
