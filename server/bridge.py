@@ -169,6 +169,7 @@ def _meta(m: Books, ev: dict) -> Booked:
         # page's and the viewer's sliders show
         run.parameters.update(ev.get("parameters") or {})
         run.punches, run.probe_kinds = ev.get("punches") or {}, ev.get("probe_kinds") or {}
+        run.scaled = ev.get("scaled") or {}
         line, values = run.line(), dict(run.parameters)
     booked.later.append(lambda: m.save(run))
     if m.viewer:
@@ -190,6 +191,7 @@ def _step(m: Books, ev: dict) -> Booked:
             run.records.append(ev["record"])
             run.step = ev["record"]["step"]
             run.stepping_s += ev.get("wall_s") or 0.0
+            run.n_steps = ev.get("n_steps", run.n_steps)  # tool_speed changes the count
             run.frames.update(ev.get("frames") or {})
     return Booked()
 
@@ -203,6 +205,7 @@ def _parameter(m: Books, ev: dict) -> Booked:
             return booked
         run.parameter_log.append(entry)
         run.parameters[entry["name"]] = entry["value"]
+        run.n_steps = ev.get("n_steps", run.n_steps)
     if m.viewer:
         booked.later.append(lambda: m.viewer.set_parameter_value(run.id, entry["name"],
                                                                  entry["value"]))

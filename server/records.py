@@ -43,6 +43,8 @@ class Run:
     tools: list[str] = field(default_factory=list)
     timing: dict = field(default_factory=dict)  # build_s, tool_meshes_s, first_frame_s, ...
     parameters: dict = field(default_factory=dict)
+    # what each live parameter multiplies (sim's Simulation.scaled): the page shows the result
+    scaled: dict = field(default_factory=dict)
     parameter_log: list[dict] = field(default_factory=list)
     # frames made and dropped (queue full) by the solver; received and pushed to the viewer here
     frames: dict = field(default_factory=dict)

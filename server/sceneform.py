@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pydantic import ValidationError
 
-from server.tomlout import drop_none, to_toml
+from server.tomlout import drop_none, edited, to_toml
 from sim.scene.load import Scene, SceneError, joined, read_toml, scene_errors
 from sim.scene.load import validate as validate_scene
 
@@ -27,12 +27,31 @@ def scene_toml(scene: Scene, *, emitter: str = "auto") -> str:
     return to_toml(data, emitter=emitter)
 
 
-def render(raw: dict, *, emitter: str = "auto") -> dict:
-    """Scene JSON (from the form) to TOML. A valid scene is written without its defaults; an
-    invalid one as given (less its nulls), so the TOML view still shows what the form says."""
+def edited_toml(base: str, scene: Scene) -> str | None:
+    """``base`` (a scene's TOML, as the file has it) with ``scene``'s values written into it,
+    its comments and number formats kept (server.tomlout.edited); None when ``base`` is not a
+    valid scene (nothing to diff against) or the edit would not read back as ``scene``."""
+    try:
+        before, errors = validate(read_toml(base))
+    except SceneError:
+        return None
+    if before is None:
+        return None
+    text = edited(base, before.model_dump(mode="json"), scene.model_dump(mode="json"),
+                  scene.model_dump(mode="json", exclude_defaults=True, exclude_none=True))
+    after, _ = validate(read_toml(text))
+    return text if after == scene else None
+
+
+def render(raw: dict, *, emitter: str = "auto", base: str | None = None) -> dict:
+    """Scene JSON (from the form) to TOML. A valid scene is written into ``base`` (the
+    scene's TOML before the edit: comments and number formats kept) when given, else without
+    its defaults; an invalid one as given (less its nulls), so the TOML view still shows what
+    the form says."""
     scene, errors = validate(raw)
     try:
-        text = (scene_toml(scene, emitter=emitter) if scene is not None
+        text = ((base is not None and edited_toml(base, scene)) or
+                scene_toml(scene, emitter=emitter) if scene is not None
                 else to_toml(raw, emitter=emitter))
     except (ValueError, TypeError) as exc:  # e.g. a null inside an array: no TOML for it
         text = None

@@ -1,4 +1,6 @@
-"""Scene dicts to TOML text: ``tomli_w`` when it is installed, else the small emitter here.
+"""Scene dicts to TOML text: ``tomli_w`` when it is installed, else the small emitter here;
+and an edit of a scene file's own text (``edited``, ``renamed``), which keeps its comments,
+layout and number formats (tomlkit's round trip).
 
 The emitter covers what scenes use: tables, arrays of tables, inline tables for small objects
 (``plane = { point = [...], normal = [...] }``), numbers, strings, booleans and arrays. TOML has
@@ -9,6 +11,11 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import MutableMapping
+
+import tomlkit
+from tomlkit.exceptions import TOMLKitError
+from tomlkit.items import AoT, Array, InlineTable
 
 BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
 INLINE_WIDTH = 88  # a nested table whose ``key = { ... }`` line fits is written inline
@@ -139,3 +146,80 @@ def _table(d: dict, path: list[str], header: str | None, blocks: list[list[str]]
         else:
             for item in v:
                 _table(item, sub, f"[[{name}]]", blocks)
+
+
+# ---- edits of a scene file's text ---------------------------------------------------------------
+def edited(base: str, old: dict, new: dict, lean: dict) -> str:
+    """``base``, a scene file's TOML, with what differs between ``old`` (its scene, every
+    field) and ``new`` (the edited scene, every field) written into it: comments, layout and
+    the format of every value left alone are kept (``68.0e9`` stays). A field the file lacks
+    is added only when ``lean`` (the edited scene without its defaults) has it; a field the
+    edit drops (unset, or of another kind) is removed."""
+    doc = tomlkit.parse(base)
+    _apply(doc, old, new, lean)
+    return tomlkit.dumps(doc)
+
+
+def renamed(text: str, name: str) -> str:
+    """A scene file's text with its ``name`` field set to ``name`` (a copy under a new
+    name); a text that is not TOML, or has no top-level name, as it was."""
+    try:
+        doc = tomlkit.parse(text)
+    except TOMLKitError:
+        return text
+    if not isinstance(doc.get("name"), str):
+        return text
+    doc["name"] = name
+    return tomlkit.dumps(doc)
+
+
+def _apply(node: MutableMapping, old: dict, new: dict, lean: dict) -> None:
+    for k in [k for k in node if new.get(k) is None]:
+        del node[k]
+    for k, v in new.items():
+        if v is None or old.get(k) == v:
+            continue
+        if k not in node:
+            if k in lean:
+                node[k] = _item(lean[k], _inline(node))
+        elif isinstance(v, dict) and isinstance(old.get(k), dict):
+            _apply(node[k], old[k], v, lean.get(k, {}))
+        elif _tables(v) and _tables(old.get(k)) and isinstance(node[k], (AoT, Array)):
+            _apply_list(node[k], old[k], v, lean.get(k, []))
+        else:
+            node[k] = _item(lean.get(k, v), _inline(node))
+
+
+def _apply_list(items: AoT | Array, old: list, new: list, lean: list) -> None:
+    """Tables of a list edited item by item; items added at the end or dropped from it."""
+    for i, v in enumerate(new[: len(old)]):
+        _apply(items[i], old[i], v, lean[i] if i < len(lean) else {})
+    for i in range(len(old) - 1, len(new) - 1, -1):
+        del items[i]
+    for v in lean[len(old):]:
+        item = _item(v, inline=isinstance(items, Array))  # AoT: a [[table]]
+        if isinstance(items, AoT):
+            item.add(tomlkit.nl())  # a blank line before the next table, as scene files have
+        items.append(item)
+
+
+def _tables(v: object) -> bool:
+    return isinstance(v, list) and all(isinstance(x, dict) for x in v)
+
+
+def _inline(parent: MutableMapping) -> bool | None:
+    """Inside an inline table everything is inline; elsewhere a table is inline if short."""
+    return True if isinstance(parent, InlineTable) else None
+
+
+def _item(v: object, inline: bool | None) -> object:
+    """A new value as this module writes it (``6.8e10``, not ``68000000000.0``); a table
+    inline (``inline``), a [table] (False) or inline when its line is short (None)."""
+    v = drop_none(v)
+    if isinstance(v, dict) and (inline is False or
+                                (inline is None and len(value(v)) > INLINE_WIDTH)):
+        table = tomlkit.table()
+        for k, x in v.items():
+            table[k] = _item(x, None)
+        return table
+    return tomlkit.value(value(v))

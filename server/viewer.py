@@ -22,6 +22,7 @@ disabled while it is not active. Nothing here starts a run: that is the page's S
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -35,6 +36,7 @@ import viser
 from server.canvas import Canvas
 from server.colormap import grow
 from server.replay import Replay
+from sim.stepping.parameters import LABELS
 
 
 class Actions(Protocol):
@@ -139,9 +141,12 @@ class Viewer:
             active = not self.gui.buttons["Pause"].disabled
             for name, (lo, hi) in parameters.items():
                 value = self.parameters.get(name, 1.0)  # no run shown: as written
-                s = self.server.gui.add_slider(name, min=lo, max=hi, step=(hi - lo) / 1000,
+                label, hint = LABELS.get(name, (name, ""))
+                # about 1000 steps of a round size: 1 (as written) is one of them
+                step = 10.0 ** math.floor(math.log10((hi - lo) / 1000))
+                s = self.server.gui.add_slider(label, min=lo, max=hi, step=step,
                                                initial_value=min(max(value, lo), hi),
-                                               disabled=not active)
+                                               disabled=not active, hint=f"{name}: {hint}")
                 s.on_update(self._by_user(lambda n=name, h=s: self._on_slider(n, h)))
                 self.gui.sliders[name] = s
 

@@ -178,7 +178,8 @@ class Solver:
         self.emit("meta", faces=self.sim.display.faces, n_steps=self.sim.n_steps,
                   counts=self.sim.result()["counts"], element=scene.shell.element,
                   probes=[p.name for p in scene.probes], tools=tools, timing=timing,
-                  parameters=dict(self.sim.parameters), **_plotted(scene, self.sim))
+                  parameters=dict(self.sim.parameters), scaled=self.sim.scaled(),
+                  **_plotted(scene, self.sim))
         self.events.put(rest)  # the rest state, before the first step (which may take seconds)
         try:
             self.record("meta", self.sim.display.faces, tools)
@@ -280,7 +281,7 @@ class Solver:
         self._need_run()
         self.sim.set_parameter(msg["name"], msg["value"])
         entry = self.sim.parameter_log[-1]
-        self.emit("parameter", entry=entry)
+        self.emit("parameter", entry=entry, n_steps=self.sim.n_steps)  # tool_speed sets it
         try:
             self.record("parameter", entry)
         except RecordingFailed as exc:
@@ -327,7 +328,7 @@ class Solver:
         wall = time.perf_counter() - t0
         msg = _frame_msg(self.run, self.sim)
         self.produced += 1
-        self.emit("step", record=asdict(rec), wall_s=wall,
+        self.emit("step", record=asdict(rec), wall_s=wall, n_steps=self.sim.n_steps,
                   frames={"produced": self.produced, "dropped": self.dropped})
         try:
             self.record("step", asdict(rec))

@@ -1,27 +1,21 @@
 """The scene files' field reference, docs/scene-reference.md, rendered from the schema itself.
 
-Each table of a scene is a section listing its fields with their type, bounds, default and the
-comment the schema's source gives them, so the reference says exactly what ``load_scene``
-accepts. ``python -m sim.scene_reference [PATH]`` writes it (``make docs``);
-tests/unit/test_docs.py fails when the file differs from what this renders.
+Each table of a scene is a section listing its fields with their type, unit, bounds, default
+and description, all from the schema (``Scene.model_json_schema()``: the same descriptions and
+units the page's form and /docs show), so the reference says exactly what ``load_scene``
+accepts. A table of several kinds (``[mesh]``, a tool's shape, ``[[loads]]``) has a section per
+kind, listing that kind's fields. ``python -m sim.scene_reference [PATH]`` writes it (``make
+docs``); tests/unit/test_docs.py fails when the file differs from what this renders.
 """
 
 from __future__ import annotations
 
-import ast
-import inspect
-import io
 import json
 import re
 import sys
-import textwrap
-import tokenize
-import typing
 from pathlib import Path
 
-from pydantic import BaseModel
-
-from sim.scene.load import Scene
+from sim.scene.load import TAGS, Scene
 
 TOP = "top level"  # the scene's own fields
 OUT = Path(__file__).resolve().parent.parent / "docs" / "scene-reference.md"
@@ -30,10 +24,12 @@ HEADER = """\
 
 Generated from the scene schema by `make docs` (`python -m sim.scene_reference`); do not edit
 by hand: `tests/unit/test_docs.py` fails when this file and the schema differ. How the tables fit
-together, with examples: [scenes.md](scenes.md). Units are SI (m, Pa, kg, s, N). A field without
-a default is required; "unset" means the field may be left out, and what then happens is in its
-note or the table's description. Checks that tie fields together (a mesh kind's required
-fields, one thickness source, a law's own parameters) are in the table descriptions.
+together, with examples: [scenes.md](scenes.md). Values are SI in the file (m, Pa, kg, s, N);
+the unit column names each number's ("1": a plain number; the page's form shows lengths in mm,
+stresses in MPa and forces in kN, and writes SI). A field without a default is required;
+"unset" means the field may be left out, and what then happens is in its description. A table
+of several kinds takes the fields of its `kind` only; checks that tie fields together (one
+thickness source, a law's own parameters) are in the table descriptions.
 """
 
 
@@ -41,29 +37,30 @@ def reference() -> str:
     """The whole reference as markdown."""
     schema = Scene.model_json_schema()
     defs = schema["$defs"]
-    classes = _model_classes(Scene)
     parts, done = [HEADER], {}
-    for path, name in [(TOP, "Scene"), *_tables(schema["properties"], defs, "")]:
-        node = schema if name == "Scene" else defs[name]
+    for path, name, of_kinds in [(TOP, "Scene", False),
+                                 *_tables(schema["properties"], defs, "")]:
         if name in done:
             continue
-        parts.append(_section(path, node, classes[name], done))
-        done[name] = (path, node)
+        node = schema if name == "Scene" else defs[name]
+        head = _heading(path, node, of_kinds)
+        parts.append(_section(head, node, done))
+        done[name] = (head, node)
     return "\n".join(parts)
 
 
-def _tables(props: dict, defs: dict, prefix: str) -> list[tuple[str, str]]:
-    """(path, schema name) of every table below ``props``, in document order; a path is
-    dotted, ``[]`` marking a list of tables (``tools[].shape``)."""
+def _tables(props: dict, defs: dict, prefix: str) -> list[tuple[str, str, bool]]:
+    """(path, schema name, whether it is one of several kinds) of every table below
+    ``props``, in document order; a path is dotted, ``[]`` marking a list of tables
+    (``tools[].shape``)."""
     out = []
     for field, s in props.items():
-        ref, many = _ref(s)
-        if ref is None:
-            continue
+        refs, many = _refs(s)
         path = f"{prefix}.{field}" if prefix else field
         path += "[]" if many else ""
-        out.append((path, ref))
-        out += _tables(defs[ref]["properties"], defs, path)
+        for ref in refs:
+            out.append((path, ref, len(refs) > 1))
+            out += _tables(defs[ref]["properties"], defs, path)
     return out
 
 
@@ -75,47 +72,52 @@ def _title(path: str) -> str:
     return f"[[{path[:-2]}]]" if path.endswith("[]") else f"[{path}]"
 
 
-def _ref(s: dict) -> tuple[str | None, bool]:
-    """The table a field holds (its schema name) and whether it is a list of them."""
+def _refs(s: dict) -> tuple[list[str], bool]:
+    """The tables a field holds (schema names: one, or one per kind) and whether it is a
+    list of them."""
     s = _non_null(s)
-    if "$ref" in s:
-        return s["$ref"].rsplit("/", 1)[1], False
-    items = s.get("items", {})
-    if "$ref" in items:
-        return items["$ref"].rsplit("/", 1)[1], True
-    return None, False
+    many = "$ref" not in s and "oneOf" not in s and isinstance(s.get("items"), dict)
+    s = s["items"] if many else s
+    alts = s.get("oneOf", [s])
+    refs = [a["$ref"].rsplit("/", 1)[1] for a in alts if "$ref" in a]
+    return refs, many and bool(refs)
 
 
-def _section(path: str, node: dict, cls: type[BaseModel], done: dict) -> str:
-    comments = _field_comments(cls)
-    rows = ["| field | type | bounds | default | note |", "|---|---|---|---|---|"]
+def _heading(path: str, node: dict, of_kinds: bool) -> str:
+    """``[mesh]``, kind `disk`: the table and, of a table of several kinds, its kind."""
+    if path == TOP:
+        return "The scene file's top level"
+    tag = next((t for t in TAGS if t in node["properties"]), "kind")
+    kind = node["properties"].get(tag, {})
+    kinds = ([kind["const"]] if "const" in kind else kind.get("enum", [])) if of_kinds else []
+    return f"`{_title(path)}`" + (f", {tag} {' / '.join(f'`{k}`' for k in kinds)}"
+                                  if kinds else "")
+
+
+def _section(head: str, node: dict, done: dict) -> str:
+    rows = ["| field | type | unit | bounds | default | description |",
+            "|---|---|---|---|---|---|"]
     like = _same_fields(node, done)
     for field, s in node["properties"].items():
         if like and like[1]["properties"].get(field) == s:
             continue
         default = "required" if field in node.get("required", []) else _default(s)
-        rows.append(f"| `{field}` | {_type(s)} | {_bounds(s)} | {default} | "
-                    f"{_cell(comments.get(field, ''))} |")
-    head = "## The scene file's top level" if path == TOP else f"## `{_title(path)}`"
-    intro = [_markdown(_description(cls, with_bases=like is None))] if cls is not Scene else []
+        rows.append(f"| `{field}` | {_type(s)} | {s.get('unit', '')} | {_bounds(s)} | "
+                    f"{default} | {_cell(s.get('description', ''))} |")
+    intro = [_markdown(node.get("description", ""))] if node["title"] != "Scene" else []
     if like:
-        intro.append(f"Every field of `{_title(like[0])}`, the same way, except:")
-    return "\n\n".join([head, *(i for i in intro if i), "\n".join(rows)]) + "\n"
-
-
-def _description(cls: type[BaseModel], with_bases: bool) -> str:
-    """The class's docstring, and those of the model classes it inherits fields from (the
-    tool shape's ``_Shape``) unless their fields were described already."""
-    docs = [k.__dict__.get("__doc__") for k in cls.__mro__
-            if issubclass(k, BaseModel) and k is not BaseModel
-            and (k is cls or with_bases)]
-    return "\n\n".join(inspect.cleandoc(d) for d in docs if d)
+        intro.append(f"Every field of {like[0]}, the same way, except:")
+    return "\n\n".join([f"## {head}", *(i for i in intro if i), "\n".join(rows)]) + "\n"
 
 
 def _same_fields(node: dict, done: dict) -> tuple[str, dict] | None:
-    """An already rendered table sharing most fields with ``node`` (the tool shape's operands
-    are the shape again, with other kinds): only the differences are listed then."""
+    """An already rendered table of the same kind sharing most fields with ``node`` (a CSG
+    operand is the tool's CSG shape again, with other operands): only the differences are
+    listed then."""
+    kind = node["properties"].get("kind", {}).get("enum")
     for path, other in done.values():
+        if other["properties"].get("kind", {}).get("enum") != kind:
+            continue
         shared = [f for f, s in node["properties"].items() if other["properties"].get(f) == s]
         if len(shared) > len(node["properties"]) / 2:
             return path, other
@@ -130,9 +132,10 @@ def _non_null(s: dict) -> dict:
 
 def _type(s: dict) -> str:
     s = _non_null(s)
-    ref, many = _ref(s)
-    if ref:
-        return "list of tables" if many else "table"
+    refs, many = _refs(s)
+    if refs:
+        what = "list of tables" if many else "table"
+        return what + (" (of a kind)" if len(refs) > 1 else "")
     if "enum" in s:
         return "one of " + ", ".join(f'`"{v}"`' for v in s["enum"])
     if "const" in s:
@@ -196,67 +199,12 @@ def _num(v: float) -> str:
 
 
 def _cell(text: str) -> str:
-    return text.replace("|", "\\|")
+    return text.replace("|", "\\|").replace("\n", " ")
 
 
 def _markdown(doc: str) -> str:
     """A docstring as markdown: reST's ``code`` becomes `code`."""
     return re.sub(r"``(.+?)``", r"`\1`", doc.strip())
-
-
-def _model_classes(root: type[BaseModel]) -> dict[str, type[BaseModel]]:
-    """Every model class reachable from ``root`` through its fields' types, by name."""
-    found: dict[str, type[BaseModel]] = {}
-
-    def visit(tp: object) -> None:
-        if isinstance(tp, type) and issubclass(tp, BaseModel):
-            if tp.__name__ not in found:
-                found[tp.__name__] = tp
-                for f in tp.model_fields.values():
-                    visit(f.annotation)
-            return
-        for arg in typing.get_args(tp):
-            visit(arg)
-
-    visit(root)
-    return found
-
-
-def _field_comments(cls: type[BaseModel]) -> dict[str, str]:
-    """The source comments of each field: the comment lines right above it and the comment at
-    the end of its line(s), from the class that declares it (base classes included)."""
-    out: dict[str, str] = {}
-    for klass in reversed(cls.__mro__):
-        if not (isinstance(klass, type) and issubclass(klass, BaseModel)) or klass is BaseModel:
-            continue
-        try:
-            source = textwrap.dedent(inspect.getsource(klass))
-        except (OSError, TypeError):
-            continue
-        out.update(_comments_in(source))
-    return out
-
-
-def _comments_in(source: str) -> dict[str, str]:
-    lines = source.splitlines()
-    comment_at = {tok.start[0]: tok.string.lstrip("#").strip()
-                  for tok in tokenize.generate_tokens(io.StringIO(source).readline)
-                  if tok.type == tokenize.COMMENT}
-    body = ast.parse(source).body[0].body
-    out = {}
-    for node in body:
-        if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
-            continue
-        above, n = [], node.lineno - 1
-        while n >= 1 and lines[n - 1].lstrip().startswith("#"):
-            above.insert(0, comment_at[n])
-            n -= 1
-        after = [comment_at[k] for k in range(node.lineno, node.end_lineno + 1)
-                 if k in comment_at]
-        text = " ".join(above + after)
-        if text:
-            out[node.target.id] = text
-    return out
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -39,6 +39,7 @@ async function selectScene(name) {
   state.scene = name;
   $("scene-name").value = name;
   $("toml").value = s.toml;
+  state.base = s.toml;  // the form's edits are written into this text (comments kept)
   clearTimeout(state.syncTimer);
   state.syncTimer = null;
   state.syncSeq++;  // answers to edits of the previous scene are stale now
@@ -81,13 +82,15 @@ async function flushSync() {
 async function syncFromForm() {
   const seq = ++state.syncSeq;
   $("sync").textContent = "…";
-  const job = api("POST", "/api/scenes/render", { scene: state.form.value() });
+  // base: the scene's TOML before this edit, which the server writes the change into
+  const job = api("POST", "/api/scenes/render", { scene: state.form.value(), base: state.base });
   state.syncRunning = job.catch(() => null);
   try {
     const r = await job;
     if (seq !== state.syncSeq) return;
     state.tomlStale = r.toml === null;  // the form holds what TOML cannot say (a null)
     if (r.toml !== null) $("toml").value = r.toml;
+    if (r.ok) state.base = r.toml;  // an invalid form's TOML has lost the comments
     showSceneErrors(r.errors);
     $("sync").textContent = r.ok ? "valid" : `${r.errors.length} error(s)`;
   } catch (e) { say(e.message, true); }
@@ -102,6 +105,7 @@ async function syncFromToml() {
     const r = await job;
     if (seq !== state.syncSeq) return;
     state.tomlStale = false;
+    if (r.ok) state.base = $("toml").value;
     if (r.scene || r.raw) state.form.build(r.scene || r.raw);
     showSceneErrors(r.errors);
     $("sync").textContent = r.ok ? "valid" : `${r.errors.length} error(s)`;
@@ -130,16 +134,21 @@ function showTab(which) {
 
 async function saveScene() {
   const name = $("scene-name").value.trim();
+  say("");  // a message of an earlier save must not stand over this one's outcome
   try {
     await flushSync();
-    if (state.tomlStale) throw new Error("the form has errors (see the fields): not saved");
+    if (state.tomlStale) throw new Error("the form has errors (see the fields)");
     await api("PUT", `/api/scenes/${encodeURIComponent(name)}`, { toml: $("toml").value });
     $("scene-error").textContent = "";
     state.scene = name;
     say(`saved ${name}`);
     await loadScenes();
   } catch (e) {
+    say(`${name} not saved: ${e.message}`, true);
     $("scene-error").textContent = e.message;
+    // the error where the user looks: the first field named, else the error box
+    const where = $("scene-form").querySelector(".has-error") || $("scene-error");
+    where.scrollIntoView({ block: "center" });
   }
 }
 
@@ -178,21 +187,57 @@ async function buildSliders() {
   const box = $("sliders");
   box.replaceChildren();
   for (const [name, r] of Object.entries(state.config.parameters)) {
+    const row = document.createElement("div");
+    row.className = "param";
     const label = document.createElement("label");
     const out = document.createElement("output");
+    const result = document.createElement("span");
     const inp = document.createElement("input");
-    // the whole range the server accepts (load_scale goes to 100), in 1000 steps
-    Object.assign(inp, { type: "range", name, min: r.min, max: r.max,
-                         step: (r.max - r.min) / 1000, value: 1, disabled: true });
+    // the whole range the server accepts (load_scale goes to 100), in about 1000 steps of a
+    // round size, so that 1 (as written) is one of them whatever the lowest value
+    const step = 10 ** Math.floor(Math.log10((r.max - r.min) / 1000));
+    Object.assign(inp, { type: "range", name, min: r.min, max: r.max, step, value: 1,
+                         disabled: true });
     inp.id = `param-${name}`;
     out.id = `param-${name}-value`;
+    result.id = `param-${name}-result`;
+    result.className = "param-result";
     out.textContent = "1";  // no run shown yet: as written
-    inp.oninput = () => { inp.dataset.busy = "1"; out.textContent = inp.value; };
+    inp.oninput = () => {
+      inp.dataset.busy = "1";
+      out.textContent = inp.value;
+      showResult(name, +inp.value, state.status);
+    };
     inp.onchange = () => setParameter(inp, out);
-    label.append(name + " ", inp, " ", out);
-    box.appendChild(label);
+    const text = document.createElement("span");
+    text.className = "param-name";
+    text.textContent = r.label || name;
+    label.title = `${name}: ${r.hint || ""}`;
+    label.append(text, inp, out);
+    row.append(label, result);
+    box.appendChild(row);
   }
   if (state.status) showParameters(state.status);
+}
+
+// the scene's value each multiplier scales, and the result, in the units engineers read
+const SCALED_UNITS = { "m/step": ["mm/step", 1e3], N: ["kN", 1e-3], Pa: ["MPa", 1e-6],
+                       "m/s^2": ["m/s²", 1], "1": ["", 1] };
+const num = (v) => String(+v.toPrecision(4));
+
+function showResult(name, value, st) {
+  // friction 0.1 × 2 = 0.2 for each tool; the run's step count under tool_speed
+  const box = $(`param-${name}-result`);
+  if (!box) return;
+  const items = (st && st.scaled && st.scaled[name]) || [];
+  const parts = items.map((it) => {
+    const [unit, f] = SCALED_UNITS[it.unit] || [it.unit, 1];
+    const u = unit ? ` ${unit}` : "";
+    return `${it.what} ${num(it.value * f)} × ${num(value)} = ${num(it.value * f * value)}${u}`;
+  });
+  if (name === "tool_speed" && st && st.n_steps) parts.push(`run: ${st.n_steps} steps`);
+  box.textContent = parts.join("; ");
+  box.title = box.textContent;
 }
 
 async function setParameter(inp, out) {
@@ -227,6 +272,7 @@ function showParameters(st, paramSeq = state.paramSeq) {
     inp.title = active ? "" : `run ${st.id} is ${st.state}: its values, as it ended`;
     if (settled && !inp.dataset.busy)
       showValue(inp, $(`param-${inp.name}-value`), st.parameters[inp.name]);
+    if (!inp.dataset.busy) showResult(inp.name, st.parameters[inp.name] ?? +inp.value, st);
   }
 }
 

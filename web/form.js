@@ -1,9 +1,16 @@
 // The scene form, generated from the scene JSON schema (GET /api/scenes/schema, pydantic's
-// model_json_schema with $defs). Plain JS, no build step. Nested objects are fieldsets, arrays
-// are lists with add/remove, enums selects, numbers number inputs with the schema's bounds,
+// model_json_schema with $defs). Plain JS, no build step. Nested objects are fieldsets, tables
+// of several kinds (oneOf with a discriminator) a kind select showing that kind's fields only,
+// arrays lists with add/remove, enums selects, numbers text inputs with the schema's bounds,
 // tuples (prefixItems) small input groups, booleans checkboxes, optional fields (anyOf with
-// null) carry an "unset" box. Every field's wrapper has data-path="material.nu", where the
-// server's validation errors for that path are shown.
+// null) carry an "unset" box. Every field shows its description (the schema's: a tooltip, and
+// below the field while it has the focus) and its unit. Every field's wrapper has
+// data-path="material.nu", where the server's validation errors for that path are shown.
+//
+// Units: the file is SI; the form shows customary units (lengths mm, stresses MPa, forces kN),
+// always labelled, because an engineer reads 68000 MPa and 16.5 mm at a glance where 6.8e10
+// and 0.0165 invite a slipped decimal; values are converted back to SI, and a value left as
+// shown is sent back unchanged (no round-off). A decimal comma ("0,15") reads as 0.15.
 "use strict";
 
 const SceneForm = (() => {
@@ -19,6 +26,20 @@ const SceneForm = (() => {
     return e;
   };
   const clone = (v) => (v === undefined ? undefined : JSON.parse(JSON.stringify(v)));
+  // SI unit -> [shown unit, factor]; any other unit is shown as the schema gives it
+  const SHOWN = { m: ["mm", 1e3], Pa: ["MPa", 1e-6], N: ["kN", 1e-3], "N/m": ["N/mm", 1e-3],
+                  "m/s": ["mm/s", 1e3], "m/s^2": ["m/s²", 1], "kg/m^3": ["kg/m³", 1] };
+  const shown = (unit) => (unit && SHOWN[unit]) || [unit === "1" ? "" : unit || "", 1];
+  // a number as the form writes it: 12 significant digits, so 0.0165 m is 16.5 mm, not
+  // 16.499999999999996
+  const fmt = (v) => String(Number(v.toPrecision(12)));
+  // the text of a number input: a point or a single decimal comma; null when not a number
+  const readNumber = (text) => {
+    let t = text.trim();
+    if (/^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$/.test(t)) t = t.replace(",", ".");
+    if (t === "" || !/^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$/.test(t)) return null;
+    return Number(t);
+  };
 
   class Form {
     // root: the container; schema: the scene schema; onChange(): called after every edit;
@@ -50,16 +71,21 @@ const SceneForm = (() => {
     }
 
     // ---- one field, any schema ------------------------------------------------------------
-    field(schema, value, path, key, required) {
+    // meta: the field's description and unit, from its own schema (a $ref or anyOf inside
+    // carries neither)
+    field(schema, value, path, key, required, meta) {
+      meta = meta || { description: schema.description, unit: schema.unit };
+      this.meta = meta;  // read by the widget made below (wrap, number)
       const s = this.resolve(schema);
       if (value === undefined && schema.default !== undefined) value = clone(schema.default);
+      if (s.oneOf) return this.kinds(s, value, path, key, meta);
       if (s.anyOf) {
         const branches = s.anyOf.filter((b) => b.type !== "null");
         const nullable = branches.length < s.anyOf.length;
         if (branches.length === 1) {
           const inner = { ...this.resolve(branches[0]) };
-          if (nullable) return this.optional(inner, value, path, key);
-          return this.field(inner, value, path, key, required);
+          if (nullable) return this.optional(inner, value, path, key, meta);
+          return this.field(inner, value, path, key, required, meta);
         }
         return this.json(s, value, path, key);
       }
@@ -74,20 +100,82 @@ const SceneForm = (() => {
     }
 
     wrap(path, key, control, extra) {
+      const { description, unit } = this.meta || {};
       const err = el("span", { class: "field-error" });
-      const label = el("label", {}, el("span", { class: "key", title: path }, key), control);
-      const box = el("div", { class: "field", dataset: { path } }, label, extra, err);
-      return box;
+      const name = el("span", { class: "key", title: description ? `${path}: ${description}`
+                                                             : path }, key);
+      const u = shown(unit)[0];
+      const label = el("label", {}, name, control, u ? el("span", { class: "unit" }, u) : null);
+      const help = description ? el("small", { class: "help" }, description) : null;
+      return el("div", { class: "field", dataset: { path } }, label, extra, help, err);
     }
 
-    object(s, value, path, key, required) {
+    // put ``extra`` next to a field's name: its legend or label (a table of several kinds:
+    // that of the kind shown, and of any kind chosen later)
+    byName(fieldEl, extra) {
+      if (fieldEl.heads) fieldEl.heads.push(extra);
+      const head = fieldEl.querySelector(":scope > legend, :scope > label, " +
+                                         ":scope > fieldset > legend");
+      (head || fieldEl).append(extra);
+    }
+
+    // a table of several kinds: a kind select, then the fields of that kind only (a new
+    // kind keeps the values of the fields it shares with the old one)
+    kinds(s, value, path, key, meta) {
+      const tag = (s.discriminator || {}).propertyName || "kind";  // kind, or a law
+      const members = s.oneOf.map((m) => this.resolve(m));
+      const kindsOf = (m) => {
+        const k = (m.properties || {})[tag] || {};
+        return k.const !== undefined ? [k.const] : k.enum || [];
+      };
+      const all = members.flatMap(kindsOf);
+      value = value && typeof value === "object" ? value : {};
+      const sel = el("select", { name: `${path}.${tag}` });
+      if (!all.includes(value[tag])) {
+        sel.append(el("option", { value: "", textContent: `— choose a ${tag} —` }));
+        if (value[tag] !== undefined)  // kept, so the server's error names it
+          sel.append(el("option", { value: String(value[tag]),
+                                    textContent: `${value[tag]} (unknown)` }));
+      }
+      for (const k of all) sel.append(el("option", { value: k, textContent: k }));
+      sel.value = value[tag] === undefined ? "" : String(value[tag]);
+      sel.dataset.tag = tag;
+      const holder = el("div", { class: "kinds" });
+      holder.heads = [];  // what others put by the name (unset, remove): kept across kinds
+      let node;
+      const show = (v) => {
+        const member = members.find((m) => kindsOf(m).includes(v[tag])) || { properties: {} };
+        this.meta = meta;
+        node = this.object({ ...member, description: meta.description || member.description },
+                           v, path, key, true, sel);
+        node.el.querySelector(":scope > legend").append(...holder.heads);
+        holder.replaceChildren(node.el);
+      };
+      sel.addEventListener("change", () => show({ ...node.get(), [tag]: sel.value }));
+      show(value);
+      return { el: holder, get: () => {
+        const v = node.get();
+        if (sel.value !== "") v[tag] = all.includes(sel.value) ? sel.value : value[tag];
+        return v;
+      } };
+    }
+
+    // kindSelect: a table of several kinds' select, shown as its "kind" field
+    object(s, value, path, key, required, kindSelect) {
       value = value && typeof value === "object" ? value : {};
       const req = new Set(s.required || []);
       const kids = {};
+      const legend = el("legend", {}, key);
+      if (s.description) legend.title = s.description;
       const fs = el("fieldset", { class: "object", dataset: { path: path || "scene" } },
-                    el("legend", {}, key));
+                    legend);
       for (const [k, sub] of Object.entries(s.properties || {})) {
-        const node = this.field(sub, value[k], path ? `${path}.${k}` : k, k, req.has(k));
+        const sub_path = path ? `${path}.${k}` : k;
+        let node;
+        if (kindSelect && k === kindSelect.dataset.tag) {
+          this.meta = { description: sub.description };
+          node = { el: this.wrap(sub_path, k, kindSelect), get: () => undefined };
+        } else node = this.field(sub, value[k], sub_path, k, req.has(k));
         if (req.has(k)) node.el.classList.add("required");
         kids[k] = node;
         fs.append(node.el);
@@ -106,10 +194,10 @@ const SceneForm = (() => {
       };
     }
 
-    optional(inner, value, path, key) {
+    optional(inner, value, path, key, meta) {
       const unset = el("input", { type: "checkbox", class: "unset" });
       unset.checked = value === null || value === undefined;
-      const node = this.field(inner, unset.checked ? undefined : value, path, key, false);
+      const node = this.field(inner, unset.checked ? undefined : value, path, key, false, meta);
       const tag = el("label", { class: "unset-label" }, unset, "unset");
       const show = () => {
         const outerUnset = !!(node.el.parentElement && node.el.parentElement.closest(".is-unset"));
@@ -124,8 +212,7 @@ const SceneForm = (() => {
       unset.show = show;
       unset.addEventListener("change", show);
       // the "unset" box goes next to the field's name (a fieldset's legend or label)
-      const head = node.el.querySelector(":scope > legend, :scope > label");
-      (head || node.el).append(tag);
+      this.byName(node.el, tag);
       node.el.classList.add("optional");
       show();
       return { el: node.el, get: () => (unset.checked ? null : node.get()) };
@@ -158,32 +245,53 @@ const SceneForm = (() => {
       return { el: w, get: () => box.checked };
     }
 
+    // a text input (type=number would show what the browser's locale makes of "0,15" and
+    // cut long values): the value in the shown unit, the schema's bounds checked here
     numberInput(s, value, name) {
-      const inp = el("input", { type: "number", name, class: "num" });
-      inp.step = s.type === "integer" ? "1" : "any";
-      const lo = s.minimum ?? s.exclusiveMinimum, hi = s.maximum ?? s.exclusiveMaximum;
-      if (lo !== undefined) inp.min = lo;
-      if (hi !== undefined) inp.max = hi;
-      const bounds = [];
-      if (s.minimum !== undefined) bounds.push(`≥ ${s.minimum}`);
-      if (s.exclusiveMinimum !== undefined) bounds.push(`> ${s.exclusiveMinimum}`);
-      if (s.maximum !== undefined) bounds.push(`≤ ${s.maximum}`);
-      if (s.exclusiveMaximum !== undefined) bounds.push(`< ${s.exclusiveMaximum}`);
+      const [unit, f] = shown((this.meta || {}).unit);
+      const inp = el("input", { type: "text", name, class: "num", inputMode: "decimal",
+                                autocomplete: "off", spellcheck: false });
+      const first = typeof value === "number" ? fmt(value * f) : "";
+      inp.value = first;
+      const size = () => { inp.size = Math.max(6, inp.value.length + 1); };
+      const u = unit ? ` ${unit}` : "";
+      const ends = [["minimum", "≥"], ["exclusiveMinimum", ">"], ["maximum", "≤"],
+                    ["exclusiveMaximum", "<"]].filter(([k]) => s[k] !== undefined);
+      const bounds = ends.map(([k, op]) => `${op} ${fmt(s[k] * f)}${u}`);
       if (bounds.length) inp.title = bounds.join(", ");
-      if (typeof value === "number") inp.value = String(value);
-      const check = () => {  // the browser checks min/max; the exclusive ends are ours
-        const v = inp.value === "" ? NaN : Number(inp.value);
+      const check = () => {
+        const v = readNumber(inp.value);
         let msg = "";
-        if (s.exclusiveMinimum !== undefined && v <= s.exclusiveMinimum)
-          msg = `must be greater than ${s.exclusiveMinimum}`;
-        if (s.exclusiveMaximum !== undefined && v >= s.exclusiveMaximum)
-          msg = `must be less than ${s.exclusiveMaximum}`;
+        if (inp.value.trim() !== "" && v === null)
+          msg = `${inp.value.trim()} is not a number (write 0.15 or 0,15; 1e9)`;
+        else if (v !== null && s.type === "integer" && !Number.isInteger(v))
+          msg = "must be a whole number";
+        else if (v !== null) {
+          const si = v / f;
+          for (const [k, op] of ends) {
+            const b = s[k];
+            const out = { "≥": si < b, ">": si <= b, "≤": si > b, "<": si >= b }[op];
+            if (out) msg = `must be ${op} ${fmt(b * f)}${u}`;
+          }
+        }
         inp.setCustomValidity(msg);
+        inp.title = msg || bounds.join(", ");
+        size();
       };
       inp.addEventListener("input", check);
+      inp.addEventListener("blur", () => {  // "0,15" shows as what it reads: 0.15
+        const v = readNumber(inp.value);
+        if (v !== null && inp.value.includes(",")) { inp.value = fmt(v); check(); }
+      });
       check();
-      // empty (or not a number): null, which the server names as the field's error
-      const get = () => (inp.value === "" ? null : Number(inp.value));
+      // a value left as shown goes back as it came (no round-off of the unit conversion);
+      // empty: null; not a number: the text, which the server names as the field's error
+      const get = () => {
+        if (inp.value === first && typeof value === "number") return value;
+        if (inp.value.trim() === "") return null;
+        const v = readNumber(inp.value);
+        return v === null ? inp.value : (f === 1 ? v : Number(fmt(v / f)));
+      };
       return { inp, get };
     }
 
@@ -233,19 +341,25 @@ const SceneForm = (() => {
     }
 
     list(s, value, path, key) {
+      const meta = this.meta || {};
       const itemSchema = s.items || {};
       const resolved = this.resolve(itemSchema);
-      const isObj = resolved.type === "object" || !!resolved.properties;
+      const isObj = resolved.type === "object" || !!resolved.properties || !!resolved.oneOf;
       const box = el("div", { class: isObj ? "list objects" : "list scalars" });
       const add = el("button", { type: "button", class: "add", textContent: `+ ${key}` });
+      const u = shown(meta.unit)[0];
+      const legend = el("legend", {}, key, u ? el("span", { class: "unit" }, ` (${u})`) : null);
+      if (meta.description) legend.title = meta.description;
       const fs = el("fieldset", { class: "array", dataset: { path } },
-                    el("legend", {}, key), box, add, el("div", { class: "field-error" }));
+                    legend, box, add, el("div", { class: "field-error" }));
       let nodes = [];
       const render = (values) => {
         box.replaceChildren();
         nodes = values.map((v, i) => {
           const label = isObj ? `${key} ${i}${v && v.name ? ` — ${v.name}` : ""}` : "";
-          const n = this.field(itemSchema, v, `${path}.${i}`, label, true);
+          // a list of numbers: each item in the list's unit
+          const n = this.field(itemSchema, v, `${path}.${i}`, label, true,
+                               isObj ? undefined : { unit: meta.unit });
           const rm = el("button", { type: "button", class: "remove", textContent: "✕",
                                     title: `remove ${key} ${i}` });
           rm.setAttribute("aria-label", `remove ${key} ${i}`);
@@ -255,8 +369,7 @@ const SceneForm = (() => {
             render(vals);
             this.onChange();
           };
-          const head = n.el.querySelector(":scope > legend, :scope > label");
-          (head || n.el).append(rm);
+          this.byName(n.el, rm);
           n.el.classList.add("item");
           box.append(n.el);
           return n;

@@ -11,6 +11,8 @@ router = APIRouter(prefix="/api", tags=["meta"])
 class Range(BaseModel):
     min: float
     max: float
+    label: str = Field(description="the words a page shows for it (\"Friction ×\")")
+    hint: str = Field(description="what it multiplies")
 
 
 class Config(BaseModel):
@@ -36,13 +38,15 @@ class Health(BaseModel):
 @router.get("/config", response_model=Config)
 def config(request: Request) -> dict:
     from sim.elements import ELEMENTS
+    from sim.stepping.parameters import LABELS
 
     m = request.app.state.manager
     # the solver process names the live parameters once it is up (a few seconds after the
     # server); until then ``ready`` is false and the page asks again
     return {"ready": m.ready.is_set(), "elements": sorted(ELEMENTS),
-            "parameters": {k: {"min": lo, "max": hi} for k, (lo, hi) in
-                           m.parameter_ranges.items()},
+            "parameters": {k: {"min": lo, "max": hi, "label": LABELS.get(k, (k, ""))[0],
+                               "hint": LABELS.get(k, (k, ""))[1]}
+                           for k, (lo, hi) in m.parameter_ranges.items()},
             "viewer_port": m.viewer.port if m.viewer else None,
             "default_scene": m.settings.default_scene}
 

@@ -7,7 +7,7 @@ from fastapi import APIRouter, Request, Response
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.convertors import StringConvertor, register_url_convertor
 
-from server import sceneform
+from server import sceneform, tomlout
 from server.errors import BODY, CheckedRoute, documented
 from server.settings import RESERVED_SCENE_NAMES, SceneName, ScenePath
 from server.store import SceneStore
@@ -67,6 +67,9 @@ class SceneJSON(BaseModel):
                                    "shell": {"thickness": 0.007},
                                    "material": {"E": 1.0e9, "nu": 0.3}})
     scene: dict
+    base: str | None = Field(None, description="the scene's TOML before the edit: the "
+                             "changed values are written into it, its comments and number "
+                             "formats kept")
 
 
 class SceneSummary(BaseModel):
@@ -148,9 +151,9 @@ def validate(body: SceneText, request: Request) -> dict:
 @router.post("/render", response_model=Rendered, responses=documented(*BODY))
 def render(body: SceneJSON) -> dict:
     """Scene JSON (the page's form) to TOML text, with validation errors naming the field
-    (``{"loc": "material.nu", "msg": ...}``). A valid scene is written without its defaults.
-    Never saves."""
-    return sceneform.render(body.scene)
+    (``{"loc": "material.nu", "msg": ...}``). A valid scene is written into ``base`` when
+    given (its comments and number formats kept), else without its defaults. Never saves."""
+    return sceneform.render(body.scene, base=body.base)
 
 
 @router.post("/parse", response_model=Parsed, responses=documented(*BODY))
@@ -193,7 +196,9 @@ def delete_scene(name: ScenePath, request: Request) -> Response:
              responses={**CREATED, **documented(404, 409, *NAMED, *BODY)})
 def duplicate_scene(name: ScenePath, body: NewName, request: Request,
                     response: Response) -> dict:
+    """A copy of the scene file under a new name; its ``name`` field follows the new name
+    (the rest of the file, comments included, as it is)."""
     store = _store(request)
-    store.create(body.name, store.text(name))
+    store.create(body.name, tomlout.renamed(store.text(name), body.name))
     response.headers["Location"] = f"/api/scenes/{body.name}"
     return _read(store, body.name)

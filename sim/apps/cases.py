@@ -72,7 +72,7 @@ def run_case(scene_path: str, overrides: dict, series: bool = False,
                elements=res["counts"]["elements"], iterations=res["timing"]["newton_iterations"],
                cutbacks=sum(r.cutbacks for r in sim.records))
     if series:  # the loading steps only: a release (springback) stage does not advance time
-        recs = [r for r in sim.records if r.step <= sim.model.scene.stepping.steps]
+        recs = [r for r in sim.records if r.step <= sim.stroke_steps]
         out["history"] = {"time": [r.time for r in recs],
                           **{k: [r.probes[k] for r in recs]
                              for k in (recs[0].probes if recs else {})}}

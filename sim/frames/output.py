@@ -43,6 +43,9 @@ class Run(Protocol):
     @property
     def n_steps(self) -> int: ...
 
+    @property
+    def stroke_steps(self) -> int: ...  # the steps before the release (tool_speed sets them)
+
     def result(self) -> dict: ...
 
 
@@ -137,7 +140,7 @@ def forming_limit_diagram(sim: Run) -> dict | None:
     if not m.elasticity.plastic:
         return None
     x = sim.loaded if sim.loaded is not None else sim.x
-    step = min(sim.step_index, m.scene.stepping.steps)
+    step = min(sim.step_index, sim.stroke_steps)
     major, minor = fields.element_strains(m, x)
     out = {"strain": "true (log) in-plane principal strains of the mid-surface, per element",
            "step": step, "minor": np.round(minor, 6).tolist(),

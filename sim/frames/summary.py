@@ -200,7 +200,7 @@ class Summary:
         the shoulder's shape, not wrinkles."""
         m, v = self.model, self.edge.vertices if self.edge is not None else None
         if "flange" not in self.have or self.flange_left is not None \
-                or sim.step_index > m.scene.stepping.steps:
+                or sim.step_index > sim.stroke_steps:
             return
         P = mid_surface(m, sim.x)[v]
         if np.any((P - m.shell.mesh.vertices[v]) @ self.into_die > 0.5 * m.shell.thickness[v]):
@@ -209,7 +209,7 @@ class Summary:
         self.wrinkles.append((sim.step_index, blank.waviness(P)))
 
     def result(self, sim: Run) -> list[dict]:
-        steps = self.model.scene.stepping.steps
+        steps = sim.stroke_steps
         released = self.model.scene.stepping.release and sim.step_index > steps
         view = View(sim, self, sim.x, sim.loaded if released else None,
                     [r for r in sim.records if r.step <= steps])

@@ -41,6 +41,8 @@ class ModelSize:
 def mesh_counts(spec: MeshSpec) -> tuple[int, int] | None:
     """Vertices and triangles of the mid-surface mesh the build will make (a file: read;
     None when it cannot be)."""
+    if spec.kind == "file":
+        return _file_counts(spec.path)
     e = spec.edge_length
     if spec.kind == "rectangle":
         nx, ny = (meshes.divisions(s, e) for s in spec.size)
@@ -57,10 +59,14 @@ def mesh_counts(spec: MeshSpec) -> tuple[int, int] | None:
         # each band between rings is stitched into n0 + n1 triangles (n1 around the centre)
         bands = zip(counts[:-1], counts[1:], strict=True)
         return sum(counts), sum(a + b - (a == 1) for a, b in bands)
+    raise ValueError(f"mesh kind {spec.kind!r}: no count")
+
+
+def _file_counts(path: str) -> tuple[int, int] | None:
     import trimesh
 
     try:
-        m = trimesh.load(spec.path, force="mesh", process=False)
+        m = trimesh.load(path, force="mesh", process=False)
         return len(m.vertices), len(m.faces)
     except Exception:  # noqa: BLE001 - trimesh's parsers raise anything; the build says why
         return None

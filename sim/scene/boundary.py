@@ -3,9 +3,9 @@
 
 from __future__ import annotations
 
-from typing import Annotated, ClassVar, Literal, Self
+from typing import Annotated, Literal, Self
 
-from pydantic import Field, ValidationInfo, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from sim.scene.fields import (
     MAX_ACCELERATION,
@@ -21,33 +21,41 @@ from sim.scene.fields import (
     bounded,
     check_keyframes,
     check_magnitude,
+    doc,
 )
 
 
 class BoxSpec(Strict):
-    min: Point
-    max: Point
+    """Nodes whose rest position lies in an axis-aligned box."""
+
+    min: Point = doc("the box's corner of least x, y, z", "m")
+    max: Point = doc("its corner of greatest x, y, z", "m")
 
 
 class PlaneSpec(Strict):
-    point: Point
-    normal: Direction
-    tolerance: Length = 1e-9
+    """Nodes whose rest position lies on a plane."""
+
+    point: Point = doc("a point of the plane", "m")
+    normal: Direction = doc("the plane's normal (any length)", "1")
+    tolerance: Length = doc("how far from the plane a node may be", "m", 1e-9)
 
 
 class RingSpec(Strict):
     """Nodes whose rest distance from the z axis lies in [r_min, r_max]."""
 
-    r_min: Extent = 0.0
-    r_max: Length
+    r_min: Extent = doc("the ring's inner radius", "m", 0.0)
+    r_max: Length = doc("its outer radius", "m")
 
 
 class RegionSpec(Strict):
-    name: str
-    box: BoxSpec | None = None
-    plane: PlaneSpec | None = None
-    ring: RingSpec | None = None
-    boundary: bool = False  # only nodes on the mesh boundary
+    """A named set of the sheet's node columns, chosen by exactly one of box, plane or ring
+    at their rest positions."""
+
+    name: str = doc("the region's name (BCs, loads and probes refer to it)")
+    box: BoxSpec | None = doc("the nodes in a box", default=None)
+    plane: PlaneSpec | None = doc("the nodes on a plane", default=None)
+    ring: RingSpec | None = doc("the nodes in a ring around the z axis", default=None)
+    boundary: bool = doc("only nodes on the mesh boundary", default=False)
 
     @model_validator(mode="after")
     def _one_shape(self) -> Self:
@@ -63,8 +71,8 @@ class BendSpec(Strict):
     held: ``components = "x"`` turns the section like a rotated wall that it may slide along
     (no shear force: a pure end moment), "xyz" moves it rigidly."""
 
-    angle: Angle
-    length: Length
+    angle: Angle = doc("the end section's rotation at t = 1", "rad")
+    length: Length = doc("the distance of the end section from the symmetry plane x = 0", "m")
 
 
 class BCSpec(Strict):
@@ -78,15 +86,20 @@ class BCSpec(Strict):
     piecewise linear in between, held after the last and starting from rest (a first row at
     t = 0 must be zero; one at t > 0 is reached from zero at t = 0); or ``bend``."""
 
-    region: str
-    components: Annotated[str, Field(pattern=r"^[xyz]{1,3}$")] = "xyz"
-    layers: Literal["all", "bottom", "mid", "top"] = "all"
-    displacement: Point = (0.0, 0.0, 0.0)
-    keyframes: list[list[float]] = []
-    bend: BendSpec | None = None
-    release: bool = False  # removed in the release (springback) stage
-    # only in the release stage, holding the nodes where they are (a support for the free part)
-    release_only: bool = False
+    region: str = doc("the region whose nodes it holds")
+    components: Annotated[str, Field(pattern=r"^[xyz]{1,3}$")] = doc(
+        "the components held: x, y, z or several (xyz)", default="xyz")
+    layers: Literal["all", "bottom", "mid", "top"] = doc(
+        "which nodes of each column through the thickness", default="all")
+    displacement: Point = doc("the displacement at the end of its ramp", "m", (0.0, 0.0, 0.0))
+    keyframes: list[list[float]] = doc(
+        "rows [t, u...]: one displacement per named component at scene time t", "t, m", [])
+    bend: BendSpec | None = doc("a cylindrical bend of the region (an end section)",
+                                default=None)
+    release: bool = doc("removed in the release (springback) stage", default=False)
+    release_only: bool = doc(
+        "only in the release stage, holding the nodes where they are (a support for the free "
+        "part)", default=False)
 
     @model_validator(mode="after")
     def _motion(self) -> Self:
@@ -113,34 +126,64 @@ class BCSpec(Strict):
         return self
 
 
-class LoadSpec(Strict):
-    kind: Literal["gravity", "traction", "pressure", "point"]
-    vector: Vec3 | None = None  # gravity (m/s^2), traction (Pa), point (N)
-    value: bounded(-MAX_STRESS, MAX_STRESS, lo_open=False) | None = None  # pressure (Pa)
-    region: str | None = None
-    point: Point | None = None
-    skin: Literal["top", "bottom"] = "top"
+class _Load(Strict):
+    """An external load of one ``kind``, ramped by the stepping (static: over the run;
+    dynamic: over ``stepping.load_ramp``) and scaled by the live load_scale."""
 
-    # the bound of each kind's vector, and its unit (a pressure has none)
-    BOUNDS: ClassVar[dict[str, tuple[float, str]]] = {
-        "gravity": (MAX_ACCELERATION, "m/s^2"), "traction": (MAX_STRESS, "Pa"),
-        "point": (MAX_FORCE, "N")}
+    kind: str = doc("what load: gravity, traction, pressure or point")
+
+
+class GravityLoad(_Load):
+    """A body force: the density times this acceleration on all of the sheet."""
+
+    kind: Literal["gravity"] = doc("a body force, density times an acceleration")
+    vector: Vec3 = doc("the acceleration", "m/s^2")
 
     @field_validator("vector")
     @classmethod
-    def _magnitude(cls, v: Vec3 | None, info: ValidationInfo) -> Vec3 | None:
-        kind = info.data.get("kind")
-        if v is not None and kind in cls.BOUNDS:
-            check_magnitude(v, *cls.BOUNDS[kind])
+    def _magnitude(cls, v: Vec3) -> Vec3:
+        check_magnitude(v, MAX_ACCELERATION, "m/s^2")
         return v
 
-    @model_validator(mode="after")
-    def _fields(self) -> Self:
-        need = {"gravity": ["vector"], "traction": ["vector", "region"],
-                "pressure": ["value"], "point": ["vector", "point"]}[self.kind]
-        missing = [k for k in need if getattr(self, k) is None]
-        if missing:
-            raise ValueError(f"load kind {self.kind!r} needs {', '.join(missing)}")
-        return self
+
+class TractionLoad(_Load):
+    """A force per rest area on the rim faces of a region's boundary edges (a dead load)."""
+
+    kind: Literal["traction"] = doc("a force per area on a region's rim faces")
+    vector: Vec3 = doc("the traction (force per reference area)", "Pa")
+    region: str = doc("the region it acts on")
+
+    @field_validator("vector")
+    @classmethod
+    def _magnitude(cls, v: Vec3) -> Vec3:
+        check_magnitude(v, MAX_STRESS, "Pa")
+        return v
 
 
+class PressureLoad(_Load):
+    """A pressure on a skin along its rest inward normal (a dead load)."""
+
+    kind: Literal["pressure"] = doc("a pressure normal to a skin")
+    value: bounded(-MAX_STRESS, MAX_STRESS, lo_open=False) = doc(
+        "the pressure; positive pushes on the skin, into the sheet", "Pa")
+    region: str | None = doc("the region it acts on; unset: the whole skin", default=None)
+    skin: Literal["top", "bottom"] = doc("the skin it acts on", default="top")
+
+
+class PointLoad(_Load):
+    """A force on the mid-surface vertex nearest to a point."""
+
+    kind: Literal["point"] = doc("a force at one vertex")
+    vector: Vec3 = doc("the force", "N")
+    point: Point = doc("where: the nearest mid-surface vertex takes it", "m")
+
+    @field_validator("vector")
+    @classmethod
+    def _magnitude(cls, v: Vec3) -> Vec3:
+        check_magnitude(v, MAX_FORCE, "N")
+        return v
+
+
+# a load of one kind, with that kind's fields only
+LoadSpec = Annotated[GravityLoad | TractionLoad | PressureLoad | PointLoad,
+                     Field(discriminator="kind")]

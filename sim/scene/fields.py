@@ -4,9 +4,10 @@ and the strict base model of every table. Units SI (m, Pa, kg, s, N)."""
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Annotated
+from typing import Annotated, Any
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+from pydantic_core import PydanticUndefined
 
 # Every float of a scene is finite (Strict's allow_inf_nan=False). Magnitudes the model
 # multiplies into others are bounded too, far beyond any forming process in any consistent unit
@@ -83,6 +84,13 @@ def check_keyframes(rows: list[list[float]], lengths_end: int) -> None:
             check_magnitude(row[lengths_end:], MAX_ANGLE, "rad")
         except ValueError as exc:
             raise ValueError(f"keyframes.{i}: {exc}") from None
+
+
+def doc(text: str, unit: str | None = None, default: Any = PydanticUndefined) -> Any:
+    """A field's description and, for a number (or numbers), its SI unit ("1": dimensionless),
+    in the schema (``"unit"``): the form, /docs and docs/scene-reference.md read them there."""
+    extra = {"unit": unit} if unit is not None else None
+    return Field(default, description=text, json_schema_extra=extra)
 
 
 class Strict(BaseModel):

@@ -9,16 +9,18 @@ from __future__ import annotations
 import json
 import re
 import tomllib
+import types
+import typing
 from pathlib import Path
 from typing import Any, Self
 
-from pydantic import ValidationError, model_validator
+from pydantic import BaseModel, ValidationError, model_validator
 
 from sim.analytic import reference
 from sim.elements import ELEMENTS
 from sim.frames.probes import PROBES
 from sim.scene.boundary import BCSpec, LoadSpec, RegionSpec
-from sim.scene.fields import Strict
+from sim.scene.fields import Strict, doc
 from sim.scene.run import ProbeSpec, SectionSpec, SolverSpec, SteppingSpec, StudySpec
 from sim.scene.shapes import ToolSpec
 from sim.scene.sheet import MaterialSpec, MeshSpec, ShellSpec
@@ -26,20 +28,21 @@ from sim.scene.tree import MAX_DEPTH, tree_problem
 
 
 class Scene(Strict):
-    name: str
-    description: str = ""
-    mesh: MeshSpec
-    shell: ShellSpec
-    material: MaterialSpec
-    regions: list[RegionSpec] = []
-    bcs: list[BCSpec] = []
-    loads: list[LoadSpec] = []
-    stepping: SteppingSpec = SteppingSpec()
-    solver: SolverSpec = SolverSpec()
-    tools: list[ToolSpec] = []
-    probes: list[ProbeSpec] = []
-    sections: list[SectionSpec] = []
-    study: StudySpec | None = None
+    name: str = doc("the scene's name")
+    description: str = doc("one line on what it shows", default="")
+    mesh: MeshSpec = doc("the sheet's mid-surface mesh")
+    shell: ShellSpec = doc("the sheet's thickness and element")
+    material: MaterialSpec = doc("the sheet's material")
+    regions: list[RegionSpec] = doc("named sets of nodes (BCs, loads, probes)", default=[])
+    bcs: list[BCSpec] = doc("prescribed displacements of regions", default=[])
+    loads: list[LoadSpec] = doc("external loads", default=[])
+    stepping: SteppingSpec = doc("how the run steps", default=SteppingSpec())
+    solver: SolverSpec = doc("Newton's settings", default=SolverSpec())
+    tools: list[ToolSpec] = doc("rigid tools in contact with the sheet", default=[])
+    probes: list[ProbeSpec] = doc("numbers recorded at every step", default=[])
+    sections: list[SectionSpec] = doc("radial sections recorded (thickness along a ray)",
+                                      default=[])
+    study: StudySpec | None = doc("a refinement study (q3t study)", default=None)
 
     @model_validator(mode="after")
     def _references(self) -> Self:
@@ -118,8 +121,15 @@ def scene_errors(err: ValidationError) -> list[dict]:
     becomes the loc; pydantic's "Value error, " is dropped."""
     out = []
     for e in err.errors():
-        loc = ".".join(_key(p) for p in e["loc"])
+        parts, kind, tag = _untagged(e["loc"])
+        loc = ".".join(_key(p) for p in parts)
         msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "union_tag_not_found":  # a table of several kinds without its kind
+            msg = f"give its {e['ctx']['discriminator'].strip(chr(39))} (which kind it is)"
+        if e["type"] == "extra_forbidden" and kind is not None:  # a field of another kind
+            tag_field = next(t for t in TAGS if t in kind.model_fields)
+            takes = ", ".join(f for f in kind.model_fields if f != tag_field) or "none"
+            msg = f"not a field of {tag_field} {tag!r} (it takes {takes})"
         if not loc:
             m = PATH_PREFIX.match(msg)
             if m and m.group(1).split(".")[0] in Scene.model_fields:
@@ -128,6 +138,59 @@ def scene_errors(err: ValidationError) -> list[dict]:
                 loc = "scene"
         out.append({"loc": loc, "msg": msg})
     return out
+
+
+def _members(tp: object) -> list[type[BaseModel]]:
+    """The model classes of a field's type, through Optional, Annotated and unions."""
+    if isinstance(tp, type) and issubclass(tp, BaseModel):
+        return [tp]
+    if typing.get_origin(tp) in (typing.Union, types.UnionType, typing.Annotated):
+        return [m for a in typing.get_args(tp) for m in _members(a)]
+    return []
+
+
+def _item(tp: object) -> object:
+    """A list's item type (a list of tables); else the type itself."""
+    if typing.get_origin(tp) is typing.Annotated:
+        tp = typing.get_args(tp)[0]
+    for alt in typing.get_args(tp) if typing.get_origin(tp) in (typing.Union,
+                                                                 types.UnionType) else [tp]:
+        if typing.get_origin(alt) is list:
+            return typing.get_args(alt)[0]
+    return tp
+
+
+def _untagged(loc: tuple) -> tuple[list, type[BaseModel] | None, str | None]:
+    """pydantic's location without the kind it inserts after a field of several kinds
+    (``mesh.disk.size`` is the field ``mesh.size`` of a disk), and, when the last part is a
+    field of such a table, the table's model and kind (else None, None)."""
+    out, tp, table, tag = [], Scene, None, None
+    for part in loc:
+        models = _members(tp)
+        if isinstance(part, int):
+            out.append(part)
+            tp = _item(tp)
+        elif len(models) > 1 and any(part in _kinds(m) for m in models):
+            tp = next(m for m in models if part in _kinds(m))  # the member it validated as
+            tag = part
+        else:
+            out.append(part)
+            table = models[0] if len(models) == 1 else None
+            field = table.model_fields.get(part) if table is not None else None
+            tp = field.annotation if field is not None else None
+            if tp is not None or table is None or tag not in _kinds(table):
+                table = None
+    return out, table, tag if table is not None else None
+
+
+# the fields that tell the kinds of a table of several kinds apart
+TAGS = ("kind", "law")
+
+
+def _kinds(model: type[BaseModel]) -> tuple[str, ...]:
+    """The kinds a table of several kinds validates as (``kind: Literal[...]``, or law)."""
+    field = next((model.model_fields[t] for t in TAGS if t in model.model_fields), None)
+    return typing.get_args(field.annotation) if field is not None else ()
 
 
 def joined(errors: list[dict]) -> str:
@@ -164,7 +227,35 @@ def apply_override(raw: dict, key: str, value: Any) -> None:
             raise SceneError(f"{key}: no item {last!r}")
         node[int(last)] = value
     else:
+        if last in TAGS and node.get(last) != value:
+            _switch_kind(raw, parts, node, value)
         node[last] = value
+
+
+def _switch_kind(raw: dict, parts: list[str], table: dict, kind: object) -> None:
+    """An override of a table's kind (``mesh.kind=file``) switches the table to that kind: the
+    fields of its old kind that the new one does not take go (as the page's form does), so
+    that later overrides complete the new kind."""
+    tp, node = Scene, raw
+    for p in parts[:-1]:
+        models = _members(tp)
+        if isinstance(node, list):
+            tp, node = _item(tp), node[int(p)]
+            continue
+        if len(models) > 1:  # the table's current kind says which model it is
+            models = [m for m in models if node.get(_tag(m)) in _kinds(m)]
+        field = models[0].model_fields.get(p) if len(models) == 1 else None
+        if field is None:
+            return  # not a field of the schema: validation names it
+        tp, node = field.annotation, node[p]
+    new = [m for m in _members(tp) if kind in _kinds(m)]
+    if len(_members(tp)) > 1 and len(new) == 1:
+        for k in [k for k in table if k not in new[0].model_fields]:
+            del table[k]
+
+
+def _tag(model: type[BaseModel]) -> str | None:
+    return next((t for t in TAGS if t in model.model_fields), None)
 
 
 def validate(raw: dict) -> Scene:

@@ -8,20 +8,35 @@ from typing import Annotated, Literal, Self
 from pydantic import Field, model_validator
 
 from sim.frames.probes import PROBES
-from sim.scene.fields import MAX_TIME, MIN_TIME_STEP, Direction2, Length, Point, Strict, bounded
+from sim.scene.fields import (
+    MAX_TIME,
+    MIN_TIME_STEP,
+    Direction2,
+    Length,
+    Point,
+    Strict,
+    bounded,
+    doc,
+)
 
 
 class SteppingSpec(Strict):
-    kind: Literal["static", "dynamic"] = "static"
-    steps: Annotated[int, Field(ge=1, le=100000)] = 1
-    # dynamic: time step (s); duration = steps * dt
-    dt: bounded(MIN_TIME_STEP, MAX_TIME, lo_open=False) | None = None
-    # dynamic: loads ramp over this time (s), 0 = applied at once; also the default ramp of
-    # prescribed displacements (BCSpec), which take 1 s when it is 0
-    load_ramp: bounded(0.0, MAX_TIME, lo_open=False) = 0.0
-    max_cutbacks: Annotated[int, Field(ge=0, le=30)] = 10  # down to 1/1024 of a step
-    # after the last step: remove loads and the BCs marked release, solve static equilibrium
-    release: bool = False
+    """How the run steps through the scene's time, and the springback after it."""
+
+    kind: Literal["static", "dynamic"] = doc(
+        "static: equilibrium at each step, scene time t from 0 to 1 over the run; dynamic: "
+        "implicit Euler in time", default="static")
+    steps: Annotated[int, Field(ge=1, le=100000)] = doc("the number of steps", "1", 1)
+    dt: bounded(MIN_TIME_STEP, MAX_TIME, lo_open=False) | None = doc(
+        "dynamic: the time step; the run lasts steps * dt", "s", None)
+    load_ramp: bounded(0.0, MAX_TIME, lo_open=False) = doc(
+        "dynamic: loads ramp over this time, 0 = applied at once; also the default ramp of "
+        "prescribed displacements (bcs), which take 1 s when it is 0", "s", 0.0)
+    max_cutbacks: Annotated[int, Field(ge=0, le=30)] = doc(
+        "how often a failing step may be halved: 10 goes down to 1/1024 of a step", "1", 10)
+    release: bool = doc(
+        "after the last step: remove loads, released tools and BCs, solve static equilibrium "
+        "(springback)", default=False)
 
     @model_validator(mode="after")
     def _dt(self) -> Self:
@@ -31,24 +46,37 @@ class SteppingSpec(Strict):
 
 
 class SolverSpec(Strict):
-    rtol: Annotated[float, Field(gt=0, lt=1)] = 1e-8
-    # a Newton correction below xtol * thickness ends the iteration (at the residual's floor)
-    xtol: Annotated[float, Field(gt=0, lt=1)] = 1e-6
-    # Newton's cap per attempt; one that stops progressing ends sooner (sim.solve.newton)
-    max_iterations: Annotated[int, Field(ge=1, le=1000)] = 200
-    linear_solver: Literal["auto", "pardiso", "scipy"] = "auto"
-    # auto: the exact Hessian where it is positive definite, else projected per quadrature point
-    hessian_projection: Literal["auto", "qp", "element", "none"] = "auto"
+    """Newton's method on the incremental potential (sim.solve.newton)."""
+
+    rtol: Annotated[float, Field(gt=0, lt=1)] = doc(
+        "converged when the residual falls below rtol times the force level", "1", 1e-8)
+    xtol: Annotated[float, Field(gt=0, lt=1)] = doc(
+        "a Newton correction below xtol * thickness ends the iteration (at the residual's "
+        "floor)", "1", 1e-6)
+    max_iterations: Annotated[int, Field(ge=1, le=1000)] = doc(
+        "Newton's cap per attempt; one that stops progressing ends sooner", "1", 200)
+    linear_solver: Literal["auto", "pardiso", "scipy"] = doc(
+        "auto: MKL PARDISO when installed, else SciPy", default="auto")
+    hessian_projection: Literal["auto", "qp", "element", "none"] = doc(
+        "auto: the exact Hessian where it is positive definite, else projected per "
+        "quadrature point", default="auto")
 
 
 class ProbeSpec(Strict):
-    name: str
-    kind: Literal[tuple(PROBES)]
-    tool: str | None = None
-    point: Point | None = None
-    component: Literal["x", "y", "z", "norm"] = "norm"
-    stat: Literal["min", "max", "mean"] = "mean"
-    region: str | None = None
+    """A number recorded at every step (sim.frames.probes): its kind says what, and which of
+    tool, point and region it needs."""
+
+    name: str = doc("the probe's name (plots, studies)")
+    kind: Literal[tuple(PROBES)] = doc("what it measures (sim.frames.probes)")
+    tool: str | None = doc("the tool it measures (tool_force, tool_position, penetration, "
+                           "...)", default=None)
+    point: Point | None = doc("where: the nearest mid-surface vertex (displacement, ...)",
+                              "m", None)
+    component: Literal["x", "y", "z", "norm"] = doc("which component of a vector",
+                                                    default="norm")
+    stat: Literal["min", "max", "mean"] = doc("how a field over the sheet becomes one number",
+                                              default="mean")
+    region: str | None = doc("the region it measures over", default=None)
 
     @model_validator(mode="after")
     def _fields(self) -> Self:
@@ -70,18 +98,23 @@ class StudySpec(Strict):
     instead of a numerical reference run; the scene must satisfy the formula's assumptions.
     """
 
-    probe: str | None = None  # default: the scene's first probe
-    measure: Literal["final", "curve", "profile"] = "final"
-    over: str = "time"
-    section: str | None = None
-    field: Literal["thickness", "radius", "z"] = "thickness"
-    step: Annotated[int, Field(ge=0)] | None = None
-    norm: Literal["l2", "max"] = "l2"
-    edge_lengths: list[Length] | None = None  # default: 4x, 2x, 1x the mesh's own
-    elements: list[str] = ["linear", "q3t", "quadratic"]
-    reference_element: str = "quadratic"
-    reference_edge_length: Length | None = None
-    analytic: Literal["euler_bernoulli", "springback"] | None = None
+    probe: str | None = doc("the probe studied; unset: the scene's first", default=None)
+    measure: Literal["final", "curve", "profile"] = doc("what is compared (above)",
+                                                        default="final")
+    over: str = doc("curve: time or a probe's name, the curve's abscissa", default="time")
+    section: str | None = doc("profile: the section", default=None)
+    field: Literal["thickness", "radius", "z"] = doc("profile: the field along the section",
+                                                     default="thickness")
+    step: Annotated[int, Field(ge=0)] | None = doc(
+        "profile: the recorded step; unset: the last recorded", "1", None)
+    norm: Literal["l2", "max"] = doc("relative L2 or max difference", default="l2")
+    edge_lengths: list[Length] | None = doc("unset: 4x, 2x, 1x the mesh's own", "m", None)
+    elements: list[str] = doc("the elements compared", default=["linear", "q3t", "quadratic"])
+    reference_element: str = doc("the reference run's element", default="quadratic")
+    reference_edge_length: Length | None = doc(
+        "the reference run's edge length; unset: half the finest studied", "m", None)
+    analytic: Literal["euler_bernoulli", "springback"] | None = doc(
+        "a closed-form reference instead of a reference run", default=None)
 
     @model_validator(mode="after")
     def _what(self) -> Self:
@@ -99,9 +132,10 @@ class SectionSpec(Strict):
     along ``direction`` (rest state), sorted by rest radius; their current radius and
     thickness are recorded at every step listed (all steps when empty)."""
 
-    name: str
-    direction: Direction2 = (1.0, 0.0)
-    width: Length = 1e-4
-    steps: list[Annotated[int, Field(ge=0)]] = []
+    name: str = doc("the section's name (plots, studies)")
+    direction: Direction2 = doc("the ray's (x, y) direction (any length)", "1", (1.0, 0.0))
+    width: Length = doc("how far from the ray a vertex may be", "m", 1e-4)
+    steps: list[Annotated[int, Field(ge=0)]] = doc("the steps recorded; empty: every step",
+                                                   "1", [])
 
 

@@ -21,6 +21,7 @@ from sim.scene.fields import (
     Strict,
     bounded,
     check_keyframes,
+    doc,
 )
 from sim.tools import shapes as tool_shapes
 
@@ -35,111 +36,197 @@ ROLE_SHAPES = {"punch": "punch", "die_ring": "die", "star_die": "die",
 
 
 class _Shape(Strict):
-    """A tool shape (sim.tools.builders). Lengths in m, in the tool's local frame.
+    """A tool shape (sim.tools.builders), in the tool's local frame: a primitive of one
+    ``kind`` with its own fields, or a CSG of shapes. Any shape can be placed in its parent's
+    frame by ``offset`` and ``rotation`` (an axis-angle vector: axis * angle), e.g. a punch
+    lying along y: rotation [1.5708, 0, 0]."""
 
-    CSG: kind union / intersect (two or more ``shapes``, folded left) or subtract (exactly
-    two: the first minus the second), ``blend`` > 0 a smooth fillet of that width (C2); the
-    operands may be CSG of primitives in turn (two levels, which keeps the scene schema
-    finite for the web form). Any shape can be placed in its parent's frame by ``offset``
-    (m) and ``rotation`` (an axis-angle vector, rad: axis * angle), e.g. a punch lying along
-    y: rotation [1.5708, 0, 0]."""
-
-    point: Point = (0.0, 0.0, 0.0)  # plane
-    normal: Direction = (0.0, 0.0, 1.0)  # plane
-    half_extents: tuple[Length, Length, Length] | None = None  # box
-    center: Point = (0.0, 0.0, 0.0)  # box
-    radius: Extent = 0.0  # punch radius / box corner radius
-    height: Length = 0.05
-    edge_radius: Extent = 0.0
-    inner_radius: Extent = 0.0  # die opening, holder inner
-    outer_radius: Length = 0.1
-    n_points: Annotated[int, Field(ge=3, le=32)] = 5  # star
-    r_outer: Length = 0.05
-    r_inner: Length = 0.03
-    corner_radius: Extent = 0.0  # star tips, convex polygon corners
-    # star and star_die valleys (star_die default max(corner_radius, edge_radius), star 0),
-    # reflex polygon corners
-    reflex_radius: Extent | None = None
-    phase: Angle = 0.0
-    # polygon: a prism 0 <= z <= height over these (x, y) vertices (either orientation)
-    points: list[tuple[Coord, Coord]] = []
-    blend: Extent = 0.0
-    offset: Point = (0.0, 0.0, 0.0)
-    rotation: Rotation = (0.0, 0.0, 0.0)
+    kind: str = doc("what shape: a primitive (plane, box, punch, die_ring, blank_holder, "
+                    "star, star_die, polygon) or a CSG (union, subtract, intersect)")
+    offset: Point = doc("placement: a shift in the parent's frame", "m", (0.0, 0.0, 0.0))
+    rotation: Rotation = doc("placement: a rotation vector (axis * angle) about the "
+                             "shape's origin", "rad", (0.0, 0.0, 0.0))
 
     @model_validator(mode="after")
-    def _needs(self) -> Self:
-        if self.kind == "box" and self.half_extents is None:
-            raise ValueError("a box needs half_extents")
-        if self.kind in ("die_ring", "blank_holder") and self.inner_radius >= self.outer_radius:
-            raise ValueError("inner_radius must be smaller than outer_radius")
-        if self.kind in ("star", "star_die") and self.r_inner >= self.r_outer:
-            raise ValueError("r_inner must be smaller than r_outer")
-        if self.kind == "polygon" and len(self.points) < 3:
-            raise ValueError("a polygon needs at least 3 points")
-        shapes = getattr(self, "shapes", [])
-        if self.kind in CSG:
-            if self.kind == "subtract" and len(shapes) != 2:
-                raise ValueError("subtract needs exactly two shapes (the first minus the "
-                                 "second)")
-            if len(shapes) < 2:
-                raise ValueError(f"{self.kind} needs at least two shapes")
-        elif shapes:
-            raise ValueError(f"shapes: only union, subtract and intersect have operands, "
-                             f"not {self.kind!r}")
+    def _valid(self) -> Self:
+        self.check()
         if self.kind in PRIMITIVES:  # the builders' own checks (radii fit, polygon simple)
             tool_shapes.tool_program(self)
         return self
 
-
-class PrimitiveSpec(_Shape):
-    """A primitive tool shape (an operand of an operand)."""
-
-    kind: Literal[PRIMITIVES]
+    def check(self) -> None:
+        """The kind's own checks, which name its fields (before the builder's)."""
 
 
-class OperandSpec(_Shape):
-    """A CSG operand: a primitive or a CSG of primitives."""
+class PlaneShape(_Shape):
+    """A half-space: the solid lies below the plane (against ``normal``)."""
 
-    kind: Literal[PRIMITIVES + CSG]
-    shapes: list[PrimitiveSpec] = []
+    kind: Literal["plane"] = doc("a half-space bounded by a plane")
+    point: Point = doc("a point of the plane", "m", (0.0, 0.0, 0.0))
+    normal: Direction = doc("the plane's outward normal (any length)", "1", (0.0, 0.0, 1.0))
 
 
-class ShapeSpec(_Shape):
-    """A tool's shape: a primitive or a CSG of operands (see _Shape)."""
+class BoxShape(_Shape):
+    """A box with rounded edges and corners."""
 
-    kind: Literal[PRIMITIVES + CSG]
-    shapes: list[OperandSpec] = []
+    kind: Literal["box"] = doc("a box")
+    half_extents: tuple[Length, Length, Length] = doc("half its sides along x, y, z", "m")
+    center: Point = doc("its centre", "m", (0.0, 0.0, 0.0))
+    radius: Extent = doc("the radius of its edges and corners", "m", 0.0)
+
+
+class PunchShape(_Shape):
+    """A cylindrical punch along z: its nose (the flat end) at z = 0, its body above."""
+
+    kind: Literal["punch"] = doc("a cylindrical punch, nose at z = 0")
+    radius: Extent = doc("the punch radius", "m", 0.0)
+    height: Length = doc("its length along z", "m", 0.05)
+    edge_radius: Extent = doc("the nose's edge (profile) radius", "m", 0.0)
+
+
+class _Ring(_Shape):
+    inner_radius: Extent = doc("the opening's radius", "m", 0.0)
+    outer_radius: Length = doc("the outer radius", "m", 0.1)
+    height: Length = doc("its thickness along z", "m", 0.05)
+    edge_radius: Extent = doc("the radius of its edge at the opening", "m", 0.0)
+
+    def check(self) -> None:
+        if self.inner_radius >= self.outer_radius:
+            raise ValueError("inner_radius must be smaller than outer_radius")
+
+
+class DieRingShape(_Ring):
+    """A die: a ring around the z axis, its top face at z = 0, the opening rounded by
+    ``edge_radius`` (the die shoulder)."""
+
+    kind: Literal["die_ring"] = doc("a die ring, top face at z = 0")
+
+
+class BlankHolderShape(_Ring):
+    """A blank holder: a ring around the z axis, its bottom face at z = 0."""
+
+    kind: Literal["blank_holder"] = doc("a blank holder ring, bottom face at z = 0")
+
+
+class _Star(_Shape):
+    n_points: Annotated[int, Field(ge=3, le=32)] = doc("the number of tips", "1", 5)
+    r_outer: Length = doc("the tips' radius", "m", 0.05)
+    r_inner: Length = doc("the valleys' radius", "m", 0.03)
+    height: Length = doc("its extent along z", "m", 0.05)
+    edge_radius: Extent = doc("the radius of its edge at z = 0", "m", 0.0)
+    corner_radius: Extent = doc("the tips' corner radius", "m", 0.0)
+    reflex_radius: Extent | None = doc(
+        "the valleys' corner radius; unset: star 0, star_die max(corner_radius, edge_radius)",
+        "m", None)
+    phase: Angle = doc("the rotation of the first tip from the x axis", "rad", 0.0)
+
+    def check(self) -> None:
+        if self.r_inner >= self.r_outer:
+            raise ValueError("r_inner must be smaller than r_outer")
+
+
+class StarShape(_Star):
+    """A star-shaped punch along z, its nose at z = 0."""
+
+    kind: Literal["star"] = doc("a star-shaped punch")
+
+
+class StarDieShape(_Star):
+    """A die with a star-shaped opening, its top face at z = 0."""
+
+    kind: Literal["star_die"] = doc("a die with a star-shaped opening")
+
+
+class PolygonShape(_Shape):
+    """A prism 0 <= z <= height over a simple polygon."""
+
+    kind: Literal["polygon"] = doc("a prism over a polygon")
+    points: list[tuple[Coord, Coord]] = doc(
+        "the polygon's (x, y) vertices, either orientation, at least 3", "m")
+    height: Length = doc("its extent along z", "m", 0.05)
+    corner_radius: Extent = doc("the radius of its convex corners", "m", 0.0)
+    reflex_radius: Extent | None = doc("the radius of its reflex corners; unset: 0", "m", None)
+    edge_radius: Extent = doc("the radius of its edges at z = 0 and z = height", "m", 0.0)
+
+    def check(self) -> None:
+        if len(self.points) < 3:
+            raise ValueError("a polygon needs at least 3 points")
+
+
+Primitive = (PlaneShape | BoxShape | PunchShape | DieRingShape | BlankHolderShape | StarShape
+             | StarDieShape | PolygonShape)
+PrimitiveSpec = Annotated[Primitive, Field(discriminator="kind")]
+
+
+class _CSG(_Shape):
+    """A CSG of shapes: union or intersect (two or more ``shapes``, folded left) or
+    subtract (exactly two: the first minus the second); ``blend`` > 0 a smooth fillet of
+    that width (C2)."""
+
+    kind: Literal[CSG] = doc("union, subtract (the first minus the second) or intersect")
+    blend: Extent = doc("the width of a smooth (C2) fillet where the shapes meet; 0: sharp",
+                        "m", 0.0)
+
+    def check(self) -> None:
+        if self.kind == "subtract" and len(self.shapes) != 2:
+            raise ValueError("subtract needs exactly two shapes (the first minus the second)")
+        if len(self.shapes) < 2:
+            raise ValueError(f"{self.kind} needs at least two shapes")
+
+
+class CSGOperand(_CSG):
+    """A CSG operand that is itself a CSG, of primitives (two levels keep the scene schema
+    finite for the web form)."""
+
+    shapes: list[PrimitiveSpec] = doc("its operands: primitives")
+
+
+OperandSpec = Annotated[Primitive | CSGOperand, Field(discriminator="kind")]
+
+
+class CSGShape(_CSG):
+    """A tool's shape that is a CSG of operands (primitives or CSGs of primitives)."""
+
+    shapes: list[OperandSpec] = doc("its operands: primitives or CSGs of primitives")
+
+
+# a tool's shape: a primitive or a CSG, each kind with its own fields only
+ShapeSpec = Annotated[Primitive | CSGShape, Field(discriminator="kind")]
 
 
 class ToolSpec(Strict):
-    """A rigid tool: position at t = 0, velocity in m per unit time (static stepping: over the
-    whole run t goes 0 -> 1, so velocity is the stroke), and keyframes of offset and
-    rotation."""
+    """A rigid tool: its shape, where it starts and how it moves (velocity, keyframes, or a
+    force along -z), its friction."""
 
-    name: str
-    shape: ShapeSpec
-    position: Point = (0.0, 0.0, 0.0)
-    velocity: tuple[Speed, Speed, Speed] = (0.0, 0.0, 0.0)
-    friction: Annotated[float, Field(ge=0, le=2)] = 0.0
-    # N/m per node; default: sim.terms.contact_kernels.auto_stiffness
-    stiffness: bounded(0.0, MAX_STIFFNESS) | None = None
-    release: bool = False  # retracted in the release (springback) stage
-    # force control: the tool presses along -z with this force (N) and its z is solved with
-    # the sheet (a blank holder); velocity must then have no z component
-    force: bounded(0.0, MAX_FORCE) | None = None
-    # a path: [t, dx, dy, dz] rows, offsets from `position` (m) at scene times t (static: 0-1),
-    # or [t, dx, dy, dz, rx, ry, rz] with a rotation vector (axis * angle, rad) about the
-    # tool's origin; piecewise linear in between (rotations: exact for a fixed axis), held
-    # before the first and after the last; adds to the velocity's motion
-    keyframes: list[list[float]] = []
-    # force control: the lowest z offset (m, from the start position) the tool can reach, the
-    # press's distance blocks; without it a holder falls once the flange has been drawn in
-    stop: Coord | None = None
-    # what the tool does, for the run summary (punch force, flange); default: from the name
-    # (punch*, *holder*, die*), else the shape (punch, die_ring / star_die, blank_holder),
-    # else a force-controlled tool is a blank holder; see tool_role
-    role: Literal[ROLES] | None = None
+    name: str = doc("the tool's name (probes and the run summary refer to it)")
+    shape: ShapeSpec = doc("its shape, in its own frame")
+    position: Point = doc("where its frame's origin is at t = 0", "m", (0.0, 0.0, 0.0))
+    velocity: tuple[Speed, Speed, Speed] = doc(
+        "its velocity per unit of scene time: static stepping runs t from 0 to 1, so there it "
+        "is the stroke over the run (m); dynamic stepping: m/s", "m/s", (0.0, 0.0, 0.0))
+    friction: Annotated[float, Field(ge=0, le=2)] = doc(
+        "the Coulomb friction coefficient against the sheet", "1", 0.0)
+    stiffness: bounded(0.0, MAX_STIFFNESS) | None = doc(
+        "the penalty contact stiffness per node; unset: from the sheet "
+        "(sim.terms.contact_kernels.auto_stiffness)", "N/m", None)
+    release: bool = doc("retracted in the release (springback) stage", default=False)
+    force: bounded(0.0, MAX_FORCE) | None = doc(
+        "force control: the tool presses along -z with this force and its z is solved with "
+        "the sheet (a blank holder); velocity must then have no z component", "N", None)
+    keyframes: list[list[float]] = doc(
+        "a path: [t, dx, dy, dz] rows, offsets from position (m) at scene times t (static: "
+        "0-1), or [t, dx, dy, dz, rx, ry, rz] with a rotation vector (axis * angle, rad) about "
+        "the tool's origin; piecewise linear in between (rotations: exact for a fixed axis), "
+        "held before the first and after the last; adds to the velocity's motion",
+        "t, m, rad", [])
+    stop: Coord | None = doc(
+        "force control: the lowest z offset from the start position the tool can reach, the "
+        "press's distance blocks; without it a holder falls once the flange has been drawn "
+        "in", "m", None)
+    role: Literal[ROLES] | None = doc(
+        "what the tool does, for the run summary (punch force, flange); unset: from the name "
+        "(punch*, *holder*, die*), else the shape (punch, die_ring / star_die, blank_holder), "
+        "else a force-controlled tool is a blank holder", default=None)
 
     @model_validator(mode="after")
     def _force_axis(self) -> Self:

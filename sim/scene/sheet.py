@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, ClassVar, Literal, Self
+from typing import Annotated, Literal, Self
 
 from pydantic import Field, model_validator
 
@@ -17,43 +17,81 @@ from sim.scene.fields import (
     Stress,
     Strict,
     bounded,
+    doc,
 )
 
 
-class MeshSpec(Strict):
-    kind: Literal["rectangle", "annulus", "disk", "cylinder_band", "file"]
-    edge_length: Length | None = None
-    size: tuple[Length, Length] | None = None  # rectangle: (Lx, Ly)
-    origin: tuple[Coord, Coord] = (0.0, 0.0)
-    r_inner: Extent = 0.0
-    r_outer: Length | None = None
-    radius: Length | None = None  # cylinder_band
-    height: Length | None = None  # cylinder_band
-    path: str | None = None
-    # a file's coincident vertices merged into one (a slit whose sides are two rows of
-    # coincident vertices closes); default: only for STL, which stores every triangle's corners
-    # apart. result.json's built.mesh says what was merged
-    merge_vertices: bool | None = None
-    # file units to metres (1e-3 for mm): between nanometres and kilometres
-    scale: Annotated[float, Field(ge=1e-9, le=1e3)] = 1.0
-    # out-of-plane imperfection of a flat mid-surface (m): z += a sin(pi s) sin(pi t), with
-    # (s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to
-    # leave its plane, so buckling (Fig. 4 at nu = 0.499) needs a seed
-    imperfection: Coord = 0.0
+class _Mesh(Strict):
+    """The sheet's mid-surface: a generated mesh of one ``kind`` or a mesh file; each kind
+    takes its own fields only."""
+
+    kind: str = doc("what mesh: rectangle, annulus, disk, cylinder_band or file")
+    imperfection: Coord = doc(
+        "out-of-plane imperfection of a flat mid-surface: z += a sin(pi s) sin(pi t), with "
+        "(s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to "
+        "leave its plane, so buckling (Fig. 4 at nu = 0.499) needs a seed", "m", 0.0)
+
+
+class _Generated(_Mesh):
+    edge_length: Length = doc("the triangles' edge length: the mesh's resolution", "m")
+
+
+class RectangleMesh(_Generated):
+    """A rectangle in the plane z = 0, from ``origin`` to ``origin + size``."""
+
+    kind: Literal["rectangle"] = doc("a rectangle in z = 0")
+    size: tuple[Length, Length] = doc("its sides (Lx, Ly)", "m")
+    origin: tuple[Coord, Coord] = doc("its corner of least x and y", "m", (0.0, 0.0))
+
+
+class AnnulusMesh(_Generated):
+    """A ring in the plane z = 0 around the z axis."""
+
+    kind: Literal["annulus"] = doc("a ring in z = 0 around the z axis")
+    r_inner: Extent = doc("the hole's radius", "m", 0.0)
+    r_outer: Length = doc("the outer radius", "m")
 
     @model_validator(mode="after")
-    def _needs(self) -> Self:
-        need = {"rectangle": ["size", "edge_length"], "annulus": ["r_outer", "edge_length"],
-                "disk": ["r_outer", "edge_length"],
-                "cylinder_band": ["radius", "height", "edge_length"], "file": ["path"]}[self.kind]
-        missing = [k for k in need if getattr(self, k) is None]
-        if missing:
-            raise ValueError(f"mesh kind {self.kind!r} needs {', '.join(missing)}")
-        if self.kind == "annulus" and self.r_inner >= self.r_outer:
+    def _radii(self) -> Self:
+        if self.r_inner >= self.r_outer:
             raise ValueError("r_inner must be smaller than r_outer")
-        if self.merge_vertices is not None and self.kind != "file":
-            raise ValueError(f"merge_vertices: only for mesh kind 'file', not {self.kind!r}")
         return self
+
+
+class DiskMesh(_Generated):
+    """A disk in the plane z = 0 centred on the z axis (a round blank)."""
+
+    kind: Literal["disk"] = doc("a disk in z = 0 centred on the z axis")
+    r_outer: Length = doc("the disk's radius", "m")
+
+
+class CylinderBandMesh(_Generated):
+    """The side of a cylinder around the z axis, from z = 0 up to ``height`` (a tube)."""
+
+    kind: Literal["cylinder_band"] = doc("a cylinder's side around the z axis (a tube)")
+    radius: Length = doc("the cylinder's radius", "m")
+    height: Length = doc("its height along z", "m")
+
+
+class FileMesh(_Mesh):
+    """A triangle mesh file (STL, OBJ, PLY, ...), read with trimesh; a relative path is taken
+    from the scene file's folder."""
+
+    kind: Literal["file"] = doc("a triangle mesh file")
+    path: str = doc("the mesh file")
+    merge_vertices: bool | None = doc(
+        "a file's coincident vertices merged into one (a slit whose sides are two rows of "
+        "coincident vertices closes); unset: only for STL, which stores every triangle's "
+        "corners apart. result.json's built.mesh says what was merged", default=None)
+    scale: Annotated[float, Field(ge=1e-9, le=1e3)] = doc(
+        "file units to metres (1e-3 for a file in mm): between nanometres and kilometres",
+        "m per file unit", 1.0)
+
+
+# the mesh of the chosen kind: only its own fields are accepted (pydantic tells the kinds
+# apart by ``kind`` and names a field of another kind as not permitted)
+MeshSpec = Annotated[RectangleMesh | AnnulusMesh | DiskMesh | CylinderBandMesh | FileMesh,
+                     Field(discriminator="kind")]
 
 
 class ShellSpec(Strict):
@@ -63,16 +101,24 @@ class ShellSpec(Strict):
     ``thickness_attribute``, a vertex property of a PLY mesh file. Relative paths are taken
     from the scene file's folder."""
 
-    thickness: Length | None = None
-    # a tapered sheet: thickness + gradient . X at every vertex (m per m); must stay positive
-    thickness_gradient: tuple[Slope, Slope, Slope] = (0.0, 0.0, 0.0)
-    thickness_file: str | None = None
-    thickness_attribute: str | None = None
-    element: str = "q3t"
-    quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = None
-    # section points through the thickness, keeping the element's in-plane rule: plastic
-    # bending needs more than the 2-3 of the defaults to integrate the elastic-plastic profile
-    thickness_points: Annotated[int, Field(ge=1, le=20)] | None = None
+    thickness: Length | None = doc("a constant thickness (or a taper's at the origin)", "m",
+                                   None)
+    thickness_gradient: tuple[Slope, Slope, Slope] = doc(
+        "a tapered sheet: thickness + gradient . X at every vertex; must stay positive",
+        "m/m", (0.0, 0.0, 0.0))
+    thickness_file: str | None = doc("a .npy or text file of one thickness (m) per vertex",
+                                     default=None)
+    thickness_attribute: str | None = doc(
+        "the PLY mesh file's vertex property holding the thickness (m)", default=None)
+    element: str = doc("the prism element: linear, q3t or quadratic (sim.elements)",
+                       default="q3t")
+    quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = doc(
+        "the quadrature (in-plane points, points through the thickness); unset: the "
+        "element's own", "1", None)
+    thickness_points: Annotated[int, Field(ge=1, le=20)] | None = doc(
+        "section points through the thickness, keeping the element's in-plane rule: plastic "
+        "bending needs more than the 2-3 of the defaults to integrate the elastic-plastic "
+        "profile", "1", None)
 
     @model_validator(mode="after")
     def _one_thickness(self) -> Self:
@@ -86,10 +132,10 @@ class ShellSpec(Strict):
         return self
 
 
-class Hardening(Strict):
+class _Hardening(Strict):
     """Isotropic hardening Y(ep) of sim.materials.plasticity. The initial flow stress is always
     ``material.yield_stress``; each law takes its own fields only (a field of another law is an
-    error, never silently ignored):
+    error naming it, never silently ignored):
 
     - perfect: Y = yield_stress
     - linear: Y = yield_stress + modulus ep, modulus >= 0
@@ -103,83 +149,114 @@ class Hardening(Strict):
     of sim.materials.plasticity), and a softening law localises into a mesh-dependent band.
     """
 
-    law: Literal["perfect", "linear", "swift", "voce"] = "perfect"
-    modulus: bounded(0.0, MAX_STRESS, lo_open=False) | None = None  # linear: H (Pa)
-    K: Stress | None = None  # swift strength coefficient (Pa)
-    # swift exponent: metals' are below 1, and (e0 + ep)^n stays representable up to 10
-    n: bounded(0.0, 10.0, lo_open=False) | None = None
-    e0: bounded(0.0, MAX_STRAIN) | None = None  # swift strain offset
-    saturation: Stress | None = None  # voce Ysat (Pa)
-    rate: bounded(0.0, 1e6) | None = None  # voce C: 1e6 saturates within a micro-strain
-
-    FIELDS: ClassVar[dict[str, tuple[str, ...]]] = {
-        "perfect": (), "linear": ("modulus",), "swift": ("K", "n", "e0"),
-        "voce": ("saturation", "rate")}
-    REQUIRED: ClassVar[dict[str, tuple[str, ...]]] = {
-        "perfect": (), "linear": ("modulus",), "swift": ("K", "n"), "voce": ("saturation", "rate")}
-
-    @model_validator(mode="after")
-    def _own_fields(self) -> Self:
-        for other, names in self.FIELDS.items():
-            for name in names:
-                if other != self.law and getattr(self, name) is not None \
-                        and name not in self.FIELDS[self.law]:
-                    raise ValueError(f"{name}: a parameter of law {other!r}, not of "
-                                     f"{self.law!r} (which takes "
-                                     f"{', '.join(self.FIELDS[self.law]) or 'none'})")
-        missing = [k for k in self.REQUIRED[self.law] if getattr(self, k) is None]
-        if missing:
-            raise ValueError(f"law {self.law!r} needs {', '.join(missing)}")
-        return self
+    law: str = doc("the hardening law: perfect, linear, swift or voce")
 
 
-class FLCSpec(Strict):
+class PerfectHardening(_Hardening):
+    """Perfect plasticity: Y = yield_stress."""
+
+    law: Literal["perfect"] = doc("perfect plasticity")
+
+
+class LinearHardening(_Hardening):
+    """Y = yield_stress + modulus ep."""
+
+    law: Literal["linear"] = doc("linear hardening")
+    modulus: bounded(0.0, MAX_STRESS, lo_open=False) = doc("the hardening modulus H", "Pa")
+
+
+class SwiftHardening(_Hardening):
+    """Y = K (e0 + ep)^n; e0 by default such that Y(0) = yield_stress."""
+
+    law: Literal["swift"] = doc("Swift's power law")
+    K: Stress = doc("the strength coefficient", "Pa")
+    n: bounded(0.0, 10.0, lo_open=False) = doc(
+        "the hardening exponent; metals' are below 1, and (e0 + ep)^n stays representable up "
+        "to 10", "1")
+    e0: bounded(0.0, MAX_STRAIN) | None = doc(
+        "the strain offset; unset: (yield_stress / K)^(1/n)", "1", None)
+
+
+class VoceHardening(_Hardening):
+    """Y = yield_stress + (saturation - yield_stress)(1 - exp(-rate ep))."""
+
+    law: Literal["voce"] = doc("Voce's saturating law")
+    saturation: Stress = doc("the saturation flow stress Ysat", "Pa")
+    rate: bounded(0.0, 1e6) = doc(
+        "the saturation rate C (> 0: rate 0 is law perfect); 1e6 saturates within a "
+        "micro-strain", "1")
+
+
+# the hardening of one law, with that law's fields only
+Hardening = Annotated[PerfectHardening | LinearHardening | SwiftHardening | VoceHardening,
+                      Field(discriminator="law")]
+
+
+class _FLC(Strict):
     """A forming limit curve (sim.frames.forming_limits): the limit major strain over the minor
     strain, both true (log) in-plane strains of the mid-surface, and the zone thresholds of the
-    forming limit diagram. ``kind = "points"``: ``points`` [minor, major] with minor increasing
-    (a measured curve; interpolated linearly, held constant beyond its ends);
-    ``kind = "keeler_brazier"``: the curve from thickness and hardening exponent,
-    FLD0 [%] = (23.3 + 14.13 t [mm]) n / 0.21 (engineering major strain at plane strain; Keeler
-    and Brazier 1977), a correlation for steels. Plastic materials only."""
+    forming limit diagram. Plastic materials only."""
 
-    kind: Literal["points", "keeler_brazier"]
-    # points: [minor, major] true strains, minor increasing, major > 0
+    kind: str = doc("points (a measured curve) or keeler_brazier")
+    margin: bounded(0.0, 1.0, lo_open=False) = doc(
+        "the marginal zone: this far (true major strain) below the curve", "1", 0.1)
+    insufficient_stretch: bounded(0.0, 1.0, lo_open=False) = doc(
+        "insufficient stretch: both strains smaller than this in size", "1", 0.02)
+
+
+class PointsFLC(_FLC):
+    """A measured curve: interpolated linearly, held constant beyond its ends."""
+
+    kind: Literal["points"] = doc("a measured curve")
     points: list[tuple[bounded(-MAX_STRAIN, MAX_STRAIN, lo_open=False),
-                       bounded(0.0, MAX_STRAIN)]] = []
-    # keeler_brazier: hardening exponent; default: hardening.n of a swift law
-    n: bounded(0.0, 1.0) | None = None
-    # keeler_brazier: sheet thickness (m); default: shell.thickness
-    thickness: Length | None = None
-    # the marginal zone: this far (true major strain) below the curve
-    margin: bounded(0.0, 1.0, lo_open=False) = 0.1
-    # insufficient stretch: both strains smaller than this in size
-    insufficient_stretch: bounded(0.0, 1.0, lo_open=False) = 0.02
+                       bounded(0.0, MAX_STRAIN)]] = doc(
+        "[minor, major] true strains, minor increasing, major > 0; at least 2", "1")
 
     @model_validator(mode="after")
-    def _own_fields(self) -> Self:
-        if self.kind == "points":
-            if len(self.points) < 2:
-                raise ValueError("points: a curve needs at least 2 [minor, major] points")
-            minor = [p[0] for p in self.points]
-            if any(b <= a for a, b in zip(minor, minor[1:], strict=False)):
-                raise ValueError("points: the minor strains must increase")
-            if self.n is not None or self.thickness is not None:
-                raise ValueError("n, thickness: parameters of kind 'keeler_brazier', not of "
-                                 "'points'")
-        elif self.points:
-            raise ValueError("points: only for kind 'points'")
+    def _curve(self) -> Self:
+        if len(self.points) < 2:
+            raise ValueError("points: a curve needs at least 2 [minor, major] points")
+        minor = [p[0] for p in self.points]
+        if any(b <= a for a, b in zip(minor, minor[1:], strict=False)):
+            raise ValueError("points: the minor strains must increase")
         return self
+
+
+class KeelerBrazierFLC(_FLC):
+    """The curve from thickness and hardening exponent, FLD0 [%] = (23.3 + 14.13 t [mm]) n /
+    0.21 (engineering major strain at plane strain; Keeler and Brazier 1977), a correlation
+    for steels."""
+
+    kind: Literal["keeler_brazier"] = doc("the Keeler-Brazier correlation")
+    n: bounded(0.0, 1.0) | None = doc(
+        "the hardening exponent; unset: hardening.n of a swift law", "1", None)
+    thickness: Length | None = doc("the sheet thickness; unset: shell.thickness", "m", None)
+
+
+# a forming limit curve of one kind, with that kind's fields only
+FLCSpec = Annotated[PointsFLC | KeelerBrazierFLC, Field(discriminator="kind")]
 
 
 class MaterialSpec(Strict):
-    model: Literal["neo_hookean", "hencky", "plastic"] = "neo_hookean"
-    E: Stress
-    nu: Annotated[float, Field(ge=0.0, lt=0.5)]
-    density: bounded(0.0, MAX_DENSITY) = 1000.0
-    yield_stress: Stress | None = None  # initial flow stress (Pa), plastic model only
-    hardening: Hardening = Hardening()
-    # forming limit curve: major and minor strains, zones and the FLD of a run
-    flc: FLCSpec | None = None
+    """The sheet's material: a hyperelastic model, or elastic-plastic (von Mises with
+    isotropic hardening, sim.materials.plasticity)."""
+
+    model: Literal["neo_hookean", "hencky", "plastic"] = doc(
+        "neo_hookean or hencky (elastic), or plastic", default="neo_hookean")
+    E: Stress = doc("Young's modulus", "Pa")
+    nu: Annotated[float, Field(ge=0.0, lt=0.5)] = doc("Poisson's ratio", "1")
+    density: bounded(0.0, MAX_DENSITY) = doc("the mass density (inertia, gravity)", "kg/m^3",
+                                             1000.0)
+    yield_stress: Stress | None = doc("the initial flow stress; plastic model only", "Pa",
+                                      None)
+    hardening: Hardening = doc(
+        "the isotropic hardening law Y(ep) (sim.materials.plasticity), its initial flow stress "
+        "yield_stress; plastic model only. A softening law is rejected: the incremental "
+        "potential is convex only for a nondecreasing Y, and softening localises into a "
+        "mesh-dependent band", default=PerfectHardening(law="perfect"))
+    flc: FLCSpec | None = doc(
+        "the forming limit curve: major and minor strains, zones and the FLD of a run; "
+        "plastic model only", default=None)
 
     @model_validator(mode="after")
     def _plastic_fields(self) -> Self:

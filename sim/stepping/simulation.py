@@ -6,6 +6,7 @@ Data flows one way: Scene -> Model -> Simulation.step() -> StepRecord / Frame.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -21,6 +22,7 @@ from sim.model.build import Model, build_model
 from sim.model.curves import load_factor
 from sim.scene.load import Scene
 from sim.solve.newton import NewtonResult, Timing, minimise
+from sim.stepping import parameters
 from sim.stepping.friction import settle_friction
 from sim.terms.tool_contact import ToolContact, quaternion_wxyz
 
@@ -77,10 +79,13 @@ class Simulation:
     def from_scene(cls, scene: Scene) -> Simulation:
         return cls(build_model(scene))
 
-    # live parameters, all multipliers of the scene's values (1 = as written): name -> range;
-    # applied from the next step on
-    PARAMETERS = {"load_scale": (0.0, 100.0), "tool_speed": (0.0, 10.0),
-                  "friction_scale": (0.0, 10.0), "holder_force_scale": (0.0, 10.0)}
+    # live parameters (sim.stepping.parameters), applied from the next step on. tool_speed is
+    # the rate of the stroke: a step covers that many of the planned steps' scene time (which
+    # moves the tools, and the prescribed displacements and load ramp with them), so the
+    # planned stroke is kept and done in fewer steps (or more); the run ends where the scene's
+    # time does. Static stepping only: there scene time is the stroke, while a dynamic run's
+    # time is seconds, whose step is dt.
+    PARAMETERS = parameters.RANGES
 
     def __post_init__(self) -> None:
         self.parameters = {k: 1.0 for k in self.PARAMETERS}
@@ -104,20 +109,41 @@ class Simulation:
         self.summary = summary.Summary(self.model)
         # the summary's quantities among what the run computes (the model knows no frames)
         self.model.built["outputs"]["summary"] = self.summary.names
+        self.progress = 0.0  # planned steps of the stroke covered (tool_speed per step)
+        self._stroked = 0  # steps of the stroke made
         self._record_sections()  # the rest state, when a section asks for step 0
 
     @property
-    def n_steps(self) -> int:
+    def stroke_steps(self) -> int:
+        """Steps of the stroke: those done and those the rest of the planned stroke takes at
+        the current tool_speed (the scene's stepping.steps as written)."""
         st = self.model.scene.stepping
-        return st.steps + (1 if st.release else 0)
+        left = (st.steps - self.progress) / self.parameters["tool_speed"]
+        return self._stroked + max(0, math.ceil(left - self.STEP_TOL))
+
+    @property
+    def n_steps(self) -> int:
+        return self.stroke_steps + (1 if self.model.scene.stepping.release else 0)
 
     @property
     def done(self) -> bool:
         return self.step_index >= self.n_steps or self.failure is not None
 
+    # a stroke within this many planned steps of its end is at its end (round-off of the
+    # progress summed over steps)
+    STEP_TOL = 1e-9
+
     def _dt(self) -> float:
+        """The scene time of a planned step."""
         st = self.model.scene.stepping
         return st.dt if st.kind == "dynamic" else 1.0 / st.steps
+
+    def _stride(self) -> tuple[float, bool]:
+        """How many planned steps the next step covers (tool_speed of them) and whether it
+        ends the stroke (the last is cut at the stroke's end)."""
+        left = self.model.scene.stepping.steps - self.progress
+        speed = self.parameters["tool_speed"]
+        return (left, True) if left - speed <= self.STEP_TOL else (speed, False)
 
     def set_parameter(self, name: str, value: float) -> None:
         """Change a live parameter from the next step on; recorded with that step number."""
@@ -126,13 +152,44 @@ class Simulation:
         lo, hi = self.PARAMETERS[name]
         if not (isinstance(value, (int, float)) and np.isfinite(value) and lo <= value <= hi):
             raise ValueError(f"{name}: {value!r} out of range [{lo}, {hi}]")
+        if name == "tool_speed" and value != 1.0 and self.model.scene.stepping.kind != "static":
+            raise ValueError("tool_speed: the rate of a static run's stroke; this scene steps "
+                             "dynamically (its tools move at their velocity in m/s: change "
+                             "that in the scene)")
         self.parameters[name] = float(value)
         for t in self.tools:
-            t.speed_scale = self.parameters["tool_speed"]
             t.mu = self._mu0[t.tool] * self.parameters["friction_scale"]
             t.force_scale = self.parameters["holder_force_scale"]
         self.parameter_log.append({"step": self.step_index + 1, "name": name,
                                    "value": float(value)})
+
+    def scaled(self) -> dict[str, list[dict]]:
+        """What each live parameter multiplies, as the scene gives it (SI), so a page can
+        show the result beside the multiplier (friction 0.1 x 2 = 0.2): per tool its friction
+        coefficient, its force (force control) and, if it moves, its planned travel per step
+        (tool_speed); per load its magnitude. ``{name: [{"what", "value", "unit"}]}``."""
+        sc = self.model.scene
+        units = {"gravity": "m/s^2", "traction": "Pa", "pressure": "Pa", "point": "N"}
+        end = sc.stepping.steps * self._dt()
+        return {
+            "load_scale": [{"what": f"{ld.kind} {i}", "unit": units[ld.kind],
+                            "value": float(ld.value if ld.kind == "pressure"
+                                           else np.linalg.norm(ld.vector))}
+                           for i, ld in enumerate(sc.loads)],
+            "tool_speed": [{"what": name, "unit": "m/step", "value": travel}
+                           for name, travel in self._travel_per_step(end) if travel > 0],
+            "friction_scale": [{"what": t.tool, "unit": "1", "value": self._mu0[t.tool]}
+                               for t in self.tools],
+            "holder_force_scale": [{"what": t.tool, "unit": "N", "value": t.force}
+                                   for t in self.tools if t.vdof is not None],
+        }
+
+    def _travel_per_step(self, end: float) -> list[tuple[str, float]]:
+        """Each tool's planned travel (m) per planned step: its offset over the run, divided
+        by the steps."""
+        steps = self.model.scene.stepping.steps
+        return [(t.tool, float(np.linalg.norm(t.path(end)[:3] - t.path(0.0)[:3]
+                                              + end * t.velocity)) / steps) for t in self.tools]
 
     def _attempt(self, t_new: float, dt: float) -> NewtonResult:
         m = self.model
@@ -280,7 +337,7 @@ class Simulation:
         if self.done:
             raise RuntimeError("simulation already finished")
         try:
-            if self.step_index == self.model.scene.stepping.steps:
+            if self.progress >= self.model.scene.stepping.steps:
                 rec = self._release()
             else:
                 rec = self._advance()
@@ -306,8 +363,11 @@ class Simulation:
         after a success; the step fails when the increment would fall below 1 / 2^max_cutbacks
         of the nominal one (a bound on the sub-steps, not on the failures over the step)."""
         start = time.perf_counter()
-        nominal = self._dt()
-        t_target = self.t + nominal
+        stride, last = self._stride()
+        nominal = stride * self._dt()
+        # from the progress, not by adding increments: the stroke ends exactly at its end
+        t_target = (self.model.scene.stepping.steps if last else self.progress + stride) \
+            * self._dt()
         # cut-backs count from the increment the tools' travel allows (it may already be a
         # fraction of the nominal one), so a fast punch keeps all of its cut-backs
         dt_min = self._travel_limit(nominal) / 2 ** self.model.scene.stepping.max_cutbacks
@@ -344,6 +404,9 @@ class Simulation:
             self._last_increment, self._last_dt = self.x - before, dt
             self.t += dt
             dt = min(2 * dt, nominal)  # grow back after a successful sub-step
+        self.t = t_target
+        self.progress = self.model.scene.stepping.steps if last else self.progress + stride
+        self._stroked += 1
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iters, res.residuals[-1], res.energy, cutbacks,
                          probes.evaluate(self.model, self.x), self._tool_reports(), change,

@@ -247,5 +247,6 @@ def test_merging_that_collapses_a_triangle_names_the_file(tmp_path):
     with pytest.raises(ValueError, match=r"mesh.path: sliver.obj: 1 triangles have a repeated "
                                          r"vertex \(first: \[1\]\) once coincident"):
         Simulation.from_scene(load_scene(path))
-    with pytest.raises(SceneError, match=r"^mesh\b.*merge_vertices: only for mesh kind 'file'"):
+    with pytest.raises(SceneError, match=r"^mesh\.merge_vertices: not a field of "
+                                         r"kind 'rectangle'"):
         load_scene(write_scene(tmp_path, RECT + "\nmerge_vertices = true"))

@@ -18,7 +18,8 @@ def material(hardening: dict | None = None, **extra):
 
 
 @pytest.mark.parametrize("hardening, extra, field", [
-    ({"law": "swift", "n": 0.2}, {}, "needs K"),  # K = 0 was a zero flow stress
+    # K = 0 was a zero flow stress
+    ({"law": "swift", "n": 0.2}, {}, "material.hardening.K: Field required"),
     ({"law": "swift", "K": 0.0, "n": 0.2}, {}, "material.hardening.K"),
     ({"law": "swift", "K": 5e8, "n": 0.2, "e0": 0.0}, {}, "material.hardening.e0"),  # was 1/0
     ({"law": "swift", "K": 5e8, "n": -0.1}, {}, "material.hardening.n"),
@@ -26,14 +27,18 @@ def material(hardening: dict | None = None, **extra):
     ({"law": "swift", "K": 5e8, "n": 0.0}, {}, "hardening.K: with n = 0"),
     ({"law": "swift", "K": 1e8, "n": 1e-300}, {}, "not a positive finite strain"),  # overflow
     ({"law": "swift", "K": 5e8, "n": 1e-300}, {}, "not a positive finite strain"),  # underflow
-    ({"law": "voce", "rate": 20.0}, {}, "needs saturation"),  # Ysat = 0 softened to zero
+    # Ysat = 0 softened to zero
+    ({"law": "voce", "rate": 20.0}, {}, "material.hardening.saturation: Field required"),
     ({"law": "voce", "saturation": 1e8, "rate": 20.0}, {}, "hardening.saturation"),
     ({"law": "voce", "saturation": 4e8, "rate": -1.0}, {}, "material.hardening.rate"),
-    ({"law": "voce", "saturation": 4e8}, {}, "needs rate"),
+    ({"law": "voce", "saturation": 4e8}, {}, "material.hardening.rate: Field required"),
     ({"law": "linear", "modulus": -1e12}, {}, "material.hardening.modulus"),
-    ({"law": "linear"}, {}, "needs modulus"),
-    ({"law": "perfect", "modulus": 2e9}, {}, "modulus: a parameter of law 'linear'"),
-    ({"law": "linear", "modulus": 2e9, "K": 5e8}, {}, "K: a parameter of law 'swift'"),
+    ({"law": "linear"}, {}, "material.hardening.modulus: Field required"),
+    ({"law": "perfect", "modulus": 2e9}, {},
+     "material.hardening.modulus: not a field of law 'perfect'"),
+    ({"rate": 20.0}, {}, "material.hardening: give its law"),
+    ({"law": "linear", "modulus": 2e9, "K": 5e8}, {},
+     "material.hardening.K: not a field of law 'linear' (it takes modulus)"),
     (None, {"material.yield_stress": 0.0}, "material.yield_stress"),
     (None, {"material.yield_stress": float("nan")}, "material.yield_stress"),
     (None, {"material.E": float("inf")}, "material.E"),

@@ -86,7 +86,9 @@ def test_happy_path(env):
 def test_scene_crud(env):
     client, settings = env
     assert client.post("/api/scenes/tiny/duplicate", json={"name": "copy"}).status_code == 201
-    assert client.get("/api/scenes/copy").json()["toml"] == tiny_toml()
+    # the copy's name field follows its new name; the rest as it was
+    assert client.get("/api/scenes/copy").json()["toml"] == \
+        tiny_toml().replace('name = "tiny"', 'name = "copy"')
     changed = tiny_toml().replace("nu = 0.49", "nu = 0.3")
     r = client.put("/api/scenes/copy", json={"toml": changed})
     assert r.status_code == 200 and r.json()["scene"]["material"]["nu"] == 0.3

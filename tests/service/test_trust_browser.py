@@ -20,6 +20,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from sim.stepping.parameters import LABELS
 from tests.support import ROOT
 from tests.support.browser import CHROMIUM, SWIFTSHADER, WAIT_MS, settled
 from tests.support.scenes import EDITED_EDGE, tiny_toml, vertices
@@ -126,13 +127,13 @@ def wait_viewer_run(page, run: str) -> None:
 
 
 def viewer_slider(page, name: str) -> float:
-    """The value of the viewer's live-parameter slider ``name``."""
+    """The value of the viewer's live-parameter slider ``name`` (labelled in words)."""
     frame = page.frame_locator("#viewer").locator("body")
     return float(frame.evaluate("""(body, name) => {
         const label = [...body.querySelectorAll('label')].find(l => l.textContent === name);
         return document.getElementById(label.htmlFor).querySelector('[role=slider]')
             .getAttribute('aria-valuenow');
-    }""", name))
+    }""", LABELS[name][0]))
 
 
 def page_slider(page, name: str) -> float:
@@ -154,8 +155,8 @@ def test_start_with_unsaved_edits_runs_the_edit(served, browser):
     saved = (tmp / "scenes" / "tiny.toml").read_text()
     page, errors = open_page(browser, url)
     edge = page.locator('#scene-form [data-path="mesh.edge_length"] input.num')
-    assert float(edge.input_value()) == 0.035
-    edge.fill(str(EDITED_EDGE))
+    assert float(edge.input_value()) == 35.0  # the form shows mm (the file: 0.035 m)
+    edge.fill(f"{EDITED_EDGE * 1e3:g}")
     page.wait_for_function(f"document.getElementById('toml').value.includes("
                            f"'edge_length = {EDITED_EDGE}')")
     page.wait_for_function("document.getElementById('sync').textContent === 'valid'")

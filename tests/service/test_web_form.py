@@ -152,8 +152,9 @@ def test_parse_gives_the_scene_or_the_raw_tables_and_errors(env):
 
 def test_every_schema_field_has_a_form_widget(env):
     """The form (web/form.js) knows: $ref objects, anyOf with null (unset) and one branch,
-    enums, booleans, numbers and integers (with bounds), strings, tuples (prefixItems) and
-    lists (items). A new kind of field in the schema would fall back to a JSON text box."""
+    tables of several kinds (oneOf with a discriminator: a kind select), enums, booleans,
+    numbers and integers (with bounds), strings, tuples (prefixItems) and lists (items). A new
+    kind of field in the schema would fall back to a JSON text box."""
     client, _ = env
     schema = client.get("/api/scenes/schema").json()
 
@@ -168,6 +169,11 @@ def test_every_schema_field_has_a_form_widget(env):
             branches = [b for b in s["anyOf"] if b.get("type") != "null"]
             assert len(branches) == 1, where
             return check(branches[0], where)
+        if "oneOf" in s:
+            assert s.get("discriminator", {}).get("propertyName") in ("kind", "law"), where
+            for branch in s["oneOf"]:
+                check(branch, f"{where}[{branch['$ref'].split('/')[-1]}]")
+            return
         if "enum" in s or "const" in s:
             return
         t = s.get("type")

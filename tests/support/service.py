@@ -70,8 +70,10 @@ def outside_scenes(settings) -> dict:
 
 
 def file_scene(path: str) -> str:
-    """tiny, its mesh read from ``path``."""
-    return tiny_toml().replace('kind = "rectangle"', f"kind = \"file\"\npath = '{path}'")
+    """tiny, its mesh read from ``path`` (a file mesh takes no rectangle's size nor edge)."""
+    text = tiny_toml()
+    mesh = text[text.index("[mesh]"):text.index("[shell]")]
+    return text.replace(mesh, f"[mesh]\nkind = \"file\"\npath = '{path}'\n\n")
 
 
 def thickness_scene(path: str) -> str:

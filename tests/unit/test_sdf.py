@@ -492,7 +492,8 @@ def test_scene_shapes_csg_polygons_and_placement():
            ({"kind": "union", "shapes": [poly]}, "at least two"),
            ({**poly, "corner_radius": 0.03, "edge_radius": 0.0}, "radii too large"),
            ({**poly, "points": [[0, 0], [1, 0]]}, "at least 3 points"),
-           ({"kind": "box", "half_extents": [1, 1, 1], "shapes": [poly, poly]}, "operands"),
+           ({"kind": "box", "half_extents": [1, 1, 1], "shapes": [poly, poly]},
+            "shapes: not a field of kind 'box'"),
            ({**poly, "rotation": [float("nan"), 0, 0]}, "finite"),
            ({"kind": "cone"}, "kind")]
     for shape, why in bad:

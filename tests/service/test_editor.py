@@ -1,0 +1,93 @@
+"""The scene editor's service side: the form's edits are written into the scene file's own
+TOML (comments, layout and number formats kept), through /api/scenes/render and a save; a
+duplicate's name field follows its new name."""
+
+import tomllib
+
+from server import sceneform, tomlout
+from sim.scene.load import Scene, scene_from_toml
+from tests.support import ROOT
+
+CUP = (ROOT / "scenes/cup_drawing.toml").read_text()
+
+
+# ---- the form's save: the edit written into the file's own text ------------------------------
+def test_an_edit_keeps_the_files_comments_and_number_formats():
+    base = CUP
+    scene = sceneform.parse(base)["scene"]
+    scene["material"]["nu"] = 0.3
+    scene["tools"][0]["friction"] = 0.15
+    scene["tools"][1]["shape"]["edge_radius"] = 0.004
+    out = sceneform.render(scene, base=base)
+    assert out["ok"], out["error"]
+    text = out["toml"]
+    # every comment line of the file is still there, and the unchanged numbers as written
+    comments = [ln for ln in base.splitlines() if ln.lstrip().startswith("#")]
+    assert comments and all(c in text.splitlines() for c in comments)
+    assert "velocity = [0.0, 0.0, -0.025]   # 25 mm stroke" in text
+    for kept in ("E = 68.0e9", "yield_stress = 102.75e6", "saturation = 292.14e6"):
+        assert kept in text
+    assert "nu = 0.3\n" in text and "friction = 0.15" in text and "edge_radius = 0.004" in text
+    # only the three edited lines differ
+    changed = [(a, b) for a, b in zip(base.splitlines(), text.splitlines(), strict=True)
+               if a != b]
+    assert len(changed) == 3, changed
+    assert scene_from_toml(text) == Scene.model_validate(scene)
+
+
+def test_an_edit_of_kind_tables_and_lists_reads_back_as_the_edited_scene():
+    """A new mesh kind drops the old kind's fields and adds the new one's; an added tool is a
+    new [[tools]] table, a removed probe is gone; the comments stay."""
+    base = CUP
+    scene = sceneform.parse(base)["scene"]
+    scene["mesh"] = {"kind": "rectangle", "size": [0.06, 0.06], "origin": [-0.03, -0.03],
+                     "edge_length": 0.002}
+    scene["tools"].append({"name": "ground", "shape": {"kind": "plane"},
+                           "position": [0.0, 0.0, -0.1]})
+    scene["probes"].pop()
+    out = sceneform.render(scene, base=base)
+    assert out["ok"], out["error"]
+    text = out["toml"]
+    assert scene_from_toml(text) == Scene.model_validate(scene)
+    assert "r_outer = 0.03" not in text and "size = [0.06, 0.06]" in text
+    assert text.count("[[tools]]") == 4 and "holder_height" not in text
+    assert "# Deep drawing of a cylindrical cup" in text and "E = 68.0e9" in text
+
+
+def test_a_copy_takes_its_new_name_and_keeps_the_rest():
+    base = CUP
+    text = tomlout.renamed(base, "my cup")
+    assert tomllib.loads(text)["name"] == "my cup"
+    assert text.replace('name = "my cup"', 'name = "cup_drawing"', 1) == base
+    assert tomlout.renamed("name = [1,", "x") == "name = [1,"  # not TOML: as it was
+
+
+def test_render_with_the_base_then_save_keeps_the_file(env):
+    """The page's round: the form's scene and the file's text to /api/scenes/render, its TOML
+    saved with PUT; the file on disk is the old one with the one line changed."""
+    client, settings = env
+    assert client.post("/api/scenes", json={"name": "cup", "toml": CUP}).status_code == 201
+    doc = client.get("/api/scenes/cup").json()
+    scene = doc["scene"]
+    scene["material"]["E"] = 7e10
+    r = client.post("/api/scenes/render", json={"scene": scene, "base": doc["toml"]}).json()
+    assert r["ok"], r["error"]
+    assert client.put("/api/scenes/cup", json={"toml": r["toml"]}).status_code == 200
+    text = (settings.scenes_dir / "cup.toml").read_text()
+    changed = [(a, b) for a, b in zip(CUP.splitlines(), text.splitlines(), strict=True) if a != b]
+    assert changed == [("E = 68.0e9", "E = 7e10")]
+    # without a base (or with one that is no valid scene): the scene alone, defaults left out
+    plain = client.post("/api/scenes/render", json={"scene": scene, "base": "name = [1,"}).json()
+    assert plain["ok"] and "#" not in plain["toml"]
+    assert scene_from_toml(plain["toml"]) == Scene.model_validate(scene)
+
+
+def test_a_duplicate_is_named_as_its_file(env):
+    client, settings = env
+    client.post("/api/scenes", json={"name": "cup2", "toml": CUP})
+    r = client.post("/api/scenes/cup2/duplicate", json={"name": "cup-copy"})
+    assert r.status_code == 201, r.text
+    assert r.json()["scene"]["name"] == "cup-copy"
+    text = (settings.scenes_dir / "cup-copy.toml").read_text()
+    assert tomllib.loads(text)["name"] == "cup-copy"
+    assert text.replace('name = "cup-copy"', 'name = "cup_drawing"', 1) == CUP  # the rest kept

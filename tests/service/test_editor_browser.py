@@ -1,0 +1,245 @@
+"""The scene editor in Debian's chromium (Playwright), against the real server in a
+subprocess, on a copy of the shipped cup scene (its comments are the point):
+
+- The form shows each field's unit (lengths in mm, stresses in MPa) and description, and a
+  table of several kinds shows only the chosen kind's fields.
+- An edit in the form (a decimal comma among them), saved, keeps the file's comments and
+  number formats; the value reaches the file in SI.
+- A duplicate's name field follows its new name; a failed save says so (no stale "saved")
+  with the error in view.
+- The live parameters read as words, with the result beside each multiplier.
+
+Screenshots of each step go to $Q3T_SHOTS (default /tmp/shots-editor)."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.support import ROOT
+from tests.support.browser import CHROMIUM, SWIFTSHADER, WAIT_MS, settled
+from tests.support.service import free_port, until
+
+SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-editor"))
+pytestmark = pytest.mark.browser
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
+CUP = (ROOT / "scenes" / "cup_drawing.toml").read_text()
+# the cup at a 6 mm edge: a run builds and steps in about a second
+COARSE = CUP.replace("edge_length = 0.002", "edge_length = 0.006").replace(
+    'name = "cup_drawing"', 'name = "cup"')
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """The server's url and its scenes folder, which holds the coarse cup."""
+    tmp = tmp_path_factory.mktemp("editor-browser")
+    (tmp / "scenes").mkdir()
+    (tmp / "scenes" / "cup.toml").write_text(COARSE)
+    port, vport = free_port(), free_port()
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data"),
+           "PYTHONPATH": str(ROOT)}
+    log = open(tmp / "server.log", "wb")  # noqa: SIM115 - closed after the server stops
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim.apps", "serve", "cup", "--port", str(port),
+         "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
+         "--runs-dir", str(tmp / "runs"), "--step-delay", "0.3"],
+        env=env, stdout=log, stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        until(lambda: _ready(url), f"server not up: {tmp / 'server.log'}")
+        yield url, tmp / "scenes"
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        log.close()
+
+
+def _ready(url: str) -> bool:
+    try:
+        return httpx.get(url + "/api/config", timeout=1).json()["ready"]
+    except (httpx.HTTPError, ValueError):
+        return False
+
+
+@pytest.fixture(scope="module")
+def browser():
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=SWIFTSHADER)
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def page(browser, served):
+    url, _ = served
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    page.set_default_timeout(WAIT_MS)
+    errors = []
+    page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
+    page.goto(url + "/")
+    page.wait_for_selector("#scenes li.sel")
+    page.wait_for_selector("#scene-form [name='material.E']")
+    yield page
+    page.close()
+    assert not errors, errors
+
+
+def shot(page, name: str) -> None:
+    page.wait_for_timeout(1500)  # the viewer draws in software WebGL
+    page.screenshot(path=str(SHOTS / f"{name}.png"))
+
+
+def field(page, path: str):
+    """The form's field wrapper of ``path`` (data-path)."""
+    return page.locator(f"#scene-form .field[data-path='{path}']")
+
+
+def synced(page, text: str) -> None:
+    """The TOML view holds ``text`` (the server has converted the form's edit)."""
+    page.wait_for_function("t => document.getElementById('toml').value.includes(t)", arg=text)
+
+
+def test_fields_show_units_descriptions_and_their_kinds_fields_only(page):
+    # E in MPa (68.0e9 Pa), whole and labelled; lengths in mm
+    assert page.input_value("[name='material.E']") == "68000"
+    assert field(page, "material.E").locator(".unit").text_content() == "MPa"
+    assert page.input_value("[name='mesh.r_outer']") == "30"
+    assert field(page, "mesh.r_outer").locator(".unit").text_content() == "mm"
+    assert page.input_value("[name='material.yield_stress']") == "102.75"
+    # the description: a tooltip on the name, and below the field while it has the focus
+    assert "Young's modulus" in field(page, "material.E").locator(".key").get_attribute("title")
+    help_text = field(page, "material.E").locator(".help")
+    assert not help_text.is_visible()
+    page.focus("[name='material.E']")
+    assert help_text.is_visible() and help_text.text_content() == "Young's modulus"
+    # a disk lists its own fields, kind first; no size, radius, height or path
+    mesh = page.locator("#scene-form fieldset[data-path='mesh']")
+    names = mesh.locator(":scope > .field > label > .key").all_text_contents()
+    assert names == ["kind", "imperfection", "edge_length", "r_outer"], names
+    punch = page.locator("#scene-form fieldset[data-path='tools.0.shape']")
+    names = punch.locator(":scope > .field > label > .key").all_text_contents()
+    assert names[0] == "kind" and "n_points" not in names and "r_outer" not in names, names
+    shot(page, "01-units-descriptions-kinds")
+    # a Voce law: its own parameters only
+    law = page.locator("#scene-form fieldset[data-path='material.hardening']")
+    law.scroll_into_view_if_needed()
+    names = law.locator(":scope > .field > label > .key").all_text_contents()
+    assert names == ["law", "saturation", "rate"], names
+    assert page.input_value("[name='material.hardening.saturation']") == "292.14"  # MPa
+    # an optional table of several kinds: its "unset" box by its name, for any kind chosen
+    flc = "#scene-form fieldset[data-path='material.flc'] > legend .unset-label"
+    assert page.locator(flc).count() == 1
+    page.select_option("[name='material.flc.kind']", "points")
+    assert page.locator(flc).count() == 1
+    shot(page, "01b-hardening-law")
+    # another kind: its fields, the shared ones kept
+    page.select_option("[name='mesh.kind']", "rectangle")
+    names = mesh.locator(":scope > .field > label > .key").all_text_contents()
+    assert names == ["kind", "imperfection", "edge_length", "size", "origin"], names
+    assert page.input_value("[name='mesh.edge_length']") == "6"
+    shot(page, "02-mesh-kind-rectangle")
+
+
+def test_a_form_edit_saved_keeps_the_files_comments(page, served):
+    _, scenes = served
+    nu = "[name='material.nu']"
+    page.fill(nu, "0,3")  # a decimal comma: 0.3, never 3 (nor refused)
+    synced(page, "nu = 0.3\n")
+    page.fill("[name='material.E']", "70000")  # MPa: 7e10 Pa in the file
+    synced(page, "E = 7e10")
+    page.click("[name='material.density']")  # the comma's field loses the focus
+    assert page.input_value(nu) == "0.3"
+    page.click("#tab-toml")
+    shot(page, "03-toml-view-keeps-comments")
+    page.click("#tab-form")
+    page.click("#save")
+    page.wait_for_function("document.getElementById('msg').textContent === 'saved cup'")
+    text = (scenes / "cup.toml").read_text()
+    comments = [ln for ln in CUP.splitlines() if ln.lstrip().startswith("#")]
+    assert all(c in text.splitlines() for c in comments)
+    assert "yield_stress = 102.75e6" in text and "# 25 mm stroke" in text
+    assert tomllib.loads(text)["material"]["nu"] == 0.3
+    assert tomllib.loads(text)["material"]["E"] == 7e10
+    # the rest of the file as it was
+    changed = [a for a, b in zip(COARSE.splitlines(), text.splitlines(), strict=True) if a != b]
+    assert changed == ["E = 68.0e9", "nu = 0.33"], changed
+    (scenes / "cup.toml").write_text(COARSE)
+
+
+def test_a_duplicate_takes_its_name_and_a_failed_save_says_so(page, served):
+    url, scenes = served
+    page.once("dialog", lambda d: d.accept("cup-copy"))
+    page.click("#duplicate")
+    page.wait_for_function("document.getElementById('scene-name').value === 'cup-copy'")
+    page.wait_for_function(
+        "document.querySelector(\"#scene-form [name='name']\").value === 'cup-copy'")
+    text = (scenes / "cup-copy.toml").read_text()
+    assert tomllib.loads(text)["name"] == "cup-copy"
+    assert text.replace('name = "cup-copy"', 'name = "cup"') == COARSE  # comments and all
+    page.click("#save")
+    page.wait_for_function("document.getElementById('msg').textContent === 'saved cup-copy'")
+    # an invalid value, saved: refused, said so in place of "saved", the field in view
+    page.fill("[name='material.nu']", "0.7")
+    page.wait_for_selector("#scene-form .field.has-error[data-path='material.nu']")
+    page.evaluate("document.getElementById('scene-form').scrollTop = 1e6")  # out of view
+    page.click("#save")
+    page.wait_for_function("document.getElementById('msg').textContent.includes('not saved')")
+    msg = page.text_content("#msg")
+    assert msg.startswith("cup-copy not saved: ") and "material.nu" in msg, msg
+    box = page.evaluate("""() => {
+        const f = document.querySelector("#scene-form .field[data-path='material.nu']")
+            .getBoundingClientRect();
+        const c = document.getElementById('scene-form').getBoundingClientRect();
+        return f.top >= c.top && f.bottom <= c.bottom;
+    }""")
+    assert box, "the field in error is not scrolled into view"
+    assert tomllib.loads((scenes / "cup-copy.toml").read_text())["material"]["nu"] == 0.33
+    shot(page, "04-failed-save")
+    httpx.delete(f"{url}/api/scenes/cup-copy")
+
+
+def test_live_parameters_read_as_words_with_their_results(page, served):
+    url, _ = served
+    sliders = page.locator("#sliders")
+    page.wait_for_selector("#param-friction_scale")
+    text = sliders.inner_text()
+    assert "Friction ×" in text and "Tool speed ×" in text and "friction_scale" not in text
+    page.click("#start")
+    page.wait_for_function("(d => d.run && +d.step >= 1)(document.getElementById('status')"
+                           ".dataset)")
+    run = page.get_attribute("#status", "data-run")
+    httpx.post(f"{url}/api/runs/{run}/pause")  # a paused run still takes changes
+    done = settled(url, run)["step"]
+    result = page.locator("#param-friction_scale-result")
+    until(lambda: "punch 0.1 × 1 = 0.1" in result.text_content(), "no friction result")
+    for name, value in (("friction_scale", 2), ("tool_speed", 2)):
+        page.eval_on_selector(f"#param-{name}", """(inp, v) => {
+            inp.value = v;
+            inp.dispatchEvent(new Event('input'));
+            inp.dispatchEvent(new Event('change'));
+        }""", value)
+        until(lambda n=name: httpx.get(f"{url}/api/runs/{run}").json()["parameters"][n] == 2,
+              f"{name} never reached the run")
+    # the run's values, from its status: the result beside each multiplier; the steps left
+    # of the 50 planned take half as many steps
+    steps = done + math.ceil((50 - done) / 2)
+    assert httpx.get(f"{url}/api/runs/{run}").json()["n_steps"] == steps
+    until(lambda: f"run: {steps} steps" in page.text_content("#param-tool_speed-result"),
+          "the step count under tool_speed 2")
+    text = result.text_content()
+    assert "punch 0.1 × 2 = 0.2" in text and "blank_holder 0.1 × 2 = 0.2" in text, text
+    holder = page.text_content("#param-holder_force_scale-result")
+    assert holder == "blank_holder 3 × 1 = 3 kN", holder
+    speed = page.text_content("#param-tool_speed-result")
+    assert speed.startswith("punch 0.5 × 2 = 1 mm/step; "), speed
+    assert page.text_content("#param-friction_scale-value") == "2"
+    shot(page, "05-live-parameters")
+    httpx.post(f"{url}/api/runs/{run}/stop")
