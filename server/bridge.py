@@ -168,6 +168,7 @@ def _meta(m: Books, ev: dict) -> Booked:
         # the solver's values of every live parameter (those it was given applied): what the
         # page's and the viewer's sliders show
         run.parameters.update(ev.get("parameters") or {})
+        run.punches, run.probe_kinds = ev.get("punches") or {}, ev.get("probe_kinds") or {}
         run.scaled = ev.get("scaled") or {}
         line, values = run.line(), dict(run.parameters)
     booked.later.append(lambda: m.save(run))
@@ -189,6 +190,7 @@ def _step(m: Books, ev: dict) -> Booked:
         if run is not None:
             run.records.append(ev["record"])
             run.step = ev["record"]["step"]
+            run.stepping_s += ev.get("wall_s") or 0.0
             run.n_steps = ev.get("n_steps", run.n_steps)  # tool_speed changes the count
             run.frames.update(ev.get("frames") or {})
     return Booked()

@@ -13,6 +13,7 @@ import copy
 import json
 import shutil
 import threading
+import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -53,11 +54,38 @@ class Run:
     pending: list[str] = field(default_factory=list)
     # finished runs: error estimate from a study of the scene, and the run's cost
     estimate: dict | None = None
+    # what the plots need that the records do not say: each punch's start translation (m),
+    # each probe's kind (from the solver's meta)
+    punches: dict[str, list[float]] = field(default_factory=dict)
+    probe_kinds: dict[str, str] = field(default_factory=dict)
+    stepping_s: float = 0.0  # wall time the solver spent in the steps made
+    ended: float | None = None  # Unix time it ended
 
     def summary(self) -> dict:
-        """Everything but the records, copied (the bridge may change the run meanwhile)."""
+        """Everything but the records, copied (the bridge may change the run meanwhile), and
+        its progress."""
+        return self._fields() | {"progress": self.progress(time.time())}
+
+    def _fields(self) -> dict:
         return {f.name: copy.deepcopy(getattr(self, f.name)) for f in fields(self)
                 if f.name != "records"}
+
+    def progress(self, now: float) -> dict:
+        """Steps done of all, the wall time since the start (to the end, once it ended) and
+        the time the steps left need at the mean cost of those done (0 once finished; None
+        before the first step, or for a run that ended early and will not go on)."""
+        done, steps = self.step, self.n_steps
+        left = None
+        if self.state == "finished":
+            left = 0.0
+        elif self.state in ACTIVE and done and steps:
+            left = self.stepping_s / done * max(steps - done, 0)
+        end = self.ended if self.ended is not None else None if self.state not in ACTIVE \
+            else now
+        return {"step": done, "steps": steps,
+                "fraction": min(done / steps, 1.0) if steps else None,
+                "elapsed_s": None if end is None else max(end - self.created, 0.0),
+                "remaining_s": left}
 
     def line(self) -> str:
         """The viewer's status line (markdown)."""
@@ -68,7 +96,7 @@ class Run:
 
     def snapshot(self) -> dict:
         """What run.json holds: the summary and the step records."""
-        return {**self.summary(), "records": list(self.records)}
+        return {**self._fields(), "records": list(self.records)}
 
 
 def repair_recording(path: Path) -> str:

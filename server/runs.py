@@ -383,6 +383,7 @@ class RunManager:
     def finish(self, run: Run, state: str, reason: str | None) -> None:
         """Under ``lock``: the run is over. The caller saves it (outside the lock)."""
         run.state, run.reason = state, reason
+        run.ended = time.time()
         run.pending.clear()  # what the solver did not do, it will not do for this run
         self.sent = {rid: r for rid, r in self.sent.items() if r != run.id}
         if run.id == self.active:

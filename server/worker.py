@@ -54,6 +54,19 @@ def _frame_msg(run: str | None, sim: Simulation) -> dict:
             "probes": f.probes, "iterations": f.iterations, "residual": f.residual}
 
 
+def _plotted(scene: Scene, sim: Simulation) -> dict:
+    """What the page's plots need of a run that its step records do not say: each punch's
+    start translation (its stroke is read from there, sim.frames.punch) and each probe's
+    kind (which says its unit)."""
+    from sim.scene.shapes import tool_role
+
+    starts = sim.tool_poses()
+    punches = {t.name: [float(c) for c in starts[t.name]] for t in scene.tools
+               if tool_role(t) == "punch" and t.name in starts}
+    return {"punches": punches,
+            "probe_kinds": {p.name: p.kind for p in scene.probes}}
+
+
 def plane_size(positions: np.ndarray) -> float:
     """Side of the square that shows an unbounded tool (a plane): twice the sheet's extent."""
     extent = positions.max(0) - positions.min(0) if len(positions) else np.ones(3)
@@ -165,7 +178,8 @@ class Solver:
         self.emit("meta", faces=self.sim.display.faces, n_steps=self.sim.n_steps,
                   counts=self.sim.result()["counts"], element=scene.shell.element,
                   probes=[p.name for p in scene.probes], tools=tools, timing=timing,
-                  parameters=dict(self.sim.parameters), scaled=self.sim.scaled())
+                  parameters=dict(self.sim.parameters), scaled=self.sim.scaled(),
+                  **_plotted(scene, self.sim))
         self.events.put(rest)  # the rest state, before the first step (which may take seconds)
         try:
             self.record("meta", self.sim.display.faces, tools)
@@ -305,14 +319,16 @@ class Solver:
     def _step(self, single: bool) -> None:
         from sim.stepping.simulation import SolverFailure
 
+        t0 = time.perf_counter()
         try:
             rec = self.sim.step()
         except SolverFailure as exc:
             self.finish("failed", str(exc))
             return
+        wall = time.perf_counter() - t0
         msg = _frame_msg(self.run, self.sim)
         self.produced += 1
-        self.emit("step", record=asdict(rec), n_steps=self.sim.n_steps,
+        self.emit("step", record=asdict(rec), wall_s=wall, n_steps=self.sim.n_steps,
                   frames={"produced": self.produced, "dropped": self.dropped})
         try:
             self.record("step", asdict(rec))

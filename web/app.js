@@ -1,29 +1,15 @@
-// The preview page: plain JS, no build step. Talks to /api and embeds the viser viewer.
+// The preview page: plain JS, no build step. Talks to /api (api.js) and embeds the viser
+// viewer. Here: the scenes and their editor, the run controls, the runs and the selection;
+// the selected run's headline and plots are results.js's, drawn by plots.js.
 "use strict";
 const $ = (id) => document.getElementById(id);
 // run: the selected run, as the server holds it (/api/view: the viewer shows the same one);
 // viewSeq / paramSeq count the page's own changes, so an answer to a request sent before one
 // of them is not taken for the server's state after it
-const state = { scene: null, run: null, records: [], config: null, form: null, syncSeq: 0,
+const state = { scene: null, run: null, config: null, form: null, syncSeq: 0,
                 syncTimer: null, syncPending: null, syncRunning: null, viewSeq: 0,
                 paramSeq: 0, status: null };
 const ACTIVE = ["starting", "building", "running", "paused"];
-const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b"];
-
-async function api(method, url, body) {
-  const opts = { method, headers: {} };
-  if (body !== undefined) {
-    opts.headers["Content-Type"] = "application/json";
-    opts.body = JSON.stringify(body);
-  }
-  const r = await fetch(url, opts);
-  const data = r.status === 204 ? null : await r.json().catch(() => null);
-  if (!r.ok) {
-    const d = data && data.detail;
-    throw new Error(typeof d === "string" ? d : JSON.stringify(d));
-  }
-  return data;
-}
 
 function say(text, isError) {
   $("msg").textContent = text;
@@ -325,8 +311,8 @@ function adoptRun(id) {
   // the selection the server holds, from this page's click or another's (or the viewer's)
   if (state.run !== id) {
     state.run = id;
-    state.records = [];
     state.status = null;
+    Results.forget();  // nothing of the run shown before stays on screen
   }
   for (const tr of $("runs").querySelectorAll("tbody tr"))
     tr.className = tr.dataset.id === id ? "sel" : "";
@@ -349,120 +335,21 @@ async function poll() {
 }
 
 async function showRun(id) {
-  // the status pages its records: ask from the last step we have until none are left; a
-  // selection that moved meanwhile drops what was read for the old one
+  // the status without the records it had (the plots read theirs from /plots); a selection
+  // that moved meanwhile drops what was read for the old one
   const paramSeq = state.paramSeq;
-  let st;
-  do {
-    const since = state.records.length ? state.records[state.records.length - 1].step : 0;
-    st = await api("GET", `/api/runs/${id}?since=${since}`);
-    if (state.run !== id) return;
-    state.records.push(...st.records);
-  } while (st.records_left > 0 && st.records.length);
+  const since = state.status && state.status.id === id ? state.status.step : 0;
+  const st = await api("GET", `/api/runs/${id}?since=${since}&limit=1`);
+  if (state.run !== id) return;
   state.status = st;
-  $("status").textContent = `${st.id}: ${st.state}, step ${st.step}/${st.n_steps ?? "?"}` +
-    (st.edited ? ` — ran unsaved edits of ${st.scene}` : "") +
-    (st.reason ? ` — ${st.reason}` : "");
-  Object.assign($("status").dataset, { state: st.state, run: st.id, step: st.step,
-                                       edited: String(!!st.edited) });
   for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = !ACTIVE.includes(st.state);
   showParameters(st, paramSeq);
-  showEstimate(st);
-  drawPlots(st.probes);
+  await Results.show(st);
 }
 
 function showNoRun() {
-  $("status").textContent = "No run selected";
-  $("status").dataset.run = "";
+  Results.none();
   for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = true;
-}
-
-function showEstimate(st) {
-  // a finished run: its error estimate from a study of the scene and its cost
-  const box = $("estimate");
-  const est = st.estimate;
-  box.hidden = !est;
-  box.dataset.run = st.id;
-  box.dataset.available = est ? String(!!est.available) : "";
-  if (!est) { box.replaceChildren(); return; }
-  const line = document.createElement("div");
-  line.className = "estimate-text";
-  // `q3t study SCENE` in backticks becomes code
-  est.text.split("`").forEach((part, i) => {
-    if (i % 2) {
-      const c = document.createElement("code");
-      c.textContent = part;
-      line.append(c);
-    } else line.append(part);
-  });
-  const kids = [line];
-  if (est.notes && est.notes.length) {
-    const ul = document.createElement("ul");
-    for (const n of est.notes) {
-      const li = document.createElement("li");
-      li.textContent = n;
-      ul.append(li);
-    }
-    kids.push(ul);
-  }
-  box.replaceChildren(...kids);
-}
-
-function plot(canvas, series) {
-  // series: [{name, xs, ys}] drawn each on its own normalised y scale, with min/max labels
-  const ctx = canvas.getContext("2d");
-  const W = canvas.width, H = canvas.height, pad = 28;
-  ctx.clearRect(0, 0, W, H);
-  const xs = series.flatMap((s) => s.xs);
-  if (!xs.length) return;
-  const x0 = Math.min(...xs), x1 = Math.max(...xs, x0 + 1);
-  ctx.font = "11px sans-serif";
-  series.forEach((s, k) => {
-    const ys = s.ys.filter(Number.isFinite);
-    if (!ys.length) return;
-    let y0 = Math.min(...ys), y1 = Math.max(...ys);
-    if (s.fromZero) { y0 = Math.min(y0, 0); y1 = Math.max(y1, 0); }
-    if (y1 - y0 < 1e-12 * Math.max(1, Math.abs(y1))) { y0 -= 1; y1 += 1; }
-    ctx.strokeStyle = ctx.fillStyle = COLORS[k % COLORS.length];
-    ctx.beginPath();
-    s.xs.forEach((x, i) => {
-      const px = pad + (W - 2 * pad) * (x - x0) / (x1 - x0);
-      const py = H - pad - (H - 2 * pad) * (s.ys[i] - y0) / (y1 - y0);
-      i ? ctx.lineTo(px, py) : ctx.moveTo(px, py);
-      ctx.fillRect(px - 1.5, py - 1.5, 3, 3);
-    });
-    ctx.stroke();
-    ctx.fillText(`${s.name} [${y0.toPrecision(3)}, ${y1.toPrecision(3)}]`, pad, 12 + 12 * k);
-  });
-  ctx.fillStyle = "#555";
-  ctx.fillText(`step ${x0} … ${x1}`, W - 110, H - 8);
-}
-
-function drawForce(rec, probeNames) {
-  // the punch force, live, when the scene has a punch_force probe (N in records, kN here)
-  const has = probeNames.includes("punch_force") ||
-    (rec.length && "punch_force" in rec[rec.length - 1].probes);
-  $("force-fig").hidden = !has;
-  if (!has) return;
-  const pts = rec.filter((r) => Number.isFinite(r.probes.punch_force));
-  const kN = pts.map((r) => r.probes.punch_force / 1000);
-  plot($("force"), [{ name: "punch force (kN)", xs: pts.map((r) => r.step), ys: kN,
-                      fromZero: true }]);
-  $("force-now").textContent = pts.length ?
-    `— ${kN[kN.length - 1].toFixed(2)} kN at step ${pts[pts.length - 1].step}, ` +
-    `peak ${Math.max(...kN.map(Math.abs)).toFixed(2)} kN` : "";
-}
-
-function drawPlots(probeNames) {
-  const rec = state.records;
-  drawForce(rec, probeNames || []);
-  const steps = rec.map((r) => r.step);
-  const names = rec.length ? Object.keys(rec[rec.length - 1].probes) : [];
-  plot($("probes"), names.map((n) => ({ name: n, xs: steps, ys: rec.map((r) => r.probes[n]) })));
-  plot($("residual"), [
-    { name: "log10 residual", xs: steps, ys: rec.map((r) => Math.log10(r.residual)) },
-    { name: "Newton iterations", xs: steps, ys: rec.map((r) => r.iterations) },
-  ]);
 }
 
 async function main() {
@@ -477,6 +364,8 @@ async function main() {
   if (state.config.viewer_port) {
     $("viewer").src = `${location.protocol}//${location.hostname}:${state.config.viewer_port}/`;
   }
+  Layout.init();
+  Results.init();
   $("save").onclick = saveScene;
   state.form = new SceneForm.Form($("scene-form"), await api("GET", "/api/scenes/schema"),
                                   () => scheduleSync(syncFromForm, 300), suggestNames);

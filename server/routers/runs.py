@@ -11,7 +11,7 @@ from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field
 
 from server.errors import BODY, CheckedRoute, documented
-from server.problems import NotFound
+from server.problems import Conflict, NotFound
 from server.runs import RunManager
 from server.settings import RunId, SceneName
 
@@ -43,6 +43,18 @@ class ParameterValue(BaseModel):
     value: float
 
 
+class Progress(BaseModel):
+    step: int = Field(description="steps done")
+    steps: int | None = Field(description="steps of the run (release included); null while "
+                              "it builds")
+    fraction: float | None = Field(description="step / steps")
+    elapsed_s: float | None = Field(description="wall time since the start, to the end once "
+                                    "it ended (null for a run whose end was not recorded)")
+    remaining_s: float | None = Field(description="the steps left at the mean wall time of "
+                                      "those done: 0 once finished, null before the first "
+                                      "step and for a run that ended early")
+
+
 class RunSummary(BaseModel):
     """A run as the server holds it (fields added later pass through)."""
 
@@ -65,6 +77,7 @@ class RunSummary(BaseModel):
                                "step asked for is made")
     parameters: dict[str, float] = Field(default_factory=dict, description=(
         "every live parameter's value from the next step on (as the solver last said)"))
+    progress: Progress
 
 
 class RunStatus(RunSummary):
@@ -295,11 +308,17 @@ def frame(run_id: RunId, step: int, request: Request) -> dict:
 
 
 @router.get("/{run_id}/recording", response_class=FileResponse, responses={
-    **RUN, 200: {"content": {"application/octet-stream": {}},
-                 "description": "The run's rerun recording (run.rrd)"}})
+    **documented(404, 409, 422), 200: {"content": {"application/octet-stream": {}},
+                                       "description": "The run's rerun recording (run.rrd)"}})
 def recording(run_id: RunId, request: Request) -> FileResponse:
+    """The recording of a run that has ended (an active run's grows while it is sent: its
+    length would not match what was promised, and the file would end mid-record)."""
     m = _runs(request)
-    path = m.files.recording(m.get(run_id).id)
+    run = m.get(run_id)
+    if run.id == m.active:
+        raise Conflict(f"run {run_id!r} is {run.state}: its recording is complete when it "
+                       "ends")
+    path = m.files.recording(run.id)
     if not path.is_file():
         raise NotFound(f"run {run_id!r} has no recording")
     return FileResponse(path, media_type="application/octet-stream", filename=f"{run_id}.rrd")

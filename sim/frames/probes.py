@@ -85,16 +85,18 @@ class ProbeKind:
     value: Value
     needs: tuple[str, ...] = ()  # the spec's fields it reads: "point", "region", "tool"
     plastic: bool = False  # reads the plastic state: a plastic material only
+    unit: str = "m"  # SI (sim.frames.units.DISPLAY): the page shows it in mm, kN, MPa, ...
 
 
 PROBES: dict[str, ProbeKind] = {}
 
 
-def probe(kind: str, needs: tuple[str, ...] = (),
-          plastic: bool = False) -> Callable[[Value], Value]:
-    """Register the decorated ``value(state, spec)`` as probe kind ``kind``."""
+def probe(kind: str, needs: tuple[str, ...] = (), plastic: bool = False,
+          unit: str = "m") -> Callable[[Value], Value]:
+    """Register the decorated ``value(state, spec)`` as probe kind ``kind``, whose values are
+    in ``unit``."""
     def register(value: Value) -> Value:
-        PROBES[kind] = ProbeKind(value, needs, plastic)
+        PROBES[kind] = ProbeKind(value, needs, plastic, unit)
         return value
     return register
 
@@ -130,29 +132,29 @@ def _thickness(s: State, p: Spec) -> float:
     return _stat(thickness(s.model, s.x), p)
 
 
-@probe("reaction", needs=("region",))
+@probe("reaction", needs=("region",), unit="N")
 def _reaction(s: State, p: Spec) -> float:
     nodes = s.model.column_nodes(s.model.regions[p.region])
     return _component(s.gradient[nodes].sum(0), p)
 
 
-@probe("volume")
+@probe("volume", unit="m3")
 def _volume(s: State, p: Spec) -> float:
     return volume(s.model, s.x)
 
 
-@probe("curvature", needs=("region",))
+@probe("curvature", needs=("region",), unit="1/m")
 def _curvature(s: State, p: Spec) -> float:
     return curvature_xz(mid_surface(s.model, s.x)[s.vertices(p.region)])
 
 
-@probe("plastic_strain", plastic=True)
+@probe("plastic_strain", plastic=True, unit="1")
 def _plastic_strain(s: State, p: Spec) -> float:
     ep = s.model.elasticity.ep
     return _stat(ep, p) if ep.size else 0.0
 
 
-@probe("von_mises")
+@probe("von_mises", unit="Pa")
 def _von_mises(s: State, p: Spec) -> float:
     return _stat(s.model.elasticity.von_mises(s.x), p)
 
@@ -163,7 +165,7 @@ def _tool_report(s: State, p: Spec) -> dict | None:
     return None if term is None else term.report(s.x)
 
 
-@probe("tool_force", needs=("tool",))
+@probe("tool_force", needs=("tool",), unit="N")
 def _tool_force(s: State, p: Spec) -> float:
     rep = _tool_report(s, p)
     return 0.0 if rep is None else _component(np.array([rep["fx"], rep["fy"], rep["fz"]]), p)
@@ -175,13 +177,13 @@ def _penetration(s: State, p: Spec) -> float:
     return 0.0 if rep is None else float(rep["penetration"])
 
 
-@probe("contact_nodes", needs=("tool",))
+@probe("contact_nodes", needs=("tool",), unit="")
 def _contact_nodes(s: State, p: Spec) -> float:
     rep = _tool_report(s, p)
     return 0.0 if rep is None else float(rep["contact_nodes"])
 
 
-@probe("fibre_tilt")
+@probe("fibre_tilt", unit="deg")
 def _fibre_tilt(s: State, p: Spec) -> float:
     tilt = fibre_tilt(s.model, s.x)
     return _stat(tilt[s.vertices(p.region)] if p.region else tilt, p)

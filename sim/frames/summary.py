@@ -48,6 +48,8 @@ import numpy as np
 
 from sim.frames import blank
 from sim.frames.fields import mid_surface, thickness, volume
+from sim.frames.punch import punch_history
+from sim.frames.units import measure
 from sim.scene.shapes import tool_role
 from sim.terms.tool_contact import ToolContact
 from sim.tools.evaluate import sdf_world_distance
@@ -56,22 +58,12 @@ if TYPE_CHECKING:
     from sim.frames.output import Run
     from sim.model.build import Model
 
-# SI unit -> (the unit the page shows, factor)
-DISPLAY = {"N": ("kN", 1e-3), "m": ("mm", 1e3), "1": ("%", 100.0), "deg": ("deg", 1.0)}
 # a flat blank: every rest mid-surface vertex within this many thicknesses of one plane
 FLAT = 0.5
 # an edge resting on a die: within this many thicknesses of the die's surface at the start
 RESTS = 0.05
 # punches moving along one direction: their directions within a degree of each other
 PARALLEL = np.cos(np.radians(1.0))
-
-
-def measure(value: float | np.ndarray | list, unit: str) -> dict:
-    """``{"value", "unit", "display": {"value", "unit"}}`` of an SI number or list of them."""
-    shown, factor = DISPLAY[unit]
-    scaled = (np.asarray(value, float) * factor).tolist()
-    value = np.asarray(value, float).tolist()
-    return {"value": value, "unit": unit, "display": {"value": scaled, "unit": shown}}
 
 
 def entry(name: str, label: str, value: float, unit: str, at: dict | None = None,
@@ -225,22 +217,6 @@ class Summary:
 
 
 # ---- the quantities --------------------------------------------------------------------------
-def punch_history(rows: list[tuple[int, dict]], start: np.ndarray) -> dict:
-    """A punch's history from its step reports ``rows`` [(step, {fx, fy, fz, x, y, z})] and
-    its start translation: ``steps``, ``force`` resisting its motion (N) and ``stroke`` (m) at
-    each, and ``direction``, the unit direction of its largest excursion from the start. A
-    punch that never moves: the force's size, no stroke or direction. Shapes: (k,)."""
-    steps = np.array([s for s, _ in rows], int)
-    F = np.array([[r["fx"], r["fy"], r["fz"]] for _, r in rows], float).reshape(-1, 3)
-    T = np.array([[r["x"], r["y"], r["z"]] for _, r in rows], float).reshape(-1, 3) - start
-    reach = np.linalg.norm(T, axis=1)
-    if not len(rows) or reach.max() == 0.0:
-        return {"steps": steps, "force": np.linalg.norm(F, axis=1), "stroke": None,
-                "direction": None}
-    d = T[int(np.argmax(reach))] / reach.max()
-    return {"steps": steps, "force": -F @ d, "stroke": T @ d, "direction": d}
-
-
 def punches(view: View) -> dict[str, dict]:
     """:func:`punch_history` of every punch that was active in the stroke."""
     out = {}

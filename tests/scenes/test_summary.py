@@ -25,7 +25,7 @@ from sim.frames.forming_limits import (
     WRINKLING,
     FormingLimitCurve,
 )
-from sim.frames.summary import punch_history
+from sim.frames.punch import punch_history
 from sim.geometry.trimesh import annulus, rectangle
 from sim.scene.load import SceneError, scene_from_dict
 from sim.scene.shapes import tool_role

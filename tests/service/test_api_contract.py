@@ -31,9 +31,16 @@ from tests.support.scenes import tiny_toml  # noqa: E402
 # live parameters' ranges (named by the solver process at run time) and the scene's own rules
 # are beyond a JSON schema. Names are not: the schema's name rule is checked on its own below.
 ACCEPTED = ["2xx", "404", "409", "422", "503"]
+# A run's result, summary, forming limits and recording exist once it has ended (its
+# recording once it has a frame): a 404 for a run just created is the documented answer there,
+# not a created resource gone missing. Which sequences the stateful phase draws depends on the
+# whole schema, so any new route or field may lead it there.
+LATER = r"/\{run_id\}/(result|summary|forming_limits|recording|plots)$"
 CONFIG = schemathesis.Config.from_dict({
     "generation": {"deterministic": True},
-    "checks": {"positive_data_acceptance": {"expected-statuses": ACCEPTED}}})
+    "checks": {"positive_data_acceptance": {"expected-statuses": ACCEPTED}},
+    "operations": [{"include-path-regex": LATER,
+                    "checks": {"ensure_resource_availability": {"enabled": False}}}]})
 # the document does not depend on the folders or the worker: the app served below has the same
 SCHEMA = schemathesis.openapi.from_dict(create_app(Settings(viewer=False)).openapi(),
                                         config=CONFIG)

@@ -114,3 +114,76 @@ EDITED_EDGE = 0.0175  # half tiny's saved 35 mm edge: about three times the vert
 def vertices(text: str) -> int:
     """How many mid-surface vertices the scene ``text`` meshes into."""
     return len(build_mesh(scene_from_toml(text).mesh).vertices)
+
+
+def tiny_cup_toml(steps: int = 4) -> str:
+    """A 24 mm plastic disk drawn 2 mm into a die ring by a punch, with a forming limit
+    curve and a radial section: every plot of the page in about a second of solving."""
+    return TINY_CUP_TOML.replace("steps = 4\n", f"steps = {steps}\n", 1)
+
+
+TINY_CUP_TOML = """
+name = "tiny_cup"
+description = "A small cup drawn a few millimetres (page tests)"
+
+[mesh]
+kind = "disk"
+r_outer = 0.012
+edge_length = 0.003
+
+[shell]
+thickness = 0.0005
+element = "q3t"
+
+[material]
+model = "plastic"
+E = 70.0e9
+nu = 0.33
+yield_stress = 100.0e6
+hardening = { law = "voce", saturation = 250.0e6, rate = 13.5 }
+flc = { kind = "keeler_brazier", n = 0.2 }
+
+[[tools]]
+name = "punch"
+shape = { kind = "punch", radius = 0.005, height = 0.02, edge_radius = 0.0015 }
+position = [0.0, 0.0, 0.00025]
+velocity = [0.0, 0.0, -0.002]
+friction = 0.1
+
+[[tools]]
+name = "die"
+position = [0.0, 0.0, -0.00025]
+friction = 0.1
+[tools.shape]
+kind = "die_ring"
+inner_radius = 0.0062
+outer_radius = 0.02
+height = 0.01
+edge_radius = 0.0015
+
+[stepping]
+steps = 4
+
+[[sections]]
+name = "radial"
+direction = [1.0, 0.0]
+width = 0.0001
+steps = [0, 2, 4]
+
+[[probes]]
+name = "punch_force"
+kind = "tool_force"
+tool = "punch"
+component = "z"
+
+[[probes]]
+name = "min_thickness"
+kind = "thickness"
+stat = "min"
+
+[[probes]]
+name = "punch_travel"
+kind = "displacement"
+point = [0.0, 0.0, 0.0]
+component = "z"
+"""

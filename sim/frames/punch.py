@@ -1,0 +1,23 @@
+"""A punch's force against its stroke, from the step reports of its tool: the run summary's
+peak force and the page's force-stroke plot read it from here. Light on purpose: the server
+reads it of a live run's records without importing the solver."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def punch_history(rows: list[tuple[int, dict]], start: np.ndarray) -> dict:
+    """A punch's history from its step reports ``rows`` [(step, {fx, fy, fz, x, y, z})] and
+    its start translation: ``steps``, ``force`` resisting its motion (N) and ``stroke`` (m) at
+    each, and ``direction``, the unit direction of its largest excursion from the start. A
+    punch that never moves: the force's size, no stroke or direction. Shapes: (k,)."""
+    steps = np.array([s for s, _ in rows], int)
+    F = np.array([[r["fx"], r["fy"], r["fz"]] for _, r in rows], float).reshape(-1, 3)
+    T = np.array([[r["x"], r["y"], r["z"]] for _, r in rows], float).reshape(-1, 3) - start
+    reach = np.linalg.norm(T, axis=1)
+    if not len(rows) or reach.max() == 0.0:
+        return {"steps": steps, "force": np.linalg.norm(F, axis=1), "stroke": None,
+                "direction": None}
+    d = T[int(np.argmax(reach))] / reach.max()
+    return {"steps": steps, "force": -F @ d, "stroke": T @ d, "direction": d}

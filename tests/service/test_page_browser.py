@@ -1,0 +1,217 @@
+"""The selected run's results on the page, in Debian's chromium (Playwright) against the real
+server in a subprocess, with a small cup drawn by a punch (tests.support.scenes.tiny_cup_toml):
+
+- Start is in view without scrolling (1400 x 1000 and 1280 x 800), the 3-D view is the
+  centre, and its full-window mode covers the window and leaves with Esc;
+- the summary cards show the API's summary values in their display units;
+- the punch force plot is against the stroke, with kN and mm on its axes, as are the section
+  and forming limit plots in theirs;
+- the progress bar reaches 100 %; a live run's plots follow its steps, and a live-parameter
+  change is marked on the force plot.
+
+Screenshots go to $Q3T_SHOTS (default /tmp/shots-page)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.support import ROOT
+from tests.support.browser import CHROMIUM, SWIFTSHADER, WAIT_MS, settled
+from tests.support.scenes import tiny_cup_toml
+from tests.support.service import free_port, until
+
+SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-page"))
+STEPS = 6  # tiny_cup's 2 mm stroke in this many steps
+pytestmark = pytest.mark.browser
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """The server's url, serving tiny_cup (the page's first scene)."""
+    tmp = tmp_path_factory.mktemp("page-browser")
+    (tmp / "scenes").mkdir()
+    (tmp / "scenes" / "tiny_cup.toml").write_text(tiny_cup_toml(STEPS))
+    port, vport = free_port(), free_port()
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data"),
+           "PYTHONPATH": str(ROOT)}
+    log = open(tmp / "server.log", "wb")  # noqa: SIM115 - closed after the server stops
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim.apps", "serve", "tiny_cup", "--port", str(port),
+         "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
+         "--runs-dir", str(tmp / "runs"), "--step-delay", "0.2"],
+        env=env, stdout=log, stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        until(lambda: _ready(url), f"server not up: {tmp / 'server.log'}")
+        yield url
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        log.close()
+
+
+def _ready(url: str) -> bool:
+    try:
+        return httpx.get(url + "/api/config", timeout=1).json()["ready"]
+    except (httpx.HTTPError, ValueError):
+        return False
+
+
+@pytest.fixture(scope="module")
+def browser():
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=SWIFTSHADER)
+        yield b
+        b.close()
+
+
+def open_page(browser, url: str, width: int = 1400, height: int = 1000):
+    page = browser.new_page(viewport={"width": width, "height": height})
+    page.set_default_timeout(WAIT_MS)
+    errors = []
+    page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
+    page.goto(url + "/")
+    page.wait_for_selector("#scenes li.sel")
+    page.wait_for_function("document.getElementById('status').dataset.run !== undefined")
+    return page, errors
+
+
+def shot(page, name: str) -> None:
+    """A screenshot once the viewer has had time to draw (software WebGL: 2-3 frames/s)."""
+    page.wait_for_timeout(2500)
+    page.screenshot(path=str(SHOTS / f"{name}.png"))
+
+
+def js_number(v: float) -> str:
+    """A number as the page writes it (units.js num: three significant digits)."""
+    x = float(f"{v:.3g}")
+    return str(int(x)) if x.is_integer() else repr(x)
+
+
+def in_view(page, selector: str) -> bool:
+    """The element lies inside the window as it opened (no scrolling) and nothing covers it."""
+    return page.evaluate("""(sel) => {
+        const el = document.querySelector(sel), r = el.getBoundingClientRect();
+        const inside = r.top >= 0 && r.left >= 0 && r.bottom <= innerHeight &&
+                       r.right <= innerWidth && r.width > 0 && r.height > 0;
+        const hit = document.elementFromPoint(r.left + r.width / 2, r.top + r.height / 2);
+        return inside && el.contains(hit);
+    }""", selector)
+
+
+def axis_titles(page, plot: str) -> tuple[str, str]:
+    """The x and y axis titles drawn in a plot (plotly's SVG)."""
+    return (page.locator(f"#{plot} .g-xtitle").text_content(),
+            page.locator(f"#{plot} .g-ytitle").first.text_content())
+
+
+@pytest.mark.parametrize("size", [(1400, 1000), (1280, 800)])
+def test_start_in_view_and_the_viewer_in_the_centre(served, browser, size):
+    page, errors = open_page(browser, served, *size)
+    try:
+        assert in_view(page, "#start")
+        box = page.locator("#viewer").bounding_box()
+        w, h = size
+        # the centre column, the largest thing on the page
+        assert box["x"] > 0.15 * w and box["x"] + box["width"] < 0.85 * w
+        assert box["width"] >= 0.4 * w and box["height"] >= 0.5 * h
+        page.click("#full-window")
+        page.wait_for_function("document.body.classList.contains('viewer-full')")
+        full = page.locator("#viewer").bounding_box()
+        assert (full["x"], full["y"], full["width"], full["height"]) == (0, 0, w, h)
+        assert page.get_attribute("#full-window", "aria-pressed") == "true"
+        assert in_view(page, "#full-window")  # the way back is on screen
+        shot(page, f"full-window-{w}x{h}")
+        page.keyboard.press("Escape")
+        page.wait_for_function("!document.body.classList.contains('viewer-full')")
+        assert page.locator("#viewer").bounding_box() == box
+        assert errors == []
+    finally:
+        page.close()
+
+
+def test_results_of_a_finished_run(served, browser):
+    page, errors = open_page(browser, served)
+    try:
+        page.click("#start")
+        page.wait_for_function("(d => d.run && d.state === 'finished')"
+                               "(document.getElementById('status').dataset)")
+        run = page.get_attribute("#status", "data-run")
+        page.wait_for_function(f"document.getElementById('summary').dataset.run === {run!r} "
+                               "&& document.getElementById('summary').dataset.ready === 'true'")
+        # the progress bar, full
+        page.wait_for_function("document.getElementById('progress').dataset.fraction === '1'")
+        assert page.get_attribute("#progress", "aria-valuenow") == "100"
+        assert "100 %" in page.locator("#progress .text").text_content()
+        # the summary's values, as the API gives them, in kN, mm, %
+        want = httpx.get(f"{served}/api/runs/{run}/summary").json()["summary"]
+        cards = page.locator("#summary .quantity")
+        assert cards.count() == len(want) > 0
+        for k, e in enumerate(want):
+            card = cards.nth(k)
+            assert card.get_attribute("data-name") == e["name"]
+            assert json.loads(card.get_attribute("data-value")) == e["display"]["value"]
+            text = card.locator(".value").text_content()
+            assert text == f"{js_number(e['display']['value'])} {e['display']['unit']}"
+        peak = next(e for e in want if e["name"] == "peak_punch_force")
+        at = page.locator('#summary .quantity[data-name="peak_punch_force"] .at').text_content()
+        assert f"{js_number(peak['at']['stroke']['display']['value'])} mm stroke" in at
+        # the plots: force against stroke, the section and the FLD, with their units
+        page.wait_for_selector("#force-plot .g-xtitle")
+        x, y = axis_titles(page, "force-plot")
+        assert "stroke" in x and "mm" in x and "force" in y and "kN" in y
+        points = page.evaluate("document.getElementById('force-plot').data[0].x")
+        assert len(points) == STEPS and points[-1] == pytest.approx(2.0)  # the 2 mm stroke
+        page.wait_for_selector("#section-plot .g-xtitle")
+        assert axis_titles(page, "section-plot") == ("rest radius (mm)", "thickness (mm)")
+        page.wait_for_selector("#fld-plot .g-xtitle")
+        assert axis_titles(page, "fld-plot") == ("minor true strain (%)",
+                                                  "major true strain (%)")
+        assert "cost" in page.locator("#estimate").text_content()  # the solver's, below
+        shot(page, "finished-1400x1000")
+        page.locator("#plots").evaluate("el => el.scrollTo(0, el.scrollHeight)")
+        shot(page, "finished-plots-scrolled")
+        assert errors == []
+    finally:
+        page.close()
+
+
+def test_live_plots_follow_the_steps(served, browser):
+    """A run started paused, stepped by hand: the force plot grows by a point a step, the
+    remaining time is known after the first step, and a friction change is marked."""
+    page, errors = open_page(browser, served)
+    try:
+        r = httpx.post(f"{served}/api/runs", json={"scene": "tiny_cup", "paused": True})
+        run = r.json()["id"]
+        page.wait_for_function(f"document.getElementById('status').dataset.run === {run!r}")
+        settled(served, run)
+        n_points = "document.getElementById('force-plot').data?.[0]?.x?.length"
+        for step in (1, 2):
+            httpx.post(f"{served}/api/runs/{run}/step")
+            page.wait_for_function(f"{n_points} === {step}")
+        assert "left" in page.locator("#progress .text").text_content()
+        assert page.get_attribute("#progress", "data-fraction") == str(2 / STEPS)
+        r = httpx.put(f"{served}/api/runs/{run}/parameters/friction_scale", json={"value": 2})
+        assert r.json()["applies_from_step"] == 3
+        httpx.post(f"{served}/api/runs/{run}/resume")
+        page.wait_for_function(f"{n_points} === {STEPS}")
+        page.wait_for_function("document.getElementById('force-plot').layout.shapes.length "
+                               "=== 1")
+        mark = page.evaluate("document.getElementById('force-plot').layout")
+        stroke_at_2 = page.evaluate("document.getElementById('force-plot').data[0].x[1]")
+        assert mark["shapes"][0]["x0"] == stroke_at_2  # where the change took effect
+        assert "friction_scale = 2 (step 3)" in mark["annotations"][0]["text"]
+        page.wait_for_function("document.getElementById('progress').dataset.fraction === '1'")
+        shot(page, "live-marked")
+        assert errors == []
+    finally:
+        page.close()

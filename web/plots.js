@@ -1,0 +1,171 @@
+// The selected run's plots, drawn with plotly.js (served by the app: /static/vendor). Each
+// draws from the server's numbers (/api/runs/{id}/plots, /forming_limits), already in the
+// units shown (kN, mm, %); every axis says its quantity and unit.
+"use strict";
+const Plots = (() => {
+  const CONFIG = { displaylogo: false, responsive: true,
+                   modeBarButtonsToRemove: ["lasso2d", "select2d", "autoScale2d"] };
+  const FONT = { family: "system-ui, sans-serif", size: 11 };
+  const ZONE_COLOURS = { failure: "#d62728", marginal: "#ff9f1c", safe: "#2ca02c",
+                         "insufficient stretch": "#8c8c8c", "wrinkling tendency": "#9467bd" };
+  const MARK = "#b15928";
+
+  function base(title, height) {
+    return { title: { text: title, font: { size: 13 }, x: 0.02 }, height, autosize: true,
+             font: FONT, margin: { l: 58, r: 16, t: 34, b: 42 }, hovermode: "closest",
+             legend: { orientation: "h", y: -0.25, font: { size: 10 } } };
+  }
+
+  function axis(title, extra) {
+    return { title: { text: title, standoff: 6 }, zeroline: false, automargin: true,
+             ...extra };
+  }
+
+  function show(figId, on) {
+    document.getElementById(figId).hidden = !on;
+  }
+
+  function draw(div, traces, layout) {
+    // react: only what changed is redrawn (a live run redraws at every step)
+    return Plotly.react(div, traces, layout, CONFIG);
+  }
+
+  // the live-parameter changes as vertical marks, at x = where(step it applies from)
+  function marks(log, where) {
+    const shapes = [], notes = [];
+    for (const e of log || []) {
+      const x = where(e.step);
+      if (x === null || x === undefined) continue;
+      shapes.push({ type: "line", xref: "x", yref: "paper", x0: x, x1: x, y0: 0, y1: 1,
+                    line: { color: MARK, width: 1.5, dash: "dot" } });
+      notes.push({ xref: "x", yref: "paper", x, y: 1, yanchor: "bottom", showarrow: false,
+                   text: `${e.name} = ${Units.num(e.value)} (step ${e.step})`,
+                   font: { size: 10, color: MARK } });
+    }
+    return { shapes, annotations: notes };
+  }
+
+  function strokeAt(punch, step) {
+    // the stroke reached when the change took effect: at the end of the step before
+    if (step <= 1) return 0;
+    const k = punch.steps.indexOf(step - 1);
+    return k < 0 ? null : punch.stroke.values[k];
+  }
+
+  function forceStroke(div, punches, log) {
+    const byStroke = punches.some((p) => p.stroke);
+    const traces = punches.map((p) => ({
+      x: p.stroke ? p.stroke.values : p.steps, y: p.force.values, customdata: p.steps,
+      name: p.tool, type: "scatter", mode: "lines+markers", marker: { size: 4 },
+      hovertemplate: (p.stroke ? "stroke %{x:.3f} mm<br>" : "") +
+        "force %{y:.4g} kN<br>step %{customdata}<extra>%{fullData.name}</extra>" }));
+    const first = punches.find((p) => p.stroke);
+    const where = first ? (s) => strokeAt(first, s) : (s) => s - 0.5;
+    const layout = { ...base("Punch force against stroke", 280),
+                     xaxis: axis(byStroke ? "punch stroke (mm)" : "step", { rangemode: "tozero" }),
+                     yaxis: axis(`punch force (${punches[0].force.unit})`, { rangemode: "tozero" }),
+                     showlegend: punches.length > 1, ...marks(log, where) };
+    return draw(div, traces, layout);
+  }
+
+  function probes(div, series, log) {
+    // one y axis per quantity (the probes' kind: thickness, tool force, ...), stacked, the
+    // steps shared below
+    const kindOf = (s) => s.kind || "?";
+    const kinds = [...new Set(series.map(kindOf))];
+    const traces = series.map((s) => {
+      const k = kinds.indexOf(kindOf(s));
+      return { x: s.steps, y: s.values, name: s.name, type: "scatter", mode: "lines+markers",
+               marker: { size: 3 }, xaxis: "x", yaxis: k ? `y${k + 1}` : "y",
+               hovertemplate: `${s.name}: %{y:.4g} ${s.unit}<br>step %{x}<extra></extra>` };
+    });
+    const layout = { ...base("Probes", 80 + 125 * kinds.length),
+                     grid: { rows: kinds.length, columns: 1, pattern: "coupled",
+                             roworder: "top to bottom", ygap: 0.25 },
+                     xaxis: axis("step"), ...marks(log, (s) => s - 0.5) };
+    kinds.forEach((kind, k) => {
+      const of = series.filter((s) => kindOf(s) === kind);
+      const unit = of[0].unit;
+      const title = kind === "?" ? "SI units"
+                                 : `${kind.replaceAll("_", " ")} (${unit || "count"})`;
+      layout[k ? `yaxis${k + 1}` : "yaxis"] = axis(title, { title: { text: title,
+        font: { size: 10 } } });
+    });
+    return draw(div, traces, layout);
+  }
+
+  function sections(div, found, punch) {
+    const traces = [];
+    for (const sec of found) {
+      for (const s of sec.steps) {
+        const stroke = punch && punch.stroke ? strokeAt(punch, s.step + 1) : null;
+        traces.push({ x: s.position.values, y: s.thickness.values, type: "scatter",
+                      mode: "lines+markers", marker: { size: 4 },
+                      name: `${found.length > 1 ? sec.name + ", " : ""}step ${s.step}` +
+                            (stroke !== null ? ` (${Units.num(stroke)} mm)` : ""),
+                      hovertemplate: "radius %{x:.3g} mm<br>thickness %{y:.4g} mm" +
+                                     "<extra>%{fullData.name}</extra>" });
+      }
+    }
+    const names = found.map((s) => `"${s.name}"`).join(", ");
+    const layout = { ...base(`Thickness along the section ${names}`, 280),
+                     xaxis: axis("rest radius (mm)"), yaxis: axis("thickness (mm)") };
+    return draw(div, traces, layout);
+  }
+
+  function fld(div, fl) {
+    const pct = (xs) => xs.map((v) => 100 * v);
+    const type = fl.minor.length > 4000 ? "scattergl" : "scatter";
+    const traces = [];
+    const point = (name, idx, colour) => traces.push({
+      x: pct(idx.map((i) => fl.minor[i])), y: pct(idx.map((i) => fl.major[i])), type,
+      mode: "markers", name: `${name} (${idx.length})`, marker: { size: 4, color: colour },
+      hovertemplate: "minor %{x:.2f} %<br>major %{y:.2f} %<extra>" + name + "</extra>" });
+    if (fl.zone && fl.zones) {
+      for (const [code, name] of Object.entries(fl.zones)) {
+        const idx = [];
+        fl.zone.forEach((z, i) => { if (String(z) === code) idx.push(i); });
+        if (idx.length) point(name, idx, ZONE_COLOURS[name]);
+      }
+    } else point("elements", fl.minor.map((_, i) => i), "#1f77b4");
+    if (fl.curve) {
+      traces.push({ x: pct(fl.curve.minor), y: pct(fl.curve.major), type: "scatter",
+                    mode: "lines", name: "forming limit curve", line: { color: "#000" },
+                    hovertemplate: "FLC: minor %{x:.2f} %, major %{y:.2f} %<extra></extra>" });
+      if (fl.margin)
+        traces.push({ x: pct(fl.curve.minor), y: pct(fl.curve.major.map((v) => v - fl.margin)),
+                      type: "scatter", mode: "lines", name: "marginal",
+                      line: { color: "#000", dash: "dash", width: 1 }, hoverinfo: "skip" });
+    }
+    // the elements' strains and the curve's lowest point (FLC0) in view, not the curve's
+    // whole span: a preview's strains are often a few per cent
+    const lo = (xs) => Math.min(0, ...xs), hi = (xs) => Math.max(0, ...xs);
+    const flc0 = fl.curve ? 100 * fl.curve.flc0 : 0;
+    const xr = [Math.min(-10, 1.3 * lo(pct(fl.minor))), Math.max(10, 1.3 * hi(pct(fl.minor)))];
+    const yr = [Math.min(-2, 1.2 * lo(pct(fl.major))),
+                Math.max(1.3 * flc0, 1.2 * hi(pct(fl.major)), 10)];
+    const layout = { ...base(`Forming limit diagram (step ${fl.step})`, 320),
+                     xaxis: axis("minor true strain (%)", { range: xr }),
+                     yaxis: axis("major true strain (%)", { range: yr }) };
+    return draw(div, traces, layout);
+  }
+
+  function solver(div, s) {
+    const traces = [
+      { x: s.steps, y: s.residual, name: "residual", type: "scatter", mode: "lines+markers",
+        marker: { size: 3 }, hovertemplate: "residual %{y:.2e}<br>step %{x}<extra></extra>" },
+      { x: s.steps, y: s.iterations, name: "Newton iterations", yaxis: "y2", type: "bar",
+        opacity: 0.35, hovertemplate: "%{y} iterations<br>step %{x}<extra></extra>" }];
+    const layout = { ...base("", 220), margin: { l: 58, r: 50, t: 10, b: 42 },
+                     xaxis: axis("step"), yaxis: axis("relative residual", { type: "log" }),
+                     yaxis2: axis("Newton iterations", { overlaying: "y", side: "right",
+                                                         rangemode: "tozero" }) };
+    return draw(div, traces, layout);
+  }
+
+  function purge(div) {
+    if (div.data) Plotly.purge(div);
+  }
+
+  return { forceStroke, probes, sections, fld, solver, show, purge };
+})();

@@ -1,0 +1,281 @@
+// The selected run's headline and plots: its state and progress, its summary (peak punch
+// force, thinning, draw-in, ... as result.json has them), the solver's cost as a secondary
+// line, and the plots, redrawn as steps arrive. What is shown is read from the server.
+"use strict";
+const Results = (() => {
+  const ACTIVE = ["starting", "building", "running", "paused"];
+  // what is drawn, so a poll redraws only what changed: "run@step/state" per part
+  const drawn = { plots: null, summary: null, fld: null };
+  let plotsData = null;
+  let shown = null;  // the run whose numbers are on screen
+
+  function key(st) {
+    return `${st.id}@${st.step}/${st.state}`;
+  }
+
+  // ---- the headline ---------------------------------------------------------------------
+  function showStatus(st) {
+    const box = document.getElementById("status");
+    box.textContent = `${st.id}: ${st.state}, step ${st.step}/${st.n_steps ?? "?"}` +
+      (st.edited ? ` — ran unsaved edits of ${st.scene}` : "") +
+      (st.reason ? ` — ${st.reason}` : "");
+    Object.assign(box.dataset, { state: st.state, run: st.id, step: st.step,
+                                 edited: String(!!st.edited) });
+  }
+
+  function showProgress(st) {
+    const p = st.progress, box = document.getElementById("progress");
+    box.hidden = !p;
+    if (!p) return;
+    const pct = p.fraction === null ? 0 : 100 * p.fraction;
+    box.querySelector(".fill").style.width = `${pct}%`;
+    box.setAttribute("aria-valuenow", String(Math.round(pct)));
+    box.dataset.fraction = p.fraction === null ? "" : String(p.fraction);
+    box.dataset.state = st.state;
+    const parts = [`step ${p.step}/${p.steps ?? "?"}`, `${Math.floor(pct)} %`];
+    if (ACTIVE.includes(st.state)) {
+      parts.push(`${Units.duration(p.elapsed_s)} elapsed`);
+      parts.push(p.remaining_s === null ? "remaining: after the first step"
+                                        : `about ${Units.duration(p.remaining_s)} left`);
+    } else if (p.elapsed_s !== null) parts.push(`took ${Units.duration(p.elapsed_s)}`);
+    box.querySelector(".text").textContent = parts.join(" · ");
+    box.classList.toggle("ended", !ACTIVE.includes(st.state));
+  }
+
+  const m = (v) => Units.withUnit(v.display.value, v.display.unit);
+
+  function when(at) {
+    // on the card: the stroke or step it happened at
+    if (at.stroke) return `at ${m(at.stroke)} stroke` +
+                          (at.step !== undefined ? ` (step ${at.step})` : "");
+    return at.step !== undefined ? `at step ${at.step}` : "";
+  }
+
+  function where(at) {
+    // in the card's tooltip: the place (mid-surface point, or the edge's rest point)
+    if (at.point) return `at ${m(at.point)} (x, y, z)`;
+    if (at.rest_point) return `the edge point at ${m(at.rest_point)} at rest`;
+    return "";
+  }
+
+  function card(e, tools) {
+    const div = document.createElement("div");
+    div.className = "quantity";
+    Object.assign(div.dataset, { name: e.name, value: JSON.stringify(e.display.value),
+                                 unit: e.display.unit });
+    const label = document.createElement("div");
+    label.className = "label";
+    label.textContent = e.label + (e.tool && tools > 1 ? ` (${e.tool})` : "");
+    const value = document.createElement("div");
+    value.className = "value";
+    value.textContent = Units.withUnit(e.display.value, e.display.unit);
+    const at = document.createElement("div");
+    at.className = "at";
+    at.textContent = when(e.at || {});
+    div.title = [label.textContent, where(e.at || {}), e.note].filter(Boolean).join("\n");
+    div.append(label, value, at);
+    return div;
+  }
+
+  async function showSummary(st) {
+    // a run's summary is written with its result: when it ends
+    const box = document.getElementById("summary");
+    if (ACTIVE.includes(st.state)) {
+      drawn.summary = null;
+      box.dataset.run = st.id;
+      box.dataset.ready = "false";
+      box.replaceChildren(liveLine());
+      return;
+    }
+    const k = `${st.id}/${st.state}`;
+    if (drawn.summary === k) return;
+    let s;
+    try {
+      s = await api("GET", `/api/runs/${st.id}/summary`);
+    } catch (e) {
+      if (e.status !== 404) throw e;
+      s = { summary: [] };
+    }
+    if (st.id !== shown) return;
+    drawn.summary = k;
+    const tools = new Set(s.summary.filter((e) => e.tool).map((e) => e.tool)).size;
+    const cards = s.summary.map((e) => card(e, tools));
+    if (!cards.length) {
+      const none = document.createElement("div");
+      none.className = "muted";
+      none.textContent = "No summary: the run ended before it had a result.";
+      cards.push(none);
+    }
+    box.replaceChildren(...cards);
+    Object.assign(box.dataset, { run: st.id, ready: "true", count: String(s.summary.length) });
+  }
+
+  function liveLine() {
+    // while a run runs: its punch force as it goes (the summary comes at the end)
+    const div = document.createElement("div");
+    div.className = "live muted";
+    const p = plotsData && plotsData.punches.find((c) => c.force.values.length);
+    if (!p) {
+      div.textContent = "The summary appears when the run ends.";
+      return div;
+    }
+    const f = p.force.values, n = f.length - 1;
+    const peak = f.reduce((k, v, i) => (v > f[k] ? i : k), 0);
+    const at = (i) => (p.stroke ? ` at ${Units.num(p.stroke.values[i])} mm stroke` :
+                                  ` at step ${p.steps[i]}`);
+    div.textContent = `Punch force now ${Units.num(f[n])} kN${at(n)}; peak so far ` +
+      `${Units.num(f[peak])} kN${at(peak)}. The summary appears when the run ends.`;
+    return div;
+  }
+
+  function showEstimate(st) {
+    // a finished run: its error estimate from a study of the scene and its cost
+    const box = document.getElementById("estimate");
+    const est = st.estimate;
+    box.hidden = !est;
+    box.dataset.run = st.id;
+    box.dataset.available = est ? String(!!est.available) : "";
+    if (!est) { box.replaceChildren(); return; }
+    const line = document.createElement("div");
+    line.className = "estimate-text";
+    // `q3t study SCENE` in backticks becomes code
+    est.text.split("`").forEach((part, i) => {
+      if (i % 2) {
+        const c = document.createElement("code");
+        c.textContent = part;
+        line.append(c);
+      } else line.append(part);
+    });
+    const kids = [line];
+    if (est.notes && est.notes.length) {
+      const ul = document.createElement("ul");
+      for (const n of est.notes) {
+        const li = document.createElement("li");
+        li.textContent = n;
+        ul.append(li);
+      }
+      kids.push(ul);
+    }
+    box.replaceChildren(...kids);
+  }
+
+  // ---- the plots --------------------------------------------------------------------------
+  async function showPlots(st) {
+    const k = key(st);
+    if (drawn.plots === k) return;
+    const data = await api("GET", `/api/runs/${st.id}/plots`);
+    if (data.run !== shown) return;  // another run was selected meanwhile
+    drawn.plots = k;
+    plotsData = data;
+    const $ = (id) => document.getElementById(id);
+    const force = data.punches.filter((p) => p.force.values.length);
+    Plots.show("force-fig", force.length > 0);
+    if (force.length) await Plots.forceStroke($("force-plot"), force, data.parameter_log);
+    Plots.show("probes-fig", data.probes.length > 0);
+    if (data.probes.length) await Plots.probes($("probes-plot"), data.probes,
+                                                data.parameter_log);
+    Plots.show("section-fig", data.sections.length > 0);
+    if (data.sections.length) await Plots.sections($("section-plot"), data.sections, force[0]);
+    await drawSolver();
+    $("no-plots").hidden = data.solver.steps.length > 0;
+    document.getElementById("plots").dataset.step = String(data.step);
+  }
+
+  async function drawSolver() {
+    // only while its box is open: a live run redraws at every step
+    const s = plotsData && plotsData.solver;
+    if (s && s.steps.length && document.getElementById("solver-box").open)
+      await Plots.solver(document.getElementById("solver-plot"), s);
+  }
+
+  async function showFld(st) {
+    // the forming limit diagram of a plastic run's end of stroke
+    const k = `${st.id}/${st.state}`;
+    if (ACTIVE.includes(st.state)) { Plots.show("fld-fig", false); drawn.fld = null; return; }
+    if (drawn.fld === k) return;
+    let fl = null;
+    try {
+      fl = await api("GET", `/api/runs/${st.id}/forming_limits`);
+    } catch (e) {
+      if (e.status !== 404) throw e;  // an elastic run, or one without a result
+    }
+    if (st.id !== shown) return;
+    drawn.fld = k;
+    Plots.show("fld-fig", !!fl && fl.minor.length > 0);
+    if (fl && fl.minor.length) await Plots.fld(document.getElementById("fld-plot"), fl);
+  }
+
+  function forget() {
+    // another run is shown: nothing of the last one may stay on screen (and an answer about
+    // it that arrives later is dropped: it is no longer ``shown``)
+    shown = null;
+    drawn.plots = drawn.summary = drawn.fld = null;
+    plotsData = null;
+    for (const f of ["force", "probes", "section", "fld"]) {
+      Plots.show(`${f}-fig`, false);
+      Plots.purge(document.getElementById(`${f}-plot`));
+    }
+    Plots.purge(document.getElementById("solver-plot"));
+    const none = document.getElementById("no-plots");
+    none.hidden = false;
+    none.textContent = "The selected run's plots appear here as its steps arrive.";
+    document.getElementById("summary").replaceChildren();
+    document.getElementById("estimate").hidden = true;
+    document.getElementById("estimate").replaceChildren();
+  }
+
+  async function show(st) {
+    if (st.id !== shown) {
+      forget();
+      shown = st.id;
+    }
+    showStatus(st);
+    showProgress(st);
+    showEstimate(st);
+    await showSummary(st);
+    if (!window.Plotly) {
+      // /static/vendor/plotly.min.js comes from the plotly Python package
+      document.getElementById("no-plots").textContent = "No plots: plotly.js did not load " +
+        "(the server serves it from the plotly package: pip install 'q3t-forming[service]').";
+      return;
+    }
+    refreshPlots(st);  // not awaited: drawing never holds the status line back
+  }
+
+  // one drawing at a time; a status that arrives meanwhile is drawn next (the newest only)
+  let drawing = false, next = null;
+
+  async function refreshPlots(st) {
+    if (drawing) { next = st; return; }
+    drawing = true;
+    try {
+      await showPlots(st);
+      await showFld(st);
+    } catch (e) {
+      document.getElementById("no-plots").textContent = `Plots: ${e.message}`;
+      document.getElementById("no-plots").hidden = false;
+    } finally {
+      drawing = false;
+      if (next) {
+        const later = next;
+        next = null;
+        refreshPlots(later);
+      }
+    }
+  }
+
+  function init() {
+    document.getElementById("solver-box").addEventListener("toggle", () => drawSolver());
+  }
+
+  function none() {
+    forget();
+    const box = document.getElementById("status");
+    box.textContent = "No run selected";
+    box.dataset.run = "";
+    document.getElementById("progress").hidden = true;
+    document.getElementById("estimate").hidden = true;
+  }
+
+  return { show, none, forget, init };
+})();
