@@ -186,7 +186,8 @@ def test_scene_form_and_run_estimate(served):
         field = lambda path: page.locator(f'#scene-form [data-path="{path}"]')  # noqa: E731
         nu = field("material.nu").locator("input")
         nu.wait_for()
-        assert nu.input_value() == "0.49" and nu.get_attribute("max") == "0.5"
+        # a text box (a locale comma reads as a point), its bound given by the server's error
+        assert nu.input_value() == "0.49"
         assert field("material.model").locator("select").input_value() == "neo_hookean"
         # every shipped scene: the form built from its JSON gives that JSON back
         for path in sorted((ROOT / "scenes").glob("*.toml")):
@@ -205,8 +206,9 @@ def test_scene_form_and_run_estimate(served):
             f.build(raw);
             return f.value();
         }""", raw)
-        assert back["mesh"] == {"kind": "rectanglee", "size": [1, None], "origin": [0, 0],
-                                "r_inner": 0, "scale": 1, "imperfection": 0}
+        # an unknown kind has no fields of its own to show: the kind comes back for the server
+        # to name (the form shows only the chosen kind's fields)
+        assert back["mesh"] == {"kind": "rectanglee"}
         assert back["bcs"] == [{"components": "xyz", "layers": "all",  # region: missing
                                 "displacement": [0, 0, 0], "keyframes": [],
                                 "release": False, "release_only": False}]
