@@ -25,13 +25,20 @@ async function loadScenes() {
     li.textContent = s.name + (s.description ? " — " + s.description : "");
     li.dataset.name = s.name;
     li.className = s.name === state.scene ? "sel" : "";
-    li.onclick = () => selectScene(s.name);
+    li.onclick = () => selectScene(s.name).then(() => previewScene(s.name));
     ul.appendChild(li);
   }
   if (!state.scene && list.length) {
     const dflt = list.find((s) => s.name === state.config.default_scene);
     await selectScene((dflt || list[0]).name);
   }
+}
+
+// a scene the user chooses shows in 3-D at rest, its blank and tools, before any run (the
+// solver builds it between the steps of a running run; selecting a run shows that run again)
+function previewScene(name) {
+  api("PUT", "/api/view/scene", {scene: name})
+    .catch((e) => say(`preview of ${name}: ${e.message}`, true));
 }
 
 async function selectScene(name) {

@@ -215,3 +215,23 @@ def test_live_plots_follow_the_steps(served, browser):
         assert errors == []
     finally:
         page.close()
+
+
+def test_choosing_a_scene_previews_it_in_3d(served, browser):
+    """A click on a scene in the list shows its blank and tools at rest in the viewer before
+    any run (``PUT /api/view/scene``, built by the solver process); selecting a run shows the
+    run again."""
+    url = served
+    page, errors = open_page(browser, url)
+    page.click("#scenes li[data-name=tiny_cup]")
+    view = until(lambda: (v := httpx.get(f"{url}/api/view").json())["preview"] in
+                 ("shown", "failed") and v, "the preview never came")
+    assert view["preview"] == "shown" and view["scene"] == "tiny_cup", view
+    shot(page, "preview-tiny-cup")
+    rows = page.locator("#runs tr[data-id]")
+    if rows.count():  # an earlier test's run: selecting it ends the preview
+        rows.first.locator("td").first.click()
+        until(lambda: httpx.get(f"{url}/api/view").json()["preview"] is None,
+              "selecting a run did not end the preview")
+    assert not [e for e in errors if "/static/" in e], errors
+    page.close()
