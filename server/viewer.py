@@ -67,6 +67,9 @@ NO_RUN = "(no runs yet)"  # the "Run" dropdown's one option before any run (vise
 class Viewer:
     def __init__(self, host: str, port: int, actions: Actions, colour_hz: float = 4.0):
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        # embedded in the page's centre column the panel took half the view: the narrow one,
+        # and no share button (a share link would expose the run's controls)
+        self.server.gui.configure_theme(control_width="small", show_share_button=False)
         self.actions = actions
         self.colour_period = 1.0 / colour_hz
         self.lock = threading.RLock()  # viser runs update callbacks in the assigning thread
