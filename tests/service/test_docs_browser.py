@@ -11,8 +11,6 @@ Screenshots go to $Q3T_SHOTS (default /tmp/shots-extras)."""
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 from html.parser import HTMLParser
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -23,10 +21,8 @@ from fastapi.testclient import TestClient
 
 from server.app import create_app
 from server.settings import Settings
-from tests.support import ROOT
-from tests.support.browser import CHROMIUM, WAIT_MS
+from tests.support.browser import CHROMIUM, WAIT_MS, serve
 from tests.support.scenes import tiny_toml
-from tests.support.service import free_port, until
 
 SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-extras"))
 
@@ -66,33 +62,10 @@ def test_docs_name_no_other_host(tmp_path, token):
 
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
-    """The real server (no viewer) in a subprocess: its url."""
+    """The server's url, without a viewer."""
     tmp = tmp_path_factory.mktemp("docs-browser")
-    (tmp / "scenes").mkdir()
-    (tmp / "scenes" / "tiny.toml").write_text(tiny_toml())
-    port = free_port()
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data"),
-           "PYTHONPATH": str(ROOT)}
-    log = open(tmp / "server.log", "wb")  # noqa: SIM115 - closed after the server stops
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.apps", "serve", "tiny", "--port", str(port), "--no-viewer",
-         "--scenes-dir", str(tmp / "scenes"), "--runs-dir", str(tmp / "runs")],
-        env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        until(lambda: _up(url), f"server not up: {tmp / 'server.log'}")
+    with serve(tmp, {"tiny": tiny_toml()}, "tiny", "--no-viewer") as (url, _):
         yield url
-    finally:
-        proc.terminate()
-        proc.wait(10)
-        log.close()
-
-
-def _up(url: str) -> bool:
-    try:
-        return httpx.get(url + "/openapi.json", timeout=1).status_code == 200
-    except httpx.HTTPError:
-        return False
 
 
 @pytest.fixture(scope="module")

@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import math
 import os
-import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
@@ -24,8 +22,8 @@ import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import CHROMIUM, SWIFTSHADER, WAIT_MS, settled
-from tests.support.service import free_port, until
+from tests.support.browser import WAIT_MS, chromium, serve, settled
+from tests.support.service import until
 
 SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-editor"))
 pytestmark = pytest.mark.browser
@@ -40,41 +38,14 @@ COARSE = CUP.replace("edge_length = 0.002", "edge_length = 0.006").replace(
 def served(tmp_path_factory):
     """The server's url and its scenes folder, which holds the coarse cup."""
     tmp = tmp_path_factory.mktemp("editor-browser")
-    (tmp / "scenes").mkdir()
-    (tmp / "scenes" / "cup.toml").write_text(COARSE)
-    port, vport = free_port(), free_port()
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data"),
-           "PYTHONPATH": str(ROOT)}
-    log = open(tmp / "server.log", "wb")  # noqa: SIM115 - closed after the server stops
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.apps", "serve", "cup", "--port", str(port),
-         "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
-         "--runs-dir", str(tmp / "runs"), "--step-delay", "0.3"],
-        env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        until(lambda: _ready(url), f"server not up: {tmp / 'server.log'}")
+    with serve(tmp, {"cup": COARSE}, "cup", "--step-delay", "0.3") as (url, _):
         yield url, tmp / "scenes"
-    finally:
-        proc.terminate()
-        proc.wait(10)
-        log.close()
-
-
-def _ready(url: str) -> bool:
-    try:
-        return httpx.get(url + "/api/config", timeout=1).json()["ready"]
-    except (httpx.HTTPError, ValueError):
-        return False
 
 
 @pytest.fixture(scope="module")
 def browser():
-    SHOTS.mkdir(parents=True, exist_ok=True)
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=SWIFTSHADER)
+    with chromium(SHOTS) as b:
         yield b
-        b.close()
 
 
 @pytest.fixture

@@ -15,17 +15,14 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.support import ROOT
-from tests.support.browser import CHROMIUM, SWIFTSHADER, WAIT_MS, settled
+from tests.support.browser import WAIT_MS, chromium, serve, settled
 from tests.support.scenes import tiny_cup_toml
-from tests.support.service import free_port, until
+from tests.support.service import until
 
 SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-page"))
 STEPS = 6  # tiny_cup's 2 mm stroke in this many steps
@@ -37,41 +34,15 @@ sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not ins
 def served(tmp_path_factory):
     """The server's url, serving tiny_cup (the page's first scene)."""
     tmp = tmp_path_factory.mktemp("page-browser")
-    (tmp / "scenes").mkdir()
-    (tmp / "scenes" / "tiny_cup.toml").write_text(tiny_cup_toml(STEPS))
-    port, vport = free_port(), free_port()
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data"),
-           "PYTHONPATH": str(ROOT)}
-    log = open(tmp / "server.log", "wb")  # noqa: SIM115 - closed after the server stops
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.apps", "serve", "tiny_cup", "--port", str(port),
-         "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
-         "--runs-dir", str(tmp / "runs"), "--step-delay", "0.2"],
-        env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        until(lambda: _ready(url), f"server not up: {tmp / 'server.log'}")
+    with serve(tmp, {"tiny_cup": tiny_cup_toml(STEPS)}, "tiny_cup", "--step-delay",
+               "0.2") as (url, _):
         yield url
-    finally:
-        proc.terminate()
-        proc.wait(10)
-        log.close()
-
-
-def _ready(url: str) -> bool:
-    try:
-        return httpx.get(url + "/api/config", timeout=1).json()["ready"]
-    except (httpx.HTTPError, ValueError):
-        return False
 
 
 @pytest.fixture(scope="module")
 def browser():
-    SHOTS.mkdir(parents=True, exist_ok=True)
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=SWIFTSHADER)
+    with chromium(SHOTS) as b:
         yield b
-        b.close()
 
 
 def open_page(browser, url: str, width: int = 1400, height: int = 1000):

@@ -13,18 +13,15 @@ Screenshots of each step go to $Q3T_SHOTS (default /tmp/shots-trust)."""
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import httpx
 import pytest
 
 from sim.stepping.parameters import LABELS
-from tests.support import ROOT
-from tests.support.browser import CHROMIUM, SWIFTSHADER, WAIT_MS, settled
+from tests.support.browser import WAIT_MS, chromium, serve, settled
 from tests.support.scenes import EDITED_EDGE, tiny_toml, vertices
-from tests.support.service import free_port, until
+from tests.support.service import until
 
 SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-trust"))
 pytestmark = pytest.mark.browser
@@ -35,43 +32,16 @@ sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not ins
 def served(tmp_path_factory):
     """The server's url and its folder (scenes/, runs/): tiny (4 steps) and long (4000)."""
     tmp = tmp_path_factory.mktemp("trust-browser")
-    (tmp / "scenes").mkdir()
-    (tmp / "scenes" / "tiny.toml").write_text(tiny_toml())
-    (tmp / "scenes" / "long.toml").write_text(
-        tiny_toml(steps=4000).replace('name = "tiny"', 'name = "long"'))
-    port, vport = free_port(), free_port()
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data"),
-           "PYTHONPATH": str(ROOT)}
-    log = open(tmp / "server.log", "wb")  # noqa: SIM115 - closed after the server stops
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.apps", "serve", "tiny", "--port", str(port),
-         "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
-         "--runs-dir", str(tmp / "runs"), "--step-delay", "0.2"],
-        env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        until(lambda: _ready(url), f"server not up: {tmp / 'server.log'}")
+    scenes = {"tiny": tiny_toml(),
+              "long": tiny_toml(steps=4000).replace('name = "tiny"', 'name = "long"')}
+    with serve(tmp, scenes, "tiny", "--step-delay", "0.2") as (url, _):
         yield url, tmp
-    finally:
-        proc.terminate()
-        proc.wait(10)
-        log.close()
-
-
-def _ready(url: str) -> bool:
-    try:
-        return httpx.get(url + "/api/config", timeout=1).json()["ready"]
-    except (httpx.HTTPError, ValueError):
-        return False
 
 
 @pytest.fixture(scope="module")
 def browser():
-    SHOTS.mkdir(parents=True, exist_ok=True)
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=SWIFTSHADER)
+    with chromium(SHOTS) as b:
         yield b
-        b.close()
 
 
 def open_page(browser, url: str):

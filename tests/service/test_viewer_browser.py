@@ -14,16 +14,14 @@ Screenshots of each step go to $Q3T_SHOTS (default /tmp/shots-viewer): look at t
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import CHROMIUM, SWIFTSHADER, WAIT_MS
-from tests.support.service import free_port, until
+from tests.support.browser import WAIT_MS, chromium, serve
+from tests.support.service import until
 
 SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-viewer"))
 pytestmark = pytest.mark.browser
@@ -44,43 +42,16 @@ def cup_toml() -> str:
 
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
-    """The server's url and its viewer's."""
+    """The server's url and the viewer's own url, serving the coarse cup."""
     tmp = tmp_path_factory.mktemp("viewer-browser")
-    (tmp / "scenes").mkdir()
-    (tmp / "scenes" / "cup.toml").write_text(cup_toml())
-    port, vport = free_port(), free_port()
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data"),
-           "PYTHONPATH": str(ROOT)}
-    log = open(tmp / "server.log", "wb")  # noqa: SIM115 - closed after the server stops
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.apps", "serve", "cup", "--port", str(port),
-         "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
-         "--runs-dir", str(tmp / "runs")],
-        env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        until(lambda: _ready(url), f"server not up: {tmp / 'server.log'}")
+    with serve(tmp, {"cup": cup_toml()}, "cup") as (url, vport):
         yield url, f"http://127.0.0.1:{vport}/"
-    finally:
-        proc.terminate()
-        proc.wait(10)
-        log.close()
-
-
-def _ready(url: str) -> bool:
-    try:
-        return httpx.get(url + "/api/config", timeout=1).json()["ready"]
-    except (httpx.HTTPError, ValueError):
-        return False
 
 
 @pytest.fixture(scope="module")
 def browser():
-    SHOTS.mkdir(parents=True, exist_ok=True)
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=SWIFTSHADER)
+    with chromium(SHOTS) as b:
         yield b
-        b.close()
 
 
 def shot(page, name: str, frame=None) -> None:

@@ -3,9 +3,17 @@ may take, and the run status once the solver has acted on what the page sent."""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
 import httpx
 
-from tests.support.service import HANG, until
+from tests.support import ROOT
+from tests.support.service import HANG, free_port, until
 
 CHROMIUM = "/usr/bin/chromium"
 WAIT_MS = int(HANG * 1000)  # Playwright's waits: hang guards (its default is 30 s)
@@ -21,3 +29,54 @@ def settled(url: str, run: str) -> dict:
         return st if not st["pending"] else None
 
     return until(idle, f"the solver never acted on the commands for {run}")
+
+
+def ready(url: str) -> bool:
+    """Whether the server at ``url`` answers and its solver process is up."""
+    try:
+        return httpx.get(url + "/api/config", timeout=1).json()["ready"]
+    except (httpx.HTTPError, ValueError):
+        return False
+
+
+@contextlib.contextmanager
+def serve(tmp: Path, scenes: dict[str, str], default: str,
+          *options: str) -> Iterator[tuple[str, int]]:
+    """``q3t serve DEFAULT`` in a child process over ``tmp/scenes`` (written from ``scenes``:
+    name -> TOML) and ``tmp/runs``, on free ports, with ``options`` (``--step-delay 0.2``,
+    ``--no-viewer``); yields its url and the viewer's port once it is ready, and stops it.
+    Its output goes to ``tmp/server.log``: a pipe nobody reads fills up (numba's compile
+    warnings on a cold cache) and then blocks the server mid-write."""
+    (tmp / "scenes").mkdir(exist_ok=True)
+    for name, text in scenes.items():
+        (tmp / "scenes" / f"{name}.toml").write_text(text)
+    port, vport = free_port(), free_port()
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data"),
+           "PYTHONPATH": str(ROOT)}
+    with open(tmp / "server.log", "wb") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sim.apps", "serve", default, "--port", str(port),
+             "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
+             "--runs-dir", str(tmp / "runs"), *options],
+            env=env, stdout=log, stderr=subprocess.STDOUT)
+        url = f"http://127.0.0.1:{port}"
+        try:
+            until(lambda: ready(url), f"server not up: {tmp / 'server.log'}")
+            yield url, vport
+        finally:
+            proc.terminate()
+            proc.wait(10)
+
+
+@contextlib.contextmanager
+def chromium(shots: Path) -> Iterator[object]:
+    """Debian's chromium under Playwright, with software WebGL; screenshots go to ``shots``."""
+    from playwright.sync_api import sync_playwright
+
+    shots.mkdir(parents=True, exist_ok=True)
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=SWIFTSHADER)
+        try:
+            yield b
+        finally:
+            b.close()
