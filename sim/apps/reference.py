@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.apps.common import BAD_INPUT, FAILED, OK, load, parse_sets
+from sim.frames import results
 from sim.stamp import Stamp, add_results_option, write_results
 
 # the bar for a faster algorithm: the same punch force at every step and the same
@@ -82,9 +83,15 @@ def run(args: argparse.Namespace) -> int:
     if (args.out is None) == (args.check is None):
         print("q3t reference: give --out FILE (write) or --check FILE (compare)", file=sys.stderr)
         return BAD_INPUT
-    if args.check is not None and not Path(args.check).is_file():
-        print(f"q3t reference: --check: no file {args.check}", file=sys.stderr)
-        return BAD_INPUT
+    ref = None
+    if args.check is not None:  # read before the run, which may take minutes
+        try:
+            ref = json.loads(Path(args.check).read_text())
+            ref["steps"], ref["probes"], ref["sections"]  # noqa: B018 - what deviation reads
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            print(f"q3t reference: --check: {args.check} is not a stored reference "
+                  f"({type(exc).__name__}: {exc})", file=sys.stderr)
+            return BAD_INPUT
     stamp = Stamp.begin(args.command)
     result, overrides = _run(args)
     if not result["converged"]:
@@ -96,10 +103,9 @@ def run(args: argparse.Namespace) -> int:
                "newton_iterations": iterations, "stamp": dataclasses.asdict(stamp),
                **answers(result)}
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(ref, indent=1) + "\n")
+        results.write(Path(args.out), ref)  # strict JSON, through a temporary name
         print(f"wrote {args.out} ({len(ref['steps'])} steps, {iterations} Newton iterations)")
         return OK
-    ref = json.loads(Path(args.check).read_text())
     dev = deviation(result, ref)
     text = report(result, ref, dev, args.tolerance)
     print(text)

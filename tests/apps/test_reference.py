@@ -46,7 +46,12 @@ def test_deviation_is_relative_to_the_largest_size_and_missing_is_infinite():
 
 
 @pytest.mark.parametrize("argv", [[], ["--out", "a.json", "--check", "b.json"],
-                                  ["--check", "/nonexistent/ref.json"]])
-def test_bad_options_exit_2(argv, capsys):
-    assert main(["reference", "cantilever", *argv]) == 2
+                                  ["--check", "/nonexistent/ref.json"],
+                                  ["--check", "NOTJSON"], ["--check", "NOTREF"]])
+def test_bad_options_exit_2(argv, capsys, tmp_path):
+    (tmp_path / "bad.json").write_text("{not json")
+    (tmp_path / "other.json").write_text('{"steps": [1]}')  # JSON, but no probes
+    argv = [{"NOTJSON": str(tmp_path / "bad.json"),
+             "NOTREF": str(tmp_path / "other.json")}.get(a, a) for a in argv]
+    assert main(["reference", "cantilever", *argv]) == 2  # before any run
     assert "q3t reference" in capsys.readouterr().err
