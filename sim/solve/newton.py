@@ -100,7 +100,7 @@ class Iterate:
     scale: float = 0.0
 
 
-@dataclass(frozen=True)
+@dataclass
 class Watch:
     """A full step taken although it failed the sufficient decrease (the watchdog): where it
     was taken, along what, the energy the iteration must get below, full steps left."""
@@ -239,7 +239,7 @@ def _watch_fails(nt: Newton, cur: Iterate, bad: str, target: float) -> bool:
         return False
     if bad or w.left == 0 or cur.r <= target:
         return True
-    nt.watch = Watch(w.origin, w.dx, w.target, w.left - 1)
+    w.left -= 1
     return False
 
 
@@ -247,7 +247,7 @@ def _give_up_watch(nt: Newton,
                    it: int) -> tuple[np.ndarray, Evaluation | None, bool] | NewtonResult:
     """Back to the watch's origin and backtrack from there, the full step known to fail."""
     w, nt.watch = nt.watch, None
-    return _line_search(nt, w.origin, it, w.dx, None, alpha=0.5, watch=False)
+    return _line_search(nt, w.origin, it, w.dx, None, alpha=0.5)
 
 
 def _barrier_rose(problem: Problem, x: np.ndarray, x_new: np.ndarray, dE: float) -> bool:
@@ -373,12 +373,13 @@ def _floor_exit(nt: Newton, cur: Iterate, it: int, dx: np.ndarray, newton: bool,
 
 
 def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
-                 trial: Evaluation | None, alpha: float = 1.0,
-                 watch: bool = True) -> tuple[np.ndarray, Evaluation | None, bool] | NewtonResult:
+                 trial: Evaluation | None,
+                 alpha: float = 1.0) -> tuple[np.ndarray, Evaluation | None, bool] | NewtonResult:
     """Backtracking along ``dx`` from the step ``alpha`` (the full step evaluated: ``trial``).
-    A full step that fails the sufficient decrease is taken and watched (``watch``, see the
-    module's doc) when its energy is finite. Returns the new iterate, its full evaluation when
-    it is the full step (else None) and whether the energy decided; or the failed result."""
+    At a minimisation's first iteration, a full step that fails the sufficient decrease is
+    taken and watched (see the module's doc) when its energy is finite and no barrier rose.
+    Returns the new iterate, its full evaluation when it is the full step (else None) and
+    whether the energy decided; or the failed result."""
     problem, settings, timing = nt.problem, nt.settings, nt.timing
     x, E, g, r, mag = cur.x, cur.E, cur.g, cur.r, cur.mag
     slope = float(np.sum(g * dx))
@@ -402,7 +403,7 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
         noise = nt.measured_floor(cur).energy * mag if abs(dE) <= 1e-6 * mag else 0.0
         if dE <= settings.armijo * alpha * slope and -dE > noise:
             return x_new, trial, True
-        if (alpha == 1.0 and watch and it == 0 and settings.watchdog > 0 and trial is not None
+        if (alpha == 1.0 and it == 0 and settings.watchdog > 0 and trial is not None
                 and abs(dE) > noise and not _barrier_rose(problem, x, x_new, dE)):
             nt.watch = Watch(cur, dx, E + settings.armijo * slope, settings.watchdog)
             return x_new, trial, True
