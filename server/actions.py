@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from server import replay
 from server.problems import Conflict, Invalid, NotFound, NotReady
+from server.records import ACTIVE, CANCELLED, QUEUED
 from server.runs import RunManager
 
 
@@ -48,10 +49,11 @@ class ViewerActions:
             return str(exc)
 
     def scrub(self, step: int) -> tuple[dict | None, str]:
-        """The kept frame to show for the time slider, or why none (a running run streams)."""
-        history = self.m.history
-        run = self.m.runs.get(history.run or "")
-        if run is None:
+        """The kept frame of the selected run to show for the time slider, or why none (a
+        running run streams)."""
+        run = self.m.runs.get(self.m.selected or "")
+        history = self.m.history.get(run.id) if run is not None else None
+        if run is None or history is None:
             return None, "No run to scrub"
         if run.state in ("starting", "building", "running"):
             return None, f"Run `{run.id}` is {run.state}: pause it to scrub"
@@ -66,8 +68,10 @@ class ViewerActions:
         run = self.m.runs.get(run_id)
         if run is None:
             return None, f"No run `{run_id}`"
-        if run.id == self.m.active:
+        if run.state in ACTIVE:
             return None, f"Run `{run_id}` is {run.state}: its recording is still being written"
+        if run.state in (QUEUED, CANCELLED):
+            return None, "It has not run (yet): no recording"
         path = self.m.files.recording(run.id)
         if not path.is_file():
             return None, "It has no recording (it ended before its first frame)"

@@ -33,7 +33,7 @@ def create_app(settings: Settings | None = None,
             from server.viewer import Viewer
 
             manager.viewer = Viewer(settings.viewer_host, settings.viewer_port,
-                                    ViewerActions(manager))
+                                    ViewerActions(manager), live_runs=settings.solvers)
         app.state.store, app.state.manager = store, manager
         manager.start()
         yield

@@ -1,16 +1,17 @@
-"""The bridge: the one thread that carries the solver's events to the run records and the
-viewer.
+"""The bridge: the one thread that carries the solvers' events to the run records and the
+viewer. It reads every solver process's queues in turn (``RunManager.slots``); each event names
+its run, and only an active run's events are booked.
 
 Each event kind has one small handler in ``HANDLERS``. A handler books its event under the run
 manager's ``lock``, held only for a few dict and list updates, and returns what is left to do
 once the lock is released: the viewer's updates and the file writes (``Booked.later``), and the
 frame to show. The error estimate, which reads files, is made before the lock is taken; the
 recording repairs of a dead solver run outside it too. So a status request never waits on the
-viewer, the disk or the estimate. Frames reach the viewer at most ``push_hz`` times a second,
-the newest one.
+viewer, the disk or the estimate. Frames reach the viewer at most ``push_hz`` times a second
+per run, the newest one.
 
-One bad event never stops the bridge: an error while booking it fails the active run with the
-reason (the solver is told to stop), a viewer error is noted on the run, and the bridge's
+One bad event never stops the bridge: an error while booking it fails the event's run with the
+reason (its solver is told to stop), a viewer error is noted on the run, and the bridge's
 liveness and errors are part of ``/api/health``.
 """
 
@@ -28,11 +29,11 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 from server.estimate import EstimateCache
-from server.history import FrameHistory
+from server.history import Histories
 from server.records import ACTIVE, Run
 from server.settings import Settings
 from server.worker import Channel
-from server.workerhandle import WorkerHandle
+from server.workerhandle import Slot, WorkerHandle
 
 if TYPE_CHECKING:  # imports viser
     from server.viewer import Viewer
@@ -47,22 +48,21 @@ class Books(Protocol):
     settings: Settings
     lock: threading.RLock
     runs: dict[str, Run]
-    active: str | None
     ready: threading.Event
     parameter_ranges: dict
     logs: collections.deque
-    history: FrameHistory
+    history: Histories
     estimates: EstimateCache
     waiters: dict[int, dict]
     sent: dict[int, str]
     viewer: Viewer | None
-    worker: WorkerHandle
+    slots: list[Slot]
     closing: threading.Event
 
     def finish(self, run: Run, state: str, reason: str | None) -> None: ...
     def save(self, run: Run) -> None: ...
     def note(self, run_id: str | None, text: str) -> None: ...
-    def fail_active(self, reason: str) -> None: ...
+    def fail_run(self, run_id: str | None, reason: str) -> None: ...
     def worker_died(self, w: WorkerHandle) -> None: ...
     def close_retired(self) -> None: ...
     def show_preview(self, ev: dict) -> None: ...
@@ -89,10 +89,10 @@ def handles(kind: str) -> Callable[[Handler], Handler]:
 
 
 def _active(m: Books, ev: dict) -> Run | None:
-    """Under ``lock``: the event's run if it is the active one (an ended run's late events are
-    not booked)."""
+    """Under ``lock``: the event's run if it is active (an ended run's late events are not
+    booked)."""
     run = m.runs.get(ev.get("run") or "")
-    return run if run is not None and run.id == m.active else None
+    return run if run is not None and run.state in ACTIVE else None
 
 
 @handles("ready")
@@ -134,7 +134,7 @@ def _reply(m: Books, ev: dict) -> Booked:
 def _state(m: Books, ev: dict) -> Booked:
     if ev["state"] == "finished":
         run = m.runs.get(ev.get("run") or "")
-        if run is not None and run.id == m.active:
+        if run is not None and run.state in ACTIVE:
             m.estimates.get(run, finished=True)  # reads files: before taking the lock
     booked = Booked()
     with m.lock:
@@ -143,6 +143,8 @@ def _state(m: Books, ev: dict) -> Booked:
             return booked
         run.frames.update(ev.get("frames") or {})
         if ev["state"] in ACTIVE:
+            if run.state == "starting":  # run.json said queued: a solver has it now
+                booked.later.append(lambda: m.save(run))
             run.state = ev["state"]
         else:
             m.finish(run, ev["state"], ev.get("reason"))
@@ -257,10 +259,11 @@ class Bridge:
         self.repairing: str | None = None  # the run whose recording the bridge is repairing
         self.errors = 0
         self.error: str | None = None
-        # the frame to push next (the newest received) and whether it is a run's last
-        self._newest: dict | None = None
-        self._final = False
-        self._next_push = 0.0
+        # per run: the frame to push next (the newest received), whether it is the run's
+        # last, and when it is due
+        self._newest: dict[str, dict] = {}
+        self._final: dict[str, bool] = {}
+        self._next_push: dict[str, float] = {}
 
     def start(self) -> None:
         self.thread.start()
@@ -305,7 +308,7 @@ class Bridge:
             what = f"the server could not handle the solver's {ev.get('kind')!r} event"
             self.fault(exc, what)
             try:
-                self.m.fail_active(f"{what}: {exc}")
+                self.m.fail_run(ev.get("run"), f"{what}: {exc}")
             except Exception as exc2:
                 self.fault(exc2, "failing the run")
             return None
@@ -329,39 +332,51 @@ class Bridge:
 
     def _step(self) -> None:
         self.m.close_retired()  # here, the one thread that reads their queues
-        w = self.m.worker
+        workers = [s.worker for s in self.m.slots]
+        wait = 0.05 / len(workers)  # a round waits about as long as with one solver
+        for w in workers:
+            self._read(w, wait)
+        self._push_due()
+
+    def _read(self, w: WorkerHandle, wait: float) -> None:
+        """Book what one solver process sent; notice its death once its queue is empty."""
         try:
-            events = [w.events.get(timeout=0.05), *drain(w.events)]
+            events = [w.events.get(timeout=wait), *drain(w.events)]
         except EMPTY:
             events = []
         for ev in events + drain(w.frames, 64):
             shown = self.handle(ev)
             if shown is not None:
                 self._offer(shown)
-        self._push_due()
         if not events and not w.alive() and not self.m.closing.is_set():
             self.m.worker_died(w)
 
     def _offer(self, shown: dict) -> None:
-        """Keep the newest frame to push; a run's last frame stays marked final."""
-        newest = self._newest
-        same = newest is not None and newest["run"] == shown["run"]
-        if same and shown["step"] < newest["step"]:
+        """Keep the run's newest frame to push; a run's last frame stays marked final."""
+        run = shown["run"]
+        newest = self._newest.get(run)
+        if newest is not None and shown["step"] < newest["step"]:
             return  # an older frame from the bounded queue, after a newer one
-        keep_final = self._final and same and shown["step"] == newest["step"]
-        self._newest, self._final = shown, bool(shown.get("final")) or keep_final
+        keep_final = self._final.get(run, False) and newest is not None \
+            and shown["step"] == newest["step"]
+        self._newest[run], self._final[run] = shown, bool(shown.get("final")) or keep_final
 
     def _push_due(self) -> None:
-        now = time.perf_counter()
         if self.m.viewer is None:
-            self._newest = None  # nothing to show it on: a viewer added later starts afresh
-        elif self._newest is not None and (self._final or now >= self._next_push):
-            self._push(self._newest, self._final)
+            self._newest.clear()  # nothing to show it on: a viewer added later starts afresh
+            return
+        now = time.perf_counter()
+        for run in list(self._newest):
+            due = self._next_push.get(run, 0.0)
+            if not (self._final[run] or now >= due):
+                continue
+            self._push(self._newest.pop(run), self._final.pop(run))
             # on a fixed grid of 1/push_hz, not "that long after the last push", so the rate
             # is push_hz and not less by the loop's jitter; never a burst after a pause
-            period = 1.0 / self.m.settings.push_hz
-            self._next_push = max(self._next_push + period, now)
-            self._newest, self._final = None, False
+            self._next_push[run] = max(due + 1.0 / self.m.settings.push_hz, now)
+        for run in [r for r in self._next_push if r not in self._newest]:
+            if self._next_push[run] < now:  # no frame due: an ended run's entry goes
+                del self._next_push[run]
 
     def _push(self, frame: dict, final: bool) -> None:
         run = self.m.runs.get(frame["run"])

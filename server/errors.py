@@ -23,7 +23,7 @@ from starlette.exceptions import HTTPException
 from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from server.problems import Conflict, Invalid, NotFound, NotReady
+from server.problems import Busy, Conflict, Invalid, NotFound, NotReady
 from server.settings import Settings
 from sim.scene.load import SceneError
 from sim.scene.tree import MAX_DEPTH, tree_problem
@@ -45,6 +45,7 @@ ERRORS = {
     409: "The request does not fit the run's state, or the name is taken",
     413: "The request body is too large",
     422: "Invalid input; the detail names the field and the reason",
+    429: "The run queue is full (the server's --queue): retry when a queued run has started",
     503: "The solver process is still starting; retry (Retry-After)",
 }
 
@@ -201,6 +202,7 @@ def install(app: FastAPI, settings: Settings) -> None:
     app.add_exception_handler(NotFound, lambda r, e: _json(404, str(e)))
     app.add_exception_handler(Conflict, lambda r, e: _json(409, str(e)))
     app.add_exception_handler(NotReady, lambda r, e: _json(503, str(e), {"Retry-After": "1"}))
+    app.add_exception_handler(Busy, lambda r, e: _json(429, str(e)))
     app.add_exception_handler(RequestValidationError,
                               lambda r, e: _json(422, validation_text(e.errors())))
     app.add_exception_handler(HTTPException, http_error)

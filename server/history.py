@@ -91,3 +91,39 @@ class FrameHistory:
             return {"run": self.run, "steps": list(self.steps), "stride": self.stride,
                     "bytes": self.bytes, "max_frames": self.max_frames,
                     "max_bytes": self.max_bytes}
+
+
+class Histories:
+    """The kept frames of the runs started last, one ``FrameHistory`` each: ``keep`` of them
+    (one per solver process), each with its share of the byte budget. A new run's history
+    replaces the oldest one whose run is not active; the frames of a run not kept are
+    ignored."""
+
+    def __init__(self, keep: int, max_frames: int, max_bytes: int):
+        self.keep = max(1, keep)
+        self.max_frames, self.max_bytes = max_frames, max_bytes // self.keep
+        self.lock = threading.Lock()
+        self.by_run: dict[str, FrameHistory] = {}  # in the order the runs started
+
+    def start(self, run_id: str, active: set[str]) -> None:
+        history = FrameHistory(self.max_frames, self.max_bytes)
+        history.reset(run_id)
+        with self.lock:
+            self.by_run[run_id] = history
+            for old in [r for r in self.by_run if r not in active and r != run_id]:
+                if len(self.by_run) <= self.keep:
+                    break
+                del self.by_run[old]
+
+    def get(self, run_id: str | None) -> FrameHistory | None:
+        with self.lock:
+            return self.by_run.get(run_id or "")
+
+    def add(self, frame: dict) -> None:
+        history = self.get(frame.get("run"))
+        if history is not None:
+            history.add(frame)
+
+    def forget(self, run_id: str) -> None:
+        with self.lock:
+            self.by_run.pop(run_id, None)

@@ -21,3 +21,7 @@ class Conflict(RuntimeError):
 
 class NotReady(RuntimeError):
     """The solver process has not started yet; retry in a moment (503)."""
+
+
+class Busy(RuntimeError):
+    """Every solver process is busy and the run queue is full (429)."""

@@ -22,7 +22,14 @@ from server.store import atomic_write
 from sim.frames import results
 
 ACTIVE = {"starting", "building", "running", "paused"}
+# waits for a free solver process (``RunManager.queue``); then starts, or is cancelled
+QUEUED = "queued"
+CANCELLED = "cancelled"  # ended while queued: it never ran
 LOST = "the server stopped during the run"
+# the result.json summary entries the Runs table shows (sim.frames.summary), each by its
+# display value (kN, mm, %); of several punches the largest peak force
+TABLED = ("peak_punch_force", "min_thickness", "max_thinning")
+NOT_RUN = "not run: the server stopped before its turn"
 
 
 @dataclass
@@ -34,7 +41,8 @@ class Run:
     created: float
     # the scene it ran is not the saved file: the page's unsaved edits (scene.toml holds it)
     edited: bool = False
-    state: str = "starting"
+    state: str = QUEUED
+    place: int | None = None  # its place in the queue (1: next to start) while queued
     reason: str | None = None
     step: int = 0
     n_steps: int | None = None
@@ -59,44 +67,82 @@ class Run:
     punches: dict[str, list[float]] = field(default_factory=dict)
     probe_kinds: dict[str, str] = field(default_factory=dict)
     stepping_s: float = 0.0  # wall time the solver spent in the steps made
+    started: float | None = None  # Unix time it left the queue for a solver process
     ended: float | None = None  # Unix time it ended
 
     def summary(self) -> dict:
-        """Everything but the records, copied (the bridge may change the run meanwhile), and
-        its progress."""
-        return self._fields() | {"progress": self.progress(time.time())}
+        """Everything but the records, copied (the bridge may change the run meanwhile), its
+        progress and what it changed of its scene."""
+        return self._fields() | {"progress": self.progress(time.time()),
+                                 "changes": self.changes()}
+
+    def changes(self) -> list[str]:
+        """What this run changed of its saved scene, in words: the page's unsaved edits, the
+        overrides (the element is a column of its own), the live parameters' values and from
+        which step each applied (those given at the start apply from step 1)."""
+        out = ["unsaved edits of the scene"] if self.edited else []
+        out += [f"{k} = {v}" for k, v in self.overrides.items() if k != "shell.element"]
+        out += [f"{e['name']} ×{e['value']:.4g} from step {e['step']}"
+                for e in self.parameter_log]
+        return out
 
     def _fields(self) -> dict:
         return {f.name: copy.deepcopy(getattr(self, f.name)) for f in fields(self)
                 if f.name != "records"}
 
     def progress(self, now: float) -> dict:
-        """Steps done of all, the wall time since the start (to the end, once it ended) and
-        the time the steps left need at the mean cost of those done (0 once finished; None
-        before the first step, or for a run that ended early and will not go on)."""
+        """Steps done of all, the wall time since it left the queue (to the end, once it
+        ended; None for a run that never started) and the time the steps left need at the
+        mean cost of those done (0 once finished; None before the first step, or for a run
+        that ended early and will not go on)."""
         done, steps = self.step, self.n_steps
         left = None
         if self.state == "finished":
             left = 0.0
         elif self.state in ACTIVE and done and steps:
             left = self.stepping_s / done * max(steps - done, 0)
+        # a run saved before runs were queued started when it was created
+        start = self.started if self.started is not None else \
+            None if self.state in (QUEUED, CANCELLED) else self.created
         end = self.ended if self.ended is not None else None if self.state not in ACTIVE \
             else now
         return {"step": done, "steps": steps,
                 "fraction": min(done / steps, 1.0) if steps else None,
-                "elapsed_s": None if end is None else max(end - self.created, 0.0),
+                "elapsed_s": None if end is None or start is None else max(end - start, 0.0),
                 "remaining_s": left}
 
     def line(self) -> str:
         """The viewer's status line (markdown)."""
         edited = "  \nran the page's unsaved edits of its scene" if self.edited else ""
         reason = f"  \n{self.reason}" if self.reason else ""
-        return (f"Run `{self.id}` ({self.element})  \n{self.state}, step {self.step}/"
+        state = f"queued, {ordinal(self.place)} in the queue" if self.place else self.state
+        return (f"Run `{self.id}` ({self.element})  \n{state}, step {self.step}/"
                 f"{self.n_steps if self.n_steps is not None else '?'}{edited}{reason}")
 
     def snapshot(self) -> dict:
         """What run.json holds: the summary and the step records."""
         return {**self._fields(), "records": list(self.records)}
+
+
+def _tabled(entries: list) -> dict:
+    """The ``TABLED`` entries of a result summary by name, their display values; of a
+    quantity given per punch the largest."""
+    out: dict[str, dict] = {}
+    for e in entries:
+        try:
+            name, shown = e["name"], {"value": float(e["display"]["value"]),
+                                      "unit": e["display"]["unit"]}
+        except (KeyError, TypeError, ValueError):  # not one number: not a table's value
+            continue
+        if name in TABLED and (name not in out or shown["value"] > out[name]["value"]):
+            out[name] = shown
+    return out
+
+
+def ordinal(n: int) -> str:
+    """1st, 2nd, 3rd, 4th, ..., 11th, 12th, 13th, 21st."""
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
 
 
 def repair_recording(path: Path) -> str:
@@ -118,6 +164,25 @@ class RunFiles:
         self.root = root
         self.root.mkdir(parents=True, exist_ok=True)
         self._write_lock = threading.Lock()  # two saves of one run: the later one wins
+        self._tabled: dict[str, tuple[int, dict]] = {}  # run id -> (mtime, its values)
+
+    def tabled(self, run_id: str) -> dict:
+        """The run's ``TABLED`` values from its result.json (``{name: {"value", "unit"}}``,
+        display units), read once per version of the file; {} without one. Reads files:
+        never call it holding the run lock."""
+        path = self.dir(run_id) / "result.json"
+        try:
+            mtime = path.stat().st_mtime_ns
+        except OSError:
+            return {}
+        cached = self._tabled.get(run_id)
+        if cached is None or cached[0] != mtime:
+            try:
+                entries = json.loads(path.read_text()).get("summary") or []
+            except (OSError, ValueError, AttributeError):
+                entries = []
+            cached = self._tabled[run_id] = (mtime, _tabled(entries))
+        return cached[1]
 
     def dir(self, run_id: str) -> Path:
         return self.root / check_run_id(run_id)
@@ -141,6 +206,7 @@ class RunFiles:
 
     def delete(self, run_id: str) -> None:
         shutil.rmtree(self.dir(run_id), ignore_errors=True)
+        self._tabled.pop(run_id, None)
 
     def load(self) -> dict[str, Run]:
         """Every run with a readable run.json; one the server lost during its run is rebuilt
@@ -152,10 +218,22 @@ class RunFiles:
             except (ValueError, TypeError):
                 continue
             runs[run.id] = run
-            if run.state in ACTIVE:  # the server died during the run
+            if run.state == QUEUED and not self._began(run.id):
+                # not started again: a restart is often made to change the server (its
+                # solvers, its limits, its code), and a run nobody waits for any more would
+                # take a solver process from those who do. Start it again from the page.
+                run.state, run.reason, run.place, run.ended = CANCELLED, NOT_RUN, None, None
+                self.save(run.id, run.snapshot())
+            elif run.state in ACTIVE or run.state == QUEUED:  # the server died during it
                 self.recover(run, repair_recording(self.recording(run.id)))
                 self.save(run.id, run.snapshot())
         return runs
+
+    def _began(self, run_id: str) -> bool:
+        """Whether a solver process began the run: run.json says queued until the solver's
+        first event is booked, and a server may die in between."""
+        d = self.dir(run_id)
+        return (d / "result.json").is_file() or (d / "run.rrd").is_file()
 
     def recover(self, run: Run, note: str) -> None:
         """The status of a run the server lost track of, rebuilt from result.json when the
@@ -174,6 +252,7 @@ class RunFiles:
         run.step = run.records[-1]["step"] if run.records else 0
         run.state, run.reason = state, ((reason or "") + note).removeprefix("; ") or None
         run.pending.clear()
+        run.place = None
 
     def _steps_from_recording(self, run: Run) -> str:
         """Fill ``run.records`` from its recording; returns a note when it cannot be read."""

@@ -1,11 +1,18 @@
-"""Runs: the requests on them, the solver process that steps them and its restarts. This
-module composes the parts: the run records and their folder (``server.records``), the bridge
-thread booking the solver's events (``server.bridge``), the error estimates
-(``server.estimate``) and the kept frames (``server.history``). Nothing here waits on a solve.
+"""Runs: the requests on them, the queue of runs waiting for a solver process, the solver
+processes that step them and their restarts. This module composes the parts: the run records
+and their folder (``server.records``), the bridge thread booking the solvers' events
+(``server.bridge``), the error estimates (``server.estimate``) and the kept frames
+(``server.history``). Nothing here waits on a solve.
 
-``RunManager.lock`` guards the run records and is held only for bookkeeping (a few dict and
-list updates): the viewer's pushes, file writes, the error estimate and recording repairs run
-outside it, so a status request never waits on them.
+A new run joins the queue; a free solver process (``Slot``; ``settings.solvers`` of them)
+takes the first queued run, and takes the next when its run ends, in whatever way it ends. A
+queued run can be cancelled, and never starts. The queue is bounded (``settings.queue_limit``):
+past it a start is refused (429) rather than left to wait for hours.
+
+``RunManager.lock`` guards the run records, the queue and the slots, and is held only for
+bookkeeping (a few dict and list updates, commands put on the solvers' queues): the viewer's
+pushes, file writes, the error estimate and recording repairs run outside it, so a status
+request never waits on them.
 """
 
 from __future__ import annotations
@@ -18,13 +25,13 @@ from typing import TYPE_CHECKING
 
 from server.bridge import Bridge
 from server.estimate import EstimateCache
-from server.history import FrameHistory
-from server.problems import Conflict, Invalid, NotFound, NotReady
-from server.records import Run, RunFiles, repair_recording
+from server.history import FrameHistory, Histories
+from server.problems import Busy, Conflict, Invalid, NotFound, NotReady
+from server.records import ACTIVE, CANCELLED, QUEUED, Run, RunFiles, ordinal, repair_recording
 from server.settings import Settings, check_run_id
 from server.store import SceneStore
 from server.worker import worker_main
-from server.workerhandle import WorkerHandle, WorkerTarget
+from server.workerhandle import Slot, WorkerHandle, WorkerTarget
 from sim.elements import get_element
 from sim.model import size
 from sim.scene.load import Scene, SceneError, scene_from_toml
@@ -42,14 +49,16 @@ class RunManager:
         self.settings, self.store = settings, store
         self.files = RunFiles(settings.runs_dir)
         self.estimates = EstimateCache(settings.runs_dir)
-        self.history = FrameHistory(settings.history_frames, settings.history_bytes)
+        self.history = Histories(settings.solvers, settings.history_frames,
+                                 settings.history_bytes)
         # live parameters and their ranges come from the solver process once it has imported
         # the solver: the server never imports it, so the page is up in about a second
         self.parameter_ranges: dict = {}
         self.ready = threading.Event()
         self.lock = threading.RLock()
         self.runs: dict[str, Run] = self.files.load()
-        self.active: str | None = None
+        self.queue: list[str] = []  # the queued runs' ids, the next to start first
+        self._starts: dict[str, dict] = {}  # a queued run's start command, sent when it starts
         # the run the page and the viewer show (one for every browser, until each has its own
         # view): a new run, else the newest
         self.selected: str | None = self._newest()
@@ -62,7 +71,7 @@ class RunManager:
         self.logs: collections.deque = collections.deque(maxlen=50)  # the solver's log events
         self.viewer: Viewer | None = None  # set by the app when the viewer is on
         self._target = worker_target
-        self.worker = self._new_worker()
+        self.slots = [Slot(self._new_worker()) for _ in range(max(1, settings.solvers))]
         self._retired: list[WorkerHandle] = []  # ended by a stop during a build; the bridge closes
         self.restarts = 0
         self.closing = threading.Event()  # the server shuts down: no new solver process
@@ -80,26 +89,38 @@ class RunManager:
         self.bridge.start()
 
     def close(self) -> None:
-        """Shut down: the active run is stopped by the solver (result.json and a closed
-        recording) when it answers within ``stop_timeout``; no new solver process starts."""
+        """Shut down: the queued runs are cancelled (first: no run starts meanwhile), the
+        active runs are stopped by their solvers (result.json and a closed recording) when
+        they answer within ``stop_timeout``; no new solver process starts."""
         with self.lock:
-            run = self.runs.get(self.active) if self.active else None
-        if run is not None and self.worker.alive() and self.bridge.running():
-            self.worker.send("stop", reason="server shut down")
+            cancelled = [self._cancel(self.runs[r], "not run: the server shut down before "
+                                                    "its turn") for r in list(self.queue)]
+            running = [(s, self.runs[s.run]) for s in self.slots if s.run]
+        for run in cancelled:
+            self.save(run)
+        if self.bridge.running():
+            for slot, _ in running:
+                if slot.worker.alive():
+                    slot.worker.send("stop", reason="server shut down")
             deadline = time.monotonic() + self.settings.stop_timeout
-            while self.active == run.id and time.monotonic() < deadline:
+            while self.active_runs() and time.monotonic() < deadline:
                 time.sleep(0.02)
         self.closing.set()  # the bridge ends its loop
         self.bridge.join(2.0)
         self.close_retired()
-        clean = self.worker.close()  # a solver still inside a step is asked, then killed
-        note = self.repair(run) if run is not None and not clean else ""
+        for slot, run in running:
+            self._close_slot(slot, run)
+
+    def _close_slot(self, slot: Slot, run: Run) -> None:
+        """At shutdown: end the slot's process (a solver still inside a step is asked, then
+        killed) and its run, if the solver did not."""
+        clean = slot.worker.close()
+        note = self.repair(run) if not clean else ""
         with self.lock:
-            if self.active:
-                self.finish(self.runs[self.active], "stopped", "server shut down" + note)
-        if run is not None:
-            self._result_if_missing(run)
-            self.save(run)
+            if run.state in ACTIVE:
+                self.finish(run, "stopped", "server shut down" + note)
+        self._result_if_missing(run)
+        self.save(run)
 
     def repair(self, run: Run) -> str:
         """Make the recording of a run whose solver was killed verifiable again; returns what
@@ -114,12 +135,22 @@ class RunManager:
 
     def health(self) -> dict:
         b = self.bridge
-        bridge, worker = b.alive(), self.worker.alive()
-        return {"ok": bridge and worker, "worker_alive": worker, "worker_pid": self.worker.pid,
-                "worker_restarts": self.restarts, "bridge_alive": bridge,
-                "repairing_recording": b.repairing,
+        with self.lock:
+            solvers = [{"pid": s.worker.pid, "alive": s.worker.alive(), "run": s.run}
+                       for s in self.slots]
+            queued = list(self.queue)
+        bridge, workers = b.alive(), all(s["alive"] for s in solvers)
+        return {"ok": bridge and workers, "worker_alive": workers,
+                "worker_pid": solvers[0]["pid"], "worker_restarts": self.restarts,
+                "solvers": solvers, "bridge_alive": bridge, "repairing_recording": b.repairing,
                 "bridge_errors": b.errors, "bridge_error": b.error,
-                "active": self.active}
+                "active": [s["run"] for s in solvers if s["run"]], "queued": queued,
+                "queue_limit": self.settings.queue_limit}
+
+    def active_runs(self) -> list[str]:
+        """The runs on a solver process now."""
+        with self.lock:
+            return [s.run for s in self.slots if s.run]
 
     # ---- requests ---------------------------------------------------------------------------
     def get(self, run_id: str) -> Run:
@@ -130,8 +161,14 @@ class RunManager:
             raise NotFound(f"no run {run_id!r}") from None
 
     def list(self) -> list[dict]:
+        """Every run, newest first, with what the Runs table shows: its ``results`` (peak
+        punch force, minimum thickness, maximum thinning, from result.json) besides the
+        summary."""
         with self.lock:
-            return [r.summary() for r in sorted(self.runs.values(), key=lambda r: -r.created)]
+            out = [r.summary() for r in sorted(self.runs.values(), key=lambda r: -r.created)]
+        for r in out:  # reads files: outside the lock
+            r["results"] = {} if r["state"] in ACTIVE else self.files.tabled(r["id"])
+        return out
 
     def status(self, run_id: str, since: int = 0, limit: int | None = None) -> dict:
         """The run's summary, its step records after step ``since`` (at most ``limit``) and
@@ -178,9 +215,9 @@ class RunManager:
                            "preview on")
         text, _ = self._scene_text(scene, toml)
         _, overrides = self._checked(text, {})
-        with self.lock:
-            rid = self.worker.send("preview", scene=scene, scene_toml=text,
-                                   overrides=overrides)
+        with self.lock:  # a free solver builds it at once; else between an active run's steps
+            worker = min(self.slots, key=lambda s: s.run is not None).worker
+            rid = worker.send("preview", scene=scene, scene_toml=text, overrides=overrides)
             self.preview = {"scene": scene, "request": rid, "state": "building"}
         self.viewer.preview_status(f"Preview of scene `{scene}`: building its model…")
         return self.view()
@@ -196,7 +233,7 @@ class RunManager:
                 self.preview = None
                 run = self.runs.get(self.selected or "")
                 shown = None if run is None else (run.id, dict(run.parameters),
-                                                    run.id == self.active, run.line())
+                                                    run.state in ACTIVE, run.line())
             self.viewer.show_run(*(shown or (None, {}, False, "No run yet")))
 
     def show_preview(self, ev: dict) -> None:
@@ -219,22 +256,32 @@ class RunManager:
                                      f"Preview of scene `{scene}`: its blank and tools at the "
                                      "start, before any run  \n(choose a run to show it)")
 
-    def frame_at(self, run_id: str, step: int) -> dict:
-        """A kept frame of the current (latest) run: the one at ``step`` or the nearest before."""
+    def kept_frames(self, run_id: str) -> FrameHistory:
+        """The frames kept of ``run_id``: only the latest runs' are."""
         self.get(run_id)
-        frame = self.history.at(step) if self.history.run == run_id else None
+        history = self.history.get(run_id)
+        if history is None:
+            n = self.history.keep
+            raise NotFound(f"no frames kept for run {run_id!r} (only the latest "
+                           f"{'run' if n == 1 else f'{n} runs'}'s are)")
+        return history
+
+    def frame_at(self, run_id: str, step: int) -> dict:
+        """A kept frame of one of the latest runs: the one at ``step`` or the nearest before."""
+        frame = self.kept_frames(run_id).at(step)
         if frame is None:
-            raise NotFound(f"no frames kept for run {run_id!r} (only the latest run's are)")
+            raise NotFound(f"no frames kept for run {run_id!r} yet")
         return frame
 
     def start_run(self, scene: str, element: str | None = None, overrides: dict | None = None,
                   parameters: dict | None = None, paused: bool = False,
                   toml: str | None = None) -> Run:
-        """Validate the run (scene, element, parameters, model size), then hand it to the
-        solver process; refused with a reason naming the field before anything is written.
-        ``toml``: the scene as the page shows it, edits not saved yet; it is validated as a
-        saved scene is, and runs (kept as the run's scene.toml) instead of the saved file. The
-        new run is the selected one."""
+        """Validate the run (scene, element, parameters, model size), then queue it: it
+        starts at once on a free solver process, else when one is free (its ``place`` in the
+        queue says when); refused with a reason naming the field before anything is written,
+        and with 429 when the queue is full. ``toml``: the scene as the page shows it, edits
+        not saved yet; it is validated as a saved scene is, and runs (kept as the run's
+        scene.toml) instead of the saved file. The new run is the selected one."""
         text, edited = self._scene_text(scene, toml)
         overrides = dict(overrides or {})
         if element:
@@ -243,19 +290,20 @@ class RunManager:
         for name, value in (parameters or {}).items():
             self.check_parameter(name, value)
         with self.lock:
-            if self.active:
-                raise Conflict(f"run {self.active!r} is {self.runs[self.active].state}; "
-                               "stop it first")
+            self._check_room()
             stamp = time.strftime("%Y%m%d-%H%M%S")
             run = Run(f"{scene}-{spec.shell.element}-{stamp}-{secrets.token_hex(2)}", scene,
                       spec.shell.element, overrides, time.time(), edited=edited,
                       parameters=self._start_values(parameters or {}))
+            run.place = len(self.queue) + 1  # run.json says queued, and where
             out = self.files.create(run, text)
-            self.runs[run.id], self.active, self.selected = run, run.id, run.id
-            self.history.reset(run.id)
-            self.worker.send("start", run=run.id, out=str(out), scene_toml=text,
-                             overrides=solver_overrides, parameters=parameters or {},
-                             paused=paused, record_every=self.settings.record_every)
+            self.runs[run.id], self.selected = run, run.id
+            self._starts[run.id] = dict(run=run.id, out=str(out), scene_toml=text,
+                                        overrides=solver_overrides,
+                                        parameters=parameters or {}, paused=paused,
+                                        record_every=self.settings.record_every)
+            self.queue.append(run.id)
+            self._dispatch()
         if self.viewer:
             self.viewer.set_runs(self.run_ids())
         self._show_selected()
@@ -298,12 +346,19 @@ class RunManager:
         return {**dict.fromkeys(self.parameter_ranges, AS_WRITTEN), **given}
 
     def command(self, run_id: str, cmd: str) -> dict:
-        """pause, resume, step or stop the active run."""
+        """pause, resume, step or stop an active run; stop a queued one (it never starts)."""
         with self.lock:
             run = self.get(run_id)
-            if run.id != self.active:
+            if run.state == QUEUED:
+                if cmd != "stop":
+                    raise Conflict(f"run {run_id!r} is queued ({ordinal(run.place)} in the "
+                                   f"queue): it can only be stopped (cancelled) until it "
+                                   "starts")
+                self._cancel(run, "cancelled before it started")
+                old = None
+            elif run.state not in ACTIVE:
                 raise Conflict(f"run {run_id!r} is {run.state}, not active")
-            if cmd == "stop" and run.state in ("starting", "building"):
+            elif cmd == "stop" and run.state in ("starting", "building"):
                 old = self._end_build(run)
             else:
                 if cmd in ("pause", "step"):
@@ -335,7 +390,7 @@ class RunManager:
         waiter = {"event": threading.Event(), "reply": None}
         with self.lock:  # the bridge handles the reply under this lock: registered in time
             run = self.get(run_id)
-            if run.id != self.active:
+            if run.state not in ACTIVE:
                 raise Conflict(f"run {run_id!r} is {run.state}, not active")
             rid = self._send(run, "set", name=name, value=value)
             self.waiters[rid] = waiter
@@ -354,13 +409,15 @@ class RunManager:
         return {**out, "applied": True, "applies_from_step": reply["result"]["step"]}
 
     def delete(self, run_id: str) -> None:
+        """Delete a run that has ended, or a queued one (which then never starts)."""
         with self.lock:
             run = self.get(run_id)
-            if run.id == self.active:
+            if run.state in ACTIVE:
                 raise Conflict(f"run {run_id!r} is {run.state}; stop it first")
+            if run.state == QUEUED:
+                self._cancel(run, "deleted before it started")
             del self.runs[run.id]
-            if self.history.run == run.id:
-                self.history.reset(None)
+            self.history.forget(run.id)
             moved = self.selected == run.id
             if moved:
                 self.selected = self._newest()
@@ -372,22 +429,66 @@ class RunManager:
                 self._show_selected()
 
     # ---- the run records: changed under ``lock`` ----------------------------------------------
+    def _slot(self, run_id: str) -> Slot | None:
+        """Under ``lock``: the slot stepping ``run_id``, if any."""
+        return next((s for s in self.slots if s.run == run_id), None)
+
     def _send(self, run: Run, cmd: str, **kw: object) -> int:
         """Under ``lock``: a command for the active ``run``, listed in its ``pending`` until
         the solver replies."""
-        rid = self.worker.send(cmd, **kw)
+        rid = self._slot(run.id).worker.send(cmd, **kw)
         self.sent[rid] = run.id
         run.pending.append(cmd)
         return rid
 
     def finish(self, run: Run, state: str, reason: str | None) -> None:
-        """Under ``lock``: the run is over. The caller saves it (outside the lock)."""
+        """Under ``lock``: the run is over; its solver process, if it had one, takes the next
+        queued run. The caller saves it (outside the lock)."""
         run.state, run.reason = state, reason
         run.ended = time.time()
         run.pending.clear()  # what the solver did not do, it will not do for this run
         self.sent = {rid: r for rid, r in self.sent.items() if r != run.id}
-        if run.id == self.active:
-            self.active = None
+        slot = self._slot(run.id)
+        if slot is not None:
+            slot.run = None
+            self._dispatch()
+
+    # ---- the queue: changed under ``lock`` ----------------------------------------------------
+    def _check_room(self) -> None:
+        """Under ``lock``: refuse a new run when every solver is busy and the queue full."""
+        limit = self.settings.queue_limit
+        if len(self.queue) >= limit and all(s.run for s in self.slots):
+            raise Busy(f"the run queue is full: {len(self.queue)} runs wait for "
+                       f"{len(self.slots)} solver process(es) (the server's --queue {limit}); "
+                       "start this one when a queued run has started, or cancel one")
+
+    def _dispatch(self) -> None:
+        """Under ``lock``: the first queued runs start on the free solver processes (one
+        found dead waits for the bridge to replace it); the rest learn their new places."""
+        for slot in self.slots:
+            if not self.queue or self.closing.is_set():
+                break
+            if slot.run is None and slot.worker.alive():
+                run = self.runs[self.queue.pop(0)]
+                slot.run, run.state, run.started, run.place = run.id, "starting", time.time(), \
+                    None
+                self.history.start(run.id, {s.run for s in self.slots if s.run})
+                slot.worker.send("start", **self._starts.pop(run.id))
+        self._renumber()
+
+    def _renumber(self) -> None:
+        for place, run_id in enumerate(self.queue, 1):
+            self.runs[run_id].place = place
+
+    def _cancel(self, run: Run, reason: str) -> Run:
+        """Under ``lock``: a queued run leaves the queue, never to start. The caller saves it
+        (outside the lock)."""
+        self.queue.remove(run.id)
+        self._starts.pop(run.id, None)
+        self.finish(run, CANCELLED, reason)
+        run.place = None
+        self._renumber()
+        return run
 
     def run_ended(self, run: Run) -> None:
         """The viewer's line and controls for a run that is over (when it is shown)."""
@@ -403,15 +504,16 @@ class RunManager:
             if run is not None:
                 run.reason = text
 
-    def fail_active(self, reason: str) -> None:
-        """The server cannot follow the active run any more: fail it, and stop the solver
+    def fail_run(self, run_id: str | None, reason: str) -> None:
+        """The server cannot follow an active run any more: fail it, and stop its solver
         (which closes the recording; its later events for this run are ignored)."""
         with self.lock:
-            run = self.runs.get(self.active) if self.active else None
-            if run is None:
+            slot = self._slot(run_id or "")
+            if slot is None:
                 return
+            run = self.runs[slot.run]
+            slot.worker.send("stop", reason=reason)  # before the next run's start
             self.finish(run, "failed", reason)
-            self.worker.send("stop", reason=reason)
         self.save(run)
 
     def _result_if_missing(self, run: Run) -> None:
@@ -429,17 +531,23 @@ class RunManager:
         only between steps, and a build is one long call (minutes for a large model), so the
         process is killed and a new one started: the stop takes effect at once, and the memory
         the build held is freed. Returns the old process's handle."""
-        old = self.worker
+        slot = self._slot(run.id)
+        old = slot.worker
         old.process.kill()
-        self.worker = self._new_worker()
+        slot.worker = self._new_worker()
         self.restarts += 1
         self.finish(run, "stopped", "stopped during the build (its solver process was ended "
                                     "and a new one started)")
         return old
 
-    def _after_build_ended(self, run: Run, old: WorkerHandle) -> None:
+    def _after_build_ended(self, run: Run, old: WorkerHandle | None) -> None:
         """The files of a run whose build was stopped: result.json, its recording repaired if
-        the build had finished after all and steps were recorded, run.json."""
+        the build had finished after all and steps were recorded, run.json. ``old``: the
+        process ended; None for a queued run, which has no files to mend."""
+        if old is None:
+            self.save(run)
+            self.run_ended(run)
+            return
         old.process.join(5.0)
         self._retired.append(old)
         self._result_if_missing(run)
@@ -457,22 +565,25 @@ class RunManager:
             self._retired.pop().close(timeout=0.1)
 
     def worker_died(self, w: WorkerHandle) -> None:
-        """The bridge found the solver process dead: fail its run (after repairing the
-        recording, so a download after that verifies) and start a new process."""
+        """The bridge found a solver process dead: fail its run (after repairing the
+        recording, so a download after that verifies) and start a new process in its slot,
+        which then takes the next queued run. The other slots' runs go on."""
         code = w.process.exitcode
         why = f"killed by signal {-code}" if code and code < 0 else f"exit code {code}"
         with self.lock:
-            if w is not self.worker:  # already replaced (a build stopped by request)
+            slot = next((s for s in self.slots if s.worker is w), None)
+            if slot is None:  # already replaced (a build stopped by request)
                 return
-            run = self.runs.get(self.active) if self.active else None
+            run = self.runs.get(slot.run or "")
         note = self.repair(run) if run is not None else ""
         with self.lock:
-            if self.closing.is_set() or w is not self.worker:
+            if self.closing.is_set() or slot.worker is not w:
                 return
-            if run is not None and run.id == self.active:
-                self.finish(run, "failed", f"solver process died ({why}){note}")
-            self.worker = self._new_worker()
+            slot.worker = self._new_worker()
             self.restarts += 1
+            if run is not None and slot.run == run.id:
+                self.finish(run, "failed", f"solver process died ({why}){note}")
+            self._dispatch()
         w.close(timeout=0.1)
         if run is not None:
             self._result_if_missing(run)

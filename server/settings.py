@@ -86,4 +86,8 @@ class Settings:
     # a run whose model would need more memory to build is refused (sim.model.size: the estimate and
     # why the default is half of this 24 GiB machine)
     max_model_bytes: float = DEFAULT_LIMIT
+    # solver processes, each stepping one run (q3t serve --solvers): more runs at once, but
+    # each slower when there are more than cores
+    solvers: int = 1
+    queue_limit: int = 16  # runs that may wait for a solver process; then a start is a 429
     extra: dict = field(default_factory=dict)

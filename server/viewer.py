@@ -10,9 +10,10 @@ second (a glTF of the whole sheet), always the last frame of a run, positions in
 control panel is docked to the right, so it narrows the view instead of hiding the part.
 
 It shows the run selected on the server (``RunManager.select``: the page's Runs table, its own
-"Run" dropdown, a new run), the same one the page shows. The latest run is shown live: frames as
-the bridge pushes them, and the time slider follows the live step; when the run is paused or
-over, moving it shows a kept frame (``RunManager.history``). An older run is shown from its
+"Run" dropdown, a new run), the same one the page shows. The latest runs (one per solver
+process) are shown live: frames as the bridge pushes them, and the time slider follows the live
+step; when the run is paused or over, moving it shows a kept frame (``RunManager.history``).
+The frames of a latest run not selected are kept, not drawn. An older run is shown from its
 recording (``run.rrd``, read with ``server.replay`` in the background): the slider scrubs its
 recorded frames. A scene chosen on the page is previewed (``show_preview``): its blank and tools
 at the start, built by the solver process before any run. The buttons and the live-parameter
@@ -27,7 +28,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -59,13 +60,27 @@ class Gui:
     buttons: dict  # label -> button handle (Pause, Resume, Step, Stop: the page's words)
 
 
+@dataclass
+class Live:
+    """A latest run, shown live when selected: its sheet's faces, its tools (meshes sent
+    once), its newest frame and its fields' ranges so far."""
+
+    faces: np.ndarray
+    tools: list[dict]
+    frame: dict | None = None
+    seen: dict[str, tuple[float, float]] = field(default_factory=dict)
+    ended: bool = False  # the run is over: its place may go to a newer run
+
+
 # the page's run controls and what each sends, in the page's order and words
 COMMANDS = {"Pause": "pause", "Resume": "resume", "Step": "step", "Stop": "stop"}
 NO_RUN = "(no runs yet)"  # the "Run" dropdown's one option before any run (viser needs one)
 
 
 class Viewer:
-    def __init__(self, host: str, port: int, actions: Actions, colour_hz: float = 4.0):
+    def __init__(self, host: str, port: int, actions: Actions, colour_hz: float = 4.0,
+                 live_runs: int = 1):
+        """``live_runs``: how many of the latest runs are kept live (one per solver)."""
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         # embedded in the page's centre column the panel took half the view: the narrow one,
         # and no share button (a share link would expose the run's controls)
@@ -78,11 +93,9 @@ class Viewer:
         self.selected: str | None = None  # the run shown (the server's selection)
         self.active = False  # whether it is active (its own colour ranges still grow)
         self.parameters: dict[str, float] = {}  # its live parameters
-        self.live_run: str | None = None  # the latest run, whose frames the bridge pushes
-        self.live_faces: np.ndarray | None = None
-        self.live_tools: list[dict] = []
-        self.live_frame: dict | None = None  # the latest run's newest frame
-        self.live_seen: dict[str, tuple[float, float]] = {}  # its fields' ranges so far
+        self.live_run: str | None = None  # the latest run built
+        self.lives: dict[str, Live] = {}  # the latest runs built, oldest first
+        self.live_runs = max(1, live_runs)
         # what is drawn: "live" (the latest run's frames), "replay" (a recording), "preview"
         # (a scene's rest state) or "none"
         self.mode = "none"
@@ -211,7 +224,7 @@ class Viewer:
                     self.gui.run.value = run_id
             self._show_parameters(parameters)
             self._enable(active)
-            if run_id is not None and run_id == self.live_run:
+            if run_id is not None and run_id in self.lives:
                 if self.mode == "live":
                     self.gui.status.content = line
                 else:
@@ -227,6 +240,8 @@ class Viewer:
     def run_status(self, run_id: str, line: str, active: bool) -> None:
         """A run's state changed: its line and whether the controls act on it, if it is shown."""
         with self.lock:
+            if run_id in self.lives:
+                self.lives[run_id].ended = not active
             if run_id == self.selected and self.mode != "preview":
                 self.gui.status.content = line
             if run_id == self.selected:
@@ -237,14 +252,16 @@ class Viewer:
 
     def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict], line: str,
                 parameters: dict[str, float]) -> None:
-        """The latest run is built: its sheet's faces and its tools (meshes sent once), shown
-        live when it is the selected run."""
+        """A run is built: its sheet's faces and its tools (meshes sent once), kept live in
+        place of the oldest live run that is over and not shown, and shown when it is the
+        selected run."""
         with self.lock:
             self.live_run = run_id
-            self.live_faces = np.asarray(faces, np.uint32)
-            self.live_tools = list(tools)
-            self.live_frame = None
-            self.live_seen = {}
+            self.lives[run_id] = Live(np.asarray(faces, np.uint32), list(tools))
+            for old in [r for r, v in self.lives.items() if v.ended and r != self.selected]:
+                if len(self.lives) <= self.live_runs:
+                    break
+                del self.lives[old]
             if run_id == self.selected:
                 self._show_parameters(parameters)
                 self._show_live(line)
@@ -296,15 +313,16 @@ class Viewer:
             self.mode = "replay"  # last: a reader outside the lock finds it all drawn
 
     def _show_live(self, line: str) -> None:
-        """The latest run's sheet and tools, and its latest frame (under lock)."""
+        """The selected (live) run's sheet and tools, and its latest frame (under lock)."""
         self.mode, self.replay, self.previewed = "live", None, None
-        self.canvas.set_scene(self.live_faces, [(t["name"], t["vertices"], t["faces"])
-                                                for t in self.live_tools])
-        self.canvas.palette.ranges.seen = self.live_seen
+        live = self.lives[self.selected]
+        self.canvas.set_scene(live.faces, [(t["name"], t["vertices"], t["faces"])
+                                           for t in live.tools])
+        self.canvas.palette.ranges.seen = live.seen
         with self._from_code():
             self.gui.time.value, self.gui.time.max = 0, 1
-        if self.live_frame is not None:
-            self.show(self.live_frame, line, final=True)
+        if live.frame is not None:
+            self.show(live.frame, line, final=True)
         else:
             self.gui.status.content = line
 
@@ -333,9 +351,9 @@ class Viewer:
         frame, message = self.actions.scrub(int(self.gui.time.value))
         if frame is None:
             self._status(message)
-            live = self.live_frame
-            if live is not None:
-                self._set_time(live["step"])
+            live = self.lives.get(self.selected or "")
+            if live is not None and live.frame is not None:
+                self._set_time(live.frame["step"])
             return
         self.show(frame, message, final=True, live=False)
 
@@ -343,12 +361,14 @@ class Viewer:
         """Push one frame: positions always, colours when due or final. A live frame also moves
         the time slider; a scrubbed one (``live=False``) leaves it where the user put it."""
         with self.lock:
-            if live and frame.get("run") != self.live_run:
+            run = self.lives.get(frame.get("run") or "")
+            if live and run is None:
                 return  # a frame of an earlier run, pushed late
             if live:
-                self.live_frame = frame
+                run.frame = frame
             self.live_seen_add(frame)
-            if self.canvas.faces is None or self.mode != "live":
+            if self.canvas.faces is None or self.mode != "live" or (
+                    live and frame["run"] != self.selected):
                 return  # another run is shown: the live run is kept, not drawn
             now = time.perf_counter()
             with self.server.atomic():
@@ -361,9 +381,10 @@ class Viewer:
                 self.gui.status.content = status
 
     def live_seen_add(self, frame: dict) -> None:
-        """The latest run's colour ranges hold every frame of it shown or kept for showing."""
-        if frame.get("run") == self.live_run:
-            grow(self.live_seen, frame["fields"])
+        """A live run's colour ranges hold every frame of it shown or kept for showing."""
+        live = self.lives.get(frame.get("run") or "")
+        if live is not None:
+            grow(live.seen, frame["fields"])
 
     def stop(self) -> None:
         self.server.stop()

@@ -1,10 +1,12 @@
-"""The server's side of the solver process: spawn, send commands, notice death, restart."""
+"""The server's side of a solver process: spawn, send commands, notice death, restart; and
+the slot it fills (``q3t serve --solvers N``: N slots, each with one process and its run)."""
 
 from __future__ import annotations
 
 import itertools
 import multiprocessing as mp
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from server.worker import worker_main
 
@@ -52,3 +54,13 @@ class WorkerHandle:
             q.cancel_join_thread()
             q.close()
         return clean
+
+
+@dataclass
+class Slot:
+    """One solver process and the run it steps (None: free for the next queued run). Each
+    has its own queues: a process killed while it writes to a queue may leave that queue's
+    lock held, which must stall no other process."""
+
+    worker: WorkerHandle
+    run: str | None = None

@@ -23,16 +23,25 @@ class Config(BaseModel):
     default_scene: str
 
 
+class Solver(BaseModel):
+    pid: int | None
+    alive: bool
+    run: str | None = Field(description="the run it steps (null: free)")
+
+
 class Health(BaseModel):
     ok: bool
-    worker_alive: bool
-    worker_pid: int | None
+    worker_alive: bool = Field(description="every solver process is alive")
+    worker_pid: int | None = Field(description="the first solver process's pid")
     worker_restarts: int
+    solvers: list[Solver] = Field(description="the solver processes (q3t serve --solvers)")
     bridge_alive: bool
     repairing_recording: str | None
     bridge_errors: int
     bridge_error: str | None
-    active: str | None = Field(description="the active run's id")
+    active: list[str] = Field(description="the active runs' ids")
+    queued: list[str] = Field(description="the queued runs' ids, the next to start first")
+    queue_limit: int = Field(description="runs that may wait; then a start is a 429")
 
 
 @router.get("/config", response_model=Config)

@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from server.errors import BODY, CheckedRoute, documented
 from server.problems import Conflict, NotFound
+from server.records import ACTIVE
 from server.runs import RunManager
 from server.settings import RunId, SceneName
 
@@ -66,8 +67,12 @@ class RunSummary(BaseModel):
     edited: bool = Field(default=False, description="it ran unsaved edits of its scene, not "
                          "the saved file (its scene.toml holds what ran)")
     created: float = Field(description="Unix time")
-    state: Literal["starting", "building", "running", "paused", "finished", "failed",
-                   "stopped"]
+    state: Literal["queued", "starting", "building", "running", "paused", "finished",
+                   "failed", "stopped", "cancelled"] = Field(description=(
+        "queued: it waits for a solver process (``place``); cancelled: stopped or deleted "
+        "while queued, or the server stopped before its turn: it never ran"))
+    place: int | None = Field(None, description="its place in the run queue while queued "
+                              "(1: the next to start), else null")
     reason: str | None = Field(description="why it failed or stopped, or a note")
     step: int
     n_steps: int | None
@@ -78,6 +83,20 @@ class RunSummary(BaseModel):
     parameters: dict[str, float] = Field(default_factory=dict, description=(
         "every live parameter's value from the next step on (as the solver last said)"))
     progress: Progress
+    changes: list[str] = Field(default_factory=list, description=(
+        "what the run changed of its saved scene, in words: unsaved edits, overrides, live "
+        "parameter values and the step each applied from"))
+
+
+class Shown(BaseModel):
+    value: float
+    unit: str = Field(description="kN, mm, %")
+
+
+class RunListEntry(RunSummary):
+    results: dict[str, Shown] = Field(default_factory=dict, description=(
+        "of an ended run's result: peak_punch_force (the largest of its punches), "
+        "min_thickness, max_thinning, as the page shows them; those the scene has"))
 
 
 class RunStatus(RunSummary):
@@ -124,16 +143,21 @@ def _runs(request: Request) -> RunManager:
     return request.app.state.manager
 
 
-@router.get("", response_model=list[RunSummary])
+@router.get("", response_model=list[RunListEntry])
 def list_runs(request: Request) -> list[dict]:
+    """Every run, newest first, with what the page's Runs table shows (one request for the
+    whole table): state and place in the queue, progress, what it changed of its scene and
+    the headline values of its result."""
     return _runs(request).list()
 
 
 @router.post("", status_code=201, response_model=RunSummary,
-             responses={201: {"links": RUN_LINKS}, **documented(404, 409, 503, *BODY)})
+             responses={201: {"links": RUN_LINKS}, **documented(404, 429, 503, *BODY)})
 def start_run(body: NewRun, request: Request) -> dict:
-    """Start a run of the saved scene, or of ``toml`` (the page's unsaved edits). The new run
-    is the selected one (``/api/view``)."""
+    """Start a run of the saved scene, or of ``toml`` (the page's unsaved edits): at once on
+    a free solver process, else it is ``queued`` (its ``place`` says where) and starts when
+    the runs before it have; 429 when the queue is full. The new run is the selected one
+    (``/api/view``)."""
     run = _runs(request).start_run(body.scene, body.element, body.overrides, body.parameters,
                                    body.paused, body.toml)
     return run.summary()
@@ -172,7 +196,8 @@ def step(run_id: RunId, request: Request) -> dict:
 @router.post("/{run_id}/stop", response_model=RunSummary,
              responses=documented(409, 404, 422))
 def stop(run_id: RunId, request: Request) -> dict:
-    """Stop the run: it ends as ``stopped``, with its result.json and a closed recording."""
+    """Stop the run: it ends as ``stopped``, with its result.json and a closed recording. A
+    queued run is cancelled: it ends as ``cancelled`` and never starts."""
     return _runs(request).command(run_id, "stop")
 
 
@@ -284,13 +309,9 @@ def scene(run_id: RunId, request: Request) -> Response:
 
 @router.get("/{run_id}/frames", response_model=KeptFrames, responses=RUN)
 def frames(run_id: RunId, request: Request) -> dict:
-    """The steps whose frames the server keeps (the latest run only; every k-th when long)."""
-    m = _runs(request)
-    m.get(run_id)
-    summary = m.history.summary()
-    if summary["run"] != run_id:
-        raise NotFound(f"no frames kept for run {run_id!r} (only the latest run's are)")
-    return summary
+    """The steps whose frames the server keeps (of the latest runs only, one per solver
+    process; every k-th when long)."""
+    return _runs(request).kept_frames(run_id).summary()
 
 
 @router.get("/{run_id}/frames/{step}", response_model=FrameStats, responses=RUN)
@@ -315,7 +336,7 @@ def recording(run_id: RunId, request: Request) -> FileResponse:
     length would not match what was promised, and the file would end mid-record)."""
     m = _runs(request)
     run = m.get(run_id)
-    if run.id == m.active:
+    if run.state in ACTIVE:
         raise Conflict(f"run {run_id!r} is {run.state}: its recording is complete when it "
                        "ends")
     path = m.files.recording(run.id)
@@ -326,5 +347,7 @@ def recording(run_id: RunId, request: Request) -> FileResponse:
 
 @router.delete("/{run_id}", status_code=204, responses=documented(404, 409, 422))
 def delete_run(run_id: RunId, request: Request) -> Response:
+    """Delete a run that has ended, or a queued one (it never starts); an active run is a
+    409: stop it first."""
     _runs(request).delete(run_id)
     return Response(status_code=204)

@@ -25,7 +25,7 @@ from server.tomlout import drop_none
 from tests.support import ROOT
 from tests.support.browser import CHROMIUM, WAIT_MS, settled
 from tests.support.scenes import tiny_toml
-from tests.support.service import HANG, free_port, until
+from tests.support.service import HANG, free_port, stop_all
 
 pytestmark = pytest.mark.browser
 if not Path(CHROMIUM).exists():
@@ -254,11 +254,8 @@ def test_scene_form_and_run_estimate(served):
         assert saved["scene"]["material"]["nu"] == 0.3
         assert saved["scene"]["shell"]["thickness_points"] == 5
         assert saved["scene"]["stepping"]["steps"] == 2
-        active = httpx.get(f"{url}/api/health").json()["active"]
-        if active:  # left running by a failed test before this one
-            httpx.post(f"{url}/api/runs/{active}/stop")
-            until(lambda: not httpx.get(f"{url}/api/health").json()["active"],
-                  "the run left active did not stop")
+        with httpx.Client(base_url=url) as c:
+            stop_all(c)  # left running by a failed test before this one
         page.select_option("#element", "linear")
         page.click("#start")
         est = page.locator("#estimate .estimate-text")

@@ -156,9 +156,11 @@ def test_parameter_out_of_range_on_a_run(env):
         assert r.status_code == 422 and "out of range" in r.text
         r = client.put(f"/api/runs/{run_id}/parameters/friction", json={"value": 0.1})
         assert r.status_code == 422 and "unknown parameter" in r.text
-        r = client.post("/api/runs", json={"scene": "tiny"})
-        assert r.status_code == 409 and run_id in r.text
-        assert client.delete(f"/api/runs/{run_id}").status_code == 409
+        r = client.post("/api/runs", json={"scene": "tiny"})  # one solver, busy: queued
+        assert r.status_code == 201 and r.json()["state"] == "queued", r.text
+        assert r.json()["place"] == 1, r.text
+        assert client.delete(f"/api/runs/{run_id}").status_code == 409  # active
+        assert client.delete(f"/api/runs/{r.json()['id']}").status_code == 204  # never runs
     finally:
         client.post(f"/api/runs/{run_id}/stop")
     st = wait_state(client, run_id, {"stopped", "finished", "failed"})

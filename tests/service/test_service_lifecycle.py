@@ -93,8 +93,9 @@ def test_frames_are_dropped_for_a_slow_viewer(env, monkeypatch):
     # per step, each sent before its frame: frame_queue + 2 records mean a frame was offered
     # to the full queue
     need = 4 + settings.frame_queue + 2
-    until(lambda: m.worker.events.qsize() >= need, "the solver did not step")
-    assert m.worker.frames.qsize() == settings.frame_queue  # full, not more
+    worker = m.slots[0].worker
+    until(lambda: worker.events.qsize() >= need, "the solver did not step")
+    assert worker.frames.qsize() == settings.frame_queue  # full, not more
     viewer.release.set()
     # the queued frames reach the bridge while the run goes on (2000 steps take seconds)
     until(lambda: client.get(f"/api/runs/{run_id}").json()["frames"].get("received", 0)
@@ -140,7 +141,8 @@ def test_frames_read_after_the_run_ended_are_kept(env, monkeypatch):
         run_id = client.post("/api/runs", json={"scene": "three"}).json()["id"]
         # building, meta, the rest frame, running, the start's reply, 3 step records, the
         # last frame and the finished state; frames 1 and 2 wait on the frame queue
-        until(lambda: m.worker.events.qsize() >= 10, "the solver did not finish the run")
+        until(lambda: m.slots[0].worker.events.qsize() >= 10,
+              "the solver did not finish the run")
     finally:
         go.set()
     st = wait_state(client, run_id, {"finished", "failed", "stopped"})
@@ -168,7 +170,7 @@ def test_a_bridge_error_fails_the_run_and_the_service_goes_on(env, monkeypatch):
     assert "No space left on device" in st["reason"] and "'frame' event" in st["reason"]
     health = client.get("/api/health").json()
     assert health["ok"] and health["bridge_alive"] and health["bridge_errors"] >= 1, health
-    assert health["active"] is None
+    assert health["active"] == []
     monkeypatch.undo()
     nxt = client.post("/api/runs", json={"scene": "tiny"})
     assert nxt.status_code == 201, nxt.text  # not 409: the failed run is not left active
@@ -270,8 +272,8 @@ def test_shutdown_stops_the_active_run_with_a_result(tmp_path):
         run_id = client.post("/api/runs", json={"scene": "long"}).json()["id"]
         wait_step(client, run_id, 2)
         m = client.app.state.manager
-        worker = m.worker
-    assert m.restarts == 0 and m.worker is worker and not worker.alive()
+        worker = m.slots[0].worker
+    assert m.restarts == 0 and m.slots[0].worker is worker and not worker.alive()
     saved = json.loads((settings.runs_dir / run_id / "run.json").read_text())
     assert saved["state"] == "stopped" and saved["reason"] == "server shut down", saved
     result = json.loads((settings.runs_dir / run_id / "result.json").read_text())

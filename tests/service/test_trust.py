@@ -24,7 +24,14 @@ from server import sceneform  # noqa: E402
 from server.app import create_app  # noqa: E402
 from server.settings import Settings  # noqa: E402
 from tests.support.scenes import EDITED_EDGE, tiny_toml, vertices  # noqa: E402
-from tests.support.service import HANG, free_port, until, wait_state, wait_step  # noqa: E402
+from tests.support.service import (  # noqa: E402
+    HANG,
+    free_port,
+    stop_all,
+    until,
+    wait_state,
+    wait_step,
+)
 
 ENDED = {"finished", "failed", "stopped"}
 
@@ -60,10 +67,7 @@ def env(tmp_path_factory):
 
 
 def stop_active(client) -> None:
-    active = client.get("/api/health").json()["active"]
-    if active:
-        client.post(f"/api/runs/{active}/stop")
-        wait_state(client, active, ENDED)
+    stop_all(client)
 
 
 def run_to_end(client, **body) -> dict:
@@ -114,7 +118,7 @@ def test_a_bad_edit_is_refused_naming_the_field(env):
     r = client.post("/api/runs", json={"scene": "tiny", "toml": 5})
     assert r.status_code == 422 and "toml" in r.json()["detail"], r.text
     assert sorted(p.name for p in settings.runs_dir.iterdir()) == before
-    assert client.get("/api/health").json()["active"] is None
+    assert client.get("/api/health").json()["active"] == []
 
 
 def test_one_selected_run_for_page_and_viewer(env):

@@ -21,7 +21,7 @@ import pytest
 from sim.stepping.parameters import LABELS
 from tests.support.browser import WAIT_MS, chromium, serve, settled
 from tests.support.scenes import EDITED_EDGE, tiny_toml, vertices
-from tests.support.service import until
+from tests.support.service import stop_all, until
 
 SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-trust"))
 pytestmark = pytest.mark.browser
@@ -80,10 +80,8 @@ def wait_run_started(page, before: str | None) -> str:
 
 
 def active_stopped(url: str) -> None:
-    active = httpx.get(f"{url}/api/health").json()["active"]
-    if active:
-        httpx.post(f"{url}/api/runs/{active}/stop")
-        until(lambda: not httpx.get(f"{url}/api/health").json()["active"], "no stop")
+    with httpx.Client(base_url=url) as c:
+        stop_all(c)
 
 
 # ---- the viewer, in its iframe (viser's GUI: Mantine) ------------------------------------------

@@ -25,7 +25,15 @@ from server.app import create_app  # noqa: E402
 from server.history import FrameHistory  # noqa: E402
 from server.settings import Settings  # noqa: E402
 from tests.support.scenes import PRESS_TOML, tiny_toml  # noqa: E402
-from tests.support.service import HANG, free_port, until, wait_done, wait_state, wait_step  # noqa: E402,E501
+from tests.support.service import (  # noqa: E402
+    HANG,
+    free_port,
+    stop_all,
+    until,
+    wait_done,
+    wait_state,
+    wait_step,
+)
 
 # a plastic scene's frame: its major and minor strain too (forming limits), no FLD zone
 # without a forming limit curve
@@ -198,13 +206,10 @@ def test_viewer_buttons_drive_the_run(done):
         until(lambda: b["Resume"].disabled, "the buttons stayed enabled after the run ended")
         b["Resume"].value = True  # pressed anyway (a stale client): refused, no new run
         assert "not active" in viewer.gui.status.content, viewer.gui.status.content
-        assert client.get("/api/health").json()["active"] is None
+        assert client.get("/api/health").json()["active"] == []
         assert [r["id"] for r in client.get("/api/runs").json()][0] == run
     finally:
-        active = client.get("/api/health").json()["active"]
-        if active:
-            client.post(f"/api/runs/{active}/stop")
-            wait_state(client, active, {"stopped", "finished", "failed"})
+        stop_all(client)
 
 
 def test_viewer_replays_an_older_recorded_run(done):

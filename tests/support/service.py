@@ -15,6 +15,7 @@ from tests.support.scenes import tiny_toml
 # races (a run of the tiny scene takes a second; on a loaded machine, or compiling the
 # kernels on a cold numba cache, a minute)
 HANG = 300.0
+ENDED = {"finished", "failed", "stopped", "cancelled"}  # the states a run ends in
 
 
 def until(cond: Callable[[], Any], what: str, timeout: float = HANG) -> Any:
@@ -49,6 +50,17 @@ def wait_step(client, run_id: str, step: int, timeout: float = HANG) -> dict:
         return st if st["step"] >= step or st["state"] not in ACTIVE else None
 
     return until(reached, f"run {run_id} did not reach step {step}", timeout)
+
+
+def stop_all(client) -> None:
+    """Cancel every queued run and stop every active one (left by a test that failed before),
+    and wait until they have ended. ``client``: a TestClient, or an ``httpx.Client`` with a
+    ``base_url``."""
+    health = client.get("/api/health").json()
+    for run in health["queued"] + health["active"]:
+        client.post(f"/api/runs/{run}/stop")
+    for run in health["queued"] + health["active"]:
+        wait_state(client, run, ENDED)
 
 
 def free_port() -> int:
