@@ -95,12 +95,12 @@ class RunManager:
         with self.lock:
             cancelled = [self._cancel(self.runs[r], "not run: the server shut down before "
                                                     "its turn") for r in list(self.queue)]
-            running = [(s, self.runs[s.run]) for s in self.slots if s.run]
+            running = [(s, self.runs.get(s.run or "")) for s in self.slots]
         for run in cancelled:
             self.save(run)
         if self.bridge.running():
-            for slot, _ in running:
-                if slot.worker.alive():
+            for slot, run in running:
+                if run is not None and slot.worker.alive():
                     slot.worker.send("stop", reason="server shut down")
             deadline = time.monotonic() + self.settings.stop_timeout
             while self.active_runs() and time.monotonic() < deadline:
@@ -111,10 +111,12 @@ class RunManager:
         for slot, run in running:
             self._close_slot(slot, run)
 
-    def _close_slot(self, slot: Slot, run: Run) -> None:
+    def _close_slot(self, slot: Slot, run: Run | None) -> None:
         """At shutdown: end the slot's process (a solver still inside a step is asked, then
         killed) and its run, if the solver did not."""
         clean = slot.worker.close()
+        if run is None:
+            return
         note = self.repair(run) if not clean else ""
         with self.lock:
             if run.state in ACTIVE:
