@@ -30,6 +30,7 @@ LOST = "the server stopped during the run"
 # display value (kN, mm, %); of several punches the largest peak force
 TABLED = ("peak_punch_force", "min_thickness", "max_thinning")
 NOT_RUN = "not run: the server stopped before its turn"
+AS_WRITTEN = 1.0  # every live parameter multiplies a value of the scene: 1 runs it as written
 
 
 @dataclass
@@ -79,11 +80,13 @@ class Run:
     def changes(self) -> list[str]:
         """What this run changed of its saved scene, in words: the page's unsaved edits, the
         overrides (the element is a column of its own), the live parameters' values and from
-        which step each applied (those given at the start apply from step 1)."""
+        which step each applied (those given at the start apply from step 1; a run that has
+        not started has only those, in its parameters)."""
         out = ["unsaved edits of the scene"] if self.edited else []
         out += [f"{k} = {v}" for k, v in self.overrides.items() if k != "shell.element"]
-        out += [f"{e['name']} ×{e['value']:.4g} from step {e['step']}"
-                for e in self.parameter_log]
+        log = self.parameter_log or [{"step": 1, "name": k, "value": v}
+                                     for k, v in self.parameters.items() if v != AS_WRITTEN]
+        out += [f"{e['name']} ×{e['value']:.4g} from step {e['step']}" for e in log]
         return out
 
     def _fields(self) -> dict:

@@ -27,7 +27,16 @@ from server.bridge import Bridge
 from server.estimate import EstimateCache
 from server.history import FrameHistory, Histories
 from server.problems import Busy, Conflict, Invalid, NotFound, NotReady
-from server.records import ACTIVE, CANCELLED, QUEUED, Run, RunFiles, ordinal, repair_recording
+from server.records import (
+    ACTIVE,
+    AS_WRITTEN,
+    CANCELLED,
+    QUEUED,
+    Run,
+    RunFiles,
+    ordinal,
+    repair_recording,
+)
 from server.settings import Settings, check_run_id
 from server.store import SceneStore
 from server.worker import worker_main
@@ -38,9 +47,6 @@ from sim.scene.load import Scene, SceneError, scene_from_toml
 
 if TYPE_CHECKING:  # imports viser
     from server.viewer import Viewer
-
-# every live parameter multiplies a value of the scene: at this value the scene runs as written
-AS_WRITTEN = 1.0
 
 
 class RunManager:

@@ -169,7 +169,9 @@ async function startRun() {
       { scene: state.scene, element: $("element").value, toml: $("toml").value });
     state.viewSeq++;  // the server selected the new run
     adoptRun(run.id);
-    say(`started ${run.id}` + (run.edited ? " with the unsaved edits of " + run.scene : ""));
+    say((run.state === "queued" ? `queued ${run.id} (#${run.place} in the queue)`
+                                 : `started ${run.id}`) +
+        (run.edited ? " with the unsaved edits of " + run.scene : ""));
     await loadRuns();
   } catch (e) { say(e.message, true); }
 }
@@ -284,24 +286,7 @@ function showParameters(st, paramSeq = state.paramSeq) {
 }
 
 async function loadRuns() {
-  const runs = await api("GET", "/api/runs");
-  const body = $("runs").querySelector("tbody");
-  body.replaceChildren();
-  for (const r of runs) {
-    const tr = document.createElement("tr");
-    tr.className = r.id === state.run ? "sel" : "";
-    tr.dataset.id = r.id;
-    const link = `<a href="/api/runs/${r.id}/recording" download>rrd</a> ` +
-                 `<a href="/api/runs/${r.id}/result" target="_blank">result</a> ` +
-                 `<a href="/api/runs/${r.id}/scene" target="_blank">scene</a>`;
-    const edited = r.edited ? ` <span class="edited" title="it ran the page's unsaved edits ` +
-                              `of ${r.scene}, not the saved file">unsaved edits</span>` : "";
-    tr.innerHTML = `<td>${r.id}${edited}</td><td class="state">${r.state}</td>` +
-                   `<td>${r.step}/${r.n_steps ?? "?"}</td><td>${link}</td>`;
-    tr.dataset.edited = String(!!r.edited);
-    tr.onclick = (ev) => { if (ev.target.tagName !== "A") selectRun(r.id); };
-    body.appendChild(tr);
-  }
+  RunsTable.show(await api("GET", "/api/runs"), state.run);  // runs.js
 }
 
 async function selectRun(id) {
@@ -350,6 +335,7 @@ async function showRun(id) {
   if (state.run !== id) return;
   state.status = st;
   for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = !ACTIVE.includes(st.state);
+  $("stop").disabled &&= st.state !== "queued";  // a queued run's Stop cancels it
   showParameters(st, paramSeq);
   await Results.show(st);
 }
@@ -373,6 +359,7 @@ async function main() {
   }
   Layout.init();
   Results.init();
+  RunsTable.init({ select: selectRun, say, reload: loadRuns });
   $("save").onclick = saveScene;
   state.form = new SceneForm.Form($("scene-form"), await api("GET", "/api/scenes/schema"),
                                   () => scheduleSync(syncFromForm, 300), suggestNames);

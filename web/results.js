@@ -4,6 +4,7 @@
 "use strict";
 const Results = (() => {
   const ACTIVE = ["starting", "building", "running", "paused"];
+  const COMING = [...ACTIVE, "queued"];  // its result is still to come
   // what is drawn, so a poll redraws only what changed: "run@step/state" per part
   const drawn = { plots: null, summary: null, fld: null };
   let plotsData = null;
@@ -16,7 +17,8 @@ const Results = (() => {
   // ---- the headline ---------------------------------------------------------------------
   function showStatus(st) {
     const box = document.getElementById("status");
-    box.textContent = `${st.id}: ${st.state}, step ${st.step}/${st.n_steps ?? "?"}` +
+    const where = st.state === "queued" && st.place ? ` (#${st.place} in the queue)` : "";
+    box.textContent = `${st.id}: ${st.state}${where}, step ${st.step}/${st.n_steps ?? "?"}` +
       (st.edited ? ` — ran unsaved edits of ${st.scene}` : "") +
       (st.reason ? ` — ${st.reason}` : "");
     Object.assign(box.dataset, { state: st.state, run: st.id, step: st.step,
@@ -33,7 +35,9 @@ const Results = (() => {
     box.dataset.fraction = p.fraction === null ? "" : String(p.fraction);
     box.dataset.state = st.state;
     const parts = [`step ${p.step}/${p.steps ?? "?"}`, `${Math.floor(pct)} %`];
-    if (ACTIVE.includes(st.state)) {
+    if (st.state === "queued") {
+      parts.push(`waiting for a solver, #${st.place} in the queue`);
+    } else if (ACTIVE.includes(st.state)) {
       parts.push(`${Units.duration(p.elapsed_s)} elapsed`);
       parts.push(p.remaining_s === null ? "remaining: after the first step"
                                         : `about ${Units.duration(p.remaining_s)} left`);
@@ -80,7 +84,7 @@ const Results = (() => {
   async function showSummary(st) {
     // a run's summary is written with its result: when it ends
     const box = document.getElementById("summary");
-    if (ACTIVE.includes(st.state)) {
+    if (COMING.includes(st.state)) {
       drawn.summary = null;
       box.dataset.run = st.id;
       box.dataset.ready = "false";
@@ -103,7 +107,9 @@ const Results = (() => {
     if (!cards.length) {
       const none = document.createElement("div");
       none.className = "muted";
-      none.textContent = "No summary: the run ended before it had a result.";
+      none.textContent = st.state === "cancelled" ? "No summary: it never ran."
+                                                   : "No summary: the run ended before it " +
+                                                     "had a result.";
       cards.push(none);
     }
     box.replaceChildren(...cards);
@@ -191,7 +197,7 @@ const Results = (() => {
   async function showFld(st) {
     // the forming limit diagram of a plastic run's end of stroke
     const k = `${st.id}/${st.state}`;
-    if (ACTIVE.includes(st.state)) { Plots.show("fld-fig", false); drawn.fld = null; return; }
+    if (COMING.includes(st.state)) { Plots.show("fld-fig", false); drawn.fld = null; return; }
     if (drawn.fld === k) return;
     let fl = null;
     try {

@@ -1,0 +1,225 @@
+// The Runs table: every run with what an engineer compares - its scene, element and what it
+// changed of the scene, its state (a queued run's place, a failed one's reason), progress,
+// wall time and the headline values of its result - from one GET /api/runs per poll. A click
+// on a header sorts by it (again: the other way); a click on a row selects the run; Delete
+// asks first, Cancel takes a queued run out of the queue.
+"use strict";
+const RunsTable = (() => {
+  const ACTIVE = ["starting", "building", "running", "paused"];
+  // the order of states when sorted by state: what needs attention first
+  const STATES = ["running", "paused", "building", "starting", "queued", "failed", "stopped",
+                  "cancelled", "finished"];
+  const result = (name) => (r) => (r.results[name] ? r.results[name].value : null);
+  // key, header, the value sorted by, the cell; ``unit``: the header's, which the server's
+  // display values are in (a value in another unit says so in its cell)
+  const COLUMNS = [
+    { key: "run", label: "run", sort: (r) => r.created, cell: runCell },
+    { key: "scene", label: "scene", sort: (r) => r.scene, cell: (r) => r.scene },
+    { key: "element", label: "element", sort: (r) => r.element, cell: (r) => r.element },
+    { key: "changes", label: "changes", sort: (r) => r.changes.join("; "), cell: changesCell,
+      title: "what the run changed of its saved scene: unsaved edits, overrides, live " +
+             "parameters (from the step they applied)" },
+    { key: "state", label: "state", sort: (r) => STATES.indexOf(r.state), cell: stateCell },
+    { key: "progress", label: "progress", sort: (r) => r.progress.fraction,
+      cell: progressCell },
+    { key: "wall", label: "wall time", sort: (r) => r.progress.elapsed_s,
+      cell: (r) => Units.duration(r.progress.elapsed_s),
+      title: "from its start on a solver process to its end (the time it waited in the " +
+             "queue not counted)" },
+    { key: "peak_punch_force", label: "peak force", unit: "kN",
+      sort: result("peak_punch_force"), cell: valueCell("peak_punch_force", "kN"),
+      title: "peak punch force (the largest of its punches)" },
+    { key: "min_thickness", label: "min. thickness", unit: "mm",
+      sort: result("min_thickness"), cell: valueCell("min_thickness", "mm") },
+    { key: "max_thinning", label: "max. thinning", unit: "%",
+      sort: result("max_thinning"), cell: valueCell("max_thinning", "%") },
+    { key: "actions", label: "", cell: actionsCell },
+  ];
+  const sorted = { key: null, dir: -1 };  // null: as the server lists them, newest first
+  let runs = [], selected = null, hooks = null;
+
+  function text(tag, content, cls) {
+    const el = document.createElement(tag);
+    el.textContent = content;
+    if (cls) el.className = cls;
+    return el;
+  }
+
+  function runCell(r) {
+    // the id without its scene and element (their own columns): its start time and tag
+    const span = document.createElement("span");
+    const prefix = `${r.scene}-${r.element}-`;
+    const short = text("span", r.id.startsWith(prefix) ? r.id.slice(prefix.length) : r.id,
+                       "run-id");
+    short.title = r.id;
+    span.append(short);
+    if (r.edited) {
+      const e = text("span", "unsaved edits", "edited");
+      e.title = `it ran the page's unsaved edits of ${r.scene}, not the saved file`;
+      span.append(" ", e);
+    }
+    return span;
+  }
+
+  function changesCell(r) {
+    const span = text("span", r.changes.length ? r.changes.join("; ") : "as saved",
+                      r.changes.length ? "changes" : "changes muted");
+    span.title = r.changes.join("\n");
+    return span;
+  }
+
+  function stateCell(r) {
+    const span = document.createElement("span");
+    const word = r.state === "queued" && r.place ? `queued #${r.place}` : r.state;
+    span.append(text("span", word, `state-word ${r.state}`));
+    if (r.reason && ["failed", "stopped", "cancelled"].includes(r.state))
+      span.append(text("span", r.reason, "reason"));
+    span.title = r.state === "queued" ? `${r.place === 1 ? "next" : `number ${r.place}`} ` +
+                                        "in the queue: it starts when a solver is free"
+                                      : (r.reason || r.state);
+    return span;
+  }
+
+  function progressCell(r) {
+    const p = r.progress, span = document.createElement("span");
+    span.className = "mini-progress";
+    const bar = document.createElement("span");
+    bar.className = "bar";
+    const fill = document.createElement("span");
+    fill.className = "fill";
+    fill.style.width = `${100 * (p.fraction || 0)}%`;
+    bar.append(fill);
+    span.append(bar, text("span", `${p.step}/${p.steps ?? "?"}`));
+    return span;
+  }
+
+  function valueCell(name, unit) {
+    return (r) => {
+      const v = r.results[name];
+      if (!v) return text("span", "–", "muted");
+      return text("span", Units.withUnit(v.value, v.unit === unit ? "" : v.unit), "num");
+    };
+  }
+
+  function actionsCell(r) {
+    const span = document.createElement("span");
+    span.className = "actions";
+    for (const [label, href, extra] of [["rrd", `/api/runs/${r.id}/recording`, "download"],
+                                        ["result", `/api/runs/${r.id}/result`, "_blank"],
+                                        ["scene", `/api/runs/${r.id}/scene`, "_blank"]]) {
+      const a = text("a", label);
+      a.href = href;
+      if (extra === "download") a.download = ""; else a.target = extra;
+      span.append(a, " ");
+    }
+    if (r.state === "queued") span.append(button("Cancel", "cancel", () => cancel(r)));
+    const del = button("Delete", "delete", () => remove(r));
+    del.disabled = ACTIVE.includes(r.state);
+    del.title = del.disabled ? `run ${r.id} is ${r.state}: stop it first` : `delete run ${r.id}`;
+    span.append(del);
+    return span;
+  }
+
+  function button(label, cls, action) {
+    const b = text("button", label, cls);
+    b.type = "button";
+    b.onclick = (ev) => { ev.stopPropagation(); action(); };
+    return b;
+  }
+
+  async function cancel(r) {
+    try {
+      await api("POST", `/api/runs/${r.id}/stop`);
+      hooks.say(`cancelled ${r.id}: it will not start`);
+      await hooks.reload();
+    } catch (e) { hooks.say(e.message, true); }
+  }
+
+  async function remove(r) {
+    const what = r.state === "queued" ? "It leaves the queue and never starts."
+                                      : "Its recording and result are deleted too.";
+    if (!confirm(`Delete run ${r.id}?\n${what}`)) return;
+    try {
+      await api("DELETE", `/api/runs/${r.id}`);
+      hooks.say(`deleted ${r.id}`);
+      await hooks.reload();
+    } catch (e) { hooks.say(e.message, true); }
+  }
+
+  function order(list) {
+    if (!sorted.key) return list;
+    const col = COLUMNS.find((c) => c.key === sorted.key);
+    // runs without the value (no result yet) go last whichever the direction
+    const missing = (v) => v === null || v === undefined || v === -1;
+    return [...list].sort((a, b) => {
+      const x = col.sort(a), y = col.sort(b);
+      if (missing(x) || missing(y)) return missing(x) - missing(y);
+      return (x < y ? -1 : x > y ? 1 : 0) * sorted.dir;
+    });
+  }
+
+  function header() {
+    const tr = document.createElement("tr");
+    for (const c of COLUMNS) {
+      const th = text("th", c.label);
+      if (c.unit) th.append(text("span", ` (${c.unit})`, "unit"));
+      th.dataset.key = c.key;
+      if (c.title) th.title = c.title;
+      if (c.sort) {
+        th.className = "sortable";
+        th.tabIndex = 0;
+        th.setAttribute("aria-sort", sorted.key !== c.key ? "none"
+                                    : sorted.dir > 0 ? "ascending" : "descending");
+        th.onclick = () => sortBy(c.key);
+        th.onkeydown = (ev) => { if (ev.key === "Enter") sortBy(c.key); };
+      }
+      tr.append(th);
+    }
+    return tr;
+  }
+
+  function sortBy(key) {
+    // first click: ascending (numbers small to large, names A to Z); again: the other way
+    sorted.dir = sorted.key === key ? -sorted.dir : 1;
+    sorted.key = key;
+    draw(true);
+  }
+
+  function row(r) {
+    const tr = document.createElement("tr");
+    tr.className = r.id === selected ? "sel" : "";
+    Object.assign(tr.dataset, { id: r.id, state: r.state, edited: String(!!r.edited) });
+    for (const c of COLUMNS) {
+      const td = document.createElement("td");
+      td.className = `col-${c.key}`;
+      const content = c.cell(r);
+      if (typeof content === "string") td.textContent = content; else td.append(content);
+      tr.append(td);
+    }
+    tr.onclick = (ev) => { if (ev.target.tagName !== "A") hooks.select(r.id); };
+    return tr;
+  }
+
+  function draw(headers) {
+    // the headers only when the sort changed: a poll keeps the one focused
+    const table = document.getElementById("runs");
+    if (headers || !table.querySelector("thead th"))
+      table.querySelector("thead").replaceChildren(header());
+    table.querySelector("tbody").replaceChildren(...order(runs).map(row));
+    const box = document.getElementById("runs-box");
+    box.querySelector("summary").textContent = `Runs (${runs.length})`;
+  }
+
+  function show(list, selectedRun) {
+    runs = list;
+    selected = selectedRun;
+    draw();
+  }
+
+  function init(h) {
+    // h: {select(id), say(text, isError), reload()}
+    hooks = h;
+  }
+
+  return { init, show };
+})();
