@@ -29,6 +29,7 @@ from tests.support.scenes import tiny_toml  # noqa: E402
 from tests.support.service import (  # noqa: E402
     ENDED,
     HANG,
+    free_port,
     until,
     wait_state,
     wait_step,
@@ -61,8 +62,9 @@ def served(tmp: Path, **options: object) -> Iterator[tuple[TestClient, Settings]
     (tmp / "scenes").mkdir(exist_ok=True)
     (tmp / "scenes" / "tiny.toml").write_text(tiny_toml())
     (tmp / "scenes" / "long.toml").write_text(tiny_toml(steps=LONG))
-    settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs", viewer=False,
-                        ack_timeout=HANG, stop_timeout=HANG, **options)
+    settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs",
+                        **{"viewer": False, "ack_timeout": HANG, "stop_timeout": HANG,
+                           **options})
     with TestClient(create_app(settings)) as client:
         until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
         yield client, settings
@@ -270,3 +272,32 @@ def test_queued_runs_do_not_start_after_a_restart(tmp_path):
         st = client.get(f"/api/runs/{begun}").json()
         assert st["state"] != "cancelled" and st["step"] > 0, st  # recovered from its result
         assert client.get("/api/health").json()["queued"] == []
+
+
+def test_the_viewer_draws_the_selected_one_of_two_live_runs(tmp_path):
+    """--solvers 2 with the viewer: both runs stay live (their frames kept), the selected
+    one is drawn, and selecting the other draws that one from then on."""
+    pytest.importorskip("viser")
+    with served(tmp_path, solvers=2, viewer=True, viewer_port=free_port()) as (client, _):
+        viewer = client.app.state.manager.viewer
+        a, b = start(client, "long")["id"], start(client, "long")["id"]  # b: selected
+        for run in (a, b):
+            wait_step(client, run, 2)
+        until(lambda: set(viewer.lives) == {a, b}, "both runs are not live")
+        drawn, draw = [], viewer.canvas.draw
+
+        def drawing(frame: dict, colour: bool) -> None:
+            drawn.append(frame.get("run"))
+            draw(frame, colour)
+
+        viewer.canvas.draw = drawing
+        until(lambda: len(drawn) >= 3, "no frame of the selected run drawn")
+        assert set(drawn) == {b}
+        assert client.put("/api/view", json={"run": a}).status_code == 200
+        mark = len(drawn)
+        until(lambda: len(drawn) >= mark + 3, "no frame drawn after selecting the other run")
+        assert set(drawn[mark:]) == {a}
+        assert viewer.mode == "live" and viewer.lives[b].frame["step"] >= 2  # b kept
+        for run in (a, b):
+            client.post(f"/api/runs/{run}/stop")
+            assert wait_state(client, run, ENDED)["state"] == "stopped"
