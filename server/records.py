@@ -25,6 +25,7 @@ ACTIVE = {"starting", "building", "running", "paused"}
 # waits for a free solver process (``RunManager.queue``); then starts, or is cancelled
 QUEUED = "queued"
 CANCELLED = "cancelled"  # ended while queued: it never ran
+ENDED = {"finished", "failed", "stopped", CANCELLED}  # a run in one of these is over
 LOST = "the server stopped during the run"
 # the result.json summary entries the Runs table shows (sim.frames.summary), each by its
 # display value (kN, mm, %); of several punches the largest peak force

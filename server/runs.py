@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 
 from server.bridge import Bridge
 from server.estimate import EstimateCache
+from server.events import Changes
 from server.history import FrameHistory, Histories
 from server.problems import Busy, Conflict, Invalid, NotFound, NotReady
 from server.records import (
@@ -62,6 +63,7 @@ class RunManager:
         self.parameter_ranges: dict = {}
         self.ready = threading.Event()
         self.lock = threading.RLock()
+        self.changes = Changes()  # wakes the event streams of scripts (server.events)
         self.runs: dict[str, Run] = self.files.load()
         self.queue: list[str] = []  # the queued runs' ids, the next to start first
         self._starts: dict[str, dict] = {}  # a queued run's start command, sent when it starts
@@ -429,6 +431,7 @@ class RunManager:
             moved = self.selected == run.id
             if moved:
                 self.selected = self._newest()
+        self.changes.touch()
         self.estimates.forget(run.id)
         self.files.delete(run.id)
         if self.viewer:
@@ -460,6 +463,7 @@ class RunManager:
         if slot is not None:
             slot.run = None
             self._dispatch()
+        self.changes.touch()
 
     # ---- the queue: changed under ``lock`` ----------------------------------------------------
     def _check_room(self) -> None:

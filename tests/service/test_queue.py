@@ -105,6 +105,8 @@ def test_queued_runs_start_in_order_and_a_cancelled_one_never(tmp_path):
         assert r.status_code == 200 and r.json()["state"] == "cancelled", r.text
         assert places(client) == {holder["id"]: None, b: 1, c: None, d: 2}
         assert client.get("/api/health").json()["queued"] == [b, d]
+        st = client.get(f"/api/runs/{b}/wait", params={"timeout": 0.5}).json()
+        assert st["state"] == "queued"  # a script's wait goes on: the run has not begun
         client.post(f"/api/runs/{holder['id']}/resume")
         for run in (holder["id"], b, d):
             assert wait_state(client, run, ENDED)["state"] == "finished", run
