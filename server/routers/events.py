@@ -63,9 +63,9 @@ async def wait_run(run_id: RunId, request: Request,
                    timeout: float = Query(60.0, gt=0, le=WAIT_MAX_S, description=(
                        "seconds to wait at most"))) -> dict:
     """Return once the run has ended (its state finished, failed, stopped or cancelled; a
-    queued run has not begun), or after
-    `timeout` seconds with the run as it is then (its state still active: wait again). A
-    script's `wait` is one request, not a poll loop."""
+    queued run has not begun), or after `timeout` seconds with the run as it is then (its
+    state still queued or active: wait again). A script's `wait` is one request, not a poll
+    loop."""
     m = _runs(request)
     deadline = time.monotonic() + timeout
     while True:
