@@ -64,6 +64,7 @@ def config(request: Request) -> dict:
 
 @router.get("/health", response_model=Health)
 def health(request: Request) -> dict:
-    """Liveness: the solver process (alive, pid, restarts), the bridge thread (alive, errors)
-    and the active run; `ok` is false when either is down."""
+    """Liveness: the solver processes (alive, pid, the run each steps; restarts), the bridge
+    thread (alive, errors), the active and the queued runs; `ok` is false when a solver
+    process or the bridge is down."""
     return request.app.state.manager.health()
