@@ -21,7 +21,7 @@ LOOK_S = 1.0  # the longest a missed touch delays an event
 KEEPALIVE_S = 15.0  # a comment line keeps proxies from closing a quiet stream
 # what a step record, a parameter change or a state change sends; the rest of the status
 # (estimate, progress) rides along with the state
-STATE_KEYS = ("state", "reason", "pending", "n_steps")
+STATE_KEYS = ("state", "place", "reason", "pending", "n_steps")
 
 
 class Changes:
