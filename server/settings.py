@@ -80,8 +80,9 @@ class Settings:
     step_delay: float = 0.0  # seconds between steps (lets a tiny scene be watched)
     ack_timeout: float = 1.0  # seconds a parameter change waits for the solver's answer
     stop_timeout: float = 5.0  # seconds shutdown waits for the solver to stop the run
-    history_frames: int = 400  # frames of the current run kept for scrubbing; then every k-th
-    history_bytes: int = 256 * 2**20  # and at most this many bytes of them (server process)
+    # frames kept for scrubbing of each of the latest runs (one per solver); then every k-th
+    history_frames: int = 400
+    history_bytes: int = 256 * 2**20  # and at most this many bytes of them in all (server)
     default_scene: str = "cup_drawing"  # the scene the page selects first
     # a run whose model would need more memory to build is refused (sim.model.size: the estimate and
     # why the default is half of this 24 GiB machine)
