@@ -7,6 +7,7 @@ import ipaddress
 import os
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 
@@ -38,16 +39,26 @@ def serve_settings(args: argparse.Namespace, token: str | None) -> Settings:
         raise SystemExit("q3t: --record-every must be at least 1")
     if not 0 < args.max_memory < float("inf"):
         raise SystemExit("q3t: --max-memory must be a positive size (GiB)")
-    if args.solvers < 1:
-        raise SystemExit("q3t: --solvers must be at least 1")
-    if args.queue < 0:
-        raise SystemExit("q3t: --queue must be 0 or more")
     return Settings(scenes_dir=Path(args.scenes_dir), runs_dir=Path(args.runs_dir),
                     token=token, viewer=not args.no_viewer, viewer_host=viewer_host,
                     viewer_port=args.viewer_port, step_delay=args.step_delay,
                     record_every=args.record_every, default_scene=args.scene,
                     max_model_bytes=args.max_memory * 2**30, solvers=args.solvers,
                     queue_limit=args.queue)
+
+
+def at_least(least: int) -> Callable[[str], int]:
+    """An argparse type: a whole number of at least ``least`` (else exit 2 naming the
+    option)."""
+    def count(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if value < least:
+            raise argparse.ArgumentTypeError(f"must be at least {least}, not {value}")
+        return value
+    return count
 
 
 def _stop_as_exit(signum: int, frame: FrameType | None) -> None:
@@ -144,12 +155,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--max-memory", type=float, default=Settings.max_model_bytes / 2**30,
                    metavar="GIB", help="refuse a run whose model would need more memory to "
                    "build (GiB; default %(default)g: half of a 24 GiB machine)")
-    s.add_argument("--solvers", type=int, default=Settings.solvers, metavar="N",
+    s.add_argument("--solvers", type=at_least(1), default=Settings.solvers, metavar="N",
                    help="solver processes, each stepping one run; further runs wait in the "
                         "queue (default %(default)s). Each solver's steps use a core or "
                         "more: more solvers than cores make every run slower (on a 2-core "
                         "machine keep 1)")
-    s.add_argument("--queue", type=int, default=Settings.queue_limit, metavar="N",
+    s.add_argument("--queue", type=at_least(0), default=Settings.queue_limit, metavar="N",
                    help="runs that may wait for a solver process; a start past them is "
                         "refused (HTTP 429; default %(default)s)")
     s.add_argument("--no-viewer", action="store_true", help="no viser viewer")

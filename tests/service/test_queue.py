@@ -303,3 +303,22 @@ def test_the_viewer_draws_the_selected_one_of_two_live_runs(tmp_path):
         for run in (a, b):
             client.post(f"/api/runs/{run}/stop")
             assert wait_state(client, run, ENDED)["state"] == "stopped"
+
+
+def test_the_command_line_sets_solvers_and_the_bound(capsys):
+    import argparse
+
+    from server.cli import add_parser, serve_settings
+
+    parser = argparse.ArgumentParser(prog="q3t")
+    add_parser(parser.add_subparsers())
+    args = parser.parse_args(["serve", "--solvers", "2", "--queue", "3"])
+    settings = serve_settings(args, token=None)
+    assert settings.solvers == 2 and settings.queue_limit == 3
+    assert serve_settings(parser.parse_args(["serve"]), None).solvers == 1  # the default
+    for bad, why in ((["--solvers", "0"], "argument --solvers: must be at least 1, not 0"),
+                     (["--queue", "-1"], "argument --queue: must be at least 0, not -1"),
+                     (["--solvers", "two"], "argument --solvers: 'two' is not a whole")):
+        with pytest.raises(SystemExit) as exc:
+            parser.parse_args(["serve", *bad])
+        assert exc.value.code == 2 and why in capsys.readouterr().err
