@@ -35,7 +35,7 @@ from tests.support.service import (  # noqa: E402
     wait_step,
 )
 
-LONG = 2000  # steps: a run that goes on until a test stops it
+LONG = 100_000  # steps: a run that goes on until a test stops it (or kills its solver)
 
 
 def solver_children() -> set[int]:
