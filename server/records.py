@@ -53,6 +53,7 @@ class Run:
     tools: list[str] = field(default_factory=list)
     timing: dict = field(default_factory=dict)  # build_s, tool_meshes_s, first_frame_s, ...
     parameters: dict = field(default_factory=dict)
+    given: dict = field(default_factory=dict)  # the live parameters given at the start
     # what each live parameter multiplies (sim's Simulation.scaled): the page shows the result
     scaled: dict = field(default_factory=dict)
     parameter_log: list[dict] = field(default_factory=list)
@@ -80,14 +81,13 @@ class Run:
 
     def changes(self) -> list[str]:
         """What this run changed of its saved scene, in words: the page's unsaved edits, the
-        overrides (the element is a column of its own), the live parameters' values and from
-        which step each applied (those given at the start apply from step 1; a run that has
-        not started has only those, in its parameters)."""
+        overrides (the element is a column of its own), the live parameters given at the
+        start (from step 1) and those changed while it ran, from the step each applied."""
         out = ["unsaved edits of the scene"] if self.edited else []
         out += [f"{k} = {v}" for k, v in self.overrides.items() if k != "shell.element"]
-        log = self.parameter_log or [{"step": 1, "name": k, "value": v}
-                                     for k, v in self.parameters.items() if v != AS_WRITTEN]
-        out += [f"{e['name']} ×{e['value']:.4g} from step {e['step']}" for e in log]
+        out += [f"{k} ×{v:.4g} from step 1" for k, v in self.given.items() if v != AS_WRITTEN]
+        out += [f"{e['name']} ×{e['value']:.4g} from step {e['step']}"
+                for e in self.parameter_log]
         return out
 
     def _fields(self) -> dict:

@@ -116,6 +116,9 @@ class RunManager:
         self.closing.set()  # the bridge ends its loop
         self.bridge.join(2.0)
         self.close_retired()
+        for slot, _ in running:  # all asked at once: the processes exit side by side
+            if slot.worker.alive():
+                slot.worker.send("shutdown")
         for slot, run in running:
             self._close_slot(slot, run)
 
@@ -304,7 +307,8 @@ class RunManager:
             stamp = time.strftime("%Y%m%d-%H%M%S")
             run = Run(f"{scene}-{spec.shell.element}-{stamp}-{secrets.token_hex(2)}", scene,
                       spec.shell.element, overrides, time.time(), edited=edited,
-                      parameters=self._start_values(parameters or {}))
+                      parameters=self._start_values(parameters or {}),
+                      given=dict(parameters or {}))
             run.place = len(self.queue) + 1  # run.json says queued, and where
             out = self.files.create(run, text)
             self.runs[run.id], self.selected = run, run.id

@@ -19,7 +19,7 @@ const RunsTable = (() => {
     { key: "changes", label: "changes", sort: (r) => r.changes.join("; "), cell: changesCell,
       title: "what the run changed of its saved scene: unsaved edits, overrides, live " +
              "parameters (from the step they applied)" },
-    { key: "state", label: "state", sort: (r) => STATES.indexOf(r.state), cell: stateCell },
+    { key: "state", label: "state", cell: stateCell, sort: stateOrder },
     { key: "progress", label: "progress", sort: (r) => r.progress.fraction,
       cell: progressCell },
     { key: "wall", label: "wall time", sort: (r) => r.progress.elapsed_s,
@@ -35,6 +35,12 @@ const RunsTable = (() => {
       sort: result("max_thinning"), cell: valueCell("max_thinning", "%") },
     { key: "actions", label: "", cell: actionsCell },
   ];
+  function stateOrder(r) {
+    // by STATES, queued runs by their place
+    const i = STATES.indexOf(r.state);
+    return i < 0 ? null : i * 1e6 + (r.place || 0);
+  }
+
   const sorted = { key: null, dir: -1 };  // null: as the server lists them, newest first
   let runs = [], selected = null, hooks = null;
 
@@ -150,7 +156,7 @@ const RunsTable = (() => {
     if (!sorted.key) return list;
     const col = COLUMNS.find((c) => c.key === sorted.key);
     // runs without the value (no result yet) go last whichever the direction
-    const missing = (v) => v === null || v === undefined || v === -1;
+    const missing = (v) => v === null || v === undefined;
     return [...list].sort((a, b) => {
       const x = col.sort(a), y = col.sort(b);
       if (missing(x) || missing(y)) return missing(x) - missing(y);

@@ -322,3 +322,27 @@ def test_the_command_line_sets_solvers_and_the_bound(capsys):
         with pytest.raises(SystemExit) as exc:
             parser.parse_args(["serve", *bad])
         assert exc.value.code == 2 and why in capsys.readouterr().err
+
+
+def test_the_list_says_what_each_run_changed(tmp_path):
+    """GET /api/runs carries what the Runs table shows: each run's changes of its scene (the
+    overrides, the live parameters given at the start and those changed as it ran) and, once
+    it has ended, the headline values of its result."""
+    with served(tmp_path, solvers=1) as (client, _):
+        run = start(client, "long", paused=True, parameters={"load_scale": 2.0},
+                    overrides={"material.nu": 0.25})["id"]
+        r = client.put(f"/api/runs/{run}/parameters/friction_scale", json={"value": 0.5})
+        assert r.status_code == 202 and r.json()["applied"], r.text
+        step = r.json()["applies_from_step"]
+        listed = {r["id"]: r for r in client.get("/api/runs").json()}[run]
+        assert listed["changes"] == ["material.nu = 0.25", "load_scale ×2 from step 1",
+                                     f"friction_scale ×0.5 from step {step}"]
+        assert listed["results"] == {}  # not ended: no result yet
+        client.post(f"/api/runs/{run}/stop")
+        wait_state(client, run, ENDED)
+        listed = {r["id"]: r for r in client.get("/api/runs").json()}[run]
+        # the cantilever: no punch, its thickness as written (7 mm, no thinning)
+        assert listed["results"] == {"min_thickness": {"value": pytest.approx(7.0),
+                                                       "unit": "mm"},
+                                     "max_thinning": {"value": pytest.approx(0.0, abs=1e-9),
+                                                      "unit": "%"}}
