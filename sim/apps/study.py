@@ -87,7 +87,8 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
     if sc.mesh.edge_length is None:
         raise ValueError(f"{sc.name}: mesh kind {sc.mesh.kind!r} has no edge_length to refine")
     if st is None:
-        notes.append("scene has no [study] table: first probe, edge lengths 4x, 2x, 1x its own")
+        notes.append("scene has no [study] table: its first probe"
+                     + ("" if levels else ", edge lengths 4x, 2x, 1x its own"))
         if not sc.probes:
             raise ValueError(f"{sc.name}: no probe to study")
     elements = elements or (st.elements if st else ["linear", "q3t", "quadratic"])

@@ -155,7 +155,8 @@ def extrapolation_md(rows: list[dict]) -> str:
     return ("Richardson extrapolation through each element's three finest levels, w(h) = w_0 + "
             "C h^r with the rate r fitted to them (a rate outside about 1-3 means the levels are "
             "not yet in their asymptotic range and the limit is noise):\n\n"
-            + markdown_table(rows, EXTRAPOLATION_COLS))
+            + markdown_table(rows, [c for c in EXTRAPOLATION_COLS
+                                    if c[0] != "fit" or any(r["fit"] for r in rows)]))
 
 
 def overhead_md(overheads: list[dict]) -> str:

@@ -7,7 +7,7 @@ import pytest
 
 from sim.apps.cases import element_overrides
 from sim.apps.cli import main
-from sim.apps.study_report import extrapolations, richardson
+from sim.apps.study_report import extrapolation_md, extrapolations, richardson
 from sim.model.build import build_model
 from sim.scene.load import load_scene
 from tests.support import ROOT
@@ -43,6 +43,11 @@ def test_a_study_extrapolates_each_element_through_its_three_finest_converged_le
     (q3t,) = extrapolations(study)
     assert q3t["element"] == "q3t" and q3t["edges"] == "0.02, 0.01, 0.005"
     assert q3t["rate"] == pytest.approx(2) and q3t["ratio"] == pytest.approx(1)
+    assert "| fit |" not in extrapolation_md([q3t])  # every fit held: no column to say so
+    rows += [_row("linear", x, w) for x, w in ((0.01, -1.1), (0.005, -1.05))]  # not monotone
+    lin, q3t = extrapolations(study)
+    assert lin["fit"] == "none: the values are not monotone" and "limit" not in lin
+    assert "| fit |" in extrapolation_md([lin, q3t])
     study["plan"]["measure"]["measure"] = "curve"  # a curve's error has no probe to fit
     assert extrapolations(study) == []
 
