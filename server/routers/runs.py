@@ -199,7 +199,10 @@ def start_run(body: NewRun, request: Request) -> dict:
     return run.summary()
 
 
-@router.get("/{run_id}", response_model=RunStatus, responses=RUN)
+# exclude_unset: a step record saved by an older version keeps the fields it has, none
+# made up from the model's defaults
+@router.get("/{run_id}", response_model=RunStatus, response_model_exclude_unset=True,
+            responses=RUN)
 def status(run_id: RunId, request: Request, since: int = 0,
            limit: Annotated[int, Query(ge=1, le=100_000)] = 1000) -> dict:
     """The run's state and its step records after step ``since``, at most ``limit`` of them
