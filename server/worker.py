@@ -204,6 +204,7 @@ class Solver:
             self.sim = Simulation.from_scene(scene)
             for name, value in (msg.get("parameters") or {}).items():
                 self.sim.set_parameter(name, value)
+            self.sim.save_frames(self.out / "frames", self.record_every)  # for its exports
             t1 = time.perf_counter()
             rest = _frame_msg(self.run, self.sim)
         except Exception as exc:
