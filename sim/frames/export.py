@@ -210,7 +210,7 @@ def frame_states(run: RunFolder) -> list[State]:
     if not found:
         return []
     with np.load(folder / series.MESH) as z:
-        rest = z["rest"].reshape(-1, 3) * MM
+        rest = z["rest"].reshape(-1, 3).astype(float) * MM
     out = []
     for _, path in found:
         with np.load(path) as z:
@@ -321,6 +321,8 @@ def export(path: Path, fmt: str, out: Path) -> list[Path]:
     run = open_run(path)
     if why := missing(run, fmt):
         raise ExportError(why)
+    if out.exists() and not out.is_dir():
+        raise ExportError(f"{out}: not a folder to write into")
     out.mkdir(parents=True, exist_ok=True)
     if fmt == "vtu":
         return write_vtu(run, out)

@@ -65,8 +65,9 @@ class FrameSeries:
         self.skins = skins(run.model)
         folder.mkdir(parents=True, exist_ok=True)
         m = run.model
+        # rest in float32 as the frames' positions: a frame at rest has no displacement
         save_npz(folder / MESH, faces=m.shell.mesh.faces, skins=self.skins,
-                 rest=m.shell.rest[self.skins], rest_thickness=run.h0)
+                 rest=m.shell.rest[self.skins].astype(np.float32), rest_thickness=run.h0)
         self.observe(run)
 
     def observe(self, run: Run, last: bool = False) -> None:
