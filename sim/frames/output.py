@@ -10,7 +10,7 @@ from typing import Protocol
 
 import numpy as np
 
-from sim.frames import fields, forming_limits, results, series, summary
+from sim.frames import fields, forming_limits, results, series
 from sim.frames.display import DisplayMesh
 from sim.model.build import Model, frame_fields
 from sim.solve.newton import Timing
@@ -18,6 +18,8 @@ from sim.solve.newton import Timing
 
 class RunSummary(Protocol):
     def result(self, sim: Run) -> list[dict]: ...
+
+    def punch_starts(self) -> dict[str, list[float]]: ...
 
 
 class Run(Protocol):
@@ -123,8 +125,7 @@ def _result(sim: Run) -> dict:
         # what the step records' numbers need to be read: each punch's start translation (m;
         # its stroke is its travel from there, sim.frames.punch) and each probe's kind (its
         # unit, sim.frames.probes), as the server's run.json has them
-        "punches": {t.tool: sim.summary.starts[t.tool].tolist()
-                    for t in summary.tools_of(m, "punch")},
+        "punches": sim.summary.punch_starts(),
         "probe_kinds": {p.name: p.kind for p in m.scene.probes},
         "sections": sim.sections,
         "fields": fields.field_summary(fields.output_fields(m, sim.x, sim.h0)),
