@@ -163,7 +163,7 @@ const Results = (() => {
   // ---- the downloads ----------------------------------------------------------------------
   // what each export is, on its link (the server's list says which the run has)
   const EXPORTS = { csv: "Probes CSV", vtu: "ParaView VTU (zip)", stl: "Part STL",
-                    ply: "Part PLY", json: "Summary JSON" };
+                    ply: "Part PLY", json: "Summary JSON", png: "3-D view PNG" };
 
   async function showDownloads(st) {
     // a run's results as files, once it has ended: they are complete then
@@ -193,8 +193,35 @@ const Results = (() => {
     const head = document.createElement("span");
     head.className = "muted";
     head.textContent = "Download:";
-    box.replaceChildren(head, ...ex.formats.map(downloadLink));
+    const note = document.createElement("span");
+    note.className = "note error";
+    box.replaceChildren(head, ...ex.formats.map(downloadLink), note);
     box.dataset.ready = "true";
+  }
+
+  async function downloadView(ev) {
+    // the PNG is rendered by a browser showing the run (this page's 3-D view, usually): asked
+    // for here, so a refusal is said on the page instead of being saved as a file
+    ev.preventDefault();
+    const a = ev.currentTarget, note = document.querySelector("#downloads .note");
+    note.textContent = "";
+    a.dataset.busy = "true";
+    try {
+      const r = await fetch(a.href);
+      if (!r.ok) {
+        const d = await r.json().catch(() => null);
+        note.textContent = `PNG: ${(d && d.detail) || r.statusText}`;
+        return;
+      }
+      const url = URL.createObjectURL(await r.blob());
+      const save = document.createElement("a");
+      save.href = url;
+      save.download = `${document.getElementById("downloads").dataset.run}.png`;
+      save.click();
+      setTimeout(() => URL.revokeObjectURL(url), 10000);
+    } finally {
+      a.dataset.busy = "false";
+    }
   }
 
   function downloadLink(f) {
@@ -213,7 +240,9 @@ const Results = (() => {
     a.setAttribute("download", "");
     a.dataset.format = f.format;
     a.textContent = label;
-    a.title = `${f.description} (lengths in mm, forces in kN, stresses in MPa)`;
+    a.title = f.format === "png" ? f.description :
+      `${f.description} (lengths in mm, forces in kN, stresses in MPa)`;
+    if (f.format === "png") a.addEventListener("click", downloadView);
     return a;
   }
 
