@@ -58,11 +58,13 @@ def _ended(request: Request, run_id: str) -> tuple[Run, Path]:
     return run, m.files.dir(run.id)
 
 
-def _why_not(folder: Path, fmt: str) -> str | None:
+def _why_not(folder: Path) -> dict[str, str | None]:
+    """Why the run in ``folder`` cannot be exported in each format (None: it can)."""
     try:
-        return export.missing(export.open_run(folder), fmt)
+        run = export.open_run(folder)
     except export.ExportError as exc:
-        return str(exc)
+        return dict.fromkeys(export.FORMATS, str(exc))
+    return {fmt: export.missing(run, fmt) for fmt in export.FORMATS}
 
 
 @router.get("/{run_id}/exports", response_model=Exports, responses=documented(404, 422))
@@ -73,9 +75,10 @@ def exports(run_id: RunId, request: Request) -> dict:
     run = m.get(run_id)
     folder = m.files.dir(run.id)
     going = f"the run is {run.state}: its results are complete when it ends"
+    why_not = dict.fromkeys(export.FORMATS, going) if run.state in ACTIVE else _why_not(folder)
     out = []
     for fmt, text in export.FORMATS.items():
-        why = going if run.state in ACTIVE else _why_not(folder, fmt)
+        why = why_not[fmt]
         out.append({"format": fmt, "description": text, "available": why is None,
                     "reason": why, "url": f"/api/runs/{run.id}/export/{fmt}"})
     # the PNG needs a browser showing the run when it is asked for: offered while the viewer

@@ -128,18 +128,25 @@ def columns(run: RunFolder) -> list[tuple[str, list]]:
     cols = [("step", [r["step"] for r in steps]), ("time [s]", [r["time"] for r in steps])]
     punches = run.result.get("punches") or run.status.get("punches") or {}
     for tool, start in punches.items():
-        rows = [(r["step"], (r.get("tools") or {}).get(tool)) for r in steps]
-        if not rows or any(rep is None for _, rep in rows):
-            continue  # a punch not active at every step: its columns would not line up
+        # a released punch reports nothing in the release stage: empty cells there
+        rows = [(r["step"], r["tools"][tool]) for r in steps if tool in (r.get("tools") or {})]
+        if not rows:
+            continue
         h = punch_history(rows, np.asarray(start, float))
+        at = {int(k): i for i, k in enumerate(h["steps"])}
         if h["stroke"] is not None:
-            cols.append((f"{tool} stroke [mm]", (h["stroke"] * MM).tolist()))
-        cols.append((f"{tool} force [kN]", (h["force"] * DISPLAY["N"][1]).tolist()))
+            cols.append((f"{tool} stroke [mm]", _at_steps(steps, at, h["stroke"] * MM)))
+        cols.append((f"{tool} force [kN]", _at_steps(steps, at, h["force"] * DISPLAY["N"][1])))
     for name, unit in probe_units(run).items():
         shown, factor = unit_of(unit)
         values = [(r.get("probes") or {}).get(name) for r in steps]
         cols.append((f"{name} [{shown}]", [None if v is None else v * factor for v in values]))
     return cols
+
+
+def _at_steps(steps: list[dict], at: dict[int, int], values: np.ndarray) -> list:
+    """``values`` (one per step in ``at``: step -> index) for each step, None where absent."""
+    return [float(values[at[r["step"]]]) if r["step"] in at else None for r in steps]
 
 
 def probes_csv(run: RunFolder) -> str:

@@ -76,6 +76,19 @@ def test_csv_a_row_per_step_with_units_in_the_header(cup, tmp_path):
     np.testing.assert_allclose(col["punch force [kN]"], col["punch_force [kN]"], rtol=1e-9)
 
 
+def test_csv_leaves_a_released_punchs_cells_empty(cup, tmp_path):
+    """A punch released for springback reports nothing in the release stage."""
+    folder, _, _ = cup
+    shutil.copytree(folder, tmp_path / "run")
+    res = json.loads((folder / "result.json").read_text())
+    del res["steps"][-1]["tools"]["punch"]
+    (tmp_path / "run/result.json").write_text(json.dumps(res))
+    rows = list(csv.DictReader(export.export(tmp_path / "run", "csv", tmp_path)[0].open()))
+    assert [r["punch force [kN]"] == "" for r in rows] == [False, False, True]
+    assert [r["punch stroke [mm]"] == "" for r in rows] == [False, False, True]
+    assert all(r["punch_force [kN]"] for r in rows)
+
+
 def test_summary_json_is_the_results_summary(cup, tmp_path):
     folder, res, _ = cup
     [path] = export.export(folder, "json", tmp_path)
