@@ -20,7 +20,7 @@ from pathlib import Path, PurePosixPath
 
 from server.problems import Invalid, NotFound
 from server.records import Run
-from server.settings import RUN_ID_MAX
+from server.settings import RUN_ID_MAX, check_name
 from server.store import atomic_write
 from sim.frames import results
 
@@ -28,20 +28,29 @@ CASE_FILES = ("scene.toml", "result.json", "final.npz")
 
 
 def sweep_folder(runs_dir: Path, path: str) -> Path:
-    """The sweep folder ``path`` names inside ``runs_dir``: Invalid (422) for a path that
-    leads out of it, NotFound (404) when there is no sweep.json there."""
-    rel = PurePosixPath(path)
-    if (not path or "\\" in path or "\0" in path or rel.is_absolute() or ".." in rel.parts):
-        raise Invalid(f"path: {path!r} must be a sweep folder inside the runs folder, "
-                      "relative to it, without '..' or '\\'")
+    """The sweep folder ``path`` names inside ``runs_dir`` (one or two folder names, as
+    ``find`` lists them): Invalid (422) for any other path or one that leads out of it,
+    NotFound (404) when there is no sweep.json there."""
+    parts = path.split("/")
+    if len(parts) > 2 or not all(_is_name(p) for p in parts):
+        raise Invalid(f"path: {path[:100]!r} must be a sweep folder inside the runs folder, "
+                      "relative to it: one or two folder names (letters, digits, '_', '-', "
+                      "'.'), no '..', '\\' or absolute path")
     root = runs_dir.resolve()
-    full = (root / rel).resolve()
+    full = (root / path).resolve()
     if not full.is_relative_to(root):
         raise Invalid(f"path: {path!r} leads out of the runs folder")
     if not (full / "sweep.json").is_file():
         raise NotFound(f"path: no sweep in {path!r} (no sweep.json there; write one with "
                        f"q3t sweep ... --out {runs_dir.name}/{path})")
     return full
+
+
+def _is_name(text: str) -> bool:
+    try:
+        return bool(check_name(text, "path"))
+    except Invalid:
+        return False
 
 
 def find(runs_dir: Path, known: set[str]) -> list[dict]:

@@ -109,7 +109,7 @@ const Compare = (() => {
   async function importSweep() {
     const path = $("compare-sweep").value;
     try {
-      const r = await api("POST", "/api/runs/import", { path });
+      const r = await api("POST", "/api/sweeps/import", { path });
       const skipped = r.skipped.length ? `; ${r.skipped.length} case(s) without a result ` +
         `(${r.skipped.map((s) => `case ${s.case}: ${s.reason}`).join("; ")})` : "";
       said(`${path}: ${r.imported.length} case(s) opened as runs, ${r.present.length} ` +

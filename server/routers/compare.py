@@ -1,5 +1,5 @@
-"""/api/compare: runs side by side (server.compare); /api/sweeps and /api/runs/import: the cases
-of a ``q3t sweep`` opened as runs to compare (server.sweeps)."""
+"""/api/compare: runs side by side (server.compare); /api/sweeps and /api/sweeps/import: the
+cases of a ``q3t sweep`` opened as runs to compare (server.sweeps)."""
 
 from __future__ import annotations
 
@@ -171,7 +171,7 @@ def list_sweeps(request: Request) -> list[dict]:
     return sweeps.find(m.files.root, set(m.run_ids()))
 
 
-@router.post("/api/runs/import", response_model=Imported,
+@router.post("/api/sweeps/import", response_model=Imported,
              responses=documented(404, *BODY))
 def import_sweep(body: SweepImport, request: Request) -> dict:
     """Open the cases of a ``q3t sweep`` written inside the runs folder as runs, to compare

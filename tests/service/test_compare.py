@@ -258,7 +258,7 @@ def test_sweep_cases_open_as_runs(env):
     sw = next(s for s in listed if s["path"] == "sweep-element")
     assert (sw["scene"], sw["cases"], sw["with_results"], sw["imported"]) == (
         "tiny_cup", 4, 2, 0)  # the negative edge lengths are invalid cases
-    r = client.post("/api/runs/import", json={"path": "sweep-element"})
+    r = client.post("/api/sweeps/import", json={"path": "sweep-element"})
     assert r.status_code == 200, r.text
     rep = r.json()
     assert len(rep["imported"]) == 2 and rep["present"] == []
@@ -278,7 +278,7 @@ def test_sweep_cases_open_as_runs(env):
     cmp = client.get("/api/compare?runs=" + ",".join(rep["imported"])).json()
     assert [it["what"] for it in cmp["differs"]["items"]] == ["shell.element"]
     assert cmp["thickness"]["available"]
-    again = client.post("/api/runs/import", json={"path": "sweep-element"}).json()
+    again = client.post("/api/sweeps/import", json={"path": "sweep-element"}).json()
     assert again["imported"] == [] and again["present"] == rep["imported"]
     assert next(s for s in client.get("/api/sweeps").json()
                 if s["path"] == "sweep-element")["imported"] == 2
@@ -291,14 +291,15 @@ def test_sweep_import_refuses_paths_out_of_the_runs_folder(env):
     client, settings = env
     (settings.runs_dir.parent / "outside").mkdir(exist_ok=True)
     (settings.runs_dir.parent / "outside" / "sweep.json").write_text('{"cases": []}')
-    for path in ("../outside", "/etc", "a\\b", "sweep-element/../../outside"):
-        r = client.post("/api/runs/import", json={"path": path})
+    for path in ("../outside", "/etc", "a\\b", "sweep-element/../../outside", "0" * 300,
+                 "a/b/c"):
+        r = client.post("/api/sweeps/import", json={"path": path})
         assert r.status_code == 422 and "runs folder" in r.json()["detail"], path
     os.symlink(settings.runs_dir.parent / "outside", settings.runs_dir / "link")
-    r = client.post("/api/runs/import", json={"path": "link"})
+    r = client.post("/api/sweeps/import", json={"path": "link"})
     assert r.status_code == 422 and "leads out" in r.json()["detail"]
-    r = client.post("/api/runs/import", json={"path": "no-such-sweep"})
+    r = client.post("/api/sweeps/import", json={"path": "no-such-sweep"})
     assert r.status_code == 404 and "no sweep" in r.json()["detail"]
-    r = client.post("/api/runs/import", json={"path": 3})
+    r = client.post("/api/sweeps/import", json={"path": 3})
     assert r.status_code == 422
     assert not list(settings.runs_dir.glob(".import-*"))  # nothing half-made
