@@ -102,8 +102,9 @@ const Compare = (() => {
     const sel = $("compare-sweep"), was = sel.value;
     sel.replaceChildren(...sweeps.map((s) => el("option", {
       value: s.path, selected: s.path === was,
-      textContent: `${s.path} (${s.scene}: ${s.with_results} of ${s.cases} cases with ` +
-                   `results, ${s.imported} open)` })));
+      textContent: `${s.path} (${s.scene}, ${s.with_results} cases, ${s.imported} open)`,
+      title: `${s.path}: ${s.scene}, ${s.cases} cases, ${s.with_results} with results, ` +
+             `${s.imported} open as runs; grid ${Object.keys(s.grid).join(", ")}` })));
   }
 
   async function importSweep() {
@@ -237,7 +238,9 @@ const Compare = (() => {
       ...runs.map((r, i) => {
         const tag = el("span", { className: "letter", textContent: r.letter });
         tag.style.background = colour(i);
-        return el("th", { className: "num" }, tag, i ? ` − A` : "");
+        const th = el("th", { className: "num" }, tag);
+        if (i) th.append(el("div", { className: "sub", textContent: `${r.letter} − A (% of A)` }));
+        return th;
       }));
     const rows = data.summary.map((row) => {
       const label = row.label + (row.tool ? ` (${row.tool})` : "") +
