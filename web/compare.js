@@ -292,8 +292,29 @@ const Compare = (() => {
     });
     await Plotly.react($("compare-force"), traces, layout("Punch force against stroke", 300, {
       xaxis: axis(byStroke ? "punch stroke (mm)" : "step", { rangemode: "tozero" }),
-      yaxis: axis(`punch force (${curves[0].force.unit})`, { rangemode: "tozero" }) }),
-      CONFIG);
+      yaxis: axis(`punch force (${curves[0].force.unit})`, { rangemode: "tozero" }),
+      ...liveMarks(data, curves, byStroke) }), CONFIG);
+  }
+
+  function liveMarks(data, curves, byStroke) {
+    // each run's live parameter changes, in its colour, where its punch was when the change
+    // took effect (the end of the step before)
+    const shapes = [], annotations = [];
+    data.runs.forEach((r, i) => {
+      const punch = curves.find((p) => p.run === r.id);
+      for (const e of (punch && data.differs.live[r.letter]) || []) {
+        const k = punch.steps.indexOf(e.step - 1);
+        const x = !byStroke ? e.step - 0.5 : e.step <= 1 ? 0 : k < 0 ? null
+                                                              : punch.stroke.values[k];
+        if (x === null) continue;
+        shapes.push({ type: "line", xref: "x", yref: "paper", x0: x, x1: x, y0: 0, y1: 1,
+                      line: { color: colour(i), width: 1.5, dash: "dot" } });
+        annotations.push({ xref: "x", yref: "paper", x, y: 1, yanchor: "bottom",
+                           showarrow: false, font: { size: 10, color: colour(i) },
+                           text: `${r.letter}: ${e.name} = ${Units.num(e.value)}` });
+      }
+    });
+    return { shapes, annotations };
   }
 
   async function probes(data) {

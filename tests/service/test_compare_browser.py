@@ -43,12 +43,31 @@ def _finished(url: str, **body) -> str:
     return run
 
 
+def _changed(url: str) -> str:
+    """A finished run of tiny_cup whose friction was doubled from its third step."""
+    run = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup", "paused": True}).json()["id"]
+    for step in (1, 2):
+        until(lambda: not httpx.get(f"{url}/api/runs/{run}").json()["pending"]
+              and httpx.get(f"{url}/api/runs/{run}").json()["state"] == "paused", "not paused")
+        httpx.post(f"{url}/api/runs/{run}/step")
+        until(lambda s=step: httpx.get(f"{url}/api/runs/{run}").json()["step"] >= s, "no step")
+    r = httpx.put(f"{url}/api/runs/{run}/parameters/friction_scale", json={"value": 2.0},
+                  timeout=HANG)
+    assert r.status_code == 202, r.text
+    httpx.post(f"{url}/api/runs/{run}/resume")
+    st = until(lambda: (s := httpx.get(f"{url}/api/runs/{run}").json())["state"] in ENDED
+               and s, f"run {run} never ended")
+    assert st["state"] == "finished", st["reason"]
+    return run
+
+
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
-    """The server's url and its runs folder, with three finished runs of tiny_cup."""
+    """The server's url and its runs folder, with three finished runs of tiny_cup: the second
+    with its friction doubled from step 3, the third with half the friction."""
     tmp = tmp_path_factory.mktemp("compare-browser")
     with serve(tmp, {"tiny_cup": tiny_cup_toml()}, "tiny_cup", "--no-viewer") as (url, _):
-        runs = [_finished(url),
+        runs = [_changed(url),
                 _finished(url, overrides={"tools.0.friction": 0.05, "tools.1.friction": 0.05}),
                 _finished(url, element="linear")]
         yield url, tmp, runs
@@ -100,6 +119,7 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     api = httpx.get(f"{url}/api/compare?runs={c},{a}").json()
     assert page.text_content("#compare-differs") == api["differs"]["line"]
     assert "shell.element linear | q3t" in api["differs"]["line"]
+    assert "live changes B: friction_scale = 2 from step 3" in api["differs"]["line"]
     # the summary table: A's value, B's and B - A as the API gives them
     row = page.locator("#compare-summary tr[data-name='peak_punch_force']")
     values = row.locator("td .value").all_text_contents()
@@ -115,6 +135,12 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
                           "d.layout.xaxis.title.text, y: d.layout.yaxis.title.text}; }")
     assert force == {"n": 2, "names": ["A", "B"], "x": "punch stroke (mm)",
                      "y": "punch force (kN)"}
+    # B's friction change marked where its punch was at the end of step 2 (1 of 2 mm)
+    marks = page.evaluate("() => { const l = document.getElementById('compare-force').layout;"
+                          " return [l.shapes.map(s => s.x0), l.annotations.map(a => a.text)]; }")
+    b_punch = next(p for p in api["punches"] if p["run"] == a)
+    assert marks == [[b_punch["stroke"]["values"][b_punch["steps"].index(2)]],
+                     ["B: friction_scale = 2"]]
     shot(page, "compare-diff")
     # the toggle: A, then B, with the camera the user left
     shown = "() => document.getElementById('compare-thickness').dataset.show"
