@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import string
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -117,20 +118,31 @@ def settings(r: Loaded) -> dict[str, object]:
     """The run's scene as it ran, flattened to dotted keys (``tools.punch.friction``): its
     scene.toml with its overrides, validated (so that defaults and number spellings compare
     equal); as written when it no longer validates (a mesh file since deleted, ...)."""
-    text = (r.folder / "scene.toml").read_text() if (r.folder / "scene.toml").is_file() else ""
+    path = r.folder / "scene.toml"
+    text = path.read_text() if path.is_file() else ""
     overrides = r.status.get("overrides") or {}
     try:
         tree = scene_from_toml(text, overrides).model_dump(mode="json")
-    except (SceneError, ValueError):
-        tree = read_toml(text) if text else {}
-        for k, v in overrides.items():
-            try:
-                apply_override(tree, k, v)
-            except SceneError:
-                tree[k] = v
+    except ValueError:  # SceneError is one
+        tree = _as_written(text, overrides)
     for k in ("name", "description"):  # the scene's name is compared as the run's
         tree.pop(k, None)
     return flatten(tree)
+
+
+def _as_written(text: str, overrides: dict) -> dict:
+    """The scene's TOML with the overrides set, not validated (an unreadable file: only the
+    overrides)."""
+    try:
+        tree = read_toml(text)
+    except SceneError:
+        tree = {}
+    for k, v in overrides.items():
+        try:
+            apply_override(tree, k, v)
+        except SceneError:
+            tree[k] = v
+    return tree
 
 
 def flatten(node: object, prefix: str = "") -> dict[str, object]:
@@ -251,10 +263,16 @@ def final_state(r: Loaded) -> dict:
     if not path.is_file():
         raise Conflict(f"run {r.id!r} has no final state (final.npz): it ended before its "
                        "first result was written")
-    with np.load(path) as f:
-        data = {k: f[k] for k in ("rest", "deformed", "faces", "thickness")}
+    element = ELEMENTS.get(r.status["element"])
+    try:
+        with np.load(path) as f:
+            data = {k: f[k] for k in ("rest", "deformed", "faces", "thickness")}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # damaged
+        raise Conflict(f"run {r.id!r}: its final.npz cannot be read ({exc})") from None
+    if element is None:
+        raise Conflict(f"run {r.id!r}: its element {r.status['element']!r} is not known here")
     n_v = len(data["thickness"])
-    q = ELEMENTS[r.status["element"]].q
+    q = element.q
     n_plane = len(data["rest"]) // (q + 1)
     skins = np.array([np.arange(n_v), q * n_plane + np.arange(n_v)])  # bottom, top
     return {"rest": data["rest"][skins].mean(0), "formed": data["deformed"][skins].mean(0),

@@ -303,3 +303,19 @@ def test_sweep_import_refuses_paths_out_of_the_runs_folder(env):
     r = client.post("/api/sweeps/import", json={"path": 3})
     assert r.status_code == 422
     assert not list(settings.runs_dir.glob(".import-*"))  # nothing half-made
+
+
+def test_a_damaged_final_state_is_a_conflict_not_a_crash(env, runs):
+    client, settings = env
+    a, _, c, _ = runs
+    path = settings.runs_dir / c / "final.npz"
+    kept = path.read_bytes()
+    try:
+        path.write_bytes(kept[: len(kept) // 2])  # a copy cut short
+        t = client.get(f"/api/compare/thickness?runs={a},{c}")
+        assert t.status_code == 409 and "final.npz cannot be read" in t.json()["detail"]
+        cmp = client.get(f"/api/compare?runs={a},{c}")
+        assert cmp.status_code == 200 and not cmp.json()["thickness"]["available"]
+        assert c in cmp.json()["thickness"]["reason"]
+    finally:
+        path.write_bytes(kept)
