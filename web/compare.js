@@ -15,7 +15,7 @@ const Compare = (() => {
   const FONT = { family: "system-ui, sans-serif", size: 11 };
   const picked = [];  // the ticked run ids, in the order ticked: the first is A
   const view = { runs: null, data: null, thickness: null, show: "diff", shape: "formed",
-                 against: 1, timer: null, seq: 0 };
+                 against: 1, camera: null, timer: null, seq: 0 };
   const el = (tag, props = {}, ...kids) => {
     const e = Object.assign(document.createElement(tag), props);
     e.append(...kids);
@@ -128,16 +128,17 @@ const Compare = (() => {
          el("button", { id: "compare-close", textContent: "Close (Esc)" })),
       el("div", { id: "compare-chips" }),
       el("p", { id: "compare-differs" }),
+      // in view on a laptop's window: the numbers, the force curves and the thickness map
       el("div", { className: "compare-grid" },
          el("div", { className: "compare-col" },
             el("div", { id: "compare-summary" }),
-            el("figure", {}, el("div", { id: "compare-thickness", className: "plot" })),
-            el("div", { id: "compare-thickness-controls", className: "row" })),
+            el("figure", { id: "compare-probes-fig" },
+               el("div", { id: "compare-probes", className: "plot" }))),
          el("div", { className: "compare-col" },
             el("figure", { id: "compare-force-fig" },
                el("div", { id: "compare-force", className: "plot" })),
-            el("figure", { id: "compare-probes-fig" },
-               el("div", { id: "compare-probes", className: "plot" })))));
+            el("figure", {}, el("div", { id: "compare-thickness", className: "plot" }),
+               el("div", { id: "compare-thickness-controls", className: "row" })))));
     document.body.append(sec);
     $("compare-close").onclick = close;
     document.addEventListener("keydown", (ev) => {
@@ -149,7 +150,7 @@ const Compare = (() => {
     view.runs = ids;
     view.against = 1;
     view.show = "diff";
-    view.data = view.thickness = null;
+    view.data = view.thickness = view.camera = null;
     $("compare-view").hidden = false;
     document.body.classList.add("comparing");
     $("compare-title").textContent = "Comparing…";
@@ -447,14 +448,20 @@ const Compare = (() => {
     const div = $("compare-thickness");
     div.dataset.show = view.show;
     div.dataset.shape = view.shape;
-    // a toggle keeps the camera where the user left it (plotly keeps it in div.layout)
-    const was = div.layout && div.layout.scene && div.layout.scene.camera;
-    const lay = layout(title, 420, {
+    // a toggle keeps the camera where the user left it (view.camera, from plotly_relayout)
+    const lay = layout(title, 400, {
       margin: { l: 0, r: 0, t: 34, b: 0 },
       scene: { aspectmode: "data", xaxis: { title: { text: "x (mm)" } },
                yaxis: { title: { text: "y (mm)" } }, zaxis: { title: { text: "z (mm)" } },
-               camera: was || { eye: { x: 0.7, y: -1.5, z: 1.3 } } } });
+               camera: view.camera || { eye: { x: 0.7, y: -1.5, z: 1.3 } } } });
     await Plotly.react(div, [trace], lay, CONFIG);
+    div.removeAllListeners("plotly_relayout");  // one listener, whether purged or not
+    div.on("plotly_relayout", (ev) => {
+      // a drag sends scene.camera, a script may send a part (scene.camera.eye): plotly has
+      // merged either into the layout
+      if (Object.keys(ev).some((k) => k.startsWith("scene.camera")))
+        view.camera = JSON.parse(JSON.stringify(div.layout.scene.camera));
+    });
   }
 
   function init() {

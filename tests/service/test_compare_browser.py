@@ -145,16 +145,23 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     # the toggle: A, then B, with the camera the user left
     shown = "() => document.getElementById('compare-thickness').dataset.show"
     assert page.evaluate(shown) == "diff"
-    page.evaluate("() => Plotly.relayout('compare-thickness', {'scene.camera.eye': "
-                  "{x: 0.1, y: -0.1, z: 2.2}})")
+    # the user turns the part with the mouse
+    box = page.locator("#compare-thickness .gl-container").bounding_box()
+    cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.mouse.move(cx, cy)
+    page.mouse.down()
+    for k in range(1, 11):
+        page.mouse.move(cx + 12 * k, cy + 6 * k)
+    page.mouse.up()
+    camera = "() => document.getElementById('compare-thickness')._fullLayout.scene.camera.eye"
+    page.wait_for_function(f"({camera})().x !== 0.7")
+    turned = page.evaluate(camera)
     page.click("#compare-thickness-controls button[data-value='a']")
     page.wait_for_function(f"({shown})() === 'a'")
     shot(page, "compare-A")
     page.click("#compare-thickness-controls button[data-value='b']")
     page.wait_for_function(f"({shown})() === 'b'")
-    eye = page.evaluate("() => document.getElementById('compare-thickness')"
-                        "._fullLayout.scene.camera.eye")
-    assert eye == {"x": 0.1, "y": -0.1, "z": 2.2}
+    assert page.evaluate(camera) == pytest.approx(turned)
     colours = page.evaluate("() => { const t = document.getElementById('compare-thickness')"
                             ".data[0]; return [t.cmin, t.cmax, t.intensity.length]; }")
     th = httpx.get(f"{url}/api/compare/thickness?runs={c},{a}").json()
@@ -165,6 +172,15 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     shot(page, "compare-B-rest")
     page.keyboard.press("Escape")
     page.wait_for_selector("#compare-view", state="hidden")
+    # on a laptop's window the summary still fits its column (no sideways scrolling)
+    page.set_viewport_size({"width": 1280, "height": 800})
+    page.click("#compare-open")
+    page.wait_for_selector("#compare-thickness .main-svg")
+    # a new comparison: the starting camera
+    assert page.evaluate(camera) == {"x": 0.7, "y": -1.5, "z": 1.3}
+    assert page.evaluate("() => { const s = document.getElementById('compare-summary');"
+                         " return s.scrollWidth <= s.clientWidth; }")
+    shot(page, "compare-1280")
     assert not errors, errors
 
 
