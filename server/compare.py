@@ -14,6 +14,7 @@ import string
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,6 +24,9 @@ from server.records import ACTIVE
 from sim.elements import ELEMENTS
 from sim.frames import results
 from sim.scene.load import SceneError, apply_override, read_toml, scene_from_toml
+
+if TYPE_CHECKING:
+    from server.runs import RunManager
 
 MAX_RUNS = len(string.ascii_uppercase)  # each run gets a letter
 # a difference line names at most this many settings; the rest are in ``differs.items``
@@ -61,7 +65,7 @@ def run_ids(text: str) -> list[str]:
     return ids
 
 
-def load(manager: object, ids: list[str]) -> list[Loaded]:
+def load(manager: RunManager, ids: list[str]) -> list[Loaded]:
     """The runs named, in order; NotFound (404) naming every id that is no run."""
     known = set(manager.run_ids())
     unknown = [i for i in ids if i not in known]
@@ -261,8 +265,8 @@ def final_state(r: Loaded) -> dict:
         raise Conflict(f"run {r.id!r} is {r.status['state']}: its final state is written "
                        "when it ends")
     if not path.is_file():
-        raise Conflict(f"run {r.id!r} has no final state (final.npz): it ended before its "
-                       "first result was written")
+        raise Conflict(f"run {r.id!r} ({r.status['state']}) has no final state (final.npz): "
+                       "it has not run, or ended before its first result was written")
     element = ELEMENTS.get(r.status["element"])
     try:
         with np.load(path) as f:
