@@ -38,11 +38,14 @@ def serve_settings(args: argparse.Namespace, token: str | None) -> Settings:
         raise SystemExit("q3t: --record-every must be at least 1")
     if not 0 < args.max_memory < float("inf"):
         raise SystemExit("q3t: --max-memory must be a positive size (GiB)")
+    if not 0 < args.max_upload < 2**20:
+        raise SystemExit("q3t: --max-upload must be a positive size (MiB), below a TiB")
     return Settings(scenes_dir=Path(args.scenes_dir), runs_dir=Path(args.runs_dir),
                     token=token, viewer=not args.no_viewer, viewer_host=viewer_host,
                     viewer_port=args.viewer_port, step_delay=args.step_delay,
                     record_every=args.record_every, default_scene=args.scene,
-                    max_model_bytes=args.max_memory * 2**30)
+                    max_model_bytes=args.max_memory * 2**30,
+                    max_upload=int(args.max_upload * 2**20))
 
 
 def _stop_as_exit(signum: int, frame: FrameType | None) -> None:
@@ -139,6 +142,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--max-memory", type=float, default=Settings.max_model_bytes / 2**30,
                    metavar="GIB", help="refuse a run whose model would need more memory to "
                    "build (GiB; default %(default)g: half of a 24 GiB machine)")
+    s.add_argument("--max-upload", type=float, default=Settings.max_upload / 2**20,
+                   metavar="MIB", help="the largest file /api/files takes (a blank mesh or a "
+                   "thickness file; MiB, default %(default)g); larger uploads get 413")
     s.add_argument("--no-viewer", action="store_true", help="no viser viewer")
     s.add_argument("--expose-viewer", action="store_true",
                    help="bind the viser viewer to --host too. It has no token check: anyone "

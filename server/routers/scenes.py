@@ -11,7 +11,6 @@ from server import sceneform, tomlout
 from server.errors import BODY, CheckedRoute, documented
 from server.settings import RESERVED_SCENE_NAMES, SceneName, ScenePath
 from server.store import SceneStore
-from sim.scene.load import Scene
 
 router = APIRouter(prefix="/api/scenes", tags=["scenes"], route_class=CheckedRoute)
 
@@ -140,7 +139,7 @@ def list_scenes(request: Request) -> list[dict]:
 
 @router.get("/schema")
 def schema() -> dict:
-    return Scene.model_json_schema()
+    return sceneform.schema()
 
 
 @router.post("/validate", response_model=Validated, responses=documented(*BODY))
