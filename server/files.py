@@ -121,8 +121,10 @@ def inspect_thickness(path: Path) -> dict:
 
     try:
         h = read_values(str(path))
-    except (ValueError, TypeError, EOFError) as exc:  # np.load of an empty file: EOFError
-        raise Invalid(f"{path.name}: not a file of numbers ({exc})") from None
+    except ValueError as exc:  # names the file
+        raise Invalid(str(exc)) from None
+    except (TypeError, EOFError) as exc:  # np.load of an empty file: EOFError
+        raise Invalid(f"{path.name} is not an array of numbers ({exc or 'no data'})") from None
     if h.size == 0:
         raise Invalid(f"{path.name}: no values (one thickness in m per vertex)")
     bad = np.flatnonzero(~np.isfinite(h) | (h <= 0) | (h > MAX_LENGTH))
