@@ -65,8 +65,8 @@ const SceneForm = (() => {
     const q = new URLSearchParams({ name, kind, replace: String(replace) });
     let r;
     try {
-      r = await fetch(`/api/files?${q}`, { method: "POST", body: file,
-                                            headers: { "Content-Type": "application/octet-stream" } });
+      const headers = { "Content-Type": "application/octet-stream" };
+      r = await fetch(`/api/files?${q}`, { method: "POST", body: file, headers });
     } catch (e) {  // a connection the server closed, e.g. past its size limit
       throw Object.assign(new Error(`upload of ${name} cut off (${e.message})`), { status: 0 });
     }
@@ -376,8 +376,8 @@ const SceneForm = (() => {
         const options = [el("option", { value: "", textContent: "— choose a file —" })];
         const mine = list.files.filter((f) => f.kind === kind);
         for (const f of mine)
-          options.push(el("option", { value: f.name,
-                                      textContent: `${f.name} — ${counts(f)}, ${bytes(f.size)}` }));
+          options.push(el("option", { value: f.name, textContent: `${f.name} (${counts(f)})`,
+                                      title: f.problem || bytes(f.size) }));
         if (chosen && !mine.some((f) => f.name === chosen))  // a path in a subfolder, or gone
           options.push(el("option", { value: chosen, textContent: chosen }));
         sel.replaceChildren(...options);
