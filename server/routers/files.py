@@ -1,9 +1,10 @@
 """/api/files: upload, list, read and delete the files scenes read (blank meshes for
 ``mesh.path``, per-vertex thickness for ``shell.thickness_file``), kept in the scenes folder.
 
-The upload's body is the file itself (``Content-Type: application/octet-stream``; ``curl -T
-blank.stl 'http://HOST/api/files?name=blank.stl'``), streamed to disk and counted as it
-arrives, so its limit (``Settings.max_upload``) holds without the file ever being in memory."""
+The upload's body is the file itself (``Content-Type: application/octet-stream``;
+``curl -X POST -T blank.stl 'http://HOST/api/files?name=blank.stl'``), streamed to disk and
+counted as it arrives, so its limit (``Settings.max_upload``) holds without the file ever being
+in memory."""
 
 from __future__ import annotations
 

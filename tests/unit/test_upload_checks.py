@@ -149,3 +149,31 @@ def test_a_kind_given_must_be_the_extension_s():
     assert kind_of("b.stl") == "blank" and kind_of("t.csv", "thickness") == "thickness"
     with pytest.raises(Invalid, match=r"kind 'thickness': 'b.stl' is a blank file"):
         kind_of("b.stl", "thickness")
+
+
+def test_of_two_uploads_of_one_new_name_one_is_kept(tmp_path):
+    """A new name is linked into place, never renamed over: the second of two uploads that
+    both found the name free is a Conflict, and the first one's file stays."""
+    from server.files import FileStore
+    from server.problems import Conflict
+    from server.store import SceneStore
+
+    files = FileStore(SceneStore(tmp_path / "scenes"))
+    V, F = plate()
+    want = write_obj(tmp_path / "want.obj", V, F).read_text()
+    with files.incoming("p.obj") as first, files.incoming("p.obj") as second:
+        write_obj(first, V, F)
+        write_obj(second, V[:, [1, 0, 2]], F[:, ::-1])
+        assert files.keep(first, "blank", replace=False)["triangles"] == len(F)
+        with pytest.raises(Conflict, match="'p.obj' exists"):
+            files.keep(second, "blank", replace=False)
+    assert (tmp_path / "scenes" / "p.obj").read_text() == want
+    assert sorted(p.name for p in (tmp_path / "scenes").iterdir()) == ["p.obj"]
+
+
+def test_the_form_s_schema_names_the_kind_of_file_a_field_takes():
+    from server.sceneform import schema
+
+    defs = schema()["$defs"]
+    assert defs["FileMesh"]["properties"]["path"]["x-file"] == "blank"
+    assert defs["ShellSpec"]["properties"]["thickness_file"]["x-file"] == "thickness"
