@@ -60,6 +60,9 @@ def _settings(request: Request) -> Settings:
 
 @router.get("", response_model=FileList)
 def list_files(request: Request) -> dict:
+    """The scenes folder's blank meshes and thickness files (uploaded or put there by hand):
+    each one's kind, size, counts as the solver reads it, the scenes that name it, and what
+    makes it unusable, if anything; the upload limit and each kind's extensions."""
     return {"max_upload": _settings(request).max_upload,
             "kinds": {k: list(v) for k, v in KINDS.items()},
             "files": _files(request).entries()}
@@ -101,6 +104,7 @@ async def upload_file(request: Request, response: Response, name: FileName,
 
 @router.get("/{name}", response_model=FileEntry, responses=documented(404, 422))
 def read_file(name: FileName, request: Request) -> dict:
+    """One file's entry, as the listing has it."""
     return _files(request).entry(name)
 
 
