@@ -180,40 +180,42 @@ class FileStore:
         return sorted(p.name for p in self.root.iterdir()
                       if p.is_file() and _is_file_name(p.name))
 
-    def entry(self, name: str) -> dict:
+    def entry(self, name: str, users: dict[str, list[str]] | None = None) -> dict:
         p = self.path(name)
         if not p.is_file():
             raise NotFound(f"no file {name!r}")
         st, kind = p.stat(), kind_of(name)
         counts = {"vertices": None, "triangles": None, "values": None,
                   **_described(str(p), kind, st.st_size, st.st_mtime_ns)}
+        users = self.users() if users is None else users
         return {"name": name, "kind": kind, "size": st.st_size, **counts,
-                "used_by": self.used_by(name)}
+                "used_by": users.get(name, [])}
 
     def entries(self) -> list[dict]:
-        return [self.entry(n) for n in self.names()]
+        users = self.users()
+        return [self.entry(n, users) for n in self.names()]
 
-    def used_by(self, name: str) -> list[str]:
-        """The scenes whose TOML names the file in its field (valid scenes or not)."""
-        table, key = FIELDS[kind_of(name)]
-        users = []
+    def users(self) -> dict[str, list[str]]:
+        """File name -> the scenes whose TOML names it in a file field (valid scenes or not)."""
+        out: dict[str, list[str]] = {}
         for scene in self.scenes.names():
             try:
                 raw = read_toml(self.scenes.text(scene))
             except SceneError:
                 continue
-            section = raw.get(table)
-            value = section.get(key) if isinstance(section, dict) else None
-            if isinstance(value, str) and PurePosixPath(value) == PurePosixPath(name):
-                users.append(scene)
-        return users
+            for table, key in FIELDS.values():
+                section = raw.get(table)
+                value = section.get(key) if isinstance(section, dict) else None
+                if isinstance(value, str) and value:
+                    out.setdefault(str(PurePosixPath(value)), []).append(scene)
+        return out
 
     def delete(self, name: str) -> None:
         """Refused (409) while a scene names the file: the scene would stop loading."""
         p = self.path(name)
         if not p.is_file():
             raise NotFound(f"no file {name!r}")
-        users = self.used_by(name)
+        users = self.users().get(name)
         if users:
             field = ".".join(FIELDS[kind_of(name)])
             raise Conflict(f"file {name!r} is used by scene(s) {', '.join(users)} ({field}); "
