@@ -36,6 +36,9 @@ FILE_NAME_MAX = SCENE_NAME_MAX
 # same (sim.terms.elasticity.reference_gradients, detJ below 1e-10 of the median)
 FLAT = 1e-10
 TEMP_PREFIX = ".upload-"
+# s: an upload folder untouched this long is left by a server that died mid-upload (a live one
+# is written at least every body_timeout, and then read back once, which takes seconds)
+STALE = 3600.0
 
 
 class TooLarge(Exception):
@@ -230,6 +233,20 @@ class FileStore:
         if path.exists() and not replace:
             raise Conflict(f"file {name!r} exists; upload with replace=true to replace it")
         return path, kind
+
+    def sweep(self, now: float) -> list[str]:
+        """Remove the upload folders nothing has touched for ``STALE`` seconds before ``now``
+        (``time.time()``); returns their names."""
+        gone = []
+        for tmp in self.root.glob(f"{TEMP_PREFIX}*"):
+            try:
+                newest = max(p.stat().st_mtime for p in [tmp, *tmp.iterdir()])
+            except FileNotFoundError:  # its upload has just ended
+                continue
+            if now - newest > STALE:
+                shutil.rmtree(tmp, ignore_errors=True)
+                gone.append(tmp.name)
+        return gone
 
     @contextlib.contextmanager
     def incoming(self, name: str) -> Iterator[Path]:

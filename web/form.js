@@ -56,9 +56,9 @@ const SceneForm = (() => {
   };
   const bytes = (n) => (n < 2 ** 20 ? `${(n / 1024).toFixed(1)} KiB`
                                    : `${(n / 2 ** 20).toFixed(1)} MiB`);
-  // what a listed file holds, for its option
+  // what a listed file holds, for its option (a thickness file has a value per vertex)
   const counts = (f) => (f.problem ? "unusable" : f.kind === "blank"
-    ? `${f.triangles} triangles` : `${f.values} values`);
+    ? `${f.vertices} vertices, ${f.triangles} triangles` : `${f.values} values`);
   // POST /api/files: the file's bytes as the body; the answer's JSON, or an Error with its
   // detail and status
   const upload = async (file, name, kind, replace) => {

@@ -8,6 +8,7 @@ in memory."""
 
 from __future__ import annotations
 
+import time
 from typing import Literal
 
 from fastapi import APIRouter, Request, Response
@@ -85,6 +86,7 @@ async def upload_file(request: Request, response: Response, name: FileName,
         raise HTTPException(413, f"upload of {declared} bytes larger than the server's limit, "
                                  f"{limit} bytes")
     existed = path.exists()
+    files.sweep(time.time())  # what a server that died mid-upload left
     with files.incoming(name) as received:
         try:
             with open(received, "xb") as out:  # 0666 less the umask, like a saved scene

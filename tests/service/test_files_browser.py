@@ -85,7 +85,7 @@ def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
     shot(page, "1-file-kind.png")
     choose(page, "mesh.path", obj)
     until(lambda: status(page, "mesh.path").startswith("uploaded"), "no upload", 300)
-    assert status(page, "mesh.path") == "uploaded My_plate_v2.obj: 80 triangles"
+    assert status(page, "mesh.path") == "uploaded My_plate_v2.obj: 63 vertices, 80 triangles"
     assert page.input_value("[name='mesh.path']") == "My_plate_v2.obj"
     assert (tmp / "scenes" / "My_plate_v2.obj").read_bytes() == obj.read_bytes()
 
@@ -161,9 +161,10 @@ def test_a_name_taken_asks_before_replacing(page, served):
     assert httpx.get(url + "/api/files/again.obj").json()["triangles"] == 80
     choose(page, "mesh.path", again)  # accepted: replaced
     until(lambda: status(page, "mesh.path").startswith("uploaded"), "no replacement", 300)
-    assert status(page, "mesh.path") == f"uploaded again.obj: {len(half.faces)} triangles"
+    counts = f"{len(half.vertices)} vertices, {len(half.faces)} triangles"
+    assert status(page, "mesh.path") == f"uploaded again.obj: {counts}"
     options = page.locator("[name='mesh.path'] option").all_inner_texts()
-    assert f"again.obj ({len(half.faces)} triangles)" in options, options
+    assert f"again.obj ({counts})" in options, options
 
 
 def test_an_upload_cut_off_over_a_real_socket_leaves_nothing(served):

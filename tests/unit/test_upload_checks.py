@@ -177,3 +177,23 @@ def test_the_form_s_schema_names_the_kind_of_file_a_field_takes():
     defs = schema()["$defs"]
     assert defs["FileMesh"]["properties"]["path"]["x-file"] == "blank"
     assert defs["ShellSpec"]["properties"]["thickness_file"]["x-file"] == "thickness"
+
+
+def test_upload_folders_left_by_a_dead_server_are_swept(tmp_path):
+    """An upload folder untouched for an hour goes at the next upload; a live one stays."""
+    import os
+    import time
+
+    from server.files import STALE, FileStore
+    from server.store import SceneStore
+
+    files = FileStore(SceneStore(tmp_path / "scenes"))
+    now = time.time()
+    with files.incoming("old.obj") as old, files.incoming("live.obj") as live:
+        old.write_text("v 0 0 0\n")
+        live.write_text("v 0 0 0\n")
+        for p in (old, old.parent):
+            os.utime(p, (now - STALE - 1, now - STALE - 1))
+        assert files.sweep(now) == [old.parent.name]
+        assert not old.parent.exists() and live.is_file()
+    assert list((tmp_path / "scenes").iterdir()) == []
