@@ -95,9 +95,13 @@ def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
     choose(page, "shell.thickness_file", mine / "thickness.txt")
     until(lambda: status(page, "shell.thickness_file").startswith("uploaded"), "no upload", 300)
     assert status(page, "shell.thickness_file") == "uploaded thickness.txt: 63 values"
-    page.wait_for_function("document.getElementById('sync').textContent === 'valid'")
-    toml = page.input_value("#toml")
-    assert "path = \"My_plate_v2.obj\"" in toml and "thickness_file = \"thickness.txt\"" in toml
+    # the form's edits reach the TOML view through the server (a sync after the last edit)
+    page.wait_for_function("""() => {
+        const t = document.getElementById('toml').value;
+        return t.includes('path = "My_plate_v2.obj"')
+            && t.includes('thickness_file = "thickness.txt"');
+    }""")
+    assert page.inner_text("#sync") == "valid"
     page.locator("[data-path='shell.thickness_file']").scroll_into_view_if_needed()
     shot(page, "2-uploaded.png")
 
