@@ -25,6 +25,9 @@ router = APIRouter(prefix="/api/files", tags=["files"])
 
 FileName = name_type(check_file_name, FILE_NAME_MAX)
 Kind = Literal["blank", "thickness"]
+# an answer given before the body is all read: the rest of it is never read, so the connection
+# cannot carry another request
+CLOSE = {"Connection": "close"}
 
 
 class FileEntry(BaseModel):
@@ -84,7 +87,7 @@ async def upload_file(request: Request, response: Response, name: FileName,
     declared = request.headers.get("content-length", "")
     if declared.isdigit() and int(declared) > limit:  # refused before a byte is read
         raise HTTPException(413, f"upload of {declared} bytes larger than the server's limit, "
-                                 f"{limit} bytes")
+                                 f"{limit} bytes", CLOSE)
     existed = path.exists()
     files.sweep(time.time())  # what a server that died mid-upload left
     with files.incoming(name) as received:
@@ -92,9 +95,9 @@ async def upload_file(request: Request, response: Response, name: FileName,
             with open(received, "xb") as out:  # 0666 less the umask, like a saved scene
                 await spool(request.stream(), out, limit, _settings(request).body_timeout)
         except TooLarge as exc:
-            raise HTTPException(413, str(exc)) from None
+            raise HTTPException(413, str(exc), CLOSE) from None
         except Stalled as exc:
-            raise HTTPException(408, str(exc), {"Connection": "close"}) from None
+            raise HTTPException(408, str(exc), CLOSE) from None
         except ClientDisconnect:  # nobody will read the answer; the file is gone with it
             raise HTTPException(400, "the upload was cut off") from None
         entry = await run_in_threadpool(files.keep, received, kind, replace)

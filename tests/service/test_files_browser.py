@@ -187,3 +187,20 @@ def test_an_upload_cut_off_over_a_real_socket_leaves_nothing(served):
           "the cut-off upload was left behind")
     assert not (scenes / "cut.obj").exists()
     assert "cut.obj" not in [f["name"] for f in httpx.get(url + "/api/files").json()["files"]]
+
+
+def test_past_the_limit_over_http_is_a_413_the_client_reads(served):
+    """uvicorn and a real client: the 413 comes back (the connection closed after it), whether
+    the length is declared or the body is chunked, and nothing is kept."""
+    url, tmp = served
+    big = b"v 0 0 0\n" * 125_000  # 1 MB, 20 times the limit
+
+    def chunked():
+        for i in range(0, len(big), 10_000):
+            yield big[i:i + 10_000]
+
+    for body in (big, chunked()):
+        r = httpx.post(url + "/api/files", params={"name": "big.obj"}, content=body)
+        assert r.status_code == 413 and "52428 bytes" in r.json()["detail"], r.text
+        assert r.headers["connection"] == "close"
+    assert not (tmp / "scenes" / "big.obj").exists()
