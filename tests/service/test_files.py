@@ -298,3 +298,18 @@ def test_a_whole_body_is_kept_under_its_name_alone(bare):
     status, answer = post(app, "fine.obj", receive)
     assert status == 201 and answer["triangles"] == 80, answer
     assert sorted(p.name for p in scenes.iterdir()) == ["fine.obj"]
+
+
+def test_q3t_serve_sets_the_upload_limit():
+    import argparse
+
+    from server.cli import add_parser, serve_settings
+
+    ap = argparse.ArgumentParser()
+    add_parser(ap.add_subparsers(dest="cmd"))
+    assert serve_settings(ap.parse_args(["serve"]), None).max_upload == 64 * 2**20
+    assert serve_settings(ap.parse_args(["serve", "--max-upload", "0.5"]), None).max_upload \
+        == 2**19
+    for bad in ("0", "-1", "inf", "nan"):
+        with pytest.raises(SystemExit, match="--max-upload must be a positive size"):
+            serve_settings(ap.parse_args(["serve", "--max-upload", bad]), None)
