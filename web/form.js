@@ -364,14 +364,16 @@ const SceneForm = (() => {
       return this.fileList;
     }
 
-    // a file of the scenes folder of ``kind``: a select of those there, and an upload button
+    // a file of the scenes folder of ``kind``: a select of those there, an upload button and
+    // a delete button (the server refuses to delete a file a saved scene names)
     file(kind, value, path, key, required) {
       const sel = el("select", { name: path, class: "file-select" });
-      const chooser = el("input", { type: "file", hidden: true });
-      const button = el("button", { type: "button", class: "upload",
-                                    textContent: "Upload…", title: `upload a ${kind} file` });
       const status = el("span", { class: "upload-status", role: "status" });
-      let limit = null;
+      const say = (text, bad) => {
+        status.textContent = text;
+        status.classList.toggle("bad", !!bad);
+      };
+      const folder = { limit: null, accept: "" };  // the server's limit and the extensions
       const fill = (list, chosen) => {
         const options = [el("option", { value: "", textContent: "— choose a file —" })];
         const mine = list.files.filter((f) => f.kind === kind);
@@ -382,25 +384,39 @@ const SceneForm = (() => {
           options.push(el("option", { value: chosen, textContent: chosen }));
         sel.replaceChildren(...options);
         sel.value = chosen || "";
-        chooser.accept = list.kinds[kind].join(",");
-        limit = list.max_upload;
+        folder.accept = list.kinds[kind].join(",");
+        folder.limit = list.max_upload;
+      };
+      // the folder as it is now, ``chosen`` selected, and the form told
+      const refresh = async (chosen) => {
+        this.fileList = null;
+        fill(await this.files(), chosen);
+        sel.dispatchEvent(new Event("change", { bubbles: true }));
       };
       fill({ files: [], kinds: { [kind]: [] } }, value);
       this.files().then((list) => fill(list, sel.value))
-        .catch((e) => { status.textContent = `files: ${e.message}`; status.classList.add("bad"); });
-      const say = (text, bad) => {
-        status.textContent = text;
-        status.classList.toggle("bad", !!bad);
-      };
-      button.onclick = () => chooser.click();
+        .catch((e) => say(`files: ${e.message}`, true));
+      const group = el("span", { class: "file-choice" }, sel,
+                       ...this.uploadButton(kind, folder, say, refresh),
+                       this.deleteButton(sel, say, refresh));
+      const w = this.wrap(path, key, group, status);
+      return { el: w, get: () => (sel.value === "" && required ? undefined : sel.value) };
+    }
+
+    // Upload…: a file chooser, then POST /api/files; a name taken asks before replacing
+    uploadButton(kind, folder, say, refresh) {
+      const chooser = el("input", { type: "file", hidden: true });
+      const button = el("button", { type: "button", class: "upload",
+                                    textContent: "Upload…", title: `upload a ${kind} file` });
+      button.onclick = () => { chooser.accept = folder.accept; chooser.click(); };
       chooser.onchange = async () => {
         const file = chooser.files[0];
         chooser.value = "";
         if (!file) return;
         const name = fileName(file.name);
-        if (limit !== null && file.size > limit)
+        if (folder.limit !== null && file.size > folder.limit)
           return say(`${file.name}: ${bytes(file.size)} is past the server's limit of ` +
-                     `${bytes(limit)}`, true);
+                     `${bytes(folder.limit)}`, true);
         say(`uploading ${name} (${bytes(file.size)})…`);
         try {
           let f;
@@ -409,15 +425,28 @@ const SceneForm = (() => {
               throw e;
             f = await upload(file, name, kind, true);
           }
+          await refresh(f.name);  // then said: the select shows it when the words do
           say(`uploaded ${f.name}: ${counts(f)}`);
-          this.fileList = null;
-          fill(await this.files(), f.name);
-          sel.dispatchEvent(new Event("change", { bubbles: true }));
         } catch (e) { say(e.message, true); }
       };
-      const group = el("span", { class: "file-choice" }, sel, button, chooser);
-      const w = this.wrap(path, key, group, status);
-      return { el: w, get: () => (sel.value === "" && required ? undefined : sel.value) };
+      return [button, chooser];
+    }
+
+    // Delete: the chosen file, from the scenes folder, once confirmed
+    deleteButton(sel, say, refresh) {
+      const button = el("button", { type: "button", class: "delete-file", textContent: "Delete",
+                                    title: "delete the chosen file from the scenes folder" });
+      button.onclick = async () => {
+        const name = sel.value;
+        if (!name) return say("choose a file to delete", true);
+        if (!confirm(`Delete ${name} from the scenes folder?`)) return;
+        try {
+          await api("DELETE", `/api/files/${encodeURIComponent(name)}`);
+          await refresh("");
+          say(`deleted ${name}`);
+        } catch (e) { say(e.message, true); }
+      };
+      return button;
     }
 
     tuple(s, value, path, key) {

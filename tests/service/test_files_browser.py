@@ -68,7 +68,12 @@ def status(page, field: str) -> str:
 
 
 def shot(page, name: str) -> None:
+    """The left column; the form in it never wider than the column (a long file name in a
+    select once widened it, and the form scrolled sideways out of view)."""
+    wide = page.evaluate("() => { const f = document.getElementById('scene-form');"
+                         " return f.scrollWidth - f.clientWidth; }")
     page.locator("#left").screenshot(path=str(SHOTS / name))
+    assert wide == 0, f"{name}: the form is {wide} px wider than its column"
 
 
 def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
@@ -117,6 +122,16 @@ def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
     assert done["state"] == "finished", done["reason"]
     assert done["scene"] == "uploaded"
 
+    # the saved scene names the blank: the form's Delete is refused, saying by whom
+    page.on("dialog", lambda dialog: dialog.accept())
+    page.click("[data-path='mesh.path'] button.delete-file")
+    until(lambda: "used by" in status(page, "mesh.path"), "no refusal shown", 300)
+    assert status(page, "mesh.path") == ("file 'My_plate_v2.obj' is used by scene(s) uploaded "
+                                         "(mesh.path); change or delete them first")
+    assert (tmp / "scenes" / "My_plate_v2.obj").is_file()
+    page.locator("[data-path='mesh.path']").scroll_into_view_if_needed()
+    shot(page, "3-delete-refused.png")
+
 
 def test_a_file_that_is_no_mesh_says_why(page, served):
     _, tmp = served
@@ -130,7 +145,7 @@ def test_a_file_that_is_no_mesh_says_why(page, served):
     assert page.locator("[data-path='mesh.path'] .upload-status.bad").count() == 1
     assert not (tmp / "scenes" / "junk.stl").exists()
     page.locator("[data-path='mesh.path']").scroll_into_view_if_needed()
-    shot(page, "3-refused.png")
+    shot(page, "4-refused.png")
 
     big = tmp / "big.obj"  # past the limit: refused before a byte is sent
     big.write_bytes(b"v 0 0 0\n" * int(LIMIT_MIB * 2**20 / 8 + 1))
@@ -169,6 +184,14 @@ def test_a_name_taken_asks_before_replacing(page, served):
     assert status(page, "mesh.path") == f"uploaded again.obj: {counts}"
     options = page.locator("[name='mesh.path'] option").all_inner_texts()
     assert f"again.obj ({counts})" in options, options
+
+    page.click("[data-path='mesh.path'] button.delete-file")  # no scene names it: it goes
+    until(lambda: status(page, "mesh.path") == "deleted again.obj", "not deleted", 300)
+    assert asked[2:] == ["Delete again.obj from the scenes folder?"]
+    assert not (tmp / "scenes" / "again.obj").exists()
+    assert page.input_value("[name='mesh.path']") == ""
+    assert "again.obj" not in "".join(page.locator("[name='mesh.path'] option").all_inner_texts())
+    shot(page, "5-deleted.png")
 
 
 def test_an_upload_cut_off_over_a_real_socket_leaves_nothing(served):
