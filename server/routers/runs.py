@@ -104,8 +104,8 @@ class StepRecord(BaseModel):
     model_config = ConfigDict(extra="allow")
     step: int
     time: float = Field(description="the scene's time at the step's end (s)")
-    iterations: int = Field(description="Newton iterations of the step, friction's "
-                            "re-solves included")
+    iterations: int = Field(description="Newton iterations of the step (its cut-backs' "
+                            "included)")
     residual: float | None = Field(description="the residual's norm at the end (N)")
     energy: float | None = Field(description="the total energy at the end (J)")
     cutbacks: int = Field(description="times the step was halved")
@@ -113,8 +113,6 @@ class StepRecord(BaseModel):
     tools: dict[str, ToolReport] = Field(default_factory=dict, description="per tool")
     friction_change: float = Field(0.0, description="how far from settled friction's lagged "
                                    "normal forces are (relative; settled at 1e-3)")
-    friction_iterations: int = Field(0, description="of `iterations`, those of friction's "
-                                     "re-solves")
 
 
 class RunStatus(RunSummary):

@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 from multiprocessing.context import ForkServerContext, ForkServerProcess
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -35,7 +36,7 @@ class _OverBudget(Exception):
 
 def run_case(scene_path: str, overrides: dict, series: bool = False,
              measure: Callable[[Simulation], dict] | None = None,
-             budget: float | None = None) -> dict:
+             budget: float | None = None, out_dir: str | None = None) -> dict:
     """Run one scene with ``overrides``; a summary that pickles small (no arrays).
 
     status: ``converged``, ``failed`` (solver diagnostic in ``reason``), ``invalid`` (the scene
@@ -44,6 +45,7 @@ def run_case(scene_path: str, overrides: dict, series: bool = False,
     run stops after the step that used it up, so a single step is never cut short).
     ``series``: also every step's time and probes (``history``) and the recorded sections.
     ``measure(sim) -> dict``, when given, adds its numbers as ``measured`` after the run.
+    ``out_dir``: the case's folder (``write_case``) is written there once the run has ended.
     """
     from sim.scene.load import load_scene
     from sim.stepping.simulation import Simulation
@@ -56,6 +58,7 @@ def run_case(scene_path: str, overrides: dict, series: bool = False,
         out["reason"] = str(exc)
         return out
     out["build"] = time.perf_counter() - t0
+    starts = sim.tool_poses()  # where the punches' strokes start (case.json)
     def check_budget(sim: Simulation, rec: StepRecord) -> None:
         spent = time.perf_counter() - t0
         if spent > budget and not sim.done:
@@ -92,13 +95,58 @@ def run_case(scene_path: str, overrides: dict, series: bool = False,
         out["status"] = "converged"
     else:
         out.update(status="nan", reason="non-finite probe after a converged run")
+    if out_dir is not None:
+        write_case(sim, scene_path, out, starts, Path(out_dir))
     return out
+
+
+def write_case(sim: Simulation, scene_path: str, row: dict, starts: dict[str, np.ndarray],
+               folder: Path) -> None:
+    """A case's folder, which the service opens as a finished run (server/sweeps.py): the
+    scene file as it was (scene.toml), result.json and final.npz (``Simulation.write``), and
+    case.json: the row's overrides, status and reason, and what the plots need that the step
+    records do not say (``sim.frames.punch.plotted`` of the tools' ``starts``). case.json is
+    written last: a folder with case.json is complete."""
+    from sim.frames import results
+    from sim.frames.punch import plotted
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "scene.toml").write_text(Path(scene_path).read_text())
+    sim.write(folder)
+    case = {"overrides": row["overrides"], "status": row["status"], "reason": row.get("reason"),
+            **plotted(sim.model.scene, starts)}
+    results.write(folder / "case.json", case)
 
 
 def _invalid_row(overrides: dict, reason: str | None) -> dict:
     return {"overrides": dict(overrides), "status": "invalid", "converged": False,
             "reason": reason, "probes": {}, "wall": 0.0, "build": 0.0, "dofs": None,
             "elements": None, "iterations": 0, "cutbacks": 0, "residual": None}
+
+
+def element_overrides(spec: str) -> dict:
+    """The overrides of an element as a study names it: ``NAME``, or ``NAME:NxM`` for that
+    element with the quadrature rule of N in-plane by M through-thickness points
+    (``shell.quadrature``; the scene's ``thickness_points`` would replace M, so it is unset).
+    ValueError naming the spec and what is wrong with it."""
+    from sim.elements import ELEMENTS
+    from sim.geometry.quadrature import prism_rule
+
+    name, colon, rule = spec.partition(":")
+    if name not in ELEMENTS:
+        raise ValueError(f"unknown element {name!r} in {spec!r}; known: {sorted(ELEMENTS)}")
+    if not colon:
+        return {"shell.element": name}
+    n, x, m = rule.partition("x")
+    if not (x and n.isdigit() and m.isdigit()):
+        raise ValueError(f"element {spec!r}: after ':' comes the rule as N x M points "
+                         "(in-plane x through the thickness), e.g. q3t:3x3")
+    try:
+        prism_rule(int(n), int(m))
+    except ValueError as exc:
+        raise ValueError(f"element {spec!r}: {exc}") from None
+    return {"shell.element": name, "shell.quadrature": [int(n), int(m)],
+            "shell.thickness_points": None}
 
 
 def scene_row(scene_path: str, overrides: dict) -> dict | None:
@@ -146,26 +194,28 @@ def force_balance(sim: Simulation) -> dict:
             "balance": abs(support - applied) / scale if scale > 0 else 0.0, "floor": floor}
 
 
-def _child(conn: Connection, scene_path: str, overrides: dict) -> None:
+def _child(conn: Connection, scene_path: str, overrides: dict, out_dir: str | None) -> None:
     # on SIGTERM exit through Python, so numba's process lock is released and not reported as a
     # leaked semaphore; a child stuck in a kernel gets SIGKILL after a grace period
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
-        conn.send(run_case(scene_path, overrides, measure=force_balance))
+        conn.send(run_case(scene_path, overrides, measure=force_balance, out_dir=out_dir))
     except Exception as exc:  # noqa: BLE001 - anything but a diagnosed failure is a crash
         conn.send({"status": "crashed", "reason": f"{type(exc).__name__}: {exc}", "probes": {}})
 
 
 def run_isolated(scene_path: str, overrides: dict, budget: float,
-                 ctx: ForkServerContext | WatchedContext | None = None) -> dict:
+                 ctx: ForkServerContext | WatchedContext | None = None,
+                 out_dir: str | None = None) -> dict:
     """``run_case`` in a child process, with its ``force_balance`` as ``measured``; killed
     after ``budget`` seconds (status ``timeout``). The budget and ``elapsed`` start once the
     child is forked: the first ``start`` also starts the forkserver, whose imports are no
     case's time. ``ctx``: ``isolated_context()`` by default, a ``WatchedContext`` on a Dask
-    worker."""
+    worker. ``out_dir``: the case's folder (``write_case``)."""
     ctx = ctx or isolated_context()
     parent, child = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, args=(child, scene_path, overrides), daemon=True)
+    p = ctx.Process(target=_child, args=(child, scene_path, overrides, out_dir),
+                    daemon=True)
     p.start()
     t0 = time.perf_counter()
     child.close()
