@@ -17,7 +17,8 @@ from collections.abc import Iterable
 from sim.frames.probes import PROBES
 from sim.frames.units import DISPLAY
 
-# result.json's field statistics the table shows (sim.frames.fields.output_fields), SI unit
+# result.json's field statistics the table shows (sim.frames.fields.output_fields: vertex
+# values, each the mean of its elements' quadrature points), SI unit
 FIELDS = (("net_plastic_strain", "Net plastic strain (retained)", "1"),
           ("eq_plastic_strain", "Accumulated eq. plastic strain", "1"),
           ("von_mises", "Von Mises stress", "Pa"))
@@ -84,7 +85,7 @@ def _field_rows(cases: list[dict]) -> list[Row]:
     for name, label, unit in FIELDS:
         stats = [(c.get("fields") or {}).get(name) for c in cases]
         if any(stats):
-            out.append((_with_unit(f"{label}, mean / max", unit),
+            out.append((_with_unit(f"{label}, vertex mean / max", unit),
                         [f"{shown(s['mean'], unit)} / {shown(s['max'], unit)}" if s else ""
                          for s in stats]))
     return out
