@@ -32,7 +32,7 @@ def shown(value: float | None, unit: str) -> str:
         return ""
     if not math.isfinite(value):
         return str(value)
-    return f"{value * DISPLAY[unit][1]:.4g}"
+    return f"{value * DISPLAY[unit][1] + 0.0:.4g}"  # + 0.0: a -0.0 reads 0
 
 
 def _with_unit(label: str, unit: str) -> str:
@@ -52,12 +52,10 @@ def _summary_rows(cases: list[dict]) -> list[Row]:
             if not isinstance(e["value"], list):
                 label = f"{e['label']} ({e['tool']})" if "tool" in e else e["label"]
                 keys.setdefault((e["name"], e.get("tool")), (label, e["unit"]))
-    out = []
-    for key, (label, unit) in keys.items():
-        values = [{(e["name"], e.get("tool")): e["value"] for e in c.get("summary") or []}
-                  for c in cases]
-        out.append((_with_unit(label, unit), [shown(v.get(key), unit) for v in values]))
-    return out
+    values = [{(e["name"], e.get("tool")): e["value"] for e in c.get("summary") or []}
+              for c in cases]
+    return [(_with_unit(label, unit), [shown(v.get(key), unit) for v in values])
+            for key, (label, unit) in keys.items()]
 
 
 def _probe_rows(cases: list[dict], units: dict[str, str], ratios: Iterable[str]) -> list[Row]:
