@@ -56,12 +56,19 @@ results: $(STAMP)
 	  --results $(R)/overhead-plastic_bending.md
 	$(BIN)/q3t study cup_blank --overhead-only --levels 0.001 --results $(R)/overhead-cup_blank.md
 	$(BIN)/q3t study convergence --overhead-only --results $(R)/overhead-convergence.md
-	$(BIN)/q3t study cantilever --set material.nu=0.49 --set material.E=1e11 --elements linear,q3t \
-	  --levels 0.0175,0.00875,0.0046667,0.0035 --reference quadratic:0.0046667 --no-overhead \
-	  --out runs/accuracy --results $(R)/accuracy-refinement.md
+	$(BIN)/q3t study cantilever --set material.nu=0.49 --set material.E=1e11 \
+	  --elements linear,q3t,quadratic --levels 0.0175,0.00875,0.0046667,0.0035 \
+	  --reference quadratic:0.0046667 --no-overhead --out runs/accuracy \
+	  --results $(R)/accuracy-refinement.md
 	$(BIN)/q3t study cantilever --set material.nu=0 --set material.E=1e11 --elements quadratic \
 	  --levels 0.0046667 --analytic euler_bernoulli --no-overhead --out runs/accuracy-eb \
 	  --results $(R)/accuracy-euler-bernoulli.md
+	$(BIN)/q3t study cantilever --set material.nu=0.49 --set material.E=1e11 \
+	  --elements linear:1x2,linear:3x2,q3t:1x3,q3t:3x3 --levels 0.00875,0.0046667 \
+	  --reference quadratic:0.0046667 --no-overhead --out runs/accuracy-quadrature \
+	  --results $(R)/accuracy-quadrature.md
+	$(BIN)/q3t springback --elements q3t,quadratic,quartic --out runs/springback \
+	  --results $(R)/springback-formula.md
 	$(BIN)/q3t bench-service --results $(R)/service.md
 	$(BIN)/q3t reference cup_drawing --check tests/data/reference/cup_drawing-q3t-2mm.json \
 	  --results $(R)/stroke-cup_drawing.md

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 from server.estimate import EstimateCache
+from server.events import Changes
 from server.history import FrameHistory
 from server.records import ACTIVE, Run
 from server.settings import Settings
@@ -58,6 +59,7 @@ class Books(Protocol):
     viewer: Viewer | None
     worker: WorkerHandle
     closing: threading.Event
+    changes: Changes
 
     def finish(self, run: Run, state: str, reason: str | None) -> None: ...
     def save(self, run: Run) -> None: ...
@@ -338,6 +340,8 @@ class Bridge:
             shown = self.handle(ev)
             if shown is not None:
                 self._offer(shown)
+        if events:
+            self.m.changes.touch()
         self._push_due()
         if not events and not w.alive() and not self.m.closing.is_set():
             self.m.worker_died(w)

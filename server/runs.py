@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from server.bridge import Bridge
 from server.estimate import EstimateCache
+from server.events import Changes
 from server.history import FrameHistory
 from server.problems import Conflict, Invalid, NotFound, NotReady
 from server.records import Run, RunFiles, repair_recording
@@ -48,6 +49,7 @@ class RunManager:
         self.parameter_ranges: dict = {}
         self.ready = threading.Event()
         self.lock = threading.RLock()
+        self.changes = Changes()  # wakes the event streams of scripts (server.events)
         self.runs: dict[str, Run] = self.files.load()
         self.active: str | None = None
         # the run the page and the viewer show (one for every browser, until each has its own
@@ -364,6 +366,7 @@ class RunManager:
             moved = self.selected == run.id
             if moved:
                 self.selected = self._newest()
+        self.changes.touch()
         self.estimates.forget(run.id)
         self.files.delete(run.id)
         if self.viewer:
@@ -388,6 +391,7 @@ class RunManager:
         self.sent = {rid: r for rid, r in self.sent.items() if r != run.id}
         if run.id == self.active:
             self.active = None
+        self.changes.touch()
 
     def run_ended(self, run: Run) -> None:
         """The viewer's line and controls for a run that is over (when it is shown)."""

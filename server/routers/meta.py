@@ -37,6 +37,8 @@ class Health(BaseModel):
 
 @router.get("/config", response_model=Config)
 def config(request: Request) -> dict:
+    """What the page needs before anything else: whether the solver process is ready, the
+    elements, the live parameters with their ranges and labels, the viewer's port."""
     from sim.elements import ELEMENTS
     from sim.stepping.parameters import LABELS
 
@@ -53,4 +55,6 @@ def config(request: Request) -> dict:
 
 @router.get("/health", response_model=Health)
 def health(request: Request) -> dict:
+    """Liveness: the solver process (alive, pid, restarts), the bridge thread (alive, errors)
+    and the active run; `ok` is false when either is down."""
     return request.app.state.manager.health()

@@ -80,8 +80,44 @@ class RunSummary(BaseModel):
     progress: Progress
 
 
+class ToolReport(BaseModel):
+    """What a tool felt at the end of a step (sim.terms.tool_contact's report; SI). Every
+    field optional: a run saved by an older version may lack one."""
+
+    model_config = ConfigDict(extra="allow")
+    fx: float | None = Field(None, description="force the sheet exerts on the tool, x (N)")
+    fy: float | None = Field(None, description="the same, y (N)")
+    fz: float | None = Field(None, description="the same, z (N)")
+    contact_nodes: int | None = Field(None, description="nodes within the contact layer")
+    penetration: float | None = Field(None, description="deepest penetration (m)")
+    x: float | None = Field(None, description="the tool's position, x (m)")
+    y: float | None = Field(None, description="y (m)")
+    z: float | None = Field(None, description="z (m)")
+    rx: float = Field(0.0, description="rotation vector, x (rad)")
+    ry: float = Field(0.0, description="y (rad)")
+    rz: float = Field(0.0, description="z (rad)")
+
+
+class StepRecord(BaseModel):
+    """One step as the solver made it (result.json's `steps` hold the same; SI units)."""
+
+    model_config = ConfigDict(extra="allow")
+    step: int
+    time: float = Field(description="the scene's time at the step's end (s)")
+    iterations: int = Field(description="Newton iterations of the step (its cut-backs' "
+                            "included)")
+    residual: float | None = Field(description="the residual's norm at the end (N)")
+    energy: float | None = Field(description="the total energy at the end (J)")
+    cutbacks: int = Field(description="times the step was halved")
+    probes: dict[str, float | None] = Field(description="each probe's value (SI)")
+    tools: dict[str, ToolReport] = Field(default_factory=dict, description="per tool")
+    friction_change: float = Field(0.0, description="how far from settled friction's lagged "
+                                   "normal forces are (relative; settled at 1e-3)")
+
+
 class RunStatus(RunSummary):
-    records: list[dict] = Field(description="step records after ``since``, in step order")
+    records: list[StepRecord] = Field(description="step records after ``since``, in step "
+                                      "order")
     records_left: int = Field(description="records after these: ask again from the last step")
 
 
@@ -126,6 +162,8 @@ def _runs(request: Request) -> RunManager:
 
 @router.get("", response_model=list[RunSummary])
 def list_runs(request: Request) -> list[dict]:
+    """Every run the runs folder holds, newest first, as `GET /api/runs/{id}` gives it
+    without its step records."""
     return _runs(request).list()
 
 
@@ -159,6 +197,7 @@ def pause(run_id: RunId, request: Request) -> dict:
 @router.post("/{run_id}/resume", response_model=RunSummary,
              responses=documented(409, 404, 422))
 def resume(run_id: RunId, request: Request) -> dict:
+    """Go on stepping a paused run (409 when it is not paused or is over)."""
     return _runs(request).command(run_id, "resume")
 
 
@@ -326,5 +365,7 @@ def recording(run_id: RunId, request: Request) -> FileResponse:
 
 @router.delete("/{run_id}", status_code=204, responses=documented(404, 409, 422))
 def delete_run(run_id: RunId, request: Request) -> Response:
+    """Delete a run that has ended and its folder (scene, results, recording); 409 while it
+    is active: stop it first."""
     _runs(request).delete(run_id)
     return Response(status_code=204)

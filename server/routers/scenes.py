@@ -134,17 +134,23 @@ def _read(store: SceneStore, name: str) -> dict:
 
 @router.get("", response_model=list[SceneSummary])
 def list_scenes(request: Request) -> list[dict]:
+    """Every scene of the scenes folder: name, description and whether it is valid (a file
+    that does not read is listed as invalid, with the reason)."""
     store = _store(request)
     return [store.summary(n) for n in store.names()]
 
 
 @router.get("/schema")
 def schema() -> dict:
+    """The scene's JSON schema: every field with its type, range, unit and description (the
+    page's scene form is built from it)."""
     return Scene.model_json_schema()
 
 
 @router.post("/validate", response_model=Validated, responses=documented(*BODY))
 def validate(body: SceneText, request: Request) -> dict:
+    """Check a scene's TOML without saving it: the scene as the solver reads it, or a 422
+    naming the field and the reason."""
     return {"ok": True, "scene": _store(request).validate(body.toml).model_dump(mode="json")}
 
 
@@ -166,12 +172,15 @@ def parse(body: SceneText) -> dict:
 @router.get("/{name:scene}", response_model=SceneDocument,
             responses=documented(404, *NAMED))
 def read_scene(name: ScenePath, request: Request) -> dict:
+    """A scene's TOML text and the scene as read from it."""
     return _read(_store(request), name)
 
 
 @router.post("", status_code=201, response_model=SceneDocument,
              responses={**CREATED, **documented(409, *BODY)})
 def create_scene(body: NewScene, request: Request, response: Response) -> dict:
+    """Save a new scene (validated first: nothing is written on a 422; 409 when the name is
+    taken)."""
     store = _store(request)
     store.create(body.name, body.toml)  # atomic: of two creates of one name, one wins
     response.headers["Location"] = f"/api/scenes/{body.name}"
@@ -181,6 +190,7 @@ def create_scene(body: NewScene, request: Request, response: Response) -> dict:
 @router.put("/{name:scene}", response_model=SceneDocument,
             responses=documented(*NAMED, *BODY))
 def update_scene(name: ScenePath, body: SceneText, request: Request) -> dict:
+    """Replace a scene's TOML (validated first: nothing is written on a 422)."""
     store = _store(request)
     store.save(name, body.toml)
     return _read(store, name)
@@ -188,6 +198,7 @@ def update_scene(name: ScenePath, body: SceneText, request: Request) -> dict:
 
 @router.delete("/{name:scene}", status_code=204, responses=documented(404, *NAMED))
 def delete_scene(name: ScenePath, request: Request) -> Response:
+    """Delete a scene file (its runs keep their own copy of the scene)."""
     _store(request).delete(name)
     return Response(status_code=204)
 

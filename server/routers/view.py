@@ -43,6 +43,7 @@ def _runs(request: Request) -> RunManager:
 
 @router.get("", response_model=View)
 def read_view(request: Request) -> dict:
+    """The run the page and the viewer show, or the scene the viewer previews instead."""
     return _runs(request).view()
 
 

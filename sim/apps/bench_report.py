@@ -93,8 +93,8 @@ def plastic_md(rows: list[dict]) -> str:
 def forming_md(rows: list[dict]) -> str:
     return ("`cup_drawing` (Q3T) run to the last timed step, where the punch nose, the die "
             "shoulder and the holder are in contact, with friction and plastic flow. Seconds "
-            "per Newton iteration over the timed steps; iterations per step include friction's "
-            "re-solves.\n\n" + markdown_table(rows, FORMING_COLS))
+            "per Newton iteration over the timed steps, and Newton iterations per step.\n\n"
+            + markdown_table(rows, FORMING_COLS))
 
 
 def bench_md(rows: list[dict]) -> str:

@@ -117,17 +117,16 @@ def run(args: argparse.Namespace) -> int:
 
 
 def report(result: dict, ref: dict, dev: dict[str, float], tolerance: float) -> str:
-    """Markdown: what the run cost (Newton iterations per step, friction's share, cut-backs,
-    wall time) and each quantity's deviation from the stored answers."""
+    """Markdown: what the run cost (Newton iterations per step, cut-backs, wall time) and
+    each quantity's deviation from the stored answers."""
     steps = result["steps"]
     its = np.array([s["iterations"] for s in steps])
-    friction = sum(s.get("friction_iterations", 0) for s in steps)
     t = result["timing"]
-    lines = ["| run | steps | Newton iterations | per step (mean / max) | of them friction's "
-             "re-solves | cut-backs | solver wall time [s] |", "|---|---|---|---|---|---|---|",
+    lines = ["| run | steps | Newton iterations | per step (mean / max) | cut-backs | "
+             "solver wall time [s] |", "|---|---|---|---|---|---|",
              f"| this | {len(steps)} | {its.sum()} | {its.mean():.1f} / {its.max()} | "
-             f"{friction} | {sum(s['cutbacks'] for s in steps)} | {t['total']:.1f} |",
-             f"| stored | {len(ref['steps'])} | {ref.get('newton_iterations')} | | | | |", "",
+             f"{sum(s['cutbacks'] for s in steps)} | {t['total']:.1f} |",
+             f"| stored | {len(ref['steps'])} | {ref.get('newton_iterations')} | | | |", "",
              f"| quantity | deviation (tolerance {tolerance:g}) |", "|---|---|"]
     lines += [f"| {name} | {d:.2e}{'' if d <= tolerance else ' (beyond)'} |"
               for name, d in dev.items()]

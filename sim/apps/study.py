@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.apps.cases import run_case
+from sim.apps.cases import element_overrides, run_case
 from sim.apps.common import BAD_INPUT, FAILED, OK, parse_sets, resolve_scene
 from sim.apps.factorisation import FACTOR_REPEAT, factorisation_report
 from sim.apps.overhead import OVERHEAD_REPEAT, terms_overhead
@@ -87,13 +87,13 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
     if sc.mesh.edge_length is None:
         raise ValueError(f"{sc.name}: mesh kind {sc.mesh.kind!r} has no edge_length to refine")
     if st is None:
-        notes.append("scene has no [study] table: first probe, edge lengths 4x, 2x, 1x its own")
+        notes.append("scene has no [study] table: its first probe"
+                     + ("" if levels else ", edge lengths 4x, 2x, 1x its own"))
         if not sc.probes:
             raise ValueError(f"{sc.name}: no probe to study")
     elements = elements or (st.elements if st else ["linear", "q3t", "quadratic"])
-    unknown = set(elements) - set(ELEMENTS)
-    if unknown:
-        raise ValueError(f"unknown element(s) {sorted(unknown)}; known: {sorted(ELEMENTS)}")
+    for spec in elements:
+        element_overrides(spec)  # ValueError naming a bad one
     e0 = sc.mesh.edge_length
     if not levels and not (st and st.edge_lengths):
         if st is not None:
@@ -196,9 +196,16 @@ def _finite(v: float) -> float | None:
     return v if math.isfinite(v) else None
 
 
+def _ratio(value: float | None, ref: float) -> float | None:
+    """A final value over the reference's: how far off, and on which side (stiffer below 1)."""
+    if value is None or not math.isfinite(value) or ref == 0:
+        return None
+    return value / ref
+
+
 def _case(plan: Plan, element: str, edge: float, budget: float | None) -> tuple:
-    o = {**plan.overrides, "shell.element": element, "mesh.edge_length": edge}
-    warm = {**plan.overrides, "shell.element": element, "mesh.edge_length": plan.levels[0]}
+    o = {**plan.overrides, **element_overrides(element), "mesh.edge_length": edge}
+    warm = {**o, "mesh.edge_length": plan.levels[0]}
     return (study_case, plan.scene, o, warm, budget)
 
 
@@ -251,6 +258,7 @@ def run_study(plan: Plan, progress: Callable[[str], None] = print, workers: int 
         final = r.get("probes", {}).get(m["probe"]) if m["measure"] != "profile" else None
         rows.append({"element": el, "edge_length": edge, "status": r["status"],
                      "elements": r.get("elements"), "dofs": r.get("dofs"), "probe": final,
+                     "ratio": _ratio(final, ref_value) if m["measure"] == "final" else None,
                      "error": _finite(case_error(r, ref_value, m)),
                      "time": r.get("build", 0.0) + r.get("wall", 0.0),
                      "solve_time": r.get("wall", 0.0), "iterations": r.get("iterations"),

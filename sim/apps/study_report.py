@@ -7,6 +7,7 @@ import math
 import os
 import platform
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -82,12 +83,80 @@ def markdown_table(rows: list[dict], cols: list[tuple[str, str, str]]) -> str:
 
 STUDY_COLS = [("element", "element", ""), ("edge_length", "edge [m]", ".5g"),
               ("elements", "triangles", "d"), ("dofs", "DoFs", "d"), ("probe", "probe", ".6g"),
-              ("error", "rel. error", ".3e"), ("time", "time [s]", ".3f"),
+              ("ratio", "probe / ref.", ".5f"), ("error", "rel. error", ".3e"),
+              ("time", "time [s]", ".3f"),
               ("iterations", "Newton it.", "d"), ("status", "status", "")]
 FACTOR_COLS = [("element", "element", ""), ("edge_length", "edge [m]", ".5g"),
                ("elements", "elements", "d"), ("nodes", "nodes", "d"), ("dofs", "DoFs", "d"),
                ("nnz_upper", "nnz (upper)", "d"), ("factorisation", "median [s]", ".4f"),
                ("factorisation_min", "min [s]", ".4f"), ("status", "status", "")]
+
+
+RATES = (0.05, 8.0)  # fitted rates searched; a mesh error shrinking slower or faster is noise
+
+
+def richardson(h: Sequence[float], w: Sequence[float]) -> tuple[float, float]:
+    """Richardson extrapolation with a fitted rate: w(h) = w_0 + C h^r through three levels
+    h[0] > h[1] > h[2] (any ratios); returns (w_0, r). ValueError when no rate in ``RATES``
+    fits: the three values are not monotone, or not yet in their asymptotic range."""
+    from scipy.optimize import brentq
+
+    if w[2] == w[1] or (w[1] - w[0]) / (w[2] - w[1]) <= 0:
+        raise ValueError("the values are not monotone")
+    target = (w[1] - w[0]) / (w[2] - w[1])
+
+    def mismatch(r: float) -> float:
+        return (h[1] ** r - h[0] ** r) / (h[2] ** r - h[1] ** r) - target
+
+    if mismatch(RATES[0]) * mismatch(RATES[1]) > 0:
+        raise ValueError(f"the steps between them shrink at no rate in {RATES[0]:g}-"
+                         f"{RATES[1]:g}")
+    r = brentq(mismatch, *RATES)
+    c = (w[2] - w[1]) / (h[2] ** r - h[1] ** r)
+    return float(w[2] - c * h[2] ** r), float(r)
+
+
+def _extrapolated(rows: list[dict], ref: float | None) -> dict:
+    """One element's finest three converged ``rows`` (coarse to fine) extrapolated."""
+    h, w = [r["edge_length"] for r in rows], [r["probe"] for r in rows]
+    out = {"element": rows[0]["element"], "edges": ", ".join(f"{x:.5g}" for x in h)}
+    try:
+        limit, rate = richardson(h, w)
+    except ValueError as exc:
+        return {**out, "fit": f"none: {exc}"}
+    return {**out, "rate": rate, "limit": limit, "fit": "",
+            "ratio": limit / ref if ref else None}
+
+
+def extrapolations(study: dict) -> list[dict]:
+    """Each element's final probe extrapolated to zero edge length through its three finest
+    converged levels (``richardson``), against the reference; none for a curve or profile
+    measure or an element with fewer than three levels."""
+    p = study["plan"]
+    if p["measure"]["measure"] != "final":
+        return []
+    ref = p["analytic"]["value"] if p["analytic"] else study["reference"].get("value")
+    out = []
+    for el in p["elements"]:
+        rows = sorted((r for r in study["rows"] if r["element"] == el
+                       and r["status"] == "converged" and r["probe"] is not None),
+                      key=lambda r: -r["edge_length"])[-3:]
+        if len(rows) == 3:
+            out.append(_extrapolated(rows, ref))
+    return out
+
+
+EXTRAPOLATION_COLS = [("element", "element", ""), ("edges", "levels [m]", ""),
+                      ("rate", "rate r", ".3f"), ("limit", "limit", ".6g"),
+                      ("ratio", "limit / ref.", ".4f"), ("fit", "fit", "")]
+
+
+def extrapolation_md(rows: list[dict]) -> str:
+    return ("Richardson extrapolation through each element's three finest levels, w(h) = w_0 + "
+            "C h^r with the rate r fitted to them (a rate outside about 1-3 means the levels are "
+            "not yet in their asymptotic range and the limit is noise):\n\n"
+            + markdown_table(rows, [c for c in EXTRAPOLATION_COLS
+                                    if c[0] != "fit" or any(r["fit"] for r in rows)]))
 
 
 def overhead_md(overheads: list[dict]) -> str:
@@ -156,6 +225,8 @@ def study_md(study: dict, overheads: list[dict], workers: int = 1,
           *[f"- overrides of every case: `{p['overrides']}`\n" for _ in [0] if p["overrides"]],
           *[f"- {n}\n" for n in notes], "\n" if notes or p["overrides"] else "",
           markdown_table(study["rows"], STUDY_COLS)]
+    if extrapolated := extrapolations(study):
+        md += ["\n## Extrapolated to zero edge length\n\n", extrapolation_md(extrapolated)]
     if overheads:
         md += ["\n## Leave out what a scene does not need\n\n", overhead_md(overheads)]
     return "".join(md)

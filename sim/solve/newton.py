@@ -53,6 +53,12 @@ class NewtonSettings:
     # below the sufficient decrease asked of that step (0: backtrack at once)
     watchdog: int = 1
     try_exact: bool = True  # exact Hessian when positive definite, projected otherwise
+    # a lagged quantity (friction's normal force, Term.lag_change) is refreshed at each
+    # iterate once the residual is below ``relag_below`` of the force level, and settled
+    # when it changes by at most ``lag_tol``; at most ``max_relags`` times per minimisation
+    relag_below: float = 1e-2
+    lag_tol: float = 1e-6
+    max_relags: int = 8
 
 
 @dataclass
@@ -129,6 +135,9 @@ class Newton:
     at_floor: int = 0  # iterations in a row at the round-off floor
     trial: Evaluation | None = None  # the full step's evaluation (Problem.evaluate at x + dx)
     watch: Watch | None = None
+    since: int = 0  # the first residual under the current lag (an earlier lag's do not count)
+    relags: int = 0
+    settled: bool = True  # the lagged quantities are x's to lag_tol (checked at the iterate)
 
     def result(self, x: np.ndarray, ok: bool, it: int, E: float, reason: str = "") -> NewtonResult:
         self.timing.iterations = it
@@ -201,13 +210,16 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
                 return step
             x, cached, _ = step
             continue
+        if not bad and nt.watch is None:
+            cur, bad = _relag(nt, cur, force_level, reactions)
         if bad:
             return nt.result(x0, False, it, cur.E, bad)
-        if cur.r <= settings.rtol * nt.ref:
+        if cur.r <= settings.rtol * nt.ref and nt.settled:
             return nt.result(x, True, it, cur.E)
         # real progress, besides an energy decrease above its noise (the line search's): the
-        # residual falling below all before it by a tenth, as in a linear convergence
-        stalled = len(nt.res) > 1 and cur.r >= 0.9 * min(nt.res[:-1])
+        # residual falling below all before it under this lag by a tenth, as in a linear
+        # convergence
+        stalled = len(nt.res) - nt.since > 1 and cur.r >= 0.9 * min(nt.res[nt.since:-1])
         dx = _direction(nt, cur, it)
         if isinstance(dx, NewtonResult):
             return dx
@@ -274,6 +286,28 @@ def _iterate(nt: Newton, x: np.ndarray, out: Evaluation, force_level: float,
     nt.ref = max(force_level, level, support)
     cur.scale = max(applied + float(np.linalg.norm(held.sum(0))), nt.ref)
     return cur, ""
+
+
+def _relag(nt: Newton, cur: Iterate, force_level: float,
+           reactions: bool) -> tuple[Iterate, str]:
+    """Near convergence, refresh what the energy lags (friction's normal force) from the
+    iterate, so the lag settles while Newton converges instead of in re-solves after it:
+    far from it the iterate's normal forces are not worth taking. A refresh changes the
+    energy, so the iterate is evaluated again (an assembly, not an iteration). Past
+    ``max_relags`` the lag stays, and the minimisation ends on the residual alone."""
+    s = nt.settings
+    if cur.r > s.relag_below * nt.ref or nt.relags == s.max_relags:
+        nt.settled = True
+        return cur, ""
+    nt.settled = nt.problem.lag_change(cur.x) <= s.lag_tol
+    if nt.settled:
+        return cur, ""
+    nt.problem.lag_change(cur.x, take=True)
+    nt.relags += 1
+    nt.res.pop()  # the iterate's residual under the old lag
+    nt.since = len(nt.res)
+    nt.floor = None  # measured under the old energy
+    return _iterate(nt, cur.x, nt.evaluate(cur.x), force_level, reactions)
 
 
 def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:

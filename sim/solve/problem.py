@@ -45,6 +45,11 @@ class Problem:
         """The energy of the barrier terms (contact) alone."""
         return sum((t.energy(x) for t in self.terms if t.barrier), 0.0)
 
+    def lag_change(self, x: np.ndarray, take: bool = False) -> float:
+        """The largest relative change of the terms' lagged quantities at x (Term.lag_change);
+        ``take``: they become x's."""
+        return max((t.lag_change(x, take) for t in self.terms), default=0.0)
+
     def gradient(self, x: np.ndarray) -> np.ndarray:
         g = np.zeros_like(x)
         for t in self.terms:

@@ -23,7 +23,6 @@ from sim.model.curves import load_factor
 from sim.scene.load import Scene
 from sim.solve.newton import NewtonResult, Timing, minimise
 from sim.stepping import parameters
-from sim.stepping.friction import settle_friction
 from sim.terms.tool_contact import ToolContact, quaternion_wxyz
 
 
@@ -49,10 +48,8 @@ class StepRecord:
     # per tool: force the sheet exerts on it (N), nodes in contact, deepest penetration (m), z
     tools: dict[str, dict] = field(default_factory=dict)
     # friction: how far from settled the lagged normal forces are at the state (largest change,
-    # relative to the largest force; settled at <= 1e-3, sim.stepping.friction)
+    # relative to the largest force; Newton settles them to lag_tol, sim.solve.newton)
     friction_change: float = 0.0
-    # of ``iterations``, those of friction's re-solves (sim.stepping.friction)
-    friction_iterations: int = 0
 
 
 @dataclass
@@ -247,22 +244,18 @@ class Simulation:
             dt /= 2
         return dt
 
-    def _settle(self, res: NewtonResult) -> tuple[np.ndarray, NewtonResult, int, float]:
-        """Settle friction's lagged normal force at a converged solve (re-solving from there,
-        sim.terms.tool_contact). Returns the settled state, the solve it comes from (the last
-        re-solve, or ``res``), the re-solves' Newton iterations, which belong to the step, and
-        how far from settled the state is (for the step record)."""
-        x, settled, extra, change = settle_friction(
-            self.model.problem, res.x, self.model.settings, max(self._force_level, res.ref),
-            self.timing, self.model.driven)
-        return x, settled or res, extra, change
+    def _lag_change(self, x: np.ndarray) -> float:
+        """How far friction's lagged normal forces are from those of the converged state x
+        (Newton settles them as it converges, sim.solve.newton; more than its lag_tol only
+        when it ran out of refreshes): the step record's ``friction_change``."""
+        return self.model.problem.lag_change(x)
 
-    def _commit(self, x: np.ndarray, res: NewtonResult, final: NewtonResult) -> None:
-        """Accept the settled state: every term commits its state (plastic flow) there."""
-        self.x = x
+    def _commit(self, res: NewtonResult) -> None:
+        """Accept the converged state: every term commits its state (plastic flow) there."""
+        self.x = res.x
         for term in self.model.terms:
-            term.commit(x)
-        self._force_level = max(self._force_level, res.ref, final.ref)
+            term.commit(res.x)
+        self._force_level = max(self._force_level, res.ref)
 
     def _release(self) -> StepRecord:
         """Springback: drop the loads and the released BCs, then solve static equilibrium
@@ -286,30 +279,28 @@ class Simulation:
             m.external.factor = 0.0
         res = minimise(m.problem, self.x, m.settings, self._force_level, m.driven)
         self.timing.add(res.timing)
-        iterations = res.iterations
         if not res.converged:
             self.failure = {"step": self.step_index + 1, "t": self.t, "cutbacks": 0,
                             "reason": f"release: {res.reason}", "iterations": res.iterations,
                             "residuals": res.residuals}
             self.wall += time.perf_counter() - start
             raise SolverFailure(self.failure)
-        x, final, extra, change = self._settle(res)
-        if deep := self._penetration(x):
+        change = self._lag_change(res.x)
+        if deep := self._penetration(res.x):
             self.failure = {"step": self.step_index + 1, "t": self.t, "cutbacks": 0,
-                            "reason": f"release: {deep}", "iterations": iterations + extra,
-                            "residuals": final.residuals}
+                            "reason": f"release: {deep}", "iterations": res.iterations,
+                            "residuals": res.residuals}
             self.wall += time.perf_counter() - start
             raise SolverFailure(self.failure)
-        self._commit(x, res, final)
-        res = final
+        self._commit(res)
         # what the added supports carry: nothing but the residual, when they are determinate
         g = m.problem.gradient(self.x)
         for s in self.release_support:
             s["force"] = -float(g[s["node"], "xyz".index(s["component"])])
         self.step_index += 1
-        rec = StepRecord(self.step_index, self.t, iterations + extra, res.residuals[-1],
+        rec = StepRecord(self.step_index, self.t, res.iterations, res.residuals[-1],
                          res.energy, 0, probes.evaluate(m, self.x, formed=self.formed),
-                         self._tool_reports(), change, extra)
+                         self._tool_reports(), change)
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start
@@ -371,20 +362,14 @@ class Simulation:
         # cut-backs count from the increment the tools' travel allows (it may already be a
         # fraction of the nominal one), so a fast punch keeps all of its cut-backs
         dt_min = self._travel_limit(nominal) / 2 ** self.model.scene.stepping.max_cutbacks
-        dt, cutbacks, iters, resolves = nominal, 0, 0, 0
+        dt, cutbacks, iters = nominal, 0, 0
         while self.t < t_target - 1e-12 * t_target:
             dt = self._travel_limit(min(dt, t_target - self.t))
             res = self._attempt(self.t + dt, dt)
             self.timing.add(res.timing)
             iters += res.iterations
-            if res.converged:
-                # the penetration bound is checked where the step ends: after friction's
-                # re-solves, which move the sheet along (and into) the tools
-                x, final, extra, change = self._settle(res)
-                iters += extra
-                resolves += extra
-                if deep := self._penetration(x):
-                    res.converged, res.reason = False, deep
+            if res.converged and (deep := self._penetration(res.x)):
+                res.converged, res.reason = False, deep
             if not res.converged:
                 # a load below the force round-off floor stays below it in any increment
                 hopeless = res.reason.startswith("load below force round-off floor")
@@ -398,9 +383,7 @@ class Simulation:
                 dt /= 2
                 continue
             before = self.x
-            self._commit(x, res, final)
-            res = final
-            # the predictor continues the settled increment, not the first solve's
+            self._commit(res)
             self._last_increment, self._last_dt = self.x - before, dt
             self.t += dt
             dt = min(2 * dt, nominal)  # grow back after a successful sub-step
@@ -409,8 +392,8 @@ class Simulation:
         self._stroked += 1
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iters, res.residuals[-1], res.energy, cutbacks,
-                         probes.evaluate(self.model, self.x), self._tool_reports(), change,
-                         resolves)
+                         probes.evaluate(self.model, self.x), self._tool_reports(),
+                         self._lag_change(self.x))
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start

@@ -25,6 +25,12 @@ class Term:
     def commit(self, x: np.ndarray) -> None:
         """Accept the converged state of the step (plastic state, velocities)."""
 
+    def lag_change(self, x: np.ndarray, take: bool = False) -> float:
+        """A term whose energy lags a quantity of the state (friction its normal force): how
+        far that quantity at x is from the lagged one, relative; ``take``: x's becomes the
+        lagged one (Newton refreshes it as it converges, sim.solve.newton). 0: no lag."""
+        return 0.0
+
     def energy(self, x: np.ndarray) -> float:
         raise NotImplementedError
 

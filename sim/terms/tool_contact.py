@@ -2,9 +2,10 @@
 Coulomb friction (sim.terms.contact_kernels), as one energy term. A scene builds one such term per
 tool and none without tools.
 
-Friction lags the normal force (sim.terms.contact_kernels): ``relag`` refreshes it from a
-converged state, and the stepping re-solves until it no longer changes
-(sim.stepping.friction), so a converged step slides with |f_t| = mu f_n of its own normal force.
+Friction lags the normal force (sim.terms.contact_kernels): ``lag_change(x, take=True)``
+refreshes it from a state, which Newton does at its iterates near convergence until it no
+longer changes (sim.solve.newton), so a converged step slides with |f_t| = mu f_n of its own
+normal force.
 
 The normal force is the C2 penalty (sim.terms.contact_kernels, ``c2=True``): its stiffness ramps up
 over a contact layer ``delta`` (2 % of the thickness) outside the tool surface instead of jumping by
@@ -142,7 +143,7 @@ class ToolContact(Term):
         self.R_now = rotation_matrix(self.rot_now)
         self._R0 = rotation_matrix(self.rot)
         # slip is measured from the state at the start of the step; friction lags the normal
-        # force of that state, refreshed within the step by settle_friction. (At rest a skin
+        # force of that state, refreshed within the step by Newton. (At rest a skin
         # placed on a tool sits in the contact layer and carries k delta: a first guess.)
         self._start = x[self.nodes].copy()
         self._start_u = x[self.vdof].copy() if self.vdof is not None else 0.0

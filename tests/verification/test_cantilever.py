@@ -6,6 +6,7 @@ import functools
 import numpy as np
 import pytest
 
+from sim.apps.study_report import richardson
 from sim.scene.load import load_scene
 from sim.stepping.simulation import Simulation
 
@@ -45,21 +46,6 @@ def test_q3t_close_to_reference_and_linear_locks_at_nu_049():
     assert ref / lin >= 1.5  # Poisson locking: measured 1.59x too stiff
 
 
-def _limit(h: np.ndarray, w: np.ndarray) -> tuple[float, float]:
-    """Richardson extrapolation with a fitted rate: w(h) = w_inf + C h^r through three levels
-    (any ratios); returns (w_inf, r)."""
-    from scipy.optimize import brentq
-
-    target = (w[1] - w[0]) / (w[2] - w[1])
-
-    def mismatch(r):
-        return (h[1] ** r - h[0] ** r) / (h[2] ** r - h[1] ** r) - target
-
-    r = brentq(mismatch, 0.05, 8.0)
-    c = (w[2] - w[1]) / (h[2] ** r - h[1] ** r)
-    return float(w[2] - c * h[2] ** r), float(r)
-
-
 @pytest.mark.slow
 def test_refinement_linear_converges_to_a_stiffer_answer():
     """Refining in-plane (one layer, as in Fig. 8) does not cure linear prisms: extrapolated to
@@ -71,8 +57,8 @@ def test_refinement_linear_converges_to_a_stiffer_answer():
     lin = np.array([tip("linear", 0.49, e) for e in edges]) / ref
     q3t = np.array([tip("q3t", 0.49, e) for e in edges]) / ref
     assert np.all(np.diff(lin) > 0) and np.all(np.diff(q3t) > 0)  # monotone: a limit to fit
-    lin_inf, lin_r = _limit(edges[1:], lin[1:])
-    q3t_inf, q3t_r = _limit(edges[1:], q3t[1:])
+    lin_inf, lin_r = richardson(edges[1:], lin[1:])
+    q3t_inf, q3t_r = richardson(edges[1:], q3t[1:])
     # measured rates 1.53 (linear) and 1.57 (Q3T), near the h^2 of linear in-plane
     # interpolation; a rate outside 1-3 would mean the fit is noise
     assert 1.0 < lin_r < 3.0 and 1.0 < q3t_r < 3.0

@@ -68,10 +68,10 @@ def test_penetration_bound_at_twice_the_design_pressure():
 
 
 def test_dragged_sheet_needs_mu_times_the_normal_force():
-    """Friction lags the normal force (IPC-style) and the step is re-solved with the normal
-    force of its converged state until that no longer changes (settle_friction), so from the
-    first step on the drag is mu times the normal force of the same step, while the pressure
-    ramps up (the normal force grows by 4 N each step)."""
+    """Friction lags the normal force (IPC-style) and Newton refreshes it from its iterates
+    near convergence until that no longer changes, so from the first step on the drag is mu
+    times the normal force of the same step, while the pressure ramps up (the normal force
+    grows by 4 N each step)."""
     mu = 0.3
     sim = sheet_on_ground(mu, 0.005)
     assert sim.run(), sim.failure
@@ -79,11 +79,11 @@ def test_dragged_sheet_needs_mu_times_the_normal_force():
     fx = np.array([r.probes["fx"] for r in sim.records])
     assert np.allclose(np.diff(fz), fz[0])  # the ramp
     # every node slides (slip per step 1.25 mm >> eps_v = 20 um), where the regularisation
-    # is exact; settle_friction's fixed point stops at a 1e-3 change of the normal force,
-    # here the first re-solve already reproduces it (friction leaves the normal force alone)
+    # is exact; Newton's refreshes stop at a 1e-3 change of the normal force, here the
+    # first already reproduces it (friction leaves the normal force alone)
     np.testing.assert_allclose(fx, -mu * fz, rtol=1e-6)
-    # how settled each step's friction is, in its record and result.json: the fixed point's
-    # last change of the normal forces (settled at 1e-3; a capped one says how far off)
+    # how settled each step's friction is, in its record and result.json: the last change of
+    # the normal forces (settled at 1e-3; one out of refreshes says how far off)
     change = [r.friction_change for r in sim.records]
     assert all(0.0 <= c < 1e-2 for c in change)
     assert [s["friction_change"] for s in sim.result()["steps"]] == change
