@@ -41,7 +41,7 @@ bench: $(STAMP)
 # Every measured table in docs/results/, each written and stamped (commit, date, CPU, load,
 # command) by the command that measures it (docs/results/README.md lists them). One after the
 # other, never side by side: they measure time. About 35 min on the 2-core machine, most of it
-# the forming bench.
+# the forming bench, plus the forming, springback and Fig. 4 sweeps (docs/results/README.md).
 R := docs/results
 results: $(STAMP)
 	$(BIN)/q3t check --results $(R)/check.md
