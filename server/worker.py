@@ -29,6 +29,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sim.frames.punch import plotted
+
 if TYPE_CHECKING:  # the solver is imported in the solver process only, when it starts
     from sim.scene.load import Scene
     from sim.stepping.simulation import Simulation
@@ -52,19 +54,6 @@ def _frame_msg(run: str | None, sim: Simulation) -> dict:
             "tool_rotations": {k: np.asarray(v, np.float32)  # (w, x, y, z)
                                for k, v in sim.tool_rotations().items()},
             "probes": f.probes, "iterations": f.iterations, "residual": f.residual}
-
-
-def _plotted(scene: Scene, sim: Simulation) -> dict:
-    """What the page's plots need of a run that its step records do not say: each punch's
-    start translation (its stroke is read from there, sim.frames.punch) and each probe's
-    kind (which says its unit)."""
-    from sim.scene.shapes import tool_role
-
-    starts = sim.tool_poses()
-    punches = {t.name: [float(c) for c in starts[t.name]] for t in scene.tools
-               if tool_role(t) == "punch" and t.name in starts}
-    return {"punches": punches,
-            "probe_kinds": {p.name: p.kind for p in scene.probes}}
 
 
 def plane_size(positions: np.ndarray) -> float:
@@ -179,7 +168,7 @@ class Solver:
                   counts=self.sim.result()["counts"], element=scene.shell.element,
                   probes=[p.name for p in scene.probes], tools=tools, timing=timing,
                   parameters=dict(self.sim.parameters), scaled=self.sim.scaled(),
-                  **_plotted(scene, self.sim))
+                  **plotted(scene, self.sim.tool_poses()))
         self.events.put(rest)  # the rest state, before the first step (which may take seconds)
         try:
             self.record("meta", self.sim.display.faces, tools)
@@ -204,6 +193,7 @@ class Solver:
             self.sim = Simulation.from_scene(scene)
             for name, value in (msg.get("parameters") or {}).items():
                 self.sim.set_parameter(name, value)
+            self.sim.save_frames(self.out / "frames", self.record_every)  # for its exports
             t1 = time.perf_counter()
             rest = _frame_msg(self.run, self.sim)
         except Exception as exc:

@@ -1,11 +1,12 @@
 // The selected run's headline and plots: its state and progress, its summary (peak punch
 // force, thinning, draw-in, ... as result.json has them), the solver's cost as a secondary
-// line, and the plots, redrawn as steps arrive. What is shown is read from the server.
+// line, its downloads (CSV, VTU, STL, PLY, JSON) once it has ended, and the plots, redrawn as
+// steps arrive. What is shown is read from the server.
 "use strict";
 const Results = (() => {
   const ACTIVE = ["starting", "building", "running", "paused"];
   // what is drawn, so a poll redraws only what changed: "run@step/state" per part
-  const drawn = { plots: null, summary: null, fld: null };
+  const drawn = { plots: null, summary: null, fld: null, downloads: null };
   let plotsData = null;
   let shown = null;  // the run whose numbers are on screen
 
@@ -159,6 +160,92 @@ const Results = (() => {
     box.replaceChildren(...kids);
   }
 
+  // ---- the downloads ----------------------------------------------------------------------
+  // what each export is, on its link (the server's list says which the run has)
+  const EXPORTS = { csv: "Probes CSV", vtu: "ParaView VTU (zip)", stl: "Part STL",
+                    ply: "Part PLY", json: "Summary JSON", png: "3-D view PNG" };
+
+  async function showDownloads(st) {
+    // a run's results as files, once it has ended: they are complete then
+    const box = document.getElementById("downloads");
+    box.hidden = false;
+    box.dataset.run = st.id;
+    if (ACTIVE.includes(st.state)) {
+      drawn.downloads = null;
+      box.dataset.ready = "false";
+      const wait = document.createElement("span");
+      wait.className = "muted";
+      wait.textContent = "Downloads (CSV, VTU, STL, PLY, JSON) when the run ends.";
+      box.replaceChildren(wait);
+      return;
+    }
+    const k = `${st.id}/${st.state}`;
+    if (drawn.downloads === k) return;
+    let ex;
+    try {
+      ex = await api("GET", `/api/runs/${st.id}/exports`);
+    } catch (e) {
+      if (e.status !== 404) throw e;
+      return;  // the run was deleted meanwhile
+    }
+    if (st.id !== shown) return;
+    drawn.downloads = k;
+    const head = document.createElement("span");
+    head.className = "muted";
+    head.textContent = "Download:";
+    const note = document.createElement("span");
+    note.className = "note error";
+    box.replaceChildren(head, ...ex.formats.map(downloadLink), note);
+    box.dataset.ready = "true";
+  }
+
+  async function downloadView(ev) {
+    // the PNG is rendered by a browser showing the run (this page's 3-D view, usually): asked
+    // for here, so a refusal is said on the page instead of being saved as a file
+    ev.preventDefault();
+    const a = ev.currentTarget, note = document.querySelector("#downloads .note");
+    note.textContent = "";
+    a.dataset.busy = "true";
+    try {
+      const r = await fetch(a.href);
+      if (!r.ok) {
+        const d = await r.json().catch(() => null);
+        note.textContent = `PNG: ${(d && d.detail) || r.statusText}`;
+        return;
+      }
+      const url = URL.createObjectURL(await r.blob());
+      const save = document.createElement("a");
+      save.href = url;
+      save.download = `${document.getElementById("downloads").dataset.run}.png`;
+      save.click();
+      setTimeout(() => URL.revokeObjectURL(url), 10000);
+    } finally {
+      a.dataset.busy = "false";
+    }
+  }
+
+  function downloadLink(f) {
+    // an export the run has is a link; one it lacks says why on hover
+    const label = EXPORTS[f.format] || f.format;
+    if (!f.available) {
+      const span = document.createElement("span");
+      span.className = "unavailable";
+      span.dataset.format = f.format;
+      span.textContent = label;
+      span.title = f.reason || "";
+      return span;
+    }
+    const a = document.createElement("a");
+    a.href = f.url;
+    a.setAttribute("download", "");
+    a.dataset.format = f.format;
+    a.textContent = label;
+    a.title = f.format === "png" ? f.description :
+      `${f.description} (lengths in mm, forces in kN, stresses in MPa)`;
+    if (f.format === "png") a.addEventListener("click", downloadView);
+    return a;
+  }
+
   // ---- the plots --------------------------------------------------------------------------
   async function showPlots(st) {
     const k = key(st);
@@ -209,7 +296,7 @@ const Results = (() => {
     // another run is shown: nothing of the last one may stay on screen (and an answer about
     // it that arrives later is dropped: it is no longer ``shown``)
     shown = null;
-    drawn.plots = drawn.summary = drawn.fld = null;
+    drawn.plots = drawn.summary = drawn.fld = drawn.downloads = null;
     plotsData = null;
     for (const f of ["force", "probes", "section", "fld"]) {
       Plots.show(`${f}-fig`, false);
@@ -222,6 +309,8 @@ const Results = (() => {
     document.getElementById("summary").replaceChildren();
     document.getElementById("estimate").hidden = true;
     document.getElementById("estimate").replaceChildren();
+    document.getElementById("downloads").hidden = true;
+    document.getElementById("downloads").replaceChildren();
   }
 
   async function show(st) {
@@ -233,6 +322,7 @@ const Results = (() => {
     showProgress(st);
     showEstimate(st);
     await showSummary(st);
+    await showDownloads(st);
     if (!window.Plotly) {
       // /static/vendor/plotly.min.js comes from the plotly Python package
       document.getElementById("no-plots").textContent = "No plots: plotly.js did not load " +

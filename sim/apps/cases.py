@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 from multiprocessing.context import ForkServerContext, ForkServerProcess
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -35,7 +36,7 @@ class _OverBudget(Exception):
 
 def run_case(scene_path: str, overrides: dict, series: bool = False,
              measure: Callable[[Simulation], dict] | None = None,
-             budget: float | None = None) -> dict:
+             budget: float | None = None, out_dir: str | None = None) -> dict:
     """Run one scene with ``overrides``; a summary that pickles small (no arrays).
 
     status: ``converged``, ``failed`` (solver diagnostic in ``reason``), ``invalid`` (the scene
@@ -44,6 +45,7 @@ def run_case(scene_path: str, overrides: dict, series: bool = False,
     run stops after the step that used it up, so a single step is never cut short).
     ``series``: also every step's time and probes (``history``) and the recorded sections.
     ``measure(sim) -> dict``, when given, adds its numbers as ``measured`` after the run.
+    ``out_dir``: the case's folder (``write_case``) is written there once the run has ended.
     """
     from sim.scene.load import load_scene
     from sim.stepping.simulation import Simulation
@@ -56,6 +58,7 @@ def run_case(scene_path: str, overrides: dict, series: bool = False,
         out["reason"] = str(exc)
         return out
     out["build"] = time.perf_counter() - t0
+    starts = sim.tool_poses()  # where the punches' strokes start (case.json)
     def check_budget(sim: Simulation, rec: StepRecord) -> None:
         spent = time.perf_counter() - t0
         if spent > budget and not sim.done:
@@ -98,7 +101,27 @@ def run_case(scene_path: str, overrides: dict, series: bool = False,
         out["status"] = "converged"
     else:
         out.update(status="nan", reason="non-finite probe after a converged run")
+    if out_dir is not None:
+        write_case(sim, scene_path, out, starts, Path(out_dir))
     return out
+
+
+def write_case(sim: Simulation, scene_path: str, row: dict, starts: dict[str, np.ndarray],
+               folder: Path) -> None:
+    """A case's folder, which the service opens as a finished run (server/sweeps.py): the
+    scene file as it was (scene.toml), result.json and final.npz (``Simulation.write``), and
+    case.json: the row's overrides, status and reason, and what the plots need that the step
+    records do not say (``sim.frames.punch.plotted`` of the tools' ``starts``). case.json is
+    written last: a folder with case.json is complete."""
+    from sim.frames import results
+    from sim.frames.punch import plotted
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "scene.toml").write_text(Path(scene_path).read_text())
+    sim.write(folder)
+    case = {"overrides": row["overrides"], "status": row["status"], "reason": row.get("reason"),
+            **plotted(sim.model.scene, starts)}
+    results.write(folder / "case.json", case)
 
 
 def _invalid_row(overrides: dict, reason: str | None) -> dict:
@@ -177,26 +200,28 @@ def force_balance(sim: Simulation) -> dict:
             "balance": abs(support - applied) / scale if scale > 0 else 0.0, "floor": floor}
 
 
-def _child(conn: Connection, scene_path: str, overrides: dict) -> None:
+def _child(conn: Connection, scene_path: str, overrides: dict, out_dir: str | None) -> None:
     # on SIGTERM exit through Python, so numba's process lock is released and not reported as a
     # leaked semaphore; a child stuck in a kernel gets SIGKILL after a grace period
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
-        conn.send(run_case(scene_path, overrides, measure=force_balance))
+        conn.send(run_case(scene_path, overrides, measure=force_balance, out_dir=out_dir))
     except Exception as exc:  # noqa: BLE001 - anything but a diagnosed failure is a crash
         conn.send({"status": "crashed", "reason": f"{type(exc).__name__}: {exc}", "probes": {}})
 
 
 def run_isolated(scene_path: str, overrides: dict, budget: float,
-                 ctx: ForkServerContext | WatchedContext | None = None) -> dict:
+                 ctx: ForkServerContext | WatchedContext | None = None,
+                 out_dir: str | None = None) -> dict:
     """``run_case`` in a child process, with its ``force_balance`` as ``measured``; killed
     after ``budget`` seconds (status ``timeout``). The budget and ``elapsed`` start once the
     child is forked: the first ``start`` also starts the forkserver, whose imports are no
     case's time. ``ctx``: ``isolated_context()`` by default, a ``WatchedContext`` on a Dask
-    worker."""
+    worker. ``out_dir``: the case's folder (``write_case``)."""
     ctx = ctx or isolated_context()
     parent, child = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, args=(child, scene_path, overrides), daemon=True)
+    p = ctx.Process(target=_child, args=(child, scene_path, overrides, out_dir),
+                    daemon=True)
     p.start()
     t0 = time.perf_counter()
     child.close()

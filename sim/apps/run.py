@@ -27,6 +27,8 @@ def run(args: argparse.Namespace) -> int:
     overrides = parse_sets(args.set)
     if args.element:
         overrides["shell.element"] = args.element
+    if args.record_every < 1:
+        raise SceneError(f"--record-every: {args.record_every} is not a number of steps >= 1")
     if not 0 < args.max_memory < float("inf"):
         raise SceneError(f"--max-memory: {args.max_memory:g} GiB is not a positive size")
     scene = load(args.scene, overrides)  # SceneError: exit 2 (sim.apps.cli.main)
@@ -48,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     c = sim.result()["counts"]
     print(f"{scene.name}: {scene.shell.element}, {c['elements']} elements, {c['dofs']} DoFs, "
           f"solver {sim.model.built['linear_solver']}", file=sys.stderr)
+    sim.save_frames(out / "frames", args.record_every)  # the time series q3t export reads
     progress = Progress(sys.stderr, sys.stderr.isatty())
     sim.run(progress=None if args.quiet else progress)
     progress.close()
@@ -92,6 +95,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="override a scene value, e.g. material.nu=0.3 (repeatable)")
     r.add_argument("--out", help="output folder (default runs/<scene>-<element>-<time>)")
     r.add_argument("--quiet", action="store_true")
+    r.add_argument("--record-every", type=int, default=10, metavar="N",
+                   help="save the state to OUT/frames every N steps and at the end (default "
+                        "%(default)s, as q3t serve records): the time series of q3t export")
     r.add_argument("--max-memory", type=float, default=DEFAULT_LIMIT / 2**30, metavar="GIB",
                    help="refuse a scene whose model would need more memory to build (GiB; "
                         "default %(default)g: half of a 24 GiB machine)")

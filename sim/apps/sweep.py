@@ -1,7 +1,9 @@
 """``q3t sweep``: the cartesian product of scene overrides, one Dask task per case.
 
-Each task runs one case and returns a small dict (``run_case``): a case whose scene is invalid
-or whose solver fails is a row of the table, never the end of the sweep. By default a
+Each task runs one case, writes its folder ``cases/NNN`` (result.json, final.npz, scene.toml,
+case.json: the service opens it as a run to compare, server/sweeps.py) and returns a small dict
+(``run_case``): a case whose scene is invalid or whose solver fails is a row of the table,
+never the end of the sweep. By default a
 ``LocalCluster`` of single-threaded worker processes runs the cases; ``--scheduler`` sends them
 to an existing cluster instead (its workers need this package).
 
@@ -34,17 +36,19 @@ from sim.stamp import Stamp, add_results_option, write_results
 DEFAULT_BUDGET = 600.0  # s per case: the slowest shipped scene at its default size takes ~60 s
 
 
-def isolated_case(scene_path: str, overrides: dict, budget: float) -> dict:
-    """``run_case`` in a child process killed after ``budget`` s (runs on a Dask worker).
+def isolated_case(scene_path: str, overrides: dict, budget: float,
+                  out_dir: str | None = None) -> dict:
+    """``run_case`` in a child process killed after ``budget`` s (runs on a Dask worker);
+    ``out_dir``: the case's folder (``sim.apps.cases.write_case``).
 
     A daemonic worker (an external cluster's default) may not start children: the case then
     runs in the worker itself, without a budget, and the row says so."""
     if mp.current_process().daemon:
-        out = run_case(scene_path, overrides)
+        out = run_case(scene_path, overrides, out_dir=out_dir)
         out["budget"] = ("none: daemonic Dask worker (start it with "
                          "DASK_DISTRIBUTED__WORKER__DAEMON=False)")
         return out
-    out = run_isolated(scene_path, overrides, budget, WatchedContext())
+    out = run_isolated(scene_path, overrides, budget, WatchedContext(), out_dir)
     out.setdefault("overrides", dict(overrides))
     out["budget"] = budget
     return out
@@ -89,9 +93,12 @@ def cases(grid: dict[str, list], fixed: dict | None = None) -> list[dict]:
 def run_sweep(scene_path: str, overrides: list[dict], workers: int = 2,
               scheduler: str | None = None, timeout: float | None = None,
               budget: float = DEFAULT_BUDGET,
-              on_result: Callable[[int, dict], None] | None = None) -> tuple[list[dict], bool]:
+              on_result: Callable[[int, dict], None] | None = None,
+              out: Path | None = None) -> tuple[list[dict], bool]:
     """Every case with a valid scene through ``isolated_case`` (see ``run_tasks``); the others
-    are ``invalid`` rows at once (``scene_row``), and never reach the cluster."""
+    are ``invalid`` rows at once (``scene_row``), and never reach the cluster. ``out``: case
+    ``i`` writes its folder ``out/case_folder(i)`` (its row's ``folder``), which the service
+    opens as a run."""
     rows = [scene_row(scene_path, o) for o in overrides]
     todo = [i for i, r in enumerate(rows) if r is None]
     for i, r in enumerate(rows):
@@ -100,12 +107,24 @@ def run_sweep(scene_path: str, overrides: list[dict], workers: int = 2,
     if not todo:
         return rows, True
     done, finished = run_tasks(
-        [(isolated_case, scene_path, overrides[i], budget) for i in todo],
+        [(isolated_case, scene_path, overrides[i], budget,
+          None if out is None else str(out.resolve() / case_folder(i))) for i in todo],
         [{"overrides": overrides[i]} for i in todo], workers, 1, scheduler, timeout,
-        on_result and (lambda k, row: on_result(todo[k], row)))
+        on_result and (lambda k, row: on_result(todo[k], _placed(row, todo[k], out))))
     for k, i in enumerate(todo):
-        rows[i] = done[k]
+        rows[i] = _placed(done[k], i, out)
     return rows, finished
+
+
+def case_folder(i: int) -> str:
+    return f"cases/{i:03d}"
+
+
+def _placed(row: dict, i: int, out: Path | None) -> dict:
+    """The row with its case folder (relative to the sweep's), once the case has written it."""
+    if out is not None and (out / case_folder(i) / "case.json").is_file():
+        row["folder"] = case_folder(i)
+    return row
 
 
 def table(rows: list[dict], grid_keys: list[str]) -> str:
@@ -224,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
                                    "cases": [done[k] for k in sorted(done)]})
 
     rows, finished = run_sweep(scene, todo, args.workers, args.scheduler, args.timeout,
-                               args.budget, partial)
+                               args.budget, partial, out)
     wall = time.perf_counter() - t0
     keys = list(grid)
     md = table(rows, keys)

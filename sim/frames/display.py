@@ -24,9 +24,13 @@ class DisplayMesh:
 
     @classmethod
     def from_shell(cls, shell: Shell) -> DisplayMesh:
-        n_v = shell.n_vertices
-        F = shell.mesh.faces
-        top, bot = shell.skin_nodes(True), shell.skin_nodes(False)
+        return cls.from_skins(shell.mesh.faces, shell.skin_nodes(True), shell.skin_nodes(False))
+
+    @classmethod
+    def from_skins(cls, F: np.ndarray, top: np.ndarray, bot: np.ndarray) -> DisplayMesh:
+        """Of the mid-surface faces ``F (n_f, 3)`` and the top and bottom skin node of each
+        mid-surface vertex ``(n_v,)`` (an export reads them from a run's files)."""
+        n_v = len(top)
         faces = [F, F[:, ::-1] + n_v]
         # rim: each boundary edge (a, b) in its face's orientation gives a quad top-a, top-b,
         # bottom-b, bottom-a

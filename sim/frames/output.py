@@ -10,7 +10,7 @@ from typing import Protocol
 
 import numpy as np
 
-from sim.frames import fields, forming_limits, results
+from sim.frames import fields, forming_limits, results, series
 from sim.frames.display import DisplayMesh
 from sim.model.build import Model, frame_fields
 from sim.solve.newton import Timing
@@ -19,12 +19,15 @@ from sim.solve.newton import Timing
 class RunSummary(Protocol):
     def result(self, sim: Run) -> list[dict]: ...
 
+    def punch_starts(self) -> dict[str, list[float]]: ...
+
 
 class Run(Protocol):
     """What this module reads of a run: sim.stepping.simulation.Simulation, which imports it."""
 
     model: Model
     x: np.ndarray
+    series: series.FrameSeries | None  # the frames it saves, if it does
     h0: np.ndarray  # rest thickness per mid-surface vertex (n_v,)
     t: float
     step_index: int
@@ -119,6 +122,11 @@ def _result(sim: Run) -> dict:
         # component, position (m) where the release started, force (N) once released
         "release_support": sim.release_support,
         "steps": [asdict(r) for r in sim.records],
+        # what the step records' numbers need to be read: each punch's start translation (m;
+        # its stroke is its travel from there, sim.frames.punch) and each probe's kind (its
+        # unit, sim.frames.probes), as the server's run.json has them
+        "punches": sim.summary.punch_starts(),
+        "probe_kinds": {p.name: p.kind for p in m.scene.probes},
         "sections": sim.sections,
         "fields": fields.field_summary(fields.output_fields(m, sim.x, sim.h0)),
         "summary": sim.summary.result(sim),
@@ -161,14 +169,17 @@ def forming_limit_diagram(sim: Run) -> dict | None:
 
 def write(sim: Run, out: Path) -> dict:
     """result.json and final.npz, each written to a temporary name first so an interrupted
-    run never leaves a half-written file. Returns the result written."""
+    run never leaves a half-written file, and the last frame of the run's series (when it saves
+    one) unless saved already. Returns the result written. final.npz: the rest and deformed
+    positions of every node, the faces, the element connectivity, each mid-surface vertex's
+    top and bottom skin node (``skins (2, n_v)``), the rest thickness and the result fields."""
     out.mkdir(parents=True, exist_ok=True)
     sh = sim.model.shell
-    tmp = out / "final.tmp.npz"
-    np.savez_compressed(tmp, rest=sh.rest, deformed=sim.x[: sh.n_nodes],
-                        faces=sh.mesh.faces, conn=sh.conn, rest_thickness=sim.h0,
-                        **fields.output_fields(sim.model, sim.x, sim.h0))
-    tmp.replace(out / "final.npz")
+    series.save_npz(out / "final.npz", rest=sh.rest, deformed=sim.x[: sh.n_nodes],
+                    faces=sh.mesh.faces, conn=sh.conn, skins=series.skins(sim.model),
+                    rest_thickness=sim.h0, **fields.output_fields(sim.model, sim.x, sim.h0))
     res = sim.result()
     results.write(out / "result.json", res)
+    if sim.series is not None:
+        sim.series.observe(sim, last=True)
     return res

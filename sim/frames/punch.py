@@ -4,7 +4,12 @@ reads it of a live run's records without importing the solver."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from sim.scene.load import Scene
 
 
 def punch_history(rows: list[tuple[int, dict]], start: np.ndarray) -> dict:
@@ -21,3 +26,14 @@ def punch_history(rows: list[tuple[int, dict]], start: np.ndarray) -> dict:
                 "direction": None}
     d = T[int(np.argmax(reach))] / reach.max()
     return {"steps": steps, "force": -F @ d, "stroke": T @ d, "direction": d}
+
+
+def plotted(scene: Scene, starts: dict[str, np.ndarray]) -> dict:
+    """What a run's plots need that its step records do not say: each punch's start
+    translation ``starts[name]`` (its stroke is read from there) and each probe's kind (which
+    says its unit). The service's run.json and a sweep's case folders keep it."""
+    from sim.scene.shapes import tool_role
+
+    punches = {t.name: [float(c) for c in starts[t.name]] for t in scene.tools
+               if tool_role(t) == "punch" and t.name in starts}
+    return {"punches": punches, "probe_kinds": {p.name: p.kind for p in scene.probes}}

@@ -192,6 +192,10 @@ class Summary:
     def names(self) -> list[str]:
         return applicable(self.have)
 
+    def punch_starts(self) -> dict[str, list[float]]:
+        """Each punch's start translation (m): its stroke is its travel from there."""
+        return {t.tool: self.starts[t.tool].tolist() for t in tools_of(self.model, "punch")}
+
     def observe(self, sim: Run) -> None:
         """After each step of the stroke, while the edge is a flange: its waviness. The edge
         has left the die's face (into its opening, around its shoulder) once a vertex has moved

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.frames import fields, output, probes, results, summary
+from sim.frames import fields, output, probes, results, series, summary
 from sim.frames.display import DisplayMesh
 from sim.frames.output import Frame
 from sim.geometry.rigid import determinate_support
@@ -109,6 +109,7 @@ class Simulation:
         self.progress = 0.0  # planned steps of the stroke covered (tool_speed per step)
         self._stroked = 0  # steps of the stroke made
         self._record_sections()  # the rest state, when a section asks for step 0
+        self.series: series.FrameSeries | None = None  # the frames saved (save_frames)
 
     @property
     def stroke_steps(self) -> int:
@@ -347,7 +348,23 @@ class Simulation:
                             "iterations": rec.iterations, "residuals": []}
             raise SolverFailure(self.failure)
         self.summary.observe(self)
+        self._save_frame(rec)
         return rec
+
+    def save_frames(self, folder: Path, every: int) -> None:
+        """Save the state into ``folder`` now, every ``every`` steps and at the end
+        (sim.frames.series): the run's time series."""
+        self.series = series.FrameSeries(folder, every, self)
+
+    def _save_frame(self, rec: StepRecord) -> None:
+        """A frame that cannot be saved fails the run, naming why (as a recording does)."""
+        if self.series is None:
+            return
+        try:
+            self.series.observe(self, last=self.done)
+        except OSError as exc:
+            self.end(f"saving the frame of step {rec.step} failed: {exc}", stopped=False)
+            raise SolverFailure(self.failure) from exc
 
     def _advance(self) -> StepRecord:
         """Advance one nominal step, halving the increment on failure and doubling it back

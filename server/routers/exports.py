@@ -1,0 +1,162 @@
+"""/api/runs/{id}/export/{format}: a run's results as files other tools read (sim.frames.export):
+the probes as CSV, the final state and the saved frames as VTU with a PVD time series (a zip),
+the formed part as STL or PLY, the summary as JSON. Made on request from the run's folder, in a
+worker thread (the routes are plain functions): the server never blocks on one. And a PNG of the
+3-D view, rendered by a browser that has it open (viser's render API: the server draws
+nothing itself)."""
+
+from __future__ import annotations
+
+import io
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Literal
+
+from fastapi import APIRouter, Request, Response
+from pydantic import BaseModel, Field
+
+from server.errors import CheckedRoute, documented
+from server.problems import Conflict, NotFound, NotReady
+from server.records import ACTIVE, Run
+from server.runs import RunManager
+from server.settings import RunId
+from sim.frames import export
+
+router = APIRouter(prefix="/api/runs", tags=["exports"], route_class=CheckedRoute)
+Format = Literal[tuple(export.FORMATS)]
+# the media type and file name (after the run's id) of each format's download
+MEDIA = {"csv": ("text/csv; charset=utf-8", ".csv"), "json": ("application/json", "_summary.json"),
+         "stl": ("model/stl", ".stl"), "ply": ("application/octet-stream", ".ply"),
+         "vtu": ("application/zip", "_vtu.zip")}
+VIEWER_OFF = "the viewer is off (the server runs without it): no 3-D view to capture"
+PNG = "a PNG of the 3-D view as a browser shows it (its camera, colours and step)"
+# s: a browser renders in software at a few frames a second; one that never answers is a 503
+RENDER_TIMEOUT = 60.0
+
+
+class Export(BaseModel):
+    format: str = Field(description="csv, vtu, stl, ply, json, or png (the 3-D view)")
+    description: str
+    url: str
+    available: bool
+    reason: str | None = Field(description="why it is not available (the run is still going, "
+                               "or ended before it had a final state)")
+
+
+class Exports(BaseModel):
+    run: str
+    formats: list[Export]
+
+
+def _ended(request: Request, run_id: str) -> tuple[Run, Path]:
+    """The run and its folder; 404 for no such run, 409 while it is going."""
+    m: RunManager = request.app.state.manager
+    run = m.get(run_id)
+    if run.state in ACTIVE:
+        raise Conflict(f"run {run_id!r} is {run.state}: its results are complete when it ends")
+    return run, m.files.dir(run.id)
+
+
+def _why_not(folder: Path) -> dict[str, str | None]:
+    """Why the run in ``folder`` cannot be exported in each format (None: it can)."""
+    try:
+        run = export.open_run(folder)
+    except export.ExportError as exc:
+        return dict.fromkeys(export.FORMATS, str(exc))
+    return {fmt: export.missing(run, fmt) for fmt in export.FORMATS}
+
+
+@router.get("/{run_id}/exports", response_model=Exports, responses=documented(404, 422))
+def exports(run_id: RunId, request: Request) -> dict:
+    """The formats the run can be downloaded in, each with its URL, and why one is not
+    available (a run still going has none yet)."""
+    m: RunManager = request.app.state.manager
+    run = m.get(run_id)
+    folder = m.files.dir(run.id)
+    going = f"the run is {run.state}: its results are complete when it ends"
+    why_not = dict.fromkeys(export.FORMATS, going) if run.state in ACTIVE else _why_not(folder)
+    out = []
+    for fmt, text in export.FORMATS.items():
+        why = why_not[fmt]
+        out.append({"format": fmt, "description": text, "available": why is None,
+                    "reason": why, "url": f"/api/runs/{run.id}/export/{fmt}"})
+    # the PNG needs a browser showing the run when it is asked for: offered while the viewer
+    # is on (its answer says why not, if no browser shows the run then)
+    why = None if m.viewer else VIEWER_OFF
+    out.append({"format": "png", "description": PNG, "available": why is None, "reason": why,
+                "url": f"/api/runs/{run.id}/export/png"})
+    return {"run": run.id, "formats": out}
+
+
+def _viewer_client(m: RunManager, run_id: str) -> object:
+    """The browser whose 3-D view shows ``run_id`` (the newest connected); Conflict saying
+    why there is none."""
+    v = m.viewer
+    if v is None:
+        raise Conflict(VIEWER_OFF)
+    if v.selected != run_id or v.mode == "preview":
+        shown = "a scene's preview" if v.mode == "preview" else f"run {v.selected!r}"
+        raise Conflict(f"the 3-D view shows {shown}, not run {run_id!r}: select the run first")
+    clients = v.server.get_clients()
+    if not clients:
+        raise Conflict("no browser has the 3-D view open: the image is rendered by a "
+                       "browser's viewer (open the page)")
+    return clients[max(clients)]
+
+
+# before /export/{format}, which would answer png with a 422
+@router.get("/{run_id}/export/png", response_class=Response, responses={
+    **documented(404, 409, 422, 503),
+    200: {"description": "The 3-D view as PNG", "content": {"image/png": {}}}})
+def view_png(run_id: RunId, request: Request) -> Response:
+    """A PNG of the 3-D view of the run, as the browser that has it open shows it (its
+    camera, colour mode and step), rendered by that browser: 409 when no browser shows the run
+    (the viewer off, another run shown, no page open), 503 when it does not answer in time."""
+    import imageio.v3 as iio  # viser's dependency, loaded with the viewer
+
+    m: RunManager = request.app.state.manager
+    run = m.get(run_id)
+    client = _viewer_client(m, run.id)
+    # the browser's camera at its canvas height, at least 4:3 wide (the page docks the
+    # viewer's panel beside a narrow canvas; the camera's vertical field of view is kept)
+    h = client.camera.image_height or 720
+    try:
+        image = client.get_render(h, max(client.camera.image_width, h * 4 // 3),
+                                  transport_format="png", timeout=RENDER_TIMEOUT)
+    except TimeoutError:
+        raise NotReady(f"the browser showing the 3-D view did not render it in "
+                       f"{RENDER_TIMEOUT:g} s") from None
+    return Response(iio.imwrite("<bytes>", image, extension=".png"), media_type="image/png",
+                    headers={"Content-Disposition": f'attachment; filename="{run.id}.png"'})
+
+
+@router.get("/{run_id}/export/{format}", response_class=Response, responses={
+    **documented(404, 409, 422),
+    200: {"description": "The file: CSV, JSON, STL, PLY, or a zip of the VTU files and their "
+                         "PVD", "content": {m: {} for m, _ in MEDIA.values()}}})
+def export_run(run_id: RunId, format: Format, request: Request) -> Response:
+    """The run's results as ``format``: ``csv`` the probes per step (time, each punch's stroke
+    and force, every probe; units in the header), ``vtu`` a zip of the final state and the
+    frames the run saved as VTU with a ``.pvd`` time series for ParaView, ``stl`` / ``ply``
+    the formed part (the closed surface of the deformed sheet, mm), ``json`` the summary.
+    Lengths in mm, forces in kN, stresses in MPa."""
+    run, folder = _ended(request, run_id)
+    media, suffix = MEDIA[format]
+    with tempfile.TemporaryDirectory(prefix="q3t-export-") as tmp:
+        try:
+            written = export.export(folder, format, Path(tmp))
+        except export.ExportError as exc:  # no result.json or final.npz: nothing to export
+            raise NotFound(str(exc)) from None
+        data = _zip(Path(tmp), written) if format == "vtu" else written[0].read_bytes()
+    return Response(data, media_type=media, headers={
+        "Content-Disposition": f'attachment; filename="{run.id}{suffix}"'})
+
+
+def _zip(root: Path, files: list[Path]) -> bytes:
+    """The files, by their paths under ``root`` (the PVD names the VTU files so)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
+        for f in files:
+            z.write(f, f.relative_to(root).as_posix())
+    return buf.getvalue()

@@ -1,0 +1,230 @@
+"""The Compare panel and view in Debian's chromium (Playwright) against the real server in a
+subprocess, with three finished runs of a small cup (tests.support.scenes.tiny_cup_toml): as
+written, with half the friction, and with linear elements; and a q3t sweep written into the
+runs folder.
+
+- ticking runs gives them letters in the order ticked (A the reference); Compare opens the
+  view over the window; Esc closes it;
+- the line says what differs; the summary table shows each run's value and its difference
+  from A, as the API gives them;
+- the force-stroke plot overlays one curve per run on axes in mm and kN;
+- the thickness on the formed part toggles A / B / A − B, keeping the camera; with a run on
+  another mesh the difference is disabled and the reason shown;
+- a sweep's cases open as runs from the panel and compare.
+
+Screenshots go to $Q3T_SHOTS (default /tmp/shots-compare)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.support import ROOT
+from tests.support.browser import WAIT_MS, chromium, serve
+from tests.support.scenes import tiny_cup_toml
+from tests.support.service import HANG, until
+
+SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-compare"))
+ENDED = {"finished", "failed", "stopped"}
+pytestmark = pytest.mark.browser
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
+
+
+def _finished(url: str, **body) -> str:
+    run = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup", **body}).json()["id"]
+    st = until(lambda: (s := httpx.get(f"{url}/api/runs/{run}").json())["state"] in ENDED
+               and s, f"run {run} never ended")
+    assert st["state"] == "finished", st["reason"]
+    return run
+
+
+def _changed(url: str) -> str:
+    """A finished run of tiny_cup whose friction was doubled from its third step."""
+    run = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup", "paused": True}).json()["id"]
+    for step in (1, 2):
+        until(lambda: not httpx.get(f"{url}/api/runs/{run}").json()["pending"]
+              and httpx.get(f"{url}/api/runs/{run}").json()["state"] == "paused", "not paused")
+        httpx.post(f"{url}/api/runs/{run}/step")
+        until(lambda s=step: httpx.get(f"{url}/api/runs/{run}").json()["step"] >= s, "no step")
+    r = httpx.put(f"{url}/api/runs/{run}/parameters/friction_scale", json={"value": 2.0},
+                  timeout=HANG)
+    assert r.status_code == 202, r.text
+    httpx.post(f"{url}/api/runs/{run}/resume")
+    st = until(lambda: (s := httpx.get(f"{url}/api/runs/{run}").json())["state"] in ENDED
+               and s, f"run {run} never ended")
+    assert st["state"] == "finished", st["reason"]
+    return run
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """The server's url and its runs folder, with three finished runs of tiny_cup: the second
+    with its friction doubled from step 3, the third with half the friction."""
+    tmp = tmp_path_factory.mktemp("compare-browser")
+    with serve(tmp, {"tiny_cup": tiny_cup_toml()}, "tiny_cup", "--no-viewer") as (url, _):
+        runs = [_changed(url),
+                _finished(url, overrides={"tools.0.friction": 0.05, "tools.1.friction": 0.05}),
+                _finished(url, element="linear")]
+        yield url, tmp, runs
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with chromium(SHOTS) as b:
+        yield b
+
+
+def open_page(browser, url: str):
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    page.set_default_timeout(WAIT_MS)
+    errors = []
+    page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
+    page.goto(url + "/")
+    page.wait_for_selector("#compare-box")
+    page.click("#compare-box > summary")
+    return page, errors
+
+
+def shot(page, name: str) -> None:
+    page.wait_for_timeout(1500)  # plotly's WebGL in software draws in about a second
+    page.screenshot(path=str(SHOTS / f"{name}.png"))
+
+
+def tick(page, run: str) -> None:
+    page.check(f"#compare-runs input[value='{run}']")
+
+
+def test_compare_two_runs_and_toggle_the_thickness(served, browser):
+    url, _, (a, b, c) = served
+    page, errors = open_page(browser, url)
+    page.wait_for_selector(f"#compare-runs input[value='{c}']")
+    assert page.is_disabled("#compare-open")
+    tick(page, c)
+    tick(page, a)
+    page.wait_for_function("document.querySelector('#compare-open').textContent"
+                           ".includes('2 runs')")
+    letters = page.eval_on_selector_all("#compare-runs tr.picked", "rows => rows.map(r => "
+                                        "[r.querySelector('input').value, "
+                                        "r.querySelector('.letter').textContent])")
+    assert dict(letters) == {c: "A", a: "B"}  # the order ticked
+    shot(page, "panel")
+    page.click("#compare-open")
+    page.wait_for_selector("#compare-view:not([hidden])")
+    page.wait_for_selector("#compare-thickness .main-svg")
+    api = httpx.get(f"{url}/api/compare?runs={c},{a}").json()
+    assert page.text_content("#compare-differs") == api["differs"]["line"]
+    assert "shell.element linear | q3t" in api["differs"]["line"]
+    assert "live changes B: friction_scale = 2 from step 3" in api["differs"]["line"]
+    # the summary table: A's value, B's and B - A as the API gives them
+    row = page.locator("#compare-summary tr[data-name='peak_punch_force']")
+    values = row.locator("td .value").all_text_contents()
+    peak = next(r for r in api["summary"] if r["name"] == "peak_punch_force")
+    assert values == [js_num(v) for v in peak["values"]]
+    delta = row.locator("td .delta").all_text_contents()
+    assert delta == [f"{'+' if peak['delta'][1] > 0 else '−'}{js_num(abs(peak['delta'][1]))} "
+                     f"kN ({'+' if peak['delta'][1] > 0 else '−'}"
+                     f"{js_num2(abs(peak['delta_pct'][1]))} %)"]
+    # the force-stroke plot: one curve per run, in mm and kN
+    force = page.evaluate("() => { const d = document.getElementById('compare-force');"
+                          " return {n: d.data.length, names: d.data.map(t => t.name), x: "
+                          "d.layout.xaxis.title.text, y: d.layout.yaxis.title.text}; }")
+    assert force == {"n": 2, "names": ["A", "B"], "x": "punch stroke (mm)",
+                     "y": "punch force (kN)"}
+    # B's friction change marked where its punch was at the end of step 2 (1 of 2 mm)
+    marks = page.evaluate("() => { const l = document.getElementById('compare-force').layout;"
+                          " return [l.shapes.map(s => s.x0), l.annotations.map(a => a.text)]; }")
+    b_punch = next(p for p in api["punches"] if p["run"] == a)
+    assert marks == [[b_punch["stroke"]["values"][b_punch["steps"].index(2)]],
+                     ["B: friction_scale = 2"]]
+    shot(page, "compare-diff")
+    # the toggle: A, then B, with the camera the user left
+    shown = "() => document.getElementById('compare-thickness').dataset.show"
+    assert page.evaluate(shown) == "diff"
+    # the user turns the part with the mouse
+    box = page.locator("#compare-thickness .gl-container").bounding_box()
+    cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.mouse.move(cx, cy)
+    page.mouse.down()
+    for k in range(1, 11):
+        page.mouse.move(cx + 12 * k, cy + 6 * k)
+    page.mouse.up()
+    camera = "() => document.getElementById('compare-thickness')._fullLayout.scene.camera.eye"
+    page.wait_for_function(f"({camera})().x !== 0.7")
+    turned = page.evaluate(camera)
+    page.click("#compare-thickness-controls button[data-value='a']")
+    page.wait_for_function(f"({shown})() === 'a'")
+    shot(page, "compare-A")
+    page.click("#compare-thickness-controls button[data-value='b']")
+    page.wait_for_function(f"({shown})() === 'b'")
+    assert page.evaluate(camera) == pytest.approx(turned)
+    colours = page.evaluate("() => { const t = document.getElementById('compare-thickness')"
+                            ".data[0]; return [t.cmin, t.cmax, t.intensity.length]; }")
+    th = httpx.get(f"{url}/api/compare/thickness?runs={c},{a}").json()
+    assert colours == [*th["range"], len(th["b"]["thickness"])]  # one scale for A and B
+    page.click("#compare-thickness-controls button[data-value='rest']")
+    page.wait_for_function("document.getElementById('compare-thickness')"
+                           ".dataset.shape === 'rest'")
+    shot(page, "compare-B-rest")
+    page.keyboard.press("Escape")
+    page.wait_for_selector("#compare-view", state="hidden")
+    # on a laptop's window the summary still fits its column (no sideways scrolling)
+    page.set_viewport_size({"width": 1280, "height": 800})
+    page.click("#compare-open")
+    page.wait_for_selector("#compare-thickness .main-svg")
+    # a new comparison: the starting camera
+    assert page.evaluate(camera) == {"x": 0.7, "y": -1.5, "z": 1.3}
+    assert page.evaluate("() => { const s = document.getElementById('compare-summary');"
+                         " return s.scrollWidth <= s.clientWidth; }")
+    shot(page, "compare-1280")
+    assert not errors, errors
+
+
+def js_num(v: float) -> str:
+    """A number as the page writes it (units.js num: three significant digits)."""
+    x = float(f"{v:.3g}")
+    return str(int(x)) if x.is_integer() else repr(x)
+
+
+def js_num2(v: float) -> str:
+    """Two significant digits (units.js num(v, 2))."""
+    x = float(f"{v:.2g}")
+    return str(int(x)) if x.is_integer() else repr(x)
+
+
+def test_sweep_cases_open_from_the_panel(served, browser):
+    url, tmp, _ = served
+    out = subprocess.run(
+        [sys.executable, "-m", "sim.apps", "sweep", str(tmp / "scenes" / "tiny_cup.toml"),
+         "--grid", "tools.0.friction=0.05,0.2", "--grid", "mesh.edge_length=0.003,0.0025",
+         "--workers", "1", "--out", str(tmp / "runs" / "friction")],
+        cwd=ROOT, capture_output=True, text=True, timeout=HANG,
+        env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert out.returncode == 0, out.stderr
+    page, errors = open_page(browser, url)
+    page.wait_for_selector("#compare-sweeps:not([hidden])")
+    page.click("#compare-import")
+    page.wait_for_function("document.getElementById('compare-msg').textContent"
+                           ".includes('opened as runs')")
+    assert "4 case(s) opened as runs" in page.text_content("#compare-msg")
+    page.wait_for_function("document.querySelectorAll('#compare-runs tr.picked').length === 4")
+    shot(page, "sweep-panel")
+    page.click("#compare-open")
+    page.wait_for_selector("#compare-thickness .main-svg")
+    line = page.text_content("#compare-differs")
+    assert line.startswith("A/B/C/D differ in:") and "tools.punch.friction" in line
+    # A and B are on other meshes (the sweep's edge lengths): no difference map, and why
+    note = page.text_content("#compare-thickness-note")
+    assert "no difference map: the meshes differ" in note
+    assert page.is_disabled("#compare-thickness-controls button[data-value='diff']")
+    page.select_option("#compare-thickness-controls select", "2")  # A against C: one mesh
+    page.wait_for_function("!document.querySelector(\"#compare-thickness-controls "
+                           "button[data-value='diff']\").disabled")
+    page.wait_for_function("document.getElementById('compare-thickness').layout.title.text"
+                           ".startsWith('Thickness difference A − C')")
+    shot(page, "sweep-compare")
+    assert not errors, errors
