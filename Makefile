@@ -41,7 +41,7 @@ bench: $(STAMP)
 # Every measured table in docs/results/, each written and stamped (commit, date, CPU, load,
 # command) by the command that measures it (docs/results/README.md lists them). One after the
 # other, never side by side: they measure time. About 35 min on the 2-core machine, most of it
-# the forming bench.
+# the forming bench, plus the forming, springback and Fig. 4 sweeps (docs/results/README.md).
 R := docs/results
 results: $(STAMP)
 	$(BIN)/q3t check --results $(R)/check.md
@@ -72,6 +72,22 @@ results: $(STAMP)
 	$(BIN)/q3t bench-service --results $(R)/service.md
 	$(BIN)/q3t reference cup_drawing --check tests/data/reference/cup_drawing-q3t-2mm.json \
 	  --results $(R)/stroke-cup_drawing.md
+	$(BIN)/q3t run cup_drawing --quiet --out runs/forming-cup_drawing \
+	  --results $(R)/forming-cup_drawing.md
+	$(BIN)/q3t sweep cup_drawing --grid mesh.edge_length=0.004,0.003,0.0025,0.002 \
+	  --out runs/forming-cup_mesh --results $(R)/forming-cup_mesh.md
+	$(BIN)/q3t sweep cup_drawing --grid shell.element=linear,q3t --set mesh.edge_length=0.003 \
+	  --out runs/forming-cup_elements --results $(R)/forming-cup_elements.md
+	$(BIN)/q3t sweep beam_forming --grid shell.element=linear,q3t,quadratic --ratio curvature \
+	  --out runs/forming-beam_forming --results $(R)/forming-beam_forming.md
+	$(BIN)/q3t sweep cookie_cutter --grid shell.element=linear,q3t --set mesh.edge_length=0.003 \
+	  --out runs/forming-cookie_cutter --results $(R)/forming-cookie_cutter.md
+	$(BIN)/q3t sweep plastic_bending --grid shell.element=linear,q3t,quadratic,quartic \
+	  --ratio curvature --budget 1800 --out runs/springback-plastic_bending \
+	  --results $(R)/springback-plastic_bending.md
+	$(BIN)/q3t sweep stretch_plate --grid shell.element=linear,q3t --grid mesh.imperfection=0,1e-4 \
+	  --grid 'loads.0.vector=[1e4,0,0],[1e5,0,0],[3e5,0,0]' --set material.nu=0.499 \
+	  --set mesh.edge_length=0.035 --out runs/fig4 --results $(R)/fig4.md
 
 # the scene field reference, rendered from the schema (tests/unit/test_docs.py fails when it is
 # stale)

@@ -10,7 +10,18 @@ from fastapi import FastAPI
 from fastapi_offline import FastAPIOffline
 
 from server import errors
-from server.routers import compare, events, exports, meta, plots, runs, scenes, view, web
+from server.routers import (
+    compare,
+    events,
+    exports,
+    files,
+    meta,
+    plots,
+    runs,
+    scenes,
+    view,
+    web,
+)
 from server.runs import RunManager
 from server.settings import Settings
 from server.store import SceneStore
@@ -53,6 +64,6 @@ def create_app(settings: Settings | None = None,
     app.state.settings = settings
     errors.install(app, settings)
     every = errors.documented(401) if settings.token else None
-    for module in (scenes, runs, events, exports, plots, compare, view, meta, web):
+    for module in (scenes, files, runs, events, exports, plots, compare, view, meta, web):
         app.include_router(module.router, responses=every)
     return app

@@ -39,11 +39,14 @@ def serve_settings(args: argparse.Namespace, token: str | None) -> Settings:
         raise SystemExit("q3t: --record-every must be at least 1")
     if not 0 < args.max_memory < float("inf"):
         raise SystemExit("q3t: --max-memory must be a positive size (GiB)")
+    if not 0 < args.max_upload < 2**20:
+        raise SystemExit("q3t: --max-upload must be a positive size (MiB), below a TiB")
     return Settings(scenes_dir=Path(args.scenes_dir), runs_dir=Path(args.runs_dir),
                     token=token, viewer=not args.no_viewer, viewer_host=viewer_host,
                     viewer_port=args.viewer_port, step_delay=args.step_delay,
                     record_every=args.record_every, default_scene=args.scene,
-                    max_model_bytes=args.max_memory * 2**30, solvers=args.solvers,
+                    max_model_bytes=args.max_memory * 2**30,
+                    max_upload=int(args.max_upload * 2**20), solvers=args.solvers,
                     queue_limit=args.queue)
 
 
@@ -163,6 +166,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--queue", type=at_least(0), default=Settings.queue_limit, metavar="N",
                    help="runs that may wait for a solver process; a start past them is "
                         "refused (HTTP 429; default %(default)s)")
+    s.add_argument("--max-upload", type=float, default=Settings.max_upload / 2**20,
+                   metavar="MIB", help="the largest file /api/files takes (a blank mesh or a "
+                   "thickness file; MiB, default %(default)g); larger uploads get 413")
     s.add_argument("--no-viewer", action="store_true", help="no viser viewer")
     s.add_argument("--expose-viewer", action="store_true",
                    help="bind the viser viewer to --host too. It has no token check: anyone "

@@ -53,6 +53,9 @@ ERRORS = {
 Endpoint = Callable[[Request], Awaitable[Response]]  # a request in, its answer out
 
 BODY = (400, 408, 413, 422)  # what any request with a JSON body can get
+# requests whose route streams its body to disk and limits it itself (an upload is larger than
+# max_body and must not be held in memory: server.routers.files, Settings.max_upload)
+STREAMED = {("POST", "/api/files")}
 
 
 def documented(*codes: int) -> dict:
@@ -124,7 +127,7 @@ class BodyLimit:
         self.app, self.limit, self.timeout = app, limit, timeout
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
+        if scope["type"] != "http" or (scope["method"], scope["path"]) in STREAMED:
             return await self.app(scope, receive, send)
         declared = dict(scope["headers"]).get(b"content-length")
         try:

@@ -9,6 +9,20 @@ from pydantic import ValidationError
 from server.tomlout import drop_none, edited, to_toml
 from sim.scene.load import Scene, SceneError, joined, read_toml, scene_errors
 from sim.scene.load import validate as validate_scene
+from sim.scene.sheet import FileMesh, ShellSpec
+
+# the fields that name a file of the scenes folder, by model and field, and the kind of file
+# (server.files): the form offers the uploaded files of that kind and an upload button
+FILE_FIELDS = {(FileMesh, "path"): "blank", (ShellSpec, "thickness_file"): "thickness"}
+
+
+def schema() -> dict:
+    """The scene's JSON schema for the form: pydantic's, each file field marked with the kind
+    of file it names (``"x-file": "blank"``)."""
+    out = Scene.model_json_schema()
+    for (model, field), kind in FILE_FIELDS.items():
+        out["$defs"][model.__name__]["properties"][field]["x-file"] = kind
+    return out
 
 
 def validate(raw: dict) -> tuple[Scene | None, list[dict]]:

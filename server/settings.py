@@ -73,6 +73,9 @@ class Settings:
     viewer_port: int = 8081
     token: str | None = None  # required on every request when set
     max_body: int = 256 * 1024  # bytes; larger request bodies get 413
+    # bytes; a larger upload to /api/files gets 413 (a blank of 10^6 triangles is about 50 MB
+    # as binary STL)
+    max_upload: int = 64 * 2**20
     body_timeout: float = 30.0  # seconds for a request body to arrive in full; then 408
     frame_queue: int = 4  # frames in flight from worker to bridge; extra frames are dropped
     record_every: int = 10  # steps between sheet meshes in run.rrd (and its first and last)

@@ -11,6 +11,10 @@
 // always labelled, because an engineer reads 68000 MPa and 16.5 mm at a glance where 6.8e10
 // and 0.0165 invite a slipped decimal; values are converted back to SI, and a value left as
 // shown is sent back unchanged (no round-off). A decimal comma ("0,15") reads as 0.15.
+//
+// Files: a field the schema marks with "x-file" (mesh.path: a blank mesh, shell.thickness_file)
+// is a select of the scenes folder's files of that kind (GET /api/files) with an upload button
+// beside it (POST /api/files; a name taken asks before it replaces the file).
 "use strict";
 
 const SceneForm = (() => {
@@ -40,6 +44,37 @@ const SceneForm = (() => {
     if (t === "" || !/^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$/.test(t)) return null;
     return Number(t);
   };
+  // a file's name as the server takes it (letters, digits, '_', '-', single dots; lower-case
+  // extension): "My blank (v2).STL" -> "My_blank_v2.stl"; the server checks it again
+  const fileName = (name) => {
+    const dot = name.lastIndexOf(".");
+    const ext = dot > 0 ? name.slice(dot).toLowerCase() : "";
+    const stem = (dot > 0 ? name.slice(0, dot) : name).replace(/[^A-Za-z0-9_.-]+/g, "_")
+      .replace(/\.{2,}/g, ".").replace(/^[^A-Za-z0-9]+/, "").replace(/[._]+$/, "")
+      .slice(0, 80 - ext.length);
+    return (stem || "upload") + ext;
+  };
+  const bytes = (n) => (n < 2 ** 20 ? `${(n / 1024).toFixed(1)} KiB`
+                                   : `${(n / 2 ** 20).toFixed(1)} MiB`);
+  // what a listed file holds, for its option (a thickness file has a value per vertex)
+  const counts = (f) => (f.problem ? "unusable" : f.kind === "blank"
+    ? `${f.vertices} vertices, ${f.triangles} triangles` : `${f.values} values`);
+  // POST /api/files: the file's bytes as the body; the answer's JSON, or an Error with its
+  // detail and status
+  const upload = async (file, name, kind, replace) => {
+    const q = new URLSearchParams({ name, kind, replace: String(replace) });
+    let r;
+    try {
+      const headers = { "Content-Type": "application/octet-stream" };
+      r = await fetch(`/api/files?${q}`, { method: "POST", body: file, headers });
+    } catch (e) {  // a connection the server closed, e.g. past its size limit
+      throw Object.assign(new Error(`upload of ${name} cut off (${e.message})`), { status: 0 });
+    }
+    const data = await r.json().catch(() => null);
+    if (!r.ok) throw Object.assign(new Error((data && data.detail) || r.statusText),
+                                   { status: r.status });
+    return data;
+  };
 
   class Form {
     // root: the container; schema: the scene schema; onChange(): called after every edit;
@@ -51,6 +86,7 @@ const SceneForm = (() => {
       this.suggest = suggest || (() => null);
       this.lists = 0;
       this.node = null;
+      this.fileList = null;  // GET /api/files, once per build and after an upload
       root.addEventListener("input", () => this.onChange());
       root.addEventListener("change", () => this.onChange());
     }
@@ -62,6 +98,7 @@ const SceneForm = (() => {
     }
 
     build(value) {
+      this.fileList = null;
       this.node = this.object(this.schema, value || {}, "", "scene", true);
       this.root.replaceChildren(this.node.el);
     }
@@ -74,7 +111,8 @@ const SceneForm = (() => {
     // meta: the field's description and unit, from its own schema (a $ref or anyOf inside
     // carries neither)
     field(schema, value, path, key, required, meta) {
-      meta = meta || { description: schema.description, unit: schema.unit };
+      meta = meta || { description: schema.description, unit: schema.unit,
+                       file: schema["x-file"] };
       this.meta = meta;  // read by the widget made below (wrap, number)
       const s = this.resolve(schema);
       if (value === undefined && schema.default !== undefined) value = clone(schema.default);
@@ -301,6 +339,7 @@ const SceneForm = (() => {
     }
 
     text(s, value, path, key, required) {
+      if ((this.meta || {}).file) return this.file(this.meta.file, value, path, key, required);
       const inp = el("input", { type: "text", name: path });
       if (s.pattern) inp.pattern = s.pattern;
       inp.value = value === undefined || value === null ? "" : String(value);
@@ -318,6 +357,96 @@ const SceneForm = (() => {
       // a required name left empty is missing (the server says so), not ""
       return { el: this.wrap(path, key, inp),
                get: () => (inp.value === "" && required ? undefined : inp.value) };
+    }
+
+    files() {
+      if (!this.fileList) this.fileList = api("GET", "/api/files");
+      return this.fileList;
+    }
+
+    // a file of the scenes folder of ``kind``: a select of those there, an upload button and
+    // a delete button (the server refuses to delete a file a saved scene names)
+    file(kind, value, path, key, required) {
+      const sel = el("select", { name: path, class: "file-select" });
+      const status = el("span", { class: "upload-status", role: "status" });
+      const say = (text, bad) => {
+        status.textContent = text;
+        status.classList.toggle("bad", !!bad);
+      };
+      const folder = { limit: null, accept: "" };  // the server's limit and the extensions
+      const fill = (list, chosen) => {
+        const options = [el("option", { value: "", textContent: "— choose a file —" })];
+        const mine = list.files.filter((f) => f.kind === kind);
+        for (const f of mine)
+          options.push(el("option", { value: f.name, textContent: `${f.name} (${counts(f)})`,
+                                      title: f.problem || bytes(f.size) }));
+        if (chosen && !mine.some((f) => f.name === chosen))  // a path in a subfolder, or gone
+          options.push(el("option", { value: chosen, textContent: chosen }));
+        sel.replaceChildren(...options);
+        sel.value = chosen || "";
+        folder.accept = list.kinds[kind].join(",");
+        folder.limit = list.max_upload;
+      };
+      // the folder as it is now, ``chosen`` selected, and the form told
+      const refresh = async (chosen) => {
+        this.fileList = null;
+        fill(await this.files(), chosen);
+        sel.dispatchEvent(new Event("change", { bubbles: true }));
+      };
+      fill({ files: [], kinds: { [kind]: [] } }, value);
+      this.files().then((list) => fill(list, sel.value))
+        .catch((e) => say(`files: ${e.message}`, true));
+      const group = el("span", { class: "file-choice" }, sel,
+                       ...this.uploadButton(kind, folder, say, refresh),
+                       this.deleteButton(sel, say, refresh));
+      const w = this.wrap(path, key, group, status);
+      return { el: w, get: () => (sel.value === "" && required ? undefined : sel.value) };
+    }
+
+    // Upload…: a file chooser, then POST /api/files; a name taken asks before replacing
+    uploadButton(kind, folder, say, refresh) {
+      const chooser = el("input", { type: "file", hidden: true });
+      const button = el("button", { type: "button", class: "upload",
+                                    textContent: "Upload…", title: `upload a ${kind} file` });
+      button.onclick = () => { chooser.accept = folder.accept; chooser.click(); };
+      chooser.onchange = async () => {
+        const file = chooser.files[0];
+        chooser.value = "";
+        if (!file) return;
+        const name = fileName(file.name);
+        if (folder.limit !== null && file.size > folder.limit)
+          return say(`${file.name}: ${bytes(file.size)} is past the server's limit of ` +
+                     `${bytes(folder.limit)}`, true);
+        say(`uploading ${name} (${bytes(file.size)})…`);
+        try {
+          let f;
+          try { f = await upload(file, name, kind, false); } catch (e) {
+            if (e.status !== 409 || !confirm(`${name} exists in the scenes folder. Replace it?`))
+              throw e;
+            f = await upload(file, name, kind, true);
+          }
+          await refresh(f.name);  // then said: the select shows it when the words do
+          say(`uploaded ${f.name}: ${counts(f)}`);
+        } catch (e) { say(e.message, true); }
+      };
+      return [button, chooser];
+    }
+
+    // Delete: the chosen file, from the scenes folder, once confirmed
+    deleteButton(sel, say, refresh) {
+      const button = el("button", { type: "button", class: "delete-file", textContent: "Delete",
+                                    title: "delete the chosen file from the scenes folder" });
+      button.onclick = async () => {
+        const name = sel.value;
+        if (!name) return say("choose a file to delete", true);
+        if (!confirm(`Delete ${name} from the scenes folder?`)) return;
+        try {
+          await api("DELETE", `/api/files/${encodeURIComponent(name)}`);
+          await refresh("");
+          say(`deleted ${name}`);
+        } catch (e) { say(e.message, true); }
+      };
+      return button;
     }
 
     tuple(s, value, path, key) {

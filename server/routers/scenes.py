@@ -11,7 +11,6 @@ from server import sceneform, tomlout
 from server.errors import BODY, CheckedRoute, documented
 from server.settings import RESERVED_SCENE_NAMES, SceneName, ScenePath
 from server.store import SceneStore
-from sim.scene.load import Scene
 
 router = APIRouter(prefix="/api/scenes", tags=["scenes"], route_class=CheckedRoute)
 
@@ -143,8 +142,9 @@ def list_scenes(request: Request) -> list[dict]:
 @router.get("/schema")
 def schema() -> dict:
     """The scene's JSON schema: every field with its type, range, unit and description (the
-    page's scene form is built from it)."""
-    return Scene.model_json_schema()
+    page's scene form is built from it); a field that names a file of the scenes folder says
+    which kind (``"x-file": "blank"``, server.files)."""
+    return sceneform.schema()
 
 
 @router.post("/validate", response_model=Validated, responses=documented(*BODY))

@@ -83,6 +83,12 @@ def run_case(scene_path: str, overrides: dict, series: bool = False,
     if sim.records:
         out["probes"] = dict(sim.records[-1].probes)
         out["residual"] = float(sim.records[-1].residual)
+    # what an engineer reads of the run (sim.frames.summary) and the fields' min / mean / max,
+    # final state; a released part's probes also at the end of the stroke (the loaded shape)
+    out.update(summary=res["summary"], fields=res["fields"])
+    loaded = [r for r in sim.records if r.step == sim.stroke_steps]
+    if sim.loaded is not None and loaded:
+        out["loaded_probes"] = dict(loaded[-1].probes)
     if measure is not None:
         out["measured"] = measure(sim)
     if over is not None:

@@ -6,9 +6,15 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from sim.apps import case_table
 from sim.apps.common import BAD_INPUT, FAILED, OK, load, parse_sets
 from sim.apps.progress import Progress, summary_text
+from sim.stamp import Stamp, add_results_option, write_results
+
+if TYPE_CHECKING:
+    from sim.stepping.simulation import Simulation
 
 
 def run(args: argparse.Namespace) -> int:
@@ -17,6 +23,7 @@ def run(args: argparse.Namespace) -> int:
     from sim.scene.load import SceneError
     from sim.stepping.simulation import Simulation
 
+    started = Stamp.begin(args.command)
     overrides = parse_sets(args.set)
     if args.element:
         overrides["shell.element"] = args.element
@@ -59,7 +66,23 @@ def run(args: argparse.Namespace) -> int:
     if res["summary"]:
         print(("Summary of the steps done (the run failed)" if not res["converged"]
                else "Summary") + "\n" + summary_text(res["summary"]))
+    if args.results:
+        write_results(args.results, f"`{scene.name}`, {scene.shell.element}: one run",
+                      results_body(res, overrides, sim), started)
+        print(f"wrote {args.results}", file=sys.stderr)
     return OK if res["converged"] else FAILED
+
+
+def results_body(res: dict, overrides: dict, sim: Simulation) -> str:
+    """``--results``: the run's quantities (sim.apps.case_table), each probe over the steps
+    and the sections' thickness at their steps."""
+    units = case_table.probe_units(sim.model.scene)
+    row = case_table.row_of_result(res, overrides, sim.stroke_steps)
+    keys = list(overrides)
+    return "\n".join([
+        "## The run", "", case_table.table([row], keys, units),
+        "## Probes over the run", "", case_table.history_table(res, units),
+        case_table.sections_table(res)])
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -78,4 +101,5 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--max-memory", type=float, default=DEFAULT_LIMIT / 2**30, metavar="GIB",
                    help="refuse a scene whose model would need more memory to build (GiB; "
                         "default %(default)g: half of a 24 GiB machine)")
+    add_results_option(r, "forming-cup_drawing.md")
     r.set_defaults(func=run)

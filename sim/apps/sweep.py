@@ -26,10 +26,12 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from sim.apps import case_table
 from sim.apps.cases import WatchedContext, run_case, run_isolated, scene_row
 from sim.apps.common import BAD_INPUT, FAILED, OK, parse_sets, resolve_scene
 from sim.apps.tasks import cluster_text, run_tasks
 from sim.frames import results
+from sim.stamp import Stamp, add_results_option, write_results
 
 DEFAULT_BUDGET = 600.0  # s per case: the slowest shipped scene at its default size takes ~60 s
 
@@ -182,9 +184,36 @@ def _write(out: Path, name: str, data: dict) -> None:
     tmp.replace(out / name)
 
 
+def check_ratios(scene: str, fixed: dict, ratios: list[str]) -> None:
+    """``--ratio`` names probes of the scene (ValueError otherwise), checked before any case
+    runs."""
+    from sim.scene.load import load_scene
+
+    if ratios:
+        names = [p.name for p in load_scene(scene, fixed).probes]
+        for r in ratios:
+            if r not in names:
+                raise ValueError(f"--ratio {r}: the scene has no probe {r!r} "
+                                 f"(it has {', '.join(names)})")
+
+
+def results_body(scene: str, fixed: dict, rows: list[dict], keys: list[str],
+                 ratios: list[str]) -> str:
+    """The ``--results`` table (sim.apps.case_table): a column per case, the scene's probes in
+    the units their kinds have."""
+    from sim.scene.load import load_scene
+
+    try:
+        units = case_table.probe_units(load_scene(scene, fixed))
+    except ValueError:  # every case is an invalid row then: the names its rows have, no unit
+        units = {p: "" for r in rows for p in r.get("probes", {})}
+    return case_table.table(rows, keys, units, ratios)
+
+
 def run(args: argparse.Namespace) -> int:
     """Exit 0 when every case has a row of its own; 1 when ``--timeout`` cut the sweep short
     (the rows that finished are still written); 2 on bad input."""
+    stamp = Stamp.begin(args.command)
     scene = str(resolve_scene(args.scene))
     try:
         grid = parse_grid(args.grid)
@@ -192,10 +221,11 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("--budget and --timeout must be positive (seconds)")
         if args.workers < 1:
             raise ValueError("--workers must be at least 1")
+        fixed = parse_sets(args.set)
+        check_ratios(scene, fixed, args.ratio)
     except ValueError as exc:
         print(f"q3t sweep: {exc}", file=sys.stderr)
         return BAD_INPUT
-    fixed = parse_sets(args.set)
     todo = cases(grid, fixed)
     where = cluster_text(args.workers, 1, args.scheduler)
     print(f"sweep {scene}: {len(todo)} cases on {where}", file=sys.stderr)
@@ -225,6 +255,11 @@ def run(args: argparse.Namespace) -> int:
     probe = args.probe or next((p for r in rows for p in r.get("probes", {})), None)
     if probe:
         plot(rows, keys, probe, out)
+    if args.results:
+        write_results(args.results, f"`{Path(scene).stem}` over {', '.join(keys)}",
+                      results_body(scene, fixed, rows, keys, args.ratio)
+                      + f"\n{len(rows)} cases on {where}.{note}\n", stamp)
+        print(f"wrote {args.results}")
     print(md + f"wrote {out}/sweep.json, sweep.md ({wall:.1f} s)")
     if not finished:
         print(f"q3t sweep: --timeout {args.timeout:g} s reached; "
@@ -247,5 +282,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--timeout", type=float, default=None,
                    help="seconds for the whole sweep; unfinished cases are marked timeout")
     s.add_argument("--probe", help="probe to plot (default: the first)")
+    s.add_argument("--ratio", action="append", default=[], metavar="PROBE",
+                   help="in --results, also PROBE released / loaded (a part that is released: "
+                        "the curvature it retains; repeatable)")
+    add_results_option(s, "forming-mesh.md")
     s.add_argument("--out", default="runs/sweep")
     s.set_defaults(func=run)

@@ -189,9 +189,10 @@ def _fibre_tilt(s: State, p: Spec) -> float:
     return _stat(tilt[s.vertices(p.region)] if p.region else tilt, p)
 
 
-@probe("height_range", needs=("region",))
+@probe("height_range")
 def _height_range(s: State, p: Spec) -> float:
-    """Out-of-plane amplitude, e.g. of flange wrinkles."""
+    """Out-of-plane amplitude (the spread of z) of the region's mid-surface, e.g. of flange
+    wrinkles; of the whole mid-surface without a region (a plate that buckles)."""
     z = mid_surface(s.model, s.x)[s.vertices(p.region), 2]
     return float(z.max() - z.min())
 

@@ -1,0 +1,288 @@
+"""Files scenes read, uploaded into the scenes folder: blank mid-surfaces (``mesh.path``) and
+per-vertex thickness (``shell.thickness_file``).
+
+An upload is received into a hidden folder of its own inside the scenes folder, under its
+final name (the readers take the format from the suffix and name the file in their errors),
+read back with the readers the solver uses and checked, and only then linked (a new name)
+or renamed (an explicit replace) into place: a file in the scenes folder is always whole and
+readable, whatever the client does, and two uploads of one new name cannot both win.
+Sim tools are primitives and CSG of them (sim.tools), not meshes: there is no tool kind yet."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import os
+import secrets
+import shutil
+from collections.abc import AsyncIterator, Iterator
+from pathlib import Path, PurePosixPath
+from typing import BinaryIO
+
+import numpy as np
+
+from server.problems import Conflict, Invalid, NotFound
+from server.settings import SCENE_NAME_MAX, check_name
+from server.store import MESH_SUFFIXES, VALUE_SUFFIXES, SceneStore
+from sim.scene.fields import MAX_LENGTH
+from sim.scene.load import SceneError, read_toml
+
+# what each kind is, by suffix, and the scene field that reads it
+KINDS = {"blank": MESH_SUFFIXES, "thickness": VALUE_SUFFIXES}
+FIELDS = {"blank": ("mesh", "path"), "thickness": ("shell", "thickness_file")}
+FILE_NAME_MAX = SCENE_NAME_MAX
+# a triangle this much smaller than the median is flat to round-off: the solver refuses the
+# same (sim.terms.elasticity.reference_gradients, detJ below 1e-10 of the median)
+FLAT = 1e-10
+TEMP_PREFIX = ".upload-"
+# s: an upload folder untouched this long is left by a server that died mid-upload (a live one
+# is written at least every body_timeout, and then read back once, which takes seconds)
+STALE = 3600.0
+
+
+class TooLarge(Exception):
+    """An upload past the size limit (413)."""
+
+
+class Stalled(Exception):
+    """An upload whose body stopped arriving (408)."""
+
+
+def check_file_name(name: str) -> str:
+    """``name`` if it is a plain file name (server.settings.NAME: no path, no leading dot) with
+    a lower-case suffix of a known kind; else Invalid (422)."""
+    check_name(name, "file name", FILE_NAME_MAX)
+    kind_of(name)
+    return name
+
+
+def kind_of(name: str, kind: str | None = None) -> str:
+    """The kind a file name's suffix says (and ``kind``, when given, must agree)."""
+    suffix = PurePosixPath(name).suffix
+    found = [k for k, suffixes in KINDS.items() if suffix in suffixes]
+    if not found:
+        known = "; ".join(f"{', '.join(s)} for a {k}" for k, s in KINDS.items())
+        raise Invalid(f"name {name!r}: unknown extension {suffix or '(none)'!r} (lower case: "
+                      f"{known})")
+    if kind is not None and kind != found[0]:
+        raise Invalid(f"kind {kind!r}: {name!r} is a {found[0]} file by its extension "
+                      f"(a {kind}: {', '.join(KINDS[kind])})")
+    return found[0]
+
+
+# ---- reading a file as the solver will ---------------------------------------------------------
+def _first(edges: np.ndarray, mask: np.ndarray) -> str:
+    return f"first: vertices {edges[np.flatnonzero(mask)[:3]].tolist()}"
+
+
+def check_blank(V: np.ndarray, F: np.ndarray) -> str | None:
+    """What makes ``V (n_v, 3)``, ``F (n_f, 3)`` unusable as a blank mid-surface, or None:
+    zero-area triangles, an edge of more than two triangles (no sheet has one), or two
+    triangles wound opposite ways across their edge (the thickness would point both ways)."""
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]),
+                                axis=1)
+    flat = np.flatnonzero(area <= FLAT * np.median(area))
+    if len(flat):
+        return (f"{len(flat)} zero-area (degenerate) triangles, below {FLAT:g} of the median "
+                f"area (first: {flat[:5].tolist()})")
+    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    edges, inverse, count = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True,
+                                      return_counts=True)
+    if (count > 2).any():
+        return (f"{int((count > 2).sum())} non-manifold edges, each shared by more than two "
+                f"triangles ({_first(edges, count > 2)})")
+    # an edge of two triangles is walked once each way when both are wound alike
+    forward = np.bincount(inverse.ravel(), weights=directed[:, 0] < directed[:, 1],
+                          minlength=len(edges))
+    flipped = (count == 2) & (forward != 1)
+    if flipped.any():
+        return (f"{int(flipped.sum())} edges between triangles wound opposite ways, a flipped "
+                f"triangle ({_first(edges, flipped)})")
+    return None
+
+
+def inspect_blank(path: Path) -> dict:
+    """The mesh file as the solver reads it (sim.geometry.trimesh, the scene's defaults),
+    checked; Invalid naming the file and the problem."""
+    from sim.geometry import trimesh as meshes
+
+    try:
+        mesh, _, report = meshes.load_with_values(path)
+    except ValueError as exc:  # MeshFileError too
+        raise Invalid(str(exc)) from None
+    problem = check_blank(mesh.vertices, mesh.faces)
+    if problem:
+        raise Invalid(f"{path.name}: {problem}")
+    return {"vertices": report["vertices"], "triangles": report["triangles"]}
+
+
+def inspect_thickness(path: Path) -> dict:
+    """The values as the solver reads them (sim.model.sheet.read_values), each a thickness in
+    metres: positive, finite, within the scene's bound on lengths."""
+    from sim.model.sheet import read_values
+
+    try:
+        h = read_values(str(path))
+    except ValueError as exc:  # names the file
+        raise Invalid(str(exc)) from None
+    except (TypeError, EOFError) as exc:  # np.load of an empty file: EOFError
+        raise Invalid(f"{path.name} is not an array of numbers ({exc or 'no data'})") from None
+    if h.size == 0:
+        raise Invalid(f"{path.name}: no values (one thickness in m per vertex)")
+    bad = np.flatnonzero(~np.isfinite(h) | (h <= 0) | (h > MAX_LENGTH))
+    if len(bad):
+        raise Invalid(f"{path.name}: {len(bad)} values are no thickness (positive, at most "
+                      f"{MAX_LENGTH:.0e} m; value {bad[0]}: {h[bad[0]]:.3g})")
+    return {"values": int(h.size)}
+
+
+INSPECT = {"blank": inspect_blank, "thickness": inspect_thickness}
+
+
+@functools.lru_cache(maxsize=256)
+def _described(path: str, kind: str, size: int, mtime_ns: int) -> dict:
+    """A kept file's counts, or its problem (a file put there by hand), read once per version
+    of the file (the listing would otherwise parse every mesh again)."""
+    try:
+        return {**INSPECT[kind](Path(path)), "problem": None}
+    except Invalid as exc:
+        return {"problem": str(exc)}
+
+
+# ---- receiving ---------------------------------------------------------------------------------
+async def spool(chunks: AsyncIterator[bytes], out: BinaryIO, limit: int, idle: float) -> int:
+    """Write the chunks to ``out`` as they arrive: TooLarge once past ``limit`` bytes (the
+    rest is never read), Stalled when none arrives within ``idle`` seconds. Returns the size."""
+    size = 0
+    while True:
+        try:
+            async with asyncio.timeout(idle):
+                chunk = await anext(chunks, None)
+        except TimeoutError:
+            raise Stalled(f"no part of the upload arrived within {idle:g} s") from None
+        if chunk is None:
+            return size
+        size += len(chunk)
+        if size > limit:
+            raise TooLarge(f"upload larger than {limit} bytes (the server's limit)")
+        out.write(chunk)
+
+
+class FileStore:
+    """The uploaded files of a scenes folder (and any of their kinds put there by hand)."""
+
+    def __init__(self, scenes: SceneStore):
+        self.scenes = scenes
+        self.root = scenes.root
+
+    def path(self, name: str) -> Path:
+        return self.root / check_file_name(name)
+
+    def names(self) -> list[str]:
+        return sorted(p.name for p in self.root.iterdir()
+                      if p.is_file() and _is_file_name(p.name))
+
+    def entry(self, name: str, users: dict[str, list[str]] | None = None) -> dict:
+        p = self.path(name)
+        if not p.is_file():
+            raise NotFound(f"no file {name!r}")
+        st, kind = p.stat(), kind_of(name)
+        counts = {"vertices": None, "triangles": None, "values": None,
+                  **_described(str(p), kind, st.st_size, st.st_mtime_ns)}
+        users = self.users() if users is None else users
+        return {"name": name, "kind": kind, "size": st.st_size, **counts,
+                "used_by": users.get(name, [])}
+
+    def entries(self) -> list[dict]:
+        users = self.users()
+        return [self.entry(n, users) for n in self.names()]
+
+    def users(self) -> dict[str, list[str]]:
+        """File name -> the scenes whose TOML names it in a file field (valid scenes or not)."""
+        out: dict[str, list[str]] = {}
+        for scene in self.scenes.names():
+            try:
+                raw = read_toml(self.scenes.text(scene))
+            except SceneError:
+                continue
+            for table, key in FIELDS.values():
+                section = raw.get(table)
+                value = section.get(key) if isinstance(section, dict) else None
+                if isinstance(value, str) and value:
+                    out.setdefault(str(PurePosixPath(value)), []).append(scene)
+        return out
+
+    def delete(self, name: str) -> None:
+        """Refused (409) while a scene names the file: the scene would stop loading."""
+        p = self.path(name)
+        if not p.is_file():
+            raise NotFound(f"no file {name!r}")
+        users = self.users().get(name)
+        if users:
+            field = ".".join(FIELDS[kind_of(name)])
+            raise Conflict(f"file {name!r} is used by scene(s) {', '.join(users)} ({field}); "
+                           "change or delete them first")
+        p.unlink()
+
+    def target(self, name: str, kind: str | None, replace: bool) -> tuple[Path, str]:
+        """Where an upload of ``name`` goes and its kind, checked before any byte is read:
+        Invalid for a bad name or kind, Conflict when it exists and ``replace`` is not set."""
+        path = self.path(name)
+        kind = kind_of(name, kind)
+        if path.exists() and not replace:
+            raise Conflict(f"file {name!r} exists; upload with replace=true to replace it")
+        return path, kind
+
+    def sweep(self, now: float) -> list[str]:
+        """Remove the upload folders nothing has touched for ``STALE`` seconds before ``now``
+        (``time.time()``); returns their names."""
+        gone = []
+        for tmp in self.root.glob(f"{TEMP_PREFIX}*"):
+            try:
+                newest = max(p.stat().st_mtime for p in [tmp, *tmp.iterdir()])
+            except FileNotFoundError:  # its upload has just ended
+                continue
+            if now - newest > STALE:
+                shutil.rmtree(tmp, ignore_errors=True)
+                gone.append(tmp.name)
+        return gone
+
+    @contextlib.contextmanager
+    def incoming(self, name: str) -> Iterator[Path]:
+        """Where an upload of ``name`` is received: that name in a hidden folder of the scenes
+        folder (the same file system, so it moves into place by a rename or link). The folder
+        and whatever is left in it go when the block ends: kept, refused, or cut off."""
+        tmp = self.root / f"{TEMP_PREFIX}{secrets.token_hex(8)}"
+        tmp.mkdir(mode=0o700)
+        try:
+            yield tmp / check_file_name(name)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+    def keep(self, received: Path, kind: str, replace: bool) -> dict:
+        """Read the received file back and check it (Invalid names the problem), then put it
+        in place: renamed over the old file when ``replace``, else linked only if the name is
+        still free (Conflict when a concurrent upload took it)."""
+        INSPECT[kind](received)
+        final = self.root / received.name
+        if replace:
+            os.replace(received, final)
+        else:
+            try:
+                os.link(received, final)
+            except FileExistsError:
+                raise Conflict(f"file {received.name!r} exists; upload with replace=true to "
+                               "replace it") from None
+        return self.entry(received.name)
+
+
+def _is_file_name(text: str) -> bool:
+    try:
+        return bool(check_file_name(text))
+    except Invalid:
+        return False
+
+
+__all__ = ["FileStore", "KINDS", "Stalled", "TooLarge", "check_blank", "check_file_name",
+           "inspect_blank", "inspect_thickness", "kind_of", "spool"]
