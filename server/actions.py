@@ -19,7 +19,7 @@ class ViewerActions:
 
     def command(self, cmd: str) -> str:
         """pause, resume, step or stop the selected run (refused unless it is active)."""
-        run = self.m.selected
+        run = self.m.views.selected
         if run is None:
             return "No run selected"
         try:
@@ -31,13 +31,13 @@ class ViewerActions:
         """Show ``run_id`` here and on the page; "" when done (the viewer then shows the run's
         own line), else why not (a run deleted meanwhile)."""
         try:
-            self.m.select(run_id)
+            self.m.views.select(run_id)
         except (Invalid, NotFound) as exc:
             return str(exc)
         return ""
 
     def set_parameter(self, name: str, value: float) -> str:
-        run = self.m.selected
+        run = self.m.views.selected
         if run is None:
             return "No run selected"
         try:
@@ -51,7 +51,7 @@ class ViewerActions:
     def scrub(self, step: int) -> tuple[dict | None, str]:
         """The kept frame of the selected run to show for the time slider, or why none (a
         running run streams)."""
-        run = self.m.runs.get(self.m.selected or "")
+        run = self.m.runs.get(self.m.views.selected or "")
         history = self.m.history.get(run.id) if run is not None else None
         if run is None or history is None:
             return None, "No run to scrub"

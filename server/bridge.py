@@ -33,6 +33,7 @@ from server.events import Changes
 from server.history import Histories
 from server.records import ACTIVE, Run
 from server.settings import Settings
+from server.views import Views
 from server.worker import Channel
 from server.workerhandle import Slot, WorkerHandle
 
@@ -60,6 +61,7 @@ class Books(Protocol):
     slots: list[Slot]
     closing: threading.Event
     changes: Changes
+    views: Views
 
     def finish(self, run: Run, state: str, reason: str | None) -> None: ...
     def save(self, run: Run) -> None: ...
@@ -67,7 +69,6 @@ class Books(Protocol):
     def fail_run(self, run_id: str | None, reason: str) -> None: ...
     def worker_died(self, w: WorkerHandle) -> None: ...
     def close_retired(self) -> None: ...
-    def show_preview(self, ev: dict) -> None: ...
 
 
 @dataclass
@@ -183,8 +184,8 @@ def _meta(m: Books, ev: dict) -> Booked:
 
 @handles("preview")
 def _preview(m: Books, ev: dict) -> Booked:
-    """A scene's rest state for the viewer (``RunManager.show_scene``)."""
-    return Booked(later=[lambda: m.show_preview(ev)])
+    """A scene's rest state for the viewer (``Views.show_scene``)."""
+    return Booked(later=[lambda: m.views.show_preview(ev)])
 
 
 @handles("step")

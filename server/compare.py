@@ -20,7 +20,7 @@ import numpy as np
 
 from server.plots import plots
 from server.problems import Conflict, Invalid, NotFound
-from server.records import ACTIVE
+from server.records import ENDED
 from sim.elements import ELEMENTS
 from sim.frames import results
 from sim.scene.load import SceneError, apply_override, read_toml, scene_from_toml
@@ -81,7 +81,7 @@ def load(manager: RunManager, ids: list[str]) -> list[Loaded]:
 
 def _result(folder: Path, status: dict) -> dict | None:
     path = folder / "result.json"
-    if status["state"] in ACTIVE or not path.is_file():
+    if status["state"] not in ENDED or not path.is_file():
         return None
     try:
         return json.loads(path.read_text())
@@ -105,7 +105,7 @@ def compare(runs: list[Loaded]) -> dict:
 
 def _head(r: Loaded) -> dict:
     st = r.status
-    if st["state"] in ACTIVE:
+    if st["state"] not in ENDED:
         note = f"{st['state']}: compared up to step {st['step']}; its summary comes when it ends"
     elif r.result is None:
         note = "no result.json: no summary"
@@ -261,7 +261,7 @@ def final_state(r: Loaded) -> dict:
     """The run's mid-surface at rest and formed (m, ``(n_v, 3)``), its triangles and its
     thickness (m, ``(n_v,)``), from final.npz. Conflict (409) when the run has none yet."""
     path = r.folder / "final.npz"
-    if r.status["state"] in ACTIVE:
+    if r.status["state"] not in ENDED:
         raise Conflict(f"run {r.id!r} is {r.status['state']}: its final state is written "
                        "when it ends")
     if not path.is_file():

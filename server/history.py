@@ -16,6 +16,8 @@ import threading
 
 import numpy as np
 
+from server.problems import NotFound
+
 
 def frame_bytes(frame: dict) -> int:
     return int(frame["positions"].nbytes + sum(v.nbytes for v in frame["fields"].values()))
@@ -118,6 +120,22 @@ class Histories:
     def get(self, run_id: str | None) -> FrameHistory | None:
         with self.lock:
             return self.by_run.get(run_id or "")
+
+    def kept(self, run_id: str) -> FrameHistory:
+        """The frames kept of ``run_id`` (a known run): only the latest runs' are."""
+        history = self.get(run_id)
+        if history is None:
+            n = self.keep
+            raise NotFound(f"no frames kept for run {run_id!r} (only the latest "
+                           f"{'run' if n == 1 else f'{n} runs'}'s are)")
+        return history
+
+    def at(self, run_id: str, step: int) -> dict:
+        """A kept frame of one of the latest runs: the one at ``step`` or the nearest before."""
+        frame = self.kept(run_id).at(step)
+        if frame is None:
+            raise NotFound(f"no frames kept for run {run_id!r} yet")
+        return frame
 
     def add(self, frame: dict) -> None:
         history = self.get(frame.get("run"))

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 from server.bridge import Bridge
 from server.estimate import EstimateCache
 from server.events import Changes
-from server.history import FrameHistory, Histories
+from server.history import Histories
 from server.problems import Busy, Conflict, Invalid, NotFound, NotReady
 from server.records import (
     ACTIVE,
@@ -40,11 +40,9 @@ from server.records import (
 )
 from server.settings import Settings, check_run_id
 from server.store import SceneStore
+from server.views import Views
 from server.worker import worker_main
 from server.workerhandle import Slot, WorkerHandle, WorkerTarget
-from sim.elements import get_element
-from sim.model import size
-from sim.scene.load import Scene, SceneError, scene_from_toml
 
 if TYPE_CHECKING:  # imports viser
     from server.viewer import Viewer
@@ -67,19 +65,13 @@ class RunManager:
         self.runs: dict[str, Run] = self.files.load()
         self.queue: list[str] = []  # the queued runs' ids, the next to start first
         self._starts: dict[str, dict] = {}  # a queued run's start command, sent when it starts
-        # the run the page and the viewer show (one for every browser, until each has its own
-        # view): a new run, else the newest
-        self.selected: str | None = self._newest()
-        # the scene the viewer previews instead (before any run): {"scene", "request" (the
-        # solver's request id), "state" (building, shown, failed), "error"}; None: the run
-        self.preview: dict | None = None
-        self._showing = threading.Lock()
         self.waiters: dict[int, dict] = {}  # request id -> {"event", "reply"}
         self.sent: dict[int, str] = {}  # request id -> run id, until the solver replies
         self.logs: collections.deque = collections.deque(maxlen=50)  # the solver's log events
         self.viewer: Viewer | None = None  # set by the app when the viewer is on
         self._target = worker_target
         self.slots = [Slot(self._new_worker()) for _ in range(max(1, settings.solvers))]
+        self.views = Views(self, self._newest())  # what the page and the viewer show
         self._retired: list[WorkerHandle] = []  # ended by a stop during a build; the bridge closes
         self.restarts = 0
         self.closing = threading.Event()  # the server shuts down: no new solver process
@@ -93,7 +85,7 @@ class RunManager:
     def start(self) -> None:
         if self.viewer:
             self.viewer.set_runs(self.run_ids())
-            self._show_selected()
+            self.views.show_selected()
         self.bridge.start()
 
     def close(self) -> None:
@@ -204,88 +196,6 @@ class RunManager:
     def _newest(self) -> str | None:
         return max(self.runs.values(), key=lambda r: r.created).id if self.runs else None
 
-    # ---- the selected run: what the page and the viewer show ----------------------------------
-    def view(self) -> dict:
-        preview = self.preview or {}
-        return {"run": self.selected, "scene": preview.get("scene"),
-                "preview": preview.get("state"), "preview_error": preview.get("error")}
-
-    def select(self, run_id: str) -> dict:
-        """Show ``run_id`` on the page (every browser's) and in the viewer."""
-        with self.lock:
-            self.selected = self.get(run_id).id
-        self._show_selected()
-        return self.view()
-
-    def show_scene(self, scene: str, toml: str | None = None) -> dict:
-        """Preview ``scene`` in the viewer before any run: its blank and tools at the start
-        (``toml``: as the page shows it, edits not saved yet). Validated here (422 naming the
-        field, 404 for an unknown scene); the solver process builds it between the steps of
-        an active run, which goes on, and the viewer shows it when built. The selected run
-        stays selected: selecting it again, or a new run, shows it."""
-        if not self.viewer:
-            raise Conflict("the viewer is off (the server runs without it): nothing to "
-                           "preview on")
-        text, _ = self._scene_text(scene, toml)
-        _, overrides = self._checked(text, {})
-        with self.lock:  # a free solver builds it at once; else between an active run's steps
-            worker = min(self.slots, key=lambda s: s.run is not None).worker
-            rid = worker.send("preview", scene=scene, scene_toml=text, overrides=overrides)
-            self.preview = {"scene": scene, "request": rid, "state": "building"}
-        self.viewer.preview_status(f"Preview of scene `{scene}`: building its model…")
-        return self.view()
-
-    def _show_selected(self) -> None:
-        """The viewer shows the selected run, instead of any scene's preview: live while it is
-        the latest, else its recording (loaded by the viewer in the background)."""
-        if not self.viewer:
-            return
-        # in order: of two selections made at once, the viewer ends on the later one
-        with self._showing:
-            with self.lock:
-                self.preview = None
-                run = self.runs.get(self.selected or "")
-                shown = None if run is None else (run.id, dict(run.parameters),
-                                                    run.state in ACTIVE, run.line())
-            self.viewer.show_run(*(shown or (None, {}, False, "No run yet")))
-
-    def show_preview(self, ev: dict) -> None:
-        """The solver built the preview ``ev`` (its ``preview`` event): shown unless another
-        scene or a run was chosen since (checked in the order of ``_show_selected``)."""
-        with self._showing:
-            with self.lock:
-                p = self.preview
-                if p is None or p["request"] != ev["request"]:
-                    return
-                p["state"], p["error"] = ("failed", ev["error"]) if "error" in ev \
-                    else ("shown", None)
-            if not self.viewer:
-                return
-            scene = ev["scene"]
-            if "error" in ev:
-                self.viewer.preview_status(f"Preview of scene `{scene}` failed: {ev['error']}")
-                return
-            self.viewer.show_preview(scene, ev["faces"], ev["tools"], ev["frame"],
-                                     f"Preview of scene `{scene}`: its blank and tools at the "
-                                     "start, before any run  \n(choose a run to show it)")
-
-    def kept_frames(self, run_id: str) -> FrameHistory:
-        """The frames kept of ``run_id``: only the latest runs' are."""
-        self.get(run_id)
-        history = self.history.get(run_id)
-        if history is None:
-            n = self.history.keep
-            raise NotFound(f"no frames kept for run {run_id!r} (only the latest "
-                           f"{'run' if n == 1 else f'{n} runs'}'s are)")
-        return history
-
-    def frame_at(self, run_id: str, step: int) -> dict:
-        """A kept frame of one of the latest runs: the one at ``step`` or the nearest before."""
-        frame = self.kept_frames(run_id).at(step)
-        if frame is None:
-            raise NotFound(f"no frames kept for run {run_id!r} yet")
-        return frame
-
     def start_run(self, scene: str, element: str | None = None, overrides: dict | None = None,
                   parameters: dict | None = None, paused: bool = False,
                   toml: str | None = None) -> Run:
@@ -295,11 +205,12 @@ class RunManager:
         and with 429 when the queue is full. ``toml``: the scene as the page shows it, edits
         not saved yet; it is validated as a saved scene is, and runs (kept as the run's
         scene.toml) instead of the saved file. The new run is the selected one."""
-        text, edited = self._scene_text(scene, toml)
+        text, edited = self.store.run_text(scene, toml)
         overrides = dict(overrides or {})
         if element:
             overrides["shell.element"] = element
-        spec, solver_overrides = self._checked(text, overrides)
+        spec, solver_overrides = self.store.checked(text, overrides,
+                                                    self.settings.max_model_bytes)
         for name, value in (parameters or {}).items():
             self.check_parameter(name, value)
         with self.lock:
@@ -311,7 +222,7 @@ class RunManager:
                       given=dict(parameters or {}))
             run.place = len(self.queue) + 1  # run.json says queued, and where
             out = self.files.create(run, text)
-            self.runs[run.id], self.selected = run, run.id
+            self.runs[run.id], self.views.selected = run, run.id
             self._starts[run.id] = dict(run=run.id, out=str(out), scene_toml=text,
                                         overrides=solver_overrides,
                                         parameters=parameters or {}, paused=paused,
@@ -320,39 +231,8 @@ class RunManager:
             self._dispatch()
         if self.viewer:
             self.viewer.set_runs(self.run_ids())
-        self._show_selected()
+        self.views.show_selected()
         return run
-
-    def _checked(self, text: str, overrides: dict) -> tuple[Scene, dict]:
-        """The scene of ``text`` validated (SceneError naming the field -> 422), its element
-        known, and its model within the server's memory limit, as the solver will read it (mesh
-        files by their full paths): refused before any build. Returns the scene and the
-        overrides the solver reads it with."""
-        spec = self.store.validate(text, overrides)
-        try:
-            get_element(spec.shell.element)
-        except ValueError as exc:  # names the known elements
-            raise Invalid(f"shell.element: {exc}") from None
-        solver_overrides = {**overrides, **self.store.solver_overrides(spec)}
-        size.check(scene_from_toml(text, solver_overrides), self.settings.max_model_bytes,
-                   "the server's --max-memory")
-        return spec, solver_overrides
-
-    def _scene_text(self, scene: str, toml: str | None) -> tuple[str, bool]:
-        """The text a run of ``scene`` runs, and whether it is not the saved scene: ``toml``
-        when it says something else than the saved file (compared as validated scenes, so the
-        form's re-rendering of an unchanged scene is no edit), else the saved file itself (its
-        comments kept)."""
-        if toml is None:
-            return self.store.text(scene), False
-        edited = self.store.validate(toml)  # SceneError naming the field -> 422
-        try:
-            saved = self.store.text(scene)
-            if self.store.validate(saved) == edited:
-                return saved, False
-        except (NotFound, SceneError):  # not saved yet, or the saved file is invalid
-            pass
-        return toml, True
 
     def _start_values(self, given: dict) -> dict:
         """Every live parameter's value at the start: as written unless ``given``. The solver's
@@ -432,16 +312,16 @@ class RunManager:
                 self._cancel(run, "deleted before it started")
             del self.runs[run.id]
             self.history.forget(run.id)
-            moved = self.selected == run.id
+            moved = self.views.selected == run.id
             if moved:
-                self.selected = self._newest()
+                self.views.selected = self._newest()
         self.changes.touch()
         self.estimates.forget(run.id)
         self.files.delete(run.id)
         if self.viewer:
             self.viewer.set_runs(self.run_ids())
             if moved:
-                self._show_selected()
+                self.views.show_selected()
 
     # ---- the run records: changed under ``lock`` ----------------------------------------------
     def _slot(self, run_id: str) -> Slot | None:

@@ -13,6 +13,8 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 
 from server.problems import Conflict, Invalid, NotFound
 from server.settings import check_scene_name
+from sim.elements import get_element
+from sim.model import size
 from sim.scene.load import Scene, SceneError, read_toml, scene_from_toml
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl")  # what sim.geometry.trimesh.load reads
@@ -134,6 +136,37 @@ class SceneStore:
         the scene reads (the solver reads a relative path from its working folder, not the
         scenes folder)."""
         return {f: str(full) for f, full in self.scene_files(scene).items()}
+
+    def checked(self, text: str, overrides: dict, max_bytes: int) -> tuple[Scene, dict]:
+        """The scene of ``text`` validated (SceneError naming the field -> 422), its element
+        known, and its model within the server's memory limit, as the solver will read it (mesh
+        files by their full paths): refused before any build. Returns the scene and the
+        overrides the solver reads it with."""
+        spec = self.validate(text, overrides)
+        try:
+            get_element(spec.shell.element)
+        except ValueError as exc:  # names the known elements
+            raise Invalid(f"shell.element: {exc}") from None
+        solver_overrides = {**overrides, **self.solver_overrides(spec)}
+        size.check(scene_from_toml(text, solver_overrides), max_bytes,
+                   "the server's --max-memory")
+        return spec, solver_overrides
+
+    def run_text(self, scene: str, toml: str | None) -> tuple[str, bool]:
+        """The text a run of ``scene`` runs, and whether it is not the saved scene: ``toml``
+        when it says something else than the saved file (compared as validated scenes, so the
+        form's re-rendering of an unchanged scene is no edit), else the saved file itself (its
+        comments kept)."""
+        if toml is None:
+            return self.text(scene), False
+        edited = self.validate(toml)  # SceneError naming the field -> 422
+        try:
+            saved = self.text(scene)
+            if self.validate(saved) == edited:
+                return saved, False
+        except (NotFound, SceneError):  # not saved yet, or the saved file is invalid
+            pass
+        return toml, True
 
     def save(self, name: str, text: str) -> Scene:
         path = self.path(name)  # the name first: a bad one touches nothing

@@ -9,7 +9,7 @@ through ``Actions``. What is drawn, its colours and the controls of how are the 
 second (a glTF of the whole sheet), always the last frame of a run, positions in between. The
 control panel is docked to the right, so it narrows the view instead of hiding the part.
 
-It shows the run selected on the server (``RunManager.select``: the page's Runs table, its own
+It shows the run selected on the server (``server.views``: the page's Runs table, its own
 "Run" dropdown, a new run), the same one the page shows. The latest runs (one per solver
 process) are shown live: frames as the bridge pushes them, and the time slider follows the live
 step; when the run is paused or over, moving it shows a kept frame (``RunManager.history``).

@@ -18,7 +18,7 @@ from pydantic import BaseModel, Field
 
 from server.errors import CheckedRoute, documented
 from server.problems import Conflict, NotFound, NotReady
-from server.records import ACTIVE, Run
+from server.records import ENDED, Run
 from server.runs import RunManager
 from server.settings import RunId
 from sim.frames import export
@@ -53,7 +53,7 @@ def _ended(request: Request, run_id: str) -> tuple[Run, Path]:
     """The run and its folder; 404 for no such run, 409 while it is going."""
     m: RunManager = request.app.state.manager
     run = m.get(run_id)
-    if run.state in ACTIVE:
+    if run.state not in ENDED:
         raise Conflict(f"run {run_id!r} is {run.state}: its results are complete when it ends")
     return run, m.files.dir(run.id)
 
@@ -75,7 +75,7 @@ def exports(run_id: RunId, request: Request) -> dict:
     run = m.get(run_id)
     folder = m.files.dir(run.id)
     going = f"the run is {run.state}: its results are complete when it ends"
-    why_not = dict.fromkeys(export.FORMATS, going) if run.state in ACTIVE else _why_not(folder)
+    why_not = dict.fromkeys(export.FORMATS, going) if run.state not in ENDED else _why_not(folder)
     out = []
     for fmt, text in export.FORMATS.items():
         why = why_not[fmt]

@@ -351,14 +351,16 @@ def scene(run_id: RunId, request: Request) -> Response:
 def frames(run_id: RunId, request: Request) -> dict:
     """The steps whose frames the server keeps (of the latest runs only, one per solver
     process; every k-th when long)."""
-    return _runs(request).kept_frames(run_id).summary()
+    m = _runs(request)
+    return m.history.kept(m.get(run_id).id).summary()
 
 
 @router.get("/{run_id}/frames/{step}", response_model=FrameStats, responses=RUN)
 def frame(run_id: RunId, step: int, request: Request) -> dict:
     """One kept frame (the one at ``step`` or the nearest before): tool translations, probes,
     and each field's min, max and mean over the display vertices."""
-    f = _runs(request).frame_at(run_id, step)
+    m = _runs(request)
+    f = m.history.at(m.get(run_id).id, step)
     return {"step": f["step"], "time": f["time"], "n_vertices": len(f["positions"]),
             "tools": {k: [float(x) for x in v] for k, v in f["tools"].items()},
             "fields": {k: {"min": float(v.min()), "max": float(v.max()), "mean": float(v.mean())}

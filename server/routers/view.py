@@ -44,14 +44,14 @@ def _runs(request: Request) -> RunManager:
 @router.get("", response_model=View)
 def read_view(request: Request) -> dict:
     """The run the page and the viewer show, or the scene the viewer previews instead."""
-    return _runs(request).view()
+    return _runs(request).views.view()
 
 
 @router.put("", response_model=View, responses=documented(404, *BODY))
 def select_run(body: Selection, request: Request) -> dict:
     """Show this run on the page (in every browser) and in the viewer: live if it is the
     latest run, else its recording."""
-    return _runs(request).select(body.run)
+    return _runs(request).views.select(body.run)
 
 
 @router.put("/scene", response_model=View, responses=documented(404, 409, *BODY))
@@ -59,4 +59,4 @@ def preview_scene(body: ScenePreview, request: Request) -> dict:
     """Preview this scene in the viewer before any run: its blank and its tools at the start.
     Built by the solver process in the background (``preview`` in ``GET /api/view`` says when
     it is shown); the selected run stays selected and shows again when selected."""
-    return _runs(request).show_scene(body.scene, body.toml)
+    return _runs(request).views.show_scene(body.scene, body.toml)

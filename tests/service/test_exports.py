@@ -136,3 +136,20 @@ def test_a_run_without_a_final_state_says_so(cup):
         assert "final.npz" in formats["stl"]["reason"]
     finally:
         (folder / "kept.npz").rename(folder / "final.npz")
+
+
+def test_a_queued_run_has_no_downloads_until_it_has_run(env):
+    """A run waiting in the queue is neither going nor ended: its downloads are refused as a
+    going run's are (409 saying it is queued), not as a run that lost its files (404)."""
+    client, _ = env
+    ahead = client.post("/api/runs", json={"scene": "tiny", "paused": True}).json()["id"]
+    queued = client.post("/api/runs", json={"scene": "tiny"}).json()
+    assert queued["state"] == "queued", queued
+    r = client.get(f"/api/runs/{queued['id']}/export/csv")
+    assert r.status_code == 409 and "queued" in r.json()["detail"], r.text
+    listed = client.get(f"/api/runs/{queued['id']}/exports").json()["formats"]
+    assert not any(f["available"] for f in listed)
+    assert all("queued" in f["reason"] for f in listed if f["format"] != "png"), listed
+    for run in (queued["id"], ahead):
+        client.post(f"/api/runs/{run}/stop")
+        wait_state(client, run, {"stopped", "cancelled", "finished"})

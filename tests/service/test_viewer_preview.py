@@ -125,10 +125,10 @@ def test_a_preview_that_cannot_be_built_says_why(client):
     assert reply["kind"] == "reply" and reply["ok"]
     m = client.app.state.manager
     with m.lock:
-        m.preview = {"scene": "broken", "request": 7, "state": "building"}
-    m.show_preview(ev)
+        m.views.preview = {"scene": "broken", "request": 7, "state": "building"}
+    m.views.show_preview(ev)
     view = client.get("/api/view").json()
     assert view["preview"] == "failed" and view["preview_error"] == ev["error"]
     assert "Preview of scene `broken` failed" in m.viewer.gui.status.content
-    m.show_preview({**ev, "request": 6})  # an earlier request answered late: ignored
+    m.views.show_preview({**ev, "request": 6})  # an earlier request answered late: ignored
     assert client.get("/api/view").json() == view
