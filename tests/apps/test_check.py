@@ -197,7 +197,8 @@ def to_mm(sc) -> dict:
 
 
 # probe kind -> its unit's factor from SI to mm-N-s-tonne
-PROBE_SCALE = {"displacement": 1e3, "thickness": 1e3, "reaction": 1.0, "volume": 1e9}
+PROBE_SCALE = {"displacement": 1e3, "thickness": 1e3, "height_range": 1e3, "reaction": 1.0,
+               "volume": 1e9}
 
 
 @pytest.mark.parametrize("scene,over", [
