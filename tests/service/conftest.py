@@ -34,3 +34,13 @@ def env(tmp_path_factory):
     with TestClient(create_app(settings)) as client:
         until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
         yield client, settings
+
+
+@pytest.fixture(scope="module")
+def browser(request):
+    """Debian's chromium for a module of browser tests; its screenshots go to the module's
+    SHOTS folder."""
+    from tests.support.browser import chromium
+
+    with chromium(request.module.SHOTS) as b:
+        yield b

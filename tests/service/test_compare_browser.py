@@ -25,7 +25,7 @@ import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import WAIT_MS, chromium, serve
+from tests.support.browser import new_page, serve
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import HANG, until
 
@@ -73,19 +73,8 @@ def served(tmp_path_factory):
         yield url, tmp, runs
 
 
-@pytest.fixture(scope="module")
-def browser():
-    with chromium(SHOTS) as b:
-        yield b
-
-
 def open_page(browser, url: str):
-    page = browser.new_page(viewport={"width": 1400, "height": 1000})
-    page.set_default_timeout(WAIT_MS)
-    errors = []
-    page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
-    page.goto(url + "/")
-    page.wait_for_selector("#compare-box")
+    page, errors = new_page(browser, url, "#compare-box")
     page.click("#compare-box > summary")
     return page, errors
 

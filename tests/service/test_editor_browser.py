@@ -22,7 +22,7 @@ import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import WAIT_MS, chromium, serve, settled
+from tests.support.browser import new_page, serve, settled
 from tests.support.service import until
 
 SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-editor"))
@@ -42,22 +42,10 @@ def served(tmp_path_factory):
         yield url, tmp / "scenes"
 
 
-@pytest.fixture(scope="module")
-def browser():
-    with chromium(SHOTS) as b:
-        yield b
-
-
 @pytest.fixture
 def page(browser, served):
     url, _ = served
-    page = browser.new_page(viewport={"width": 1400, "height": 1000})
-    page.set_default_timeout(WAIT_MS)
-    errors = []
-    page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
-    page.goto(url + "/")
-    page.wait_for_selector("#scenes li.sel")
-    page.wait_for_selector("#scene-form [name='material.E']")
+    page, errors = new_page(browser, url, "#scenes li.sel", "#scene-form [name='material.E']")
     yield page
     page.close()
     assert not errors, errors

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from sim.frames import export
-from tests.support.browser import WAIT_MS, chromium, serve
+from tests.support.browser import WAIT_MS, serve
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import until
 
@@ -32,12 +32,6 @@ def served(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("exports-browser")
     with serve(tmp, {"tiny_cup": tiny_cup_toml()}, "tiny_cup", "--no-viewer") as (url, _):
         yield url
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with chromium(SHOTS) as b:
-        yield b
 
 
 def start(url: str, **body) -> str:

@@ -16,7 +16,7 @@ import pytest
 import trimesh
 
 from sim.geometry.trimesh import rectangle
-from tests.support.browser import WAIT_MS, chromium, serve
+from tests.support.browser import new_page, serve
 from tests.support.scenes import tiny_toml
 from tests.support.service import until
 
@@ -35,22 +35,10 @@ def served(tmp_path_factory):
         yield url, tmp
 
 
-@pytest.fixture(scope="module")
-def browser():
-    with chromium(SHOTS) as b:
-        yield b
-
-
 @pytest.fixture
 def page(browser, served):
     url, _ = served
-    page = browser.new_page(viewport={"width": 1400, "height": 1000})
-    page.set_default_timeout(WAIT_MS)
-    errors = []
-    page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
-    page.goto(url + "/")
-    page.wait_for_selector("#scenes li.sel")
-    page.wait_for_selector("#scene-form [name='mesh.kind']")
+    page, errors = new_page(browser, url, "#scenes li.sel", "#scene-form [name='mesh.kind']")
     yield page
     page.close()
     assert not errors, errors

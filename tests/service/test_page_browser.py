@@ -20,7 +20,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.support.browser import WAIT_MS, chromium, serve, settled
+from tests.support.browser import new_page, serve, settled
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import until
 
@@ -39,19 +39,8 @@ def served(tmp_path_factory):
         yield url
 
 
-@pytest.fixture(scope="module")
-def browser():
-    with chromium(SHOTS) as b:
-        yield b
-
-
 def open_page(browser, url: str, width: int = 1400, height: int = 1000):
-    page = browser.new_page(viewport={"width": width, "height": height})
-    page.set_default_timeout(WAIT_MS)
-    errors = []
-    page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
-    page.goto(url + "/")
-    page.wait_for_selector("#scenes li.sel")
+    page, errors = new_page(browser, url, "#scenes li.sel", width=width, height=height)
     page.wait_for_function("document.getElementById('status').dataset.run !== undefined")
     return page, errors
 

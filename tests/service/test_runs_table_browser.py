@@ -13,7 +13,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.support.browser import WAIT_MS, chromium, serve
+from tests.support.browser import new_page, serve
 from tests.support.scenes import tiny_cup_toml, tiny_toml
 from tests.support.service import ENDED, until
 
@@ -34,19 +34,8 @@ def served(tmp_path_factory):
         yield url
 
 
-@pytest.fixture(scope="module")
-def browser():
-    with chromium(SHOTS) as b:
-        yield b
-
-
 def open_page(browser, url: str):
-    page = browser.new_page(viewport={"width": 1500, "height": 950})
-    page.set_default_timeout(WAIT_MS)
-    errors = []
-    page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
-    page.goto(url + "/")
-    page.wait_for_selector("#scenes li.sel")
+    page, errors = new_page(browser, url, "#scenes li.sel", width=1500, height=950)
     return page, errors
 
 

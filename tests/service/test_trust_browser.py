@@ -19,7 +19,7 @@ import httpx
 import pytest
 
 from sim.stepping.parameters import LABELS
-from tests.support.browser import WAIT_MS, chromium, serve, settled
+from tests.support.browser import new_page, serve, settled
 from tests.support.scenes import EDITED_EDGE, tiny_toml, vertices
 from tests.support.service import stop_all, until
 
@@ -38,19 +38,8 @@ def served(tmp_path_factory):
         yield url, tmp
 
 
-@pytest.fixture(scope="module")
-def browser():
-    with chromium(SHOTS) as b:
-        yield b
-
-
 def open_page(browser, url: str):
-    page = browser.new_page(viewport={"width": 1400, "height": 1000})
-    page.set_default_timeout(WAIT_MS)
-    errors = []
-    page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
-    page.goto(url + "/")
-    page.wait_for_selector("#scenes li.sel")
+    page, errors = new_page(browser, url, "#scenes li.sel")
     # the first poll has read the server's selection ("" when there is no run)
     page.wait_for_function("document.getElementById('status').dataset.run !== undefined")
     page.frame_locator("#viewer").get_by_text("Colour by").first.wait_for()

@@ -20,7 +20,7 @@ import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import WAIT_MS, chromium, serve
+from tests.support.browser import WAIT_MS, serve
 from tests.support.service import until
 
 SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-viewer"))
@@ -46,12 +46,6 @@ def served(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("viewer-browser")
     with serve(tmp, {"cup": cup_toml()}, "cup") as (url, vport):
         yield url, f"http://127.0.0.1:{vport}/"
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with chromium(SHOTS) as b:
-        yield b
 
 
 def shot(page, name: str, frame=None) -> None:

@@ -80,3 +80,17 @@ def chromium(shots: Path) -> Iterator[object]:
             yield b
         finally:
             b.close()
+
+
+def new_page(browser, url: str, *ready: str, width: int = 1400,
+             height: int = 1000) -> tuple[object, list[str]]:
+    """A page of the service at ``url`` once each selector of ``ready`` is there, and the
+    list its uncaught script errors go to (a test asserts it stays empty)."""
+    page = browser.new_page(viewport={"width": width, "height": height})
+    page.set_default_timeout(WAIT_MS)
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
+    page.goto(url + "/")
+    for selector in ready:
+        page.wait_for_selector(selector)
+    return page, errors
