@@ -110,9 +110,12 @@ const RunsTable = (() => {
   function actionsCell(r) {
     const span = document.createElement("span");
     span.className = "actions";
-    for (const [label, href, extra] of [["rrd", `/api/runs/${r.id}/recording`, "download"],
-                                        ["result", `/api/runs/${r.id}/result`, "_blank"],
-                                        ["scene", `/api/runs/${r.id}/scene`, "_blank"]]) {
+    // a run that never reached a solver (queued, cancelled) has its scene and nothing else
+    const ran = !["queued", "cancelled"].includes(r.state);
+    const links = [["scene", `/api/runs/${r.id}/scene`, "_blank"]];
+    if (ran) links.unshift(["rrd", `/api/runs/${r.id}/recording`, "download"],
+                           ["result", `/api/runs/${r.id}/result`, "_blank"]);
+    for (const [label, href, extra] of links) {
       const a = text("a", label);
       a.href = href;
       if (extra === "download") a.download = ""; else a.target = extra;

@@ -75,6 +75,9 @@ def test_the_queue_in_the_table(served, browser):
     assert cups[0].endswith(cell(page, cups[0], "run"))
     assert cell(page, cups[0], "scene") == "tiny_cup" and cell(page, cups[0], "element") == "q3t"
     assert cell(page, cups[0], "wall") == "–"  # not started: no wall time yet
+    # a queued run has its scene and nothing else to link to (no recording, no result)
+    links = page.locator(f'#runs tbody tr[data-id="{cups[0]}"] a').all_text_contents()
+    assert links == ["scene"], links
     page.screenshot(path=str(SHOTS / "01-queued.png"))
     page.click(f'#runs tbody tr[data-id="{cups[2]}"] button.cancel')
     wait_cell(page, cups[2], "state", "cancelled")
