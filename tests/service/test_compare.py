@@ -21,14 +21,11 @@ import sys
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
-from server.app import create_app
 from server.records import RunFiles
-from server.settings import Settings
 from tests.support import ROOT
 from tests.support.scenes import tiny_cup_toml
-from tests.support.service import HANG, until, wait_state
+from tests.support.service import HANG, in_process, until, wait_state
 
 ENDED = {"finished", "failed", "stopped"}
 # the compared numbers are the runs' own, scaled to kN / mm / %: equal up to that rounding
@@ -41,14 +38,7 @@ ROUNDED_MM = 1.1e-5
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("compare")
-    os.environ.setdefault("XDG_CONFIG_HOME", str(tmp / "config"))
-    os.environ.setdefault("XDG_DATA_HOME", str(tmp / "data"))
-    (tmp / "scenes").mkdir()
-    (tmp / "scenes" / "tiny_cup.toml").write_text(tiny_cup_toml())
-    settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs", viewer=False,
-                        ack_timeout=HANG)
-    with TestClient(create_app(settings)) as client:
-        until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
+    with in_process(tmp, {"tiny_cup": tiny_cup_toml()}) as (client, settings):
         yield client, settings
 
 

@@ -11,19 +11,15 @@ tests/service/test_page_browser.py drives the page itself):
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
-from server.app import create_app
 from server.plots import thinned
-from server.settings import Settings
 from sim.frames.probes import PROBES
 from sim.frames.units import DISPLAY
 from tests.support.scenes import tiny_cup_toml
-from tests.support.service import HANG, until, wait_state
+from tests.support.service import in_process, until, wait_state
 
 ENDED = {"finished", "failed", "stopped"}
 # the plots' numbers are the records' scaled to kN / mm: equal up to the scaling's rounding
@@ -33,14 +29,7 @@ SCALED = 1e-12
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("page-api")
-    os.environ.setdefault("XDG_CONFIG_HOME", str(tmp / "config"))
-    os.environ.setdefault("XDG_DATA_HOME", str(tmp / "data"))
-    (tmp / "scenes").mkdir()
-    (tmp / "scenes" / "tiny_cup.toml").write_text(tiny_cup_toml())
-    settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs", viewer=False,
-                        ack_timeout=HANG)
-    with TestClient(create_app(settings)) as client:
-        until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
+    with in_process(tmp, {"tiny_cup": tiny_cup_toml()}) as (client, settings):
         yield client, settings
 
 

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import socket
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -95,3 +97,27 @@ def thickness_scene(path: str) -> str:
 
 def nested(depth: int) -> str:
     return "[" * depth + "]" * depth
+
+
+@contextlib.contextmanager
+def in_process(tmp: Path, scenes: dict[str, str], **settings: Any) -> Iterator[tuple]:
+    """The service in this process (FastAPI's TestClient, which runs the lifespan) over
+    ``tmp/scenes`` (written from ``scenes``: name -> TOML) and ``tmp/runs``, without the viewer
+    unless ``settings`` say otherwise; yields (client, Settings) once the solver is ready. The
+    solver answers a request between two steps: on a loaded machine that may take longer than
+    the default second, never HANG (a hang guard)."""
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+    from server.settings import Settings
+
+    os.environ.setdefault("XDG_CONFIG_HOME", str(tmp / "config"))
+    os.environ.setdefault("XDG_DATA_HOME", str(tmp / "data"))
+    (tmp / "scenes").mkdir(exist_ok=True)
+    for name, text in scenes.items():
+        (tmp / "scenes" / f"{name}.toml").write_text(text)
+    config = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs",
+                      **{"viewer": False, "ack_timeout": HANG, **settings})
+    with TestClient(create_app(config)) as client:
+        until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
+        yield client, config
