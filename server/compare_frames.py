@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import zipfile
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -138,6 +139,27 @@ def state(f: Frames, i: int) -> dict:
             "faces": faces, "thickness": h, "time": float(t)}
 
 
+@lru_cache(maxsize=4096)
+def _extent(path: Path, mtime_ns: int) -> np.ndarray:
+    """The corner positions' extent of one saved frame, ``(3, 2)`` (m): a frame file is never
+    rewritten in place (``mtime_ns`` keys the cache all the same)."""
+    with np.load(path) as z:
+        p = z["positions"].reshape(-1, 3)
+    return np.stack([p.min(0), p.max(0)], axis=1).astype(float)
+
+
+def box(*runs: Frames) -> list[list[float]]:
+    """The extent (mm, ``[[x0, x1], [y0, y1], [z0, z1]]``) of every frame of ``runs``: one
+    box that holds the parts at every stroke, so a page can keep its scale as it slides."""
+    try:
+        ext = [_extent(p, p.stat().st_mtime_ns) for f in runs for p in f.paths]
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # damaged
+        raise Conflict(f"runs: a saved frame of {', '.join(f.run.id for f in runs)} cannot "
+                       f"be read ({exc})") from None
+    e = np.stack(ext)
+    return np.round(MM * np.stack([e[:, :, 0].min(0), e[:, :, 1].max(0)], axis=1), 4).tolist()
+
+
 def at_stroke(a: Loaded, b: Loaded, stroke: float | None) -> dict:
     """A and B at the stroke ``stroke`` (mm; None: the deepest both reached): see the
     module's doc. Conflict (409) for a run without frames, Invalid (422) for a stroke out of
@@ -151,7 +173,7 @@ def at_stroke(a: Loaded, b: Loaded, stroke: float | None) -> dict:
     both = np.concatenate([sa["thickness"], sb["thickness"]])
     diff = None if why else MM * (sa["thickness"] - sb["thickness"])
     out = {"unit": "mm", "stroke": stroke, "range": [round(lo, 4), round(hi, 4)],
-           "runs": [fa.listed(), fb.listed()],
+           "runs": [fa.listed(), fb.listed()], "box": box(fa, fb),
            "a": _part(fa, ia, sa), "b": _part(fb, ib, sb),
            "thickness_range": [round(MM * float(both.min()), 5),
                                round(MM * float(both.max()), 5)],

@@ -141,6 +141,8 @@ class AtStroke(BaseModel):
     stroke: float = Field(description="the stroke asked for (or the deepest in common), mm")
     range: list[float] = Field(description="the strokes both runs saved frames for, mm")
     runs: list[SavedFrames]
+    box: list[list[float]] = Field(description="the extent of every saved frame of both, mm "
+                                   "([[x0, x1], [y0, y1], [z0, z1]]): one box for all strokes")
     a: PartAtStroke
     b: PartAtStroke
     thickness_range: list[float] = Field(description="thickness range of both at these "

@@ -90,6 +90,15 @@ def test_frames_are_matched_by_stroke_not_step(env, runs):
         mid = 1e3 * f["positions"].reshape(2, -1, 3).astype(float).mean(0)  # the two skins
         np.testing.assert_allclose(part["formed"], mid, atol=POS_MM)
         assert min(p[2] for p in part["formed"]) < -0.5  # drawn down into the die: not at rest
+    # one box holds every frame of both (the rest state is the widest, the deepest the lowest)
+    (x0, x1), (y0, y1), (z0, z1) = t["box"]
+    for run in (a, b):
+        for f in (settings.runs_dir / run / "frames").glob("step-*.npz"):
+            with np.load(f) as z:
+                p = 1e3 * z["positions"].reshape(-1, 3)
+            assert x0 <= p[:, 0].min() + POS_MM and p[:, 0].max() <= x1 + POS_MM
+            assert y0 <= p[:, 1].min() + POS_MM and p[:, 1].max() <= y1 + POS_MM
+            assert z0 <= p[:, 2].min() + POS_MM and p[:, 2].max() <= z1 + POS_MM
     both = t["a"]["thickness"] + t["b"]["thickness"]
     assert t["thickness_range"] == pytest.approx([min(both), max(both)], abs=THICK_MM)
     d = t["difference"]
