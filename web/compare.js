@@ -22,8 +22,8 @@ const Compare = (() => {
                  stroke: null, strokeKey: null, strokeSeq: 0, strokeDigits: 3,
                  bounds: null };
   // the 3-D views whose cameras move together: the final thickness and the views at a stroke
-  // from the front, a little to the right and above: the whole part and its axes beside a
-  // colour bar
+  // the views at a stroke: from the front, a little to the right and above, the whole part
+  // and its axes beside a colour bar
   const EYE = { x: 0.6, y: -1.3, z: 1.05 };
   // plotly's RdBu runs from blue (low) to red (high): reversed, A − B < 0 (A thinner) is red
   const THINNER_RED = { colorscale: "RdBu", reversescale: true };
@@ -474,7 +474,7 @@ const Compare = (() => {
       margin: { l: 0, r: 0, t: 34, b: 0 },
       scene: { aspectmode: "data", xaxis: { title: { text: "x (mm)" } },
                yaxis: { title: { text: "y (mm)" } }, zaxis: { title: { text: "z (mm)" } },
-               camera: view.camera || { eye: EYE } } });
+               camera: view.camera || { eye: { x: 0.7, y: -1.5, z: 1.3 } } } });
     await Plotly.react(div, [trace], lay, CONFIG);
     linkCamera(div);
   }
