@@ -19,6 +19,10 @@ RUNS = Annotated[str, Query(description="run ids, comma-separated: the first is 
                             examples=["press-linear-20261202-101500-ab12,"
                                       "press-q3t-20261202-101700-cd34"])]
 
+STROKE = Annotated[float | None, Query(description="punch stroke, mm, within the range both "
+                                       "runs saved frames for; omitted: the deepest stroke "
+                                       "both reached")]
+
 
 class ComparedRun(BaseModel):
     id: str
@@ -202,10 +206,7 @@ def thickness(runs: RUNS, request: Request) -> dict:
 
 @router.get("/api/compare/frames", response_model=AtStroke,
             responses=documented(404, 409, 422))
-def frames(runs: RUNS, request: Request,
-           stroke_mm: Annotated[float | None, Query(
-               description="punch stroke, mm, within the range both runs saved frames for; "
-                           "omitted: the deepest stroke both reached")] = None) -> dict:
+def compare_at_stroke(runs: RUNS, request: Request, stroke_mm: STROKE = None) -> dict:
     """The first two runs (A, B) at the same punch stroke: each run's saved frame nearest
     ``stroke_mm`` (matched by stroke, not step: runs of another speed or step count reach a
     stroke at other steps) with its own stroke and step, its deformed mid-surface and
