@@ -512,13 +512,13 @@ const Compare = (() => {
     return el("section", { id: "compare-stroke" },
       el("h3", { textContent: "At the same punch stroke: thickness on the deformed part " +
                  "(both on one colour scale; the cameras move together)" }),
-      el("div", { className: "row stroke-controls" },
+      el("div", { id: "compare-stroke-controls", className: "row stroke-controls" },
          el("label", { htmlFor: "compare-stroke-slider", textContent: "punch stroke" }),
          slider, el("datalist", { id: "compare-stroke-ticks" }),
          el("output", { id: "compare-stroke-value", htmlFor: "compare-stroke-slider" }),
          el("span", { id: "compare-stroke-shown" })),
       el("p", { id: "compare-stroke-msg", className: "muted", role: "status" }),
-      el("div", { className: "stroke-views" },
+      el("div", { id: "compare-stroke-views", className: "stroke-views" },
          el("div", { id: "compare-3d-a", className: "plot" }),
          el("div", { id: "compare-3d-b", className: "plot" }),
          el("div", { id: "compare-3d-diff", className: "plot" })));
@@ -558,6 +558,7 @@ const Compare = (() => {
       return;
     }
     if (seq !== view.strokeSeq) return;
+    $("compare-stroke-controls").hidden = $("compare-stroke-views").hidden = false;
     t.b.letter = view.data.runs[view.against].letter;  // the server letters its two A, B
     strokeControls(t);
     await drawStroke(t);
@@ -565,8 +566,7 @@ const Compare = (() => {
 
   function strokeMissing(why) {
     $("compare-stroke-msg").textContent = `no views at a stroke: ${why}`;
-    $("compare-stroke-slider").disabled = true;
-    $("compare-stroke-shown").textContent = "";
+    $("compare-stroke-controls").hidden = $("compare-stroke-views").hidden = true;
     for (const id of VIEWS3D.slice(1)) if ($(id).data) Plotly.purge($(id));
   }
 

@@ -11,13 +11,15 @@ against the real server saving every step's frame, with two finished runs of a s
   on one scale, in the same box (mm, true proportions) at every stroke;
 - turning one view turns the others with it, and a new stroke keeps the camera (plotly's
   layout camera);
-- a third run on another mesh: no A - B map, the reason in its place.
+- a third run on another mesh: no A - B map, the reason in its place; once its frames are
+  gone (as a sweep case written without them), no views, the reason instead.
 
 Screenshots go to $Q3T_SHOTS (default /tmp/shots-compare3d)."""
 
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 import httpx
@@ -50,7 +52,7 @@ def served(tmp_path_factory):
     with serve(tmp, {"tiny_cup": tiny_cup_toml()}, "tiny_cup", "--no-viewer",
                "--record-every", "1") as (url, _):
         yield url, [_finished(url), _finished(url, parameters={"tool_speed": 0.5}),
-                    _finished(url, overrides={"mesh.edge_length": 0.002})]
+                    _finished(url, overrides={"mesh.edge_length": 0.002})], tmp / "runs"
 
 
 def shot(page, name: str) -> None:
@@ -98,7 +100,7 @@ def camera_eye(page, selector: str) -> dict:
 
 
 def test_two_views_follow_the_stroke_slider(served, browser):
-    url, (a, b, _) = served
+    url, (a, b, _), _ = served
     page, errors = open_compare(browser, url, a, b)
     wait_steps(page, 4, 8)  # the deepest stroke both reached: A's last step, B's
     page.locator("#compare-stroke").scroll_into_view_if_needed()
@@ -155,13 +157,21 @@ def test_two_views_follow_the_stroke_slider(served, browser):
     assert not errors, errors
 
 
-def test_another_mesh_has_no_difference_map(served, browser):
-    url, (a, _, c) = served
+def test_another_mesh_has_no_difference_map_and_no_frames_no_views(served, browser):
+    url, (a, _, c), runs_dir = served
     page, errors = open_compare(browser, url, a, c)
-    wait_steps_ab = "document.querySelector('#compare-3d-b').dataset.step === '4'"
-    page.wait_for_function(wait_steps_ab)
+    page.wait_for_function("document.querySelector('#compare-3d-b').dataset.step === '4'")
     page.wait_for_function("document.querySelector('#compare-3d-diff').textContent"
                            ".includes('the meshes differ')")
     page.locator("#compare-stroke").scroll_into_view_if_needed()
     shot(page, "compare3d-other-mesh")
+    # a run without saved frames (as a sweep case written without them): the reason, no views
+    page.keyboard.press("Escape")
+    shutil.rmtree(runs_dir / c / "frames")
+    page.click("#compare-open")
+    page.wait_for_function("document.querySelector('#compare-stroke-msg').textContent"
+                           ".includes('no saved frames')")
+    assert page.is_hidden("#compare-stroke-views") and page.is_hidden("#compare-stroke-slider")
+    assert c in page.text_content("#compare-stroke-msg")
+    shot(page, "compare3d-no-frames")
     assert not errors, errors
