@@ -4,10 +4,10 @@ Each slot's solver is a Dask actor (``server.solveractor.SolverActor``) on a wor
 worker.py's loop. Its handle here has the interface of a local ``WorkerHandle`` (``send``,
 ``events``, ``frames``, ``alive``, ``close``...), so the run manager and the bridge do not know
 where a solver runs. Why an actor, not Dask queues: its calls go from the server to the worker
-directly, so frames do not pass through the scheduler; a lost worker shows at once as a call
-that fails; and a queue's ``get`` with a timeout logs an error on the scheduler each time it
-times out (distributed 2026.8), which a poll does every fraction of a second. Dask's pub/sub
-is gone from distributed 2026.8.
+directly (``direct_to_workers``), so frames do not pass through the scheduler; a lost worker
+shows at once as a call that fails; and a queue's ``get`` with a timeout logs an error on the
+scheduler each time it times out (distributed 2026.8), which a poll does many times a second.
+Dask's pub/sub is gone from distributed 2026.8.
 
 A pump thread per handle makes the actor, forwards the commands in order and pulls what the
 solver sent into local queues, which the bridge reads as it reads a local solver's. A run's
@@ -49,8 +49,9 @@ def connect(address: str, timeout: float, default: bool = False) -> Client:
     to ``get_client()``)."""
     from distributed import Client
 
-    try:
-        client = Client(address, timeout=timeout, set_as_default=default)
+    try:  # direct_to_workers: actor calls go to the worker, not proxied by the scheduler
+        client = Client(address, timeout=timeout, set_as_default=default,
+                        direct_to_workers=True)
     except Exception as exc:  # OSError: unreachable; ValueError: not an address; and others
         raise SchedulerError(f"--scheduler {address}: no Dask scheduler answered within "
                              f"{timeout:g} s ({type(exc).__name__}: {exc})") from None
@@ -61,7 +62,24 @@ def connect(address: str, timeout: float, default: bool = False) -> Client:
         raise SchedulerError(f"--scheduler {address}: a worker cannot run q3t's solver "
                              f"({type(exc).__name__}: {exc}); install q3t-forming, the same "
                              "version as the server, in the workers' environment") from None
+    workers = list(client.scheduler_info(n_workers=-1)["workers"])
+    try:
+        client.sync(_reach, workers, timeout, client.connection_args)
+    except Exception as exc:
+        client.close()
+        raise SchedulerError(f"--scheduler {address}: the server cannot reach a worker "
+                             f"directly ({type(exc).__name__}: {exc}); the solvers' frames go "
+                             "from the workers to the server: run it where it can reach "
+                             "them") from None
     return client
+
+
+async def _reach(workers: list[str], timeout: float, connection_args: dict) -> None:
+    from distributed.comm import connect
+
+    for address in workers:
+        comm = await connect(address, timeout=timeout, **connection_args)
+        await comm.close()
 
 
 def _probe() -> None:

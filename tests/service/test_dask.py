@@ -10,6 +10,7 @@ Every wait is on a state, with a generous deadline (``HANG``), never on the cloc
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 from collections.abc import Iterator
@@ -137,6 +138,10 @@ def test_a_finished_run_is_served_with_its_recording(tmp_path, cluster):
         result = client.get(f"/api/runs/{run}/result").json()
         assert result["converged"] and len(result["steps"]) == 4
         assert client.get(f"/api/runs/{run}/summary").status_code == 200
+        # the saved frames came back too: every download is offered, the VTU series made
+        formats = client.get(f"/api/runs/{run}/exports").json()["formats"]
+        assert all(f["available"] for f in formats if f["format"] != "png"), formats
+        assert client.get(f"/api/runs/{run}/export/vtu").status_code == 200
         r = client.get(f"/api/runs/{run}/recording")
         assert r.status_code == 200
         got = tmp_path / "got.rrd"
@@ -149,6 +154,8 @@ def test_a_finished_run_is_served_with_its_recording(tmp_path, cluster):
 
 
 def test_two_runs_at_once_on_the_two_workers(tmp_path, cluster, cluster_client):
+    """Two runs step at once, one on each worker; shutting the server down stops both, and
+    their files come back before it is down."""
     with served(tmp_path, cluster, solvers=2) as client:
         runs = [start(client, "long"), start(client, "long")]
         for run in runs:
@@ -157,10 +164,13 @@ def test_two_runs_at_once_on_the_two_workers(tmp_path, cluster, cluster_client):
         assert sorted(health["active"]) == sorted(runs)
         pids = {s["pid"] for s in health["solvers"]}
         assert len(pids) == 2 and pids <= set(worker_pids(cluster_client).values())
-        for run in runs:
-            client.post(f"/api/runs/{run}/stop")
-        for run in runs:
-            assert wait_state(client, run, ENDED)["state"] == "stopped"
+    for run in runs:
+        folder = tmp_path / "runs" / run
+        status = json.loads((folder / "run.json").read_text())
+        assert status["state"] == "stopped" and status["reason"] == "server shut down"
+        result = json.loads((folder / "result.json").read_text())
+        assert len(result["steps"]) == status["step"] >= 2
+        assert (folder / "run.rrd").stat().st_size > 0
 
 
 def test_a_lost_worker_fails_its_run_and_nothing_else(tmp_path, cluster, cluster_client):
