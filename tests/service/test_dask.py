@@ -13,6 +13,8 @@ import contextlib
 import json
 import os
 import signal
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -70,6 +72,8 @@ def served(tmp: Path, cluster, **options: object) -> Iterator[TestClient]:
     (tmp / "scenes").mkdir(exist_ok=True)
     (tmp / "scenes" / "tiny.toml").write_text(tiny_toml())
     (tmp / "scenes" / "long.toml").write_text(tiny_toml(steps=LONG))
+    (tmp / "scenes" / "slow.toml").write_text(tiny_toml().replace('name = "tiny"',
+                                                                  'name = "slow"'))
     settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs",
                         scheduler=cluster.scheduler_address,
                         **{"viewer": False, "ack_timeout": HANG, "stop_timeout": HANG,
@@ -198,6 +202,51 @@ def test_a_lost_worker_fails_its_run_and_nothing_else(tmp_path, cluster, cluster
         assert wait_state(client, kept, ENDED)["state"] == "stopped"
     until(lambda: len(cluster_client.scheduler_info(n_workers=-1)["workers"]) == 2,
           "the killed worker was not restarted by its nanny")
+
+
+def slow_builds(on: bool) -> None:
+    """On a worker: while ``on``, the build of a scene named 'slow' does not end (a model that
+    takes minutes to build, without the minutes)."""
+    from sim.stepping import simulation
+
+    real = getattr(simulation, "real_build_model", simulation.build_model)
+
+    def build(scene):
+        while scene.name == "slow" and simulation.slow_builds:
+            time.sleep(0.05)
+        return real(scene)
+
+    simulation.real_build_model, simulation.build_model = real, build
+    simulation.slow_builds = on
+
+
+def solver_threads() -> int:
+    """On a worker: its solvers' loops still running."""
+    return sum(t.name == "q3t-solver" for t in threading.enumerate())
+
+
+def test_a_stop_during_the_build_lets_its_solver_go(tmp_path, cluster, cluster_client):
+    """A build cannot be interrupted on a worker: the stop ends the run at once, a new solver
+    takes the slot, and the old one ends once its build is over. No solver outlives its
+    server."""
+    cluster_client.run(slow_builds, True)
+    try:
+        with served(tmp_path, cluster) as client:
+            run = start(client, "slow")
+            wait_state(client, run, {"building"})  # the solver said so: inside the build
+            r = client.post(f"/api/runs/{run}/stop")
+            assert r.status_code == 200 and r.json()["state"] == "stopped", r.text
+            st = client.get(f"/api/runs/{run}").json()
+            assert "during the build" in st["reason"], st
+            result = json.loads((tmp_path / "runs" / run / "result.json").read_text())
+            assert result["failure"]["reason"] == st["reason"]
+            assert client.get("/api/health").json()["worker_restarts"] == 1
+            after = start(client)
+            assert wait_state(client, after, ENDED)["state"] == "finished"
+    finally:
+        cluster_client.run(slow_builds, False)
+    until(lambda: not any(cluster_client.run(solver_threads).values()),
+          "a solver's loop outlived its server on a worker")
 
 
 def serve_args(*argv: str):
