@@ -155,10 +155,12 @@ class DaskWorkerHandle:
         self.commands.put({"id": rid, "cmd": cmd, **kw})
         return rid
 
-    def kill(self) -> None:
-        """Let go of the solver at once. Its thread cannot be killed: a build under way goes
-        on to its end on the worker, then the loop sees it was let go and ends."""
+    def kill(self) -> str:
+        """Let go of the solver at once; says so. Its thread cannot be killed: a build under
+        way goes on to its end on the worker, then the loop sees it was let go and ends."""
         self.let_go.set()
+        where = f" on Dask worker {self.address}" if self.address else ""
+        return f"its solver{where} was let go (it ends once its build is over)"
 
     def join(self, timeout: float) -> None:
         self.thread.join(timeout)

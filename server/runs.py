@@ -429,11 +429,10 @@ class RunManager:
         the build held is freed. Returns the old process's handle."""
         slot = self._slot(run.id)
         old = slot.worker
-        old.kill()
+        how = old.kill()
         slot.worker = self._new_worker()
         self.restarts += 1
-        self.finish(run, "stopped", "stopped during the build (its solver process was ended "
-                                    "and a new one started)")
+        self.finish(run, "stopped", f"stopped during the build ({how} and a new one started)")
         return old
 
     def _after_build_ended(self, run: Run, old: WorkerHandle | None) -> None:

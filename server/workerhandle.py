@@ -52,8 +52,10 @@ class WorkerHandle:
         self.commands.put({"id": rid, "cmd": cmd, **kw})
         return rid
 
-    def kill(self) -> None:
+    def kill(self) -> str:
+        """End the process at once; says so (for the reason of the run it had)."""
         self.process.kill()
+        return "its solver process was ended"
 
     def join(self, timeout: float) -> None:
         self.process.join(timeout)
