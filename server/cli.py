@@ -85,6 +85,18 @@ def _scheduler_answers(settings: Settings) -> bool:
     return True
 
 
+def seconds(text: str) -> float:
+    """An argparse type: a positive, finite number of seconds (else exit 2 naming the
+    option)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, not {text}")
+    return value
+
+
 def _stop_as_exit(signum: int, frame: FrameType | None) -> None:
     raise SystemExit(0)
 
@@ -195,7 +207,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "--solvers N of them at once. The workers need q3t-forming installed, "
                         "the same version; no shared file system (each run's files come back "
                         "to --runs-dir). Not reachable within --scheduler-timeout: exit 2")
-    s.add_argument("--scheduler-timeout", type=float, default=Settings.scheduler_timeout,
+    s.add_argument("--scheduler-timeout", type=seconds, default=Settings.scheduler_timeout,
                    metavar="S", help="seconds to reach the --scheduler at start-up "
                                      "(default %(default)g)")
     s.add_argument("--max-upload", type=float, default=Settings.max_upload / 2**20,

@@ -18,6 +18,7 @@ import queue
 import shutil
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from server.worker import serve
@@ -26,10 +27,12 @@ ENDED = ("finished", "stopped", "failed")  # a state that ends the run: its file
 PULL_EVENTS = 500  # at most this many events in one pull (a file counts as many)
 
 
-def run_files(folder: Path) -> list[tuple[str, bytes]]:
-    """Every file under ``folder``: (path relative to it, with '/', its bytes)."""
-    return [(p.relative_to(folder).as_posix(), p.read_bytes())
-            for p in sorted(folder.rglob("*")) if p.is_file()]
+def run_files(folder: Path) -> Iterator[tuple[str, bytes]]:
+    """Every file under ``folder``: (path relative to it, with '/', its bytes), read one at a
+    time."""
+    for p in sorted(folder.rglob("*")):
+        if p.is_file():
+            yield p.relative_to(folder).as_posix(), p.read_bytes()
 
 
 class Shipping:

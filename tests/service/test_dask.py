@@ -92,9 +92,10 @@ def start(client: TestClient, scene: str = "tiny", **body: object) -> str:
 
 
 def test_a_run_steps_on_a_worker_through_its_whole_cycle(tmp_path, cluster, cluster_client):
-    """Start, a live parameter, frames, pause, one step, resume, stop; the run's files are
-    in the server's folder, none left on the worker."""
-    with served(tmp_path, cluster) as client:
+    """Start, a live parameter, frames (kept, and pushed to the viewer), pause, one step,
+    resume, stop; the run's files are in the server's folder, none left on the worker."""
+    pytest.importorskip("viser")
+    with served(tmp_path, cluster, viewer=True, viewer_port=free_port()) as client:
         run = start(client, "long", parameters={"friction_scale": 0.5})
         wait_step(client, run, 1)
         health = client.get("/api/health").json()
@@ -112,6 +113,8 @@ def test_a_run_steps_on_a_worker_through_its_whole_cycle(tmp_path, cluster, clus
         kept = until(lambda: client.get(f"/api/runs/{run}/frames").json()["steps"],
                      "no frame of the run reached the server")
         assert max(kept) >= 1
+        until(lambda: client.get(f"/api/runs/{run}").json()["frames"].get("pushed", 0) >= 2,
+              "no frame of the run reached the viewer")
 
         assert client.post(f"/api/runs/{run}/pause").status_code == 200
         at = wait_done(client, run)["step"]
@@ -270,3 +273,11 @@ def test_a_scheduler_that_does_not_answer_is_an_error_at_start_up(address, capsy
     assert cmd_serve(serve_args("--scheduler", address, "--scheduler-timeout", "2")) == 2
     err = capsys.readouterr().err
     assert f"--scheduler {address}: no Dask scheduler answered" in err, err
+
+
+@pytest.mark.parametrize("bad", ["0", "-1", "nan", "soon"])
+def test_the_scheduler_timeout_is_a_positive_number_of_seconds(bad, capsys):
+    with pytest.raises(SystemExit) as exc:
+        serve_args("--scheduler", "tcp://127.0.0.1:8786", "--scheduler-timeout", bad)
+    assert exc.value.code == 2
+    assert "argument --scheduler-timeout: " in capsys.readouterr().err
