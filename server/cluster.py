@@ -36,6 +36,9 @@ if TYPE_CHECKING:  # imports distributed
 
 PULL_WAIT = 0.05  # s the actor waits for something to send: the commands' latency at most
 ANSWER_S = 120.0  # s an actor may take to answer a call; then its worker counts as lost
+# s a handle that could not make its solver waits before it says so: the run manager replaces
+# it at once, and the cause (the scheduler gone) usually lasts
+RETRY_S = 5.0
 
 
 class SchedulerError(RuntimeError):
@@ -104,6 +107,10 @@ class DaskSolvers:
     def submit(self, args: tuple) -> tuple[Future, str | None]:
         """A new solver actor, and the worker it was meant for (a preference: another worker
         takes it if that one has gone)."""
+        if self.client.status != "running":  # it gave up reconnecting: for good
+            raise SchedulerError(f"the Dask scheduler {self.settings.scheduler} is gone (its "
+                                 f"client is {self.client.status}); restart the server once "
+                                 "it is back")
         with self.lock:
             workers = self.client.scheduler_info(n_workers=-1)["workers"]
             address = min(workers, default=None,
@@ -166,11 +173,12 @@ class DaskWorkerHandle:
         self.thread.join(timeout)
 
     def death(self) -> str:
-        where = f"Dask worker {self.address}" if self.address else "a Dask worker"
+        if self.address is None:
+            return f"no solver could be started on the Dask cluster ({self.lost})"
         if self.lost is None:
-            return f"its solver on {where} ended"
-        return (f"{where}, which ran its solver, was lost ({self.lost}); the run's files "
-                "were on it")
+            return f"its solver on Dask worker {self.address} ended"
+        return (f"Dask worker {self.address}, which ran its solver, was lost ({self.lost}); "
+                "the run's files were on it")
 
     def close(self, timeout: float = 3.0) -> bool:
         """Ask the solver to end, let go of it if it does not. Returns whether it ended."""
@@ -195,8 +203,11 @@ class DaskWorkerHandle:
                 meant = self.address
                 self._serve(actor)
         except Exception as exc:  # the worker is gone, or does not answer
+            if self.address is None:  # none made: a new handle would fail as fast
+                self.let_go.wait(RETRY_S)
             if not self.let_go.is_set():
-                self.lost = f"{type(exc).__name__}: {exc}"
+                self.lost = str(exc) if isinstance(exc, SchedulerError) \
+                    else f"{type(exc).__name__}: {exc}"
         finally:
             self.pool.moved(meant, None)
             if future is not None:
