@@ -212,14 +212,19 @@ def _check_input(cases: list[str], elements: list[str], forming_edge: float | No
     unknown = [c for c in cases if c not in KINDS]
     if unknown:
         raise ValueError(f"--cases: unknown {', '.join(unknown)}; known: {', '.join(KINDS)}")
-    if "calculix" in cases and calculix.program() is None:
-        raise ValueError(f"--cases calculix: CalculiX's program `{calculix.PROGRAM}` is not on "
-                         "PATH (Debian: apt-get install calculix-ccx)")
     for el in elements:
         try:
             get_element(el)
         except ValueError as exc:
             raise ValueError(f"--elements: {exc}") from None
+    if "calculix" in cases:
+        alone = [el for el in elements if el not in bench_calculix.COUNTERPART]
+        if alone:
+            raise ValueError(f"--elements: {', '.join(alone)} has no CalculiX counterpart "
+                             f"(--cases calculix takes {', '.join(bench_calculix.COUNTERPART)})")
+        if calculix.program() is None:
+            raise ValueError(f"--cases calculix: CalculiX's program `{calculix.PROGRAM}` is not "
+                             "on PATH (Debian: apt-get install calculix-ccx)")
 
 
 def _title(cases: list[str]) -> str:
@@ -259,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
             continue
         if case == "calculix":
             ccx_rows, material = bench_calculix.measure(
-                elements, {el: case_edge("beam", el) for el in elements}, args.repeat,
+                elements, lambda el: case_edge("beam", el), args.repeat,
                 Path(args.out) / "calculix", calculix.program())
             rows += ccx_rows + [{"case": "calculix_material", **r} for r in material]
             for r in ccx_rows:

@@ -27,6 +27,8 @@ from sim.apps.common import load
 from sim.apps.study_report import markdown_table
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from sim.scene.load import Scene
 
 SCENE = "cantilever"
@@ -92,20 +94,20 @@ def _ccx(d: cx.Deck, folder: Path, ccx: str) -> dict:
             "attempts": r.attempts, "threads": r.threads}
 
 
-def measure(elements: list[str], edges: dict[str, float], repeat: int, out: Path,
+def measure(elements: list[str], edge: Callable[[str], float], repeat: int, out: Path,
             ccx: str) -> tuple[list[dict], list[dict]]:
-    """(side-by-side rows, material rows). Runs interleaved round by round, ours and ccx's,
-    so a shared machine's drift hits both alike."""
-    ours_cfg = {("ours", el, s): (el, edges[el], TOLERANCES[s][0]) for el in elements
+    """(side-by-side rows, material rows), each element at ``edge(element)``. Runs interleaved
+    round by round, ours and ccx's, so a shared machine's drift hits both alike."""
+    ours_cfg = {("ours", el, s): (el, edge(el), TOLERANCES[s][0]) for el in elements
                 for s in ("default", "matched")}
-    decks = {("ccx", cel, s): deck(cel, edges[cel], s)
+    decks = {("ccx", cel, s): deck(cel, edge(cel), s)
              for cel in sorted({COUNTERPART[el] for el in elements}) for s in TOLERANCES}
     for el in elements:
         ours(el, WARM_EDGE, None)
     runs: dict[tuple, list[dict]] = {k: [] for k in [*ours_cfg, *decks]}
     for _ in range(repeat):
-        for k, (el, edge, rtol) in ours_cfg.items():
-            runs[k].append(ours(el, edge, rtol))
+        for k, (el, h, rtol) in ours_cfg.items():
+            runs[k].append(ours(el, h, rtol))
         for k, d in decks.items():
             runs[k].append(_ccx(d, out / f"{k[1]}-{k[2]}", ccx))
     rows = [_row(el, s, runs[("ours", el, "default" if s == "default" else "matched")],
@@ -113,12 +115,12 @@ def measure(elements: list[str], edges: dict[str, float], repeat: int, out: Path
             for el in elements for s in TOLERANCES]
     material = []
     if "linear" in elements:  # once: the tips do not vary between repeats
-        elastic = _ccx(deck("linear", edges["linear"], "matched", "elastic"),
+        elastic = _ccx(deck("linear", edge("linear"), "matched", "elastic"),
                        out / "linear-matched-elastic", ccx)
         neo = runs[("ccx", "linear", "matched")][0]
         material = _material_rows(runs[("ours", "linear", "matched")][0]["tip"][-1],
-                                  {"*HYPERELASTIC, NEO HOOKE": neo,
-                                   "*ELASTIC (St. Venant-Kirchhoff)": elastic})
+                                  {"`*HYPERELASTIC, NEO HOOKE`": neo,
+                                   "`*ELASTIC` (St. Venant-Kirchhoff)": elastic})
     return rows, material
 
 
