@@ -127,8 +127,10 @@ def _check_scene(model: Model) -> None:
         raise ValueError("loads: the CalculiX deck carries gravity loads only")
     if sc.material.model != "neo_hookean":
         raise ValueError("material.model: the CalculiX deck maps neo_hookean only")
-    if np.any(model.prescribed) or model.bends:
+    if model.driven:
         raise ValueError("bcs: the CalculiX deck holds supports still (no prescribed motion)")
+    if sc.stepping.release:
+        raise ValueError("stepping.release: the CalculiX deck has no springback step")
 
 
 def _tip(model: Model) -> tuple[int, np.ndarray, int]:

@@ -131,6 +131,8 @@ def test_a_scene_the_deck_cannot_carry_is_refused_naming_the_field():
         cx.write_deck(_model("q3t"))
     with pytest.raises(ValueError, match="material.model"):
         cx.write_deck(_model(**{"material.model": "hencky"}))
+    with pytest.raises(ValueError, match="stepping.release"):
+        cx.write_deck(_model(**{"stepping.release": True}))
     with pytest.raises(ValueError, match="setting: unknown 'loose'"):
         cx.write_deck(_model(), "loose")
 
