@@ -61,14 +61,14 @@ def ours(element: str, edge: float, rtol: float | None) -> dict:
     from sim.stepping.simulation import Simulation
 
     scene = load(SCENE, _overrides(element, edge, rtol))
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     sim = Simulation.from_scene(scene)
     sim.run()
-    wall = time.perf_counter() - t
+    wall, cpu = time.perf_counter() - t, time.process_time() - cpu
     if sim.failure is not None:
         raise RuntimeError(f"q3t run {SCENE} ({element}) failed: {sim.failure.get('reason')}")
     probe = _tip_probe(scene)
-    return {"wall": wall, "iterations": sim.timing.iterations,
+    return {"wall": wall, "cpu": cpu, "iterations": sim.timing.iterations,
             "per_step": [r.iterations for r in sim.records],
             "tip": [r.probes[probe] for r in sim.records], "dofs": sim.result()["counts"]["dofs"]}
 
@@ -90,8 +90,8 @@ def _ccx(d: cx.Deck, folder: Path, ccx: str) -> dict:
         r = cx.run_deck(d, folder, ccx)
     except cx.CalculixError as exc:
         return {"failed": str(exc)}
-    return {"wall": r.wall, "iterations": r.iterations, "per_step": r.per_step, "tip": r.tip,
-            "attempts": r.attempts, "threads": r.threads}
+    return {"wall": r.wall, "cpu": r.cpu, "iterations": r.iterations, "per_step": r.per_step,
+            "tip": r.tip, "attempts": r.attempts, "threads": r.threads}
 
 
 def measure(elements: list[str], edge: Callable[[str], float], repeat: int, out: Path,
@@ -144,6 +144,7 @@ def _row(element: str, setting: str, mine: list[dict], d: cx.Deck, theirs: list[
            "tolerance": TOLERANCES[setting][2], "setting": setting, "dofs": mine[0]["dofs"],
            "ccx_dofs": d.dofs, "ours_iterations": mine[0]["iterations"],
            "ours_per_step": _per_step(mine), "ours_wall": _median(mine, "wall"),
+           "ours_cpu": _median(mine, "cpu"),
            "ours_tip_mm": 1e3 * mine[0]["tip"][-1], "repeat": len(mine)}
     failed = [r["failed"] for r in theirs if "failed" in r]
     if failed:
@@ -151,6 +152,7 @@ def _row(element: str, setting: str, mine: list[dict], d: cx.Deck, theirs: list[
     tip = theirs[0]["tip"][-1]
     return {**row, "ccx_status": "converged", "ccx_iterations": theirs[0]["iterations"],
             "ccx_per_step": _per_step(theirs), "ccx_wall": _median(theirs, "wall"),
+            "ccx_cpu": _median(theirs, "cpu"),
             "ccx_threads": theirs[0]["threads"],
             "ccx_cutbacks": theirs[0]["attempts"] - d.steps,
             "wall_ratio": _median(theirs, "wall") / _median(mine, "wall"),
@@ -162,7 +164,8 @@ COLS = [("element", "ours", ""), ("ccx_element", "CalculiX", ""), ("tolerance", 
         ("ours_per_step", "Newton it. ours (per step)", ""), ("ours_iterations", "total", "d"),
         ("ccx_per_step", "iterations ccx (per step)", ""), ("ccx_iterations", "total ", "d"),
         ("ours_wall", "wall ours [s]", ".2f"), ("ccx_wall", "wall ccx [s]", ".2f"),
-        ("wall_ratio", "ccx / ours", ".2f"), ("ours_tip_mm", "tip ours [mm]", ".4f"),
+        ("wall_ratio", "ccx / ours", ".2f"), ("ours_cpu", "CPU ours [s]", ".2f"),
+        ("ccx_cpu", "CPU ccx [s]", ".2f"), ("ours_tip_mm", "tip ours [mm]", ".4f"),
         ("ccx_tip_mm", "tip ccx [mm]", ".4f"), ("tip_diff", "ours / ccx - 1", ".2e"),
         ("ccx_status", "ccx", "")]
 MATERIAL_COLS = [("material", "CalculiX material (C3D6, tolerance matched)", ""),
@@ -196,8 +199,9 @@ def calculix_md(rows: list[dict], material: list[dict]) -> str:
         "step; after a warm-up that loads numba's kernels; MKL PARDISO on the machine's "
         "cores); CalculiX the whole `ccx` process (reading the deck, every increment, its "
         f"output), with OMP_NUM_THREADS = the cores (ccx used {', '.join(map(str, threads))} "
-        "thread(s)). Medians of the repeats; iteration counts and tips do not vary between "
-        "repeats.\n\n")
+        "thread(s)). CPU: user + system seconds of all threads (ours: the process's over the "
+        "same span), less moved than wall time by other jobs on a shared machine. Medians of "
+        "the repeats; iteration counts and tips do not vary between repeats.\n\n")
     out = "## The cantilever beside CalculiX\n\n" + text + markdown_table(rows, COLS)
     if material:
         out += ("\n## The material law\n\nThe linear prism against C3D6 on the same mesh and "

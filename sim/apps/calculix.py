@@ -42,6 +42,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import resource
 import shutil
 import subprocess
 import time
@@ -284,9 +285,10 @@ def threads_used(log: str) -> int:
 
 @dataclass
 class CcxRun:
-    """One ccx run of a deck: wall time of the process, iterations, the probe."""
+    """One ccx run of a deck: wall and CPU time of the process, iterations, the probe."""
 
     wall: float
+    cpu: float  # user + system seconds of ccx's threads (less moved by a loaded machine)
     iterations: int
     per_step: list[int]
     attempts: int  # increments tried, cut-backs included (the scene's steps when none)
@@ -304,15 +306,20 @@ def run_deck(deck: Deck, folder: Path, ccx: str, threads: int | None = None,
         old.unlink()
     (folder / "job.inp").write_text(deck.text)
     env = {**os.environ, "OMP_NUM_THREADS": str(threads or os.cpu_count() or 1)}
-    t = time.perf_counter()
+    t, before = time.perf_counter(), _children_cpu()
     try:
         p = subprocess.run([ccx, "-i", "job"], cwd=folder, capture_output=True, text=True,
                            env=env, timeout=timeout, check=False)
     except subprocess.TimeoutExpired:
         raise CalculixError(f"ccx took over {timeout:.0f} s on {folder / 'job.inp'}") from None
-    wall = time.perf_counter() - t
+    wall, cpu = time.perf_counter() - t, _children_cpu() - before
     (folder / "ccx.log").write_text(p.stdout + p.stderr)
-    return read_run(folder, deck, wall, p.returncode, p.stdout + p.stderr)
+    return read_run(folder, deck, wall, p.returncode, p.stdout + p.stderr, cpu)
+
+
+def _children_cpu() -> float:
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
 
 
 def _last_words(log: str) -> str:
@@ -320,7 +327,8 @@ def _last_words(log: str) -> str:
     return "; ".join(errors[-3:]) or " ".join(log.split()[-30:])
 
 
-def read_run(folder: Path, deck: Deck, wall: float, returncode: int, log: str) -> CcxRun:
+def read_run(folder: Path, deck: Deck, wall: float, returncode: int, log: str,
+             cpu: float = float("nan")) -> CcxRun:
     """What a finished ccx run in ``folder`` did; CalculixError unless it ended every step."""
     sta = folder / "job.sta"
     try:
@@ -340,5 +348,5 @@ def read_run(folder: Path, deck: Deck, wall: float, returncode: int, log: str) -
     tip = [LENGTH * float(sum(w * b[n][deck.tip_component]
                      for w, n in zip(deck.tip_weights, deck.tip_nodes, strict=True)))
            for _, b in blocks[-deck.steps:]]
-    return CcxRun(wall, sum(per_step), per_step, len(incs), tip, threads_used(log),
+    return CcxRun(wall, cpu, sum(per_step), per_step, len(incs), tip, threads_used(log),
                   parse_cvg(cvg.read_text()) if cvg.is_file() else [])

@@ -46,7 +46,7 @@ def test_both_codes_side_by_side_on_the_coarse_cantilever(tmp_path, monkeypatch,
     for r in side.values():
         assert r["ccx_status"] == "converged", r["ccx_status"]
         assert r["ours_iterations"] >= 4 and r["ccx_iterations"] >= 4  # one per step at least
-        assert r["ours_wall"] > 0 and r["ccx_wall"] > 0
+        assert r["ours_wall"] > 0 and r["ccx_wall"] > 0 and r["ours_cpu"] > 0 and r["ccx_cpu"] > 0
     for s in bench_calculix.TOLERANCES:
         # C3D6 is our linear prism on the same mesh and rule; the laws differ at second order
         # in a strain of about 1e-3 and the tolerances leave 1e-4 of the load: 1e-4 covers both
