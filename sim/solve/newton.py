@@ -53,11 +53,19 @@ class NewtonSettings:
     # below the sufficient decrease asked of that step (0: backtrack at once)
     watchdog: int = 1
     try_exact: bool = True  # exact Hessian when positive definite, projected otherwise
-    # a lagged quantity (friction's normal force, Term.lag_change) is taken at every iterate,
-    # at most this many times per minimisation (then it stays: a lag that keeps changing)
+    # a lagged quantity (friction's normal force, Term.lag_change) is taken at every iterate
+    # whose residual is below ``relag_below`` of the force level (farther out the iterates'
+    # normal forces move the energy under the line search, and hard steps crawled), at most
+    # ``max_relags`` times per minimisation (then it stays: a lag that keeps changing)
+    relag_below: float = 1e-1
     max_relags: int = 50
-    # solves spent on the lag's coupling per correction (Newton._coupled; 0: none)
+    # solves spent on the lag's coupling, or on refining the last factors against a new
+    # Hessian, per correction (newton._solve)
     coupling_solves: int = 6
+    # the last factors are tried below this residual (relative to the force level): there
+    # they left 1e-7 of the residual after two refinements on the 2 mm cup, and 0.1-0.7 from
+    # 1e-3 up, where the contact set and the plastic zone still change
+    reuse_below: float = 1e-5
 
 
 @dataclass
@@ -135,6 +143,7 @@ class Newton:
     trial: Evaluation | None = None  # the full step's evaluation (Problem.evaluate at x + dx)
     watch: Watch | None = None
     relags: int = 0
+    factored: bool = False  # the solver holds factors of this minimisation's Hessians
 
     def result(self, x: np.ndarray, ok: bool, it: int, E: float, reason: str = "") -> NewtonResult:
         self.timing.iterations = it
@@ -286,14 +295,17 @@ def _iterate(nt: Newton, x: np.ndarray, out: Evaluation, force_level: float,
 
 def _relag(nt: Newton, cur: Iterate, force_level: float,
            reactions: bool) -> tuple[Iterate, str]:
-    """Refresh what the energy lags (friction's normal force) at every iterate, so the lag
-    follows Newton and its residual is the lag-consistent one: a minimisation converges
-    with the lag taken at the state it returns, never in re-solves after it. A refresh
+    """Refresh what the energy lags (friction's normal force) at every iterate near
+    convergence, so the lag follows Newton and its residual is the lag-consistent one: a
+    minimisation converges with the lag taken at the state it returns, never in re-solves
+    after it. A refresh
     changes the energy, so the iterate is evaluated again (not an iteration; only the
     lagging terms are assembled again, Problem.relagged), and Newton's correction takes the
-    lag's coupling (``_coupled``). Past ``max_relags`` the lag stays, and the minimisation
+    lag's coupling (``_solve``). Past ``max_relags`` the lag stays, and the minimisation
     ends on the residual alone."""
-    if nt.relags == nt.settings.max_relags or nt.problem.lag_change(cur.x, take=True) == 0.0:
+    s = nt.settings
+    if (cur.r > s.relag_below * nt.ref or nt.relags == s.max_relags
+            or nt.problem.lag_change(cur.x, take=True) == 0.0):
         return cur, ""
     nt.relags += 1
     nt.res.pop()  # the iterate's residual under the old lag
@@ -307,9 +319,16 @@ def _relag(nt: Newton, cur: Iterate, force_level: float,
 def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:
     """The Newton correction at ``cur``: the exact Hessian's when it factors, the projected
     one's (shifted if need be) otherwise; the failed result when nothing factors. Once the
-    lag follows the iterates, with its coupling (``_coupled``)."""
+    lag follows the iterates, with its coupling (``_solve``). Close to convergence the
+    Hessian barely changes from one iterate to the next: the last factors are tried first
+    (``reuse_below``), refined against the new Hessian."""
     problem, timing, data = nt.problem, nt.timing, cur.data
     t1 = time.perf_counter()
+    if nt.factored and cur.r <= nt.settings.reuse_below * nt.ref:
+        dx = _solve(nt, cur, data, stale=True)
+        if dx is not None:
+            timing.solve += time.perf_counter() - t1
+            return dx
     try:
         if nt.settings.try_exact:
             try:
@@ -324,31 +343,38 @@ def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:
             factor_shifted(problem, data)
     except SingularMatrix as exc:
         return nt.result(nt.x0, False, it, cur.E, f"singular factorisation: {exc}")
+    nt.factored = True
     t2 = time.perf_counter()
     timing.factorisation += t2 - t1
-    dx = _coupled(nt, cur, data) if nt.relags else None
-    if dx is None:
-        dx, nt.rel = solve_refined(problem, data, cur.g.ravel())
-    dx = -dx.reshape(cur.x.shape)
-    dx[~nt.free] = 0.0
+    dx = _solve(nt, cur, data, stale=False)
     timing.solve += time.perf_counter() - t2
     return dx
 
 
-def _coupled(nt: Newton, cur: Iterate, data: np.ndarray) -> np.ndarray | None:
-    """The correction with the lag's coupling (Problem.lag_coupling) once the lag follows
-    the iterates: the lagged Hessian H leaves out how friction's normal forces move with x,
-    J, and Newton with H alone converges only as fast as J is small against H. (H + J) dx =
-    -g is solved by refinement on H's factors, a solve each (``coupling_solves``); where
-    that does not converge (J not small against H) None, and the lagged correction."""
-    couple = nt.problem.lag_coupling(cur.x)
-    if couple is None:
-        return None
-    dx, rel = solve_refined(nt.problem, data, cur.g.ravel(), nt.settings.coupling_solves,
-                            couple)
-    if rel > 1e-8:  # far below what Newton's rate needs, where the refinement converges
-        return None
+def _solve(nt: Newton, cur: Iterate, data: np.ndarray, stale: bool) -> np.ndarray | None:
+    """The correction from the factors at hand (``stale``: an earlier iterate's), refined
+    against the Hessian ``data``, with the lag's coupling (Problem.lag_coupling) once the lag
+    follows the iterates: the lagged Hessian H leaves out how friction's normal forces move
+    with x, J, and Newton with H alone converges only as fast as J is small against H; (H +
+    J) dx = -g is solved by refinement on H's factors, a solve each (``coupling_solves``).
+    Where that does not converge (J not small against H, or the factors too old) None for
+    stale factors, the lagged correction for fresh ones."""
+    couple = nt.problem.lag_coupling(cur.x) if nt.relags else None
+    g = cur.g.ravel()
+    if couple is not None or stale:
+        dx, rel = solve_refined(nt.problem, data, g, nt.settings.coupling_solves, couple)
+        # far below what Newton's rate needs, where the refinement converges
+        if rel <= 1e-8:
+            return _held(nt, dx, rel)
+        if stale:
+            return None
+    return _held(nt, *solve_refined(nt.problem, data, g))
+
+
+def _held(nt: Newton, dx: np.ndarray, rel: float) -> np.ndarray:
     nt.rel = rel
+    dx = -dx.reshape(nt.x0.shape)
+    dx[~nt.free] = 0.0
     return dx
 
 

@@ -465,3 +465,33 @@ def test_fd_of_the_friction_lag_coupling():
             # |J v| (the lagged normals' turn on the die shoulder, which J leaves out, is
             # below that at this slip)
             assert np.abs(miss - Jv).max() <= 1e-5 * np.abs(Jv).max(), name
+
+
+def test_the_last_factors_are_reused_near_convergence():
+    """Close to convergence Newton tries the last factors, refined against the new Hessian
+    (NewtonSettings.reuse_below), before factoring again: the dragged sheet's steps take the
+    same iterations and reach the same forces as with a factorisation at every iteration,
+    with fewer factorisations."""
+    import dataclasses
+
+    runs = {}
+    for reuse in (0.0, 1e-5):
+        sim = sheet_on_ground(0.3, 0.005)
+        sim.model.settings = dataclasses.replace(sim.model.settings, reuse_below=reuse)
+        solver = sim.model.problem.solver
+        count = [0]
+
+        def factor(data, f=solver.factor, count=count):
+            count[0] += 1
+            return f(data)
+
+        solver.factor = factor
+        assert sim.run(), sim.failure
+        runs[reuse] = (sim, count[0])
+    (fresh, n_fresh), (reused, n_reused) = runs[0.0], runs[1e-5]
+    assert [r.iterations for r in reused.records] == [r.iterations for r in fresh.records]
+    assert n_reused < n_fresh, (n_reused, n_fresh)
+    for a, b in zip(fresh.records, reused.records):
+        # both converged to rtol = 1e-8 of the force level: the same state to that
+        assert a.probes["fx"] == pytest.approx(b.probes["fx"], rel=1e-7)
+        assert a.probes["fz"] == pytest.approx(b.probes["fz"], rel=1e-7)
