@@ -292,6 +292,9 @@ class FormingLimits(BaseModel):
     zone_counts: dict[str, int] | None = None
     margin: float | None = Field(None, description="marginal zone: this far below the curve")
     insufficient_stretch: float | None = None
+    warnings: list[str] = Field(default_factory=list, description=(
+        "why the curve may not hold for this material card (a correlation used outside the "
+        "range it was fitted on), each naming the scene field"))
 
 
 def _result(request: Request, run_id: str) -> tuple[RunManager, object, dict]:
