@@ -30,10 +30,8 @@ const SceneForm = (() => {
     return e;
   };
   const clone = (v) => (v === undefined ? undefined : JSON.parse(JSON.stringify(v)));
-  // SI unit -> [shown unit, factor]; any other unit is shown as the schema gives it
-  const SHOWN = { m: ["mm", 1e3], Pa: ["MPa", 1e-6], N: ["kN", 1e-3], "N/m": ["N/mm", 1e-3],
-                  "m/s": ["mm/s", 1e3], "m/s^2": ["m/s²", 1], "kg/m^3": ["kg/m³", 1] };
-  const shown = (unit) => (unit && SHOWN[unit]) || [unit === "1" ? "" : unit || "", 1];
+  // SI unit -> [shown unit, factor] (units.js: the Runs table shows overrides the same way)
+  const shown = (unit) => Units.sceneUnit(unit);
   // a number as the form writes it: 12 significant digits, so 0.0165 m is 16.5 mm, not
   // 16.499999999999996
   const fmt = (v) => String(Number(v.toPrecision(12)));

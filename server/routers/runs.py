@@ -86,6 +86,9 @@ class RunSummary(BaseModel):
     changes: list[str] = Field(default_factory=list, description=(
         "what the run changed of its saved scene, in words: unsaved edits, overrides, live "
         "parameter values and the step each applied from"))
+    override_units: dict[str, str | None] = Field(default_factory=dict, description=(
+        "the SI unit of each override's scene field (null: none), as the scene schema gives "
+        "it"))
 
 
 class Shown(BaseModel):
