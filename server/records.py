@@ -20,6 +20,7 @@ from pathlib import Path
 from server.settings import check_run_id
 from server.store import atomic_write
 from sim.frames import results
+from sim.scene.load import unit_of
 
 ACTIVE = {"starting", "building", "running", "paused"}
 # waits for a free solver process (``RunManager.queue``); then starts, or is cancelled
@@ -75,9 +76,11 @@ class Run:
 
     def summary(self) -> dict:
         """Everything but the records, copied (the bridge may change the run meanwhile), its
-        progress and what it changed of its scene."""
+        progress and what it changed of its scene (with each override's SI unit, so a page
+        can show it in its own)."""
         return self._fields() | {"progress": self.progress(time.time()),
-                                 "changes": self.changes()}
+                                 "changes": self.changes(),
+                                 "override_units": {k: unit_of(k) for k in self.overrides}}
 
     def changes(self) -> list[str]:
         """What this run changed of its saved scene, in words: the page's unsaved edits, the

@@ -43,6 +43,7 @@ from server.store import SceneStore
 from server.views import Views
 from server.worker import worker_main
 from server.workerhandle import Slot, WorkerHandle, WorkerTarget, solvers
+from sim.stepping import parameters as live
 
 if TYPE_CHECKING:  # imports viser
     from server.viewer import Viewer
@@ -211,14 +212,16 @@ class RunManager:
             overrides["shell.element"] = element
         spec, solver_overrides = self.store.checked(text, overrides,
                                                     self.settings.max_model_bytes)
+        tools = live.per_tool(spec.tools)  # its per-tool live parameters
         for name, value in (parameters or {}).items():
-            self.check_parameter(name, value)
+            self.check_parameter(name, value, tools)
         with self.lock:
             self._check_room()
             stamp = time.strftime("%Y%m%d-%H%M%S")
             run = Run(f"{scene}-{spec.shell.element}-{stamp}-{secrets.token_hex(2)}", scene,
                       spec.shell.element, overrides, time.time(), edited=edited,
-                      parameters=self._start_values(parameters or {}),
+                      parameters=self._start_values({**dict.fromkeys(tools, AS_WRITTEN),
+                                                     **(parameters or {})}),
                       given=dict(parameters or {}))
             run.place = len(self.queue) + 1  # run.json says queued, and where
             out = self.files.create(run, text)
@@ -264,26 +267,29 @@ class RunManager:
         self._after_build_ended(run, old)
         return run.summary()
 
-    def check_parameter(self, name: str, value: object) -> float:
+    def check_parameter(self, name: str, value: object, tools: dict) -> float:
+        """``value`` for the live parameter ``name`` of a run whose per-tool parameters are
+        ``tools`` (sim.stepping.parameters.per_tool), in its range; Invalid naming the
+        parameter (and an unknown tool) otherwise."""
         if not self.ready.wait(self.settings.ack_timeout):
             raise NotReady("the solver process is still starting (it names the live "
                            "parameters); retry in a moment")
-        if name not in self.parameter_ranges:
-            raise Invalid(f"{name}: unknown parameter; known: {sorted(self.parameter_ranges)}")
-        lo, hi = self.parameter_ranges[name]
-        if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                or not lo <= value <= hi:
-            raise Invalid(f"{name}: {value!r} out of range [{lo}, {hi}]")
-        return float(value)
+        try:
+            return live.check(name, value, {**self.parameter_ranges, **tools})
+        except ValueError as exc:
+            raise Invalid(str(exc)) from None
 
     def set_parameter(self, run_id: str, name: str, value: object) -> dict:
         """Send a live parameter change and wait (``ack_timeout``) for the solver to say from
         which step it applies. A solver inside a long step answers later: then ``applied`` is
         false and the step appears in the run's ``parameter_log``."""
-        value = self.check_parameter(name, value)
+        with self.lock:
+            run = self.get(run_id)
+            # the run's per-tool parameters: those its start values name (from its scene)
+            tools = live.per_tool_of(run.parameters)
+        value = self.check_parameter(name, value, tools)
         waiter = {"event": threading.Event(), "reply": None}
         with self.lock:  # the bridge handles the reply under this lock: registered in time
-            run = self.get(run_id)
             if run.state not in ACTIVE:
                 raise Conflict(f"run {run_id!r} is {run.state}, not active")
             rid = self._send(run, "set", name=name, value=value)

@@ -195,38 +195,57 @@ async function buildSliders() {
   }
   const box = $("sliders");
   box.replaceChildren();
-  for (const [name, r] of Object.entries(state.config.parameters)) {
-    const row = document.createElement("div");
-    row.className = "param";
-    const label = document.createElement("label");
-    const out = document.createElement("output");
-    const result = document.createElement("span");
-    const inp = document.createElement("input");
-    // the whole range the server accepts (load_scale goes to 100), in about 1000 steps of a
-    // round size, so that 1 (as written) is one of them whatever the lowest value
-    const step = 10 ** Math.floor(Math.log10((r.max - r.min) / 1000));
-    Object.assign(inp, { type: "range", name, min: r.min, max: r.max, step, value: 1,
-                         disabled: true });
-    inp.id = `param-${name}`;
-    out.id = `param-${name}-value`;
-    result.id = `param-${name}-result`;
-    result.className = "param-result";
-    out.textContent = "1";  // no run shown yet: as written
-    inp.oninput = () => {
-      inp.dataset.busy = "1";
-      out.textContent = inp.value;
-      showResult(name, +inp.value, state.status);
-    };
-    inp.onchange = () => setParameter(inp, out);
-    const text = document.createElement("span");
-    text.className = "param-name";
-    text.textContent = r.label || name;
-    label.title = `${name}: ${r.hint || ""}`;
-    label.append(text, inp, out);
-    row.append(label, result);
-    box.appendChild(row);
-  }
+  for (const [name, r] of Object.entries(state.config.parameters))
+    box.appendChild(paramRow(name, r, r.label || name));
   if (state.status) showParameters(state.status);
+}
+
+function paramRow(name, r, text) {
+  // one live parameter: its slider, its value and the result beside it
+  const row = document.createElement("div");
+  row.className = "param";
+  row.dataset.name = name;
+  const label = document.createElement("label");
+  const out = document.createElement("output");
+  const result = document.createElement("span");
+  const inp = document.createElement("input");
+  // the whole range the server accepts (load_scale goes to 100), in about 1000 steps of a
+  // round size, so that 1 (as written) is one of them whatever the lowest value
+  const step = 10 ** Math.floor(Math.log10((r.max - r.min) / 1000));
+  Object.assign(inp, { type: "range", name, min: r.min, max: r.max, step, value: 1,
+                       disabled: true });
+  inp.id = `param-${name}`;
+  out.id = `param-${name}-value`;
+  result.id = `param-${name}-result`;
+  result.className = "param-result";
+  out.textContent = "1";  // no run shown yet: as written
+  inp.oninput = () => {
+    inp.dataset.busy = "1";
+    out.textContent = inp.value;
+    showResult(name, +inp.value, state.status);
+  };
+  inp.onchange = () => setParameter(inp, out);
+  const span = document.createElement("span");
+  span.className = "param-name";
+  span.textContent = text;
+  label.title = `${name}: ${r.hint || ""}`;
+  label.append(span, inp, out);
+  row.append(label, result);
+  return row;
+}
+
+function toolSliders(st) {
+  // the run's per-tool parameters (friction_scale.die): a slider each, for this run's tools
+  const per = state.config.tool_parameters || {};
+  const names = Object.keys(st.parameters || {}).filter((k) => k.split(".")[0] in per);
+  for (const row of $("sliders").querySelectorAll(".param[data-name*='.']"))
+    if (!names.includes(row.dataset.name)) row.remove();
+  for (const name of names) {
+    if ($(`param-${name}`)) continue;
+    const [base, tool] = [name.split(".")[0], name.slice(name.indexOf(".") + 1)];
+    const r = per[base];
+    $("sliders").appendChild(paramRow(name, r, `${r.label} ${tool}`));
+  }
 }
 
 // the scene's value each multiplier scales, and the result, in the units engineers read
@@ -242,7 +261,12 @@ function showResult(name, value, st) {
   const parts = items.map((it) => {
     const [unit, f] = SCALED_UNITS[it.unit] || [it.unit, 1];
     const u = unit ? ` ${unit}` : "";
-    return `${it.what} ${num(it.value * f)} × ${num(value)} = ${num(it.value * f * value)}${u}`;
+    // the other multipliers of the same value (a tool's friction: run-wide and its own),
+    // where they are not 1
+    const also = (it.also || []).map((a) => (st.parameters || {})[a] ?? 1).filter((a) => a !== 1);
+    const factors = [value, ...also];
+    const result = factors.reduce((p, a) => p * a, it.value * f);
+    return `${it.what} ${num(it.value * f)} × ${factors.map(num).join(" × ")} = ${num(result)}${u}`;
   });
   if (name === "tool_speed" && st && st.n_steps) parts.push(`run: ${st.n_steps} steps`);
   box.textContent = parts.join("; ");
@@ -276,6 +300,7 @@ function showParameters(st, paramSeq = state.paramSeq) {
   // not answered yet (the status would show the value before it)
   const active = ACTIVE.includes(st.state);
   const settled = paramSeq === state.paramSeq && !(st.pending || []).includes("set");
+  toolSliders(st);
   for (const inp of document.querySelectorAll("#sliders input")) {
     inp.disabled = !active;
     inp.title = active ? "" : `run ${st.id} is ${st.state}: its values, as it ended`;

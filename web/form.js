@@ -30,10 +30,8 @@ const SceneForm = (() => {
     return e;
   };
   const clone = (v) => (v === undefined ? undefined : JSON.parse(JSON.stringify(v)));
-  // SI unit -> [shown unit, factor]; any other unit is shown as the schema gives it
-  const SHOWN = { m: ["mm", 1e3], Pa: ["MPa", 1e-6], N: ["kN", 1e-3], "N/m": ["N/mm", 1e-3],
-                  "m/s": ["mm/s", 1e3], "m/s^2": ["m/s²", 1], "kg/m^3": ["kg/m³", 1] };
-  const shown = (unit) => (unit && SHOWN[unit]) || [unit === "1" ? "" : unit || "", 1];
+  // SI unit -> [shown unit, factor] (units.js: the Runs table shows overrides the same way)
+  const shown = (unit) => Units.sceneUnit(unit);
   // a number as the form writes it: 12 significant digits, so 0.0165 m is 16.5 mm, not
   // 16.499999999999996
   const fmt = (v) => String(Number(v.toPrecision(12)));
@@ -182,10 +180,15 @@ const SceneForm = (() => {
       holder.heads = [];  // what others put by the name (unset, remove): kept across kinds
       let node;
       const show = (v) => {
-        const member = members.find((m) => kindsOf(m).includes(v[tag])) || { properties: {} };
+        const member = members.find((m) => kindsOf(m).includes(v[tag]));
+        const rest = Object.keys(v).filter((k) => k !== tag);
         this.meta = meta;
-        node = this.object({ ...member, description: meta.description || member.description },
-                           v, path, key, true, sel);
+        if (!member && rest.length) node = this.unknownKind(v, tag, path, key, sel);
+        else {
+          const m = member || { properties: {} };
+          node = this.object({ ...m, description: meta.description || m.description },
+                             v, path, key, true, sel);
+        }
         node.el.querySelector(":scope > legend").append(...holder.heads);
         holder.replaceChildren(node.el);
       };
@@ -196,6 +199,28 @@ const SceneForm = (() => {
         if (sel.value !== "") v[tag] = all.includes(sel.value) ? sel.value : value[tag];
         return v;
       } };
+    }
+
+    // a table whose kind this schema does not know (a typo, a newer file): the form cannot
+    // say which fields it has, so it shows them read-only and keeps them as they are, the
+    // kind select first (choosing a known kind turns the shared ones into fields)
+    unknownKind(value, tag, path, key, kindSelect) {
+      const rest = clone(value);
+      delete rest[tag];
+      this.meta = {};
+      const why = value[tag] === undefined ? `no ${tag} given`
+                                           : `${tag} "${value[tag]}" is unknown here`;
+      const note = el("p", { class: "unknown-kind" },
+                      `${why}: its fields are kept as they are (read-only below, as the file ` +
+                      `has them: SI) and saved with the scene; choose a known ${tag} to edit ` +
+                      "them, or edit the TOML.");
+      const kept = el("pre", { class: "kept-fields", dataset: { path: `${path}.kept` } },
+                      Object.entries(rest).map(([k, v]) => `${k} = ${JSON.stringify(v)}`)
+                        .join("\n"));
+      const fs = el("fieldset", { class: "object", dataset: { path } }, el("legend", {}, key),
+                    this.wrap(`${path}.${tag}`, tag, kindSelect), note, kept,
+                    el("div", { class: "field-error" }));
+      return { el: fs, get: () => clone(rest) };
     }
 
     // kindSelect: a table of several kinds' select, shown as its "kind" field

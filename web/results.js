@@ -296,6 +296,25 @@ const Results = (() => {
     drawn.fld = k;
     Plots.show("fld-fig", !!fl && fl.minor.length > 0);
     if (fl && fl.minor.length) await Plots.fld(document.getElementById("fld-plot"), fl);
+    fldWarnings((fl && fl.warnings) || []);
+  }
+
+  function fldWarnings(warnings) {
+    // why the curve may not hold for the material card (a correlation extrapolated), under
+    // the diagram it qualifies
+    let box = document.getElementById("fld-warnings");
+    if (!box) {
+      box = document.createElement("ul");
+      box.id = "fld-warnings";
+      box.className = "error";
+      document.getElementById("fld-fig").appendChild(box);
+    }
+    box.replaceChildren(...warnings.map((w) => {
+      const li = document.createElement("li");
+      li.textContent = `Forming limit curve: ${w}`;
+      return li;
+    }));
+    box.hidden = !warnings.length;
   }
 
   function forget() {

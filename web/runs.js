@@ -16,7 +16,7 @@ const RunsTable = (() => {
     { key: "run", label: "run", sort: (r) => r.created, cell: runCell },
     { key: "scene", label: "scene", sort: (r) => r.scene, cell: (r) => r.scene },
     { key: "element", label: "element", sort: (r) => r.element, cell: (r) => r.element },
-    { key: "changes", label: "changes", sort: (r) => r.changes.join("; "), cell: changesCell,
+    { key: "changes", label: "changes", sort: (r) => changes(r).join("; "), cell: changesCell,
       title: "what the run changed of its saved scene: unsaved edits, overrides, live " +
              "parameters (from the step they applied)" },
     { key: "state", label: "state", cell: stateCell, sort: stateOrder },
@@ -67,10 +67,26 @@ const RunsTable = (() => {
     return span;
   }
 
+  function changes(r) {
+    // what the run changed of its saved scene (the server's ``changes``), the overrides in
+    // the units the scene form shows (0.0005 m of an edge length: 0.5 mm), labelled
+    const units = r.override_units || {};
+    const given = Object.entries(r.given || {}).filter(([, v]) => v !== 1);
+    return [
+      ...(r.edited ? ["unsaved edits of the scene"] : []),
+      ...Object.entries(r.overrides || {}).filter(([k]) => k !== "shell.element")
+        .map(([k, v]) => `${k} = ${Units.sceneValue(v, units[k])}`),
+      ...given.map(([k, v]) => `${k} ×${Units.num(v, 4)} from step 1`),
+      ...(r.parameter_log || []).map((e) => `${e.name} ×${Units.num(e.value, 4)} from step ` +
+                                             `${e.step}`),
+    ];
+  }
+
   function changesCell(r) {
-    const span = text("span", r.changes.length ? r.changes.join("; ") : "as saved",
-                      r.changes.length ? "changes" : "changes muted");
-    span.title = r.changes.join("\n");
+    const list = changes(r);
+    const span = text("span", list.length ? list.join("; ") : "as saved",
+                      list.length ? "changes" : "changes muted");
+    span.title = list.join("\n");
     return span;
   }
 

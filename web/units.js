@@ -25,5 +25,25 @@ const Units = (() => {
     return `${Math.floor(m / 60)} h ${String(m % 60).padStart(2, "0")} min`;
   }
 
-  return { num, withUnit, duration };
+  // a scene field's SI unit -> [the unit shown, factor]: what the scene form and the Runs
+  // table show a scene's values in (a unit not here is shown as the schema gives it; "1",
+  // dimensionless, as a bare number)
+  const SCENE = { m: ["mm", 1e3], Pa: ["MPa", 1e-6], N: ["kN", 1e-3], "N/m": ["N/mm", 1e-3],
+                  "m/s": ["mm/s", 1e3], "m/s^2": ["m/s²", 1], "kg/m^3": ["kg/m³", 1] };
+
+  function sceneUnit(unit) {
+    return (unit && SCENE[unit]) || [unit === "1" ? "" : unit || "", 1];
+  }
+
+  function sceneValue(v, unit) {
+    // a scene value (SI) in the unit shown, labelled: 0.0005 m -> "0.5 mm"; numbers in a
+    // list each; anything else as it is
+    const [shownUnit, f] = sceneUnit(unit);
+    const scale = (x) => (typeof x === "number" ? +(x * f).toPrecision(12) : x);
+    if (typeof v !== "number" && !Array.isArray(v)) return String(v);
+    const text = Array.isArray(v) ? `[${v.map(scale).join(", ")}]` : String(scale(v));
+    return shownUnit ? `${text} ${shownUnit}` : text;
+  }
+
+  return { num, withUnit, duration, sceneUnit, sceneValue };
 })();

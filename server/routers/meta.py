@@ -19,6 +19,10 @@ class Config(BaseModel):
     ready: bool = Field(description="the solver process is up and has named the parameters")
     elements: list[str]
     parameters: dict[str, Range] = Field(description="the live parameters and their ranges")
+    tool_parameters: dict[str, Range] = Field(description=(
+        "the per-tool live parameters: a run has `<name>.<tool>` (as `friction_scale.die`) "
+        "for each tool of its scene with the value it multiplies (its status's `parameters` "
+        "name them), on top of the run-wide `<name>`"))
     viewer_port: int | None
     default_scene: str
 
@@ -49,7 +53,7 @@ def config(request: Request) -> dict:
     """What the page needs before anything else: whether the solver process is ready, the
     elements, the live parameters with their ranges and labels, the viewer's port."""
     from sim.elements import ELEMENTS
-    from sim.stepping.parameters import LABELS
+    from sim.stepping.parameters import LABELS, PER_TOOL, RANGES, TOOL_LABELS
 
     m = request.app.state.manager
     # the solver process names the live parameters once it is up (a few seconds after the
@@ -58,6 +62,9 @@ def config(request: Request) -> dict:
             "parameters": {k: {"min": lo, "max": hi, "label": LABELS.get(k, (k, ""))[0],
                                "hint": LABELS.get(k, (k, ""))[1]}
                            for k, (lo, hi) in m.parameter_ranges.items()},
+            "tool_parameters": {k: {"min": RANGES[k][0], "max": RANGES[k][1],
+                                    "label": TOOL_LABELS[k][0], "hint": TOOL_LABELS[k][1]}
+                                for k in PER_TOOL},
             "viewer_port": m.viewer.port if m.viewer else None,
             "default_scene": m.settings.default_scene}
 

@@ -86,6 +86,9 @@ class RunSummary(BaseModel):
     changes: list[str] = Field(default_factory=list, description=(
         "what the run changed of its saved scene, in words: unsaved edits, overrides, live "
         "parameter values and the step each applied from"))
+    override_units: dict[str, str | None] = Field(default_factory=dict, description=(
+        "the SI unit of each override's scene field (null: none), as the scene schema gives "
+        "it"))
 
 
 class Shown(BaseModel):
@@ -292,6 +295,9 @@ class FormingLimits(BaseModel):
     zone_counts: dict[str, int] | None = None
     margin: float | None = Field(None, description="marginal zone: this far below the curve")
     insufficient_stretch: float | None = None
+    warnings: list[str] = Field(default_factory=list, description=(
+        "why the curve may not hold for this material card (a correlation used outside the "
+        "range it was fitted on), each naming the scene field"))
 
 
 def _result(request: Request, run_id: str) -> tuple[RunManager, object, dict]:

@@ -11,6 +11,7 @@ from server import sceneform, tomlout
 from server.errors import BODY, CheckedRoute, documented
 from server.settings import RESERVED_SCENE_NAMES, SceneName, ScenePath
 from server.store import SceneStore
+from sim.scene.load import Scene
 
 router = APIRouter(prefix="/api/scenes", tags=["scenes"], route_class=CheckedRoute)
 
@@ -80,14 +81,14 @@ class SceneSummary(BaseModel):
 class SceneDocument(BaseModel):
     name: str
     toml: str
-    scene: dict | None = Field(description="the validated scene, defaults filled in; null when "
-                                           "the scene is invalid")
+    scene: Scene | None = Field(description="the validated scene, defaults filled in; null "
+                                            "when the scene is invalid")
     error: str | None = Field(description="why the scene is invalid, naming the field")
 
 
 class Validated(BaseModel):
     ok: bool
-    scene: dict
+    scene: Scene = Field(description="the scene as the solver reads it, defaults filled in")
 
 
 class FieldError(BaseModel):

@@ -83,6 +83,8 @@ class FormingLimitCurve:
     minor: tuple[float, ...] = ()
     major: tuple[float, ...] = ()
     fld0: float | None = None  # Keeler-Brazier: engineering major strain at plane strain
+    # why the curve may not hold for this card (a correlation used outside its data)
+    warnings: tuple[str, ...] = ()
 
     def __call__(self, minor: np.ndarray) -> np.ndarray:
         """The limit major strain at each ``minor`` strain (true). Shape as ``minor``."""
@@ -121,6 +123,29 @@ def keeler_brazier_fld0(thickness: float, n: float) -> float:
     return (23.3 + 14.13 * thickness * 1e3) * n / 0.21 / 100.0
 
 
+# the range of the sheets of Keeler and Brazier's original correlation (1977, the reference of
+# keeler_brazier_fld0): hardening exponents up to 0.21 (the formula's n / 0.21) and
+# thicknesses up to about 3 mm; beyond them the formula is extrapolated
+KB_MAX_N, KB_MAX_THICKNESS = 0.21, 3e-3
+
+
+def keeler_brazier_warnings(thickness: float, n: float, t_field: str, n_field: str
+                            ) -> tuple[str, ...]:
+    """Why the Keeler-Brazier curve of ``thickness`` (m) and ``n`` is an extrapolation, each
+    naming the scene field the value came from; empty inside the correlation's range."""
+    out = []
+    if n > KB_MAX_N:
+        out.append(f"{n_field} = {n:g} is above {KB_MAX_N}, the largest hardening exponent of "
+                   "the sheets Keeler and Brazier's correlation was fitted on: its FLD0 is "
+                   "extrapolated (give the measured curve as points)")
+    if thickness > KB_MAX_THICKNESS:
+        out.append(f"{t_field} = {thickness * 1e3:g} mm is above about "
+                   f"{KB_MAX_THICKNESS * 1e3:g} mm, the thickest sheets Keeler and Brazier's "
+                   "correlation was fitted on: its FLD0 is extrapolated (give the measured "
+                   "curve as points)")
+    return tuple(out)
+
+
 def curve_of(material: MaterialSpec, shell: ShellSpec) -> FormingLimitCurve | None:
     """The FLC of a scene's ``[material]`` (``flc``), its defaults resolved: the hardening
     exponent of a Swift law, the shell's constant thickness; None without one."""
@@ -132,9 +157,12 @@ def curve_of(material: MaterialSpec, shell: ShellSpec) -> FormingLimitCurve | No
     if spec.kind == "points":
         minor, major = zip(*spec.points, strict=True)
         return FormingLimitCurve(minor=minor, major=major, **common)
-    n = spec.n if spec.n is not None else material.hardening.n
-    t = spec.thickness if spec.thickness is not None else shell.thickness
-    return FormingLimitCurve(fld0=keeler_brazier_fld0(t, n), **common)
+    n, n_field = ((spec.n, "material.flc.n") if spec.n is not None
+                  else (material.hardening.n, "material.hardening.n"))
+    t, t_field = ((spec.thickness, "material.flc.thickness") if spec.thickness is not None
+                  else (shell.thickness, "shell.thickness"))
+    return FormingLimitCurve(fld0=keeler_brazier_fld0(t, n),
+                             warnings=keeler_brazier_warnings(t, n, t_field, n_field), **common)
 
 
 def zones(major: np.ndarray, minor: np.ndarray, flc: FormingLimitCurve) -> np.ndarray:

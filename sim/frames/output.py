@@ -161,6 +161,7 @@ def forming_limit_diagram(sim: Run) -> dict | None:
     return out | {
         "curve": {"kind": flc.kind, **flc.sample(lo, hi),
                   "flc0": float(flc(0.0))},
+        "warnings": list(flc.warnings),
         "margin": flc.margin, "insufficient_stretch": flc.insufficient_stretch,
         "zone": zone.tolist(), "zones": forming_limits.ZONES,
         "zone_counts": {name: int((zone == code).sum())

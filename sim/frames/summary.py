@@ -32,9 +32,11 @@ when there is one; loaded: the end of the stroke):
   motion of released onto loaded (the release holds the part statically determinately,
   sim.geometry.rigid: its position is that of the supports chosen, its shape is not).
 - ``tool_deviation_max``, ``tool_deviation_mean`` (a release stage that ran, tools in contact
-  at the end of the stroke): the distance from each tool of the skin nodes that touched it
-  (within its contact layer) at the end of the stroke, the released part placed by the same
-  best-fit motion, the tool where the stroke left it.
+  at the end of the stroke): how far the skin nodes that touched a tool (within its contact
+  layer) at the end of the stroke moved away from (or into) it on release: the change of each
+  one's distance from the tool between the loaded part and the released one, placed by the
+  same best-fit motion, the tool where the stroke left it. A part that does not spring back
+  reads 0, however deep the penalty contact let it into the contact layer.
 - ``volume_change``: V / V0 - 1 of the sheet, final state.
 """
 
@@ -316,16 +318,20 @@ def _springback(view: View) -> list[dict]:
 
 
 def tool_deviations(view: View, R: np.ndarray, c: np.ndarray) -> list[tuple[str, int, float]]:
-    """(tool, node, distance) of every skin node in a tool's contact layer at the end of the
-    stroke: its distance from that tool, the released part moved by (R, c)."""
+    """(tool, node, change) of every skin node in a tool's contact layer at the end of the
+    stroke: how much its distance from that tool changed from the loaded part to the
+    released one moved by (R, c). The change, not the distance: a loaded node sits inside the
+    contact layer (penalty contact needs a penetration to push), which is no deviation."""
     out = []
     for t in (t for t in view.model.terms if isinstance(t, ToolContact)):
-        touch = t.nodes[t.gap(view.loaded) < t.delta]
-        if not len(touch):
+        gap = t.gap(view.loaded)
+        inside = gap < t.delta
+        if not inside.any():
             continue
-        X = view.x[touch] @ R.T + c
+        X = view.x[t.nodes[inside]] @ R.T + c
         d = sdf_world_distance(t.prog, t.R_now, t.translation(view.loaded), X)
-        out += [(t.tool, int(n), abs(float(v))) for n, v in zip(touch, d, strict=True)]
+        out += [(t.tool, int(n), abs(float(v - g)))
+                for n, v, g in zip(t.nodes[inside], d, gap[inside], strict=True)]
     return out
 
 
@@ -338,8 +344,9 @@ def _tool_deviation(view: View) -> list[dict]:
         return []
     d = np.array([r[2] for r in rows])
     tool, node, dist = rows[int(np.argmax(d))]
-    note = ("distance of the released part's skin from the tools it touched at the end of the "
-            "stroke, after the best-fit rigid motion onto the loaded shape")
+    note = ("change of the distance from the tools it touched at the end of the stroke of "
+            "the part's skin, released (after the best-fit rigid motion onto the loaded "
+            "shape) against loaded")
     return [entry("tool_deviation_max", "Deviation from the tool surface, largest", dist, "m",
                   {"tool": tool, "node": node}, note=note),
             entry("tool_deviation_mean", "Deviation from the tool surface, mean", d.mean(), "m",

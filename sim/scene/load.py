@@ -183,6 +183,22 @@ def _untagged(loc: tuple) -> tuple[list, type[BaseModel] | None, str | None]:
     return out, table, tag if table is not None else None
 
 
+def unit_of(path: str) -> str | None:
+    """The SI unit the schema gives the scene field at the dotted ``path``, as an override
+    names it ("mesh.edge_length" -> "m", "tools.0.friction" -> "1"; a field of a table of
+    several kinds: that of the kinds which have it); None for a field without a unit or no
+    such field."""
+    models, field = [Scene], None
+    for part in (p for p in path.split(".") if not p.isdigit()):
+        found = [m.model_fields[part] for m in models if part in m.model_fields]
+        if not found:
+            return None
+        field = found[0]
+        models = [m for f in found for m in _members(_item(f.annotation))]
+    extra = field.json_schema_extra if field is not None else None
+    return extra.get("unit") if isinstance(extra, dict) else None
+
+
 # the fields that tell the kinds of a table of several kinds apart
 TAGS = ("kind", "law")
 

@@ -82,10 +82,11 @@ class Simulation:
     # planned stroke is kept and done in fewer steps (or more); the run ends where the scene's
     # time does. Static stepping only: there scene time is the stroke, while a dynamic run's
     # time is seconds, whose step is dt.
-    PARAMETERS = parameters.RANGES
+    PARAMETERS = parameters.RANGES  # the run-wide ones; a run adds its tools' (ranges)
 
     def __post_init__(self) -> None:
-        self.parameters = {k: 1.0 for k in self.PARAMETERS}
+        self.ranges = {**self.PARAMETERS, **parameters.per_tool(self.model.scene.tools)}
+        self.parameters = {k: 1.0 for k in self.ranges}
         self.tools = [t for t in self.model.terms if isinstance(t, ToolContact)]
         self._mu0 = {t.tool: t.mu for t in self.tools}
         self.parameter_log: list[dict] = []
@@ -145,27 +146,30 @@ class Simulation:
 
     def set_parameter(self, name: str, value: float) -> None:
         """Change a live parameter from the next step on; recorded with that step number."""
-        if name not in self.PARAMETERS:
-            raise ValueError(f"{name}: unknown parameter; known: {sorted(self.PARAMETERS)}")
-        lo, hi = self.PARAMETERS[name]
-        if not (isinstance(value, (int, float)) and np.isfinite(value) and lo <= value <= hi):
-            raise ValueError(f"{name}: {value!r} out of range [{lo}, {hi}]")
+        value = parameters.check(name, value, self.ranges)
         if name == "tool_speed" and value != 1.0 and self.model.scene.stepping.kind != "static":
             raise ValueError("tool_speed: the rate of a static run's stroke; this scene steps "
                              "dynamically (its tools move at their velocity in m/s: change "
                              "that in the scene)")
-        self.parameters[name] = float(value)
+        self.parameters[name] = value
         for t in self.tools:
-            t.mu = self._mu0[t.tool] * self.parameters["friction_scale"]
+            t.mu = self._mu0[t.tool] * self._friction_scale(t.tool)
             t.force_scale = self.parameters["holder_force_scale"]
-        self.parameter_log.append({"step": self.step_index + 1, "name": name,
-                                   "value": float(value)})
+        self.parameter_log.append({"step": self.step_index + 1, "name": name, "value": value})
+
+    def _friction_scale(self, tool: str) -> float:
+        """What a tool's friction coefficient is multiplied by: the run-wide friction_scale
+        times the tool's own (a tool without friction has none: 1)."""
+        return self.parameters["friction_scale"] * self.parameters.get(
+            f"friction_scale.{tool}", 1.0)
 
     def scaled(self) -> dict[str, list[dict]]:
         """What each live parameter multiplies, as the scene gives it (SI), so a page can
         show the result beside the multiplier (friction 0.1 x 2 = 0.2): per tool its friction
         coefficient, its force (force control) and, if it moves, its planned travel per step
-        (tool_speed); per load its magnitude. ``{name: [{"what", "value", "unit"}]}``."""
+        (tool_speed); per load its magnitude. ``{name: [{"what", "value", "unit"}]}``, and
+        ``"also"``: the other parameters the value is multiplied by too (a tool's friction by
+        the run-wide and its own multiplier)."""
         sc = self.model.scene
         units = {"gravity": "m/s^2", "traction": "Pa", "pressure": "Pa", "point": "N"}
         end = sc.stepping.steps * self._dt()
@@ -176,11 +180,20 @@ class Simulation:
                            for i, ld in enumerate(sc.loads)],
             "tool_speed": [{"what": name, "unit": "m/step", "value": travel}
                            for name, travel in self._travel_per_step(end) if travel > 0],
-            "friction_scale": [{"what": t.tool, "unit": "1", "value": self._mu0[t.tool]}
-                               for t in self.tools],
+            **self._scaled_friction(),
             "holder_force_scale": [{"what": t.tool, "unit": "N", "value": t.force}
                                    for t in self.tools if t.vdof is not None],
         }
+
+    def _scaled_friction(self) -> dict[str, list[dict]]:
+        """Each tool's friction coefficient, under the run-wide friction_scale and under the
+        tool's own (tools without friction have neither)."""
+        tools = [(t.tool, f"friction_scale.{t.tool}", self._mu0[t.tool]) for t in self.tools]
+        tools = [(tool, own, mu) for tool, own, mu in tools if own in self.ranges]
+        return {"friction_scale": [{"what": tool, "unit": "1", "value": mu, "also": [own]}
+                                   for tool, own, mu in tools],
+                **{own: [{"what": tool, "unit": "1", "value": mu, "also": ["friction_scale"]}]
+                   for tool, own, mu in tools}}
 
     def _travel_per_step(self, end: float) -> list[tuple[str, float]]:
         """Each tool's planned travel (m) per planned step: its offset over the run, divided

@@ -1,0 +1,63 @@
+"""What a run changed of its scene, in the Runs table in the engineer's units, and the forming
+limit curve's warning under the FLD, in Debian's chromium (Playwright) against the real server
+in a subprocess:
+
+- overrides in the units the scene form shows (an edge length of 0.004 m as 4 mm, E in
+  MPa, a thickness in mm), labelled; dimensionless ones as plain numbers;
+- a Keeler-Brazier curve outside its correlation's range (n = 0.25) says so under the FLD.
+
+Screenshots go to $Q3T_SHOTS (default /tmp/shots-runs-units)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.support.browser import new_page, serve
+from tests.support.scenes import tiny_cup_toml
+from tests.support.service import ENDED, until
+
+SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-runs-units"))
+pytestmark = pytest.mark.browser
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
+OVERRIDES = {"mesh.edge_length": 0.004, "material.E": 7.0e10, "shell.thickness": 0.0005,
+             "tools.0.friction": 0.15, "material.flc.n": 0.25}
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("runs-units")
+    with serve(tmp, {"tiny_cup": tiny_cup_toml()}, "tiny_cup", "--no-viewer") as (url, _):
+        yield url
+
+
+def test_overrides_in_engineers_units_and_the_flc_warning(served, browser):
+    url = served
+    r = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup", "overrides": OVERRIDES,
+                                            "parameters": {"friction_scale": 0.5}})
+    assert r.status_code == 201, r.text
+    run = r.json()["id"]
+    until(lambda: httpx.get(f"{url}/api/runs/{run}").json()["state"] in ENDED,
+          f"{run} never ended")
+    assert httpx.get(f"{url}/api/runs/{run}").json()["state"] == "finished"
+    page, errors = new_page(browser, url, "#scenes li.sel", width=1500, height=950)
+    row = f'#runs tbody tr[data-id="{run}"]'
+    page.wait_for_selector(f"{row} td.col-changes")
+    changes = page.text_content(f"{row} td.col-changes")
+    assert changes == ("mesh.edge_length = 4 mm; material.E = 70000 MPa; "
+                       "shell.thickness = 0.5 mm; tools.0.friction = 0.15; "
+                       "material.flc.n = 0.25; friction_scale ×0.5 from step 1"), changes
+    page.locator("#runs-box").screenshot(path=str(SHOTS / "01-runs-table.png"))
+    # the run selected (it is: the newest), its FLD with the curve's warning under it
+    page.click(f"{row} td.col-scene")
+    page.wait_for_selector("#fld-fig:not([hidden]) #fld-warnings li")
+    warning = page.text_content("#fld-warnings")
+    assert "material.flc.n = 0.25 is above 0.21" in warning, warning
+    page.wait_for_timeout(500)  # plotly's transition
+    page.locator("#fld-fig").screenshot(path=str(SHOTS / "02-fld-warning.png"))
+    page.screenshot(path=str(SHOTS / "03-page.png"))
+    page.close()
+    assert not errors, errors
