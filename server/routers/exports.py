@@ -95,14 +95,13 @@ def _viewer_client(m: RunManager, run_id: str) -> object:
     v = m.viewer
     if v is None:
         raise Conflict(VIEWER_OFF)
-    if v.selected != run_id or v.mode == "preview":
-        shown = "a scene's preview" if v.mode == "preview" else f"run {v.selected!r}"
-        raise Conflict(f"the 3-D view shows {shown}, not run {run_id!r}: select the run first")
-    clients = v.server.get_clients()
-    if not clients:
+    if not v.clients:
         raise Conflict("no browser has the 3-D view open: the image is rendered by a "
                        "browser's viewer (open the page)")
-    return clients[max(clients)]
+    showing = v.showing(run_id)
+    if not showing:
+        raise Conflict(f"no browser's 3-D view shows run {run_id!r}: select the run first")
+    return showing[0].client
 
 
 # before /export/{format}, which would answer png with a 422
