@@ -278,13 +278,14 @@ class ClientView:
         else:
             self.status(line)
 
-    def _show_recorded(self, step: int, message: str) -> None:
-        """The recorded frame at ``step`` or the nearest before it."""
+    def _show_recorded(self, step: int, message: str) -> int:
+        """The recorded frame at ``step`` or the nearest before it; returns its step."""
         rep = self.replay
         i = max(int(np.searchsorted(rep.steps, step, side="right")) - 1, 0)
         with self.client.atomic():
             self.canvas.draw(rep.frame(i), colour=True)
             self.status(f"{message}  \nshowing recorded step {rep.steps[i]}")
+        return int(rep.steps[i])
 
     def _set_time(self, step: int) -> None:
         """Move the time slider to the live step (its end grows with the run)."""
@@ -298,7 +299,7 @@ class ClientView:
         with self.lock:
             run, mode = self.selected, self.mode
             if mode == "replay":
-                self._show_recorded(step, f"Recording of `{run}`")
+                step = self._show_recorded(step, f"Recording of `{run}`")
         if mode == "replay":
             self.scrubbed = True
             self.actions.shows_step(self.view, run, step)
