@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 
 # the page's run controls and what each sends, in the page's order and words
 COMMANDS = {"Pause": "pause", "Resume": "resume", "Step": "step", "Stop": "stop"}
+PANEL_WIDTH = 220
 NO_RUN = "(no runs yet)"  # the "Run" dropdown's one option before any run (viser needs one)
 # the scene's value a multiplier scales, in the units engineers read (as the page shows it)
 SCALED_UNITS = {"m/step": ("mm/step", 1e3), "N": ("kN", 1e-3), "Pa": ("MPa", 1e-6),
@@ -67,6 +68,7 @@ class ClientView:
         self.v, self.client, self.view = viewer, client, view
         self.actions, self.lock = viewer.actions, viewer.lock
         self.selected: str | None = None  # the run shown (its view's selection)
+        self.line = ""  # its status line
         self.active = False  # whether it is active (its own colour ranges still grow)
         self.parameters: dict[str, float] = {}  # its live parameters
         self.scaled: dict[str, list[dict]] = {}  # what each multiplies (the scene's values)
@@ -84,6 +86,8 @@ class ClientView:
     def _build_gui(self) -> Gui:
         g, by_user = self.client.gui, self.v.by_user
         g.main_panel.dock_right()  # docked: it narrows the view instead of covering the part
+        # px: under a third of the page's centre column at 1400 px, the view keeps the rest
+        g.main_panel.set_width(PANEL_WIDTH)
         status = g.add_markdown("No run yet")
         buttons = {}
         with g.add_folder("Run"):
@@ -189,7 +193,7 @@ class ClientView:
         """Show the view's run: live if it is one of the latest, else its recording (loaded
         in the background: a large one takes seconds); nothing else meanwhile."""
         with self.lock:
-            self.selected, self.scrubbed = run_id, False
+            self.selected, self.scrubbed, self.line = run_id, False, line
             if run_id is not None and run_id in self.gui.run.options:
                 with self.v.from_code():
                     self.gui.run.value = run_id
@@ -211,12 +215,22 @@ class ClientView:
     def run_status(self, run_id: str, line: str, active: bool) -> None:
         if run_id != self.selected:
             return
+        self.line = line
         if self.mode != "preview":
             self.status(line)
         was = self.active
         self._enable(active)
         if was and not active and self.mode == "live":
             self.canvas.recolour()  # the legend: the run's range, no longer growing
+
+    def left_live(self, run_id: str) -> None:
+        """An ended run is no longer one of the latest (its kept frames are gone): shown from
+        its recording from now on."""
+        if run_id != self.selected or self.mode != "live":
+            return
+        self._clear(f"{self.line}  \nloading its recording…")
+        threading.Thread(target=self._load, args=(run_id, self.line), daemon=True,
+                         name="q3t-viewer-load").start()
 
     def new_run(self, run_id: str, line: str, parameters: dict[str, float]) -> None:
         """A latest run is built: shown if it is this view's run."""

@@ -169,16 +169,18 @@ class Viewer:
     def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict], line: str,
                 parameters: dict[str, float]) -> None:
         """A run is built: its sheet's faces and its tools (meshes sent once), kept live in
-        place of the oldest live run that is over and shown nowhere, and shown by the
-        clients that have it selected."""
+        place of the oldest live run that is over (its kept frames go with it: a browser
+        showing it switches to its recording), and shown by the clients that have it
+        selected."""
         with self.lock:
             self.live_run = run_id
             self.lives[run_id] = Live(np.asarray(faces, np.uint32), list(tools))
-            shown = {c.selected for c in self.clients.values()}
-            for old in [r for r, v in self.lives.items() if v.ended and r not in shown]:
+            for old in [r for r, v in self.lives.items() if v.ended]:
                 if len(self.lives) <= self.live_runs:
                     break
                 del self.lives[old]
+                for c in self.clients.values():
+                    c.left_live(old)
             for c in self.clients.values():
                 c.new_run(run_id, line, parameters)
 

@@ -49,9 +49,12 @@ const Owner = (() => {
     // what others did to this view's runs (a deleted one included), the newest first
     if (!list.length) return;
     state.noticeSeq = Math.max(state.noticeSeq, ...list.map((n) => n.seq));
+    // one about the run shown is its line under the status (showTouched), unless deleted
+    const shown = list.filter((n) => n.run !== state.run || n.action === "delete");
+    if (!shown.length) return;
     const box = $("notice");
     box.hidden = false;
-    box.querySelector(".text").textContent = list[list.length - 1].text;
+    box.querySelector(".text").textContent = shown[shown.length - 1].text;
   }
 
   return { note, allow, showTouched, showNotices };
