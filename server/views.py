@@ -195,7 +195,7 @@ class Views:
                 run = self.m.runs.get(v.run or "")
                 shown = None if run is None else (run.id, dict(run.parameters),
                                                     run.state in ACTIVE, run.line())
-            self.m.viewer.show_run(*(shown or (None, {}, False, "No run yet")), view=key)
+            self.m.viewer.show_run(*(shown or (None, {}, False, "No run yet")), key)
 
     def connected(self, view: str) -> None:
         """A viewer of ``view`` connected: it shows the view's preview, else its run."""
