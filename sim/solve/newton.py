@@ -293,7 +293,8 @@ def _relag(nt: Newton, cur: Iterate, force_level: float,
     """Near convergence, refresh what the energy lags (friction's normal force) from the
     iterate, so the lag settles while Newton converges instead of in re-solves after it:
     far from it the iterate's normal forces are not worth taking. A refresh changes the
-    energy, so the iterate is evaluated again (an assembly, not an iteration). Past
+    energy, so the iterate is evaluated again (not an iteration; only the lagging terms are
+    assembled again, Problem.relagged). Past
     ``max_relags`` the lag stays, and the minimisation ends on the residual alone."""
     s = nt.settings
     if cur.r > s.relag_below * nt.ref or nt.relags == s.max_relags:
@@ -307,7 +308,10 @@ def _relag(nt: Newton, cur: Iterate, force_level: float,
     nt.res.pop()  # the iterate's residual under the old lag
     nt.since = len(nt.res)
     nt.floor = None  # measured under the old energy
-    return _iterate(nt, cur.x, nt.evaluate(cur.x), force_level, reactions)
+    t = time.perf_counter()
+    out = nt.problem.relagged(cur.x, exact=nt.settings.try_exact)
+    nt.timing.assembly += time.perf_counter() - t
+    return _iterate(nt, cur.x, out, force_level, reactions)
 
 
 def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:

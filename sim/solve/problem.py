@@ -24,6 +24,7 @@ class Problem:
     def __init__(self, terms: list[Term], pattern: Pattern, solver: LinearSolver,
                  fixed: np.ndarray):
         self.terms, self.pattern, self.solver = terms, pattern, solver
+        self._unlagged: tuple[np.ndarray, bool, _Sum] | None = None  # see evaluate
         self.set_fixed(fixed)
 
     def set_fixed(self, fixed: np.ndarray) -> None:
@@ -67,28 +68,70 @@ class Problem:
         data with Dirichlet rows/columns replaced by identity, and the applied forces as
         (largest 2-norm, sum of the resultants' magnitudes) of the gradients of the terms other
         than the elastic one (loads, inertia, tools), in one pass over the terms. ``exact`` skips
-        the PSD projection of terms that project."""
-        g = np.zeros_like(x)
-        data = np.zeros(self.pattern.nnz)
-        E = mag = level = applied = 0.0
+        the PSD projection of terms that project.
+
+        The terms that lag a quantity (friction) come last, and the sum of the others is kept
+        with x, so a refresh of the lag at x (``relagged``) assembles those terms alone."""
+        lagging = [t for t in self.terms if t.lags]
+        total = _Sum(np.zeros_like(x), np.zeros(self.pattern.nnz))
         for t in self.terms:
-            saved = getattr(t, "project", None)
-            if exact and saved is not None:
-                t.project = 0
-            before = None if t.name == "elasticity" else g.copy()
-            try:
-                e = t.add_gradient_hessian(x, g, data)
-            finally:
-                if saved is not None:
-                    t.project = saved
-            if before is not None:
-                level = max(level, float(np.linalg.norm(g - before)))
-                applied += float(np.linalg.norm((g - before).sum(0)))
-            E += e
-            mag += abs(e)
+            if not t.lags:
+                total.add(t, x, exact)
+        self._unlagged = (x.copy(), exact, total.copy()) if lagging else None
+        return self._finish(total, lagging, x, exact)
+
+    def relagged(self, x: np.ndarray, exact: bool = False) -> Evaluation:
+        """``evaluate(x, exact)`` after the lagged quantities changed (Term.lag_change with
+        take): only the lagging terms are assembled again when the last evaluation was at x."""
+        kept = self._unlagged
+        if kept is None or kept[1] != exact or not np.array_equal(kept[0], x):
+            return self.evaluate(x, exact)
+        return self._finish(kept[2].copy(), [t for t in self.terms if t.lags], x, exact)
+
+    def _finish(self, total: _Sum, lagging: list[Term], x: np.ndarray,
+                exact: bool) -> Evaluation:
+        for t in lagging:
+            total.add(t, x, exact)
+        data = total.data
         data[self._zero] = 0.0
         data[self._diag] = 1.0
-        return (E if np.isfinite(E) else np.inf), mag, g, data, (level, applied)
+        E = total.E
+        return (E if np.isfinite(E) else np.inf), total.mag, total.g, data, (total.level,
+                                                                            total.applied)
+
+
+@dataclass
+class _Sum:
+    """The terms' energies, gradients and Hessians summed so far, with the energies' round-off
+    scale and the applied forces (Problem.evaluate)."""
+
+    g: np.ndarray
+    data: np.ndarray
+    E: float = 0.0
+    mag: float = 0.0
+    level: float = 0.0
+    applied: float = 0.0
+
+    def copy(self) -> _Sum:
+        return _Sum(self.g.copy(), self.data.copy(), self.E, self.mag, self.level,
+                    self.applied)
+
+    def add(self, t: Term, x: np.ndarray, exact: bool) -> None:
+        g = self.g
+        saved = getattr(t, "project", None)
+        if exact and saved is not None:
+            t.project = 0
+        before = None if t.name == "elasticity" else g.copy()
+        try:
+            e = t.add_gradient_hessian(x, g, self.data)
+        finally:
+            if saved is not None:
+                t.project = saved
+        if before is not None:
+            self.level = max(self.level, float(np.linalg.norm(g - before)))
+            self.applied += float(np.linalg.norm((g - before).sum(0)))
+        self.E += e
+        self.mag += abs(e)
 
 
 def solve_refined(problem: Problem, data: np.ndarray, rhs: np.ndarray,

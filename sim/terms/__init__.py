@@ -18,6 +18,8 @@ class Term:
     # a penalty barrier (contact): Newton's quadratic model of it fails past its thin layer,
     # so a full step that raises its energy is backtracked, never watched (sim.solve.newton)
     barrier = False
+    # whether the energy lags a quantity of the state now (see lag_change)
+    lags = False
 
     def begin_step(self, t: float, dt: float, x: np.ndarray) -> None:
         """Take the step's time, step size and the state at its start."""

@@ -161,6 +161,10 @@ class ToolContact(Term):
         self.lagged = (act, self._start[act], np.ascontiguousarray(disp), lam[act], nrm[act],
                         lam)
 
+    @property
+    def lags(self) -> bool:
+        return self.mu > 0
+
     def relag(self, x: np.ndarray) -> float:
         """Take the normal forces of state x as the lagged ones; returns their largest change
         relative to the largest normal force (0 without friction)."""

@@ -380,3 +380,35 @@ def test_keyframe_rows_are_validated():
     raw["tools"][0]["force"] = 100.0
     with pytest.raises(Exception, match="does not rotate"):
         scene_from_dict(raw)
+
+
+def test_a_friction_refresh_assembles_the_friction_terms_alone(monkeypatch):
+    """Newton refreshes friction's lagged normal forces near convergence and evaluates the
+    iterate again (sim.solve.newton._relag); only the tool terms change, so only they are
+    assembled again, onto the kept sum of the others: the same evaluation as a full one."""
+    sim = sheet_on_ground(0.3, 0.005)
+    sim.step()
+    problem = sim.model.problem
+    ground = next(t for t in problem.terms if t.lags)
+    sim.model.terms[0].begin_step(sim.t + 0.25, 0.25, sim.x)
+    ground.begin_step(sim.t + 0.25, 0.25, sim.x)
+    x = sim.x.copy()
+    x[ground.nodes] += np.random.default_rng(3).normal(scale=1e-5, size=(len(ground.nodes), 3))
+    problem.evaluate(x, exact=True)
+    assert ground.lag_change(x, take=True) > 1e-3  # the refresh changes the energy
+    elastic = next(t for t in problem.terms if t.name == "elasticity")
+    calls = []
+    monkeypatch.setattr(elastic, "add_gradient_hessian",
+                        lambda *a, f=elastic.add_gradient_hessian: calls.append(1) or f(*a))
+    again = problem.relagged(x, exact=True)
+    assert calls == []
+    full = problem.evaluate(x, exact=True)
+    assert calls == [1]
+    # the same sums in the same order (the friction terms last in both)
+    assert again[0] == full[0] and again[1] == full[1] and again[4] == full[4]
+    np.testing.assert_array_equal(again[2], full[2])
+    np.testing.assert_array_equal(again[3], full[3])
+    # at another state (or with the other Hessian) it is a full evaluation
+    problem.relagged(x + 1e-9, exact=True)
+    problem.relagged(x, exact=False)
+    assert calls == [1, 1, 1]
