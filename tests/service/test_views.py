@@ -6,7 +6,8 @@ test_views_browser.py drives the same in two chromium contexts):
   default view; a new run is selected in the view that started it, not in another that shows
   a run; a bad view id is a 422 naming the header.
 - Two viewers in two views show their own run, colour mode and time-slider step; the step a
-  viewer was scrubbed to is in its view (the page marks it in its plots).
+  viewer was scrubbed to is in its view (the page marks it in its plots); a run one browser
+  shows stays scrubbable (from its recording) when another's run takes the solver.
 - Who started a run is kept; a stop, parameter change or delete from another view is done
   (200 / 204 for scripts), says so in the answer, is noted on the run and told to the
   starter's view; one's own run says nothing.
@@ -106,6 +107,20 @@ def test_two_viewers_show_their_own_run_colours_and_step(client):
         until(lambda: a.selected == second and a.mode == "live", "A did not follow its view")
         assert b.selected == first
         assert client.get("/api/view", headers=A).json()["step"] is None  # a new selection
+
+
+def test_a_run_shown_after_it_left_the_live_runs_comes_from_its_recording(client):
+    """A browser still shows its ended run when another browser's run takes the solver (and
+    the kept frames) from it: it is shown from its recording, and scrubs it."""
+    m = client.app.state.manager
+    run = run_to_end(client, A)
+    with attached(m.viewer, "browser-a") as a:
+        until(lambda: a.selected == run and a.mode == "live", "A's run is not shown live")
+        run_to_end(client, B)
+        until(lambda: a.mode == "replay", "A's run did not switch to its recording")
+        assert a.selected == run and run not in m.viewer.lives
+        a.gui.time.value = 1
+        assert a.gui.status.content.endswith("showing recorded step 1")
 
 
 def test_acting_on_another_views_run_says_so(client):
