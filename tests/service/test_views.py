@@ -109,6 +109,23 @@ def test_two_viewers_show_their_own_run_colours_and_step(client):
         assert client.get("/api/view", headers=A).json()["step"] is None  # a new selection
 
 
+def test_the_png_is_of_the_asking_browsers_view(client):
+    """Two browsers show the same run: the PNG export renders the one whose view asks (its
+    camera and colours), and the exports list gives the page that URL."""
+    from server.routers.exports import _viewer_client
+
+    m = client.app.state.manager
+    run = run_to_end(client, A)
+    client.put("/api/view", json={"run": run}, headers=B)
+    with attached(m.viewer, "browser-a") as a, attached(m.viewer, "browser-b") as b:
+        until(lambda: a.mode == b.mode == "live", "the run is not shown in both")
+        assert _viewer_client(m, run, "browser-a") is a.client
+        assert _viewer_client(m, run, "browser-b") is b.client
+    formats = client.get(f"/api/runs/{run}/exports", headers=B).json()["formats"]
+    assert formats[-1]["url"] == f"/api/runs/{run}/export/png?view=browser-b"
+    assert client.get(f"/api/runs/{run}/export/png?view=../x").status_code == 422
+
+
 def test_a_run_shown_after_it_left_the_live_runs_comes_from_its_recording(client):
     """A browser still shows its ended run when another browser's run takes the solver (and
     the kept frames) from it: it is shown from its recording, and scrubs it."""
