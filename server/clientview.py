@@ -20,8 +20,10 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import viser
@@ -29,9 +31,6 @@ import viser
 from server.canvas import Canvas
 from server.replay import Replay
 from sim.stepping.parameters import LABELS
-
-if TYPE_CHECKING:
-    from server.viewer import Viewer
 
 # the page's run controls and what each sends, in the page's order and words
 COMMANDS = {"Pause": "pause", "Resume": "resume", "Step": "step", "Stop": "stop"}
@@ -53,6 +52,33 @@ def scaled_text(items: list[dict], value: float) -> str:
     return "; ".join(parts)
 
 
+class Actions(Protocol):
+    """What the controls call (``server.actions.ViewerActions``); each answers with the status
+    line to show. ``view``: the browser's view that acts."""
+
+    def command(self, view: str, run_id: str | None, cmd: str) -> str: ...
+    def select(self, view: str, run_id: str) -> str: ...  # "" once selected, else why not
+    def set_parameter(self, view: str, run_id: str | None, name: str, value: float) -> str: ...
+    def scrub(self, run_id: str | None, step: int) -> tuple[dict | None, str]: ...
+    def recording(self, run_id: str) -> tuple[Replay | None, str]: ...
+    def scaled(self, run_id: str | None) -> dict: ...  # what each live parameter multiplies
+    def shows_step(self, view: str, run_id: str | None, step: int | None) -> None: ...
+    def connected(self, view: str) -> None: ...  # a browser's viewer of ``view`` is up
+
+
+class Shared(Protocol):
+    """What a browser's view reads of the viewer (``server.viewer.Viewer``)."""
+
+    server: viser.ViserServer
+    actions: Actions
+    lock: threading.RLock
+    colour_period: float
+    lives: dict  # run id -> the viewer's ``Live``: a latest run's faces, tools, newest frame
+
+    def from_code(self) -> AbstractContextManager[None]: ...
+    def by_user(self, action: Callable[[], object]) -> Callable[[object], None]: ...
+
+
 @dataclass
 class Gui:
     status: viser.GuiMarkdownHandle
@@ -64,7 +90,7 @@ class Gui:
 
 
 class ClientView:
-    def __init__(self, viewer: Viewer, client: viser.ClientHandle, view: str):
+    def __init__(self, viewer: Shared, client: viser.ClientHandle, view: str):
         self.v, self.client, self.view = viewer, client, view
         self.actions, self.lock = viewer.actions, viewer.lock
         self.selected: str | None = None  # the run shown (its view's selection)

@@ -21,31 +21,15 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 import viser
 
-from server.clientview import ClientView
+from server.clientview import Actions, ClientView
 from server.colormap import grow
-from server.replay import Replay
 
 DEFAULT = "default"  # server.views.DEFAULT: the view of a viewer opened on its own
 VIEW_PATH = "/view/"  # the websocket path a page's viewer names its view under
-
-
-class Actions(Protocol):
-    """What the controls call (``server.actions.ViewerActions``); each answers with the status
-    line to show. ``view``: the browser's view that acts."""
-
-    def command(self, view: str, run_id: str | None, cmd: str) -> str: ...
-    def select(self, view: str, run_id: str) -> str: ...  # "" once selected, else why not
-    def set_parameter(self, view: str, run_id: str | None, name: str, value: float) -> str: ...
-    def scrub(self, run_id: str | None, step: int) -> tuple[dict | None, str]: ...
-    def recording(self, run_id: str) -> tuple[Replay | None, str]: ...
-    def scaled(self, run_id: str | None) -> dict: ...  # what each live parameter multiplies
-    def shows_step(self, view: str, run_id: str | None, step: int | None) -> None: ...
-    def connected(self, view: str) -> None: ...  # a browser's viewer of ``view`` is up
 
 
 @dataclass
