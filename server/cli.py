@@ -47,7 +47,8 @@ def serve_settings(args: argparse.Namespace, token: str | None) -> Settings:
                     record_every=args.record_every, default_scene=args.scene,
                     max_model_bytes=args.max_memory * 2**30,
                     max_upload=int(args.max_upload * 2**20), solvers=args.solvers,
-                    queue_limit=args.queue)
+                    queue_limit=args.queue, scheduler=args.scheduler,
+                    scheduler_timeout=args.scheduler_timeout)
 
 
 def at_least(least: int) -> Callable[[str], int]:
@@ -62,6 +63,38 @@ def at_least(least: int) -> Callable[[str], int]:
             raise argparse.ArgumentTypeError(f"must be at least {least}, not {value}")
         return value
     return count
+
+
+def _scheduler_answers(settings: Settings) -> bool:
+    """Whether the Dask scheduler of ``--scheduler`` answers and its workers can run the solver;
+    if not, says why (naming the address) before any server starts."""
+    from server.cluster import SchedulerError, connect
+
+    print(f"q3t: connecting to the Dask scheduler {settings.scheduler} ...", file=sys.stderr,
+          flush=True)
+    try:
+        client = connect(settings.scheduler, settings.scheduler_timeout)
+    except SchedulerError as exc:
+        print(f"q3t: {exc}", file=sys.stderr)
+        return False
+    workers = len(client.scheduler_info(n_workers=-1)["workers"])
+    client.close()
+    if not workers:
+        print(f"q3t: warning: the Dask cluster at {settings.scheduler} has no worker yet: runs "
+              "wait in the queue until one joins", file=sys.stderr)
+    return True
+
+
+def seconds(text: str) -> float:
+    """An argparse type: a positive, finite number of seconds (else exit 2 naming the
+    option)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, not {text}")
+    return value
 
 
 def _stop_as_exit(signum: int, frame: FrameType | None) -> None:
@@ -89,6 +122,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         print(f"q3t: no scene {args.scene!r} in {scenes}", file=sys.stderr)
         return 2
     settings = serve_settings(args, token)
+    if settings.scheduler and not _scheduler_answers(settings):
+        return 2
     query = f"?token={token}" if token else ""
     print(f"q3t: open http://{args.host}:{args.port}/{query}  (API docs at /docs)",
           file=sys.stderr, flush=True)
@@ -166,6 +201,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--queue", type=at_least(0), default=Settings.queue_limit, metavar="N",
                    help="runs that may wait for a solver process; a start past them is "
                         "refused (HTTP 429; default %(default)s)")
+    s.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the solvers on the workers of this Dask cluster (its scheduler's "
+                        "address, e.g. tcp://10.0.0.5:8786) instead of local processes; "
+                        "--solvers N of them at once. The workers need q3t-forming installed, "
+                        "the same version; no shared file system (each run's files come back "
+                        "to --runs-dir). Not reachable within --scheduler-timeout: exit 2")
+    s.add_argument("--scheduler-timeout", type=seconds, default=Settings.scheduler_timeout,
+                   metavar="S", help="seconds to reach the --scheduler at start-up "
+                                     "(default %(default)g)")
     s.add_argument("--max-upload", type=float, default=Settings.max_upload / 2**20,
                    metavar="MIB", help="the largest file /api/files takes (a blank mesh or a "
                    "thickness file; MiB, default %(default)g); larger uploads get 413")

@@ -42,7 +42,7 @@ from server.settings import Settings, check_run_id
 from server.store import SceneStore
 from server.views import Views
 from server.worker import worker_main
-from server.workerhandle import Slot, WorkerHandle, WorkerTarget
+from server.workerhandle import Slot, WorkerHandle, WorkerTarget, solvers
 
 if TYPE_CHECKING:  # imports viser
     from server.viewer import Viewer
@@ -69,7 +69,7 @@ class RunManager:
         self.sent: dict[int, str] = {}  # request id -> run id, until the solver replies
         self.logs: collections.deque = collections.deque(maxlen=50)  # the solver's log events
         self.viewer: Viewer | None = None  # set by the app when the viewer is on
-        self._target = worker_target
+        self._solvers = solvers(settings, worker_target)  # local processes or a Dask cluster
         self.slots = [Slot(self._new_worker()) for _ in range(max(1, settings.solvers))]
         self.views = Views(self)  # what the page and the viewer show
         self._retired: list[WorkerHandle] = []  # ended by a stop during a build; the bridge closes
@@ -79,8 +79,7 @@ class RunManager:
 
     # ---- life cycle -------------------------------------------------------------------------
     def _new_worker(self) -> WorkerHandle:
-        s = self.settings
-        return WorkerHandle(s.frame_queue, s.record_every, s.step_delay, self._target)
+        return self._solvers.new()
 
     def start(self) -> None:
         if self.viewer:
@@ -113,6 +112,7 @@ class RunManager:
                 slot.worker.send("shutdown")
         for slot, run in running:
             self._close_slot(slot, run)
+        self._solvers.close()
 
     def _close_slot(self, slot: Slot, run: Run | None) -> None:
         """At shutdown: end the slot's process (a solver still inside a step is asked, then
@@ -424,11 +424,10 @@ class RunManager:
         the build held is freed. Returns the old process's handle."""
         slot = self._slot(run.id)
         old = slot.worker
-        old.process.kill()
+        how = old.kill()
         slot.worker = self._new_worker()
         self.restarts += 1
-        self.finish(run, "stopped", "stopped during the build (its solver process was ended "
-                                    "and a new one started)")
+        self.finish(run, "stopped", f"stopped during the build ({how} and a new one started)")
         return old
 
     def _after_build_ended(self, run: Run, old: WorkerHandle | None) -> None:
@@ -439,7 +438,7 @@ class RunManager:
             self.save(run)
             self.run_ended(run)
             return
-        old.process.join(5.0)
+        old.join(5.0)
         self._retired.append(old)
         self._result_if_missing(run)
         if self.files.recording(run.id).is_file():
@@ -459,8 +458,6 @@ class RunManager:
         """The bridge found a solver process dead: fail its run (after repairing the
         recording, so a download after that verifies) and start a new process in its slot,
         which then takes the next queued run. The other slots' runs go on."""
-        code = w.process.exitcode
-        why = f"killed by signal {-code}" if code and code < 0 else f"exit code {code}"
         with self.lock:
             slot = next((s for s in self.slots if s.worker is w), None)
             if slot is None:  # already replaced (a build stopped by request)
@@ -473,7 +470,7 @@ class RunManager:
             slot.worker = self._new_worker()
             self.restarts += 1
             if run is not None and slot.run == run.id:
-                self.finish(run, "failed", f"solver process died ({why}){note}")
+                self.finish(run, "failed", f"{w.death()}{note}")
             self._dispatch()
         w.close(timeout=0.1)
         if run is not None:

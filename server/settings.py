@@ -94,4 +94,8 @@ class Settings:
     # each slower when there are more than cores
     solvers: int = 1
     queue_limit: int = 16  # runs that may wait for a solver process; then a start is a 429
+    # the Dask scheduler whose workers run the solvers (q3t serve --scheduler); None: local
+    # processes
+    scheduler: str | None = None
+    scheduler_timeout: float = 10.0  # s to reach the scheduler at start-up; then an error
     extra: dict = field(default_factory=dict)

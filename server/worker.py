@@ -22,10 +22,9 @@ import signal
 import time
 import traceback
 from dataclasses import asdict
-from multiprocessing.process import BaseProcess
 from multiprocessing.queues import Queue
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -389,14 +388,28 @@ def worker_main(commands: Channel, events: Channel, frames: Channel, record_ever
     """Entry point of the spawned process. Exits on a ``shutdown`` command, or when the server
     process is gone."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    solver = Solver(events, frames, record_every, step_delay)
-    events.put({"kind": "ready", "run": None, "parameters": _parameters(events)})
-    if _serve(solver, commands, mp.parent_process()):
+    if serve(commands, events, frames, record_every, step_delay, mp.parent_process()):
         # orphaned: nobody reads the queues any more, do not wait to flush them
         events.cancel_join_thread()
         frames.cancel_join_thread()
     events.close()
     frames.close()
+
+
+class Owner(Protocol):
+    """Whoever reads the solver's events: the server process (``mp.parent_process()``), or
+    the server's hold on a Dask actor (``server.solveractor``)."""
+
+    def is_alive(self) -> bool: ...
+
+
+def serve(commands: Channel, events: Channel, frames: Channel, record_every: int,
+          step_delay: float, owner: Owner | None) -> bool:
+    """The solver's life: say it is ready (with the live parameters), then answer commands
+    and step until a ``shutdown`` (returns False) or the ``owner``'s end (returns True)."""
+    solver = Solver(events, frames, record_every, step_delay)
+    events.put({"kind": "ready", "run": None, "parameters": _parameters(events)})
+    return _serve(solver, commands, owner)
 
 
 def _parameters(events: Channel) -> dict:
@@ -411,11 +424,11 @@ def _parameters(events: Channel) -> dict:
         return {}
 
 
-def _serve(solver: Solver, commands: Channel, parent: BaseProcess | None) -> bool:
+def _serve(solver: Solver, commands: Channel, owner: Owner | None) -> bool:
     """Answer commands and step the active run between them, until a ``shutdown`` (returns
-    False) or the server process's death (returns True)."""
+    False) or the owner's end (returns True)."""
     while True:
-        if parent is not None and not parent.is_alive():
+        if owner is not None and not owner.is_alive():
             if solver.sim is not None:
                 solver.finish("failed", "the server process died")
             return True
