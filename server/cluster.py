@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from server.solveractor import ENDED, SolverActor
-from server.workerhandle import request_id
+from server.worker import request_id
 
 if TYPE_CHECKING:  # imports distributed
     from distributed import Client, Future

@@ -283,8 +283,9 @@ def final_state(r: Loaded) -> dict:
             "faces": data["faces"], "thickness": data["thickness"]}
 
 
-def same_mesh(a: dict, b: dict) -> str | None:
-    """None when the two final states are on the same mid-surface mesh, else why not."""
+def same_mesh(a: dict, b: dict, tol: float = SAME_MESH_TOL) -> str | None:
+    """None when the two states are on the same mid-surface mesh (rest vertices within
+    ``tol``, m), else why not."""
     na, nb = len(a["rest"]), len(b["rest"])
     if na != nb or a["faces"].shape != b["faces"].shape:
         return (f"the meshes differ: A has {na} mid-surface vertices and {len(a['faces'])} "
@@ -292,7 +293,7 @@ def same_mesh(a: dict, b: dict) -> str | None:
     if not np.array_equal(a["faces"], b["faces"]):
         return "the meshes differ: the same counts, other triangles"
     gap = float(np.abs(a["rest"] - b["rest"]).max()) if na else 0.0
-    if gap > SAME_MESH_TOL:
+    if gap > tol:
         return f"the meshes differ: the blanks' vertices are up to {1e3 * gap:.3g} mm apart"
     return None
 

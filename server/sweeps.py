@@ -2,12 +2,12 @@
 
 A sweep written inside the runs folder (``q3t sweep SCENE --grid ... --out runs/NAME``) holds
 ``sweep.json`` and a folder per case that ran (``cases/NNN``: scene.toml, result.json,
-final.npz, case.json; sim.apps.cases.write_case). Importing it copies each such case into a run
-folder of its own with a run.json, as a finished (or failed) run; the sweep's folder is left
-as it is. A sweep is named by its path inside the runs folder, so a request can make the
-server read nothing outside it. A case imported before keeps its run (importing again adds
-only what is new); a case whose folder is incomplete (killed over its budget) is skipped with
-the reason."""
+final.npz, case.json, the frames it saved; sim.apps.cases.write_case). Importing it copies
+each such case into a run folder of its own with a run.json, as a finished (or failed) run
+(its frames too: it compares at a stroke); the sweep's folder is left as it is. A sweep is
+named by its path inside the runs folder, so a request can make the server read nothing
+outside it. A case imported before keeps its run (importing again adds only what is new); a
+case whose folder is incomplete (killed over its budget) is skipped with the reason."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from server.problems import Invalid, NotFound
 from server.records import Run
 from server.settings import RUN_ID_MAX, check_name
 from server.store import atomic_write
-from sim.frames import results
+from sim.frames import results, series
 
 CASE_FILES = ("scene.toml", "result.json", "final.npz")
 
@@ -145,6 +145,8 @@ def _copy(runs_dir: Path, rid: str, case_dir: Path) -> Run | None:
     try:
         for name in CASE_FILES:
             shutil.copyfile(case_dir / name, tmp / name)
+        if (case_dir / series.FOLDER).is_dir():  # a case from before sweeps saved frames: none
+            shutil.copytree(case_dir / series.FOLDER, tmp / series.FOLDER)
         atomic_write(tmp / "run.json", results.dumps(run.snapshot(), indent=1))
         os.rename(tmp, runs_dir / rid)  # onto a folder of that name: OSError, nothing changed
     except BaseException:

@@ -16,6 +16,7 @@ closed (a complete, verifiable file) and the process exits.
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing as mp
 import queue
 import signal
@@ -33,6 +34,14 @@ from sim.frames.punch import plotted
 if TYPE_CHECKING:  # the solver is imported in the solver process only, when it starts
     from sim.scene.load import Scene
     from sim.stepping.simulation import Simulation
+
+_ids = itertools.count(1)
+
+
+def request_id() -> int:
+    """A command's id, unique among every solver's (the replies' waiters are keyed by it), in
+    the server process: local solver processes and Dask actors take the same ids."""
+    return next(_ids)
 
 # a multiprocessing queue; a queue.Queue when a test drives the solver in its own process
 Channel = Queue | queue.Queue

@@ -5,13 +5,12 @@ cluster (``--scheduler``, ``server.cluster``), whose handles have the same inter
 
 from __future__ import annotations
 
-import itertools
 import multiprocessing as mp
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
-from server.worker import worker_main
+from server.worker import request_id, worker_main
 
 if TYPE_CHECKING:
     from server.cluster import DaskWorkerHandle
@@ -19,14 +18,6 @@ if TYPE_CHECKING:
 
 # the process's entry point: (commands, events, frames, record_every, step_delay) -> None
 WorkerTarget = Callable[..., None]
-_ids = itertools.count(1)
-
-
-def request_id() -> int:
-    """A command's id, unique among every solver's (the replies' waiters are keyed by it)."""
-    return next(_ids)
-
-
 class WorkerHandle:
     def __init__(self, frame_queue: int, record_every: int, step_delay: float,
                  target: WorkerTarget = worker_main):

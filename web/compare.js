@@ -2,8 +2,11 @@
 // runs (the first ticked is the reference, A), or open the cases of a q3t sweep as runs; then
 // a view over the window: what differs between them, their summaries with each run's
 // difference from A, their force-stroke curves and probes on shared axes, and their final
-// thickness on the formed part with an A / B / A − B toggle (the camera stays where it is).
-// Everything drawn is the server's (/api/compare, /api/compare/thickness), in mm, kN, MPa, %.
+// thickness on the formed part with an A / B / A − B toggle (the camera stays where it is);
+// below, A and B side by side at the same punch stroke (a slider over the strokes both saved
+// frames for), their thickness on one colour scale and A − B, the cameras moving together.
+// Everything drawn is the server's (/api/compare, /api/compare/thickness,
+// /api/compare/frames), in mm, kN, MPa, %.
 "use strict";
 const Compare = (() => {
   const ACTIVE = ["starting", "building", "running", "paused"];
@@ -15,7 +18,16 @@ const Compare = (() => {
   const FONT = { family: "system-ui, sans-serif", size: 11 };
   const picked = [];  // the ticked run ids, in the order ticked: the first is A
   const view = { runs: null, data: null, thickness: null, show: "diff", shape: "formed",
-                 against: 1, camera: null, timer: null, seq: 0 };
+                 against: 1, camera: null, timer: null, seq: 0,
+                 stroke: null, strokeKey: null, strokeSeq: 0, strokeDigits: 3,
+                 bounds: null };
+  // the 3-D views whose cameras move together: the final thickness and the views at a stroke
+  // the views at a stroke: from the front, a little to the right and above, the whole part
+  // and its axes beside a colour bar
+  const EYE = { x: 0.6, y: -1.3, z: 1.05 };
+  // plotly's RdBu runs from blue (low) to red (high): reversed, A − B < 0 (A thinner) is red
+  const THINNER_RED = { colorscale: "RdBu", reversescale: true };
+  const VIEWS3D = ["compare-thickness", "compare-3d-a", "compare-3d-b", "compare-3d-diff"];
   const el = (tag, props = {}, ...kids) => {
     const e = Object.assign(document.createElement(tag), props);
     e.append(...kids);
@@ -138,7 +150,8 @@ const Compare = (() => {
             el("figure", { id: "compare-force-fig" },
                el("div", { id: "compare-force", className: "plot" })),
             el("figure", {}, el("div", { id: "compare-thickness", className: "plot" }),
-               el("div", { id: "compare-thickness-controls", className: "row" })))));
+               el("div", { id: "compare-thickness-controls", className: "row" })))),
+      strokePanel());
     document.body.append(sec);
     $("compare-close").onclick = close;
     document.addEventListener("keydown", (ev) => {
@@ -150,11 +163,11 @@ const Compare = (() => {
     view.runs = ids;
     view.against = 1;
     view.show = "diff";
-    view.data = view.thickness = view.camera = null;
+    view.data = view.thickness = view.camera = view.stroke = view.strokeKey = null;
     $("compare-view").hidden = false;
     document.body.classList.add("comparing");
     $("compare-title").textContent = "Comparing…";
-    for (const id of ["compare-force", "compare-probes", "compare-thickness"])
+    for (const id of ["compare-force", "compare-probes", ...VIEWS3D])
       if ($(id).data) Plotly.purge($(id));
     await refresh();
   }
@@ -162,6 +175,7 @@ const Compare = (() => {
   function close() {
     clearTimeout(view.timer);
     view.seq++;  // an answer on its way is for a view no longer open
+    view.strokeSeq++;
     $("compare-view").hidden = true;
     document.body.classList.remove("comparing");
   }
@@ -185,6 +199,7 @@ const Compare = (() => {
     await forceStroke(data);
     await probes(data);
     await thickness(data);
+    await atStroke(data);
     if (data.runs.some((r) => ACTIVE.includes(r.state)))
       view.timer = setTimeout(() => { if (seq === view.seq) refresh(); }, 1500);
   }
@@ -401,7 +416,12 @@ const Compare = (() => {
       const sel = el("select", { "aria-label": "B of the thickness map" },
         ...data.runs.slice(1).map((r, k) => el("option", { value: String(k + 1),
           textContent: `A against ${r.letter}`, selected: k + 1 === view.against })));
-      sel.onchange = () => { view.against = +sel.value; view.show = "diff"; thickness(data); };
+      sel.onchange = () => {
+        view.against = +sel.value;
+        view.show = "diff";
+        thickness(data);
+        atStroke(data);
+      };
       kids.push(sel);
     }
     const note = el("span", { id: "compare-thickness-note", className: "muted" });
@@ -430,9 +450,9 @@ const Compare = (() => {
     if (view.show === "diff" && d.available) {
       const m = Math.max(d.max_abs, 1e-9);
       trace = meshTrace(t.a, d.values, {
-        colorscale: "RdBu", cmin: -m, cmax: m, cmid: 0,
+        ...THINNER_RED, cmin: -m, cmax: m, cmid: 0,
         colorbar: { title: { text: `A − ${t.b.letter}<br>thickness (mm)`, side: "right" },
-                    len: 0.85 },
+                    len: 0.85, exponentformat: "none" },
         hovertemplate: `A − ${t.b.letter}: %{customdata[0]:.4f} mm<br>A: ` +
                        "%{customdata[1]:.4f} mm<extra></extra>" });
       title = `Thickness difference A − ${t.b.letter} (red: A thinner, blue: A thicker)`;
@@ -441,7 +461,8 @@ const Compare = (() => {
       // one scale for A and B, thin in red: the toggle compares colours directly
       trace = meshTrace(part, part.thickness, {
         colorscale: "Jet", reversescale: true, cmin: t.range[0], cmax: t.range[1],
-        colorbar: { title: { text: "thickness (mm)", side: "right" }, len: 0.85 },
+        colorbar: { title: { text: "thickness (mm)", side: "right" }, len: 0.85,
+                    exponentformat: "none" },
         hovertemplate: `${part.letter}: %{customdata[1]:.4f} mm<extra></extra>` });
       title = `Final thickness of ${part.letter} (${part.id})`;
     }
@@ -455,13 +476,193 @@ const Compare = (() => {
                yaxis: { title: { text: "y (mm)" } }, zaxis: { title: { text: "z (mm)" } },
                camera: view.camera || { eye: { x: 0.7, y: -1.5, z: 1.3 } } } });
     await Plotly.react(div, [trace], lay, CONFIG);
+    linkCamera(div);
+  }
+
+  function linkCamera(div) {
+    // moving one 3-D view moves the others: the camera goes to view.camera and to every
+    // other view drawn whose camera is not that already (so the echo ends there)
     div.removeAllListeners("plotly_relayout");  // one listener, whether purged or not
     div.on("plotly_relayout", (ev) => {
       // a drag sends scene.camera, a script may send a part (scene.camera.eye): plotly has
       // merged either into the layout
-      if (Object.keys(ev).some((k) => k.startsWith("scene.camera")))
-        view.camera = JSON.parse(JSON.stringify(div.layout.scene.camera));
+      if (!Object.keys(ev).some((k) => k.startsWith("scene.camera"))) return;
+      view.camera = JSON.parse(JSON.stringify(div.layout.scene.camera));
+      const text = JSON.stringify(view.camera);
+      for (const id of VIEWS3D) {
+        const other = $(id);
+        if (other === div || !other.data || !other.layout.scene) continue;
+        if (JSON.stringify(other.layout.scene.camera) !== text)
+          Plotly.relayout(other, { "scene.camera": JSON.parse(text) });
+      }
     });
+  }
+
+  // ---- A and B at the same punch stroke ---------------------------------------------------
+  function strokePanel() {
+    const slider = el("input", { type: "range", id: "compare-stroke-slider", disabled: true });
+    slider.setAttribute("list", "compare-stroke-ticks");
+    slider.setAttribute("aria-label", "punch stroke (mm)");
+    // the number shown follows the thumb; the frames are asked for where it is let go
+    slider.oninput = () => { $("compare-stroke-value").textContent = mm(+slider.value); };
+    slider.onchange = () => {
+      view.stroke = +slider.value;
+      fetchStroke();
+    };
+    return el("section", { id: "compare-stroke" },
+      el("h3", { textContent: "At the same punch stroke: thickness on the deformed part " +
+                 "(both on one colour scale; the cameras move together)" }),
+      el("div", { id: "compare-stroke-controls", className: "row stroke-controls" },
+         el("label", { htmlFor: "compare-stroke-slider", textContent: "punch stroke" }),
+         slider, el("datalist", { id: "compare-stroke-ticks" }),
+         el("output", { id: "compare-stroke-value", htmlFor: "compare-stroke-slider" }),
+         el("span", { id: "compare-stroke-shown" })),
+      el("p", { id: "compare-stroke-msg", className: "muted", role: "status" }),
+      el("div", { id: "compare-stroke-views", className: "stroke-views" },
+         el("div", { id: "compare-3d-a", className: "plot" }),
+         el("div", { id: "compare-3d-b", className: "plot" }),
+         el("div", { id: "compare-3d-diff", className: "plot" })));
+  }
+
+  function mm(stroke) {
+    // strokes to a micrometre up to 10 mm, to 10 µm beyond: a slider's stroke and a frame's
+    // read alike
+    return `${stroke.toFixed(view.strokeDigits)} mm`;
+  }
+
+  function strokeRuns() {
+    return [view.runs[0], view.runs[view.against]];
+  }
+
+  async function atStroke(data) {
+    // a new pair starts at the deepest stroke both reached; a run still going is asked
+    // again at each refresh (it saves frames as it goes)
+    const key = strokeRuns().join(",");
+    const going = [0, view.against].some((i) => ACTIVE.includes(data.runs[i].state));
+    if (key !== view.strokeKey) view.stroke = view.bounds = null;
+    else if (!going) return;
+    view.strokeKey = key;
+    await fetchStroke();
+  }
+
+  async function fetchStroke() {
+    // the latest request wins: an answer overtaken by a newer one is dropped
+    const seq = ++view.strokeSeq;
+    const q = view.stroke === null ? "" : `&stroke_mm=${view.stroke}`;
+    let t;
+    try {
+      t = await api("GET", "/api/compare/frames?runs=" +
+                    `${strokeRuns().map(encodeURIComponent)}${q}`);
+    } catch (e) {
+      if (seq === view.strokeSeq) strokeMissing(e.message);
+      return;
+    }
+    if (seq !== view.strokeSeq) return;
+    $("compare-stroke-controls").hidden = $("compare-stroke-views").hidden = false;
+    t.b.letter = view.data.runs[view.against].letter;  // the server letters its two A, B
+    strokeControls(t);
+    await drawStroke(t);
+  }
+
+  function strokeMissing(why) {
+    $("compare-stroke-msg").textContent = `no views at a stroke: ${why}`;
+    $("compare-stroke-controls").hidden = $("compare-stroke-views").hidden = true;
+    for (const id of VIEWS3D.slice(1)) if ($(id).data) Plotly.purge($(id));
+  }
+
+  function strokeControls(t) {
+    const [lo, hi] = t.range, slider = $("compare-stroke-slider");
+    // about 200 positions over the range, a round number of mm each
+    const step = hi > lo ? 10 ** Math.floor(Math.log10((hi - lo) / 200)) : 1;
+    Object.assign(slider, { min: lo, max: hi, step, disabled: !(hi > lo) });
+    view.strokeDigits = hi < 10 ? 3 : 2;
+    slider.value = String(t.stroke);
+    const ticks = [...new Set(t.runs.flatMap((r) => r.frames.map((f) => f.stroke)))];
+    $("compare-stroke-ticks").replaceChildren(...ticks.filter((v) => v >= lo && v <= hi)
+      .map((v) => el("option", { value: String(v) })));
+    $("compare-stroke-value").textContent = mm(t.stroke);
+    const shown = [t.a, t.b].map((p) => `${p.letter}: frame of step ${p.step} at ` +
+                                      mm(p.stroke));
+    $("compare-stroke-shown").textContent = `shown — ${shown.join(" · ")}`;
+    const saved = t.runs.map((r, i) => `${i ? t.b.letter : "A"} ${r.frames.length}`);
+    $("compare-stroke-msg").textContent = hi > lo
+      ? `strokes both runs saved frames for: ${mm(lo)} to ${mm(hi)} ` +
+        `(frames saved: ${saved.join(", ")}); each view shows its run's frame nearest the ` +
+        "stroke chosen"
+      : `both runs have saved frames only at ${mm(lo)} of stroke so far`;
+  }
+
+  function grow(box) {
+    // the box every stroke is drawn in: the extent of every frame saved (the server's), grown
+    // as a run still going saves more; sliding keeps the scale and the true proportions
+    const b = view.bounds || box.map(([lo, hi]) => [lo, hi]);
+    box.forEach(([lo, hi], c) => { b[c] = [Math.min(b[c][0], lo), Math.max(b[c][1], hi)]; });
+    view.bounds = b;
+  }
+
+  function sceneBox() {
+    const b = view.bounds, size = Math.max(...b.map(([lo, hi]) => hi - lo), 1e-6);
+    const range = b.map(([lo, hi]) => [lo - 0.02 * size, hi + 0.02 * size]);
+    const ratio = range.map(([lo, hi]) => (hi - lo) / size);
+    const ax = (c, name) => ({ title: { text: `${name} (mm)` }, range: range[c],
+                               autorange: false });
+    return { aspectmode: "manual", aspectratio: { x: ratio[0], y: ratio[1], z: ratio[2] },
+             xaxis: ax(0, "x"), yaxis: ax(1, "y"), zaxis: ax(2, "z") };
+  }
+
+  function stroke3d(div, trace, title, stroke) {
+    const lay = layout(title, 380, {
+      margin: { l: 0, r: 0, t: 34, b: 0 },
+      scene: { ...sceneBox(), camera: view.camera || { eye: EYE } } });
+    if (!div.data) div.replaceChildren();  // the note that stood in for a view
+    div.dataset.step = String(stroke.step);
+    div.dataset.stroke = String(stroke.stroke);
+    return Plotly.react(div, [trace], lay, CONFIG).then(() => linkCamera(div));
+  }
+
+  function strokeTrace(part, values, scale) {
+    const P = part.formed, F = part.faces;
+    return { type: "mesh3d", x: P.map((p) => p[0]), y: P.map((p) => p[1]),
+             z: P.map((p) => p[2]), i: F.map((f) => f[0]), j: F.map((f) => f[1]),
+             k: F.map((f) => f[2]), intensity: values, intensitymode: "vertex",
+             lighting: { ambient: 0.75, diffuse: 0.35, specular: 0.05 }, name: part.letter,
+             customdata: values.map((v, n) => [v, part.thickness[n]]), ...scale };
+  }
+
+  function drawStroke(t) {
+    let [lo, hi] = t.thickness_range;
+    // a scale of at least 1 % of the thickness: at rest it is even, and no colour would mean
+    // anything
+    const pad = Math.max(0, 0.01 * hi - (hi - lo)) / 2;
+    lo -= pad;
+    hi += pad;
+    // a colour bar beside each: the same scale, and the two parts drawn the same size
+    const thick = (part) => strokeTrace(part, part.thickness, {
+      colorscale: "Jet", reversescale: true, cmin: lo, cmax: hi,
+      colorbar: { title: { text: "thickness (mm)<br>A and B", side: "right" }, len: 0.85,
+                  exponentformat: "none" },
+      hovertemplate: `${part.letter}: %{customdata[1]:.4f} mm<extra></extra>` });
+    grow(t.box);
+    const head = (p) => `${p.letter}: thickness at ${mm(p.stroke)} (step ${p.step})`;
+    const draws = [stroke3d($("compare-3d-a"), thick(t.a), head(t.a), t.a),
+                   stroke3d($("compare-3d-b"), thick(t.b), head(t.b), t.b)];
+    const d = t.difference, div = $("compare-3d-diff");
+    if (d.available) {
+      const m = Math.max(d.max_abs, 1e-9), B = t.b.letter;
+      draws.push(stroke3d(div, strokeTrace(t.a, d.values, {
+        ...THINNER_RED, cmin: -m, cmax: m, cmid: 0,
+        colorbar: { title: { text: `A − ${B}<br>thickness (mm)`, side: "right" }, len: 0.85,
+                    exponentformat: "none" },
+        hovertemplate: `A − ${B}: %{customdata[0]:.4f} mm<br>A: %{customdata[1]:.4f} mm` +
+                       "<extra></extra>" }),
+        `A − ${B} (red: A thinner)` +
+        (Math.abs(t.a.stroke - t.b.stroke) > 1e-4 ? ", at strokes that differ" : ""), t.a));
+    } else {
+      if (div.data) Plotly.purge(div);
+      div.replaceChildren(el("p", { className: "muted",
+                                    textContent: `no A − ${t.b.letter} map: ${d.reason}` }));
+    }
+    return Promise.all(draws);
   }
 
   function init() {

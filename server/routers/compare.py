@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query, Request
 from pydantic import BaseModel, ConfigDict, Field
 
 from server import compare as cmp
-from server import sweeps
+from server import compare_frames, sweeps
 from server.errors import BODY, CheckedRoute, documented
 from server.routers.plots import ProbeSeries, PunchCurve
 
@@ -18,6 +18,10 @@ RUNS = Annotated[str, Query(description="run ids, comma-separated: the first is 
                                         "reference (A), the others B, C, ...",
                             examples=["press-linear-20261202-101500-ab12,"
                                       "press-q3t-20261202-101700-cd34"])]
+
+STROKE = Annotated[float | None, Query(description="punch stroke, mm, within the range both "
+                                       "runs saved frames for; omitted: the deepest stroke "
+                                       "both reached")]
 
 
 class ComparedRun(BaseModel):
@@ -113,6 +117,43 @@ class Thickness(BaseModel):
     difference: ThicknessDifference
 
 
+class FrameAt(BaseModel):
+    step: int
+    stroke: float = Field(description="the punch's stroke at that step, mm")
+
+
+class SavedFrames(BaseModel):
+    id: str
+    letter: str
+    tool: str = Field(description="the punch whose stroke the frames are matched by")
+    frames: list[FrameAt] = Field(description="the frames the run saved during its loading")
+
+
+class PartAtStroke(BaseModel):
+    id: str
+    letter: str
+    step: int = Field(description="of the run's saved frame nearest the stroke asked for")
+    stroke: float = Field(description="the punch's stroke at that frame, mm")
+    time: float = Field(description="scene time of that frame, s")
+    faces: list[list[int]] = Field(description="mid-surface triangles")
+    formed: list[list[float]] = Field(description="mid-surface vertices at that frame, mm")
+    thickness: list[float] = Field(description="per vertex at that frame, mm")
+
+
+class AtStroke(BaseModel):
+    unit: str
+    stroke: float = Field(description="the stroke asked for (or the deepest in common), mm")
+    range: list[float] = Field(description="the strokes both runs saved frames for, mm")
+    runs: list[SavedFrames]
+    box: list[list[float]] = Field(description="the extent of every saved frame of both, mm "
+                                   "([[x0, x1], [y0, y1], [z0, z1]]): one box for all strokes")
+    a: PartAtStroke
+    b: PartAtStroke
+    thickness_range: list[float] = Field(description="thickness range of both at these "
+                                         "frames, mm: one colour scale")
+    difference: ThicknessDifference
+
+
 class SweepInfo(BaseModel):
     path: str = Field(description="the sweep's folder inside the runs folder")
     scene: str
@@ -161,6 +202,20 @@ def thickness(runs: RUNS, request: Request) -> dict:
     m = request.app.state.manager
     a, b, *_ = cmp.load(m, cmp.run_ids(runs))
     return cmp.thickness(a, b)
+
+
+@router.get("/api/compare/frames", response_model=AtStroke,
+            responses=documented(404, 409, 422))
+def compare_at_stroke(runs: RUNS, request: Request, stroke_mm: STROKE = None) -> dict:
+    """The first two runs (A, B) at the same punch stroke: each run's saved frame nearest
+    ``stroke_mm`` (matched by stroke, not step: runs of another speed or step count reach a
+    stroke at other steps) with its own stroke and step, its deformed mid-surface and
+    thickness (mm), and A - B where the meshes are the same; each run's saved frames by
+    stroke. 409 for a run without saved frames (queued, or a sweep case written without
+    them); 422 for a stroke outside the range both saved."""
+    m = request.app.state.manager
+    a, b, *_ = cmp.load(m, cmp.run_ids(runs))
+    return compare_frames.at_stroke(a, b, stroke_mm)
 
 
 @router.get("/api/sweeps", response_model=list[SweepInfo])

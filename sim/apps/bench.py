@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sim.apps import bench_calculix, calculix
 from sim.apps.bench_report import bench_md
 from sim.apps.common import BAD_INPUT, OK, load, resolve_scene
 from sim.apps.factorisation import factorisation_report
@@ -201,7 +202,7 @@ def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
             "total": sim.wall - wall, "paper_s": 1.887}
 
 
-KINDS = ("beam", "cup", "factorisation", "plastic", "forming")  # what --cases may name
+KINDS = ("beam", "cup", "factorisation", "plastic", "forming", "calculix")  # --cases names
 
 
 def _check_input(cases: list[str], elements: list[str], forming_edge: float | None) -> None:
@@ -216,6 +217,20 @@ def _check_input(cases: list[str], elements: list[str], forming_edge: float | No
             get_element(el)
         except ValueError as exc:
             raise ValueError(f"--elements: {exc}") from None
+    if "calculix" in cases:
+        alone = [el for el in elements if el not in bench_calculix.COUNTERPART]
+        if alone:
+            raise ValueError(f"--elements: {', '.join(alone)} has no CalculiX counterpart "
+                             f"(--cases calculix takes {', '.join(bench_calculix.COUNTERPART)})")
+        if calculix.program() is None:
+            raise ValueError(f"--cases calculix: CalculiX's program `{calculix.PROGRAM}` is not "
+                             "on PATH (Debian: apt-get install calculix-ccx)")
+
+
+def _title(cases: list[str]) -> str:
+    if cases == ["calculix"]:
+        return "The cantilever beside CalculiX (`q3t bench --cases calculix`)"
+    return "Cost per Newton iteration (`q3t bench`)"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -247,6 +262,18 @@ def run(args: argparse.Namespace) -> int:
                                         Path(args.out) / "factorisation", args.repeat)
             rows += [{"case": "fig7", **r} for r in fig7]
             continue
+        if case == "calculix":
+            ccx_rows, material = bench_calculix.measure(
+                elements, lambda el: case_edge("beam", el), args.repeat,
+                Path(args.out) / "calculix", calculix.program())
+            rows += ccx_rows + [{"case": "calculix_material", **r} for r in material]
+            for r in ccx_rows:
+                print(f"calculix {r['element']:9s} vs {r['ccx_element']:5s} {r['setting']:8s} "
+                      f"iterations {r['ours_iterations']} vs {r.get('ccx_iterations')}, wall "
+                      f"{r['ours_wall']:.2f} s vs {r.get('ccx_wall', float('nan')):.2f} s, tip "
+                      f"{r['ours_tip_mm']:.4f} vs {r.get('ccx_tip_mm', float('nan')):.4f} mm "
+                      f"({r['ccx_status']})", flush=True)
+            continue
         if case == "forming":
             r = forming(args.forming_edge or case_edge("cup", "q3t"), args.forming_steps,
                         args.forming_to)
@@ -268,8 +295,7 @@ def run(args: argparse.Namespace) -> int:
                                                   indent=1))
     print(f"wrote {out / 'bench.json'}")
     if args.results:
-        write_results(args.results, "Cost per Newton iteration (`q3t bench`)", bench_md(rows),
-                      stamp)
+        write_results(args.results, _title(cases), bench_md(rows), stamp)
         print(f"wrote {args.results}")
     return OK
 
@@ -279,7 +305,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--cases", default="beam,cup,factorisation,plastic,forming",
                    help="beam, cup (Table 1 sizes), factorisation (Fig. 7: the cantilever "
                         "at 80-4,500 elements), plastic (elastic vs plastic beam), forming "
-                        "(cup_drawing steps at the paper's cup size)")
+                        "(cup_drawing steps at the paper's cup size), calculix (the cantilever "
+                        "beside CalculiX's ccx on the same mesh; needs Debian's calculix-ccx)")
     b.add_argument("--forming-steps", type=int, default=3,
                    help="forming: how many steps are timed (the last ones before --forming-to)")
     b.add_argument("--forming-to", type=int, default=25,

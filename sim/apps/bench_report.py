@@ -4,6 +4,7 @@ and the factorisation comparison; each section only when its cases ran."""
 
 from __future__ import annotations
 
+from sim.apps.bench_calculix import calculix_md
 from sim.apps.study_report import FACTOR_COLS, markdown_table
 
 TABLE1 = ("beam", "cup")
@@ -103,6 +104,7 @@ def bench_md(rows: list[dict]) -> str:
     plastic = [r for r in rows if r["case"] in PLASTIC]
     forming = [r for r in rows if r["case"] == "cup_forming"]
     fig7 = [r for r in rows if r["case"] == "fig7"]
+    ccx = [r for r in rows if r["case"] == "calculix"]
     parts = []
     if table1:
         parts.append("## Cost per Newton iteration (paper Table 1 sizes)\n\n"
@@ -118,4 +120,6 @@ def bench_md(rows: list[dict]) -> str:
     if fig7:
         parts.append("## Factorisation against elements (paper Fig. 7)\n\n"
                      + markdown_table(fig7, FACTOR_COLS))
+    if ccx:
+        parts.append(calculix_md(ccx, [r for r in rows if r["case"] == "calculix_material"]))
     return "\n".join(parts)

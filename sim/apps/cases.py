@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import multiprocessing as mp
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -28,6 +29,9 @@ if TYPE_CHECKING:
 
 # what a case needs, imported once by the forkserver its children are forked from
 PRELOAD = ["sim.apps.cases", "sim.stepping.simulation", "sim.scene.load"]
+# a case with a folder saves its state every this many steps and at its end, as ``q3t run``
+# and ``q3t serve`` do by default (``--record-every``)
+FRAMES_EVERY = 10
 
 
 class _OverBudget(Exception):
@@ -65,6 +69,10 @@ def run_case(scene_path: str, overrides: dict, series: bool = False,
             raise _OverBudget(f"over its budget of {budget:g} s after step {sim.step_index} "
                               f"of {sim.n_steps} ({spent:.1f} s)")
 
+    if out_dir is not None:  # the time series the service compares at a stroke
+        frames = Path(out_dir) / "frames"
+        shutil.rmtree(frames, ignore_errors=True)  # a case run again keeps no earlier frames
+        sim.save_frames(frames, FRAMES_EVERY)
     over = None
     try:
         ok = sim.run(progress=None if budget is None else check_budget)
@@ -109,7 +117,8 @@ def run_case(scene_path: str, overrides: dict, series: bool = False,
 def write_case(sim: Simulation, scene_path: str, row: dict, starts: dict[str, np.ndarray],
                folder: Path) -> None:
     """A case's folder, which the service opens as a finished run (server/sweeps.py): the
-    scene file as it was (scene.toml), result.json and final.npz (``Simulation.write``), and
+    scene file as it was (scene.toml), result.json and final.npz (``Simulation.write``), the
+    frames saved as it ran (``frames/``, from ``run_case``), and
     case.json: the row's overrides, status and reason, and what the plots need that the step
     records do not say (``sim.frames.punch.plotted`` of the tools' ``starts``). case.json is
     written last: a folder with case.json is complete."""

@@ -53,12 +53,11 @@ class NewtonSettings:
     # below the sufficient decrease asked of that step (0: backtrack at once)
     watchdog: int = 1
     try_exact: bool = True  # exact Hessian when positive definite, projected otherwise
-    # a lagged quantity (friction's normal force, Term.lag_change) is refreshed at each
-    # iterate once the residual is below ``relag_below`` of the force level, and settled
-    # when it changes by at most ``lag_tol``; at most ``max_relags`` times per minimisation
-    relag_below: float = 1e-2
-    lag_tol: float = 1e-6
-    max_relags: int = 8
+    # a lagged quantity (friction's normal force, Term.lag_change) is taken at every iterate,
+    # at most this many times per minimisation (then it stays: a lag that keeps changing)
+    max_relags: int = 50
+    # solves spent on the lag's coupling per correction (Newton._coupled; 0: none)
+    coupling_solves: int = 6
 
 
 @dataclass
@@ -135,9 +134,7 @@ class Newton:
     at_floor: int = 0  # iterations in a row at the round-off floor
     trial: Evaluation | None = None  # the full step's evaluation (Problem.evaluate at x + dx)
     watch: Watch | None = None
-    since: int = 0  # the first residual under the current lag (an earlier lag's do not count)
     relags: int = 0
-    settled: bool = True  # the lagged quantities are x's to lag_tol (checked at the iterate)
 
     def result(self, x: np.ndarray, ok: bool, it: int, E: float, reason: str = "") -> NewtonResult:
         self.timing.iterations = it
@@ -214,12 +211,11 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
             cur, bad = _relag(nt, cur, force_level, reactions)
         if bad:
             return nt.result(x0, False, it, cur.E, bad)
-        if cur.r <= settings.rtol * nt.ref and nt.settled:
+        if cur.r <= settings.rtol * nt.ref:
             return nt.result(x, True, it, cur.E)
         # real progress, besides an energy decrease above its noise (the line search's): the
-        # residual falling below all before it under this lag by a tenth, as in a linear
-        # convergence
-        stalled = len(nt.res) - nt.since > 1 and cur.r >= 0.9 * min(nt.res[nt.since:-1])
+        # residual falling below all before it by a tenth, as in a linear convergence
+        stalled = len(nt.res) > 1 and cur.r >= 0.9 * min(nt.res[:-1])
         dx = _direction(nt, cur, it)
         if isinstance(dx, NewtonResult):
             return dx
@@ -290,23 +286,17 @@ def _iterate(nt: Newton, x: np.ndarray, out: Evaluation, force_level: float,
 
 def _relag(nt: Newton, cur: Iterate, force_level: float,
            reactions: bool) -> tuple[Iterate, str]:
-    """Near convergence, refresh what the energy lags (friction's normal force) from the
-    iterate, so the lag settles while Newton converges instead of in re-solves after it:
-    far from it the iterate's normal forces are not worth taking. A refresh changes the
-    energy, so the iterate is evaluated again (not an iteration; only the lagging terms are
-    assembled again, Problem.relagged). Past
-    ``max_relags`` the lag stays, and the minimisation ends on the residual alone."""
-    s = nt.settings
-    if cur.r > s.relag_below * nt.ref or nt.relags == s.max_relags:
-        nt.settled = True
+    """Refresh what the energy lags (friction's normal force) at every iterate, so the lag
+    follows Newton and its residual is the lag-consistent one: a minimisation converges
+    with the lag taken at the state it returns, never in re-solves after it. A refresh
+    changes the energy, so the iterate is evaluated again (not an iteration; only the
+    lagging terms are assembled again, Problem.relagged), and Newton's correction takes the
+    lag's coupling (``_coupled``). Past ``max_relags`` the lag stays, and the minimisation
+    ends on the residual alone."""
+    if nt.relags == nt.settings.max_relags or nt.problem.lag_change(cur.x, take=True) == 0.0:
         return cur, ""
-    nt.settled = nt.problem.lag_change(cur.x) <= s.lag_tol
-    if nt.settled:
-        return cur, ""
-    nt.problem.lag_change(cur.x, take=True)
     nt.relags += 1
     nt.res.pop()  # the iterate's residual under the old lag
-    nt.since = len(nt.res)
     nt.floor = None  # measured under the old energy
     t = time.perf_counter()
     out = nt.problem.relagged(cur.x, exact=nt.settings.try_exact)
@@ -316,7 +306,8 @@ def _relag(nt: Newton, cur: Iterate, force_level: float,
 
 def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:
     """The Newton correction at ``cur``: the exact Hessian's when it factors, the projected
-    one's (shifted if need be) otherwise; the failed result when nothing factors."""
+    one's (shifted if need be) otherwise; the failed result when nothing factors. Once the
+    lag follows the iterates, with its coupling (``_coupled``)."""
     problem, timing, data = nt.problem, nt.timing, cur.data
     t1 = time.perf_counter()
     try:
@@ -335,10 +326,29 @@ def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:
         return nt.result(nt.x0, False, it, cur.E, f"singular factorisation: {exc}")
     t2 = time.perf_counter()
     timing.factorisation += t2 - t1
-    dx, nt.rel = solve_refined(problem, data, cur.g.ravel())
+    dx = _coupled(nt, cur, data) if nt.relags else None
+    if dx is None:
+        dx, nt.rel = solve_refined(problem, data, cur.g.ravel())
     dx = -dx.reshape(cur.x.shape)
     dx[~nt.free] = 0.0
     timing.solve += time.perf_counter() - t2
+    return dx
+
+
+def _coupled(nt: Newton, cur: Iterate, data: np.ndarray) -> np.ndarray | None:
+    """The correction with the lag's coupling (Problem.lag_coupling) once the lag follows
+    the iterates: the lagged Hessian H leaves out how friction's normal forces move with x,
+    J, and Newton with H alone converges only as fast as J is small against H. (H + J) dx =
+    -g is solved by refinement on H's factors, a solve each (``coupling_solves``); where
+    that does not converge (J not small against H) None, and the lagged correction."""
+    couple = nt.problem.lag_coupling(cur.x)
+    if couple is None:
+        return None
+    dx, rel = solve_refined(nt.problem, data, cur.g.ravel(), nt.settings.coupling_solves,
+                            couple)
+    if rel > 1e-8:  # far below what Newton's rate needs, where the refinement converges
+        return None
+    nt.rel = rel
     return dx
 
 

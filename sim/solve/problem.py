@@ -5,6 +5,7 @@ round-off floor of its state."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,6 +51,20 @@ class Problem:
         """The largest relative change of the terms' lagged quantities at x (Term.lag_change);
         ``take``: they become x's."""
         return max((t.lag_change(x, take) for t in self.terms), default=0.0)
+
+    def lag_coupling(self, x: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
+        """v -> J v summed over the terms' lag couplings at x (Term.lag_coupling), on flat
+        vectors and zero on the held DoFs, or None."""
+        parts = [c for t in self.terms if (c := t.lag_coupling(x)) is not None]
+        if not parts:
+            return None
+
+        def apply(v: np.ndarray) -> np.ndarray:
+            out = sum(c(v.reshape(x.shape)) for c in parts)
+            out[self.fixed] = 0.0
+            return out.ravel()
+
+        return apply
 
     def gradient(self, x: np.ndarray) -> np.ndarray:
         g = np.zeros_like(x)
@@ -134,25 +149,32 @@ class _Sum:
         self.mag += abs(e)
 
 
-def solve_refined(problem: Problem, data: np.ndarray, rhs: np.ndarray,
-                  refinements: int = 2) -> tuple[np.ndarray, float]:
-    """Solve with iterative refinement against the unshifted matrix: thin, nearly
+def solve_refined(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinements: int = 2,
+                  extra: Callable[[np.ndarray], np.ndarray] | None = None
+                  ) -> tuple[np.ndarray, float]:
+    """Solve K x = rhs with iterative refinement against the unshifted matrix: thin, nearly
     incompressible shells have condition numbers near 1e12 and one solve alone leaves residuals
     that stall Newton well above its tolerance. A refinement that does not lower the residual
     is dropped: with factors shifted to get past a zero-energy mode (a sheet free to turn on a
-    frictionless tool) it would amplify the round-off in that mode by 1 / shift. Returns the
-    solution and its relative residual |rhs - K x| / |rhs|."""
+    frictionless tool) it would amplify the round-off in that mode by 1 / shift. With
+    ``extra`` (a flat v -> J v) the system is (K + J) x = rhs, the factors of K its
+    preconditioner. Returns the solution and its relative residual |rhs - (K + J) x| / |rhs|."""
     p = problem.pattern
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        r = rhs - sym_matvec(p.indptr, p.indices, data, x)
+        return r - extra(x) if extra is not None else r
+
     scale = np.linalg.norm(rhs)
     x = problem.solver.solve(rhs)
-    r = rhs - sym_matvec(p.indptr, p.indices, data, x)
+    r = residual(x)
     rel = float(np.linalg.norm(r)) / scale if scale > 0 else 0.0
     # 1e-10: well below Newton's rtol, above what refinement can reach at cond ~ 1e12
     for _ in range(refinements):
         if rel <= 1e-10:
             break
         y = x + problem.solver.solve(r)
-        ry = rhs - sym_matvec(p.indptr, p.indices, data, y)
+        ry = residual(y)
         rel_y = float(np.linalg.norm(ry)) / scale
         if not rel_y < rel:
             break

@@ -47,8 +47,8 @@ class StepRecord:
     probes: dict[str, float]
     # per tool: force the sheet exerts on it (N), nodes in contact, deepest penetration (m), z
     tools: dict[str, dict] = field(default_factory=dict)
-    # friction: how far from settled the lagged normal forces are at the state (largest change,
-    # relative to the largest force; Newton settles them to lag_tol, sim.solve.newton)
+    # friction: how far from the state's own the lagged normal forces are (largest change,
+    # relative to the largest force; Newton takes them at every iterate, sim.solve.newton)
     friction_change: float = 0.0
 
 
@@ -247,8 +247,9 @@ class Simulation:
 
     def _lag_change(self, x: np.ndarray) -> float:
         """How far friction's lagged normal forces are from those of the converged state x
-        (Newton settles them as it converges, sim.solve.newton; more than its lag_tol only
-        when it ran out of refreshes): the step record's ``friction_change``."""
+        (Newton takes them at every iterate, sim.solve.newton, so this is the last
+        correction's effect, or how far off they stayed when it ran out of refreshes): the
+        step record's ``friction_change``."""
         return self.model.problem.lag_change(x)
 
     def _commit(self, res: NewtonResult) -> None:

@@ -10,6 +10,8 @@ it converged. Terms that need neither inherit the no-ops.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 
@@ -32,6 +34,11 @@ class Term:
         far that quantity at x is from the lagged one, relative; ``take``: x's becomes the
         lagged one (Newton refreshes it as it converges, sim.solve.newton). 0: no lag."""
         return 0.0
+
+    def lag_coupling(self, x: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
+        """v -> J v: the part of the Jacobian of the term's forces at x that the lagged
+        quantity's dependence on x adds to its energy's Hessian (None: no lag)."""
+        return None
 
     def energy(self, x: np.ndarray) -> float:
         raise NotImplementedError

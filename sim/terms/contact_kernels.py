@@ -191,6 +191,31 @@ def normal_forces(X: npt.ArrayLike, prog: npt.ArrayLike, R: npt.ArrayLike | None
     return lam, normals
 
 
+def normal_force_gradients(X: npt.ArrayLike, prog: npt.ArrayLike, R: npt.ArrayLike | None,
+                           t: npt.ArrayLike | None, k: float, delta: float, *,
+                           c2: bool = False) -> np.ndarray:
+    """The gradient (n, 3) of each node's normal-force magnitude lam_n = -e'(d) with respect to
+    its position: -e''(d) g (zero outside the layer). The tool's translation t enters d with
+    the opposite sign. What friction's lagged normal force leaves out of its Hessian."""
+    X = _check(X, k, delta, c2)
+    R, t = pose(R, t)
+    prog = np.asarray(prog, dtype=np.float64)
+    out = np.zeros((X.shape[0], 3))
+    idx = np.flatnonzero(sdf_world_distance(prog, R, t, X) < delta)
+    if idx.size:
+        d, g, _ = sdf_world(prog, R, t, X[idx])
+        out[idx] = _normal_force_slope_kernel(d, float(k), float(delta), bool(c2))[:, None] * g
+    return out
+
+
+@numba.njit(cache=True)
+def _normal_force_slope_kernel(d: np.ndarray, k: float, delta: float, c2: bool) -> np.ndarray:
+    slope = np.empty(d.shape[0])
+    for p in range(d.shape[0]):
+        slope[p] = -_penalty_scalar(d[p], k, delta, c2)[2]
+    return slope
+
+
 def auto_stiffness(E_young: float, thickness: float, area: float, *, pressure: float | None = None,
                    penetration: float = 0.01) -> float:
     """Penalty stiffness k (N/m per node) from the sheet data.

@@ -30,14 +30,20 @@ d2E/dx_i du = -H_i, with g, H the sum of both.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
 
 from sim.solve.assembly import Pattern, scatter_node_blocks
 from sim.terms import Term
-from sim.terms.contact_kernels import friction, normal_forces, penalty_contact, tool_displacement
+from sim.terms.contact_kernels import (
+    friction,
+    normal_force_gradients,
+    normal_forces,
+    penalty_contact,
+    tool_displacement,
+)
 from sim.tools.evaluate import sdf_world_distance
 from sim.tools.pose import rotation
 
@@ -182,6 +188,36 @@ class ToolContact(Term):
             self._lag(lam, nrm)
         top = float(lam.max()) if lam.size else 0.0
         return float(np.abs(lam - old).max()) / top if top > 0 else 0.0
+
+    def lag_coupling(self, x: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
+        """What the lagged energy's Hessian leaves out of the friction forces' Jacobian at x,
+        right after the lag was taken there, as v -> J v: a node's friction force is linear
+        in its normal force lam (f = lam w), which the energy holds while lam depends on x
+        through the node's gap, so J v = w (grad lam . v) per node in contact (and minus
+        their sum on the tool's solved height, as the slip is relative to it). Newton left
+        with the lagged Hessian alone converges at the rate of this coupling."""
+        if not self.lags or self.lagged is None or not self.lagged[0].any():
+            return None
+        act, X0, disp, lam, nrm, _ = self.lagged
+        nodes = self.nodes[act]
+        Xa = x[nodes]
+        if self.vdof is not None:
+            Xa = Xa - (x[self.vdof] - self._start_u)
+        w = friction(Xa, X0, disp, lam, nrm, self.mu, self.eps_v)[1] / lam[:, None]
+        dlam = normal_force_gradients(x[nodes], self.prog, self.R_now, self.translation(x),
+                                      self.k, self.delta, c2=True)
+        vdof = self.vdof
+
+        def apply(v: np.ndarray) -> np.ndarray:
+            rel = v[nodes] - v[vdof] if vdof is not None else v[nodes]
+            f = w * np.einsum("ij,ij->i", dlam, rel)[:, None]
+            out = np.zeros_like(v)
+            np.add.at(out, nodes, f)
+            if vdof is not None:
+                out[vdof] -= f.sum(0)
+            return out
+
+        return apply
 
     def commit(self, x: np.ndarray) -> None:
         self.position = self.t_now.copy()
