@@ -1,9 +1,10 @@
-"""What the viewer's controls do (``viewer.Actions``): Pause, Resume, Step and Stop of the
-selected run (the page's controls, in its words), the live-parameter sliders, the time slider,
-and the "Run" dropdown, which selects the run shown here and on the page. Each goes through the
-run manager's requests, as the API does, and answers with the line the viewer shows as its
-status: a refused request is that line, never an exception in viser's callback thread. None of
-them starts a run."""
+"""What a browser's viewer controls do (``viewer.Actions``): Pause, Resume, Step and Stop of the
+run it shows (the page's controls, in its words), the live-parameter sliders, the time slider,
+and the "Run" dropdown, which selects the run shown in that browser's view (its viewer and its
+page). Each goes through the run manager's requests, as the API does, and answers with the
+line the viewer shows as its status: a refused request is that line, never an exception in
+viser's callback thread; an action on a run another browser started is done, and says so.
+None of them starts a run."""
 
 from __future__ import annotations
 
@@ -17,41 +18,55 @@ class ViewerActions:
     def __init__(self, manager: RunManager):
         self.m = manager
 
-    def command(self, cmd: str) -> str:
-        """pause, resume, step or stop the selected run (refused unless it is active)."""
-        run = self.m.views.selected
-        if run is None:
+    def command(self, view: str, run_id: str | None, cmd: str) -> str:
+        """pause, resume, step or stop the run shown (refused unless it is active)."""
+        if run_id is None:
             return "No run selected"
         try:
-            return f"{cmd}: {self.m.command(run, cmd)['id']}"
+            out = f"{cmd}: {self.m.command(run_id, cmd)['id']}"
+            notice = self.m.views.acted(self.m.get(run_id), cmd, view)
         except (Conflict, NotFound) as exc:
             return str(exc)
+        return f"{out}  \n{notice}" if notice else out
 
-    def select(self, run_id: str) -> str:
-        """Show ``run_id`` here and on the page; "" when done (the viewer then shows the run's
-        own line), else why not (a run deleted meanwhile)."""
+    def select(self, view: str, run_id: str) -> str:
+        """Show ``run_id`` in ``view``; "" when done (the viewer then shows the run's own
+        line), else why not (a run deleted meanwhile)."""
         try:
-            self.m.views.select(run_id)
+            self.m.views.select(view, run_id)
         except (Invalid, NotFound) as exc:
             return str(exc)
         return ""
 
-    def set_parameter(self, name: str, value: float) -> str:
-        run = self.m.views.selected
-        if run is None:
+    def set_parameter(self, view: str, run_id: str | None, name: str, value: float) -> str:
+        if run_id is None:
             return "No run selected"
         try:
-            r = self.m.set_parameter(run, name, value)
-            when = (f"from step {r['applies_from_step']}" if r["applied"]
-                    else "from the next step")
-            return f"{name} = {value:.4g} {when}"
+            r = self.m.set_parameter(run_id, name, value)
+            notice = self.m.views.acted(self.m.get(run_id), f"set {name}", view,
+                                        f" to {value:g}")
         except (Conflict, Invalid, NotFound, NotReady) as exc:
             return str(exc)
+        when = f"from step {r['applies_from_step']}" if r["applied"] else "from the next step"
+        out = f"{name} = {value:.4g} {when}"
+        return f"{out}  \n{notice}" if notice else out
 
-    def scrub(self, step: int) -> tuple[dict | None, str]:
-        """The kept frame of the selected run to show for the time slider, or why none (a
-        running run streams)."""
-        run = self.m.runs.get(self.m.views.selected or "")
+    def scaled(self, run_id: str | None) -> dict:
+        """What each live parameter of the run multiplies (sim's ``Simulation.scaled``)."""
+        with self.m.lock:
+            run = self.m.runs.get(run_id or "")
+            return dict(run.scaled) if run is not None else {}
+
+    def shows_step(self, view: str, run_id: str | None, step: int | None) -> None:
+        self.m.views.shows_step(view, run_id, step)
+
+    def connected(self, view: str) -> None:
+        self.m.views.connected(view)
+
+    def scrub(self, run_id: str | None, step: int) -> tuple[dict | None, str]:
+        """The kept frame of the run to show for the time slider, or why none (a running run
+        streams)."""
+        run = self.m.runs.get(run_id or "")
         history = self.m.history.get(run.id) if run is not None else None
         if run is None or history is None:
             return None, "No run to scrub"

@@ -36,17 +36,20 @@ LEGEND_WIDTH, LEGEND_HEIGHT = 250, 232
 
 
 class Canvas:
-    def __init__(self, server: viser.ViserServer, lock: threading.RLock,
+    def __init__(self, client: viser.ClientHandle, initial_camera: object,
+                 lock: threading.RLock,
                  status: Callable[[str], None],
                  by_user: Callable[[Callable[[], object]], Callable[[object], None]],
                  from_code: Callable[[], AbstractContextManager],
                  growing: Callable[[], bool]):
-        """``status`` shows a line (a refused setting says why); ``by_user(action)`` makes a
+        """``client``: the browser drawn for (its own GUI, scene and camera);
+        ``initial_camera``: the viser server's, where a browser's camera starts. ``status``
+        shows a line (a refused setting says why); ``by_user(action)`` makes a
         control's callback that acts on a user's change only, and changes made inside
         ``from_code()`` are the code's (server.viewer.Viewer); ``growing()``: whether the run
         drawn still runs (its own colour ranges grow). Adds the "Colour scale" and
         "View" folders to the control panel, and the legend panel."""
-        self.server, self.lock = server, lock
+        self.client, self.initial_camera, self.lock = client, initial_camera, lock
         self.status, self.by_user, self.from_code = status, by_user, from_code
         self.faces: np.ndarray | None = None
         self.surface = self.wire = None
@@ -72,7 +75,7 @@ class Canvas:
     def _legend_panel(self) -> tuple[viser.GuiDropdownHandle, viser.GuiHtmlHandle]:
         """The colour choice and the legend in a panel of their own, floated over the view's
         bottom-left corner: in view whatever the control panel shows or folds."""
-        g = self.server.gui
+        g = self.client.gui
         panel = g.add_panel()
         with panel.add_tab("Legend"):
             field = g.add_dropdown("Colour by", tuple(field_options(FIELDS)),
@@ -83,7 +86,7 @@ class Canvas:
         return field, legend
 
     def _colour_controls(self) -> dict:
-        g = self.server.gui
+        g = self.client.gui
         with g.add_folder("Colour scale"):
             c = {"range": g.add_dropdown("Range", (RUN_RANGE, FIXED_RANGE),
                                          initial_value=RUN_RANGE,
@@ -103,7 +106,7 @@ class Canvas:
         return c
 
     def _view_controls(self) -> dict:
-        g = self.server.gui
+        g = self.client.gui
         with g.add_folder("View"):
             v = {"opacity": g.add_slider("Tool opacity", min=0.0, max=1.0, step=0.05,
                                          initial_value=TOOL_OPACITY, hint="0 hides the tools"),
@@ -130,7 +133,7 @@ class Canvas:
             rgb, _ = tool_colour(i)
             V, F = np.asarray(V, np.float32), np.asarray(F, np.uint32)
             self.tool_meshes[name] = (V, F)
-            self.tools[name] = self.server.scene.add_mesh_simple(
+            self.tools[name] = self.client.scene.add_mesh_simple(
                 f"/tools/{name}", V, F, color=rgb, opacity=opacity, side="double",
                 cast_shadow=False, receive_shadow=False, visible=opacity > 0)
 
@@ -170,7 +173,7 @@ class Canvas:
         self._set_fields(frame["fields"])
         self._move_tools(frame)
         if self.wire is None:
-            self.wire = self.server.scene.add_mesh_simple(
+            self.wire = self.client.scene.add_mesh_simple(
                 "/sheet/wire", frame["positions"], self.faces, wireframe=True,
                 color=(60, 60, 60), opacity=0.25)
             self.aim(frame["positions"])
@@ -262,7 +265,7 @@ class Canvas:
         if len(faces):  # the same name: the new surface replaces the old
             mesh = trimesh.Trimesh(positions, faces, process=False,
                                    vertex_colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
-            self.surface = self.server.scene.add_mesh_trimesh("/sheet/surface", mesh)
+            self.surface = self.client.scene.add_mesh_trimesh("/sheet/surface", mesh)
         elif self.surface is not None:  # the section left nothing of the sheet
             self.surface.remove()
             self.surface = None
@@ -316,18 +319,17 @@ class Canvas:
         lo, hi = positions.min(0), positions.max(0)
         centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) or 1.0
         eye = centre + size * np.array([0.1, -0.9, 0.6])
-        cam = self.server.initial_camera
+        cam = self.initial_camera
         cam.look_at, cam.position, cam.up = tuple(centre), tuple(eye), (0.0, 0.0, 1.0)
         self._section_range(lo, hi)
-        for client in self.server.get_clients().values():
-            # a client camera's position setter drags look_at along with it: place the eye
-            # first, then aim (the other order leaves the sheet out of view)
-            try:
-                client.camera.up_direction = (0.0, 0.0, 1.0)
-                client.camera.position = tuple(eye)
-                client.camera.look_at = tuple(centre)
-            except AssertionError:
-                pass  # its camera state has not arrived yet; initial_camera places it
+        # a client camera's position setter drags look_at along with it: place the eye
+        # first, then aim (the other order leaves the sheet out of view)
+        try:
+            self.client.camera.up_direction = (0.0, 0.0, 1.0)
+            self.client.camera.position = tuple(eye)
+            self.client.camera.look_at = tuple(centre)
+        except AssertionError:
+            pass  # its camera state has not arrived yet; initial_camera places it
 
     def _section_range(self, lo: np.ndarray, hi: np.ndarray) -> None:
         """The section slider spans the part (mm), across both axes it may cut."""

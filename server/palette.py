@@ -55,7 +55,9 @@ class Palette:
         label, unit = FIELDS.get(key, (key, ""))
         lo, hi, note = self.ranges.of(key)
         if growing and key not in self.ranges.fixed:
-            note += " so far"
+            # every frame is coloured on the range so far, the same for all while it holds;
+            # the legend says it may still widen (a fixed range keeps the colours put)
+            note += " so far (widens while it runs; Colour scale › fixed keeps it)"
         return Continuous(label, unit, lo, hi, note)
 
     def colours(self, key: str, values: np.ndarray) -> np.ndarray:

@@ -73,6 +73,10 @@ class Run:
     stepping_s: float = 0.0  # wall time the solver spent in the steps made
     started: float | None = None  # Unix time it left the queue for a solver process
     ended: float | None = None  # Unix time it ended
+    # the view (a browser's page, server.views) that started it; "default": a script
+    started_by: str | None = None
+    # Pause/Resume/Step/Stop and parameter changes from a view other than the starter's
+    touched: list[dict] = field(default_factory=list)
 
     def summary(self) -> dict:
         """Everything but the records, copied (the bridge may change the run meanwhile), its

@@ -72,7 +72,7 @@ class RunManager:
         self.viewer: Viewer | None = None  # set by the app when the viewer is on
         self._solvers = solvers(settings, worker_target)  # local processes or a Dask cluster
         self.slots = [Slot(self._new_worker()) for _ in range(max(1, settings.solvers))]
-        self.views = Views(self, self._newest())  # what the page and the viewer show
+        self.views = Views(self)  # what the page and the viewer show
         self._retired: list[WorkerHandle] = []  # ended by a stop during a build; the bridge closes
         self.restarts = 0
         self.closing = threading.Event()  # the server shuts down: no new solver process
@@ -194,18 +194,16 @@ class RunManager:
         with self.lock:
             return [r.id for r in sorted(self.runs.values(), key=lambda r: -r.created)]
 
-    def _newest(self) -> str | None:
-        return max(self.runs.values(), key=lambda r: r.created).id if self.runs else None
-
     def start_run(self, scene: str, element: str | None = None, overrides: dict | None = None,
                   parameters: dict | None = None, paused: bool = False,
-                  toml: str | None = None) -> Run:
+                  toml: str | None = None, by: str | None = None) -> Run:
         """Validate the run (scene, element, parameters, model size), then queue it: it
         starts at once on a free solver process, else when one is free (its ``place`` in the
         queue says when); refused with a reason naming the field before anything is written,
         and with 429 when the queue is full. ``toml``: the scene as the page shows it, edits
         not saved yet; it is validated as a saved scene is, and runs (kept as the run's
-        scene.toml) instead of the saved file. The new run is the selected one."""
+        scene.toml) instead of the saved file. The new run is selected in the view ``by``
+        (the page that started it; None: the default view of scripts)."""
         text, edited = self.store.run_text(scene, toml)
         overrides = dict(overrides or {})
         if element:
@@ -225,7 +223,7 @@ class RunManager:
                       given=dict(parameters or {}))
             run.place = len(self.queue) + 1  # run.json says queued, and where
             out = self.files.create(run, text)
-            self.runs[run.id], self.views.selected = run, run.id
+            self.runs[run.id] = run
             self._starts[run.id] = dict(run=run.id, out=str(out), scene_toml=text,
                                         overrides=solver_overrides,
                                         parameters=parameters or {}, paused=paused,
@@ -234,7 +232,7 @@ class RunManager:
             self._dispatch()
         if self.viewer:
             self.viewer.set_runs(self.run_ids())
-        self.views.show_selected()
+        self.views.started(run, by)
         return run
 
     def _start_values(self, given: dict) -> dict:
@@ -308,8 +306,9 @@ class RunManager:
             raise Conflict(f"{name}: the solver refused: {reply['error']}")
         return {**out, "applied": True, "applies_from_step": reply["result"]["step"]}
 
-    def delete(self, run_id: str) -> None:
-        """Delete a run that has ended, or a queued one (which then never starts)."""
+    def delete(self, run_id: str, by: str | None = None) -> str | None:
+        """Delete a run that has ended, or a queued one (which then never starts); ``by``:
+        the view that asked. Returns the notice when the run was another view's."""
         with self.lock:
             run = self.get(run_id)
             if run.state in ACTIVE:
@@ -318,16 +317,12 @@ class RunManager:
                 self._cancel(run, "deleted before it started")
             del self.runs[run.id]
             self.history.forget(run.id)
-            moved = self.views.selected == run.id
-            if moved:
-                self.views.selected = self._newest()
         self.changes.touch()
         self.estimates.forget(run.id)
         self.files.delete(run.id)
         if self.viewer:
             self.viewer.set_runs(self.run_ids())
-            if moved:
-                self.views.show_selected()
+        return self.views.deleted(run, by)
 
     # ---- the run records: changed under ``lock`` ----------------------------------------------
     def _slot(self, run_id: str) -> Slot | None:

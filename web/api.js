@@ -1,7 +1,20 @@
-// The page's one way to the server: JSON in and out, an error's detail as the message.
+// The page's one way to the server: JSON in and out, an error's detail as the message. Every
+// request names this tab's view (X-Q3T-View): the run it shows, and the one its embedded
+// 3-D viewer shows (the same id is in the viewer's address), apart from other browsers'.
 "use strict";
+const VIEW = (() => {
+  // kept for the tab (a reload keeps its view); getRandomValues also on plain http
+  let v = sessionStorage.getItem("q3t-view");
+  if (!v) {
+    v = Array.from(crypto.getRandomValues(new Uint8Array(12)),
+                   (b) => b.toString(16).padStart(2, "0")).join("");
+    sessionStorage.setItem("q3t-view", v);
+  }
+  return v;
+})();
+
 async function api(method, url, body) {
-  const opts = { method, headers: {} };
+  const opts = { method, headers: { "X-Q3T-View": VIEW } };
   if (body !== undefined) {
     opts.headers["Content-Type"] = "application/json";
     opts.body = JSON.stringify(body);

@@ -3,12 +3,62 @@
 // the selected run's headline and plots are results.js's, drawn by plots.js.
 "use strict";
 const $ = (id) => document.getElementById(id);
-// run: the selected run, as the server holds it (/api/view: the viewer shows the same one);
+// run: the selected run of this tab's view, as the server holds it (/api/view, VIEW in
+// api.js: the embedded viewer shows the same one; another browser's view its own);
 // viewSeq / paramSeq count the page's own changes, so an answer to a request sent before one
-// of them is not taken for the server's state after it
+// of them is not taken for the server's state after it; noticeSeq: the last notice shown
 const state = { scene: null, run: null, config: null, form: null, syncSeq: 0,
                 syncTimer: null, syncPending: null, syncRunning: null, viewSeq: 0,
-                paramSeq: 0, status: null };
+                paramSeq: 0, status: null, noticeSeq: 0 };
+
+// a run another browser (or a script) started: an action on it asks first, once per run,
+// and says whose it was; what others did to this view's runs is shown here
+const Owner = (() => {
+  const asked = new Set();
+  const who = (r) => (r.started_by === "default" ? "a script" : "another browser");
+  const foreign = (r) => !!r && !!r.started_by && r.started_by !== VIEW;
+
+  function note(r) {
+    return foreign(r) ? `\nIt was started by ${who(r)}, which is told.` : "";
+  }
+
+  function allow(r, what) {
+    if (!foreign(r) || asked.has(r.id)) return true;
+    if (!confirm(`Run ${r.id} was started by ${who(r)}.\n${what} it anyway? ` +
+                 "(That browser's page says so.)")) return false;
+    asked.add(r.id);
+    return true;
+  }
+
+  function showTouched(st) {
+    // on the page that started the run: the last thing another browser did to it
+    const box = $("touched");
+    const last = st && st.started_by === VIEW && (st.touched || []).slice(-1)[0];
+    box.hidden = !last;
+    if (last) box.textContent = `${describe(last)} by ${last.by} at step ${last.step}` +
+                                ` (${new Date(last.at * 1000).toLocaleTimeString()})`;
+  }
+
+  function describe(e) {
+    const done = { pause: "paused", resume: "resumed", step: "stepped", stop: "stopped" };
+    return e.action.startsWith("set ") ? `${e.action.slice(4)} changed${e.detail || ""}`
+                                       : done[e.action] || e.action;
+  }
+
+  function showNotices(list) {
+    // what others did to this view's runs (a deleted one included), the newest first
+    if (!list.length) return;
+    state.noticeSeq = Math.max(state.noticeSeq, ...list.map((n) => n.seq));
+    // one about the run shown is its line under the status (showTouched), unless deleted
+    const shown = list.filter((n) => n.run !== state.run || n.action === "delete");
+    if (!shown.length) return;
+    const box = $("notice");
+    box.hidden = false;
+    box.querySelector(".text").textContent = shown[shown.length - 1].text;
+  }
+
+  return { note, allow, showTouched, showNotices };
+})();
 const ACTIVE = ["starting", "building", "running", "paused"];
 
 function say(text, isError) {
@@ -178,9 +228,11 @@ async function startRun() {
 
 async function control(action) {
   if (!state.run) return say("no run selected", true);
+  const word = action[0].toUpperCase() + action.slice(1);
+  if (!Owner.allow(state.status, word)) return;
   try {
-    await api("POST", `/api/runs/${state.run}/${action}`);
-    say(`${action}: ${state.run}`);
+    const r = await api("POST", `/api/runs/${state.run}/${action}`);
+    say(r.notice || `${action}: ${state.run}`);
   } catch (e) { say(e.message, true); }
 }
 
@@ -277,9 +329,11 @@ async function setParameter(inp, out) {
   const run = state.run;
   state.paramSeq++;
   try {
+    if (!Owner.allow(state.status, `Change ${inp.name} of`)) throw new Error("not changed");
     const r = await api("PUT", `/api/runs/${run}/parameters/${inp.name}`, { value: +inp.value });
-    say(r.applied ? `${inp.name} = ${r.value} from step ${r.applies_from_step}`
-                  : `${inp.name} = ${r.value} from the next step (the solver is mid-step)`);
+    say((r.applied ? `${inp.name} = ${r.value} from step ${r.applies_from_step}`
+                   : `${inp.name} = ${r.value} from the next step (the solver is mid-step)`) +
+        (r.notice ? `; ${r.notice}` : ""));
   } catch (e) {
     say(e.message, true);
     showValue(inp, out, state.status && state.status.parameters[inp.name]);  // unchanged
@@ -315,7 +369,7 @@ async function loadRuns() {
 }
 
 async function selectRun(id) {
-  // a click in the Runs table: the server's selection, which the viewer shows too
+  // a click in the Runs table: this view's selection, which its viewer shows too
   const seq = ++state.viewSeq;
   try {
     const v = await api("PUT", "/api/view", { run: id });
@@ -325,7 +379,7 @@ async function selectRun(id) {
 }
 
 function adoptRun(id) {
-  // the selection the server holds, from this page's click or another's (or the viewer's)
+  // the selection the server holds for this view, from this page's click or its viewer's
   if (state.run !== id) {
     state.run = id;
     state.status = null;
@@ -337,8 +391,12 @@ function adoptRun(id) {
 
 async function followView() {
   const seq = state.viewSeq;
-  const v = await api("GET", "/api/view");
-  if (seq === state.viewSeq) adoptRun(v.run);
+  const v = await api("GET", `/api/view?since=${state.noticeSeq}`);
+  Owner.showNotices(v.notices);
+  if (seq !== state.viewSeq) return;
+  adoptRun(v.run);
+  // the step this page's 3-D view was scrubbed to: marked on the run's plots
+  if (window.Plotly) Plots.scrubAt(v.run === state.run && !v.scene ? v.step : null);
 }
 
 async function poll() {
@@ -359,6 +417,7 @@ async function showRun(id) {
   const st = await api("GET", `/api/runs/${id}?since=${since}&limit=1`);
   if (state.run !== id) return;
   state.status = st;
+  Owner.showTouched(st);
   for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = !ACTIVE.includes(st.state);
   $("stop").disabled &&= st.state !== "queued";  // a queued run's Stop cancels it
   showParameters(st, paramSeq);
@@ -367,6 +426,7 @@ async function showRun(id) {
 
 function showNoRun() {
   Results.none();
+  Owner.showTouched(null);
   for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = true;
 }
 
@@ -380,8 +440,13 @@ async function main() {
   }
   buildSliders().catch((e) => say(e.message, true));
   if (state.config.viewer_port) {
-    $("viewer").src = `${location.protocol}//${location.hostname}:${state.config.viewer_port}/`;
+    // the viewer's websocket path names this tab's view: it shows this page's run, colour
+    // mode and step, and another browser's viewer its own
+    const host = `${location.hostname}:${state.config.viewer_port}`;
+    const ws = `${location.protocol === "https:" ? "wss" : "ws"}://${host}/view/${VIEW}`;
+    $("viewer").src = `${location.protocol}//${host}/?websocket=${encodeURIComponent(ws)}`;
   }
+  $("notice-close").onclick = () => { $("notice").hidden = true; };
   Layout.init();
   Results.init();
   RunsTable.init({ select: selectRun, say, reload: loadRuns });

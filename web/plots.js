@@ -9,6 +9,11 @@ const Plots = (() => {
   const ZONE_COLOURS = { failure: "#d62728", marginal: "#ff9f1c", safe: "#2ca02c",
                          "insufficient stretch": "#8c8c8c", "wrinkling tendency": "#9467bd" };
   const MARK = "#b15928";
+  const SCRUB = "#1f4fbf";  // the step the page's own 3-D view shows (its time slider)
+  // the step this page's 3-D view was scrubbed to (null: none), and each plot drawn with
+  // steps on its x axis: how to place a step, and its own marks (to add the scrub mark to)
+  let scrubbed = null;
+  const placed = new Map();
 
   function base(title, height) {
     return { title: { text: title, font: { size: 13 }, x: 0.02 }, height, autosize: true,
@@ -25,9 +30,39 @@ const Plots = (() => {
     document.getElementById(figId).hidden = !on;
   }
 
-  function draw(div, traces, layout) {
-    // react: only what changed is redrawn (a live run redraws at every step)
+  function draw(div, traces, layout, where) {
+    // react: only what changed is redrawn (a live run redraws at every step). where(step):
+    // the x of a step, for the scrub mark (plots over steps only)
+    if (where) {
+      placed.set(div, { where, shapes: layout.shapes || [], notes: layout.annotations || [] });
+      layout = { ...layout, ...withScrub(placed.get(div)) };
+      div.dataset.scrub = scrubbed === null ? "" : String(scrubbed);
+    }
     return Plotly.react(div, traces, layout, CONFIG);
+  }
+
+  function withScrub(p) {
+    // the plot's own marks and, when the 3-D view was scrubbed, a line at its step
+    const x = scrubbed === null ? null : p.where(scrubbed);
+    if (x === null || x === undefined) return { shapes: p.shapes, annotations: p.notes };
+    return {
+      shapes: [...p.shapes, { type: "line", xref: "x", yref: "paper", x0: x, x1: x, y0: 0,
+                              y1: 1, line: { color: SCRUB, width: 2 } }],
+      annotations: [...p.notes, { xref: "x", yref: "paper", x, y: 0, yanchor: "bottom",
+                                  xanchor: "left", showarrow: false, bgcolor: "#ffffffcc",
+                                  text: `3-D view: step ${scrubbed}`,
+                                  font: { size: 10, color: SCRUB } }],
+    };
+  }
+
+  function scrubAt(step) {
+    // the page's 3-D view shows ``step`` (null: its run's latest): marked on every plot
+    if (step === scrubbed) return;
+    scrubbed = step;
+    for (const [div, p] of placed) {
+      div.dataset.scrub = step === null ? "" : String(step);
+      Plotly.relayout(div, withScrub(p));
+    }
   }
 
   // the live-parameter changes as vertical marks, at x = where(step it applies from)
@@ -65,7 +100,14 @@ const Plots = (() => {
                      xaxis: axis(byStroke ? "punch stroke (mm)" : "step", { rangemode: "tozero" }),
                      yaxis: axis(`punch force (${punches[0].force.unit})`, { rangemode: "tozero" }),
                      showlegend: punches.length > 1, ...marks(log, where) };
-    return draw(div, traces, layout);
+    // a step's own point: the stroke at its end (the rest state at 0)
+    const at = first ? (s) => (s === 0 ? 0 : stepValue(first, s)) : (s) => s;
+    return draw(div, traces, layout, at);
+  }
+
+  function stepValue(punch, step) {
+    const k = punch.steps.indexOf(step);
+    return k < 0 ? null : punch.stroke.values[k];
   }
 
   function probes(div, series, log) {
@@ -91,7 +133,7 @@ const Plots = (() => {
       layout[k ? `yaxis${k + 1}` : "yaxis"] = axis(title, { title: { text: title,
         font: { size: 10 } } });
     });
-    return draw(div, traces, layout);
+    return draw(div, traces, layout, (s) => s);
   }
 
   function sections(div, found, punch) {
@@ -160,12 +202,13 @@ const Plots = (() => {
                      xaxis: axis("step"), yaxis: axis("relative residual", { type: "log" }),
                      yaxis2: axis("Newton iterations", { overlaying: "y", side: "right",
                                                          rangemode: "tozero" }) };
-    return draw(div, traces, layout);
+    return draw(div, traces, layout, (x) => x);
   }
 
   function purge(div) {
+    placed.delete(div);
     if (div.data) Plotly.purge(div);
   }
 
-  return { forceStroke, probes, sections, fld, solver, show, purge };
+  return { forceStroke, probes, sections, fld, solver, show, purge, scrubAt };
 })();

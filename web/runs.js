@@ -163,7 +163,7 @@ const RunsTable = (() => {
   async function remove(r) {
     const what = r.state === "queued" ? "It leaves the queue and never starts."
                                       : "Its recording and result are deleted too.";
-    if (!confirm(`Delete run ${r.id}?\n${what}`)) return;
+    if (!confirm(`Delete run ${r.id}?\n${what}${Owner.note(r)}`)) return;
     try {
       await api("DELETE", `/api/runs/${r.id}`);
       hooks.say(`deleted ${r.id}`);

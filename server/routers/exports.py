@@ -11,14 +11,15 @@ import io
 import tempfile
 import zipfile
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, Request, Response
+from fastapi import APIRouter, Query, Request, Response
 from pydantic import BaseModel, Field
 
 from server.errors import CheckedRoute, documented
 from server.problems import Conflict, NotFound, NotReady
 from server.records import ENDED, Run
+from server.routers.view import ViewId
 from server.runs import RunManager
 from server.settings import RunId
 from sim.frames import export
@@ -68,9 +69,10 @@ def _why_not(folder: Path) -> dict[str, str | None]:
 
 
 @router.get("/{run_id}/exports", response_model=Exports, responses=documented(404, 422))
-def exports(run_id: RunId, request: Request) -> dict:
+def exports(run_id: RunId, request: Request, view: ViewId = None) -> dict:
     """The formats the run can be downloaded in, each with its URL, and why one is not
-    available (a run still going has none yet)."""
+    available (a run still going has none yet). Asked with a view (``X-Q3T-View``), the PNG's
+    URL names it: the image is that browser's 3-D view."""
     m: RunManager = request.app.state.manager
     run = m.get(run_id)
     folder = m.files.dir(run.id)
@@ -85,31 +87,32 @@ def exports(run_id: RunId, request: Request) -> dict:
     # is on (its answer says why not, if no browser shows the run then)
     why = None if m.viewer else VIEWER_OFF
     out.append({"format": "png", "description": PNG, "available": why is None, "reason": why,
-                "url": f"/api/runs/{run.id}/export/png"})
+                "url": f"/api/runs/{run.id}/export/png" + (f"?view={view}" if view else "")})
     return {"run": run.id, "formats": out}
 
 
-def _viewer_client(m: RunManager, run_id: str) -> object:
-    """The browser whose 3-D view shows ``run_id`` (the newest connected); Conflict saying
-    why there is none."""
+def _viewer_client(m: RunManager, run_id: str, view: str | None) -> object:
+    """The browser whose 3-D view shows ``run_id``: that of ``view`` if it does, else the
+    newest connected; Conflict saying why there is none."""
     v = m.viewer
     if v is None:
         raise Conflict(VIEWER_OFF)
-    if v.selected != run_id or v.mode == "preview":
-        shown = "a scene's preview" if v.mode == "preview" else f"run {v.selected!r}"
-        raise Conflict(f"the 3-D view shows {shown}, not run {run_id!r}: select the run first")
-    clients = v.server.get_clients()
-    if not clients:
+    if not v.clients:
         raise Conflict("no browser has the 3-D view open: the image is rendered by a "
                        "browser's viewer (open the page)")
-    return clients[max(clients)]
+    showing = v.showing(run_id)
+    if not showing:
+        raise Conflict(f"no browser's 3-D view shows run {run_id!r}: select the run first")
+    return next((c for c in showing if c.view == view), showing[0]).client
 
 
 # before /export/{format}, which would answer png with a 422
 @router.get("/{run_id}/export/png", response_class=Response, responses={
     **documented(404, 409, 422, 503),
     200: {"description": "The 3-D view as PNG", "content": {"image/png": {}}}})
-def view_png(run_id: RunId, request: Request) -> Response:
+def view_png(run_id: RunId, request: Request, view: Annotated[str | None, Query(
+        pattern=r"^[A-Za-z0-9_-]{1,64}$", description="the browser view (X-Q3T-View) whose "
+        "3-D view to capture, when it shows the run")] = None) -> Response:
     """A PNG of the 3-D view of the run, as the browser that has it open shows it (its
     camera, colour mode and step), rendered by that browser: 409 when no browser shows the run
     (the viewer off, another run shown, no page open), 503 when it does not answer in time."""
@@ -117,7 +120,7 @@ def view_png(run_id: RunId, request: Request) -> Response:
 
     m: RunManager = request.app.state.manager
     run = m.get(run_id)
-    client = _viewer_client(m, run.id)
+    client = _viewer_client(m, run.id, view)
     # the browser's camera at its canvas height, at least 4:3 wide (the page docks the
     # viewer's panel beside a narrow canvas; the camera's vertical field of view is kept)
     h = client.camera.image_height or 720

@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from server.errors import BODY, CheckedRoute, documented
 from server.problems import Conflict, NotFound
 from server.records import ACTIVE
+from server.routers.view import ViewId
 from server.runs import RunManager
 from server.settings import RunId, SceneName
 
@@ -89,6 +90,17 @@ class RunSummary(BaseModel):
     override_units: dict[str, str | None] = Field(default_factory=dict, description=(
         "the SI unit of each override's scene field (null: none), as the scene schema gives "
         "it"))
+    started_by: str | None = Field(None, description=(
+        "the view (browser page, `X-Q3T-View`) that started it; `default`: a script"))
+    touched: list[dict] = Field(default_factory=list, description=(
+        "pause, resume, step, stop and parameter changes from another view than the one that "
+        "started it: {action, by, at, step, detail}"))
+
+
+class Acted(RunSummary):
+    notice: str | None = Field(None, description=(
+        "set when the run was started by another view (browser or script): it was done all "
+        "the same, and that view is told"))
 
 
 class Shown(BaseModel):
@@ -150,6 +162,9 @@ class ParameterAnswer(BaseModel):
     applied: bool = Field(description="the solver has answered (else it is inside a step)")
     applies_from_step: int | None
     detail: str | None = None
+    notice: str | None = Field(None, description=(
+        "set when the run was started by another view (browser or script): changed all the "
+        "same, and that view is told"))
 
 
 class KeptFrames(BaseModel):
@@ -192,13 +207,13 @@ def list_runs(request: Request) -> list[dict]:
 
 @router.post("", status_code=201, response_model=RunSummary,
              responses={201: {"links": RUN_LINKS}, **documented(404, 429, 503, *BODY)})
-def start_run(body: NewRun, request: Request) -> dict:
+def start_run(body: NewRun, request: Request, view: ViewId = None) -> dict:
     """Start a run of the saved scene, or of ``toml`` (the page's unsaved edits): at once on
     a free solver process, else it is ``queued`` (its ``place`` says where) and starts when
-    the runs before it have; 429 when the queue is full. The new run is the selected one
-    (``/api/view``)."""
+    the runs before it have; 429 when the queue is full. The new run is the selected one of
+    the view that started it (``X-Q3T-View``, else the `default` view; ``/api/view``)."""
     run = _runs(request).start_run(body.scene, body.element, body.overrides, body.parameters,
-                                   body.paused, body.toml)
+                                   body.paused, body.toml, by=view)
     return run.summary()
 
 
@@ -215,42 +230,55 @@ def status(run_id: RunId, request: Request, since: int = 0,
     return _runs(request).status(run_id, since, limit)
 
 
-@router.post("/{run_id}/pause", response_model=RunSummary,
+def _command(request: Request, run_id: str, cmd: str, view: str | None) -> dict:
+    """The command done, and a ``notice`` when the run is another view's (its starter is
+    told: ``server.views``); header ``X-Q3T-View``: the view that asks."""
+    m = _runs(request)
+    out = m.command(run_id, cmd)
+    return {**out, "notice": m.views.acted(m.get(run_id), cmd, view)}
+
+
+@router.post("/{run_id}/pause", response_model=Acted,
              responses=documented(409, 404, 422))
-def pause(run_id: RunId, request: Request) -> dict:
+def pause(run_id: RunId, request: Request, view: ViewId = None) -> dict:
     """Pause after the current step."""
-    return _runs(request).command(run_id, "pause")
+    return _command(request, run_id, "pause", view)
 
 
-@router.post("/{run_id}/resume", response_model=RunSummary,
+@router.post("/{run_id}/resume", response_model=Acted,
              responses=documented(409, 404, 422))
-def resume(run_id: RunId, request: Request) -> dict:
+def resume(run_id: RunId, request: Request, view: ViewId = None) -> dict:
     """Go on stepping a paused run (409 when it is not paused or is over)."""
-    return _runs(request).command(run_id, "resume")
+    return _command(request, run_id, "resume", view)
 
 
-@router.post("/{run_id}/step", response_model=RunSummary,
+@router.post("/{run_id}/step", response_model=Acted,
              responses=documented(409, 404, 422))
-def step(run_id: RunId, request: Request) -> dict:
+def step(run_id: RunId, request: Request, view: ViewId = None) -> dict:
     """One step, then paused (a running run pauses after its current step)."""
-    return _runs(request).command(run_id, "step")
+    return _command(request, run_id, "step", view)
 
 
-@router.post("/{run_id}/stop", response_model=RunSummary,
+@router.post("/{run_id}/stop", response_model=Acted,
              responses=documented(409, 404, 422))
-def stop(run_id: RunId, request: Request) -> dict:
+def stop(run_id: RunId, request: Request, view: ViewId = None) -> dict:
     """Stop the run: it ends as ``stopped``, with its result.json and a closed recording. A
     queued run is cancelled: it ends as ``cancelled`` and never starts."""
-    return _runs(request).command(run_id, "stop")
+    return _command(request, run_id, "stop", view)
 
 
 @router.put("/{run_id}/parameters/{name}", status_code=202, response_model=ParameterAnswer,
             responses=documented(404, 409, 503, *BODY))
-def set_parameter(run_id: RunId, name: str, body: ParameterValue, request: Request) -> dict:
+def set_parameter(run_id: RunId, name: str, body: ParameterValue, request: Request,
+                  view: ViewId = None) -> dict:
     """Applied from the next step. Waits briefly for the solver: ``applied`` and
     ``applies_from_step`` say from which step it acts (the step is also in the run's
-    ``parameter_log``); a solver inside a long step answers later (``applied`` false)."""
-    return _runs(request).set_parameter(run_id, name, body.value)
+    ``parameter_log``); a solver inside a long step answers later (``applied`` false).
+    ``notice``: the run was started by another view (``X-Q3T-View``), which is told."""
+    m = _runs(request)
+    out = m.set_parameter(run_id, name, body.value)
+    return {**out, "notice": m.views.acted(m.get(run_id), f"set {name}", view,
+                                           f" to {body.value:g}")}
 
 
 class Measure(BaseModel):
@@ -394,8 +422,11 @@ def recording(run_id: RunId, request: Request) -> FileResponse:
 
 
 @router.delete("/{run_id}", status_code=204, responses=documented(404, 409, 422))
-def delete_run(run_id: RunId, request: Request) -> Response:
+def delete_run(run_id: RunId, request: Request, view: ViewId = None) -> Response:
     """Delete a run that has ended and its folder (scene, results, recording), or a queued
-    one (it never starts); 409 while it is active: stop it first."""
-    _runs(request).delete(run_id)
-    return Response(status_code=204)
+    one (it never starts); 409 while it is active: stop it first. A run another view
+    (``X-Q3T-View``) started is deleted all the same: that view is told, and the answer's
+    ``X-Q3T-Notice`` header says so."""
+    m = _runs(request)
+    notice = m.delete(run_id, by=view)
+    return Response(status_code=204, headers={"X-Q3T-Notice": notice} if notice else None)

@@ -183,15 +183,16 @@ def test_choosing_a_scene_previews_it_in_3d(served, browser):
     run again."""
     url = served
     page, errors = open_page(browser, url)
+    own = {"X-Q3T-View": page.evaluate("VIEW")}  # the page's own view (tests/.../test_views)
     page.click("#scenes li[data-name=tiny_cup]")
-    view = until(lambda: (v := httpx.get(f"{url}/api/view").json())["preview"] in
-                 ("shown", "failed") and v, "the preview never came")
+    view = until(lambda: (v := httpx.get(f"{url}/api/view", headers=own).json())["preview"]
+                 in ("shown", "failed") and v, "the preview never came")
     assert view["preview"] == "shown" and view["scene"] == "tiny_cup", view
     shot(page, "preview-tiny-cup")
     rows = page.locator("#runs tr[data-id]")
     if rows.count():  # an earlier test's run: selecting it ends the preview
         rows.first.locator("td").first.click()
-        until(lambda: httpx.get(f"{url}/api/view").json()["preview"] is None,
+        until(lambda: httpx.get(f"{url}/api/view", headers=own).json()["preview"] is None,
               "selecting a run did not end the preview")
     assert not [e for e in errors if "/static/" in e], errors
     page.close()

@@ -34,6 +34,7 @@ from tests.support.service import (  # noqa: E402
     wait_state,
     wait_step,
 )
+from tests.support.viewer import attached
 
 LONG = 100_000  # steps: a run that goes on until a test stops it (or kills its solver)
 
@@ -280,26 +281,27 @@ def test_the_viewer_draws_the_selected_one_of_two_live_runs(tmp_path):
     """--solvers 2 with the viewer: both runs stay live (their frames kept), the selected
     one is drawn, and selecting the other draws that one from then on."""
     pytest.importorskip("viser")
-    with served(tmp_path, solvers=2, viewer=True, viewer_port=free_port()) as (client, _):
+    with served(tmp_path, solvers=2, viewer=True, viewer_port=free_port()) as (client, _), \
+            attached(client.app.state.manager.viewer) as shown:  # a browser's (default) view
         viewer = client.app.state.manager.viewer
         a, b = start(client, "long")["id"], start(client, "long")["id"]  # b: selected
         for run in (a, b):
             wait_step(client, run, 2)
         until(lambda: set(viewer.lives) == {a, b}, "both runs are not live")
-        drawn, draw = [], viewer.canvas.draw
+        drawn, draw = [], shown.canvas.draw
 
         def drawing(frame: dict, colour: bool) -> None:
             drawn.append(frame.get("run"))
             draw(frame, colour)
 
-        viewer.canvas.draw = drawing
+        shown.canvas.draw = drawing
         until(lambda: len(drawn) >= 3, "no frame of the selected run drawn")
         assert set(drawn) == {b}
         assert client.put("/api/view", json={"run": a}).status_code == 200
         mark = len(drawn)
         until(lambda: len(drawn) >= mark + 3, "no frame drawn after selecting the other run")
         assert set(drawn[mark:]) == {a}
-        assert viewer.mode == "live" and viewer.lives[b].frame["step"] >= 2  # b kept
+        assert shown.mode == "live" and viewer.lives[b].frame["step"] >= 2  # b kept
         for run in (a, b):
             client.post(f"/api/runs/{run}/stop")
             assert wait_state(client, run, ENDED)["state"] == "stopped"

@@ -4,8 +4,10 @@ tests/test_trust_browser.py drives the same in chromium):
 - Start with the page's unsaved edits runs the edited scene, kept as the run's scene.toml and
   marked ``edited``; an unchanged scene re-rendered by the form is no edit; a bad edit is a 422
   naming the field, and nothing is written.
-- One selected run, held by the server (``/api/view``): a new run is selected, a selection
-  moves the viewer (live or its recording) and the viewer's "Run" dropdown moves it back.
+- One selected run per view, held by the server (``/api/view``; here the default view, which
+  requests without a view id and a viewer opened without one share): a new run is selected, a
+  selection moves the viewer (live or its recording) and the viewer's "Run" dropdown moves it
+  back (other browsers' views: tests/service/test_views.py).
 - A run's status holds every live parameter's value from its start; the viewer's sliders
   follow the selected run's values (after a change, on a new run, on selecting an older run).
 """
@@ -32,6 +34,7 @@ from tests.support.service import (  # noqa: E402
     wait_state,
     wait_step,
 )
+from tests.support.viewer import attached  # noqa: E402
 
 ENDED = {"finished", "failed", "stopped"}
 
@@ -39,8 +42,10 @@ ENDED = {"finished", "failed", "stopped"}
 
 
 def view(run: str) -> dict:
-    """``/api/view`` showing ``run`` (no scene previewed)."""
-    return {"run": run, "scene": None, "preview": None, "preview_error": None}
+    """``/api/view`` of the default view showing ``run`` (no scene previewed, its viewer at
+    the run's latest step, nothing done by others)."""
+    return {"view": "default", "run": run, "scene": None, "preview": None,
+            "preview_error": None, "step": None, "notices": []}
 
 def edited_toml() -> str:
     text = tiny_toml()
@@ -64,6 +69,13 @@ def env(tmp_path_factory):
     with TestClient(create_app(settings)) as client:
         until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
         yield client, settings
+
+
+@pytest.fixture(scope="module")
+def viewer(env):
+    """A browser's view with no view id: the default view."""
+    with attached(env[0].app.state.manager.viewer) as cv:
+        yield cv
 
 
 def stop_active(client) -> None:
@@ -121,9 +133,8 @@ def test_a_bad_edit_is_refused_naming_the_field(env):
     assert client.get("/api/health").json()["active"] == []
 
 
-def test_one_selected_run_for_page_and_viewer(env):
+def test_one_selected_run_for_page_and_viewer(env, viewer):
     client, settings = env
-    viewer = client.app.state.manager.viewer
     older = run_to_end(client, scene="tiny")["id"]
     newer = run_to_end(client, scene="tiny")["id"]
     assert client.get("/api/view").json() == view(newer)  # a new run is selected
@@ -156,9 +167,8 @@ def sliders(viewer) -> dict:
     return {k: s.value for k, s in viewer.gui.sliders.items()}
 
 
-def test_controls_show_the_selected_runs_values(env):
+def test_controls_show_the_selected_runs_values(env, viewer):
     client, _ = env
-    viewer = client.app.state.manager.viewer
     names = set(client.get("/api/config").json()["parameters"])
     until(lambda: set(viewer.gui.sliders) == names, "the viewer has no parameter sliders")
     stop_active(client)

@@ -5,7 +5,7 @@ down step by step, the viewer draws one mesh per tool and moves it, offers every
 dropdown and scrubs kept frames, and the recording holds the tool meshes and transforms (read
 back, and replayed by ``q3t play --viser``'s loader and by the service's viewer, which shows
 the selected run); the viewer's Pause/Resume/Step/Stop buttons drive the selected run and never
-start one (pressed through viser's server-side handles)."""
+start one (pressed through viser's server-side handles of one connected browser's view)."""
 
 from __future__ import annotations
 
@@ -34,6 +34,7 @@ from tests.support.service import (  # noqa: E402
     wait_state,
     wait_step,
 )
+from tests.support.viewer import attached  # noqa: E402
 
 # a plastic scene's frame: its major and minor strain too (forming limits), no FLD zone
 # without a forming limit curve
@@ -60,6 +61,13 @@ def done(tmp_path_factory):
         yield client, settings, st
 
 
+@pytest.fixture(scope="module")
+def viewer(done):
+    """A browser's view (no view id: the default view, which the API selects for)."""
+    with attached(done[0].app.state.manager.viewer) as cv:
+        yield cv
+
+
 def test_tool_run_frames_and_poses(done):
     client, _, st = done
     run = st["id"]
@@ -83,9 +91,8 @@ def test_tool_run_frames_and_poses(done):
     assert client.get("/api/runs/nope-run/frames").status_code == 404
 
 
-def test_viewer_draws_moves_recolours_and_scrubs(done):
+def test_viewer_draws_moves_recolours_and_scrubs(done, viewer):
     client, _, st = done
-    viewer = client.app.state.manager.viewer
     # the bridge pushes the last frame to the viewer after the run's state reads finished
     until(lambda: viewer.gui.time.value == 3, "the last frame was not shown")
     last = client.get(f"/api/runs/{st['id']}/frames/3").json()["tools"]
@@ -178,12 +185,11 @@ def test_history_keeps_every_kth_frame_past_the_cap():
     assert small.summary()["bytes"] <= 5 * 80
 
 
-def test_viewer_buttons_drive_the_run(done):
+def test_viewer_buttons_drive_the_run(done, viewer):
     """Pause, Step, Resume and Stop pressed in the viewer act on the selected run
     (``button.value = True`` runs the click handlers, as a click from a browser does); none
     starts a run, and they are disabled once the run is over."""
     client, _, _ = done
-    viewer = client.app.state.manager.viewer
     b = viewer.gui.buttons
     assert list(b) == ["Pause", "Resume", "Step", "Stop"]  # the page's words, in its order
     run = client.post("/api/runs", json={"scene": "long", "element": "linear"}).json()["id"]
@@ -212,15 +218,14 @@ def test_viewer_buttons_drive_the_run(done):
         stop_all(client)
 
 
-def test_viewer_replays_an_older_recorded_run(done):
+def test_viewer_replays_an_older_recorded_run(done, viewer):
     """Selecting an older run (the viewer's "Run" dropdown) shows its recording, the time
     slider scrubs it, and selecting the latest run shows it live again."""
     from server import replay
 
     client, settings, st = done
-    viewer = client.app.state.manager.viewer
     until(lambda: st["id"] in viewer.gui.run.options, "the run is not offered")
-    latest = viewer.live_run
+    latest = viewer.v.live_run
     assert latest != st["id"], "needs a later run (test_viewer_buttons_drive_the_run)"
     rep = replay.load(settings.runs_dir / st["id"] / "run.rrd")
     viewer.gui.run.value = st["id"]  # as a user picking it
@@ -246,18 +251,17 @@ def test_viewer_replays_an_older_recorded_run(done):
     assert client.get("/api/view").json()["run"] == latest
 
 
-def test_a_users_choice_counts_while_the_code_updates_the_viewer(done):
+def test_a_users_choice_counts_while_the_code_updates_the_viewer(done, viewer):
     """viser runs the callbacks of a value set in code in the thread that set it; the code's
     own updates (the bridge's, in its thread) are told apart per thread, so a user's choice
     made meanwhile is acted on, not taken for an echo of the code's."""
     client, _, st = done
-    viewer = client.app.state.manager.viewer
     until(lambda: st["id"] in viewer.gui.run.options, "the run is not offered")
-    latest = viewer.live_run
+    latest = viewer.v.live_run
     inside, release = threading.Event(), threading.Event()
 
     def bridge() -> None:  # the bridge, halfway through an update of its own
-        with viewer._from_code():
+        with viewer.v.from_code():
             inside.set()
             release.wait(HANG)
 

@@ -85,10 +85,12 @@ def choose(frame, name: str, option: str) -> None:
     frame.get_by_role("option", name=option).click()
 
 
-def preview(url: str, scene: str) -> None:
-    r = httpx.put(f"{url}/api/view/scene", json={"scene": scene})
+def preview(url: str, scene: str, page=None) -> None:
+    """Preview ``scene`` in ``page``'s view (its embedded viewer), else the default view."""
+    own = {"X-Q3T-View": page.evaluate("VIEW")} if page else {}
+    r = httpx.put(f"{url}/api/view/scene", json={"scene": scene}, headers=own)
     assert r.status_code == 200, r.text
-    until(lambda: httpx.get(f"{url}/api/view").json()["preview"] == "shown",
+    until(lambda: httpx.get(f"{url}/api/view", headers=own).json()["preview"] == "shown",
           f"the preview of {scene} was not shown")
 
 
@@ -99,7 +101,7 @@ def test_embedded_viewer_legend_preview_zones_and_section(served, browser):
     page.goto(url + "/")
     frame = page.frame_locator("#viewer")
     frame.get_by_text("Colour by").first.wait_for()
-    preview(url, "cup")
+    preview(url, "cup", page)
     frame.get_by_text("Preview of scene").first.wait_for()
     legend_in_view(page, frame, "#viewer")
     assert "Thickness" in frame.locator(".q3t-legend").first.inner_text()
@@ -135,7 +137,7 @@ def test_viewer_alone_legend_in_view(served, browser):
     page.get_by_text("Colour by").first.wait_for()
     legend_in_view(page, page)
     shot(page, "06-viewer-alone")
-    preview(url, "cup")  # the viewer shows it whoever asked
+    preview(url, "cup")  # a viewer opened on its own shows the default view
     page.get_by_text("Preview of scene").first.wait_for()
     legend_in_view(page, page)
     shot(page, "07-viewer-alone-preview")

@@ -3,8 +3,9 @@ its colour across the frames of a run and, with a fixed range, across runs; thin
 in bands at the user's limits; the FLD zones in one colour each; the legend names what it shows;
 the tools' opacity and the section plane act on what is drawn.
 
-The viewer is driven as the bridge drives it (``new_run``, ``show``, ``show_run``) and its GUI
-as a user sets it (a handle's ``.value``, which runs its callbacks as a browser's change does).
+The viewer is driven as the bridge drives it (``new_run``, ``show``, ``show_run``) and the GUI
+of one connected browser (its own ``ClientView``) as a user sets it (a handle's ``.value``,
+which runs its callbacks as a browser's change does).
 """
 
 from __future__ import annotations
@@ -14,11 +15,13 @@ import pytest
 
 pytest.importorskip("viser")
 from server.canvas import FIXED_RANGE, RUN_RANGE  # noqa: E402
+from server.clientview import ClientView  # noqa: E402
 from server.colormap import THINNING_COLOURS, ZONE_COLOURS  # noqa: E402
 from server.replay import Replay  # noqa: E402
 from server.viewer import Viewer  # noqa: E402
 from sim.frames.forming_limits import ZONES  # noqa: E402
 from tests.support.service import free_port, until  # noqa: E402
+from tests.support.viewer import attached  # noqa: E402
 
 # a strip of 6 vertices along x (2 triangles a square), each vertex its own value
 X = np.array([[x, y, 0.0] for x in (0.0, 1e-3, 2e-3) for y in (0.0, 1e-3)], np.float32)
@@ -36,20 +39,29 @@ class Stub:
     def __init__(self) -> None:
         self.replays: dict[str, Replay] = {}
 
-    def command(self, cmd: str) -> str:
+    def command(self, view: str, run_id: str | None, cmd: str) -> str:
         return cmd
 
-    def select(self, run_id: str) -> str:
+    def select(self, view: str, run_id: str) -> str:
         return ""
 
-    def set_parameter(self, name: str, value: float) -> str:
+    def set_parameter(self, view: str, run_id: str | None, name: str, value: float) -> str:
         return name
 
-    def scrub(self, step: int) -> tuple[dict | None, str]:
+    def scrub(self, run_id: str | None, step: int) -> tuple[dict | None, str]:
         return None, "no frames"
 
     def recording(self, run_id: str) -> tuple[Replay | None, str]:
         return self.replays.get(run_id), "recording"
+
+    def scaled(self, run_id: str | None) -> dict:
+        return {}
+
+    def shows_step(self, view: str, run_id: str | None, step: int | None) -> None:
+        pass
+
+    def connected(self, view: str) -> None:
+        pass
 
 
 def frame(run: str, step: int, **fields: list[float]) -> dict:
@@ -60,26 +72,28 @@ def frame(run: str, step: int, **fields: list[float]) -> dict:
 
 @pytest.fixture
 def viewer():
+    """One browser's view of a viewer (``.v``: the viewer)."""
     v = Viewer("127.0.0.1", free_port(), Stub())
-    yield v
+    with attached(v) as cv:
+        yield cv
     v.stop()
 
 
-def live(v: Viewer, run: str, *frames: dict, active: bool = False) -> None:
+def live(v: ClientView, run: str, *frames: dict, active: bool = False) -> None:
     """Show ``run`` as the latest run and push ``frames`` to it."""
     v.show_run(run, {}, active=True, line=run)
-    v.new_run(run, FACES, [{"name": "punch", "vertices": BOX, "faces": BOX_FACES}], run, {})
+    v.v.new_run(run, FACES, [{"name": "punch", "vertices": BOX, "faces": BOX_FACES}], run, {})
     for f in frames:
-        v.show(f, run, final=True)
-    v.run_status(run, run, active=active)
+        v.v.show(f, run, final=True)
+    v.v.run_status(run, run, active=active)
 
 
-def colour_of(v: Viewer, vertex: int) -> tuple[int, ...]:
+def colour_of(v: ClientView, vertex: int) -> tuple[int, ...]:
     key, rgb, _ = v.canvas.painted
     return tuple(int(c) for c in rgb[vertex])
 
 
-def choose(v: Viewer, label_start: str) -> None:
+def choose(v: ClientView, label_start: str) -> None:
     v.canvas.field.value = next(o for o in v.canvas.field.options if o.startswith(label_start))
 
 
@@ -171,9 +185,9 @@ def test_fld_zones_have_one_colour_each_and_a_legend(viewer):
 def test_the_legend_says_a_live_runs_range_grows(viewer):
     live(viewer, "a", frame("a", 1, thickness_mm=[1.0, 1.0, 1.0, 1.0, 1.0, 0.9]), active=True)
     assert "range of this run so far" in viewer.canvas.legend.content
-    viewer.show(frame("a", 2, thickness_mm=[1.0, 1.0, 1.0, 1.0, 1.0, 0.8]), "a", final=True)
+    viewer.v.show(frame("a", 2, thickness_mm=[1.0, 1.0, 1.0, 1.0, 1.0, 0.8]), "a", final=True)
     assert "0.8" in viewer.canvas.legend.content  # the range grew to hold the new frame
-    viewer.run_status("a", "a finished", active=False)
+    viewer.v.run_status("a", "a finished", active=False)
     assert "so far" not in viewer.canvas.legend.content
 
 

@@ -20,6 +20,7 @@ from sim.scene.load import scene_from_toml  # noqa: E402
 from sim.stepping.simulation import Simulation  # noqa: E402
 from tests.support.scenes import PRESS_TOML, tiny_toml  # noqa: E402
 from tests.support.service import free_port, until, wait_state  # noqa: E402
+from tests.support.viewer import attached  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +37,13 @@ def client(tmp_path_factory):
         yield c
 
 
+@pytest.fixture(scope="module")
+def viewer(client):
+    """A browser's view (no view id: the default view, which the API selects for)."""
+    with attached(client.app.state.manager.viewer) as cv:
+        yield cv
+
+
 def shown(client: TestClient, scene: str) -> dict:
     """The view once the preview of ``scene`` is built (or failed)."""
     return until(lambda: (v := client.get("/api/view").json())["scene"] == scene
@@ -46,8 +54,7 @@ def rest(text: str) -> Simulation:
     return Simulation.from_scene(scene_from_toml(text))
 
 
-def test_a_scene_previews_its_blank_and_tools_before_any_run(client):
-    viewer = client.app.state.manager.viewer
+def test_a_scene_previews_its_blank_and_tools_before_any_run(client, viewer):
     assert client.get("/api/runs").json() == [] and viewer.mode == "none"
     r = client.put("/api/view/scene", json={"scene": "press"})
     assert r.status_code == 200, r.text
@@ -71,12 +78,11 @@ def test_a_scene_previews_its_blank_and_tools_before_any_run(client):
     assert client.get("/api/runs").json() == []
 
 
-def test_an_edited_scene_previews_as_shown(client):
+def test_an_edited_scene_previews_as_shown(client, viewer):
     edited = PRESS_TOML.replace("edge_length = 0.005", "edge_length = 0.0025")
     r = client.put("/api/view/scene", json={"scene": "press", "toml": edited})
     assert r.status_code == 200, r.text
     assert shown(client, "press")["preview"] == "shown"
-    viewer = client.app.state.manager.viewer
     until(lambda: len(viewer.canvas.faces) == len(rest(edited).display.faces),
           "the preview is not the edited mesh")
     assert len(viewer.canvas.faces) > len(rest(PRESS_TOML).display.faces)
@@ -95,11 +101,11 @@ def test_bad_preview_requests_name_the_field(client, body, status, names):
     assert names in r.json()["detail"]
 
 
-def test_a_run_shows_again_once_started_or_selected(client):
-    viewer = client.app.state.manager.viewer
+def test_a_run_shows_again_once_started_or_selected(client, viewer):
     run = client.post("/api/runs", json={"scene": "tiny", "element": "linear"}).json()["id"]
-    assert client.get("/api/view").json() == {"run": run, "scene": None, "preview": None,
-                                              "preview_error": None}
+    assert client.get("/api/view").json() == {"view": "default", "run": run, "scene": None,
+                                              "preview": None, "preview_error": None,
+                                              "step": None, "notices": []}
     assert wait_state(client, run, {"finished", "failed", "stopped"})["state"] == "finished"
     until(lambda: viewer.mode == "live", "the new run was not shown")
     client.put("/api/view/scene", json={"scene": "press"})
@@ -110,7 +116,7 @@ def test_a_run_shows_again_once_started_or_selected(client):
     assert client.get("/api/view").json()["scene"] is None
 
 
-def test_a_preview_that_cannot_be_built_says_why(client):
+def test_a_preview_that_cannot_be_built_says_why(client, viewer):
     """The solver process answers a scene it cannot build with the reason (its reply is still
     ok: the active run is never marked by a preview); the view and the viewer say why."""
     import queue
@@ -125,10 +131,11 @@ def test_a_preview_that_cannot_be_built_says_why(client):
     assert reply["kind"] == "reply" and reply["ok"]
     m = client.app.state.manager
     with m.lock:
-        m.views.preview = {"scene": "broken", "request": 7, "state": "building"}
+        m.views.views["default"].preview = {"scene": "broken", "request": 7,
+                                            "state": "building"}
     m.views.show_preview(ev)
     view = client.get("/api/view").json()
     assert view["preview"] == "failed" and view["preview_error"] == ev["error"]
-    assert "Preview of scene `broken` failed" in m.viewer.gui.status.content
+    assert "Preview of scene `broken` failed" in viewer.gui.status.content
     m.views.show_preview({**ev, "request": 6})  # an earlier request answered late: ignored
     assert client.get("/api/view").json() == view

@@ -491,7 +491,7 @@ def test_the_last_factors_are_reused_near_convergence():
     (fresh, n_fresh), (reused, n_reused) = runs[0.0], runs[1e-5]
     assert [r.iterations for r in reused.records] == [r.iterations for r in fresh.records]
     assert n_reused < n_fresh, (n_reused, n_fresh)
-    for a, b in zip(fresh.records, reused.records):
+    for a, b in zip(fresh.records, reused.records, strict=True):
         # both converged to rtol = 1e-8 of the force level: the same state to that
         assert a.probes["fx"] == pytest.approx(b.probes["fx"], rel=1e-7)
         assert a.probes["fz"] == pytest.approx(b.probes["fz"], rel=1e-7)
