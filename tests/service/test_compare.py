@@ -25,7 +25,7 @@ import pytest
 from server.records import RunFiles
 from tests.support import ROOT
 from tests.support.scenes import tiny_cup_toml
-from tests.support.service import HANG, in_process, until, wait_state
+from tests.support.service import HANG, finished_run, in_process, until, wait_state
 
 ENDED = {"finished", "failed", "stopped"}
 # the compared numbers are the runs' own, scaled to kN / mm / %: equal up to that rounding
@@ -42,19 +42,12 @@ def env(tmp_path_factory):
         yield client, settings
 
 
-def _finished(client, **body) -> str:
-    run = client.post("/api/runs", json={"scene": "tiny_cup", **body}).json()["id"]
-    st = wait_state(client, run, ENDED)
-    assert st["state"] == "finished", st["reason"]
-    return run
-
-
 @pytest.fixture(scope="module")
 def runs(env):
     """Four finished runs of tiny_cup: A as written (q3t), B with half its friction and a
     live doubling of the load from step 3, C linear, D on a finer mesh."""
     client, _ = env
-    a = _finished(client)
+    a = finished_run(client)
     b = client.post("/api/runs", json={"scene": "tiny_cup", "paused": True, "overrides": {
         "tools.0.friction": 0.05, "tools.1.friction": 0.05}}).json()["id"]
     wait_state(client, b, {"paused"})
@@ -66,8 +59,8 @@ def runs(env):
     assert r.status_code == 202 and r.json()["applied"], r.text
     client.post(f"/api/runs/{b}/resume")
     assert wait_state(client, b, ENDED)["state"] == "finished"
-    c = _finished(client, element="linear")
-    d = _finished(client, overrides={"mesh.edge_length": 0.002})
+    c = finished_run(client, element="linear")
+    d = finished_run(client, overrides={"mesh.edge_length": 0.002})
     return a, b, c, d
 
 

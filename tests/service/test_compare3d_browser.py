@@ -27,21 +27,16 @@ import pytest
 
 from tests.support.browser import new_page, serve
 from tests.support.scenes import tiny_cup_toml
-from tests.support.service import until
+from tests.support.service import finished_run
 
 SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-compare3d"))
-ENDED = {"finished", "failed", "stopped"}
 VIEWS = ("#compare-3d-a", "#compare-3d-b", "#compare-3d-diff")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 
 
 def _finished(url: str, **body) -> str:
-    run = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup", **body}).json()["id"]
-    st = until(lambda: (s := httpx.get(f"{url}/api/runs/{run}").json())["state"] in ENDED
-               and s, f"run {run} never ended")
-    assert st["state"] == "finished", st["reason"]
-    return run
+    return finished_run(httpx.Client(base_url=url), **body)
 
 
 @pytest.fixture(scope="module")

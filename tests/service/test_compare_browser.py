@@ -27,7 +27,7 @@ import pytest
 from tests.support import ROOT
 from tests.support.browser import new_page, serve
 from tests.support.scenes import tiny_cup_toml
-from tests.support.service import HANG, until
+from tests.support.service import HANG, finished_run, until
 
 SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-compare"))
 ENDED = {"finished", "failed", "stopped"}
@@ -36,11 +36,7 @@ sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not ins
 
 
 def _finished(url: str, **body) -> str:
-    run = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup", **body}).json()["id"]
-    st = until(lambda: (s := httpx.get(f"{url}/api/runs/{run}").json())["state"] in ENDED
-               and s, f"run {run} never ended")
-    assert st["state"] == "finished", st["reason"]
-    return run
+    return finished_run(httpx.Client(base_url=url), **body)
 
 
 def _changed(url: str) -> str:

@@ -22,7 +22,7 @@ import pytest
 
 from tests.support import ROOT
 from tests.support.scenes import tiny_cup_toml
-from tests.support.service import HANG, in_process, wait_state
+from tests.support.service import HANG, finished_run, in_process, wait_state
 
 ENDED = {"finished", "failed", "stopped", "cancelled"}
 # strokes are sent rounded to 1e-4 mm
@@ -39,18 +39,11 @@ def env(tmp_path_factory):
         yield client, settings
 
 
-def _finished(client, **body) -> str:
-    run = client.post("/api/runs", json={"scene": "tiny_cup", **body}).json()["id"]
-    st = wait_state(client, run, ENDED)
-    assert st["state"] == "finished", st["reason"]
-    return run
-
-
 @pytest.fixture(scope="module")
 def runs(env):
     """A as written (4 steps of 0.5 mm), B at half the tool speed (8 steps of 0.25 mm)."""
     client, _ = env
-    return _finished(client), _finished(client, parameters={"tool_speed": 0.5})
+    return finished_run(client), finished_run(client, parameters={"tool_speed": 0.5})
 
 
 def _frames(client, a: str, b: str, stroke: float | None = None):

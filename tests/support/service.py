@@ -37,6 +37,15 @@ def wait_state(client, run_id: str, states: set[str], timeout: float = HANG) -> 
     return until(done, f"run {run_id} never reached {states}", timeout)
 
 
+def finished_run(client, scene: str = "tiny_cup", **body) -> str:
+    """The id of a run of ``scene`` started with ``body`` (the API's start fields) through
+    ``client`` (a TestClient, or an httpx.Client on a served URL), once it has finished."""
+    run = client.post("/api/runs", json={"scene": scene, **body}).json()["id"]
+    st = wait_state(client, run, {"finished", "failed", "stopped", "cancelled"})
+    assert st["state"] == "finished", st["reason"]
+    return run
+
+
 def wait_done(client, run_id: str) -> dict:
     """The status once the solver has acted on every command sent for the run."""
     def idle():
