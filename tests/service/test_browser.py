@@ -206,9 +206,9 @@ def test_scene_form_and_run_estimate(served):
             f.build(raw);
             return f.value();
         }""", raw)
-        # an unknown kind has no fields of its own to show: the kind comes back for the server
-        # to name (the form shows only the chosen kind's fields)
-        assert back["mesh"] == {"kind": "rectanglee"}
+        # an unknown kind has no fields of its own to show: its other fields are kept as they
+        # are (shown read-only) and come back with the kind, for the server to name
+        assert back["mesh"] == {"kind": "rectanglee", "size": [1, None]}
         assert back["bcs"] == [{"components": "xyz", "layers": "all",  # region: missing
                                 "displacement": [0, 0, 0], "keyframes": [],
                                 "release": False, "release_only": False}]
