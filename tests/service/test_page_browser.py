@@ -152,6 +152,9 @@ def test_live_plots_follow_the_steps(served, browser):
     try:
         r = httpx.post(f"{served}/api/runs", json={"scene": "tiny_cup", "paused": True})
         run = r.json()["id"]
+        # a script's run: this browser's view shows it once its row is chosen (each browser
+        # keeps its own selected run, and this one shows the run of the test before)
+        page.click(f'#runs tbody tr[data-id="{run}"] td:first-child')
         page.wait_for_function(f"document.getElementById('status').dataset.run === {run!r}")
         settled(served, run)
         n_points = "document.getElementById('force-plot').data?.[0]?.x?.length"
