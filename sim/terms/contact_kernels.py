@@ -125,11 +125,16 @@ def _penalty_kernel(d: np.ndarray, g: np.ndarray, H: np.ndarray, k: float, delta
 
 
 @numba.njit(cache=True)
-def _normal_force_kernel(d: np.ndarray, k: float, delta: float, c2: bool) -> np.ndarray:
+def _normal_force_kernel(d: np.ndarray, k: float, delta: float,
+                         c2: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(-e'(d), -e''(d)): the normal-force magnitudes and their slopes in d."""
     lam = np.empty(d.shape[0])
+    slope = np.empty(d.shape[0])
     for p in range(d.shape[0]):
-        lam[p] = -_penalty_scalar(d[p], k, delta, c2)[1]
-    return lam
+        _, de, dde = _penalty_scalar(d[p], k, delta, c2)
+        lam[p] = -de
+        slope[p] = -dde
+    return lam, slope
 
 
 def _check(X: npt.ArrayLike, k: float, delta: float, c2: bool) -> np.ndarray:
@@ -171,11 +176,14 @@ def penalty_contact(X: npt.ArrayLike, prog: npt.ArrayLike, R: npt.ArrayLike | No
 
 def normal_forces(X: npt.ArrayLike, prog: npt.ArrayLike, R: npt.ArrayLike | None,
                   t: npt.ArrayLike | None, k: float, delta: float, *,
-                  c2: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                  c2: bool = False, gradients: bool = False) -> tuple[np.ndarray, ...]:
     """Lagged contact data for friction: (lam_n (n,) >= 0, normals (n, 3)).
 
     lam_n = -e'(d) is the magnitude of the penalty force on each node (0 outside the layer),
-    normals the outward tool normal g at the node (zero where lam_n = 0).
+    normals the outward tool normal g at the node (zero where lam_n = 0). With ``gradients``
+    also lam_n's gradient (n, 3) with respect to the node's position, -e''(d) g (the tool's
+    translation enters d with the opposite sign): what friction's lagged normal force leaves
+    out of its Hessian.
     """
     X = _check(X, k, delta, c2)
     R, t = pose(R, t)
@@ -184,36 +192,13 @@ def normal_forces(X: npt.ArrayLike, prog: npt.ArrayLike, R: npt.ArrayLike | None
     idx = np.flatnonzero(gap < delta)
     lam = np.zeros(X.shape[0])
     normals = np.zeros((X.shape[0], 3))
+    grad = np.zeros((X.shape[0], 3))
     if idx.size:
         d, g, _ = sdf_world(prog, R, t, X[idx])
-        lam[idx] = _normal_force_kernel(d, float(k), float(delta), bool(c2))
+        lam[idx], slope = _normal_force_kernel(d, float(k), float(delta), bool(c2))
         normals[idx] = g / np.linalg.norm(g, axis=1, keepdims=True)
-    return lam, normals
-
-
-def normal_force_gradients(X: npt.ArrayLike, prog: npt.ArrayLike, R: npt.ArrayLike | None,
-                           t: npt.ArrayLike | None, k: float, delta: float, *,
-                           c2: bool = False) -> np.ndarray:
-    """The gradient (n, 3) of each node's normal-force magnitude lam_n = -e'(d) with respect to
-    its position: -e''(d) g (zero outside the layer). The tool's translation t enters d with
-    the opposite sign. What friction's lagged normal force leaves out of its Hessian."""
-    X = _check(X, k, delta, c2)
-    R, t = pose(R, t)
-    prog = np.asarray(prog, dtype=np.float64)
-    out = np.zeros((X.shape[0], 3))
-    idx = np.flatnonzero(sdf_world_distance(prog, R, t, X) < delta)
-    if idx.size:
-        d, g, _ = sdf_world(prog, R, t, X[idx])
-        out[idx] = _normal_force_slope_kernel(d, float(k), float(delta), bool(c2))[:, None] * g
-    return out
-
-
-@numba.njit(cache=True)
-def _normal_force_slope_kernel(d: np.ndarray, k: float, delta: float, c2: bool) -> np.ndarray:
-    slope = np.empty(d.shape[0])
-    for p in range(d.shape[0]):
-        slope[p] = -_penalty_scalar(d[p], k, delta, c2)[2]
-    return slope
+        grad[idx] = slope[:, None] * g
+    return (lam, normals, grad) if gradients else (lam, normals)
 
 
 def auto_stiffness(E_young: float, thickness: float, area: float, *, pressure: float | None = None,

@@ -39,7 +39,6 @@ from sim.solve.assembly import Pattern, scatter_node_blocks
 from sim.terms import Term
 from sim.terms.contact_kernels import (
     friction,
-    normal_force_gradients,
     normal_forces,
     penalty_contact,
     tool_displacement,
@@ -204,8 +203,8 @@ class ToolContact(Term):
         if self.vdof is not None:
             Xa = Xa - (x[self.vdof] - self._start_u)
         w = friction(Xa, X0, disp, lam, nrm, self.mu, self.eps_v)[1] / lam[:, None]
-        dlam = normal_force_gradients(x[nodes], self.prog, self.R_now, self.translation(x),
-                                      self.k, self.delta, c2=True)
+        dlam = normal_forces(x[nodes], self.prog, self.R_now, self.translation(x), self.k,
+                             self.delta, c2=True, gradients=True)[2]
         vdof = self.vdof
 
         def apply(v: np.ndarray) -> np.ndarray:

@@ -16,20 +16,16 @@ test_views_browser.py drives the same in two chromium contexts):
 
 from __future__ import annotations
 
-import os
-
 import pytest
 
 pytest.importorskip("viser")
-from fastapi.testclient import TestClient  # noqa: E402
 
-from server.app import create_app  # noqa: E402
 from server.clientview import scaled_text  # noqa: E402
-from server.settings import Settings  # noqa: E402
 from tests.support.scenes import tiny_toml  # noqa: E402
 from tests.support.service import (  # noqa: E402
     ENDED,
     free_port,
+    in_process,
     stop_all,
     until,
     wait_state,
@@ -42,15 +38,9 @@ A, B = {"X-Q3T-View": "browser-a"}, {"X-Q3T-View": "browser-b"}
 
 @pytest.fixture(scope="module")
 def client(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("views")
-    os.environ.setdefault("XDG_CONFIG_HOME", str(tmp / "config"))
-    os.environ.setdefault("XDG_DATA_HOME", str(tmp / "data"))
-    (tmp / "scenes").mkdir()
-    (tmp / "scenes" / "tiny.toml").write_text(tiny_toml())
-    (tmp / "scenes" / "long.toml").write_text(tiny_toml(steps=4000))
-    settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs", viewer=True,
-                        viewer_port=free_port(), record_every=1)
-    with TestClient(create_app(settings)) as c:
+    scenes = {"tiny": tiny_toml(), "long": tiny_toml(steps=4000)}
+    with in_process(tmp_path_factory.mktemp("views"), scenes, viewer=True,
+                    viewer_port=free_port(), record_every=1) as (c, _):
         yield c
         stop_all(c)
 
