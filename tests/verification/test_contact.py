@@ -469,9 +469,9 @@ def test_fd_of_the_friction_lag_coupling():
 
 def test_the_last_factors_are_reused_near_convergence():
     """Close to convergence Newton tries the last factors, refined against the new Hessian
-    (NewtonSettings.reuse_below), before factoring again: the dragged sheet's steps take the
-    same iterations and reach the same forces as with a factorisation at every iteration,
-    with fewer factorisations."""
+    (NewtonSettings.reuse_below), before factoring again: the dragged sheet's steps reach the
+    same forces as with a factorisation at every iteration, in no more iterations and with
+    fewer factorisations."""
     import dataclasses
 
     runs = {}
@@ -489,7 +489,11 @@ def test_the_last_factors_are_reused_near_convergence():
         assert sim.run(), sim.failure
         runs[reuse] = (sim, count[0])
     (fresh, n_fresh), (reused, n_reused) = runs[0.0], runs[1e-5]
-    assert [r.iterations for r in reused.records] == [r.iterations for r in fresh.records]
+    # the two take other paths at round-off level (a refined stale solve is the fresh one to
+    # 1e-8), so their counts may differ by the CPU's code path (MKL_CBWR=COMPATIBLE: 12
+    # iterations against 14 in step 2, equal unset); reuse must not cost iterations overall
+    iterations = [sum(r.iterations for r in s.records) for s in (reused, fresh)]
+    assert iterations[0] <= iterations[1], iterations
     assert n_reused < n_fresh, (n_reused, n_fresh)
     for a, b in zip(fresh.records, reused.records, strict=True):
         # both converged to rtol = 1e-8 of the force level: the same state to that
