@@ -14,11 +14,13 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 from server.problems import Conflict, Invalid, NotFound
 from server.settings import check_scene_name
 from sim.elements import get_element
+from sim.geometry import outline
 from sim.model import size
 from sim.scene.load import Scene, SceneError, read_toml, scene_from_toml
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl")  # what sim.geometry.trimesh.load reads
 VALUE_SUFFIXES = (".npy", ".txt", ".csv")  # what sim.model reads as per-vertex values
+OUTLINE_SUFFIXES = outline.SUFFIXES  # the drawings an outline mesh reads
 
 
 def _temp(path: Path, data: str | bytes) -> Path:
@@ -102,8 +104,8 @@ class SceneStore:
         """The files a scene reads (``mesh.path`` of a file mesh, ``shell.thickness_file``), each
         inside the scenes folder, by field. Raises SceneError naming the field. A name is
         checked before any file is looked at, so a refused name touches nothing."""
-        wanted = {"mesh.path": (scene.mesh.path or "" if scene.mesh.kind == "file" else None,
-                                MESH_SUFFIXES),
+        mesh_files = {"file": MESH_SUFFIXES, "outline": OUTLINE_SUFFIXES}.get(scene.mesh.kind)
+        wanted = {"mesh.path": (scene.mesh.path if mesh_files else None, mesh_files),
                   "shell.thickness_file": (scene.shell.thickness_file, VALUE_SUFFIXES)}
         return {f: self._inside(f, text, suffixes)
                 for f, (text, suffixes) in wanted.items() if text is not None}

@@ -16,7 +16,9 @@ import math
 from dataclasses import dataclass
 
 from sim.elements import get_element
+from sim.geometry import outline
 from sim.geometry import trimesh as meshes
+from sim.model.sheet import outline_of
 from sim.scene.load import Scene, SceneError
 from sim.scene.sheet import MeshSpec
 
@@ -43,6 +45,11 @@ def mesh_counts(spec: MeshSpec) -> tuple[int, int] | None:
     None when it cannot be)."""
     if spec.kind == "file":
         return _file_counts(spec.path)
+    if spec.kind == "outline":
+        try:
+            return outline.estimate(outline_of(spec), spec.edge_length)
+        except outline.OutlineError:  # the build says why
+            return None
     e = spec.edge_length
     if spec.kind == "rectangle":
         nx, ny = (meshes.divisions(s, e) for s in spec.size)

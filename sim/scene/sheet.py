@@ -25,7 +25,7 @@ class _Mesh(Strict):
     """The sheet's mid-surface: a generated mesh of one ``kind`` or a mesh file; each kind
     takes its own fields only."""
 
-    kind: str = doc("what mesh: rectangle, annulus, disk, cylinder_band or file")
+    kind: str = doc("what mesh: rectangle, annulus, disk, cylinder_band, file or outline")
     imperfection: Coord = doc(
         "out-of-plane imperfection of a flat mid-surface: z += a sin(pi s) sin(pi t), with "
         "(s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to "
@@ -88,10 +88,50 @@ class FileMesh(_Mesh):
         "m per file unit", 1.0)
 
 
+XY = tuple[Coord, Coord]
+
+
+class OutlineMesh(_Generated):
+    """A blank cut from a closed 2-D outline in z = 0, with optional holes, meshed into
+    isotropic triangles (sim.geometry.outline): the outline as ``points``, or the closed paths
+    of an SVG or DXF drawing (``path``: the path enclosing the most area is the outline, the
+    others its holes). A relative path is taken from the scene file's folder."""
+
+    kind: Literal["outline"] = doc("a closed outline (points or an SVG/DXF drawing)")
+    points: list[XY] | None = doc("the outline's [x, y] corners in order (at least 3; curves "
+                                  "as many points, which the mesh resamples)", "m", None)
+    holes: list[list[XY]] = doc("holes inside the outline, each a list of [x, y] points",
+                                "m", [])
+    path: str | None = doc("an SVG or DXF drawing of closed paths instead of points",
+                           default=None)
+    scale: Annotated[float, Field(ge=1e-9, le=1e3)] = doc(
+        "the drawing's units to metres (1e-3 for a drawing in mm)", "m per drawing unit", 1.0)
+
+    @model_validator(mode="after")
+    def _outline(self) -> Self:
+        from sim.geometry import outline
+
+        if (self.points is None) == (self.path is None):
+            raise ValueError("give exactly one of points, path")
+        if self.path is not None:
+            if self.holes:
+                raise ValueError("holes: a drawing's holes are its inner paths (holes go with "
+                                 "points)")
+            return self
+        try:
+            shape = outline.checked(outline.loop(self.points, "points"),
+                                    [outline.loop(h, f"holes.{i}")
+                                     for i, h in enumerate(self.holes)])
+            outline.check_size(shape, self.edge_length)
+        except outline.OutlineError as exc:
+            raise ValueError(f"{exc.field}: {exc}") from None
+        return self
+
+
 # the mesh of the chosen kind: only its own fields are accepted (pydantic tells the kinds
 # apart by ``kind`` and names a field of another kind as not permitted)
-MeshSpec = Annotated[RectangleMesh | AnnulusMesh | DiskMesh | CylinderBandMesh | FileMesh,
-                     Field(discriminator="kind")]
+MeshSpec = Annotated[RectangleMesh | AnnulusMesh | DiskMesh | CylinderBandMesh | FileMesh
+                     | OutlineMesh, Field(discriminator="kind")]
 
 
 class ShellSpec(Strict):
