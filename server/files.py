@@ -24,13 +24,14 @@ import numpy as np
 
 from server.problems import Conflict, Invalid, NotFound
 from server.settings import SCENE_NAME_MAX, check_name
-from server.store import MESH_SUFFIXES, VALUE_SUFFIXES, SceneStore
+from server.store import MESH_SUFFIXES, OUTLINE_SUFFIXES, VALUE_SUFFIXES, SceneStore
 from sim.scene.fields import MAX_LENGTH
 from sim.scene.load import SceneError, read_toml
 
 # what each kind is, by suffix, and the scene field that reads it
-KINDS = {"blank": MESH_SUFFIXES, "thickness": VALUE_SUFFIXES}
-FIELDS = {"blank": ("mesh", "path"), "thickness": ("shell", "thickness_file")}
+KINDS = {"blank": MESH_SUFFIXES, "thickness": VALUE_SUFFIXES, "outline": OUTLINE_SUFFIXES}
+FIELDS = {"blank": ("mesh", "path"), "thickness": ("shell", "thickness_file"),
+          "outline": ("mesh", "path")}
 FILE_NAME_MAX = SCENE_NAME_MAX
 # a triangle this much smaller than the median is flat to round-off: the solver refuses the
 # same (sim.terms.elasticity.reference_gradients, detJ below 1e-10 of the median)
@@ -137,7 +138,20 @@ def inspect_thickness(path: Path) -> dict:
     return {"values": int(h.size)}
 
 
-INSPECT = {"blank": inspect_blank, "thickness": inspect_thickness}
+def inspect_outline(path: Path) -> dict:
+    """The drawing as an outline mesh reads it (sim.geometry.outline.read_drawing): closed
+    paths, the largest enclosing the others as holes. Its units are the scene's mesh.scale, so
+    its curves are flattened here at a tenth of a drawing unit, fine enough to check."""
+    from sim.geometry import outline
+
+    try:
+        shape = outline.read_drawing(path, 1.0, 1.0)
+    except outline.OutlineError as exc:
+        raise Invalid(str(exc)) from None
+    return {"holes": len(shape.holes)}
+
+
+INSPECT = {"blank": inspect_blank, "thickness": inspect_thickness, "outline": inspect_outline}
 
 
 @functools.lru_cache(maxsize=256)
@@ -188,7 +202,7 @@ class FileStore:
         if not p.is_file():
             raise NotFound(f"no file {name!r}")
         st, kind = p.stat(), kind_of(name)
-        counts = {"vertices": None, "triangles": None, "values": None,
+        counts = {"vertices": None, "triangles": None, "values": None, "holes": None,
                   **_described(str(p), kind, st.st_size, st.st_mtime_ns)}
         users = self.users() if users is None else users
         return {"name": name, "kind": kind, "size": st.st_size, **counts,
@@ -206,7 +220,7 @@ class FileStore:
                 raw = read_toml(self.scenes.text(scene))
             except SceneError:
                 continue
-            for table, key in FIELDS.values():
+            for table, key in set(FIELDS.values()):
                 section = raw.get(table)
                 value = section.get(key) if isinstance(section, dict) else None
                 if isinstance(value, str) and value:
@@ -285,4 +299,4 @@ def _is_file_name(text: str) -> bool:
 
 
 __all__ = ["FileStore", "KINDS", "Stalled", "TooLarge", "check_blank", "check_file_name",
-           "inspect_blank", "inspect_thickness", "kind_of", "spool"]
+           "inspect_blank", "inspect_outline", "inspect_thickness", "kind_of", "spool"]

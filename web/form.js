@@ -12,8 +12,9 @@
 // and 0.0165 invite a slipped decimal; values are converted back to SI, and a value left as
 // shown is sent back unchanged (no round-off). A decimal comma ("0,15") reads as 0.15.
 //
-// Files: a field the schema marks with "x-file" (mesh.path: a blank mesh, shell.thickness_file)
-// is a select of the scenes folder's files of that kind (GET /api/files) with an upload button
+// Files: a field the schema marks with "x-file" (mesh.path: a blank mesh or an outline drawing,
+// shell.thickness_file) is a select of the scenes folder's files of that kind (GET /api/files)
+// with an upload button
 // beside it (POST /api/files; a name taken asks before it replaces the file).
 "use strict";
 
@@ -56,7 +57,8 @@ const SceneForm = (() => {
                                    : `${(n / 2 ** 20).toFixed(1)} MiB`);
   // what a listed file holds, for its option (a thickness file has a value per vertex)
   const counts = (f) => (f.problem ? "unusable" : f.kind === "blank"
-    ? `${f.vertices} vertices, ${f.triangles} triangles` : `${f.values} values`);
+    ? `${f.vertices} vertices, ${f.triangles} triangles`
+    : f.kind === "outline" ? `${f.holes} holes` : `${f.values} values`);
   // POST /api/files: the file's bytes as the body; the answer's JSON, or an Error with its
   // detail and status
   const upload = async (file, name, kind, replace) => {

@@ -24,7 +24,7 @@ from server.settings import Settings, name_type
 router = APIRouter(prefix="/api/files", tags=["files"])
 
 FileName = name_type(check_file_name, FILE_NAME_MAX)
-Kind = Literal["blank", "thickness"]
+Kind = Literal["blank", "thickness", "outline"]
 # an answer given before the body is all read: the rest of it is never read, so the connection
 # cannot carry another request
 CLOSE = {"Connection": "close"}
@@ -34,11 +34,14 @@ class FileEntry(BaseModel):
     name: str = Field(description="the file's name in the scenes folder: what a scene's "
                                   "mesh.path or shell.thickness_file says")
     kind: Kind = Field(description="blank: a mid-surface mesh; thickness: one value (m) per "
-                                   "vertex")
+                                   "vertex; outline: an SVG or DXF drawing of a blank's "
+                                   "outline (mesh kind outline)")
     size: int = Field(description="bytes")
     vertices: int | None = Field(description="a blank's vertices as the solver reads them")
     triangles: int | None = Field(description="a blank's triangles")
     values: int | None = Field(description="a thickness file's values")
+    holes: int | None = Field(description="an outline's holes (its closed paths but the "
+                                          "largest)")
     used_by: list[str] = Field(description="the scenes that name the file")
     problem: str | None = Field(description="why the solver could not use the file (one put "
                                             "in the folder by hand); null when it can")
