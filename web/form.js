@@ -58,7 +58,7 @@ const SceneForm = (() => {
   // what a listed file holds, for its option (a thickness file has a value per vertex)
   const counts = (f) => (f.problem ? "unusable" : f.kind === "blank"
     ? `${f.vertices} vertices, ${f.triangles} triangles`
-    : f.kind === "outline" ? `${f.holes} holes` : `${f.values} values`);
+    : f.kind === "outline" ? `${f.holes} hole${f.holes === 1 ? "" : "s"}` : `${f.values} values`);
   // POST /api/files: the file's bytes as the body; the answer's JSON, or an Error with its
   // detail and status
   const upload = async (file, name, kind, replace) => {
