@@ -39,7 +39,8 @@ def coarsest_mesh(sc: Scene) -> dict:
     it builds and records depends on the scene, not on the mesh. A mesh file stays as it is."""
     m = sc.mesh
     edge = {"rectangle": lambda: max(m.size or (0,)) / 8, "disk": lambda: m.r_outer / 4,
-            "annulus": lambda: m.r_outer / 4, "cylinder_band": lambda: m.height / 2}
+            "annulus": lambda: m.r_outer / 4, "cylinder_band": lambda: m.height / 2,
+            "outline": lambda: m.edge_length * 4}
     return {"mesh.edge_length": edge[m.kind]()} if m.kind in edge else {}
 
 
