@@ -45,6 +45,15 @@ bench: $(STAMP)
 # The CalculiX comparison needs Debian's calculix-ccx: without ccx it is skipped with a message
 # (`q3t bench --cases calculix` itself exits 2 then) and the other tables are still made.
 R := docs/results
+# the square cup to NUMISHEET'93's first stroke (15 mm), and its aluminium sheet (placed on the
+# 0.81 mm sheet's skins): docs/outlines.md
+SQUARE15 := --quiet --set stepping.steps=30 --set 'tools.0.velocity=[0,0,-0.015]' \
+  --set 'sections.0.steps=[0,30]' --set 'sections.1.steps=[0,30]'
+ALUMINIUM := --set shell.thickness=0.00081 --set material.E=71e9 --set material.nu=0.33 \
+  --set material.density=2700 --set material.yield_stress=132.225264e6 \
+  --set material.hardening.K=576.79e6 --set material.hardening.e0=0.01658 \
+  --set material.hardening.n=0.3593 --set 'tools.0.position=[0,0,0.000405]' \
+  --set 'tools.1.position=[0,0,-0.000405]' --set 'tools.2.position=[0,0,0.000405]'
 results: $(STAMP)
 	$(BIN)/q3t check --results $(R)/check.md
 	$(BIN)/q3t bench --cases beam,cup,plastic --repeat 5 --results $(R)/bench.md
@@ -83,6 +92,10 @@ results: $(STAMP)
 	  --results $(R)/stroke-cup_drawing.md
 	$(BIN)/q3t run cup_drawing --quiet --out runs/forming-cup_drawing \
 	  --results $(R)/forming-cup_drawing.md
+	$(BIN)/q3t run square_cup $(SQUARE15) --out runs/forming-square_cup \
+	  --results $(R)/forming-square_cup.md
+	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --out runs/forming-square_cup-al \
+	  --results $(R)/forming-square_cup-aluminium.md
 	$(BIN)/q3t sweep cup_drawing --grid mesh.edge_length=0.004,0.003,0.0025,0.002 \
 	  --out runs/forming-cup_mesh --results $(R)/forming-cup_mesh.md
 	$(BIN)/q3t sweep cup_drawing --grid shell.element=linear,q3t --set mesh.edge_length=0.003 \
