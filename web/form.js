@@ -433,8 +433,9 @@ const SceneForm = (() => {
     // Upload…: a file chooser, then POST /api/files; a name taken asks before replacing
     uploadButton(kind, folder, say, refresh) {
       const chooser = el("input", { type: "file", hidden: true });
+      const article = /^[aeiou]/.test(kind) ? "an" : "a";  // an outline file
       const button = el("button", { type: "button", class: "upload",
-                                    textContent: "Upload…", title: `upload a ${kind} file` });
+                                    textContent: "Upload…", title: `upload ${article} ${kind} file` });
       button.onclick = () => { chooser.accept = folder.accept; chooser.click(); };
       chooser.onchange = async () => {
         const file = chooser.files[0];
