@@ -94,8 +94,8 @@ def run_course(marks: list[Benchmark], plan: list[dict], progress: Callable[[str
                  f"{r.get('dofs') or 0:7d} DoFs  {r['status']}  "
                  f"{r.get('build', 0) + r.get('wall', 0):.2f} s")
 
-    results, _ = run_tasks(calls, [{} for _ in calls], workers, threads, scheduler, timeout,
-                           report)
+    results = run_tasks(calls, [{} for _ in calls], workers, threads, scheduler, timeout,
+                        report)[0] if calls else []
     done = {id(c): r for c, r in zip(todo, results, strict=True)}
     by_name = {b.name: b for b in marks}
     return [_row(c, done.get(id(c)), by_name[c["scene"]]) for c in plan]
