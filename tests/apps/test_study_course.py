@@ -1,9 +1,5 @@
 """``q3t study --course``: the shell obstacle course's plan (elements, levels, the cases left
-out by size), its bad input, and one run end to end."""
-
-import json
-
-import pytest
+out by size) and its bad input; tests/apps/test_results.py runs it end to end at 2 cells."""
 
 from sim.apps.cli import main
 from sim.apps.study_course import COURSE, benchmark, cases
@@ -30,17 +26,3 @@ def test_course_bad_input_names_the_option(tmp_path, capsys):
     assert "give a scene, or --course" in capsys.readouterr().err
     assert main(["study", "scordelis_lo", "--out", str(tmp_path)]) == 2
     assert "--course" in capsys.readouterr().err
-
-
-# a local Dask cluster, whose worker loads numba's cached kernels before the first case
-@pytest.mark.slow
-def test_course_command_runs_every_scene(tmp_path):
-    rc = main(["study", "--course", "--cells", "2", "--elements", "linear",
-               "--out", str(tmp_path)])
-    assert rc == 0
-    rows = json.loads((tmp_path / "report.json").read_text())
-    assert [r["scene"] for r in rows] == list(COURSE)
-    # two cells per side of linear prisms lock badly, but converge to a deflection of the
-    # published sign
-    assert all(r["status"] == "converged" and 0 < r["ratio"] < 1 for r in rows)
-    assert "| scordelis_lo | linear |" in (tmp_path / "report.md").read_text()
