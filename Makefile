@@ -80,6 +80,8 @@ results: $(STAMP)
 	  --results $(R)/shell-course.md
 	$(BIN)/q3t study --course --elements quadratic --set mesh.curved=false \
 	  --out runs/course-flat --results $(R)/shell-course-flat.md
+	$(BIN)/q3t study --course --elements quadratic:3x3 --out runs/course-3x3 \
+	  --results $(R)/shell-course-3x3.md
 	$(BIN)/q3t springback --elements q3t,quadratic,quartic --out runs/springback \
 	  --results $(R)/springback-formula.md
 	$(BIN)/q3t bench-service --results $(R)/service.md
