@@ -18,7 +18,6 @@ over the run or a section's profile (relative L2 or max difference on the common
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from collections.abc import Callable
@@ -27,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.apps.cases import element_overrides, run_case
+from sim.apps.cases import element_overrides, study_case
 from sim.apps.common import BAD_INPUT, FAILED, OK, parse_sets, resolve_scene
 from sim.apps.factorisation import FACTOR_REPEAT, factorisation_report
 from sim.apps.overhead import OVERHEAD_REPEAT, terms_overhead
@@ -125,21 +124,6 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
         raise ValueError(f"--reference: unknown element {reference[0]!r}")
     return Plan(str(scene_path), _label(m), m, list(elements), list(levels),
                 tuple(reference) if reference else None, analytic, overrides, notes)
-
-
-_WARM: set[str] = set()  # warm-ups done in this (worker) process
-
-
-def study_case(scene_path: str, overrides: dict, warmup: dict,
-               budget: float | None = None) -> dict:
-    """One timed case on a Dask worker: ``run_case`` with its series, after a warm-up run
-    (``warmup`` overrides, once per worker process) that loads every kernel the element needs
-    from numba's cache. ``budget``: the case's seconds (``run_case``), the warm-up's too."""
-    key = json.dumps([scene_path, warmup], sort_keys=True, default=str)
-    if key not in _WARM:
-        run_case(scene_path, warmup, budget=budget)
-        _WARM.add(key)
-    return run_case(scene_path, overrides, series=True, budget=budget)
 
 
 def measured(r: dict, m: dict) -> float | tuple[np.ndarray, np.ndarray] | None:

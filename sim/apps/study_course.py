@@ -78,7 +78,7 @@ def run_course(marks: list[Benchmark], plan: list[dict], progress: Callable[[str
                threads: int = 1, scheduler: str | None = None, timeout: float | None = None,
                budget: float | None = None) -> list[dict]:
     """Run the cases of ``plan`` that are not skipped; a row per case of the plan."""
-    from sim.apps.study import study_case
+    from sim.apps.cases import study_case
     from sim.apps.tasks import run_tasks
 
     todo = [c for c in plan if c["skip"] is None]
