@@ -90,7 +90,7 @@ class PublishedSpec(Strict):
     """A benchmark's published value of the studied probe, with where it is published."""
 
     value: bounded(-1e15, 1e15, lo_open=False) = doc(
-        "the probe's published value, signed as the probe measures it (SI)")
+        "the probe's published value, signed as the probe measures it", "the probe's")
     source: Annotated[str, Field(min_length=10)] = doc(
         "where it is published: authors, year, title, table or figure")
 
