@@ -124,3 +124,17 @@ def test_small_strain_is_only_elastic():
     with pytest.raises(SceneError, match="yield_stress"):
         load_scene("scenes/cantilever.toml", {"material.model": "linear_elastic",
                                               "material.yield_stress": 1e8})
+
+
+def test_every_load_kind_tells_the_page_what_load_scale_multiplies():
+    """The page's load slider shows each load's magnitude in its unit; a surface load is one
+    of them (its missing unit once broke the viewer's frames of the roof)."""
+    sim = Simulation.from_scene(load_scene("scenes/scordelis_lo.toml", {
+        "mesh.cells": 2, "loads": [
+            {"kind": "surface", "vector": [0.0, 0.0, -90.0]},
+            {"kind": "pressure", "value": -5.0},
+            {"kind": "point", "vector": [3.0, 4.0, 0.0], "point": [0.0, 0.0, 25.0]}]}))
+    assert sim.scaled()["load_scale"] == [
+        {"what": "surface 0", "unit": "Pa", "value": 90.0},
+        {"what": "pressure 1", "unit": "Pa", "value": -5.0},
+        {"what": "point 2", "unit": "N", "value": 5.0}]
