@@ -138,3 +138,17 @@ def test_every_load_kind_tells_the_page_what_load_scale_multiplies():
         {"what": "surface 0", "unit": "Pa", "value": 90.0},
         {"what": "pressure 1", "unit": "Pa", "value": -5.0},
         {"what": "point 2", "unit": "N", "value": 5.0}]
+
+
+def test_a_patch_run_gets_an_estimate_not_an_error(tmp_path):
+    """The service's error estimate of a finished run reads its edge length from the run's
+    scene: a patch refined by cells has none, which is no estimate, not an error."""
+    from server.estimate import EstimateCache
+    from server.records import Run
+
+    d = tmp_path / "roof-1"
+    d.mkdir()
+    (d / "scene.toml").write_text(open("scenes/scordelis_lo.toml").read())
+    run = Run("roof-1", "scordelis_lo", "q3t", {}, 0.0, state="finished")
+    est = EstimateCache(tmp_path).get(run)
+    assert est["reason"] != "error" and "no study" in est["text"], est
