@@ -1,8 +1,12 @@
 """``q3t study --course``: the shell obstacle course's plan (elements, levels, the cases left
 out by size) and its bad input; tests/apps/test_results.py runs it end to end at 2 cells."""
 
+import pytest
+
 from sim.apps.cli import main
 from sim.apps.study_course import COURSE, benchmark, cases
+
+pytestmark = pytest.mark.fast  # in-process, a few seconds in all
 
 
 def test_plan_takes_each_scenes_levels_and_leaves_out_the_largest():

@@ -9,6 +9,8 @@ from sim.elements import ROUTINE
 from sim.scene.load import load_scene
 from sim.stepping.simulation import Simulation
 
+pytestmark = pytest.mark.fast  # in-process, a few seconds in all
+
 SIGMA = 3.0e8  # 30 % strain at E = 1e9: far from linear for a finite-strain law
 
 
