@@ -85,6 +85,12 @@ results: $(STAMP)
 	  --elements linear:1x2,linear:3x2,q3t:1x3,q3t:3x3 --levels 0.00875,0.0046667 \
 	  --reference quadratic:0.0046667 --no-overhead --out runs/accuracy-quadrature \
 	  --results $(R)/accuracy-quadrature.md
+	$(BIN)/q3t study --course --out runs/course \
+	  --results $(R)/shell-course.md
+	$(BIN)/q3t study --course --elements quadratic --set mesh.curved=false \
+	  --out runs/course-flat --results $(R)/shell-course-flat.md
+	$(BIN)/q3t study --course --elements quadratic:3x3 --out runs/course-3x3 \
+	  --results $(R)/shell-course-3x3.md
 	$(BIN)/q3t springback --elements q3t,quadratic,quartic --out runs/springback \
 	  --results $(R)/springback-formula.md
 	$(BIN)/q3t bench-service --results $(R)/service.md

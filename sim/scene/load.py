@@ -82,6 +82,13 @@ class Scene(Strict):
 
     def _check_study(self, st: StudySpec) -> None:
         probes = [p.name for p in self.probes]
+        by_cells = hasattr(self.mesh, "cells")
+        if st.cells and not by_cells:
+            raise ValueError(f"study.cells: mesh kind {self.mesh.kind!r} is refined by "
+                             "edge_length (study.edge_lengths)")
+        if by_cells and (st.edge_lengths or st.reference_edge_length):
+            raise ValueError(f"study.edge_lengths: mesh kind {self.mesh.kind!r} is refined by "
+                             "cells per side (study.cells)")
         if st.probe is not None and st.probe not in probes:
             raise ValueError(f"study.probe: no probe named {st.probe!r}")
         if st.measure != "profile" and st.probe is None and not probes:

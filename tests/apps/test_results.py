@@ -58,6 +58,9 @@ GENERATORS = {
                     "material.E=1e11", "--elements", "linear:1x2,linear:3x2", "--levels",
                     "0.0175", "--reference", "quadratic:0.0175", "--no-overhead"],
                    "| element | edge [m] | triangles | DoFs | probe | probe / ref. |"),
+    # the shell obstacle course (shell-course.md), every scene at 2 cells per side
+    "course": (["study", "--course", "--cells", "2", "--elements", "linear"],
+               "| benchmark | element | 2 cells | time 2 [s] |"),
     # the strip against the classical formula (springback-formula.md), one X and element
     "springback": (["springback", "--X", "0.2", "--elements", "q3t"],
                    "| X | element | edge [mm] | X at the loaded R | formula K |"),
