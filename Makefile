@@ -104,6 +104,8 @@ results: $(STAMP)
 	  --results $(R)/forming-square_cup-aluminium.md
 	$(BIN)/q3t run square_cup --quiet --out runs/forming-square_cup-40 \
 	  --results $(R)/forming-square_cup-40.md
+	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --out runs/forming-square_cup-al-40 \
+	  --results $(R)/forming-square_cup-aluminium-40.md
 	$(BIN)/q3t sweep cup_drawing --grid mesh.edge_length=0.004,0.003,0.0025,0.002 \
 	  --out runs/forming-cup_mesh --results $(R)/forming-cup_mesh.md
 	$(BIN)/q3t sweep cup_drawing --grid shell.element=linear,q3t --set mesh.edge_length=0.003 \
