@@ -24,6 +24,7 @@ from sim.scene.fields import (
     doc,
 )
 from sim.tools import shapes as tool_shapes
+from sim.tools.meshtool import check_mesh
 
 PRIMITIVES = tuple(tool_shapes.PRIMITIVES)  # the kinds sim.tools.shapes builds
 CSG = tuple(tool_shapes.CSG)
@@ -42,7 +43,7 @@ class _Shape(Strict):
     lying along y: rotation [1.5708, 0, 0]."""
 
     kind: str = doc("what shape: a primitive (plane, box, punch, die_ring, blank_holder, "
-                    "star, star_die, polygon) or a CSG (union, subtract, intersect)")
+                    "star, star_die, polygon, mesh) or a CSG (union, subtract, intersect)")
     offset: Point = doc("placement: a shift in the parent's frame", "m", (0.0, 0.0, 0.0))
     rotation: Rotation = doc("placement: a rotation vector (axis * angle) about the "
                              "shape's origin", "rad", (0.0, 0.0, 0.0))
@@ -50,7 +51,8 @@ class _Shape(Strict):
     @model_validator(mode="after")
     def _valid(self) -> Self:
         self.check()
-        if self.kind in PRIMITIVES:  # the builders' own checks (radii fit, polygon simple)
+        # the builders' own checks (radii fit, polygon simple); a file's: ToolSpec, by name
+        if self.kind in PRIMITIVES and self.kind not in tool_shapes.FILE_KINDS:
             tool_shapes.tool_program(self)
         return self
 
@@ -153,8 +155,34 @@ class PolygonShape(_Shape):
             raise ValueError("a polygon needs at least 3 points")
 
 
+class MeshShape(_Shape):
+    """A tool surface from a triangle mesh file (STL, OBJ, PLY; CAD's tessellation), in the
+    file's coordinates times ``scale``: closed (the tool is inside), or open with a consistent
+    orientation (the tool lies behind the faces' normals, or in front with ``flip``). Its
+    signed distance is sampled on a grid of ``spacing`` near the surface and smoothed by
+    tricubic B-splines (sim.tools.meshtool); a relative path is taken from the scene file's
+    folder."""
+
+    kind: Literal["mesh"] = doc("a tool surface from a triangle mesh file")
+    path: str = doc("the mesh file (STL, OBJ, PLY)")
+    scale: Annotated[float, Field(ge=1e-9, le=1e3)] = doc(
+        "file units to metres (1e-3 for a file in mm)", "m per file unit", 1.0)
+    spacing: Annotated[float, Field(ge=5e-5, le=0.01)] = doc(
+        "the grid spacing of the smoothed distance: a fraction of the smallest rounding "
+        "radius the tool has (the smoothing follows features larger than a few spacings)",
+        "m", 5e-4)
+    open: bool = doc("an open surface (not closed): the tool lies behind its faces' normals",
+                     default=False)
+    flip: bool = doc("an open surface's tool lies in front of its faces' normals",
+                     default=False)
+
+    def check(self) -> None:
+        if self.flip and not self.open:
+            raise ValueError("flip: only for an open surface (a closed one's inside is the tool)")
+
+
 Primitive = (PlaneShape | BoxShape | PunchShape | DieRingShape | BlankHolderShape | StarShape
-             | StarDieShape | PolygonShape)
+             | StarDieShape | PolygonShape | MeshShape)
 PrimitiveSpec = Annotated[Primitive, Field(discriminator="kind")]
 
 
@@ -240,6 +268,11 @@ class ToolSpec(Strict):
             raise ValueError("keyframes: rows must all be [t, dx, dy, dz] or all "
                              "[t, dx, dy, dz, rx, ry, rz]")
         check_keyframes(self.keyframes, 4)
+        for shape in _file_shapes(self.shape):
+            try:
+                check_mesh(shape.path, tool_shapes.mesh_options(shape))
+            except ValueError as exc:
+                raise ValueError(f"tool {self.name!r}: shape.path: {exc}") from None
         if self.force is not None and any(k[3] != 0.0 for k in self.keyframes):
             raise ValueError("keyframes: a force-controlled tool has no z path")
         if self.force is not None and any(any(k[4:]) for k in self.keyframes):
@@ -247,6 +280,12 @@ class ToolSpec(Strict):
         return self
 
 
+
+def _file_shapes(shape: _Shape) -> list[_Shape]:
+    """The shapes of a tool's shape tree that read a file."""
+    if shape.kind in tool_shapes.FILE_KINDS:
+        return [shape]
+    return [s for c in getattr(shape, "shapes", []) for s in _file_shapes(c)]
 
 
 def tool_role(spec: ToolSpec) -> str:
