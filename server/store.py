@@ -99,12 +99,16 @@ class SceneStore:
             return {"name": name, "description": "", "valid": False}
 
     def scene_files(self, scene: Scene) -> dict[str, Path]:
-        """The files a scene reads (``mesh.path`` of a file mesh, ``shell.thickness_file``), each
-        inside the scenes folder, by field. Raises SceneError naming the field. A name is
-        checked before any file is looked at, so a refused name touches nothing."""
+        """The files a scene reads (``mesh.path`` of a file mesh, ``shell.thickness_file``, a mesh
+        tool's ``tools.N.shape.path``), each inside the scenes folder, by field. Raises
+        SceneError naming the field. A name is checked before any file is looked at, so a
+        refused name touches nothing."""
         wanted = {"mesh.path": (scene.mesh.path or "" if scene.mesh.kind == "file" else None,
                                 MESH_SUFFIXES),
                   "shell.thickness_file": (scene.shell.thickness_file, VALUE_SUFFIXES)}
+        for i, tool in enumerate(scene.tools):  # a mesh tool's surface, at any CSG depth
+            for field, path in _tool_files(tool.shape, f"tools.{i}.shape"):
+                wanted[field] = (path, MESH_SUFFIXES)
         return {f: self._inside(f, text, suffixes)
                 for f, (text, suffixes) in wanted.items() if text is not None}
 
@@ -190,3 +194,11 @@ class SceneStore:
 
 
 __all__ = ["SceneStore", "SceneError", "atomic_write", "exclusive_write"]
+
+
+def _tool_files(shape: object, where: str) -> list[tuple[str, str]]:
+    """(field, path) of the mesh files a tool's shape reads, its CSG operands' included."""
+    if getattr(shape, "kind", None) == "mesh":
+        return [(f"{where}.path", shape.path)]
+    return [f for j, part in enumerate(getattr(shape, "shapes", []))
+            for f in _tool_files(part, f"{where}.shapes.{j}")]

@@ -24,7 +24,6 @@ from sim.scene.fields import (
     doc,
 )
 from sim.tools import shapes as tool_shapes
-from sim.tools.meshtool import check_mesh
 
 PRIMITIVES = tuple(tool_shapes.PRIMITIVES)  # the kinds sim.tools.shapes builds
 CSG = tuple(tool_shapes.CSG)
@@ -51,7 +50,8 @@ class _Shape(Strict):
     @model_validator(mode="after")
     def _valid(self) -> Self:
         self.check()
-        # the builders' own checks (radii fit, polygon simple); a file's: ToolSpec, by name
+        # the builders' own checks (radii fit, polygon simple); a file is read by the model
+        # (sim.model.terms), as the sheet's mesh file is
         if self.kind in PRIMITIVES and self.kind not in tool_shapes.FILE_KINDS:
             tool_shapes.tool_program(self)
         return self
@@ -268,11 +268,6 @@ class ToolSpec(Strict):
             raise ValueError("keyframes: rows must all be [t, dx, dy, dz] or all "
                              "[t, dx, dy, dz, rx, ry, rz]")
         check_keyframes(self.keyframes, 4)
-        for shape in _file_shapes(self.shape):
-            try:
-                check_mesh(shape.path, tool_shapes.mesh_options(shape))
-            except ValueError as exc:
-                raise ValueError(f"tool {self.name!r}: shape.path: {exc}") from None
         if self.force is not None and any(k[3] != 0.0 for k in self.keyframes):
             raise ValueError("keyframes: a force-controlled tool has no z path")
         if self.force is not None and any(any(k[4:]) for k in self.keyframes):
@@ -280,12 +275,6 @@ class ToolSpec(Strict):
         return self
 
 
-
-def _file_shapes(shape: _Shape) -> list[_Shape]:
-    """The shapes of a tool's shape tree that read a file."""
-    if shape.kind in tool_shapes.FILE_KINDS:
-        return [shape]
-    return [s for c in getattr(shape, "shapes", []) for s in _file_shapes(c)]
 
 
 def tool_role(spec: ToolSpec) -> str:

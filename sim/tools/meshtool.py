@@ -59,9 +59,11 @@ class MeshOptions:
     flip: bool = False
 
 
-def read_surface(path: str | Path, opts: MeshOptions) -> tuple[np.ndarray, np.ndarray]:
+def read_surface(path: str | Path, opts: MeshOptions,
+                 check_size: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The surface V (n, 3) m, F (k, 3) of a file, checked (MeshToolError naming the problem);
-    a closed one wound with outward normals, an open one flipped when ``flip``."""
+    a closed one wound with outward normals, an open one flipped when ``flip``. Without
+    ``check_size`` its size is not checked (a file whose scale is not known yet)."""
     from sim.geometry import trimesh as meshes
 
     try:
@@ -70,7 +72,8 @@ def read_surface(path: str | Path, opts: MeshOptions) -> tuple[np.ndarray, np.nd
         raise MeshToolError(str(exc)) from None
     V, F = m.vertices, m.faces
     name = Path(path).name
-    problem = _size_problem(V, opts) or _triangle_problem(V, F) or _topology_problem(V, F, opts)
+    problem = ((check_size and _size_problem(V, opts)) or _triangle_problem(V, F)
+               or _topology_problem(V, F, opts))
     if problem:
         raise MeshToolError(f"{name}: {problem}")
     if opts.open:
@@ -223,19 +226,6 @@ def cache_dir() -> Path:
 
 def _digest(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest() if Path(path).is_file() else ""
-
-
-def check_mesh(path: str | Path, opts: MeshOptions) -> None:
-    """MeshToolError naming the problem of a tool mesh file (cached by its content)."""
-    _checked(str(path), _digest(path), opts)
-
-
-@functools.lru_cache(maxsize=32)
-def _checked(path: str, digest: str, opts: MeshOptions) -> bool:
-    if digest and _cached(digest, opts).is_file():
-        return True  # prepared before, so read and checked
-    read_surface(path, opts)
-    return True
 
 
 def _cached(digest: str, opts: MeshOptions) -> Path:

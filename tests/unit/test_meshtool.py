@@ -25,7 +25,6 @@ PUNCH = punch(0.006, 0.01, 0.003)
 def _cache(tmp_path, monkeypatch):
     monkeypatch.setenv("Q3T_CACHE", str(tmp_path / "cache"))
     meshtool._program.cache_clear()
-    meshtool._checked.cache_clear()
 
 
 @pytest.fixture(scope="module")
