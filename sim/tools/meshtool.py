@@ -183,16 +183,14 @@ def _coefficients(V: np.ndarray, F: np.ndarray, lo: np.ndarray, h: float, nb: np
     need = np.zeros(n, bool)
     for I, J, K in bricks * B:
         need[I:I + B + 5, J:J + B + 5, K:K + B + 5] = True
-    idx = np.flatnonzero(need)
-    nodes = np.stack(np.unravel_index(idx, n), -1) - 2
-    vals = np.zeros(n)
-    vals.ravel()[idx] = _signed_distance(V, F, lo + h * nodes)
-    del need, nodes
+    idx = np.flatnonzero(need)  # sorted: a brick's nodes are found by bisection
+    del need
+    vals = _signed_distance(V, F, lo + h * (np.stack(np.unravel_index(idx, n), -1) - 2))
     off = np.arange(B + 5)
     ii = (bricks[:, 0, None] * B + off)[:, :, None, None]
     jj = (bricks[:, 1, None] * B + off)[:, None, :, None]
     kk = (bricks[:, 2, None] * B + off)[:, None, None, :]
-    f = vals[ii, jj, kk]
+    f = vals[np.searchsorted(idx, (ii * n[1] + jj) * n[2] + kk)]
     for axis in (1, 2, 3):
         f = _prefilter(f, axis)
     return f, len(idx)
