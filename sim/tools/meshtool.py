@@ -17,7 +17,7 @@ well-kept C++ library with wheels; trimesh's proximity queries are pure Python a
 
 The prepared record is cached by the file's SHA-256 and the preparation's parameters under
 ``$Q3T_CACHE`` (default ``~/.cache/q3t``) ``/meshtools``, written whole (a temporary file
-renamed), and kept in memory for the process's last few tools.
+renamed), and kept in memory for the process's last four tools.
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.tools.grid import GRID_HEAD
 from sim.tools.program import OP_GRID, program, record
 
 BRICK = 6  # cells per brick side
@@ -167,7 +166,6 @@ def grid_params(V: np.ndarray, F: np.ndarray, h: float) -> tuple[np.ndarray, dic
     coef, n_samples = _coefficients(V, F, lo, h, nb, bricks)
     head = [*lo, h, B, *nb, len(bricks), 0.0]
     params = np.concatenate([head, table.ravel(), far.ravel(), coef.ravel()])
-    assert params.size > GRID_HEAD
     return params, {"triangles": len(F), "spacing": h, "bricks": len(bricks),
                     "samples": n_samples, "bytes": params.nbytes,
                     "seconds": round(time.perf_counter() - t0, 2)}
@@ -236,7 +234,7 @@ def mesh_program(path: str | Path, opts: MeshOptions) -> np.ndarray:
     return _program(str(path), _digest(path), opts)
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=4)  # a worker's last few tools; each tens of MB
 def _program(path: str, digest: str, opts: MeshOptions) -> np.ndarray:
     cached = _cached(digest, opts)
     if digest and cached.is_file():

@@ -82,22 +82,21 @@ def test_a_bad_tool_surface_is_refused_naming_the_problem(env, name, mesh, detai
     assert not (scenes / name).exists()
 
 
-def test_a_run_with_a_bad_tool_surface_fails_naming_the_tool(env):
-    """A file put in the folder by hand is read when the run builds its model."""
+def test_a_run_with_a_bad_tool_surface_is_refused_naming_the_tool(env):
+    """A file put in the folder by hand, or a scale that makes it absurd: 422 before a run
+    starts, naming the field, the tool and the problem."""
     client, scenes = env
     (scenes / "hand.stl").write_bytes(stl(trimesh.Trimesh(punch_mesh().vertices,
                                                           punch_mesh().faces[3:])))
-    toml = PRESS_TOML.replace(PUNCH, 'shape = { kind = "mesh", path = "hand.stl" }')
-    assert client.put("/api/scenes/handmade", json={"toml": toml}).status_code == 200
-    run = client.post("/api/runs", json={"scene": "handmade"})
-    if run.status_code == 201:
-        st = wait_state(client, run.json()["id"], {"finished", "failed", "stopped"})
-        reason = st["reason"]
-        assert st["state"] == "failed"
-    else:
+    (scenes / "fine.stl").write_bytes(stl(punch_mesh()))
+    for shape, detail in (('{ kind = "mesh", path = "hand.stl" }', "hand.stl: open: "),
+                          ('{ kind = "mesh", path = "fine.stl", scale = 1000.0 }',
+                           "fine.stl: absurd size: ")):
+        toml = PRESS_TOML.replace(PUNCH, f"shape = {shape}")
+        assert client.put("/api/scenes/handmade", json={"toml": toml}).status_code == 200
+        run = client.post("/api/runs", json={"scene": "handmade"})
         assert run.status_code == 422, run.text
-        reason = run.json()["detail"]
-    assert "tool 'punch'" in str(reason) and "open: " in str(reason), reason
+        assert run.json()["detail"].startswith(f"tools.1.shape.path: tool 'punch': {detail}")
     assert client.delete("/api/scenes/handmade").status_code == 204
 
 
