@@ -215,6 +215,12 @@ class Simulation:
         x0 = self.x.copy()
         if self._last_increment is not None:
             x0 += self._last_increment * (dt / self._last_dt)
+            # a blank holder that came down onto its stop in the last increment stays on it:
+            # continued past the stop, its spring (100x the contact stiffness of all its
+            # nodes) started the step at 1e6 times the force level
+            for t in self.tools:
+                if t.vdof is not None and t.stop is not None:
+                    x0[t.vdof, 2] = max(x0[t.vdof, 2], t.stop)
         x0[m.fixed] = target[m.fixed]
         if self._last_increment is not None and not np.isfinite(m.problem.energy(x0)):
             x0 = self.x.copy()
