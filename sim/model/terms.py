@@ -95,7 +95,7 @@ def tools(scene: Scene, shell: Shell, pattern: Pattern, nodes: np.ndarray) -> li
         try:
             prog = tool_program(t.shape)
         except ValueError as exc:
-            raise ValueError(f"tools.{i}.shape: {exc}") from None
+            raise ValueError(f"tools.{i}.shape: tool {t.name!r}: {exc}") from None
         # auto_stiffness: at its design pressure (4e-3 E, about the tensile strength) the
         # spring is compressed by 1 % of t; the C2 law's layer delta is twice that, so the
         # tool surface is reached at the design pressure (sim.terms.contact_kernels.auto_stiffness)

@@ -330,8 +330,16 @@ def scene_from_toml(text: str, overrides: dict | None = None,
 
 def _from_folder(raw: dict, folder: Path) -> None:
     """Relative file paths of a scene file are taken from its folder."""
-    for table, key in (("mesh", "path"), ("shell", "thickness_file")):
-        node = raw.get(table)
+    nodes = [(raw.get("mesh"), "path"), (raw.get("shell"), "thickness_file")]
+    tools = raw.get("tools")
+    shapes = [t.get("shape") for t in tools if isinstance(t, dict)] if isinstance(tools, list) \
+        else []
+    while shapes:  # tool shapes read a mesh file at any depth of their CSG tree
+        s = shapes.pop()
+        if isinstance(s, dict):
+            nodes.append((s, "path"))
+            shapes += s.get("shapes", []) if isinstance(s.get("shapes"), list) else []
+    for node, key in nodes:
         if isinstance(node, dict) and isinstance(node.get(key), str):
             p = Path(node[key]).expanduser()
             node[key] = str(p if p.is_absolute() else folder / p)
