@@ -148,6 +148,18 @@ browser-deps:
 	  else echo "browser tests will skip: /usr/bin/chromium missing (as root: apt-get install chromium)"; fi; \
 	fi
 	@$(BIN)/python -c "import playwright" 2>/dev/null || $(BIN)/pip install -q playwright
+	@$(MAKE) --no-print-directory gmsh-deps
+
+# gmsh's wheel (outline blanks) links X and OpenGL libraries even when it meshes headless:
+# Debian's chromium brings some of them, not these.
+GMSH_DEBS := libgl1 libglu1-mesa libgomp1 libxcursor1 libxft2 libxinerama1
+.PHONY: gmsh-deps
+gmsh-deps:
+	@$(BIN)/python -c "import gmsh" 2>/dev/null || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    apt-get update -qq && apt-get install -y -qq $(GMSH_DEBS); \
+	  else echo "outline blanks need gmsh's libraries (as root: apt-get install $(GMSH_DEBS))"; \
+	  fi; }
 
 # Debian's python3 makes a venv only with the python3-venv package (ensurepip); as root we
 # install it, otherwise we say what to run. A failed attempt leaves a .venv without pip: removed.
