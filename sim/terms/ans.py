@@ -10,6 +10,11 @@ C = (1/2, 1/2), so that each edge's tangential shear is constant along it:
 
     e~_rw = e_rw^A + s c,   e~_sw = e_sw^B - r c,   c = (e_sw^B - e_rw^A) - (e_sw^C - e_rw^C).
 
+The thickness strain e_ww is tied too, to its values at the three corners and interpolated
+linearly in-plane (Betsch, Gruttmann and Stein 1996; Bischoff and Ramm 1997): on a faceted curved
+shell the extrusion directions (vertex normals) are not normal to the flat facet, and bending then
+puts a spurious linear part into e_ww that stiffens the element (curvature thickness locking).
+
 The modified Green-Lagrange strain E = J^-T e~ J^-1 enters the material through C = I + 2 E; with
 a plastic state through C^ = Fp^-T C Fp^-1, i.e. E^ = A^T e~ A + (Fp^-T Fp^-1 - I) / 2 with
 A = J^-1 Fp^-1. Every material here is isotropic in the stretches s_i = sqrt(1 + 2 eps_i), eps_i
@@ -31,21 +36,31 @@ from numba import njit, prange
 
 from sim.geometry.quadrature import Rule
 from sim.geometry.shell import Shell
-from sim.materials.isotropic import PAIRS, det3, eigh3, principal
+from sim.materials.isotropic import (
+    NEO_HOOKEAN,
+    PAIRS,
+    det3,
+    eigh3,
+    neo_hookean_green,
+    principal,
+)
 from sim.materials.plasticity import plastic_flow
 
-# tying points in (u, v): A on the edge v = 0, B on u = 0, C on the third edge
-TYING = np.array([[0.5, 0.0], [0.0, 0.5], [0.5, 0.5]])
+# tying points in (u, v): A on the edge v = 0, B on u = 0, C on the third edge (transverse
+# shear), then the corners of nodes 0, 1, 2 (thickness strain)
+TYING = np.array([[0.5, 0.0], [0.0, 0.5], [0.5, 0.5], [1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
+N_TIE = 6
+N_BASIS = 9  # basis rows of a level (_level_rows)
 
 
 class Tying:
     """What the ANS kernels need of a shell and a rule, computed once.
 
-    ``dNq (n_qp, n_en, 3)``: reference gradients at the quadrature points; ``dNt (n_lev, 3, n_en,
-    3)``: at the tying points A, B, C of each thickness level; ``lev_ptr (n_lev + 1,)``: the
+    ``dNq (n_qp, n_en, 3)``: reference gradients at the quadrature points; ``dNt (n_lev, 6, n_en,
+    3)``: at the tying points (TYING) of each thickness level; ``lev_ptr (n_lev + 1,)``: the
     quadrature points of level l are lev_ptr[l]:lev_ptr[l+1] (the rule is level-major);
     ``rs (n_qp, 2)``: their in-plane coordinates; ``Gq (n_e, n_qp, 3, 3)``: G[k, i] = dX_k/dxi_i,
-    ``A0`` its inverse; ``Gt (n_e, n_lev, 3, 3, 3)``: G at the tying points."""
+    ``A0`` its inverse; ``Gt (n_e, n_lev, 6, 3, 3)``: G at the tying points."""
 
     def __init__(self, shell: Shell, rule: Rule):
         el = shell.element
@@ -62,7 +77,7 @@ class Tying:
         _, self.dNq = el.basis(pts)
         tpts = np.array([(u, v, w) for w in levels for (u, v) in TYING])
         _, dNt = el.basis(tpts)
-        self.dNt = np.ascontiguousarray(dNt.reshape(len(levels), 3, el.n_nodes, 3))
+        self.dNt = np.ascontiguousarray(dNt.reshape(len(levels), N_TIE, el.n_nodes, 3))
         Xe = shell.rest[shell.conn]
         self.Gq = np.ascontiguousarray(np.einsum("eak,qai->eqki", Xe, self.dNq))
         self.A0 = np.ascontiguousarray(np.linalg.inv(self.Gq))
@@ -91,28 +106,34 @@ def _cov(G: np.ndarray, Hn: np.ndarray, i: int, j: int) -> float:
 
 
 @njit(cache=True, inline='always')
-def _tied(u: np.ndarray, dNt: np.ndarray, Gt: np.ndarray, Hn: np.ndarray) -> tuple:
-    """The tied values (e_rw at A, e_sw at B, e_sw - e_rw at C) of one level."""
+def _tied(u: np.ndarray, dNt: np.ndarray, Gt: np.ndarray, Hn: np.ndarray,
+          tv: np.ndarray) -> None:
+    """The tied values of one level into ``tv (6,)``: e_rw at A, e_sw at B, e_sw - e_rw at C,
+    e_ww at the corners of nodes 0, 1, 2."""
     _nat_gradient(u, dNt[0], Hn)
-    eA = _cov(Gt[0], Hn, 0, 2)
+    tv[0] = _cov(Gt[0], Hn, 0, 2)
     _nat_gradient(u, dNt[1], Hn)
-    eB = _cov(Gt[1], Hn, 1, 2)
+    tv[1] = _cov(Gt[1], Hn, 1, 2)
     _nat_gradient(u, dNt[2], Hn)
-    eD = _cov(Gt[2], Hn, 1, 2) - _cov(Gt[2], Hn, 0, 2)
-    return eA, eB, eD
+    tv[2] = _cov(Gt[2], Hn, 1, 2) - _cov(Gt[2], Hn, 0, 2)
+    for c in range(3):
+        _nat_gradient(u, dNt[3 + c], Hn)
+        tv[3 + c] = _cov(Gt[3 + c], Hn, 2, 2)
 
 
 @njit(cache=True, inline='always')
-def _strain_hat(Gq: np.ndarray, Hn: np.ndarray, r: float, s: float, eA: float, eB: float,
-                eD: float, A: np.ndarray, plastic: bool, fp_inv: np.ndarray, en: np.ndarray,
+def _strain_hat(Gq: np.ndarray, Hn: np.ndarray, r: float, s: float, tv: np.ndarray,
+                A: np.ndarray, plastic: bool, fp_inv: np.ndarray, en: np.ndarray,
                 Eh: np.ndarray) -> None:
-    """en: the assumed covariant strain e~ (3, 3); Eh: E^ = A^T e~ A (+ the plastic part)."""
+    """en: the assumed covariant strain e~ (3, 3) at (r, s) from the level's tied values
+    ``tv`` (:func:`_tied`); Eh: E^ = A^T e~ A (+ the plastic part)."""
     for i in range(3):
         for j in range(i, 3):
             en[i, j] = _cov(Gq, Hn, i, j)
-    c = (eB - eA) - eD
-    en[0, 2] = eA + s * c
-    en[1, 2] = eB - r * c
+    c = (tv[1] - tv[0]) - tv[2]
+    en[0, 2] = tv[0] + s * c
+    en[1, 2] = tv[1] - r * c
+    en[2, 2] = r * tv[3] + s * tv[4] + (1.0 - r - s) * tv[5]
     for i in range(3):
         for j in range(i):
             en[i, j] = en[j, i]
@@ -135,7 +156,8 @@ def _map(A0: np.ndarray, plastic: bool, fp_inv: np.ndarray, A: np.ndarray) -> No
     for i in range(3):
         for J in range(3):
             if plastic:
-                A[i, J] = A0[i, 0] * fp_inv[0, J] + A0[i, 1] * fp_inv[1, J] + A0[i, 2] * fp_inv[2, J]
+                A[i, J] = (A0[i, 0] * fp_inv[0, J] + A0[i, 1] * fp_inv[1, J]
+                           + A0[i, 2] * fp_inv[2, J])
             else:
                 A[i, J] = A0[i, J]
 
@@ -171,16 +193,185 @@ def _shear_sig(sig: np.ndarray, i: int, tau: float) -> None:
     sig[i, 2] = sig[2, i] = 0.5 * tau
 
 
+# natural strain components in row order: rr, ss, ww, rs, rw, sw
+VOIGT = np.array([[0, 0], [1, 1], [2, 2], [0, 1], [0, 2], [1, 2]])
+
+
 @njit(cache=True, inline='always')
-def _ans_element(x, rest, nodes, tg, wdetJ, model, params, fp_inv, ep, plastic,  # noqa: C901
-                 want, g, K, Kg, rows, R, tie, u, Hn, en, Eh, A, sig):
+def _to_natural(A: np.ndarray, Sh: np.ndarray, Sn: np.ndarray) -> None:
+    """Sn = A Sh A^T: a stress of the E^ frame as the contravariant natural components."""
+    for i in range(3):
+        for j in range(i, 3):
+            acc = 0.0
+            for I in range(3):  # noqa: E741
+                for J in range(3):
+                    acc += A[i, I] * Sh[I, J] * A[j, J]
+            Sn[i, j] = acc
+            Sn[j, i] = acc
+
+
+@njit(cache=True, inline='always')
+def _neo_hookean_natural(Eh: np.ndarray, A: np.ndarray, mu: float, lam: float, want: int,
+                         Sn: np.ndarray, Dv: np.ndarray, Ci: np.ndarray,
+                         Gi: np.ndarray) -> float:
+    """Neo-Hookean in closed form, no eigen-decomposition: W; for want >= 1 the natural stress
+    Sn = A S^ A^T with S^ = 2 mu C^-1 E^ + lam ln J C^-1 (= mu (I - C^-1) + lam ln J C^-1,
+    without its cancellation at small strain); for want == 2 the natural tangent
+    Dv = lam g g + (mu - lam ln J) (g g + g g) over the rows, g = A C^-1 A^T. Scratch: Ci, Gi."""
+    W, lj = neo_hookean_green(Eh, mu, lam)
+    if want == 0 or not np.isfinite(W):
+        return W
+    c00, c11, c22 = 1.0 + 2.0 * Eh[0, 0], 1.0 + 2.0 * Eh[1, 1], 1.0 + 2.0 * Eh[2, 2]
+    c01, c02, c12 = 2.0 * Eh[0, 1], 2.0 * Eh[0, 2], 2.0 * Eh[1, 2]
+    Ci[0, 0] = c11 * c22 - c12 * c12
+    Ci[1, 1] = c00 * c22 - c02 * c02
+    Ci[2, 2] = c00 * c11 - c01 * c01
+    Ci[0, 1] = Ci[1, 0] = c02 * c12 - c01 * c22
+    Ci[0, 2] = Ci[2, 0] = c01 * c12 - c02 * c11
+    Ci[1, 2] = Ci[2, 1] = c01 * c02 - c00 * c12
+    det = c00 * Ci[0, 0] + c01 * Ci[0, 1] + c02 * Ci[0, 2]
+    for i in range(3):
+        for j in range(3):
+            Ci[i, j] /= det
+    for i in range(3):  # S^ into Gi (scratch), then to natural
+        for j in range(3):
+            Gi[i, j] = (2.0 * mu * (Ci[i, 0] * Eh[0, j] + Ci[i, 1] * Eh[1, j]
+                                     + Ci[i, 2] * Eh[2, j]) + lam * lj * Ci[i, j])
+    _to_natural(A, Gi, Sn)
+    if want < 2:
+        return W
+    _to_natural(A, Ci, Gi)
+    c = mu - lam * lj
+    for v in range(6):
+        i, j = VOIGT[v, 0], VOIGT[v, 1]
+        mv = 1.0 if i == j else 2.0
+        for u in range(6):
+            k, ll = VOIGT[u, 0], VOIGT[u, 1]
+            mu_ = 1.0 if k == ll else 2.0
+            Dv[v, u] = mv * mu_ * (lam * Gi[i, j] * Gi[k, ll]
+                                   + c * (Gi[i, k] * Gi[j, ll] + Gi[i, ll] * Gi[j, k]))
+    return W
+
+
+@njit(cache=True, inline='always')
+def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
+                       params: np.ndarray, ep: float, want: int, Sn: np.ndarray, Dv: np.ndarray,
+                       M: np.ndarray, cv: np.ndarray, Dp: np.ndarray) -> float:
+    """Any isotropic model through the principal frame of E^ (module docstring): W, Sn and
+    Dv as :func:`_neo_hookean_natural`. Scratch: M (3, 3), cv (6, 6), Dp (6, 6)."""
+    lam, V = eigh3(Eh)
+    if not 1.0 + 2.0 * lam[0] > 0.0:
+        return np.inf
+    st = np.sqrt(1.0 + 2.0 * lam)
+    W, gs, H, sym, twist = principal(model, st, params, ep)
+    if want == 0 or not np.isfinite(W):
+        return W
+    for i in range(3):  # m_a = A v_a
+        for a in range(3):
+            M[i, a] = A[i, 0] * V[0, a] + A[i, 1] * V[1, a] + A[i, 2] * V[2, a]
+    Sp0, Sp1, Sp2 = gs[0] / st[0], gs[1] / st[1], gs[2] / st[2]
+    for i in range(3):
+        for j in range(3):
+            Sn[i, j] = Sp0 * M[i, 0] * M[j, 0] + Sp1 * M[i, 1] * M[j, 1] + Sp2 * M[i, 2] * M[j, 2]
+    if want < 2:
+        return W
+    # principal rows deps_a = m_a^T de~ m_a (c < 3) and pairs m_a^T de~ m_b over the
+    # natural rows: cv[c, v]
+    for c in range(6):
+        a, b = (c, c) if c < 3 else (PAIRS[c - 3, 0], PAIRS[c - 3, 1])
+        for v in range(6):
+            i, j = VOIGT[v, 0], VOIGT[v, 1]
+            cv[c, v] = M[i, a] * M[j, b] + (M[j, a] * M[i, b] if i != j else 0.0)
+    for c in range(6):
+        for d in range(6):
+            Dp[c, d] = 0.0
+    for a in range(3):
+        for b in range(3):
+            Dp[a, b] = H[a, b] / (st[a] * st[b])
+        Dp[a, a] -= gs[a] / st[a] ** 3
+    for c in range(3):
+        a, b = PAIRS[c, 0], PAIRS[c, 1]
+        Dp[3 + c, 3 + c] = 2.0 * (sym[c] - twist[c]) / (st[a] * st[b])
+    for v in range(6):
+        for u in range(6):
+            acc = 0.0
+            for c in range(6):
+                for d in range(6):
+                    acc += cv[c, v] * Dp[c, d] * cv[d, u]
+            Dv[v, u] = acc
+    return W
+
+
+@njit(cache=True, inline='always')
+def _level_rows(u: np.ndarray, dNq: np.ndarray, dNt: np.ndarray, Gq: np.ndarray,
+                Gt: np.ndarray, P: np.ndarray, Hn: np.ndarray) -> None:
+    """The level's basis rows ``P (9, k)``, node-major: de_rr, de_ss, de_rs (the same at every
+    point of a level: g_r, g_s and dN/dr, dN/ds do not vary in-plane for a triangle linear
+    in-plane; taken at the level's first point ``dNq``, ``Gq``), the tied shear rows (A's e_rw,
+    B's e_sw, C's e_sw - e_rw) and de_ww at the three corners; every strain row of the level is
+    a combination of these (:func:`_combination`)."""
+    k = P.shape[1]
+    for t in range(3, 6):
+        for p in range(k):
+            P[t, p] = 0.0
+    for t in range(N_TIE):
+        _nat_gradient(u, dNt[t], Hn)
+        if t < 2:
+            _tie_rows(dNt[t], Gt[t], Hn, t, P[3 + t], 1.0)
+        elif t == 2:
+            _tie_rows(dNt[2], Gt[2], Hn, 1, P[5], 1.0)
+            _tie_rows(dNt[2], Gt[2], Hn, 0, P[5], -1.0)
+        else:
+            for a in range(dNt.shape[1]):
+                for kk in range(3):
+                    P[3 + t, 3 * a + kk] = (Gt[t, kk, 2] + Hn[kk, 2]) * dNt[t, a, 2]
+    _nat_gradient(u, dNq, Hn)
+    for a in range(dNq.shape[0]):
+        d0, d1 = dNq[a, 0], dNq[a, 1]
+        for kk in range(3):
+            p = 3 * a + kk
+            g0, g1 = Gq[kk, 0] + Hn[kk, 0], Gq[kk, 1] + Hn[kk, 1]
+            P[0, p] = g0 * d0
+            P[1, p] = g1 * d1
+            P[2, p] = 0.5 * (g0 * d1 + g1 * d0)
+
+
+@njit(cache=True, inline='always')
+def _combination(r: float, s: float, Phi: np.ndarray) -> None:
+    """Phi (6, 9): the natural rows (VOIGT order) at (r, s) over the level's basis rows
+    (:func:`_level_rows`): the shear pair by the MITC3 interpolation, e_ww linear from the
+    corners."""
+    for v in range(6):
+        for c in range(Phi.shape[1]):
+            Phi[v, c] = 0.0
+    Phi[0, 0] = Phi[1, 1] = Phi[3, 2] = 1.0
+    Phi[2, 6], Phi[2, 7], Phi[2, 8] = r, s, 1.0 - r - s
+    Phi[4, 3], Phi[4, 4], Phi[4, 5] = 1.0 - s, s, -s
+    Phi[5, 3], Phi[5, 4], Phi[5, 5] = r, 1.0 - r, r
+
+
+@njit(cache=True, inline='always')
+def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C901
+                 tg: tuple, wdetJ: np.ndarray, model: int, params: np.ndarray,
+                 fp_inv: np.ndarray, ep: np.ndarray, plastic: bool, want: int, g: np.ndarray,
+                 K: np.ndarray, Kg: np.ndarray, P: np.ndarray, Ph: np.ndarray, Mb: np.ndarray,
+                 gvs: np.ndarray, sc: np.ndarray, u: np.ndarray, m3: np.ndarray) -> float:
     """Energy of one element; adds its gradient into ``g (k,)`` (want >= 1) and its Hessian's
     upper triangle, node-major, into ``K (k, k)`` (want == 2; zeroed here). ``tg``: the
-    element's (dNq, dNt, lev_ptr, rs, Gq, A0, Gt) of :class:`Tying`. Scratch: Kg (n_en, n_en),
-    rows, R (6, k), tie (3, k), u (n_en, 3), Hn, en, Eh, A, sig (3, 3)."""
+    element's (dNq, dNt, lev_ptr, rs, Gq, A0, Gt) of :class:`Tying`.
+
+    Per level, the points' strain rows are combinations Phi of the level's basis rows P, so
+    the material part is summed as P^T (sum_q w Phi^T D Phi) P, one product of n_b = 6 + n_in
+    rows per level instead of one of 6 rows per point. Scratch: Kg (n_en, n_en), P (n_b, k),
+    Ph (2, 6, n_b), Mb (n_b, n_b), gvs (3, n_b), u (n_en, 3), sc (3, 6, 6), m3 (8, 3, 3)."""
     dNq, dNt, lev_ptr, rs, Gq, A0, Gt = tg
+    Hn, en, Eh, A, Sn, sig, M, Ci = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6], m3[7]
+    Dv, cv, Dp = sc[0], sc[1], sc[2]
+    Phi, DPhi = Ph[0], Ph[1]
+    gv, tv = gvs[0], gvs[2]
     n_en = nodes.shape[0]
     k = 3 * n_en
+    nb = P.shape[0]
     for a in range(n_en):
         for i in range(3):
             u[a, i] = x[nodes[a], i] - rest[nodes[a], i]
@@ -193,20 +384,18 @@ def _ans_element(x, rest, nodes, tg, wdetJ, model, params, fp_inv, ep, plastic, 
                 Kg[a, b] = 0.0
     E = 0.0
     for lev in range(lev_ptr.shape[0] - 1):
-        eA, eB, eD = _tied(u, dNt[lev], Gt[lev], Hn)
-        if want >= 1:  # rows of the tied values: A's e_rw, B's e_sw, C's e_sw - e_rw
-            for t in range(3):
-                for p in range(k):
-                    tie[t, p] = 0.0
-            _nat_gradient(u, dNt[lev, 0], Hn)
-            _tie_rows(dNt[lev, 0], Gt[lev, 0], Hn, 0, tie[0], 1.0)
-            _nat_gradient(u, dNt[lev, 1], Hn)
-            _tie_rows(dNt[lev, 1], Gt[lev, 1], Hn, 1, tie[1], 1.0)
-            _nat_gradient(u, dNt[lev, 2], Hn)
-            _tie_rows(dNt[lev, 2], Gt[lev, 2], Hn, 1, tie[2], 1.0)
-            _tie_rows(dNt[lev, 2], Gt[lev, 2], Hn, 0, tie[2], -1.0)
-        tA = tB = tC = 0.0  # the level's weighted tying stresses (geometric term)
-        for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
+        q0 = lev_ptr[lev]
+        _tied(u, dNt[lev], Gt[lev], Hn, tv)
+        if want >= 1:
+            _level_rows(u, dNq[q0], dNt[lev], Gq[q0], Gt[lev], P, Hn)
+            for c in range(nb):
+                gv[c] = 0.0
+                for d in range(nb):
+                    Mb[c, d] = 0.0
+        # the level's weighted tying stresses (initial-stress term): shear at A, B, C,
+        # thickness at the corners
+        tA = tB = tC = tW0 = tW1 = tW2 = 0.0
+        for q in range(q0, lev_ptr[lev + 1]):
             r, s = rs[q, 0], rs[q, 1]
             _nat_gradient(u, dNq[q], Hn)
             for i in range(3):  # g = G + h: an inverted element has no energy
@@ -215,88 +404,80 @@ def _ans_element(x, rest, nodes, tg, wdetJ, model, params, fp_inv, ep, plastic, 
             if not det3(en) > 0.0:
                 return np.inf
             _map(A0[q], plastic, fp_inv[q], A)
-            _strain_hat(Gq[q], Hn, r, s, eA, eB, eD, A, plastic, fp_inv[q], en, Eh)
-            lam, V = eigh3(Eh)
-            if not 1.0 + 2.0 * lam[0] > 0.0:
-                return np.inf
-            st = np.sqrt(1.0 + 2.0 * lam)
-            W, gs, H, sym, twist = principal(model, st, params, ep[q] if plastic else 0.0)
+            _strain_hat(Gq[q], Hn, r, s, tv, A, plastic, fp_inv[q], en, Eh)
+            if model == NEO_HOOKEAN:
+                W = _neo_hookean_natural(Eh, A, params[0], params[1], want, Sn, Dv, Ci, sig)
+            else:
+                W = _principal_natural(model, Eh, A, params, ep[q] if plastic else 0.0, want,
+                                       Sn, Dv, M, cv, Dp)
             if not np.isfinite(W):
                 return np.inf
             w = wdetJ[q]
             E += w * W
             if want == 0:
                 continue
-            M = A @ V  # m_i = A v_i, columns
-            # natural strain rows (rr, ss, ww, rs, rw, sw): de~_ij/du, node-major DoFs
-            for a in range(n_en):
-                for kk in range(3):
-                    p = 3 * a + kk
-                    g0, g1, g2 = Gq[q, kk, 0] + Hn[kk, 0], Gq[q, kk, 1] + Hn[kk, 1], \
-                        Gq[q, kk, 2] + Hn[kk, 2]
-                    rows[0, p] = g0 * dNq[q, a, 0]
-                    rows[1, p] = g1 * dNq[q, a, 1]
-                    rows[2, p] = g2 * dNq[q, a, 2]
-                    rows[3, p] = 0.5 * (g0 * dNq[q, a, 1] + g1 * dNq[q, a, 0])
-                    rows[4, p] = (1.0 - s) * tie[0, p] + s * tie[1, p] - s * tie[2, p]
-                    rows[5, p] = r * tie[0, p] + (1.0 - r) * tie[1, p] + r * tie[2, p]
-            # principal rows: deps_i = m_i^T de~ m_i, then the pairs m_i^T de~ m_j
-            for c in range(6):
-                if c < 3:
-                    i, j = c, c
-                else:
-                    i, j = PAIRS[c - 3, 0], PAIRS[c - 3, 1]
-                c0 = M[0, i] * M[0, j]
-                c1 = M[1, i] * M[1, j]
-                c2 = M[2, i] * M[2, j]
-                c3 = M[0, i] * M[1, j] + M[1, i] * M[0, j]
-                c4 = M[0, i] * M[2, j] + M[2, i] * M[0, j]
-                c5 = M[1, i] * M[2, j] + M[2, i] * M[1, j]
-                for p in range(k):
-                    R[c, p] = (c0 * rows[0, p] + c1 * rows[1, p] + c2 * rows[2, p]
-                               + c3 * rows[3, p] + c4 * rows[4, p] + c5 * rows[5, p])
-            Sp0, Sp1, Sp2 = gs[0] / st[0], gs[1] / st[1], gs[2] / st[2]
-            for p in range(k):
-                g[p] += w * (Sp0 * R[0, p] + Sp1 * R[1, p] + Sp2 * R[2, p])
+            _combination(r, s, Phi)
+            for c in range(nb):  # gv += w Phi^T Sv, Sv the stress over the natural rows
+                acc = 0.0
+                for v in range(6):
+                    i, j = VOIGT[v, 0], VOIGT[v, 1]
+                    acc += Phi[v, c] * Sn[i, j] * (1.0 if i == j else 2.0)
+                gv[c] += w * acc
             if want < 2:
                 continue
-            h = np.empty((3, 3))
+            for v in range(6):  # Mb += w Phi^T Dv Phi
+                for c in range(nb):
+                    acc = 0.0
+                    for t in range(6):
+                        acc += Dv[v, t] * Phi[t, c]
+                    DPhi[v, c] = w * acc
+            for c in range(nb):
+                for d in range(c, nb):
+                    acc = 0.0
+                    for v in range(6):
+                        acc += Phi[v, c] * DPhi[v, d]
+                    Mb[c, d] += acc
+            # initial stress: S~ at the point, its shear pair at the tying points with the
+            # weights of the interpolation
             for i in range(3):
                 for j in range(3):
-                    h[i, j] = H[i, j] / (st[i] * st[j])
-                h[i, i] -= gs[i] / st[i] ** 3
-            kap = np.empty(3)
-            for c in range(3):
-                i, j = PAIRS[c, 0], PAIRS[c, 1]
-                kap[c] = 2.0 * w * (sym[c] - twist[c]) / (st[i] * st[j])
-            for p in range(k):
-                t0 = w * (h[0, 0] * R[0, p] + h[0, 1] * R[1, p] + h[0, 2] * R[2, p])
-                t1 = w * (h[1, 0] * R[0, p] + h[1, 1] * R[1, p] + h[1, 2] * R[2, p])
-                t2 = w * (h[2, 0] * R[0, p] + h[2, 1] * R[1, p] + h[2, 2] * R[2, p])
-                t3, t4, t5 = kap[0] * R[3, p], kap[1] * R[4, p], kap[2] * R[5, p]
-                for col in range(p, k):
-                    K[p, col] += (t0 * R[0, col] + t1 * R[1, col] + t2 * R[2, col]
-                                  + t3 * R[3, col] + t4 * R[4, col] + t5 * R[5, col])
-            # initial stress: S~ = sum_i S_i m_i m_i^T at the point, the shear pair at the tying
-            # points with the weights of the interpolation
-            for i in range(3):
-                for j in range(3):
-                    sig[i, j] = w * (Sp0 * M[i, 0] * M[j, 0] + Sp1 * M[i, 1] * M[j, 1]
-                                     + Sp2 * M[i, 2] * M[j, 2])
+                    sig[i, j] = w * Sn[i, j]
             Srw, Ssw = sig[0, 2], sig[1, 2]
             tA += 2.0 * ((1.0 - s) * Srw + r * Ssw)
             tB += 2.0 * (s * Srw + (1.0 - r) * Ssw)
             tC += 2.0 * (r * Ssw - s * Srw)
-            sig[0, 2] = sig[2, 0] = sig[1, 2] = sig[2, 1] = 0.0
+            tW0 += r * sig[2, 2]
+            tW1 += s * sig[2, 2]
+            tW2 += (1.0 - r - s) * sig[2, 2]
+            sig[0, 2] = sig[2, 0] = sig[1, 2] = sig[2, 1] = sig[2, 2] = 0.0
             _geometric(dNq[q], sig, Kg)
-        if want == 2:
-            _shear_sig(sig, 0, tA)
-            _geometric(dNt[lev, 0], sig, Kg)
-            _shear_sig(sig, 1, tB)
-            _geometric(dNt[lev, 1], sig, Kg)
-            _shear_sig(sig, 1, tC)
-            sig[0, 2] = sig[2, 0] = -0.5 * tC
-            _geometric(dNt[lev, 2], sig, Kg)
+        if want == 0:
+            continue
+        for p in range(k):
+            acc = 0.0
+            for c in range(nb):
+                acc += gv[c] * P[c, p]
+            g[p] += acc
+        if want < 2:
+            continue
+        for c in range(nb):
+            for d in range(c):
+                Mb[c, d] = Mb[d, c]
+        _add_congruence(P, Mb, K, gvs[1])
+        _shear_sig(sig, 0, tA)
+        _geometric(dNt[lev, 0], sig, Kg)
+        _shear_sig(sig, 1, tB)
+        _geometric(dNt[lev, 1], sig, Kg)
+        _shear_sig(sig, 1, tC)
+        sig[0, 2] = sig[2, 0] = -0.5 * tC
+        _geometric(dNt[lev, 2], sig, Kg)
+        tws = (tW0, tW1, tW2)
+        for c in range(3):
+            for i in range(3):
+                for j in range(3):
+                    sig[i, j] = 0.0
+            sig[2, 2] = tws[c]
+            _geometric(dNt[lev, 3 + c], sig, Kg)
     if want == 2:
         for a in range(n_en):
             for b in range(n_en):
@@ -305,6 +486,27 @@ def _ans_element(x, rest, nodes, tg, wdetJ, model, params, fp_inv, ep, plastic, 
                     if c >= p:
                         K[p, c] += Kg[a, b]
     return E
+
+
+@njit(cache=True, inline='always')
+def _add_congruence(P: np.ndarray, Mb: np.ndarray, K: np.ndarray, t: np.ndarray) -> None:
+    """K (upper triangle) += P^T Mb P, Mb symmetric ``(n_b, n_b)``; the column loops run
+    over unsigned indices, contiguous rows: numba adds no wraparound test and they vectorise.
+    Scratch: t (n_b,)."""
+    nb, k = P.shape
+    uk = np.uint64(k)
+    for p in range(k):
+        for c in range(nb):
+            acc = 0.0
+            for d in range(nb):
+                acc += Mb[c, d] * P[d, p]
+            t[c] = acc
+        kr = K[p]
+        for c in range(nb):
+            tc = t[c]
+            pr = P[c]
+            for col in range(np.uint64(p), uk):
+                kr[col] += tc * pr[col]
 
 
 @njit(cache=True)
@@ -319,8 +521,12 @@ def _project(K: np.ndarray) -> None:
 
 
 @njit(cache=True, parallel=True)
-def ans_kernel(x, rest, conn, dNq, dNt, lev_ptr, rs, Gq, A0, Gt, wdetJ, model, params, fp_inv,
-               ep, plastic, want, project, order, block_ptr, color_ptr, slots, grad, data):
+def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
+               dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
+               A0: np.ndarray, Gt: np.ndarray, wdetJ: np.ndarray, model: int, params: np.ndarray,
+               fp_inv: np.ndarray, ep: np.ndarray, plastic: bool, want: int, project: int,
+               order: np.ndarray, block_ptr: np.ndarray, color_ptr: np.ndarray,
+               slots: np.ndarray, grad: np.ndarray, data: np.ndarray) -> float:
     """:func:`sim.terms.elasticity.elastic_kernel` for assumed-shear elements: same arguments
     and scatter, the element's geometry from :class:`Tying` (Gq, A0, Gt per element). Any
     projection (``project`` != 0) is the element's: the initial-stress term of the tied shear
@@ -333,14 +539,15 @@ def ans_kernel(x, rest, conn, dNq, dNt, lev_ptr, rs, Gq, A0, Gt, wdetJ, model, p
             g = np.zeros(k)
             K = np.empty((k, k) if want == 2 else (0, 0))
             Kg = np.empty((n_en, n_en))
-            rows, R, tie = np.empty((6, k)), np.empty((6, k)), np.empty((3, k))
-            u, Hn, en = np.empty((n_en, 3)), np.empty((3, 3)), np.empty((3, 3))
-            Eh, A, sig = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+            nb = N_BASIS
+            P, Ph, Mb = np.empty((nb, k)), np.empty((2, 6, nb)), np.empty((nb, nb))
+            gvs, u = np.empty((3, nb)), np.empty((n_en, 3))
+            sc, m3 = np.empty((3, 6, 6)), np.empty((8, 3, 3))
             for t in range(block_ptr[blk], block_ptr[blk + 1]):
                 e = order[t]
                 E = _ans_element(x, rest, conn[e], (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e]),
                                  wdetJ[e], model, params, fp_inv[e], ep[e], plastic, want, g,
-                                 K, Kg, rows, R, tie, u, Hn, en, Eh, A, sig)
+                                 K, Kg, P, Ph, Mb, gvs, sc, u, m3)
                 energies[e] = E
                 ok = np.isfinite(E)
                 if want >= 1:
@@ -362,7 +569,10 @@ def ans_kernel(x, rest, conn, dNq, dNt, lev_ptr, rs, Gq, A0, Gt, wdetJ, model, p
 
 
 @njit(cache=True)
-def _principal_at(x, rest, nodes, dNq, dNt, lev, rs, Gq, A0, Gt, q, plastic, fp_inv):
+def _principal_at(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNq: np.ndarray,
+                  dNt: np.ndarray, lev: int, rs: np.ndarray, Gq: np.ndarray, A0: np.ndarray,
+                  Gt: np.ndarray, q: int, plastic: bool,
+                  fp_inv: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
     """Stretches (3,), principal directions V (3, 3) of C^ at quadrature point q, and ok."""
     n_en = nodes.shape[0]
     u = np.empty((n_en, 3))
@@ -370,17 +580,21 @@ def _principal_at(x, rest, nodes, dNq, dNt, lev, rs, Gq, A0, Gt, q, plastic, fp_
         for i in range(3):
             u[a, i] = x[nodes[a], i] - rest[nodes[a], i]
     Hn, en, Eh, A = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
-    eA, eB, eD = _tied(u, dNt[lev], Gt[lev], Hn)
+    tv = np.empty(N_TIE)
+    _tied(u, dNt[lev], Gt[lev], Hn, tv)
     _nat_gradient(u, dNq[q], Hn)
     _map(A0[q], plastic, fp_inv, A)
-    _strain_hat(Gq[q], Hn, rs[q, 0], rs[q, 1], eA, eB, eD, A, plastic, fp_inv, en, Eh)
+    _strain_hat(Gq[q], Hn, rs[q, 0], rs[q, 1], tv, A, plastic, fp_inv, en, Eh)
     lam, V = eigh3(Eh)
     ok = 1.0 + 2.0 * lam[0] > 0.0
     return np.sqrt(np.maximum(1.0 + 2.0 * lam, 1e-300)), V, ok
 
 
 @njit(cache=True, parallel=True)
-def ans_commit_kernel(x, rest, conn, dNq, dNt, lev_ptr, rs, Gq, A0, Gt, params, fp_inv, ep):
+def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
+                      dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
+                      A0: np.ndarray, Gt: np.ndarray, params: np.ndarray, fp_inv: np.ndarray,
+                      ep: np.ndarray) -> None:
     """:func:`sim.terms.elasticity.plastic_commit_kernel` on the assumed strain: the return
     map in the principal frame V of C^, Fp^-1 <- Fp^-1 V diag(exp(-deps_p)) V^T."""
     mu, law, hp = params[0], int(params[2]), params[3:]
@@ -399,8 +613,10 @@ def ans_commit_kernel(x, rest, conn, dNq, dNt, lev_ptr, rs, Gq, A0, Gt, params, 
 
 
 @njit(cache=True, parallel=True)
-def ans_stress_kernel(x, rest, conn, dNq, dNt, lev_ptr, rs, Gq, A0, Gt, model, params, fp_inv,
-                      ep, plastic):
+def ans_stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
+                      dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
+                      A0: np.ndarray, Gt: np.ndarray, model: int, params: np.ndarray,
+                      fp_inv: np.ndarray, ep: np.ndarray, plastic: bool) -> np.ndarray:
     """Von Mises equivalent of the Cauchy stress ``(n_elem, n_qp)`` from the assumed strain."""
     out = np.zeros((conn.shape[0], dNq.shape[0]))
     eye = np.eye(3)
