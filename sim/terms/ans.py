@@ -10,10 +10,10 @@ C = (1/2, 1/2), so that each edge's tangential shear is constant along it:
 
     e~_rw = e_rw^A + s c,   e~_sw = e_sw^B - r c,   c = (e_sw^B - e_rw^A) - (e_sw^C - e_rw^C).
 
-The thickness strain e_ww is tied too, to its values at the three corners and interpolated
-linearly in-plane (Betsch, Gruttmann and Stein 1996; Bischoff and Ramm 1997): on a faceted curved
-shell the extrusion directions (vertex normals) are not normal to the flat facet, and bending then
-puts a spurious linear part into e_ww that stiffens the element (curvature thickness locking).
+The thickness strain stays the displacement field's: tied at the corners (the cure of curvature
+thickness locking, Betsch, Gruttmann and Stein 1996) it changed a Scordelis-Lo roof and a pinched
+cylinder by under 1 %, while the material's volume then parts from the geometry's
+(docs/elements-ans.md).
 
 The modified Green-Lagrange strain E = J^-T e~ J^-1 enters the material through C = I + 2 E; with
 a plastic state through C^ = Fp^-T C Fp^-1, i.e. E^ = A^T e~ A + (Fp^-T Fp^-1 - I) / 2 with
@@ -46,21 +46,19 @@ from sim.materials.isotropic import (
 )
 from sim.materials.plasticity import plastic_flow
 
-# tying points in (u, v): A on the edge v = 0, B on u = 0, C on the third edge (transverse
-# shear), then the corners of nodes 0, 1, 2 (thickness strain)
-TYING = np.array([[0.5, 0.0], [0.0, 0.5], [0.5, 0.5], [1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
-N_TIE = 6
-N_BASIS = 9  # basis rows of a level (_level_rows)
+# tying points in (u, v): A on the edge v = 0, B on u = 0, C on the third edge
+TYING = np.array([[0.5, 0.0], [0.0, 0.5], [0.5, 0.5]])
+N_TIE = 3
 
 
 class Tying:
     """What the ANS kernels need of a shell and a rule, computed once.
 
-    ``dNq (n_qp, n_en, 3)``: reference gradients at the quadrature points; ``dNt (n_lev, 6, n_en,
-    3)``: at the tying points (TYING) of each thickness level; ``lev_ptr (n_lev + 1,)``: the
+    ``dNq (n_qp, n_en, 3)``: reference gradients at the quadrature points; ``dNt (n_lev, 3, n_en,
+    3)``: at the tying points A, B, C of each thickness level; ``lev_ptr (n_lev + 1,)``: the
     quadrature points of level l are lev_ptr[l]:lev_ptr[l+1] (the rule is level-major);
     ``rs (n_qp, 2)``: their in-plane coordinates; ``Gq (n_e, n_qp, 3, 3)``: G[k, i] = dX_k/dxi_i,
-    ``A0`` its inverse; ``Gt (n_e, n_lev, 6, 3, 3)``: G at the tying points."""
+    ``A0`` its inverse; ``Gt (n_e, n_lev, 3, 3, 3)``: G at the tying points."""
 
     def __init__(self, shell: Shell, rule: Rule):
         el = shell.element
@@ -108,17 +106,13 @@ def _cov(G: np.ndarray, Hn: np.ndarray, i: int, j: int) -> float:
 @njit(cache=True, inline='always')
 def _tied(u: np.ndarray, dNt: np.ndarray, Gt: np.ndarray, Hn: np.ndarray,
           tv: np.ndarray) -> None:
-    """The tied values of one level into ``tv (6,)``: e_rw at A, e_sw at B, e_sw - e_rw at C,
-    e_ww at the corners of nodes 0, 1, 2."""
+    """The tied values of one level into ``tv (3,)``: e_rw at A, e_sw at B, e_sw - e_rw at C."""
     _nat_gradient(u, dNt[0], Hn)
     tv[0] = _cov(Gt[0], Hn, 0, 2)
     _nat_gradient(u, dNt[1], Hn)
     tv[1] = _cov(Gt[1], Hn, 1, 2)
     _nat_gradient(u, dNt[2], Hn)
     tv[2] = _cov(Gt[2], Hn, 1, 2) - _cov(Gt[2], Hn, 0, 2)
-    for c in range(3):
-        _nat_gradient(u, dNt[3 + c], Hn)
-        tv[3 + c] = _cov(Gt[3 + c], Hn, 2, 2)
 
 
 @njit(cache=True, inline='always')
@@ -133,7 +127,6 @@ def _strain_hat(Gq: np.ndarray, Hn: np.ndarray, r: float, s: float, tv: np.ndarr
     c = (tv[1] - tv[0]) - tv[2]
     en[0, 2] = tv[0] + s * c
     en[1, 2] = tv[1] - r * c
-    en[2, 2] = r * tv[3] + s * tv[4] + (1.0 - r - s) * tv[5]
     for i in range(3):
         for j in range(i):
             en[i, j] = en[j, i]
@@ -305,11 +298,11 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
 @njit(cache=True, inline='always')
 def _level_rows(u: np.ndarray, dNq: np.ndarray, dNt: np.ndarray, Gq: np.ndarray,
                 Gt: np.ndarray, P: np.ndarray, Hn: np.ndarray) -> None:
-    """The level's basis rows ``P (9, k)``, node-major: de_rr, de_ss, de_rs (the same at every
-    point of a level: g_r, g_s and dN/dr, dN/ds do not vary in-plane for a triangle linear
-    in-plane; taken at the level's first point ``dNq``, ``Gq``), the tied shear rows (A's e_rw,
-    B's e_sw, C's e_sw - e_rw) and de_ww at the three corners; every strain row of the level is
-    a combination of these (:func:`_combination`)."""
+    """The level's basis rows ``P (6 + n_in, k)``, node-major: de_rr, de_ss, de_rs (the same at
+    every point of a level: g_r, g_s and dN/dr, dN/ds do not vary in-plane for a triangle linear
+    in-plane), the tied shear rows (A's e_rw, B's e_sw, C's e_sw - e_rw) and de_ww at each of
+    the level's ``n_in`` points ``dNq (n_in, n_en, 3)``, ``Gq (n_in, 3, 3)``; every strain row
+    of the level is a combination of these (:func:`_combination`)."""
     k = P.shape[1]
     for t in range(3, 6):
         for p in range(k):
@@ -318,34 +311,32 @@ def _level_rows(u: np.ndarray, dNq: np.ndarray, dNt: np.ndarray, Gq: np.ndarray,
         _nat_gradient(u, dNt[t], Hn)
         if t < 2:
             _tie_rows(dNt[t], Gt[t], Hn, t, P[3 + t], 1.0)
-        elif t == 2:
+        else:
             _tie_rows(dNt[2], Gt[2], Hn, 1, P[5], 1.0)
             _tie_rows(dNt[2], Gt[2], Hn, 0, P[5], -1.0)
-        else:
-            for a in range(dNt.shape[1]):
-                for kk in range(3):
-                    P[3 + t, 3 * a + kk] = (Gt[t, kk, 2] + Hn[kk, 2]) * dNt[t, a, 2]
-    _nat_gradient(u, dNq, Hn)
-    for a in range(dNq.shape[0]):
-        d0, d1 = dNq[a, 0], dNq[a, 1]
-        for kk in range(3):
-            p = 3 * a + kk
-            g0, g1 = Gq[kk, 0] + Hn[kk, 0], Gq[kk, 1] + Hn[kk, 1]
-            P[0, p] = g0 * d0
-            P[1, p] = g1 * d1
-            P[2, p] = 0.5 * (g0 * d1 + g1 * d0)
+    for j in range(dNq.shape[0]):
+        _nat_gradient(u, dNq[j], Hn)
+        for a in range(dNq.shape[1]):
+            d0, d1, d2 = dNq[j, a, 0], dNq[j, a, 1], dNq[j, a, 2]
+            for kk in range(3):
+                p = 3 * a + kk
+                g0, g1 = Gq[j, kk, 0] + Hn[kk, 0], Gq[j, kk, 1] + Hn[kk, 1]
+                if j == 0:
+                    P[0, p] = g0 * d0
+                    P[1, p] = g1 * d1
+                    P[2, p] = 0.5 * (g0 * d1 + g1 * d0)
+                P[6 + j, p] = (Gq[j, kk, 2] + Hn[kk, 2]) * d2
 
 
 @njit(cache=True, inline='always')
-def _combination(r: float, s: float, Phi: np.ndarray) -> None:
-    """Phi (6, 9): the natural rows (VOIGT order) at (r, s) over the level's basis rows
-    (:func:`_level_rows`): the shear pair by the MITC3 interpolation, e_ww linear from the
-    corners."""
+def _combination(j: int, r: float, s: float, Phi: np.ndarray) -> None:
+    """Phi (6, 6 + n_in): the natural rows (VOIGT order) of the level's point j, at (r, s), over
+    the level's basis rows (:func:`_level_rows`): the shear pair by the MITC3 interpolation."""
     for v in range(6):
         for c in range(Phi.shape[1]):
             Phi[v, c] = 0.0
     Phi[0, 0] = Phi[1, 1] = Phi[3, 2] = 1.0
-    Phi[2, 6], Phi[2, 7], Phi[2, 8] = r, s, 1.0 - r - s
+    Phi[2, 6 + j] = 1.0
     Phi[4, 3], Phi[4, 4], Phi[4, 5] = 1.0 - s, s, -s
     Phi[5, 3], Phi[5, 4], Phi[5, 5] = r, 1.0 - r, r
 
@@ -368,7 +359,7 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     Hn, en, Eh, A, Sn, sig, M, Ci = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6], m3[7]
     Dv, cv, Dp = sc[0], sc[1], sc[2]
     Phi, DPhi = Ph[0], Ph[1]
-    gv, tv = gvs[0], gvs[2]
+    gv, tv = gvs[0], gvs[2]  # tv: the level's tied values, nb >= 3
     n_en = nodes.shape[0]
     k = 3 * n_en
     nb = P.shape[0]
@@ -387,14 +378,13 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
         q0 = lev_ptr[lev]
         _tied(u, dNt[lev], Gt[lev], Hn, tv)
         if want >= 1:
-            _level_rows(u, dNq[q0], dNt[lev], Gq[q0], Gt[lev], P, Hn)
+            n_in = lev_ptr[lev + 1] - q0
+            _level_rows(u, dNq[q0:q0 + n_in], dNt[lev], Gq[q0:q0 + n_in], Gt[lev], P, Hn)
             for c in range(nb):
                 gv[c] = 0.0
                 for d in range(nb):
                     Mb[c, d] = 0.0
-        # the level's weighted tying stresses (initial-stress term): shear at A, B, C,
-        # thickness at the corners
-        tA = tB = tC = tW0 = tW1 = tW2 = 0.0
+        tA = tB = tC = 0.0  # the level's weighted tying stresses (initial-stress term)
         for q in range(q0, lev_ptr[lev + 1]):
             r, s = rs[q, 0], rs[q, 1]
             _nat_gradient(u, dNq[q], Hn)
@@ -416,7 +406,7 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             E += w * W
             if want == 0:
                 continue
-            _combination(r, s, Phi)
+            _combination(q - q0, r, s, Phi)
             for c in range(nb):  # gv += w Phi^T Sv, Sv the stress over the natural rows
                 acc = 0.0
                 for v in range(6):
@@ -446,10 +436,7 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             tA += 2.0 * ((1.0 - s) * Srw + r * Ssw)
             tB += 2.0 * (s * Srw + (1.0 - r) * Ssw)
             tC += 2.0 * (r * Ssw - s * Srw)
-            tW0 += r * sig[2, 2]
-            tW1 += s * sig[2, 2]
-            tW2 += (1.0 - r - s) * sig[2, 2]
-            sig[0, 2] = sig[2, 0] = sig[1, 2] = sig[2, 1] = sig[2, 2] = 0.0
+            sig[0, 2] = sig[2, 0] = sig[1, 2] = sig[2, 1] = 0.0
             _geometric(dNq[q], sig, Kg)
         if want == 0:
             continue
@@ -471,13 +458,6 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
         _shear_sig(sig, 1, tC)
         sig[0, 2] = sig[2, 0] = -0.5 * tC
         _geometric(dNt[lev, 2], sig, Kg)
-        tws = (tW0, tW1, tW2)
-        for c in range(3):
-            for i in range(3):
-                for j in range(3):
-                    sig[i, j] = 0.0
-            sig[2, 2] = tws[c]
-            _geometric(dNt[lev, 3 + c], sig, Kg)
     if want == 2:
         for a in range(n_en):
             for b in range(n_en):
@@ -539,7 +519,7 @@ def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarra
             g = np.zeros(k)
             K = np.empty((k, k) if want == 2 else (0, 0))
             Kg = np.empty((n_en, n_en))
-            nb = N_BASIS
+            nb = 6 + (lev_ptr[1] - lev_ptr[0])
             P, Ph, Mb = np.empty((nb, k)), np.empty((2, 6, nb)), np.empty((nb, nb))
             gvs, u = np.empty((3, nb)), np.empty((n_en, 3))
             sc, m3 = np.empty((3, 6, 6)), np.empty((8, 3, 3))
