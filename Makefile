@@ -49,6 +49,7 @@ results: $(STAMP)
 	$(BIN)/q3t check --results $(R)/check.md
 	$(BIN)/q3t bench --cases beam,cup,plastic --repeat 5 --results $(R)/bench.md
 	$(BIN)/q3t bench --cases forming --results $(R)/bench-forming.md
+	$(BIN)/q3t mesh-tools --results $(R)/mesh-tools.md
 	@if command -v ccx >/dev/null; then \
 	  echo "$(BIN)/q3t bench --cases calculix --repeat 3 --results $(R)/bench-calculix.md"; \
 	  $(BIN)/q3t bench --cases calculix --repeat 3 --results $(R)/bench-calculix.md; \
@@ -76,6 +77,12 @@ results: $(STAMP)
 	  --elements linear:1x2,linear:3x2,q3t:1x3,q3t:3x3 --levels 0.00875,0.0046667 \
 	  --reference quadratic:0.0046667 --no-overhead --out runs/accuracy-quadrature \
 	  --results $(R)/accuracy-quadrature.md
+	$(BIN)/q3t study --course --out runs/course \
+	  --results $(R)/shell-course.md
+	$(BIN)/q3t study --course --elements quadratic --set mesh.curved=false \
+	  --out runs/course-flat --results $(R)/shell-course-flat.md
+	$(BIN)/q3t study --course --elements quadratic:3x3 --out runs/course-3x3 \
+	  --results $(R)/shell-course-3x3.md
 	$(BIN)/q3t springback --elements q3t,quadratic,quartic --out runs/springback \
 	  --results $(R)/springback-formula.md
 	$(BIN)/q3t bench-service --results $(R)/service.md

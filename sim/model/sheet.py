@@ -22,6 +22,11 @@ def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
         return meshes.annulus(r0, spec.r_outer, spec.edge_length)
     if spec.kind == "cylinder_band":
         return meshes.cylinder_band(spec.radius, spec.height, spec.edge_length)
+    if spec.kind in ("cylinder_patch", "sphere_patch"):
+        mesh = (meshes.cylinder_patch(spec.radius, spec.length, spec.angle, spec.cells)
+                if spec.kind == "cylinder_patch" else
+                meshes.sphere_patch(spec.radius, spec.hole, spec.azimuth, spec.cells))
+        return mesh if spec.curved else meshes.TriMesh(mesh.vertices, mesh.faces)
     return meshes.load(spec.path, spec.scale, spec.merge_vertices)
 
 

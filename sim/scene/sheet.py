@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal, Self
 
 from pydantic import Field, model_validator
@@ -25,7 +26,8 @@ class _Mesh(Strict):
     """The sheet's mid-surface: a generated mesh of one ``kind`` or a mesh file; each kind
     takes its own fields only."""
 
-    kind: str = doc("what mesh: rectangle, annulus, disk, cylinder_band or file")
+    kind: str = doc("what mesh: rectangle, annulus, disk, cylinder_band, cylinder_patch, "
+                    "sphere_patch or file")
     imperfection: Coord = doc(
         "out-of-plane imperfection of a flat mid-surface: z += a sin(pi s) sin(pi t), with "
         "(s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to "
@@ -73,6 +75,45 @@ class CylinderBandMesh(_Generated):
     height: Length = doc("its height along z", "m")
 
 
+class _Patch(_Mesh):
+    """A patch of a curved surface on a grid of parameters, refined by ``cells``; the quadratic
+    and higher elements put their mid-edge nodes on the exact surface."""
+
+    cells: Annotated[int, Field(ge=1, le=4096)] = doc(
+        "cells per side: cells x cells quadrilaterals of two triangles each, the mesh's "
+        "resolution", "1")
+    curved: bool = doc(
+        "nodes between the vertices (quadratic and higher elements) on the exact surface, and "
+        "every node column along the exact normal; false: on the flat triangles (a faceted "
+        "shell, normals averaged over the triangles)", default=True)
+
+
+class CylinderPatchMesh(_Patch):
+    """Part of a cylinder around the x axis (a roof, an octant of a tube): x from 0 to
+    ``length``, and from the top (+z) by ``angle`` towards +y."""
+
+    kind: Literal["cylinder_patch"] = doc("part of a cylinder around the x axis")
+    radius: Length = doc("the cylinder's radius", "m")
+    length: Length = doc("its length along x, from x = 0", "m")
+    angle: bounded(0.0, math.pi) = doc(
+        "the angle it spans, from the top (+z) towards +y (0.698 rad is 40 degrees)", "rad")
+
+
+class SpherePatchMesh(_Patch):
+    """Part of a sphere around the origin (a hemisphere with a polar hole, or a sector of
+    one): from the polar angle ``hole`` down to the equator z = 0, and from the x axis by
+    ``azimuth`` towards +y."""
+
+    kind: Literal["sphere_patch"] = doc("part of a sphere around the origin")
+    radius: Length = doc("the sphere's radius", "m")
+    hole: Annotated[float, Field(gt=0.0, lt=math.pi / 2)] = doc(
+        "the polar hole: its rim's angle from the +z axis (0.314 rad is 18 degrees); above "
+        "0, since the grid cannot close at the pole", "rad")
+    azimuth: bounded(0.0, math.pi) = doc(
+        "the angle it spans around z from the x axis towards +y; unset: a quarter", "rad",
+        math.pi / 2)
+
+
 class FileMesh(_Mesh):
     """A triangle mesh file (STL, OBJ, PLY, ...), read with trimesh; a relative path is taken
     from the scene file's folder."""
@@ -90,7 +131,8 @@ class FileMesh(_Mesh):
 
 # the mesh of the chosen kind: only its own fields are accepted (pydantic tells the kinds
 # apart by ``kind`` and names a field of another kind as not permitted)
-MeshSpec = Annotated[RectangleMesh | AnnulusMesh | DiskMesh | CylinderBandMesh | FileMesh,
+MeshSpec = Annotated[RectangleMesh | AnnulusMesh | DiskMesh | CylinderBandMesh
+                     | CylinderPatchMesh | SpherePatchMesh | FileMesh,
                      Field(discriminator="kind")]
 
 
@@ -238,11 +280,14 @@ FLCSpec = Annotated[PointsFLC | KeelerBrazierFLC, Field(discriminator="kind")]
 
 
 class MaterialSpec(Strict):
-    """The sheet's material: a hyperelastic model, or elastic-plastic (von Mises with
-    isotropic hardening, sim.materials.plasticity)."""
+    """The sheet's material: a hyperelastic model, elastic-plastic (von Mises with
+    isotropic hardening, sim.materials.plasticity), or linear elasticity in a geometrically
+    linear analysis (sim.terms.small_strain)."""
 
-    model: Literal["neo_hookean", "hencky", "plastic"] = doc(
-        "neo_hookean or hencky (elastic), or plastic", default="neo_hookean")
+    model: Literal["neo_hookean", "hencky", "plastic", "linear_elastic"] = doc(
+        "neo_hookean or hencky (elastic), plastic, or linear_elastic: small strain and small "
+        "displacement (a geometrically linear analysis, energy 1/2 eps:C:eps with eps = "
+        "sym grad u), for the classical linear benchmarks", default="neo_hookean")
     E: Stress = doc("Young's modulus", "Pa")
     nu: Annotated[float, Field(ge=0.0, lt=0.5)] = doc("Poisson's ratio", "1")
     density: bounded(0.0, MAX_DENSITY) = doc("the mass density (inertia, gravity)", "kg/m^3",
