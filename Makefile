@@ -92,6 +92,10 @@ results: $(STAMP)
 	  --out runs/course-flat --results $(R)/shell-course-flat.md
 	$(BIN)/q3t study --course --elements quadratic:3x3 --out runs/course-3x3 \
 	  --results $(R)/shell-course-3x3.md
+	$(BIN)/q3t study --course --elements q3t_ans --cells 16,32,64 --out runs/course-ans \
+	  --results $(R)/shell-course-ans.md
+	$(BIN)/q3t bench --cases beam,cup --elements q3t,q3t_ans --repeat 5 \
+	  --results $(R)/bench-ans.md
 	$(BIN)/q3t springback --elements q3t,quadratic,quartic --out runs/springback \
 	  --results $(R)/springback-formula.md
 	$(BIN)/q3t bench-service --results $(R)/service.md

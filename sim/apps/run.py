@@ -90,7 +90,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
     r = sub.add_parser("run", help="run a scene headless and write result.json")
     r.add_argument("scene", help="scene name in scenes/ or a TOML path")
-    r.add_argument("--element", help="override shell.element (linear, q3t, quadratic, quartic)")
+    r.add_argument("--element",
+                   help="override shell.element (linear, q3t, q3t_ans, quadratic, quartic)")
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene value, e.g. material.nu=0.3 (repeatable)")
     r.add_argument("--out", help="output folder (default runs/<scene>-<element>-<time>)")

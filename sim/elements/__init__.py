@@ -9,10 +9,11 @@ from __future__ import annotations
 from sim.elements.base import Prism
 from sim.elements.linear import LINEAR
 from sim.elements.q3t import Q3T
+from sim.elements.q3t_ans import Q3T_ANS
 from sim.elements.quadratic import QUADRATIC
 from sim.elements.quartic import QUARTIC
 
-ELEMENTS: dict[str, Prism] = {e.name: e for e in (LINEAR, Q3T, QUADRATIC, QUARTIC)}
+ELEMENTS: dict[str, Prism] = {e.name: e for e in (LINEAR, Q3T, Q3T_ANS, QUADRATIC, QUARTIC)}
 # where every element is meant but each run costs (every scene, every energy term through a
 # model): the routine ones, in registry order
 ROUTINE: tuple[str, ...] = tuple(n for n, e in ELEMENTS.items() if e.routine)

@@ -64,7 +64,9 @@ class Prism:
     ``small_mesh_quadrature``: the rule without spurious modes, when the default has some on
     patches of one or two triangles (docs/verification.md, 'Quadrature and spurious
     modes'); ``routine``: run wherever every element is meant (each shipped scene in the
-    tests); an element too costly for that (the quartic reference) runs only where it is named."""
+    tests); an element too costly for that (the quartic reference) runs only where it is named.
+    ``assumed_shear``: its transverse shear strains come from tying points on the triangle's
+    edges (sim.terms.ans), not from the displacement field at the quadrature point."""
 
     name: str
     p: int
@@ -72,6 +74,7 @@ class Prism:
     default_quadrature: tuple[int, int]
     small_mesh_quadrature: tuple[int, int] | None = None
     routine: bool = True
+    assumed_shear: bool = False
 
     @cached_property
     def triangle_multi_indices(self) -> list[tuple[int, int, int]]:

@@ -201,6 +201,23 @@ def _y_minus_log1p(y: float) -> float:
 
 
 @njit(cache=True, inline='always')
+def neo_hookean_green(Eh: np.ndarray, mu: float, lam: float) -> tuple[float, float]:
+    """Neo-Hookean W and ln J from the Green-Lagrange strain ``Eh (3, 3)`` (C = I + 2 Eh), for
+    elements whose strain is not the gradient of a displacement (assumed strains): the same
+    cancellation-free form as :func:`neo_hookean_h` in E = 2 Eh. W = inf when det C <= 0."""
+    e00, e11, e22 = 2.0 * Eh[0, 0], 2.0 * Eh[1, 1], 2.0 * Eh[2, 2]
+    e01, e02, e12 = 2.0 * Eh[0, 1], 2.0 * Eh[0, 2], 2.0 * Eh[1, 2]
+    c2 = e00 * e11 - e01 ** 2 + e00 * e22 - e02 ** 2 + e11 * e22 - e12 ** 2
+    d3 = (e00 * (e11 * e22 - e12 ** 2) - e01 * (e01 * e22 - e12 * e02)
+          + e02 * (e01 * e12 - e11 * e02))
+    y = e00 + e11 + e22 + c2 + d3  # det C - 1 = J^2 - 1
+    if not y > -1.0:
+        return np.inf, 0.0
+    lj = 0.5 * np.log1p(y)
+    return 0.5 * mu * (_y_minus_log1p(y) - c2 - d3) + 0.5 * lam * lj * lj, lj
+
+
+@njit(cache=True, inline='always')
 def neo_hookean_h(H: np.ndarray, mu: float, lam: float, want_tangent: bool, P: np.ndarray,
                   C: np.ndarray, FiT: np.ndarray) -> float:
     """Neo-Hookean W, P and dP/dF at F = I + H from the displacement gradient H (3, 3) (no SVD,

@@ -192,7 +192,7 @@ class ShellSpec(Strict):
                                      default=None)
     thickness_attribute: str | None = doc(
         "the PLY mesh file's vertex property holding the thickness (m)", default=None)
-    element: str = doc("the prism element: linear, q3t or quadratic (sim.elements)",
+    element: str = doc("the prism element: linear, q3t, q3t_ans or quadratic (sim.elements)",
                        default="q3t")
     quadrature: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = doc(
         "the quadrature (in-plane points, points through the thickness); unset: the "

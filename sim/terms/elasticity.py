@@ -26,6 +26,7 @@ from sim.materials.isotropic import (
 from sim.materials.plasticity import plastic_flow
 from sim.solve.assembly import Pattern
 from sim.terms import Term
+from sim.terms.ans import Tying, ans_commit_kernel, ans_kernel, ans_stress_kernel
 
 PROJECT_NONE, PROJECT_QP, PROJECT_ELEMENT = 0, 1, 2
 
@@ -353,9 +354,19 @@ class Elasticity(Term):
             self.fp_inv = np.zeros((n_e, 0, 3, 3))
             self.ep = np.zeros((n_e, 0))
         self._pos = packed_positions(self.conn.shape[1])
+        # an assumed-shear element's strain comes from its tying points (sim.terms.ans)
+        self.tying = Tying(shell, rule) if shell.element.assumed_shear else None
+
+    def _tied(self) -> tuple:
+        t = self.tying
+        return (self.rest, self.conn, t.dNq, t.dNt, t.lev_ptr, t.rs, t.Gq, t.A0, t.Gt)
 
     def _run(self, x: np.ndarray, want: int, grad: np.ndarray, data: np.ndarray) -> float:
         sc = self.pattern.schedule
+        if self.tying is not None:
+            return ans_kernel(x, *self._tied(), self.wdetJ, self.model, self.params,
+                              self.fp_inv, self.ep, self.plastic, want, self.project, sc.order,
+                              sc.block_ptr, sc.color_ptr, self.pattern.elem_slots, grad, data)
         return elastic_kernel(x, self.rest, self.conn, self.dNdX, self.wdetJ, self.model,
                               self.params, self.fp_inv, self.ep, self.plastic, want,
                               self.project, sc.order, sc.block_ptr, sc.color_ptr,
@@ -374,11 +385,16 @@ class Elasticity(Term):
         return self._run(x, 2, g, data)
 
     def commit(self, x: np.ndarray) -> None:
-        if self.plastic:
+        if self.plastic and self.tying is not None:
+            ans_commit_kernel(x, *self._tied(), self.params, self.fp_inv, self.ep)
+        elif self.plastic:
             plastic_commit_kernel(x, self.rest, self.conn, self.dNdX, self.params, self.fp_inv,
                                   self.ep)
 
     def von_mises(self, x: np.ndarray) -> np.ndarray:
         """Von Mises stress (Pa) per element and quadrature point ``(n_elem, n_qp)``."""
+        if self.tying is not None:
+            return ans_stress_kernel(x, *self._tied(), self.model, self.params, self.fp_inv,
+                                     self.ep, self.plastic)
         return stress_kernel(x, self.rest, self.conn, self.dNdX, self.model, self.params,
                              self.fp_inv, self.ep, self.plastic)

@@ -202,6 +202,7 @@ RANK_RULES = {
     ("linear", (3, 2)): {"vertex_hang": 1},
     ("q3t", (1, 3)): {"single": 4, "two": 1, "vertex_hang": 3},
     ("q3t", (3, 3)): {"vertex_hang": 1},
+    ("q3t_ans", (3, 3)): {"vertex_hang": 1},  # its default: none on a single prism either
     ("quadratic", (7, 3)): {"vertex_hang": 1},
     ("quadratic", (3, 3)): {"vertex_hang": 1},
     ("quartic", (25, 5)): {"vertex_hang": 1},

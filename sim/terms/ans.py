@@ -1,0 +1,615 @@
+"""Assumed natural transverse shear strains (MITC3 tying) for prisms linear in-plane.
+
+Strains are covariant in the element's reference coordinates xi = (r, s, w) = (u, v, w):
+e_ij = 1/2 (g_i . g_j - G_i . G_j) with g_i = dx/dxi_i, G_i = dX/dxi_i, formed from the
+displacement (1/2 (G_i . h_j + h_i . G_j + h_i . h_j), h_i = du/dxi_i) so that a small strain
+keeps its digits. At each quadrature point the transverse shear pair (e_rw, e_sw) is replaced by
+the lowest-order edge interpolation of its tangential values at three tying points at the point's
+own w (Lee and Bathe 2004, MITC3): e_rw at A = (1/2, 0), e_sw at B = (0, 1/2), e_sw - e_rw at
+C = (1/2, 1/2), so that each edge's tangential shear is constant along it:
+
+    e~_rw = e_rw^A + s c,   e~_sw = e_sw^B - r c,   c = (e_sw^B - e_rw^A) - (e_sw^C - e_rw^C).
+
+The thickness strain stays the displacement field's: tied at the corners (the cure of curvature
+thickness locking, Betsch, Gruttmann and Stein 1996) it changed a Scordelis-Lo roof and a pinched
+cylinder by under 1 %, while the material's volume then parts from the geometry's
+(docs/elements-ans.md).
+
+The modified Green-Lagrange strain E = J^-T e~ J^-1 enters the material through C = I + 2 E; with
+a plastic state through C^ = Fp^-T C Fp^-1, i.e. E^ = A^T e~ A + (Fp^-T Fp^-1 - I) / 2 with
+A = J^-1 Fp^-1. Every material here is isotropic in the stretches s_i = sqrt(1 + 2 eps_i), eps_i
+(and v_i) the eigenvalues (vectors) of E^, so with g = dW/ds, H = d2W/ds2 and the pair
+derivatives sym, twist of sim.materials.isotropic.principal:
+
+    dW/dE^ = sum_i S_i v_i v_i^T,             S_i = g_i / s_i,
+    d2W = sum_ij h_ij deps_i deps_j + 2 sum_{i<j} kappa_ij (v_i^T dE^ v_j)^2,
+    h_ij = H_ij / (s_i s_j) - delta_ij g_i / s_i^3,   kappa_ij = (sym - twist)_ij / (s_i s_j)
+
+(kappa is the divided difference (S_i - S_j) / (eps_i - eps_j), formed without cancellation by
+the material's own pair terms). With m_i = A v_i, deps_i = m_i^T de~ m_i.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from sim.geometry.quadrature import Rule
+from sim.geometry.shell import Shell
+from sim.materials.isotropic import (
+    NEO_HOOKEAN,
+    PAIRS,
+    det3,
+    eigh3,
+    neo_hookean_green,
+    principal,
+)
+from sim.materials.plasticity import plastic_flow
+
+# tying points in (u, v): A on the edge v = 0, B on u = 0, C on the third edge
+TYING = np.array([[0.5, 0.0], [0.0, 0.5], [0.5, 0.5]])
+N_TIE = 3
+
+
+class Tying:
+    """What the ANS kernels need of a shell and a rule, computed once.
+
+    ``dNq (n_qp, n_en, 3)``: reference gradients at the quadrature points; ``dNt (n_lev, 3, n_en,
+    3)``: at the tying points A, B, C of each thickness level; ``lev_ptr (n_lev + 1,)``: the
+    quadrature points of level l are lev_ptr[l]:lev_ptr[l+1] (the rule is level-major);
+    ``rs (n_qp, 2)``: their in-plane coordinates; ``Gq (n_e, n_qp, 3, 3)``: G[k, i] = dX_k/dxi_i,
+    ``A0`` its inverse; ``Gt (n_e, n_lev, 3, 3, 3)``: G at the tying points."""
+
+    def __init__(self, shell: Shell, rule: Rule):
+        el = shell.element
+        pts = rule.points
+        levels, start = np.unique(pts[:, 2], return_index=True)
+        order = np.argsort(start)
+        levels = levels[order]
+        counts = np.array([np.sum(pts[:, 2] == w) for w in levels])
+        self.lev_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        if not all(np.all(pts[self.lev_ptr[i]:self.lev_ptr[i + 1], 2] == w)
+                   for i, w in enumerate(levels)):
+            raise ValueError("assumed-strain elements need a level-major prism rule")
+        self.rs = np.ascontiguousarray(pts[:, :2])
+        _, self.dNq = el.basis(pts)
+        tpts = np.array([(u, v, w) for w in levels for (u, v) in TYING])
+        _, dNt = el.basis(tpts)
+        self.dNt = np.ascontiguousarray(dNt.reshape(len(levels), N_TIE, el.n_nodes, 3))
+        Xe = shell.rest[shell.conn]
+        self.Gq = np.ascontiguousarray(np.einsum("eak,qai->eqki", Xe, self.dNq))
+        self.A0 = np.ascontiguousarray(np.linalg.inv(self.Gq))
+        self.Gt = np.ascontiguousarray(np.einsum("eak,ltai->eltki", Xe, self.dNt))
+
+
+@njit(cache=True, inline='always')
+def _nat_gradient(u: np.ndarray, dN: np.ndarray, Hn: np.ndarray) -> None:
+    """Hn[k, i] = sum_a u[a, k] dN[a, i]: the displacement's reference gradient."""
+    for k in range(3):
+        for i in range(3):
+            Hn[k, i] = 0.0
+    for a in range(u.shape[0]):
+        for k in range(3):
+            for i in range(3):
+                Hn[k, i] += u[a, k] * dN[a, i]
+
+
+@njit(cache=True, inline='always')
+def _cov(G: np.ndarray, Hn: np.ndarray, i: int, j: int) -> float:
+    """e_ij = 1/2 (G_i . h_j + h_i . G_j + h_i . h_j)."""
+    acc = 0.0
+    for k in range(3):
+        acc += G[k, i] * Hn[k, j] + Hn[k, i] * G[k, j] + Hn[k, i] * Hn[k, j]
+    return 0.5 * acc
+
+
+@njit(cache=True, inline='always')
+def _tied(u: np.ndarray, dNt: np.ndarray, Gt: np.ndarray, Hn: np.ndarray,
+          tv: np.ndarray) -> None:
+    """The tied values of one level into ``tv (3,)``: e_rw at A, e_sw at B, e_sw - e_rw at C."""
+    _nat_gradient(u, dNt[0], Hn)
+    tv[0] = _cov(Gt[0], Hn, 0, 2)
+    _nat_gradient(u, dNt[1], Hn)
+    tv[1] = _cov(Gt[1], Hn, 1, 2)
+    _nat_gradient(u, dNt[2], Hn)
+    tv[2] = _cov(Gt[2], Hn, 1, 2) - _cov(Gt[2], Hn, 0, 2)
+
+
+@njit(cache=True, inline='always')
+def _strain_hat(Gq: np.ndarray, Hn: np.ndarray, r: float, s: float, tv: np.ndarray,
+                A: np.ndarray, plastic: bool, fp_inv: np.ndarray, en: np.ndarray,
+                Eh: np.ndarray) -> None:
+    """en: the assumed covariant strain e~ (3, 3) at (r, s) from the level's tied values
+    ``tv`` (:func:`_tied`); Eh: E^ = A^T e~ A (+ the plastic part)."""
+    for i in range(3):
+        for j in range(i, 3):
+            en[i, j] = _cov(Gq, Hn, i, j)
+    c = (tv[1] - tv[0]) - tv[2]
+    en[0, 2] = tv[0] + s * c
+    en[1, 2] = tv[1] - r * c
+    for i in range(3):
+        for j in range(i):
+            en[i, j] = en[j, i]
+    for I in range(3):  # noqa: E741
+        for J in range(I, 3):
+            acc = 0.0
+            for i in range(3):
+                for j in range(3):
+                    acc += A[i, I] * en[i, j] * A[j, J]
+            if plastic:  # (Fp^-T Fp^-1 - I) / 2
+                acc += 0.5 * (fp_inv[0, I] * fp_inv[0, J] + fp_inv[1, I] * fp_inv[1, J]
+                              + fp_inv[2, I] * fp_inv[2, J] - (1.0 if I == J else 0.0))
+            Eh[I, J] = acc
+            Eh[J, I] = acc
+
+
+@njit(cache=True, inline='always')
+def _map(A0: np.ndarray, plastic: bool, fp_inv: np.ndarray, A: np.ndarray) -> None:
+    """A = J^-1 Fp^-1 (J^-1 alone without a plastic state)."""
+    for i in range(3):
+        for J in range(3):
+            if plastic:
+                A[i, J] = (A0[i, 0] * fp_inv[0, J] + A0[i, 1] * fp_inv[1, J]
+                           + A0[i, 2] * fp_inv[2, J])
+            else:
+                A[i, J] = A0[i, J]
+
+
+@njit(cache=True, inline='always')
+def _tie_rows(dN: np.ndarray, G: np.ndarray, Hn: np.ndarray, i: int, out: np.ndarray,
+              sign: float) -> None:
+    """out += sign de_iw/du (node-major DoF 3 a + k) at a tying point: 1/2 (g_i dN_w + g_w dN_i)."""
+    for a in range(dN.shape[0]):
+        for k in range(3):
+            out[3 * a + k] += sign * 0.5 * ((G[k, i] + Hn[k, i]) * dN[a, 2]
+                                            + (G[k, 2] + Hn[k, 2]) * dN[a, i])
+
+
+@njit(cache=True, inline='always')
+def _geometric(dN: np.ndarray, sig: np.ndarray, Kg: np.ndarray) -> None:
+    """Kg[a, b] += dN_a^T sig dN_b (the initial-stress term of sum sig_ij d2e_ij)."""
+    n = dN.shape[0]
+    for b in range(n):
+        t0 = sig[0, 0] * dN[b, 0] + sig[0, 1] * dN[b, 1] + sig[0, 2] * dN[b, 2]
+        t1 = sig[1, 0] * dN[b, 0] + sig[1, 1] * dN[b, 1] + sig[1, 2] * dN[b, 2]
+        t2 = sig[2, 0] * dN[b, 0] + sig[2, 1] * dN[b, 1] + sig[2, 2] * dN[b, 2]
+        for a in range(n):
+            Kg[a, b] += dN[a, 0] * t0 + dN[a, 1] * t1 + dN[a, 2] * t2
+
+
+@njit(cache=True, inline='always')
+def _shear_sig(sig: np.ndarray, i: int, tau: float) -> None:
+    """sig = tau/2 (e_i (x) e_w + e_w (x) e_i), zero elsewhere: d2(tau e_iw)."""
+    for a in range(3):
+        for b in range(3):
+            sig[a, b] = 0.0
+    sig[i, 2] = sig[2, i] = 0.5 * tau
+
+
+# natural strain components in row order: rr, ss, ww, rs, rw, sw
+VOIGT = np.array([[0, 0], [1, 1], [2, 2], [0, 1], [0, 2], [1, 2]])
+
+
+@njit(cache=True, inline='always')
+def _to_natural(A: np.ndarray, Sh: np.ndarray, Sn: np.ndarray) -> None:
+    """Sn = A Sh A^T: a stress of the E^ frame as the contravariant natural components."""
+    for i in range(3):
+        for j in range(i, 3):
+            acc = 0.0
+            for I in range(3):  # noqa: E741
+                for J in range(3):
+                    acc += A[i, I] * Sh[I, J] * A[j, J]
+            Sn[i, j] = acc
+            Sn[j, i] = acc
+
+
+@njit(cache=True, inline='always')
+def _neo_hookean_natural(Eh: np.ndarray, A: np.ndarray, mu: float, lam: float, want: int,
+                         Sn: np.ndarray, Dv: np.ndarray, Ci: np.ndarray,
+                         Gi: np.ndarray) -> float:
+    """Neo-Hookean in closed form, no eigen-decomposition: W; for want >= 1 the natural stress
+    Sn = A S^ A^T with S^ = 2 mu C^-1 E^ + lam ln J C^-1 (= mu (I - C^-1) + lam ln J C^-1,
+    without its cancellation at small strain); for want == 2 the natural tangent
+    Dv = lam g g + (mu - lam ln J) (g g + g g) over the rows, g = A C^-1 A^T. Scratch: Ci, Gi."""
+    W, lj = neo_hookean_green(Eh, mu, lam)
+    if want == 0 or not np.isfinite(W):
+        return W
+    c00, c11, c22 = 1.0 + 2.0 * Eh[0, 0], 1.0 + 2.0 * Eh[1, 1], 1.0 + 2.0 * Eh[2, 2]
+    c01, c02, c12 = 2.0 * Eh[0, 1], 2.0 * Eh[0, 2], 2.0 * Eh[1, 2]
+    Ci[0, 0] = c11 * c22 - c12 * c12
+    Ci[1, 1] = c00 * c22 - c02 * c02
+    Ci[2, 2] = c00 * c11 - c01 * c01
+    Ci[0, 1] = Ci[1, 0] = c02 * c12 - c01 * c22
+    Ci[0, 2] = Ci[2, 0] = c01 * c12 - c02 * c11
+    Ci[1, 2] = Ci[2, 1] = c01 * c02 - c00 * c12
+    det = c00 * Ci[0, 0] + c01 * Ci[0, 1] + c02 * Ci[0, 2]
+    for i in range(3):
+        for j in range(3):
+            Ci[i, j] /= det
+    for i in range(3):  # S^ into Gi (scratch), then to natural
+        for j in range(3):
+            Gi[i, j] = (2.0 * mu * (Ci[i, 0] * Eh[0, j] + Ci[i, 1] * Eh[1, j]
+                                     + Ci[i, 2] * Eh[2, j]) + lam * lj * Ci[i, j])
+    _to_natural(A, Gi, Sn)
+    if want < 2:
+        return W
+    _to_natural(A, Ci, Gi)
+    c = mu - lam * lj
+    for v in range(6):
+        i, j = VOIGT[v, 0], VOIGT[v, 1]
+        mv = 1.0 if i == j else 2.0
+        for u in range(6):
+            k, ll = VOIGT[u, 0], VOIGT[u, 1]
+            mu_ = 1.0 if k == ll else 2.0
+            Dv[v, u] = mv * mu_ * (lam * Gi[i, j] * Gi[k, ll]
+                                   + c * (Gi[i, k] * Gi[j, ll] + Gi[i, ll] * Gi[j, k]))
+    return W
+
+
+@njit(cache=True, inline='always')
+def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
+                       params: np.ndarray, ep: float, want: int, Sn: np.ndarray, Dv: np.ndarray,
+                       M: np.ndarray, cv: np.ndarray, Dp: np.ndarray) -> float:
+    """Any isotropic model through the principal frame of E^ (module docstring): W, Sn and
+    Dv as :func:`_neo_hookean_natural`. Scratch: M (3, 3), cv (6, 6), Dp (6, 6)."""
+    lam, V = eigh3(Eh)
+    if not 1.0 + 2.0 * lam[0] > 0.0:
+        return np.inf
+    st = np.sqrt(1.0 + 2.0 * lam)
+    W, gs, H, sym, twist = principal(model, st, params, ep)
+    if want == 0 or not np.isfinite(W):
+        return W
+    for i in range(3):  # m_a = A v_a
+        for a in range(3):
+            M[i, a] = A[i, 0] * V[0, a] + A[i, 1] * V[1, a] + A[i, 2] * V[2, a]
+    Sp0, Sp1, Sp2 = gs[0] / st[0], gs[1] / st[1], gs[2] / st[2]
+    for i in range(3):
+        for j in range(3):
+            Sn[i, j] = Sp0 * M[i, 0] * M[j, 0] + Sp1 * M[i, 1] * M[j, 1] + Sp2 * M[i, 2] * M[j, 2]
+    if want < 2:
+        return W
+    # principal rows deps_a = m_a^T de~ m_a (c < 3) and pairs m_a^T de~ m_b over the
+    # natural rows: cv[c, v]
+    for c in range(6):
+        a, b = (c, c) if c < 3 else (PAIRS[c - 3, 0], PAIRS[c - 3, 1])
+        for v in range(6):
+            i, j = VOIGT[v, 0], VOIGT[v, 1]
+            cv[c, v] = M[i, a] * M[j, b] + (M[j, a] * M[i, b] if i != j else 0.0)
+    for c in range(6):
+        for d in range(6):
+            Dp[c, d] = 0.0
+    for a in range(3):
+        for b in range(3):
+            Dp[a, b] = H[a, b] / (st[a] * st[b])
+        Dp[a, a] -= gs[a] / st[a] ** 3
+    for c in range(3):
+        a, b = PAIRS[c, 0], PAIRS[c, 1]
+        Dp[3 + c, 3 + c] = 2.0 * (sym[c] - twist[c]) / (st[a] * st[b])
+    for v in range(6):
+        for u in range(6):
+            acc = 0.0
+            for c in range(6):
+                for d in range(6):
+                    acc += cv[c, v] * Dp[c, d] * cv[d, u]
+            Dv[v, u] = acc
+    return W
+
+
+@njit(cache=True, inline='always')
+def _level_rows(u: np.ndarray, dNq: np.ndarray, dNt: np.ndarray, Gq: np.ndarray,
+                Gt: np.ndarray, P: np.ndarray, Hn: np.ndarray) -> None:
+    """The level's basis rows ``P (6 + n_in, k)``, node-major: de_rr, de_ss, de_rs (the same at
+    every point of a level: g_r, g_s and dN/dr, dN/ds do not vary in-plane for a triangle linear
+    in-plane), the tied shear rows (A's e_rw, B's e_sw, C's e_sw - e_rw) and de_ww at each of
+    the level's ``n_in`` points ``dNq (n_in, n_en, 3)``, ``Gq (n_in, 3, 3)``; every strain row
+    of the level is a combination of these (:func:`_combination`)."""
+    k = P.shape[1]
+    for t in range(3, 6):
+        for p in range(k):
+            P[t, p] = 0.0
+    for t in range(N_TIE):
+        _nat_gradient(u, dNt[t], Hn)
+        if t < 2:
+            _tie_rows(dNt[t], Gt[t], Hn, t, P[3 + t], 1.0)
+        else:
+            _tie_rows(dNt[2], Gt[2], Hn, 1, P[5], 1.0)
+            _tie_rows(dNt[2], Gt[2], Hn, 0, P[5], -1.0)
+    for j in range(dNq.shape[0]):
+        _nat_gradient(u, dNq[j], Hn)
+        for a in range(dNq.shape[1]):
+            d0, d1, d2 = dNq[j, a, 0], dNq[j, a, 1], dNq[j, a, 2]
+            for kk in range(3):
+                p = 3 * a + kk
+                g0, g1 = Gq[j, kk, 0] + Hn[kk, 0], Gq[j, kk, 1] + Hn[kk, 1]
+                if j == 0:
+                    P[0, p] = g0 * d0
+                    P[1, p] = g1 * d1
+                    P[2, p] = 0.5 * (g0 * d1 + g1 * d0)
+                P[6 + j, p] = (Gq[j, kk, 2] + Hn[kk, 2]) * d2
+
+
+@njit(cache=True, inline='always')
+def _combination(j: int, r: float, s: float, Phi: np.ndarray) -> None:
+    """Phi (6, 6 + n_in): the natural rows (VOIGT order) of the level's point j, at (r, s), over
+    the level's basis rows (:func:`_level_rows`): the shear pair by the MITC3 interpolation."""
+    for v in range(6):
+        for c in range(Phi.shape[1]):
+            Phi[v, c] = 0.0
+    Phi[0, 0] = Phi[1, 1] = Phi[3, 2] = 1.0
+    Phi[2, 6 + j] = 1.0
+    Phi[4, 3], Phi[4, 4], Phi[4, 5] = 1.0 - s, s, -s
+    Phi[5, 3], Phi[5, 4], Phi[5, 5] = r, 1.0 - r, r
+
+
+@njit(cache=True, inline='always')
+def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C901
+                 tg: tuple, wdetJ: np.ndarray, model: int, params: np.ndarray,
+                 fp_inv: np.ndarray, ep: np.ndarray, plastic: bool, want: int, g: np.ndarray,
+                 K: np.ndarray, Kg: np.ndarray, P: np.ndarray, Ph: np.ndarray, Mb: np.ndarray,
+                 gvs: np.ndarray, sc: np.ndarray, u: np.ndarray, m3: np.ndarray) -> float:
+    """Energy of one element; adds its gradient into ``g (k,)`` (want >= 1) and its Hessian's
+    upper triangle, node-major, into ``K (k, k)`` (want == 2; zeroed here). ``tg``: the
+    element's (dNq, dNt, lev_ptr, rs, Gq, A0, Gt) of :class:`Tying`.
+
+    Per level, the points' strain rows are combinations Phi of the level's basis rows P, so
+    the material part is summed as P^T (sum_q w Phi^T D Phi) P, one product of n_b = 6 + n_in
+    rows per level instead of one of 6 rows per point. Scratch: Kg (n_en, n_en), P (n_b, k),
+    Ph (2, 6, n_b), Mb (n_b, n_b), gvs (3, n_b), u (n_en, 3), sc (3, 6, 6), m3 (8, 3, 3)."""
+    dNq, dNt, lev_ptr, rs, Gq, A0, Gt = tg
+    Hn, en, Eh, A, Sn, sig, M, Ci = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6], m3[7]
+    Dv, cv, Dp = sc[0], sc[1], sc[2]
+    Phi, DPhi = Ph[0], Ph[1]
+    gv, tv = gvs[0], gvs[2]  # tv: the level's tied values, nb >= 3
+    n_en = nodes.shape[0]
+    k = 3 * n_en
+    nb = P.shape[0]
+    for a in range(n_en):
+        for i in range(3):
+            u[a, i] = x[nodes[a], i] - rest[nodes[a], i]
+    if want == 2:
+        for p in range(k):
+            for c in range(k):
+                K[p, c] = 0.0
+        for a in range(n_en):
+            for b in range(n_en):
+                Kg[a, b] = 0.0
+    E = 0.0
+    for lev in range(lev_ptr.shape[0] - 1):
+        q0 = lev_ptr[lev]
+        _tied(u, dNt[lev], Gt[lev], Hn, tv)
+        if want >= 1:
+            n_in = lev_ptr[lev + 1] - q0
+            _level_rows(u, dNq[q0:q0 + n_in], dNt[lev], Gq[q0:q0 + n_in], Gt[lev], P, Hn)
+            for c in range(nb):
+                gv[c] = 0.0
+                for d in range(nb):
+                    Mb[c, d] = 0.0
+        tA = tB = tC = 0.0  # the level's weighted tying stresses (initial-stress term)
+        for q in range(q0, lev_ptr[lev + 1]):
+            r, s = rs[q, 0], rs[q, 1]
+            _nat_gradient(u, dNq[q], Hn)
+            for i in range(3):  # g = G + h: an inverted element has no energy
+                for j in range(3):
+                    en[i, j] = Gq[q, i, j] + Hn[i, j]
+            if not det3(en) > 0.0:
+                return np.inf
+            _map(A0[q], plastic, fp_inv[q], A)
+            _strain_hat(Gq[q], Hn, r, s, tv, A, plastic, fp_inv[q], en, Eh)
+            if model == NEO_HOOKEAN:
+                W = _neo_hookean_natural(Eh, A, params[0], params[1], want, Sn, Dv, Ci, sig)
+            else:
+                W = _principal_natural(model, Eh, A, params, ep[q] if plastic else 0.0, want,
+                                       Sn, Dv, M, cv, Dp)
+            if not np.isfinite(W):
+                return np.inf
+            w = wdetJ[q]
+            E += w * W
+            if want == 0:
+                continue
+            _combination(q - q0, r, s, Phi)
+            for c in range(nb):  # gv += w Phi^T Sv, Sv the stress over the natural rows
+                acc = 0.0
+                for v in range(6):
+                    i, j = VOIGT[v, 0], VOIGT[v, 1]
+                    acc += Phi[v, c] * Sn[i, j] * (1.0 if i == j else 2.0)
+                gv[c] += w * acc
+            if want < 2:
+                continue
+            for v in range(6):  # Mb += w Phi^T Dv Phi
+                for c in range(nb):
+                    acc = 0.0
+                    for t in range(6):
+                        acc += Dv[v, t] * Phi[t, c]
+                    DPhi[v, c] = w * acc
+            for c in range(nb):
+                for d in range(c, nb):
+                    acc = 0.0
+                    for v in range(6):
+                        acc += Phi[v, c] * DPhi[v, d]
+                    Mb[c, d] += acc
+            # initial stress: S~ at the point, its shear pair at the tying points with the
+            # weights of the interpolation
+            for i in range(3):
+                for j in range(3):
+                    sig[i, j] = w * Sn[i, j]
+            Srw, Ssw = sig[0, 2], sig[1, 2]
+            tA += 2.0 * ((1.0 - s) * Srw + r * Ssw)
+            tB += 2.0 * (s * Srw + (1.0 - r) * Ssw)
+            tC += 2.0 * (r * Ssw - s * Srw)
+            sig[0, 2] = sig[2, 0] = sig[1, 2] = sig[2, 1] = 0.0
+            _geometric(dNq[q], sig, Kg)
+        if want == 0:
+            continue
+        for p in range(k):
+            acc = 0.0
+            for c in range(nb):
+                acc += gv[c] * P[c, p]
+            g[p] += acc
+        if want < 2:
+            continue
+        for c in range(nb):
+            for d in range(c):
+                Mb[c, d] = Mb[d, c]
+        _add_congruence(P, Mb, K, gvs[1])
+        _shear_sig(sig, 0, tA)
+        _geometric(dNt[lev, 0], sig, Kg)
+        _shear_sig(sig, 1, tB)
+        _geometric(dNt[lev, 1], sig, Kg)
+        _shear_sig(sig, 1, tC)
+        sig[0, 2] = sig[2, 0] = -0.5 * tC
+        _geometric(dNt[lev, 2], sig, Kg)
+    if want == 2:
+        for a in range(n_en):
+            for b in range(n_en):
+                for i in range(3):
+                    p, c = 3 * a + i, 3 * b + i
+                    if c >= p:
+                        K[p, c] += Kg[a, b]
+    return E
+
+
+@njit(cache=True, inline='always')
+def _add_congruence(P: np.ndarray, Mb: np.ndarray, K: np.ndarray, t: np.ndarray) -> None:
+    """K (upper triangle) += P^T Mb P, Mb symmetric ``(n_b, n_b)``; the column loops run
+    over unsigned indices, contiguous rows: numba adds no wraparound test and they vectorise.
+    Scratch: t (n_b,)."""
+    nb, k = P.shape
+    uk = np.uint64(k)
+    for p in range(k):
+        for c in range(nb):
+            acc = 0.0
+            for d in range(nb):
+                acc += Mb[c, d] * P[d, p]
+            t[c] = acc
+        kr = K[p]
+        for c in range(nb):
+            tc = t[c]
+            pr = P[c]
+            for col in range(np.uint64(p), uk):
+                kr[col] += tc * pr[col]
+
+
+@njit(cache=True)
+def _project(K: np.ndarray) -> None:
+    """K (upper triangle) <- its projection to positive semi-definite (both triangles)."""
+    k = K.shape[0]
+    for p in range(k):
+        for c in range(p):
+            K[p, c] = K[c, p]
+    ev, Q = np.linalg.eigh(K)
+    K[:, :] = (Q * np.maximum(ev, 0.0)) @ Q.T
+
+
+@njit(cache=True, parallel=True)
+def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
+               dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
+               A0: np.ndarray, Gt: np.ndarray, wdetJ: np.ndarray, model: int, params: np.ndarray,
+               fp_inv: np.ndarray, ep: np.ndarray, plastic: bool, want: int, project: int,
+               order: np.ndarray, block_ptr: np.ndarray, color_ptr: np.ndarray,
+               slots: np.ndarray, grad: np.ndarray, data: np.ndarray) -> float:
+    """:func:`sim.terms.elasticity.elastic_kernel` for assumed-shear elements: same arguments
+    and scatter, the element's geometry from :class:`Tying` (Gq, A0, Gt per element). Any
+    projection (``project`` != 0) is the element's: the initial-stress term of the tied shear
+    has no per-point PSD split."""
+    n_e, n_en = conn.shape
+    k = 3 * n_en
+    energies = np.zeros(n_e)
+    for c in range(len(color_ptr) - 1):
+        for blk in prange(color_ptr[c], color_ptr[c + 1]):
+            g = np.zeros(k)
+            K = np.empty((k, k) if want == 2 else (0, 0))
+            Kg = np.empty((n_en, n_en))
+            nb = 6 + (lev_ptr[1] - lev_ptr[0])
+            P, Ph, Mb = np.empty((nb, k)), np.empty((2, 6, nb)), np.empty((nb, nb))
+            gvs, u = np.empty((3, nb)), np.empty((n_en, 3))
+            sc, m3 = np.empty((3, 6, 6)), np.empty((8, 3, 3))
+            for t in range(block_ptr[blk], block_ptr[blk + 1]):
+                e = order[t]
+                E = _ans_element(x, rest, conn[e], (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e]),
+                                 wdetJ[e], model, params, fp_inv[e], ep[e], plastic, want, g,
+                                 K, Kg, P, Ph, Mb, gvs, sc, u, m3)
+                energies[e] = E
+                ok = np.isfinite(E)
+                if want >= 1:
+                    for a in range(n_en):
+                        for i in range(3):
+                            if ok:
+                                grad[conn[e, a], i] += g[3 * a + i]
+                            g[3 * a + i] = 0.0
+                if want == 2 and ok:
+                    if project != 0:
+                        _project(K)
+                    s = slots[e]
+                    p = 0
+                    for r in range(k):
+                        for col in range(r, k):
+                            data[np.uint64(s[p])] += K[r, col]
+                            p += 1
+    return energies.sum()
+
+
+@njit(cache=True)
+def _principal_at(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNq: np.ndarray,
+                  dNt: np.ndarray, lev: int, rs: np.ndarray, Gq: np.ndarray, A0: np.ndarray,
+                  Gt: np.ndarray, q: int, plastic: bool,
+                  fp_inv: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Stretches (3,), principal directions V (3, 3) of C^ at quadrature point q, and ok."""
+    n_en = nodes.shape[0]
+    u = np.empty((n_en, 3))
+    for a in range(n_en):
+        for i in range(3):
+            u[a, i] = x[nodes[a], i] - rest[nodes[a], i]
+    Hn, en, Eh, A = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    tv = np.empty(N_TIE)
+    _tied(u, dNt[lev], Gt[lev], Hn, tv)
+    _nat_gradient(u, dNq[q], Hn)
+    _map(A0[q], plastic, fp_inv, A)
+    _strain_hat(Gq[q], Hn, rs[q, 0], rs[q, 1], tv, A, plastic, fp_inv, en, Eh)
+    lam, V = eigh3(Eh)
+    ok = 1.0 + 2.0 * lam[0] > 0.0
+    return np.sqrt(np.maximum(1.0 + 2.0 * lam, 1e-300)), V, ok
+
+
+@njit(cache=True, parallel=True)
+def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
+                      dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
+                      A0: np.ndarray, Gt: np.ndarray, params: np.ndarray, fp_inv: np.ndarray,
+                      ep: np.ndarray) -> None:
+    """:func:`sim.terms.elasticity.plastic_commit_kernel` on the assumed strain: the return
+    map in the principal frame V of C^, Fp^-1 <- Fp^-1 V diag(exp(-deps_p)) V^T."""
+    mu, law, hp = params[0], int(params[2]), params[3:]
+    for e in prange(conn.shape[0]):
+        for lev in range(lev_ptr.shape[0] - 1):
+            for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
+                s, V, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
+                                         Gt[e], q, True, fp_inv[e, q])
+                if not ok:
+                    continue
+                dep, dg = plastic_flow(np.log(s), ep[e, q], mu, law, hp)
+                if dg == 0.0:
+                    continue
+                fp_inv[e, q] = fp_inv[e, q] @ ((V * np.exp(-dep)) @ np.ascontiguousarray(V.T))
+                ep[e, q] += dg
+
+
+@njit(cache=True, parallel=True)
+def ans_stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
+                      dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
+                      A0: np.ndarray, Gt: np.ndarray, model: int, params: np.ndarray,
+                      fp_inv: np.ndarray, ep: np.ndarray, plastic: bool) -> np.ndarray:
+    """Von Mises equivalent of the Cauchy stress ``(n_elem, n_qp)`` from the assumed strain."""
+    out = np.zeros((conn.shape[0], dNq.shape[0]))
+    eye = np.eye(3)
+    for e in prange(conn.shape[0]):
+        for lev in range(lev_ptr.shape[0] - 1):
+            for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
+                fi = fp_inv[e, q] if plastic else eye
+                s, V, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
+                                         Gt[e], q, plastic, fi)
+                if not ok:
+                    continue
+                W, gs, H, sym, twist = principal(model, s, params, ep[e, q] if plastic else 0.0)
+                tau = gs * s
+                dev = tau - tau.mean()
+                out[e, q] = np.sqrt(1.5 * (dev @ dev)) / (s[0] * s[1] * s[2])
+    return out
