@@ -331,6 +331,9 @@ def hill_stress_tangent(G: np.ndarray, params: np.ndarray, frame: np.ndarray, ep
                 for j in range(3):
                     M[3 * a + b, 3 * i + j] = U[i, a] * V[j, b]
     C[:, :] = M.T @ K @ M
+    for r in range(9):  # exactly symmetric, as the isotropic tangent is
+        for c in range(r + 1, 9):
+            C[r, c] = C[c, r] = 0.5 * (C[r, c] + C[c, r])
     return W
 
 
