@@ -20,7 +20,7 @@ def scene(hill: dict, **extra):
 
 
 @pytest.mark.parametrize("hill, extra, message", [
-    ({**AA5754, "r0": 0.0, "rolling_angle": 0.0}, {}, "material.hill48.r0: Input should be greater"),
+    ({**AA5754, "r0": 0.0, "rolling_angle": 0.0}, {}, "material.hill48.r0: Input should be"),
     ({**AA5754, "r45": -0.5, "rolling_angle": 0.0}, {}, "material.hill48.r45"),
     (AA5754, {}, "material.hill48: rolling_direction: missing"),
     ({**AA5754, "F": 0.5, "rolling_angle": 0.0}, {}, "give either r0, r45, r90 or F, G, H, N"),
