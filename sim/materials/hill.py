@@ -126,6 +126,47 @@ def sheet_frames(normals: np.ndarray, rolling: np.ndarray) -> np.ndarray:
     return np.stack([t, np.cross(normals, t), normals], axis=2)
 
 
+@njit(cache=True, inline='always')
+def _mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A @ B by loops: numba hands every small @ to BLAS, whose call costs more than these
+    3x3 to 9x9 products."""
+    n, m, k = A.shape[0], B.shape[1], A.shape[1]
+    out = np.zeros((n, m))
+    for i in range(n):
+        for p in range(k):
+            a = A[i, p]
+            for j in range(m):
+                out[i, j] += a * B[p, j]
+    return out
+
+
+@njit(cache=True, inline='always')
+def _mtm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A^T @ B by loops."""
+    n, m, k = A.shape[1], B.shape[1], A.shape[0]
+    out = np.zeros((n, m))
+    for p in range(k):
+        for i in range(n):
+            a = A[p, i]
+            for j in range(m):
+                out[i, j] += a * B[p, j]
+    return out
+
+
+@njit(cache=True, inline='always')
+def _mmt(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A @ B^T by loops."""
+    n, m, k = A.shape[0], B.shape[0], A.shape[1]
+    out = np.zeros((n, m))
+    for i in range(n):
+        for j in range(m):
+            acc = 0.0
+            for p in range(k):
+                acc += A[i, p] * B[j, p]
+            out[i, j] = acc
+    return out
+
+
 @njit(cache=True)
 def _solve(a: np.ndarray, h: np.ndarray, ep_n: float, mu: float, law: int,
            hp: np.ndarray) -> float:
@@ -213,8 +254,12 @@ def hill_return(e6: np.ndarray, ep_n: float, params: np.ndarray
         for i in range(1, 6):
             for j in range(1, 6):
                 Da[i, j] -= beta * w[i] * w[j]
-    T, dE = Q @ Ta, Q @ dEa
-    D = Q @ Da @ Q.T
+    T, dE = np.zeros(6), np.zeros(6)
+    for i in range(6):
+        for k in range(6):
+            T[i] += Q[i, k] * Ta[k]
+            dE[i] += Q[i, k] * dEa[k]
+    D = _mmt(_mm(Q, Da), Q)
     return W, T, 0.5 * (D + D.T), dg, dE
 
 
@@ -222,19 +267,18 @@ def hill_return(e6: np.ndarray, ep_n: float, params: np.ndarray
 def mandel_rotation(R: np.ndarray) -> np.ndarray:
     """``Mr (6, 6)``: the Mandel vector of R X R^T is Mr @ (that of X), for a rotation R (3, 3)."""
     Mr = np.empty((6, 6))
-    for k in range(6):
-        B = np.zeros((3, 3))  # Mandel basis tensor k
-        if k < 3:
-            B[k, k] = 1.0
-        else:
-            i, j = _PAIRS[k - 3, 0], _PAIRS[k - 3, 1]
-            B[i, j] = B[j, i] = 1.0 / _R2
-        Y = R @ B @ R.T
-        for m in range(3):
-            Mr[m, k] = Y[m, m]
-        for m in range(3):
-            i, j = _PAIRS[m, 0], _PAIRS[m, 1]
-            Mr[3 + m, k] = _R2 * Y[i, j]
+    for k in range(6):  # column k: R B_k R^T of the Mandel basis tensor B_k
+        for m in range(6):
+            if m < 3:
+                p, q = m, m
+            else:
+                p, q = _PAIRS[m - 3, 0], _PAIRS[m - 3, 1]
+            if k < 3:
+                y = R[p, k] * R[q, k]
+            else:
+                i, j = _PAIRS[k - 3, 0], _PAIRS[k - 3, 1]
+                y = (R[p, i] * R[q, j] + R[p, j] * R[q, i]) / _R2
+            Mr[m, k] = y if m < 3 else _R2 * y
     return Mr
 
 
@@ -282,11 +326,11 @@ def _frame_strain(G: np.ndarray, frame: np.ndarray
     """(ok, U, s, V, Vm = frame^T V, e6 the Mandel trial log strain in the material frame)."""
     U, s, V, ok = polar_svd(G)
     e6 = np.zeros(6)
-    Vm = np.ascontiguousarray(frame.T) @ V
+    Vm = _mtm(frame, V)
     if not ok:
         return False, U, s, V, Vm, e6
     e = np.log(s)
-    Em = (Vm * e) @ np.ascontiguousarray(Vm.T)
+    Em = _mmt(Vm * e, Vm)
     for i in range(3):
         e6[i] = Em[i, i]
     for m in range(3):
@@ -307,7 +351,7 @@ def hill_stress_tangent(G: np.ndarray, params: np.ndarray, frame: np.ndarray, ep
         P[:] = 0.0
         return np.inf
     W, T6, D6, _, _ = hill_return(e6, ep_n, params)
-    Tp = np.ascontiguousarray(Vm.T) @ unmandel(T6) @ Vm  # T in V's frame
+    Tp = _mm(_mtm(Vm, unmandel(T6)), Vm)  # T in V's frame
     lam = s * s
     f1 = np.empty((3, 3))
     for a in range(3):
@@ -317,7 +361,7 @@ def hill_stress_tangent(G: np.ndarray, params: np.ndarray, frame: np.ndarray, ep
     for a in range(3):
         for b in range(3):
             Pp[a, b] = 2.0 * s[a] * f1[a, b] * Tp[a, b]
-    P[:, :] = U @ Pp @ np.ascontiguousarray(V.T)
+    P[:, :] = _mmt(_mm(U, Pp), V)
     if not want_tangent:
         return W
     K = _hessian_uv(s, lam, f1, Tp, D6, Vm)
@@ -330,7 +374,7 @@ def hill_stress_tangent(G: np.ndarray, params: np.ndarray, frame: np.ndarray, ep
             for i in range(3):
                 for j in range(3):
                     M[3 * a + b, 3 * i + j] = U[i, a] * V[j, b]
-    C[:, :] = M.T @ K @ M
+    C[:, :] = _mm(_mtm(M, K), M)
     for r in range(9):  # exactly symmetric, as the isotropic tangent is
         for c in range(r + 1, 9):
             C[r, c] = C[c, r] = 0.5 * (C[r, c] + C[c, r])
@@ -353,14 +397,16 @@ def _hessian_uv(s: np.ndarray, lam: np.ndarray, f1: np.ndarray, Tp: np.ndarray,
                 D6: np.ndarray, Vm: np.ndarray) -> np.ndarray:
     """d2W/dA2 ``(9, 9)`` for dG = U A V^T, A's entries row-major (module docstring)."""
     Mr = mandel_rotation(Vm)  # V-frame Mandel -> material-frame Mandel
-    Dv = Mr.T @ D6 @ Mr
+    Dv = _mm(_mtm(Mr, D6), Mr)
     f2 = np.empty((3, 3, 3))
     x = np.empty(3)
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
+    for i in range(3):  # symmetric in its arguments: ten distinct values
+        for j in range(i, 3):
+            for k in range(j, 3):
                 x[0], x[1], x[2] = lam[i], lam[j], lam[k]
-                f2[i, j, k] = _half_log_dd2(x)
+                v = _half_log_dd2(x)
+                f2[i, j, k] = f2[i, k, j] = f2[j, i, k] = v
+                f2[j, k, i] = f2[k, i, j] = f2[k, j, i] = v
     g = np.empty((3, 3))
     for a in range(3):
         for b in range(3):
