@@ -196,9 +196,10 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
     far), the applied forces (loads, inertia, tools) and, with ``reactions`` (a prescribed
     motion drives the step), the support reactions, all at the current iterate and never the
     residual of the predicted start. Or when the residual is at its measured round-off floor
-    (:class:`Floor`), the Newton correction is Newton's (its solve exact to 1 %) and either
-    below ``xtol`` or leaves the residual at the floor, and the residual's resultant still
-    balances what is applied: the state is then as accurate as its representation allows."""
+    (:class:`Floor`) and its resultant still balances what is applied, reached by a Newton
+    correction (its solve exact to 1 %), or with the next correction below ``xtol`` or
+    leaving the residual at the floor: the state is then as accurate as its representation
+    allows."""
     nt = Newton(problem, settings, x0, ~problem.fixed)
     x = x0.copy()
     E = problem.energy(x)
@@ -225,10 +226,12 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
         # real progress, besides an energy decrease above its noise (the line search's): the
         # residual falling below all before it by a tenth, as in a linear convergence
         stalled = len(nt.res) > 1 and cur.r >= 0.9 * min(nt.res[:-1])
+        if _settled_at_floor(nt, cur, stalled):
+            return nt.result(x, True, it, cur.E)
         dx = _direction(nt, cur, it)
         if isinstance(dx, NewtonResult):
             return dx
-        stop = _stop(nt, cur, it, dx, stalled)
+        stop = _stop(nt, cur, it, dx)
         if stop is not None:
             return stop
         if nt.watch is not None:  # watched: the full step, unless its energy is not finite
@@ -378,8 +381,7 @@ def _held(nt: Newton, dx: np.ndarray, rel: float) -> np.ndarray:
     return dx
 
 
-def _stop(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
-          stalled: bool) -> NewtonResult | None:
+def _stop(nt: Newton, cur: Iterate, it: int, dx: np.ndarray) -> NewtonResult | None:
     """The result when the iteration ends at ``cur`` (at the round-off floor, or out of
     iterations or progress), else None with the full step's evaluation in ``nt.trial``."""
     settings = nt.settings
@@ -394,11 +396,7 @@ def _stop(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
                           "solves in a row leave over 1 % of the residual, the last "
                           f"{nt.rel:.1e})")
     small = newton and float(np.abs(dx).max()) <= settings.xtol
-    # the floor is measured where it can matter: a negligible correction, a residual that
-    # stopped falling or has nothing to be measured against; again near it, since it
-    # moves with the state (the stresses change the stiffness)
-    if (small or stalled or nt.ref == 0.0) if nt.floor is None else cur.r <= 10 * nt.floor.force:
-        nt.floor = None
+    if small:
         nt.measured_floor(cur)
     nt.trial = nt.evaluate(cur.x + dx)  # the full step is usually taken: the next assembly
     done = _floor_exit(nt, cur, it, dx, newton, small)
@@ -414,6 +412,29 @@ def _stop(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
     return None
 
 
+def _settled_at_floor(nt: Newton, cur: Iterate, stalled: bool) -> bool:
+    """Whether ``cur``, reached by a Newton correction (its solve exact to 1 %), is at the
+    round-off floor with its residual balancing what is applied: then no correction can
+    improve it, and computing one to confirm cost an iteration per step. The floor is
+    measured where it can matter (a residual that stopped falling or has nothing to be
+    measured against), and again near it, since it moves with the state (the stresses change
+    the stiffness)."""
+    if (stalled or nt.ref == 0.0) if nt.floor is None else cur.r <= 10 * nt.floor.force:
+        nt.floor = None
+        nt.measured_floor(cur)
+    return (nt.floor is not None and len(nt.res) > 1 and nt.rel <= 1e-2
+            and cur.r <= FLOOR_MARGIN * nt.floor.force and _off_balance(cur, cur.g) <= 1e-4)
+
+
+def _off_balance(cur: Iterate, g: np.ndarray) -> float:
+    """The residual's resultant relative to the applied forces. The floor is stiff
+    self-balanced pairs (top and bottom of a fibre), which cancel in the resultant: a
+    residual left at the floor must still balance what is applied, or the soft (bending)
+    modes are off. Measured at the floor: 1e-14..3e-6 of the applied resultants; 0.8-0.9
+    where the Hessian's soft stiffness is lost to its round-off (h/L = 1e-4)."""
+    return float(np.linalg.norm(g.sum(0))) / cur.scale if cur.scale > 0 else 0.0
+
+
 def _floor_exit(nt: Newton, cur: Iterate, it: int, dx: np.ndarray, newton: bool,
                 small: bool) -> NewtonResult | None:
     """At the round-off floor the residual carries no more information than rounding x does:
@@ -426,14 +447,10 @@ def _floor_exit(nt: Newton, cur: Iterate, it: int, dx: np.ndarray, newton: bool,
     g1 = trial[2].copy()
     g1[~nt.free] = 0.0
     r1 = float(np.linalg.norm(g1))
-    # the floor is stiff self-balanced pairs (top and bottom of a fibre), which cancel
-    # in the resultant: a residual left at the floor must still balance what is
-    # applied, or the soft (bending) modes are off. Measured at the floor: 1e-14..3e-6
-    # of the applied resultants; 0.8-0.9 where the Hessian's soft stiffness is lost to
-    # its round-off (h/L = 1e-4). A Newton correction below xtol needs no such proof:
-    # it is the distance to equilibrium, whatever the loads (a tool that grazes the
-    # sheet applies less than the floor, and its resultant is all round-off)
-    off = float(np.linalg.norm(g1.sum(0))) / cur.scale if cur.scale > 0 else 0.0
+    # a Newton correction below xtol needs no proof of balance: it is the distance to
+    # equilibrium, whatever the loads (a tool that grazes the sheet applies less than the
+    # floor, and its resultant is all round-off)
+    off = _off_balance(cur, g1)
     if (np.isfinite(trial[0]) and newton
             and (small or (r1 <= FLOOR_MARGIN * nt.floor.force and off <= 1e-4))):
         nt.res.append(r1)  # the residual of the state returned
