@@ -38,9 +38,10 @@ when there is one; loaded: the end of the stroke):
   same best-fit motion, the tool where the stroke left it. A part that does not spring back
   reads 0, however deep the penalty contact let it into the contact layer.
 - ``max_rim_height``, ``min_rim_height``, ``earing``, ``rim_harmonic_4``, ``rim_harmonic_6``
-  (one punch direction, a flat blank's outer edge drawn up into a wall: its mean height above
-  half the part's): the edge's heights above the lowest point along the punch's direction,
-  around the punch axis from the x axis (sim.frames.earing), final state; ``earing`` is
+  (one punch direction, a flat blank's outer edge drawn through the die: every edge vertex
+  moved along the punch's direction by more than two thicknesses): the edge's heights above
+  the lowest point along the punch's direction, around the punch axis from the x axis
+  (sim.frames.earing), final state; ``earing`` is
   (max - min) / mean and carries the whole ``profile`` (angle, height); the four-fold
   harmonic is a rolled sheet's ears, the six-fold a hexagonal mesh's pattern.
 - ``volume_change``: V / V0 - 1 of the sheet, final state.
@@ -369,11 +370,12 @@ def _rim_height(view: View) -> list[dict]:
     if len(dirs) != 1:
         return []
     tool, d = dirs[0]
-    mid, rest = view.mid(), view.model.shell.mesh.vertices
-    r = earing.rim(rest, mid, view.summary.edge.vertices, d, view.summary.starts[tool])
-    along = mid @ d
-    if r.height.mean() < 0.5 * (along.max() - along.min()):
+    mid, rest, edge = view.mid(), view.model.shell.mesh.vertices, view.summary.edge.vertices
+    # a rim once the whole edge has left the blank's plane with the punch (drawn through the
+    # die), not a flange still held, whose heights show no ears (its draw-in does)
+    if np.min((mid[edge] - rest[edge]) @ d) <= 2 * float(view.model.shell.thickness.max()):
         return []
+    r = earing.rim(rest, mid, edge, d, view.summary.starts[tool])
     i, j = int(np.argmax(r.height)), int(np.argmin(r.height))
     deg = np.degrees(r.angle)
     profile = {"angle": measure(deg, "deg"), "height": measure(r.height, "m")}
