@@ -45,10 +45,20 @@ bench: $(STAMP)
 # The CalculiX comparison needs Debian's calculix-ccx: without ccx it is skipped with a message
 # (`q3t bench --cases calculix` itself exits 2 then) and the other tables are still made.
 R := docs/results
+# the square cup to NUMISHEET'93's first stroke (15 mm), and its aluminium sheet (placed on the
+# 0.81 mm sheet's skins): docs/outlines.md
+SQUARE15 := --quiet --set stepping.steps=30 --set 'tools.0.velocity=[0,0,-0.015]' \
+  --set 'sections.0.steps=[0,30]' --set 'sections.1.steps=[0,30]'
+ALUMINIUM := --set shell.thickness=0.00081 --set material.E=71e9 --set material.nu=0.33 \
+  --set material.density=2700 --set material.yield_stress=132.225264e6 \
+  --set material.hardening.K=576.79e6 --set material.hardening.e0=0.01658 \
+  --set material.hardening.n=0.3593 --set 'tools.0.position=[0,0,0.000405]' \
+  --set 'tools.1.position=[0,0,-0.000405]' --set 'tools.2.position=[0,0,0.000405]'
 results: $(STAMP)
 	$(BIN)/q3t check --results $(R)/check.md
 	$(BIN)/q3t bench --cases beam,cup,plastic --repeat 5 --results $(R)/bench.md
 	$(BIN)/q3t bench --cases forming --results $(R)/bench-forming.md
+	$(BIN)/q3t mesh-tools --results $(R)/mesh-tools.md
 	@if command -v ccx >/dev/null; then \
 	  echo "$(BIN)/q3t bench --cases calculix --repeat 3 --results $(R)/bench-calculix.md"; \
 	  $(BIN)/q3t bench --cases calculix --repeat 3 --results $(R)/bench-calculix.md; \
@@ -76,6 +86,12 @@ results: $(STAMP)
 	  --elements linear:1x2,linear:3x2,q3t:1x3,q3t:3x3 --levels 0.00875,0.0046667 \
 	  --reference quadratic:0.0046667 --no-overhead --out runs/accuracy-quadrature \
 	  --results $(R)/accuracy-quadrature.md
+	$(BIN)/q3t study --course --out runs/course \
+	  --results $(R)/shell-course.md
+	$(BIN)/q3t study --course --elements quadratic --set mesh.curved=false \
+	  --out runs/course-flat --results $(R)/shell-course-flat.md
+	$(BIN)/q3t study --course --elements quadratic:3x3 --out runs/course-3x3 \
+	  --results $(R)/shell-course-3x3.md
 	$(BIN)/q3t springback --elements q3t,quadratic,quartic --out runs/springback \
 	  --results $(R)/springback-formula.md
 	$(BIN)/q3t bench-service --results $(R)/service.md
@@ -93,6 +109,14 @@ results: $(STAMP)
 	$(BIN)/q3t run cup_drawing --quiet --set 'tools.0.velocity=[0,0,-0.03]' \
 	  --set stepping.steps=60 --set mesh.edge_length=0.00125 --out runs/forming-cup_drawing-30mm \
 	  --results $(R)/forming-cup_drawing-30mm-1.25mm.md
+	$(BIN)/q3t run square_cup $(SQUARE15) --out runs/forming-square_cup \
+	  --results $(R)/forming-square_cup.md
+	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --out runs/forming-square_cup-al \
+	  --results $(R)/forming-square_cup-aluminium.md
+	$(BIN)/q3t run square_cup --quiet --out runs/forming-square_cup-40 \
+	  --results $(R)/forming-square_cup-40.md
+	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --out runs/forming-square_cup-al-40 \
+	  --results $(R)/forming-square_cup-aluminium-40.md
 	$(BIN)/q3t sweep cup_drawing --grid mesh.edge_length=0.004,0.003,0.0025,0.002 \
 	  --out runs/forming-cup_mesh --results $(R)/forming-cup_mesh.md
 	$(BIN)/q3t sweep cup_drawing --grid shell.element=linear,q3t --set mesh.edge_length=0.003 \
@@ -134,6 +158,18 @@ browser-deps:
 	  else echo "browser tests will skip: /usr/bin/chromium missing (as root: apt-get install chromium)"; fi; \
 	fi
 	@$(BIN)/python -c "import playwright" 2>/dev/null || $(BIN)/pip install -q playwright
+	@$(MAKE) --no-print-directory gmsh-deps
+
+# gmsh's wheel (outline blanks) links X and OpenGL libraries even when it meshes headless:
+# Debian's chromium brings some of them, not these.
+GMSH_DEBS := libgl1 libglu1-mesa libgomp1 libxcursor1 libxft2 libxinerama1
+.PHONY: gmsh-deps
+gmsh-deps:
+	@$(BIN)/python -c "import gmsh" 2>/dev/null || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    apt-get update -qq && apt-get install -y -qq $(GMSH_DEBS); \
+	  else echo "outline blanks need gmsh's libraries (as root: apt-get install $(GMSH_DEBS))"; \
+	  fi; }
 
 # Debian's python3 makes a venv only with the python3-venv package (ensurepip); as root we
 # install it, otherwise we say what to run. A failed attempt leaves a .venv without pip: removed.

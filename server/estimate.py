@@ -273,8 +273,9 @@ class EstimateCache:
         if run.id not in self._facts:
             d = self.root / run.id
             try:
-                edge = scene_from_toml((d / "scene.toml").read_text(),
-                                       run.overrides).mesh.edge_length
+                # a mesh file or a patch refined by cells has no edge length
+                edge = getattr(scene_from_toml((d / "scene.toml").read_text(),
+                                               run.overrides).mesh, "edge_length", None)
             except (OSError, ValueError):
                 edge = None
             try:

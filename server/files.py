@@ -6,7 +6,9 @@ final name (the readers take the format from the suffix and name the file in the
 read back with the readers the solver uses and checked, and only then linked (a new name)
 or renamed (an explicit replace) into place: a file in the scenes folder is always whole and
 readable, whatever the client does, and two uploads of one new name cannot both win.
-Sim tools are primitives and CSG of them (sim.tools), not meshes: there is no tool kind yet."""
+A tool's surface (a tool shape of kind ``mesh``, ``tools.N.shape.path``) shares the blank's
+extensions: its upload says ``kind=tool`` and is checked as a tool surface (closed, wound one
+way, not self-intersecting: sim.tools.meshtool); the listing names a mesh file a blank."""
 
 from __future__ import annotations
 
@@ -24,12 +26,14 @@ import numpy as np
 
 from server.problems import Conflict, Invalid, NotFound
 from server.settings import SCENE_NAME_MAX, check_name
-from server.store import MESH_SUFFIXES, VALUE_SUFFIXES, SceneStore
+from server.store import MESH_SUFFIXES, OUTLINE_SUFFIXES, VALUE_SUFFIXES, SceneStore
 from sim.scene.fields import MAX_LENGTH
 from sim.scene.load import SceneError, read_toml
 
 # what each kind is, by suffix, and the scene field that reads it
-KINDS = {"blank": MESH_SUFFIXES, "thickness": VALUE_SUFFIXES}
+KINDS = {"blank": MESH_SUFFIXES, "thickness": VALUE_SUFFIXES, "tool": MESH_SUFFIXES,
+         "outline": OUTLINE_SUFFIXES}
+# an outline drawing is named by mesh.path too: the blank's field covers it
 FIELDS = {"blank": ("mesh", "path"), "thickness": ("shell", "thickness_file")}
 FILE_NAME_MAX = SCENE_NAME_MAX
 # a triangle this much smaller than the median is flat to round-off: the solver refuses the
@@ -58,9 +62,12 @@ def check_file_name(name: str) -> str:
 
 
 def kind_of(name: str, kind: str | None = None) -> str:
-    """The kind a file name's suffix says (and ``kind``, when given, must agree)."""
+    """The kind a file name's suffix says, the first of those that share it (and ``kind``,
+    when given, must be one of them)."""
     suffix = PurePosixPath(name).suffix
     found = [k for k, suffixes in KINDS.items() if suffix in suffixes]
+    if kind is not None and kind in found:
+        return kind
     if not found:
         known = "; ".join(f"{', '.join(s)} for a {k}" for k, s in KINDS.items())
         raise Invalid(f"name {name!r}: unknown extension {suffix or '(none)'!r} (lower case: "
@@ -137,7 +144,33 @@ def inspect_thickness(path: Path) -> dict:
     return {"values": int(h.size)}
 
 
-INSPECT = {"blank": inspect_blank, "thickness": inspect_thickness}
+def inspect_outline(path: Path) -> dict:
+    """The drawing as an outline mesh reads it (sim.geometry.outline.read_drawing): closed
+    paths, the largest enclosing the others as holes. Its units are the scene's mesh.scale, so
+    its curves are flattened here at a tenth of a drawing unit, fine enough to check."""
+    from sim.geometry import outline
+
+    try:
+        shape = outline.read_drawing(path, 1.0, 1.0)
+    except outline.OutlineError as exc:
+        raise Invalid(str(exc)) from None
+    return {"holes": len(shape.holes)}
+
+
+def inspect_tool(path: Path) -> dict:
+    """The mesh file as a tool's surface (sim.tools.meshtool.read_surface, closed): its size
+    is not checked, as the scene's ``scale`` says its units."""
+    from sim.tools.meshtool import MeshOptions, read_surface
+
+    try:
+        V, F = read_surface(path, MeshOptions(), check_size=False)
+    except ValueError as exc:  # names the file
+        raise Invalid(str(exc)) from None
+    return {"vertices": len(V), "triangles": len(F)}
+
+
+INSPECT = {"blank": inspect_blank, "thickness": inspect_thickness, "tool": inspect_tool,
+           "outline": inspect_outline}
 
 
 @functools.lru_cache(maxsize=256)
@@ -183,12 +216,13 @@ class FileStore:
         return sorted(p.name for p in self.root.iterdir()
                       if p.is_file() and _is_file_name(p.name))
 
-    def entry(self, name: str, users: dict[str, list[str]] | None = None) -> dict:
+    def entry(self, name: str, users: dict[str, list[str]] | None = None,
+              kind: str | None = None) -> dict:
         p = self.path(name)
         if not p.is_file():
             raise NotFound(f"no file {name!r}")
-        st, kind = p.stat(), kind_of(name)
-        counts = {"vertices": None, "triangles": None, "values": None,
+        st, kind = p.stat(), kind_of(name, kind)
+        counts = {"vertices": None, "triangles": None, "values": None, "holes": None,
                   **_described(str(p), kind, st.st_size, st.st_mtime_ns)}
         users = self.users() if users is None else users
         return {"name": name, "kind": kind, "size": st.st_size, **counts,
@@ -201,16 +235,22 @@ class FileStore:
     def users(self) -> dict[str, list[str]]:
         """File name -> the scenes whose TOML names it in a file field (valid scenes or not)."""
         out: dict[str, list[str]] = {}
+        for name, uses in self.uses().items():
+            for scene, _ in uses:
+                if scene not in out.setdefault(name, []):
+                    out[name].append(scene)
+        return out
+
+    def uses(self) -> dict[str, list[tuple[str, str]]]:
+        """File name -> (scene, field) of each file field of a scene's TOML that names it."""
+        out: dict[str, list[tuple[str, str]]] = {}
         for scene in self.scenes.names():
             try:
                 raw = read_toml(self.scenes.text(scene))
             except SceneError:
                 continue
-            for table, key in FIELDS.values():
-                section = raw.get(table)
-                value = section.get(key) if isinstance(section, dict) else None
-                if isinstance(value, str) and value:
-                    out.setdefault(str(PurePosixPath(value)), []).append(scene)
+            for field, value in _named(raw):
+                out.setdefault(str(PurePosixPath(value)), []).append((scene, field))
         return out
 
     def delete(self, name: str) -> None:
@@ -218,10 +258,11 @@ class FileStore:
         p = self.path(name)
         if not p.is_file():
             raise NotFound(f"no file {name!r}")
-        users = self.users().get(name)
-        if users:
-            field = ".".join(FIELDS[kind_of(name)])
-            raise Conflict(f"file {name!r} is used by scene(s) {', '.join(users)} ({field}); "
+        uses = self.uses().get(name)
+        if uses:
+            scenes = ", ".join(dict.fromkeys(s for s, _ in uses))
+            fields = ", ".join(dict.fromkeys(f for _, f in uses))
+            raise Conflict(f"file {name!r} is used by scene(s) {scenes} ({fields}); "
                            "change or delete them first")
         p.unlink()
 
@@ -274,7 +315,31 @@ class FileStore:
             except FileExistsError:
                 raise Conflict(f"file {received.name!r} exists; upload with replace=true to "
                                "replace it") from None
-        return self.entry(received.name)
+        return self.entry(received.name, kind=kind)
+
+
+def _named(raw: dict) -> Iterator[tuple[str, str]]:
+    """(field, file) of each file field a scene's tables fill: the blank's, the thickness
+    file, and every tool shape's mesh (at any depth of its CSG)."""
+    for table, key in FIELDS.values():
+        section = raw.get(table)
+        value = section.get(key) if isinstance(section, dict) else None
+        if isinstance(value, str) and value:
+            yield f"{table}.{key}", value
+    tools = raw.get("tools")
+    for i, tool in enumerate(tools if isinstance(tools, list) else []):
+        if isinstance(tool, dict):
+            yield from _shape_files(tool.get("shape"), f"tools.{i}.shape")
+
+
+def _shape_files(shape: object, where: str) -> Iterator[tuple[str, str]]:
+    if not isinstance(shape, dict):
+        return
+    if shape.get("kind") == "mesh" and isinstance(shape.get("path"), str) and shape["path"]:
+        yield f"{where}.path", shape["path"]
+    parts = shape.get("shapes")
+    for j, part in enumerate(parts if isinstance(parts, list) else []):
+        yield from _shape_files(part, f"{where}.shapes.{j}")
 
 
 def _is_file_name(text: str) -> bool:
@@ -285,4 +350,5 @@ def _is_file_name(text: str) -> bool:
 
 
 __all__ = ["FileStore", "KINDS", "Stalled", "TooLarge", "check_blank", "check_file_name",
-           "inspect_blank", "inspect_thickness", "kind_of", "spool"]
+           "inspect_blank", "inspect_outline", "inspect_thickness", "inspect_tool", "kind_of",
+           "spool"]

@@ -9,11 +9,13 @@ from pydantic import ValidationError
 from server.tomlout import drop_none, edited, to_toml
 from sim.scene.load import Scene, SceneError, joined, read_toml, scene_errors
 from sim.scene.load import validate as validate_scene
-from sim.scene.sheet import FileMesh, ShellSpec
+from sim.scene.shapes import MeshShape
+from sim.scene.sheet import FileMesh, OutlineMesh, ShellSpec
 
 # the fields that name a file of the scenes folder, by model and field, and the kind of file
 # (server.files): the form offers the uploaded files of that kind and an upload button
-FILE_FIELDS = {(FileMesh, "path"): "blank", (ShellSpec, "thickness_file"): "thickness"}
+FILE_FIELDS = {(FileMesh, "path"): "blank", (ShellSpec, "thickness_file"): "thickness",
+               (MeshShape, "path"): "tool", (OutlineMesh, "path"): "outline"}
 
 
 def schema() -> dict:

@@ -7,6 +7,7 @@ any other file."""
 
 from __future__ import annotations
 
+import functools
 import os
 import secrets
 from pathlib import Path, PurePosixPath, PureWindowsPath
@@ -14,11 +15,13 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 from server.problems import Conflict, Invalid, NotFound
 from server.settings import check_scene_name
 from sim.elements import get_element
+from sim.geometry import outline
 from sim.model import size
 from sim.scene.load import Scene, SceneError, read_toml, scene_from_toml
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl")  # what sim.geometry.trimesh.load reads
 VALUE_SUFFIXES = (".npy", ".txt", ".csv")  # what sim.model reads as per-vertex values
+OUTLINE_SUFFIXES = outline.SUFFIXES  # the drawings an outline mesh reads
 
 
 def _temp(path: Path, data: str | bytes) -> Path:
@@ -99,12 +102,16 @@ class SceneStore:
             return {"name": name, "description": "", "valid": False}
 
     def scene_files(self, scene: Scene) -> dict[str, Path]:
-        """The files a scene reads (``mesh.path`` of a file mesh, ``shell.thickness_file``), each
-        inside the scenes folder, by field. Raises SceneError naming the field. A name is
-        checked before any file is looked at, so a refused name touches nothing."""
-        wanted = {"mesh.path": (scene.mesh.path or "" if scene.mesh.kind == "file" else None,
-                                MESH_SUFFIXES),
+        """The files a scene reads (``mesh.path`` of a file or outline mesh,
+        ``shell.thickness_file``, a mesh tool's ``tools.N.shape.path``), each inside the scenes
+        folder, by field. Raises SceneError naming the field. A name is checked before any file
+        is looked at, so a refused name touches nothing."""
+        mesh_files = {"file": MESH_SUFFIXES, "outline": OUTLINE_SUFFIXES}.get(scene.mesh.kind)
+        wanted = {"mesh.path": (scene.mesh.path if mesh_files else None, mesh_files),
                   "shell.thickness_file": (scene.shell.thickness_file, VALUE_SUFFIXES)}
+        for i, tool in enumerate(scene.tools):  # a mesh tool's surface, at any CSG depth
+            for field, shape in _tool_files(tool.shape, f"tools.{i}.shape"):
+                wanted[field] = (shape.path, MESH_SUFFIXES)
         return {f: self._inside(f, text, suffixes)
                 for f, (text, suffixes) in wanted.items() if text is not None}
 
@@ -148,9 +155,22 @@ class SceneStore:
         except ValueError as exc:  # names the known elements
             raise Invalid(f"shell.element: {exc}") from None
         solver_overrides = {**overrides, **self.solver_overrides(spec)}
+        self._check_tool_meshes(spec)
         size.check(scene_from_toml(text, solver_overrides), max_bytes,
                    "the server's --max-memory")
         return spec, solver_overrides
+
+    def _check_tool_meshes(self, scene: Scene) -> None:
+        """Invalid (422) naming the field, the tool and the problem of a mesh tool's surface
+        (open, self-intersecting, its size once scaled...), before a run builds it."""
+        for i, tool in enumerate(scene.tools):
+            for field, shape in _tool_files(tool.shape, f"tools.{i}.shape"):
+                full = self._inside(field, shape.path, MESH_SUFFIXES)
+                st = full.stat()
+                problem = _tool_problem(str(full), st.st_size, st.st_mtime_ns, shape.scale,
+                                        shape.spacing, shape.open, shape.flip)
+                if problem:
+                    raise Invalid(f"{field}: tool {tool.name!r}: {problem}")
 
     def run_text(self, scene: str, toml: str | None) -> tuple[str, bool]:
         """The text a run of ``scene`` runs, and whether it is not the saved scene: ``toml``
@@ -190,3 +210,25 @@ class SceneStore:
 
 
 __all__ = ["SceneStore", "SceneError", "atomic_write", "exclusive_write"]
+
+
+def _tool_files(shape: object, where: str) -> list[tuple[str, object]]:
+    """(field, shape) of the mesh shapes of a tool's shape, its CSG operands' included."""
+    if getattr(shape, "kind", None) == "mesh":
+        return [(f"{where}.path", shape)]
+    return [f for j, part in enumerate(getattr(shape, "shapes", []))
+            for f in _tool_files(part, f"{where}.shapes.{j}")]
+
+
+@functools.lru_cache(maxsize=64)
+def _tool_problem(path: str, size: int, mtime_ns: int, scale: float, spacing: float,
+                  is_open: bool, flip: bool) -> str | None:
+    """What makes a tool's mesh file unusable with these options (sim.tools.meshtool), once
+    per version of the file; None when it can be used."""
+    from sim.tools.meshtool import MeshOptions, read_surface
+
+    try:
+        read_surface(path, MeshOptions(scale, spacing, is_open, flip))
+    except ValueError as exc:
+        return str(exc)
+    return None

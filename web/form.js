@@ -12,8 +12,9 @@
 // and 0.0165 invite a slipped decimal; values are converted back to SI, and a value left as
 // shown is sent back unchanged (no round-off). A decimal comma ("0,15") reads as 0.15.
 //
-// Files: a field the schema marks with "x-file" (mesh.path: a blank mesh, shell.thickness_file)
-// is a select of the scenes folder's files of that kind (GET /api/files) with an upload button
+// Files: a field the schema marks with "x-file" (mesh.path: a blank mesh or an outline drawing,
+// shell.thickness_file, a mesh tool's shape.path) is a select of the scenes folder's files of
+// that kind (GET /api/files) with an upload button
 // beside it (POST /api/files; a name taken asks before it replaces the file).
 "use strict";
 
@@ -55,8 +56,9 @@ const SceneForm = (() => {
   const bytes = (n) => (n < 2 ** 20 ? `${(n / 1024).toFixed(1)} KiB`
                                    : `${(n / 2 ** 20).toFixed(1)} MiB`);
   // what a listed file holds, for its option (a thickness file has a value per vertex)
-  const counts = (f) => (f.problem ? "unusable" : f.kind === "blank"
-    ? `${f.vertices} vertices, ${f.triangles} triangles` : `${f.values} values`);
+  const counts = (f) => (f.problem ? "unusable" : f.triangles !== null
+    ? `${f.vertices} vertices, ${f.triangles} triangles`
+    : f.kind === "outline" ? `${f.holes} hole${f.holes === 1 ? "" : "s"}` : `${f.values} values`);
   // POST /api/files: the file's bytes as the body; the answer's JSON, or an Error with its
   // detail and status
   const upload = async (file, name, kind, replace) => {
@@ -401,7 +403,10 @@ const SceneForm = (() => {
       const folder = { limit: null, accept: "" };  // the server's limit and the extensions
       const fill = (list, chosen) => {
         const options = [el("option", { value: "", textContent: "— choose a file —" })];
-        const mine = list.files.filter((f) => f.kind === kind);
+        // by extension: a tool's surface and a blank are both meshes (the listing calls
+        // either a blank; the upload checks it as the field's kind)
+        const exts = list.kinds[kind] || [];
+        const mine = list.files.filter((f) => exts.some((x) => f.name.endsWith(x)));
         for (const f of mine)
           options.push(el("option", { value: f.name, textContent: `${f.name} (${counts(f)})`,
                                       title: f.problem || bytes(f.size) }));
@@ -431,8 +436,9 @@ const SceneForm = (() => {
     // Upload…: a file chooser, then POST /api/files; a name taken asks before replacing
     uploadButton(kind, folder, say, refresh) {
       const chooser = el("input", { type: "file", hidden: true });
+      const article = /^[aeiou]/.test(kind) ? "an" : "a";  // an outline file
       const button = el("button", { type: "button", class: "upload",
-                                    textContent: "Upload…", title: `upload a ${kind} file` });
+                                    textContent: "Upload…", title: `upload ${article} ${kind} file` });
       button.onclick = () => { chooser.accept = folder.accept; chooser.click(); };
       chooser.onchange = async () => {
         const file = chooser.files[0];

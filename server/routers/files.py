@@ -1,5 +1,6 @@
 """/api/files: upload, list, read and delete the files scenes read (blank meshes for
-``mesh.path``, per-vertex thickness for ``shell.thickness_file``), kept in the scenes folder.
+``mesh.path``, per-vertex thickness for ``shell.thickness_file``, tool surfaces for a mesh
+tool's ``shape.path``), kept in the scenes folder.
 
 The upload's body is the file itself (``Content-Type: application/octet-stream``;
 ``curl -X POST -T blank.stl 'http://HOST/api/files?name=blank.stl'``), streamed to disk and
@@ -24,7 +25,7 @@ from server.settings import Settings, name_type
 router = APIRouter(prefix="/api/files", tags=["files"])
 
 FileName = name_type(check_file_name, FILE_NAME_MAX)
-Kind = Literal["blank", "thickness"]
+Kind = Literal["blank", "thickness", "tool", "outline"]
 # an answer given before the body is all read: the rest of it is never read, so the connection
 # cannot carry another request
 CLOSE = {"Connection": "close"}
@@ -34,11 +35,15 @@ class FileEntry(BaseModel):
     name: str = Field(description="the file's name in the scenes folder: what a scene's "
                                   "mesh.path or shell.thickness_file says")
     kind: Kind = Field(description="blank: a mid-surface mesh; thickness: one value (m) per "
-                                   "vertex")
+                                   "vertex; tool: a tool's surface mesh (an upload's answer "
+                                   "only: the listing names mesh files blanks); outline: an "
+                                   "SVG or DXF drawing of a blank's outline (mesh kind outline)")
     size: int = Field(description="bytes")
-    vertices: int | None = Field(description="a blank's vertices as the solver reads them")
-    triangles: int | None = Field(description="a blank's triangles")
+    vertices: int | None = Field(description="a mesh's vertices as the solver reads them")
+    triangles: int | None = Field(description="a mesh's triangles")
     values: int | None = Field(description="a thickness file's values")
+    holes: int | None = Field(description="an outline's holes (its closed paths but the "
+                                          "largest)")
     used_by: list[str] = Field(description="the scenes that name the file")
     problem: str | None = Field(description="why the solver could not use the file (one put "
                                             "in the folder by hand); null when it can")
@@ -78,9 +83,10 @@ def list_files(request: Request) -> dict:
 async def upload_file(request: Request, response: Response, name: FileName,
                       kind: Kind | None = None, replace: bool = False) -> dict:
     """Keep the body as ``name`` in the scenes folder, once it reads as its kind (by
-    extension: .obj/.ply/.stl a blank, .npy/.txt/.csv a thickness file): 422 naming what is
-    wrong (not a mesh, zero-area triangles, non-manifold or flipped edges, values that are
-    no thickness), 413 past the size limit, 409 when the name is taken and ``replace`` is not
+    extension: .obj/.ply/.stl a blank, .npy/.txt/.csv a thickness file; ``kind=tool`` a mesh
+    file as a tool's surface): 422 naming what is wrong (not a mesh, zero-area triangles,
+    non-manifold or flipped edges, values that are no thickness; a tool's surface open or
+    self-intersecting), 413 past the size limit, 409 when the name is taken and ``replace`` is not
     set. Nothing is left behind by a refused or interrupted upload."""
     files, limit = _files(request), _settings(request).max_upload
     path, kind = files.target(name, kind, replace)

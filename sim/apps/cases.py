@@ -8,6 +8,7 @@ its budget, a child that crashes or hangs are each a ``status`` with a ``reason`
 
 from __future__ import annotations
 
+import json
 import math
 import multiprocessing as mp
 import os
@@ -296,3 +297,18 @@ class WatchedContext:
 
     def Process(self, **kw: Any) -> _WatchedProcess:  # noqa: N802 - multiprocessing's name
         return _WatchedProcess(**kw)
+
+
+_WARM: set[str] = set()  # warm-ups done in this (worker) process
+
+
+def study_case(scene_path: str, overrides: dict, warmup: dict,
+               budget: float | None = None) -> dict:
+    """One timed case on a Dask worker: ``run_case`` with its series, after a warm-up run
+    (``warmup`` overrides, once per worker process) that loads every kernel the element needs
+    from numba's cache. ``budget``: the case's seconds (``run_case``), the warm-up's too."""
+    key = json.dumps([scene_path, warmup], sort_keys=True, default=str)
+    if key not in _WARM:
+        run_case(scene_path, warmup, budget=budget)
+        _WARM.add(key)
+    return run_case(scene_path, overrides, series=True, budget=budget)

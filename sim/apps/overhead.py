@@ -45,6 +45,9 @@ def all_terms_model(scene: Scene) -> Model:
 
     m = build_model(scene)
     el = m.elasticity
+    if el not in m.terms:
+        raise ValueError("material.model: a linear_elastic scene has no all-terms variant (no "
+                         "plastic state can join its small-strain term)")
     if not el.plastic:
         mu, lam = lame(scene.material.E, scene.material.nu)
         full = Elasticity(m.shell, el.rule, el.model, np.array([mu, lam, PERFECT, 1e30]),

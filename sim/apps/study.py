@@ -18,7 +18,6 @@ over the run or a section's profile (relative L2 or max difference on the common
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from collections.abc import Callable
@@ -27,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.apps.cases import element_overrides, run_case
+from sim.apps.cases import element_overrides, study_case
 from sim.apps.common import BAD_INPUT, FAILED, OK, parse_sets, resolve_scene
 from sim.apps.factorisation import FACTOR_REPEAT, factorisation_report
 from sim.apps.overhead import OVERHEAD_REPEAT, terms_overhead
@@ -84,7 +83,10 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
     sc = load_scene(scene_path, {**overrides, **{f"study.{k}": v for k, v in
                                                  (study or {}).items()}})
     st, notes = sc.study, []
-    if sc.mesh.edge_length is None:
+    if hasattr(sc.mesh, "cells"):
+        raise ValueError(f"{sc.name}: mesh kind {sc.mesh.kind!r} is refined by cells per side: "
+                         "the shell obstacle course runs with q3t study --course")
+    if getattr(sc.mesh, "edge_length", None) is None:
         raise ValueError(f"{sc.name}: mesh kind {sc.mesh.kind!r} has no edge_length to refine")
     if st is None:
         notes.append("scene has no [study] table: its first probe"
@@ -105,7 +107,10 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
     if st is not None:
         m.update({k: getattr(st, k) for k in m if getattr(st, k) is not None})
     analytic = None
-    if st is not None and st.analytic and reference is None:
+    if st is not None and st.published and reference is None:
+        analytic = {"name": "published", "value": st.published.value,
+                    "about": st.published.source}
+    elif st is not None and st.analytic and reference is None:
         from sim.analytic import reference as formula
 
         analytic = formula(sc, st.analytic, m["probe"])
@@ -119,21 +124,6 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
         raise ValueError(f"--reference: unknown element {reference[0]!r}")
     return Plan(str(scene_path), _label(m), m, list(elements), list(levels),
                 tuple(reference) if reference else None, analytic, overrides, notes)
-
-
-_WARM: set[str] = set()  # warm-ups done in this (worker) process
-
-
-def study_case(scene_path: str, overrides: dict, warmup: dict,
-               budget: float | None = None) -> dict:
-    """One timed case on a Dask worker: ``run_case`` with its series, after a warm-up run
-    (``warmup`` overrides, once per worker process) that loads every kernel the element needs
-    from numba's cache. ``budget``: the case's seconds (``run_case``), the warm-up's too."""
-    key = json.dumps([scene_path, warmup], sort_keys=True, default=str)
-    if key not in _WARM:
-        run_case(scene_path, warmup, budget=budget)
-        _WARM.add(key)
-    return run_case(scene_path, overrides, series=True, budget=budget)
 
 
 def measured(r: dict, m: dict) -> float | tuple[np.ndarray, np.ndarray] | None:
@@ -356,7 +346,13 @@ def run(args: argparse.Namespace) -> int:
     from sim.scene.load import SceneError
 
     stamp = Stamp.begin(args.command)
+    if args.course:
+        from sim.apps import study_course
+
+        return study_course.run(args, stamp)
     try:
+        if args.scene is None:
+            raise ValueError("give a scene, or --course")
         scene, plan = _inputs(args)
     except (SceneError, ValueError) as exc:
         print(f"q3t study: {exc}", file=sys.stderr)
@@ -378,7 +374,14 @@ def run(args: argparse.Namespace) -> int:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("study", help="error against run time and DoFs under refinement")
-    s.add_argument("scene", help="scene name in scenes/ or a TOML path")
+    s.add_argument("scene", nargs="?", help="scene name in scenes/ or a TOML path")
+    s.add_argument("--course", action="store_true",
+                   help="the shell obstacle course (sim.apps.study_course): its scenes, every "
+                        "routine element (or --elements), their published references")
+    s.add_argument("--cells", help="--course: cells per side, comma-separated (default: each "
+                                   "scene's study.cells)")
+    s.add_argument("--max-dofs", type=int, default=60_000,
+                   help="--course: leave out cases above this many DoFs (default 60000)")
     s.add_argument("--elements", help="comma-separated (default: the scene's study table)")
     s.add_argument("--levels", help="comma-separated mesh edge lengths in m")
     s.add_argument("--reference", metavar="ELEMENT:EDGE",

@@ -217,3 +217,19 @@ def _cup_height(s: State, p: Spec) -> float:
     """The rim (the region, mean) above the lowest point."""
     z = mid_surface(s.model, s.x)[:, 2]
     return float(z[s.vertices(p.region)].mean() - z.min())
+
+
+@probe("draw_in", needs=("point",))
+def _draw_in(s: State, p: Spec) -> float:
+    """How far the sheet at ``point`` (its nearest mid-surface vertex, at rest) has moved in
+    the plane toward the z axis, along its rest direction from the axis: a flange's edge drawn
+    into the die, as deep-drawing benchmarks measure it (NUMISHEET'93: DX, DY on the axes, DD
+    on the diagonal)."""
+    sh = s.model.shell
+    v = int(np.argmin(np.linalg.norm(sh.mesh.vertices - np.array(p.point), axis=1)))
+    rest = mid_surface(s.model, sh.rest)[v]
+    radial = np.array([rest[0], rest[1], 0.0])
+    if not np.linalg.norm(radial):
+        return 0.0  # on the axis: no inward direction
+    moved = mid_surface(s.model, s.x)[v] - rest
+    return -float(moved @ radial) / float(np.linalg.norm(radial))

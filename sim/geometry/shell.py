@@ -84,17 +84,20 @@ def _inplane_nodes(mesh: TriMesh, elem: Prism) -> tuple[np.ndarray, np.ndarray, 
 def extrude(mesh: TriMesh, thickness: np.ndarray | float, elem: Prism) -> Shell:
     """Extrude ``mesh`` along vertex normals by ``thickness`` (scalar or per vertex ``(n_v,)``)
     into prisms of type ``elem``; higher-order in-plane nodes interpolate the vertex positions,
-    normals and thicknesses linearly (the mid-surface stays the input's flat triangles)."""
+    normals and thicknesses linearly (the mid-surface stays the input's flat triangles), unless
+    the mesh knows its ``surface``: then every in-plane node is put on it, along its normal."""
     n_v = len(mesh.vertices)
     h = np.broadcast_to(np.asarray(thickness, float), (n_v,)).copy()
     if np.any(~np.isfinite(h)) or np.any(h <= 0):
         raise ValueError("thickness must be finite and positive at every vertex")
     tri_ids, src_v, src_w = _inplane_nodes(mesh, elem)
     n_plane = len(src_v)
-    normals = vertex_normals(mesh)
     mid = np.einsum("nk,nkd->nd", src_w, mesh.vertices[src_v])
-    nrm = np.einsum("nk,nkd->nd", src_w, normals[src_v])
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    if mesh.surface is not None:
+        mid, nrm = mesh.surface.project(mid)
+    else:
+        nrm = np.einsum("nk,nkd->nd", src_w, vertex_normals(mesh)[src_v])
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     hp = np.einsum("nk,nk->n", src_w, h[src_v])
     ws = np.linspace(-1.0, 1.0, elem.q + 1)
     rest = np.concatenate([mid + (w * hp / 2)[:, None] * nrm for w in ws])

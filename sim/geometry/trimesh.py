@@ -6,6 +6,7 @@ counter-clockwise orientation about the +z (or outward radial) normal.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -19,11 +20,47 @@ if TYPE_CHECKING:  # loaded when a mesh file is read
 
 
 @dataclass(frozen=True)
+class Cylinder:
+    """The cylinder of ``radius`` around the x axis."""
+
+    radius: float
+
+    def project(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The nearest points on it of ``X (n, 3)`` and the outward unit normals there: radially
+        in the plane across the axis, which keeps every plane through the axis and every plane
+        across it (symmetry planes, diaphragms) where it was."""
+        n = X.copy()
+        n[:, 0] = 0.0
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        P = self.radius * n
+        P[:, 0] = X[:, 0]
+        return P, n
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """The sphere of ``radius`` around the origin."""
+
+    radius: float
+
+    def project(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The nearest points on it of ``X (n, 3)`` and the outward unit normals: radially,
+        which keeps every plane and cone through the centre (symmetry planes, a polar hole's
+        rim) where it was."""
+        n = X / np.linalg.norm(X, axis=1, keepdims=True)
+        return self.radius * n, n
+
+
+@dataclass(frozen=True)
 class TriMesh:
-    """Vertices ``(n_v, 3)`` float64 and faces ``(n_f, 3)`` int64 of the sheet mid-surface."""
+    """Vertices ``(n_v, 3)`` float64 and faces ``(n_f, 3)`` int64 of the sheet mid-surface;
+    ``surface``, when the mesh approximates a known one (a generated cylinder or sphere), is
+    where the extrusion puts higher-order nodes and takes normals from, so that curved
+    elements lie on the shell rather than on the triangles' flat chords."""
 
     vertices: np.ndarray
     faces: np.ndarray
+    surface: Cylinder | Sphere | None = None
 
 
 def _grid(nx: int, ny: int) -> np.ndarray:
@@ -114,6 +151,37 @@ def cylinder_band(radius: float, height: float, edge_length: float) -> TriMesh:
     F = np.where(F >= nt * (nz + 1), F - nt * (nz + 1), F)
     V = np.delete(V, seam, axis=0)
     return TriMesh(V, F)
+
+
+def _patch(s: np.ndarray, t: np.ndarray, point: Callable) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices ``point(s, t)`` of the grid of parameters ``s (n_s + 1,)`` x ``t (n_t + 1,)``
+    and its faces (``_grid``), counter-clockwise about d/ds x d/dt."""
+    S, T = np.meshgrid(s, t, indexing="ij")
+    return point(S.ravel(), T.ravel()), _grid(len(s) - 1, len(t) - 1)
+
+
+def cylinder_patch(radius: float, length: float, angle: float, cells: int) -> TriMesh:
+    """Part of a cylinder around the x axis: x in [0, length], and from the top (+z) by
+    ``angle`` (rad) towards +y; ``cells`` x ``cells`` quadrilaterals of two triangles each,
+    normals outward."""
+    def point(x: np.ndarray, a: np.ndarray) -> np.ndarray:
+        return np.column_stack([x, radius * np.sin(a), radius * np.cos(a)])
+
+    V, F = _patch(np.linspace(0, length, cells + 1), np.linspace(0, angle, cells + 1), point)
+    return TriMesh(V, F, Cylinder(radius))
+
+
+def sphere_patch(radius: float, hole: float, azimuth: float, cells: int) -> TriMesh:
+    """Part of a sphere around the origin: from the polar angle ``hole`` (rad, from +z) down to
+    the equator z = 0, and from the x axis by ``azimuth`` (rad) towards +y; ``cells`` x
+    ``cells`` quadrilaterals of two triangles each, normals outward."""
+    def point(polar: np.ndarray, az: np.ndarray) -> np.ndarray:
+        return radius * np.column_stack([np.sin(polar) * np.cos(az),
+                                         np.sin(polar) * np.sin(az), np.cos(polar)])
+
+    V, F = _patch(np.linspace(hole, np.pi / 2, cells + 1),
+                  np.linspace(0, azimuth, cells + 1), point)
+    return TriMesh(V, F, Sphere(radius))
 
 
 class MeshFileError(ValueError):

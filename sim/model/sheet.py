@@ -8,10 +8,11 @@ from pathlib import Path
 import numpy as np
 
 from sim.elements.base import Prism
+from sim.geometry import outline
 from sim.geometry import trimesh as meshes
 from sim.scene.fields import MAX_LENGTH
 from sim.scene.load import Scene
-from sim.scene.sheet import MeshSpec
+from sim.scene.sheet import MeshSpec, OutlineMesh
 
 
 def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
@@ -22,7 +23,22 @@ def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
         return meshes.annulus(r0, spec.r_outer, spec.edge_length)
     if spec.kind == "cylinder_band":
         return meshes.cylinder_band(spec.radius, spec.height, spec.edge_length)
+    if spec.kind in ("cylinder_patch", "sphere_patch"):
+        mesh = (meshes.cylinder_patch(spec.radius, spec.length, spec.angle, spec.cells)
+                if spec.kind == "cylinder_patch" else
+                meshes.sphere_patch(spec.radius, spec.hole, spec.azimuth, spec.cells))
+        return mesh if spec.curved else meshes.TriMesh(mesh.vertices, mesh.faces)
+    if spec.kind == "outline":
+        return outline.mesh(outline_of(spec), spec.edge_length)
     return meshes.load(spec.path, spec.scale, spec.merge_vertices)
+
+
+def outline_of(spec: OutlineMesh) -> outline.Outline:
+    """The outline of an ``outline`` mesh: its points and holes, or its drawing's paths."""
+    if spec.path is not None:
+        return outline.read_drawing(spec.path, spec.scale, spec.edge_length)
+    return outline.checked(outline.loop(spec.points, "points"),
+                           [outline.loop(h, f"holes.{i}") for i, h in enumerate(spec.holes)])
 
 
 def imperfect(mesh: meshes.TriMesh, amplitude: float) -> meshes.TriMesh:
@@ -72,6 +88,8 @@ def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray, dict]:
                                  f"the {spec.kind} mesh")
     except meshes.MeshFileError as exc:
         raise ValueError(f"mesh.path: {exc}") from None
+    except outline.OutlineError as exc:
+        raise ValueError(f"mesh.{exc.field}: {exc}") from None
     except ValueError as exc:
         raise ValueError(f"{field_name}: {exc}") from None
     mesh = imperfect(mesh, spec.imperfection)

@@ -16,7 +16,9 @@ import math
 from dataclasses import dataclass
 
 from sim.elements import get_element
+from sim.geometry import outline
 from sim.geometry import trimesh as meshes
+from sim.model.sheet import outline_of
 from sim.scene.load import Scene, SceneError
 from sim.scene.sheet import MeshSpec
 
@@ -43,6 +45,13 @@ def mesh_counts(spec: MeshSpec) -> tuple[int, int] | None:
     None when it cannot be)."""
     if spec.kind == "file":
         return _file_counts(spec.path)
+    if spec.kind in ("cylinder_patch", "sphere_patch"):
+        return (spec.cells + 1) ** 2, 2 * spec.cells**2
+    if spec.kind == "outline":
+        try:
+            return outline.estimate(outline_of(spec), spec.edge_length)
+        except outline.OutlineError:  # the build says why
+            return None
     e = spec.edge_length
     if spec.kind == "rectangle":
         nx, ny = (meshes.divisions(s, e) for s in spec.size)
@@ -86,7 +95,14 @@ def estimate(scene: Scene) -> ModelSize | None:
     nodes = n_plane * elem.n_layers
     k = 3 * elem.n_nodes
     return ModelSize(n_v, n_f, nodes, 3 * nodes, BASE_BYTES + BYTES_PER_ENTRY * n_f * k * k,
-                     "mesh.path" if scene.mesh.kind == "file" else "mesh.edge_length")
+                     size_field(scene.mesh))
+
+
+def size_field(spec: MeshSpec) -> str:
+    """The scene field that sets the mesh's size."""
+    if spec.kind == "file":
+        return "mesh.path"
+    return "mesh.cells" if hasattr(spec, "cells") else "mesh.edge_length"
 
 
 def check(scene: Scene, limit: float, how: str = "--max-memory") -> ModelSize | None:

@@ -12,14 +12,16 @@ from sim.materials.plasticity import LINEAR, PERFECT, SWIFT, VOCE
 from sim.scene.load import Scene
 from sim.scene.sheet import MaterialSpec
 from sim.solve.assembly import Pattern, pair_slots
-from sim.terms import loads
+from sim.terms import Term, loads
 from sim.terms.contact_kernels import auto_stiffness
 from sim.terms.elasticity import PROJECT_ELEMENT, PROJECT_NONE, PROJECT_QP, Elasticity
 from sim.terms.inertia import Inertia, lumped_mass
+from sim.terms.small_strain import SmallStrain
 from sim.terms.tool_contact import ToolContact
 from sim.tools.shapes import tool_program
 
-MODEL_IDS = {"neo_hookean": 0, "hencky": 1, "plastic": 2}
+# linear_elastic is the elastic term linearised at rest, where every law is Hooke's
+MODEL_IDS = {"neo_hookean": 0, "hencky": 1, "plastic": 2, "linear_elastic": 0}
 LAWS = {"perfect": PERFECT, "linear": LINEAR, "swift": SWIFT, "voce": VOCE}
 PROJECTIONS = {"auto": PROJECT_QP, "qp": PROJECT_QP, "element": PROJECT_ELEMENT,
                "none": PROJECT_NONE}
@@ -56,14 +58,21 @@ def material_frames(m: MaterialSpec, shell: Shell) -> np.ndarray | None:
         raise ValueError(f"material.hill48.rolling_direction: {exc}") from None
 
 
-
-
 def elasticity(scene: Scene, shell: Shell, rule: Rule, pattern: Pattern) -> Elasticity:
     m = scene.material
+    # the small-strain stiffness is the exact Hessian at rest (positive definite there)
+    project = PROJECT_NONE if m.model == "linear_elastic" else \
+        PROJECTIONS[scene.solver.hessian_projection]
     model = HILL48 if m.hill48 is not None else MODEL_IDS[m.model]
-    return Elasticity(shell, rule, model, material_params(m), pattern,
-                      PROJECTIONS[scene.solver.hessian_projection],
+    return Elasticity(shell, rule, model, material_params(m), pattern, project,
                       plastic=m.model == "plastic", frames=material_frames(m, shell))
+
+
+def stored_energy(scene: Scene, elastic: Elasticity, x0: np.ndarray) -> Term:
+    """The elastic term, or for a linear_elastic material its small-strain version."""
+    if scene.material.model == "linear_elastic":
+        return SmallStrain(elastic, x0)
+    return elastic
 
 
 def inertia(scene: Scene, shell: Shell, rule: Rule, elastic: Elasticity, pattern: Pattern,
@@ -104,7 +113,7 @@ def tools(scene: Scene, shell: Shell, pattern: Pattern, nodes: np.ndarray) -> li
         try:
             prog = tool_program(t.shape)
         except ValueError as exc:
-            raise ValueError(f"tools.{i}.shape: {exc}") from None
+            raise ValueError(f"tools.{i}.shape: tool {t.name!r}: {exc}") from None
         # auto_stiffness: at its design pressure (4e-3 E, about the tensile strength) the
         # spring is compressed by 1 % of t; the C2 law's layer delta is twice that, so the
         # tool surface is reached at the design pressure (sim.terms.contact_kernels.auto_stiffness)
@@ -135,14 +144,21 @@ def external_force(scene: Scene, shell: Shell, rule: Rule, elastic: Elasticity,
             elif ld.kind == "traction":
                 f[:n] += loads.traction(shell, regions[ld.region], np.array(ld.vector))
             elif ld.kind == "pressure":
-                sel = np.ones(len(shell.conn), bool)
-                if ld.region:
-                    v_mask = regions[ld.region][: shell.n_vertices]
-                    sel = v_mask[shell.mesh.faces].all(1)
-                f[:n] += loads.pressure(shell, sel, ld.value, ld.skin == "top")
+                f[:n] += loads.pressure(shell, _elements(shell, regions, ld.region), ld.value,
+                                        ld.skin == "top")
+            elif ld.kind == "surface":
+                f[:n] += loads.surface_force(shell, _elements(shell, regions, ld.region),
+                                             np.array(ld.vector))
             else:
                 v = int(np.argmin(np.linalg.norm(shell.mesh.vertices - ld.point, axis=1)))
                 f[:n] += loads.point_force(shell, v, np.array(ld.vector))
         except ValueError as exc:
             raise ValueError(f"loads.{i}: {exc}") from None
     return loads.ExternalForce(f, x0)
+
+
+def _elements(shell: Shell, regions: dict[str, np.ndarray], region: str | None) -> np.ndarray:
+    """The elements ``(n_elem,)`` bool whose corners all lie in ``region`` (None: all)."""
+    if region is None:
+        return np.ones(len(shell.conn), bool)
+    return regions[region][: shell.n_vertices][shell.mesh.faces].all(1)

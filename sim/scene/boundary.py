@@ -130,7 +130,7 @@ class _Load(Strict):
     """An external load of one ``kind``, ramped by the stepping (static: over the run;
     dynamic: over ``stepping.load_ramp``) and scaled by the live load_scale."""
 
-    kind: str = doc("what load: gravity, traction, pressure or point")
+    kind: str = doc("what load: gravity, traction, pressure, surface or point")
 
 
 class GravityLoad(_Load):
@@ -170,6 +170,22 @@ class PressureLoad(_Load):
     skin: Literal["top", "bottom"] = doc("the skin it acts on", default="top")
 
 
+class SurfaceLoad(_Load):
+    """A force per rest area of the mid-surface, of fixed direction (a dead load: a roof's
+    weight given per area, snow), on a region's elements or the whole sheet."""
+
+    kind: Literal["surface"] = doc("a force per area of the mid-surface, fixed direction")
+    vector: Vec3 = doc("the force per rest mid-surface area", "Pa")
+    region: str | None = doc("the region it acts on (elements whose corners all lie in it); "
+                             "unset: the whole sheet", default=None)
+
+    @field_validator("vector")
+    @classmethod
+    def _magnitude(cls, v: Vec3) -> Vec3:
+        check_magnitude(v, MAX_STRESS, "Pa")
+        return v
+
+
 class PointLoad(_Load):
     """A force on the mid-surface vertex nearest to a point."""
 
@@ -185,5 +201,5 @@ class PointLoad(_Load):
 
 
 # a load of one kind, with that kind's fields only
-LoadSpec = Annotated[GravityLoad | TractionLoad | PressureLoad | PointLoad,
+LoadSpec = Annotated[GravityLoad | TractionLoad | PressureLoad | SurfaceLoad | PointLoad,
                      Field(discriminator="kind")]

@@ -82,6 +82,13 @@ class Scene(Strict):
 
     def _check_study(self, st: StudySpec) -> None:
         probes = [p.name for p in self.probes]
+        by_cells = hasattr(self.mesh, "cells")
+        if st.cells and not by_cells:
+            raise ValueError(f"study.cells: mesh kind {self.mesh.kind!r} is refined by "
+                             "edge_length (study.edge_lengths)")
+        if by_cells and (st.edge_lengths or st.reference_edge_length):
+            raise ValueError(f"study.edge_lengths: mesh kind {self.mesh.kind!r} is refined by "
+                             "cells per side (study.cells)")
         if st.probe is not None and st.probe not in probes:
             raise ValueError(f"study.probe: no probe named {st.probe!r}")
         if st.measure != "profile" and st.probe is None and not probes:
@@ -323,8 +330,16 @@ def scene_from_toml(text: str, overrides: dict | None = None,
 
 def _from_folder(raw: dict, folder: Path) -> None:
     """Relative file paths of a scene file are taken from its folder."""
-    for table, key in (("mesh", "path"), ("shell", "thickness_file")):
-        node = raw.get(table)
+    nodes = [(raw.get("mesh"), "path"), (raw.get("shell"), "thickness_file")]
+    tools = raw.get("tools")
+    shapes = [t.get("shape") for t in tools if isinstance(t, dict)] if isinstance(tools, list) \
+        else []
+    while shapes:  # tool shapes read a mesh file at any depth of their CSG tree
+        s = shapes.pop()
+        if isinstance(s, dict):
+            nodes.append((s, "path"))
+            shapes += s.get("shapes", []) if isinstance(s.get("shapes"), list) else []
+    for node, key in nodes:
         if isinstance(node, dict) and isinstance(node.get(key), str):
             p = Path(node[key]).expanduser()
             node[key] = str(p if p.is_absolute() else folder / p)

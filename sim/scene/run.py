@@ -86,6 +86,15 @@ class ProbeSpec(Strict):
         return self
 
 
+class PublishedSpec(Strict):
+    """A benchmark's published value of the studied probe, with where it is published."""
+
+    value: bounded(-1e15, 1e15, lo_open=False) = doc(
+        "the probe's published value, signed as the probe measures it", "the probe's")
+    source: Annotated[str, Field(min_length=10)] = doc(
+        "where it is published: authors, year, title, table or figure")
+
+
 class StudySpec(Strict):
     """A refinement study (``q3t study``): mesh edge lengths, elements, what is measured and the
     reference it is measured against.
@@ -115,11 +124,20 @@ class StudySpec(Strict):
         "the reference run's edge length; unset: half the finest studied", "m", None)
     analytic: Literal["euler_bernoulli", "springback"] | None = doc(
         "a closed-form reference instead of a reference run", default=None)
+    cells: list[Annotated[int, Field(ge=1, le=4096)]] | None = doc(
+        "the levels of a mesh refined by cells per side (cylinder_patch, sphere_patch), "
+        "coarse to fine", "1", None)
+    published: PublishedSpec | None = doc(
+        "a published reference value of the probe (a benchmark's), instead of a reference "
+        "run", default=None)
 
     @model_validator(mode="after")
     def _what(self) -> Self:
         if self.measure == "profile" and self.section is None:
             raise ValueError("a profile study needs section")
+        if self.published and (self.analytic or self.measure != "final"):
+            raise ValueError("published: a published value is one final value: measure must "
+                             "be 'final', without analytic")
         if self.analytic and self.measure != "final":
             raise ValueError("analytic: a closed-form reference is one value: measure must be "
                              "'final'")

@@ -42,7 +42,7 @@ class _Shape(Strict):
     lying along y: rotation [1.5708, 0, 0]."""
 
     kind: str = doc("what shape: a primitive (plane, box, punch, die_ring, blank_holder, "
-                    "star, star_die, polygon) or a CSG (union, subtract, intersect)")
+                    "star, star_die, polygon, mesh) or a CSG (union, subtract, intersect)")
     offset: Point = doc("placement: a shift in the parent's frame", "m", (0.0, 0.0, 0.0))
     rotation: Rotation = doc("placement: a rotation vector (axis * angle) about the "
                              "shape's origin", "rad", (0.0, 0.0, 0.0))
@@ -50,7 +50,9 @@ class _Shape(Strict):
     @model_validator(mode="after")
     def _valid(self) -> Self:
         self.check()
-        if self.kind in PRIMITIVES:  # the builders' own checks (radii fit, polygon simple)
+        # the builders' own checks (radii fit, polygon simple); a file is read by the model
+        # (sim.model.terms), as the sheet's mesh file is
+        if self.kind in PRIMITIVES and self.kind not in tool_shapes.FILE_KINDS:
             tool_shapes.tool_program(self)
         return self
 
@@ -153,8 +155,34 @@ class PolygonShape(_Shape):
             raise ValueError("a polygon needs at least 3 points")
 
 
+class MeshShape(_Shape):
+    """A tool surface from a triangle mesh file (STL, OBJ, PLY; CAD's tessellation), in the
+    file's coordinates times ``scale``: closed (the tool is inside), or open with a consistent
+    orientation (the tool lies behind the faces' normals, or in front with ``flip``). Its
+    signed distance is sampled on a grid of ``spacing`` near the surface and smoothed by
+    tricubic B-splines (sim.tools.meshtool); a relative path is taken from the scene file's
+    folder."""
+
+    kind: Literal["mesh"] = doc("a tool surface from a triangle mesh file")
+    path: str = doc("the mesh file (STL, OBJ, PLY)")
+    scale: Annotated[float, Field(ge=1e-9, le=1e3)] = doc(
+        "file units to metres (1e-3 for a file in mm)", "m per file unit", 1.0)
+    spacing: Annotated[float, Field(ge=5e-5, le=0.01)] = doc(
+        "the grid spacing of the smoothed distance: a fraction of the smallest rounding "
+        "radius the tool has (the smoothing follows features larger than a few spacings)",
+        "m", 5e-4)
+    open: bool = doc("an open surface (not closed): the tool lies behind its faces' normals",
+                     default=False)
+    flip: bool = doc("an open surface's tool lies in front of its faces' normals",
+                     default=False)
+
+    def check(self) -> None:
+        if self.flip and not self.open:
+            raise ValueError("flip: only for an open surface (a closed one's inside is the tool)")
+
+
 Primitive = (PlaneShape | BoxShape | PunchShape | DieRingShape | BlankHolderShape | StarShape
-             | StarDieShape | PolygonShape)
+             | StarDieShape | PolygonShape | MeshShape)
 PrimitiveSpec = Annotated[Primitive, Field(discriminator="kind")]
 
 

@@ -27,7 +27,8 @@ class _Mesh(Strict):
     """The sheet's mid-surface: a generated mesh of one ``kind`` or a mesh file; each kind
     takes its own fields only."""
 
-    kind: str = doc("what mesh: rectangle, annulus, disk, cylinder_band or file")
+    kind: str = doc("what mesh: rectangle, annulus, disk, cylinder_band, cylinder_patch, "
+                    "sphere_patch, file or outline")
     imperfection: Coord = doc(
         "out-of-plane imperfection of a flat mid-surface: z += a sin(pi s) sin(pi t), with "
         "(s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to "
@@ -75,6 +76,45 @@ class CylinderBandMesh(_Generated):
     height: Length = doc("its height along z", "m")
 
 
+class _Patch(_Mesh):
+    """A patch of a curved surface on a grid of parameters, refined by ``cells``; the quadratic
+    and higher elements put their mid-edge nodes on the exact surface."""
+
+    cells: Annotated[int, Field(ge=1, le=4096)] = doc(
+        "cells per side: cells x cells quadrilaterals of two triangles each, the mesh's "
+        "resolution", "1")
+    curved: bool = doc(
+        "nodes between the vertices (quadratic and higher elements) on the exact surface, and "
+        "every node column along the exact normal; false: on the flat triangles (a faceted "
+        "shell, normals averaged over the triangles)", default=True)
+
+
+class CylinderPatchMesh(_Patch):
+    """Part of a cylinder around the x axis (a roof, an octant of a tube): x from 0 to
+    ``length``, and from the top (+z) by ``angle`` towards +y."""
+
+    kind: Literal["cylinder_patch"] = doc("part of a cylinder around the x axis")
+    radius: Length = doc("the cylinder's radius", "m")
+    length: Length = doc("its length along x, from x = 0", "m")
+    angle: bounded(0.0, math.pi) = doc(
+        "the angle it spans, from the top (+z) towards +y (0.698 rad is 40 degrees)", "rad")
+
+
+class SpherePatchMesh(_Patch):
+    """Part of a sphere around the origin (a hemisphere with a polar hole, or a sector of
+    one): from the polar angle ``hole`` down to the equator z = 0, and from the x axis by
+    ``azimuth`` towards +y."""
+
+    kind: Literal["sphere_patch"] = doc("part of a sphere around the origin")
+    radius: Length = doc("the sphere's radius", "m")
+    hole: Annotated[float, Field(gt=0.0, lt=math.pi / 2)] = doc(
+        "the polar hole: its rim's angle from the +z axis (0.314 rad is 18 degrees); above "
+        "0, since the grid cannot close at the pole", "rad")
+    azimuth: bounded(0.0, math.pi) = doc(
+        "the angle it spans around z from the x axis towards +y; unset: a quarter", "rad",
+        math.pi / 2)
+
+
 class FileMesh(_Mesh):
     """A triangle mesh file (STL, OBJ, PLY, ...), read with trimesh; a relative path is taken
     from the scene file's folder."""
@@ -90,9 +130,50 @@ class FileMesh(_Mesh):
         "m per file unit", 1.0)
 
 
+XY = tuple[Coord, Coord]
+
+
+class OutlineMesh(_Generated):
+    """A blank cut from a closed 2-D outline in z = 0, with optional holes, meshed into
+    isotropic triangles (sim.geometry.outline): the outline as ``points``, or the closed paths
+    of an SVG or DXF drawing (``path``: the path enclosing the most area is the outline, the
+    others its holes). A relative path is taken from the scene file's folder."""
+
+    kind: Literal["outline"] = doc("a closed outline (points or an SVG/DXF drawing)")
+    points: list[XY] | None = doc("the outline's [x, y] corners in order (at least 3; curves "
+                                  "as many points, which the mesh resamples)", "m", None)
+    holes: list[list[XY]] = doc("holes inside the outline, each a list of [x, y] points",
+                                "m", [])
+    path: str | None = doc("an SVG or DXF drawing of closed paths instead of points",
+                           default=None)
+    scale: Annotated[float, Field(ge=1e-9, le=1e3)] = doc(
+        "the drawing's units to metres (1e-3 for a drawing in mm)", "m per drawing unit", 1.0)
+
+    @model_validator(mode="after")
+    def _outline(self) -> Self:
+        from sim.geometry import outline
+
+        if (self.points is None) == (self.path is None):
+            raise ValueError("give exactly one of points, path")
+        if self.path is not None:
+            if self.holes:
+                raise ValueError("holes: a drawing's holes are its inner paths (holes go with "
+                                 "points)")
+            return self
+        try:
+            shape = outline.checked(outline.loop(self.points, "points"),
+                                    [outline.loop(h, f"holes.{i}")
+                                     for i, h in enumerate(self.holes)])
+            outline.check_size(shape, self.edge_length)
+        except outline.OutlineError as exc:
+            raise ValueError(f"{exc.field}: {exc}") from None
+        return self
+
+
 # the mesh of the chosen kind: only its own fields are accepted (pydantic tells the kinds
 # apart by ``kind`` and names a field of another kind as not permitted)
-MeshSpec = Annotated[RectangleMesh | AnnulusMesh | DiskMesh | CylinderBandMesh | FileMesh,
+MeshSpec = Annotated[RectangleMesh | AnnulusMesh | DiskMesh | CylinderBandMesh
+                     | CylinderPatchMesh | SpherePatchMesh | FileMesh | OutlineMesh,
                      Field(discriminator="kind")]
 
 
@@ -316,11 +397,14 @@ class Hill48Spec(Strict):
 
 
 class MaterialSpec(Strict):
-    """The sheet's material: a hyperelastic model, or elastic-plastic (von Mises with
-    isotropic hardening, sim.materials.plasticity)."""
+    """The sheet's material: a hyperelastic model, elastic-plastic (von Mises with
+    isotropic hardening, sim.materials.plasticity), or linear elasticity in a geometrically
+    linear analysis (sim.terms.small_strain)."""
 
-    model: Literal["neo_hookean", "hencky", "plastic"] = doc(
-        "neo_hookean or hencky (elastic), or plastic", default="neo_hookean")
+    model: Literal["neo_hookean", "hencky", "plastic", "linear_elastic"] = doc(
+        "neo_hookean or hencky (elastic), plastic, or linear_elastic: small strain and small "
+        "displacement (a geometrically linear analysis, energy 1/2 eps:C:eps with eps = "
+        "sym grad u), for the classical linear benchmarks", default="neo_hookean")
     E: Stress = doc("Young's modulus", "Pa")
     nu: Annotated[float, Field(ge=0.0, lt=0.5)] = doc("Poisson's ratio", "1")
     density: bounded(0.0, MAX_DENSITY) = doc("the mass density (inertia, gravity)", "kg/m^3",

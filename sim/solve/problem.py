@@ -182,6 +182,48 @@ def solve_refined(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinemen
     return x, rel
 
 
+def solve_krylov(problem: Problem, data: np.ndarray, rhs: np.ndarray, solves: int,
+                 extra: Callable[[np.ndarray], np.ndarray] | None = None
+                 ) -> tuple[np.ndarray, float]:
+    """Solve (K + J) x = rhs by GMRES, right-preconditioned by the factors at hand (of K, or of
+    an earlier iterate's Hessian), ``solves`` solves at most. Refinement on the same factors
+    converges only as fast as the spectral radius of K_f^-1 (K + J) - I is small, and stalled
+    at 1e-6 where friction's coupling J was a tenth of K; GMRES minimises the true residual
+    over the same solves' span, so it is never worse, and resolves the few directions in
+    which J is large. Returns the solution and its relative residual |rhs - (K + J) x| /
+    |rhs| (recomputed, not GMRES's estimate)."""
+    p = problem.pattern
+
+    def apply(x: np.ndarray) -> np.ndarray:
+        y = sym_matvec(p.indptr, p.indices, data, x)
+        return y + extra(x) if extra is not None else y
+
+    beta = float(np.linalg.norm(rhs))
+    if beta == 0.0:
+        return np.zeros_like(rhs), 0.0
+    V, Z = [rhs / beta], []
+    H = np.zeros((solves + 1, solves))
+    e1 = np.zeros(solves + 1)
+    e1[0] = beta
+    y = np.zeros(0)
+    for j in range(solves):
+        Z.append(problem.solver.solve(V[j]))
+        w = apply(Z[j])
+        for _ in range(2):  # Gram-Schmidt twice: the basis stays orthogonal at cond ~ 1e12
+            for i in range(j + 1):
+                h = float(V[i] @ w)
+                H[i, j] += h
+                w -= h * V[i]
+        H[j + 1, j] = float(np.linalg.norm(w))
+        y = np.linalg.lstsq(H[: j + 2, : j + 1], e1[: j + 2], rcond=None)[0]
+        estimate = float(np.linalg.norm(H[: j + 2, : j + 1] @ y - e1[: j + 2])) / beta
+        if estimate <= 1e-10 or H[j + 1, j] <= 1e-14 * beta:
+            break
+        V.append(w / H[j + 1, j])
+    x = np.asarray(Z).T @ y
+    return x, float(np.linalg.norm(rhs - apply(x))) / beta
+
+
 def factor_shifted(problem: Problem, data: np.ndarray) -> None:
     """Factor, adding a growing multiple of the mean diagonal if a pivot is not positive."""
     shift = 0.0

@@ -20,6 +20,7 @@ from sim.frames.output import Frame
 from sim.geometry.rigid import determinate_support
 from sim.model.build import Model, build_model
 from sim.model.curves import load_factor
+from sim.scene.boundary import LoadSpec
 from sim.scene.load import Scene
 from sim.solve.newton import NewtonResult, Timing, minimise
 from sim.stepping import parameters
@@ -171,13 +172,9 @@ class Simulation:
         ``"also"``: the other parameters the value is multiplied by too (a tool's friction by
         the run-wide and its own multiplier)."""
         sc = self.model.scene
-        units = {"gravity": "m/s^2", "traction": "Pa", "pressure": "Pa", "point": "N"}
         end = sc.stepping.steps * self._dt()
         return {
-            "load_scale": [{"what": f"{ld.kind} {i}", "unit": units[ld.kind],
-                            "value": float(ld.value if ld.kind == "pressure"
-                                           else np.linalg.norm(ld.vector))}
-                           for i, ld in enumerate(sc.loads)],
+            "load_scale": [_load_magnitude(i, ld) for i, ld in enumerate(sc.loads)],
             "tool_speed": [{"what": name, "unit": "m/step", "value": travel}
                            for name, travel in self._travel_per_step(end) if travel > 0],
             **self._scaled_friction(),
@@ -215,6 +212,12 @@ class Simulation:
         x0 = self.x.copy()
         if self._last_increment is not None:
             x0 += self._last_increment * (dt / self._last_dt)
+            # a blank holder that came down onto its stop in the last increment stays on it:
+            # continued past the stop, its spring (100x the contact stiffness of all its
+            # nodes) started the step at 1e6 times the force level
+            for t in self.tools:
+                if t.vdof is not None and t.stop is not None:
+                    x0[t.vdof, 2] = max(x0[t.vdof, 2], t.stop)
         x0[m.fixed] = target[m.fixed]
         if self._last_increment is not None and not np.isfinite(m.problem.energy(x0)):
             x0 = self.x.copy()
@@ -471,3 +474,13 @@ class Simulation:
     def write(self, out: Path) -> dict:
         """result.json and final.npz in ``out`` (sim.frames.output.write); the result."""
         return output.write(self, out)
+
+
+def _load_magnitude(i: int, ld: LoadSpec) -> dict:
+    """A load's magnitude, ``{"what", "unit", "value"}``: its ``vector``'s length or its
+    ``value``, in the unit its kind's schema gives that field (any load kind)."""
+    name = "vector" if hasattr(ld, "vector") else "value"
+    unit = type(ld).model_fields[name].json_schema_extra["unit"]
+    v = getattr(ld, name)
+    return {"what": f"{ld.kind} {i}", "unit": unit,
+            "value": float(np.linalg.norm(v)) if name == "vector" else float(v)}

@@ -1,4 +1,5 @@
-"""Dead loads: gravity / body force, traction on the rim, pressure on a skin, point loads.
+"""Dead loads: gravity / body force, traction on the rim, pressure on a skin, a surface load of
+fixed direction on the mid-surface, point loads.
 
 All are linear in x: E = -f . x with a nodal force vector f computed once by quadrature on the
 rest geometry, scaled in time by the step's load factor.
@@ -113,13 +114,34 @@ def pressure(shell: Shell, elem_mask: np.ndarray, p: float, top: bool) -> np.nda
     elems = np.flatnonzero(elem_mask)
     if len(elems) == 0:
         raise ValueError("pressure region contains no element")
-    tp, tw = triangle_rule(3 if shell.element.p == 1 else 7)
+    tp, tw = _area_rule(shell)
     w0 = 1.0 if top else -1.0
     pts = np.broadcast_to(np.column_stack([tp, np.full(len(tp), w0)]), (len(elems), len(tp), 3))
     J = _map(shell, elems, np.ascontiguousarray(pts))
     n = np.cross(J[..., 0], J[..., 1]) * tw[None, :, None]  # area-weighted outward (for top)
     force = -p * n if top else p * n
     return _scatter(shell, elems, np.ascontiguousarray(pts), force)
+
+
+def surface_force(shell: Shell, elem_mask: np.ndarray, t_vec: np.ndarray) -> np.ndarray:
+    """A force ``t_vec (3,)`` (Pa) per rest mid-surface area of the selected elements
+    ``elem_mask (n_elem,)``, of fixed direction (a roof's weight: snow, or self weight given
+    per area as the classical shell benchmarks give it), on the mid-surface w = 0: its share of
+    each node column follows the element's basis through the thickness there."""
+    elems = np.flatnonzero(elem_mask)
+    if len(elems) == 0:
+        raise ValueError("surface load region contains no element")
+    tp, tw = _area_rule(shell)
+    pts = np.broadcast_to(np.column_stack([tp, np.zeros(len(tp))]), (len(elems), len(tp), 3))
+    pts = np.ascontiguousarray(pts)
+    J = _map(shell, elems, pts)
+    dA = np.linalg.norm(np.cross(J[..., 0], J[..., 1]), axis=-1) * tw[None, :]
+    return _scatter(shell, elems, pts, dA[..., None] * np.asarray(t_vec)[None, None, :])
+
+
+def _area_rule(shell: Shell) -> tuple[np.ndarray, np.ndarray]:
+    """A triangle rule exact for the area of a skin of the element's degree."""
+    return triangle_rule(3 if shell.element.p == 1 else 7)
 
 
 def point_force(shell: Shell, vertex: int, force: np.ndarray) -> np.ndarray:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from sim.tools.grid import prim_grid
 from sim.tools.primitives import prim_box, prim_plane, prim_revolve, prim_rsweep, prim_sweep
 from sim.tools.program import (
     HEADER,
@@ -14,6 +15,7 @@ from sim.tools.program import (
     MAX_FRAMES,
     MAX_STACK,
     OP_BOX,
+    OP_GRID,
     OP_INTERSECT,
     OP_PLANE,
     OP_POP_FRAME,
@@ -192,6 +194,8 @@ def _eval_point(prog: np.ndarray, x: np.ndarray, derivs: bool,  # noqa: C901
                 d = prim_sweep(prog, b, xl, derivs, g, H, prof, gw, tmp[0:2, 0:2])
             elif op == OP_RSWEEP:
                 d = prim_rsweep(prog, b, xl, derivs, g, H, prof, gw, tmp[0:2, 0:2])
+            elif op == OP_GRID:
+                d = prim_grid(prog, b, xl, derivs, g, H, q, s)
             else:
                 raise ValueError("SDF program: unknown opcode")
             if lev > 0:

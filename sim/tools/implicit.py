@@ -20,6 +20,8 @@ def tool_bounds(node: Node) -> tuple[np.ndarray, np.ndarray]:
         return -inf, inf
     if kind == "box":
         return node[1] - node[2], node[1] + node[2]
+    if kind == "grid":
+        return node[1], node[2]
     if kind == "revolve":
         hi = node[2]
         return np.array([-hi, -hi, node[3]]), np.array([hi, hi, node[4]])

@@ -43,6 +43,10 @@ code   name           parameters (n_params)
                       b_i to a_{i+1} and, at corner i, an arc of radius rc about (cx, cy) from
                       a_i to b_i (s = +1 convex, -1 reflex; rc = 0 a sharp corner,
                       a = b = c). Convex and reflex corners can both be rounded (star die)
+6      GRID           ox oy oz h B nx ny nz n_active 0, then its table, corner distances and
+                      B-spline coefficients (sim.tools.grid, whose docstring gives the
+                      layout): a distance sampled near a surface (a tool made from a triangle
+                      mesh, sim.tools.meshtool) and interpolated by tricubic B-splines
 10     UNION          k (1): min(a, b); k > 0 a smooth union with blend width k
 11     INTERSECT      k (1): max(a, b); k > 0 smooth
 12     SUBTRACT       k (1): a minus b = max(a, -b); k > 0 smooth
@@ -110,6 +114,7 @@ OP_BOX = 2
 OP_REVOLVE = 3
 OP_SWEEP = 4
 OP_RSWEEP = 5
+OP_GRID = 6
 OP_UNION = 10
 OP_INTERSECT = 11
 OP_SUBTRACT = 12
@@ -118,7 +123,7 @@ OP_POP_FRAME = 21
 
 _NPARAM = {OP_PLANE: 6, OP_BOX: 7, OP_REVOLVE: 5, OP_UNION: 1, OP_INTERSECT: 1,
            OP_SUBTRACT: 1, OP_PUSH_FRAME: 12, OP_POP_FRAME: 0}
-_PRIMITIVES = (OP_PLANE, OP_BOX, OP_REVOLVE, OP_SWEEP, OP_RSWEEP)
+_PRIMITIVES = (OP_PLANE, OP_BOX, OP_REVOLVE, OP_SWEEP, OP_RSWEEP, OP_GRID)
 _BINARY = (OP_UNION, OP_INTERSECT, OP_SUBTRACT)
 
 RCORNER = 8  # values per corner of a rounded polygon: cx cy rc s ax ay bx by
@@ -192,10 +197,26 @@ def _checked_records(prog: np.ndarray, n: int) -> Iterator[int]:
         elif op == OP_RSWEEP:
             if npar < 6 or npar != 6 + RCORNER * int(p[5]) or int(p[5]) < 3:
                 raise ValueError("SDF program: bad RSWEEP record")
+        elif op == OP_GRID:
+            _check_grid(p)
         elif op not in _NPARAM or npar != _NPARAM[op]:
             raise ValueError(f"SDF program: unknown opcode {op} or bad parameter count")
         yield op
         pc += 2 + npar
+
+
+def _check_grid(p: np.ndarray) -> None:
+    """A GRID record's sizes agree with its head and its table names only stored bricks."""
+    from sim.tools.grid import GRID_HEAD, grid_sizes
+
+    if p.size < GRID_HEAD or not (p[3] > 0 and p[4] >= 1 and np.all(p[5:9] >= 1)):
+        raise ValueError("SDF program: bad GRID record")
+    n_tab, n_far, n_coef = grid_sizes(p)
+    if p.size != GRID_HEAD + n_tab + n_far + n_coef:
+        raise ValueError("SDF program: bad GRID record (sizes)")
+    table = p[GRID_HEAD:GRID_HEAD + n_tab]
+    if table.size and (table.min() < -1 or table.max() >= p[8]):
+        raise ValueError("SDF program: bad GRID record (table)")
 
 
 def _stack_step(op: int, sp: int, frames: list[int]) -> int:
@@ -223,8 +244,8 @@ def parse(prog: npt.ArrayLike) -> Node:
 
     Nodes: ("plane", p, n), ("box", c, h, r), ("revolve", lo, hi, z0, z1, r),
     ("sweep", lo, hi, z0, z1, r, poly (m, 2)), ("rsweep", lo, hi, z0, z1, r, corners (m, 8)
-    as cx cy rc s ax ay bx by), ("union" | "intersect" | "subtract", k, a, b),
-    ("frame", R, t, child).
+    as cx cy rc s ax ay bx by), ("grid", lo (3,), hi (3,)) (its box),
+    ("union" | "intersect" | "subtract", k, a, b), ("frame", R, t, child).
     """
     validate(prog)
     stack = []
@@ -240,6 +261,9 @@ def parse(prog: npt.ArrayLike) -> Node:
             stack.append(("sweep", *map(float, p[:5]), p[6:].reshape(-1, 2).copy()))
         elif op == OP_RSWEEP:
             stack.append(("rsweep", *map(float, p[:5]), p[6:].reshape(-1, RCORNER).copy()))
+        elif op == OP_GRID:
+            side = p[3] * p[4] * p[5:8]
+            stack.append(("grid", p[:3].copy(), p[:3] + side))
         elif op in _BINARY:
             b = stack.pop()
             a = stack.pop()

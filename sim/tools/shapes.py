@@ -10,6 +10,7 @@ from typing import Protocol
 import numpy as np
 
 from sim.tools import builders as b
+from sim.tools.meshtool import MeshOptions, mesh_program
 from sim.tools.pose import rotation
 
 # primitive kind -> its builder, called with the shape's fields
@@ -27,7 +28,15 @@ PRIMITIVES = {
                              s.edge_radius, s.phase, s.reflex_radius or 0.0),
     "polygon": lambda s: b.extruded_polygon(s.points, 0.0, s.height, s.corner_radius,
                                             s.edge_radius, s.reflex_radius or 0.0),
+    "mesh": lambda s: mesh_program(s.path, mesh_options(s)),
 }
+# kinds whose builder reads a file and may take seconds: the scene checks them apart
+# (sim.scene.shapes) and only the model builds them
+FILE_KINDS = ("mesh",)
+
+
+def mesh_options(s: Shape) -> MeshOptions:
+    return MeshOptions(s.scale, s.spacing, s.open, s.flip)
 CSG = {"union": b.union, "subtract": b.subtract, "intersect": b.intersect}
 
 

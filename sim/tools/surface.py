@@ -30,6 +30,8 @@ Meshes are for display only: Python-level loops here run over corners and arcs, 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 from scipy.sparse import coo_matrix
@@ -375,3 +377,22 @@ def tool_mesh(prog: npt.ArrayLike, R: npt.ArrayLike | None = None, t: npt.ArrayL
     if R is not None or t is not None:
         V = transform(V, R, t)
     return V, F
+
+
+def chordal_mesh(prog: npt.ArrayLike, chordal: float) -> Mesh:
+    """Explicit mesh (V, F) of a revolved tool (a REVOLVE, possibly framed) whose triangles
+    stay within ``chordal`` (m) of the surface: on a rounding (a torus) a flat triangle misses
+    the surface by the chord heights around and along the arc together, so each gets half."""
+    node = parse(prog)
+    while node[0] == "frame":
+        node = node[3]
+    if node[0] != "revolve":
+        raise ValueError("chordal_mesh: a revolved tool (punch, die ring, blank holder)")
+    _, lo, hi, _, _, r = node
+
+    def parts(radius: float, angle: float) -> int:
+        """Segments of an arc of ``angle`` whose chords rise at most chordal / 2."""
+        return max(1, math.ceil(angle / (2.0 * math.acos(1.0 - 0.5 * chordal / radius))))
+
+    n_arc = parts(r, 0.5 * math.pi) if r > 0 else 1
+    return tool_mesh(prog, n_segments=parts(hi, 2.0 * math.pi), n_arc=n_arc)

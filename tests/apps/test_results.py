@@ -58,9 +58,15 @@ GENERATORS = {
                     "material.E=1e11", "--elements", "linear:1x2,linear:3x2", "--levels",
                     "0.0175", "--reference", "quadratic:0.0175", "--no-overhead"],
                    "| element | edge [m] | triangles | DoFs | probe | probe / ref. |"),
+    # the shell obstacle course (shell-course.md), every scene at 2 cells per side
+    "course": (["study", "--course", "--cells", "2", "--elements", "linear"],
+               "| benchmark | element | 2 cells | time 2 [s] |"),
     # the strip against the classical formula (springback-formula.md), one X and element
     "springback": (["springback", "--X", "0.2", "--elements", "q3t"],
                    "| X | element | edge [mm] | X at the loaded R | formula K |"),
+    # the cup's tools from meshes (mesh-tools.md), coarse: 16x fewer samples than the default
+    "mesh-tools": (["mesh-tools", "--chord", "1e-4", "--fine-chord", "5e-5", "--spacing", "2e-3",
+                    "--nodes", "300", "--repeat", "1"], "| tool | chord (mm) | triangles |"),
     # starts `q3t serve` twice, once compiling every kernel into an empty numba cache
     "service": (["bench-service", "--vertices", "400", "--seconds", "1", "--seconds-solver",
                  "1"], "| measurement | result | target |"),

@@ -21,8 +21,11 @@ def coarse(scene_path: str | Path, element: str | None = None) -> Scene:
     elif sc.mesh.kind in ("annulus", "disk"):
         e = sc.mesh.r_outer / 6
     else:
-        e = sc.mesh.edge_length * 3 if sc.mesh.edge_length else None
+        e = getattr(sc.mesh, "edge_length", None)
+        e = e * 3 if e else None
     o = {"stepping.steps": min(sc.stepping.steps, 2)}
+    if hasattr(sc.mesh, "cells"):  # a patch refined by cells per side: 8 x 8 x 2 triangles
+        o["mesh.cells"] = 8
     # the first two steps of the real path: tools keep their stroke per step
     for i, t in enumerate(sc.tools):
         o[f"tools.{i}.velocity"] = [v * o["stepping.steps"] / sc.stepping.steps
@@ -39,7 +42,10 @@ def coarsest_mesh(sc: Scene) -> dict:
     it builds and records depends on the scene, not on the mesh. A mesh file stays as it is."""
     m = sc.mesh
     edge = {"rectangle": lambda: max(m.size or (0,)) / 8, "disk": lambda: m.r_outer / 4,
-            "annulus": lambda: m.r_outer / 4, "cylinder_band": lambda: m.height / 2}
+            "annulus": lambda: m.r_outer / 4, "cylinder_band": lambda: m.height / 2,
+            "outline": lambda: m.edge_length * 4}
+    if hasattr(m, "cells"):
+        return {"mesh.cells": 4}
     return {"mesh.edge_length": edge[m.kind]()} if m.kind in edge else {}
 
 

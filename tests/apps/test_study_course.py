@@ -1,0 +1,32 @@
+"""``q3t study --course``: the shell obstacle course's plan (elements, levels, the cases left
+out by size) and its bad input; tests/apps/test_results.py runs it end to end at 2 cells."""
+
+import pytest
+
+from sim.apps.cli import main
+from sim.apps.study_course import COURSE, benchmark, cases
+
+pytestmark = pytest.mark.fast  # in-process, a few seconds in all
+
+
+def test_plan_takes_each_scenes_levels_and_leaves_out_the_largest():
+    marks = [benchmark(n) for n in COURSE]
+    assert all(m.levels == [16, 32, 64] and m.source for m in marks)
+    plan = cases(marks, ["q3t", "quadratic"], None, {}, 60_000)
+    skipped = {(c["scene"], c["element"], c["cells"]) for c in plan if c["skip"]}
+    # the quadratic prism at 64 cells has about 150,000 DoFs; everything else is below 40,000
+    assert skipped == {(n, "quadratic", 64) for n in COURSE}
+    assert all("DoFs > --max-dofs 60000" in c["skip"] for c in plan if c["skip"])
+
+
+def test_course_bad_input_names_the_option(tmp_path, capsys):
+    for args, words in ((["--cells", "0"], "--cells"), (["--elements", "hexahedron"],
+                                                         "hexahedron"),
+                        (["--max-dofs", "0"], "--max-dofs"),
+                        (["--set", "mesh.cells=-1"], "mesh.cells")):
+        assert main(["study", "--course", *args, "--out", str(tmp_path)]) == 2
+        assert words in capsys.readouterr().err
+    assert main(["study", "--out", str(tmp_path)]) == 2
+    assert "give a scene, or --course" in capsys.readouterr().err
+    assert main(["study", "scordelis_lo", "--out", str(tmp_path)]) == 2
+    assert "--course" in capsys.readouterr().err

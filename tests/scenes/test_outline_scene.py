@@ -1,0 +1,99 @@
+"""The ``outline`` mesh kind in scenes: points or a drawing next to the scene file, checked
+when the scene is read (points) or built (a drawing), errors naming the field; its size known
+before the build."""
+
+import numpy as np
+import pytest
+
+from server.store import SceneStore
+from sim.geometry.trimesh import boundary_edges
+from sim.model import size
+from sim.model.sheet import mesh_and_thickness
+from sim.scene.load import SceneError, load_scene, scene_from_toml
+
+SCENE = """
+name = "blank"
+[mesh]
+{mesh}
+[shell]
+thickness = 0.001
+[material]
+E = 2e11
+nu = 0.3
+"""
+SQUARE = "[[0.0, 0.0], [0.1, 0.0], [0.1, 0.1], [0.0, 0.1]]"
+HOLE = "[[0.04, 0.04], [0.06, 0.04], [0.06, 0.06], [0.04, 0.06]]"
+# SQUARE with HOLE in mm; SVG's y axis points down
+SVG = ('<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 -100 100 100">'
+       '<path d="M 0 0 H 100 V -100 H 0 Z M 40 -40 V -60 H 60 V -40 Z"/></svg>')
+
+
+def outline_toml(**fields) -> str:
+    body = {"kind": '"outline"', "edge_length": "0.005", **fields}
+    return SCENE.format(mesh="\n".join(f"{k} = {v}" for k, v in body.items()))
+
+
+@pytest.mark.parametrize("fields, words", [
+    ({"points": "[[0.0, 0.0], [0.1, 0.0]]"}, "mesh: points: a closed outline needs at least 3"),
+    ({"points": "[[0.0, 0.0], [0.1, 0.1], [0.1, 0.0], [0.0, 0.1]]"},
+     "mesh: points: the outline is not a simple closed curve: Self-intersection[0.05 0.05]"),
+    ({"points": SQUARE, "holes": "[[[0.2, 0.2], [0.3, 0.2], [0.3, 0.3]]]"},
+     "mesh: holes.0: hole 0 does not lie inside the outline"),
+    ({"points": SQUARE, "edge_length": "0.08"}, "mesh: edge_length: 0.08 m is too coarse"),
+    ({"points": SQUARE, "edge_length": "1e-6"}, "mesh: edge_length: 1e-06 m would give"),
+    ({}, "mesh: give exactly one of points, path"),
+    ({"points": SQUARE, "path": '"b.svg"'}, "mesh: give exactly one of points, path"),
+    ({"path": '"b.svg"', "holes": f"[{HOLE}]"}, "mesh: holes: a drawing's holes are its"),
+])
+def test_bad_outline_is_refused_naming_the_field(fields, words):
+    with pytest.raises(SceneError) as err:
+        scene_from_toml(outline_toml(**fields))
+    assert words in str(err.value)
+
+
+def test_points_and_drawing_give_the_same_blank(tmp_path):
+    """A square with a square hole, as points and as an SVG in mm next to the scene: the same
+    boundary vertices (the interior follows the order gmsh meets them in); its size estimated
+    before the build within 10 % (equilateral triangles of the edge length against a real
+    mesh's mix)."""
+    (tmp_path / "blank.svg").write_text(SVG)
+    (tmp_path / "a.toml").write_text(outline_toml(points=SQUARE, holes=f"[{HOLE}]"))
+    (tmp_path / "b.toml").write_text(outline_toml(path='"blank.svg"', scale="0.001"))
+    a, b = (load_scene(tmp_path / f"{n}.toml") for n in "ab")
+    (ma, ha, ra), (mb, _, _) = mesh_and_thickness(a), mesh_and_thickness(b)
+    assert ra == {"kind": "outline", "vertices": len(ma.vertices), "triangles": len(ma.faces)}
+    boundary = [np.unique(np.round(m.vertices[boundary_edges(m.faces).ravel()], 12), axis=0)
+                for m in (ma, mb)]
+    np.testing.assert_allclose(boundary[0], boundary[1], atol=1e-12)
+    assert (ha == 0.001).all()
+    for m, sc in ((ma, a), (mb, b)):
+        n_v, n_f = size.mesh_counts(sc.mesh)
+        assert n_v == pytest.approx(len(m.vertices), rel=0.1)
+        assert n_f == pytest.approx(len(m.faces), rel=0.1)
+
+
+def test_a_bad_drawing_fails_the_build_naming_mesh_path(tmp_path):
+    (tmp_path / "open.svg").write_text('<svg xmlns="http://www.w3.org/2000/svg">'
+                                       '<path d="M 0 0 L 100 0 L 100 100"/></svg>')
+    for name, words in (("none.svg", "mesh.path: no drawing"),
+                        ("open.svg", "mesh.path: open.svg: an open path")):
+        (tmp_path / "s.toml").write_text(outline_toml(path=f'"{name}"', scale="0.001"))
+        sc = load_scene(tmp_path / "s.toml")
+        assert size.mesh_counts(sc.mesh) is None  # the build says why
+        with pytest.raises(ValueError, match=words):
+            mesh_and_thickness(sc)
+
+
+def test_the_service_reads_drawings_from_its_scenes_folder_only(tmp_path):
+    """A drawing is a file the scene reads: inside the scenes folder, of a drawing's suffix;
+    points read no file."""
+    store = SceneStore(tmp_path)
+    (tmp_path / "blank.svg").write_text(SVG)
+    ok = store.validate(outline_toml(path='"blank.svg"', scale="0.001"))
+    assert store.scene_files(ok) == {"mesh.path": tmp_path / "blank.svg"}
+    assert store.scene_files(store.validate(outline_toml(points=SQUARE))) == {}
+    for path, words in (("/etc/passwd", "must be a relative path"),
+                        ("../x.svg", "must be a relative path"),
+                        ("blank.obj", "not a file of the kind")):
+        with pytest.raises(SceneError, match=f"mesh.path: .*{words}"):
+            store.validate(outline_toml(path=f'"{path}"'))

@@ -1,0 +1,69 @@
+"""Outline drawings (SVG, DXF) uploaded for mesh kind outline: kept once they read as an
+outline, refused naming the problem, named by a scene that validates, not deletable while a
+scene names them."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("fastapi")
+
+from tests.support.service import in_process  # noqa: E402
+
+SVG = (b'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 -100 100 100">'
+       b'<path d="M 0 0 H 100 V -100 H 0 Z"/><circle cx="50" cy="-50" r="10"/></svg>')
+OPEN = b'<svg xmlns="http://www.w3.org/2000/svg"><path d="M 0 0 L 100 0 L 100 100"/></svg>'
+SCENE = """
+name = "drawn"
+[mesh]
+kind = "outline"
+path = "blank.svg"
+scale = 0.001
+edge_length = 0.02
+[shell]
+thickness = 0.001
+[material]
+E = 2e11
+nu = 0.3
+"""
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory):
+    with in_process(tmp_path_factory.mktemp("outline"), {}) as (client, _):
+        yield client
+
+
+def upload(client, name, content):
+    return client.post("/api/files", params={"name": name}, content=content)
+
+
+def test_an_outline_drawing_is_kept_and_used(client):
+    r = upload(client, "blank.svg", SVG)
+    assert r.status_code == 201, r.text
+    entry = r.json()
+    assert entry["kind"] == "outline" and entry["holes"] == 1 and entry["problem"] is None
+    assert ".dxf" in client.get("/api/files").json()["kinds"]["outline"]
+    r = client.put("/api/scenes/drawn", json={"toml": SCENE})
+    assert r.status_code == 200, r.text
+    assert client.get("/api/files/blank.svg").json()["used_by"] == ["drawn"]
+    r = client.delete("/api/files/blank.svg")
+    assert r.status_code == 409 and "mesh.path" in r.json()["detail"]
+    assert client.delete("/api/scenes/drawn").status_code == 204
+    assert client.delete("/api/files/blank.svg").status_code == 204
+
+
+@pytest.mark.parametrize("name, content, words", [
+    ("open.svg", OPEN, "an open path"),
+    ("bad.dxf", b"0\nSECTION\n2\nNONSENSE", "not a readable drawing"),
+])
+def test_a_bad_drawing_is_refused_naming_the_problem(client, name, content, words):
+    r = upload(client, name, content)
+    assert r.status_code == 422 and words in r.text, r.text
+    assert client.get(f"/api/files/{name}").status_code == 404
+
+
+def test_the_form_offers_outline_drawings_for_an_outline_path():
+    from server.sceneform import schema
+
+    assert schema()["$defs"]["OutlineMesh"]["properties"]["path"]["x-file"] == "outline"

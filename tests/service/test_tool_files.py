@@ -1,0 +1,104 @@
+"""Tool surfaces uploaded into the scenes folder (/api/files with kind=tool): checked as a
+tool's surface (422 naming the problem), used by a scene's mesh tool that runs, guarded from
+deletion while a scene names it; the form's schema marks the field."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("fastapi")
+import trimesh  # noqa: E402
+from fastapi.testclient import TestClient  # noqa: E402
+
+from server.app import create_app  # noqa: E402
+from server.sceneform import schema  # noqa: E402
+from server.settings import Settings  # noqa: E402
+from tests.support.scenes import PRESS_TOML  # noqa: E402
+from tests.support.service import HANG, until, wait_state  # noqa: E402
+
+PUNCH = 'shape = { kind = "punch", radius = 0.004, height = 0.01, edge_radius = 0.001 }'
+
+
+def stl(mesh: trimesh.Trimesh) -> bytes:
+    return mesh.export(file_type="stl")
+
+
+def punch_mesh() -> trimesh.Trimesh:
+    """The press scene's punch as a closed surface (a cylinder, nose at z = 0)."""
+    return trimesh.creation.cylinder(radius=0.004, height=0.01, sections=48).apply_translation(
+        [0.0, 0.0, 0.005])
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("toolfiles")
+    scenes = tmp / "scenes"
+    scenes.mkdir()
+    settings = Settings(scenes_dir=scenes, runs_dir=tmp / "runs", viewer=False,
+                        max_upload=1_000_000, ack_timeout=HANG)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("Q3T_CACHE", str(tmp / "cache"))  # the solver process inherits it
+        with TestClient(create_app(settings)) as client:
+            until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
+            yield client, scenes
+
+
+def upload(client, name, content, **params):
+    return client.post("/api/files", params={"name": name, **params}, content=content)
+
+
+def test_a_tool_surface_is_kept_used_by_a_running_scene_and_guarded(env):
+    client, scenes = env
+    r = upload(client, "punch.stl", stl(punch_mesh()), kind="tool")
+    assert r.status_code == 201, r.text
+    assert r.json()["kind"] == "tool" and r.json()["triangles"] == 192
+    toml = PRESS_TOML.replace(PUNCH, 'shape = { kind = "mesh", path = "punch.stl" }')
+    r = client.put("/api/scenes/pressed", json={"toml": toml})
+    assert r.status_code == 200, r.text
+    run = client.post("/api/runs", json={"scene": "pressed"})
+    assert run.status_code == 201, run.text
+    st = wait_state(client, run.json()["id"], {"finished", "failed", "stopped"})
+    assert st["state"] == "finished", st["reason"]
+    result = client.get(f"/api/runs/{run.json()['id']}/result").json()
+    assert result["steps"][-1]["probes"]["punch_force"] > 0  # the mesh punch pressed
+    assert client.get("/api/files/punch.stl").json()["used_by"] == ["pressed"]
+    r = client.delete("/api/files/punch.stl")
+    assert r.status_code == 409 and "tools.1.shape.path" in r.json()["detail"], r.text
+    assert client.delete("/api/scenes/pressed").status_code == 204
+    assert client.delete("/api/files/punch.stl").status_code == 204
+
+
+@pytest.mark.parametrize("name,mesh,detail", [
+    ("open.stl", trimesh.Trimesh(punch_mesh().vertices, punch_mesh().faces[3:]),
+     "open.stl: open: "),
+    ("two.stl", trimesh.util.concatenate([punch_mesh(),
+                                          punch_mesh().apply_translation([0.002, 0, 0])]),
+     "two.stl: self-intersecting: "),
+])
+def test_a_bad_tool_surface_is_refused_naming_the_problem(env, name, mesh, detail):
+    client, scenes = env
+    r = upload(client, name, stl(mesh), kind="tool")
+    assert r.status_code == 422 and detail in r.json()["detail"], r.text
+    assert not (scenes / name).exists()
+
+
+def test_a_run_with_a_bad_tool_surface_is_refused_naming_the_tool(env):
+    """A file put in the folder by hand, or a scale that makes it absurd: 422 before a run
+    starts, naming the field, the tool and the problem."""
+    client, scenes = env
+    (scenes / "hand.stl").write_bytes(stl(trimesh.Trimesh(punch_mesh().vertices,
+                                                          punch_mesh().faces[3:])))
+    (scenes / "fine.stl").write_bytes(stl(punch_mesh()))
+    for shape, detail in (('{ kind = "mesh", path = "hand.stl" }', "hand.stl: open: "),
+                          ('{ kind = "mesh", path = "fine.stl", scale = 1000.0 }',
+                           "fine.stl: absurd size: ")):
+        toml = PRESS_TOML.replace(PUNCH, f"shape = {shape}")
+        assert client.put("/api/scenes/handmade", json={"toml": toml}).status_code == 200
+        run = client.post("/api/runs", json={"scene": "handmade"})
+        assert run.status_code == 422, run.text
+        assert run.json()["detail"].startswith(f"tools.1.shape.path: tool 'punch': {detail}")
+    assert client.delete("/api/scenes/handmade").status_code == 204
+
+
+def test_the_form_offers_tool_files_for_a_mesh_shape():
+    assert schema()["$defs"]["MeshShape"]["properties"]["path"]["x-file"] == "tool"

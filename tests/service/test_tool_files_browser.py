@@ -1,0 +1,107 @@
+"""A tool's surface uploaded from the scene form in Debian's chromium (Playwright), against the
+real server in a subprocess: a punch's shape switched to kind ``mesh`` offers the scenes
+folder's mesh files and an Upload button; a closed surface uploaded there is chosen, saved and
+run (it presses the plate); an open one says why in the form. Screenshots go to $Q3T_SHOTS
+(default /tmp/shots-tool-files)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import httpx
+import pytest
+import trimesh
+
+from tests.support.browser import new_page, serve
+from tests.support.scenes import PRESS_TOML
+from tests.support.service import until
+
+SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-tool-files"))
+pytestmark = pytest.mark.browser
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
+FIELD = "tools.1.shape.path"  # the press's punch
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("tool-files-browser")
+    os.environ["Q3T_CACHE"] = str(tmp / "cache")  # the server inherits it: no user's cache
+    try:
+        with serve(tmp, {"press": PRESS_TOML}, "press", "--no-viewer") as (url, _):
+            yield url, tmp
+    finally:
+        del os.environ["Q3T_CACHE"]
+
+
+@pytest.fixture
+def page(browser, served):
+    url, _ = served
+    page, errors = new_page(browser, url, "#scenes li.sel", "[name='tools.1.shape.kind']")
+    yield page
+    page.close()
+    assert not errors, errors
+
+
+def status(page) -> str:
+    return page.inner_text(f"[data-path='{FIELD}'] .upload-status")
+
+
+def upload(page, path: Path) -> None:
+    with page.expect_file_chooser() as chooser:
+        page.click(f"[data-path='{FIELD}'] button.upload")
+    chooser.value.set_files(str(path))
+
+
+def shot(page, name: str) -> None:
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    page.locator(f"[data-path='{FIELD}']").scroll_into_view_if_needed()
+    page.locator("#left").screenshot(path=str(SHOTS / name))
+
+
+def punch_mesh() -> trimesh.Trimesh:
+    """The press's punch as a closed surface: a cylinder of radius 4 mm, nose at z = 0."""
+    return trimesh.creation.cylinder(radius=0.004, height=0.01, sections=48).apply_translation(
+        [0.0, 0.0, 0.005])
+
+
+def test_a_tool_surface_uploaded_from_the_form_runs(page, served):
+    url, tmp = served
+    mine = tmp / "mine"
+    mine.mkdir()
+    punch_mesh().export(mine / "Punch v1.stl")
+    open_one = mine / "open.stl"
+    trimesh.Trimesh(punch_mesh().vertices, punch_mesh().faces[3:]).export(open_one)
+
+    page.select_option("[name='tools.1.shape.kind']", "mesh")
+    page.wait_for_selector(f"[data-path='{FIELD}'] select.file-select")
+    shot(page, "1-mesh-kind.png")
+    upload(page, open_one)  # refused: the form says why, nothing is kept
+    until(lambda: "boundary" in status(page), "no refusal shown", 300)
+    assert status(page).startswith("open.stl: open: ") and "boundary edges" in status(page)
+    assert not (tmp / "scenes" / "open.stl").exists()
+    shot(page, "2-open-refused.png")
+
+    upload(page, mine / "Punch v1.stl")
+    until(lambda: status(page).startswith("uploaded"), "no upload", 300)
+    assert status(page) == "uploaded Punch_v1.stl: 98 vertices, 192 triangles"
+    assert page.input_value(f"[name='{FIELD}']") == "Punch_v1.stl"
+    page.wait_for_function("""() => document.getElementById('toml').value
+        .includes('path = "Punch_v1.stl"')""")
+    assert page.inner_text("#sync") == "valid"
+    shot(page, "3-uploaded.png")
+
+    page.fill("#scene-name", "meshpress")
+    page.click("#save")
+    page.wait_for_function("document.getElementById('msg').textContent === 'saved meshpress'")
+    page.click("#start")
+    run = until(lambda: httpx.get(url + "/api/runs").json(), "no run")[0]["id"]
+    done = until(lambda: (st := httpx.get(f"{url}/api/runs/{run}").json())["state"]
+                 in ("finished", "failed", "stopped") and st, "the run never ended")
+    assert done["state"] == "finished", done["reason"]
+    result = httpx.get(f"{url}/api/runs/{run}/result").json()
+    assert result["steps"][-1]["probes"]["punch_force"] > 0  # the uploaded punch pressed
+    files = {f["name"]: f for f in httpx.get(url + "/api/files").json()["files"]}
+    assert files["Punch_v1.stl"]["used_by"] == ["meshpress"]
+    page.wait_for_timeout(1500)  # the run's plots settle before the picture
+    page.screenshot(path=str(SHOTS / "4-run.png"))

@@ -1,0 +1,154 @@
+"""The inputs of the shell obstacle course: a surface load of fixed direction, the small-strain
+(linear_elastic) term, the curved patches' nodes on their exact surface, and bad input."""
+
+import numpy as np
+import pytest
+
+from sim.elements import ROUTINE
+from sim.scene.load import SceneError, load_scene
+from sim.stepping.simulation import Simulation
+from tests.support.fd import fd_check
+
+RNG = np.random.default_rng(17)
+
+
+def _model(path: str, o: dict):
+    return Simulation.from_scene(load_scene(path, o)).model
+
+
+@pytest.mark.parametrize("element", ROUTINE)
+def test_surface_load_sums_to_load_times_area(element):
+    """On a flat plate the mid-surface's rest area is exact, so the nodal forces sum to the
+    load times the area to round-off, with the direction kept (not along the normal)."""
+    m = _model("scenes/cantilever.toml", {
+        "mesh.edge_length": 0.035, "shell.element": element,
+        "loads": [{"kind": "surface", "vector": [30.0, 0.0, -90.0]}]})
+    assert np.allclose(m.external.f.sum(0), np.array([30.0, 0, -90.0]) * 0.7 * 0.07,
+                       rtol=1e-12)
+
+
+def test_surface_load_on_a_curved_patch_takes_the_curved_area():
+    """The roof's weight per area times its area, 25 x 25 x 40 degrees: the curved quadratic
+    mesh integrates the exact cylinder (its edges are arcs to O(h^3) in position, so its area
+    is off by O(h^4)); the flat chords miss it by the faceting's O(h^2)."""
+    area = 25.0 * 25.0 * np.radians(40)
+    o = {"shell.element": "quadratic", "mesh.cells": 4}
+    curved = _model("scenes/scordelis_lo.toml", o).external.f.sum(0)[2] / -90.0
+    flat = _model("scenes/scordelis_lo.toml", {**o, "mesh.curved": False}).external.f.sum(0)
+    flat = flat[2] / -90.0
+    # faceting at 10 degrees per cell: 1 - sin(x)/x = 1.3e-3 of the area; the arcs: < 1e-5
+    assert abs(curved / area - 1) < 1e-5 < 1e-3 < abs(flat / area - 1)
+
+
+@pytest.mark.parametrize("element", ROUTINE)
+def test_small_strain_term_fd_and_energy(element):
+    """The linear_elastic term: gradient and Hessian by finite differences, and its energy
+    equal to sum_q w detJ (mu eps:eps + lam/2 tr(eps)^2), eps = sym grad u, computed here from
+    the element's shape-function gradients."""
+    m = _model("scenes/cantilever.toml", {"mesh.edge_length": 0.035, "shell.element": element,
+                                          "material.model": "linear_elastic"})
+    term = next(t for t in m.terms if t.name == "small_strain_elasticity")
+    u = 1e-3 * RNG.standard_normal(m.shell.rest.shape)
+    x = m.shell.rest + u
+
+    def grad(y):
+        g = np.zeros_like(y)
+        term.add_gradient(y, g)
+        return g
+
+    def hv(y, v):
+        d = np.zeros(m.pattern.nnz)
+        term.add_hessian(y, d)
+        return (m.pattern.matrix(d) @ v.ravel()).reshape(v.shape)
+
+    fd_check(term.energy, grad, hv, x, 1e-3, RNG)
+    el = m.elasticity
+    H = np.einsum("ead,eqaj->eqdj", u[m.shell.conn], el.dNdX)
+    eps = 0.5 * (H + np.swapaxes(H, -1, -2))
+    E, nu = 1.0e9, 0.49
+    mu, lam = E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+    tr = np.trace(eps, axis1=-2, axis2=-1)
+    W = mu * np.einsum("eqij,eqij->eq", eps, eps) + 0.5 * lam * tr**2
+    # the same sum in another order: round-off of the 1e5-term sum, far below 1e-9
+    assert np.isclose(term.energy(x), float(np.sum(el.wdetJ * W)), rtol=1e-9)
+
+
+@pytest.mark.parametrize("scene", ["scordelis_lo", "pinched_hemisphere"])
+def test_curved_nodes_lie_on_the_surface(scene):
+    """Every node of the quadratic element's mid-surface lies on the exact cylinder or sphere
+    (to round-off), and its skins at half the thickness from it; flat chords do not."""
+    sc = load_scene(f"scenes/{scene}.toml", {"shell.element": "quadratic", "mesh.cells": 4})
+    R, h = sc.mesh.radius, sc.shell.thickness
+
+    def radii(sh):
+        X = sh.plane_mid if scene == "pinched_hemisphere" else sh.plane_mid[:, 1:]
+        return np.linalg.norm(X, axis=1)
+
+    def skin(sh):
+        top = sh.rest[sh.layer_nodes(sh.element.q)]
+        return np.linalg.norm(top if scene == "pinched_hemisphere" else top[:, 1:], axis=1)
+
+    sh = _model(f"scenes/{scene}.toml", {"shell.element": "quadratic", "mesh.cells": 4}).shell
+    assert np.allclose(radii(sh), R, rtol=1e-14) and np.allclose(skin(sh), R + h / 2,
+                                                                  rtol=1e-14)
+    flat = _model(f"scenes/{scene}.toml", {"shell.element": "quadratic", "mesh.cells": 4,
+                                           "mesh.curved": False}).shell
+    assert radii(flat).min() < R * (1 - 1e-3)  # chords of 10-22.5 degrees sag by 1e-3..2e-2
+
+
+BAD = [
+    ("scenes/pinched_hemisphere.toml", "mesh.hole", -0.1),
+    ("scenes/pinched_hemisphere.toml", "mesh.hole", 1.6),
+    ("scenes/pinched_hemisphere.toml", "mesh.cells", 0),
+    ("scenes/scordelis_lo.toml", "mesh.angle", 0.0),
+    ("scenes/scordelis_lo.toml", "mesh.radius", -25.0),
+    ("scenes/scordelis_lo.toml", "loads.0.vector", [0.0, 0.0, 1e20]),
+    ("scenes/scordelis_lo.toml", "study.published.value", "big"),
+]
+
+
+@pytest.mark.parametrize("path,key,value", BAD, ids=[f"{b[1]}={b[2]}" for b in BAD])
+def test_bad_course_input_names_the_field(path, key, value):
+    with pytest.raises(SceneError, match=key.replace(".", r"\.")):
+        load_scene(path, {key: value})
+
+
+def test_study_levels_follow_the_mesh_kind():
+    with pytest.raises(SceneError, match=r"study\.cells"):
+        load_scene("scenes/convergence.toml", {"study.cells": [4, 8]})
+    with pytest.raises(SceneError, match=r"study\.edge_lengths"):
+        load_scene("scenes/scordelis_lo.toml", {"study.edge_lengths": [1.0]})
+
+
+def test_small_strain_is_only_elastic():
+    with pytest.raises(SceneError, match="yield_stress"):
+        load_scene("scenes/cantilever.toml", {"material.model": "linear_elastic",
+                                              "material.yield_stress": 1e8})
+
+
+def test_every_load_kind_tells_the_page_what_load_scale_multiplies():
+    """The page's load slider shows each load's magnitude in its unit; a surface load is one
+    of them (its missing unit once broke the viewer's frames of the roof)."""
+    sim = Simulation.from_scene(load_scene("scenes/scordelis_lo.toml", {
+        "mesh.cells": 2, "loads": [
+            {"kind": "surface", "vector": [0.0, 0.0, -90.0]},
+            {"kind": "pressure", "value": -5.0},
+            {"kind": "point", "vector": [3.0, 4.0, 0.0], "point": [0.0, 0.0, 25.0]}]}))
+    assert sim.scaled()["load_scale"] == [
+        {"what": "surface 0", "unit": "Pa", "value": 90.0},
+        {"what": "pressure 1", "unit": "Pa", "value": -5.0},
+        {"what": "point 2", "unit": "N", "value": 5.0}]
+
+
+def test_a_patch_run_gets_an_estimate_not_an_error(tmp_path):
+    """The service's error estimate of a finished run reads its edge length from the run's
+    scene: a patch refined by cells has none, which is no estimate, not an error."""
+    from server.estimate import EstimateCache
+    from server.records import Run
+
+    d = tmp_path / "roof-1"
+    d.mkdir()
+    (d / "scene.toml").write_text(open("scenes/scordelis_lo.toml").read())
+    run = Run("roof-1", "scordelis_lo", "q3t", {}, 0.0, state="finished")
+    est = EstimateCache(tmp_path).get(run)
+    assert est["reason"] != "error" and "no study" in est["text"], est

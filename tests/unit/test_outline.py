@@ -1,0 +1,156 @@
+"""Blanks from outlines (sim.geometry.outline): isotropic meshes of quality, corners and holes
+kept, drawings read, and bad outlines refused naming the field."""
+
+import numpy as np
+import pytest
+
+from sim.geometry import outline as ol
+from sim.geometry import trimesh as meshes
+
+R, H = 0.03, 0.002
+
+
+def circle(r=R, n=400, centre=(0.0, 0.0)):
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return np.column_stack([centre[0] + r * np.cos(t), centre[1] + r * np.sin(t)])
+
+
+SQUARE = np.array([[0.0, 0.0], [0.15, 0.0], [0.15, 0.15], [0.0, 0.15]])
+
+
+def angles_and_edges(m):
+    V, F = m.vertices[:, :2], m.faces
+    e = np.stack([V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 1]], V[F[:, 0]] - V[F[:, 2]]], 1)
+    length = np.linalg.norm(e, axis=2)
+    cos = [(-e[:, i - 1] * e[:, i]).sum(1) / (length[:, i - 1] * length[:, i]) for i in range(3)]
+    return np.degrees(np.arccos(np.clip(cos, -1, 1))), length
+
+
+def signed_areas(m):
+    V, F = m.vertices, m.faces
+    a, b = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
+    return 0.5 * (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+
+
+def euler(m):
+    return len(m.vertices) - len(meshes.edges(m.faces)[0]) + len(m.faces)
+
+
+def test_disk_is_isotropic():
+    """A disk at 2 mm: well-shaped triangles of one size everywhere, counter-clockwise, the
+    disk's area, one piece. Bounds: gmsh's Frontal-Delaunay measured 42 degrees and a 6 %
+    spread here; an area-bounded Delaunay refinement (Triangle) gives 30 degrees and 19 %,
+    which these bounds refuse."""
+    m = ol.mesh(ol.checked(ol.loop(circle(), "points"), []), H)
+    angles, length = angles_and_edges(m)
+    assert angles.min() > 35.0
+    assert length.std() / length.mean() < 0.10
+    assert abs(length.mean() / H - 1) < 0.1
+    area = signed_areas(m)
+    assert (area > 0).all() and m.vertices[:, 2].max() == 0.0
+    # the mesh fills the 400-gon whose corners lie on the circle (to its chordal error)
+    assert area.sum() == pytest.approx(np.pi * R**2, rel=2e-3)
+    assert euler(m) == 1
+    assert np.linalg.norm(m.vertices[:, :2], axis=1).max() == pytest.approx(R, rel=1e-12)
+
+
+def test_corners_and_holes_kept():
+    """A square's corners stay vertices with its sides divided evenly; a round hole leaves no
+    vertex inside it and the area of the square less the hole's resampled polygon."""
+    hole = circle(0.02, 200, (0.075, 0.075))
+    shape = ol.checked(ol.loop(SQUARE, "points"), [ol.loop(hole, "holes.0")])
+    m = ol.mesh(shape, 0.005)
+    for c in SQUARE:
+        assert np.linalg.norm(m.vertices[:, :2] - c, axis=1).min() < 1e-12
+    bottom = np.sort(m.vertices[np.abs(m.vertices[:, 1]) < 1e-12, 0])
+    np.testing.assert_allclose(np.diff(bottom), 0.005, rtol=1e-9)  # 150 mm in 30 sides
+    r = np.linalg.norm(m.vertices[:, :2] - 0.075, axis=1)
+    assert r.min() == pytest.approx(0.02, rel=1e-9)
+    # the hole as meshed: its polygon resampled at the edge length, corners on the circle
+    hole_area = ol.Outline(ol.resample(shape.holes[0], 0.005)).area
+    assert signed_areas(m).sum() == pytest.approx(0.15**2 - hole_area, rel=1e-9)
+    assert euler(m) == 0  # a ring: one hole
+
+
+def test_resample_keeps_corners_and_spacing():
+    p = ol.resample(SQUARE, 0.01)
+    assert len(p) == 60
+    step = np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
+    np.testing.assert_allclose(step, 0.01, rtol=1e-9)
+    assert {tuple(c) for c in SQUARE} <= {tuple(q) for q in p}
+
+
+@pytest.mark.parametrize("points, holes, field, words", [
+    ([[0, 0], [1, 0]], [], "points", "at least 3"),
+    ([[0, 0], [1, 0], [1, 0], [0, 0]], [], "points", "at least 3"),
+    ([[0, 0], [2, 2], [2, 0], [0, 1]], [], "points", "Self-intersection"),
+    ([[0, 0], [1, 0], [2, 0]], [], "points", "not a simple closed curve"),
+    (SQUARE, [[[1, 1], [1.1, 1], [1.1, 1.1]]], "holes.0", "inside the outline"),
+    (SQUARE, [[[0.01, 0.01], [0.05, 0.05], [0.05, 0.01], [0.01, 0.05]]], "holes.0",
+     "Self-intersection"),
+    (SQUARE, [[[0.01, 0.01], [0.1, 0.01], [0.1, 0.1]], [[0.05, 0.02], [0.12, 0.02],
+                                                          [0.12, 0.08]]], "holes",
+     "touch or overlap"),
+])
+def test_bad_outlines_name_the_field(points, holes, field, words):
+    with pytest.raises(ol.OutlineError, match=words) as err:
+        ol.checked(ol.loop(points, "points"),
+                   [ol.loop(h, f"holes.{i}") for i, h in enumerate(holes)])
+    assert err.value.field == field
+
+
+@pytest.mark.parametrize("h, words", [(0.1, "too coarse"), (1e-5, "triangles, above")])
+def test_absurd_edge_length(h, words):
+    shape = ol.checked(ol.loop(SQUARE, "points"), [])
+    with pytest.raises(ol.OutlineError, match=words) as err:
+        ol.mesh(shape, h)
+    assert err.value.field == "edge_length"
+
+
+SVG = """<svg xmlns="http://www.w3.org/2000/svg" width="200mm" height="200mm"
+ viewBox="-100 -100 200 200"><g transform="translate(10, 0)">
+ <path d="M -75 -75 H 75 V 75 H -75 Z"/><circle cx="0" cy="0" r="20"/></g></svg>"""
+
+
+def test_svg_drawing(tmp_path):
+    """An SVG in mm (its viewBox units; the viewport's own size does not scale it): the
+    largest path is the outline, the circle its hole, curves flattened finely."""
+    f = tmp_path / "blank.svg"
+    f.write_text(SVG)
+    shape = ol.read_drawing(f, 1e-3, 0.005)
+    assert shape.area == pytest.approx(0.15**2 - np.pi * 0.02**2, rel=1e-3)
+    assert shape.outer[:, 0].min() == pytest.approx(-0.065)  # translated 10 mm
+    assert len(shape.holes) == 1
+
+
+def test_dxf_drawing(tmp_path):
+    import ezdxf
+
+    doc = ezdxf.new()
+    msp = doc.modelspace()
+    msp.add_lwpolyline([(0, 0), (150, 0), (150, 150), (0, 150)], close=True)
+    msp.add_circle((75, 75), 20)
+    doc.saveas(tmp_path / "blank.dxf")
+    shape = ol.read_drawing(tmp_path / "blank.dxf", 1e-3, 0.005)
+    assert shape.area == pytest.approx(0.15**2 - np.pi * 0.02**2, rel=1e-3)
+    msp.add_line((0, 0), (10, 10))
+    doc.saveas(tmp_path / "open.dxf")
+    with pytest.raises(ol.OutlineError, match="an open LINE"):
+        ol.read_drawing(tmp_path / "open.dxf", 1e-3, 0.005)
+
+
+@pytest.mark.parametrize("name, text, words", [
+    ("none.svg", None, "no drawing"),
+    ("bad.svg", "<svg", "not a readable drawing"),
+    ("bad.dxf", "0\nSECTION\n2\nNONSENSE", "not a readable drawing"),
+    ("open.svg", '<svg xmlns="http://www.w3.org/2000/svg"><path d="M 0 0 L 10 0 L 10 10"/>'
+                 "</svg>", "an open path"),
+    ("empty.svg", '<svg xmlns="http://www.w3.org/2000/svg"></svg>', "no closed path"),
+    ("blank.stl", "solid", "SVG or DXF"),
+])
+def test_bad_drawings_name_the_path(tmp_path, name, text, words):
+    if text is not None:
+        (tmp_path / name).write_text(text)
+    with pytest.raises(ol.OutlineError, match=words) as err:
+        ol.read_drawing(tmp_path / name, 1e-3, 0.005)
+    assert err.value.field == "path"
