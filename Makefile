@@ -103,6 +103,16 @@ results: $(STAMP)
 	  --results $(R)/stroke-cup_drawing.md
 	$(BIN)/q3t run cup_drawing --quiet --out runs/forming-cup_drawing \
 	  --results $(R)/forming-cup_drawing.md
+	$(BIN)/q3t run cup_drawing_aa5754 --quiet --out runs/forming-cup_drawing_aa5754-2mm \
+	  --results $(R)/forming-cup_drawing_aa5754-2mm.md
+	$(BIN)/q3t run cup_drawing --quiet --set 'tools.0.velocity=[0,0,-0.03]' \
+	  --set stepping.steps=60 --out runs/forming-cup_drawing-30mm-2mm \
+	  --results $(R)/forming-cup_drawing-30mm-2mm.md
+	$(BIN)/q3t run cup_drawing_aa5754 --quiet --set mesh.edge_length=0.00125 \
+	  --out runs/forming-cup_drawing_aa5754 --results $(R)/forming-cup_drawing_aa5754-1.25mm.md
+	$(BIN)/q3t run cup_drawing --quiet --set 'tools.0.velocity=[0,0,-0.03]' \
+	  --set stepping.steps=60 --set mesh.edge_length=0.00125 --out runs/forming-cup_drawing-30mm \
+	  --results $(R)/forming-cup_drawing-30mm-1.25mm.md
 	$(BIN)/q3t run square_cup $(SQUARE15) --out runs/forming-square_cup \
 	  --results $(R)/forming-square_cup.md
 	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --out runs/forming-square_cup-al \

@@ -37,6 +37,13 @@ when there is one; loaded: the end of the stroke):
   one's distance from the tool between the loaded part and the released one, placed by the
   same best-fit motion, the tool where the stroke left it. A part that does not spring back
   reads 0, however deep the penalty contact let it into the contact layer.
+- ``max_rim_height``, ``min_rim_height``, ``earing``, ``rim_harmonic_4``, ``rim_harmonic_6``
+  (one punch direction, a flat blank's outer edge drawn through the die: every edge vertex
+  moved along the punch's direction by more than two thicknesses): the edge's heights above
+  the lowest point along the punch's direction, around the punch axis from the x axis
+  (sim.frames.earing), final state; ``earing`` is
+  (max - min) / mean and carries the whole ``profile`` (angle, height); the four-fold
+  harmonic is a rolled sheet's ears, the six-fold a hexagonal mesh's pattern.
 - ``volume_change``: V / V0 - 1 of the sheet, final state.
 """
 
@@ -48,7 +55,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sim.frames import blank
+from sim.frames import blank, earing
 from sim.frames.fields import mid_surface, thickness, volume
 from sim.frames.punch import punch_history
 from sim.frames.units import measure
@@ -351,6 +358,41 @@ def _tool_deviation(view: View) -> list[dict]:
                   {"tool": tool, "node": node}, note=note),
             entry("tool_deviation_mean", "Deviation from the tool surface, mean", d.mean(), "m",
                   note=note)]
+
+
+@quantity("rim_height", needs=("punch", "edge"))
+def _rim_height(view: View) -> list[dict]:
+    """A drawn cup's rim: its heights around the punch axis (the ``profile``), the earing and
+    the four-fold (ears) and six-fold (a hexagonal mesh's pattern) harmonics. Only where the
+    edge is a rim, up the wall: on average above half the part's height."""
+    hist = punches(view)
+    dirs = [(t, h["direction"]) for t, h in hist.items() if h["direction"] is not None]
+    if len(dirs) != 1:
+        return []
+    tool, d = dirs[0]
+    mid, rest, edge = view.mid(), view.model.shell.mesh.vertices, view.summary.edge.vertices
+    # a rim once the whole edge has left the blank's plane with the punch (drawn through the
+    # die), not a flange still held, whose heights show no ears (its draw-in does)
+    if np.min((mid[edge] - rest[edge]) @ d) <= 2 * float(view.model.shell.thickness.max()):
+        return []
+    r = earing.rim(rest, mid, edge, d, view.summary.starts[tool])
+    i, j = int(np.argmax(r.height)), int(np.argmin(r.height))
+    deg = np.degrees(r.angle)
+    profile = {"angle": measure(deg, "deg"), "height": measure(r.height, "m")}
+    out = [entry("max_rim_height", "Rim height, largest", r.height[i], "m",
+                 {"angle": measure(deg[i], "deg"), **at_vertex(r.vertices[i], mid)}),
+           entry("min_rim_height", "Rim height, smallest", r.height[j], "m",
+                 {"angle": measure(deg[j], "deg"), **at_vertex(r.vertices[j], mid)}),
+           entry("earing", "Earing", r.earing, "1", profile=profile,
+                 note="(largest - smallest) / mean rim height; angles about the punch axis "
+                      "from the x axis")]
+    for k, name in ((4, "four-fold (ears)"), (6, "six-fold (mesh)")):
+        amp, crest = r.harmonic(k)
+        out.append(entry(f"rim_harmonic_{k}", f"Rim height, {name} harmonic", amp, "m",
+                         {"first_crest": measure(np.degrees(crest), "deg")},
+                         note=f"amplitude of the {k}-fold term of the rim height's "
+                              "least-squares Fourier series"))
+    return out
 
 
 @quantity("volume_change")

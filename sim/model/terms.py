@@ -7,6 +7,7 @@ import numpy as np
 
 from sim.geometry.quadrature import Rule
 from sim.geometry.shell import Shell
+from sim.materials.hill import HILL48, hill_matrix, hill_params, sheet_frames
 from sim.materials.plasticity import LINEAR, PERFECT, SWIFT, VOCE
 from sim.scene.load import Scene
 from sim.scene.sheet import MaterialSpec
@@ -36,9 +37,25 @@ def material_params(m: MaterialSpec) -> np.ndarray:
     mu, lam = lame(m.E, m.nu)
     if m.model != "plastic":
         return np.array([mu, lam, 0.0, 0.0])
-    return np.array([mu, lam, float(LAWS[m.hardening.law]), *m.hardening_params()])
+    law, hp = LAWS[m.hardening.law], m.hardening_params()
+    if m.hill48 is not None:
+        h = m.hill48
+        return hill_params(mu, lam, law, hp, hill_matrix(*h.coefficients(), L=h.L, M=h.M))
+    return np.array([mu, lam, float(law), *hp])
 
 
+def material_frames(m: MaterialSpec, shell: Shell) -> np.ndarray | None:
+    """Per element, the material axes (rolling, transverse, normal) ``(n_elem, 3, 3)`` of an
+    anisotropic sheet, from its rest mid-surface; None for an isotropic one."""
+    if m.hill48 is None:
+        return None
+    V, F = shell.mesh.vertices, shell.mesh.faces
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    try:
+        return sheet_frames(n, np.array(m.hill48.rolling_vector(), float))
+    except ValueError as exc:
+        raise ValueError(f"material.hill48.rolling_direction: {exc}") from None
 
 
 def elasticity(scene: Scene, shell: Shell, rule: Rule, pattern: Pattern) -> Elasticity:
@@ -46,8 +63,9 @@ def elasticity(scene: Scene, shell: Shell, rule: Rule, pattern: Pattern) -> Elas
     # the small-strain stiffness is the exact Hessian at rest (positive definite there)
     project = PROJECT_NONE if m.model == "linear_elastic" else \
         PROJECTIONS[scene.solver.hessian_projection]
-    return Elasticity(shell, rule, MODEL_IDS[m.model], material_params(m), pattern, project,
-                      plastic=m.model == "plastic")
+    model = HILL48 if m.hill48 is not None else MODEL_IDS[m.model]
+    return Elasticity(shell, rule, model, material_params(m), pattern, project,
+                      plastic=m.model == "plastic", frames=material_frames(m, shell))
 
 
 def stored_energy(scene: Scene, elastic: Elasticity, x0: np.ndarray) -> Term:

@@ -12,6 +12,7 @@ from sim.scene.fields import (
     MAX_STRAIN,
     MAX_STRESS,
     Coord,
+    Direction,
     Extent,
     Length,
     Slope,
@@ -319,6 +320,82 @@ class KeelerBrazierFLC(_FLC):
 FLCSpec = Annotated[PointsFLC | KeelerBrazierFLC, Field(discriminator="kind")]
 
 
+# r-values of rolled sheets lie within 0.2-3; a hundred is far beyond any, and keeps Hill's
+# coefficients (ratios of them) well inside float range
+_Ratio = bounded(0.0, 100.0)
+
+
+class Hill48Spec(Strict):
+    """Hill's 1948 orthotropic yield criterion (sim.materials.hill) in place of von Mises:
+    either the r-values r0, r45, r90 (plastic width over thickness strain in uniaxial tension
+    at 0, 45 and 90 degrees to the rolling direction) or Hill's F, G, H, N with G + H = 1, and
+    the rolling direction. ``material.yield_stress`` and the hardening law are the flow stress
+    in tension along the rolling direction. The material axes of each element are the rolling
+    direction projected on its rest mid-surface, the transverse direction, and the normal."""
+
+    r0: _Ratio | None = doc("the r-value along the rolling direction", "1", None)
+    r45: _Ratio | None = doc("the r-value at 45 degrees to the rolling direction", "1", None)
+    r90: _Ratio | None = doc("the r-value across the rolling direction", "1", None)
+    F: _Ratio | None = doc("Hill's F (instead of the r-values)", "1", None)
+    G: _Ratio | None = doc("Hill's G; G + H = 1", "1", None)
+    H: _Ratio | None = doc("Hill's H; G + H = 1", "1", None)
+    N: _Ratio | None = doc("Hill's N (in-plane shear)", "1", None)
+    L: _Ratio = doc("Hill's L (transverse shear; von Mises' 1.5 unless measured)", "1", 1.5)
+    M: _Ratio = doc("Hill's M (transverse shear; von Mises' 1.5 unless measured)", "1", 1.5)
+    rolling_direction: Direction | None = doc(
+        "the rolling direction as a vector in scene coordinates, projected on the sheet's "
+        "plane at each element; needed unless the sheet is isotropic in its plane "
+        "(r0 = r45 = r90)", "1", None)
+    rolling_angle: bounded(-360.0, 360.0, lo_open=False) | None = doc(
+        "the rolling direction as an angle from the x axis about z (the vector "
+        "(cos, sin, 0)), instead of rolling_direction", "deg", None)
+
+    @model_validator(mode="after")
+    def _one_form(self) -> Self:
+        rs = [k for k in ("r0", "r45", "r90") if getattr(self, k) is not None]
+        cs = [k for k in ("F", "G", "H", "N") if getattr(self, k) is not None]
+        if rs and cs or not (len(rs) == 3 or len(cs) == 4):
+            raise ValueError("give either r0, r45, r90 or F, G, H, N (got "
+                             f"{', '.join(rs + cs) or 'none'})")
+        if cs and abs(self.G + self.H - 1.0) > 1e-6:
+            raise ValueError(f"G + H = {self.G + self.H:.6g} must be 1: yield_stress is the flow "
+                             "stress along the rolling direction")
+        if self.rolling_direction is not None and self.rolling_angle is not None:
+            raise ValueError("give one of rolling_direction and rolling_angle")
+        if self.rolling_vector() is None:
+            raise ValueError("rolling_direction: missing; an r-value that varies in the "
+                             f"sheet's plane (r0, r45, r90 = {self.r_values()}) needs the rolling "
+                             "direction (or rolling_angle)")
+        return self
+
+    def coefficients(self) -> tuple[float, float, float, float]:
+        """(F, G, H, N), normalised G + H = 1."""
+        if self.F is not None:
+            return self.F, self.G, self.H, self.N
+        G = 1.0 / (1.0 + self.r0)
+        H = self.r0 * G
+        F = H / self.r90
+        return F, G, H, (self.r45 + 0.5) * (F + G)
+
+    def r_values(self) -> tuple[float, float, float]:
+        F, G, H, N = self.coefficients()
+        return H / G, N / (F + G) - 0.5, H / F
+
+    def planar_isotropic(self) -> bool:
+        r0, r45, r90 = self.r_values()
+        return abs(r0 - r45) <= 1e-12 * r0 and abs(r0 - r90) <= 1e-12 * r0
+
+    def rolling_vector(self) -> tuple[float, float, float] | None:
+        """The rolling direction in scene coordinates (x for a sheet isotropic in its plane,
+        where it does not matter), or None when missing."""
+        if self.rolling_angle is not None:
+            a = math.radians(self.rolling_angle)
+            return (math.cos(a), math.sin(a), 0.0)
+        if self.rolling_direction is None and self.planar_isotropic():
+            return (1.0, 0.0, 0.0)
+        return self.rolling_direction
+
+
 class MaterialSpec(Strict):
     """The sheet's material: a hyperelastic model, elastic-plastic (von Mises with
     isotropic hardening, sim.materials.plasticity), or linear elasticity in a geometrically
@@ -342,12 +419,18 @@ class MaterialSpec(Strict):
     flc: FLCSpec | None = doc(
         "the forming limit curve: major and minor strains, zones and the FLD of a run; "
         "plastic model only", default=None)
+    hill48: Hill48Spec | None = doc(
+        "an anisotropic sheet: Hill's 1948 yield criterion instead of von Mises (r-values, "
+        "rolling direction); plastic model only", default=None)
 
     @model_validator(mode="after")
     def _plastic_fields(self) -> Self:
         if self.model != "plastic":
             if self.flc is not None:
                 raise ValueError(f"flc: forming limits are for model 'plastic' (not "
+                                 f"{self.model!r})")
+            if self.hill48 is not None:
+                raise ValueError(f"hill48: a yield criterion, for model 'plastic' (not "
                                  f"{self.model!r})")
             if self.yield_stress is not None:
                 raise ValueError(f"yield_stress: only used by model 'plastic' (not "

@@ -16,8 +16,10 @@ from numba import njit, prange
 
 from sim.geometry.quadrature import Rule
 from sim.geometry.shell import Shell
+from sim.materials.hill import HILL48, hill_flow, hill_kirchhoff, hill_stress_tangent_h
 from sim.materials.isotropic import (
     NEO_HOOKEAN,
+    det3,
     neo_hookean_h,
     polar_svd,
     principal,
@@ -59,7 +61,8 @@ def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
 @njit(cache=True, inline='always')
 def _element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNdX: np.ndarray,  # noqa: C901
              wdetJ: np.ndarray, model: int, params: np.ndarray, fp_inv: np.ndarray,
-             ep: np.ndarray, plastic: bool, want: int, project: int, g: np.ndarray,
+             ep: np.ndarray, frame: np.ndarray, plastic: bool, want: int, project: int,
+             g: np.ndarray,
              Kp: np.ndarray, Kf: np.ndarray, pos: np.ndarray, CB: np.ndarray, G: np.ndarray,
              P: np.ndarray, C: np.ndarray, bT: np.ndarray, u: np.ndarray,
              FiT: np.ndarray) -> float:
@@ -67,7 +70,8 @@ def _element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNdX: np.ndarra
     upper triangle of its Hessian, packed row by row, into ``Kp (k (k+1) / 2,)`` (want == 2).
     The element: its ``nodes (n_en,)`` in x and rest ``(n_nodes, 3)``, ``dNdX (n_qp, n_en, 3)``,
     ``wdetJ (n_qp,)``, material ``params`` (sim.materials.isotropic) and plastic state
-    ``fp_inv (n_qp, 3, 3)``, ``ep (n_qp,)`` (read when ``plastic``).
+    ``fp_inv (n_qp, 3, 3)``, ``ep (n_qp,)`` (read when ``plastic``), its material axes
+    ``frame (3, 3)`` (read by an anisotropic material, sim.materials.hill).
     Scratch, reused from element to element: ``Kf (k*k,)``, ``CB (3, 9, k)``,
     ``G, P, FiT (3, 3)``, ``C (9, 9)``, ``bT (3, 3, n_en)``, ``u (n_en, 3)``; ``pos`` maps a
     packed entry to its place in Kf (:func:`packed_positions`).
@@ -123,6 +127,9 @@ def _element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNdX: np.ndarra
                         G[i, J] += fp_inv[q, i, J] - (1.0 if i == J else 0.0)
             if closed:
                 W = neo_hookean_h(G, mu, lam, want == 2, P, C, FiT)
+            elif model == HILL48:
+                W = hill_stress_tangent_h(G, params, frame, ep[q], want == 2,
+                                          want == 2 and project == PROJECT_QP, P, C)
             else:
                 W = stress_tangent_h(model, G, params, ep[q] if plastic else 0.0, want == 2,
                                      want == 2 and project == PROJECT_QP, P, C)
@@ -215,7 +222,8 @@ def packed_positions(n_en: int) -> np.ndarray:
 @njit(cache=True, parallel=True)
 def elastic_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.ndarray,
                    wdetJ: np.ndarray, model: int, params: np.ndarray, fp_inv: np.ndarray,
-                   ep: np.ndarray, plastic: bool, want: int, project: int, order: np.ndarray,
+                   ep: np.ndarray, frames: np.ndarray, plastic: bool, want: int, project: int,
+                   order: np.ndarray,
                    block_ptr: np.ndarray, color_ptr: np.ndarray, slots: np.ndarray, pos: np.ndarray,
                    grad: np.ndarray, data: np.ndarray) -> float:
     """Total energy; adds the gradient into ``grad (n_nodes, 3)`` (want >= 1) and the Hessian
@@ -224,7 +232,9 @@ def elastic_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.n
     colour runs a block per thread without races. Returns inf on inversion.
     x, rest ``(n_nodes, 3)``; conn ``(n_elem, n_en)``; dNdX ``(n_elem, n_qp, n_en, 3)``; wdetJ
     ``(n_elem, n_qp)``; fp_inv ``(n_elem, n_qp, 3, 3)`` and ep ``(n_elem, n_qp)``, or their
-    empty ``(n_elem, 0, ...)`` versions when not ``plastic``; pos as in :func:`_element`."""
+    empty ``(n_elem, 0, ...)`` versions when not ``plastic``; frames ``(n_elem, 3, 3)`` the
+    material axes of an anisotropic material, else ``(n_elem, 0, 0)``; pos as in
+    :func:`_element`."""
     n_e, n_en = conn.shape
     k = 3 * n_en
     energies = np.zeros(n_e)
@@ -241,8 +251,8 @@ def elastic_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.n
             for t in range(block_ptr[blk], block_ptr[blk + 1]):
                 e = order[t]
                 E = _element(x, rest, conn[e], dNdX[e], wdetJ[e], model, params, fp_inv[e],
-                             ep[e], plastic, want, project, g, Kp, Kf, pos, CB, G, P, C, bT, u,
-                             FiT)
+                             ep[e], frames[e], plastic, want, project, g, Kp, Kf, pos, CB, G, P,
+                             C, bT, u, FiT)
                 energies[e] = E
                 ok = np.isfinite(E)
                 if want >= 1:
@@ -286,7 +296,8 @@ def _deformation_gradient(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, b:
 
 @njit(cache=True, parallel=True)
 def plastic_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.ndarray,
-                          params: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray) -> None:
+                          model: int, params: np.ndarray, frames: np.ndarray, fp_inv: np.ndarray,
+                          ep: np.ndarray) -> None:
     """Return-map every quadrature point at the converged state x and update, in place,
     Fp^-1 (n_elem, n_qp, 3, 3) <- Fp_n^-1 V diag(exp(-deps_p)) V^T and ep (n_elem, n_qp) += dgamma
     (the flow is isochoric: det Fp^-1 stays 1 to round-off)."""
@@ -294,6 +305,12 @@ def plastic_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNd
     for e in prange(conn.shape[0]):
         for q in range(dNdX.shape[1]):
             G = _deformation_gradient(x, rest, conn[e], dNdX[e, q] @ fp_inv[e, q], fp_inv[e, q])
+            if model == HILL48:
+                expm, dg = hill_flow(G, params, frames[e], ep[e, q])
+                if dg > 0.0:
+                    fp_inv[e, q] = fp_inv[e, q] @ expm
+                    ep[e, q] += dg
+                continue
             U, s, V, ok = polar_svd(G)
             if not ok:
                 continue
@@ -307,7 +324,7 @@ def plastic_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNd
 
 @njit(cache=True, parallel=True)
 def stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.ndarray, model: int,
-                  params: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray,
+                  params: np.ndarray, frames: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray,
                   plastic: bool) -> np.ndarray:
     """Von Mises equivalent of the Cauchy stress (n_elem, n_qp) at state x (with the trial
     return map at the committed plastic state)."""
@@ -319,6 +336,11 @@ def stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.nd
                                           fp_inv[e, q])
             else:
                 G = _deformation_gradient(x, rest, conn[e], dNdX[e, q], np.eye(3))
+            if model == HILL48:
+                tau3 = hill_kirchhoff(G, params, frames[e], ep[e, q])
+                dev3 = tau3 - np.trace(tau3) / 3.0 * np.eye(3)
+                out[e, q] = np.sqrt(1.5 * np.sum(dev3 * dev3)) / det3(G)
+                continue
             U, s, V, ok = polar_svd(G)
             if not ok:
                 continue
@@ -332,12 +354,13 @@ def stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.nd
 
 class Elasticity(Term):
     """Stored energy of the shell. ``material``: (model id, params array); ``plastic`` state is
-    ``fp_inv (n_elem, n_qp, 3, 3)`` and ``ep (n_elem, n_qp)``, or None for an elastic scene."""
+    ``fp_inv (n_elem, n_qp, 3, 3)`` and ``ep (n_elem, n_qp)``, or None for an elastic scene;
+    ``frames (n_elem, 3, 3)``: the material axes of an anisotropic material (sim.materials.hill)."""
 
     name = "elasticity"
 
     def __init__(self, shell: Shell, rule: Rule, model: int, params: np.ndarray, pattern: Pattern,
-                 project: int, plastic: bool = False):
+                 project: int, plastic: bool = False, frames: np.ndarray | None = None):
         _, dN = shell.element.basis(rule.points)
         self.rule = rule
         self.conn = shell.conn
@@ -356,6 +379,11 @@ class Elasticity(Term):
         self._pos = packed_positions(self.conn.shape[1])
         # an assumed-shear element's strain comes from its tying points (sim.terms.ans)
         self.tying = Tying(shell, rule) if shell.element.assumed_shear else None
+        self.frames = (np.zeros((n_e, 0, 0)) if frames is None
+                       else np.ascontiguousarray(frames, dtype=float))
+        if self.tying is not None and self.frames.size:
+            raise ValueError(f"shell.element: {shell.element.name} does not take an "
+                             "anisotropic sheet (material.hill48) yet; use q3t or quadratic")
 
     def _tied(self) -> tuple:
         t = self.tying
@@ -368,7 +396,7 @@ class Elasticity(Term):
                               self.fp_inv, self.ep, self.plastic, want, self.project, sc.order,
                               sc.block_ptr, sc.color_ptr, self.pattern.elem_slots, grad, data)
         return elastic_kernel(x, self.rest, self.conn, self.dNdX, self.wdetJ, self.model,
-                              self.params, self.fp_inv, self.ep, self.plastic, want,
+                              self.params, self.fp_inv, self.ep, self.frames, self.plastic, want,
                               self.project, sc.order, sc.block_ptr, sc.color_ptr,
                               self.pattern.elem_slots, self._pos, grad, data)
 
@@ -388,8 +416,8 @@ class Elasticity(Term):
         if self.plastic and self.tying is not None:
             ans_commit_kernel(x, *self._tied(), self.params, self.fp_inv, self.ep)
         elif self.plastic:
-            plastic_commit_kernel(x, self.rest, self.conn, self.dNdX, self.params, self.fp_inv,
-                                  self.ep)
+            plastic_commit_kernel(x, self.rest, self.conn, self.dNdX, self.model, self.params,
+                                  self.frames, self.fp_inv, self.ep)
 
     def von_mises(self, x: np.ndarray) -> np.ndarray:
         """Von Mises stress (Pa) per element and quadrature point ``(n_elem, n_qp)``."""
@@ -397,4 +425,4 @@ class Elasticity(Term):
             return ans_stress_kernel(x, *self._tied(), self.model, self.params, self.fp_inv,
                                      self.ep, self.plastic)
         return stress_kernel(x, self.rest, self.conn, self.dNdX, self.model, self.params,
-                             self.fp_inv, self.ep, self.plastic)
+                             self.frames, self.fp_inv, self.ep, self.plastic)

@@ -1,0 +1,460 @@
+"""Hill's 1948 orthotropic yield criterion in the variational return mapping of
+sim.materials.plasticity, on the full logarithmic strain tensor in the sheet's material frame.
+
+Kinematics as for von Mises: F = Fe Fp, the trial elastic deformation G = F Fp_n^-1 and its
+Hencky strain E = 1/2 ln(G^T G) (symmetric, in the intermediate configuration, where the
+orthotropy axes stay fixed: zero plastic spin). ``frame (3, 3)`` holds the material axes as
+columns (rolling, transverse, normal direction) in scene coordinates; E_m = frame^T E frame.
+
+Tensors in the material frame are Mandel 6-vectors (11, 22, 33, sqrt2 23, sqrt2 13, sqrt2 12),
+orthonormal: A : B = a . b. Hill's equivalent stress phi(T)^2 = T . Hm T with
+
+    phi^2 = F (T22 - T33)^2 + G (T33 - T11)^2 + H (T11 - T22)^2 + 2 L T23^2 + 2 M T13^2
+            + 2 N T12^2,
+
+von Mises for F = G = H = 1/2, L = M = N = 3/2. Hm is positive semidefinite with the hydrostatic
+direction as null space; its eigen-decomposition Hm = Q diag(h) Q^T (h[0] = 0 on the hydrostatic
+unit vector) is computed once per material (:func:`hill_params`).
+
+Incremental potential (isotropic Hencky elasticity, associated flow dEp = dg dphi/dT, isotropic
+hardening Y(ep) of sim.materials.plasticity):
+    W(E) = min_{dEp} psi_e(E - dEp) + Phi(|dEp|_*),   Phi(dg) = int_{ep_n}^{ep_n + dg} Y ds,
+|.|_* the dual norm of phi, convex in E for a nondecreasing Y. In Hm's eigenbasis (a = Q^T E_m)
+the return decouples: with c = 2 mu dg / Y and b_i = 1 + c h_i,
+    T_i = 2 mu a_i / b_i (i >= 1),  T_0 = 3 kappa a_0,  kappa = lam + 2 mu / 3,
+    W   = mu sum_i (a_i / b_i)^2 + 3 kappa / 2 a_0^2 + Phi(dg),
+and dg >= 0 is the root of the consistency condition phi(T) = Y(ep_n + dg), written as
+    R(dg) = 1 - sum_i h_i (2 mu a_i)^2 / (Y + 2 mu h_i dg)^2 = 0,
+increasing in dg and concave for the nonsoftening, concave-or-linear laws of plasticity.py, so
+Newton from dg = 0 converges monotonically. Tangent (symmetric, rank-one update):
+    dT_i/da_j = 2 mu d_ij / b_i - beta w_i w_j,   w_i = h_i a_i / b_i^2,
+    beta = 32 mu^4 (Y - dg H) / (Y^4 R'(dg)),  R' = 2 sum_i h_i (2 mu a_i)^2 (H + 2 mu h_i)
+                                                     / (Y b_i)^3.
+The plastic increment is dEp_i = a_i c h_i / b_i; the commit sets Fp^-1 <- Fp^-1 exp(-dEp)
+(in scene coordinates). For von Mises dEp is coaxial with E and this is exactly the principal
+return of plasticity.py; otherwise exp(-dEp) does not commute with G^T G and the next trial
+strain differs from E - dEp by O(|Ee| |dEp|), the usual small-elastic-strain approximation of
+the logarithmic-strain return (Eterovic and Bathe 1990; Miehe, Apel and Lambrecht 2002).
+
+Chain to G: with C = G^T G = V diag(l) V^T (l = s^2), T' = V^T T V and the divided differences
+f1_ab = f[l_a, l_b], f2_abc = f[l_a, l_b, l_c] of f = 1/2 ln (Daleckii-Krein),
+    P = U P' V^T,  P'_ab = 2 s_a f1_ab T'_ab,
+and the Hessian in the basis u_a v_b^T (dG = U A V^T) is the sum of
+    D-term   g_ab g_cd D'[m(ab), m(cd)]    (g_ab = s_a f1_ab times 2 on the diagonal, sqrt2 off)
+    C-term   2 d_ac T'_bd f1_bd            (the second derivative of C = G^T G)
+    log-term 2 s_a s_c (d_bc T'_ad f2_abd + d_bd T'_ac f2_abc + d_ac T'_bd f2_abd
+                        + d_ad T'_bc f2_abc)
+with D' the material tangent rotated to V's frame.
+
+``params`` of a Hill material: [mu, lam, law, hp (3, zero-padded), h (6), Q (36, row-major)];
+the hardening functions read only hp's leading entries.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from sim.materials.isotropic import dlog, eigh3, polar_svd
+from sim.materials.plasticity import hardening_work, yield_stress
+
+HILL48 = 3  # model id beside sim.materials.isotropic's
+N_PARAMS = 48
+_R2 = math.sqrt(2.0)
+# Mandel index of the tensor component (i, j)
+MANDEL = np.array([[0, 5, 4], [5, 1, 3], [4, 3, 2]])
+_PAIRS = np.array([[1, 2], [0, 2], [0, 1]])  # off-diagonal component of Mandel index 3, 4, 5
+
+
+def coefficients(r0: float, r45: float, r90: float) -> tuple[float, float, float, float]:
+    """Hill's F, G, H, N from the r-values, normalised G + H = 1 (so the flow stress Y is the
+    uniaxial yield stress along the rolling direction): r0 = H/G, r90 = H/F,
+    r45 = N/(F + G) - 1/2."""
+    G = 1.0 / (1.0 + r0)
+    H = r0 * G
+    F = H / r90
+    N = (r45 + 0.5) * (F + G)
+    return F, G, H, N
+
+
+def r_values(F: float, G: float, H: float, N: float) -> tuple[float, float, float]:
+    """The r-values at 0, 45 and 90 degrees of Hill's coefficients (inverse of coefficients)."""
+    return H / G, N / (F + G) - 0.5, H / F
+
+
+def hill_matrix(F: float, G: float, H: float, N: float, L: float = 1.5,
+                M: float = 1.5) -> np.ndarray:
+    """Hm (6, 6) in Mandel components: phi^2 = T . Hm T."""
+    Hm = np.zeros((6, 6))
+    Hm[:3, :3] = [[G + H, -H, -G], [-H, F + H, -F], [-G, -F, F + G]]
+    Hm[3, 3], Hm[4, 4], Hm[5, 5] = L, M, N
+    return Hm
+
+
+def hill_params(mu: float, lam: float, law: int, hp: list[float], Hm: np.ndarray) -> np.ndarray:
+    """The kernel's parameter array (module docstring). The hydrostatic eigenvector is set
+    exactly, so that h[0] = 0 and pressure never flows; the deviatoric normal block's two
+    eigenvectors come from its 2x2 restriction to an orthonormal deviatoric basis."""
+    one = np.array([1.0, 1.0, 1.0]) / math.sqrt(3.0)
+    dev = np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]])
+    dev /= np.linalg.norm(dev, axis=1)[:, None]
+    h2, q2 = np.linalg.eigh(dev @ Hm[:3, :3] @ dev.T)
+    Q = np.zeros((6, 6))
+    Q[:3, 0] = one
+    Q[:3, 1:3] = dev.T @ q2
+    Q[3:, 3:] = np.eye(3)
+    h = np.array([0.0, h2[0], h2[1], Hm[3, 3], Hm[4, 4], Hm[5, 5]])
+    if not np.all(h[1:] > 0.0):
+        raise ValueError("Hill's criterion is not positive definite on the deviatoric stresses")
+    return np.concatenate([[mu, lam, float(law)], np.pad(hp, (0, 3 - len(hp))), h, Q.ravel()])
+
+
+def sheet_frames(normals: np.ndarray, rolling: np.ndarray) -> np.ndarray:
+    """Material frames ``(n, 3, 3)``, columns (rolling, transverse, normal), from unit mid-surface
+    normals ``(n, 3)`` and the rolling direction ``(3,)`` projected on each tangent plane.
+    Raises where the rolling direction is within 1 degree of the normal (no projection)."""
+    d = rolling / np.linalg.norm(rolling)
+    t = d - (normals @ d)[:, None] * normals
+    size = np.linalg.norm(t, axis=1)
+    bad = np.nonzero(size < math.sin(math.radians(1.0)))[0]
+    if len(bad):
+        raise ValueError(f"parallel to the sheet normal at {len(bad)} element(s) (first: "
+                         f"{bad[:5].tolist()}): it has no direction in the sheet's plane there")
+    t /= size[:, None]
+    return np.stack([t, np.cross(normals, t), normals], axis=2)
+
+
+@njit(cache=True, inline='always')
+def _mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A @ B by loops: numba hands every small @ to BLAS, whose call costs more than these
+    3x3 to 9x9 products."""
+    n, m, k = A.shape[0], B.shape[1], A.shape[1]
+    out = np.zeros((n, m))
+    for i in range(n):
+        for p in range(k):
+            a = A[i, p]
+            for j in range(m):
+                out[i, j] += a * B[p, j]
+    return out
+
+
+@njit(cache=True, inline='always')
+def _mtm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A^T @ B by loops."""
+    n, m, k = A.shape[1], B.shape[1], A.shape[0]
+    out = np.zeros((n, m))
+    for p in range(k):
+        for i in range(n):
+            a = A[p, i]
+            for j in range(m):
+                out[i, j] += a * B[p, j]
+    return out
+
+
+@njit(cache=True, inline='always')
+def _mmt(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A @ B^T by loops."""
+    n, m, k = A.shape[0], B.shape[0], A.shape[1]
+    out = np.zeros((n, m))
+    for i in range(n):
+        for j in range(m):
+            acc = 0.0
+            for p in range(k):
+                acc += A[i, p] * B[j, p]
+            out[i, j] = acc
+    return out
+
+
+@njit(cache=True)
+def _solve(a: np.ndarray, h: np.ndarray, ep_n: float, mu: float, law: int,
+           hp: np.ndarray) -> float:
+    """Root dg of R (module docstring) in [0, phi_tr / (2 mu h_min)]: Newton inside a shrinking
+    bracket, bisection when a step leaves it; converged at a step below 1e-14 of the bracket."""
+    phi2, hmin = 0.0, np.inf
+    for i in range(1, 6):
+        phi2 += h[i] * (2.0 * mu * a[i]) ** 2
+        hmin = min(hmin, h[i])
+    scale = math.sqrt(phi2) / (2.0 * mu * hmin)
+    lo, hi, x = 0.0, scale, 0.0
+    for _ in range(200):
+        y, dy = yield_stress(law, hp, ep_n + x)
+        res, der = 1.0, 0.0
+        for i in range(1, 6):
+            t2 = h[i] * (2.0 * mu * a[i]) ** 2
+            den = y + 2.0 * mu * h[i] * x
+            res -= t2 / (den * den)
+            der += 2.0 * t2 * (dy + 2.0 * mu * h[i]) / (den * den * den)
+        if res == 0.0:
+            return x
+        if res < 0.0:
+            lo = x
+        else:
+            hi = x
+        step = -res / der
+        if abs(step) <= 1e-14 * scale:
+            return x + step
+        xn = x + step
+        if not (lo < xn < hi):
+            xn = 0.5 * (lo + hi)
+        if hi - lo <= 1e-16 * scale:
+            return xn
+        x = xn
+    return x
+
+
+@njit(cache=True)
+def hill_return(e6: np.ndarray, ep_n: float, params: np.ndarray
+                ) -> tuple[float, np.ndarray, np.ndarray, float, np.ndarray]:
+    """Incremental potential at one point: trial log strain ``e6 (6,)`` (material frame,
+    Mandel), ``ep_n`` the committed equivalent plastic strain. Returns (W, T (6,),
+    D = dT/de (6, 6), dg, dEp (6,)), all in the material frame."""
+    mu, lam, law = params[0], params[1], int(params[2])
+    hp, h = params[3:6], params[6:12]
+    Q = np.ascontiguousarray(params[12:48]).reshape((6, 6))
+    kappa = lam + 2.0 * mu / 3.0
+    a = np.zeros(6)
+    for i in range(6):
+        for k in range(6):
+            a[i] += Q[k, i] * e6[k]
+    phi2 = 0.0
+    for i in range(1, 6):
+        phi2 += h[i] * (2.0 * mu * a[i]) ** 2
+    y_n, _ = yield_stress(law, hp, ep_n)
+    dg = 0.0
+    if math.sqrt(phi2) - y_n > 1e-12 * abs(y_n):
+        dg = _solve(a, h, ep_n, mu, law, hp)
+    y, dy = yield_stress(law, hp, ep_n + dg)
+    c = 2.0 * mu * dg / y
+    b = np.ones(6)
+    for i in range(1, 6):
+        b[i] = 1.0 + c * h[i]
+    Ta = np.empty(6)
+    Ta[0] = 3.0 * kappa * a[0]
+    W = 1.5 * kappa * a[0] * a[0]
+    dEa = np.zeros(6)
+    for i in range(1, 6):
+        Ta[i] = 2.0 * mu * a[i] / b[i]
+        W += mu * (a[i] / b[i]) ** 2
+        dEa[i] = a[i] * c * h[i] / b[i]
+    Da = np.zeros((6, 6))
+    Da[0, 0] = 3.0 * kappa
+    for i in range(1, 6):
+        Da[i, i] = 2.0 * mu / b[i]
+    if dg > 0.0:
+        W += hardening_work(law, hp, ep_n, ep_n + dg)
+        der = 0.0
+        w = np.zeros(6)
+        for i in range(1, 6):
+            t2 = h[i] * (2.0 * mu * a[i]) ** 2
+            der += 2.0 * t2 * (dy + 2.0 * mu * h[i]) / (y * b[i]) ** 3
+            w[i] = h[i] * a[i] / (b[i] * b[i])
+        beta = 32.0 * mu**4 * (y - dg * dy) / (y**4 * der)
+        for i in range(1, 6):
+            for j in range(1, 6):
+                Da[i, j] -= beta * w[i] * w[j]
+    T, dE = np.zeros(6), np.zeros(6)
+    for i in range(6):
+        for k in range(6):
+            T[i] += Q[i, k] * Ta[k]
+            dE[i] += Q[i, k] * dEa[k]
+    D = _mmt(_mm(Q, Da), Q)
+    return W, T, 0.5 * (D + D.T), dg, dE
+
+
+@njit(cache=True)
+def mandel_rotation(R: np.ndarray) -> np.ndarray:
+    """``Mr (6, 6)``: the Mandel vector of R X R^T is Mr @ (that of X), for a rotation R (3, 3)."""
+    Mr = np.empty((6, 6))
+    for k in range(6):  # column k: R B_k R^T of the Mandel basis tensor B_k
+        for m in range(6):
+            if m < 3:
+                p, q = m, m
+            else:
+                p, q = _PAIRS[m - 3, 0], _PAIRS[m - 3, 1]
+            if k < 3:
+                y = R[p, k] * R[q, k]
+            else:
+                i, j = _PAIRS[k - 3, 0], _PAIRS[k - 3, 1]
+                y = (R[p, i] * R[q, j] + R[p, j] * R[q, i]) / _R2
+            Mr[m, k] = y if m < 3 else _R2 * y
+    return Mr
+
+
+@njit(cache=True)
+def unmandel(v: np.ndarray) -> np.ndarray:
+    """The symmetric tensor (3, 3) of a Mandel vector (6,)."""
+    A = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            k = MANDEL[i, j]
+            A[i, j] = v[k] if i == j else v[k] / _R2
+    return A
+
+
+@njit(cache=True)
+def _half_log_dd2(x: np.ndarray) -> float:
+    """Second divided difference of f = 1/2 ln at the three positive numbers x, free of
+    cancellation: the recursion over the widest pair when the spread exceeds 1e-2 of the mean
+    (error ~1e-14 relative), else the Taylor series about the mean, sum_k f^(k+2)(m) / (k+2)!
+    h_k(x - m) with h_k the complete homogeneous polynomials (truncation 1e-2^11)."""
+    lo, hi = min(x[0], min(x[1], x[2])), max(x[0], max(x[1], x[2]))
+    mid = x[0] + x[1] + x[2] - lo - hi
+    m = (x[0] + x[1] + x[2]) / 3.0
+    if hi - lo > 1e-2 * m:
+        return 0.5 * (dlog(hi, mid) - dlog(mid, lo)) / (hi - lo)
+    y = (x - m) / m
+    p = np.zeros(11)
+    for i in range(1, 11):
+        p[i] = y[0] ** i + y[1] ** i + y[2] ** i
+    hk = np.zeros(11)
+    hk[0] = 1.0
+    total = -0.25
+    for k in range(1, 11):
+        acc = 0.0
+        for i in range(1, k + 1):
+            acc += p[i] * hk[k - i]
+        hk[k] = acc / k
+        total += 0.5 * (-1.0) ** (k + 1) / (k + 2) * hk[k]
+    return total / (m * m)
+
+
+@njit(cache=True)
+def _frame_strain(G: np.ndarray, frame: np.ndarray
+                  ) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(ok, U, s, V, Vm = frame^T V, e6 the Mandel trial log strain in the material frame)."""
+    U, s, V, ok = polar_svd(G)
+    e6 = np.zeros(6)
+    Vm = _mtm(frame, V)
+    if not ok:
+        return False, U, s, V, Vm, e6
+    e = np.log(s)
+    Em = _mmt(Vm * e, Vm)
+    for i in range(3):
+        e6[i] = Em[i, i]
+    for m in range(3):
+        i, j = _PAIRS[m, 0], _PAIRS[m, 1]
+        e6[3 + m] = _R2 * Em[i, j]
+    return True, U, s, V, Vm, e6
+
+
+@njit(cache=True)
+def hill_stress_tangent(G: np.ndarray, params: np.ndarray, frame: np.ndarray, ep_n: float,
+                        want_tangent: bool, project: bool, P: np.ndarray,
+                        C: np.ndarray) -> float:
+    """W, first Piola-Kirchhoff ``P (3, 3)`` and ``C = dP/dG (9, 9)`` (row-major vec, written
+    when ``want_tangent``; clamped to positive semidefinite when ``project``) at the trial
+    elastic deformation ``G (3, 3)``; W = inf when det G <= 0."""
+    ok, U, s, V, Vm, e6 = _frame_strain(G, frame)
+    if not ok:
+        P[:] = 0.0
+        return np.inf
+    W, T6, D6, _, _ = hill_return(e6, ep_n, params)
+    Tp = _mm(_mtm(Vm, unmandel(T6)), Vm)  # T in V's frame
+    lam = s * s
+    f1 = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            f1[a, b] = 0.5 * dlog(lam[a], lam[b])
+    Pp = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            Pp[a, b] = 2.0 * s[a] * f1[a, b] * Tp[a, b]
+    P[:, :] = _mmt(_mm(U, Pp), V)
+    if not want_tangent:
+        return W
+    K = _hessian_uv(s, lam, f1, Tp, D6, Vm)
+    if project:
+        ev, Qk = np.linalg.eigh(K)
+        K = (Qk * np.maximum(ev, 0.0)) @ Qk.T
+    M = np.empty((9, 9))  # M[3a + b, 3i + j] = U[i, a] V[j, b]
+    for a in range(3):
+        for b in range(3):
+            for i in range(3):
+                for j in range(3):
+                    M[3 * a + b, 3 * i + j] = U[i, a] * V[j, b]
+    C[:, :] = _mm(_mtm(M, K), M)
+    for r in range(9):  # exactly symmetric, as the isotropic tangent is
+        for c in range(r + 1, 9):
+            C[r, c] = C[c, r] = 0.5 * (C[r, c] + C[c, r])
+    return W
+
+
+@njit(cache=True)
+def hill_stress_tangent_h(H: np.ndarray, params: np.ndarray, frame: np.ndarray, ep_n: float,
+                          want_tangent: bool, project: bool, P: np.ndarray,
+                          C: np.ndarray) -> float:
+    """:func:`hill_stress_tangent` at G = I + H, from ``H (3, 3)`` (the element kernel's form)."""
+    G = H.copy()
+    for i in range(3):
+        G[i, i] += 1.0
+    return hill_stress_tangent(G, params, frame, ep_n, want_tangent, project, P, C)
+
+
+@njit(cache=True)
+def _hessian_uv(s: np.ndarray, lam: np.ndarray, f1: np.ndarray, Tp: np.ndarray,
+                D6: np.ndarray, Vm: np.ndarray) -> np.ndarray:
+    """d2W/dA2 ``(9, 9)`` for dG = U A V^T, A's entries row-major (module docstring)."""
+    Mr = mandel_rotation(Vm)  # V-frame Mandel -> material-frame Mandel
+    Dv = _mm(_mtm(Mr, D6), Mr)
+    f2 = np.empty((3, 3, 3))
+    x = np.empty(3)
+    for i in range(3):  # symmetric in its arguments: ten distinct values
+        for j in range(i, 3):
+            for k in range(j, 3):
+                x[0], x[1], x[2] = lam[i], lam[j], lam[k]
+                v = _half_log_dd2(x)
+                f2[i, j, k] = f2[i, k, j] = f2[j, i, k] = v
+                f2[j, k, i] = f2[k, i, j] = f2[k, j, i] = v
+    g = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            g[a, b] = s[a] * f1[a, b] * (2.0 if a == b else _R2)
+    K = np.zeros((9, 9))
+    for a in range(3):
+        for b in range(3):
+            r = 3 * a + b
+            for c in range(3):
+                for d in range(3):
+                    v = g[a, b] * g[c, d] * Dv[MANDEL[a, b], MANDEL[c, d]]
+                    t = 0.0
+                    if b == c:
+                        t += Tp[a, d] * f2[a, b, d]
+                    if b == d:
+                        t += Tp[a, c] * f2[a, b, c]
+                    if a == c:
+                        t += Tp[b, d] * f2[a, b, d]
+                        v += 2.0 * Tp[b, d] * f1[b, d]
+                    if a == d:
+                        t += Tp[b, c] * f2[a, b, c]
+                    K[r, 3 * c + d] = v + 2.0 * s[a] * s[c] * t
+    return 0.5 * (K + K.T)
+
+
+@njit(cache=True)
+def hill_flow(G: np.ndarray, params: np.ndarray, frame: np.ndarray,
+              ep_n: float) -> tuple[np.ndarray, float]:
+    """The commit's return: exp(-dEp) (3, 3) in scene coordinates, and dg (identity and 0 in the
+    elastic branch)."""
+    ok, _, _, _, _, e6 = _frame_strain(G, frame)
+    if not ok:
+        return np.eye(3), 0.0
+    _, _, _, dg, dE6 = hill_return(e6, ep_n, params)
+    if dg == 0.0:
+        return np.eye(3), 0.0
+    dE = frame @ unmandel(dE6) @ np.ascontiguousarray(frame.T)
+    w, Qe = eigh3(dE)
+    w -= (w[0] + w[1] + w[2]) / 3.0  # isochoric to round-off
+    return (Qe * np.exp(-w)) @ np.ascontiguousarray(Qe.T), dg
+
+
+@njit(cache=True)
+def hill_kirchhoff(G: np.ndarray, params: np.ndarray, frame: np.ndarray,
+                   ep_n: float) -> np.ndarray:
+    """Kirchhoff stress tau = P G^T (3, 3) at the trial state (zero if det G <= 0)."""
+    P = np.zeros((3, 3))
+    W = hill_stress_tangent(G, params, frame, ep_n, False, False, P, np.empty((9, 9)))
+    if not np.isfinite(W):
+        return np.zeros((3, 3))
+    return P @ np.ascontiguousarray(G.T)
