@@ -22,3 +22,21 @@ def fd_check(energy: Callable, gradient: Callable, hessian_matvec: Callable, x: 
         fdH = (gradient(x + h * v) - gradient(x - h * v)) / (2 * h)
         Hv = hessian_matvec(x, v)
         assert np.abs(fdH - Hv).max() <= 1e-5 * np.abs(Hv).max(), np.abs(fdH - Hv).max()
+
+
+def fd_check_term(term, pattern, x: np.ndarray, scale: float,
+                  rng: np.random.Generator) -> None:
+    """fd_check of an energy term (its energy, add_gradient and add_hessian), the Hessian's
+    data laid out on ``pattern``."""
+
+    def gradient(y: np.ndarray) -> np.ndarray:
+        g = np.zeros_like(y)
+        term.add_gradient(y, g)
+        return g
+
+    def hessian_matvec(y: np.ndarray, v: np.ndarray) -> np.ndarray:
+        d = np.zeros(pattern.nnz)
+        term.add_hessian(y, d)
+        return (pattern.matrix(d) @ v.ravel()).reshape(v.shape)
+
+    fd_check(term.energy, gradient, hessian_matvec, x, scale, rng)

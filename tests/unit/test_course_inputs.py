@@ -7,7 +7,7 @@ import pytest
 from sim.elements import ROUTINE
 from sim.scene.load import SceneError, load_scene
 from sim.stepping.simulation import Simulation
-from tests.support.fd import fd_check
+from tests.support.fd import fd_check_term
 
 RNG = np.random.default_rng(17)
 
@@ -51,17 +51,7 @@ def test_small_strain_term_fd_and_energy(element):
     u = 1e-3 * RNG.standard_normal(m.shell.rest.shape)
     x = m.shell.rest + u
 
-    def grad(y):
-        g = np.zeros_like(y)
-        term.add_gradient(y, g)
-        return g
-
-    def hv(y, v):
-        d = np.zeros(m.pattern.nnz)
-        term.add_hessian(y, d)
-        return (m.pattern.matrix(d) @ v.ravel()).reshape(v.shape)
-
-    fd_check(term.energy, grad, hv, x, 1e-3, RNG)
+    fd_check_term(term, m.pattern, x, 1e-3, RNG)
     el = m.elasticity
     H = np.einsum("ead,eqaj->eqdj", u[m.shell.conn], el.dNdX)
     eps = 0.5 * (H + np.swapaxes(H, -1, -2))

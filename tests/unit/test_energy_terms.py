@@ -8,7 +8,7 @@ from sim.elements import ROUTINE
 from sim.materials.isotropic import principal_stress_tangent_into, stress_tangent
 from sim.scene.load import load_scene
 from sim.stepping.simulation import Simulation
-from tests.support.fd import fd_check
+from tests.support.fd import fd_check_term
 
 RNG = np.random.default_rng(7)
 
@@ -107,17 +107,7 @@ def test_elasticity_term_fd(element, material):
     term = m.elasticity
     x = m.shell.rest + 2e-4 * RNG.standard_normal(m.shell.rest.shape)
 
-    def grad(y):
-        g = np.zeros_like(y)
-        term.add_gradient(y, g)
-        return g
-
-    def hv(y, v):
-        d = np.zeros(m.pattern.nnz)
-        term.add_hessian(y, d)
-        return (m.pattern.matrix(d) @ v.ravel()).reshape(v.shape)
-
-    fd_check(term.energy, grad, hv, x, 1e-3, RNG)
+    fd_check_term(term, m.pattern, x, 1e-3, RNG)
 
 
 def test_external_force_and_inertia_fd():
@@ -133,17 +123,12 @@ def test_external_force_and_inertia_fd():
             term.add_gradient(y, g)
             return g
 
-        def hv(y, v, term=term):
-            d = np.zeros(m.pattern.nnz)
-            term.add_hessian(y, d)
-            return (m.pattern.matrix(d) @ v.ravel()).reshape(v.shape)
-
         if term is m.external:  # linear: zero Hessian, check the gradient only
             v = RNG.standard_normal(x.shape)
             fd = (term.energy(x + 1e-4 * v) - term.energy(x - 1e-4 * v)) / 2e-4
             assert np.isclose(fd, np.sum(grad(x) * v), rtol=1e-9)
         else:
-            fd_check(term.energy, grad, hv, x, 1e-3, RNG)
+            fd_check_term(term, m.pattern, x, 1e-3, RNG)
 
 
 def test_loads_sum_to_applied_totals():
