@@ -8,7 +8,7 @@ from sim.apps.cli import main
 
 
 def test_bench_includes_the_factorisation_comparison(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(bench, "FIG7_LEVELS", [0.035, 0.0175])
+    monkeypatch.setattr(bench, "FIG7_LEVELS", [0.07, 0.035])
     out = tmp_path / "b"
     code = main(["bench", "--cases", "factorisation", "--elements", "linear,q3t,quadratic",
                  "--repeat", "1", "--out", str(out)])
@@ -16,13 +16,13 @@ def test_bench_includes_the_factorisation_comparison(tmp_path, monkeypatch, caps
     rows = json.loads((out / "bench.json").read_text())["rows"]
     assert {r["case"] for r in rows} == {"fig7"} and len(rows) == 6
     by = {(r["element"], r["edge_length"]): r for r in rows}
-    for edge in (0.035, 0.0175):  # same elements at the same edge length, more nodes
+    for edge in (0.07, 0.035):  # same elements at the same edge length, more nodes
         n = [by[(el, edge)] for el in ("linear", "q3t", "quadratic")]
         assert len({r["elements"] for r in n}) == 1
         assert n[0]["nodes"] < n[1]["nodes"] < n[2]["nodes"]
         assert all(r["factorisation"] > 0 for r in n)
     # Q3T at the finer level has the nodes of quadratic at the coarser one (Fig. 7, right)
-    assert by[("q3t", 0.0175)]["nodes"] == by[("quadratic", 0.035)]["nodes"]
+    assert by[("q3t", 0.035)]["nodes"] == by[("quadratic", 0.07)]["nodes"]
     assert (out / "factorisation" / "report.json").is_file()
     assert "median [s]" in capsys.readouterr().out
 
