@@ -140,33 +140,6 @@ def _mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True, inline='always')
-def _mtm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """A^T @ B by loops."""
-    n, m, k = A.shape[1], B.shape[1], A.shape[0]
-    out = np.zeros((n, m))
-    for p in range(k):
-        for i in range(n):
-            a = A[p, i]
-            for j in range(m):
-                out[i, j] += a * B[p, j]
-    return out
-
-
-@njit(cache=True, inline='always')
-def _mmt(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """A @ B^T by loops."""
-    n, m, k = A.shape[0], B.shape[0], A.shape[1]
-    out = np.zeros((n, m))
-    for i in range(n):
-        for j in range(m):
-            acc = 0.0
-            for p in range(k):
-                acc += A[i, p] * B[j, p]
-            out[i, j] = acc
-    return out
-
-
 @njit(cache=True)
 def _solve(a: np.ndarray, h: np.ndarray, ep_n: float, mu: float, law: int,
            hp: np.ndarray) -> float:
@@ -259,7 +232,7 @@ def hill_return(e6: np.ndarray, ep_n: float, params: np.ndarray
         for k in range(6):
             T[i] += Q[i, k] * Ta[k]
             dE[i] += Q[i, k] * dEa[k]
-    D = _mmt(_mm(Q, Da), Q)
+    D = _mm(_mm(Q, Da), Q.T)
     return W, T, 0.5 * (D + D.T), dg, dE
 
 
@@ -326,11 +299,11 @@ def _frame_strain(G: np.ndarray, frame: np.ndarray
     """(ok, U, s, V, Vm = frame^T V, e6 the Mandel trial log strain in the material frame)."""
     U, s, V, ok = polar_svd(G)
     e6 = np.zeros(6)
-    Vm = _mtm(frame, V)
+    Vm = _mm(frame.T, V)
     if not ok:
         return False, U, s, V, Vm, e6
     e = np.log(s)
-    Em = _mmt(Vm * e, Vm)
+    Em = _mm(Vm * e, Vm.T)
     for i in range(3):
         e6[i] = Em[i, i]
     for m in range(3):
@@ -351,7 +324,7 @@ def hill_stress_tangent(G: np.ndarray, params: np.ndarray, frame: np.ndarray, ep
         P[:] = 0.0
         return np.inf
     W, T6, D6, _, _ = hill_return(e6, ep_n, params)
-    Tp = _mm(_mtm(Vm, unmandel(T6)), Vm)  # T in V's frame
+    Tp = _mm(_mm(Vm.T, unmandel(T6)), Vm)  # T in V's frame
     lam = s * s
     f1 = np.empty((3, 3))
     for a in range(3):
@@ -361,7 +334,7 @@ def hill_stress_tangent(G: np.ndarray, params: np.ndarray, frame: np.ndarray, ep
     for a in range(3):
         for b in range(3):
             Pp[a, b] = 2.0 * s[a] * f1[a, b] * Tp[a, b]
-    P[:, :] = _mmt(_mm(U, Pp), V)
+    P[:, :] = _mm(_mm(U, Pp), V.T)
     if not want_tangent:
         return W
     K = _hessian_uv(s, lam, f1, Tp, D6, Vm)
@@ -374,7 +347,7 @@ def hill_stress_tangent(G: np.ndarray, params: np.ndarray, frame: np.ndarray, ep
             for i in range(3):
                 for j in range(3):
                     M[3 * a + b, 3 * i + j] = U[i, a] * V[j, b]
-    C[:, :] = _mm(_mtm(M, K), M)
+    C[:, :] = _mm(_mm(M.T, K), M)
     for r in range(9):  # exactly symmetric, as the isotropic tangent is
         for c in range(r + 1, 9):
             C[r, c] = C[c, r] = 0.5 * (C[r, c] + C[c, r])
@@ -397,7 +370,7 @@ def _hessian_uv(s: np.ndarray, lam: np.ndarray, f1: np.ndarray, Tp: np.ndarray,
                 D6: np.ndarray, Vm: np.ndarray) -> np.ndarray:
     """d2W/dA2 ``(9, 9)`` for dG = U A V^T, A's entries row-major (module docstring)."""
     Mr = mandel_rotation(Vm)  # V-frame Mandel -> material-frame Mandel
-    Dv = _mm(_mtm(Mr, D6), Mr)
+    Dv = _mm(_mm(Mr.T, D6), Mr)
     f2 = np.empty((3, 3, 3))
     x = np.empty(3)
     for i in range(3):  # symmetric in its arguments: ten distinct values

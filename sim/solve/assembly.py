@@ -169,6 +169,18 @@ def build_pattern(conn: np.ndarray, n_nodes: int, pairs: np.ndarray | None = Non
                    scatter_schedule(conn, n_nodes))
 
 
+@njit(cache=True, inline='always')
+def drain_element_gradient(grad: np.ndarray, nodes: np.ndarray, g: np.ndarray,
+                           ok: bool) -> None:
+    """Add an element's gradient ``g (3 n_en,)`` into ``grad`` at its ``nodes`` (not when its
+    energy was not finite: ``ok`` False) and hand ``g`` back zeroed for the next element."""
+    for a in range(len(nodes)):
+        for i in range(3):
+            if ok:
+                grad[nodes[a], i] += g[3 * a + i]
+            g[3 * a + i] = 0.0
+
+
 @njit(cache=True)
 def scatter_node_blocks(data: np.ndarray, node_slots: np.ndarray, nodes: np.ndarray,
                         blocks: np.ndarray) -> None:

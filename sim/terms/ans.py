@@ -45,6 +45,7 @@ from sim.materials.isotropic import (
     principal,
 )
 from sim.materials.plasticity import plastic_flow
+from sim.solve.assembly import drain_element_gradient
 
 # tying points in (u, v): A on the edge v = 0, B on u = 0, C on the third edge
 TYING = np.array([[0.5, 0.0], [0.0, 0.5], [0.5, 0.5]])
@@ -531,11 +532,7 @@ def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarra
                 energies[e] = E
                 ok = np.isfinite(E)
                 if want >= 1:
-                    for a in range(n_en):
-                        for i in range(3):
-                            if ok:
-                                grad[conn[e, a], i] += g[3 * a + i]
-                            g[3 * a + i] = 0.0
+                    drain_element_gradient(grad, conn[e], g, ok)
                 if want == 2 and ok:
                     if project != 0:
                         _project(K)

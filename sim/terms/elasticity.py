@@ -26,7 +26,7 @@ from sim.materials.isotropic import (
     stress_tangent_h,
 )
 from sim.materials.plasticity import plastic_flow
-from sim.solve.assembly import Pattern
+from sim.solve.assembly import Pattern, drain_element_gradient
 from sim.terms import Term
 from sim.terms.ans import Tying, ans_commit_kernel, ans_kernel, ans_stress_kernel
 
@@ -256,11 +256,7 @@ def elastic_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.n
                 energies[e] = E
                 ok = np.isfinite(E)
                 if want >= 1:
-                    for a in range(n_en):
-                        for i in range(3):
-                            if ok:
-                                grad[conn[e, a], i] += g[3 * a + i]
-                            g[3 * a + i] = 0.0
+                    drain_element_gradient(grad, conn[e], g, ok)
                 if want == 2 and ok:
                     s = slots[e]
                     for p in range(Kp.shape[0]):
