@@ -23,8 +23,12 @@ import time
 from pathlib import Path
 
 from server.records import Run
-from sim.scene.load import scene_from_toml
+from sim.scene.load import Scene, scene_from_toml
 
+# the command that studies a scene whose mesh is refined by its edge length; a patch refined by
+# cells per side is the shell obstacle course's (``q3t study SCENE`` refuses it, naming --course)
+BY_EDGE = "q3t study {scene}"
+COURSE = "q3t study --course"
 DATE = re.compile(r"^(\d{4}-\d{2}-\d{2})\b", re.M)
 SAME_EDGE = 1e-3  # relative: levels are written with 5-6 significant digits
 
@@ -155,25 +159,44 @@ def cost_text(cost: dict | None) -> str:
     return s
 
 
+def study_command(scene: Scene) -> str | None:
+    """The command whose report gives ``scene`` its estimate (a template of ``scene``, the
+    file's name), or None when no study refines its mesh (a mesh read from a file). A patch
+    refined by cells per side with a published value is one of the shell obstacle course's."""
+    if hasattr(scene.mesh, "cells"):
+        st = scene.study
+        return COURSE if st is not None and st.cells and st.published is not None else None
+    return BY_EDGE if getattr(scene.mesh, "edge_length", None) is not None else None
+
+
 def estimate(root: Path, scene: str, element: str, edge_length: float | None,
-             result: dict | None, overrides: dict | None = None) -> dict:
-    """What the page shows for a finished run: ``available``, ``text`` and the numbers."""
+             result: dict | None, overrides: dict | None = None,
+             command: str | None = BY_EDGE) -> dict:
+    """What the page shows for a finished run: ``available``, ``text`` and the numbers.
+    ``command``: what studies the scene (:func:`study_command`)."""
     cost = cost_of(result)
     out: dict = {"available": False, "scene": scene, "element": element,
                  "edge_length": edge_length, "cost": cost, "notes": []}
-    head = _compare(out, root, scene, element, edge_length, overrides or {})
+    if command is not None:
+        command = command.format(scene=scene)
+    head = _compare(out, root, scene, element, edge_length, overrides or {}, command)
     out["text"] = "; ".join(s for s in (head, cost_text(cost)) if s)
     return out
 
 
 def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float | None,
-             overrides: dict) -> str:
+             overrides: dict, command: str | None) -> str:
     """Fill ``out`` from the study row of the run's element and edge length; returns the
     head line, or why there is no estimate (then ``out["reason"]`` says so in a word)."""
-    found = find_study(root, scene)
+    found = find_study(root, scene) if command not in (None, COURSE) else None
     if found is None:
         out["reason"] = "no_study"
-        return f"no study for this scene: run `q3t study {scene}`"
+        if command is None:
+            return "no study for this scene: no study refines its mesh (read from a file)"
+        if command == COURSE:  # its report compares with the published value, not by level
+            return (f"no estimate here: the shell obstacle course (`{COURSE}`) compares this "
+                    "scene with its published value in its own report")
+        return f"no study for this scene: run `{command}`"
     path, study = found
     ref = reference_of(study)
     plan = study["plan"]
@@ -181,7 +204,7 @@ def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float
                     "elements": plan.get("elements"), "levels": plan.get("levels")}
     out["reference"] = ref
     when = f"study of {study.get('date')}"
-    row, missing = _nearest_row(study, scene, element, edge_length, when)
+    row, missing = _nearest_row(study, command, element, edge_length, when)
     if row is None:
         out["reason"], head = missing
         return head
@@ -199,17 +222,17 @@ def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float
     return head + f" ({when})"
 
 
-def _nearest_row(study: dict, scene: str, element: str, edge_length: float | None,
+def _nearest_row(study: dict, command: str, element: str, edge_length: float | None,
                  when: str) -> tuple[dict | None, tuple[str, str]]:
     """The study's row of ``element`` nearest to ``edge_length`` (on a log scale), or None
-    with (reason, text)."""
+    with (reason, text); ``command`` studies the scene."""
     rows = [r for r in study["rows"] if r.get("element") == element
             and isinstance(r.get("edge_length"), (int, float)) and r["edge_length"] > 0]
     if not rows:
         studied = ", ".join(sorted({str(r.get("element")) for r in study["rows"]}))
         return None, ("element_not_studied",
                       f"the {when} has no {element} rows (it has {studied}): run "
-                      f"`q3t study {scene} --elements {element}`")
+                      f"`{command} --elements {element}`")
     if edge_length is None or edge_length <= 0:
         return None, ("no_edge_length", f"the run's mesh has no edge length to match the {when}")
     return min(rows, key=lambda r: abs(math.log(r["edge_length"] / edge_length))), ("", "")
@@ -241,7 +264,7 @@ class EstimateCache:
     def __init__(self, root: Path):
         self.root = root
         self._lock = threading.Lock()
-        self._facts: dict[str, tuple] = {}  # run id -> (edge length, result.json)
+        self._facts: dict[str, tuple] = {}  # run id -> (edge length, result.json, command)
         self._keys: dict[str, tuple | None] = {}  # run id -> the study report it used
 
     def get(self, run: Run, finished: bool = False) -> dict | None:
@@ -254,9 +277,9 @@ class EstimateCache:
                 found = find_study(self.root, run.scene)
                 key = (str(found[0]), found[0].stat().st_mtime_ns) if found else None
                 if run.estimate is None or self._keys.get(run.id, "?") != key:
-                    edge, result = self._facts_of(run)
+                    edge, result, command = self._facts_of(run)
                     run.estimate = estimate(self.root, run.scene, run.element, edge, result,
-                                            run.overrides)
+                                            run.overrides, command)
                     self._keys[run.id] = key
             except Exception as exc:  # never let the estimate break a status request
                 run.estimate = {"available": False, "reason": "error",
@@ -268,19 +291,20 @@ class EstimateCache:
             self._facts.pop(run_id, None)
             self._keys.pop(run_id, None)
 
-    def _facts_of(self, run: Run) -> tuple[float | None, dict | None]:
-        """The run's edge length (from its scene.toml) and result.json; read once."""
+    def _facts_of(self, run: Run) -> tuple[float | None, dict | None, str | None]:
+        """The run's edge length and the command that studies it (from its scene.toml), and
+        its result.json; read once."""
         if run.id not in self._facts:
             d = self.root / run.id
             try:
+                sc = scene_from_toml((d / "scene.toml").read_text(), run.overrides)
                 # a mesh file or a patch refined by cells has no edge length
-                edge = getattr(scene_from_toml((d / "scene.toml").read_text(),
-                                               run.overrides).mesh, "edge_length", None)
+                edge, command = getattr(sc.mesh, "edge_length", None), study_command(sc)
             except (OSError, ValueError):
-                edge = None
+                edge, command = None, BY_EDGE
             try:
                 result = json.loads((d / "result.json").read_text())
             except (OSError, ValueError):
                 result = None
-            self._facts[run.id] = (edge, result)
+            self._facts[run.id] = (edge, result, command)
         return self._facts[run.id]

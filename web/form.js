@@ -59,6 +59,10 @@ const SceneForm = (() => {
   const counts = (f) => (f.problem ? "unusable" : f.triangles !== null
     ? `${f.vertices} vertices, ${f.triangles} triangles`
     : f.kind === "outline" ? `${f.holes} hole${f.holes === 1 ? "" : "s"}` : `${f.values} values`);
+  // each kind of file as an engineer says it (the server's kinds: /api/files)
+  const KIND = { blank: "blank mesh", tool: "tool mesh", outline: "outline drawing",
+                 thickness: "thickness file" };
+  const described = (f) => `${KIND[f.kind] || f.kind}: ${counts(f)}`;
   // POST /api/files: the file's bytes as the body; the answer's JSON, or an Error with its
   // detail and status
   const upload = async (file, name, kind, replace) => {
@@ -403,12 +407,13 @@ const SceneForm = (() => {
       const folder = { limit: null, accept: "" };  // the server's limit and the extensions
       const fill = (list, chosen) => {
         const options = [el("option", { value: "", textContent: "— choose a file —" })];
-        // by extension: a tool's surface and a blank are both meshes (the listing calls
-        // either a blank; the upload checks it as the field's kind)
+        // by extension: a tool's surface and a blank are both meshes, the field's own kind
+        // first, each labelled with its kind (the server's: what a scene uses it as)
         const exts = list.kinds[kind] || [];
-        const mine = list.files.filter((f) => exts.some((x) => f.name.endsWith(x)));
+        const mine = list.files.filter((f) => exts.some((x) => f.name.endsWith(x)))
+          .sort((a, b) => (a.kind !== kind) - (b.kind !== kind));
         for (const f of mine)
-          options.push(el("option", { value: f.name, textContent: `${f.name} (${counts(f)})`,
+          options.push(el("option", { value: f.name, textContent: `${f.name} (${described(f)})`,
                                       title: f.problem || bytes(f.size) }));
         if (chosen && !mine.some((f) => f.name === chosen))  // a path in a subfolder, or gone
           options.push(el("option", { value: chosen, textContent: chosen }));
@@ -457,7 +462,7 @@ const SceneForm = (() => {
             f = await upload(file, name, kind, true);
           }
           await refresh(f.name);  // then said: the select shows it when the words do
-          say(`uploaded ${f.name}: ${counts(f)}`);
+          say(`uploaded ${f.name}: ${described(f)}`);
         } catch (e) { say(e.message, true); }
       };
       return [button, chooser];

@@ -78,7 +78,8 @@ def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
     shot(page, "1-file-kind.png")
     choose(page, "mesh.path", obj)
     until(lambda: status(page, "mesh.path").startswith("uploaded"), "no upload", 300)
-    assert status(page, "mesh.path") == "uploaded My_plate_v2.obj: 63 vertices, 80 triangles"
+    assert status(page, "mesh.path") == ("uploaded My_plate_v2.obj: blank mesh: 63 vertices, "
+                                         "80 triangles")
     assert page.input_value("[name='mesh.path']") == "My_plate_v2.obj"
     assert (tmp / "scenes" / "My_plate_v2.obj").read_bytes() == obj.read_bytes()
 
@@ -87,7 +88,8 @@ def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
     page.uncheck("[data-path='shell.thickness_file'] input.unset")
     choose(page, "shell.thickness_file", mine / "thickness.txt")
     until(lambda: status(page, "shell.thickness_file").startswith("uploaded"), "no upload", 300)
-    assert status(page, "shell.thickness_file") == "uploaded thickness.txt: 63 values"
+    assert status(page, "shell.thickness_file") == ("uploaded thickness.txt: thickness file: "
+                                                    "63 values")
     # the form's edits reach the TOML view through the server (a sync after the last edit)
     page.wait_for_function("""() => {
         const t = document.getElementById('toml').value;
@@ -169,9 +171,9 @@ def test_a_name_taken_asks_before_replacing(page, served):
     choose(page, "mesh.path", again)  # accepted: replaced
     until(lambda: status(page, "mesh.path").startswith("uploaded"), "no replacement", 300)
     counts = f"{len(half.vertices)} vertices, {len(half.faces)} triangles"
-    assert status(page, "mesh.path") == f"uploaded again.obj: {counts}"
+    assert status(page, "mesh.path") == f"uploaded again.obj: blank mesh: {counts}"
     options = page.locator("[name='mesh.path'] option").all_inner_texts()
-    assert f"again.obj ({counts})" in options, options
+    assert f"again.obj (blank mesh: {counts})" in options, options
 
     page.click("[data-path='mesh.path'] button.delete-file")  # no scene names it: it goes
     until(lambda: status(page, "mesh.path") == "deleted again.obj", "not deleted", 300)

@@ -84,7 +84,7 @@ def test_a_tool_surface_uploaded_from_the_form_runs(page, served):
 
     upload(page, mine / "Punch v1.stl")
     until(lambda: status(page).startswith("uploaded"), "no upload", 300)
-    assert status(page) == "uploaded Punch_v1.stl: 98 vertices, 192 triangles"
+    assert status(page) == "uploaded Punch_v1.stl: tool mesh: 98 vertices, 192 triangles"
     assert page.input_value(f"[name='{FIELD}']") == "Punch_v1.stl"
     page.wait_for_function("""() => document.getElementById('toml').value
         .includes('path = "Punch_v1.stl"')""")

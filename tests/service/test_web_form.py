@@ -30,6 +30,7 @@ from sim.scene.load import Scene  # noqa: E402
 from sim.scene.run import SolverSpec
 from tests.support import ROOT  # noqa: E402
 from tests.support.scenes import SCENES, tiny_toml  # noqa: E402
+from tests.support.service import file_scene  # noqa: E402
 
 pytestmark = pytest.mark.fast  # seconds: make test-fast runs it
 
@@ -332,3 +333,42 @@ def test_estimate_function_edge_cases(tmp_path):
     assert est["available"] and est["notes"] == []
     (tmp_path / "study-s" / "report.json").write_text("{ not json")
     assert estimate(tmp_path, "s", "q3t", 0.01, None)["reason"] == "no_study"
+
+
+@pytest.mark.parametrize("scene,from_file,command", [
+    ("cantilever", False, "q3t study {scene}"),
+    # the shell obstacle course's scenes: `q3t study SCENE` refuses their patches (by cells)
+    ("scordelis_lo", False, "q3t study --course"),
+    ("pinched_cylinder", False, "q3t study --course"),
+    ("pinched_hemisphere", False, "q3t study --course"),
+    ("cantilever", True, None),  # its blank read from a mesh file: nothing to refine
+])
+def test_the_estimate_names_the_command_that_studies_the_scene(tmp_path, scene, from_file,
+                                                               command):
+    from server.estimate import study_command
+    from sim.scene.load import scene_from_toml
+
+    text = (ROOT / "scenes" / f"{scene}.toml").read_text()
+    if from_file:
+        (tmp_path / "plate.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nf 1 2 3\n")
+        text = file_scene("plate.obj")
+    sc = scene_from_toml(text, folder=tmp_path)
+    assert study_command(sc) == command
+    est = estimate(tmp_path, scene, "q3t", None, None, command=command)
+    assert not est["available"] and est["reason"] == "no_study"
+    if command is None:
+        assert "`" not in est["text"] and "no study refines its mesh" in est["text"]
+    elif command.endswith("--course"):
+        assert "the shell obstacle course (`q3t study --course`)" in est["text"]
+    else:
+        assert est["text"] == "no study for this scene: run `q3t study cantilever`"
+
+
+def test_a_course_scene_is_not_matched_with_a_refinement_study(tmp_path):
+    """A refinement study's report found under the scene's name does not make an estimate
+    for a course scene: its levels are edge lengths, the scene's cells per side."""
+    (tmp_path / "study-scordelis_lo").mkdir()
+    (tmp_path / "study-scordelis_lo" / "report.json").write_text(json.dumps(report(
+        "scordelis_lo")))
+    est = estimate(tmp_path, "scordelis_lo", "q3t", None, None, command="q3t study --course")
+    assert est["reason"] == "no_study" and "--course" in est["text"]
