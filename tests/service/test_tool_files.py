@@ -150,4 +150,4 @@ def test_the_display_of_a_tool_file_replaced_under_its_name_is_the_new_one(tmp_p
     # (0.5 mm spacing) of the file's radius, and the two radii are 1.5 mm apart
     assert shown_radius(0.004) == pytest.approx(0.004, abs=5e-4)
     assert shown_radius(0.0025) == pytest.approx(0.0025, abs=5e-4)
-    assert len(cache) == 2
+    assert len(cache) == 3  # the ground plane once, the punch for each of its files
