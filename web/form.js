@@ -53,6 +53,9 @@ const SceneForm = (() => {
       .slice(0, 80 - ext.length);
     return (stem || "upload") + ext;
   };
+  // a field's name as the form shows it: the TOML key in words ("edge_length" -> "edge
+  // length"); the key itself is in its tooltip and the TOML view
+  const words = (key) => String(key).replaceAll("_", " ");
   const bytes = (n) => (n < 2 ** 20 ? `${(n / 1024).toFixed(1)} KiB`
                                    : `${(n / 2 ** 20).toFixed(1)} MiB`);
   // what a listed file holds, for its option (a thickness file has a value per vertex)
@@ -145,7 +148,7 @@ const SceneForm = (() => {
       const { description, unit } = this.meta || {};
       const err = el("span", { class: "field-error" });
       const name = el("span", { class: "key", title: description ? `${path}: ${description}`
-                                                             : path }, key);
+                                                             : path }, words(key));
       const u = shown(unit)[0];
       const label = el("label", {}, name, control, u ? el("span", { class: "unit" }, u) : null);
       const help = description ? el("small", { class: "help" }, description) : null;
@@ -223,7 +226,8 @@ const SceneForm = (() => {
       const kept = el("pre", { class: "kept-fields", dataset: { path: `${path}.kept` } },
                       Object.entries(rest).map(([k, v]) => `${k} = ${JSON.stringify(v)}`)
                         .join("\n"));
-      const fs = el("fieldset", { class: "object", dataset: { path } }, el("legend", {}, key),
+      const fs = el("fieldset", { class: "object", dataset: { path } },
+                    el("legend", {}, words(key)),
                     this.wrap(`${path}.${tag}`, tag, kindSelect), note, kept,
                     el("div", { class: "field-error" }));
       return { el: fs, get: () => clone(rest) };
@@ -234,7 +238,7 @@ const SceneForm = (() => {
       value = value && typeof value === "object" ? value : {};
       const req = new Set(s.required || []);
       const kids = {};
-      const legend = el("legend", {}, key);
+      const legend = el("legend", {}, words(key));
       if (s.description) legend.title = s.description;
       const fs = el("fieldset", { class: "object", dataset: { path: path || "scene" } },
                     legend);
@@ -511,9 +515,10 @@ const SceneForm = (() => {
       const resolved = this.resolve(itemSchema);
       const isObj = resolved.type === "object" || !!resolved.properties || !!resolved.oneOf;
       const box = el("div", { class: isObj ? "list objects" : "list scalars" });
-      const add = el("button", { type: "button", class: "add", textContent: `+ ${key}` });
+      const add = el("button", { type: "button", class: "add", textContent: `+ ${words(key)}` });
       const u = shown(meta.unit)[0];
-      const legend = el("legend", {}, key, u ? el("span", { class: "unit" }, ` (${u})`) : null);
+      const legend = el("legend", {}, words(key),
+                        u ? el("span", { class: "unit" }, ` (${u})`) : null);
       if (meta.description) legend.title = meta.description;
       const fs = el("fieldset", { class: "array", dataset: { path } },
                     legend, box, add, el("div", { class: "field-error" }));

@@ -16,7 +16,7 @@ import pytest
 import trimesh
 
 from sim.geometry.trimesh import rectangle
-from tests.support.browser import new_page, serve
+from tests.support.browser import serve
 from tests.support.scenes import tiny_toml
 from tests.support.service import until
 
@@ -36,12 +36,8 @@ def served(tmp_path_factory):
 
 
 @pytest.fixture
-def page(browser, served):
-    url, _ = served
-    page, errors = new_page(browser, url, "#scenes li.sel", "#scene-form [name='mesh.kind']")
-    yield page
-    page.close()
-    assert not errors, errors
+def page(open_page, served):
+    return open_page(served[0], "#scenes li.sel", "#scene-form [name='mesh.kind']")
 
 
 def choose(page, field: str, path: Path) -> None:

@@ -13,7 +13,7 @@ import httpx
 import pytest
 import trimesh
 
-from tests.support.browser import new_page, serve
+from tests.support.browser import serve
 from tests.support.scenes import PRESS_TOML
 from tests.support.service import until
 
@@ -35,12 +35,8 @@ def served(tmp_path_factory):
 
 
 @pytest.fixture
-def page(browser, served):
-    url, _ = served
-    page, errors = new_page(browser, url, "#scenes li.sel", "[name='tools.1.shape.kind']")
-    yield page
-    page.close()
-    assert not errors, errors
+def page(open_page, served):
+    return open_page(served[0], "#scenes li.sel", "[name='tools.1.shape.kind']")
 
 
 def status(page) -> str:
