@@ -98,7 +98,7 @@ def test_fields_show_units_descriptions_and_their_kinds_fields_only(page):
     # another kind: its fields, the shared ones kept
     page.select_option("[name='mesh.kind']", "rectangle")
     names = mesh.locator(":scope > .field > label > .key").all_text_contents()
-    assert names == ["kind", "imperfection", "edge_length", "size", "origin"], names
+    assert names == ["kind", "imperfection", "edge length", "size", "origin"], names
     assert page.input_value("[name='mesh.edge_length']") == "6"
     shot(page, "02-mesh-kind-rectangle")
 
