@@ -80,20 +80,37 @@ def upload(page, field: str, path: Path) -> str:
 
 
 def synced(page, *texts: str) -> None:
-    """The TOML view holds ``texts`` once the server has converted the form's edits."""
-    page.wait_for_function("ts => ts.every((t) => document.getElementById('toml').value"
-                           ".includes(t)) && document.getElementById('sync').textContent"
-                           " === 'valid'", arg=list(texts))
+    """The TOML view holds ``texts`` once the server has converted the form's edits (a
+    hang guard's failure says what the page shows instead)."""
+    try:
+        page.wait_for_function("ts => ts.every((t) => document.getElementById('toml').value"
+                               ".includes(t)) && document.getElementById('sync').textContent"
+                               " === 'valid'", arg=list(texts))
+    except sync_api.TimeoutError:
+        errors = page.locator("#scene-form .field-error").all_inner_texts()
+        raise AssertionError(f"the form never synced {texts}: sync "
+                             f"{page.inner_text('#sync')!r}, errors {[e for e in errors if e]}, "
+                             f"TOML:\n{page.input_value('#toml')}") from None
 
 
 def started_run(page, url: str) -> dict:
-    """Start a run with the page's button: its status once it has ended."""
+    """Start a run with the page's button: its status once it has ended (a hang guard's
+    failure says what the page and the run showed last)."""
     before = {r["id"] for r in httpx.get(url + "/api/runs").json()}
     page.click("#start")
-    run = until(lambda: [r["id"] for r in httpx.get(url + "/api/runs").json()
-                         if r["id"] not in before], "no run started")[0]
-    return until(lambda: (st := httpx.get(f"{url}/api/runs/{run}").json())["state"] in ENDED
-                 and st, f"{run} never ended")
+    seen: dict = {}
+
+    def ended() -> dict | None:
+        runs = [r["id"] for r in httpx.get(url + "/api/runs").json() if r["id"] not in before]
+        st = httpx.get(f"{url}/api/runs/{runs[0]}").json() if runs else {}
+        seen.update(message=page.inner_text("#msg"), **{k: st.get(k) for k in (
+            "id", "state", "step", "reason")})
+        return st if st.get("state") in ENDED else None
+
+    try:
+        return until(ended, "")
+    except AssertionError:
+        raise AssertionError(f"the run never ended, last seen: {seen}") from None
 
 
 def shot(page, name: str, where: str = "#left") -> None:
