@@ -359,16 +359,35 @@ def test_the_estimate_names_the_command_that_studies_the_scene(tmp_path, scene, 
     if command is None:
         assert "`" not in est["text"] and "no study refines its mesh" in est["text"]
     elif command.endswith("--course"):
-        assert "the shell obstacle course (`q3t study --course`)" in est["text"]
+        assert est["text"].startswith("no study for this scene: run `q3t study --course` (")
     else:
         assert est["text"] == "no study for this scene: run `q3t study cantilever`"
 
 
-def test_a_course_scene_is_not_matched_with_a_refinement_study(tmp_path):
-    """A refinement study's report found under the scene's name does not make an estimate
-    for a course scene: its levels are edge lengths, the scene's cells per side."""
+def test_a_course_scene_is_estimated_from_the_shell_course_report(tmp_path):
+    """A course scene's run against the published value, from the row of its element and
+    cells per side in the newest ``q3t study --course`` report; a refinement study found under
+    its name is not used (its levels are edge lengths, the scene's cells per side)."""
     (tmp_path / "study-scordelis_lo").mkdir()
     (tmp_path / "study-scordelis_lo" / "report.json").write_text(json.dumps(report(
         "scordelis_lo")))
-    est = estimate(tmp_path, "scordelis_lo", "q3t", None, None, command="q3t study --course")
-    assert est["reason"] == "no_study" and "--course" in est["text"]
+    (tmp_path / "course").mkdir()
+    rows = [{"scene": "scordelis_lo", "element": "q3t", "cells": 16, "status": "converged",
+             "probe": 0.98 * -0.3024, "ratio": 0.98},
+            {"scene": "scordelis_lo", "element": "quadratic", "cells": 64, "status": "skipped"},
+            {"scene": "pinched_cylinder", "element": "q3t", "cells": 16, "ratio": 0.5}]
+    (tmp_path / "course" / "report.json").write_text(json.dumps(rows))
+    course = {"command": "q3t study --course"}
+    est = estimate(tmp_path, "scordelis_lo", "q3t", None, None, **course, cells=16)
+    assert est["available"] and est["relative_error"] == pytest.approx(0.02, rel=1e-12)
+    assert est["reference"]["value"] == pytest.approx(-0.3024, rel=1e-12)
+    assert est["text"].startswith("error estimate: 2 % vs the published value (shell obstacle "
+                                  "course of ")
+    est = estimate(tmp_path, "scordelis_lo", "linear", None, None, **course, cells=16)
+    assert not est["available"] and est["reason"] == "element_not_studied"
+    assert est["text"].endswith("has no linear result at 16 cells per side: run "
+                                "`q3t study --course --elements linear --cells 16`")
+    est = estimate(tmp_path, "scordelis_lo", "quadratic", None, None, **course, cells=64)
+    assert est["reason"] == "no_error"  # the case was left out (its size)
+    assert estimate(tmp_path, "pinched_hemisphere", "q3t", None, None, **course,
+                    cells=16)["reason"] == "no_study"
