@@ -71,9 +71,10 @@ def _settings(request: Request) -> Settings:
 
 @router.get("", response_model=FileList)
 def list_files(request: Request) -> dict:
-    """The scenes folder's blank meshes and thickness files (uploaded or put there by hand):
-    each one's kind, size, counts as the solver reads it, the scenes that name it, and what
-    makes it unusable, if anything; the upload limit and each kind's extensions."""
+    """The scenes folder's blank and tool meshes, outline drawings and thickness files
+    (uploaded or put there by hand): each one's kind, size, counts as the solver reads it, the
+    scenes that name it, and what makes it unusable, if anything; the upload limit and each
+    kind's extensions."""
     return {"max_upload": _settings(request).max_upload,
             "kinds": {k: list(v) for k, v in KINDS.items()},
             "files": _files(request).entries()}
