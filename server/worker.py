@@ -144,6 +144,7 @@ class Solver:
         self.paused = False
         self.produced = self.dropped = 0  # frames of this run made / dropped (queue full)
         self.mesh_cache: dict = {}  # tool meshes by shape: a repeated run skips the meshing
+        self.note: str | None = None  # a problem of the run's that does not end it
 
     def emit(self, kind: str, **kw: object) -> None:
         self.events.put({"kind": kind, "run": self.run, **kw})
@@ -194,10 +195,10 @@ class Solver:
         scene, rest, timing = self._build(msg)
         t0 = time.perf_counter()
         self._open_recording(scene)  # after the build: a run stopped while building leaves none
-        tools, note = self._tool_meshes(scene, rest)
+        tools, self.note = self._tool_meshes(scene, rest)
         timing["tool_meshes_s"] = time.perf_counter() - t0
         try:
-            self._send_meta(scene, tools, timing, note)
+            self._send_meta(scene, tools, timing)
         except Exception as exc:  # without its meta the server shows nothing of the run
             self.emit("log", text=traceback.format_exc())
             self.finish("failed", f"sending the run's model to the server failed: "
@@ -249,8 +250,7 @@ class Solver:
             self._unbuilt(scene, f"recording failed: {exc}")
             raise
 
-    def _send_meta(self, scene: Scene, tools: list[dict], timing: dict,
-                   note: str | None) -> None:
+    def _send_meta(self, scene: Scene, tools: list[dict], timing: dict) -> None:
         """The run's ``meta`` event, pickled here first: a multiprocessing queue pickles in a
         thread of its own, which prints an error and drops a message it cannot pickle, and the
         run would go on with a blank viewer and no word on the page."""
@@ -258,7 +258,7 @@ class Solver:
                "n_steps": self.sim.n_steps, "counts": self.sim.result()["counts"],
                "element": scene.shell.element, "probes": [p.name for p in scene.probes],
                "tools": tools, "timing": timing, "parameters": dict(self.sim.parameters),
-               "scaled": self.sim.scaled(), "note": note,
+               "scaled": self.sim.scaled(), "note": self.note,
                **plotted(scene, self.sim.tool_poses())}
         ForkingPickler.dumps(msg)
         self.events.put(msg)
@@ -406,7 +406,8 @@ class Solver:
 
     def finish(self, state: str, reason: str | None = None, last: dict | None = None) -> None:
         """End the run: its last frame (to the viewer and the recording), result.json, the
-        closed recording, then the state."""
+        closed recording, then the state (its reason the run's note when it has none)."""
+        reason, self.note = reason or self.note, None
         problems = []
         try:
             last = last or _frame_msg(self.run, self.sim)

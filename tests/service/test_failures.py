@@ -248,7 +248,7 @@ def test_a_meta_that_cannot_be_sent_fails_the_run_naming_it(monkeypatch, tmp_pat
     assert strict_json(out / "result.json")["failure"]["reason"] == states[-1][1]
 
 
-def test_tools_that_cannot_be_shown_are_noted_and_the_run_goes_on(monkeypatch, tmp_path):
+def test_tools_that_cannot_be_shown_are_noted_and_the_run_goes_on_to_its_end(monkeypatch, tmp_path):
     from server import worker
 
     def broken(*a):
@@ -262,10 +262,12 @@ def test_tools_that_cannot_be_shown_are_noted_and_the_run_goes_on(monkeypatch, t
                    "scene_toml": tiny_toml(), "overrides": COARSE})
     sent = [events.get() for _ in range(events.qsize())]
     meta = next(ev for ev in sent if ev["kind"] == "meta")
-    assert meta["tools"] == [] and meta["note"] == (
-        "the viewer shows no tools: meshing them failed (RuntimeError: no surface)")
-    assert solver.stepping  # the run goes on
-    solver.finish("stopped")
+    note = "the viewer shows no tools: meshing them failed (RuntimeError: no surface)"
+    assert meta["tools"] == [] and meta["note"] == note
+    while solver.stepping:  # the run goes on to its end, which says it too
+        solver.step()
+    states = [ev for ev in (events.get() for _ in range(events.qsize())) if ev["kind"] == "state"]
+    assert (states[-1]["state"], states[-1]["reason"]) == ("finished", note)
 
 
 # ---- the service: the size limit, and a stop while building -----------------------------------
