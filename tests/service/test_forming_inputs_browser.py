@@ -140,7 +140,9 @@ def test_an_outline_drawing_uploaded_for_the_blank_runs(open_page, served):
     built = httpx.get(f"{url}/api/runs/{st['id']}/result").json()["built"]["mesh"]
     assert built["vertices"] > 20, built  # the drawing's blank, not the press's rectangle
     assert st["records"][-1]["probes"]["punch_force"] > 0
-    page.wait_for_function(f"document.getElementById('summary').dataset.run === '{st['id']}'")
+    page.wait_for_function("([id]) => { const s = document.getElementById('summary');"
+                           " return s.dataset.run === id && s.dataset.ready === 'true'; }",
+                           arg=[st["id"]])  # its summary drawn: the run ended on the page too
     shot(page, "2-outline-run.png", "body")
 
 
