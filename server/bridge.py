@@ -175,6 +175,8 @@ def _meta(m: Books, ev: dict) -> Booked:
         run.parameters.update(ev.get("parameters") or {})
         run.punches, run.probe_kinds = ev.get("punches") or {}, ev.get("probe_kinds") or {}
         run.scaled = ev.get("scaled") or {}
+        if ev.get("note"):  # a problem that does not end the run (the tools not shown)
+            run.reason = ev["note"]
         line, values = run.line(), dict(run.parameters)
     booked.later.append(lambda: m.save(run))
     if m.viewer:

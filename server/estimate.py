@@ -23,8 +23,12 @@ import time
 from pathlib import Path
 
 from server.records import Run
-from sim.scene.load import scene_from_toml
+from sim.scene.load import Scene, scene_from_toml
 
+# the command that studies a scene whose mesh is refined by its edge length; a patch refined by
+# cells per side is the shell obstacle course's (``q3t study SCENE`` refuses it, naming --course)
+BY_EDGE = "q3t study {scene}"
+COURSE = "q3t study --course"
 DATE = re.compile(r"^(\d{4}-\d{2}-\d{2})\b", re.M)
 SAME_EDGE = 1e-3  # relative: levels are written with 5-6 significant digits
 
@@ -33,12 +37,11 @@ def _stem(path: str | Path) -> str:
     return Path(str(path)).stem
 
 
-_cache: dict[Path, tuple[int, dict | None]] = {}
+_cache: dict[Path, tuple[int, object]] = {}
 
 
-def _load(path: Path) -> dict | None:
-    """The report's ``study`` part, or None when it is not a refinement study (a factorisation
-    report, an unreadable file). Cached by modification time."""
+def _read(path: Path) -> object:
+    """The report's JSON, None when unreadable. Cached by modification time."""
     try:
         mtime = path.stat().st_mtime_ns
     except OSError:
@@ -48,16 +51,21 @@ def _load(path: Path) -> dict | None:
         return hit[1]
     try:
         data = json.loads(path.read_text())
-        study = data.get("study") if isinstance(data, dict) else None
-        if not (isinstance(study, dict) and isinstance(study.get("rows"), list)
-                and isinstance(study.get("plan"), dict)):
-            study = None
-        elif "date" not in study:
-            study = {**study, "date": data.get("date") or _date(path)}
     except (OSError, ValueError):
-        study = None
-    _cache[path] = (mtime, study)
-    return study
+        data = None
+    _cache[path] = (mtime, data)
+    return data
+
+
+def _load(path: Path) -> dict | None:
+    """The report's ``study`` part, or None when it is not a refinement study (a factorisation
+    report, an unreadable file)."""
+    data = _read(path)
+    study = data.get("study") if isinstance(data, dict) else None
+    if not (isinstance(study, dict) and isinstance(study.get("rows"), list)
+            and isinstance(study.get("plan"), dict)):
+        return None
+    return study if "date" in study else {**study, "date": data.get("date") or _date(path)}
 
 
 def _date(report: Path) -> str:
@@ -88,6 +96,20 @@ def find_study(root: Path, scene: str) -> tuple[Path, dict] | None:
         return None
     _, p, s = max(found, key=lambda t: t[0])
     return p, s
+
+
+def find_course(root: Path, scene: str) -> tuple[Path, list[dict]] | None:
+    """The newest ``q3t study --course`` report (``root/*course*/report.json``: a row per
+    case, ``{scene, element, cells, ratio (probe / published), status, ...}``) with rows of
+    ``scene``, and those rows."""
+    found = []
+    for p in root.glob("*course*/report.json"):
+        data = _read(p)
+        rows = [r for r in data if isinstance(r, dict) and r.get("scene") == scene] \
+            if isinstance(data, list) else []
+        if rows:
+            found.append((p.stat().st_mtime, p, rows))
+    return max(found, key=lambda t: t[0])[1:] if found else None
 
 
 def length(m: float) -> str:
@@ -155,25 +177,69 @@ def cost_text(cost: dict | None) -> str:
     return s
 
 
+def study_command(scene: Scene) -> str | None:
+    """The command whose report gives ``scene`` its estimate (a template of ``scene``, the
+    file's name), or None when no study refines its mesh (a mesh read from a file). A patch
+    refined by cells per side with a published value is one of the shell obstacle course's."""
+    if hasattr(scene.mesh, "cells"):
+        st = scene.study
+        return COURSE if st is not None and st.cells and st.published is not None else None
+    return BY_EDGE if getattr(scene.mesh, "edge_length", None) is not None else None
+
+
 def estimate(root: Path, scene: str, element: str, edge_length: float | None,
-             result: dict | None, overrides: dict | None = None) -> dict:
-    """What the page shows for a finished run: ``available``, ``text`` and the numbers."""
+             result: dict | None, overrides: dict | None = None,
+             command: str | None = BY_EDGE, cells: int | None = None) -> dict:
+    """What the page shows for a finished run: ``available``, ``text`` and the numbers.
+    ``command``: what studies the scene (:func:`study_command`); ``cells``: a course scene's
+    cells per side."""
     cost = cost_of(result)
     out: dict = {"available": False, "scene": scene, "element": element,
                  "edge_length": edge_length, "cost": cost, "notes": []}
-    head = _compare(out, root, scene, element, edge_length, overrides or {})
+    if command == COURSE:
+        head = _course(out, root, scene, element, cells)
+    else:
+        command = command.format(scene=scene) if command is not None else None
+        head = _compare(out, root, scene, element, edge_length, overrides or {}, command)
     out["text"] = "; ".join(s for s in (head, cost_text(cost)) if s)
     return out
 
 
-def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float | None,
-             overrides: dict) -> str:
-    """Fill ``out`` from the study row of the run's element and edge length; returns the
-    head line, or why there is no estimate (then ``out["reason"]`` says so in a word)."""
-    found = find_study(root, scene)
+def _course(out: dict, root: Path, scene: str, element: str, cells: int | None) -> str:
+    """Fill ``out`` from the shell obstacle course's row of the run's element and cells per
+    side: its error against the published value; returns the head line, or why there is none
+    (then ``out["reason"]`` says so in a word)."""
+    found = find_course(root, scene)
     if found is None:
         out["reason"] = "no_study"
-        return f"no study for this scene: run `q3t study {scene}`"
+        return f"no study for this scene: run `{COURSE}` (each of its scenes against its " \
+               "published value)"
+    path, rows = found
+    when = f"shell obstacle course of {_date(path)}"
+    row = next((r for r in rows if r.get("element") == element and r.get("cells") == cells),
+               None)
+    if row is None or not isinstance(row.get("ratio"), (int, float)):
+        out["reason"] = "element_not_studied" if row is None else "no_error"
+        return (f"the {when} has no {element} result at {cells} cells per side: run "
+                f"`{COURSE} --elements {element} --cells {cells}`")
+    err = abs(row["ratio"] - 1)
+    out["study"] = {"path": str(path), "date": _date(path)}
+    out["reference"] = {"kind": "published", "label": "the published value",
+                        "value": row["probe"] / row["ratio"] if row["ratio"] else None}
+    out.update(available=True, relative_error=err, row=row, match="exact")
+    return f"error estimate: {percent(err)} vs the published value ({when})"
+
+
+def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float | None,
+             overrides: dict, command: str | None) -> str:
+    """Fill ``out`` from the study row of the run's element and edge length; returns the
+    head line, or why there is no estimate (then ``out["reason"]`` says so in a word)."""
+    found = find_study(root, scene) if command is not None else None
+    if found is None:
+        out["reason"] = "no_study"
+        if command is None:
+            return "no study for this scene: no study refines its mesh (read from a file)"
+        return f"no study for this scene: run `{command}`"
     path, study = found
     ref = reference_of(study)
     plan = study["plan"]
@@ -181,7 +247,7 @@ def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float
                     "elements": plan.get("elements"), "levels": plan.get("levels")}
     out["reference"] = ref
     when = f"study of {study.get('date')}"
-    row, missing = _nearest_row(study, scene, element, edge_length, when)
+    row, missing = _nearest_row(study, command, element, edge_length, when)
     if row is None:
         out["reason"], head = missing
         return head
@@ -199,17 +265,17 @@ def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float
     return head + f" ({when})"
 
 
-def _nearest_row(study: dict, scene: str, element: str, edge_length: float | None,
+def _nearest_row(study: dict, command: str, element: str, edge_length: float | None,
                  when: str) -> tuple[dict | None, tuple[str, str]]:
     """The study's row of ``element`` nearest to ``edge_length`` (on a log scale), or None
-    with (reason, text)."""
+    with (reason, text); ``command`` studies the scene."""
     rows = [r for r in study["rows"] if r.get("element") == element
             and isinstance(r.get("edge_length"), (int, float)) and r["edge_length"] > 0]
     if not rows:
         studied = ", ".join(sorted({str(r.get("element")) for r in study["rows"]}))
         return None, ("element_not_studied",
                       f"the {when} has no {element} rows (it has {studied}): run "
-                      f"`q3t study {scene} --elements {element}`")
+                      f"`{command} --elements {element}`")
     if edge_length is None or edge_length <= 0:
         return None, ("no_edge_length", f"the run's mesh has no edge length to match the {when}")
     return min(rows, key=lambda r: abs(math.log(r["edge_length"] / edge_length))), ("", "")
@@ -241,7 +307,7 @@ class EstimateCache:
     def __init__(self, root: Path):
         self.root = root
         self._lock = threading.Lock()
-        self._facts: dict[str, tuple] = {}  # run id -> (edge length, result.json)
+        self._facts: dict[str, tuple] = {}  # run id -> (edge, result.json, command, cells)
         self._keys: dict[str, tuple | None] = {}  # run id -> the study report it used
 
     def get(self, run: Run, finished: bool = False) -> dict | None:
@@ -251,12 +317,12 @@ class EstimateCache:
             return None
         with self._lock:
             try:
-                found = find_study(self.root, run.scene)
+                found = find_study(self.root, run.scene) or find_course(self.root, run.scene)
                 key = (str(found[0]), found[0].stat().st_mtime_ns) if found else None
                 if run.estimate is None or self._keys.get(run.id, "?") != key:
-                    edge, result = self._facts_of(run)
+                    edge, result, command, cells = self._facts_of(run)
                     run.estimate = estimate(self.root, run.scene, run.element, edge, result,
-                                            run.overrides)
+                                            run.overrides, command, cells)
                     self._keys[run.id] = key
             except Exception as exc:  # never let the estimate break a status request
                 run.estimate = {"available": False, "reason": "error",
@@ -268,19 +334,22 @@ class EstimateCache:
             self._facts.pop(run_id, None)
             self._keys.pop(run_id, None)
 
-    def _facts_of(self, run: Run) -> tuple[float | None, dict | None]:
-        """The run's edge length (from its scene.toml) and result.json; read once."""
+    def _facts_of(self, run: Run) -> tuple[float | None, dict | None, str | None,
+                                           int | None]:
+        """The run's edge length, the command that studies it and its cells per side (from
+        its scene.toml), and its result.json; read once."""
         if run.id not in self._facts:
             d = self.root / run.id
             try:
+                sc = scene_from_toml((d / "scene.toml").read_text(), run.overrides)
                 # a mesh file or a patch refined by cells has no edge length
-                edge = getattr(scene_from_toml((d / "scene.toml").read_text(),
-                                               run.overrides).mesh, "edge_length", None)
+                edge, command = getattr(sc.mesh, "edge_length", None), study_command(sc)
+                cells = getattr(sc.mesh, "cells", None)
             except (OSError, ValueError):
-                edge = None
+                edge, command, cells = None, BY_EDGE, None
             try:
                 result = json.loads((d / "result.json").read_text())
             except (OSError, ValueError):
                 result = None
-            self._facts[run.id] = (edge, result)
+            self._facts[run.id] = (edge, result, command, cells)
         return self._facts[run.id]

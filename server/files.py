@@ -8,7 +8,8 @@ or renamed (an explicit replace) into place: a file in the scenes folder is alwa
 readable, whatever the client does, and two uploads of one new name cannot both win.
 A tool's surface (a tool shape of kind ``mesh``, ``tools.N.shape.path``) shares the blank's
 extensions: its upload says ``kind=tool`` and is checked as a tool surface (closed, wound one
-way, not self-intersecting: sim.tools.meshtool); the listing names a mesh file a blank."""
+way, not self-intersecting: sim.tools.meshtool); the listing names a mesh file by the field a
+scene reads it as, else by what it holds (a closed surface is a tool's)."""
 
 from __future__ import annotations
 
@@ -216,30 +217,37 @@ class FileStore:
         return sorted(p.name for p in self.root.iterdir()
                       if p.is_file() and _is_file_name(p.name))
 
-    def entry(self, name: str, users: dict[str, list[str]] | None = None,
+    def entry(self, name: str, uses: dict[str, list[tuple[str, str]]] | None = None,
               kind: str | None = None) -> dict:
+        """The file's entry; its ``kind`` as given (an upload's), else :meth:`kind`."""
         p = self.path(name)
         if not p.is_file():
             raise NotFound(f"no file {name!r}")
-        st, kind = p.stat(), kind_of(name, kind)
+        uses = (self.uses() if uses is None else uses).get(name, [])
+        st = p.stat()
+        kind = kind_of(name, kind) if kind else self.kind(p, uses)
         counts = {"vertices": None, "triangles": None, "values": None, "holes": None,
                   **_described(str(p), kind, st.st_size, st.st_mtime_ns)}
-        users = self.users() if users is None else users
         return {"name": name, "kind": kind, "size": st.st_size, **counts,
-                "used_by": users.get(name, [])}
+                "used_by": list(dict.fromkeys(scene for scene, _ in uses))}
 
     def entries(self) -> list[dict]:
-        users = self.users()
-        return [self.entry(n, users) for n in self.names()]
+        uses = self.uses()
+        return [self.entry(n, uses) for n in self.names()]
 
-    def users(self) -> dict[str, list[str]]:
-        """File name -> the scenes whose TOML names it in a file field (valid scenes or not)."""
-        out: dict[str, list[str]] = {}
-        for name, uses in self.uses().items():
-            for scene, _ in uses:
-                if scene not in out.setdefault(name, []):
-                    out[name].append(scene)
-        return out
+    @staticmethod
+    def kind(path: Path, uses: list[tuple[str, str]]) -> str:
+        """What a file is: by its extension, and a mesh file (a blank's or a tool's suffix)
+        by the field of the first scene that names it, else by what it holds: a closed
+        surface is a tool's (a blank is an open sheet; an uploaded tool is closed)."""
+        kind = kind_of(path.name)
+        if kind not in ("blank", "tool"):
+            return kind
+        for _, field in uses:
+            return "tool" if field.startswith("tools.") else "blank"
+        st = path.stat()
+        closed = _described(str(path), "tool", st.st_size, st.st_mtime_ns)["problem"] is None
+        return "tool" if closed else "blank"
 
     def uses(self) -> dict[str, list[tuple[str, str]]]:
         """File name -> (scene, field) of each file field of a scene's TOML that names it."""

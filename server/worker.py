@@ -16,6 +16,7 @@ closed (a complete, verifiable file) and the process exits.
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import multiprocessing as mp
 import queue
@@ -24,6 +25,7 @@ import time
 import traceback
 from dataclasses import asdict
 from multiprocessing.queues import Queue
+from multiprocessing.reduction import ForkingPickler
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
@@ -70,15 +72,37 @@ def plane_size(positions: np.ndarray) -> float:
     return float(2.0 * max(float(np.max(extent)), 1e-3))
 
 
+def shape_files(shape: object) -> list[str]:
+    """The paths of the files a shape reads (a mesh tool's, in CSG operands too)."""
+    from sim.tools.shapes import CSG, FILE_KINDS
+
+    if shape.kind in CSG:
+        return [p for s in shape.shapes for p in shape_files(s)]
+    return [str(shape.path)] if shape.kind in FILE_KINDS else []
+
+
+def content_key(shape: object) -> tuple:
+    """A shape by what it is: its fields and the content (SHA-256) of each file it reads, so a
+    file replaced under the same name is a new shape, as in the mesh tools' own cache."""
+    digests = []
+    for path in shape_files(shape):
+        try:
+            digests.append(hashlib.sha256(Path(path).read_bytes()).hexdigest())
+        except OSError:
+            digests.append(None)  # the program's own read names the problem
+    return shape.model_dump_json(), tuple(digests)
+
+
 def tool_meshes(scene: Scene, size: float, cache: dict) -> list[dict]:
     """Display meshes of the scene's tools in their local frames (world = local + translation):
-    ``[{name, kind, vertices (m, 3) float32, faces (k, 3) uint32}]``. Cached per shape."""
+    ``[{name, kind, vertices (m, 3) float32, faces (k, 3) uint32}]``. Cached per shape, by
+    content (:func:`content_key`)."""
     from sim.tools.shapes import tool_program
     from sim.tools.surface import tool_mesh
 
     out = []
     for spec in scene.tools:
-        key = (spec.shape.model_dump_json(), round(size, 9))
+        key = (content_key(spec.shape), round(size, 9))
         if key not in cache:
             V, F = tool_mesh(tool_program(spec.shape), plane_size=size)
             cache[key] = (np.asarray(V, np.float32), np.asarray(F, np.uint32))
@@ -120,6 +144,7 @@ class Solver:
         self.paused = False
         self.produced = self.dropped = 0  # frames of this run made / dropped (queue full)
         self.mesh_cache: dict = {}  # tool meshes by shape: a repeated run skips the meshing
+        self.note: str | None = None  # a problem of the run's that does not end it
 
     def emit(self, kind: str, **kw: object) -> None:
         self.events.put({"kind": kind, "run": self.run, **kw})
@@ -170,13 +195,15 @@ class Solver:
         scene, rest, timing = self._build(msg)
         t0 = time.perf_counter()
         self._open_recording(scene)  # after the build: a run stopped while building leaves none
-        tools = self._tool_meshes(scene, rest)
+        tools, self.note = self._tool_meshes(scene, rest)
         timing["tool_meshes_s"] = time.perf_counter() - t0
-        self.emit("meta", faces=self.sim.display.faces, n_steps=self.sim.n_steps,
-                  counts=self.sim.result()["counts"], element=scene.shell.element,
-                  probes=[p.name for p in scene.probes], tools=tools, timing=timing,
-                  parameters=dict(self.sim.parameters), scaled=self.sim.scaled(),
-                  **plotted(scene, self.sim.tool_poses()))
+        try:
+            self._send_meta(scene, tools, timing)
+        except Exception as exc:  # without its meta the server shows nothing of the run
+            self.emit("log", text=traceback.format_exc())
+            self.finish("failed", f"sending the run's model to the server failed: "
+                                  f"{type(exc).__name__}: {exc}")
+            return
         self.events.put(rest)  # the rest state, before the first step (which may take seconds)
         try:
             self.record("meta", self.sim.display.faces, tools)
@@ -223,13 +250,28 @@ class Solver:
             self._unbuilt(scene, f"recording failed: {exc}")
             raise
 
-    def _tool_meshes(self, scene: Scene, rest: dict) -> list[dict]:
-        """Display only: a tool that cannot be meshed must not stop the run."""
+    def _send_meta(self, scene: Scene, tools: list[dict], timing: dict) -> None:
+        """The run's ``meta`` event, pickled here first: a multiprocessing queue pickles in a
+        thread of its own, which prints an error and drops a message it cannot pickle, and the
+        run would go on with a blank viewer and no word on the page."""
+        msg = {"kind": "meta", "run": self.run, "faces": self.sim.display.faces,
+               "n_steps": self.sim.n_steps, "counts": self.sim.result()["counts"],
+               "element": scene.shell.element, "probes": [p.name for p in scene.probes],
+               "tools": tools, "timing": timing, "parameters": dict(self.sim.parameters),
+               "scaled": self.sim.scaled(), "note": self.note,
+               **plotted(scene, self.sim.tool_poses())}
+        ForkingPickler.dumps(msg)
+        self.events.put(msg)
+
+    def _tool_meshes(self, scene: Scene, rest: dict) -> tuple[list[dict], str | None]:
+        """Display only: a tool that cannot be meshed must not stop the run, but the page says
+        why the viewer shows no tools (the note)."""
         try:
-            return tool_meshes(scene, plane_size(rest["positions"]), self.mesh_cache)
-        except Exception:
+            return tool_meshes(scene, plane_size(rest["positions"]), self.mesh_cache), None
+        except Exception as exc:
             self.emit("log", text=f"tool meshes failed:\n{traceback.format_exc()}")
-            return []
+            return [], ("the viewer shows no tools: meshing them failed "
+                        f"({type(exc).__name__}: {exc})")
 
     def _unbuilt(self, scene: Scene | None, reason: str) -> None:
         """A run that ends before it has a model: its result.json says why, then its state."""
@@ -364,7 +406,8 @@ class Solver:
 
     def finish(self, state: str, reason: str | None = None, last: dict | None = None) -> None:
         """End the run: its last frame (to the viewer and the recording), result.json, the
-        closed recording, then the state."""
+        closed recording, then the state (its reason the run's note when it has none)."""
+        reason, self.note = reason or self.note, None
         problems = []
         try:
             last = last or _frame_msg(self.run, self.sim)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import shlex
 import shutil
 import subprocess
 import time
@@ -75,6 +76,21 @@ def _load() -> str:
     return " / ".join(f"{v:.2f}" for v in os.getloadavg())
 
 
+def reproducible(command: str) -> str:
+    """``command`` without its ``--out DIR``: where the cases' files went (often a temporary
+    folder) is no part of the result, and the command without it measures the same."""
+    words, out = shlex.split(command), []
+    skip = False
+    for w in words:
+        if skip:
+            skip = False
+        elif w == "--out":
+            skip = True
+        elif not w.startswith("--out="):
+            out.append(w)
+    return shlex.join(out)
+
+
 @dataclass(frozen=True)
 class Stamp:
     """What a measurement ran on, taken when it starts; ``render`` adds the end."""
@@ -89,8 +105,8 @@ class Stamp:
 
     @classmethod
     def begin(cls, command: str) -> Stamp:
-        return cls(command, commit(), time.time(), cpu_model(), os.cpu_count() or 0, _load(),
-                   software())
+        return cls(reproducible(command), commit(), time.time(), cpu_model(),
+                   os.cpu_count() or 0, _load(), software())
 
     def render(self) -> str:
         """The header block: one line per field, the end's load and the duration now."""

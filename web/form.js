@@ -53,12 +53,19 @@ const SceneForm = (() => {
       .slice(0, 80 - ext.length);
     return (stem || "upload") + ext;
   };
+  // a field's name as the form shows it: the TOML key in words ("edge_length" -> "edge
+  // length"); the key itself is in its tooltip and the TOML view
+  const words = (key) => String(key).replaceAll("_", " ");
   const bytes = (n) => (n < 2 ** 20 ? `${(n / 1024).toFixed(1)} KiB`
                                    : `${(n / 2 ** 20).toFixed(1)} MiB`);
   // what a listed file holds, for its option (a thickness file has a value per vertex)
   const counts = (f) => (f.problem ? "unusable" : f.triangles !== null
     ? `${f.vertices} vertices, ${f.triangles} triangles`
     : f.kind === "outline" ? `${f.holes} hole${f.holes === 1 ? "" : "s"}` : `${f.values} values`);
+  // each kind of file as an engineer says it (the server's kinds: /api/files)
+  const KIND = { blank: "blank mesh", tool: "tool mesh", outline: "outline drawing",
+                 thickness: "thickness file" };
+  const described = (f) => `${KIND[f.kind] || f.kind}: ${counts(f)}`;
   // POST /api/files: the file's bytes as the body; the answer's JSON, or an Error with its
   // detail and status
   const upload = async (file, name, kind, replace) => {
@@ -141,7 +148,7 @@ const SceneForm = (() => {
       const { description, unit } = this.meta || {};
       const err = el("span", { class: "field-error" });
       const name = el("span", { class: "key", title: description ? `${path}: ${description}`
-                                                             : path }, key);
+                                                             : path }, words(key));
       const u = shown(unit)[0];
       const label = el("label", {}, name, control, u ? el("span", { class: "unit" }, u) : null);
       const help = description ? el("small", { class: "help" }, description) : null;
@@ -219,7 +226,8 @@ const SceneForm = (() => {
       const kept = el("pre", { class: "kept-fields", dataset: { path: `${path}.kept` } },
                       Object.entries(rest).map(([k, v]) => `${k} = ${JSON.stringify(v)}`)
                         .join("\n"));
-      const fs = el("fieldset", { class: "object", dataset: { path } }, el("legend", {}, key),
+      const fs = el("fieldset", { class: "object", dataset: { path } },
+                    el("legend", {}, words(key)),
                     this.wrap(`${path}.${tag}`, tag, kindSelect), note, kept,
                     el("div", { class: "field-error" }));
       return { el: fs, get: () => clone(rest) };
@@ -230,7 +238,7 @@ const SceneForm = (() => {
       value = value && typeof value === "object" ? value : {};
       const req = new Set(s.required || []);
       const kids = {};
-      const legend = el("legend", {}, key);
+      const legend = el("legend", {}, words(key));
       if (s.description) legend.title = s.description;
       const fs = el("fieldset", { class: "object", dataset: { path: path || "scene" } },
                     legend);
@@ -403,12 +411,13 @@ const SceneForm = (() => {
       const folder = { limit: null, accept: "" };  // the server's limit and the extensions
       const fill = (list, chosen) => {
         const options = [el("option", { value: "", textContent: "— choose a file —" })];
-        // by extension: a tool's surface and a blank are both meshes (the listing calls
-        // either a blank; the upload checks it as the field's kind)
+        // by extension: a tool's surface and a blank are both meshes, the field's own kind
+        // first, each labelled with its kind (the server's: what a scene uses it as)
         const exts = list.kinds[kind] || [];
-        const mine = list.files.filter((f) => exts.some((x) => f.name.endsWith(x)));
+        const mine = list.files.filter((f) => exts.some((x) => f.name.endsWith(x)))
+          .sort((a, b) => (a.kind !== kind) - (b.kind !== kind));
         for (const f of mine)
-          options.push(el("option", { value: f.name, textContent: `${f.name} (${counts(f)})`,
+          options.push(el("option", { value: f.name, textContent: `${f.name} (${described(f)})`,
                                       title: f.problem || bytes(f.size) }));
         if (chosen && !mine.some((f) => f.name === chosen))  // a path in a subfolder, or gone
           options.push(el("option", { value: chosen, textContent: chosen }));
@@ -457,7 +466,7 @@ const SceneForm = (() => {
             f = await upload(file, name, kind, true);
           }
           await refresh(f.name);  // then said: the select shows it when the words do
-          say(`uploaded ${f.name}: ${counts(f)}`);
+          say(`uploaded ${f.name}: ${described(f)}`);
         } catch (e) { say(e.message, true); }
       };
       return [button, chooser];
@@ -506,9 +515,10 @@ const SceneForm = (() => {
       const resolved = this.resolve(itemSchema);
       const isObj = resolved.type === "object" || !!resolved.properties || !!resolved.oneOf;
       const box = el("div", { class: isObj ? "list objects" : "list scalars" });
-      const add = el("button", { type: "button", class: "add", textContent: `+ ${key}` });
+      const add = el("button", { type: "button", class: "add", textContent: `+ ${words(key)}` });
       const u = shown(meta.unit)[0];
-      const legend = el("legend", {}, key, u ? el("span", { class: "unit" }, ` (${u})`) : null);
+      const legend = el("legend", {}, words(key),
+                        u ? el("span", { class: "unit" }, ` (${u})`) : null);
       if (meta.description) legend.title = meta.description;
       const fs = el("fieldset", { class: "array", dataset: { path } },
                     legend, box, add, el("div", { class: "field-error" }));

@@ -155,6 +155,31 @@ const Plots = (() => {
     return draw(div, traces, layout);
   }
 
+  function rim(div, profile, entries) {
+    // a drawn cup's rim height around the punch axis (the summary's earing profile), with
+    // its largest and smallest heights marked: ears show as crests every 90 degrees
+    const order = profile.angle.display.value.map((a, i) => [a, i]).sort((a, b) => a[0] - b[0]);
+    const at = (xs) => order.map(([, i]) => xs[i]);
+    const unit = profile.height.display.unit;
+    const traces = [{ x: at(profile.angle.display.value), y: at(profile.height.display.value),
+                      type: "scatter", mode: "lines+markers", marker: { size: 4 },
+                      name: "rim", hovertemplate: `%{x:.1f} deg<br>rim height %{y:.3f} ${unit}` +
+                                                   "<extra></extra>" }];
+    for (const e of entries) {
+      if (!e.at || !e.at.angle) continue;
+      traces.push({ x: [e.at.angle.display.value], y: [e.display.value], type: "scatter",
+                    mode: "markers", name: e.label.replace("Rim height, ", ""),
+                    marker: { size: 9, symbol: "diamond-open", line: { width: 2 } },
+                    hovertemplate: `${e.label}: %{y:.3f} ${e.display.unit} at %{x:.1f} deg` +
+                                   "<extra></extra>" });
+    }
+    const layout = { ...base("Rim height around the cup", 260),
+                     xaxis: axis("angle about the punch axis from x (deg)",
+                                 { range: [-5, 365], dtick: 45 }),
+                     yaxis: axis(`rim height (${unit})`) };
+    return draw(div, traces, layout);
+  }
+
   function fld(div, fl) {
     const pct = (xs) => xs.map((v) => 100 * v);
     const type = fl.minor.length > 4000 ? "scattergl" : "scatter";
@@ -210,5 +235,5 @@ const Plots = (() => {
     if (div.data) Plotly.purge(div);
   }
 
-  return { forceStroke, probes, sections, fld, solver, show, purge, scrubAt };
+  return { forceStroke, probes, sections, rim, fld, solver, show, purge, scrubAt };
 })();

@@ -87,6 +87,7 @@ const Results = (() => {
     const box = document.getElementById("summary");
     if (COMING.includes(st.state)) {
       drawn.summary = null;
+      Plots.show("rim-fig", false);
       box.dataset.run = st.id;
       box.dataset.ready = "false";
       box.replaceChildren(liveLine());
@@ -115,6 +116,17 @@ const Results = (() => {
     }
     box.replaceChildren(...cards);
     Object.assign(box.dataset, { run: st.id, ready: "true", count: String(s.summary.length) });
+    await showRim(s.summary);
+  }
+
+  async function showRim(summary) {
+    // a drawn cup's rim heights around its axis (the earing's profile), in the summary's units
+    const earing = summary.find((e) => e.profile && e.profile.height);
+    Plots.show("rim-fig", !!earing);
+    if (!earing) return;
+    const extremes = summary.filter((e) => ["max_rim_height", "min_rim_height"]
+      .includes(e.name));
+    await Plots.rim(document.getElementById("rim-plot"), earing.profile, extremes);
   }
 
   function liveLine() {
@@ -323,7 +335,7 @@ const Results = (() => {
     shown = null;
     drawn.plots = drawn.summary = drawn.fld = drawn.downloads = null;
     plotsData = null;
-    for (const f of ["force", "probes", "section", "fld"]) {
+    for (const f of ["force", "probes", "section", "rim", "fld"]) {
       Plots.show(`${f}-fig`, false);
       Plots.purge(document.getElementById(`${f}-plot`));
     }

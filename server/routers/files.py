@@ -35,9 +35,11 @@ class FileEntry(BaseModel):
     name: str = Field(description="the file's name in the scenes folder: what a scene's "
                                   "mesh.path or shell.thickness_file says")
     kind: Kind = Field(description="blank: a mid-surface mesh; thickness: one value (m) per "
-                                   "vertex; tool: a tool's surface mesh (an upload's answer "
-                                   "only: the listing names mesh files blanks); outline: an "
-                                   "SVG or DXF drawing of a blank's outline (mesh kind outline)")
+                                   "vertex; tool: a tool's surface mesh; outline: an SVG or "
+                                   "DXF drawing of a blank's outline (mesh kind outline). A "
+                                   "mesh file is a blank or a tool by the field the first "
+                                   "scene naming it reads it as, else by what it holds (a "
+                                   "closed surface is a tool's)")
     size: int = Field(description="bytes")
     vertices: int | None = Field(description="a mesh's vertices as the solver reads them")
     triangles: int | None = Field(description="a mesh's triangles")
@@ -69,9 +71,10 @@ def _settings(request: Request) -> Settings:
 
 @router.get("", response_model=FileList)
 def list_files(request: Request) -> dict:
-    """The scenes folder's blank meshes and thickness files (uploaded or put there by hand):
-    each one's kind, size, counts as the solver reads it, the scenes that name it, and what
-    makes it unusable, if anything; the upload limit and each kind's extensions."""
+    """The scenes folder's blank and tool meshes, outline drawings and thickness files
+    (uploaded or put there by hand): each one's kind, size, counts as the solver reads it, the
+    scenes that name it, and what makes it unusable, if anything; the upload limit and each
+    kind's extensions."""
     return {"max_upload": _settings(request).max_upload,
             "kinds": {k: list(v) for k, v in KINDS.items()},
             "files": _files(request).entries()}

@@ -29,3 +29,24 @@ def browser(request):
 
     with chromium(request.module.SHOTS) as b:
         yield b
+
+
+@pytest.fixture
+def open_page(browser):
+    """Pages of the service a test opens: ``open_page(url, *ready, width=, height=)`` as
+    tests.support.browser.new_page; each closed when the test ends, which fails if a page
+    raised a script error."""
+    from tests.support.browser import new_page
+
+    opened = []
+
+    def open_(url: str, *ready: str, **size: int):
+        page, errors = new_page(browser, url, *ready, **size)
+        opened.append((page, errors))
+        return page
+
+    yield open_
+    for page, _ in opened:
+        page.close()
+    errors = [e for _, errs in opened for e in errs]
+    assert not errors, errors

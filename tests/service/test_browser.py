@@ -10,8 +10,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -23,10 +21,11 @@ from server import sceneform
 from server.colormap import VIRIDIS
 from server.tomlout import drop_none
 from tests.support import ROOT
-from tests.support.browser import CHROMIUM, WAIT_MS, settled
+from tests.support.browser import CHROMIUM, new_page, serve, settled
 from tests.support.scenes import tiny_toml
-from tests.support.service import HANG, free_port, stop_all
+from tests.support.service import stop_all
 
+SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-browser"))
 pytestmark = pytest.mark.browser
 if not Path(CHROMIUM).exists():
     pytest.skip(f"{CHROMIUM} missing (apt-get install chromium)", allow_module_level=True)
@@ -50,34 +49,9 @@ def server(served):
 def served(tmp_path_factory):
     """(url, folder with scenes/ and runs/)"""
     tmp = tmp_path_factory.mktemp("browser")
-    (tmp / "scenes").mkdir()
-    (tmp / "scenes" / "tiny.toml").write_text(tapered_toml(steps=400))
-    port, vport = free_port(), free_port()
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "cfg"), "XDG_DATA_HOME": str(tmp / "data")}
-    # the server's output goes to a file: a pipe nobody reads fills up (numba's compile
-    # warnings on a cold cache) and then blocks the server mid-write
-    log = open(tmp / "server.log", "wb")  # noqa: SIM115 - closed after the server stops
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.apps", "serve", "tiny", "--port", str(port),
-         "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
-         "--runs-dir", str(tmp / "runs"), "--step-delay", "0.2"],
-        env={**env, "PYTHONPATH": str(ROOT)}, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.time() + HANG
-    while time.time() < deadline:
-        try:
-            if httpx.get(url + "/api/health", timeout=1).status_code == 200:
-                break
-        except httpx.HTTPError:
-            time.sleep(0.2)
-    else:
-        proc.kill()
-        log.close()
-        raise AssertionError((tmp / "server.log").read_text())
-    yield url, tmp
-    proc.terminate()
-    proc.wait(10)
-    log.close()
+    with serve(tmp, {"tiny": tapered_toml(steps=400)}, "tiny", "--step-delay", "0.2") as (
+            url, _):
+        yield url, tmp
 
 
 def hue(rgb: np.ndarray) -> np.ndarray:
@@ -113,14 +87,9 @@ def spread(bins: np.ndarray) -> int:
     return int((bins >= 0.05 * max(bins.sum(), 1)).sum())
 
 
-def test_page_run_viewer_pause(server, tmp_path):
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM,
-                                    args=["--use-angle=swiftshader", "--enable-unsafe-swiftshader"])
-        page = browser.new_page(viewport={"width": 1400, "height": 1000})
-        page.set_default_timeout(WAIT_MS)
-        page.goto(server + "/")
-        page.wait_for_selector("#scenes li[data-name=tiny]")
+def test_page_run_viewer_pause(server, browser, tmp_path):
+    page, _ = new_page(browser, server, "#scenes li[data-name=tiny]")
+    try:
         assert "name = \"tiny\"" in page.input_value("#toml")
         page.select_option("#element", "linear")
         page.click("#start")
@@ -164,10 +133,11 @@ def test_page_run_viewer_pause(server, tmp_path):
         page.wait_for_function(f"+document.getElementById('status').dataset.step > {step}")
         page.click("#stop")
         page.wait_for_function("document.getElementById('status').dataset.state == 'stopped'")
-        browser.close()
+    finally:
+        page.close()
 
 
-def test_scene_form_and_run_estimate(served):
+def test_scene_form_and_run_estimate(served, browser):
     url, tmp = served
     (tmp / "runs" / "study-formed").mkdir(parents=True)
     (tmp / "runs" / "study-formed" / "report.json").write_text(json.dumps({"study": {
@@ -176,13 +146,9 @@ def test_scene_form_and_run_estimate(served):
         "reference": {"value": -1.0}, "date": "2026-11-22",
         "rows": [{"element": "linear", "edge_length": 0.035, "status": "converged",
                   "dofs": 100, "probe": -0.9, "error": 0.1, "time": 0.1, "iterations": 1}]}}))
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM)
-        page = browser.new_page(viewport={"width": 1400, "height": 1000})
-        page.set_default_timeout(WAIT_MS)
-        errors = []  # uncaught errors of our scripts (not of the embedded viewer)
-        page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
-        page.goto(url + "/")
+    # errors: the uncaught ones; of our scripts (/static/) none, the embedded viewer's aside
+    page, errors = new_page(browser, url)
+    try:
         field = lambda path: page.locator(f'#scene-form [data-path="{path}"]')  # noqa: E731
         nu = field("material.nu").locator("input")
         nu.wait_for()
@@ -267,4 +233,5 @@ def test_scene_form_and_run_estimate(served):
         assert page.get_attribute("#status", "data-state") == "finished", \
             page.text_content("#status")
         assert [e for e in errors if "/static/" in e] == [], errors
-        browser.close()
+    finally:
+        page.close()

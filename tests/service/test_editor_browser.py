@@ -22,7 +22,7 @@ import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import new_page, serve, settled
+from tests.support.browser import serve, settled
 from tests.support.service import until
 
 SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-editor"))
@@ -43,12 +43,8 @@ def served(tmp_path_factory):
 
 
 @pytest.fixture
-def page(browser, served):
-    url, _ = served
-    page, errors = new_page(browser, url, "#scenes li.sel", "#scene-form [name='material.E']")
-    yield page
-    page.close()
-    assert not errors, errors
+def page(open_page, served):
+    return open_page(served[0], "#scenes li.sel", "#scene-form [name='material.E']")
 
 
 def shot(page, name: str) -> None:
@@ -82,10 +78,10 @@ def test_fields_show_units_descriptions_and_their_kinds_fields_only(page):
     # a disk lists its own fields, kind first; no size, radius, height or path
     mesh = page.locator("#scene-form fieldset[data-path='mesh']")
     names = mesh.locator(":scope > .field > label > .key").all_text_contents()
-    assert names == ["kind", "imperfection", "edge_length", "r_outer"], names
+    assert names == ["kind", "imperfection", "edge length", "r outer"], names
     punch = page.locator("#scene-form fieldset[data-path='tools.0.shape']")
     names = punch.locator(":scope > .field > label > .key").all_text_contents()
-    assert names[0] == "kind" and "n_points" not in names and "r_outer" not in names, names
+    assert names[0] == "kind" and "n points" not in names and "r outer" not in names, names
     shot(page, "01-units-descriptions-kinds")
     # a Voce law: its own parameters only
     law = page.locator("#scene-form fieldset[data-path='material.hardening']")
@@ -102,7 +98,7 @@ def test_fields_show_units_descriptions_and_their_kinds_fields_only(page):
     # another kind: its fields, the shared ones kept
     page.select_option("[name='mesh.kind']", "rectangle")
     names = mesh.locator(":scope > .field > label > .key").all_text_contents()
-    assert names == ["kind", "imperfection", "edge_length", "size", "origin"], names
+    assert names == ["kind", "imperfection", "edge length", "size", "origin"], names
     assert page.input_value("[name='mesh.edge_length']") == "6"
     shot(page, "02-mesh-kind-rectangle")
 

@@ -232,6 +232,44 @@ def test_a_build_error_fails_the_run_with_a_result(monkeypatch, tmp_path):
     assert not (out / "run.rrd").exists()  # nothing was recorded
 
 
+def test_a_meta_that_cannot_be_sent_fails_the_run_naming_it(monkeypatch, tmp_path):
+    """The run's model (its meta) must reach the server: one a multiprocessing queue cannot
+    pickle would be dropped by the queue's feeder thread, leaving a blank viewer and a run
+    with no word on the page. It fails the run, naming why, with its result.json."""
+    from server import worker
+
+    real = worker.plotted
+    monkeypatch.setattr(worker, "plotted", lambda *a: {**real(*a), "punches": lambda: None})
+    solver, states, out = run_in_process(tmp_path, "r1", COARSE)
+    assert states[-1][0] == "failed", states
+    assert states[-1][1].startswith("sending the run's model to the server failed: ")
+    assert "pickle" in states[-1][1]
+    assert "failed" not in [s for s, _ in states[:-1]] and solver.sim is None  # not stepped on
+    assert strict_json(out / "result.json")["failure"]["reason"] == states[-1][1]
+
+
+def test_tools_that_cannot_be_shown_are_noted_and_the_run_goes_on_to_its_end(monkeypatch, tmp_path):
+    from server import worker
+
+    def broken(*a):
+        raise RuntimeError("no surface")
+
+    monkeypatch.setattr(worker, "tool_meshes", broken)
+    events = queue.Queue()
+    solver = worker.Solver(events, queue.Queue(maxsize=4), record_every=1, step_delay=0.0)
+    (tmp_path / "r1").mkdir()
+    solver.handle({"id": 1, "cmd": "start", "run": "r1", "out": str(tmp_path / "r1"),
+                   "scene_toml": tiny_toml(), "overrides": COARSE})
+    sent = [events.get() for _ in range(events.qsize())]
+    meta = next(ev for ev in sent if ev["kind"] == "meta")
+    note = "the viewer shows no tools: meshing them failed (RuntimeError: no surface)"
+    assert meta["tools"] == [] and meta["note"] == note
+    while solver.stepping:  # the run goes on to its end, which says it too
+        solver.step()
+    states = [ev for ev in (events.get() for _ in range(events.qsize())) if ev["kind"] == "state"]
+    assert (states[-1]["state"], states[-1]["reason"]) == ("finished", note)
+
+
 # ---- the service: the size limit, and a stop while building -----------------------------------
 pytest.importorskip("fastapi")
 from fastapi.testclient import TestClient  # noqa: E402
@@ -243,7 +281,9 @@ from server.worker import worker_main  # noqa: E402
 
 def slow_build_worker(commands, events, frames, record_every, step_delay):
     """The solver process, whose build of a scene named 'slow' never ends (a model that takes
-    minutes to build, without the minutes)."""
+    minutes to build, without the minutes), and whose meta of a scene named 'unsent' cannot be
+    sent."""
+    from server import worker
     from sim.stepping import simulation
 
     real = simulation.build_model
@@ -254,6 +294,9 @@ def slow_build_worker(commands, events, frames, record_every, step_delay):
         return real(scene)
 
     simulation.build_model = build
+    plotted = worker.plotted  # the meta of a scene named 'unsent' cannot be pickled
+    worker.plotted = lambda scene, poses: {**plotted(scene, poses), **(
+        {"punches": lambda: None} if scene.name == "unsent" else {})}
     worker_main(commands, events, frames, record_every, step_delay)
 
 
@@ -276,6 +319,7 @@ def service(tmp_path_factory):
     scenes.mkdir()
     (scenes / "tiny.toml").write_text(tiny_toml())
     (scenes / "slow.toml").write_text(tiny_toml().replace('name = "tiny"', 'name = "slow"'))
+    (scenes / "unsent.toml").write_text(tiny_toml().replace('name = "tiny"', 'name = "unsent"'))
     settings = Settings(scenes_dir=scenes, runs_dir=tmp / "runs", viewer=False,
                         max_model_bytes=2 * 2**30)
     with TestClient(create_app(settings, worker_target=slow_build_worker)) as client:
@@ -323,6 +367,20 @@ def test_a_stop_during_the_build_ends_it(service):
     while not client.get("/api/health").json()["ok"] and time.monotonic() < deadline:
         time.sleep(0.05)
     assert client.get("/api/health").json()["ok"]
+
+
+def test_a_run_whose_model_cannot_reach_the_server_fails_naming_it(service):
+    """Through the solver process's real queue, whose feeder thread would drop the meta
+    without a word: the run fails at once with the reason, and the service goes on."""
+    client, settings = service
+    run_id = client.post("/api/runs", json={"scene": "unsent"}).json()["id"]
+    st = wait_for(client, run_id, {"failed", "finished", "stopped"})
+    assert st["state"] == "failed" and st["step"] == 0, st
+    assert st["reason"].startswith("sending the run's model to the server failed: ")
+    res = strict_json(settings.runs_dir / run_id / "result.json")
+    assert res["failure"]["reason"] == st["reason"]
+    nxt = client.post("/api/runs", json={"scene": "tiny"}).json()["id"]
+    assert wait_for(client, nxt, {"finished", "failed", "stopped"})["state"] == "finished"
 
 
 def test_a_solver_process_killed_mid_run_leaves_a_result(service):

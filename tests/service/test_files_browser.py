@@ -16,7 +16,7 @@ import pytest
 import trimesh
 
 from sim.geometry.trimesh import rectangle
-from tests.support.browser import new_page, serve
+from tests.support.browser import serve
 from tests.support.scenes import tiny_toml
 from tests.support.service import until
 
@@ -36,12 +36,8 @@ def served(tmp_path_factory):
 
 
 @pytest.fixture
-def page(browser, served):
-    url, _ = served
-    page, errors = new_page(browser, url, "#scenes li.sel", "#scene-form [name='mesh.kind']")
-    yield page
-    page.close()
-    assert not errors, errors
+def page(open_page, served):
+    return open_page(served[0], "#scenes li.sel", "#scene-form [name='mesh.kind']")
 
 
 def choose(page, field: str, path: Path) -> None:
@@ -78,7 +74,8 @@ def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
     shot(page, "1-file-kind.png")
     choose(page, "mesh.path", obj)
     until(lambda: status(page, "mesh.path").startswith("uploaded"), "no upload", 300)
-    assert status(page, "mesh.path") == "uploaded My_plate_v2.obj: 63 vertices, 80 triangles"
+    assert status(page, "mesh.path") == ("uploaded My_plate_v2.obj: blank mesh: 63 vertices, "
+                                         "80 triangles")
     assert page.input_value("[name='mesh.path']") == "My_plate_v2.obj"
     assert (tmp / "scenes" / "My_plate_v2.obj").read_bytes() == obj.read_bytes()
 
@@ -87,7 +84,8 @@ def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
     page.uncheck("[data-path='shell.thickness_file'] input.unset")
     choose(page, "shell.thickness_file", mine / "thickness.txt")
     until(lambda: status(page, "shell.thickness_file").startswith("uploaded"), "no upload", 300)
-    assert status(page, "shell.thickness_file") == "uploaded thickness.txt: 63 values"
+    assert status(page, "shell.thickness_file") == ("uploaded thickness.txt: thickness file: "
+                                                    "63 values")
     # the form's edits reach the TOML view through the server (a sync after the last edit)
     page.wait_for_function("""() => {
         const t = document.getElementById('toml').value;
@@ -169,9 +167,9 @@ def test_a_name_taken_asks_before_replacing(page, served):
     choose(page, "mesh.path", again)  # accepted: replaced
     until(lambda: status(page, "mesh.path").startswith("uploaded"), "no replacement", 300)
     counts = f"{len(half.vertices)} vertices, {len(half.faces)} triangles"
-    assert status(page, "mesh.path") == f"uploaded again.obj: {counts}"
+    assert status(page, "mesh.path") == f"uploaded again.obj: blank mesh: {counts}"
     options = page.locator("[name='mesh.path'] option").all_inner_texts()
-    assert f"again.obj ({counts})" in options, options
+    assert f"again.obj (blank mesh: {counts})" in options, options
 
     page.click("[data-path='mesh.path'] button.delete-file")  # no scene names it: it goes
     until(lambda: status(page, "mesh.path") == "deleted again.obj", "not deleted", 300)

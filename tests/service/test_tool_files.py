@@ -4,6 +4,7 @@ deletion while a scene names it; the form's schema marks the field."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 pytest.importorskip("fastapi")
@@ -100,5 +101,53 @@ def test_a_run_with_a_bad_tool_surface_is_refused_naming_the_tool(env):
     assert client.delete("/api/scenes/handmade").status_code == 204
 
 
+def test_the_listing_names_each_mesh_file_by_what_it_is(env):
+    """A mesh file is a blank's or a tool's by its extension alone: the listing names it by
+    the field a scene reads it as, else by what it holds (a closed surface is a tool's)."""
+    client, scenes = env
+    sheet = trimesh.creation.box([0.01, 0.01, 0.001])
+    sheet = trimesh.Trimesh(sheet.vertices, sheet.faces[:2])  # one open square: a blank
+    files = {"tool.stl": stl(punch_mesh()), "sheet.obj": sheet.export(file_type="obj"),
+             "closed.obj": punch_mesh().export(file_type="obj")}
+    for name, content in files.items():
+        assert upload(client, name, content).status_code == 201  # as blanks: by extension
+    kinds = {f["name"]: f["kind"] for f in client.get("/api/files").json()["files"]}
+    assert {n: kinds[n] for n in files} == {"tool.stl": "tool", "sheet.obj": "blank",
+                                            "closed.obj": "tool"}
+    # named by a scene as its blank (a closed mesh is a poor blank, but the scene says so)
+    toml = PRESS_TOML.replace('[mesh]\nkind = "rectangle"', '[mesh]\nkind = "file"\n'
+                              'path = "closed.obj"\n[unused]\nkind = "rectangle"')
+    (scenes / "asblank.toml").write_text(toml)
+    assert client.get("/api/files/closed.obj").json()["kind"] == "blank"
+    (scenes / "asblank.toml").unlink()
+    for name in files:
+        assert client.delete(f"/api/files/{name}").status_code == 204
+
+
 def test_the_form_offers_tool_files_for_a_mesh_shape():
     assert schema()["$defs"]["MeshShape"]["properties"]["path"]["x-file"] == "tool"
+
+
+def test_the_display_of_a_tool_file_replaced_under_its_name_is_the_new_one(tmp_path,
+                                                                          monkeypatch):
+    """The solver's display meshes are cached by content: a punch.stl replaced by a narrower
+    one shows the new punch, not the cached old one (their shape JSON is the same)."""
+    from server.worker import tool_meshes
+    from sim.scene.load import scene_from_toml
+
+    monkeypatch.setenv("Q3T_CACHE", str(tmp_path / "cache"))
+    toml = PRESS_TOML.replace(PUNCH, 'shape = { kind = "mesh", path = "punch.stl" }')
+    cache: dict = {}
+
+    def shown_radius(radius: float) -> float:
+        mesh = trimesh.creation.cylinder(radius=radius, height=0.01, sections=48)
+        (tmp_path / "punch.stl").write_bytes(stl(mesh.apply_translation([0, 0, 0.005])))
+        tools = tool_meshes(scene_from_toml(toml, folder=tmp_path), 0.04, cache)
+        V = next(t for t in tools if t["name"] == "punch")["vertices"]
+        return float(np.max(np.hypot(V[:, 0], V[:, 1])))
+
+    # the display surface is the smoothed field's zero level on a grid: within a grid cell
+    # (0.5 mm spacing) of the file's radius, and the two radii are 1.5 mm apart
+    assert shown_radius(0.004) == pytest.approx(0.004, abs=5e-4)
+    assert shown_radius(0.0025) == pytest.approx(0.0025, abs=5e-4)
+    assert len(cache) == 3  # the ground plane once, the punch for each of its files

@@ -13,7 +13,7 @@ import httpx
 import pytest
 import trimesh
 
-from tests.support.browser import new_page, serve
+from tests.support.browser import serve
 from tests.support.scenes import PRESS_TOML
 from tests.support.service import until
 
@@ -35,12 +35,8 @@ def served(tmp_path_factory):
 
 
 @pytest.fixture
-def page(browser, served):
-    url, _ = served
-    page, errors = new_page(browser, url, "#scenes li.sel", "[name='tools.1.shape.kind']")
-    yield page
-    page.close()
-    assert not errors, errors
+def page(open_page, served):
+    return open_page(served[0], "#scenes li.sel", "[name='tools.1.shape.kind']")
 
 
 def status(page) -> str:
@@ -84,7 +80,7 @@ def test_a_tool_surface_uploaded_from_the_form_runs(page, served):
 
     upload(page, mine / "Punch v1.stl")
     until(lambda: status(page).startswith("uploaded"), "no upload", 300)
-    assert status(page) == "uploaded Punch_v1.stl: 98 vertices, 192 triangles"
+    assert status(page) == "uploaded Punch_v1.stl: tool mesh: 98 vertices, 192 triangles"
     assert page.input_value(f"[name='{FIELD}']") == "Punch_v1.stl"
     page.wait_for_function("""() => document.getElementById('toml').value
         .includes('path = "Punch_v1.stl"')""")

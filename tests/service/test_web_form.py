@@ -30,6 +30,7 @@ from sim.scene.load import Scene  # noqa: E402
 from sim.scene.run import SolverSpec
 from tests.support import ROOT  # noqa: E402
 from tests.support.scenes import SCENES, tiny_toml  # noqa: E402
+from tests.support.service import file_scene  # noqa: E402
 
 pytestmark = pytest.mark.fast  # seconds: make test-fast runs it
 
@@ -332,3 +333,61 @@ def test_estimate_function_edge_cases(tmp_path):
     assert est["available"] and est["notes"] == []
     (tmp_path / "study-s" / "report.json").write_text("{ not json")
     assert estimate(tmp_path, "s", "q3t", 0.01, None)["reason"] == "no_study"
+
+
+@pytest.mark.parametrize("scene,from_file,command", [
+    ("cantilever", False, "q3t study {scene}"),
+    # the shell obstacle course's scenes: `q3t study SCENE` refuses their patches (by cells)
+    ("scordelis_lo", False, "q3t study --course"),
+    ("pinched_cylinder", False, "q3t study --course"),
+    ("pinched_hemisphere", False, "q3t study --course"),
+    ("cantilever", True, None),  # its blank read from a mesh file: nothing to refine
+])
+def test_the_estimate_names_the_command_that_studies_the_scene(tmp_path, scene, from_file,
+                                                               command):
+    from server.estimate import study_command
+    from sim.scene.load import scene_from_toml
+
+    text = (ROOT / "scenes" / f"{scene}.toml").read_text()
+    if from_file:
+        (tmp_path / "plate.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nf 1 2 3\n")
+        text = file_scene("plate.obj")
+    sc = scene_from_toml(text, folder=tmp_path)
+    assert study_command(sc) == command
+    est = estimate(tmp_path, scene, "q3t", None, None, command=command)
+    assert not est["available"] and est["reason"] == "no_study"
+    if command is None:
+        assert "`" not in est["text"] and "no study refines its mesh" in est["text"]
+    elif command.endswith("--course"):
+        assert est["text"].startswith("no study for this scene: run `q3t study --course` (")
+    else:
+        assert est["text"] == "no study for this scene: run `q3t study cantilever`"
+
+
+def test_a_course_scene_is_estimated_from_the_shell_course_report(tmp_path):
+    """A course scene's run against the published value, from the row of its element and
+    cells per side in the newest ``q3t study --course`` report; a refinement study found under
+    its name is not used (its levels are edge lengths, the scene's cells per side)."""
+    (tmp_path / "study-scordelis_lo").mkdir()
+    (tmp_path / "study-scordelis_lo" / "report.json").write_text(json.dumps(report(
+        "scordelis_lo")))
+    (tmp_path / "course").mkdir()
+    rows = [{"scene": "scordelis_lo", "element": "q3t", "cells": 16, "status": "converged",
+             "probe": 0.98 * -0.3024, "ratio": 0.98},
+            {"scene": "scordelis_lo", "element": "quadratic", "cells": 64, "status": "skipped"},
+            {"scene": "pinched_cylinder", "element": "q3t", "cells": 16, "ratio": 0.5}]
+    (tmp_path / "course" / "report.json").write_text(json.dumps(rows))
+    course = {"command": "q3t study --course"}
+    est = estimate(tmp_path, "scordelis_lo", "q3t", None, None, **course, cells=16)
+    assert est["available"] and est["relative_error"] == pytest.approx(0.02, rel=1e-12)
+    assert est["reference"]["value"] == pytest.approx(-0.3024, rel=1e-12)
+    assert est["text"].startswith("error estimate: 2 % vs the published value (shell obstacle "
+                                  "course of ")
+    est = estimate(tmp_path, "scordelis_lo", "linear", None, None, **course, cells=16)
+    assert not est["available"] and est["reason"] == "element_not_studied"
+    assert est["text"].endswith("has no linear result at 16 cells per side: run "
+                                "`q3t study --course --elements linear --cells 16`")
+    est = estimate(tmp_path, "scordelis_lo", "quadratic", None, None, **course, cells=64)
+    assert est["reason"] == "no_error"  # the case was left out (its size)
+    assert estimate(tmp_path, "pinched_hemisphere", "q3t", None, None, **course,
+                    cells=16)["reason"] == "no_study"

@@ -1,0 +1,225 @@
+"""A forming engineer's own inputs from the page (issue 18) in Debian's chromium (Playwright),
+against the real server in a subprocess, each a run of a few steps on a coarse mesh:
+
+- an outline drawing (SVG, a hole in it) uploaded for the blank from the form, run;
+- the material's Hill48 fields (r-values, rolling direction) edited in the form, with their
+  units and descriptions, and run as unsaved edits;
+- a Hill48 cup drawn through its die shows its rim height around the axis, in mm;
+- tool meshes in the scenes folder offered for a mesh tool's surface, each labelled with its
+  kind (tool mesh, blank mesh).
+
+Screenshots of each go to $Q3T_SHOTS (default /tmp/shots-forming-inputs)."""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from pathlib import Path
+
+import httpx
+import pytest
+import trimesh
+
+from tests.support.browser import serve
+from tests.support.scenes import PRESS_TOML, tiny_cup_toml
+from tests.support.service import ENDED, until
+
+SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-forming-inputs"))
+pytestmark = pytest.mark.browser
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
+# the press in 2 steps, its centre held by the vertices within 3 mm (an outline's unstructured
+# mesh has none within the press's 1 mm)
+PRESS = PRESS_TOML.replace("steps = 3", "steps = 2").replace(
+    "min = [-0.001, -0.001, -1.0], max = [0.001, 0.001, 1.0]",
+    "min = [-0.003, -0.003, -1.0], max = [0.003, 0.003, 1.0]")
+# a 20 x 20 mm blank (drawing units mm) with a 3 mm hole off the punch
+SVG = ('<svg xmlns="http://www.w3.org/2000/svg" viewBox="-10 -10 20 20">'
+       '<path d="M -10 -10 H 10 V 10 H -10 Z"/><circle cx="6" cy="6" r="1.5"/></svg>')
+HILL = {"r0": 0.663, "r45": 0.86, "r90": 0.717}  # AA5754-O (scenes/cup_drawing_aa5754.toml)
+# the tiny cup as a Hill48 sheet drawn through its die: a 15 mm blank, 8 mm of stroke in 4
+# steps (a few seconds), its whole edge up the wall, so the summary has its rim
+EARS = tiny_cup_toml(4).replace('name = "tiny_cup"', 'name = "ears"').replace(
+    "r_outer = 0.012\nedge_length = 0.003", "r_outer = 0.0075\nedge_length = 0.0035").replace(
+    'flc = { kind = "keeler_brazier", n = 0.2 }',
+    'flc = { kind = "keeler_brazier", n = 0.2 }\n'
+    'hill48 = { r0 = 0.663, r45 = 0.86, r90 = 0.717, rolling_angle = 0.0 }').replace(
+    "velocity = [0.0, 0.0, -0.002]", "velocity = [0.0, 0.0, -0.008]")
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """The server's url and its folder (scenes/, runs/), without the viewer: the press and
+    the Hill48 cup."""
+    tmp = tmp_path_factory.mktemp("forming-inputs")
+    os.environ["Q3T_CACHE"] = str(tmp / "cache")  # the server inherits it: no user's cache
+    try:
+        with serve(tmp, {"press": PRESS, "ears": EARS}, "press", "--no-viewer") as (url, _):
+            yield url, tmp
+    finally:
+        del os.environ["Q3T_CACHE"]
+
+
+def open_scene(open_page, url: str, scene: str, ready: str):
+    """The page with ``scene`` chosen and its form showing ``ready``. A scene's entry is
+    marked chosen once its form is built; a click on the chosen one would build it again,
+    after the test's first edits, so only another scene is clicked."""
+    page = open_page(url, "#scenes li.sel")
+    if page.get_attribute("#scenes li.sel", "data-name") != scene:
+        page.click(f"#scenes li[data-name='{scene}']")
+        page.wait_for_selector(f"#scenes li.sel[data-name='{scene}']")
+    page.wait_for_selector(ready)
+    return page
+
+
+def upload(page, field: str, path: Path) -> str:
+    """Upload ``path`` with the field's Upload button; the form's word on it."""
+    with page.expect_file_chooser() as chooser:
+        page.click(f"[data-path='{field}'] button.upload")
+    chooser.value.set_files(str(path))
+    said = f"[data-path='{field}'] .upload-status"
+    page.wait_for_function(f"""() => /^(uploaded|.*:)/.test(
+        document.querySelector("{said}").textContent)""")
+    return page.inner_text(said)
+
+
+def synced(page, *texts: str) -> None:
+    """The TOML view holds ``texts`` once the server has converted the form's edits (a
+    hang guard's failure says what the page shows instead)."""
+    try:
+        page.wait_for_function("ts => ts.every((t) => document.getElementById('toml').value"
+                               ".includes(t)) && document.getElementById('sync').textContent"
+                               " === 'valid'", arg=list(texts))
+    except sync_api.TimeoutError:
+        errors = page.locator("#scene-form .field-error").all_inner_texts()
+        raise AssertionError(f"the form never synced {texts}: sync "
+                             f"{page.inner_text('#sync')!r}, errors {[e for e in errors if e]}, "
+                             f"TOML:\n{page.input_value('#toml')}") from None
+
+
+def started_run(page, url: str) -> dict:
+    """Start a run with the page's button: its status once it has ended (a hang guard's
+    failure says what the page and the run showed last)."""
+    before = {r["id"] for r in httpx.get(url + "/api/runs").json()}
+    page.click("#start")
+    seen: dict = {}
+
+    def ended() -> dict | None:
+        runs = [r["id"] for r in httpx.get(url + "/api/runs").json() if r["id"] not in before]
+        st = httpx.get(f"{url}/api/runs/{runs[0]}").json() if runs else {}
+        seen.update(message=page.inner_text("#msg"), **{k: st.get(k) for k in (
+            "id", "state", "step", "reason")})
+        return st if st.get("state") in ENDED else None
+
+    try:
+        return until(ended, "")
+    except AssertionError:
+        raise AssertionError(f"the run never ended, last seen: {seen}") from None
+
+
+def shot(page, name: str, where: str = "#left") -> None:
+    page.locator(where).screenshot(path=str(SHOTS / name))
+
+
+def test_an_outline_drawing_uploaded_for_the_blank_runs(open_page, served):
+    url, tmp = served
+    drawing = tmp / "Blank with hole.svg"
+    drawing.write_text(SVG)
+    page = open_scene(open_page, url, "press", "[name='mesh.kind']")
+    page.select_option("[name='mesh.kind']", "outline")
+    page.wait_for_selector("[data-path='mesh.path'] select.file-select")
+    page.uncheck("[data-path='mesh.path'] input.unset")
+    assert upload(page, "mesh.path", drawing) == (
+        "uploaded Blank_with_hole.svg: outline drawing: 1 hole")
+    page.fill("[name='mesh.scale']", "0.001")  # the drawing's mm
+    page.fill("[name='mesh.edge_length']", "4")  # mm, as the form shows lengths
+    synced(page, 'path = "Blank_with_hole.svg"', "scale = 0.001", "edge_length = 0.004")
+    page.locator("[data-path='mesh.path']").scroll_into_view_if_needed()
+    shot(page, "1-outline-uploaded.png")
+    st = started_run(page, url)
+    assert st["state"] == "finished", st["reason"]
+    built = httpx.get(f"{url}/api/runs/{st['id']}/result").json()["built"]["mesh"]
+    assert built["vertices"] > 20, built  # the drawing's blank, not the press's rectangle
+    assert st["records"][-1]["probes"]["punch_force"] > 0
+    page.wait_for_function("([id]) => { const s = document.getElementById('summary');"
+                           " return s.dataset.run === id && s.dataset.ready === 'true'; }",
+                           arg=[st["id"]])  # its summary drawn: the run ended on the page too
+    shot(page, "2-outline-run.png", "body")
+
+
+def test_hill48_fields_edited_in_the_form_run(open_page, served):
+    url, _ = served
+    page = open_scene(open_page, url, "press", "[name='material.E']")
+    hill = "material.hill48"
+    page.uncheck(f"fieldset[data-path='{hill}'] > legend input.unset")
+    for name, value in HILL.items():
+        page.uncheck(f"[data-path='{hill}.{name}'] input.unset")
+        page.fill(f"[name='{hill}.{name}']", str(value))
+        # dimensionless: no unit, and the name's tooltip says what it is
+        assert page.locator(f"[data-path='{hill}.{name}'] .unit").count() == 0
+        title = page.get_attribute(f"[data-path='{hill}.{name}'] .key", "title")
+        assert "r-value" in title and "rolling direction" in title, title
+    page.uncheck(f"[data-path='{hill}.rolling_angle'] input.unset")
+    page.fill(f"[name='{hill}.rolling_angle']", "30")
+    assert page.inner_text(f"[data-path='{hill}.rolling_angle'] .unit") == "deg"
+    synced(page, "hill48", "r45 = 0.86", "rolling_angle = 30")
+    page.focus(f"[name='{hill}.r45']")
+    page.locator(f"fieldset[data-path='{hill}']").scroll_into_view_if_needed()
+    shot(page, "3-hill48-fields.png")
+    st = started_run(page, url)
+    assert st["state"] == "finished", st["reason"]
+    assert st["edited"]  # the form's edits ran, the saved scene is as it was
+    ran = tomllib.loads(httpx.get(f"{url}/api/runs/{st['id']}/scene").text)
+    hill48 = ran["material"]["hill48"]
+    assert {k: hill48[k] for k in [*HILL, "rolling_angle"]} == {**HILL, "rolling_angle": 30.0}
+    assert "hill48" not in httpx.get(f"{url}/api/scenes/press").json()["toml"]
+
+
+def test_a_hill48_cup_shows_its_rim_height_around_the_axis_in_mm(open_page, served):
+    url, _ = served
+    page = open_scene(open_page, url, "ears", "[name='material.hill48.r0']")
+    st = started_run(page, url)
+    assert st["state"] == "finished", st["reason"]
+    page.wait_for_selector("#rim-fig:not([hidden])")
+    summary = {e["name"]: e for e in httpx.get(f"{url}/api/runs/{st['id']}/summary").json()
+               ["summary"]}
+    largest = summary["max_rim_height"]["display"]
+    assert largest["unit"] == "mm"
+    plot = page.evaluate("""() => { const d = document.getElementById('rim-plot');
+        return { y: d.data[0].y, x: d.data[0].x, ytitle: d.layout.yaxis.title.text,
+                 xtitle: d.layout.xaxis.title.text }; }""")
+    assert plot["ytitle"] == "rim height (mm)" and "(deg)" in plot["xtitle"]
+    assert max(plot["y"]) == pytest.approx(largest["value"], rel=1e-9)
+    # the rim of a cup drawn 8 mm: millimetres up the wall, not metres, all round
+    assert 1 < min(plot["y"]) <= max(plot["y"]) < 8, plot["y"]
+    assert min(plot["x"]) >= 0 and max(plot["x"]) <= 360 and plot["x"] == sorted(plot["x"])
+    card = page.locator("#summary .quantity[data-name='earing'] .value").inner_text()
+    assert card.endswith(" %"), card
+    page.locator("#rim-fig").scroll_into_view_if_needed()
+    page.wait_for_timeout(500)  # the plot settles
+    shot(page, "4-rim-height.png", "body")
+
+
+def test_tool_meshes_are_offered_for_a_mesh_tool_labelled_by_kind(open_page, served):
+    url, tmp = served
+    punch = trimesh.creation.cylinder(radius=0.004, height=0.01, sections=48)
+    sheet = trimesh.creation.box([0.01, 0.01, 0.001])
+    for name, mesh, kind in (("punch.stl", punch, "tool"),
+                             ("sheet.obj", trimesh.Trimesh(sheet.vertices, sheet.faces[:2]),
+                              "blank")):
+        r = httpx.post(f"{url}/api/files", params={"name": name, "kind": kind},
+                       content=mesh.export(file_type=Path(name).suffix[1:]))
+        assert r.status_code == 201, r.text
+    field = "tools.1.shape.path"  # the press's punch
+    page = open_scene(open_page, url, "press", "[name='tools.1.shape.kind']")
+    page.select_option("[name='tools.1.shape.kind']", "mesh")
+    page.wait_for_function(f"""() => document.querySelectorAll(
+        "[name='{field}'] option").length > 2""")
+    options = page.locator(f"[name='{field}'] option").all_inner_texts()
+    # the field's own kind first, each with its kind in words
+    sheet = httpx.get(f"{url}/api/files/sheet.obj").json()
+    assert options[1:] == ["punch.stl (tool mesh: 98 vertices, 192 triangles)",
+                           f"sheet.obj (blank mesh: {sheet['vertices']} vertices, 2 triangles)"]
+    page.select_option(f"[name='{field}']", "punch.stl")
+    synced(page, 'path = "punch.stl"')
+    page.locator(f"[data-path='{field}']").scroll_into_view_if_needed()
+    shot(page, "5-tool-meshes.png")
