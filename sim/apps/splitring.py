@@ -16,6 +16,8 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from sim.apps.common import BAD_INPUT, FAILED, OK
 from sim.apps.study_report import markdown_table
 from sim.stamp import Stamp, add_results_option, write_results
@@ -72,19 +74,27 @@ def text(s: dict) -> str:
     return "\n".join(lines)
 
 
-def save(folder: Path, res: object) -> None:
-    """The summary into the run's result.json (``split_ring``) and the ring's states into
-    split_ring.npz."""
-    from sim.frames import results, series
+def save(folder: Path, res: object, ep: np.ndarray) -> None:
+    """The summary into the run's result.json (``split_ring``), the ring's states into
+    split_ring.npz and, for ParaView, each state as ``split_ring/ring_<state>.vtu`` (mm, the
+    formed equivalent plastic strain ``ep`` per ring element)."""
+    from sim.frames import export, results, series
 
     path = folder / "result.json"
     data = json.loads(path.read_text()) if path.is_file() else {}
     data["split_ring"] = res.summary
     results.write(path, data)
     sh = res.ring.shell
+    skins = series.skins(res.ring)
     series.save_npz(folder / "split_ring.npz", rest=sh.rest, conn=sh.conn, faces=sh.mesh.faces,
-                    skins=series.skins(res.ring), elements=res.ring.elements,
-                    twins=res.ring.twins, **res.states)
+                    skins=skins, elements=res.ring.elements, twins=res.ring.twins,
+                    **res.states)
+    (folder / "split_ring").mkdir(exist_ok=True)
+    rest = sh.rest[skins.ravel()] * export.MM
+    for i, (name, x) in enumerate(res.states.items()):
+        state = export.State(i, 0.0, x[skins.ravel()] * export.MM, rest, {},
+                             {"eq_plastic_strain": ep})
+        export.vtu(state, sh.mesh.faces, folder / "split_ring" / f"ring_{name}.vtu")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -111,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
         except RuntimeError as exc:
             print(f"q3t splitring: {folder}: FAILED: {exc}", file=sys.stderr)
             return FAILED
-        save(folder, res)
+        save(folder, res, fm.ep[res.ring.elements].mean(1))
         print(f"{folder}:\n{text(res.summary)}")
         rows.append(row(folder, fm.scene, res.summary))
     body = (f"The split-ring test (sim.stepping.split_ring) on each run's final state: the "

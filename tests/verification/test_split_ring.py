@@ -89,6 +89,10 @@ def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
     assert s["heights"] == [0.0, 0.002] and s["opening"]["at_mid_height"] > 0
     with np.load(run / "split_ring.npz") as z:
         assert z["split"].shape == z["rest"].shape == (s["nodes"], 3)
+    import meshio
+
+    vtu = meshio.read(run / "split_ring" / "ring_split.vtu")
+    assert vtu.cells[0].type == "wedge" and len(vtu.cells[0].data) == s["elements"]
     assert "opening [mm]" in out.read_text() and "commit" in out.read_text()
     assert f"{1e3 * s['opening']['at_mid_height']:.3f}" in capsys.readouterr().out
 
