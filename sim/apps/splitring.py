@@ -2,10 +2,11 @@
 (sim.stepping.split_ring): a ring cut from each run's wall between two heights, released,
 split along a meridian and released again; its opening and diameters.
 
-Each run's result goes into its result.json (``split_ring``, SI) and its ring's states into
-``split_ring.npz`` beside it (the ring's rest, formed, released and split positions, its
-elements and the skins of its mid-surface vertices); the table of all runs to stdout and, with
-``--results``, to a stamped file.
+Each ring's result goes into its run's result.json (``split_ring``, a list, SI) and its states
+into ``split_ring-<z1>-<z2>mm.npz`` beside it (the ring's rest, formed, released and split
+positions, its elements and the skins of its mid-surface vertices) and as VTU in the folder of
+that name; the table of all runs and rings to stdout and, with ``--results``, to a stamped
+file.
 """
 
 from __future__ import annotations
@@ -74,27 +75,35 @@ def text(s: dict) -> str:
     return "\n".join(lines)
 
 
+def name_of(s: dict) -> str:
+    """A ring's name from its heights: ``split_ring-8-13mm``."""
+    return f"split_ring-{1e3 * s['heights'][0]:g}-{1e3 * s['heights'][1]:g}mm"
+
+
 def save(folder: Path, res: object, ep: np.ndarray) -> None:
-    """The summary into the run's result.json (``split_ring``), the ring's states into
-    split_ring.npz and, for ParaView, each state as ``split_ring/ring_<state>.vtu`` (mm, the
-    formed equivalent plastic strain ``ep`` per ring element)."""
+    """The summary into the run's result.json (``split_ring``: one entry per ring, the same
+    heights replaced), the ring's states into ``<ring>.npz`` and, for ParaView, each state as
+    ``<ring>/ring_<state>.vtu`` (mm, the formed equivalent plastic strain ``ep`` per ring
+    element); ``<ring>``: :func:`name_of`."""
     from sim.frames import export, results, series
 
     path = folder / "result.json"
     data = json.loads(path.read_text()) if path.is_file() else {}
-    data["split_ring"] = res.summary
+    rings = [r for r in data.get("split_ring", []) if r["heights"] != res.summary["heights"]]
+    data["split_ring"] = sorted([*rings, res.summary], key=lambda r: r["heights"])
     results.write(path, data)
     sh = res.ring.shell
     skins = series.skins(res.ring)
-    series.save_npz(folder / "split_ring.npz", rest=sh.rest, conn=sh.conn, faces=sh.mesh.faces,
+    name = name_of(res.summary)
+    series.save_npz(folder / f"{name}.npz", rest=sh.rest, conn=sh.conn, faces=sh.mesh.faces,
                     skins=skins, elements=res.ring.elements, twins=res.ring.twins,
                     **res.states)
-    (folder / "split_ring").mkdir(exist_ok=True)
+    (folder / name).mkdir(exist_ok=True)
     rest = sh.rest[skins.ravel()] * export.MM
-    for i, (name, x) in enumerate(res.states.items()):
-        state = export.State(i, 0.0, x[skins.ravel()] * export.MM, rest, {},
+    for i, (state, x) in enumerate(res.states.items()):
+        shown = export.State(i, 0.0, x[skins.ravel()] * export.MM, rest, {},
                              {"eq_plastic_strain": ep})
-        export.vtu(state, sh.mesh.faces, folder / "split_ring" / f"ring_{name}.vtu")
+        export.vtu(shown, sh.mesh.faces, folder / name / f"ring_{state}.vtu")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -104,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
 
     stamp = Stamp.begin(args.command)
     try:
-        z1, z2 = parse_heights(args.heights)
+        bands = [parse_heights(h) for h in args.heights or [HEIGHTS]]
         if not math.isfinite(args.cut_angle):
             raise ValueError("--cut-angle: must be a finite angle in degrees")
         formed = [(Path(f), open_formed(Path(f))) for f in args.runs]
@@ -113,24 +122,25 @@ def run(args: argparse.Namespace) -> int:
         return BAD_INPUT
     rows = []
     for folder, fm in formed:
-        try:
-            res = split_ring(fm, z1, z2, math.radians(args.cut_angle))
-        except SplitRingError as exc:
-            print(f"q3t splitring: {folder}: {exc}", file=sys.stderr)
-            return BAD_INPUT
-        except RuntimeError as exc:
-            print(f"q3t splitring: {folder}: FAILED: {exc}", file=sys.stderr)
-            return FAILED
-        save(folder, res, fm.ep[res.ring.elements].mean(1))
-        print(f"{folder}:\n{text(res.summary)}")
-        rows.append(row(folder, fm.scene, res.summary))
-    body = (f"The split-ring test (sim.stepping.split_ring) on each run's final state: the "
-            f"ring cut at {args.heights} mm above the cup's bottom, split along the meridian "
-            f"at {args.cut_angle:g} degrees from the rolling direction (x); the opening is the "
-            "gap between the cut's faces along the circumference at the ring's mid-height; "
-            "D the mean diameter (a least-squares circle through the mid-surface) formed "
-            "(in the tools), released (the closed ring cut out) and split, and the split "
-            "ring's diameters at 0 and 90 degrees to the cut.\n\n"
+        for z1, z2 in bands:
+            try:
+                res = split_ring(fm, z1, z2, math.radians(args.cut_angle))
+            except SplitRingError as exc:
+                print(f"q3t splitring: {folder}: {exc}", file=sys.stderr)
+                return BAD_INPUT
+            except RuntimeError as exc:
+                print(f"q3t splitring: {folder}: FAILED: {exc}", file=sys.stderr)
+                return FAILED
+            save(folder, res, fm.ep[res.ring.elements].mean(1))
+            print(f"{folder}:\n{text(res.summary)}")
+            rows.append(row(folder, fm.scene, res.summary))
+    body = (f"The split-ring test (sim.stepping.split_ring) on each run's final state: rings "
+            "cut between the heights given (mm above the cup's bottom), split along the "
+            f"meridian at {args.cut_angle:g} degrees from the rolling direction (x); the "
+            "opening is the gap between the cut's faces along the circumference at the ring's "
+            "mid-height; D the mean diameter (a least-squares circle through the mid-surface) "
+            "formed (in the tools), released (the closed ring cut out) and split, and the "
+            "split ring's diameters at 0 and 90 degrees to the cut.\n\n"
             + markdown_table(rows, COLS))
     print(body)
     if args.results:
@@ -144,9 +154,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                          "ring cut from the wall, split and released")
     s.add_argument("runs", nargs="+", metavar="RUN",
                    help="run folders (q3t run --out) of plastic cups")
-    s.add_argument("--heights", default=HEIGHTS, metavar="Z1,Z2",
-                   help="the ring's lower and upper edge, mm above the cup's bottom (default "
-                        "%(default)s)")
+    s.add_argument("--heights", action="append", metavar="Z1,Z2",
+                   help="a ring's lower and upper edge, mm above the cup's bottom; repeat for "
+                        f"more rings (default {HEIGHTS})")
     s.add_argument("--cut-angle", type=float, default=0.0, metavar="DEG",
                    help="the split's meridian, degrees about z from x (the rolling direction; "
                         "default %(default)g)")

@@ -85,16 +85,20 @@ def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
     assert main(["splitring", str(run), "--heights", "0,2", "--results", str(out)]) == 0
     res = json.loads((run / "result.json").read_text())
     assert res["scene"] == "ring"  # the run's result kept, the ring's added
-    s = res["split_ring"]
+    (s,) = res["split_ring"]
     assert s["heights"] == [0.0, 0.002] and s["opening"]["at_mid_height"] > 0
-    with np.load(run / "split_ring.npz") as z:
+    with np.load(run / "split_ring-0-2mm.npz") as z:
         assert z["split"].shape == z["rest"].shape == (s["nodes"], 3)
     import meshio
 
-    vtu = meshio.read(run / "split_ring" / "ring_split.vtu")
+    vtu = meshio.read(run / "split_ring-0-2mm" / "ring_split.vtu")
     assert vtu.cells[0].type == "wedge" and len(vtu.cells[0].data) == s["elements"]
     assert "opening [mm]" in out.read_text() and "commit" in out.read_text()
     assert f"{1e3 * s['opening']['at_mid_height']:.3f}" in capsys.readouterr().out
+    # another ring is added, the same ring again replaces its entry
+    assert main(["splitring", str(run), "--heights", "0,2", "--heights", "0,1.5"]) == 0
+    res = json.loads((run / "result.json").read_text())
+    assert [r["heights"] for r in res["split_ring"]] == [[0.0, 0.0015], [0.0, 0.002]]
 
 
 @pytest.mark.parametrize("args, field", [
