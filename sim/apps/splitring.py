@@ -33,7 +33,7 @@ COLS = [("run", "run", ""), ("material", "material", ""), ("edge", "edge [mm]", 
         ("opening", "opening [mm]", ".3f"), ("d_formed", "D formed [mm]", ".3f"),
         ("d_released", "D released [mm]", ".3f"), ("d_split", "D split [mm]", ".3f"),
         ("d0", "D split 0 deg [mm]", ".3f"), ("d90", "D split 90 deg [mm]", ".3f"),
-        ("reyield", "re-yield", "")]
+        ("reyield", "re-yield: points, largest growth of the plastic strain", "")]
 
 
 def parse_heights(text: str) -> tuple[float, float]:
@@ -59,7 +59,8 @@ def row(folder: Path, scene: object, s: dict) -> dict:
             "d_formed": 1e3 * d["formed"]["mean"], "d_released": 1e3 * d["released"]["mean"],
             "d_split": 1e3 * d["split"]["mean"], "d0": 1e3 * d["split"]["d0"],
             "d90": 1e3 * d["split"]["d90"],
-            "reyield": ", ".join(k for k, v in s["reyield"].items() if v) or "none"}
+            "reyield": ", ".join(f"{k} {100 * v['fraction']:.1f} % (+{v['max']:.1e})"
+                                 for k, v in s["reyield"].items())}
 
 
 def text(s: dict) -> str:
