@@ -41,7 +41,7 @@ from sim.elements import get_element
 from sim.frames.fields import mid_surface
 from sim.geometry.rigid import determinate_support
 from sim.geometry.shell import Shell, extrude
-from sim.geometry.trimesh import TriMesh, edges
+from sim.geometry.trimesh import TriMesh, patches, small_patches
 from sim.model import terms as parts
 from sim.model.build import newton_settings
 from sim.model.sheet import mesh_and_thickness, rule_of
@@ -153,36 +153,18 @@ def _sub_shell(shell: Shell, faces: np.ndarray, copy: np.ndarray, below: np.ndar
     return Ring(sub, nodes, np.asarray(faces), np.array(pairs, np.int64).reshape(-1, 2))
 
 
-def _edge_attached(faces: np.ndarray) -> np.ndarray:
-    """Faces ``(n_f, 3)`` that share an edge with another face: a triangle held by a vertex
-    only has spurious modes under Q3T's one-point rule (sim.elements.q3t)."""
-    _, fe = edges(faces)
-    count = np.bincount(fe.ravel(), minlength=fe.max() + 1)
-    return (count[fe] > 1).any(1)
-
-
 def _prune(shell: Shell, keep: np.ndarray) -> np.ndarray:
-    """``keep (n_elem,) bool`` without the elements that hang on by a vertex, repeated until
-    none does."""
+    """``keep (n_elem,) bool`` without the patches of one or two elements that hang on by a
+    vertex (they have spurious modes under Q3T's one-point rule, sim.elements.q3t; a run
+    takes the 3 x 3 rule for a mesh with such patches, sim.model.sheet, but the ring keeps the
+    run's rule), repeated until none is left."""
     keep = keep.copy()
     while True:
         ids = np.flatnonzero(keep)
-        ok = _edge_attached(shell.mesh.faces[ids])
-        if ok.all():
+        small = small_patches(shell.mesh.faces[ids])
+        if not len(small):
             return keep
-        keep[ids[~ok]] = False
-
-
-def _connected(faces: np.ndarray) -> int:
-    """The number of edge-connected pieces of ``faces``."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    _, fe = edges(faces)
-    n_f = len(faces)
-    f = np.repeat(np.arange(n_f), 3)
-    adj = coo_matrix((np.ones(3 * n_f), (f, fe.ravel())), shape=(n_f, fe.max() + 1)).tocsr()
-    return connected_components(adj @ adj.T, directed=False)[0]
+        keep[ids[small]] = False
 
 
 def heights(formed: Formed) -> tuple[np.ndarray, float, float, np.ndarray]:
@@ -194,7 +176,8 @@ def heights(formed: Formed) -> tuple[np.ndarray, float, float, np.ndarray]:
     c = mid[F].mean(1)
     n = np.cross(mid[F[:, 1]] - mid[F[:, 0]], mid[F[:, 2]] - mid[F[:, 0]])
     n /= np.linalg.norm(n, axis=1)[:, None]
-    return c, float(mid[:, 2].min()), float(mid[:, 2].max()), np.degrees(np.arccos(np.clip(np.abs(n[:, 2]), 0, 1)))
+    tilt = np.degrees(np.arccos(np.clip(np.abs(n[:, 2]), 0, 1)))
+    return c, float(mid[:, 2].min()), float(mid[:, 2].max()), tilt
 
 
 def band(formed: Formed, z1: float, z2: float) -> np.ndarray:
@@ -223,7 +206,7 @@ def band(formed: Formed, z1: float, z2: float) -> np.ndarray:
     ids = np.flatnonzero(keep)
     angles = np.sort(np.arctan2(c[ids, 1], c[ids, 0]))
     gap = np.degrees(np.diff(np.concatenate([angles, angles[:1] + 2 * np.pi])).max())
-    if len(ids) < 3 or gap > 30.0 or _connected(formed.shell.mesh.faces[ids]) != 1:
+    if len(ids) < 3 or gap > 30.0 or patches(formed.shell.mesh.faces[ids]).max() > 0:
         raise SplitRingError(f"heights: {1e3 * z1:g}-{1e3 * z2:g} mm is not one closed ring "
                              "around the axis (a band that narrow misses elements: widen it)")
     return ids
@@ -248,7 +231,7 @@ def cut(formed: Formed, ids: np.ndarray, cut_angle: float = 0.0) -> Ring:
     np.logical_or.at(above, tri[~below].ravel(), True)
     copy = on & above & (pos[:, 0] * ca + pos[:, 1] * sa > 0)
     ring = _sub_shell(sh, ids, copy, below)
-    if not _edge_attached(ring.shell.mesh.faces).all() or _connected(ring.shell.mesh.faces) != 1:
+    if patches(ring.shell.mesh.faces).max() > 0:
         raise SplitRingError("heights: the split ring has elements hanging on by a vertex at "
                              "the cut: widen the band or move the cut (--cut-angle)")
     return ring
