@@ -29,7 +29,8 @@ from sim.stamp import Stamp, add_results_option, write_results
 HEIGHTS = "8,13"
 
 COLS = [("run", "run", ""), ("material", "material", ""), ("edge", "edge [mm]", "g"),
-        ("band", "ring [mm above the bottom]", ""), ("elements", "elements", "d"),
+        ("band", "ring [mm above the bottom]", ""), ("cut", "cut [deg]", "g"),
+        ("elements", "elements", "d"),
         ("opening", "opening [mm]", ".3f"), ("d_formed", "D formed [mm]", ".3f"),
         ("d_released", "D released [mm]", ".3f"), ("d_split", "D split [mm]", ".3f"),
         ("d0", "D split 0 deg [mm]", ".3f"), ("d90", "D split 90 deg [mm]", ".3f"),
@@ -55,6 +56,7 @@ def row(folder: Path, scene: object, s: dict) -> dict:
             "material": "Hill48" if scene.material.hill48 is not None else "von Mises",
             "edge": 1e3 * getattr(scene.mesh, "edge_length", math.nan),
             "band": f"{1e3 * s['heights'][0]:g}-{1e3 * s['heights'][1]:g}",
+            "cut": s["cut_angle"],
             "elements": s["elements"], "opening": 1e3 * s["opening"]["at_mid_height"],
             "d_formed": 1e3 * d["formed"]["mean"], "d_released": 1e3 * d["released"]["mean"],
             "d_split": 1e3 * d["split"]["mean"], "d0": 1e3 * d["split"]["d0"],
@@ -77,21 +79,25 @@ def text(s: dict) -> str:
 
 
 def name_of(s: dict) -> str:
-    """A ring's name from its heights: ``split_ring-8-13mm``."""
-    return f"split_ring-{1e3 * s['heights'][0]:g}-{1e3 * s['heights'][1]:g}mm"
+    """A ring's name from its heights and, when not 0, its cut's angle: ``split_ring-8-13mm``,
+    ``split_ring-8-13mm-45deg``."""
+    cut = f"-{s['cut_angle']:g}deg" if s["cut_angle"] else ""
+    return f"split_ring-{1e3 * s['heights'][0]:g}-{1e3 * s['heights'][1]:g}mm{cut}"
 
 
 def save(folder: Path, res: object, ep: np.ndarray) -> None:
     """The summary into the run's result.json (``split_ring``: one entry per ring, the same
-    heights replaced), the ring's states into ``<ring>.npz`` and, for ParaView, each state as
-    ``<ring>/ring_<state>.vtu`` (mm, the formed equivalent plastic strain ``ep`` per ring
-    element); ``<ring>``: :func:`name_of`."""
+    heights and cut replaced), the ring's states into ``<ring>.npz`` and, for ParaView, each
+    state as ``<ring>/ring_<state>.vtu`` (mm, the formed equivalent plastic strain ``ep`` per
+    ring element); ``<ring>``: :func:`name_of`."""
     from sim.frames import export, results, series
 
     path = folder / "result.json"
     data = json.loads(path.read_text()) if path.is_file() else {}
-    rings = [r for r in data.get("split_ring", []) if r["heights"] != res.summary["heights"]]
-    data["split_ring"] = sorted([*rings, res.summary], key=lambda r: r["heights"])
+    key = (res.summary["heights"], res.summary["cut_angle"])
+    rings = [r for r in data.get("split_ring", []) if (r["heights"], r["cut_angle"]) != key]
+    data["split_ring"] = sorted([*rings, res.summary],
+                                key=lambda r: (r["heights"], r["cut_angle"]))
     results.write(path, data)
     sh = res.ring.shell
     skins = series.skins(res.ring)
