@@ -39,6 +39,7 @@ import numpy as np
 
 from sim.elements import get_element
 from sim.frames.fields import mid_surface
+from sim.geometry.quadrature import Rule
 from sim.geometry.rigid import determinate_support
 from sim.geometry.shell import Shell, extrude
 from sim.geometry.trimesh import TriMesh, patches, small_patches
@@ -72,13 +73,13 @@ class Formed:
 
     scene: Scene
     shell: Shell
-    rule: object
+    rule: Rule
     x: np.ndarray
     fp_inv: np.ndarray
     ep: np.ndarray
 
 
-def sheet_of(scene: Scene) -> tuple[Shell, object]:
+def sheet_of(scene: Scene) -> tuple[Shell, Rule]:
     """The sheet's shell and quadrature rule as ``build_model`` makes them (no tools)."""
     elem = get_element(scene.shell.element)
     mesh, h, _ = mesh_and_thickness(scene)
@@ -114,9 +115,11 @@ def open_formed(folder: Path) -> Formed:
 class Ring:
     """The band cut from the part: its own shell (``nodes``: the part's node of each of its
     nodes, a duplicated node sharing its twin's), ``elements`` the part's element of each of
-    its elements; after :func:`split`, ``twins (k, 2)``: each duplicated mid-surface vertex
-    and its twin on the other face of the cut, the twin being the vertex on the side of the
-    cut above the meridian plane."""
+    its elements; ``twins (k, 2)``: per mid-surface vertex duplicated by :func:`cut`, the
+    vertex of the elements above the meridian plane and its copy, taken by those below (none
+    in a closed ring). In-plane nodes that are not vertices (a quadratic element's) are
+    numbered after the vertices but not edge by edge as ``extrude`` numbers them: nothing the
+    ring reads (its energy, its mid-surface and skins) depends on that."""
 
     shell: Shell
     nodes: np.ndarray
