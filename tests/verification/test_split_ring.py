@@ -140,3 +140,21 @@ def test_runs_without_what_the_stage_needs_are_rejected(tmp_path, capsys):
     assert main(["splitring", str(elastic)]) == 2
     err = capsys.readouterr().err
     assert "no plastic state (fp_inv, ep)" in err and "material.model is 'hencky'" in err
+
+
+def test_a_real_run_is_read_back_and_its_shallow_cup_has_no_wall(tmp_path, capsys):
+    """A run's own final.npz (Simulation.write): the mesh rebuilt from its scene matches, and
+    the tiny cup, drawn 2 mm with a 1.5 mm punch radius, is all radius and flange: a ring
+    there is refused, naming the heights."""
+    from sim.scene.load import scene_from_toml
+    from sim.stepping.simulation import Simulation
+    from tests.support.scenes import tiny_cup_toml
+
+    sim = Simulation.from_scene(scene_from_toml(tiny_cup_toml(2)))
+    assert sim.run()
+    sim.write(tmp_path)
+    formed = sr.open_formed(tmp_path)
+    np.testing.assert_array_equal(formed.x, sim.x[: sim.model.shell.n_nodes])
+    np.testing.assert_array_equal(formed.fp_inv, sim.model.elasticity.fp_inv)
+    assert main(["splitring", str(tmp_path), "--heights", "0.5,1.5"]) == 2
+    assert "is not all on the wall" in capsys.readouterr().err
