@@ -1,4 +1,4 @@
-"""The ``q3t`` command: run, export, bench, serve, play, study, springback, check."""
+"""The ``q3t`` command: run, export, bench, serve, play, study, springback, splitring, check."""
 
 from __future__ import annotations
 
@@ -7,7 +7,18 @@ import shlex
 import sys
 from importlib.metadata import entry_points
 
-from sim.apps import bench, check, export, meshtools, reference, run, springback, study, sweep
+from sim.apps import (
+    bench,
+    check,
+    export,
+    meshtools,
+    reference,
+    run,
+    splitring,
+    springback,
+    study,
+    sweep,
+)
 from sim.apps.common import BAD_INPUT
 
 # Entry-point group of commands from other installed packages, each an ``add_parser(sub)``:
@@ -30,7 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="q3t", description=__doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)
     # matplotlib and dask load only when run
-    for app in (run, export, reference, bench, study, springback, sweep, check, meshtools):
+    for app in (run, export, reference, bench, study, springback, splitring, sweep, check,
+                meshtools):
         app.add_parser(sub)
     add_plugins(sub)
     argv = sys.argv[1:] if argv is None else argv

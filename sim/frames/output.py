@@ -173,12 +173,19 @@ def write(sim: Run, out: Path) -> dict:
     run never leaves a half-written file, and the last frame of the run's series (when it saves
     one) unless saved already. Returns the result written. final.npz: the rest and deformed
     positions of every node, the faces, the element connectivity, each mid-surface vertex's
-    top and bottom skin node (``skins (2, n_v)``), the rest thickness and the result fields."""
+    top and bottom skin node (``skins (2, n_v)``), the rest thickness and the result fields;
+    what a later stage needs to go on from the state (``q3t splitring``): the validated scene
+    as JSON (``scene``, overrides applied) and, for a plastic material, the committed plastic
+    state per element and quadrature point (``fp_inv (n_elem, n_qp, 3, 3)``, ``ep (n_elem,
+    n_qp)``)."""
     out.mkdir(parents=True, exist_ok=True)
-    sh = sim.model.shell
+    m = sim.model
+    sh, el = m.shell, m.elasticity
+    plastic = {"fp_inv": el.fp_inv, "ep": el.ep} if el.plastic else {}
     series.save_npz(out / "final.npz", rest=sh.rest, deformed=sim.x[: sh.n_nodes],
-                    faces=sh.mesh.faces, conn=sh.conn, skins=series.skins(sim.model),
-                    rest_thickness=sim.h0, **fields.output_fields(sim.model, sim.x, sim.h0))
+                    faces=sh.mesh.faces, conn=sh.conn, skins=series.skins(m),
+                    rest_thickness=sim.h0, scene=np.array(m.scene.model_dump_json()),
+                    **plastic, **fields.output_fields(m, sim.x, sim.h0))
     res = sim.result()
     results.write(out / "result.json", res)
     if sim.series is not None:

@@ -301,9 +301,9 @@ def edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return uniq, inv.reshape(3, -1).T
 
 
-def small_patches(faces: np.ndarray, size: int = 2) -> np.ndarray:
-    """Faces in edge-connected patches of at most ``size`` faces (a lone triangle, a pair, or
-    such a patch hanging off the rest by a vertex only)."""
+def patches(faces: np.ndarray) -> np.ndarray:
+    """Per face, the label (0, 1, ...) of its edge-connected patch: faces that touch at a
+    vertex only are in different patches."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -311,7 +311,13 @@ def small_patches(faces: np.ndarray, size: int = 2) -> np.ndarray:
     n_f = len(faces)
     f = np.repeat(np.arange(n_f), 3)
     A = coo_matrix((np.ones(3 * n_f), (f, face_edges.ravel())))
-    _, label = connected_components(A @ A.T, directed=False)
+    return connected_components(A @ A.T, directed=False)[1]
+
+
+def small_patches(faces: np.ndarray, size: int = 2) -> np.ndarray:
+    """Faces in edge-connected patches of at most ``size`` faces (a lone triangle, a pair, or
+    such a patch hanging off the rest by a vertex only)."""
+    label = patches(faces)
     return np.flatnonzero(np.bincount(label)[label] <= size)
 
 

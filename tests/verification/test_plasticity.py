@@ -351,7 +351,8 @@ def test_elastic_scene_has_no_plastic_state():
 
 def test_result_files_carry_the_plastic_fields(tmp_path):
     """final.npz has per-vertex and per-element eq. plastic strain (accumulated and net), von
-    Mises stress, thickness and thinning; result.json their min / mean / max."""
+    Mises stress, thickness and thinning; result.json their min / mean / max. It keeps what a
+    later stage goes on from (q3t splitring): the scene and the committed plastic state."""
     import json
 
     sim = Simulation.from_scene(load_scene("scenes/plastic_bending.toml"))
@@ -369,6 +370,9 @@ def test_result_files_carry_the_plastic_fields(tmp_path):
     np.testing.assert_array_equal(npz["von_mises_elem"], el.von_mises(sim.x).mean(1))
     np.testing.assert_allclose(npz["thinning_pct"], 100 * (1 - npz["thickness"]
                                                            / npz["rest_thickness"]))
+    np.testing.assert_array_equal(npz["fp_inv"], el.fp_inv)
+    np.testing.assert_array_equal(npz["ep"], el.ep)
+    assert scene_from_dict(json.loads(str(npz["scene"]))) == m.scene
     fields = json.loads((tmp_path / "result.json").read_text())["fields"]
     assert fields["eq_plastic_strain"]["max"] == pytest.approx(npz["eq_plastic_strain"].max())
     assert fields["von_mises"]["mean"] == pytest.approx(npz["von_mises"].mean())

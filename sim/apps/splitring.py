@@ -1,0 +1,171 @@
+"""``q3t splitring``: the split-ring (Demeri) springback test on formed cups
+(sim.stepping.split_ring): a ring cut from each run's wall between two heights, released,
+split along a meridian and released again; its opening and diameters.
+
+Each ring's result goes into its run's result.json (``split_ring``, a list, SI) and its states
+into ``split_ring-<z1>-<z2>mm.npz`` beside it (the ring's rest, formed, released and split
+positions, its elements and the skins of its mid-surface vertices) and as VTU in the folder of
+that name; the table of all runs and rings to stdout and, with ``--results``, to a stamped
+file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from sim.apps.common import BAD_INPUT, FAILED, OK
+from sim.apps.study_report import markdown_table
+from sim.stamp import Stamp, add_results_option, write_results
+
+# a ring 5 mm high (Xia, Miller and Ren's rings, J. Manuf. Sci. Eng. 129 (2007) 352) from the
+# middle of the 1 mm cup's straight wall: its punch radius ends 5.5 mm above the bottom, the
+# die's shoulder begins 5 mm below the 30 mm stroke's rim (docs/split-ring.md)
+HEIGHTS = "8,13"
+
+COLS = [("run", "run", ""), ("material", "material", ""), ("edge", "edge [mm]", "g"),
+        ("band", "ring [mm above the bottom]", ""), ("cut", "cut [deg]", "g"),
+        ("elements", "elements", "d"),
+        ("opening", "opening [mm]", ".3f"), ("d_formed", "D formed [mm]", ".3f"),
+        ("d_released", "D released [mm]", ".3f"), ("d_split", "D split [mm]", ".3f"),
+        ("d0", "D split 0 deg [mm]", ".3f"), ("d90", "D split 90 deg [mm]", ".3f"),
+        ("reyield", "re-yield: points, largest growth of the plastic strain", "")]
+
+
+def parse_heights(text: str) -> tuple[float, float]:
+    """``"z1,z2"`` in mm -> (z1, z2) in m; ValueError naming ``--heights``."""
+    try:
+        z1, z2 = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--heights: {text!r} is not two comma-separated heights in mm "
+                         "(e.g. 8,13)") from None
+    if not (math.isfinite(z1) and math.isfinite(z2)):
+        raise ValueError(f"--heights: {text!r}: heights must be finite")
+    return 1e-3 * z1, 1e-3 * z2
+
+
+def row(folder: Path, scene: object, s: dict) -> dict:
+    """One line of the table (mm) from a run's split-ring summary ``s`` (SI)."""
+    d = s["diameters"]
+    return {"run": folder.name,
+            "material": "Hill48" if scene.material.hill48 is not None else "von Mises",
+            "edge": 1e3 * getattr(scene.mesh, "edge_length", math.nan),
+            "band": f"{1e3 * s['heights'][0]:g}-{1e3 * s['heights'][1]:g}",
+            "cut": s["cut_angle"],
+            "elements": s["elements"], "opening": 1e3 * s["opening"]["at_mid_height"],
+            "d_formed": 1e3 * d["formed"]["mean"], "d_released": 1e3 * d["released"]["mean"],
+            "d_split": 1e3 * d["split"]["mean"], "d0": 1e3 * d["split"]["d0"],
+            "d90": 1e3 * d["split"]["d90"],
+            "reyield": ", ".join(f"{k} {100 * v['fraction']:.1f} % (+{v['max']:.1e})"
+                                 for k, v in s["reyield"].items())}
+
+
+def text(s: dict) -> str:
+    """A run's split ring in words, mm."""
+    o, d = s["opening"], s["diameters"]
+    lines = [f"ring {1e3 * s['heights'][0]:g}-{1e3 * s['heights'][1]:g} mm above the bottom: "
+             f"{s['elements']} elements, {s['duplicated_nodes']} nodes duplicated on the cut",
+             f"opening at mid-height {1e3 * o['at_mid_height']:.3f} mm (along the cut "
+             f"{1e3 * o['min']:.3f} to {1e3 * o['max']:.3f} mm)"]
+    for name in ("formed", "released", "split"):
+        lines.append(f"diameter {name}: mean {1e3 * d[name]['mean']:.3f} mm, 0 deg "
+                     f"{1e3 * d[name]['d0']:.3f} mm, 90 deg {1e3 * d[name]['d90']:.3f} mm")
+    return "\n".join(lines)
+
+
+def name_of(s: dict) -> str:
+    """A ring's name from its heights and, when not 0, its cut's angle: ``split_ring-8-13mm``,
+    ``split_ring-8-13mm-45deg``."""
+    cut = f"-{s['cut_angle']:g}deg" if s["cut_angle"] else ""
+    return f"split_ring-{1e3 * s['heights'][0]:g}-{1e3 * s['heights'][1]:g}mm{cut}"
+
+
+def save(folder: Path, res: object, ep: np.ndarray) -> None:
+    """The summary into the run's result.json (``split_ring``: one entry per ring, the same
+    heights and cut replaced), the ring's states into ``<ring>.npz`` and, for ParaView, each
+    state as ``<ring>/ring_<state>.vtu`` (mm, the formed equivalent plastic strain ``ep`` per
+    ring element); ``<ring>``: :func:`name_of`."""
+    from sim.frames import export, results, series
+
+    path = folder / "result.json"
+    data = json.loads(path.read_text()) if path.is_file() else {}
+    key = (res.summary["heights"], res.summary["cut_angle"])
+    rings = [r for r in data.get("split_ring", []) if (r["heights"], r["cut_angle"]) != key]
+    data["split_ring"] = sorted([*rings, res.summary],
+                                key=lambda r: (r["heights"], r["cut_angle"]))
+    results.write(path, data)
+    sh = res.ring.shell
+    skins = series.skins(res.ring)
+    name = name_of(res.summary)
+    series.save_npz(folder / f"{name}.npz", rest=sh.rest, conn=sh.conn, faces=sh.mesh.faces,
+                    skins=skins, elements=res.ring.elements, twins=res.ring.twins,
+                    **res.states)
+    (folder / name).mkdir(exist_ok=True)
+    rest = sh.rest[skins.ravel()] * export.MM
+    for i, (state, x) in enumerate(res.states.items()):
+        shown = export.State(i, 0.0, x[skins.ravel()] * export.MM, rest, {},
+                             {"eq_plastic_strain": ep})
+        export.vtu(shown, sh.mesh.faces, folder / name / f"ring_{state}.vtu")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Exit 0 when every ring was released, 2 on bad input (before any solve), 1 when a
+    release failed."""
+    from sim.stepping.split_ring import SplitRingError, open_formed, split_ring
+
+    stamp = Stamp.begin(args.command)
+    try:
+        bands = [parse_heights(h) for h in args.heights or [HEIGHTS]]
+        if not math.isfinite(args.cut_angle):
+            raise ValueError("--cut-angle: must be a finite angle in degrees")
+        formed = [(Path(f), open_formed(Path(f))) for f in args.runs]
+    except (SplitRingError, ValueError) as exc:
+        print(f"q3t splitring: {exc}", file=sys.stderr)
+        return BAD_INPUT
+    rows = []
+    for folder, fm in formed:
+        for z1, z2 in bands:
+            try:
+                res = split_ring(fm, z1, z2, math.radians(args.cut_angle))
+            except SplitRingError as exc:
+                print(f"q3t splitring: {folder}: {exc}", file=sys.stderr)
+                return BAD_INPUT
+            except RuntimeError as exc:
+                print(f"q3t splitring: {folder}: FAILED: {exc}", file=sys.stderr)
+                return FAILED
+            save(folder, res, fm.ep[res.ring.elements].mean(1))
+            print(f"{folder}:\n{text(res.summary)}")
+            rows.append(row(folder, fm.scene, res.summary))
+    body = (f"The split-ring test (sim.stepping.split_ring) on each run's final state: rings "
+            "cut between the heights given (mm above the cup's bottom), split along the "
+            f"meridian at {args.cut_angle:g} degrees from the rolling direction (x); the "
+            "opening is the gap between the cut's faces along the circumference at the ring's "
+            "mid-height; D the mean diameter (a least-squares circle through the mid-surface) "
+            "formed (in the tools), released (the closed ring cut out) and split, and the "
+            "split ring's diameters at 0 and 90 degrees to the cut.\n\n"
+            + markdown_table(rows, COLS))
+    print(body)
+    if args.results:
+        write_results(args.results, "The split-ring test", body, stamp)
+        print(f"wrote {args.results}", file=sys.stderr)
+    return OK
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    s = sub.add_parser("splitring", help="the split-ring springback test on formed cups: a "
+                                         "ring cut from the wall, split and released")
+    s.add_argument("runs", nargs="+", metavar="RUN",
+                   help="run folders (q3t run --out) of plastic cups")
+    s.add_argument("--heights", action="append", metavar="Z1,Z2",
+                   help="a ring's lower and upper edge, mm above the cup's bottom; repeat for "
+                        f"more rings (default {HEIGHTS})")
+    s.add_argument("--cut-angle", type=float, default=0.0, metavar="DEG",
+                   help="the split's meridian, degrees about z from x (the rolling direction; "
+                        "default %(default)g)")
+    add_results_option(s, "split-ring.md")
+    s.set_defaults(func=run)
