@@ -81,6 +81,14 @@ class Tying:
         self.Gq = np.ascontiguousarray(np.einsum("eak,qai->eqki", Xe, self.dNq))
         self.A0 = np.ascontiguousarray(np.linalg.inv(self.Gq))
         self.Gt = np.ascontiguousarray(np.einsum("eak,ltai->eltki", Xe, self.dNt))
+        # the kernels form dN/dr, dN/ds once per level: a triangle linear in-plane has them
+        # the same at every point of a level, to the bit (they are dL/dr times the same Q(w))
+        for lev in range(len(levels)):
+            inplane = self.dNq[self.lev_ptr[lev], :, :2]
+            if not (all(np.array_equal(d[:, :2], inplane)
+                        for d in self.dNq[self.lev_ptr[lev]:self.lev_ptr[lev + 1]])
+                    and all(np.array_equal(d[:, :2], inplane) for d in self.dNt[lev])):
+                raise ValueError("assumed-strain elements need a prism linear in-plane")
 
 
 @njit(cache=True, inline='always')
@@ -93,6 +101,28 @@ def _nat_gradient(u: np.ndarray, dN: np.ndarray, Hn: np.ndarray) -> None:
         for k in range(3):
             for i in range(3):
                 Hn[k, i] += u[a, k] * dN[a, i]
+
+
+@njit(cache=True, inline='always')
+def _level_gradients(u: np.ndarray, dNq: np.ndarray, dNt: np.ndarray, Hs: np.ndarray) -> None:
+    """The displacement's reference gradient at a level's tying points ``dNt (3, n_en, 3)``
+    and points ``dNq (n_in, n_en, 3)`` into ``Hs (3 + n_in, 3, 3)``, as :func:`_nat_gradient`
+    forms it (the same sums in the same order): the in-plane columns once, as dN/dr and dN/ds
+    are the same at all of them (:class:`Tying` checks it)."""
+    n_t = dNt.shape[0]
+    for k in range(3):
+        for i in range(2):
+            acc = 0.0
+            for a in range(u.shape[0]):
+                acc += u[a, k] * dNq[0, a, i]
+            for t in range(Hs.shape[0]):
+                Hs[t, k, i] = acc
+        for t in range(Hs.shape[0]):
+            dN = dNt[t] if t < n_t else dNq[t - n_t]
+            acc = 0.0
+            for a in range(u.shape[0]):
+                acc += u[a, k] * dN[a, 2]
+            Hs[t, k, 2] = acc
 
 
 @njit(cache=True, inline='always')
@@ -338,26 +368,26 @@ def _add_point_tangent(Dv: np.ndarray, w: float, j: int, r: float, s: float,
 def _level_geometric(dNq: np.ndarray, dNt: np.ndarray, s_in: np.ndarray, s_ww: np.ndarray,
                      tA: float, tB: float, tC: float, Kg: np.ndarray) -> None:
     """Kg (upper, node b >= a) += the level's initial-stress term dN_a^T sig dN_b: the in-plane
-    stress ``s_in`` = (S_rr, S_ss, S_rs) summed over the level's points (dN/dr, dN/ds are the
-    same at all of them), ``s_ww`` (n_in,) at each point with its own dN/dw, and the tied shear
-    pair at the tying points with the weights of the interpolation (tA, tB, tC)."""
+    stress ``s_in`` = (S_rr, S_ss, S_rs) summed over the level's points, ``s_ww`` (n_in,) at
+    each point with its own dN/dw, and the tied shear pair at the tying points with the
+    weights of the interpolation (tA, tB, tC). dN/dr, dN/ds are the same at all of them
+    (:class:`Tying`), so the shear's terms are dN/dr (x) v_r + dN/ds (x) v_s and transposes,
+    v_r = (tA dN^A/dw - tC dN^C/dw) / 2, v_s = (tB dN^B/dw + tC dN^C/dw) / 2."""
     n = Kg.shape[0]
     srr, sss, srs = s_in[0], s_in[1], s_in[2]
     hA, hB, hC = 0.5 * tA, 0.5 * tB, 0.5 * tC
     for a in range(n):
         ar, as_ = dNq[0, a, 0], dNq[0, a, 1]
-        tr, ts = srr * ar + srs * as_, srs * ar + sss * as_
-        Ar, Aw = dNt[0, a, 0], dNt[0, a, 2]
-        Bs, Bw = dNt[1, a, 1], dNt[1, a, 2]
-        Cr, Cs, Cw = dNt[2, a, 0], dNt[2, a, 1], dNt[2, a, 2]
+        var = hA * dNt[0, a, 2] - hC * dNt[2, a, 2]
+        vas = hB * dNt[1, a, 2] + hC * dNt[2, a, 2]
+        tr, ts = srr * ar + srs * as_ + var, srs * ar + sss * as_ + vas
         for b in range(a, n):
-            acc = tr * dNq[0, b, 0] + ts * dNq[0, b, 1]
+            br, bs = dNq[0, b, 0], dNq[0, b, 1]
+            acc = (tr * br + ts * bs
+                   + (hA * dNt[0, b, 2] - hC * dNt[2, b, 2]) * ar
+                   + (hB * dNt[1, b, 2] + hC * dNt[2, b, 2]) * as_)
             for j in range(s_ww.shape[0]):
                 acc += s_ww[j] * dNq[j, a, 2] * dNq[j, b, 2]
-            acc += hA * (Ar * dNt[0, b, 2] + Aw * dNt[0, b, 0])
-            acc += hB * (Bs * dNt[1, b, 2] + Bw * dNt[1, b, 1])
-            acc += hC * (Cs * dNt[2, b, 2] + Cw * dNt[2, b, 1]
-                         - Cr * dNt[2, b, 2] - Cw * dNt[2, b, 0])
             Kg[a, b] += acc
 
 
@@ -399,10 +429,7 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
         n_in = lev_ptr[lev + 1] - q0
         nb = 6 + n_in
         Pl = P[lev * nbp:(lev + 1) * nbp]  # the level's rows; those past nb stay zero
-        for t in range(N_TIE):
-            _nat_gradient(u, dNt[lev, t], Hs[t])
-        for j in range(n_in):
-            _nat_gradient(u, dNq[q0 + j], Hs[3 + j])
+        _level_gradients(u, dNq[q0:q0 + n_in], dNt[lev], Hs)
         Gl = Gt[lev]
         tv[0] = _cov(Gl[0], Hs[0], 0, 2)
         tv[1] = _cov(Gl[1], Hs[1], 1, 2)
