@@ -81,6 +81,14 @@ class Tying:
         self.Gq = np.ascontiguousarray(np.einsum("eak,qai->eqki", Xe, self.dNq))
         self.A0 = np.ascontiguousarray(np.linalg.inv(self.Gq))
         self.Gt = np.ascontiguousarray(np.einsum("eak,ltai->eltki", Xe, self.dNt))
+        # the kernels form dN/dr, dN/ds once per level: a triangle linear in-plane has them
+        # the same at every point of a level, to the bit (they are dL/dr times the same Q(w))
+        for lev in range(len(levels)):
+            inplane = self.dNq[self.lev_ptr[lev], :, :2]
+            if not (all(np.array_equal(d[:, :2], inplane)
+                        for d in self.dNq[self.lev_ptr[lev]:self.lev_ptr[lev + 1]])
+                    and all(np.array_equal(d[:, :2], inplane) for d in self.dNt[lev])):
+                raise ValueError("assumed-strain elements need a prism linear in-plane")
 
 
 @njit(cache=True, inline='always')
@@ -93,6 +101,28 @@ def _nat_gradient(u: np.ndarray, dN: np.ndarray, Hn: np.ndarray) -> None:
         for k in range(3):
             for i in range(3):
                 Hn[k, i] += u[a, k] * dN[a, i]
+
+
+@njit(cache=True, inline='always')
+def _level_gradients(u: np.ndarray, dNq: np.ndarray, dNt: np.ndarray, Hs: np.ndarray) -> None:
+    """The displacement's reference gradient at a level's tying points ``dNt (3, n_en, 3)``
+    and points ``dNq (n_in, n_en, 3)`` into ``Hs (3 + n_in, 3, 3)``, as :func:`_nat_gradient`
+    forms it (the same sums in the same order): the in-plane columns once, as dN/dr and dN/ds
+    are the same at all of them (:class:`Tying` checks it)."""
+    n_t = dNt.shape[0]
+    for k in range(3):
+        for i in range(2):
+            acc = 0.0
+            for a in range(u.shape[0]):
+                acc += u[a, k] * dNq[0, a, i]
+            for t in range(Hs.shape[0]):
+                Hs[t, k, i] = acc
+        for t in range(Hs.shape[0]):
+            dN = dNt[t] if t < n_t else dNq[t - n_t]
+            acc = 0.0
+            for a in range(u.shape[0]):
+                acc += u[a, k] * dN[a, 2]
+            Hs[t, k, 2] = acc
 
 
 @njit(cache=True, inline='always')
@@ -164,27 +194,6 @@ def _tie_rows(dN: np.ndarray, G: np.ndarray, Hn: np.ndarray, i: int, out: np.nda
         for k in range(3):
             out[3 * a + k] += sign * 0.5 * ((G[k, i] + Hn[k, i]) * dN[a, 2]
                                             + (G[k, 2] + Hn[k, 2]) * dN[a, i])
-
-
-@njit(cache=True, inline='always')
-def _geometric(dN: np.ndarray, sig: np.ndarray, Kg: np.ndarray) -> None:
-    """Kg[a, b] += dN_a^T sig dN_b (the initial-stress term of sum sig_ij d2e_ij)."""
-    n = dN.shape[0]
-    for b in range(n):
-        t0 = sig[0, 0] * dN[b, 0] + sig[0, 1] * dN[b, 1] + sig[0, 2] * dN[b, 2]
-        t1 = sig[1, 0] * dN[b, 0] + sig[1, 1] * dN[b, 1] + sig[1, 2] * dN[b, 2]
-        t2 = sig[2, 0] * dN[b, 0] + sig[2, 1] * dN[b, 1] + sig[2, 2] * dN[b, 2]
-        for a in range(n):
-            Kg[a, b] += dN[a, 0] * t0 + dN[a, 1] * t1 + dN[a, 2] * t2
-
-
-@njit(cache=True, inline='always')
-def _shear_sig(sig: np.ndarray, i: int, tau: float) -> None:
-    """sig = tau/2 (e_i (x) e_w + e_w (x) e_i), zero elsewhere: d2(tau e_iw)."""
-    for a in range(3):
-        for b in range(3):
-            sig[a, b] = 0.0
-    sig[i, 2] = sig[2, i] = 0.5 * tau
 
 
 # natural strain components in row order: rr, ss, ww, rs, rw, sw
@@ -297,26 +306,24 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
 
 
 @njit(cache=True, inline='always')
-def _level_rows(u: np.ndarray, dNq: np.ndarray, dNt: np.ndarray, Gq: np.ndarray,
-                Gt: np.ndarray, P: np.ndarray, Hn: np.ndarray) -> None:
+def _level_rows(dNq: np.ndarray, dNt: np.ndarray, Gq: np.ndarray, Gt: np.ndarray,
+                Hs: np.ndarray, P: np.ndarray) -> None:
     """The level's basis rows ``P (6 + n_in, k)``, node-major: de_rr, de_ss, de_rs (the same at
     every point of a level: g_r, g_s and dN/dr, dN/ds do not vary in-plane for a triangle linear
     in-plane), the tied shear rows (A's e_rw, B's e_sw, C's e_sw - e_rw) and de_ww at each of
     the level's ``n_in`` points ``dNq (n_in, n_en, 3)``, ``Gq (n_in, 3, 3)``; every strain row
-    of the level is a combination of these (:func:`_combination`)."""
+    of the level is a combination of these (:func:`_add_point_tangent`). ``Hs (3 + n_in, 3,
+    3)``: the displacement's reference gradient at the tying points A, B, C, then at the points."""
     k = P.shape[1]
     for t in range(3, 6):
         for p in range(k):
             P[t, p] = 0.0
-    for t in range(N_TIE):
-        _nat_gradient(u, dNt[t], Hn)
-        if t < 2:
-            _tie_rows(dNt[t], Gt[t], Hn, t, P[3 + t], 1.0)
-        else:
-            _tie_rows(dNt[2], Gt[2], Hn, 1, P[5], 1.0)
-            _tie_rows(dNt[2], Gt[2], Hn, 0, P[5], -1.0)
+    _tie_rows(dNt[0], Gt[0], Hs[0], 0, P[3], 1.0)
+    _tie_rows(dNt[1], Gt[1], Hs[1], 1, P[4], 1.0)
+    _tie_rows(dNt[2], Gt[2], Hs[2], 1, P[5], 1.0)
+    _tie_rows(dNt[2], Gt[2], Hs[2], 0, P[5], -1.0)
     for j in range(dNq.shape[0]):
-        _nat_gradient(u, dNq[j], Hn)
+        Hn = Hs[3 + j]
         for a in range(dNq.shape[1]):
             d0, d1, d2 = dNq[j, a, 0], dNq[j, a, 1], dNq[j, a, 2]
             for kk in range(3):
@@ -330,68 +337,118 @@ def _level_rows(u: np.ndarray, dNq: np.ndarray, dNt: np.ndarray, Gq: np.ndarray,
 
 
 @njit(cache=True, inline='always')
-def _combination(j: int, r: float, s: float, Phi: np.ndarray) -> None:
-    """Phi (6, 6 + n_in): the natural rows (VOIGT order) of the level's point j, at (r, s), over
-    the level's basis rows (:func:`_level_rows`): the shear pair by the MITC3 interpolation."""
-    for v in range(6):
-        for c in range(Phi.shape[1]):
-            Phi[v, c] = 0.0
-    Phi[0, 0] = Phi[1, 1] = Phi[3, 2] = 1.0
-    Phi[2, 6 + j] = 1.0
-    Phi[4, 3], Phi[4, 4], Phi[4, 5] = 1.0 - s, s, -s
-    Phi[5, 3], Phi[5, 4], Phi[5, 5] = r, 1.0 - r, r
+def _add_point_tangent(Dv: np.ndarray, w: float, j: int, r: float, s: float,
+                       Mb: np.ndarray) -> None:
+    """Mb (upper triangle) += w Phi^T Dv Phi, Phi (6, 6 + n_in) the natural rows (VOIGT
+    order) of the level's point j at (r, s) over the level's basis rows (:func:`_level_rows`):
+    rr, ss, rs and the point's own ww are basis rows themselves, the shear pair the MITC3
+    interpolation of the tied rows (:func:`_strain_hat`), so Phi's product is a few sums."""
+    z0 = (1.0 - s, s, -s)  # e~_rw, e~_sw over the tied rows A, B, C
+    z1 = (r, 1.0 - r, r)
+    cmap = (0, 1, 6 + j, 2)  # the basis row of the natural rows rr, ss, ww, rs
+    for a in range(4):
+        ca = cmap[a]
+        for b in range(4):
+            cb = cmap[b]
+            if ca <= cb:
+                Mb[ca, cb] += w * Dv[a, b]
+        for t in range(3):
+            val = w * (Dv[a, 4] * z0[t] + Dv[a, 5] * z1[t])
+            if ca < 3 + t:
+                Mb[ca, 3 + t] += val
+            else:
+                Mb[3 + t, ca] += val
+    for t in range(3):
+        for t2 in range(t, 3):
+            Mb[3 + t, 3 + t2] += w * (z0[t] * (Dv[4, 4] * z0[t2] + Dv[4, 5] * z1[t2])
+                                      + z1[t] * (Dv[5, 4] * z0[t2] + Dv[5, 5] * z1[t2]))
+
+
+@njit(cache=True, inline='always')
+def _level_geometric(dNq: np.ndarray, dNt: np.ndarray, s_in: np.ndarray, s_ww: np.ndarray,
+                     tA: float, tB: float, tC: float, Kg: np.ndarray) -> None:
+    """Kg (upper, node b >= a) += the level's initial-stress term dN_a^T sig dN_b: the in-plane
+    stress ``s_in`` = (S_rr, S_ss, S_rs) summed over the level's points, ``s_ww`` (n_in,) at
+    each point with its own dN/dw, and the tied shear pair at the tying points with the
+    weights of the interpolation (tA, tB, tC). dN/dr, dN/ds are the same at all of them
+    (:class:`Tying`), so the shear's terms are dN/dr (x) v_r + dN/ds (x) v_s and transposes,
+    v_r = (tA dN^A/dw - tC dN^C/dw) / 2, v_s = (tB dN^B/dw + tC dN^C/dw) / 2."""
+    n = Kg.shape[0]
+    srr, sss, srs = s_in[0], s_in[1], s_in[2]
+    hA, hB, hC = 0.5 * tA, 0.5 * tB, 0.5 * tC
+    for a in range(n):
+        ar, as_ = dNq[0, a, 0], dNq[0, a, 1]
+        var = hA * dNt[0, a, 2] - hC * dNt[2, a, 2]
+        vas = hB * dNt[1, a, 2] + hC * dNt[2, a, 2]
+        tr, ts = srr * ar + srs * as_ + var, srs * ar + sss * as_ + vas
+        for b in range(a, n):
+            br, bs = dNq[0, b, 0], dNq[0, b, 1]
+            acc = (tr * br + ts * bs
+                   + (hA * dNt[0, b, 2] - hC * dNt[2, b, 2]) * ar
+                   + (hB * dNt[1, b, 2] + hC * dNt[2, b, 2]) * as_)
+            for j in range(s_ww.shape[0]):
+                acc += s_ww[j] * dNq[j, a, 2] * dNq[j, b, 2]
+            Kg[a, b] += acc
 
 
 @njit(cache=True, inline='always')
 def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C901
                  tg: tuple, wdetJ: np.ndarray, model: int, params: np.ndarray,
                  fp_inv: np.ndarray, ep: np.ndarray, plastic: bool, want: int, g: np.ndarray,
-                 K: np.ndarray, Kg: np.ndarray, P: np.ndarray, Ph: np.ndarray, Mb: np.ndarray,
-                 gvs: np.ndarray, sc: np.ndarray, u: np.ndarray, m3: np.ndarray) -> float:
-    """Energy of one element; adds its gradient into ``g (k,)`` (want >= 1) and its Hessian's
-    upper triangle, node-major, into ``K (k, k)`` (want == 2; zeroed here). ``tg``: the
-    element's (dNq, dNt, lev_ptr, rs, Gq, A0, Gt) of :class:`Tying`.
+                 K: np.ndarray, Kg: np.ndarray, P: np.ndarray, T: np.ndarray,
+                 Mb: np.ndarray, Hs: np.ndarray, gvs: np.ndarray, sc: np.ndarray, u: np.ndarray,
+                 m3: np.ndarray) -> float:
+    """Energy of one element; adds its gradient into ``g (k,)`` (want >= 1) and writes its
+    Hessian's upper triangle, node-major, into ``K (k, k)`` (want == 2). ``tg``: the element's
+    (dNq, dNt, lev_ptr, rs, Gq, A0, Gt) of :class:`Tying`.
 
     Per level, the points' strain rows are combinations Phi of the level's basis rows P, so
     the material part is summed as P^T (sum_q w Phi^T D Phi) P, one product of n_b = 6 + n_in
-    rows per level instead of one of 6 rows per point. Scratch: Kg (n_en, n_en), P (n_b, k),
-    Ph (2, 6, n_b), Mb (n_b, n_b), gvs (3, n_b), u (n_en, 3), sc (3, 6, 6), m3 (8, 3, 3)."""
+    rows per level instead of one of 6 rows per point; the levels' rows are stacked so that
+    one product :func:`_congruence` forms all of it. Scratch: Kg (n_en, n_en); P and T
+    (n_r, k), level l's rows from l n_bp on (n_b padded to n_bp, a multiple of 3; n_r a
+    multiple of 9; the padding rows zero); Mb (n_bp, n_bp), Hs (n_b - 3, 3, 3), gvs (4, n_bp),
+    u (n_en, 3), sc (3, 6, 6), m3 (7, 3, 3)."""
     dNq, dNt, lev_ptr, rs, Gq, A0, Gt = tg
-    Hn, en, Eh, A, Sn, sig, M, Ci = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6], m3[7]
+    en, Eh, A, Sn, sig, M, Ci = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6]
     Dv, cv, Dp = sc[0], sc[1], sc[2]
-    Phi, DPhi = Ph[0], Ph[1]
-    gv, tv = gvs[0], gvs[2]  # tv: the level's tied values, nb >= 3
+    gv, tv, s_ww, s_in = gvs[0], gvs[1], gvs[2], gvs[3]  # tv, s_in: (3,) of nb >= 7
     n_en = nodes.shape[0]
     k = 3 * n_en
-    nb = P.shape[0]
+    nbp = Mb.shape[0]  # the level's rows in P, nb = 6 + n_in padded to a multiple of 3
     for a in range(n_en):
         for i in range(3):
             u[a, i] = x[nodes[a], i] - rest[nodes[a], i]
     if want == 2:
-        for p in range(k):
-            for c in range(k):
-                K[p, c] = 0.0
         for a in range(n_en):
             for b in range(n_en):
                 Kg[a, b] = 0.0
     E = 0.0
     for lev in range(lev_ptr.shape[0] - 1):
         q0 = lev_ptr[lev]
-        _tied(u, dNt[lev], Gt[lev], Hn, tv)
+        n_in = lev_ptr[lev + 1] - q0
+        nb = 6 + n_in
+        Pl = P[lev * nbp:(lev + 1) * nbp]  # the level's rows; those past nb stay zero
+        _level_gradients(u, dNq[q0:q0 + n_in], dNt[lev], Hs)
+        Gl = Gt[lev]
+        tv[0] = _cov(Gl[0], Hs[0], 0, 2)
+        tv[1] = _cov(Gl[1], Hs[1], 1, 2)
+        tv[2] = _cov(Gl[2], Hs[2], 1, 2) - _cov(Gl[2], Hs[2], 0, 2)
         if want >= 1:
-            n_in = lev_ptr[lev + 1] - q0
-            _level_rows(u, dNq[q0:q0 + n_in], dNt[lev], Gq[q0:q0 + n_in], Gt[lev], P, Hn)
-            for c in range(nb):
+            _level_rows(dNq[q0:q0 + n_in], dNt[lev], Gq[q0:q0 + n_in], Gl, Hs, Pl)
+            for c in range(nbp):
                 gv[c] = 0.0
-                for d in range(nb):
+                for d in range(nbp):
                     Mb[c, d] = 0.0
         tA = tB = tC = 0.0  # the level's weighted tying stresses (initial-stress term)
-        for q in range(q0, lev_ptr[lev + 1]):
+        srr = sss = srs = 0.0  # its weighted in-plane stress
+        for j in range(n_in):
+            q = q0 + j
             r, s = rs[q, 0], rs[q, 1]
-            _nat_gradient(u, dNq[q], Hn)
+            Hn = Hs[3 + j]
             for i in range(3):  # g = G + h: an inverted element has no energy
-                for j in range(3):
-                    en[i, j] = Gq[q, i, j] + Hn[i, j]
+                for jj in range(3):
+                    en[i, jj] = Gq[q, i, jj] + Hn[i, jj]
             if not det3(en) > 0.0:
                 return np.inf
             _map(A0[q], plastic, fp_inv[q], A)
@@ -407,87 +464,91 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             E += w * W
             if want == 0:
                 continue
-            _combination(q - q0, r, s, Phi)
-            for c in range(nb):  # gv += w Phi^T Sv, Sv the stress over the natural rows
-                acc = 0.0
-                for v in range(6):
-                    i, j = VOIGT[v, 0], VOIGT[v, 1]
-                    acc += Phi[v, c] * Sn[i, j] * (1.0 if i == j else 2.0)
-                gv[c] += w * acc
+            # gv += w Phi^T Sv, Sv the stress over the natural rows (off-diagonals twice)
+            s02, s12 = Sn[0, 2] * 2.0, Sn[1, 2] * 2.0
+            gv[0] += w * Sn[0, 0]
+            gv[1] += w * Sn[1, 1]
+            gv[2] += w * (Sn[0, 1] * 2.0)
+            gv[3] += w * ((1.0 - s) * s02 + r * s12)
+            gv[4] += w * (s * s02 + (1.0 - r) * s12)
+            gv[5] += w * (-s * s02 + r * s12)
+            gv[6 + j] += w * Sn[2, 2]
             if want < 2:
                 continue
-            for v in range(6):  # Mb += w Phi^T Dv Phi
-                for c in range(nb):
-                    acc = 0.0
-                    for t in range(6):
-                        acc += Dv[v, t] * Phi[t, c]
-                    DPhi[v, c] = w * acc
-            for c in range(nb):
-                for d in range(c, nb):
-                    acc = 0.0
-                    for v in range(6):
-                        acc += Phi[v, c] * DPhi[v, d]
-                    Mb[c, d] += acc
+            _add_point_tangent(Dv, w, j, r, s, Mb)
             # initial stress: S~ at the point, its shear pair at the tying points with the
             # weights of the interpolation
-            for i in range(3):
-                for j in range(3):
-                    sig[i, j] = w * Sn[i, j]
-            Srw, Ssw = sig[0, 2], sig[1, 2]
+            Srw, Ssw = w * Sn[0, 2], w * Sn[1, 2]
             tA += 2.0 * ((1.0 - s) * Srw + r * Ssw)
             tB += 2.0 * (s * Srw + (1.0 - r) * Ssw)
             tC += 2.0 * (r * Ssw - s * Srw)
-            sig[0, 2] = sig[2, 0] = sig[1, 2] = sig[2, 1] = 0.0
-            _geometric(dNq[q], sig, Kg)
+            srr += w * Sn[0, 0]
+            sss += w * Sn[1, 1]
+            srs += w * Sn[0, 1]
+            s_ww[j] = w * Sn[2, 2]
         if want == 0:
             continue
         for p in range(k):
             acc = 0.0
             for c in range(nb):
-                acc += gv[c] * P[c, p]
+                acc += gv[c] * Pl[c, p]
             g[p] += acc
         if want < 2:
             continue
         for c in range(nb):
             for d in range(c):
                 Mb[c, d] = Mb[d, c]
-        _add_congruence(P, Mb, K, gvs[1])
-        _shear_sig(sig, 0, tA)
-        _geometric(dNt[lev, 0], sig, Kg)
-        _shear_sig(sig, 1, tB)
-        _geometric(dNt[lev, 1], sig, Kg)
-        _shear_sig(sig, 1, tC)
-        sig[0, 2] = sig[2, 0] = -0.5 * tC
-        _geometric(dNt[lev, 2], sig, Kg)
+        _material_rows(Pl, Mb, T[lev * nbp:(lev + 1) * nbp])
+        s_in[0], s_in[1], s_in[2] = srr, sss, srs
+        _level_geometric(dNq[q0:q0 + n_in], dNt[lev], s_in, s_ww[:n_in], tA, tB, tC, Kg)
     if want == 2:
+        _congruence(P, T, K)
         for a in range(n_en):
-            for b in range(n_en):
+            for b in range(a, n_en):
                 for i in range(3):
-                    p, c = 3 * a + i, 3 * b + i
-                    if c >= p:
-                        K[p, c] += Kg[a, b]
+                    K[3 * a + i, 3 * b + i] += Kg[a, b]
     return E
 
 
 @njit(cache=True, inline='always')
-def _add_congruence(P: np.ndarray, Mb: np.ndarray, K: np.ndarray, t: np.ndarray) -> None:
-    """K (upper triangle) += P^T Mb P, Mb symmetric ``(n_b, n_b)``; the column loops run
-    over unsigned indices, contiguous rows: numba adds no wraparound test and they vectorise.
-    Scratch: t (n_b,)."""
-    nb, k = P.shape
+def _material_rows(P: np.ndarray, Mb: np.ndarray, T: np.ndarray) -> None:
+    """T = Mb P, a level's rows ``P (n_bp, k)`` with ``Mb (n_bp, n_bp)``, n_bp a multiple of
+    three: three rows of P per pass over a row of T, whose column loops are contiguous, over
+    unsigned indices (numba then adds no wraparound test) and vectorise."""
+    nbp, k = P.shape
+    uk = np.uint64(k)
+    for c in range(nbp):
+        tr = T[c]
+        for col in range(uk):
+            tr[col] = 0.0
+        for d in range(0, nbp, 3):
+            m0, m1, m2 = Mb[c, d], Mb[c, d + 1], Mb[c, d + 2]
+            p0, p1, p2 = P[d], P[d + 1], P[d + 2]
+            for col in range(uk):
+                tr[col] += (m0 * p0[col] + m1 * p1[col]) + m2 * p2[col]
+
+
+@njit(cache=True, inline='always')
+def _congruence(P: np.ndarray, T: np.ndarray, K: np.ndarray) -> None:
+    """K = P^T T, the material part sum_l P_l^T Mb_l P_l of all levels at once (rows of P and T
+    stacked, ``(n_r, k)``, n_r a multiple of 9): full rows of K, nine rows of T per pass, so that
+    every column loop has the element's full length and vectorises (the upper triangle's rows
+    shorten to a scalar remainder) and each entry of K is loaded and stored once per nine."""
+    nr, k = P.shape
     uk = np.uint64(k)
     for p in range(k):
-        for c in range(nb):
-            acc = 0.0
-            for d in range(nb):
-                acc += Mb[c, d] * P[d, p]
-            t[c] = acc
         kr = K[p]
-        for c in range(nb):
-            tc = t[c]
-            pr = P[c]
-            for col in range(np.uint64(p), uk):
-                kr[col] += tc * pr[col]
+        for col in range(uk):
+            kr[col] = 0.0
+        for c in range(0, nr, 9):
+            p0, p1, p2 = P[c, p], P[c + 1, p], P[c + 2, p]
+            p3, p4, p5 = P[c + 3, p], P[c + 4, p], P[c + 5, p]
+            p6, p7, p8 = P[c + 6, p], P[c + 7, p], P[c + 8, p]
+            t = T[c:c + 9]
+            for col in range(uk):
+                kr[col] += ((((p0 * t[0, col] + p1 * t[1, col]) + p2 * t[2, col])
+                             + ((p3 * t[3, col] + p4 * t[4, col]) + p5 * t[5, col]))
+                            + ((p6 * t[6, col] + p7 * t[7, col]) + p8 * t[8, col]))
 
 
 @njit(cache=True)
@@ -518,17 +579,21 @@ def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarra
     for c in range(len(color_ptr) - 1):
         for blk in prange(color_ptr[c], color_ptr[c + 1]):
             g = np.zeros(k)
-            K = np.empty((k, k) if want == 2 else (0, 0))
             Kg = np.empty((n_en, n_en))
+            n_lev = lev_ptr.shape[0] - 1
             nb = 6 + (lev_ptr[1] - lev_ptr[0])
-            P, Ph, Mb = np.empty((nb, k)), np.empty((2, 6, nb)), np.empty((nb, nb))
-            gvs, u = np.empty((3, nb)), np.empty((n_en, 3))
-            sc, m3 = np.empty((3, 6, 6)), np.empty((8, 3, 3))
+            nbp = -(-nb // 3) * 3
+            nr = -(-n_lev * nbp // 9) * 9
+            # rows past a level's nb stay zero in P; T's are zero through Mb's
+            P, T, Mb = np.zeros((nr, k)), np.zeros((nr, k)), np.zeros((nbp, nbp))
+            K = np.empty((k, k) if want == 2 else (0, 0))
+            Hs, gvs, u = np.empty((nb - 3, 3, 3)), np.empty((4, nbp)), np.empty((n_en, 3))
+            sc, m3 = np.empty((3, 6, 6)), np.empty((7, 3, 3))
             for t in range(block_ptr[blk], block_ptr[blk + 1]):
                 e = order[t]
                 E = _ans_element(x, rest, conn[e], (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e]),
                                  wdetJ[e], model, params, fp_inv[e], ep[e], plastic, want, g,
-                                 K, Kg, P, Ph, Mb, gvs, sc, u, m3)
+                                 K, Kg, P, T, Mb, Hs, gvs, sc, u, m3)
                 energies[e] = E
                 ok = np.isfinite(E)
                 if want >= 1:
