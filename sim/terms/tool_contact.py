@@ -112,6 +112,7 @@ class ToolContact(Term):
         self.k_floor = 1e-4 * self.k * len(self.nodes)
         self.t_now = self.position.copy()
         self.lagged = None
+        self.settled = False  # a step converged: the state a step starts from is in equilibrium
         # Newton's protocol (as Elasticity): nonzero = PSD-project each node block; the exact
         # block is indefinite next to convex tool edges (e' H with e' < 0)
         self.project = 1
@@ -148,12 +149,16 @@ class ToolContact(Term):
         self.R_now = rotation_matrix(self.rot_now)
         self._R0 = rotation_matrix(self.rot)
         # slip is measured from the state at the start of the step; friction lags the normal
-        # force of that state, refreshed within the step by Newton. (At rest a skin
-        # placed on a tool sits in the contact layer and carries k delta: a first guess.)
+        # force of that state, refreshed within the step by Newton. Not from the rest
+        # placement before the first converged step: a skin placed on a tool sits in its
+        # contact layer there and carries k delta / 2 per node, a pressure of hundreds of MPa
+        # that no equilibrium holds. Lagged, it pinned nodes that lift off the punch with
+        # that drag until the first refresh, and the cup's first step took 27 iterations
+        # instead of 19; Newton takes the normal forces of its own iterates from there.
         self._start = x[self.nodes].copy()
         self._start_u = x[self.vdof].copy() if self.vdof is not None else 0.0
         self.lagged = None
-        if self.mu > 0:
+        if self.mu > 0 and self.settled:
             here = self.position + (x[self.vdof] if self.vdof is not None else 0.0)
             self._lag(*normal_forces(self._start, self.prog, self._R0, here, self.k,
                                      self.delta, c2=True))
@@ -219,6 +224,7 @@ class ToolContact(Term):
         return apply
 
     def commit(self, x: np.ndarray) -> None:
+        self.settled = True
         self.position = self.t_now.copy()
         self.rot = self.rot_now.copy()
 
@@ -247,9 +253,13 @@ class ToolContact(Term):
         return E, g, H, gf, Hf
 
     def _stop_force(self, x: np.ndarray) -> tuple[float, float]:
-        """Derivative and stiffness of the stop spring in the tool's z."""
+        """Derivative and stiffness of the stop spring in the tool's z. A tool resting exactly
+        on its stop (where the step's predictor puts a holder that came down on it) is on
+        the spring: the force pressing it can only push it in, and without the stiffness
+        Newton's first correction sent it F / k_floor into the stop, which backtracking then
+        cut down a thousandfold."""
         u = x[self.vdof, 2]
-        if self.stop is None or u >= self.stop:
+        if self.stop is None or u > self.stop:
             return 0.0, 0.0
         return -self.k_stop * (self.stop - u), self.k_stop
 
