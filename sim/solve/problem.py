@@ -52,6 +52,10 @@ class Problem:
         ``take``: they become x's."""
         return max((t.lag_change(x, take) for t in self.terms), default=0.0)
 
+    def lag_guessed(self) -> bool:
+        """Whether a term's lag is a guess (Term.guessed_lag)."""
+        return any(t.guessed_lag for t in self.terms)
+
     def lag_coupling(self, x: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
         """v -> J v summed over the terms' lag couplings at x (Term.lag_coupling), on flat
         vectors and zero on the held DoFs, or None."""

@@ -22,6 +22,9 @@ class Term:
     barrier = False
     # whether the energy lags a quantity of the state now (see lag_change)
     lags = False
+    # the lag was taken from a state no step converged to (a scene's rest placement): a
+    # guess, which Newton replaces at every iterate after its first correction
+    guessed_lag = False
 
     def begin_step(self, t: float, dt: float, x: np.ndarray) -> None:
         """Take the step's time, step size and the state at its start."""

@@ -149,16 +149,18 @@ class ToolContact(Term):
         self.R_now = rotation_matrix(self.rot_now)
         self._R0 = rotation_matrix(self.rot)
         # slip is measured from the state at the start of the step; friction lags the normal
-        # force of that state, refreshed within the step by Newton. Not from the rest
-        # placement before the first converged step: a skin placed on a tool sits in its
-        # contact layer there and carries k delta / 2 per node, a pressure of hundreds of MPa
-        # that no equilibrium holds. Lagged, it pinned nodes that lift off the punch with
-        # that drag until the first refresh, and the cup's first step took 27 iterations
-        # instead of 19; Newton takes the normal forces of its own iterates from there.
+        # force of that state, refreshed within the step by Newton. From the rest placement
+        # before the first converged step the lag is a guess (``guessed_lag``): a skin
+        # placed on a tool sits in its contact layer and carries k delta / 2 per node there,
+        # which holds a part that only friction holds through Newton's first correction, but
+        # is a pressure of hundreds of MPa that no equilibrium holds. Kept until the first
+        # refresh near convergence, it dragged the nodes lifting off the punch with it, and the
+        # cup's first step took 27 iterations; followed from the first correction on, 19.
         self._start = x[self.nodes].copy()
         self._start_u = x[self.vdof].copy() if self.vdof is not None else 0.0
         self.lagged = None
-        if self.mu > 0 and self.settled:
+        self.guessed_lag = not self.settled
+        if self.mu > 0:
             here = self.position + (x[self.vdof] if self.vdof is not None else 0.0)
             self._lag(*normal_forces(self._start, self.prog, self._R0, here, self.k,
                                      self.delta, c2=True))
