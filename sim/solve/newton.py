@@ -481,6 +481,7 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
     slope = float(np.sum(g * dx))
     if slope >= 0:  # not a descent direction (cannot happen with a PD matrix): use -g
         dx, slope, trial = -g, -r * r, None
+    alpha = min(alpha, problem.step_bound(x, dx))  # a kink ahead (Term.step_bound)
     for _ in range(settings.max_line_search):
         x_new = x + alpha * dx
         t3 = time.perf_counter()

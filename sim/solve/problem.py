@@ -47,6 +47,10 @@ class Problem:
         """The energy of the barrier terms (contact) alone."""
         return sum((t.energy(x) for t in self.terms if t.barrier), 0.0)
 
+    def step_bound(self, x: np.ndarray, dx: np.ndarray) -> float:
+        """The smallest of the terms' step bounds (Term.step_bound) along dx from x."""
+        return min((t.step_bound(x, dx) for t in self.terms), default=1.0)
+
     def lag_change(self, x: np.ndarray, take: bool = False) -> float:
         """The largest relative change of the terms' lagged quantities at x (Term.lag_change);
         ``take``: they become x's."""

@@ -43,6 +43,12 @@ class Term:
         quantity's dependence on x adds to its energy's Hessian (None: no lag)."""
         return None
 
+    def step_bound(self, x: np.ndarray, dx: np.ndarray) -> float:
+        """The largest fraction of a Newton correction dx from x that the term's quadratic
+        model at x holds (a kink ahead, such as a stop, ends it); 1 where it holds the whole
+        step. Newton's line search starts from it (sim.solve.newton)."""
+        return 1.0
+
     def energy(self, x: np.ndarray) -> float:
         raise NotImplementedError
 

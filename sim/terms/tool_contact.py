@@ -265,6 +265,20 @@ class ToolContact(Term):
             return 0.0, 0.0
         return -self.k_stop * (self.stop - u), self.k_stop
 
+    def step_bound(self, x: np.ndarray, dx: np.ndarray) -> float:
+        """A tool above its stop that the correction takes past it stops on it: the Hessian
+        above the stop has no stop stiffness, so the correction takes the tool as far as the
+        pressing force over the stiffness of its contact (or k_floor) goes, far into the
+        stop, and backtracking from there took steps of 1/2 to 1/2048 of it until one
+        crossed the stop (the 2 mm cup's holder landing on its stop: 6 iterations). A
+        millionth past the stop, so the next iterate is on its spring (``_stop_force``)."""
+        if self.vdof is None or self.stop is None:
+            return 1.0
+        u, du = x[self.vdof, 2], dx[self.vdof, 2]
+        if u <= self.stop or u + du >= self.stop:
+            return 1.0
+        return min(1.0, (u - self.stop) / -du * (1.0 + 1e-6))
+
     def energy(self, x: np.ndarray) -> float:
         return self._eval(x)[0]
 

@@ -564,6 +564,31 @@ def test_a_blank_holder_resting_on_its_stop_is_on_its_spring():
         assert data[diag] >= holder.k_floor
 
 
+def test_a_correction_past_the_stop_lands_the_holder_on_it():
+    """Above its stop the holder's Hessian has no stop stiffness, so a correction that takes
+    it past the stop goes as far as its pressing force over the Hessian reaches; Newton's line
+    search starts from the fraction that lands it a millionth past the stop (Term.step_bound),
+    where the next Hessian holds the stop. A correction that stays above the stop, or one from
+    on the stop, is not bounded."""
+    from tests.support import ROOT
+    from tests.support.scenes import coarse
+
+    sim = Simulation.from_scene(coarse(ROOT / "scenes" / "cup_drawing.toml"))
+    holder = next(t for t in sim.tools if t.vdof is not None)
+    x, dx = sim.x.copy(), np.zeros_like(sim.x)
+    x[holder.vdof, 2] = holder.stop + 1e-5
+    dx[holder.vdof, 2] = -4e-5
+    alpha = sim.model.problem.step_bound(x, dx)
+    landed = x[holder.vdof, 2] + alpha * dx[holder.vdof, 2]
+    assert np.isclose(alpha, 0.25, rtol=1e-5)
+    assert landed < holder.stop and holder.stop - landed < 1e-10
+    dx[holder.vdof, 2] = -0.5e-5
+    assert sim.model.problem.step_bound(x, dx) == 1.0
+    x[holder.vdof, 2] = holder.stop
+    dx[holder.vdof, 2] = -4e-5
+    assert sim.model.problem.step_bound(x, dx) == 1.0
+
+
 def test_friction_lag_from_the_rest_placement_is_a_guess():
     """A skin placed on a tool sits in its contact layer, carrying k delta / 2 per node: a
     pressure of hundreds of MPa that no equilibrium holds, taken as a guess in the first step
