@@ -307,10 +307,12 @@ def _relag(nt: Newton, cur: Iterate, force_level: float,
     after it. A refresh
     changes the energy, so the iterate is evaluated again (not an iteration; only the
     lagging terms are assembled again, Problem.relagged), and Newton's correction takes the
-    lag's coupling (``_solve``). Past ``max_relags`` the lag stays, and the minimisation
-    ends on the residual alone."""
+    lag's coupling (``_solve``). A guessed lag (Term.guessed_lag) is refreshed at every
+    iterate after the first correction, near convergence or not. Past ``max_relags`` the lag
+    stays, and the minimisation ends on the residual alone."""
     s = nt.settings
-    if (cur.r > s.relag_below * nt.ref or nt.relags == s.max_relags
+    near = cur.r <= s.relag_below * nt.ref or (len(nt.res) > 1 and nt.problem.lag_guessed())
+    if (not near or nt.relags == s.max_relags
             or nt.problem.lag_change(cur.x, take=True) == 0.0):
         return cur, ""
     nt.relags += 1
@@ -479,6 +481,7 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
     slope = float(np.sum(g * dx))
     if slope >= 0:  # not a descent direction (cannot happen with a PD matrix): use -g
         dx, slope, trial = -g, -r * r, None
+    alpha = min(alpha, problem.step_bound(x, dx))  # a kink ahead (Term.step_bound)
     for _ in range(settings.max_line_search):
         x_new = x + alpha * dx
         t3 = time.perf_counter()

@@ -47,10 +47,18 @@ class Problem:
         """The energy of the barrier terms (contact) alone."""
         return sum((t.energy(x) for t in self.terms if t.barrier), 0.0)
 
+    def step_bound(self, x: np.ndarray, dx: np.ndarray) -> float:
+        """The smallest of the terms' step bounds (Term.step_bound) along dx from x."""
+        return min((t.step_bound(x, dx) for t in self.terms), default=1.0)
+
     def lag_change(self, x: np.ndarray, take: bool = False) -> float:
         """The largest relative change of the terms' lagged quantities at x (Term.lag_change);
         ``take``: they become x's."""
         return max((t.lag_change(x, take) for t in self.terms), default=0.0)
+
+    def lag_guessed(self) -> bool:
+        """Whether a term's lag is a guess (Term.guessed_lag)."""
+        return any(t.guessed_lag for t in self.terms)
 
     def lag_coupling(self, x: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
         """v -> J v summed over the terms' lag couplings at x (Term.lag_coupling), on flat

@@ -22,6 +22,9 @@ class Term:
     barrier = False
     # whether the energy lags a quantity of the state now (see lag_change)
     lags = False
+    # the lag was taken from a state no step converged to (a scene's rest placement): a
+    # guess, which Newton replaces at every iterate after its first correction
+    guessed_lag = False
 
     def begin_step(self, t: float, dt: float, x: np.ndarray) -> None:
         """Take the step's time, step size and the state at its start."""
@@ -39,6 +42,12 @@ class Term:
         """v -> J v: the part of the Jacobian of the term's forces at x that the lagged
         quantity's dependence on x adds to its energy's Hessian (None: no lag)."""
         return None
+
+    def step_bound(self, x: np.ndarray, dx: np.ndarray) -> float:
+        """The largest fraction of a Newton correction dx from x that the term's quadratic
+        model at x holds (a kink ahead, such as a stop, ends it); 1 where it holds the whole
+        step. Newton's line search starts from it (sim.solve.newton)."""
+        return 1.0
 
     def energy(self, x: np.ndarray) -> float:
         raise NotImplementedError

@@ -112,6 +112,7 @@ class ToolContact(Term):
         self.k_floor = 1e-4 * self.k * len(self.nodes)
         self.t_now = self.position.copy()
         self.lagged = None
+        self.settled = False  # a step converged: the state a step starts from is in equilibrium
         # Newton's protocol (as Elasticity): nonzero = PSD-project each node block; the exact
         # block is indefinite next to convex tool edges (e' H with e' < 0)
         self.project = 1
@@ -148,11 +149,17 @@ class ToolContact(Term):
         self.R_now = rotation_matrix(self.rot_now)
         self._R0 = rotation_matrix(self.rot)
         # slip is measured from the state at the start of the step; friction lags the normal
-        # force of that state, refreshed within the step by Newton. (At rest a skin
-        # placed on a tool sits in the contact layer and carries k delta: a first guess.)
+        # force of that state, refreshed within the step by Newton. From the rest placement
+        # before the first converged step the lag is a guess (``guessed_lag``): a skin
+        # placed on a tool sits in its contact layer and carries k delta / 2 per node there,
+        # which holds a part that only friction holds through Newton's first correction, but
+        # is a pressure of hundreds of MPa that no equilibrium holds. Kept until the first
+        # refresh near convergence, it dragged the nodes lifting off the punch with it, and the
+        # cup's first step took 27 iterations; followed from the first correction on, 19.
         self._start = x[self.nodes].copy()
         self._start_u = x[self.vdof].copy() if self.vdof is not None else 0.0
         self.lagged = None
+        self.guessed_lag = not self.settled
         if self.mu > 0:
             here = self.position + (x[self.vdof] if self.vdof is not None else 0.0)
             self._lag(*normal_forces(self._start, self.prog, self._R0, here, self.k,
@@ -219,6 +226,7 @@ class ToolContact(Term):
         return apply
 
     def commit(self, x: np.ndarray) -> None:
+        self.settled = True
         self.position = self.t_now.copy()
         self.rot = self.rot_now.copy()
 
@@ -247,11 +255,29 @@ class ToolContact(Term):
         return E, g, H, gf, Hf
 
     def _stop_force(self, x: np.ndarray) -> tuple[float, float]:
-        """Derivative and stiffness of the stop spring in the tool's z."""
+        """Derivative and stiffness of the stop spring in the tool's z. A tool resting exactly
+        on its stop (where the step's predictor puts a holder that came down on it) is on
+        the spring: the force pressing it can only push it in, and without the stiffness
+        Newton's first correction sent it F / k_floor into the stop, which backtracking then
+        cut down a thousandfold."""
         u = x[self.vdof, 2]
-        if self.stop is None or u >= self.stop:
+        if self.stop is None or u > self.stop:
             return 0.0, 0.0
         return -self.k_stop * (self.stop - u), self.k_stop
+
+    def step_bound(self, x: np.ndarray, dx: np.ndarray) -> float:
+        """A tool above its stop that the correction takes past it stops on it: the Hessian
+        above the stop has no stop stiffness, so the correction takes the tool as far as the
+        pressing force over the stiffness of its contact (or k_floor) goes, far into the
+        stop, and backtracking from there took steps of 1/2 to 1/2048 of it until one
+        crossed the stop (the 2 mm cup's holder landing on its stop: 6 iterations). A
+        millionth past the stop, so the next iterate is on its spring (``_stop_force``)."""
+        if self.vdof is None or self.stop is None:
+            return 1.0
+        u, du = x[self.vdof, 2], dx[self.vdof, 2]
+        if u <= self.stop or u + du >= self.stop:
+            return 1.0
+        return min(1.0, (u - self.stop) / -du * (1.0 + 1e-6))
 
     def energy(self, x: np.ndarray) -> float:
         return self._eval(x)[0]

@@ -538,3 +538,74 @@ def test_the_last_factors_are_reused_near_convergence():
         # both converged to rtol = 1e-8 of the force level: the same state to that
         assert a.probes["fx"] == pytest.approx(b.probes["fx"], rel=1e-7)
         assert a.probes["fz"] == pytest.approx(b.probes["fz"], rel=1e-7)
+
+
+def test_a_blank_holder_resting_on_its_stop_is_on_its_spring():
+    """The step's predictor puts a blank holder that came down on its stop exactly on it
+    (tests/scenes/test_predictor.py). There the pressing force can only push it in, so the
+    stop's stiffness is in the Hessian from u = stop on: without it, Newton's first correction
+    moved the holder F / k_floor into the stop (1.5e-4 m in the 2 mm cup, a spring energy
+    1e5 times the step's), and backtracking cut that step down 4096-fold in each of the cup's
+    last 17 steps. Above the stop the spring is off."""
+    from tests.support import ROOT
+    from tests.support.scenes import coarse
+
+    sim = Simulation.from_scene(coarse(ROOT / "scenes" / "cup_drawing.toml"))
+    holder = next(t for t in sim.tools if t.vdof is not None)
+    pattern = sim.model.pattern
+    diag = pattern.indptr[:-1][3 * holder.vdof + 2]  # the holder height's diagonal slot
+    x = sim.x.copy()
+    x[holder.nodes, 2] -= 0.01  # the flange has left the holder: no contact
+    for u, stiff in ((holder.stop, True), (holder.stop + 1e-9, False)):
+        x[holder.vdof, 2] = u
+        data = np.zeros(pattern.nnz)
+        holder.add_hessian(x, data)
+        assert (data[diag] >= holder.k_stop) == stiff
+        assert data[diag] >= holder.k_floor
+
+
+def test_a_correction_past_the_stop_lands_the_holder_on_it():
+    """Above its stop the holder's Hessian has no stop stiffness, so a correction that takes
+    it past the stop goes as far as its pressing force over the Hessian reaches; Newton's line
+    search starts from the fraction that lands it a millionth past the stop (Term.step_bound),
+    where the next Hessian holds the stop. A correction that stays above the stop, or one from
+    on the stop, is not bounded."""
+    from tests.support import ROOT
+    from tests.support.scenes import coarse
+
+    sim = Simulation.from_scene(coarse(ROOT / "scenes" / "cup_drawing.toml"))
+    holder = next(t for t in sim.tools if t.vdof is not None)
+    x, dx = sim.x.copy(), np.zeros_like(sim.x)
+    x[holder.vdof, 2] = holder.stop + 1e-5
+    dx[holder.vdof, 2] = -4e-5
+    alpha = sim.model.problem.step_bound(x, dx)
+    landed = x[holder.vdof, 2] + alpha * dx[holder.vdof, 2]
+    assert np.isclose(alpha, 0.25, rtol=1e-5)
+    assert landed < holder.stop and holder.stop - landed < 1e-10
+    dx[holder.vdof, 2] = -0.5e-5
+    assert sim.model.problem.step_bound(x, dx) == 1.0
+    x[holder.vdof, 2] = holder.stop
+    dx[holder.vdof, 2] = -4e-5
+    assert sim.model.problem.step_bound(x, dx) == 1.0
+
+
+def test_friction_lag_from_the_rest_placement_is_a_guess():
+    """A skin placed on a tool sits in its contact layer, carrying k delta / 2 per node: a
+    pressure of hundreds of MPa that no equilibrium holds, taken as a guess in the first step
+    (Term.guessed_lag; it holds a part that only friction holds, through the first
+    correction: test_sheet_sticks_below_mu_times_the_normal_force), which Newton replaces by
+    its iterates' normal forces. A step from a converged state lags that state's, a measured
+    force, and the first step converges on its own."""
+    from tests.support import ROOT
+    from tests.support.scenes import coarse
+
+    sim = Simulation.from_scene(coarse(ROOT / "scenes" / "cup_drawing.toml"))
+    dt = 1.0 / sim.model.scene.stepping.steps
+    punch = next(t for t in sim.tools if t.tool == "punch")
+    assert punch.mu > 0 and (punch.gap(sim.x) < punch.delta).any()  # placed on the punch
+    punch.begin_step(dt, dt, sim.x)
+    assert punch.guessed_lag and sim.model.problem.lag_guessed()
+    rec = sim.step()
+    assert rec.friction_change < 1e-6  # the first step slid with its own normal forces
+    punch.begin_step(sim.t + dt, dt, sim.x)
+    assert not punch.guessed_lag and punch.lagged[0].any()
