@@ -275,9 +275,7 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
     W, gs, H, sym, twist = principal(model, st, params, ep)
     if want == 0 or not np.isfinite(W):
         return W
-    for i in range(3):  # m_a = A v_a
-        for a in range(3):
-            M[i, a] = A[i, 0] * V[0, a] + A[i, 1] * V[1, a] + A[i, 2] * V[2, a]
+    _columns(A, V, M)
     Sp0, Sp1, Sp2 = gs[0] / st[0], gs[1] / st[1], gs[2] / st[2]
     for i in range(3):
         for j in range(3):
@@ -296,6 +294,14 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
         Dp[3 + c, 3 + c] = 2.0 * (sym[c] - twist[c]) / (st[a] * st[b])
     _natural_tangent(M, Dp, cv, Dv)
     return W
+
+
+@njit(cache=True, inline='always')
+def _columns(A: np.ndarray, V: np.ndarray, M: np.ndarray) -> None:
+    """M = A V: the columns m_a = A v_a, E^'s eigenvectors as natural components."""
+    for i in range(3):
+        for a in range(3):
+            M[i, a] = A[i, 0] * V[0, a] + A[i, 1] * V[1, a] + A[i, 2] * V[2, a]
 
 
 @njit(cache=True, inline='always')
@@ -329,9 +335,7 @@ def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.n
     W = hill_green(1.0 + 2.0 * lam, V, params, frame, ep, want, Sp, Dp)
     if want == 0 or not np.isfinite(W):
         return W
-    for i in range(3):  # m_a = A v_a
-        for a in range(3):
-            M[i, a] = A[i, 0] * V[0, a] + A[i, 1] * V[1, a] + A[i, 2] * V[2, a]
+    _columns(A, V, M)
     for i in range(3):
         for j in range(3):
             acc = 0.0

@@ -5,7 +5,6 @@ element: von Mises as its r = 1 case, the r-values given back in uniaxial tensio
 
 import numpy as np
 import pytest
-from scipy.optimize import fsolve
 
 from sim.elements import get_element
 from sim.geometry import shell
@@ -15,8 +14,7 @@ from sim.materials.plasticity import LINEAR
 from sim.solve import assembly
 from sim.terms.elasticity import PROJECT_ELEMENT, PROJECT_NONE, Elasticity
 from tests.support.fd import fd_check
-from tests.unit.test_hill_kernel import MU as MU_AA5754
-from tests.unit.test_hill_kernel import R_AA5754, rotation_z
+from tests.unit.test_hill_kernel import R_AA5754, rotation_z, tension
 from tests.unit.test_hill_kernel import params as aa5754
 
 RNG = np.random.default_rng(11)
@@ -173,47 +171,33 @@ def test_hill48_at_r_one_is_von_mises():
     np.testing.assert_allclose(fi, fii, rtol=0, atol=1e-13)
 
 
-def _uniaxial(angle: float, strain: float = 0.1, steps: int = 20) -> np.ndarray:
+def _uniaxial(angle: float) -> np.ndarray:
     """tests/unit/test_hill_kernel.py's uniaxial tension through the element: the patch
     deformed homogeneously (x = F X at every node, which the assumed strain reproduces) along
-    x at ``angle`` degrees to the rolling direction, the five other components of a symmetric
-    F solved per step for a Kirchhoff stress tau_11 e1 e1 read off the element's nodal forces
-    (the total first Piola-Kirchhoff stress sum_n f_n (x) X_n over the volume), then committed.
-    Returns the plastic log strain (3, 3) of every quadrature point."""
+    x at ``angle`` degrees to the rolling direction, the Kirchhoff stress read off the
+    element's nodal forces (the first Piola-Kirchhoff stress sum_n f_n (x) X_n over the
+    volume). Returns the plastic log strain (3, 3) of every quadrature point."""
     sh = _patch()
     pat = assembly.build_pattern(sh.conn, sh.n_nodes)
     term = Elasticity(sh, get_element("q3t_ans").quadrature(), HILL48, aa5754(), pat,
                       PROJECT_NONE, plastic=True,
                       frames=np.tile(rotation_z(angle), (len(sh.conn), 1, 1)))
     X, volume = sh.rest, term.wdetJ.sum()
-    idx = [(1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
-    u = np.zeros(5)
 
-    def F_of(u, f11):
-        F = np.diag([f11, 1.0, 1.0])
-        for k, (i, j) in enumerate(idx):
-            F[i, j] += u[k]
-            if i != j:
-                F[j, i] += u[k]
-        return F
-
-    def residual(u, f11):
-        F = F_of(u, f11)
+    def kirchhoff(F):
         g = np.zeros_like(X)
         term.add_gradient(X @ F.T, g)
-        tau = (g.T @ X / volume) @ F.T
-        return [tau[i, j] / MU_AA5754 for i, j in idx]
+        return (g.T @ X / volume) @ F.T
 
-    for k in range(1, steps + 1):
-        f11 = np.exp(strain * k / steps)
-        u = fsolve(residual, u, args=(f11,), xtol=1e-12)
-        assert np.abs(residual(u, f11)).max() < 1e-12
-        term.commit(X @ F_of(u, f11).T)
+    tension(kirchhoff, lambda F: term.commit(X @ F.T))
     fp = np.linalg.inv(term.fp_inv)
     w, V = np.linalg.eigh(np.swapaxes(fp, -1, -2) @ fp)
     return np.einsum("...ij,...j,...kj->...ik", V, 0.5 * np.log(w), V)
 
 
+# the element's nodal sums leave the stress a round-off of ~1e-14 MU (the material's alone
+# ~1e-16): fsolve's last steps stall there and it says so; tension's 1e-12 bound is met
+@pytest.mark.filterwarnings("ignore:The iteration is not making good progress")
 @pytest.mark.parametrize("angle, r", [(0.0, R_AA5754[0]), (45.0, R_AA5754[1]),
                                       (90.0, R_AA5754[2])])
 def test_uniaxial_tension_gives_the_r_value(angle, r):
