@@ -90,8 +90,8 @@ def euler_bernoulli(scene: Tables, probe: str) -> dict:
 def _bent_strip(scene: Tables, probe: str, n: str) -> tuple[float, bool]:
     """The imposed curvature of a strip bent by one end and released, and whether a BC holds
     its width (plane strain); ValueError naming the field when the scene is not such a strip."""
-    if scene.material.model != "plastic":
-        _fail(n, "a plastic material (material.model 'plastic')")
+    if scene.material.model != "plastic" or scene.material.hill48 is not None:
+        _fail(n, "a von Mises plastic material (material.model 'plastic', no material.hill48)")
     bends = [bc.bend for bc in scene.bcs if bc.bend is not None]
     if len(bends) != 1 or not scene.stepping.release or scene.tools or scene.loads:
         _fail(n, "one bent end (bcs.*.bend), stepping.release = true, no tools or loads")

@@ -60,3 +60,7 @@ def test_fibre_is_the_scenes_study_reference():
     assert "plane stress" in ref["about"] and "linear" in ref["about"]
     with pytest.raises(ValueError, match="elastic-perfectly-plastic"):
         reference(hard, "springback", "curvature")
+    hill = load_scene("scenes/plastic_bending.toml", {
+        "material.hill48": {"r0": 0.663, "r45": 0.860, "r90": 0.717, "rolling_angle": 0.0}})
+    with pytest.raises(ValueError, match="no material.hill48"):
+        reference(hill, "fibre", "curvature")
