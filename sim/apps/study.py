@@ -386,7 +386,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--levels", help="comma-separated mesh edge lengths in m")
     s.add_argument("--reference", metavar="ELEMENT:EDGE",
                    help="a numerical reference run, e.g. quadratic:0.0035")
-    s.add_argument("--analytic", help="closed-form reference: euler_bernoulli, springback")
+    s.add_argument("--analytic", help="closed-form reference: euler_bernoulli, springback, fibre")
     s.add_argument("--probe", help="the probe to measure (study.probe)")
     s.add_argument("--measure", choices=["final", "curve", "profile"],
                    help="study.measure: the final value, the curve over the run, a profile")

@@ -57,7 +57,7 @@ import math
 import numpy as np
 from numba import njit
 
-from sim.materials.isotropic import dlog, eigh3, polar_svd
+from sim.materials.isotropic import PAIRS, dlog, eigh3, polar_svd
 from sim.materials.plasticity import hardening_work, yield_stress
 
 HILL48 = 3  # model id beside sim.materials.isotropic's
@@ -294,21 +294,29 @@ def _half_log_dd2(x: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def _frame_strain(G: np.ndarray, frame: np.ndarray
-                  ) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(ok, U, s, V, Vm = frame^T V, e6 the Mandel trial log strain in the material frame)."""
-    U, s, V, ok = polar_svd(G)
-    e6 = np.zeros(6)
+def hill_strain6(V: np.ndarray, e: np.ndarray,
+                 frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Vm = frame^T V, the Mandel vector (6,) in the material frame) of the log strain
+    V diag(e) V^T."""
     Vm = _mm(frame.T, V)
-    if not ok:
-        return False, U, s, V, Vm, e6
-    e = np.log(s)
     Em = _mm(Vm * e, Vm.T)
+    e6 = np.zeros(6)
     for i in range(3):
         e6[i] = Em[i, i]
     for m in range(3):
         i, j = _PAIRS[m, 0], _PAIRS[m, 1]
         e6[3 + m] = _R2 * Em[i, j]
+    return Vm, e6
+
+
+@njit(cache=True)
+def _frame_strain(G: np.ndarray, frame: np.ndarray
+                  ) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(ok, U, s, V, Vm = frame^T V, e6 the Mandel trial log strain in the material frame)."""
+    U, s, V, ok = polar_svd(G)
+    if not ok:
+        return False, U, s, V, _mm(frame.T, V), np.zeros(6)
+    Vm, e6 = hill_strain6(V, np.log(s), frame)
     return True, U, s, V, Vm, e6
 
 
@@ -371,15 +379,7 @@ def _hessian_uv(s: np.ndarray, lam: np.ndarray, f1: np.ndarray, Tp: np.ndarray,
     """d2W/dA2 ``(9, 9)`` for dG = U A V^T, A's entries row-major (module docstring)."""
     Mr = mandel_rotation(Vm)  # V-frame Mandel -> material-frame Mandel
     Dv = _mm(_mm(Mr.T, D6), Mr)
-    f2 = np.empty((3, 3, 3))
-    x = np.empty(3)
-    for i in range(3):  # symmetric in its arguments: ten distinct values
-        for j in range(i, 3):
-            for k in range(j, 3):
-                x[0], x[1], x[2] = lam[i], lam[j], lam[k]
-                v = _half_log_dd2(x)
-                f2[i, j, k] = f2[i, k, j] = f2[j, i, k] = v
-                f2[j, k, i] = f2[k, i, j] = f2[k, j, i] = v
+    f2 = _half_log_dd2_table(lam)
     g = np.empty((3, 3))
     for a in range(3):
         for b in range(3):
@@ -406,6 +406,71 @@ def _hessian_uv(s: np.ndarray, lam: np.ndarray, f1: np.ndarray, Tp: np.ndarray,
 
 
 @njit(cache=True)
+def _half_log_dd2_table(lam: np.ndarray) -> np.ndarray:
+    """f2[i, j, k] = the second divided difference of f = 1/2 ln at lam[i], lam[j], lam[k]."""
+    f2 = np.empty((3, 3, 3))
+    x = np.empty(3)
+    for i in range(3):  # symmetric in its arguments: ten distinct values
+        for j in range(i, 3):
+            for k in range(j, 3):
+                x[0], x[1], x[2] = lam[i], lam[j], lam[k]
+                v = _half_log_dd2(x)
+                f2[i, j, k] = f2[i, k, j] = f2[j, i, k] = v
+                f2[j, k, i] = f2[k, i, j] = f2[k, j, i] = v
+    return f2
+
+
+@njit(cache=True)
+def hill_green(lam: np.ndarray, V: np.ndarray, params: np.ndarray, frame: np.ndarray,
+               ep_n: float, want: int, Sp: np.ndarray, Dp: np.ndarray) -> float:
+    """Hill48 as a function of C^ = V diag(lam) V^T = I + 2 E^, the form of the assumed-strain
+    kernel (sim.terms.ans), which has the Green-Lagrange strain, not G: W; for want >= 1 the
+    stress ``Sp (3, 3)`` = V^T (dW/dE^) V; for want == 2 ``Dp (6, 6)``, d2W = x^T Dp x over the
+    unique components x of X = V^T dE^ V (the diagonal, then the pairs of
+    sim.materials.isotropic.PAIRS).
+
+    With L = 1/2 ln C^ (in V's frame dL = f1 o dC^, f1 the divided differences of 1/2 ln at
+    lam; d2L[dC^, dC^]_ab = 2 sum_c f2_acb dC^_ac dC^_cb, Daleckii-Krein) and dC^ = 2 dE^:
+        S' = 2 f1 o T',   d2W = (2 f1 o X) : D' : (2 f1 o X) + 8 sum_abc T'_ab f2_abc X_ac X_cb,
+    T' and D' Hill's stress and tangent (:func:`hill_return`) in V's frame."""
+    Vm, e6 = hill_strain6(V, 0.5 * np.log(lam), frame)
+    W, T6, D6, _, _ = hill_return(e6, ep_n, params)
+    if want == 0:
+        return W
+    Tp = _mm(_mm(Vm.T, unmandel(T6)), Vm)
+    f1 = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            f1[a, b] = 0.5 * dlog(lam[a], lam[b])
+            Sp[a, b] = 2.0 * f1[a, b] * Tp[a, b]
+    if want < 2:
+        return W
+    Mr = mandel_rotation(Vm)
+    Dv = _mm(_mm(Mr.T, D6), Mr)
+    f2 = _half_log_dd2_table(lam)
+    B = np.zeros((6, 3, 3))  # the unit directions of x
+    Lm = np.zeros((6, 6))  # Lm[p]: the Mandel vector (V's frame) of dL along B[p]
+    for p in range(6):
+        a, b = (p, p) if p < 3 else (PAIRS[p - 3, 0], PAIRS[p - 3, 1])
+        B[p, a, b] = B[p, b, a] = 1.0
+        Lm[p, MANDEL[a, b]] = 2.0 * f1[a, b] * (1.0 if a == b else _R2)
+    LD = _mm(Lm, Dv)
+    for p in range(6):
+        for q in range(p, 6):
+            v = 0.0
+            for m in range(6):
+                v += LD[p, m] * Lm[q, m]
+            t = 0.0
+            for a in range(3):
+                for b in range(3):
+                    for c in range(3):
+                        t += Tp[a, b] * f2[a, b, c] * (B[p, a, c] * B[q, c, b]
+                                                       + B[q, a, c] * B[p, c, b])
+            Dp[p, q] = Dp[q, p] = v + 4.0 * t
+    return W
+
+
+@njit(cache=True)
 def hill_flow(G: np.ndarray, params: np.ndarray, frame: np.ndarray,
               ep_n: float) -> tuple[np.ndarray, float]:
     """The commit's return: exp(-dEp) (3, 3) in scene coordinates, and dg (identity and 0 in the
@@ -413,6 +478,13 @@ def hill_flow(G: np.ndarray, params: np.ndarray, frame: np.ndarray,
     ok, _, _, _, _, e6 = _frame_strain(G, frame)
     if not ok:
         return np.eye(3), 0.0
+    return hill_flow_strain(e6, params, frame, ep_n)
+
+
+@njit(cache=True)
+def hill_flow_strain(e6: np.ndarray, params: np.ndarray, frame: np.ndarray,
+                     ep_n: float) -> tuple[np.ndarray, float]:
+    """:func:`hill_flow` from the trial log strain ``e6`` (Mandel, material frame)."""
     _, _, _, dg, dE6 = hill_return(e6, ep_n, params)
     if dg == 0.0:
         return np.eye(3), 0.0

@@ -122,8 +122,8 @@ class StudySpec(Strict):
     reference_element: str = doc("the reference run's element", default="quadratic")
     reference_edge_length: Length | None = doc(
         "the reference run's edge length; unset: half the finest studied", "m", None)
-    analytic: Literal["euler_bernoulli", "springback"] | None = doc(
-        "a closed-form reference instead of a reference run", default=None)
+    analytic: Literal["euler_bernoulli", "springback", "fibre"] | None = doc(
+        "a closed-form (or fibre-model) reference instead of a reference run", default=None)
     cells: list[Annotated[int, Field(ge=1, le=4096)]] | None = doc(
         "the levels of a mesh refined by cells per side (cylinder_patch, sphere_patch), "
         "coarse to fine", "1", None)

@@ -27,6 +27,11 @@ derivatives sym, twist of sim.materials.isotropic.principal:
 
 (kappa is the divided difference (S_i - S_j) / (eps_i - eps_j), formed without cancellation by
 the material's own pair terms). With m_i = A v_i, deps_i = m_i^T de~ m_i.
+
+Hill48 (sim.materials.hill) is a function of C^ too, of its log in the sheet's material axes;
+not isotropic, its stress and tangent in the frame v_i are full (not diagonal): dW/dE^ =
+M S' M^T with M = (m_1 m_2 m_3) and d2W = x^T Dp x over the unique components x of
+M^T de~ M (:func:`sim.materials.hill.hill_green`).
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ from numba import njit, prange
 
 from sim.geometry.quadrature import Rule
 from sim.geometry.shell import Shell
+from sim.materials.hill import HILL48, hill_flow_strain, hill_green, hill_strain6
 from sim.materials.isotropic import (
     NEO_HOOKEAN,
     PAIRS,
@@ -269,22 +275,13 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
     W, gs, H, sym, twist = principal(model, st, params, ep)
     if want == 0 or not np.isfinite(W):
         return W
-    for i in range(3):  # m_a = A v_a
-        for a in range(3):
-            M[i, a] = A[i, 0] * V[0, a] + A[i, 1] * V[1, a] + A[i, 2] * V[2, a]
+    _columns(A, V, M)
     Sp0, Sp1, Sp2 = gs[0] / st[0], gs[1] / st[1], gs[2] / st[2]
     for i in range(3):
         for j in range(3):
             Sn[i, j] = Sp0 * M[i, 0] * M[j, 0] + Sp1 * M[i, 1] * M[j, 1] + Sp2 * M[i, 2] * M[j, 2]
     if want < 2:
         return W
-    # principal rows deps_a = m_a^T de~ m_a (c < 3) and pairs m_a^T de~ m_b over the
-    # natural rows: cv[c, v]
-    for c in range(6):
-        a, b = (c, c) if c < 3 else (PAIRS[c - 3, 0], PAIRS[c - 3, 1])
-        for v in range(6):
-            i, j = VOIGT[v, 0], VOIGT[v, 1]
-            cv[c, v] = M[i, a] * M[j, b] + (M[j, a] * M[i, b] if i != j else 0.0)
     for c in range(6):
         for d in range(6):
             Dp[c, d] = 0.0
@@ -295,6 +292,28 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
     for c in range(3):
         a, b = PAIRS[c, 0], PAIRS[c, 1]
         Dp[3 + c, 3 + c] = 2.0 * (sym[c] - twist[c]) / (st[a] * st[b])
+    _natural_tangent(M, Dp, cv, Dv)
+    return W
+
+
+@njit(cache=True, inline='always')
+def _columns(A: np.ndarray, V: np.ndarray, M: np.ndarray) -> None:
+    """M = A V: the columns m_a = A v_a, E^'s eigenvectors as natural components."""
+    for i in range(3):
+        for a in range(3):
+            M[i, a] = A[i, 0] * V[0, a] + A[i, 1] * V[1, a] + A[i, 2] * V[2, a]
+
+
+@njit(cache=True, inline='always')
+def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarray) -> None:
+    """Dv = cv^T Dp cv: a tangent ``Dp`` over the unique components of X = M^T de~ M (the
+    diagonal m_a^T de~ m_a, then the pairs m_a^T de~ m_b of PAIRS) over the natural rows,
+    X's components being cv (6, 6) times those rows."""
+    for c in range(6):
+        a, b = (c, c) if c < 3 else (PAIRS[c - 3, 0], PAIRS[c - 3, 1])
+        for v in range(6):
+            i, j = VOIGT[v, 0], VOIGT[v, 1]
+            cv[c, v] = M[i, a] * M[j, b] + (M[j, a] * M[i, b] if i != j else 0.0)
     for v in range(6):
         for u in range(6):
             acc = 0.0
@@ -302,6 +321,30 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
                 for d in range(6):
                     acc += cv[c, v] * Dp[c, d] * cv[d, u]
             Dv[v, u] = acc
+
+
+@njit(cache=True, inline='always')
+def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.ndarray,
+                  ep: float, want: int, Sn: np.ndarray, Dv: np.ndarray, M: np.ndarray,
+                  cv: np.ndarray, Dp: np.ndarray, Sp: np.ndarray) -> float:
+    """Hill48 in the frame of E^'s eigenvectors (module docstring): W, Sn and Dv as
+    :func:`_neo_hookean_natural`. Scratch: M, Sp (3, 3), cv, Dp (6, 6)."""
+    lam, V = eigh3(Eh)
+    if not 1.0 + 2.0 * lam[0] > 0.0:
+        return np.inf
+    W = hill_green(1.0 + 2.0 * lam, V, params, frame, ep, want, Sp, Dp)
+    if want == 0 or not np.isfinite(W):
+        return W
+    _columns(A, V, M)
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for a in range(3):
+                for b in range(3):
+                    acc += M[i, a] * Sp[a, b] * M[j, b]
+            Sn[i, j] = acc
+    if want == 2:
+        _natural_tangent(M, Dp, cv, Dv)
     return W
 
 
@@ -394,13 +437,15 @@ def _level_geometric(dNq: np.ndarray, dNt: np.ndarray, s_in: np.ndarray, s_ww: n
 @njit(cache=True, inline='always')
 def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C901
                  tg: tuple, wdetJ: np.ndarray, model: int, params: np.ndarray,
-                 fp_inv: np.ndarray, ep: np.ndarray, plastic: bool, want: int, g: np.ndarray,
+                 fp_inv: np.ndarray, ep: np.ndarray, frame: np.ndarray, plastic: bool,
+                 want: int, g: np.ndarray,
                  K: np.ndarray, Kg: np.ndarray, P: np.ndarray, T: np.ndarray,
                  Mb: np.ndarray, Hs: np.ndarray, gvs: np.ndarray, sc: np.ndarray, u: np.ndarray,
                  m3: np.ndarray) -> float:
     """Energy of one element; adds its gradient into ``g (k,)`` (want >= 1) and writes its
     Hessian's upper triangle, node-major, into ``K (k, k)`` (want == 2). ``tg``: the element's
-    (dNq, dNt, lev_ptr, rs, Gq, A0, Gt) of :class:`Tying`.
+    (dNq, dNt, lev_ptr, rs, Gq, A0, Gt) of :class:`Tying`; ``frame (3, 3)`` its material axes
+    (read by Hill48).
 
     Per level, the points' strain rows are combinations Phi of the level's basis rows P, so
     the material part is summed as P^T (sum_q w Phi^T D Phi) P, one product of n_b = 6 + n_in
@@ -455,6 +500,8 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             _strain_hat(Gq[q], Hn, r, s, tv, A, plastic, fp_inv[q], en, Eh)
             if model == NEO_HOOKEAN:
                 W = _neo_hookean_natural(Eh, A, params[0], params[1], want, Sn, Dv, Ci, sig)
+            elif model == HILL48:
+                W = _hill_natural(Eh, A, params, frame, ep[q], want, Sn, Dv, M, cv, Dp, Ci)
             else:
                 W = _principal_natural(model, Eh, A, params, ep[q] if plastic else 0.0, want,
                                        Sn, Dv, M, cv, Dp)
@@ -566,11 +613,13 @@ def _project(K: np.ndarray) -> None:
 def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
                dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
                A0: np.ndarray, Gt: np.ndarray, wdetJ: np.ndarray, model: int, params: np.ndarray,
-               fp_inv: np.ndarray, ep: np.ndarray, plastic: bool, want: int, project: int,
+               fp_inv: np.ndarray, ep: np.ndarray, frames: np.ndarray, plastic: bool, want: int,
+               project: int,
                order: np.ndarray, block_ptr: np.ndarray, color_ptr: np.ndarray,
                slots: np.ndarray, grad: np.ndarray, data: np.ndarray) -> float:
     """:func:`sim.terms.elasticity.elastic_kernel` for assumed-shear elements: same arguments
-    and scatter, the element's geometry from :class:`Tying` (Gq, A0, Gt per element). Any
+    and scatter (``frames`` as there), the element's geometry from :class:`Tying` (Gq, A0,
+    Gt per element). Any
     projection (``project`` != 0) is the element's: the initial-stress term of the tied shear
     has no per-point PSD split."""
     n_e, n_en = conn.shape
@@ -592,7 +641,8 @@ def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarra
             for t in range(block_ptr[blk], block_ptr[blk + 1]):
                 e = order[t]
                 E = _ans_element(x, rest, conn[e], (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e]),
-                                 wdetJ[e], model, params, fp_inv[e], ep[e], plastic, want, g,
+                                 wdetJ[e], model, params, fp_inv[e], ep[e], frames[e], plastic,
+                                 want, g,
                                  K, Kg, P, T, Mb, Hs, gvs, sc, u, m3)
                 energies[e] = E
                 ok = np.isfinite(E)
@@ -635,10 +685,11 @@ def _principal_at(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNq: np.nd
 @njit(cache=True, parallel=True)
 def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
                       dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
-                      A0: np.ndarray, Gt: np.ndarray, params: np.ndarray, fp_inv: np.ndarray,
-                      ep: np.ndarray) -> None:
+                      A0: np.ndarray, Gt: np.ndarray, model: int, params: np.ndarray,
+                      frames: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray) -> None:
     """:func:`sim.terms.elasticity.plastic_commit_kernel` on the assumed strain: the return
-    map in the principal frame V of C^, Fp^-1 <- Fp^-1 V diag(exp(-deps_p)) V^T."""
+    map in the principal frame V of C^, Fp^-1 <- Fp^-1 V diag(exp(-deps_p)) V^T (Hill48:
+    Fp^-1 <- Fp^-1 exp(-dEp), sim.materials.hill)."""
     mu, law, hp = params[0], int(params[2]), params[3:]
     for e in prange(conn.shape[0]):
         for lev in range(lev_ptr.shape[0] - 1):
@@ -646,6 +697,13 @@ def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np
                 s, V, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
                                          Gt[e], q, True, fp_inv[e, q])
                 if not ok:
+                    continue
+                if model == HILL48:
+                    _, e6 = hill_strain6(V, np.log(s), frames[e])
+                    expm, dg = hill_flow_strain(e6, params, frames[e], ep[e, q])
+                    if dg > 0.0:
+                        fp_inv[e, q] = fp_inv[e, q] @ expm
+                        ep[e, q] += dg
                     continue
                 dep, dg = plastic_flow(np.log(s), ep[e, q], mu, law, hp)
                 if dg == 0.0:
@@ -658,17 +716,26 @@ def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np
 def ans_stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
                       dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
                       A0: np.ndarray, Gt: np.ndarray, model: int, params: np.ndarray,
-                      fp_inv: np.ndarray, ep: np.ndarray, plastic: bool) -> np.ndarray:
-    """Von Mises equivalent of the Cauchy stress ``(n_elem, n_qp)`` from the assumed strain."""
+                      frames: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray,
+                      plastic: bool) -> np.ndarray:
+    """Von Mises equivalent of the Cauchy stress ``(n_elem, n_qp)`` from the assumed strain
+    (of the Kirchhoff stress U S^ U over J, U = C^^1/2: a rotation of it, the same invariants)."""
     out = np.zeros((conn.shape[0], dNq.shape[0]))
     eye = np.eye(3)
     for e in prange(conn.shape[0]):
+        Sp, Dp = np.empty((3, 3)), np.empty((6, 6))
         for lev in range(lev_ptr.shape[0] - 1):
             for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
                 fi = fp_inv[e, q] if plastic else eye
                 s, V, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
                                          Gt[e], q, plastic, fi)
                 if not ok:
+                    continue
+                if model == HILL48:
+                    hill_green(s * s, V, params, frames[e], ep[e, q], 1, Sp, Dp)
+                    tau3 = Sp * np.outer(s, s)
+                    dev3 = tau3 - np.trace(tau3) / 3.0 * eye
+                    out[e, q] = np.sqrt(1.5 * np.sum(dev3 * dev3)) / (s[0] * s[1] * s[2])
                     continue
                 W, gs, H, sym, twist = principal(model, s, params, ep[e, q] if plastic else 0.0)
                 tau = gs * s

@@ -377,9 +377,6 @@ class Elasticity(Term):
         self.tying = Tying(shell, rule) if shell.element.assumed_shear else None
         self.frames = (np.zeros((n_e, 0, 0)) if frames is None
                        else np.ascontiguousarray(frames, dtype=float))
-        if self.tying is not None and self.frames.size:
-            raise ValueError(f"shell.element: {shell.element.name} does not take an "
-                             "anisotropic sheet (material.hill48) yet; use q3t or quadratic")
 
     def _tied(self) -> tuple:
         t = self.tying
@@ -389,7 +386,8 @@ class Elasticity(Term):
         sc = self.pattern.schedule
         if self.tying is not None:
             return ans_kernel(x, *self._tied(), self.wdetJ, self.model, self.params,
-                              self.fp_inv, self.ep, self.plastic, want, self.project, sc.order,
+                              self.fp_inv, self.ep, self.frames, self.plastic, want,
+                              self.project, sc.order,
                               sc.block_ptr, sc.color_ptr, self.pattern.elem_slots, grad, data)
         return elastic_kernel(x, self.rest, self.conn, self.dNdX, self.wdetJ, self.model,
                               self.params, self.fp_inv, self.ep, self.frames, self.plastic, want,
@@ -410,7 +408,8 @@ class Elasticity(Term):
 
     def commit(self, x: np.ndarray) -> None:
         if self.plastic and self.tying is not None:
-            ans_commit_kernel(x, *self._tied(), self.params, self.fp_inv, self.ep)
+            ans_commit_kernel(x, *self._tied(), self.model, self.params, self.frames,
+                              self.fp_inv, self.ep)
         elif self.plastic:
             plastic_commit_kernel(x, self.rest, self.conn, self.dNdX, self.model, self.params,
                                   self.frames, self.fp_inv, self.ep)
@@ -418,7 +417,7 @@ class Elasticity(Term):
     def von_mises(self, x: np.ndarray) -> np.ndarray:
         """Von Mises stress (Pa) per element and quadrature point ``(n_elem, n_qp)``."""
         if self.tying is not None:
-            return ans_stress_kernel(x, *self._tied(), self.model, self.params, self.fp_inv,
-                                     self.ep, self.plastic)
+            return ans_stress_kernel(x, *self._tied(), self.model, self.params, self.frames,
+                                     self.fp_inv, self.ep, self.plastic)
         return stress_kernel(x, self.rest, self.conn, self.dNdX, self.model, self.params,
                              self.frames, self.fp_inv, self.ep, self.plastic)

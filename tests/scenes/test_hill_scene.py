@@ -66,11 +66,13 @@ def test_material_frames_follow_the_rolling_direction():
         np.testing.assert_allclose(f.T @ f, np.eye(3), atol=1e-15)
 
 
-def test_elasticity_term_fd_in_a_plastic_state():
+@pytest.mark.parametrize("element", ["q3t", "q3t_ans"])
+def test_elasticity_term_fd_in_a_plastic_state(element):
     """Energy, gradient and Hessian of the element loop under Hill48, after a committed plastic
-    step (Fp != I): central differences along random directions (tests/support/fd.py)."""
+    step (Fp != I): central differences along random directions (tests/support/fd.py); for
+    q3t_ans through its assumed strain (sim.terms.ans), the frames from the scene."""
     m = build_model(scene({**AA5754, "rolling_angle": 30.0}, **{
-        "material.E": 20e9, "solver.hessian_projection": "none"}))
+        "material.E": 20e9, "solver.hessian_projection": "none", "shell.element": element}))
     term = m.elasticity
     rest = m.shell.rest
     # 2 % stretch along x with a random part: beyond the yield strain 1 % (200 MPa / 20 GPa)

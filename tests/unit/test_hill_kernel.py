@@ -127,36 +127,53 @@ def test_von_mises_is_the_r_one_case(law, scale):
     np.testing.assert_allclose(expm, (V * np.exp(-dep)) @ V.T, rtol=0, atol=1e-14)
 
 
-def uniaxial(angle, r=R_AA5754, strain=0.1, steps=20):
-    """Tension along x at ``angle`` degrees to the rolling direction, stress-free otherwise:
-    per step solve the five other components of a symmetric F for tau = tau_11 e1 e1, then
-    commit. Returns the plastic log strain tensor (3, 3) in the loading axes."""
-    prm, frame = params(r), rotation_z(angle)
-    fp_inv, ep = np.eye(3), 0.0
-    idx = [(1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
+FREE = [(1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]  # the components solved for in tension
+
+
+def symmetric_f(u, f11):
+    """F = diag(f11, 1, 1) plus the FREE components ``u (5,)``, symmetric."""
+    F = np.diag([f11, 1.0, 1.0])
+    for k, (i, j) in enumerate(FREE):
+        F[i, j] += u[k]
+        if i != j:
+            F[j, i] += u[k]
+    return F
+
+
+def tension(kirchhoff, commit, strain=0.1, steps=20):
+    """Tension along x, stress-free otherwise: per step solve the FREE components of a
+    symmetric F for a Kirchhoff stress ``kirchhoff(F)`` = tau_11 e1 e1 (its FREE components
+    over MU to 1e-12), then ``commit(F)``."""
     u = np.zeros(5)
-
-    def F_of(u, f11):
-        F = np.diag([f11, 1.0, 1.0])
-        for k, (i, j) in enumerate(idx):
-            F[i, j] += u[k]
-            if i != j:
-                F[j, i] += u[k]
-        return F
-
-    def residual(u, f11):
-        G = F_of(u, f11) @ fp_inv
-        _, P, _ = evaluate(G, prm, frame, ep, False)
-        tau = P @ G.T
-        return [tau[i, j] / MU for i, j in idx]
-
     for k in range(1, steps + 1):
         f11 = math.exp(strain * k / steps)
-        u = fsolve(residual, u, args=(f11,), xtol=1e-12)
-        assert np.abs(residual(u, f11)).max() < 1e-12
-        G = F_of(u, f11) @ fp_inv
-        expm, dg = hill_flow(G, prm, frame, ep)
-        fp_inv, ep = fp_inv @ expm, ep + dg
+
+        def residual(u, f11=f11):
+            tau = kirchhoff(symmetric_f(u, f11))
+            return [tau[i, j] / MU for i, j in FREE]
+
+        u = fsolve(residual, u, xtol=1e-12)
+        assert np.abs(residual(u)).max() < 1e-12
+        commit(symmetric_f(u, f11))
+
+
+def uniaxial(angle, r=R_AA5754):
+    """:func:`tension` at ``angle`` degrees to the rolling direction, of the material alone.
+    Returns the plastic log strain tensor (3, 3) in the loading axes."""
+    prm, frame = params(r), rotation_z(angle)
+    state = {"fp_inv": np.eye(3), "ep": 0.0}
+
+    def kirchhoff(F):
+        G = F @ state["fp_inv"]
+        _, P, _ = evaluate(G, prm, frame, state["ep"], False)
+        return P @ G.T
+
+    def commit(F):
+        expm, dg = hill_flow(F @ state["fp_inv"], prm, frame, state["ep"])
+        state["fp_inv"], state["ep"] = state["fp_inv"] @ expm, state["ep"] + dg
+
+    tension(kirchhoff, commit)
+    fp_inv = state["fp_inv"]
     w, V = np.linalg.eigh(np.linalg.inv(fp_inv).T @ np.linalg.inv(fp_inv))
     return (V * (0.5 * np.log(w))) @ V.T
 

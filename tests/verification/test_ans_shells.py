@@ -78,3 +78,47 @@ def test_plastic_bending_curvature_has_no_zigzag():
     assert np.abs(kappa - 1.0).max() < 0.02  # the end rotation imposes radius 1 m
     q3t = _local_curvature("q3t")
     assert q3t.max() - q3t.min() > 0.2  # the zigzag this element removes
+
+
+def _springback(tp: int, hardening: dict) -> tuple[float, float, object]:
+    """plastic_bending with q3t_ans at 10 x 1 cells and ``tp`` section points, bent to radius
+    1 m and released: (loaded curvature, its springback k_load - k_after, the scene)."""
+    scene = load_scene("scenes/plastic_bending.toml", {
+        "shell.element": "q3t_ans", "mesh.edge_length": 0.01, "shell.thickness_points": tp,
+        "material.hardening": hardening})
+    sim = Simulation.from_scene(scene)
+    for _ in range(scene.stepping.steps):
+        sim.step()
+    k_load = sim.records[-1].probes["curvature"]
+    assert sim.run(), sim.failure  # the release stage
+    return k_load, k_load - sim.records[-1].probes["curvature"], scene
+
+
+@pytest.mark.parametrize("hardening", [{"law": "perfect"}, {"law": "linear", "modulus": 2e9}])
+def test_springback_matches_the_fibre_model(hardening):
+    """Issue 17: springback within 1 % of a fibre model of the section (sim.analytic.
+    fibre_section, 400 fibres, plane strain as the scene's BC makes it), with perfect and
+    linear hardening, at the loaded curvature the element reached.
+
+    Measured (q3t_ans, perfect / linear): +0.27 / +0.21 % at 20 section points; the in-plane
+    mesh moves it by under 0.1 % (edge 10, 5, 2.5 mm), the section rule by 0.15 % from 20 to
+    40 points (+0.10 % there), the fibre model itself by 2e-6 from 400 fibres and 40 increments
+    to 800 and 80: the 1 % holds with the result converged. Against the fibre model integrated
+    on the element's own Gauss rule the element is within 0.04 % at 9 and 20 points (bound
+    0.1 %): the element's own error, apart from the section rule's. At the scene's own 9 points the
+    springback is 1.8 / 1.4 % short of the converged fibre model, and so is the fibre model on
+    those 9 points: nine Gauss points integrate the nearly rigid-plastic stress block, a step
+    at the thin elastic core, that coarsely."""
+    from sim.analytic import fibre_section
+    from sim.model.terms import LAWS
+
+    for tp in (9, 20):
+        k_load, springback, scene = _springback(tp, hardening)
+        m = scene.material
+        section = (m.E, m.nu, LAWS[m.hardening.law], m.hardening_params(),
+                   scene.shell.thickness, k_load, True)
+        same_rule = fibre_section(*section, points=f"gauss:{tp}")["springback"]
+        assert abs(springback / same_rule - 1) < 1e-3, (tp, springback, same_rule)
+        if tp == 20:
+            converged = fibre_section(*section)["springback"]
+            assert abs(springback / converged - 1) < 0.01, (springback, converged)
