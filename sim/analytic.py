@@ -187,7 +187,7 @@ def fibre_section(E: float, nu: float, law: int, hp: Sequence[float], thickness:
 
 
 def fibre(scene: Tables, probe: str) -> dict:
-    from sim.model.terms import LAWS
+    from sim.materials.plasticity import LAWS
 
     n = "fibre"
     m = scene.material

@@ -56,6 +56,8 @@ import numba
 import numpy as np
 
 PERFECT, LINEAR, SWIFT, VOCE = 0, 1, 2, 3
+# the scene's hardening law by name
+LAWS = {"perfect": PERFECT, "linear": LINEAR, "swift": SWIFT, "voce": VOCE}
 
 _SQRT6 = math.sqrt(6.0)
 _SQRT3_2 = math.sqrt(1.5)

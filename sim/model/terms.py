@@ -8,7 +8,7 @@ import numpy as np
 from sim.geometry.quadrature import Rule
 from sim.geometry.shell import Shell
 from sim.materials.hill import HILL48, hill_matrix, hill_params, sheet_frames
-from sim.materials.plasticity import LINEAR, PERFECT, SWIFT, VOCE
+from sim.materials.plasticity import LAWS
 from sim.scene.load import Scene
 from sim.scene.sheet import MaterialSpec
 from sim.solve.assembly import Pattern, pair_slots
@@ -22,7 +22,6 @@ from sim.tools.shapes import tool_program
 
 # linear_elastic is the elastic term linearised at rest, where every law is Hooke's
 MODEL_IDS = {"neo_hookean": 0, "hencky": 1, "plastic": 2, "linear_elastic": 0}
-LAWS = {"perfect": PERFECT, "linear": LINEAR, "swift": SWIFT, "voce": VOCE}
 PROJECTIONS = {"auto": PROJECT_QP, "qp": PROJECT_QP, "element": PROJECT_ELEMENT,
                "none": PROJECT_NONE}
 

@@ -14,8 +14,8 @@ from sim.materials.plasticity import LINEAR
 from sim.solve import assembly
 from sim.terms.elasticity import PROJECT_ELEMENT, PROJECT_NONE, Elasticity
 from tests.support.fd import fd_check
-from tests.unit.test_hill_kernel import R_AA5754, rotation_z, tension
-from tests.unit.test_hill_kernel import params as aa5754
+from tests.support.hill import R_AA5754, rotation_z, tension
+from tests.support.hill import params as aa5754
 
 RNG = np.random.default_rng(11)
 MU, LAM = 3e6, 5e6

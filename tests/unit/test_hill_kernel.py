@@ -5,38 +5,28 @@ import math
 
 import numpy as np
 import pytest
-from scipy.optimize import fsolve
 
 from sim.materials.hill import (
     coefficients,
     hill_flow,
     hill_matrix,
-    hill_params,
     hill_return,
     hill_stress_tangent,
     r_values,
 )
 from sim.materials.isotropic import polar_svd, stress_tangent
 from sim.materials.plasticity import plastic_flow, yield_stress
+from tests.support.hill import (
+    LAM,
+    LAWS,
+    MU,
+    R_AA5754,
+    params,
+    rotation_z,
+    tension,
+)
 
-E_MOD, NU = 68e9, 0.33  # AA5754-O (scenes/cup_drawing.toml)
-MU = E_MOD / (2.0 * (1.0 + NU))
-LAM = E_MOD * NU / ((1.0 + NU) * (1.0 - 2.0 * NU))
-LAWS = {"perfect": (0, [102.75e6]), "linear": (1, [102.75e6, 1e9]),
-        "swift": (2, [400e6, 0.01, 0.25]), "voce": (3, [102.75e6, 292.14e6, 13.5])}
-R_AA5754 = (0.663, 0.860, 0.717)  # Coer et al. 2018 as quoted in docs/anisotropy.md
 RNG = np.random.default_rng(18)
-
-
-def params(r=R_AA5754, law="voce"):
-    code, hp = LAWS[law]
-    return hill_params(MU, LAM, code, hp, hill_matrix(*coefficients(*r)))
-
-
-def rotation_z(deg):
-    a = math.radians(deg)
-    return np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0],
-                     [0.0, 0.0, 1.0]])
 
 
 def evaluate(G, prm, frame, ep_n, tangent=True, project=False):
@@ -125,36 +115,6 @@ def test_von_mises_is_the_r_one_case(law, scale):
     dep, dgi = plastic_flow(np.log(s), 0.03, MU, code, np.array(hp))
     assert dg == pytest.approx(dgi, rel=1e-12, abs=0.0)
     np.testing.assert_allclose(expm, (V * np.exp(-dep)) @ V.T, rtol=0, atol=1e-14)
-
-
-FREE = [(1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]  # the components solved for in tension
-
-
-def symmetric_f(u, f11):
-    """F = diag(f11, 1, 1) plus the FREE components ``u (5,)``, symmetric."""
-    F = np.diag([f11, 1.0, 1.0])
-    for k, (i, j) in enumerate(FREE):
-        F[i, j] += u[k]
-        if i != j:
-            F[j, i] += u[k]
-    return F
-
-
-def tension(kirchhoff, commit, strain=0.1, steps=20):
-    """Tension along x, stress-free otherwise: per step solve the FREE components of a
-    symmetric F for a Kirchhoff stress ``kirchhoff(F)`` = tau_11 e1 e1 (its FREE components
-    over MU to 1e-12), then ``commit(F)``."""
-    u = np.zeros(5)
-    for k in range(1, steps + 1):
-        f11 = math.exp(strain * k / steps)
-
-        def residual(u, f11=f11):
-            tau = kirchhoff(symmetric_f(u, f11))
-            return [tau[i, j] / MU for i, j in FREE]
-
-        u = fsolve(residual, u, xtol=1e-12)
-        assert np.abs(residual(u)).max() < 1e-12
-        commit(symmetric_f(u, f11))
 
 
 def uniaxial(angle, r=R_AA5754):

@@ -110,7 +110,7 @@ def test_springback_matches_the_fibre_model(hardening):
     those 9 points: nine Gauss points integrate the nearly rigid-plastic stress block, a step
     at the thin elastic core, that coarsely."""
     from sim.analytic import fibre_section
-    from sim.model.terms import LAWS
+    from sim.materials.plasticity import LAWS
 
     for tp in (9, 20):
         k_load, springback, scene = _springback(tp, hardening)
