@@ -67,9 +67,15 @@ def inside(box: dict, outer: dict) -> bool:
 def legend_in_view(page, frame, within: str | None = None) -> dict:
     """The legend's box, checked to lie in the window (and in the box of the element
     ``within``, the viewer's frame, measured now: the page's lines above it come and go)."""
-    legend = frame.locator(".q3t-legend").first
-    legend.wait_for()
-    box = legend.bounding_box()
+    # the viewer may draw its legend again between the wait and the measure (the box is then
+    # None for a moment): measure the legend that is shown, a few times if need be
+    for _ in range(20):
+        legend = frame.locator(".q3t-legend").first
+        legend.wait_for()
+        box = legend.bounding_box()
+        if box is not None:
+            break
+        page.wait_for_timeout(250)
     window = {"x": 0, "y": 0, **page.viewport_size}
     assert box is not None and box["width"] > 100 and box["height"] > 20, box
     assert inside(box, window), f"legend {box} outside the window {window}"
