@@ -221,7 +221,17 @@ const RunsTable = (() => {
       if (typeof content === "string") td.textContent = content; else td.append(content);
       tr.append(td);
     }
-    tr.onclick = (ev) => { if (ev.target.tagName !== "A") hooks.select(r.id); };
+    return tr;
+  }
+
+  // A poll rebuilds only the rows whose run changed: a row replaced between a press and its
+  // release would lose the click.
+  function rowFor(r, old) {
+    const sig = JSON.stringify(r) + (r.id === selected ? "|sel" : "");
+    const kept = old.get(r.id);
+    if (kept && kept.dataset.sig === sig) return kept;
+    const tr = row(r);
+    tr.dataset.sig = sig;
     return tr;
   }
 
@@ -230,7 +240,11 @@ const RunsTable = (() => {
     const table = document.getElementById("runs");
     if (headers || !table.querySelector("thead th"))
       table.querySelector("thead").replaceChildren(header());
-    table.querySelector("tbody").replaceChildren(...order(runs).map(row));
+    const tbody = table.querySelector("tbody");
+    const old = new Map([...tbody.rows].map((tr) => [tr.dataset.id, tr]));
+    const rows = order(runs).map((r) => rowFor(r, old));
+    if (rows.length !== tbody.rows.length || rows.some((tr, i) => tbody.rows[i] !== tr))
+      tbody.replaceChildren(...rows);
     const box = document.getElementById("runs-box");
     box.querySelector("summary").textContent = `Runs (${runs.length})`;
   }
@@ -244,6 +258,12 @@ const RunsTable = (() => {
   function init(h) {
     // h: {select(id), say(text, isError), reload()}
     hooks = h;
+    // selection on press, delegated to the body: it holds whichever rows the last poll drew
+    document.querySelector("#runs tbody").addEventListener("pointerdown", (ev) => {
+      const tr = ev.target.closest("tr[data-id]");
+      if (ev.button !== 0 || !tr || ev.target.closest("a, button")) return;
+      hooks.select(tr.dataset.id);
+    });
   }
 
   return { init, show };
