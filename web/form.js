@@ -516,7 +516,11 @@ const SceneForm = (() => {
       const itemSchema = s.items || {};
       const resolved = this.resolve(itemSchema);
       const isObj = resolved.type === "object" || !!resolved.properties || !!resolved.oneOf;
-      const box = el("div", { class: isObj ? "list objects" : "list scalars" });
+      // a row of a table of several units (keyframes: t, m, rad): each number in its
+      // column's unit, named, on one line
+      const cols = resolved.type === "array" ? null : Units.columns(meta.unit);
+      const box = el("div", { class: isObj ? "list objects" : cols ? "list scalars row"
+                                                                    : "list scalars" });
       const add = el("button", { type: "button", class: "add", textContent: `+ ${words(key)}` });
       const u = shown(meta.unit)[0];
       const legend = el("legend", {}, words(key),
@@ -528,12 +532,11 @@ const SceneForm = (() => {
       const render = (values) => {
         box.replaceChildren();
         nodes = values.map((v, i) => {
-          const label = isObj ? `${key} ${i}${v && v.name ? ` — ${v.name}` : ""}` : "";
-          // a list of numbers: each item in the list's unit; a row of a table of several
-          // units (keyframes: t, m, rad) each in its column's
-          const cols = resolved.type === "array" ? null : Units.columns(meta.unit);
+          const [colName, colUnit] = (cols && cols[i]) || ["", meta.unit];
+          const label = isObj ? `${key} ${i}${v && v.name ? ` — ${v.name}` : ""}` : colName;
+          // a list of numbers: each item in the list's unit (a row's: its column's)
           const n = this.field(itemSchema, v, `${path}.${i}`, label, true,
-                               isObj ? undefined : { unit: cols ? cols[i] : meta.unit });
+                               isObj ? undefined : { unit: cols ? colUnit : meta.unit });
           const rm = el("button", { type: "button", class: "remove", textContent: "✕",
                                     title: `remove ${key} ${i}` });
           rm.setAttribute("aria-label", `remove ${key} ${i}`);

@@ -35,11 +35,12 @@ const Units = (() => {
                   "m/s": ["mm/s", 1e3], "m/s^2": ["m/s²", 1], "kg/m^3": ["kg/m³", 1],
                   "m/m": ["mm/mm", 1], rad: ["deg", 180 / Math.PI] };
   // a table's rows of several units (a tool's keyframes [t, dx, dy, dz, rx, ry, rz]): the
-  // schema's unit -> each column's
-  const COLUMNS = { "t, m, rad": ["1", "m", "m", "m", "rad", "rad", "rad"] };
+  // schema's unit -> each column's [name, SI unit]
+  const COLUMNS = { "t, m, rad": [["t", "1"], ["dx", "m"], ["dy", "m"], ["dz", "m"],
+                                  ["rx", "rad"], ["ry", "rad"], ["rz", "rad"]] };
 
   function sceneUnit(unit) {
-    if (COLUMNS[unit]) return [[...new Set(COLUMNS[unit].map((u) => sceneUnit(u)[0] || "t"))]
+    if (COLUMNS[unit]) return [[...new Set(COLUMNS[unit].map(([, u]) => sceneUnit(u)[0] || "t"))]
       .join(", "), 1];
     return (unit && SCENE[unit]) || [unit === "1" ? "" : unit || "", 1];
   }
@@ -69,7 +70,8 @@ const Units = (() => {
     const cols = columns(unit);
     const [shownUnit] = sceneUnit(unit);
     const scale = (x, u = unit) => (typeof x === "number" ? toShown(x, u) : x);
-    const row = (r) => (Array.isArray(r) ? `[${r.map((x, i) => scale(x, cols[i])).join(", ")}]`
+    const row = (r) => (Array.isArray(r) ? `[${r.map((x, i) => scale(x, (cols[i] || [])[1]))
+      .join(", ")}]`
                                          : String(r));
     if (typeof v !== "number" && !Array.isArray(v)) return String(v);
     const text = !Array.isArray(v) ? String(scale(v))
