@@ -467,6 +467,15 @@ function showNoRun() {
   for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = true;
 }
 
+async function previewFirst() {
+  // a first look with no run to show: the chosen scene at rest in 3-D, not an empty box
+  // (once the solver process is up: it builds the preview); a scene or a run chosen
+  // meanwhile stays
+  if (!state.config.viewer_port || !state.scene) return;
+  const v = await api("GET", "/api/view");
+  if (!v.run && !v.scene) previewScene(state.scene);
+}
+
 function viewerOff() {
   // q3t serve --no-viewer: no 3-D view, and the box says so where it would be, rather than
   // stay blank (the plots, the summary and the downloads need no viewer)
@@ -491,7 +500,7 @@ async function main() {
     o.selected = e === "q3t";
     $("element").appendChild(o);
   }
-  buildSliders().catch((e) => say(e.message, true));
+  const solverUp = buildSliders().catch((e) => say(e.message, true));
   if (state.config.viewer_port) {
     // the viewer's websocket path names this tab's view: it shows this page's run, colour
     // mode and step, and another browser's viewer its own
@@ -532,6 +541,7 @@ async function main() {
   for (const a of ["pause", "resume", "step", "stop"]) $(a).onclick = () => control(a);
   await loadScenes();
   poll();
+  solverUp.then(previewFirst).catch((e) => say(e.message, true));
 }
 
 main().catch((e) => say(e.message, true));
