@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Protocol
 from server.estimate import EstimateCache
 from server.events import Changes
 from server.history import Histories
+from server.plots import probe_text
 from server.records import ACTIVE, Run
 from server.settings import Settings
 from server.views import Views
@@ -389,7 +390,8 @@ class Bridge:
         run = self.m.runs.get(frame["run"])
         if run is None:
             return
-        probes = ", ".join(f"{k} = {v:.4g}" for k, v in list(frame["probes"].items())[:3])
+        probes = ", ".join(probe_text(k, v, run.probe_kinds.get(k))
+                           for k, v in list(frame["probes"].items())[:3])
         status = (f"{run.line()}  \nstep {frame['step']}: {frame['iterations']} Newton "
                   f"iterations  \n{probes}")
         try:

@@ -130,6 +130,8 @@ class ClientView:
         run.on_update(by_user(lambda: self._choose_run(run.value)))
         time_slider.on_update(by_user(self._scrub))
         self.param_folder = g.add_folder("Live parameters")
+        with self.param_folder:  # what they act on: the run, never a scene previewed
+            self.subject = g.add_markdown("")
         self.canvas = Canvas(self.client, self.v.server.initial_camera, self.lock, self.status,
                              by_user, self.v.from_code,
                              lambda: self.mode == "live" and self.active)
@@ -154,6 +156,17 @@ class ClientView:
                 self.gui.sliders[name] = s
                 self.gui.results[name] = g.add_markdown("")
         self._show_results()
+
+    def _say_subject(self) -> None:
+        """Above the live parameters and under the run buttons: the run they act on, and that
+        a scene previewed is not it (a scene changes only what the page's Start runs)."""
+        text = ("<small>no run shown: they act on a running run</small>"
+                if self.selected is None else f"<small>of run `{self.selected}`</small>")
+        if self.selected is not None and self.mode == "preview":
+            text = (f"<small>of run `{self.selected}`, not of the scene `{self.previewed}` "
+                    "previewed</small>")
+        if self.subject.content != text:
+            self.subject.content = text
 
     def _show_results(self) -> None:
         """Beside each multiplier, what it makes of the scene's values (friction 0.1 × 2)."""
@@ -228,6 +241,7 @@ class ClientView:
             if run_id is not None and run_id in self.v.lives:
                 if self.mode == "live":
                     self.status(line)
+                    self._say_subject()
                 else:
                     self._show_live(line)
                 return
@@ -278,11 +292,13 @@ class ClientView:
                 self.gui.time.value, self.gui.time.max = 0, 1
             self.canvas.draw(frame, colour=True)
             self.status(line)
+            self._say_subject()
 
     def _clear(self, line: str) -> None:
         self.mode, self.replay, self.previewed = "none", None, None
         self.canvas.clear()
         self.status(line)
+        self._say_subject()
 
     def _load(self, run_id: str, line: str) -> None:
         """Read ``run_id``'s recording and show it, unless another run was selected since."""
@@ -307,6 +323,7 @@ class ClientView:
     def _show_live(self, line: str) -> None:
         """The shown (live) run's sheet and tools, and its latest frame."""
         self.mode, self.replay, self.previewed = "live", None, None
+        self._say_subject()
         live = self.v.lives[self.selected]
         self.canvas.set_scene(live.faces, [(t["name"], t["vertices"], t["faces"])
                                            for t in live.tools])

@@ -77,6 +77,16 @@ def probe_series(records: list[dict], kinds: dict[str, str]) -> list[dict]:
     return out
 
 
+def probe_text(name: str, value: float, kind: str | None) -> str:
+    """A probe's value as the page shows it, in its kind's unit, labelled: "punch_force =
+    0.1517 kN" (a kind not known: the SI number, unlabelled)."""
+    p = PROBES.get(kind or "")
+    if p is None:
+        return f"{name} = {value:.4g}"
+    d = measure(value, p.unit)["display"]
+    return f"{name} = {d['value']:.4g} {d['unit']}".rstrip()
+
+
 def sections(found: dict[str, list[dict]]) -> list[dict]:
     """Each section's thickness (mm) against the rest radius (mm) at its steps."""
     return [{"name": name,

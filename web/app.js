@@ -9,7 +9,7 @@ const $ = (id) => document.getElementById(id);
 // of them is not taken for the server's state after it; noticeSeq: the last notice shown
 const state = { scene: null, run: null, config: null, form: null, syncSeq: 0,
                 syncTimer: null, syncPending: null, syncRunning: null, viewSeq: 0,
-                paramSeq: 0, status: null, noticeSeq: 0 };
+                paramSeq: 0, status: null, noticeSeq: 0, editorChanged: false };
 
 // a run another browser (or a script) started: an action on it asks first, once per run,
 // and says whose it was; what others did to this view's runs is shown here
@@ -101,6 +101,8 @@ async function selectScene(name) {
   state.syncTimer = null;
   state.syncSeq++;  // answers to edits of the previous scene are stale now
   state.tomlStale = false;
+  state.editorChanged = false;
+  showSlidersFor();
   if (s.scene) {
     state.form.build(s.scene);
     showSceneErrors([]);
@@ -218,6 +220,7 @@ async function startRun() {
     const run = await api("POST", "/api/runs",
       { scene: state.scene, element: $("element").value, toml: $("toml").value });
     state.viewSeq++;  // the server selected the new run
+    state.editorChanged = false;  // the new run runs the editor's scene as it is
     adoptRun(run.id);
     say((run.state === "queued" ? `queued ${run.id} (#${run.place} in the queue)`
                                  : `started ${run.id}`) +
@@ -250,6 +253,37 @@ async function buildSliders() {
   for (const [name, r] of Object.entries(state.config.parameters))
     box.appendChild(paramRow(name, r, r.label || name));
   if (state.status) showParameters(state.status);
+}
+
+function editorEdited() {
+  // an edit in the form or the TOML view: the scene being edited is not what runs
+  state.editorChanged = true;
+  showSlidersFor();
+}
+
+function showSlidersFor() {
+  // what the live parameters act on, above them: the selected run, as it runs, never the
+  // scene in the editor below (another scene loaded, or a field edited, changes only what
+  // the next Start runs)
+  const box = $("sliders-for");
+  const st = state.status;
+  const editor = `${state.scene || "the scene"}${state.editorChanged ? ", edited" : ""}`;
+  box.replaceChildren();
+  const line = (text, cls) => box.append(Object.assign(document.createElement("div"),
+                                                       { textContent: text, className: cls }));
+  if (!st) {
+    line("Live parameters: no run selected. They act on a running run, not on the scene " +
+         "in the editor: Start run, then move them.", "subject");
+    box.classList.remove("other");
+    return;
+  }
+  const ran = `${st.scene}${st.edited ? ", unsaved edits" : ""}`;
+  line(`Live parameters of run ${st.id} (${ran}; ${st.state})`, "subject");
+  const other = st.scene !== state.scene || state.editorChanged;
+  box.classList.toggle("other", other);
+  if (other)
+    line(`Not the editor's scene (${editor}): they change run ${st.id} only. ` +
+         "Start run runs the editor's scene.", "warn");
 }
 
 function paramRow(name, r, text) {
@@ -354,6 +388,7 @@ function showParameters(st, paramSeq = state.paramSeq) {
   // not answered yet (the status would show the value before it)
   const active = ACTIVE.includes(st.state);
   const settled = paramSeq === state.paramSeq && !(st.pending || []).includes("set");
+  showSlidersFor();
   toolSliders(st);
   for (const inp of document.querySelectorAll("#sliders input")) {
     inp.disabled = !active;
@@ -426,8 +461,35 @@ async function showRun(id) {
 
 function showNoRun() {
   Results.none();
+  state.status = null;
+  showSlidersFor();
   Owner.showTouched(null);
   for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = true;
+}
+
+async function previewFirst() {
+  // a first look with no run to show: the chosen scene at rest in 3-D, not an empty box
+  // (once the solver process is up: it builds the preview); a scene or a run chosen
+  // meanwhile stays
+  if (!state.config.viewer_port || !state.scene) return;
+  const v = await api("GET", "/api/view");
+  if (!v.run && !v.scene) previewScene(state.scene);
+}
+
+function viewerOff() {
+  // q3t serve --no-viewer: no 3-D view, and the box says so where it would be, rather than
+  // stay blank (the plots, the summary and the downloads need no viewer)
+  $("viewer").remove();
+  $("full-window").hidden = true;
+  const box = $("viewer-box");
+  box.classList.add("off");
+  const p = (html) => Object.assign(document.createElement("p"), { innerHTML: html });
+  box.append(
+    p("<strong>The 3-D viewer is off</strong>: this server was started with " +
+      "<code>q3t serve --no-viewer</code>."),
+    p("To see the runs in 3-D here, restart it without <code>--no-viewer</code> " +
+      "(the viewer listens on <code>--viewer-port</code>, 8081 unless given)."),
+    p("Runs, their plots, summary and downloads work without it."));
 }
 
 async function main() {
@@ -438,22 +500,23 @@ async function main() {
     o.selected = e === "q3t";
     $("element").appendChild(o);
   }
-  buildSliders().catch((e) => say(e.message, true));
+  const solverUp = buildSliders().catch((e) => say(e.message, true));
   if (state.config.viewer_port) {
     // the viewer's websocket path names this tab's view: it shows this page's run, colour
     // mode and step, and another browser's viewer its own
     const host = `${location.hostname}:${state.config.viewer_port}`;
     const ws = `${location.protocol === "https:" ? "wss" : "ws"}://${host}/view/${VIEW}`;
     $("viewer").src = `${location.protocol}//${host}/?websocket=${encodeURIComponent(ws)}`;
-  }
+  } else viewerOff();
   $("notice-close").onclick = () => { $("notice").hidden = true; };
   Layout.init();
   Results.init();
   RunsTable.init({ select: selectRun, say, reload: loadRuns });
   $("save").onclick = saveScene;
   state.form = new SceneForm.Form($("scene-form"), await api("GET", "/api/scenes/schema"),
-                                  () => scheduleSync(syncFromForm, 300), suggestNames);
-  $("toml").oninput = () => scheduleSync(syncFromToml, 400);
+                                  () => { editorEdited(); scheduleSync(syncFromForm, 300); },
+                                  suggestNames);
+  $("toml").oninput = () => { editorEdited(); scheduleSync(syncFromToml, 400); };
   $("tab-form").onclick = () => showTab("form");
   $("tab-toml").onclick = () => showTab("toml");
   $("duplicate").onclick = async () => {
@@ -478,6 +541,7 @@ async function main() {
   for (const a of ["pause", "resume", "step", "stop"]) $(a).onclick = () => control(a);
   await loadScenes();
   poll();
+  solverUp.then(previewFirst).catch((e) => say(e.message, true));
 }
 
 main().catch((e) => say(e.message, true));

@@ -7,7 +7,8 @@
 // below the field while it has the focus) and its unit. Every field's wrapper has
 // data-path="material.nu", where the server's validation errors for that path are shown.
 //
-// Units: the file is SI; the form shows customary units (lengths mm, stresses MPa, forces kN),
+// Units: the file is SI; the form shows customary units (lengths mm, stresses MPa, forces kN,
+// angles deg: units.js),
 // always labelled, because an engineer reads 68000 MPa and 16.5 mm at a glance where 6.8e10
 // and 0.0165 invite a slipped decimal; values are converted back to SI, and a value left as
 // shown is sent back unchanged (no round-off). A decimal comma ("0,15") reads as 0.15.
@@ -321,16 +322,17 @@ const SceneForm = (() => {
     // a text input (type=number would show what the browser's locale makes of "0,15" and
     // cut long values): the value in the shown unit, the schema's bounds checked here
     numberInput(s, value, name) {
-      const [unit, f] = shown((this.meta || {}).unit);
+      const si = (this.meta || {}).unit;
+      const unit = shown(si)[0];
       const inp = el("input", { type: "text", name, class: "num", inputMode: "decimal",
                                 autocomplete: "off", spellcheck: false });
-      const first = typeof value === "number" ? fmt(value * f) : "";
+      const first = typeof value === "number" ? String(Units.toShown(value, si)) : "";
       inp.value = first;
       const size = () => { inp.size = Math.max(6, inp.value.length + 1); };
       const u = unit ? ` ${unit}` : "";
       const ends = [["minimum", "≥"], ["exclusiveMinimum", ">"], ["maximum", "≤"],
                     ["exclusiveMaximum", "<"]].filter(([k]) => s[k] !== undefined);
-      const bounds = ends.map(([k, op]) => `${op} ${fmt(s[k] * f)}${u}`);
+      const bounds = ends.map(([k, op]) => `${op} ${Units.toShown(s[k], si)}${u}`);
       if (bounds.length) inp.title = bounds.join(", ");
       const check = () => {
         const v = readNumber(inp.value);
@@ -340,11 +342,11 @@ const SceneForm = (() => {
         else if (v !== null && s.type === "integer" && !Number.isInteger(v))
           msg = "must be a whole number";
         else if (v !== null) {
-          const si = v / f;
+          const x = Units.toSI(v, si);
           for (const [k, op] of ends) {
             const b = s[k];
-            const out = { "≥": si < b, ">": si <= b, "≤": si > b, "<": si >= b }[op];
-            if (out) msg = `must be ${op} ${fmt(b * f)}${u}`;
+            const out = { "≥": x < b, ">": x <= b, "≤": x > b, "<": x >= b }[op];
+            if (out) msg = `must be ${op} ${Units.toShown(b, si)}${u}`;
           }
         }
         inp.setCustomValidity(msg);
@@ -363,7 +365,7 @@ const SceneForm = (() => {
         if (inp.value === first && typeof value === "number") return value;
         if (inp.value.trim() === "") return null;
         const v = readNumber(inp.value);
-        return v === null ? inp.value : (f === 1 ? v : Number(fmt(v / f)));
+        return v === null ? inp.value : Units.toSI(v, si);
       };
       return { inp, get };
     }
@@ -514,7 +516,11 @@ const SceneForm = (() => {
       const itemSchema = s.items || {};
       const resolved = this.resolve(itemSchema);
       const isObj = resolved.type === "object" || !!resolved.properties || !!resolved.oneOf;
-      const box = el("div", { class: isObj ? "list objects" : "list scalars" });
+      // a row of a table of several units (keyframes: t, m, rad): each number in its
+      // column's unit, named, on one line
+      const cols = resolved.type === "array" ? null : Units.columns(meta.unit);
+      const box = el("div", { class: isObj ? "list objects" : cols ? "list scalars row"
+                                                                    : "list scalars" });
       const add = el("button", { type: "button", class: "add", textContent: `+ ${words(key)}` });
       const u = shown(meta.unit)[0];
       const legend = el("legend", {}, words(key),
@@ -526,10 +532,11 @@ const SceneForm = (() => {
       const render = (values) => {
         box.replaceChildren();
         nodes = values.map((v, i) => {
-          const label = isObj ? `${key} ${i}${v && v.name ? ` — ${v.name}` : ""}` : "";
-          // a list of numbers: each item in the list's unit
+          const [colName, colUnit] = (cols && cols[i]) || ["", meta.unit];
+          const label = isObj ? `${key} ${i}${v && v.name ? ` — ${v.name}` : ""}` : colName;
+          // a list of numbers: each item in the list's unit (a row's: its column's)
           const n = this.field(itemSchema, v, `${path}.${i}`, label, true,
-                               isObj ? undefined : { unit: meta.unit });
+                               isObj ? undefined : { unit: cols ? colUnit : meta.unit });
           const rm = el("button", { type: "button", class: "remove", textContent: "✕",
                                     title: `remove ${key} ${i}` });
           rm.setAttribute("aria-label", `remove ${key} ${i}`);

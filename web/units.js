@@ -27,23 +27,57 @@ const Units = (() => {
 
   // a scene field's SI unit -> [the unit shown, factor]: what the scene form and the Runs
   // table show a scene's values in (a unit not here is shown as the schema gives it; "1",
-  // dimensionless, as a bare number)
+  // dimensionless, as a bare number). An angle in degrees: a tool's rotation of 1.5708 rad
+  // reads as 90.0002 deg at a glance. A thickness gradient (thickness + gradient . X) is
+  // thickness per length along the sheet, absolute, not relative to the thickness (so not
+  // %/mm): mm of thickness per mm, the same number as m/m.
   const SCENE = { m: ["mm", 1e3], Pa: ["MPa", 1e-6], N: ["kN", 1e-3], "N/m": ["N/mm", 1e-3],
-                  "m/s": ["mm/s", 1e3], "m/s^2": ["m/s²", 1], "kg/m^3": ["kg/m³", 1] };
+                  "m/s": ["mm/s", 1e3], "m/s^2": ["m/s²", 1], "kg/m^3": ["kg/m³", 1],
+                  "m/m": ["mm/mm", 1], rad: ["deg", 180 / Math.PI] };
+  // a table's rows of several units (a tool's keyframes [t, dx, dy, dz, rx, ry, rz]): the
+  // schema's unit -> each column's [name, SI unit]
+  const COLUMNS = { "t, m, rad": [["t", "1"], ["dx", "m"], ["dy", "m"], ["dz", "m"],
+                                  ["rx", "rad"], ["ry", "rad"], ["rz", "rad"]] };
 
   function sceneUnit(unit) {
+    if (COLUMNS[unit]) return [[...new Set(COLUMNS[unit].map(([, u]) => sceneUnit(u)[0] || "t"))]
+      .join(", "), 1];
     return (unit && SCENE[unit]) || [unit === "1" ? "" : unit || "", 1];
+  }
+
+  function columns(unit) {
+    return COLUMNS[unit] || null;
+  }
+
+  // an SI value in the unit shown, and back: 12 significant digits where the factor is a
+  // power of ten (0.0165 m is 16.5 mm, not 16.499999999999996; 16.5 mm is 0.0165 m); an angle
+  // at full precision, degrees first divided by 180, so 90 deg is pi/2 to the last bit and
+  // pi/2 shows as 90
+  const round = (x) => Number(x.toPrecision(12));
+  function toShown(v, unit) {
+    if (unit === "rad") return round(v / Math.PI * 180);
+    return round(v * sceneUnit(unit)[1]);
+  }
+  function toSI(v, unit) {
+    if (unit === "rad") return v / 180 * Math.PI;
+    const f = sceneUnit(unit)[1];
+    return f === 1 ? v : round(v / f);
   }
 
   function sceneValue(v, unit) {
     // a scene value (SI) in the unit shown, labelled: 0.0005 m -> "0.5 mm"; numbers in a
-    // list each; anything else as it is
-    const [shownUnit, f] = sceneUnit(unit);
-    const scale = (x) => (typeof x === "number" ? +(x * f).toPrecision(12) : x);
+    // list each (a table's rows column by column); anything else as it is
+    const cols = columns(unit);
+    const [shownUnit] = sceneUnit(unit);
+    const scale = (x, u = unit) => (typeof x === "number" ? toShown(x, u) : x);
+    const row = (r) => (Array.isArray(r) ? `[${r.map((x, i) => scale(x, (cols[i] || [])[1]))
+      .join(", ")}]`
+                                         : String(r));
     if (typeof v !== "number" && !Array.isArray(v)) return String(v);
-    const text = Array.isArray(v) ? `[${v.map(scale).join(", ")}]` : String(scale(v));
+    const text = !Array.isArray(v) ? String(scale(v))
+      : cols ? `[${v.map(row).join(", ")}]` : `[${v.map((x) => scale(x)).join(", ")}]`;
     return shownUnit ? `${text} ${shownUnit}` : text;
   }
 
-  return { num, withUnit, duration, sceneUnit, sceneValue };
+  return { num, withUnit, duration, sceneUnit, columns, toShown, toSI, sceneValue };
 })();

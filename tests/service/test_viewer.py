@@ -114,6 +114,19 @@ def test_viewer_draws_moves_recolours_and_scrubs(done, viewer):
     assert viewer.canvas.frame["step"] == 1
 
 
+def test_the_viewer_says_probes_in_the_units_the_page_shows():
+    """The viewer's status line under a running run's step: each probe in its kind's unit,
+    labelled, as the page's plots (kN, mm, %), not the SI number."""
+    from server.plots import probe_text
+
+    assert probe_text("punch_force", 151.7, "tool_force") == "punch_force = 0.1517 kN"
+    assert probe_text("max_plastic_strain", 0.0123, "plastic_strain") == (
+        "max_plastic_strain = 1.23 %")
+    assert probe_text("travel", -0.0002, "displacement") == "travel = -0.2 mm"
+    assert probe_text("contacts", 12.0, "contact_nodes") == "contacts = 12"
+    assert probe_text("old", 151.7, None) == "old = 151.7"  # a run before kinds were kept
+
+
 def tool_chunks(path: Path) -> tuple[dict, dict]:
     """Static tool meshes (name -> vertex count) and translations (name -> {step: xyz})."""
     meshes, poses = {}, {}

@@ -2,7 +2,8 @@
 the real server in a subprocess, on a coarse cup (punch, die and blank holder; a forming limit
 curve):
 
-- a scene is previewed before any run: the blank and the three tools;
+- a scene is previewed before any run: the blank and the three tools; the page's first look
+  previews the scene it has chosen, rather than an empty box;
 - the legend is in the window wherever the viewer is shown (its box inside the viewport and
   inside the embedded viewer's frame), and stays so when the colour changes to thinning bands
   or FLD zones;
@@ -107,8 +108,11 @@ def test_embedded_viewer_legend_preview_zones_and_section(served, browser):
     page.goto(url + "/")
     frame = page.frame_locator("#viewer")
     frame.get_by_text("Colour by").first.wait_for()
-    preview(url, "cup", page)
+    # no run yet: the page previews the scene it chose (the server's default), by itself
     frame.get_by_text("Preview of scene").first.wait_for()
+    own = {"X-Q3T-View": page.evaluate("VIEW")}
+    assert httpx.get(f"{url}/api/view", headers=own).json()["scene"] == "cup"
+    preview(url, "cup", page)
     legend_in_view(page, frame, "#viewer")
     assert "Thickness" in frame.locator(".q3t-legend").first.inner_text()
     shot(page, "01-embedded-preview", frame)

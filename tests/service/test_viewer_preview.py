@@ -108,11 +108,16 @@ def test_a_run_shows_again_once_started_or_selected(client, viewer):
                                               "step": None, "notices": []}
     assert wait_state(client, run, {"finished", "failed", "stopped"})["state"] == "finished"
     until(lambda: viewer.mode == "live", "the new run was not shown")
+    # the live parameters under the preview still act on the run: they say which
+    assert viewer.subject.content == f"<small>of run `{run}`</small>"
     client.put("/api/view/scene", json={"scene": "press"})
     assert shown(client, "press")["run"] == run  # still the selected run
     until(lambda: viewer.mode == "preview", "the preview was not shown")
+    assert viewer.subject.content == (f"<small>of run `{run}`, not of the scene `press` "
+                                      "previewed</small>")
     assert client.put("/api/view", json={"run": run}).status_code == 200
     until(lambda: viewer.mode == "live", "selecting the run did not show it again")
+    assert viewer.subject.content == f"<small>of run `{run}`</small>"
     assert client.get("/api/view").json()["scene"] is None
 
 
