@@ -218,8 +218,6 @@ class Simulation:
             for t in self.tools:
                 if t.vdof is not None and t.stop is not None:
                     x0[t.vdof, 2] = max(x0[t.vdof, 2], t.stop)
-        else:
-            self._carry(x0)
         for t in self.tools:
             t.seat(x0)
         x0[m.fixed] = target[m.fixed]
@@ -230,25 +228,6 @@ class Simulation:
         # a sub-step that barely moves (after cut-backs, or a slow tool) has its forces from
         # the state it starts in: the run's force level so far is the floor of its reference
         return minimise(m.problem, x0, m.settings, self._force_level, m.driven)
-
-    def _carry(self, x0: np.ndarray) -> None:
-        """Without a last increment to continue (the first step), the fibres that touch a
-        moving tool at the step's start move with it, in place: through the thickness, so the
-        fibre is not squeezed, by the mean of its skins' tool displacements. From rest, a punch
-        that starts on the sheet and moves half a thickness in the first step otherwise
-        starts the iteration half a thickness deep in it."""
-        plane = self.model.shell.n_plane
-        shift, count = np.zeros((plane, 3)), np.zeros(plane)
-        for t in self.tools:
-            nodes, disp = t.carried()
-            np.add.at(shift, nodes % plane, disp)
-            np.add.at(count, nodes % plane, 1.0)
-        hit = count > 0
-        if not hit.any():
-            return
-        shift[hit] /= count[hit, None]
-        for layer in range(len(self.model.shell.rest) // plane):
-            x0[layer * plane:(layer + 1) * plane] += shift
 
     # deepest penetration of a tool into the sheet a converged state may have, in sheet
     # thicknesses: the contact stiffness keeps it at 1 % under the largest forming pressure

@@ -165,17 +165,6 @@ class ToolContact(Term):
             self._lag(*normal_forces(self._start, self.prog, self._R0, here, self.k,
                                      self.delta, c2=True))
 
-    def carried(self) -> tuple[np.ndarray, np.ndarray]:
-        """The candidate nodes in the tool's contact layer at the step's start and the
-        tool's displacement over the step at each ((k,), (k, 3)); none for a force-controlled
-        tool, whose motion is solved. The step's predictor moves them with the tool where it
-        has no last increment to continue (Simulation._attempt)."""
-        if self.vdof is not None:
-            return np.zeros(0, np.int64), np.zeros((0, 3))
-        touch = sdf_world_distance(self.prog, self._R0, self.position, self._start) < self.delta
-        return self.nodes[touch], tool_displacement(self._start[touch], self._R0, self.position,
-                                                    self.R_now, self.t_now)
-
     def seat(self, x: np.ndarray) -> None:
         """A force-controlled tool that the predicted state x leaves without contact is put,
         in place, at the height where its contact with x carries its force (or on its stop
