@@ -218,8 +218,11 @@ class Simulation:
             for t in self.tools:
                 if t.vdof is not None and t.stop is not None:
                     x0[t.vdof, 2] = max(x0[t.vdof, 2], t.stop)
+        for t in self.tools:
+            t.seat(x0)
         x0[m.fixed] = target[m.fixed]
-        if self._last_increment is not None and not np.isfinite(m.problem.energy(x0)):
+        if not np.array_equal(x0[~m.fixed], self.x[~m.fixed]) \
+                and not np.isfinite(m.problem.energy(x0)):
             x0 = self.x.copy()
             x0[m.fixed] = target[m.fixed]
         # a sub-step that barely moves (after cut-backs, or a slow tool) has its forces from

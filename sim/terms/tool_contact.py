@@ -165,6 +165,45 @@ class ToolContact(Term):
             self._lag(*normal_forces(self._start, self.prog, self._R0, here, self.k,
                                      self.delta, c2=True))
 
+    def seat(self, x: np.ndarray) -> None:
+        """A force-controlled tool that the predicted state x leaves without contact is put,
+        in place, at the height where its contact with x carries its force (or on its stop
+        when nothing carries it above that). Continued from the last increment, a blank
+        holder that rose with the flange in the first step started the second one above the
+        sheet: its Hessian then held only k_floor, and Newton's first correction sent it far
+        into the sheet, which backtracking cut to a 64th over two iterations."""
+        if self.vdof is None or not len(self.nodes):
+            return
+        y = x.copy()
+        push = self.force * self.force_scale
+
+        def unbalanced(u: float) -> float:  # the height's residual: > 0 while it should sink
+            y[self.vdof, 2] = u
+            gp = penalty_contact(y[self.nodes], self.prog, self.R_now, self.translation(y),
+                                 self.k, self.delta, c2=True)[1]
+            return push - float(gp[:, 2].sum())
+
+        u = float(x[self.vdof, 2])
+        if unbalanced(u) < push:  # in contact: the predictor's height stands
+            return
+        # for a flat face pressing along -z the gap shrinks by what the tool sinks, so the
+        # balance lies within the nearest gap plus the layer below; twice that for a face
+        # that is not flat
+        lo = u - 2.0 * (max(float(self.gap(x).min()), 0.0) + self.delta)
+        if self.stop is not None:
+            lo = max(lo, self.stop)
+        if unbalanced(lo) >= 0.0:  # nothing carries it down to there
+            if self.stop is not None and lo == self.stop:
+                x[self.vdof, 2] = lo
+            return
+        hi = u
+        for _ in range(64):  # bisection to the spacing of the doubles at the height
+            mid = 0.5 * (lo + hi)
+            if mid in (lo, hi):
+                break
+            lo, hi = (mid, hi) if unbalanced(mid) < 0.0 else (lo, mid)
+        x[self.vdof, 2] = hi
+
     def _lag(self, lam: np.ndarray, nrm: np.ndarray) -> None:
         act = lam > 0
         # the prescribed motion over the step of the tool points under the nodes
