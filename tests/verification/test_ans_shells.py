@@ -110,8 +110,8 @@ def test_springback_matches_the_fibre_model(hardening):
     0.1 %): the element's own error, apart from the section rule's. At 9 points (the scene's
     until 2026-12-03) the springback is 1.8 / 1.4 % short of the converged fibre model, and so
     is the fibre model on those 9 points: nine Gauss points integrate the nearly rigid-plastic
-    stress block, a step at the thin elastic core, that coarsely. The scene's own rule (20
-    points) is what is held to the 1 %."""
+    stress block, a step at the thin elastic core, that coarsely. The scene's own rule (19
+    points, measured -0.37 / -0.30 %) is what is held to the 1 %."""
     from sim.analytic import fibre_section
     from sim.materials.plasticity import LAWS
 
@@ -124,6 +124,5 @@ def test_springback_matches_the_fibre_model(hardening):
         same_rule = fibre_section(*section, points=f"gauss:{rule}")["springback"]
         assert abs(springback / same_rule - 1) < 1e-3, (rule, springback, same_rule)
         if tp is None:
-            assert rule >= 20, rule  # fewer points fall short of the 1 % (docstring)
             converged = fibre_section(*section)["springback"]
             assert abs(springback / converged - 1) < 0.01, (springback, converged)
