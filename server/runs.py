@@ -413,11 +413,11 @@ class RunManager:
             self.finish(run, "failed", reason)
         self.save(run)
 
-    def _result_if_missing(self, run: Run) -> None:
+    def _result_if_missing(self, run: Run, reason: str | None = None) -> None:
         """A run whose solver ended without writing result.json gets one from what the
-        server knows: the reason and the step records."""
+        server knows: the reason (``reason``, else the run's own) and the step records."""
         with self.lock:
-            reason, steps = run.reason or run.state, list(run.records)
+            reason, steps = reason or run.reason or run.state, list(run.records)
         problem = self.files.result_if_missing(run.id, run.scene, run.element, reason, steps)
         if problem:
             self.note(run.id, f"{reason}; {problem}")
@@ -470,13 +470,17 @@ class RunManager:
                 return
             run = self.runs.get(slot.run or "")
         note = self.repair(run) if run is not None else ""
+        reason = f"{w.death()}{note}"
+        if run is not None:
+            # before the run reads as failed: a client that sees it failed finds its result.json
+            self._result_if_missing(run, reason)
         with self.lock:
             if self.closing.is_set() or slot.worker is not w:
                 return
             slot.worker = self._new_worker()
             self.restarts += 1
             if run is not None and slot.run == run.id:
-                self.finish(run, "failed", f"{w.death()}{note}")
+                self.finish(run, "failed", reason)
             self._dispatch()
         w.close(timeout=0.1)
         if run is not None:
