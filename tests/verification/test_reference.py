@@ -42,4 +42,8 @@ def test_the_2mm_cup_keeps_its_stored_answers():
     every probe at every step and the radial section within the issue's 0.5 % of the stored
     run. Friction and plasticity make the answer path-dependent, so this is a bar, not the
     round-off floor."""
-    _check("cup_drawing-q3t-2mm.json", TOLERANCE)
+    sim = _check("cup_drawing-q3t-2mm.json", TOLERANCE)
+    # issue 16's goal, 8 Newton iterations per step (the stored run took 1539; measured 393
+    # with MKL_CBWR=AUTO, COMPATIBLE and AVX2 alike at the scene's rtol). Counts do not depend
+    # on the machine's speed; the goal itself is the bar
+    assert sum(r.iterations for r in sim.records) <= 400, [r.iterations for r in sim.records]
