@@ -26,10 +26,10 @@ Generated from the scene schema by `make docs` (`python -m sim.scene_reference`)
 by hand: `tests/unit/test_docs.py` fails when this file and the schema differ. How the tables fit
 together, with examples: [scenes.md](scenes.md). Values are SI in the file (m, Pa, kg, s, N);
 the unit column names each number's ("1": a plain number; the page's form shows lengths in mm,
-stresses in MPa, forces in kN and angles in deg, and writes SI). A field without a default is required;
-"unset" means the field may be left out, and what then happens is in its description. A table
-of several kinds takes the fields of its `kind` only; checks that tie fields together (one
-thickness source, a law's own parameters) are in the table descriptions.
+stresses in MPa, forces in kN and angles in deg, and writes SI). A field without a default is
+required; "unset" means the field may be left out, and what then happens is in its
+description. A table of several kinds takes the fields of its `kind` only; checks that tie
+fields together (one thickness source, a law's own parameters) are in the table descriptions.
 """
 
 

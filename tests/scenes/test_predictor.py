@@ -9,6 +9,24 @@ from tests.support import ROOT
 from tests.support.scenes import coarse
 
 
+def _start(sim, monkeypatch, dt, t_new=None):
+    """The predicted start of the next attempt of ``dt`` to ``t_new`` (default ``t + dt``;
+    Newton not run)."""
+    starts = []
+
+    def record(problem, x0, *args, **kw):
+        starts.append(x0.copy())
+        raise RuntimeError("predicted start recorded")
+
+    monkeypatch.setattr(simulation, "minimise", record)
+    try:
+        sim._attempt(sim.t + dt if t_new is None else t_new, dt)
+    except RuntimeError:
+        pass
+    assert starts, "Newton was not reached"
+    return starts[0]
+
+
 def test_a_blank_holder_on_its_stop_is_not_predicted_past_it(monkeypatch):
     """In the 2 mm cup the rim leaves the blank holder at step 32: the holder drops 0.3 mm onto
     its stop. Continued past the stop, its spring (100x the contact stiffness of all its
@@ -20,34 +38,8 @@ def test_a_blank_holder_on_its_stop_is_not_predicted_past_it(monkeypatch):
     sim.x[holder.vdof, 2] = holder.stop  # landed in the last increment, from 0.3 mm above
     sim._last_increment = np.zeros_like(sim.x)
     sim._last_increment[holder.vdof, 2] = -3e-4
-    starts = []
-
-    def record(problem, x0, *args, **kw):
-        starts.append(x0.copy())
-        raise RuntimeError("predicted start recorded")
-
-    monkeypatch.setattr(simulation, "minimise", record)
-    try:
-        sim._attempt(sim.t + 1.0 / sim.model.scene.stepping.steps, 1.0)
-    except RuntimeError:
-        pass
-    assert starts and starts[0][holder.vdof, 2] == holder.stop
-
-
-def _start(sim, monkeypatch, dt):
-    """The predicted start of the next attempt of ``dt`` (Newton not run)."""
-    starts = []
-
-    def record(problem, x0, *args, **kw):
-        starts.append(x0.copy())
-        raise RuntimeError("predicted start recorded")
-
-    monkeypatch.setattr(simulation, "minimise", record)
-    try:
-        sim._attempt(sim.t + dt, dt)
-    except RuntimeError:
-        pass
-    return starts[0]
+    t_new = sim.t + 1.0 / sim.model.scene.stepping.steps
+    assert _start(sim, monkeypatch, 1.0, t_new)[holder.vdof, 2] == holder.stop
 
 
 def test_a_blank_holder_predicted_above_the_sheet_starts_where_its_contact_carries_it(
@@ -55,8 +47,8 @@ def test_a_blank_holder_predicted_above_the_sheet_starts_where_its_contact_carri
     """A blank holder whose continued motion leaves it above the predicted sheet is put where
     its contact carries its force: with k_floor alone in its Hessian, Newton's first
     correction had sent it far into the sheet (the 2 mm cup's second step: 10 -> 8
-    iterations, square_cup's 17 -> 14). In contact, the predicted height stands; with nothing under it down to its
-    stop, it starts on the stop."""
+    iterations, square_cup's 17 -> 14). In contact, the predicted height stands; with nothing
+    under it down to its stop, it starts on the stop."""
     from sim.terms.contact_kernels import penalty_contact
 
     sim = Simulation.from_scene(coarse(ROOT / "scenes" / "cup_drawing.toml"))
