@@ -109,6 +109,8 @@ results: $(STAMP)
 	  --results $(R)/stroke-cup_drawing.md
 	$(BIN)/q3t run cup_drawing --quiet --out runs/forming-cup_drawing \
 	  --results $(R)/forming-cup_drawing.md
+	$(BIN)/q3t run cup_drawing --quiet --set mesh.edge_length=0.0005 \
+	  --out runs/forming-cup_drawing-paper --results $(R)/forming-cup_drawing-paper.md
 	$(BIN)/q3t run cup_drawing_aa5754 --quiet --out runs/forming-cup_drawing_aa5754-2mm \
 	  --results $(R)/forming-cup_drawing_aa5754-2mm.md
 	$(BIN)/q3t run cup_drawing_aa5754 --element q3t_ans --quiet \
