@@ -20,18 +20,14 @@ serve: $(STAMP)
 pytest = $(BIN)/python -m pytest -q $(1); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests" >&2; exit 1; fi; exit $$rc
 
-# a worker per core, each taking whole test modules (--dist loadfile): a module's server,
-# solver process and browser start once, on one worker
-PARALLEL := -n auto --dist loadfile
-
 # every tier (CI)
 test: $(STAMP)
-	$(call pytest,$(PARALLEL))
+	$(call pytest)
 
 # the edit loop: tests/unit, tests/scenes and the quick modules of the other tiers (marker
 # fast), without the slow tests
 test-fast: $(STAMP)
-	$(call pytest,$(PARALLEL) -m "fast and not slow")
+	$(call pytest,-m "fast and not slow")
 
 # The suite beside one busy process per core: a test that races the clock fails here.
 # ARGS picks tests (e.g. make test-loaded ARGS=tests/apps/test_sweep.py); tests/loaded.py says
