@@ -23,7 +23,7 @@ from server.problems import Conflict, Invalid, NotFound
 from server.records import ENDED
 from sim.elements import ELEMENTS
 from sim.frames import results
-from sim.scene.load import SceneError, apply_override, read_toml, scene_from_toml
+from sim.scene.load import SceneError, apply_override, read_toml, scene_from_toml, unit_of
 
 if TYPE_CHECKING:
     from server.runs import RunManager
@@ -118,10 +118,11 @@ def _head(r: Loaded) -> dict:
 
 
 # ---- what differs --------------------------------------------------------------------------
-def settings(r: Loaded) -> dict[str, object]:
+def settings(r: Loaded) -> tuple[dict[str, object], dict[str, str]]:
     """The run's scene as it ran, flattened to dotted keys (``tools.punch.friction``): its
     scene.toml with its overrides, validated (so that defaults and number spellings compare
-    equal); as written when it no longer validates (a mesh file since deleted, ...)."""
+    equal); as written when it no longer validates (a mesh file since deleted, ...). And each
+    key's schema path (``tools.0.friction``)."""
     path = r.folder / "scene.toml"
     text = path.read_text() if path.is_file() else ""
     overrides = r.status.get("overrides") or {}
@@ -131,7 +132,8 @@ def settings(r: Loaded) -> dict[str, object]:
         tree = _as_written(text, overrides)
     for k in ("name", "description"):  # the scene's name is compared as the run's
         tree.pop(k, None)
-    return flatten(tree)
+    paths: dict[str, str] = {}
+    return flatten(tree, paths=paths), paths
 
 
 def _as_written(text: str, overrides: dict) -> dict:
@@ -149,17 +151,23 @@ def _as_written(text: str, overrides: dict) -> dict:
     return tree
 
 
-def flatten(node: object, prefix: str = "") -> dict[str, object]:
-    """Dotted keys to leaf values; a list of named tables is keyed by the names."""
+def flatten(node: object, prefix: str = "", paths: dict | None = None,
+            path: str = "") -> dict[str, object]:
+    """Dotted keys to leaf values; a list of named tables is keyed by the names. ``paths``,
+    when given, gets each key's schema path (the list's index in place of the name), which
+    ``unit_of`` reads."""
     if isinstance(node, dict):
-        items = node.items()
+        items = ((k, k, v) for k, v in node.items())
     elif isinstance(node, list) and node and all(isinstance(x, dict) for x in node):
-        items = ((x.get("name") or str(i), x) for i, x in enumerate(node))
+        items = ((x.get("name") or str(i), str(i), x) for i, x in enumerate(node))
     else:
+        if paths is not None:
+            paths[prefix] = path
         return {prefix: node}
     out: dict[str, object] = {}
-    for k, v in items:
-        out.update(flatten(v, f"{prefix}.{k}" if prefix else str(k)))
+    for k, index, v in items:
+        out.update(flatten(v, f"{prefix}.{k}" if prefix else str(k), paths,
+                           f"{path}.{index}" if path else str(index)))
     return out
 
 
@@ -170,30 +178,43 @@ def differences(runs: list[Loaded]) -> dict:
     scenes = [r.status["scene"] for r in runs]
     if len(set(scenes)) > 1:
         items.append({"what": "scene", "values": scenes})
-    flat = [settings(r) for r in runs]
+    flat, paths = zip(*(settings(r) for r in runs), strict=True)
     keys = sorted({k for f in flat for k in f}, key=lambda k: (k != "shell.element", k))
     for k in keys:
         values = [f.get(k) for f in flat]
         if any(v != values[0] for v in values):
-            items.append({"what": k, "values": values})
+            path = next(p[k] for p in paths if k in p)
+            items.append({"what": k, "values": values, "unit": unit_of(path)})
     edited = [r.letter for r in runs if r.status.get("edited")]
     live = {r.letter: r.status.get("parameter_log") or [] for r in runs}
     return {"items": items, "live": live, "edited": edited,
             "line": _line(runs, items, live, edited)}
 
 
-def _value(v: object) -> str:
-    if isinstance(v, float):
-        return f"{v:.4g}"
+# a scene field's SI unit and the unit the page shows it in (web/units.js, the form's): shown,
+# factor; other units are shown as they are, plain numbers ("1") without one
+SHOWN = {"m": ("mm", 1e3), "Pa": ("MPa", 1e-6), "N": ("kN", 1e-3), "rad": ("deg", 180 / np.pi)}
+
+
+def _value(v: object, factor: float = 1.0) -> str:
+    if isinstance(v, float) or (isinstance(v, int) and not isinstance(v, bool) and factor != 1):
+        return f"{v * factor:.4g}"
     if isinstance(v, list):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
+        return "[" + ", ".join(_value(x, factor) for x in v) + "]"
     return "–" if v is None else str(v)
+
+
+def _shown(item: dict) -> str:
+    """A setting's values side by side in the unit the page shows, labelled."""
+    unit = item.get("unit")
+    shown, factor = SHOWN.get(unit, (unit if unit not in (None, "1") else "", 1.0))
+    text = " | ".join(_value(v, factor) for v in item["values"])
+    return f"{item['what']} {text} {shown}" if shown else f"{item['what']} {text}"
 
 
 def _line(runs: list[Loaded], items: list[dict], live: dict, edited: list[str]) -> str:
     letters = "/".join(r.letter for r in runs)
-    parts = [f"{it['what']} " + " | ".join(_value(v) for v in it["values"])
-             for it in items[:LINE_ITEMS]]
+    parts = [_shown(it) for it in items[:LINE_ITEMS]]
     if len(items) > LINE_ITEMS:
         parts.append(f"and {len(items) - LINE_ITEMS} more settings")
     changes = [f"{letter}: {e['name']} = {_value(e['value'])} from step {e['step']}"

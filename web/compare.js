@@ -219,7 +219,9 @@ const Compare = (() => {
     const d = $("compare-differs");
     d.textContent = data.differs.line;
     d.dataset.items = String(data.differs.items.length);
-    d.title = data.differs.items.map((it) => `${it.what}: ${it.values.join(" | ")}`)
+    // every differing setting, in the form's units (the line names the first few)
+    d.title = data.differs.items.map((it) => `${it.what}: ${it.values
+      .map((v) => (v === null ? "–" : Units.sceneValue(v, it.unit || ""))).join(" | ")}`)
       .join("\n");
   }
 

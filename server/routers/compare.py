@@ -42,6 +42,9 @@ class ComparedRun(BaseModel):
 class Difference(BaseModel):
     what: str = Field(description="scene, or a setting's dotted key (tools.punch.friction)")
     values: list = Field(description="one per run, in order (null: not set)")
+    unit: str | None = Field(None, description="the setting's SI unit as the scene file has "
+                             "it (m, Pa, N, rad, 1; null for the scene and unitless fields); "
+                             "the line shows it in mm, MPa, kN, deg")
 
 
 class Differences(BaseModel):

@@ -133,6 +133,8 @@ def test_the_line_says_what_differs(env, runs):
     assert items["tools.punch.friction"] == [0.1, 0.05, 0.1]
     assert items["tools.die.friction"] == [0.1, 0.05, 0.1]
     assert "scene" not in items and len(items) == 3  # nothing else differs
+    # a tool's field found by its name (tools.punch: tools.0 in the schema); friction has no unit
+    assert {it["what"]: it["unit"] for it in d["items"]}["tools.punch.friction"] == "1"
     assert d["live"]["B"] == [{"step": 3, "name": "friction_scale", "value": 2.0}]
     assert d["live"]["A"] == d["live"]["C"] == []
     line = d["line"]
@@ -180,7 +182,10 @@ def test_no_difference_map_across_meshes(env, runs):
                                "values": None, "max_abs": None}
     # each run's own thickness still shows (the A/B toggle)
     assert len(t["b"]["thickness"]) > len(t["a"]["thickness"])
-    assert "mesh.edge_length 0.003 | 0.002" in cmp["differs"]["line"]
+    # in the form's units, labelled: the schema's unit by the field's path (tools by name here)
+    assert "mesh.edge_length 3 | 2 mm" in cmp["differs"]["line"]
+    item = next(it for it in cmp["differs"]["items"] if it["what"] == "mesh.edge_length")
+    assert item["unit"] == "m" and item["values"] == [0.003, 0.002]
 
 
 def test_bad_input(env, runs):

@@ -202,6 +202,12 @@ def test_sweep_cases_open_from_the_panel(served, browser):
     page.wait_for_selector("#compare-thickness .main-svg")
     line = page.text_content("#compare-differs")
     assert line.startswith("A/B/C/D differ in:") and "tools.punch.friction" in line
+    # the sweep's edge lengths in mm, labelled, on the line and in its tooltip (the file's m)
+    edge = next(p for p in line.split("; ") if "mesh.edge_length" in p)
+    assert edge.endswith(" mm") and "0.00" not in edge, edge
+    tip = page.get_attribute("#compare-differs", "title").splitlines()
+    assert next(t for t in tip if t.startswith("mesh.edge_length")).endswith(" mm"), tip
+    shot(page, "sweep-compare")
     # A and B are on other meshes (the sweep's edge lengths): no difference map, and why
     note = page.text_content("#compare-thickness-note")
     assert "no difference map: the meshes differ" in note
