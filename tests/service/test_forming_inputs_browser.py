@@ -20,7 +20,7 @@ import httpx
 import pytest
 import trimesh
 
-from tests.support.browser import serve
+from tests.support.browser import open_scene, serve_without_viewer
 from tests.support.scenes import PRESS_TOML, tiny_cup_toml
 from tests.support.service import ENDED, until
 
@@ -50,25 +50,9 @@ EARS = tiny_cup_toml(4).replace('name = "tiny_cup"', 'name = "ears"').replace(
 def served(tmp_path_factory):
     """The server's url and its folder (scenes/, runs/), without the viewer: the press and
     the Hill48 cup."""
-    tmp = tmp_path_factory.mktemp("forming-inputs")
-    os.environ["Q3T_CACHE"] = str(tmp / "cache")  # the server inherits it: no user's cache
-    try:
-        with serve(tmp, {"press": PRESS, "ears": EARS}, "press", "--no-viewer") as (url, _):
-            yield url, tmp
-    finally:
-        del os.environ["Q3T_CACHE"]
-
-
-def open_scene(open_page, url: str, scene: str, ready: str):
-    """The page with ``scene`` chosen and its form showing ``ready``. A scene's entry is
-    marked chosen once its form is built; a click on the chosen one would build it again,
-    after the test's first edits, so only another scene is clicked."""
-    page = open_page(url, "#scenes li.sel")
-    if page.get_attribute("#scenes li.sel", "data-name") != scene:
-        page.click(f"#scenes li[data-name='{scene}']")
-        page.wait_for_selector(f"#scenes li.sel[data-name='{scene}']")
-    page.wait_for_selector(ready)
-    return page
+    scenes = {"press": PRESS, "ears": EARS}
+    with serve_without_viewer(tmp_path_factory.mktemp("forming-inputs"), scenes, "press") as s:
+        yield s
 
 
 def upload(page, field: str, path: Path) -> str:

@@ -21,7 +21,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.support.browser import serve
+from tests.support.browser import open_scene, serve_without_viewer
 from tests.support.scenes import PRESS_TOML
 from tests.support.service import ENDED, until
 
@@ -46,23 +46,9 @@ PUNCH = "tools.1"
 
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("page-units")
-    os.environ["Q3T_CACHE"] = str(tmp / "cache")  # the server inherits it: no user's cache
-    try:
-        with serve(tmp, {"press": PRESS_TOML, "turn": TURN}, "press", "--no-viewer") as (url, _):
-            yield url, tmp
-    finally:
-        del os.environ["Q3T_CACHE"]
-
-
-def open_scene(open_page, url: str, scene: str, ready: str):
-    """The page with ``scene`` chosen and its form showing ``ready``."""
-    page = open_page(url, "#scenes li.sel")
-    if page.get_attribute("#scenes li.sel", "data-name") != scene:
-        page.click(f"#scenes li[data-name='{scene}']")
-        page.wait_for_selector(f"#scenes li.sel[data-name='{scene}']")
-    page.wait_for_selector(ready)
-    return page
+    scenes = {"press": PRESS_TOML, "turn": TURN}
+    with serve_without_viewer(tmp_path_factory.mktemp("page-units"), scenes, "press") as s:
+        yield s
 
 
 def synced(page, *texts: str) -> None:

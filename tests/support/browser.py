@@ -69,6 +69,31 @@ def serve(tmp: Path, scenes: dict[str, str], default: str,
 
 
 @contextlib.contextmanager
+def serve_without_viewer(tmp: Path, scenes: dict[str, str],
+                         default: str) -> Iterator[tuple[str, Path]]:
+    """``serve`` with ``--no-viewer`` and a cache of its own (Q3T_CACHE, which the server
+    inherits: no user's cache); yields its url and ``tmp``."""
+    os.environ["Q3T_CACHE"] = str(tmp / "cache")
+    try:
+        with serve(tmp, scenes, default, "--no-viewer") as (url, _):
+            yield url, tmp
+    finally:
+        del os.environ["Q3T_CACHE"]
+
+
+def open_scene(open_page, url: str, scene: str, ready: str):  # noqa: ANN001, ANN201
+    """The page with ``scene`` chosen and its form showing ``ready``. A scene's entry is
+    marked chosen once its form is built; a click on the chosen one would build it again,
+    after the test's first edits, so only another scene is clicked."""
+    page = open_page(url, "#scenes li.sel")
+    if page.get_attribute("#scenes li.sel", "data-name") != scene:
+        page.click(f"#scenes li[data-name='{scene}']")
+        page.wait_for_selector(f"#scenes li.sel[data-name='{scene}']")
+    page.wait_for_selector(ready)
+    return page
+
+
+@contextlib.contextmanager
 def chromium(shots: Path) -> Iterator[object]:
     """Debian's chromium under Playwright, with software WebGL; screenshots go to ``shots``."""
     from playwright.sync_api import sync_playwright
