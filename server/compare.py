@@ -23,6 +23,7 @@ from server.problems import Conflict, Invalid, NotFound
 from server.records import ENDED
 from sim.elements import ELEMENTS
 from sim.frames import results
+from sim.frames.units import DISPLAY
 from sim.scene.load import SceneError, apply_override, read_toml, scene_from_toml, unit_of
 
 if TYPE_CHECKING:
@@ -191,9 +192,10 @@ def differences(runs: list[Loaded]) -> dict:
             "line": _line(runs, items, live, edited)}
 
 
-# a scene field's SI unit and the unit the page shows it in (web/units.js, the form's): shown,
-# factor; other units are shown as they are, plain numbers ("1") without one
-SHOWN = {"m": ("mm", 1e3), "Pa": ("MPa", 1e-6), "N": ("kN", 1e-3), "rad": ("deg", 180 / np.pi)}
+# a scene field's SI unit and the unit the page's form shows it in: the results' (mm, MPa, kN),
+# but a scene's plain number (friction, Poisson's ratio) stays one rather than a %, and angles
+# are in deg; other units as they are
+SHOWN = {**DISPLAY, "1": ("", 1.0), "rad": ("deg", 180 / np.pi)}
 
 
 def _value(v: object, factor: float = 1.0) -> str:
@@ -207,7 +209,7 @@ def _value(v: object, factor: float = 1.0) -> str:
 def _shown(item: dict) -> str:
     """A setting's values side by side in the unit the page shows, labelled."""
     unit = item.get("unit")
-    shown, factor = SHOWN.get(unit, (unit if unit not in (None, "1") else "", 1.0))
+    shown, factor = SHOWN.get(unit or "", (unit, 1.0))
     text = " | ".join(_value(v, factor) for v in item["values"])
     return f"{item['what']} {text} {shown}" if shown else f"{item['what']} {text}"
 
