@@ -286,7 +286,7 @@ class ClientView:
             self.mode, self.replay, self.previewed = "preview", None, scene
             self.canvas.set_scene(np.asarray(faces, np.uint32),
                                   [(t["name"], t["vertices"], t["faces"]) for t in tools])
-            self.canvas.palette.ranges.seen = {}
+            self.canvas.palette.ranges.show({}, f"the blank of scene {scene} at rest (no run)")
             self.canvas.palette.ranges.add(frame["fields"])
             with self.v.from_code():
                 self.gui.time.value, self.gui.time.max = 0, 1
@@ -311,7 +311,7 @@ class ClientView:
                 return
             self.replay = rep
             self.canvas.set_scene(rep.faces, [(n, V, F) for n, (V, F) in rep.tools.items()])
-            self.canvas.palette.ranges.seen = {}
+            self.canvas.palette.ranges.show({})
             for fields in rep.fields:  # a recorded run is over: its range is known at once
                 self.canvas.palette.ranges.add(fields)
             with self.v.from_code():
@@ -327,7 +327,7 @@ class ClientView:
         live = self.v.lives[self.selected]
         self.canvas.set_scene(live.faces, [(t["name"], t["vertices"], t["faces"])
                                            for t in live.tools])
-        self.canvas.palette.ranges.seen = live.seen
+        self.canvas.palette.ranges.show(live.seen)
         with self.v.from_code():
             self.gui.time.value, self.gui.time.max = 0, 1
         if live.frame is not None:

@@ -191,6 +191,12 @@ class Ranges:
         # the shown run's min..max per field; the viewer swaps it when it shows another run
         self.seen: dict[str, tuple[float, float]] = {}
         self.fixed: dict[str, tuple[float, float]] = {}
+        self.subject = "this run"  # what ``seen`` is the range of, as the legend names it
+
+    def show(self, seen: dict[str, tuple[float, float]], subject: str = "this run") -> None:
+        """Colour over ``seen`` (a run's ranges, shared with it so they grow with it), the range
+        of ``subject``: a run, or a scene's blank previewed at rest before any run."""
+        self.seen, self.subject = seen, subject
 
     def add(self, fields: dict[str, np.ndarray]) -> None:
         grow(self.seen, fields)
@@ -208,4 +214,4 @@ class Ranges:
         if key in self.fixed:
             return (*self.fixed[key], "range fixed (kept across runs)")
         lo, hi = self.seen.get(key, (0.0, 1.0))
-        return (*widened(lo, hi, MIN_SPAN.get(key, 1e-6)), "range of this run")
+        return (*widened(lo, hi, MIN_SPAN.get(key, 1e-6)), f"range of {self.subject}")

@@ -75,6 +75,8 @@ def test_a_scene_previews_its_blank_and_tools_before_any_run(client, viewer):
                                atol=1e-9)
     assert "Preview of scene `press`" in viewer.gui.status.content
     assert "Thickness" in viewer.canvas.legend.content  # coloured, with its legend
+    # its range is the blank's at rest, not a run's (there is none)
+    assert "range of the blank of scene press at rest (no run)" in viewer.canvas.legend.content
     assert client.get("/api/runs").json() == []
 
 
@@ -110,6 +112,7 @@ def test_a_run_shows_again_once_started_or_selected(client, viewer):
     until(lambda: viewer.mode == "live", "the new run was not shown")
     # the live parameters under the preview still act on the run: they say which
     assert viewer.subject.content == f"<small>of run `{run}`</small>"
+    assert "range of this run" in viewer.canvas.legend.content
     client.put("/api/view/scene", json={"scene": "press"})
     assert shown(client, "press")["run"] == run  # still the selected run
     until(lambda: viewer.mode == "preview", "the preview was not shown")
@@ -118,6 +121,7 @@ def test_a_run_shows_again_once_started_or_selected(client, viewer):
     assert client.put("/api/view", json={"run": run}).status_code == 200
     until(lambda: viewer.mode == "live", "selecting the run did not show it again")
     assert viewer.subject.content == f"<small>of run `{run}`</small>"
+    assert "range of this run" in viewer.canvas.legend.content
     assert client.get("/api/view").json()["scene"] is None
 
 
