@@ -199,6 +199,7 @@ def _step(m: Books, ev: dict) -> Booked:
             run.records.append(ev["record"])
             run.step = ev["record"]["step"]
             run.stepping_s += ev.get("wall_s") or 0.0
+            run.paced_s += ev.get("delay_s") or 0.0
             run.n_steps = ev.get("n_steps", run.n_steps)  # tool_speed changes the count
             run.frames.update(ev.get("frames") or {})
     return Booked()

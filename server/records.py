@@ -71,6 +71,7 @@ class Run:
     punches: dict[str, list[float]] = field(default_factory=dict)
     probe_kinds: dict[str, str] = field(default_factory=dict)
     stepping_s: float = 0.0  # wall time the solver spent in the steps made
+    paced_s: float = 0.0  # the pauses after them (``q3t serve --step-delay``)
     started: float | None = None  # Unix time it left the queue for a solver process
     ended: float | None = None  # Unix time it ended
     # the view (a browser's page, server.views) that started it; "default": a script
@@ -105,14 +106,14 @@ class Run:
     def progress(self, now: float) -> dict:
         """Steps done of all, the wall time since it left the queue (to the end, once it
         ended; None for a run that never started) and the time the steps left need at the
-        mean cost of those done (0 once finished; None before the first step, or for a run
-        that ended early and will not go on)."""
+        mean cost of those done, their pauses included (0 once finished; None before the first
+        step, or for a run that ended early and will not go on)."""
         done, steps = self.step, self.n_steps
         left = None
         if self.state == "finished":
             left = 0.0
         elif self.state in ACTIVE and done and steps:
-            left = self.stepping_s / done * max(steps - done, 0)
+            left = (self.stepping_s + self.paced_s) / done * max(steps - done, 0)
         # a run saved before runs were queued started when it was created
         start = self.started if self.started is not None else \
             None if self.state in (QUEUED, CANCELLED) else self.created

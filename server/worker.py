@@ -142,6 +142,9 @@ class Solver:
         self.recorder = None
         self.last_mesh = -1  # step of the last sheet mesh written to the recording
         self.paused = False
+        # --step-delay: no step before this (time.monotonic()); commands are answered meanwhile,
+        # so a Stop or a parameter change does not wait out the pause
+        self.next_step_at = 0.0
         self.produced = self.dropped = 0  # frames of this run made / dropped (queue full)
         self.mesh_cache: dict = {}  # tool meshes by shape: a repeated run skips the meshing
         self.note: str | None = None  # a problem of the run's that does not end it
@@ -368,7 +371,8 @@ class Solver:
         wall = time.perf_counter() - t0
         msg = _frame_msg(self.run, self.sim)
         self.produced += 1
-        self.emit("step", record=asdict(rec), wall_s=wall, n_steps=self.sim.n_steps,
+        self.emit("step", record=asdict(rec), wall_s=wall, delay_s=self.step_delay,
+                  n_steps=self.sim.n_steps,
                   frames={"produced": self.produced, "dropped": self.dropped})
         try:
             self.record("step", asdict(rec))
@@ -386,8 +390,7 @@ class Solver:
                 self.frames.put_nowait(msg)
             except queue.Full:
                 self.dropped += 1  # the viewer shows a newer frame soon
-        if self.step_delay:
-            time.sleep(self.step_delay)
+        self.next_step_at = time.monotonic() + self.step_delay
 
     def _record_summary(self, entries: list[dict]) -> None:
         from sim.frames.summary import table
@@ -484,12 +487,13 @@ def _serve(solver: Solver, commands: Channel, owner: Owner | None) -> bool:
             if solver.sim is not None:
                 solver.finish("failed", "the server process died")
             return True
+        wait = solver.next_step_at - time.monotonic() if solver.stepping else 0.2
         try:
-            msg = commands.get_nowait() if solver.stepping else commands.get(timeout=0.2)
+            msg = commands.get(timeout=min(wait, 0.2)) if wait > 0 else commands.get_nowait()
         except queue.Empty:
             msg = None
         if msg is None:
-            if solver.stepping:
+            if solver.stepping and time.monotonic() >= solver.next_step_at:
                 solver.step()
         elif msg["cmd"] == "shutdown":
             if solver.sim is not None:

@@ -81,6 +81,23 @@ def test_progress_while_running(env):
     assert st["progress"]["remaining_s"] is None  # stopped: it will not go on
 
 
+def test_the_remaining_time_counts_the_pause_between_steps(tmp_path):
+    """``q3t serve --step-delay``: the solver pauses after each step, and the steps left take
+    that pause too (the solver's own time alone promised a run done long before it was); a
+    Stop during the pause acts at once, not after it."""
+    with in_process(tmp_path, {"tiny_cup": tiny_cup_toml()}, step_delay=300.0) as (client, _):
+        run = client.post("/api/runs", json={"scene": "tiny_cup"}).json()["id"]
+        st = until(lambda: (s := client.get(f"/api/runs/{run}").json())["step"] >= 1 and s,
+                   "no first step")
+        p = st["progress"]
+        # one step done, three left, each with its 300 s pause: the pauses alone give 900 s
+        assert p["step"] == 1 and 900.0 <= p["remaining_s"], p
+        client.post(f"/api/runs/{run}/stop")
+        st = wait_state(client, run, ENDED)
+        # stopped within the pause that follows step 1 (the old sleep made Stop wait it out)
+        assert (st["state"], st["step"]) == ("stopped", 1), st
+
+
 def test_force_against_stroke_agrees_with_summary_and_records(env, finished):
     client, _ = env
     run, _, result = finished
