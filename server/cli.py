@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import ipaddress
 import os
 import subprocess
 import sys
@@ -11,17 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 
-from server.settings import ROOT, Settings
-
-
-def _loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
+from server.settings import ROOT, Settings, loopback
 
 EXPOSED_VIEWER = ("q3t: warning: --expose-viewer: the viser viewer on {host}:{port} has no "
                   "token check. Anyone who can reach that port can watch every run AND use its "
@@ -33,7 +22,7 @@ def serve_settings(args: argparse.Namespace, token: str | None) -> Settings:
     """Settings of ``q3t serve``. viser has no token check of its own: it stays on loopback
     unless --expose-viewer asks otherwise, with a warning that its controls are open too."""
     viewer_host = args.host if args.expose_viewer else "127.0.0.1"
-    if args.expose_viewer and not _loopback(args.host):
+    if args.expose_viewer and not loopback(args.host):
         print(EXPOSED_VIEWER.format(host=args.host, port=args.viewer_port), file=sys.stderr)
     if args.record_every < 1:
         raise SystemExit("q3t: --record-every must be at least 1")
@@ -109,7 +98,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from server.app import create_app
 
     token = args.token or os.environ.get("Q3T_TOKEN")
-    if not _loopback(args.host) and not token:
+    if not loopback(args.host) and not token:
         print(f"q3t: refusing to serve on {args.host} without a token (--token or Q3T_TOKEN)",
               file=sys.stderr)
         return 2

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ipaddress
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -63,6 +64,16 @@ SceneName = name_type(check_scene_name, SCENE_NAME_MAX, RESERVED_SCENE_NAMES)
 ScenePath = name_type(check_scene_name, SCENE_NAME_MAX)
 RunId = name_type(check_run_id, RUN_ID_MAX)
 
+
+
+def loopback(host: str) -> bool:
+    """Whether ``host`` is a loopback address or name: reachable from this machine only."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 @dataclass(frozen=True)
 class Settings:

@@ -87,6 +87,7 @@ async function loadScenes() {
 // a scene the user chooses shows in 3-D at rest, its blank and tools, before any run (the
 // solver builds it between the steps of a running run; selecting a run shows that run again)
 function previewScene(name) {
+  if (!$("viewer")) return;  // no viewer here to show it in
   api("PUT", "/api/view/scene", {scene: name})
     .catch((e) => say(`preview of ${name}: ${e.message}`, true));
 }
@@ -471,25 +472,40 @@ async function previewFirst() {
   // a first look with no run to show: the chosen scene at rest in 3-D, not an empty box
   // (once the solver process is up: it builds the preview); a scene or a run chosen
   // meanwhile stays
-  if (!state.config.viewer_port || !state.scene) return;
+  if (!$("viewer") || !state.scene) return;  // no viewer here (off, or not reachable)
   const v = await api("GET", "/api/view");
   if (!v.run && !v.scene) previewScene(state.scene);
 }
 
-function viewerOff() {
-  // q3t serve --no-viewer: no 3-D view, and the box says so where it would be, rather than
-  // stay blank (the plots, the summary and the downloads need no viewer)
+function viewerOff(why) {
+  // no 3-D view here (--no-viewer, or a viewer this browser cannot reach): the box says why
+  // and what to do where the view would be, rather than stay blank (the plots, the summary
+  // and the downloads need no viewer)
   $("viewer").remove();
   $("full-window").hidden = true;
   const box = $("viewer-box");
   box.classList.add("off");
   const p = (html) => Object.assign(document.createElement("p"), { innerHTML: html });
-  box.append(
-    p("<strong>The 3-D viewer is off</strong>: this server was started with " +
-      "<code>q3t serve --no-viewer</code>."),
-    p("To see the runs in 3-D here, restart it without <code>--no-viewer</code> " +
-      "(the viewer listens on <code>--viewer-port</code>, 8081 unless given)."),
-    p("Runs, their plots, summary and downloads work without it."));
+  box.append(...why.map(p), p("Runs, their plots, summary and downloads work without it."));
+}
+
+const OFF = [
+  "<strong>The 3-D viewer is off</strong>: this server was started with " +
+    "<code>q3t serve --no-viewer</code>.",
+  "To see the runs in 3-D here, restart it without <code>--no-viewer</code> " +
+    "(the viewer listens on <code>--viewer-port</code>, 8081 unless given)."];
+
+const UNREACHABLE = (port) => [
+  "<strong>The 3-D viewer is not reachable from this machine</strong>: it listens on the " +
+    `server's own 127.0.0.1:${port} only (the viewer has no token check, so ` +
+    "<code>q3t serve</code> keeps it off the network).",
+  `Forward the port (<code>ssh -L ${port}:127.0.0.1:${port} SERVER</code>, and the page's ` +
+    "port the same way, then open the page as <code>http://127.0.0.1:…</code>), or, on a " +
+    "network you trust, restart the server with <code>--expose-viewer</code>."];
+
+function loopbackHost(host) {
+  // the page's own host: a browser on the server's machine can reach its loopback viewer
+  return host === "localhost" || /^127\./.test(host) || host === "[::1]" || host === "::1";
 }
 
 async function main() {
@@ -501,13 +517,17 @@ async function main() {
     $("element").appendChild(o);
   }
   const solverUp = buildSliders().catch((e) => say(e.message, true));
-  if (state.config.viewer_port) {
+  const vport = state.config.viewer_port;
+  if (!vport) viewerOff(OFF);
+  else if (state.config.viewer_loopback && !loopbackHost(location.hostname)) {
+    viewerOff(UNREACHABLE(vport));
+  } else {
     // the viewer's websocket path names this tab's view: it shows this page's run, colour
     // mode and step, and another browser's viewer its own
-    const host = `${location.hostname}:${state.config.viewer_port}`;
+    const host = `${location.hostname}:${vport}`;
     const ws = `${location.protocol === "https:" ? "wss" : "ws"}://${host}/view/${VIEW}`;
     $("viewer").src = `${location.protocol}//${host}/?websocket=${encodeURIComponent(ws)}`;
-  } else viewerOff();
+  }
   $("notice-close").onclick = () => { $("notice").hidden = true; };
   Layout.init();
   Results.init();

@@ -5,6 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 from pydantic import BaseModel, Field
 
+from server.settings import loopback
+
 router = APIRouter(prefix="/api", tags=["meta"])
 
 
@@ -24,6 +26,10 @@ class Config(BaseModel):
         "for each tool of its scene with the value it multiplies (its status's `parameters` "
         "name them), on top of the run-wide `<name>`"))
     viewer_port: int | None
+    viewer_loopback: bool = Field(description=(
+        "the viewer listens on this machine's loopback only (viser has no token check; "
+        "`--expose-viewer` binds it to `--host`): a page opened from another machine cannot "
+        "reach it"))
     default_scene: str
 
 
@@ -66,6 +72,7 @@ def config(request: Request) -> dict:
                                     "label": TOOL_LABELS[k][0], "hint": TOOL_LABELS[k][1]}
                                 for k in PER_TOOL},
             "viewer_port": m.viewer.port if m.viewer else None,
+            "viewer_loopback": loopback(m.settings.viewer_host),
             "default_scene": m.settings.default_scene}
 
 

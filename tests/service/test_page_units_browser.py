@@ -7,7 +7,8 @@ real server in a subprocess without the viewer:
 - a keyframe row's offsets in mm, its time bare; a thickness gradient in mm/mm;
 - the live parameters name the run they act on, and say so when the editor holds another
   scene or an edit;
-- with --no-viewer, the 3-D box says the viewer is off and how to turn it on.
+- with --no-viewer, the 3-D box says the viewer is off and how to turn it on; opened from
+  another machine while the viewer stays on loopback, that it cannot be reached and how.
 
 Screenshots go to $Q3T_SHOTS (default /tmp/shots-page-units)."""
 
@@ -15,13 +16,14 @@ from __future__ import annotations
 
 import math
 import os
+import socket
 import tomllib
 from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.support.browser import open_scene, serve_without_viewer
+from tests.support.browser import open_scene, serve, serve_without_viewer
 from tests.support.scenes import PRESS_TOML
 from tests.support.service import ENDED, until
 
@@ -168,3 +170,36 @@ def test_without_the_viewer_the_3d_box_says_so(open_page, served):
     box_size = box.bounding_box()
     assert box_size["width"] > 200 and box_size["height"] > 200, box_size
     page.screenshot(path=str(SHOTS / "4-no-viewer.png"))
+
+
+def test_a_page_from_another_machine_says_the_viewer_is_not_reachable(open_page, tmp_path):
+    """The service on all interfaces (``--host 0.0.0.0``, with its token) keeps the viewer on
+    loopback: a page opened by the machine's network address cannot reach it, and the 3-D box
+    says so and how to reach it, instead of a blank frame."""
+    address = lan_address()
+    if address is None:
+        pytest.skip("this machine has no non-loopback IPv4 address to open the page by")
+    with serve(tmp_path, {"press": PRESS_TOML}, "press", "--host", "0.0.0.0",
+               token="t0ken") as (url, vport):
+        remote = url.replace("127.0.0.1", address)
+        page = open_page(f"{remote}/?token=t0ken", "#scenes li.sel")
+        page.wait_for_selector("#viewer-box.off")
+        text = page.locator("#viewer-box").inner_text()
+        assert "The 3-D viewer is not reachable from this machine" in text, text
+        assert f"127.0.0.1:{vport}" in text and "--expose-viewer" in text, text
+        assert page.locator("#viewer").count() == 0  # no blank frame
+        page.screenshot(path=str(SHOTS / "5-viewer-not-reachable.png"))
+        # the same server opened on its own machine (loopback) shows the viewer
+        page = open_page(f"{url}/?token=t0ken", "#scenes li.sel")
+        assert page.get_attribute("#viewer", "src").startswith(f"http://127.0.0.1:{vport}/")
+
+
+def lan_address() -> str | None:
+    """This machine's address on its network (the one a route out would use), if any."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.connect(("192.0.2.1", 9))  # no packet is sent: UDP connect only picks a route
+            address = s.getsockname()[0]
+        except OSError:
+            return None
+    return None if address.startswith("127.") else address

@@ -31,20 +31,22 @@ def settled(url: str, run: str) -> dict:
     return until(idle, f"the solver never acted on the commands for {run}")
 
 
-def ready(url: str) -> bool:
+def ready(url: str, token: str | None = None) -> bool:
     """Whether the server at ``url`` answers and its solver process is up."""
     try:
-        return httpx.get(url + "/api/config", timeout=1).json()["ready"]
+        return httpx.get(url + "/api/config", params={"token": token} if token else None,
+                         timeout=1).json()["ready"]
     except (httpx.HTTPError, ValueError):
         return False
 
 
 @contextlib.contextmanager
 def serve(tmp: Path, scenes: dict[str, str], default: str,
-          *options: str) -> Iterator[tuple[str, int]]:
+          *options: str, token: str | None = None) -> Iterator[tuple[str, int]]:
     """``q3t serve DEFAULT`` in a child process over ``tmp/scenes`` (written from ``scenes``:
     name -> TOML) and ``tmp/runs``, on free ports, with ``options`` (``--step-delay 0.2``,
-    ``--no-viewer``); yields its url and the viewer's port once it is ready, and stops it.
+    ``--no-viewer``; ``token``: ``--token``, which every request then needs); yields its url
+    and the viewer's port once it is ready, and stops it.
     Its output goes to ``tmp/server.log``: a pipe nobody reads fills up (numba's compile
     warnings on a cold cache) and then blocks the server mid-write."""
     (tmp / "scenes").mkdir(exist_ok=True)
@@ -57,11 +59,11 @@ def serve(tmp: Path, scenes: dict[str, str], default: str,
         proc = subprocess.Popen(
             [sys.executable, "-m", "sim.apps", "serve", default, "--port", str(port),
              "--viewer-port", str(vport), "--scenes-dir", str(tmp / "scenes"),
-             "--runs-dir", str(tmp / "runs"), *options],
+             "--runs-dir", str(tmp / "runs"), *options, *(("--token", token) if token else ())],
             env=env, stdout=log, stderr=subprocess.STDOUT)
         url = f"http://127.0.0.1:{port}"
         try:
-            until(lambda: ready(url), f"server not up: {tmp / 'server.log'}")
+            until(lambda: ready(url, token), f"server not up: {tmp / 'server.log'}")
             yield url, vport
         finally:
             proc.terminate()
@@ -115,7 +117,7 @@ def new_page(browser, url: str, *ready: str, width: int = 1400,
     page.set_default_timeout(WAIT_MS)
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
-    page.goto(url + "/")
+    page.goto(url if "?" in url else url + "/")  # a url with a query names its page
     for selector in ready:
         page.wait_for_selector(selector)
     return page, errors
