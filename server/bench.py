@@ -310,19 +310,22 @@ def _stop(proc: subprocess.Popen) -> None:
             proc.wait(10)
 
 
-def start_and_latency(seconds: float, tmp: Path) -> dict:
-    """``q3t serve`` started with an empty, then a warm numba cache; then, on the warm server,
-    status latency while it builds and steps the cup blank at ~40k display vertices."""
+def start_and_latency(seconds: float, tmp: Path, cold: bool = True) -> dict:
+    """``q3t serve`` started with an empty (unless not ``cold``), then a warm numba cache;
+    then, on the warm server, status latency while it builds and steps the cup blank at ~40k
+    display vertices."""
     import httpx
 
     (tmp / "scenes").mkdir()
     for name in ("cantilever", "cup_blank"):
         shutil.copy(ROOT / "scenes" / f"{name}.toml", tmp / "scenes")
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp / "numba-cache"),
-           "PYTHONPATH": str(ROOT), "XDG_CONFIG_HOME": str(tmp / "cfg"),
+    # cold: a numba cache of its own, empty; warm only: the one this process uses (the served
+    # processes compile nothing it has compiled)
+    cache = {"NUMBA_CACHE_DIR": str(tmp / "numba-cache")} if cold else {}
+    env = {**os.environ, **cache, "PYTHONPATH": str(ROOT), "XDG_CONFIG_HOME": str(tmp / "cfg"),
            "XDG_DATA_HOME": str(tmp / "data")}
-    out = {}
-    for label in ("cold", "warm"):
+    out = {"cold": None}
+    for label in ("cold", "warm") if cold else ("warm",):
         port, vport = _free_port(), _free_port()
         url = f"http://127.0.0.1:{port}"
         t0 = time.perf_counter()
@@ -367,7 +370,9 @@ def _pressure(st: dict) -> str:
     return "" if p is None else f"{p:.0f} %"
 
 
-def _start(c: dict) -> str:
+def _start(c: dict | None) -> str:
+    if c is None:
+        return "not measured (--warm-only)"
     step = c["first_step_s"]
     return (f"{c['page_s']:.1f} s (solver ready {c['solver_ready_s']:.1f} s; a small run's "
             f"first frame {c['first_frame_s']:.1f} s after it was started, first step "
@@ -407,7 +412,7 @@ def run(args: argparse.Namespace) -> int:
     stamp = Stamp.begin(args.command)
     out = {"stamp": asdict(stamp)}
     with tempfile.TemporaryDirectory() as tmp:
-        out["start"] = start_and_latency(args.seconds_solver, Path(tmp))
+        out["start"] = start_and_latency(args.seconds_solver, Path(tmp), not args.warm_only)
     out["delivery"] = [delivery(args.vertices, args.seconds, hz, args.rate)
                        for hz in (20.0, 1000.0)]
     md = service_md(out, args.rate)
@@ -429,6 +434,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--seconds", type=float, default=15.0, help="per delivery measurement")
     b.add_argument("--seconds-solver", type=float, default=60.0,
                    help="status requests while the solver runs the 40k-vertex scene")
+    b.add_argument("--warm-only", action="store_true",
+                   help="skip the start with an empty numba cache (it compiles the solver's "
+                        "kernels first: minutes)")
     b.add_argument("--out", default="runs/bench")
     add_results_option(b, "service.md")
     b.set_defaults(func=run)
