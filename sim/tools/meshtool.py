@@ -1,16 +1,18 @@
 """Tools from triangle meshes: a surface file (STL, OBJ, PLY) checked and turned into a GRID
 record (sim.tools.grid), a smooth signed distance the contact term evaluates like any other.
 
-Preparation samples the exact signed distance to the triangles at the nodes of a regular grid
-of spacing h near the surface: libigl's AABB tree gives the nearest point, the sign is that of
-the angle-weighted pseudo-normal of the nearest feature (Baerentzen and Aanaes 2005), which is
-exact for a closed, consistently wound surface and gives an open one its side. The samples are
-turned into the coefficients of a tricubic B-spline by the local quasi-interpolant
-c = P_x P_y P_z f, P = (-1, 8, -1) / 6 per axis, which reproduces cubics (error O(h^4) on a
-smooth distance), so no global system is solved and only the bricks near the surface are
-sampled. The B-spline is C2: the contact term's Hessian is that of the field it integrates.
-The faceted mesh's own distance is C1 at best across its edges; the spline smooths it over a
-few h, so a spacing near the facets' size follows the CAD surface rather than its facets.
+Preparation samples the signed distance at the nodes of a regular grid of spacing h near the
+surface: libigl's AABB tree gives the nearest point on the triangles, the sign is that of the
+angle-weighted pseudo-normal of the nearest feature (Baerentzen and Aanaes 2005), which is
+exact for a closed, consistently wound surface and gives an open one its side. A CAD
+tessellation's vertices lie on the surface and its flat facets inside a convex rounding (up to
+the chordal error), so the distance is taken to the surface through the vertices: the facets'
+less the surface's sag at the nearest point (facet_sag), and flat faces and sharp edges stay as
+they are. The samples are turned into the coefficients of a tricubic B-spline by the local
+quasi-interpolant c = P_x P_y P_z f, P = (-1, 8, -1) / 6 per axis, which reproduces cubics
+(error O(h^4) on a smooth distance), so no global system is solved and only the bricks near
+the surface are sampled. The B-spline is C2: the contact term's Hessian is that of the field
+it integrates.
 
 Why libigl: its signed distance (AABB tree, pseudo-normals, fast winding numbers) is a
 well-kept C++ library with wheels; trimesh's proximity queries are pure Python and far slower.
@@ -241,11 +243,10 @@ def facet_sag(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     inside a convex rounding by up to the chordal error, and this puts them back. The corners'
     normals are what makes it exact where it must be:
 
-    * a corner's normal is that of the plane through the vertex that fits its neighbours'
-      positions best (least squares, so long edges weigh most): where a rounding meets a flat
-      or a cylinder tangentially the long edges pin the tangent plane to theirs, where an
-      angle-weighted normal would tilt by a quarter of the rounding's facet angle and bend a
-      10 mm edge by tens of micrometres;
+    * a corner's normal is fitted to its vertex's neighbours (_corner_normals): exact on a
+      quadric however lopsided the fan, and where a rounding meets a cylinder or a flat
+      tangentially it is the straight side's, where an angle-weighted normal tilts by a
+      quarter of the rounding's facet angle and bends a 10 mm edge by tens of micrometres;
     * only faces within CREASE of the corner's face count (its smooth side): a sharp edge keeps
       its faces' own normals, so it gets no sag and is not rounded;
     * a flat face (a connected set of coplanar faces whose vertices do not lie on two lines, as
@@ -305,11 +306,11 @@ def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
         np.minimum.at(shortest, a, local[-1][0])
     long = [length > LONG * shortest[a] for length, _, _ in local]
     straightest = np.full(3 * k, np.inf)
-    for lg, c in zip(long, bend):
+    for lg, c in zip(long, bend, strict=True):
         np.minimum.at(straightest, a, np.where(lg, c, np.inf))
     S = np.zeros((3 * k, 5, 5))  # the quadric's sag along the line (at its middle), squared
     line = np.zeros((3 * k, 2))  # the line's direction
-    for (length, _, phi), lg, c in zip(local, long, bend):
+    for (length, _, phi), lg, c in zip(local, long, bend, strict=True):
         on = lg & (c == straightest[a])
         sag = np.where(on[:, None], phi[:, 2:] / 4, 0.0)
         for i in range(3):
@@ -334,7 +335,7 @@ def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
 
     free = fit(None, 1e-4)  # a small weight: decides only what the neighbours leave open
     worst = np.zeros((2, 3 * k))  # the largest sag of a short and of a long edge at a corner
-    for (_, _, phi), lg in zip(local, long):
+    for (_, _, phi), lg in zip(local, long, strict=True):
         sag = np.abs(np.einsum("ij,ij->i", phi[:, 2:], free[a, 2:])) / 4
         np.maximum.at(worst[0], a[~lg], sag[~lg])
         np.maximum.at(worst[1], a[lg], sag[lg])
