@@ -277,10 +277,12 @@ def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
     rounding's facet angle and move a 10 mm edge's middle by tens of micrometres. There the
     fit is one-sided, the neighbours on the line's side and across it, the line straight."""
     k = len(F)
-    a, b = _fan(F, n)
+    a, b, own = _fan(F, n)
+    fitted, a = np.unique(a, return_inverse=True)  # the corners fitted, a indexes them
+    m = len(fitted)
     corner_f = np.repeat(np.arange(k), 3)
     across = _across(F)
-    v0 = V[F.ravel()[a]]
+    v0 = V[F.ravel()[fitted[a]]]
     fb, kb = corner_f[b], b % 3
     # the two other vertices of b's face, and the cosine of the angle between the faces of
     # the edge to each (1 on a boundary)
@@ -290,26 +292,26 @@ def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
             for g in other]
 
     def summed(w: np.ndarray) -> np.ndarray:
-        return np.bincount(a, weights=w, minlength=3 * k)
+        return np.bincount(a, weights=w, minlength=m)
 
-    M = np.zeros((3 * k, 3, 3))
+    M = np.zeros((m, 3, 3))
     for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)):
         M[:, i, j] = M[:, j, i] = sum(summed(e[:, i] * e[:, j]) for e in E)
     frame = np.linalg.eigh(M)[1]  # columns: the normal (least spread), two tangents
     normal, t1, t2 = frame[:, :, 0], frame[:, :, 1], frame[:, :, 2]
 
-    shortest = np.full(3 * k, np.inf)
+    shortest = np.full(m, np.inf)
     local = []  # per neighbour: length, height, the quadric's terms (x, y, x^2/2, xy, y^2/2)
     for e in E:
         x, y, h = (np.einsum("ij,ij->i", e, f[a]) for f in (t1, t2, normal))
         local.append((np.hypot(x, y), h, np.stack((x, y, 0.5 * x * x, x * y, 0.5 * y * y), 1)))
         np.minimum.at(shortest, a, local[-1][0])
     long = [length > LONG * shortest[a] for length, _, _ in local]
-    straightest = np.full(3 * k, np.inf)
+    straightest = np.full(m, np.inf)
     for lg, c in zip(long, bend, strict=True):
         np.minimum.at(straightest, a, np.where(lg, c, np.inf))
-    S = np.zeros((3 * k, 5, 5))  # the quadric's sag along the line (at its middle), squared
-    line = np.zeros((3 * k, 2))  # the line's direction
+    S = np.zeros((m, 5, 5))  # the quadric's sag along the line (at its middle), squared
+    line = np.zeros((m, 2))  # the line's direction
     for (length, _, phi), lg, c in zip(local, long, bend, strict=True):
         on = lg & (c == straightest[a])
         sag = np.where(on[:, None], phi[:, 2:] / 4, 0.0)
@@ -320,12 +322,12 @@ def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
             line[:, i] += summed(np.where(on, phi[:, i] / length, 0.0))
 
     def fit(keep: list[np.ndarray] | None, weight: float) -> np.ndarray:
-        """The quadric (3 k, 5) fitted to the neighbours ``keep`` (all), the line's sag
+        """The quadric (m, 5) fitted to the neighbours ``keep`` (all), the line's sag
         weighted by ``weight``."""
         A = weight * S
-        rhs = np.zeros((3 * k, 5))
-        for m, (_, h, phi) in enumerate(local):
-            w = 1.0 if keep is None else keep[m].astype(float)
+        rhs = np.zeros((m, 5))
+        for q, (_, h, phi) in enumerate(local):
+            w = 1.0 if keep is None else keep[q].astype(float)
             for i in range(5):
                 rhs[:, i] += summed(w * phi[:, i] * h)
                 for j in range(5):
@@ -334,7 +336,7 @@ def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
         return np.linalg.solve(A, rhs[:, :, None])[:, :, 0]
 
     free = fit(None, 1e-4)  # a small weight: decides only what the neighbours leave open
-    worst = np.zeros((2, 3 * k))  # the largest sag of a short and of a long edge at a corner
+    worst = np.zeros((2, m))  # the largest sag of a short and of a long edge at a corner
     for (_, _, phi), lg in zip(local, long, strict=True):
         sag = np.abs(np.einsum("ij,ij->i", phi[:, 2:], free[a, 2:])) / 4
         np.maximum.at(worst[0], a[~lg], sag[~lg])
@@ -347,14 +349,16 @@ def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
         g[bent] = fit(side, STRAIGHT)[bent, :2]
     normal = normal - g[:, :1] * t1 - g[:, 1:] * t2
     normal /= np.linalg.norm(normal, axis=1)[:, None]
-    normal = normal.reshape(k, 3, 3)
+    normal = normal[np.searchsorted(fitted, own)].reshape(k, 3, 3)
     normal *= np.sign(np.einsum("fij,fj->fi", normal, n))[:, :, None]
     return normal
 
 
-def _fan(F: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every pair (a, b) of corners (3 f + j) at the same vertex whose faces' normals ``n``
-    are within CREASE: b's face is on a's smooth side."""
+def _fan(F: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs (a, b) of corners (3 f + j) at the same vertex whose faces' normals ``n`` are
+    within CREASE (b's face is on a's smooth side), and the corner (3 k,) whose fit each corner
+    takes: at a vertex without a sharp edge every corner has the same fan, so only the
+    vertex's first corner is fitted."""
     corner_v = F.ravel()
     order = np.argsort(corner_v, kind="stable")
     counts = np.bincount(corner_v)
@@ -363,8 +367,12 @@ def _fan(F: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a = np.repeat(order, per)
     start = np.repeat(first[corner_v[order]] - np.cumsum(per) + per, per)
     b = order[np.arange(len(a)) + start]
-    keep = np.einsum("ij,ij->i", n[a // 3], n[b // 3]) > math.cos(CREASE)
-    return a[keep], b[keep]
+    smooth = np.einsum("ij,ij->i", n[a // 3], n[b // 3]) > math.cos(CREASE)
+    sharp = np.zeros(len(counts), bool)
+    sharp[corner_v[a[~smooth]]] = True
+    own = np.where(sharp[corner_v], np.arange(len(corner_v)), order[first[corner_v]])
+    keep = smooth & (own[a] == a)
+    return a[keep], b[keep], own
 
 
 def _across(F: np.ndarray) -> np.ndarray:
