@@ -38,7 +38,7 @@ from sim.tools.program import OP_GRID, program, record
 
 BRICK = 6  # cells per brick side
 BAND = 3  # the spline is exact (sampled) wherever |d| < BAND h, and beyond
-FORMAT = 2  # of the cached records: bump when the layout or the sampling changes
+FORMAT = 3  # of the cached records: bump when the layout or the sampling changes
 MAX_NODES = 60_000_000  # grid nodes of a tool's box (a bool each): the memory bound
 MAX_EXTENT = 5.0  # m: a tool larger than a press bed is a file in other units
 MIN_EXTENT = 1e-4  # m
@@ -332,7 +332,9 @@ def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
                 rhs[:, i] += summed(w * phi[:, i] * h)
                 for j in range(5):
                     A[:, i, j] += summed(w * phi[:, i] * phi[:, j])
-        A[:, range(5), range(5)] += 1e-300 + 1e-18 * np.abs(A).max(axis=(1, 2))[:, None]
+        # what neither the neighbours nor the line decide (a fan of four): the flattest
+        Q = [2, 3, 4]
+        A[:, Q, Q] += 1e-300 + 1e-9 * A[:, Q, Q].max(axis=1)[:, None]
         return np.linalg.solve(A, rhs[:, :, None])[:, :, 0]
 
     free = fit(None, 1e-4)  # a small weight: decides only what the neighbours leave open
@@ -341,7 +343,11 @@ def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
         sag = np.abs(np.einsum("ij,ij->i", phi[:, 2:], free[a, 2:])) / 4
         np.maximum.at(worst[0], a[~lg], sag[~lg])
         np.maximum.at(worst[1], a[lg], sag[lg])
-    bent = worst[1] > BENT * worst[0]
+    # the tessellation's tolerance: most short edges' sag (a rounding's, a cylinder's); a long
+    # edge sags as much legitimately (a meridian at a sphere's pole, among tiny edges)
+    curved = worst[0][worst[0] > 1e-12]
+    tolerance = float(np.percentile(curved, 90)) if len(curved) else 0.0
+    bent = worst[1] > BENT * np.maximum(worst[0], tolerance)
     g = free[:, :2]
     if bent.any():  # the line's side: not more than 75 degrees from its direction
         side = [np.einsum("ij,ij->i", phi[:, :2], line[a])
