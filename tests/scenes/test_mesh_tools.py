@@ -1,10 +1,11 @@
 """The cup (scenes/cup_drawing.toml) with its punch, die and blank holder read from triangle
 meshes, tessellated from the analytic tools, against the analytic tools themselves.
 
-The tessellation's chords lie inside each convex rounding by up to the chordal error, which
-moves the surfaces the sheet touches by a few micrometres: the forces differ by that, not by
-the smoothing (the spline's error at the default spacing is below a micrometre; docs/mesh-tools.md
-has the full stroke at two chordal errors)."""
+The tessellation's chords lie inside each convex rounding by up to the chordal error, but its
+vertices lie on the tools: the mesh tool's distance is that to the surface through them (the
+facets' sag put back, sim.tools.meshtool.facet_sag), within 0.2 um of the analytic tools' at
+their surfaces, so the forces differ by what is left of that and of the spline's smoothing
+(docs/mesh-tools.md has the full stroke at two chordal errors)."""
 
 from __future__ import annotations
 
@@ -76,15 +77,16 @@ def test_the_first_10_mm_of_the_cup_with_mesh_tools(tmp_path):
     """The stroke's first 10 mm at the scene's own step (20 of its 50 steps, up to the force
     peak), tools tessellated at chordal error 0.01 mm and sampled at 0.5 mm. A few minutes on
     a loaded machine: slow.
-    Punch force within 1 % of the analytic run's peak at every step (measured 0.96 %, at step
-    19; of each step's own force within 1.12 %: the chords' few micrometres of clearance, a
-    deterministic difference, not round-off); the radial thickness section within 1 % at
-    every recorded step (measured 0.10 %)."""
+    Punch force within 1 % of each step's own analytic force at every step (the issue's bar;
+    the full stroke measured 0.80 % at most, at step 50, and 0.32 % in these 20 steps; 1.12 %
+    when the facets were sampled instead of the surface through their vertices); the radial
+    thickness section within 1 % at every recorded step (full stroke: 0.11 %). The difference
+    is deterministic (micrometres of geometry and the spline's smoothing), not round-off."""
     part = {"stepping.steps": 20, "tools.0.velocity": [0.0, 0.0, -0.01],
             "sections.0.steps": [0, 10, 20]}
     mesh = mesh_overrides(tmp_path, 1e-5, {0: 5e-4, 1: 5e-4, 2: 5e-4})
     fa, sa = run(part)
     fm, sm = run({**part, **mesh})
-    assert np.all(np.abs(fm - fa) <= 0.01 * np.abs(fa).max()), (fm, fa)
+    assert np.all(np.abs(fm - fa) <= 0.01 * np.abs(fa)), (fm, fa)
     for a, m in zip(sa, sm, strict=True):
         assert np.all(np.abs(m - a) <= 0.01 * a)
