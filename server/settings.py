@@ -65,7 +65,6 @@ ScenePath = name_type(check_scene_name, SCENE_NAME_MAX)
 RunId = name_type(check_run_id, RUN_ID_MAX)
 
 
-
 def loopback(host: str) -> bool:
     """Whether ``host`` is a loopback address or name: reachable from this machine only."""
     if host == "localhost":
@@ -74,6 +73,7 @@ def loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
+
 
 @dataclass(frozen=True)
 class Settings:

@@ -191,6 +191,7 @@ class Solver:
             self.finish("stopped", "replaced by a new run")
         self.run, self.out = msg["run"], Path(msg["out"])
         self.paused = bool(msg.get("paused"))
+        self.next_step_at = 0.0  # the last run's pause is not this one's
         self.produced = self.dropped = 0
         self.last_mesh = -1
         self.record_every = max(1, int(msg.get("record_every") or self.record_every))
@@ -371,7 +372,9 @@ class Solver:
         wall = time.perf_counter() - t0
         msg = _frame_msg(self.run, self.sim)
         self.produced += 1
-        self.emit("step", record=asdict(rec), wall_s=wall, delay_s=self.step_delay,
+        # the pause that follows this step: none after the last, nor after a single Step
+        delay = 0.0 if single or self.sim.done else self.step_delay
+        self.emit("step", record=asdict(rec), wall_s=wall, delay_s=delay,
                   n_steps=self.sim.n_steps,
                   frames={"produced": self.produced, "dropped": self.dropped})
         try:
@@ -390,7 +393,7 @@ class Solver:
                 self.frames.put_nowait(msg)
             except queue.Full:
                 self.dropped += 1  # the viewer shows a newer frame soon
-        self.next_step_at = time.monotonic() + self.step_delay
+        self.next_step_at = time.monotonic() + delay
 
     def _record_summary(self, entries: list[dict]) -> None:
         from sim.frames.summary import table

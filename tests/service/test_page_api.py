@@ -19,7 +19,7 @@ from server.plots import thinned
 from sim.frames.probes import PROBES
 from sim.frames.units import DISPLAY
 from tests.support.scenes import tiny_cup_toml
-from tests.support.service import in_process, until, wait_state
+from tests.support.service import HANG, in_process, until, wait_state
 
 ENDED = {"finished", "failed", "stopped"}
 # the plots' numbers are the records' scaled to kN / mm: equal up to the scaling's rounding
@@ -84,18 +84,23 @@ def test_progress_while_running(env):
 def test_the_remaining_time_counts_the_pause_between_steps(tmp_path):
     """``q3t serve --step-delay``: the solver pauses after each step, and the steps left take
     that pause too (the solver's own time alone promised a run done long before it was); a
-    Stop during the pause acts at once, not after it."""
-    with in_process(tmp_path, {"tiny_cup": tiny_cup_toml()}, step_delay=300.0) as (client, _):
-        run = client.post("/api/runs", json={"scene": "tiny_cup"}).json()["id"]
-        st = until(lambda: (s := client.get(f"/api/runs/{run}").json())["step"] >= 1 and s,
+    Stop during the pause acts at once, and the next run does not wait out the last one's."""
+    pause = 10 * HANG  # longer than any hang guard: a Stop or a start that waited it out fails
+    with in_process(tmp_path, {"tiny_cup": tiny_cup_toml()}, step_delay=pause) as (client, _):
+        first = client.post("/api/runs", json={"scene": "tiny_cup"}).json()["id"]
+        st = until(lambda: (s := client.get(f"/api/runs/{first}").json())["step"] >= 1 and s,
                    "no first step")
         p = st["progress"]
-        # one step done, three left, each with its 300 s pause: the pauses alone give 900 s
-        assert p["step"] == 1 and 900.0 <= p["remaining_s"], p
-        client.post(f"/api/runs/{run}/stop")
-        st = wait_state(client, run, ENDED)
-        # stopped within the pause that follows step 1 (the old sleep made Stop wait it out)
+        # one step done, three left, each with its pause: the pauses alone give 3 x pause
+        assert p["step"] == 1 and 3 * pause <= p["remaining_s"], p
+        client.post(f"/api/runs/{first}/stop")
+        st = wait_state(client, first, ENDED)
         assert (st["state"], st["step"]) == ("stopped", 1), st
+        second = client.post("/api/runs", json={"scene": "tiny_cup"}).json()["id"]
+        until(lambda: client.get(f"/api/runs/{second}").json()["step"] >= 1,
+              "the next run waited out the stopped run's pause")
+        client.post(f"/api/runs/{second}/stop")
+        wait_state(client, second, ENDED)
 
 
 def test_force_against_stroke_agrees_with_summary_and_records(env, finished):
