@@ -1,14 +1,15 @@
 """The whole suite as two pytest processes side by side (``make test``, what CI runs).
 
-``python -m tests.split [pytest arguments]``: ``tests/service`` (the service and its browser
-tests, which mostly wait on servers, solver processes and pages) in one process, every other
-tier (which mostly computes) in the other, each with its own temporary folder. On a 2-core
-machine the two overlap: the waiting of one is the other's computing time. Each part's output
-goes to a log and is printed whole once the part ends (the parts never interleave), with a
-line every minute while they run. Exits 0 only if both parts pass; a part that collected no
-test (pytest's 5) is a failure, as is a part stopped by a signal (its log printed so far).
+``python -m tests.split [pytest options] [paths]``: ``tests/service`` (the service and its
+browser tests, which mostly wait on servers, solver processes and pages) in one process, every
+other tier (which mostly computes) in the other, each with its own temporary folder. On a
+2-core machine the two overlap: the waiting of one is the other's computing time. Paths given
+go to the part they belong to (a part with none is not run); options go to both. Each part's
+output goes to a log (its path printed first) and is printed whole once the part ends, so the
+parts never interleave; every minute a line gives each running part's progress. Exits 0 only
+if every part run passes; a part that collects no test (pytest's 5) fails only if all do.
 
-Not pytest-xdist: one of its workers died mid-module here twice ("node down: Not properly
+Not pytest-xdist: one of its workers died mid-module here ("node down: Not properly
 terminated") with no trace, and the replacement then stalled the session; two plain pytest
 processes have no channel between them to lose.
 """
@@ -16,6 +17,8 @@ processes have no channel between them to lose.
 from __future__ import annotations
 
 import contextlib
+import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,57 +27,99 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-SERVICE = "tests/service"
-HEARTBEAT = 60.0  # s between the lines that say the parts are still running
+SERVICE = ROOT / "tests" / "service"
+# a line per minute: CI shows the suite alive (and where) while the logs wait for their part
+HEARTBEAT = 60.0
+# pytest options whose value is the next argument (so that value is no path to sort)
+VALUED = {"-k", "-m", "-p", "-o", "-W", "-c", "--deselect", "--ignore", "--ignore-glob",
+          "--durations", "--rootdir", "--confcutdir", "--maxfail", "--tb"}
 
 
 def parts(args: list[str]) -> dict[str, list[str]]:
-    """Each part's pytest arguments: ``args`` (options, or paths to keep to) for both."""
-    return {"service": [*args, SERVICE], "other tiers": [*args, f"--ignore={SERVICE}"]} \
-        if not any(a.startswith("tests") for a in args) else {"selected": args}
+    """Each part's pytest arguments: the options for both, each path to its own part."""
+    options, service, other = [], [], []
+    value = False
+    for a in args:
+        path = Path(a.split("::")[0])
+        if value or a.startswith("-") or not path.exists():
+            options.append(a)
+            value = not value and a in VALUED
+        else:
+            inside = path.resolve() == SERVICE or SERVICE in path.resolve().parents
+            (service if inside else other).append(a)
+    if not service and not other:
+        return {"service": [*options, str(SERVICE)],
+                "other tiers": [*options, f"--ignore={SERVICE}"]}
+    return {name: [*options, *paths] for name, paths in
+            (("service", service), ("other tiers", other)) if paths}
 
 
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
+    if any(a.startswith("--basetemp") for a in args):
+        print("tests.split: --basetemp is its own (one per part)", file=sys.stderr)
+        return 2
+    tmp = Path(tempfile.mkdtemp(prefix="q3t-tests-"))
+    procs: dict[str, subprocess.Popen] = {}
+    logs: dict[str, Path] = {}
+    codes: dict[str, int] = {}
+    t0 = time.monotonic()
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # through the finally below
-    with tempfile.TemporaryDirectory(prefix="q3t-tests-") as tmp:
-        procs, logs, t0 = {}, {}, time.monotonic()
-        try:
-            for i, (name, a) in enumerate(parts(args).items()):
-                logs[name] = Path(tmp) / f"part{i}.log"
-                with open(logs[name], "wb") as out:
-                    procs[name] = subprocess.Popen(
-                        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                         f"--basetemp={Path(tmp) / f'part{i}'}", *a],
-                        cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
-            codes, beat = {}, t0
-            while len(codes) < len(procs):
-                time.sleep(1.0)
-                for name, p in procs.items():
-                    if name not in codes and p.poll() is not None:
-                        codes[name] = p.returncode
-                        show(name, logs[name], p.returncode, time.monotonic() - t0)
-                if time.monotonic() - beat >= HEARTBEAT and len(codes) < len(procs):
-                    beat = time.monotonic()
-                    running = [n for n in procs if n not in codes]
-                    print(f"tests.split: {', '.join(running)} running, "
-                          f"{(beat - t0) / 60:.0f} min", flush=True)
-        finally:
+    try:
+        for i, (name, a) in enumerate(parts(args).items()):
+            logs[name] = tmp / f"part{i}.log"
+            print(f"tests.split: {name} -> {logs[name]}", flush=True)
+            with open(logs[name], "wb") as out:
+                # a session of its own: ending a part ends its servers and browsers too
+                procs[name] = subprocess.Popen(
+                    [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                     f"--basetemp={tmp / f'part{i}'}", *a],
+                    cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+        beat = t0
+        while len(codes) < len(procs):
+            time.sleep(1.0)
             for name, p in procs.items():
-                if p.poll() is None:
-                    p.terminate()
-                    with contextlib.suppress(subprocess.TimeoutExpired):
-                        p.wait(30)
-                    p.kill()
-                    p.wait()
-                    show(name, logs[name], None, time.monotonic() - t0)
-    return 0 if all(c == 0 for c in codes.values()) else 1
+                if name not in codes and p.poll() is not None:
+                    codes[name] = p.returncode
+                    show(name, logs[name], p.returncode, time.monotonic() - t0)
+            if time.monotonic() - beat >= HEARTBEAT and len(codes) < len(procs):
+                beat = time.monotonic()
+                running = "; ".join(f"{n} {progress(logs[n])}" for n in procs if n not in codes)
+                print(f"tests.split: {(beat - t0) / 60:.0f} min: {running}", flush=True)
+    finally:
+        # a second signal must not cut this short and leave a part running unseen
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        for name, p in procs.items():
+            if name in codes:
+                continue
+            if p.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(p.pid, signal.SIGTERM)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    p.wait(30)
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+            show(name, logs[name], None, time.monotonic() - t0)
+        for i in range(len(procs)):  # the tests' files; the logs stay for a look
+            shutil.rmtree(tmp / f"part{i}", ignore_errors=True)
+    if codes and all(c == 5 for c in codes.values()):
+        return 1
+    return 0 if all(c in (0, 5) for c in codes.values()) else 1
+
+
+def progress(log: Path) -> str:
+    """The last percentage pytest printed in ``log`` ("[ 53%]"), or "starting"."""
+    text = log.read_text(errors="replace")
+    i = text.rfind("%]")
+    return text[text.rfind("[", 0, i):i + 2] if i > 0 else "starting"
 
 
 def show(name: str, log: Path, code: int | None, elapsed: float) -> None:
     """A part's whole output, then a line with its end."""
     sys.stdout.write(f"\n===== {name} =====\n{log.read_text(errors='replace')}")
-    end = "stopped" if code is None else "passed" if code == 0 else \
+    end = "stopped before its end" if code is None else "passed" if code == 0 else \
         "collected no tests" if code == 5 else f"FAILED (pytest exit {code})"
     print(f"===== {name}: {end} after {elapsed / 60:.1f} min =====", flush=True)
 
