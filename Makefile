@@ -20,9 +20,9 @@ serve: $(STAMP)
 pytest = $(BIN)/python -m pytest -q $(1); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests" >&2; exit 1; fi; exit $$rc
 
-# every tier (CI)
+# every tier (CI): the browser tests beside the rest, two pytest processes (tests/split.py)
 test: $(STAMP)
-	$(call pytest)
+	$(BIN)/python -m tests.split
 
 # the edit loop: tests/unit, tests/scenes and the quick modules of the other tiers (marker
 # fast), without the slow tests

@@ -1,10 +1,10 @@
 """The whole suite as two pytest processes side by side (``make test``, what CI runs).
 
-``python -m tests.split [pytest options] [paths]``: ``tests/service`` (the service and its
-browser tests, which mostly wait on servers, solver processes and pages) in one process, every
-other tier (which mostly computes) in the other, each with its own temporary folder. On a
-2-core machine the two overlap: the waiting of one is the other's computing time. Paths given
-go to the part they belong to (a part with none is not run); options go to both. Each part's
+``python -m tests.split [pytest options] [paths]``: the browser tests (tests/service's
+``test_*browser*.py``, which mostly wait on servers, solver processes and pages) in one
+process, every other test (which mostly computes) in the other, each with its own temporary
+folder. On a 2-core machine the two overlap: the waiting of one is the other's computing time.
+Options go to both parts; paths given run as one part, as asked. Each part's
 output goes to a log (its path printed first) and is printed whole once the part ends, so the
 parts never interleave; every minute a line gives each running part's progress. Exits 0 only
 if every part run passes; a part that collects no test (pytest's 5) fails only if all do.
@@ -27,7 +27,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-SERVICE = ROOT / "tests" / "service"
+# the page driven in chromium: mostly waiting on servers, solver processes and pages
+BROWSER = sorted((ROOT / "tests" / "service").glob("test_*browser*.py"))
 # a line per minute: CI shows the suite alive (and where) while the logs wait for their part
 HEARTBEAT = 60.0
 # pytest options whose value is the next argument (so that value is no path to sort)
@@ -36,22 +37,19 @@ VALUED = {"-k", "-m", "-p", "-o", "-W", "-c", "--deselect", "--ignore", "--ignor
 
 
 def parts(args: list[str]) -> dict[str, list[str]]:
-    """Each part's pytest arguments: the options for both, each path to its own part."""
-    options, service, other = [], [], []
-    value = False
+    """Each part's pytest arguments: the options for both. Paths given: one part, as asked."""
+    options, paths, value = [], [], False
     for a in args:
-        path = Path(a.split("::")[0])
-        if value or a.startswith("-") or not path.exists():
+        if value or a.startswith("-") or not Path(a.split("::")[0]).exists():
             options.append(a)
             value = not value and a in VALUED
         else:
-            inside = path.resolve() == SERVICE or SERVICE in path.resolve().parents
-            (service if inside else other).append(a)
-    if not service and not other:
-        return {"service": [*options, str(SERVICE)],
-                "other tiers": [*options, f"--ignore={SERVICE}"]}
-    return {name: [*options, *paths] for name, paths in
-            (("service", service), ("other tiers", other)) if paths}
+            paths.append(a)
+    if paths:
+        return {"selected": args}
+    browser = [str(f) for f in BROWSER]
+    return {"browser": [*options, *browser],
+            "other": [*options, *(f"--ignore={f}" for f in browser)]}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -3,30 +3,28 @@ progress line it prints while the parts run."""
 
 import pytest
 
-from tests.split import SERVICE, parts, progress
+from tests.split import BROWSER, parts, progress
 
 pytestmark = pytest.mark.fast
 
 
-def test_no_path_runs_both_parts_with_the_options():
-    assert parts(["-x", "-m", "not slow"]) == {
-        "service": ["-x", "-m", "not slow", str(SERVICE)],
-        "other tiers": ["-x", "-m", "not slow", f"--ignore={SERVICE}"]}
+def test_the_suite_splits_into_the_browser_tests_and_the_rest():
+    got = parts(["-x", "-m", "not slow"])
+    assert set(got) == {"browser", "other"} and len(BROWSER) > 10
+    assert got["browser"] == ["-x", "-m", "not slow", *map(str, BROWSER)]
+    assert got["other"] == ["-x", "-m", "not slow", *(f"--ignore={f}" for f in BROWSER)]
+    assert all("browser" in f.name for f in BROWSER)
 
 
-def test_each_path_goes_to_its_own_part_only():
-    got = parts(["tests/unit/test_split.py::test_no_path_runs_both_parts_with_the_options",
-                 "./tests/service/test_page_api.py", "-q"])
-    assert got == {"service": ["-q", "./tests/service/test_page_api.py"],
-                   "other tiers": ["-q", "tests/unit/test_split.py::"
-                                   "test_no_path_runs_both_parts_with_the_options"]}
-    assert parts(["tests/unit"]) == {"other tiers": ["tests/unit"]}  # run once, not twice
+def test_paths_given_run_as_one_part():
+    args = ["./tests/service/test_page_api.py", "-q", "tests/unit::x"]
+    assert parts(args) == {"selected": args}
 
 
 def test_an_options_value_is_no_path_even_when_it_names_one():
     got = parts(["--deselect", "tests/unit/test_split.py", "-k", "tests"])
-    assert got["service"][:4] == ["--deselect", "tests/unit/test_split.py", "-k", "tests"]
-    assert set(got) == {"service", "other tiers"}
+    assert set(got) == {"browser", "other"}
+    assert got["other"][:4] == ["--deselect", "tests/unit/test_split.py", "-k", "tests"]
 
 
 def test_progress_is_the_last_percentage_printed(tmp_path):
