@@ -108,10 +108,15 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def progress(log: Path) -> str:
-    """The last percentage pytest printed in ``log`` ("[ 53%]"), or "starting"."""
+    """The last percentage pytest printed in ``log`` and the tests done since ("[ 53%] +12"),
+    or "starting"."""
     text = log.read_text(errors="replace")
     i = text.rfind("%]")
-    return text[text.rfind("[", 0, i):i + 2] if i > 0 else "starting"
+    done = sum(c in ".FEsxX" for c in text[text.rfind("\n") + 1:]) if "\n" in text[i:] or \
+        i < 0 else 0
+    if i < 0:
+        return f"+{done}" if done else "starting"
+    return text[text.rfind("[", 0, i):i + 2] + (f" +{done}" if done else "")
 
 
 def show(name: str, log: Path, code: int | None, elapsed: float) -> None:

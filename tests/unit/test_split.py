@@ -31,5 +31,9 @@ def test_progress_is_the_last_percentage_printed(tmp_path):
     log = tmp_path / "part.log"
     log.write_text("")
     assert progress(log) == "starting"
-    log.write_text("....... [  5%]\n...... [ 21%]\n...")
+    log.write_text(".....")
+    assert progress(log) == "+5"
+    log.write_text("....... [  5%]\n...... [ 21%]")
     assert progress(log) == "[ 21%]"
+    log.write_text("....... [  5%]\n...... [ 21%]\n..F")
+    assert progress(log) == "[ 21%] +3"
