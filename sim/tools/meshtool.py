@@ -251,11 +251,11 @@ def facet_sag(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     normals are what makes it exact where it must be:
 
     * a corner's normal is fitted to its vertex's neighbours (_corner_normals): exact on a
-      quadric however lopsided the fan, as long as the neighbours decide the quadric (five
-      or more, not all on lines through the vertex; a rim vertex of an open surface has about
-      four, all on one side, and its fit is only approximate), and where a rounding meets a cylinder or a flat
-      tangentially it is the straight side's, where an angle-weighted normal tilts by a
-      quarter of the rounding's facet angle and bends a 10 mm edge by tens of micrometres;
+      quadric however lopsided the fan, as long as its neighbours decide the quadric (a rim
+      vertex of an open surface has about four, all on one side, for five unknowns: there it
+      is approximate), and where a rounding meets a cylinder or a flat tangentially it is the
+      straight side's, where an angle-weighted normal tilts by a quarter of the rounding's
+      facet angle and bends a 10 mm edge by tens of micrometres;
     * only faces within CREASE of the corner's face count (its smooth side): a sharp edge keeps
       its faces' own normals, so it gets no sag and is not rounded;
     * a flat face (a connected set of coplanar faces whose vertices do not lie on two lines, as
