@@ -38,7 +38,7 @@ from sim.tools.program import OP_GRID, program, record
 
 BRICK = 6  # cells per brick side
 BAND = 3  # the spline is exact (sampled) wherever |d| < BAND h, and beyond
-FORMAT = 3  # of the cached records: bump when the layout or the sampling changes
+FORMAT = 4  # of the cached records: bump when the layout or the sampling changes
 MAX_NODES = 60_000_000  # grid nodes of a tool's box (a bool each): the memory bound
 MAX_EXTENT = 5.0  # m: a tool larger than a press bed is a file in other units
 MIN_EXTENT = 1e-4  # m
@@ -49,7 +49,14 @@ CREASE = math.radians(30.0)
 # faces whose normals differ by less (1 - cos, 1e-4 rad) are coplanar: far above a float32
 # STL's round-off (1e-7 relative), far below a tessellated curve's facet angle
 COPLANAR = 5e-9
-LONG, BENT, STRAIGHT = 8.0, 4.0, 100.0  # see _corner_normals
+# _corner_normals and facet_sag. LONG: an edge this many times its fan's shortest is a straight
+# line of the surface (a cylinder strip's generator, a flat's radius: a CAD strip's aspect ratio
+# is tens, a smooth fan's edges differ by a factor of 2-3). BENT: a chord of the surface sags by
+# about the tessellation's tolerance (at most 1.03 times it on the tests' meshes, the cup's
+# tools, icospheres, UV spheres, cylinders), so an edge of a fit that sags this many times more
+# is not a chord. STRAIGHT: the weight of the line's straightness against the neighbours'
+# heights (both squared lengths of sag): near a constraint, and the 5 x 5 systems stay solvable
+LONG, BENT, STRAIGHT = 8.0, 4.0, 100.0
 
 
 class MeshToolError(ValueError):
@@ -244,25 +251,38 @@ def facet_sag(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     normals are what makes it exact where it must be:
 
     * a corner's normal is fitted to its vertex's neighbours (_corner_normals): exact on a
-      quadric however lopsided the fan, and where a rounding meets a cylinder or a flat
-      tangentially it is the straight side's, where an angle-weighted normal tilts by a
-      quarter of the rounding's facet angle and bends a 10 mm edge by tens of micrometres;
+      quadric however lopsided the fan, as long as its neighbours decide the quadric (a rim
+      vertex of an open surface has about four, all on one side, for five unknowns: there it
+      is approximate), and where a rounding meets a cylinder or a flat tangentially it is the
+      straight side's, where an angle-weighted normal tilts by a quarter of the rounding's
+      facet angle and bends a 10 mm edge by tens of micrometres;
     * only faces within CREASE of the corner's face count (its smooth side): a sharp edge keeps
       its faces' own normals, so it gets no sag and is not rounded;
     * a flat face (a connected set of coplanar faces whose vertices do not lie on two lines, as
-      a strip of a cylinder or cone does) gets none: a holder's face stays exactly flat."""
+      a strip of a cylinder or cone does) gets none: a holder's face stays exactly flat;
+    * a corner whose fitted normal is further than CREASE from its face's (a cone's tip), and
+      an edge that sags more than BENT times the tessellation's tolerance, get none: where the
+      fit goes wrong the facets, exact at the vertices, are what is left."""
     n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     n /= np.linalg.norm(n, axis=1)[:, None]
-    normal = _corner_normals(V, F, n)
+    normal, tolerance = _corner_normals(V, F, n)
     P = V[F]
     coef = np.stack([0.5 * np.einsum("fj,fj->f", P[:, i] - P[:, j], normal[:, i] - normal[:, j])
                      for i, j in ((0, 1), (1, 2), (2, 0))], 1)
     coef[_flat_faces(V, F, n)] = 0.0
+    # the safety net: an edge's sag at its middle is c / 4, and a chordal tessellation's edges
+    # sag by its tolerance; one that sags BENT times more is not a chord of the surface but a
+    # fit gone wrong (corners whose few neighbours a quadric interpolates with a tilt, as where
+    # a long flat meets a rounding along a line), and the facet's edge, exact at its ends, is
+    # kept straight. An edge's coefficient is the same in both its faces: no step between them
+    coef[np.abs(coef) > 4.0 * BENT * tolerance] = 0.0
     return coef
 
 
-def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Each face's corners' normals (k, 3, 3), fitted to the vertices of the faces around the
+def _corner_normals(V: np.ndarray, F: np.ndarray,
+                    n: np.ndarray) -> tuple[np.ndarray, float]:
+    """Each face's corners' normals (k, 3, 3), and the tessellation's tolerance (m: the sag of
+    most of its short edges, 0 on a mesh of flats), fitted to the vertices of the faces around the
     corner's vertex within CREASE of the face's normal ``n`` (k, 3).
 
     First the plane through the vertex nearest them (total least squares) as a frame, then a
@@ -334,22 +354,29 @@ def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
                     A[:, i, j] += summed(w * phi[:, i] * phi[:, j])
         # what neither the neighbours nor the line decide (a fan of four): the flattest
         Q = [2, 3, 4]
+        # (1e-9 of the largest diagonal: far below any curvature the neighbours decide, and
+        # lifts only the singular directions; 1e-300 where there are no neighbours at all)
         A[:, Q, Q] += 1e-300 + 1e-9 * A[:, Q, Q].max(axis=1)[:, None]
         return np.linalg.solve(A, rhs[:, :, None])[:, :, 0]
 
-    free = fit(None, 1e-4)  # a small weight: decides only what the neighbours leave open
+    # a weight 1e-4 of the neighbours': decides only what the neighbours leave open (a fan of
+    # four on a cylinder), moving a determined fit by 1e-4 of its misfit at most
+    free = fit(None, 1e-4)
     worst = np.zeros((2, m))  # the largest sag of a short and of a long edge at a corner
     for (_, _, phi), lg in zip(local, long, strict=True):
         sag = np.abs(np.einsum("ij,ij->i", phi[:, 2:], free[a, 2:])) / 4
         np.maximum.at(worst[0], a[~lg], sag[~lg])
         np.maximum.at(worst[1], a[lg], sag[lg])
     # the tessellation's tolerance: most short edges' sag (a rounding's, a cylinder's); a long
-    # edge sags as much legitimately (a meridian at a sphere's pole, among tiny edges)
+    # edge sags as much legitimately (a meridian at a sphere's pole, among tiny edges). The
+    # 90th percentile: the largest short edges' sag, not the few bent ones at junctions
     curved = worst[0][worst[0] > 1e-12]
     tolerance = float(np.percentile(curved, 90)) if len(curved) else 0.0
     bent = worst[1] > BENT * np.maximum(worst[0], tolerance)
     g = free[:, :2]
-    if bent.any():  # the line's side: not more than 75 degrees from its direction
+    # the line's side: within 104.5 degrees of its direction (cos >= -0.25), the neighbours
+    # ahead and beside it, not those behind it (the rounding a flat's radius runs away from)
+    if bent.any():
         side = [np.einsum("ij,ij->i", phi[:, :2], line[a])
                 >= -0.25 * length * np.linalg.norm(line[a], axis=1) for length, _, phi in local]
         g[bent] = fit(side, STRAIGHT)[bent, :2]
@@ -357,7 +384,12 @@ def _corner_normals(V: np.ndarray, F: np.ndarray, n: np.ndarray) -> np.ndarray:
     normal /= np.linalg.norm(normal, axis=1)[:, None]
     normal = normal[np.searchsorted(fitted, own)].reshape(k, 3, 3)
     normal *= np.sign(np.einsum("fij,fj->fi", normal, n))[:, :, None]
-    return normal
+    # a smooth corner's normal lies among its fan's faces' normals, all within CREASE of the
+    # face's: one further off is a fit the neighbours do not decide (a cone's tip, whose fan's
+    # vertices all lie on lines through it), and the face's own normal gives no sag there
+    off = np.einsum("fij,fj->fi", normal, n) < math.cos(CREASE)
+    normal[off] = np.broadcast_to(n[:, None], normal.shape)[off]
+    return normal, tolerance
 
 
 def _fan(F: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
