@@ -54,6 +54,12 @@ class NewtonSettings:
     # below the sufficient decrease asked of that step (0: backtrack at once)
     watchdog: int = 1
     try_exact: bool = True  # exact Hessian when positive definite, projected otherwise
+    # with try_exact: the projected Hessian while the last residual is above this fraction of
+    # the force level (and at a minimisation's start), the exact one below (0: exact
+    # throughout). Far from equilibrium the exact Hessian of plastic flow and of contact
+    # next to a tool's edge is barely positive definite, and its corrections overshoot
+    # (the cup's first step: 18 iterations exact, 11 so)
+    exact_below: float = 0.0
     # a lagged quantity (friction's normal force, Term.lag_change) is taken at every iterate
     # whose residual is below ``relag_below`` of the force level (farther out the iterates'
     # normal forces move the energy under the line search, and hard steps crawled), at most
@@ -158,7 +164,9 @@ class Newton:
 
     def evaluate(self, y: np.ndarray) -> Evaluation:
         t = time.perf_counter()
-        out = self.problem.evaluate(y, exact=self.settings.try_exact)
+        s = self.settings
+        far = s.exact_below > 0 and (not self.res or self.res[-1] > s.exact_below * self.ref)
+        out = self.problem.evaluate(y, exact=s.try_exact and not far)
         self.timing.assembly += time.perf_counter() - t
         return out
 
