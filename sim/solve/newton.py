@@ -382,7 +382,10 @@ def _solve(nt: Newton, cur: Iterate, data: np.ndarray, stale: bool) -> np.ndarra
     couple = nt.problem.lag_coupling(cur.x) if nt.relags else None
     g = cur.g.ravel()
     if couple is not None or stale:
-        eta = _forcing(nt, cur)
+        # old factors below reuse_below keep 1e-8: there (the default rtol, its target under
+        # the round-off floor) looser stale corrections cost a dragged sheet iterations
+        s = nt.settings
+        eta = 1e-8 if stale and cur.r <= s.reuse_below * nt.ref else _forcing(nt, cur)
         dx, rel = solve_krylov(nt.problem, data, g, nt.settings.coupling_solves, couple, eta)
         if rel <= eta:
             return _held(nt, dx, rel)
