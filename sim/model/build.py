@@ -112,8 +112,10 @@ def newton_settings(scene: Scene, shell: Shell) -> NewtonSettings:
     """The scene's solver settings, ``xtol`` relative to the mean thickness. The residual's
     round-off floor is measured by Newton where it matters (sim.solve.problem.Floor)."""
     h = float(np.mean(shell.thickness))
+    proj = scene.solver.hessian_projection
     return NewtonSettings(rtol=scene.solver.rtol, xtol=scene.solver.xtol * h,
-                          try_exact=scene.solver.hessian_projection == "auto",
+                          try_exact=proj in ("auto", "exact_near"),
+                          exact_below=0.1 if proj == "exact_near" else 0.0,
                           max_iterations=scene.solver.max_iterations)
 
 

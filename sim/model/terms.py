@@ -22,8 +22,8 @@ from sim.tools.shapes import tool_program
 
 # linear_elastic is the elastic term linearised at rest, where every law is Hooke's
 MODEL_IDS = {"neo_hookean": 0, "hencky": 1, "plastic": 2, "linear_elastic": 0}
-PROJECTIONS = {"auto": PROJECT_QP, "qp": PROJECT_QP, "element": PROJECT_ELEMENT,
-               "none": PROJECT_NONE}
+PROJECTIONS = {"auto": PROJECT_QP, "exact_near": PROJECT_QP, "qp": PROJECT_QP,
+               "element": PROJECT_ELEMENT, "none": PROJECT_NONE}
 
 
 

@@ -57,9 +57,10 @@ class SolverSpec(Strict):
         "Newton's cap per attempt; one that stops progressing ends sooner", "1", 200)
     linear_solver: Literal["auto", "pardiso", "scipy"] = doc(
         "auto: MKL PARDISO when installed, else SciPy", default="auto")
-    hessian_projection: Literal["auto", "qp", "element", "none"] = doc(
+    hessian_projection: Literal["auto", "exact_near", "qp", "element", "none"] = doc(
         "auto: the exact Hessian where it is positive definite, else projected per "
-        "quadrature point", default="auto")
+        "quadrature point; exact_near: projected per quadrature point while the residual is "
+        "above a tenth of the force level, then as auto", default="auto")
 
 
 class ProbeSpec(Strict):

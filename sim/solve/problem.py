@@ -191,15 +191,16 @@ def solve_refined(problem: Problem, data: np.ndarray, rhs: np.ndarray, refinemen
 
 
 def solve_krylov(problem: Problem, data: np.ndarray, rhs: np.ndarray, solves: int,
-                 extra: Callable[[np.ndarray], np.ndarray] | None = None
+                 extra: Callable[[np.ndarray], np.ndarray] | None = None, tol: float = 1e-10
                  ) -> tuple[np.ndarray, float]:
     """Solve (K + J) x = rhs by GMRES, right-preconditioned by the factors at hand (of K, or of
     an earlier iterate's Hessian), ``solves`` solves at most. Refinement on the same factors
     converges only as fast as the spectral radius of K_f^-1 (K + J) - I is small, and stalled
     at 1e-6 where friction's coupling J was a tenth of K; GMRES minimises the true residual
     over the same solves' span, so it is never worse, and resolves the few directions in
-    which J is large. Returns the solution and its relative residual |rhs - (K + J) x| /
-    |rhs| (recomputed, not GMRES's estimate)."""
+    which J is large. Stops once GMRES's estimate of the relative residual is below ``tol``.
+    Returns the solution and its relative residual |rhs - (K + J) x| / |rhs| (recomputed, not
+    GMRES's estimate)."""
     p = problem.pattern
 
     def apply(x: np.ndarray) -> np.ndarray:
@@ -225,7 +226,7 @@ def solve_krylov(problem: Problem, data: np.ndarray, rhs: np.ndarray, solves: in
         H[j + 1, j] = float(np.linalg.norm(w))
         y = np.linalg.lstsq(H[: j + 2, : j + 1], e1[: j + 2], rcond=None)[0]
         estimate = float(np.linalg.norm(H[: j + 2, : j + 1] @ y - e1[: j + 2])) / beta
-        if estimate <= 1e-10 or H[j + 1, j] <= 1e-14 * beta:
+        if estimate <= tol or H[j + 1, j] <= 1e-14 * beta:
             break
         V.append(w / H[j + 1, j])
     x = np.asarray(Z).T @ y
