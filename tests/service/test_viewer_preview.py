@@ -50,6 +50,14 @@ def shown(client: TestClient, scene: str) -> dict:
                  and v["preview"] != "building" and v, f"the preview of {scene} never came")
 
 
+def showing(viewer, mode: str, subject: str, legend: str) -> None:  # noqa: ANN001
+    """Wait until ``viewer`` shows ``mode`` with that ``subject`` and a legend saying
+    ``legend``."""
+    until(lambda: viewer.mode == mode and viewer.subject.content == subject
+          and legend in viewer.canvas.legend.content,
+          f"the viewer never showed {mode} with {subject!r} and {legend!r}")
+
+
 def rest(text: str) -> Simulation:
     return Simulation.from_scene(scene_from_toml(text))
 
@@ -109,19 +117,16 @@ def test_a_run_shows_again_once_started_or_selected(client, viewer):
                                               "preview": None, "preview_error": None,
                                               "step": None, "notices": []}
     assert wait_state(client, run, {"finished", "failed", "stopped"})["state"] == "finished"
-    until(lambda: viewer.mode == "live", "the new run was not shown")
-    # the live parameters under the preview still act on the run: they say which
-    assert viewer.subject.content == f"<small>of run `{run}`</small>"
-    assert "range of this run" in viewer.canvas.legend.content
+    # the live parameters under the preview still act on the run: they say which (the
+    # viewer draws on its own thread: mode, subject and legend are waited for together)
+    live = f"<small>of run `{run}`</small>"
+    showing(viewer, "live", live, "range of this run")
     client.put("/api/view/scene", json={"scene": "press"})
     assert shown(client, "press")["run"] == run  # still the selected run
-    until(lambda: viewer.mode == "preview", "the preview was not shown")
-    assert viewer.subject.content == (f"<small>of run `{run}`, not of the scene `press` "
-                                      "previewed</small>")
+    showing(viewer, "preview", f"<small>of run `{run}`, not of the scene `press` previewed"
+            "</small>", "range of the blank of scene press at rest (no run)")
     assert client.put("/api/view", json={"run": run}).status_code == 200
-    until(lambda: viewer.mode == "live", "selecting the run did not show it again")
-    assert viewer.subject.content == f"<small>of run `{run}`</small>"
-    assert "range of this run" in viewer.canvas.legend.content
+    showing(viewer, "live", live, "range of this run")
     assert client.get("/api/view").json()["scene"] is None
 
 
