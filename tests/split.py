@@ -1,18 +1,16 @@
-"""The whole suite as three pytest processes side by side (``make test``, what CI runs).
+"""The whole suite as two pytest processes side by side (``make test``, what CI runs).
 
 ``python -m tests.split [pytest options] [paths]``: the browser tests (tests/service's
-``test_*browser*.py``, which mostly wait on servers, solver processes and pages), the other
-service and command-line tests (tests/service, tests/apps), and every other tier (which
-mostly computes), each in its own process with its own temporary folder. On a 2-core machine
-they overlap: the waiting of one is another's computing time (with two parts the machine
-still idled: 21 CPU-minutes in 19 minutes). Options go to every part; paths given run as one
-part, as asked. Each part's
+``test_*browser*.py``, which mostly wait on servers, solver processes and pages) in one
+process, every other test (which mostly computes) in the other, each with its own temporary
+folder. On a 2-core machine the two overlap: the waiting of one is the other's computing time.
+Options go to both parts; paths given run as one part, as asked. Each part's
 output goes to a log (its path printed first) and is printed whole once the part ends, so the
 parts never interleave; every minute a line gives each running part's progress. Exits 0 only
 if every part run passes; a part that collects no test (pytest's 5) fails only if all do.
 
 Not pytest-xdist: one of its workers died mid-module here ("node down: Not properly
-terminated") with no trace, and the replacement then stalled the session; plain pytest
+terminated") with no trace, and the replacement then stalled the session; two plain pytest
 processes have no channel between them to lose.
 """
 
@@ -31,9 +29,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 # the page driven in chromium: mostly waiting on servers, solver processes and pages
 BROWSER = sorted((ROOT / "tests" / "service").glob("test_*browser*.py"))
-# the other service tests and the command line's: servers, solver processes, Dask clusters and
-# whole commands, waiting on them too; the third part is every other tier (it computes)
-SERVICE_APPS = [ROOT / "tests" / "service", ROOT / "tests" / "apps"]
 # a line per minute: CI shows the suite alive (and where) while the logs wait for their part
 HEARTBEAT = 60.0
 # pytest options whose value is the next argument (so that value is no path to sort)
@@ -42,7 +37,7 @@ VALUED = {"-k", "-m", "-p", "-o", "-W", "-c", "--deselect", "--ignore", "--ignor
 
 
 def parts(args: list[str]) -> dict[str, list[str]]:
-    """Each part's pytest arguments: the options for every part. Paths given: one part, as asked."""
+    """Each part's pytest arguments: the options for both. Paths given: one part, as asked."""
     options, paths, value = [], [], False
     for a in args:
         if value or a.startswith("-") or not Path(a.split("::")[0]).exists():
@@ -54,9 +49,7 @@ def parts(args: list[str]) -> dict[str, list[str]]:
         return {"selected": args}
     browser = [str(f) for f in BROWSER]
     return {"browser": [*options, *browser],
-            "service and apps": [*options, *map(str, SERVICE_APPS),
-                                 *(f"--ignore={f}" for f in browser)],
-            "solver tiers": [*options, *(f"--ignore={d}" for d in SERVICE_APPS)]}
+            "other": [*options, *(f"--ignore={f}" for f in browser)]}
 
 
 def main(argv: list[str] | None = None) -> int:

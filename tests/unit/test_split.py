@@ -3,19 +3,16 @@ progress line it prints while the parts run."""
 
 import pytest
 
-from tests.split import BROWSER, SERVICE_APPS, parts, progress
+from tests.split import BROWSER, parts, progress
 
 pytestmark = pytest.mark.fast
 
 
-def test_the_suite_splits_into_browser_service_and_apps_and_the_rest():
+def test_the_suite_splits_into_the_browser_tests_and_the_rest():
     got = parts(["-x", "-m", "not slow"])
-    assert set(got) == {"browser", "service and apps", "solver tiers"} and len(BROWSER) > 10
-    opts = ["-x", "-m", "not slow"]
-    assert got["browser"] == [*opts, *map(str, BROWSER)]
-    assert got["service and apps"] == [*opts, *map(str, SERVICE_APPS),
-                                       *(f"--ignore={f}" for f in BROWSER)]
-    assert got["solver tiers"] == [*opts, *(f"--ignore={d}" for d in SERVICE_APPS)]
+    assert set(got) == {"browser", "other"} and len(BROWSER) > 10
+    assert got["browser"] == ["-x", "-m", "not slow", *map(str, BROWSER)]
+    assert got["other"] == ["-x", "-m", "not slow", *(f"--ignore={f}" for f in BROWSER)]
     assert all("browser" in f.name for f in BROWSER)
 
 
@@ -26,8 +23,8 @@ def test_paths_given_run_as_one_part():
 
 def test_an_options_value_is_no_path_even_when_it_names_one():
     got = parts(["--deselect", "tests/unit/test_split.py", "-k", "tests"])
-    assert set(got) == {"browser", "service and apps", "solver tiers"}
-    assert got["solver tiers"][:4] == ["--deselect", "tests/unit/test_split.py", "-k", "tests"]
+    assert set(got) == {"browser", "other"}
+    assert got["other"][:4] == ["--deselect", "tests/unit/test_split.py", "-k", "tests"]
 
 
 def test_progress_is_the_last_percentage_printed(tmp_path):
