@@ -505,7 +505,9 @@ const UNREACHABLE = (port) => [
 
 function loopbackHost(host) {
   // the page's own host: a browser on the server's machine can reach its loopback viewer
-  return host === "localhost" || /^127\./.test(host) || host === "[::1]" || host === "::1";
+  // (0.0.0.0 and *.localhost name this machine too: browsers connect them to loopback)
+  return host === "localhost" || host.endsWith(".localhost") || /^127\./.test(host) ||
+    host === "[::1]" || host === "::1" || host === "0.0.0.0";
 }
 
 async function main() {
