@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: serve test test-fast test-loaded bench results docs lint clean clean-cache venv
+.PHONY: serve test test-fast test-loaded shots bench results docs lint clean clean-cache venv
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/pip || $(MAKE) --no-print-directory venv
@@ -28,6 +28,11 @@ test: $(STAMP)
 # fast), without the slow tests
 test-fast: $(STAMP)
 	$(call pytest,-m "fast and not slow")
+
+# the browser tests with their screenshots, to look at (runs/shots/<module>/): the suite
+# itself takes none (a hundred pictures, each after a wait for software WebGL to draw)
+shots: $(STAMP)
+	Q3T_SHOTS=$(CURDIR)/runs/shots $(call pytest,$(wildcard tests/service/test_*browser*.py))
 
 # The suite beside one busy process per core: a test that races the clock fails here.
 # ARGS picks tests (e.g. make test-loaded ARGS=tests/apps/test_sweep.py); tests/loaded.py says

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import time
 from pathlib import Path
 
@@ -21,11 +20,11 @@ from server import sceneform
 from server.colormap import VIRIDIS
 from server.tomlout import drop_none
 from tests.support import ROOT
-from tests.support.browser import CHROMIUM, new_page, serve, settled
+from tests.support.browser import CHROMIUM, new_page, serve, settled, shots_dir
 from tests.support.scenes import tiny_toml
 from tests.support.service import stop_all
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-browser"))
+SHOTS = shots_dir("browser")
 pytestmark = pytest.mark.browser
 if not Path(CHROMIUM).exists():
     pytest.skip(f"{CHROMIUM} missing (apt-get install chromium)", allow_module_level=True)

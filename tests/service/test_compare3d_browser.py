@@ -14,22 +14,20 @@ against the real server saving every step's frame, with two finished runs of a s
 - a third run on another mesh: no A - B map, the reason in its place; once its frames are
   gone (as a sweep case written without them), no views, the reason instead.
 
-Screenshots go to $Q3T_SHOTS (default /tmp/shots-compare3d)."""
+With $Q3T_SHOTS set, screenshots go to its folder compare3d."""
 
 from __future__ import annotations
 
-import os
 import shutil
-from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.support.browser import new_page, serve
+from tests.support.browser import new_page, serve, shot, shots_dir
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import finished_run
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-compare3d"))
+SHOTS = shots_dir("compare3d")
 VIEWS = ("#compare-3d-a", "#compare-3d-b", "#compare-3d-diff")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
@@ -50,11 +48,10 @@ def served(tmp_path_factory):
                     _finished(url, overrides={"mesh.edge_length": 0.002})], tmp / "runs"
 
 
-def shot(page, name: str) -> None:
+def shots(page, name: str) -> None:
     """The window, and the views at a stroke alone."""
-    page.wait_for_timeout(1500)  # plotly's WebGL in software draws in about a second
-    page.screenshot(path=str(SHOTS / f"{name}.png"))
-    page.locator("#compare-stroke").screenshot(path=str(SHOTS / f"{name}-views.png"))
+    shot(page, SHOTS, name, settle_ms=1500)  # plotly's WebGL in software draws in about a second
+    shot(page, SHOTS, f"{name}-views", where="#compare-stroke")
 
 
 def open_compare(browser, url: str, a: str, b: str):
@@ -105,7 +102,7 @@ def test_two_views_follow_the_stroke_slider(served, browser):
     assert "A: frame of step 4 at 2.000 mm" in text and "B: frame of step 8 at 2.000 mm" in text
     assert page.text_content("#compare-stroke-value") == "2.000 mm"
     box = scene_box(page)
-    shot(page, "compare3d-deepest")
+    shots(page, "compare3d-deepest")
 
     slider.focus()
     page.keyboard.press("Home")  # a user's key: the slider's input and change events
@@ -131,7 +128,7 @@ def test_two_views_follow_the_stroke_slider(served, browser):
             s, "d => d.data[0].colorbar.title.text")
     # drawn in the same box at every stroke, in true proportions: sliding keeps the scale
     assert scene_box(page) == box
-    shot(page, "compare3d-between-frames")
+    shots(page, "compare3d-between-frames")
 
     # turn A's view as a drag ends (plotly's relayout of its camera; a mouse drag does not
     # register in headless software WebGL): B's and the map's cameras follow
@@ -148,7 +145,7 @@ def test_two_views_follow_the_stroke_slider(served, browser):
     page.keyboard.press("End")
     wait_steps(page, 4, 8)
     assert camera_eye(page, "#compare-3d-b") == pytest.approx(turned)
-    shot(page, "compare3d-turned")
+    shots(page, "compare3d-turned")
     assert not errors, errors
 
 
@@ -159,7 +156,7 @@ def test_another_mesh_has_no_difference_map_and_no_frames_no_views(served, brows
     page.wait_for_function("document.querySelector('#compare-3d-diff').textContent"
                            ".includes('the meshes differ')")
     page.locator("#compare-stroke").scroll_into_view_if_needed()
-    shot(page, "compare3d-other-mesh")
+    shots(page, "compare3d-other-mesh")
     # a run without saved frames (as a sweep case written without them): the reason, no views
     page.keyboard.press("Escape")
     shutil.rmtree(runs_dir / c / "frames")
@@ -168,5 +165,5 @@ def test_another_mesh_has_no_difference_map_and_no_frames_no_views(served, brows
                            ".includes('no saved frames')")
     assert page.is_hidden("#compare-stroke-views") and page.is_hidden("#compare-stroke-slider")
     assert c in page.text_content("#compare-stroke-msg")
-    shot(page, "compare3d-no-frames")
+    shots(page, "compare3d-no-frames")
     assert not errors, errors

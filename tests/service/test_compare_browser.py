@@ -12,24 +12,24 @@ runs folder.
   another mesh the difference is disabled and the reason shown;
 - a sweep's cases open as runs from the panel and compare.
 
-Screenshots go to $Q3T_SHOTS (default /tmp/shots-compare)."""
+With $Q3T_SHOTS set, screenshots go to its folder compare."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import new_page, serve
+from tests.support.browser import new_page, serve, shot, shots_dir
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import HANG, finished_run, until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-compare"))
+SETTLE_MS = 1500  # plotly's WebGL in software draws in about a second
+SHOTS = shots_dir("compare")
 ENDED = {"finished", "failed", "stopped"}
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
@@ -75,11 +75,6 @@ def open_page(browser, url: str):
     return page, errors
 
 
-def shot(page, name: str) -> None:
-    page.wait_for_timeout(1500)  # plotly's WebGL in software draws in about a second
-    page.screenshot(path=str(SHOTS / f"{name}.png"))
-
-
 def tick(page, run: str) -> None:
     page.check(f"#compare-runs input[value='{run}']")
 
@@ -97,7 +92,7 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
                                         "[r.querySelector('input').value, "
                                         "r.querySelector('.letter').textContent])")
     assert dict(letters) == {c: "A", a: "B"}  # the order ticked
-    shot(page, "panel")
+    shot(page, SHOTS, "panel", settle_ms=SETTLE_MS)
     page.click("#compare-open")
     page.wait_for_selector("#compare-view:not([hidden])")
     page.wait_for_selector("#compare-thickness .main-svg")
@@ -126,7 +121,7 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     b_punch = next(p for p in api["punches"] if p["run"] == a)
     assert marks == [[b_punch["stroke"]["values"][b_punch["steps"].index(2)]],
                      ["B: friction_scale = 2"]]
-    shot(page, "compare-diff")
+    shot(page, SHOTS, "compare-diff", settle_ms=SETTLE_MS)
     # the toggle: A, then B, with the camera the user left
     shown = "() => document.getElementById('compare-thickness').dataset.show"
     assert page.evaluate(shown) == "diff"
@@ -143,7 +138,7 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     turned = page.evaluate(camera)
     page.click("#compare-thickness-controls button[data-value='a']")
     page.wait_for_function(f"({shown})() === 'a'")
-    shot(page, "compare-A")
+    shot(page, SHOTS, "compare-A", settle_ms=SETTLE_MS)
     page.click("#compare-thickness-controls button[data-value='b']")
     page.wait_for_function(f"({shown})() === 'b'")
     assert page.evaluate(camera) == pytest.approx(turned)
@@ -154,7 +149,7 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     page.click("#compare-thickness-controls button[data-value='rest']")
     page.wait_for_function("document.getElementById('compare-thickness')"
                            ".dataset.shape === 'rest'")
-    shot(page, "compare-B-rest")
+    shot(page, SHOTS, "compare-B-rest", settle_ms=SETTLE_MS)
     page.keyboard.press("Escape")
     page.wait_for_selector("#compare-view", state="hidden")
     # on a laptop's window the summary still fits its column (no sideways scrolling)
@@ -165,7 +160,7 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     assert page.evaluate(camera) == {"x": 0.7, "y": -1.5, "z": 1.3}
     assert page.evaluate("() => { const s = document.getElementById('compare-summary');"
                          " return s.scrollWidth <= s.clientWidth; }")
-    shot(page, "compare-1280")
+    shot(page, SHOTS, "compare-1280", settle_ms=SETTLE_MS)
     assert not errors, errors
 
 
@@ -197,7 +192,7 @@ def test_sweep_cases_open_from_the_panel(served, browser):
                            ".includes('opened as runs')")
     assert "4 case(s) opened as runs" in page.text_content("#compare-msg")
     page.wait_for_function("document.querySelectorAll('#compare-runs tr.picked').length === 4")
-    shot(page, "sweep-panel")
+    shot(page, SHOTS, "sweep-panel", settle_ms=SETTLE_MS)
     page.click("#compare-open")
     page.wait_for_selector("#compare-thickness .main-svg")
     line = page.text_content("#compare-differs")
@@ -207,7 +202,7 @@ def test_sweep_cases_open_from_the_panel(served, browser):
     assert edge.endswith(" mm") and "0.00" not in edge, edge
     tip = page.get_attribute("#compare-differs", "title").splitlines()
     assert next(t for t in tip if t.startswith("mesh.edge_length")).endswith(" mm"), tip
-    shot(page, "sweep-compare")
+    shot(page, SHOTS, "sweep-compare", settle_ms=SETTLE_MS)
     # A and B are on other meshes (the sweep's edge lengths): no difference map, and why
     note = page.text_content("#compare-thickness-note")
     assert "no difference map: the meshes differ" in note
@@ -217,5 +212,5 @@ def test_sweep_cases_open_from_the_panel(served, browser):
                            "button[data-value='diff']\").disabled")
     page.wait_for_function("document.getElementById('compare-thickness').layout.title.text"
                            ".startsWith('Thickness difference A − C')")
-    shot(page, "sweep-compare")
+    shot(page, SHOTS, "sweep-compare", settle_ms=SETTLE_MS)
     assert not errors, errors

@@ -6,11 +6,10 @@ scripts and styles from the app, never from a CDN.
 - In Debian's chromium with every request to another host refused, /docs lists every operation
   of the OpenAPI schema, opens one to its parameters and schema, and never tries to reach out.
 
-Screenshots go to $Q3T_SHOTS (default /tmp/shots-extras)."""
+With $Q3T_SHOTS set, screenshots go to its folder extras."""
 
 from __future__ import annotations
 
-import os
 from html.parser import HTMLParser
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -21,10 +20,10 @@ from fastapi.testclient import TestClient
 
 from server.app import create_app
 from server.settings import Settings
-from tests.support.browser import CHROMIUM, WAIT_MS, serve
+from tests.support.browser import CHROMIUM, WAIT_MS, serve, shot, shots_dir
 from tests.support.scenes import tiny_toml
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-extras"))
+SHOTS = shots_dir("extras")
 
 
 class Links(HTMLParser):
@@ -75,7 +74,8 @@ def offline_page():
     if not Path(CHROMIUM).exists():
         pytest.skip(f"{CHROMIUM} missing (apt-get install chromium)")
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
-    SHOTS.mkdir(parents=True, exist_ok=True)
+    if SHOTS is not None:
+        SHOTS.mkdir(parents=True, exist_ok=True)
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM)
 
@@ -114,7 +114,7 @@ def test_swagger_ui_offline(served, offline_page):
     shown = {(b.locator(".opblock-summary-method").inner_text().strip(),
               b.locator(".opblock-summary-path").get_attribute("data-path"))
              for b in blocks.all()}
-    page.screenshot(path=str(SHOTS / "docs-offline.png"))
+    shot(page, SHOTS, "docs-offline.png")
     assert shown == set(ops)
     assert "q3t-forming preview" in page.locator(".info .title").inner_text()
     # an operation opens to its request body and its schema, drawn from /openapi.json
@@ -122,7 +122,7 @@ def test_swagger_ui_offline(served, offline_page):
     start.locator(".opblock-summary").click()
     start.locator(".opblock-body .model-example").first.wait_for()
     start.scroll_into_view_if_needed()
-    page.screenshot(path=str(SHOTS / "docs-offline-start-run.png"))
+    shot(page, SHOTS, "docs-offline-start-run.png")
     assert "scene" in start.locator(".opblock-body").inner_text()
     assert not refused, f"/docs reached out: {refused}"
     assert not errors, errors

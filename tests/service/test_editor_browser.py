@@ -9,23 +9,22 @@ subprocess, on a copy of the shipped cup scene (its comments are the point):
   with the error in view.
 - The live parameters read as words, with the result beside each multiplier.
 
-Screenshots of each step go to $Q3T_SHOTS (default /tmp/shots-editor)."""
+With $Q3T_SHOTS set, screenshots of each step go to its folder editor."""
 
 from __future__ import annotations
 
 import math
-import os
 import tomllib
-from pathlib import Path
 
 import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import serve, settled
+from tests.support.browser import serve, settled, shot, shots_dir
 from tests.support.service import until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-editor"))
+SETTLE_MS = 1500  # the viewer draws in software WebGL
+SHOTS = shots_dir("editor")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 CUP = (ROOT / "scenes" / "cup_drawing.toml").read_text()
@@ -45,11 +44,6 @@ def served(tmp_path_factory):
 @pytest.fixture
 def page(open_page, served):
     return open_page(served[0], "#scenes li.sel", "#scene-form [name='material.E']")
-
-
-def shot(page, name: str) -> None:
-    page.wait_for_timeout(1500)  # the viewer draws in software WebGL
-    page.screenshot(path=str(SHOTS / f"{name}.png"))
 
 
 def field(page, path: str):
@@ -82,7 +76,7 @@ def test_fields_show_units_descriptions_and_their_kinds_fields_only(page):
     punch = page.locator("#scene-form fieldset[data-path='tools.0.shape']")
     names = punch.locator(":scope > .field > label > .key").all_text_contents()
     assert names[0] == "kind" and "n points" not in names and "r outer" not in names, names
-    shot(page, "01-units-descriptions-kinds")
+    shot(page, SHOTS, "01-units-descriptions-kinds", settle_ms=SETTLE_MS)
     # a Voce law: its own parameters only
     law = page.locator("#scene-form fieldset[data-path='material.hardening']")
     law.scroll_into_view_if_needed()
@@ -94,13 +88,13 @@ def test_fields_show_units_descriptions_and_their_kinds_fields_only(page):
     assert page.locator(flc).count() == 1
     page.select_option("[name='material.flc.kind']", "points")
     assert page.locator(flc).count() == 1
-    shot(page, "01b-hardening-law")
+    shot(page, SHOTS, "01b-hardening-law", settle_ms=SETTLE_MS)
     # another kind: its fields, the shared ones kept
     page.select_option("[name='mesh.kind']", "rectangle")
     names = mesh.locator(":scope > .field > label > .key").all_text_contents()
     assert names == ["kind", "imperfection", "edge length", "size", "origin"], names
     assert page.input_value("[name='mesh.edge_length']") == "6"
-    shot(page, "02-mesh-kind-rectangle")
+    shot(page, SHOTS, "02-mesh-kind-rectangle", settle_ms=SETTLE_MS)
 
 
 def test_a_form_edit_saved_keeps_the_files_comments(page, served):
@@ -113,7 +107,7 @@ def test_a_form_edit_saved_keeps_the_files_comments(page, served):
     page.click("[name='material.density']")  # the comma's field loses the focus
     assert page.input_value(nu) == "0.3"
     page.click("#tab-toml")
-    shot(page, "03-toml-view-keeps-comments")
+    shot(page, SHOTS, "03-toml-view-keeps-comments", settle_ms=SETTLE_MS)
     page.click("#tab-form")
     page.click("#save")
     page.wait_for_function("document.getElementById('msg').textContent === 'saved cup'")
@@ -157,7 +151,7 @@ def test_a_duplicate_takes_its_name_and_a_failed_save_says_so(page, served):
     }""")
     assert box, "the field in error is not scrolled into view"
     assert tomllib.loads((scenes / "cup-copy.toml").read_text())["material"]["nu"] == 0.33
-    shot(page, "04-failed-save")
+    shot(page, SHOTS, "04-failed-save", settle_ms=SETTLE_MS)
     httpx.delete(f"{url}/api/scenes/cup-copy")
 
 
@@ -201,5 +195,5 @@ def test_live_parameters_read_as_words_with_their_results(page, served):
     speed = page.text_content("#param-tool_speed-result")
     assert speed.startswith("punch 0.5 × 2 = 1 mm/step; "), speed
     assert page.text_content("#param-friction_scale-value") == "2"
-    shot(page, "05-live-parameters")
+    shot(page, SHOTS, "05-live-parameters", settle_ms=SETTLE_MS)
     httpx.post(f"{url}/api/runs/{run}/stop")

@@ -1,15 +1,13 @@
 """The run's download links on the page (web/results.js) in Debian's chromium, against the real
 server in a subprocess: a running run says its downloads come when it ends; an ended one offers
 each format, and a click downloads the file the API serves; with the viewer on, the PNG of the
-3-D view is rendered by the page's viewer. Screenshots go to $Q3T_SHOTS (default
-/tmp/shots-exports)."""
+3-D view is rendered by the page's viewer. With $Q3T_SHOTS set, screenshots go to its folder
+exports."""
 
 from __future__ import annotations
 
 import csv
 import io
-import os
-from pathlib import Path
 
 import httpx
 import imageio.v3 as iio
@@ -17,11 +15,11 @@ import numpy as np
 import pytest
 
 from sim.frames import export
-from tests.support.browser import WAIT_MS, serve
+from tests.support.browser import WAIT_MS, serve, shot, shots_dir
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-exports"))
+SHOTS = shots_dir("exports")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 ENDED = {"finished", "failed", "stopped"}
@@ -67,8 +65,7 @@ def test_an_ended_run_offers_each_format_and_a_click_downloads_it(served, browse
     png = page.locator("#downloads .unavailable[data-format=png]")
     assert png.get_attribute("title").startswith("the viewer is off")
     assert page.locator("#downloads").inner_text().startswith("Download:")
-    page.wait_for_timeout(1500)  # the plots drawn
-    page.screenshot(path=str(SHOTS / "downloads-ended.png"))
+    shot(page, SHOTS, "downloads-ended.png", settle_ms=1500)  # the plots drawn
     with page.expect_download() as d:
         page.click("#downloads a[data-format=csv]")
     path = tmp_path / d.value.suggested_filename
@@ -93,7 +90,7 @@ def test_a_running_run_says_its_downloads_come_when_it_ends(served, browser):
         downloads(page, run, "false")
         assert "when the run ends" in page.inner_text("#downloads")
         assert page.locator("#downloads a").count() == 0
-        page.screenshot(path=str(SHOTS / "downloads-running.png"))
+        shot(page, SHOTS, "downloads-running.png")
     finally:
         httpx.post(f"{url}/api/runs/{run}/stop")
     ended(url, run)
@@ -117,19 +114,18 @@ def test_png_needs_a_browser_showing_the_run(viewed):
     assert r.status_code == 409 and "no browser has the 3-D view open" in r.json()["detail"]
 
 
-def test_png_of_the_3d_view_is_rendered_by_the_pages_viewer(viewed, browser):
+def test_png_of_the_3d_view_is_rendered_by_the_pages_viewer(viewed, browser, tmp_path):
     url, run = viewed
     page = browser.new_page(viewport={"width": 1400, "height": 1000}, accept_downloads=True)
     page.set_default_timeout(WAIT_MS)
     page.goto(url + "/")
     downloads(page, run, "true")
     page.frame_locator("#viewer").get_by_text("Colour by").first.wait_for()
-    page.wait_for_timeout(3000)  # software WebGL: the sheet drawn
-    page.screenshot(path=str(SHOTS / "downloads-viewer.png"))
+    shot(page, SHOTS, "downloads-viewer.png", settle_ms=3000)  # software WebGL: the sheet drawn
     with page.expect_download() as d:
         page.click("#downloads a[data-format=png]")
     assert d.value.suggested_filename == f"{run}.png"
-    path = SHOTS / "downloaded-view.png"  # kept, to be looked at
+    path = (SHOTS or tmp_path) / "downloaded-view.png"  # kept with the shots, to be looked at
     d.value.save_as(path)
     image = iio.imread(path)
     assert image.ndim == 3 and image.shape[0] > 100 and image.shape[1] > 100

@@ -3,11 +3,10 @@ subprocess: the blank's ``mesh.path`` and ``shell.thickness_file`` are selects o
 folder's files with an Upload button beside them. A blank and a thickness file uploaded there
 (their names made plain), chosen, saved and run; a file that is no mesh says why in the form;
 a name taken asks before replacing; a file past the limit is refused before it is sent.
-Screenshots of each step go to $Q3T_SHOTS (default /tmp/shots-files)."""
+With $Q3T_SHOTS set, screenshots of each step go to its folder files."""
 
 from __future__ import annotations
 
-import os
 import socket
 from pathlib import Path
 
@@ -16,11 +15,11 @@ import pytest
 import trimesh
 
 from sim.geometry.trimesh import rectangle
-from tests.support.browser import serve
+from tests.support.browser import serve, shot, shots_dir
 from tests.support.scenes import tiny_toml
 from tests.support.service import until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-files"))
+SHOTS = shots_dir("files")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 PLATE = rectangle((0.7, 0.07), 0.035)  # tiny's mesh: 63 vertices, 80 triangles
@@ -51,12 +50,12 @@ def status(page, field: str) -> str:
     return page.inner_text(f"[data-path='{field}'] .upload-status")
 
 
-def shot(page, name: str) -> None:
+def left_column(page, name: str) -> None:
     """The left column; the form in it never wider than the column (a long file name in a
     select once widened it, and the form scrolled sideways out of view)."""
     wide = page.evaluate("() => { const f = document.getElementById('scene-form');"
                          " return f.scrollWidth - f.clientWidth; }")
-    page.locator("#left").screenshot(path=str(SHOTS / name))
+    shot(page, SHOTS, name, where="#left")
     assert wide == 0, f"{name}: the form is {wide} px wider than its column"
 
 
@@ -71,7 +70,7 @@ def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
     page.select_option("[name='mesh.kind']", "file")
     page.wait_for_selector("[data-path='mesh.path'] select.file-select")
     page.locator("[data-path='mesh.path']").scroll_into_view_if_needed()
-    shot(page, "1-file-kind.png")
+    left_column(page, "1-file-kind.png")
     choose(page, "mesh.path", obj)
     until(lambda: status(page, "mesh.path").startswith("uploaded"), "no upload", 300)
     assert status(page, "mesh.path") == ("uploaded My_plate_v2.obj: blank mesh: 63 vertices, "
@@ -94,7 +93,7 @@ def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
     }""")
     assert page.inner_text("#sync") == "valid"
     page.locator("[data-path='shell.thickness_file']").scroll_into_view_if_needed()
-    shot(page, "2-uploaded.png")
+    left_column(page, "2-uploaded.png")
 
     page.fill("#scene-name", "uploaded")
     page.click("#save")
@@ -116,7 +115,7 @@ def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
                                          "(mesh.path); change or delete them first")
     assert (tmp / "scenes" / "My_plate_v2.obj").is_file()
     page.locator("[data-path='mesh.path']").scroll_into_view_if_needed()
-    shot(page, "3-delete-refused.png")
+    left_column(page, "3-delete-refused.png")
 
 
 def test_a_file_that_is_no_mesh_says_why(page, served):
@@ -131,7 +130,7 @@ def test_a_file_that_is_no_mesh_says_why(page, served):
     assert page.locator("[data-path='mesh.path'] .upload-status.bad").count() == 1
     assert not (tmp / "scenes" / "junk.stl").exists()
     page.locator("[data-path='mesh.path']").scroll_into_view_if_needed()
-    shot(page, "4-refused.png")
+    left_column(page, "4-refused.png")
 
     big = tmp / "big.obj"  # past the limit: refused before a byte is sent
     big.write_bytes(b"v 0 0 0\n" * int(LIMIT_MIB * 2**20 / 8 + 1))
@@ -177,7 +176,7 @@ def test_a_name_taken_asks_before_replacing(page, served):
     assert not (tmp / "scenes" / "again.obj").exists()
     assert page.input_value("[name='mesh.path']") == ""
     assert "again.obj" not in "".join(page.locator("[name='mesh.path'] option").all_inner_texts())
-    shot(page, "5-deleted.png")
+    left_column(page, "5-deleted.png")
 
 
 def test_an_upload_cut_off_over_a_real_socket_leaves_nothing(served):

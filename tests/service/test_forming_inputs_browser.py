@@ -8,11 +8,10 @@ against the real server in a subprocess, each a run of a few steps on a coarse m
 - tool meshes in the scenes folder offered for a mesh tool's surface, each labelled with its
   kind (tool mesh, blank mesh).
 
-Screenshots of each go to $Q3T_SHOTS (default /tmp/shots-forming-inputs)."""
+With $Q3T_SHOTS set, screenshots of each go to its folder forming-inputs."""
 
 from __future__ import annotations
 
-import os
 import tomllib
 from pathlib import Path
 
@@ -20,11 +19,11 @@ import httpx
 import pytest
 import trimesh
 
-from tests.support.browser import open_scene, serve_without_viewer
+from tests.support.browser import open_scene, serve_without_viewer, shot, shots_dir
 from tests.support.scenes import PRESS_TOML, tiny_cup_toml
 from tests.support.service import ENDED, until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-forming-inputs"))
+SHOTS = shots_dir("forming-inputs")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 # the press in 2 steps, its centre held by the vertices within 3 mm (an outline's unstructured
@@ -100,10 +99,6 @@ def started_run(page, url: str) -> dict:
         raise AssertionError(f"the run never ended, last seen: {seen}") from None
 
 
-def shot(page, name: str, where: str = "#left") -> None:
-    page.locator(where).screenshot(path=str(SHOTS / name))
-
-
 def test_an_outline_drawing_uploaded_for_the_blank_runs(open_page, served):
     url, tmp = served
     drawing = tmp / "Blank with hole.svg"
@@ -118,7 +113,7 @@ def test_an_outline_drawing_uploaded_for_the_blank_runs(open_page, served):
     page.fill("[name='mesh.edge_length']", "4")  # mm, as the form shows lengths
     synced(page, 'path = "Blank_with_hole.svg"', "scale = 0.001", "edge_length = 0.004")
     page.locator("[data-path='mesh.path']").scroll_into_view_if_needed()
-    shot(page, "1-outline-uploaded.png")
+    shot(page, SHOTS, "1-outline-uploaded.png", where="#left")
     st = started_run(page, url)
     assert st["state"] == "finished", st["reason"]
     built = httpx.get(f"{url}/api/runs/{st['id']}/result").json()["built"]["mesh"]
@@ -127,7 +122,7 @@ def test_an_outline_drawing_uploaded_for_the_blank_runs(open_page, served):
     page.wait_for_function("([id]) => { const s = document.getElementById('summary');"
                            " return s.dataset.run === id && s.dataset.ready === 'true'; }",
                            arg=[st["id"]])  # its summary drawn: the run ended on the page too
-    shot(page, "2-outline-run.png", "body")
+    shot(page, SHOTS, "2-outline-run.png")
 
 
 def test_hill48_fields_edited_in_the_form_run(open_page, served):
@@ -148,7 +143,7 @@ def test_hill48_fields_edited_in_the_form_run(open_page, served):
     synced(page, "hill48", "r45 = 0.86", "rolling_angle = 30")
     page.focus(f"[name='{hill}.r45']")
     page.locator(f"fieldset[data-path='{hill}']").scroll_into_view_if_needed()
-    shot(page, "3-hill48-fields.png")
+    shot(page, SHOTS, "3-hill48-fields.png", where="#left")
     st = started_run(page, url)
     assert st["state"] == "finished", st["reason"]
     assert st["edited"]  # the form's edits ran, the saved scene is as it was
@@ -179,8 +174,7 @@ def test_a_hill48_cup_shows_its_rim_height_around_the_axis_in_mm(open_page, serv
     card = page.locator("#summary .quantity[data-name='earing'] .value").inner_text()
     assert card.endswith(" %"), card
     page.locator("#rim-fig").scroll_into_view_if_needed()
-    page.wait_for_timeout(500)  # the plot settles
-    shot(page, "4-rim-height.png", "body")
+    shot(page, SHOTS, "4-rim-height.png", settle_ms=500)  # the plot settles
 
 
 def test_tool_meshes_are_offered_for_a_mesh_tool_labelled_by_kind(open_page, served):
@@ -206,4 +200,4 @@ def test_tool_meshes_are_offered_for_a_mesh_tool_labelled_by_kind(open_page, ser
     page.select_option(f"[name='{field}']", "punch.stl")
     synced(page, 'path = "punch.stl"')
     page.locator(f"[data-path='{field}']").scroll_into_view_if_needed()
-    shot(page, "5-tool-meshes.png")
+    shot(page, SHOTS, "5-tool-meshes.png", where="#left")

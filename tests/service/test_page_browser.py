@@ -9,22 +9,21 @@ server in a subprocess, with a small cup drawn by a punch (tests.support.scenes.
 - the progress bar reaches 100 %; a live run's plots follow its steps, and a live-parameter
   change is marked on the force plot.
 
-Screenshots go to $Q3T_SHOTS (default /tmp/shots-page)."""
+With $Q3T_SHOTS set, screenshots go to its folder page."""
 
 from __future__ import annotations
 
 import json
-import os
-from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.support.browser import new_page, serve, settled
+from tests.support.browser import new_page, serve, settled, shot, shots_dir
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-page"))
+SETTLE_MS = 2500  # software WebGL draws 2-3 frames/s
+SHOTS = shots_dir("page")
 STEPS = 6  # tiny_cup's 2 mm stroke in this many steps
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
@@ -43,12 +42,6 @@ def open_page(browser, url: str, width: int = 1400, height: int = 1000):
     page, errors = new_page(browser, url, "#scenes li.sel", width=width, height=height)
     page.wait_for_function("document.getElementById('status').dataset.run !== undefined")
     return page, errors
-
-
-def shot(page, name: str) -> None:
-    """A screenshot once the viewer has had time to draw (software WebGL: 2-3 frames/s)."""
-    page.wait_for_timeout(2500)
-    page.screenshot(path=str(SHOTS / f"{name}.png"))
 
 
 def js_number(v: float) -> str:
@@ -90,7 +83,7 @@ def test_start_in_view_and_the_viewer_in_the_centre(served, browser, size):
         assert (full["x"], full["y"], full["width"], full["height"]) == (0, 0, w, h)
         assert page.get_attribute("#full-window", "aria-pressed") == "true"
         assert in_view(page, "#full-window")  # the way back is on screen
-        shot(page, f"full-window-{w}x{h}")
+        shot(page, SHOTS, f"full-window-{w}x{h}", settle_ms=SETTLE_MS)
         page.keyboard.press("Escape")
         page.wait_for_function("!document.body.classList.contains('viewer-full')")
         assert page.locator("#viewer").bounding_box() == box
@@ -137,9 +130,9 @@ def test_results_of_a_finished_run(served, browser):
         assert axis_titles(page, "fld-plot") == ("minor true strain (%)",
                                                   "major true strain (%)")
         assert "cost" in page.locator("#estimate").text_content()  # the solver's, below
-        shot(page, "finished-1400x1000")
+        shot(page, SHOTS, "finished-1400x1000", settle_ms=SETTLE_MS)
         page.locator("#plots").evaluate("el => el.scrollTo(0, el.scrollHeight)")
-        shot(page, "finished-plots-scrolled")
+        shot(page, SHOTS, "finished-plots-scrolled", settle_ms=SETTLE_MS)
         assert errors == []
     finally:
         page.close()
@@ -174,7 +167,7 @@ def test_live_plots_follow_the_steps(served, browser):
         assert mark["shapes"][0]["x0"] == stroke_at_2  # where the change took effect
         assert "friction_scale = 2 (step 3)" in mark["annotations"][0]["text"]
         page.wait_for_function("document.getElementById('progress').dataset.fraction === '1'")
-        shot(page, "live-marked")
+        shot(page, SHOTS, "live-marked", settle_ms=SETTLE_MS)
         assert errors == []
     finally:
         page.close()
@@ -191,7 +184,7 @@ def test_choosing_a_scene_previews_it_in_3d(served, browser):
     view = until(lambda: (v := httpx.get(f"{url}/api/view", headers=own).json())["preview"]
                  in ("shown", "failed") and v, "the preview never came")
     assert view["preview"] == "shown" and view["scene"] == "tiny_cup", view
-    shot(page, "preview-tiny-cup")
+    shot(page, SHOTS, "preview-tiny-cup", settle_ms=SETTLE_MS)
     rows = page.locator("#runs tr[data-id]")
     if rows.count():  # an earlier test's run: selecting it ends the preview
         rows.first.locator("td").first.click()

@@ -10,24 +10,22 @@ real server in a subprocess without the viewer:
 - with --no-viewer, the 3-D box says the viewer is off and how to turn it on; opened from
   another machine while the viewer stays on loopback, that it cannot be reached and how.
 
-Screenshots go to $Q3T_SHOTS (default /tmp/shots-page-units)."""
+With $Q3T_SHOTS set, screenshots go to its folder page-units."""
 
 from __future__ import annotations
 
 import math
-import os
 import socket
 import tomllib
-from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.support.browser import open_scene, serve, serve_without_viewer
+from tests.support.browser import open_scene, serve, serve_without_viewer, shot, shots_dir
 from tests.support.scenes import PRESS_TOML
 from tests.support.service import ENDED, until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-page-units"))
+SHOTS = shots_dir("page-units")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 
@@ -90,7 +88,7 @@ def test_rotations_show_in_degrees_and_go_back_in_radians(open_page, served):
         gradient)
     page.locator(f"fieldset[data-path='{PUNCH}']").scroll_into_view_if_needed()
     page.locator(f"[data-path='{rotation}']").scroll_into_view_if_needed()
-    page.locator("#left").screenshot(path=str(SHOTS / "1-rotation-in-deg.png"))
+    shot(page, SHOTS, "1-rotation-in-deg.png", where="#left")
 
     # an edit elsewhere, saved: the rotations in the file are the numbers they were
     page.fill("[name='description']", "turned punch")
@@ -139,7 +137,7 @@ def test_the_live_parameters_name_the_run_they_act_on(open_page, served):
     run = until(ended, "the press never ended")["id"]
     subject = f"Live parameters of run {run} (press; finished)"
     until(lambda: say.inner_text() == subject, f"sliders say {say.inner_text()!r}")
-    page.locator("#left").screenshot(path=str(SHOTS / "2-sliders-of-the-run.png"))
+    shot(page, SHOTS, "2-sliders-of-the-run.png", where="#left")
 
     # another scene in the editor: the sliders still act on the run, and say so
     page.click("#scenes li[data-name='turn']")
@@ -147,7 +145,7 @@ def test_the_live_parameters_name_the_run_they_act_on(open_page, served):
     until(lambda: "Not the editor's scene (turn)" in say.inner_text(),
           f"sliders say {say.inner_text()!r}")
     assert say.inner_text().startswith(subject)
-    page.locator("#left").screenshot(path=str(SHOTS / "3-sliders-another-scene.png"))
+    shot(page, SHOTS, "3-sliders-another-scene.png", where="#left")
     # the run's own scene back: no warning; a field edited: the warning again
     page.click("#scenes li[data-name='press']")
     page.wait_for_selector("#scenes li.sel[data-name='press']")
@@ -169,7 +167,7 @@ def test_without_the_viewer_the_3d_box_says_so(open_page, served):
     assert not page.is_visible("#full-window")
     box_size = box.bounding_box()
     assert box_size["width"] > 200 and box_size["height"] > 200, box_size
-    page.screenshot(path=str(SHOTS / "4-no-viewer.png"))
+    shot(page, SHOTS, "4-no-viewer.png")
 
 
 def test_a_page_from_another_machine_says_the_viewer_is_not_reachable(open_page, tmp_path):
@@ -188,7 +186,7 @@ def test_a_page_from_another_machine_says_the_viewer_is_not_reachable(open_page,
         assert "The 3-D viewer is not reachable from this machine" in text, text
         assert f"127.0.0.1:{vport}" in text and "--expose-viewer" in text, text
         assert page.locator("#viewer").count() == 0  # no blank frame
-        page.screenshot(path=str(SHOTS / "5-viewer-not-reachable.png"))
+        shot(page, SHOTS, "5-viewer-not-reachable.png")
         # the same server opened on its own machine (loopback) shows the viewer
         page = open_page(f"{url}/?token=t0ken", "#scenes li.sel")
         assert page.get_attribute("#viewer", "src").startswith(f"http://127.0.0.1:{vport}/")

@@ -3,21 +3,18 @@ can be cancelled; ended runs show what they changed of the scene, their wall tim
 headline values of their result in labelled units; a click on a header sorts by it (again: the
 other way round); Delete asks first and does nothing when the user says no.
 
-Screenshots go to $Q3T_SHOTS (default /tmp/shots-runs-table)."""
+With $Q3T_SHOTS set, screenshots go to its folder runs-table."""
 
 from __future__ import annotations
-
-import os
-from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.support.browser import new_page, serve
+from tests.support.browser import new_page, serve, shot, shots_dir
 from tests.support.scenes import tiny_cup_toml, tiny_toml
 from tests.support.service import ENDED, until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-runs-table"))
+SHOTS = shots_dir("runs-table")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 # the cup three ways: as saved, a softer material, friction halved from the start
@@ -79,7 +76,7 @@ def test_the_queue_in_the_table(served, browser):
     # a queued run has its scene and nothing else to link to (no recording, no result)
     links = page.locator(f'#runs tbody tr[data-id="{cups[0]}"] a').all_text_contents()
     assert links == ["scene"], links
-    page.screenshot(path=str(SHOTS / "01-queued.png"))
+    shot(page, SHOTS, "01-queued.png")
     page.click(f'#runs tbody tr[data-id="{cups[2]}"] button.cancel')
     wait_cell(page, cups[2], "state", "cancelled")
     assert "cancelled before it started" in cell(page, cups[2], "state")
@@ -103,7 +100,7 @@ def test_the_queue_in_the_table(served, browser):
             # shown to 3 significant digits (Units.num)
             assert float(cell(page, run, col)) == pytest.approx(summary[col]["value"],
                                                                 rel=5e-3)
-    page.screenshot(path=str(SHOTS / "02-ended.png"))
+    shot(page, SHOTS, "02-ended.png")
     assert not [e for e in errors if "/static/" in e], errors
     page.close()
 
@@ -125,7 +122,7 @@ def test_sorting_by_a_header(served, browser):
     ids = shown_ids(page)
     assert ids[:2] == sorted(force, key=force.get)  # smaller force first
     assert sorted(ids[2:]) == sorted(without)  # runs without a result last
-    page.screenshot(path=str(SHOTS / "03-sorted-by-force.png"))
+    shot(page, SHOTS, "03-sorted-by-force.png")
 
     page.click("#runs thead th[data-key=peak_punch_force]")
     assert page.get_attribute("#runs thead th[data-key=peak_punch_force]",
@@ -169,6 +166,6 @@ def test_delete_asks_first(served, browser):
     page.wait_for_selector(row, state="detached")
     assert httpx.get(f"{url}/api/runs/{victim}").status_code == 404
     assert f"deleted {victim}" in page.text_content("#msg")
-    page.screenshot(path=str(SHOTS / "04-deleted.png"))
+    shot(page, SHOTS, "04-deleted.png")
     assert not [e for e in errors if "/static/" in e], errors
     page.close()

@@ -6,21 +6,18 @@ in a subprocess:
   MPa, a thickness in mm), labelled; dimensionless ones as plain numbers;
 - a Keeler-Brazier curve outside its correlation's range (n = 0.25) says so under the FLD.
 
-Screenshots go to $Q3T_SHOTS (default /tmp/shots-runs-units)."""
+With $Q3T_SHOTS set, screenshots go to its folder runs-units."""
 
 from __future__ import annotations
-
-import os
-from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.support.browser import new_page, serve
+from tests.support.browser import new_page, serve, shot, shots_dir
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import ENDED, until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-runs-units"))
+SHOTS = shots_dir("runs-units")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 OVERRIDES = {"mesh.edge_length": 0.004, "material.E": 7.0e10, "shell.thickness": 0.0005,
@@ -50,14 +47,14 @@ def test_overrides_in_engineers_units_and_the_flc_warning(served, browser):
     assert changes == ("mesh.edge_length = 4 mm; material.E = 70000 MPa; "
                        "shell.thickness = 0.5 mm; tools.0.friction = 0.15; "
                        "material.flc.n = 0.25; friction_scale ×0.5 from step 1"), changes
-    page.locator("#runs-box").screenshot(path=str(SHOTS / "01-runs-table.png"))
+    shot(page, SHOTS, "01-runs-table.png", where="#runs-box")
     # the run selected (it is: the newest), its FLD with the curve's warning under it
     page.click(f"{row} td.col-scene")
     page.wait_for_selector("#fld-fig:not([hidden]) #fld-warnings li")
     warning = page.text_content("#fld-warnings")
     assert "material.flc.n = 0.25 is above 0.21" in warning, warning
     page.wait_for_timeout(500)  # plotly's transition
-    page.locator("#fld-fig").screenshot(path=str(SHOTS / "02-fld-warning.png"))
-    page.screenshot(path=str(SHOTS / "03-page.png"))
+    shot(page, SHOTS, "02-fld-warning.png", where="#fld-fig")
+    shot(page, SHOTS, "03-page.png")
     page.close()
     assert not errors, errors

@@ -1,8 +1,8 @@
 """A tool's surface uploaded from the scene form in Debian's chromium (Playwright), against the
 real server in a subprocess: a punch's shape switched to kind ``mesh`` offers the scenes
 folder's mesh files and an Upload button; a closed surface uploaded there is chosen, saved and
-run (it presses the plate); an open one says why in the form. Screenshots go to $Q3T_SHOTS
-(default /tmp/shots-tool-files)."""
+run (it presses the plate); an open one says why in the form. With $Q3T_SHOTS
+set, screenshots go to its folder tool-files."""
 
 from __future__ import annotations
 
@@ -13,11 +13,11 @@ import httpx
 import pytest
 import trimesh
 
-from tests.support.browser import serve
+from tests.support.browser import serve, shot, shots_dir
 from tests.support.scenes import PRESS_TOML
 from tests.support.service import until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-tool-files"))
+SHOTS = shots_dir("tool-files")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 FIELD = "tools.1.shape.path"  # the press's punch
@@ -49,10 +49,11 @@ def upload(page, path: Path) -> None:
     chooser.value.set_files(str(path))
 
 
-def shot(page, name: str) -> None:
-    SHOTS.mkdir(parents=True, exist_ok=True)
-    page.locator(f"[data-path='{FIELD}']").scroll_into_view_if_needed()
-    page.locator("#left").screenshot(path=str(SHOTS / name))
+def left_column(page, name: str) -> None:
+    """The left column, scrolled to the tool's field."""
+    if SHOTS is not None:
+        page.locator(f"[data-path='{FIELD}']").scroll_into_view_if_needed()
+    shot(page, SHOTS, name, where="#left")
 
 
 def punch_mesh() -> trimesh.Trimesh:
@@ -71,12 +72,12 @@ def test_a_tool_surface_uploaded_from_the_form_runs(page, served):
 
     page.select_option("[name='tools.1.shape.kind']", "mesh")
     page.wait_for_selector(f"[data-path='{FIELD}'] select.file-select")
-    shot(page, "1-mesh-kind.png")
+    left_column(page, "1-mesh-kind.png")
     upload(page, open_one)  # refused: the form says why, nothing is kept
     until(lambda: "boundary" in status(page), "no refusal shown", 300)
     assert status(page).startswith("open.stl: open: ") and "boundary edges" in status(page)
     assert not (tmp / "scenes" / "open.stl").exists()
-    shot(page, "2-open-refused.png")
+    left_column(page, "2-open-refused.png")
 
     upload(page, mine / "Punch v1.stl")
     until(lambda: status(page).startswith("uploaded"), "no upload", 300)
@@ -85,7 +86,7 @@ def test_a_tool_surface_uploaded_from_the_form_runs(page, served):
     page.wait_for_function("""() => document.getElementById('toml').value
         .includes('path = "Punch_v1.stl"')""")
     assert page.inner_text("#sync") == "valid"
-    shot(page, "3-uploaded.png")
+    left_column(page, "3-uploaded.png")
 
     page.fill("#scene-name", "meshpress")
     page.click("#save")
@@ -99,5 +100,4 @@ def test_a_tool_surface_uploaded_from_the_form_runs(page, served):
     assert result["steps"][-1]["probes"]["punch_force"] > 0  # the uploaded punch pressed
     files = {f["name"]: f for f in httpx.get(url + "/api/files").json()["files"]}
     assert files["Punch_v1.stl"]["used_by"] == ["meshpress"]
-    page.wait_for_timeout(1500)  # the run's plots settle before the picture
-    page.screenshot(path=str(SHOTS / "4-run.png"))
+    shot(page, SHOTS, "4-run.png", settle_ms=1500)  # the run's plots settle first

@@ -3,21 +3,18 @@ in a subprocess on a coarse copy of the shipped cup: the selected run has a slid
 with friction, moving it changes that tool's friction in the run, and the result beside each
 slider multiplies the scene's coefficient by both multipliers (die 0.1 × 2 × 1.5 = 0.3).
 
-Screenshots go to $Q3T_SHOTS (default /tmp/shots-tool-friction)."""
+With $Q3T_SHOTS set, screenshots go to its folder tool-friction."""
 
 from __future__ import annotations
-
-import os
-from pathlib import Path
 
 import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import new_page, serve, settled
+from tests.support.browser import new_page, serve, settled, shot, shots_dir
 from tests.support.service import until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-tool-friction"))
+SHOTS = shots_dir("tool-friction")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 # the cup at a 6 mm edge: a run builds and steps in about a second
@@ -77,9 +74,9 @@ def test_a_slider_per_tool_changes_that_tools_friction(browser, url):
         log = settled(url, run)["parameter_log"]
         assert [e["name"] for e in log] == ["friction_scale.die", "friction_scale"], log
         assert text(page, "param-friction_scale.punch-value") == "1"
-        page.wait_for_timeout(1500)  # the viewer draws in software WebGL
-        page.locator("#sliders").screenshot(path=str(SHOTS / "01-tool-friction.png"))
-        page.screenshot(path=str(SHOTS / "02-page.png"))
+        # the viewer draws in software WebGL
+        shot(page, SHOTS, "01-tool-friction.png", settle_ms=1500, where="#sliders")
+        shot(page, SHOTS, "02-page.png")
     finally:
         httpx.post(f"{url}/api/runs/{run}/stop")
     # an ended run's sliders, its values as it ended, disabled

@@ -9,22 +9,20 @@ in a subprocess: what is on screen is what runs.
 - The sliders (page and viewer) show the selected run's values after a change, after a reload
   while the run runs, and after a new run starts.
 
-Screenshots of each step go to $Q3T_SHOTS (default /tmp/shots-trust)."""
+With $Q3T_SHOTS set, screenshots of each step go to its folder trust."""
 
 from __future__ import annotations
-
-import os
-from pathlib import Path
 
 import httpx
 import pytest
 
 from sim.stepping.parameters import LABELS
-from tests.support.browser import new_page, serve, settled
+from tests.support.browser import new_page, serve, settled, shot, shots_dir
 from tests.support.scenes import EDITED_EDGE, tiny_toml, vertices
 from tests.support.service import stop_all, until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-trust"))
+SETTLE_MS = 2500  # software WebGL draws 2-3 frames/s
+SHOTS = shots_dir("trust")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 
@@ -45,12 +43,6 @@ def open_page(browser, url: str):
     page.wait_for_function("document.getElementById('status').dataset.run !== undefined")
     page.frame_locator("#viewer").get_by_text("Colour by").first.wait_for()
     return page, errors
-
-
-def shot(page, name: str) -> None:
-    """A screenshot once the viewer has had time to draw (software WebGL: 2-3 frames/s)."""
-    page.wait_for_timeout(2500)
-    page.screenshot(path=str(SHOTS / f"{name}.png"))
 
 
 def status(page, key: str) -> str | None:
@@ -118,7 +110,7 @@ def test_start_with_unsaved_edits_runs_the_edit(served, browser):
     page.wait_for_function(f"document.getElementById('toml').value.includes("
                            f"'edge_length = {EDITED_EDGE}')")
     page.wait_for_function("document.getElementById('sync').textContent === 'valid'")
-    shot(page, "01-form-edited-not-saved")
+    shot(page, SHOTS, "01-form-edited-not-saved", settle_ms=SETTLE_MS)
     edited = page.input_value("#toml")
     page.select_option("#element", "linear")
     page.click("#start")
@@ -133,7 +125,7 @@ def test_start_with_unsaved_edits_runs_the_edit(served, browser):
     row = page.locator(f'#runs tbody tr[data-id="{run}"]')
     assert row.locator(".edited").is_visible() and row.get_attribute("data-edited") == "true"
     wait_viewer_run(page, run)
-    shot(page, "02-run-of-the-edit")
+    shot(page, SHOTS, "02-run-of-the-edit", settle_ms=SETTLE_MS)
     assert not [e for e in errors if "/static/" in e], errors
     page.close()
 
@@ -150,7 +142,7 @@ def test_selecting_a_run_moves_page_and_viewer(served, browser):
     other, _ = open_page(browser, url)  # a second browser window
     wait_status(other, run=newer)
     wait_viewer_run(page, newer)
-    shot(page, "03-newer-run-selected")
+    shot(page, SHOTS, "03-newer-run-selected", settle_ms=SETTLE_MS)
 
     page.click(f'#runs tbody tr[data-id="{older}"] td:first-child')
     wait_status(page, run=older)
@@ -160,7 +152,7 @@ def test_selecting_a_run_moves_page_and_viewer(served, browser):
     viewer.get_by_text("showing recorded step").first.wait_for()  # its recording is shown
     viewer.locator("code", has_text=older).first.wait_for()
     assert status(other, "run") == newer  # the other browser keeps its own run
-    shot(page, "04-older-run-selected-in-table")
+    shot(page, SHOTS, "04-older-run-selected-in-table", settle_ms=SETTLE_MS)
 
     # the viewer's own dropdown moves the page
     viewer.get_by_role("combobox", name="Run").click()
@@ -169,7 +161,7 @@ def test_selecting_a_run_moves_page_and_viewer(served, browser):
     page.wait_for_function(f"document.querySelector('#runs tbody tr.sel')?.dataset.id "
                            f"=== {newer!r}")
     viewer.locator("code", has_text=newer).first.wait_for()
-    shot(page, "05-newer-run-selected-in-viewer")
+    shot(page, SHOTS, "05-newer-run-selected-in-viewer", settle_ms=SETTLE_MS)
     assert not [e for e in errors if "/static/" in e], errors
     other.close()
     page.close()
@@ -197,7 +189,7 @@ def test_sliders_show_the_runs_values(served, browser):
     settled(url, run)
     until(lambda: viewer_slider(page, "friction_scale") == 2.0, "viewer slider")
     assert page.text_content("#param-friction_scale-value") == "2"
-    shot(page, "06-friction-2-page-and-viewer")
+    shot(page, SHOTS, "06-friction-2-page-and-viewer", settle_ms=SETTLE_MS)
 
     page.click("#resume")
     page.reload()  # while the run runs with friction 2
@@ -207,7 +199,7 @@ def test_sliders_show_the_runs_values(served, browser):
     assert page_slider(page, "tool_speed") == 1.0
     page.click("#pause")
     settled(url, run)
-    shot(page, "07-after-reload")
+    shot(page, SHOTS, "07-after-reload", settle_ms=SETTLE_MS)
 
     page.click("#stop")
     wait_status(page, run=run, state="stopped")
@@ -225,7 +217,7 @@ def test_sliders_show_the_runs_values(served, browser):
     settled(url, new)
     until(lambda: viewer_slider(page, "friction_scale") == 1.0, "viewer slider of the new run")
     wait_viewer_run(page, new)
-    shot(page, "08-new-run-as-written")
+    shot(page, SHOTS, "08-new-run-as-written", settle_ms=SETTLE_MS)
     page.click("#stop")
     wait_status(page, run=new, state="stopped")
     assert not [e for e in errors if "/static/" in e], errors

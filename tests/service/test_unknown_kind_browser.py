@@ -3,20 +3,18 @@ real server in a subprocess: a mesh whose kind is a typo ("rectangel") shows its
 read-only with a note saying the kind is unknown, keeps them through form edits (the TOML
 view still has them), and choosing the known kind turns them into fields that save.
 
-Screenshots go to $Q3T_SHOTS (default /tmp/shots-unknown-kind)."""
+With $Q3T_SHOTS set, screenshots go to its folder unknown-kind."""
 
 from __future__ import annotations
 
-import os
 import tomllib
-from pathlib import Path
 
 import pytest
 
-from tests.support.browser import new_page, serve
+from tests.support.browser import new_page, serve, shot, shots_dir
 from tests.support.scenes import tiny_toml
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-unknown-kind"))
+SHOTS = shots_dir("unknown-kind")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 TYPO = tiny_toml().replace('kind = "rectangle"', 'kind = "rectangel"').replace(
@@ -56,8 +54,7 @@ def test_an_unknown_kinds_fields_are_kept_and_shown(browser, served):
     synced(page, "an edited description")
     toml = page.input_value("#toml")
     assert "edge_length = 0.035" in toml and "rectangel" in toml, toml
-    page.locator("#scene-form fieldset[data-path='mesh']").screenshot(
-        path=str(SHOTS / "01-unknown-kind.png"))
+    shot(page, SHOTS, "01-unknown-kind.png", where="#scene-form fieldset[data-path='mesh']")
     # the known kind chosen: the kept values become its fields, and save
     page.select_option("[name='mesh.kind']", "rectangle")
     assert page.input_value("[name='mesh.edge_length']") == "35"  # mm
@@ -67,6 +64,6 @@ def test_an_unknown_kinds_fields_are_kept_and_shown(browser, served):
     page.wait_for_function("t => document.body.innerText.includes(t)", arg="saved typo")
     mesh = tomllib.loads((scenes / "typo.toml").read_text())["mesh"]
     assert mesh == {"kind": "rectangle", "size": [0.7, 0.07], "edge_length": 0.035}, mesh
-    page.screenshot(path=str(SHOTS / "02-saved.png"))
+    shot(page, SHOTS, "02-saved.png")
     page.close()
     assert not errors, errors

@@ -3,20 +3,17 @@ view: its selected run, its viewer's colour mode and time slider (the step it wa
 is marked on that page's plots only), and an action on a run the other started asks first,
 says so, and shows on the starter's page.
 
-Screenshots of each step go to $Q3T_SHOTS (default /tmp/shots-views)."""
+With $Q3T_SHOTS set, screenshots of each step go to its folder views."""
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import pytest
 
-from tests.support.browser import WAIT_MS, serve
+from tests.support.browser import WAIT_MS, serve, shot, shots_dir
 from tests.support.scenes import tiny_toml
 from tests.support.service import until
 
-SHOTS = Path(os.environ.get("Q3T_SHOTS", "/tmp/shots-views"))
+SHOTS = shots_dir("views")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 
@@ -93,8 +90,7 @@ class Browser:
         self.page.keyboard.press("Home")
 
     def shot(self, name: str) -> None:
-        self.page.wait_for_timeout(2500)  # software WebGL: 2-3 frames/s
-        self.page.screenshot(path=str(SHOTS / f"{name}.png"))
+        shot(self.page, SHOTS, name, settle_ms=2500)  # software WebGL: 2-3 frames/s
 
     def close(self) -> None:
         assert not [e for e in self.errors if "/static/" in e], self.errors

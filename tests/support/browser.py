@@ -16,6 +16,11 @@ from tests.support import ROOT
 from tests.support.service import HANG, free_port, until
 
 CHROMIUM = "/usr/bin/chromium"
+# Screenshots are for a person to look at: with Q3T_SHOTS=folder each module's go to a
+# subfolder of it, each after the wait software WebGL needs to draw. Without it a browser test
+# drives and asserts the same workflow but takes no picture and spends none of those waits
+# (a hundred pictures, seconds each, were a fifth of the browser tests' time).
+SHOTS_ROOT = os.environ.get("Q3T_SHOTS")
 WAIT_MS = int(HANG * 1000)  # Playwright's waits: hang guards (its default is 30 s)
 # WebGL without a GPU: chromium's software rasteriser, which headless chromium refuses unless
 # told it may use it
@@ -95,12 +100,30 @@ def open_scene(open_page, url: str, scene: str, ready: str):  # noqa: ANN001, AN
     return page
 
 
+def shots_dir(module: str) -> Path | None:
+    """Where a module's screenshots go (a subfolder of $Q3T_SHOTS), or None: none taken."""
+    return Path(SHOTS_ROOT) / module if SHOTS_ROOT else None
+
+
+def shot(page, shots: Path | None, name: str, *, settle_ms: int = 0,
+         where: str | None = None) -> None:
+    """A screenshot of ``page`` (of the element ``where`` only, if given) to ``shots/name``
+    (.png added if missing) after ``settle_ms`` of drawing; nothing when ``shots`` is None."""
+    if shots is None:
+        return
+    if settle_ms:
+        page.wait_for_timeout(settle_ms)
+    path = str(shots / (name if name.endswith(".png") else f"{name}.png"))
+    (page.locator(where) if where else page).screenshot(path=path)
+
+
 @contextlib.contextmanager
-def chromium(shots: Path) -> Iterator[object]:
+def chromium(shots: Path | None = None) -> Iterator[object]:
     """Debian's chromium under Playwright, with software WebGL; screenshots go to ``shots``."""
     from playwright.sync_api import sync_playwright
 
-    shots.mkdir(parents=True, exist_ok=True)
+    if shots is not None:
+        shots.mkdir(parents=True, exist_ok=True)
     with sync_playwright() as p:
         b = p.chromium.launch(executable_path=CHROMIUM, args=SWIFTSHADER)
         try:
