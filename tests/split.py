@@ -9,6 +9,10 @@ output goes to a log (its path printed first) and is printed whole once the part
 parts never interleave; every minute a line gives each running part's progress. Exits 0 only
 if every part run passes; a part that collects no test (pytest's 5) fails only if all do.
 
+The whole suite starts with ``q3t warm`` in two processes, each compiling half of the
+solver's numba kernels: otherwise each part compiles the kernels it meets first, both the same
+ones at once (numba holds no lock), and the computing part pays for all of them in turn.
+
 Not pytest-xdist: one of its workers died mid-module here ("node down: Not properly
 terminated") with no trace, and the replacement then stalled the session; two plain pytest
 processes have no channel between them to lose.
@@ -31,6 +35,10 @@ ROOT = Path(__file__).resolve().parent.parent
 BROWSER = sorted((ROOT / "tests" / "service").glob("test_*browser*.py"))
 # a line per minute: CI shows the suite alive (and where) while the logs wait for their part
 HEARTBEAT = 60.0
+# processes of `q3t warm`, one per core (sim/apps/warm.py), and how long they may take (a
+# hang guard: a cold compile of every kernel takes minutes on a loaded machine)
+WARM, WARM_GUARD = 2, 1800.0
+WARM_COMMAND = [sys.executable, "-m", "sim.apps", "warm"]
 # pytest options whose value is the next argument (so that value is no path to sort)
 VALUED = {"-k", "-m", "-p", "-o", "-W", "-c", "--deselect", "--ignore", "--ignore-glob",
           "--durations", "--rootdir", "--confcutdir", "--maxfail", "--tb"}
@@ -63,8 +71,10 @@ def main(argv: list[str] | None = None) -> int:
     codes: dict[str, int] = {}
     t0 = time.monotonic()
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # through the finally below
+    plan = parts(args)
+    warmed = "selected" in plan or warm(tmp)  # paths given: the kernels they need, as they go
     try:
-        for i, (name, a) in enumerate(parts(args).items()):
+        for i, (name, a) in enumerate(plan.items()):
             logs[name] = tmp / f"part{i}.log"
             print(f"tests.split: {name} -> {logs[name]}", flush=True)
             with open(logs[name], "wb") as out:
@@ -102,9 +112,40 @@ def main(argv: list[str] | None = None) -> int:
             show(name, logs[name], None, time.monotonic() - t0)
         for i in range(len(procs)):  # the tests' files; the logs stay for a look
             shutil.rmtree(tmp / f"part{i}", ignore_errors=True)
-    if codes and all(c == 5 for c in codes.values()):
+    if not warmed or (codes and all(c == 5 for c in codes.values())):
         return 1
     return 0 if all(c in (0, 5) for c in codes.values()) else 1
+
+
+def warm(tmp: Path) -> bool:
+    """``q3t warm --part i/WARM`` side by side, each one's output printed when all have ended;
+    whether all succeeded (a failure fails the suite, after the parts have run)."""
+    t0 = time.monotonic()
+    procs, logs = [], []
+    try:
+        for i in range(1, WARM + 1):
+            logs.append(tmp / f"warm{i}.log")
+            with open(logs[-1], "wb") as out:
+                procs.append(subprocess.Popen(
+                    [*WARM_COMMAND, "--part", f"{i}/{WARM}"],
+                    cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, start_new_session=True))
+        codes = [p.wait(max(1.0, WARM_GUARD - (time.monotonic() - t0))) for p in procs]
+    except subprocess.TimeoutExpired:
+        codes = [p.poll() for p in procs]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+    ok = all(c == 0 for c in codes)
+    for log, code in zip(logs, codes, strict=True):
+        if not ok:
+            sys.stdout.write(log.read_text(errors="replace"))
+        print(f"tests.split: {log.stem} {'ok' if code == 0 else f'FAILED ({code})'}", flush=True)
+    print(f"tests.split: numba's kernels compiled in {(time.monotonic() - t0) / 60:.1f} min",
+          flush=True)
+    return ok
 
 
 def progress(log: Path) -> str:

@@ -1,4 +1,5 @@
-"""The ``q3t`` command: run, export, bench, serve, play, study, springback, splitring, check."""
+"""The ``q3t`` command: run, export, bench, serve, play, study, springback, splitring, check,
+warm."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from sim.apps import (
     springback,
     study,
     sweep,
+    warm,
 )
 from sim.apps.common import BAD_INPUT
 
@@ -42,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = ap.add_subparsers(dest="cmd", required=True)
     # matplotlib and dask load only when run
     for app in (run, export, reference, bench, study, springback, splitring, sweep, check,
-                meshtools):
+                meshtools, warm):
         app.add_parser(sub)
     add_plugins(sub)
     argv = sys.argv[1:] if argv is None else argv

@@ -3,6 +3,9 @@ progress line it prints while the parts run."""
 
 import pytest
 
+import sys
+
+from tests import split
 from tests.split import BROWSER, parts, progress
 
 pytestmark = pytest.mark.fast
@@ -37,3 +40,17 @@ def test_progress_is_the_last_percentage_printed(tmp_path):
     assert progress(log) == "[ 21%]"
     log.write_text("....... [  5%]\n...... [ 21%]\n..F")
     assert progress(log) == "[ 21%] +3"
+
+
+def test_warm_runs_its_shares_side_by_side_and_fails_if_one_does(tmp_path, monkeypatch, capsys):
+    # a stand-in for `q3t warm` that fails its second share, and one that never ends
+    fail_2 = "import sys; sys.exit(3 if sys.argv[-1] == '2/2' else 0)"
+    monkeypatch.setattr(split, "WARM_COMMAND", [sys.executable, "-c", fail_2])
+    assert split.warm(tmp_path) is False
+    out = capsys.readouterr().out
+    assert "warm1 ok" in out and "warm2 FAILED (3)" in out
+    monkeypatch.setattr(split, "WARM_COMMAND", [sys.executable, "-c", "print('compiled')"])
+    assert split.warm(tmp_path) is True and "warm2 ok" in capsys.readouterr().out
+    monkeypatch.setattr(split, "WARM_COMMAND", [sys.executable, "-c", "import time; time.sleep(60)"])
+    monkeypatch.setattr(split, "WARM_GUARD", 1.0)
+    assert split.warm(tmp_path) is False  # killed at the guard, not waited for
