@@ -1,9 +1,9 @@
 """``python -m tests.split`` (``make test``): which arguments go to which part, and the
 progress line it prints while the parts run."""
 
-import pytest
-
 import sys
+
+import pytest
 
 from tests import split
 from tests.split import BROWSER, parts, progress
