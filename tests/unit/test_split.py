@@ -51,6 +51,7 @@ def test_warm_runs_its_shares_side_by_side_and_fails_if_one_does(tmp_path, monke
     assert "warm1 ok" in out and "warm2 FAILED (3)" in out
     monkeypatch.setattr(split, "WARM_COMMAND", [sys.executable, "-c", "print('compiled')"])
     assert split.warm(tmp_path) is True and "warm2 ok" in capsys.readouterr().out
-    monkeypatch.setattr(split, "WARM_COMMAND", [sys.executable, "-c", "import time; time.sleep(60)"])
+    hang = "import time; time.sleep(60)"
+    monkeypatch.setattr(split, "WARM_COMMAND", [sys.executable, "-c", hang])
     monkeypatch.setattr(split, "WARM_GUARD", 1.0)
     assert split.warm(tmp_path) is False  # killed at the guard, not waited for
