@@ -158,9 +158,9 @@ def test_bad_drawings_name_the_path(tmp_path, name, text, words):
 
 def test_refined_ring_is_graded():
     """A 2 mm disk with the ring 21-29 mm at 0.5 mm: edges of 0.5 mm in the ring, 2 mm at the
-    centre, and in between sizes that grow by the band's growth (no jump of two sizes between
-    neighbours); as well shaped as the uniform mesh (gmsh's Frontal-Delaunay keeps its angles
-    under grading), and fewer triangles than the ring's estimate, an upper bound."""
+    centre, and in between the band's graded size (9 in 10 triangles within 30 % of it); well
+    shaped (gmsh's Frontal-Delaunay keeps its angles under grading); fewer triangles than the
+    estimate, an upper bound, and than the whole disk at 0.5 mm."""
     band = ol.Band(0.021, 0.029, 0.0005)
     shape = ol.checked(ol.loop(circle(n=720), "points"), [])
     m = ol.mesh(shape, H, (band,))
@@ -174,14 +174,15 @@ def test_refined_ring_is_graded():
     want = np.minimum(H, band.size(r))
     ratio = length.mean(1) / want
     assert np.percentile(ratio, 5) > 0.7 and np.percentile(ratio, 95) < 1.3
-    assert angles.min() > 30.0 and (signed_areas(m) > 0).all() and euler(m) == 1
+    assert angles.min() > 30.0  # measured 33 degrees
+    assert (signed_areas(m) > 0).all() and euler(m) == 1
     n = len(m.faces)
     assert n < ol.estimate(shape, H)[1] + band.triangles(H)
     assert n < 0.7 * len(ol.mesh(shape, 0.0005).faces)  # the point of grading: cheaper
 
 
 @pytest.mark.parametrize("band, field, words", [
-    (ol.Band(0.01, 0.02, H), "refine.0.edge_length", "not finer"),
+    (ol.Band(0.01, 0.02, 0.005), "refine.0.edge_length", "not finer"),
     (ol.Band(0.0, 0.15, 1e-6), "refine", "refine less"),
 ])
 def test_bad_refinement_names_the_field(band, field, words):
