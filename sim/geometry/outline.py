@@ -41,6 +41,32 @@ class OutlineError(ValueError):
 
 
 @dataclass(frozen=True)
+class Band:
+    """A ring around the z axis, ``r_min <= r <= r_max`` (m), meshed at the finer edge length
+    ``h``; beyond it the edge length grows back by ``growth`` per unit of distance from it
+    (a smooth grading: neighbouring triangles differ in size by about that fraction)."""
+
+    r_min: float
+    r_max: float
+    h: float
+    growth: float = 0.25
+
+    def size(self, r: np.ndarray) -> np.ndarray:
+        """The edge length this band asks for at distance ``r`` from the z axis."""
+        return self.h + self.growth * np.maximum(0.0, np.maximum(self.r_min - r, r - self.r_max))
+
+    def triangles(self, h: float) -> float:
+        """About how many triangles the band and its grading add to a mesh of edge length
+        ``h``: the integral of 1 / (area of an equilateral triangle of the local size) over the
+        plane, less the mesh's own, where the band is the finer (an upper bound for an outline
+        that does not cover the whole graded ring)."""
+        r = np.linspace(0.0, self.r_max + (h - self.h) / self.growth, 4001)
+        hs = np.minimum(h, self.size(r))
+        density = 1.0 / (np.sqrt(3.0) / 4.0 * hs**2) - 1.0 / (np.sqrt(3.0) / 4.0 * h**2)
+        return float(np.sum(2 * np.pi * r * density) * (r[1] - r[0]))
+
+
+@dataclass(frozen=True)
 class Outline:
     """The outer loop ``(n, 2)`` and the holes (each ``(m, 2)``), counter-clockwise, closed
     implicitly (the first point is not repeated)."""
@@ -142,18 +168,26 @@ def resample(p: np.ndarray, h: float) -> np.ndarray:
     return np.concatenate(out)
 
 
-def check_size(outline: Outline, h: float) -> None:
+def check_size(outline: Outline, h: float, bands: tuple[Band, ...] = ()) -> None:
     """OutlineError naming ``edge_length`` when ``h`` is too coarse to resolve the outline
-    (fewer than about four triangles across it) or so fine that the mesh would pass
-    MAX_TRIANGLES."""
+    (fewer than about four triangles across it), or naming ``refine`` when a band is not finer
+    than ``h``, or either when the mesh would pass MAX_TRIANGLES."""
     width = np.sqrt(outline.area)
     if h > 0.5 * width:
         raise OutlineError("edge_length", f"{h:.3g} m is too coarse for an outline of area "
                                           f"{outline.area:.3g} m^2 (at most {0.5 * width:.3g} m)")
+    for i, b in enumerate(bands):
+        if b.h >= h:
+            raise OutlineError(f"refine.{i}.edge_length", f"{b.h:.3g} m is not finer than the "
+                                                          f"mesh's edge_length {h:.3g} m")
     n = estimate(outline, h)[1]
     if n > MAX_TRIANGLES:
         raise OutlineError("edge_length", f"{h:.3g} m would give about {n:.3g} triangles, above "
                                           f"{MAX_TRIANGLES:.0e}; use a coarser mesh")
+    n += sum(b.triangles(h) for b in bands)
+    if n > MAX_TRIANGLES:
+        raise OutlineError("refine", f"the refined rings would give about {n:.3g} triangles, "
+                                     f"above {MAX_TRIANGLES:.0e}; refine less")
 
 
 def estimate(outline: Outline, h: float) -> tuple[int, int]:
@@ -164,21 +198,27 @@ def estimate(outline: Outline, h: float) -> tuple[int, int]:
     return int(n_f / 2 + n_b / 2 + 1), int(n_f)
 
 
-def mesh(outline: Outline, h: float) -> TriMesh:
-    """Isotropic triangles of edge length about ``h`` filling the outline, counter-clockwise
-    about +z: gmsh's Frontal-Delaunay mesher on the loops resampled at ``h``."""
-    check_size(outline, h)
+def mesh(outline: Outline, h: float, bands: tuple[Band, ...] = ()) -> TriMesh:
+    """Isotropic triangles of edge length about ``h`` filling the outline, finer in the
+    ``bands``, counter-clockwise about +z: gmsh's Frontal-Delaunay mesher on the loops
+    resampled at ``h`` (their chords divided again where a band asks for less)."""
+    check_size(outline, h, bands)
     loops = [resample(p, h) for p in (outline.outer, *outline.holes)]
     checked(loops[0], loops[1:], "edge_length", "edge_length")  # still simple at this h
     with _GMSH:
-        V, F = _gmsh(loops, h)
+        V, F = _gmsh(loops, h, bands)
     a = _cross(V[F[:, 1], :2] - V[F[:, 0], :2], V[F[:, 2], :2] - V[F[:, 0], :2])
     F = np.where((a < 0)[:, None], F[:, [0, 2, 1]], F)
     return TriMesh(V, F)
 
 
-def _gmsh(loops: list[np.ndarray], h: float) -> tuple[np.ndarray, np.ndarray]:
+def _gmsh(loops: list[np.ndarray], h: float,
+          bands: tuple[Band, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
     import gmsh
+
+    def size(dim: int, tag: int, x: float, y: float, z: float, lc: float) -> float:
+        r = np.hypot(x, y)
+        return min([lc, *(float(b.size(r)) for b in bands)])
 
     # not interruptible: gmsh would install a SIGINT handler, which only the main thread may
     gmsh.initialize(readConfigFiles=False, interruptible=False)
@@ -186,6 +226,11 @@ def _gmsh(loops: list[np.ndarray], h: float) -> tuple[np.ndarray, np.ndarray]:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("Mesh.Algorithm", 6)
         gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        if bands:
+            # the sizes come from the bands and h alone: a boundary's fine chords near a band
+            # must not spread over the whole interior
+            gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+            gmsh.model.mesh.setSizeCallback(size)
         geo = gmsh.model.geo
         curves = []
         for p in loops:

@@ -49,9 +49,11 @@ def mesh_counts(spec: MeshSpec) -> tuple[int, int] | None:
         return (spec.cells + 1) ** 2, 2 * spec.cells**2
     if spec.kind == "outline":
         try:
-            return outline.estimate(outline_of(spec), spec.edge_length)
+            n_v, n_f = outline.estimate(outline_of(spec), spec.edge_length)
         except outline.OutlineError:  # the build says why
             return None
+        extra = sum(b.triangles(spec.edge_length) for b in spec.bands)
+        return n_v + int(extra / 2), n_f + int(extra)  # Euler: about a vertex per two
     e = spec.edge_length
     if spec.kind == "rectangle":
         nx, ny = (meshes.divisions(s, e) for s in spec.size)

@@ -7,6 +7,7 @@ from typing import Annotated, Literal, Self
 
 from pydantic import Field, model_validator
 
+from sim.scene.boundary import RingSpec
 from sim.scene.fields import (
     MAX_DENSITY,
     MAX_STRAIN,
@@ -133,6 +134,24 @@ class FileMesh(_Mesh):
 XY = tuple[Coord, Coord]
 
 
+class RefineSpec(Strict):
+    """A ring of finer triangles around the z axis, graded back to the mesh's edge length
+    outside it: where a drawn blank's material passes a die's radius (the cup's wall), without
+    refining the bottom and the flange's edge alike."""
+
+    ring: RingSpec = doc("where: the ring of rest positions around the z axis")
+    edge_length: Length = doc("the edge length inside the ring: finer than the mesh's", "m")
+    growth: Annotated[float, Field(ge=0.05, le=1.0)] = doc(
+        "how fast the edge length grows back outside the ring, per unit of distance from it "
+        "(0.25: neighbouring triangles about a quarter apart in size)", "m/m", 0.25)
+
+    @model_validator(mode="after")
+    def _radii(self) -> Self:
+        if self.ring.r_min >= self.ring.r_max:
+            raise ValueError("ring: r_min must be smaller than r_max")
+        return self
+
+
 class OutlineMesh(_Generated):
     """A blank cut from a closed 2-D outline in z = 0, with optional holes, meshed into
     isotropic triangles (sim.geometry.outline): the outline as ``points``, or the closed paths
@@ -148,6 +167,16 @@ class OutlineMesh(_Generated):
                            default=None)
     scale: Annotated[float, Field(ge=1e-9, le=1e3)] = doc(
         "the drawing's units to metres (1e-3 for a drawing in mm)", "m per drawing unit", 1.0)
+    refine: list[RefineSpec] = doc(
+        "rings around the z axis meshed finer (each graded back to edge_length)", default=[])
+
+    @property
+    def bands(self) -> tuple:
+        """``refine`` as the mesher's bands (sim.geometry.outline.Band)."""
+        from sim.geometry.outline import Band
+
+        return tuple(Band(r.ring.r_min, r.ring.r_max, r.edge_length, r.growth)
+                     for r in self.refine)
 
     @model_validator(mode="after")
     def _outline(self) -> Self:
@@ -164,7 +193,7 @@ class OutlineMesh(_Generated):
             shape = outline.checked(outline.loop(self.points, "points"),
                                     [outline.loop(h, f"holes.{i}")
                                      for i, h in enumerate(self.holes)])
-            outline.check_size(shape, self.edge_length)
+            outline.check_size(shape, self.edge_length, self.bands)
         except outline.OutlineError as exc:
             raise ValueError(f"{exc.field}: {exc}") from None
         return self

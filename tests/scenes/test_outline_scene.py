@@ -97,3 +97,38 @@ def test_the_service_reads_drawings_from_its_scenes_folder_only(tmp_path):
                         ("blank.obj", "not a file of the kind")):
         with pytest.raises(SceneError, match=f"mesh.path: .*{words}"):
             store.validate(outline_toml(path=f'"{path}"'))
+
+
+REFINE = "[{ ring = { r_min = 0.02, r_max = 0.04 }, edge_length = 0.0025 }]"
+
+
+def test_refined_outline_builds_finer_where_asked():
+    """``refine`` reaches the mesher: the refined blank has more triangles than the plain
+    one, fewer than the size estimate (an upper bound), and the ring's triangles are the
+    band's size."""
+    plain = mesh_and_thickness(scene_from_toml(outline_toml(points=SQUARE)))[0]
+    scene = scene_from_toml(outline_toml(points=SQUARE, refine=REFINE))
+    m = mesh_and_thickness(scene)[0]
+    assert len(plain.faces) < len(m.faces) <= size.estimate(scene).elements
+    c = m.vertices[m.faces].mean(1)
+    r = np.linalg.norm(c[:, :2], axis=1)
+    e = np.linalg.norm(m.vertices[m.faces[:, 1]] - m.vertices[m.faces[:, 0]], axis=1)
+    assert abs(e[(r > 0.022) & (r < 0.038)].mean() / 0.0025 - 1) < 0.15
+
+
+@pytest.mark.parametrize("refine, words", [
+    ("[{ ring = { r_min = 0.04, r_max = 0.02 }, edge_length = 0.001 }]",
+     "mesh.refine.0: ring: r_min must be smaller than r_max"),
+    ("[{ ring = { r_max = 0.02 }, edge_length = 0.01 }]",
+     "mesh: refine.0.edge_length: 0.01 m is not finer"),
+    ("[{ ring = { r_max = 0.02 }, edge_length = -0.001 }]", "mesh.refine.0.edge_length"),
+    ("[{ ring = { r_max = 0.02 }, edge_length = 0.001, growth = 0.0 }]",
+     "mesh.refine.0.growth"),
+    ("[{ ring = { r_max = 0.2 }, edge_length = 1e-6 }]",
+     "mesh: refine: the refined rings would give"),
+    ("[{ edge_length = 0.001 }]", "mesh.refine.0.ring"),
+])
+def test_bad_refinement_is_refused_naming_the_field(refine, words):
+    with pytest.raises(SceneError) as err:
+        scene_from_toml(outline_toml(points=SQUARE, refine=refine))
+    assert words in str(err.value)

@@ -154,3 +154,39 @@ def test_bad_drawings_name_the_path(tmp_path, name, text, words):
     with pytest.raises(ol.OutlineError, match=words) as err:
         ol.read_drawing(tmp_path / name, 1e-3, 0.005)
     assert err.value.field == "path"
+
+
+def test_refined_ring_is_graded():
+    """A 2 mm disk with the ring 21-29 mm at 0.5 mm: edges of 0.5 mm in the ring, 2 mm at the
+    centre, and in between the band's graded size (9 in 10 triangles within 30 % of it); well
+    shaped (gmsh's Frontal-Delaunay keeps its angles under grading); fewer triangles than the
+    estimate, an upper bound, and than the whole disk at 0.5 mm."""
+    band = ol.Band(0.021, 0.029, 0.0005)
+    shape = ol.checked(ol.loop(circle(n=720), "points"), [])
+    m = ol.mesh(shape, H, (band,))
+    angles, length = angles_and_edges(m)
+    c = m.vertices[m.faces].mean(1)
+    r = np.linalg.norm(c[:, :2], axis=1)
+    inside, centre = (r > 0.0215) & (r < 0.0285), r < 0.01
+    assert abs(length[inside].mean() / 0.0005 - 1) < 0.1
+    assert abs(length[centre].mean() / H - 1) < 0.1
+    # the edge length follows the band's size within a triangle's own spread
+    want = np.minimum(H, band.size(r))
+    ratio = length.mean(1) / want
+    assert np.percentile(ratio, 5) > 0.7 and np.percentile(ratio, 95) < 1.3
+    assert angles.min() > 30.0  # measured 33 degrees
+    assert (signed_areas(m) > 0).all() and euler(m) == 1
+    n = len(m.faces)
+    assert n < ol.estimate(shape, H)[1] + band.triangles(H)
+    assert n < 0.7 * len(ol.mesh(shape, 0.0005).faces)  # the point of grading: cheaper
+
+
+@pytest.mark.parametrize("band, field, words", [
+    (ol.Band(0.01, 0.02, 0.005), "refine.0.edge_length", "not finer"),
+    (ol.Band(0.0, 0.15, 1e-6), "refine", "refine less"),
+])
+def test_bad_refinement_names_the_field(band, field, words):
+    shape = ol.checked(ol.loop(SQUARE, "points"), [])
+    with pytest.raises(ol.OutlineError, match=words) as err:
+        ol.mesh(shape, 0.005, (band,))
+    assert err.value.field == field
