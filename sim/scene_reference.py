@@ -38,12 +38,18 @@ def reference() -> str:
     schema = Scene.model_json_schema()
     defs = schema["$defs"]
     parts, done = [HEADER], {}
-    for path, name, of_kinds in [(TOP, "Scene", False),
-                                 *_tables(schema["properties"], defs, "")]:
+    tables = [(TOP, "Scene", False), *_tables(schema["properties"], defs, "")]
+    for path, name, of_kinds in tables:
         if name in done:
             continue
         node = schema if name == "Scene" else defs[name]
         head = _heading(path, node, of_kinds)
+        # a table two parts of the file share (a ring of nodes) is rendered once, under both
+        # names; a CSG operand, the same table nested in itself, is not another name
+        parent = path.rsplit(".", 1)[0]
+        also = [f"`{_title(p)}`" for p, n, _ in tables
+                if n == name and p != path and not p.startswith(parent)]
+        head += "".join(f", {a}" for a in also)
         parts.append(_section(head, node, done))
         done[name] = (head, node)
     return "\n".join(parts)
