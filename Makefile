@@ -30,7 +30,7 @@ test-fast: $(STAMP)
 	$(call pytest,-m "fast and not slow")
 
 # the browser tests with their screenshots, to look at (runs/shots/<module>/): the suite
-# itself takes none (a hundred pictures, each after a wait for software WebGL to draw)
+# itself takes none (each picture waits for software WebGL to draw)
 shots: $(STAMP)
 	Q3T_SHOTS=$(CURDIR)/runs/shots $(call pytest,$(wildcard tests/service/test_*browser*.py))
 

@@ -112,37 +112,52 @@ def main(argv: list[str] | None = None) -> int:
             show(name, logs[name], None, time.monotonic() - t0)
         for i in range(len(procs)):  # the tests' files; the logs stay for a look
             shutil.rmtree(tmp / f"part{i}", ignore_errors=True)
-    if not warmed or (codes and all(c == 5 for c in codes.values())):
+    if not warmed:
+        print("tests.split: FAILED: q3t warm (its output is above the parts')", flush=True)
+        return 1
+    if codes and all(c == 5 for c in codes.values()):
         return 1
     return 0 if all(c in (0, 5) for c in codes.values()) else 1
 
 
 def warm(tmp: Path) -> bool:
-    """``q3t warm --part i/WARM`` side by side, each one's output printed when all have ended;
-    whether all succeeded (a failure fails the suite, after the parts have run)."""
-    t0 = time.monotonic()
-    procs, logs = [], []
+    """``q3t warm --part i/WARM`` side by side, with a heartbeat; each one's output printed if
+    one failed; whether all succeeded (a failure fails the suite, after the parts have run)."""
+    t0 = beat = time.monotonic()
+    procs, logs, codes = [], [], {}
     try:
         for i in range(1, WARM + 1):
             logs.append(tmp / f"warm{i}.log")
+            print(f"tests.split: q3t warm --part {i}/{WARM} -> {logs[-1]}", flush=True)
             with open(logs[-1], "wb") as out:
                 procs.append(subprocess.Popen(
                     [*WARM_COMMAND, "--part", f"{i}/{WARM}"],
                     cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, start_new_session=True))
-        codes = [p.wait(max(1.0, WARM_GUARD - (time.monotonic() - t0))) for p in procs]
-    except subprocess.TimeoutExpired:
-        codes = [p.poll() for p in procs]
+        while len(codes) < len(procs) and time.monotonic() - t0 < WARM_GUARD:
+            time.sleep(0.2)
+            codes.update({i: p.returncode for i, p in enumerate(procs) if p.poll() is not None})
+            if time.monotonic() - beat >= HEARTBEAT and len(codes) < len(procs):
+                beat = time.monotonic()
+                print(f"tests.split: {(beat - t0) / 60:.0f} min: compiling numba's kernels",
+                      flush=True)
     finally:
+        # every share ended before waiting on any; a second signal must not cut this short
+        # and leave a share compiling in its own session
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         for p in procs:
             if p.poll() is None:
                 with contextlib.suppress(ProcessLookupError):
                     os.killpg(p.pid, signal.SIGKILL)
-                p.wait()
-    ok = all(c == 0 for c in codes)
-    for log, code in zip(logs, codes, strict=True):
+        for p in procs:
+            p.wait()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    ok = len(codes) == len(procs) and all(c == 0 for c in codes.values())
+    for i, log in enumerate(logs):
         if not ok:
             sys.stdout.write(log.read_text(errors="replace"))
-        print(f"tests.split: {log.stem} {'ok' if code == 0 else f'FAILED ({code})'}", flush=True)
+        end = "ok" if codes.get(i) == 0 else f"FAILED (exit {codes[i]})" if i in codes else \
+            f"FAILED: killed after {WARM_GUARD:.0f} s (WARM_GUARD)"
+        print(f"tests.split: {log.stem} {end}", flush=True)
     print(f"tests.split: numba's kernels compiled in {(time.monotonic() - t0) / 60:.1f} min",
           flush=True)
     return ok

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.apps.common import BAD_INPUT, OK
+from sim.apps.common import OK
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
 # coarse: what is compiled does not depend on the mesh, and the solve should take a second
@@ -73,23 +73,22 @@ def share(part: int, parts: int) -> list[str]:
 
 
 def parse_part(text: str) -> tuple[int, int]:
-    """``I/N`` with 1 <= I <= N, else ValueError naming the option."""
+    """``I/N`` with 1 <= I <= N (argparse names the option and exits 2 otherwise)."""
     try:
         i, n = (int(v) for v in text.split("/"))
     except ValueError:
-        raise ValueError(f"--part: {text!r} is not I/N (e.g. 1/2)") from None
+        raise argparse.ArgumentTypeError(f"{text!r} is not I/N (e.g. 1/2)") from None
     if not 1 <= i <= n:
-        raise ValueError(f"--part: {text!r} needs 1 <= I <= N")
+        raise argparse.ArgumentTypeError(f"{text!r} needs 1 <= I <= N")
     return i, n
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        part, parts = parse_part(args.part)
-    except ValueError as exc:
-        print(f"q3t warm: {exc}")
-        return BAD_INPUT
-    for name in share(part, parts):
+    part, parts = args.part
+    names = share(part, parts)
+    if not names:
+        print(f"q3t warm: share {part}/{parts} has no task (there are {len(TASKS)})")
+    for name in names:
         t0 = time.perf_counter()
         TASKS[name]()
         print(f"q3t warm: {name} kernels ready in {time.perf_counter() - t0:.1f} s", flush=True)
@@ -98,6 +97,6 @@ def run(args: argparse.Namespace) -> int:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     w = sub.add_parser("warm", help="compile the solver's kernels into numba's cache now")
-    w.add_argument("--part", default="1/1",
+    w.add_argument("--part", type=parse_part, default=(1, 1), metavar="I/N",
                    help="I/N: the I-th of N shares, for N processes side by side (default 1/1)")
     w.set_defaults(func=run)

@@ -14,7 +14,7 @@ against the real server saving every step's frame, with two finished runs of a s
 - a third run on another mesh: no A - B map, the reason in its place; once its frames are
   gone (as a sweep case written without them), no views, the reason instead.
 
-With $Q3T_SHOTS set, screenshots go to its folder compare3d."""
+With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/compare3d/`."""
 
 from __future__ import annotations
 

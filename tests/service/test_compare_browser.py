@@ -12,7 +12,7 @@ runs folder.
   another mesh the difference is disabled and the reason shown;
 - a sweep's cases open as runs from the panel and compare.
 
-With $Q3T_SHOTS set, screenshots go to its folder compare."""
+With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/compare/`."""
 
 from __future__ import annotations
 

@@ -6,7 +6,7 @@ scripts and styles from the app, never from a CDN.
 - In Debian's chromium with every request to another host refused, /docs lists every operation
   of the OpenAPI schema, opens one to its parameters and schema, and never tries to reach out.
 
-With $Q3T_SHOTS set, screenshots go to its folder extras."""
+With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/extras/`."""
 
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ subprocess, on a copy of the shipped cup scene (its comments are the point):
   with the error in view.
 - The live parameters read as words, with the result beside each multiplier.
 
-With $Q3T_SHOTS set, screenshots of each step go to its folder editor."""
+With Q3T_SHOTS set, screenshots of each step go to `$Q3T_SHOTS/editor/`."""
 
 from __future__ import annotations
 

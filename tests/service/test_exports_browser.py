@@ -1,7 +1,7 @@
 """The run's download links on the page (web/results.js) in Debian's chromium, against the real
 server in a subprocess: a running run says its downloads come when it ends; an ended one offers
 each format, and a click downloads the file the API serves; with the viewer on, the PNG of the
-3-D view is rendered by the page's viewer. With $Q3T_SHOTS set, screenshots go to its folder
+3-D view is rendered by the page's viewer. With Q3T_SHOTS set, screenshots go to its folder
 exports."""
 
 from __future__ import annotations
@@ -120,8 +120,13 @@ def test_png_of_the_3d_view_is_rendered_by_the_pages_viewer(viewed, browser, tmp
     page.set_default_timeout(WAIT_MS)
     page.goto(url + "/")
     downloads(page, run, "true")
-    page.frame_locator("#viewer").get_by_text("Colour by").first.wait_for()
-    shot(page, SHOTS, "downloads-viewer.png", settle_ms=3000)  # software WebGL: the sheet drawn
+    viewer = page.frame_locator("#viewer")
+    # connected is not showing: the view loads the run's recording after it connects, and a
+    # PNG asked before that is refused (no browser shows the run)
+    viewer.locator("code", has_text=run).first.wait_for()
+    viewer.get_by_text("range of this run").first.wait_for()  # its frame is in the canvas
+    page.wait_for_timeout(3000)  # and drawn (software WebGL: 2-3 frames/s), for the PNG below
+    shot(page, SHOTS, "downloads-viewer.png")
     with page.expect_download() as d:
         page.click("#downloads a[data-format=png]")
     assert d.value.suggested_filename == f"{run}.png"

@@ -3,7 +3,7 @@ subprocess: the blank's ``mesh.path`` and ``shell.thickness_file`` are selects o
 folder's files with an Upload button beside them. A blank and a thickness file uploaded there
 (their names made plain), chosen, saved and run; a file that is no mesh says why in the form;
 a name taken asks before replacing; a file past the limit is refused before it is sent.
-With $Q3T_SHOTS set, screenshots of each step go to its folder files."""
+With Q3T_SHOTS set, screenshots of each step go to `$Q3T_SHOTS/files/`."""
 
 from __future__ import annotations
 

@@ -8,7 +8,7 @@ against the real server in a subprocess, each a run of a few steps on a coarse m
 - tool meshes in the scenes folder offered for a mesh tool's surface, each labelled with its
   kind (tool mesh, blank mesh).
 
-With $Q3T_SHOTS set, screenshots of each go to its folder forming-inputs."""
+With Q3T_SHOTS set, screenshots of each go to `$Q3T_SHOTS/forming-inputs/`."""
 
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ server in a subprocess, with a small cup drawn by a punch (tests.support.scenes.
 - the progress bar reaches 100 %; a live run's plots follow its steps, and a live-parameter
   change is marked on the force plot.
 
-With $Q3T_SHOTS set, screenshots go to its folder page."""
+With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/page/`."""
 
 from __future__ import annotations
 

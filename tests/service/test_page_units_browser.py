@@ -10,7 +10,7 @@ real server in a subprocess without the viewer:
 - with --no-viewer, the 3-D box says the viewer is off and how to turn it on; opened from
   another machine while the viewer stays on loopback, that it cannot be reached and how.
 
-With $Q3T_SHOTS set, screenshots go to its folder page-units."""
+With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/page-units/`."""
 
 from __future__ import annotations
 

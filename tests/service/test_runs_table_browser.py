@@ -3,7 +3,7 @@ can be cancelled; ended runs show what they changed of the scene, their wall tim
 headline values of their result in labelled units; a click on a header sorts by it (again: the
 other way round); Delete asks first and does nothing when the user says no.
 
-With $Q3T_SHOTS set, screenshots go to its folder runs-table."""
+With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/runs-table/`."""
 
 from __future__ import annotations
 

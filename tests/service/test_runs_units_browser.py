@@ -6,7 +6,7 @@ in a subprocess:
   MPa, a thickness in mm), labelled; dimensionless ones as plain numbers;
 - a Keeler-Brazier curve outside its correlation's range (n = 0.25) says so under the FLD.
 
-With $Q3T_SHOTS set, screenshots go to its folder runs-units."""
+With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/runs-units/`."""
 
 from __future__ import annotations
 
@@ -53,8 +53,7 @@ def test_overrides_in_engineers_units_and_the_flc_warning(served, browser):
     page.wait_for_selector("#fld-fig:not([hidden]) #fld-warnings li")
     warning = page.text_content("#fld-warnings")
     assert "material.flc.n = 0.25 is above 0.21" in warning, warning
-    page.wait_for_timeout(500)  # plotly's transition
-    shot(page, SHOTS, "02-fld-warning.png", where="#fld-fig")
+    shot(page, SHOTS, "02-fld-warning.png", settle_ms=500, where="#fld-fig")  # plotly's transition
     shot(page, SHOTS, "03-page.png")
     page.close()
     assert not errors, errors

@@ -2,7 +2,7 @@
 real server in a subprocess: a punch's shape switched to kind ``mesh`` offers the scenes
 folder's mesh files and an Upload button; a closed surface uploaded there is chosen, saved and
 run (it presses the plate); an open one says why in the form. With $Q3T_SHOTS
-set, screenshots go to its folder tool-files."""
+set, screenshots go to `$Q3T_SHOTS/tool-files/`."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@ in a subprocess on a coarse copy of the shipped cup: the selected run has a slid
 with friction, moving it changes that tool's friction in the run, and the result beside each
 slider multiplies the scene's coefficient by both multipliers (die 0.1 × 2 × 1.5 = 0.3).
 
-With $Q3T_SHOTS set, screenshots go to its folder tool-friction."""
+With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/tool-friction/`."""
 
 from __future__ import annotations
 

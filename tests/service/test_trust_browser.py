@@ -9,7 +9,7 @@ in a subprocess: what is on screen is what runs.
 - The sliders (page and viewer) show the selected run's values after a change, after a reload
   while the run runs, and after a new run starts.
 
-With $Q3T_SHOTS set, screenshots of each step go to its folder trust."""
+With Q3T_SHOTS set, screenshots of each step go to `$Q3T_SHOTS/trust/`."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@ real server in a subprocess: a mesh whose kind is a typo ("rectangel") shows its
 read-only with a note saying the kind is unknown, keeps them through form edits (the TOML
 view still has them), and choosing the known kind turns them into fields that save.
 
-With $Q3T_SHOTS set, screenshots go to its folder unknown-kind."""
+With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/unknown-kind/`."""
 
 from __future__ import annotations
 

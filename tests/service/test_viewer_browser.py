@@ -10,7 +10,7 @@ curve):
 - the tools are translucent (the blank shows through the blank holder) and the section plane
   cuts them.
 
-With $Q3T_SHOTS set, screenshots of each step go to its folder viewer: look at them."""
+With Q3T_SHOTS set, screenshots of each step go to `$Q3T_SHOTS/viewer/`: look at them."""
 
 from __future__ import annotations
 

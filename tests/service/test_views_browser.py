@@ -3,7 +3,7 @@ view: its selected run, its viewer's colour mode and time slider (the step it wa
 is marked on that page's plots only), and an action on a run the other started asks first,
 says so, and shows on the starter's page.
 
-With $Q3T_SHOTS set, screenshots of each step go to its folder views."""
+With Q3T_SHOTS set, screenshots of each step go to `$Q3T_SHOTS/views/`."""
 
 from __future__ import annotations
 
@@ -120,6 +120,7 @@ def test_two_browsers_show_their_own_run_colours_and_step(served, browser):
     a.page.wait_for_function("document.getElementById('probes-plot').dataset.scrub === '0'")
     assert "3-D view: step 0" in a.page.inner_text("#probes-plot")
     a.shot("01-browser-a-von-mises-scrubbed-to-0")
+    b.page.wait_for_timeout(1500)  # a poll or two of B's: A's scrub must not reach it
     assert b.page.get_attribute("#probes-plot", "data-scrub") in (None, "")
     assert "3-D view" not in b.page.inner_text("#probes-plot")
     assert b.viewer_run() == run_b and a.run() == run_a

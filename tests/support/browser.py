@@ -18,8 +18,8 @@ from tests.support.service import HANG, free_port, until
 CHROMIUM = "/usr/bin/chromium"
 # Screenshots are for a person to look at: with Q3T_SHOTS=folder each module's go to a
 # subfolder of it, each after the wait software WebGL needs to draw. Without it a browser test
-# drives and asserts the same workflow but takes no picture and spends none of those waits
-# (a hundred pictures, seconds each, were a fifth of the browser tests' time).
+# drives and asserts the same workflow but takes no picture and spends none of those waits,
+# which were much of the browser tests' time.
 SHOTS_ROOT = os.environ.get("Q3T_SHOTS")
 WAIT_MS = int(HANG * 1000)  # Playwright's waits: hang guards (its default is 30 s)
 # WebGL without a GPU: chromium's software rasteriser, which headless chromium refuses unless

@@ -43,15 +43,23 @@ def test_progress_is_the_last_percentage_printed(tmp_path):
 
 
 def test_warm_runs_its_shares_side_by_side_and_fails_if_one_does(tmp_path, monkeypatch, capsys):
-    # a stand-in for `q3t warm` that fails its second share, and one that never ends
-    fail_2 = "import sys; sys.exit(3 if sys.argv[-1] == '2/2' else 0)"
+    # a stand-in for `q3t warm` that fails its second share, saying why
+    fail_2 = "import sys; print('share', sys.argv[-1]); sys.exit(3 if sys.argv[-1] == '2/2' else 0)"
     monkeypatch.setattr(split, "WARM_COMMAND", [sys.executable, "-c", fail_2])
     assert split.warm(tmp_path) is False
     out = capsys.readouterr().out
-    assert "warm1 ok" in out and "warm2 FAILED (3)" in out
-    monkeypatch.setattr(split, "WARM_COMMAND", [sys.executable, "-c", "print('compiled')"])
-    assert split.warm(tmp_path) is True and "warm2 ok" in capsys.readouterr().out
-    hang = "import time; time.sleep(60)"
+    assert "warm1 ok" in out and "warm2 FAILED (exit 3)" in out and "share 2/2" in out
+    monkeypatch.setattr(split, "WARM_COMMAND", [sys.executable, "-c", "print('ok, share')"])
+    assert split.warm(tmp_path) is True
+    out = capsys.readouterr().out
+    assert "warm2 ok" in out and "ok, share" not in out  # a share's output only on failure
+
+
+def test_warm_kills_a_share_at_its_guard(tmp_path, monkeypatch, capsys):
+    marker = tmp_path / "finished"
+    hang = f"import time, pathlib; time.sleep(30); pathlib.Path({str(marker)!r}).touch()"
     monkeypatch.setattr(split, "WARM_COMMAND", [sys.executable, "-c", hang])
     monkeypatch.setattr(split, "WARM_GUARD", 1.0)
-    assert split.warm(tmp_path) is False  # killed at the guard, not waited for
+    assert split.warm(tmp_path) is False
+    assert "killed after 1 s (WARM_GUARD)" in capsys.readouterr().out
+    assert not marker.exists()  # ended, not waited for
