@@ -38,6 +38,9 @@ from sim.solve.problem import (
 )
 
 
+INVERTED_AT_START = "inverted element at the start of the step"
+
+
 @dataclass(frozen=True)
 class NewtonSettings:
     rtol: float = 1e-8  # residual relative to the step's force level (see minimise)
@@ -220,8 +223,7 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
     # the first iteration's (an energy alone first cost an evaluation of the sheet per step)
     cached = nt.evaluate(x)
     if not np.isfinite(cached[0]):
-        return NewtonResult(x0, False, 0, cached[0], [],
-                            "inverted element at the start of the step", nt.timing)
+        return NewtonResult(x0, False, 0, cached[0], [], INVERTED_AT_START, nt.timing)
     for it in range(settings.max_iterations + 1):
         # exact Hessian first: where it is positive definite Newton converges quadratically;
         # the projected one is the fallback when the factorisation finds it indefinite
