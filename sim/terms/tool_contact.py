@@ -20,6 +20,11 @@ x_local + t) for contact, friction (the tool's displacement over a step at each 
 sim.terms.contact_kernels.tool_displacement) and display. Both are integrated step by step from
 their increments, so a speed changed between steps takes effect from the next step on.
 
+Only the tool's candidate nodes are evaluated (sim.terms.contact_reach): those within half a
+sheet thickness of the contact layer when the list was made, the list made again from every
+node once one left out may have moved into the layer. Friction's nodes are those of its lagged
+normal force, wherever they are now.
+
 Force control (a blank holder): the tool's z offset is an unknown of the system, stored as an
 extra "node" row ``x[vdof]`` whose x and y are held. The term then adds the work of the
 pressing force, F * x[vdof, 2], and the couplings: with u the tool offset, contact and
