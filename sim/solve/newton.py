@@ -37,7 +37,6 @@ from sim.solve.problem import (
     solve_refined,
 )
 
-
 INVERTED_AT_START = "inverted element at the start of the step"
 
 
