@@ -37,6 +37,8 @@ from sim.solve.problem import (
     solve_refined,
 )
 
+INVERTED_AT_START = "inverted element at the start of the step"
+
 
 @dataclass(frozen=True)
 class NewtonSettings:
@@ -216,11 +218,11 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
     allows."""
     nt = Newton(problem, settings, x0, ~problem.fixed)
     x = x0.copy()
-    E = problem.energy(x)
-    if not np.isfinite(E):
-        return NewtonResult(x0, False, 0, E, [], "inverted element at the start of the step",
-                            nt.timing)
-    cached = None  # a full evaluation at x from the last iteration, reused as its assembly
+    # a full evaluation at x from the last iteration, reused as its assembly; the start's is
+    # the first iteration's (an energy alone first cost an evaluation of the sheet per step)
+    cached = nt.evaluate(x)
+    if not np.isfinite(cached[0]):
+        return NewtonResult(x0, False, 0, cached[0], [], INVERTED_AT_START, nt.timing)
     for it in range(settings.max_iterations + 1):
         # exact Hessian first: where it is positive definite Newton converges quadratically;
         # the projected one is the fallback when the factorisation finds it indefinite

@@ -22,7 +22,7 @@ from sim.model.build import Model, build_model
 from sim.model.curves import load_factor
 from sim.scene.boundary import LoadSpec
 from sim.scene.load import Scene
-from sim.solve.newton import NewtonResult, Timing, minimise
+from sim.solve.newton import INVERTED_AT_START, NewtonResult, Timing, minimise
 from sim.stepping import parameters
 from sim.terms.tool_contact import ToolContact, quaternion_wxyz
 
@@ -221,13 +221,17 @@ class Simulation:
         for t in self.tools:
             t.seat(x0)
         x0[m.fixed] = target[m.fixed]
-        if not np.array_equal(x0[~m.fixed], self.x[~m.fixed]) \
-                and not np.isfinite(m.problem.energy(x0)):
-            x0 = self.x.copy()
-            x0[m.fixed] = target[m.fixed]
         # a sub-step that barely moves (after cut-backs, or a slow tool) has its forces from
         # the state it starts in: the run's force level so far is the floor of its reference
-        return minimise(m.problem, x0, m.settings, self._force_level, m.driven)
+        res = minimise(m.problem, x0, m.settings, self._force_level, m.driven)
+        if (res.reason == INVERTED_AT_START
+                and not np.array_equal(x0[~m.fixed], self.x[~m.fixed])):
+            # the predictor inverted an element: from the last state instead (minimise
+            # evaluates its start first, so this costs nothing where the prediction is fine)
+            x0 = self.x.copy()
+            x0[m.fixed] = target[m.fixed]
+            res = minimise(m.problem, x0, m.settings, self._force_level, m.driven)
+        return res
 
     # deepest penetration of a tool into the sheet a converged state may have, in sheet
     # thicknesses: the contact stiffness keeps it at 1 % under the largest forming pressure

@@ -174,6 +174,27 @@ def penalty_contact(X: npt.ArrayLike, prog: npt.ArrayLike, R: npt.ArrayLike | No
     return float(e.sum()), grad, hess, active, gap
 
 
+@numba.njit(cache=True)
+def _penalty_energies(d: np.ndarray, k: float, delta: float, c2: bool) -> np.ndarray:
+    e = np.empty(d.shape[0])
+    for p in range(d.shape[0]):
+        e[p] = _penalty_scalar(d[p], k, delta, c2)[0]
+    return e
+
+
+def penalty_energy(X: npt.ArrayLike, prog: npt.ArrayLike, R: npt.ArrayLike | None,
+                   t: npt.ArrayLike | None, k: float, delta: float, *, c2: bool = False) -> float:
+    """``penalty_contact``'s energy alone (the line search's), from the distances only: the
+    same terms summed in the same order, so the same value to the last bit."""
+    X = _check(X, k, delta, c2)
+    R, t = pose(R, t)
+    gap = sdf_world_distance(np.asarray(prog, dtype=np.float64), R, t, X)
+    d = gap[gap < delta]
+    if d.size == 0:
+        return 0.0
+    return float(_penalty_energies(d, float(k), float(delta), bool(c2)).sum())
+
+
 def normal_forces(X: npt.ArrayLike, prog: npt.ArrayLike, R: npt.ArrayLike | None,
                   t: npt.ArrayLike | None, k: float, delta: float, *,
                   c2: bool = False, gradients: bool = False) -> tuple[np.ndarray, ...]:

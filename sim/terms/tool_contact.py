@@ -20,6 +20,11 @@ x_local + t) for contact, friction (the tool's displacement over a step at each 
 sim.terms.contact_kernels.tool_displacement) and display. Both are integrated step by step from
 their increments, so a speed changed between steps takes effect from the next step on.
 
+Only the tool's candidate nodes are evaluated (sim.terms.contact_reach): those within half a
+sheet thickness of the contact layer when the list was made, the list made again from every
+node once one left out may have moved into the layer. Friction's nodes are those of its lagged
+normal force, wherever they are now.
+
 Force control (a blank holder): the tool's z offset is an unknown of the system, stored as an
 extra "node" row ``x[vdof]`` whose x and y are held. The term then adds the work of the
 pressing force, F * x[vdof, 2], and the couplings: with u the tool offset, contact and
@@ -41,12 +46,23 @@ from sim.terms.contact_kernels import (
     friction,
     normal_forces,
     penalty_contact,
+    penalty_energy,
     tool_displacement,
 )
+from sim.terms.contact_reach import Reach
 from sim.tools.evaluate import sdf_world_distance
 from sim.tools.pose import rotation
 
 EYE = np.eye(3)
+NONE = np.zeros(0, np.int64)
+# the nodes with a force from one part of the term: indices into its nodes (a,), gradient
+# (a, 3), Hessian (a, 3, 3)
+Forces = tuple[np.ndarray, np.ndarray, np.ndarray]
+# how far beyond its contact layer a node stays on a tool's candidate list (sim.terms.
+# contact_reach), in layers: 25 is half the sheet's thickness at the model's delta = 2 % of
+# it, about what the sheet and a moving tool travel in a forming step, so the list is made
+# about once per step instead of the distance of every skin node at every evaluation
+REACH_LAYERS = 25.0
 
 
 def rotation_matrix(rv: npt.ArrayLike) -> np.ndarray:
@@ -97,6 +113,7 @@ class ToolContact(Term):
         self.moving = True  # False in the release (springback) stage: the tool stays put
         self.k, self.mu, self.eps_v = float(k), float(mu), float(eps_v)
         self.delta = float(delta)
+        self.reach = Reach(self.prog, self.nodes, self.delta, REACH_LAYERS * self.delta)
         self.pattern = pattern
         self.vdof, self.force, self.pair_slots = vdof, float(force), pair_slots
         # the distance-block stop: a spring 100x the contact stiffness of all candidate nodes,
@@ -226,8 +243,11 @@ class ToolContact(Term):
         largest (0 without friction); ``take``: they become the lagged ones."""
         if self.mu == 0:
             return 0.0
-        lam, nrm = normal_forces(x[self.nodes], self.prog, self.R_now, self.translation(x),
-                                 self.k, self.delta, c2=True)
+        t = self.translation(x)
+        near = self.reach.near(x, self.R_now, t)
+        lam, nrm = np.zeros(len(self.nodes)), np.zeros((len(self.nodes), 3))
+        lam[near], nrm[near] = normal_forces(x[self.nodes[near]], self.prog, self.R_now, t,
+                                             self.k, self.delta, c2=True)
         old = self.lagged[5] if self.lagged is not None else np.zeros_like(lam)
         if take:
             self._lag(lam, nrm)
@@ -269,29 +289,37 @@ class ToolContact(Term):
         self.position = self.t_now.copy()
         self.rot = self.rot_now.copy()
 
-    def _eval(self, x: np.ndarray,
-              derivs: bool = True) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(E, penalty gradient (m,3), penalty Hessian (m,3,3), friction gradient, Hessian)."""
-        X = x[self.nodes]
-        E, g, H, _, _ = penalty_contact(X, self.prog, self.R_now, self.translation(x), self.k,
-                                        self.delta, c2=True, project_psd=bool(self.project))
-        gf = np.zeros_like(g)
-        Hf = np.zeros_like(H)
+    def _eval(self, x: np.ndarray) -> tuple[float, Forces, Forces]:
+        """The energy and the nodes with a force, as (indices into ``nodes`` (a,), gradient
+        (a, 3), Hessian (a, 3, 3)): the penalty's (the candidates in the contact layer) and
+        friction's (the nodes of the lagged normal force)."""
+        t = self.translation(x)
+        near = self.reach.near(x, self.R_now, t)
+        E, g, H, active, _ = penalty_contact(x[self.nodes[near]], self.prog, self.R_now, t,
+                                             self.k, self.delta, c2=True,
+                                             project_psd=bool(self.project))
+        pen = (near[active], g[active], H[active])
+        fri = (NONE, np.zeros((0, 3)), np.zeros((0, 3, 3)))
         if self.mu > 0 and self.lagged is not None and self.lagged[0].any():
             act, X0, disp, lam, nrm, _ = self.lagged
-            Xa = X[act]
+            idx = np.flatnonzero(act)
+            Xa = x[self.nodes[idx]]
             if self.vdof is not None:  # slip relative to the tool, whose height is solved
                 Xa = Xa - (x[self.vdof] - self._start_u)
             Ef, gfa, Hfa = friction(Xa, X0, disp, lam, nrm, self.mu, self.eps_v)
             E += Ef
-            gf[act] = gfa
-            Hf[act] = Hfa
-        if self.vdof is not None:
-            u = x[self.vdof, 2]
-            E += self.force * self.force_scale * u
-            if self.stop is not None and u < self.stop:
-                E += 0.5 * self.k_stop * (self.stop - u) ** 2
-        return E, g, H, gf, Hf
+            fri = (idx, gfa, Hfa)
+        return E + self._tool_energy(x), pen, fri
+
+    def _tool_energy(self, x: np.ndarray) -> float:
+        """The pressing force's work and the stop spring of a force-controlled tool."""
+        if self.vdof is None:
+            return 0.0
+        u = x[self.vdof, 2]
+        E = self.force * self.force_scale * u
+        if self.stop is not None and u < self.stop:
+            E += 0.5 * self.k_stop * (self.stop - u) ** 2
+        return E
 
     def _stop_force(self, x: np.ndarray) -> tuple[float, float]:
         """Derivative and stiffness of the stop spring in the tool's z. A tool resting exactly
@@ -319,37 +347,59 @@ class ToolContact(Term):
         return min(1.0, (u - self.stop) / -du * (1.0 + 1e-6))
 
     def energy(self, x: np.ndarray) -> float:
-        return self._eval(x)[0]
+        t = self.translation(x)
+        near = self.reach.near(x, self.R_now, t)
+        E = penalty_energy(x[self.nodes[near]], self.prog, self.R_now, t, self.k, self.delta,
+                           c2=True)
+        if self.mu > 0 and self.lagged is not None and self.lagged[0].any():
+            act, X0, disp, lam, nrm, _ = self.lagged
+            Xa = x[self.nodes[act]]
+            if self.vdof is not None:
+                Xa = Xa - (x[self.vdof] - self._start_u)
+            E += friction(Xa, X0, disp, lam, nrm, self.mu, self.eps_v)[0]
+        return E + self._tool_energy(x)
 
-    def _add_gradient(self, x: np.ndarray, g: np.ndarray, gp: np.ndarray, gf: np.ndarray) -> None:
-        np.add.at(g, self.nodes, gp + gf)
+    def _add_gradient(self, x: np.ndarray, g: np.ndarray, *parts: Forces) -> None:
+        for idx, gi, _ in parts:
+            g[self.nodes[idx]] += gi  # a node once per part: no repeated index
+            if self.vdof is not None:
+                g[self.vdof] -= gi.sum(0)
         if self.vdof is not None:
-            g[self.vdof] -= (gp + gf).sum(0)
             g[self.vdof, 2] += self.force * self.force_scale + self._stop_force(x)[0]
 
-    def _add_hessian(self, x: np.ndarray, data: np.ndarray, Hp: np.ndarray, Hf: np.ndarray) -> None:
-        H = Hp + Hf
-        scatter_node_blocks(data, self.pattern.node_slots, self.nodes, H)
+    def _add_hessian(self, x: np.ndarray, data: np.ndarray, *parts: Forces) -> None:
+        block = np.zeros((3, 3))
+        for idx, _, Hi in parts:
+            scatter_node_blocks(data, self.pattern.node_slots, self.nodes[idx], Hi)
+            if self.vdof is not None:
+                block += Hi.sum(0)
+                _scatter_pairs(data, self.pair_slots[idx], -Hi)
         if self.vdof is not None:
-            block = H.sum(0)
             block[2, 2] += self._stop_force(x)[1] + max(self.k_floor - block[2, 2], 0.0)
             scatter_node_blocks(data, self.pattern.node_slots, np.array([self.vdof]),
                                 block[None])
-            _scatter_pairs(data, self.pair_slots, -H)
 
     def add_gradient(self, x: np.ndarray, g: np.ndarray) -> None:
-        _, gp, _, gf, _ = self._eval(x)
-        self._add_gradient(x, g, gp, gf)
+        _, pen, fri = self._eval(x)
+        self._add_gradient(x, g, pen, fri)
 
     def add_hessian(self, x: np.ndarray, data: np.ndarray) -> None:
-        _, _, Hp, _, Hf = self._eval(x)
-        self._add_hessian(x, data, Hp, Hf)
+        _, pen, fri = self._eval(x)
+        self._add_hessian(x, data, pen, fri)
 
     def add_gradient_hessian(self, x: np.ndarray, g: np.ndarray, data: np.ndarray) -> float:
-        E, gp, Hp, gf, Hf = self._eval(x)
-        self._add_gradient(x, g, gp, gf)
-        self._add_hessian(x, data, Hp, Hf)
+        E, pen, fri = self._eval(x)
+        self._add_gradient(x, g, pen, fri)
+        self._add_hessian(x, data, pen, fri)
         return E
+
+    def node_forces(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The penalty's and friction's gradients (m, 3) at each of ``nodes`` (the force on
+        a node is minus its row; zero off the tool)."""
+        _, pen, fri = self._eval(x)
+        out = np.zeros((2, len(self.nodes), 3))
+        out[0, pen[0]], out[1, fri[0]] = pen[1], fri[1]
+        return out[0], out[1]
 
     def gap(self, x: np.ndarray) -> np.ndarray:
         """Signed distance (m) of each candidate node to the tool surface, negative inside."""
@@ -358,7 +408,7 @@ class ToolContact(Term):
     def report(self, x: np.ndarray) -> dict[str, float]:
         """Force the sheet exerts on the tool (N), nodes in contact, deepest penetration (m),
         the tool's position (x, y, z, m) and rotation vector (rx, ry, rz, rad)."""
-        _, gp, _, gf, _ = self._eval(x)
+        gp, gf = self.node_forces(x)
         gap = self.gap(x)
         f = (gp + gf).sum(0)
         t = self.translation(x)

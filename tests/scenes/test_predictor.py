@@ -2,6 +2,7 @@
 the scene allows."""
 
 import numpy as np
+import pytest
 
 import sim.stepping.simulation as simulation
 from sim.stepping.simulation import Simulation
@@ -69,3 +70,29 @@ def test_a_blank_holder_predicted_above_the_sheet_starts_where_its_contact_carri
     sim.x[: sim.model.shell.n_nodes, 2] -= 0.01  # the sheet has left the holder
     sim._last_increment[holder.vdof, 2] = 0.0
     assert _start(sim, monkeypatch, dt)[holder.vdof, 2] == holder.stop
+
+
+def test_a_prediction_that_inverts_an_element_starts_from_the_last_state():
+    """A last increment continued so far that it turns elements inside out: Newton finds the
+    start inverted in its first evaluation, and the step starts again from the last
+    converged state (the target positions of the prescribed DoFs applied), converging
+    there."""
+    sim = Simulation.from_scene(coarse(ROOT / "scenes" / "cup_drawing.toml"))
+    sim.step()
+    starts = []
+    minimise = simulation.minimise
+
+    def recorded(problem, x0, *args, **kw):
+        starts.append(x0.copy())
+        return minimise(problem, x0, *args, **kw)
+
+    free = ~sim.model.problem.fixed
+    rng = np.random.default_rng(0)
+    sim._last_increment = np.where(free, rng.normal(scale=1e-2, size=sim.x.shape), 0.0)
+    last = sim.x.copy()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(simulation, "minimise", recorded)
+        rec = sim.step()
+    assert sim.failure is None and rec.iterations > 0
+    assert len(starts) == 2  # the inverted prediction, then the last state
+    assert np.array_equal(starts[1][free], last[free])

@@ -110,7 +110,7 @@ def test_sheet_sticks_below_mu_times_the_normal_force():
         assert np.isclose(rec.probes["fx"], 0.5 * mu * rec.probes["fz"], rtol=1e-5)
         # no node slides: each friction force stays below mu times its normal force (the
         # static branch of the regularisation, slip < eps_v); measured: at most 0.58 of it
-        _, gp, _, gf, _ = term._eval(sim.x)
+        gp, gf = term.node_forces(sim.x)
         lam, f = np.linalg.norm(gp, axis=1), np.linalg.norm(gf, axis=1)
         assert np.all(f <= 0.9 * mu * lam + 1e-12)
 
@@ -138,7 +138,7 @@ def test_friction_on_a_moving_curved_tool():
     term = next(t for t in sim.model.terms if getattr(t, "tool", None) == "punch")
     for k in range(4):
         rec = sim.step()
-        _, gp, _, gf, _ = term._eval(sim.x)
+        gp, gf = term.node_forces(sim.x)
         lam, f = np.linalg.norm(gp, axis=1), np.linalg.norm(gf, axis=1)
         if k == 0:  # pressed straight down: no slip to speak of
             continue
@@ -338,7 +338,7 @@ def test_quadratic_edge_nodes_are_contact_candidates():
     assert np.any(plane >= sh.n_vertices)  # edge nodes among the candidates
     assert set(range(sh.n_plane)) <= set(plane.tolist())  # all of them, both skins
     assert sim.run(), sim.failure
-    _, gp, *_ = term._eval(sim.x)
+    gp, _ = term.node_forces(sim.x)
     f = np.linalg.norm(gp, axis=1)
     edge = plane >= sh.n_vertices
     assert f[edge].sum() > 0.5 * f.sum()
