@@ -124,6 +124,9 @@ function showSceneErrors(errors) {
 }
 
 function scheduleSync(fn, ms) {
+  // a newer edit makes the answer to an older one stale: a form render still on its way
+  // would otherwise overwrite TOML typed since (and the form then be rebuilt from it)
+  state.syncSeq++;
   clearTimeout(state.syncTimer);
   state.syncPending = fn;
   state.syncTimer = setTimeout(() => { state.syncTimer = null; fn(); }, ms);
