@@ -20,7 +20,7 @@ import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import serve, settled, shot, shots_dir
+from tests.support.browser import WAIT_MS, serve, settled, shot, shots_dir
 from tests.support.service import until
 
 SETTLE_MS = 1500  # the viewer draws in software WebGL
@@ -197,3 +197,27 @@ def test_live_parameters_read_as_words_with_their_results(page, served):
     assert page.text_content("#param-friction_scale-value") == "2"
     shot(page, SHOTS, "05-live-parameters", settle_ms=SETTLE_MS)
     httpx.post(f"{url}/api/runs/{run}/stop")
+
+
+def test_toml_typed_while_a_form_edit_converts_is_kept(page):
+    """A form edit's render still on its way when the user types in the TOML view must not
+    overwrite what they typed (it did, and the form was then rebuilt from the old TOML)."""
+    held = []
+    page.route("**/api/scenes/render", lambda route: held.append(route))
+    page.fill("[name='description']", "edited in the form")
+    page.dispatch_event("[name='description']", "input")
+    for _ in range(int(WAIT_MS / 50)):  # Playwright runs the route's handler while it waits
+        if held:
+            break
+        page.wait_for_timeout(50)
+    assert held, "the form's edit was never sent to be rendered"
+    page.click("#tab-toml")
+    typed = page.input_value("#toml").replace("steps = 50", "steps = 7")
+    assert "steps = 7" in typed
+    page.fill("#toml", typed)
+    held[0].continue_()  # the form's render arrives after the typing
+    page.unroute("**/api/scenes/render")
+    page.click("#tab-form")
+    page.wait_for_function("document.querySelector('#scene-form [data-path=\"stepping.steps"
+                           "\"] input').value === '7'")
+    assert page.input_value("#toml") == typed
