@@ -98,17 +98,9 @@ def main(argv: list[str] | None = None) -> int:
         # a second signal must not cut this short and leave a part running unseen
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        for name, p in procs.items():
-            if name in codes:
-                continue
-            if p.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(p.pid, signal.SIGTERM)
-                with contextlib.suppress(subprocess.TimeoutExpired):
-                    p.wait(30)
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(p.pid, signal.SIGKILL)
-                p.wait()
+        running = {n: p for n, p in procs.items() if n not in codes}
+        end_sessions(list(running.values()), grace=30.0)
+        for name in running:
             show(name, logs[name], None, time.monotonic() - t0)
         for i in range(len(procs)):  # the tests' files; the logs stay for a look
             shutil.rmtree(tmp / f"part{i}", ignore_errors=True)
@@ -144,12 +136,7 @@ def warm(tmp: Path) -> bool:
         # every share ended before waiting on any; a second signal must not cut this short
         # and leave a share compiling in its own session
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        for p in procs:
-            if p.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(p.pid, signal.SIGKILL)
-        for p in procs:
-            p.wait()
+        end_sessions(procs, grace=0.0)
         signal.signal(signal.SIGINT, signal.default_int_handler)
     ok = len(codes) == len(procs) and all(c == 0 for c in codes.values())
     for i, log in enumerate(logs):
@@ -161,6 +148,25 @@ def warm(tmp: Path) -> bool:
     print(f"tests.split: numba's kernels compiled in {(time.monotonic() - t0) / 60:.1f} min",
           flush=True)
     return ok
+
+
+def end_sessions(procs: list[subprocess.Popen], grace: float) -> None:
+    """End each still running process's session (its servers and browsers too): SIGTERM to
+    all and ``grace`` seconds to stop (none if 0), then SIGKILL; every one waited for."""
+    running = [p for p in procs if p.poll() is None]
+    if grace > 0:
+        for p in running:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGTERM)
+        deadline = time.monotonic() + grace
+        for p in running:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                p.wait(max(0.0, deadline - time.monotonic()))
+    for p in running:
+        if p.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
 
 
 def progress(log: Path) -> str:

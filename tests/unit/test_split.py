@@ -1,6 +1,8 @@
 """``python -m tests.split`` (``make test``): which arguments go to which part, and the
 progress line it prints while the parts run."""
 
+import signal
+import subprocess
 import sys
 
 import pytest
@@ -63,3 +65,15 @@ def test_warm_kills_a_share_at_its_guard(tmp_path, monkeypatch, capsys):
     assert split.warm(tmp_path) is False
     assert "killed after 1 s (WARM_GUARD)" in capsys.readouterr().out
     assert not marker.exists()  # ended, not waited for
+
+
+def test_end_sessions_terms_then_kills_what_ignores_it():
+    code = ("import signal, sys, time; "
+            "signal.signal(signal.SIGTERM, signal.SIG_IGN if sys.argv[1] == 'deaf' else "
+            "signal.SIG_DFL); print('up', flush=True); time.sleep(60)")
+    procs = [subprocess.Popen([sys.executable, "-c", code, kind], stdout=subprocess.PIPE,
+                              start_new_session=True) for kind in ("deaf", "polite")]
+    for p in procs:
+        p.stdout.readline()  # its handler is set
+    split.end_sessions(procs, grace=0.5)
+    assert procs[0].returncode == -signal.SIGKILL and procs[1].returncode == -signal.SIGTERM
