@@ -308,7 +308,8 @@ const Compare = (() => {
                hovertemplate: (byStroke ? "stroke %{x:.3f} mm<br>" : "") +
                  "force %{y:.4g} kN<br>step %{customdata}<extra>%{fullData.name}</extra>" };
     });
-    await Plotly.react($("compare-force"), traces, layout("Punch force against stroke", 300, {
+    const P = await plotly();
+    await P.react($("compare-force"), traces, layout("Punch force against stroke", 300, {
       xaxis: axis(byStroke ? "punch stroke (mm)" : "step", { rangemode: "tozero" }),
       yaxis: axis(`punch force (${curves[0].force.unit})`, { rangemode: "tozero" }),
       ...liveMarks(data, curves, byStroke) }), CONFIG);
@@ -360,7 +361,7 @@ const Compare = (() => {
       const text = kind === "?" ? "SI units" : `${kind.replaceAll("_", " ")} (${unit || "count"})`;
       lay[k ? `yaxis${k + 1}` : "yaxis"] = axis(text, { title: { text, font: { size: 10 } } });
     });
-    await Plotly.react($("compare-probes"), traces, lay, CONFIG);
+    await (await plotly()).react($("compare-probes"), traces, lay, CONFIG);
   }
 
   // ---- thickness on the formed part ----------------------------------------------------------
@@ -477,7 +478,7 @@ const Compare = (() => {
       scene: { aspectmode: "data", xaxis: { title: { text: "x (mm)" } },
                yaxis: { title: { text: "y (mm)" } }, zaxis: { title: { text: "z (mm)" } },
                camera: view.camera || { eye: { x: 0.7, y: -1.5, z: 1.3 } } } });
-    await Plotly.react(div, [trace], lay, CONFIG);
+    await (await plotly()).react(div, [trace], lay, CONFIG);
     linkCamera(div);
   }
 
@@ -619,7 +620,7 @@ const Compare = (() => {
     if (!div.data) div.replaceChildren();  // the note that stood in for a view
     div.dataset.step = String(stroke.step);
     div.dataset.stroke = String(stroke.stroke);
-    return Plotly.react(div, [trace], lay, CONFIG).then(() => linkCamera(div));
+    return plotly().then((P) => P.react(div, [trace], lay, CONFIG)).then(() => linkCamera(div));
   }
 
   function strokeTrace(part, values, scale) {

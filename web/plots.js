@@ -2,6 +2,20 @@
 // draws from the server's numbers (/api/runs/{id}/plots, /forming_limits), already in the
 // units shown (kN, mm, %); every axis says its quantity and unit.
 "use strict";
+// plotly.js is megabytes of script: parsed before the page's own, it held the whole page for
+// seconds on a slow machine, so it is fetched when the first plot is drawn (one promise)
+let plotlyLoad = null;
+function plotly() {
+  plotlyLoad ||= new Promise((ok, fail) => {
+    const s = document.createElement("script");
+    s.src = "/static/vendor/plotly.min.js";
+    s.onload = () => ok(window.Plotly);
+    s.onerror = () => { plotlyLoad = null; fail(new Error("plotly.js did not load")); };
+    document.head.appendChild(s);
+  });
+  return plotlyLoad;
+}
+
 const Plots = (() => {
   const CONFIG = { displaylogo: false, responsive: true,
                    modeBarButtonsToRemove: ["lasso2d", "select2d", "autoScale2d"] };
@@ -38,7 +52,7 @@ const Plots = (() => {
       layout = { ...layout, ...withScrub(placed.get(div)) };
       div.dataset.scrub = scrubbed === null ? "" : String(scrubbed);
     }
-    return Plotly.react(div, traces, layout, CONFIG);
+    return plotly().then((P) => P.react(div, traces, layout, CONFIG));
   }
 
   function withScrub(p) {
@@ -61,7 +75,7 @@ const Plots = (() => {
     scrubbed = step;
     for (const [div, p] of placed) {
       div.dataset.scrub = step === null ? "" : String(step);
-      Plotly.relayout(div, withScrub(p));
+      plotly().then((P) => P.relayout(div, withScrub(p)));  // after its react
     }
   }
 

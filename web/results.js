@@ -360,13 +360,13 @@ const Results = (() => {
     showEstimate(st);
     await showSummary(st);
     await showDownloads(st);
-    if (!window.Plotly) {
+    // not awaited: drawing (and fetching plotly.js the first time) never holds the status
+    // line back
+    plotly().then(() => refreshPlots(st), () => {
       // /static/vendor/plotly.min.js comes from the plotly Python package
       document.getElementById("no-plots").textContent = "No plots: plotly.js did not load " +
         "(the server serves it from the plotly package: pip install 'q3t-forming[service]').";
-      return;
-    }
-    refreshPlots(st);  // not awaited: drawing never holds the status line back
+    });
   }
 
   // one drawing at a time; a status that arrives meanwhile is drawn next (the newest only)

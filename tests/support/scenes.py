@@ -3,6 +3,7 @@ keeps of the scene), and the tiny scenes the service tests run."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 from sim.model.sheet import build_mesh
@@ -35,6 +36,31 @@ def coarse(scene_path: str | Path, element: str | None = None) -> Scene:
     if e:
         o["mesh.edge_length"] = e
     return load_scene(scene_path, o)
+
+
+@functools.cache
+def shipped_cup() -> tuple:
+    """The shipped cup (2 mm mesh, 50 steps) run to its end once per test process, and how
+    many factorisations it took: several tests check its answers, and a run is a minute on a
+    loaded machine. Its tests only read it."""
+    from sim.stepping.simulation import Simulation
+
+    sim = Simulation.from_scene(load_scene(ROOT / "scenes" / "cup_drawing.toml"))
+    count = factor_counted(sim)
+    assert sim.run(), sim.failure
+    return sim, count[0]
+
+
+def factor_counted(sim) -> list[int]:  # noqa: ANN001
+    """A one-item list that counts ``sim``'s factorisations from now on."""
+    solver, count = sim.model.problem.solver, [0]
+
+    def factor(data, f=solver.factor):  # noqa: ANN001, ANN202
+        count[0] += 1
+        return f(data)
+
+    solver.factor = factor
+    return count
 
 
 def coarsest_mesh(sc: Scene) -> dict:

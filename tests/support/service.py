@@ -22,10 +22,13 @@ ENDED = {"finished", "failed", "stopped", "cancelled"}  # the states a run ends 
 
 def until(cond: Callable[[], Any], what: str, timeout: float = HANG) -> Any:
     """Poll ``cond()`` until it is true; fail past ``timeout`` s (a hang guard)."""
-    deadline = time.monotonic() + timeout
+    deadline, pause = time.monotonic() + timeout, 0.01
     while not (out := cond()):
         assert time.monotonic() < deadline, what
-        time.sleep(0.02)
+        time.sleep(pause)
+        # s: quick for what is nearly there, then a few polls a second - each poll is a
+        # request the server answers on the cores the solver and the browser need
+        pause = min(1.5 * pause, 0.2)
     return out
 
 
