@@ -21,7 +21,7 @@ import pytest
 
 from tests.support import ROOT
 from tests.support.browser import WAIT_MS, serve, settled, shot, shots_dir
-from tests.support.service import until
+from tests.support.service import stop_all, until
 
 SETTLE_MS = 1500  # the viewer draws in software WebGL
 SHOTS = shots_dir("editor")
@@ -161,15 +161,16 @@ def test_live_parameters_read_as_words_with_their_results(page, served):
     page.wait_for_selector("#param-friction_scale")
     text = sliders.inner_text()
     assert "Friction ×" in text and "Tool speed ×" in text and "friction_scale" not in text
-    before = page.get_attribute("#status", "data-run")
+    with httpx.Client(base_url=url) as client:
+        stop_all(client)  # the one active run below is this test's
     page.click("#start")
-    page.wait_for_function("b => (r => r && r !== b)(document.getElementById('status')"
-                           ".dataset.run)", arg=before)
-    run = page.get_attribute("#status", "data-run")
-    # paused after one step at once (a step command pauses): on a loaded machine the coarse
-    # cup's 50 steps may all be done before the page shows the first; a paused run still
-    # takes changes
-    httpx.post(f"{url}/api/runs/{run}/step")
+    # paused after one step at once (a step command pauses), the run's id read from the
+    # server, not the page: on a loaded machine the coarse cup's 50 steps were all done
+    # before the page showed the run (measured: 20 s). A paused run still takes changes
+    run = until(lambda: httpx.get(f"{url}/api/health").json()["active"], "no run started")[0]
+    assert httpx.post(f"{url}/api/runs/{run}/step").status_code == 200
+    page.wait_for_function("r => document.getElementById('status').dataset.run === r",
+                           arg=run)
     page.wait_for_function("(d => +d.step >= 1)(document.getElementById('status').dataset)")
     done = settled(url, run)["step"]
     result = page.locator("#param-friction_scale-result")
