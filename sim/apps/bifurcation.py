@@ -118,12 +118,21 @@ def run(args: argparse.Namespace) -> int:
         raise SceneError(f"--modes: {args.modes} is not a number of eigenvalues >= 1")
     if not args.kick >= 0:
         raise SceneError(f"--kick: {args.kick:g} thicknesses is not >= 0")
+    if args.spacing is not None and not args.spacing > 0:
+        raise SceneError(f"--spacing: {args.spacing:g} m is not a positive node spacing")
     elements = args.elements.split(",") if args.elements else [None]
     runs = []
     for el in elements:
         o = dict(overrides)
         if el:
             o["shell.element"] = el
+        if args.spacing:
+            from sim.elements import ELEMENTS
+
+            name = el or load(args.scene, o).shell.element
+            if name not in ELEMENTS:
+                raise SceneError(f"--elements: unknown {name!r}; known: {sorted(ELEMENTS)}")
+            o["mesh.edge_length"] = ELEMENTS[name].edge_for_spacing(args.spacing)
         scene = load(args.scene, o)  # SceneError: exit 2
         print(f"{scene.name}: {scene.shell.element}", file=sys.stderr, flush=True)
 
@@ -168,6 +177,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                       "(default: the scene's)")
     b.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene value, e.g. mesh.edge_length=0.005 (repeatable)")
+    b.add_argument("--spacing", type=float, metavar="M",
+                   help="in-plane node spacing (m): each element's mesh edge is this times its "
+                        "in-plane degree, so all compare on the same nodes (default: the "
+                        "scene's edge_length for all)")
     b.add_argument("--modes", type=int, default=3, help="eigenvalues per step (default 3)")
     b.add_argument("--kick", type=float, default=0.1, metavar="THICKNESSES",
                    help="push the state this far (mid-surface z, in thicknesses) along the "

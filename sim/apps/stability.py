@@ -73,7 +73,8 @@ def lowest_eigenvalues(K: sp.spmatrix, k: int = 3) -> Spectrum:
 
     Shift-invert Lanczos (ARPACK) finds the eigenvalues nearest a shift s, fast; the lowest ones
     are those nearest s once no eigenvalue lies below s, which the inertia of K - s I says.
-    s starts as a tiny negative number (1e-10 of the mean diagonal: K itself is singular exactly
+    s starts as a tiny negative number (1e-13 of the mean diagonal, a few hundred times the round-off
+    of the entries: K itself is singular exactly
     at a bifurcation), and while eigenvalues lie below it, goes ten times further down: a few
     factorisations past a bifurcation, one before it. ``negative`` counts K's eigenvalues below
     the first shift: the unstable modes."""
@@ -82,7 +83,7 @@ def lowest_eigenvalues(K: sp.spmatrix, k: int = 3) -> Spectrum:
         raise ValueError(f"k = {k}: need 1 <= k < {n} (the free DoFs)")
     K = sp.csc_matrix(K)
     scale = float(np.abs(K.diagonal()).mean())
-    shift, negative, lu = -1e-10 * scale, None, None
+    shift, negative, lu = -1e-13 * scale, None, None
     for _ in range(40):
         lu = _factor(K, shift)
         if lu is not None:
