@@ -187,5 +187,5 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "lowest mode the first time it is unstable, so the run leaves the "
                         "flat path (default %(default)g; 0: never)")
     b.add_argument("--quiet", action="store_true")
-    add_results_option(b, "wrinkling.md")
+    add_results_option(b, "fig4-wrinkling.md")
     b.set_defaults(func=run)
