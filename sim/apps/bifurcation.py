@@ -79,6 +79,10 @@ def summary_row(run: dict) -> dict:
     pts = run["points"]
     cross = crossing(pts)
     peak = max(pts, key=lambda p: p.amplitude) if pts else None
+    # flat again: the first step after the peak whose amplitude is under 1 % of it (a
+    # wrinkled state comes back to the plane where its branch rejoins the flat one)
+    flat = next((p for p in pts if peak and p.step > peak.step
+                 and p.amplitude < 0.01 * peak.amplitude), None)
     last = pts[-1] if pts else None
     fail = run["failure"]
     return {
@@ -88,6 +92,7 @@ def summary_row(run: dict) -> dict:
         "most negative eigenvalues at once": max((p.negative for p in pts), default=0),
         "largest amplitude [mm]": f"{1e3 * peak.amplitude:.4g}" if peak else "",
         "at strain [%]": f"{100 * peak.strain:.1f}" if peak else "",
+        "flat again at strain [%]": f"{100 * flat.strain:.1f}" if flat else "",
         "last strain [%]": f"{100 * last.strain:.1f}" if last else "",
         "amplitude there [mm]": f"{1e3 * last.amplitude:.4g}" if last else "",
         "lowest eigenvalue there [N/m]": f"{last.eigenvalues[0]:.4g}" if last else "",

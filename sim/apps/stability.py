@@ -136,8 +136,9 @@ def nominal_strain(sim, nodes: np.ndarray, direction: np.ndarray) -> float:
 
 def follow(sim, nodes: np.ndarray, direction: np.ndarray, k: int = 3,
            kick: float = 0.0) -> Iterator[PathPoint]:
-    """Step ``sim`` (a static Simulation) to its end, yielding after each converged step the
-    lowest ``k`` eigenvalues of its stiffness and how far the mid-surface left its plane.
+    """Step ``sim`` (a static Simulation) to its end, yielding at its start (step 0) and after
+    each converged step the lowest ``k`` eigenvalues of its stiffness and how far the
+    mid-surface left its plane.
 
     ``kick`` (m, 0: never): the first time the lowest eigenvalue is negative, add the lowest
     mode scaled so that its largest mid-surface z is ``kick`` to the state, so the next step
@@ -148,24 +149,28 @@ def follow(sim, nodes: np.ndarray, direction: np.ndarray, k: int = 3,
 
     kicked = False
     direction = np.asarray(direction, float) / np.linalg.norm(direction)
-    while not sim.done:
-        try:
-            rec = sim.step()
-        except SolverFailure:
-            return
+    step, rec = 0, None
+    while True:
         K, free = free_hessian(sim.model.problem, sim.x)
         spec = lowest_eigenvalues(K, k)
         mode = expand(spec.vectors[:, 0], free, sim.x.shape)
         zshare = float(np.sum(mode[:, 2] ** 2) / np.sum(mode**2))
         z = mid_surface(sim.model, sim.x)[:, 2]
-        point = PathPoint(rec.step, rec.time, nominal_strain(sim, nodes, direction),
+        point = PathPoint(step, sim.t, nominal_strain(sim, nodes, direction),
                           spec.values.tolist(), spec.negative, zshare,
-                          float(z.max() - z.min()), rec.iterations)
+                          float(z.max() - z.min()), rec.iterations if rec else 0)
         if kick and not kicked and spec.values[0] < 0:
             zmode = mid_surface(sim.model, mode)[:, 2]
             sim.x = sim.x + mode * (kick / np.abs(zmode).max())
             kicked = point.kicked = True
         yield point
+        if sim.done:
+            return
+        try:
+            rec = sim.step()
+        except SolverFailure:
+            return
+        step = rec.step
 
 
 def crossing(points: list[PathPoint]) -> float | None:
