@@ -74,10 +74,10 @@ def follow_scene(scene, modes: int, kick: float, progress=None) -> dict:
 def summary_row(run: dict) -> dict:
     """The path in a few numbers: where the lowest eigenvalue crosses zero (interpolated), the
     largest out-of-plane amplitude and its strain, and the last step's."""
-    from sim.apps.stability import crossing
+    from sim.apps.stability import bracket, crossing
 
     pts = run["points"]
-    cross = crossing(pts)
+    cross, ab = crossing(pts), bracket(pts)
     peak = max(pts, key=lambda p: p.amplitude) if pts else None
     # flat again: the first step after the peak whose amplitude is under 1 % of it (a
     # wrinkled state comes back to the plane where its branch rejoins the flat one)
@@ -89,6 +89,8 @@ def summary_row(run: dict) -> dict:
         "element": run["element"], "mesh edge [mm]": 1e3 * run["edge"], "free DoFs": run["dofs"],
         "lowest eigenvalue crosses zero at strain [%]": "never" if cross is None
         else f"{100 * cross:.2f}",
+        "between steps at [%]": "" if ab is None
+        else f"{100 * ab[0].strain:.1f} - {100 * ab[1].strain:.1f}",
         "most negative eigenvalues at once": max((p.negative for p in pts), default=0),
         "largest amplitude [mm]": f"{1e3 * peak.amplitude:.4g}" if peak else "",
         "at strain [%]": f"{100 * peak.strain:.1f}" if peak else "",

@@ -173,11 +173,24 @@ def follow(sim, nodes: np.ndarray, direction: np.ndarray, k: int = 3,
         step = rec.step
 
 
+def bracket(points: list[PathPoint]) -> tuple[PathPoint, PathPoint] | None:
+    """The two steps between which the lowest eigenvalue first goes from positive to
+    negative; None if it never does."""
+    for a, b in zip(points, points[1:]):
+        if a.eigenvalues[0] > 0 >= b.eigenvalues[0]:
+            return a, b
+    return None
+
+
 def crossing(points: list[PathPoint]) -> float | None:
     """The nominal strain where the lowest eigenvalue first goes from positive to negative,
-    linearly interpolated between the two steps around it; None if it never does."""
-    for a, b in zip(points, points[1:]):
-        la, lb = a.eigenvalues[0], b.eigenvalues[0]
-        if la > 0 >= lb:
-            return a.strain + (b.strain - a.strain) * la / (la - lb)
-    return None
+    linearly interpolated between the two steps around it (``bracket``); None if it never
+    does. Linear in the load is right near the crossing, not from the rest state: a thin
+    sheet's lowest eigenvalue first rises with tension, then falls (the bracket says how far
+    apart the two steps are)."""
+    ab = bracket(points)
+    if ab is None:
+        return None
+    a, b = ab
+    la, lb = a.eigenvalues[0], b.eigenvalues[0]
+    return a.strain + (b.strain - a.strain) * la / (la - lb)

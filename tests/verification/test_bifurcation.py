@@ -142,3 +142,31 @@ def test_stretched_sheet_wrinkles_in_the_middle_with_the_quadratic_prism():
     zc = z[across][np.argsort(X[across, 1])]
     big = zc[np.abs(zc) > 0.3 * np.abs(zc).max()]
     assert np.sum(np.diff(np.sign(big)) != 0) >= 2  # at least three crests and troughs
+
+
+def test_bifurcation_command_writes_a_stamped_table(tmp_path, capsys):
+    """``q3t bifurcation`` on the Euler strip: the summary table with the crossing, a stamped
+    results file with one path table per element; bad input exits 2 naming the option."""
+    from sim.apps.cli import main
+
+    scene = tmp_path / "euler_strip.toml"
+    scene.write_text(STRIP)
+    out = tmp_path / "fig4-strip.md"
+    assert main(["bifurcation", str(scene), "--elements", "quadratic", "--set",
+                 "mesh.edge_length=0.01", "--modes", "2", "--quiet", "--results",
+                 str(out)]) == 0
+    text = out.read_text()
+    assert "- command: `q3t bifurcation" in text and "- commit: `" in text
+    assert "| element | mesh edge [mm] | free DoFs | lowest eigenvalue crosses zero" in text
+    assert "## quadratic, edge 10 mm" in text
+    # the crossing near the Euler strain (coarser than the test above: within 5 %)
+    row = next(line for line in capsys.readouterr().out.splitlines()
+               if line.startswith("| quadratic"))
+    eps = float(row.split("|")[4]) / 100
+    assert abs(eps / (np.pi**2 / 3 * 1e-4) - 1) < 0.05, row
+    assert main(["bifurcation", str(scene), "--modes", "0"]) == 2
+    assert "--modes" in capsys.readouterr().err
+    plain = tmp_path / "plain.toml"
+    plain.write_text(STRIP.replace("displacement = [-6.0e-5, 0.0, 0.0]", ""))
+    assert main(["bifurcation", str(plain)]) == 2
+    assert "bifurcation follows a pulled end" in capsys.readouterr().err
