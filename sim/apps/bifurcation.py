@@ -88,14 +88,14 @@ def summary_row(run: dict) -> dict:
     return {
         "element": run["element"], "mesh edge [mm]": 1e3 * run["edge"], "free DoFs": run["dofs"],
         "lowest eigenvalue crosses zero at strain [%]": "never" if cross is None
-        else f"{100 * cross:.2f}",
+        else f"{100 * cross:.3g}",
         "between steps at [%]": "" if ab is None
-        else f"{100 * ab[0].strain:.1f} - {100 * ab[1].strain:.1f}",
+        else f"{100 * ab[0].strain:.3g} - {100 * ab[1].strain:.3g}",
         "most negative eigenvalues at once": max((p.negative for p in pts), default=0),
         "largest amplitude [mm]": f"{1e3 * peak.amplitude:.4g}" if peak else "",
-        "at strain [%]": f"{100 * peak.strain:.1f}" if peak else "",
-        "flat again at strain [%]": f"{100 * flat.strain:.1f}" if flat else "",
-        "last strain [%]": f"{100 * last.strain:.1f}" if last else "",
+        "at strain [%]": f"{100 * peak.strain:.3g}" if peak else "",
+        "flat again at strain [%]": f"{100 * flat.strain:.3g}" if flat else "",
+        "last strain [%]": f"{100 * last.strain:.3g}" if last else "",
         "amplitude there [mm]": f"{1e3 * last.amplitude:.4g}" if last else "",
         "lowest eigenvalue there [N/m]": f"{last.eigenvalues[0]:.4g}" if last else "",
         "status": "converged" if fail is None else f"failed at step {fail['step']}: "
@@ -108,7 +108,7 @@ def path_rows(run: dict) -> list[dict]:
     rows = []
     for p in run["points"]:
         rows.append({
-            "step": p.step, "nominal strain [%]": f"{100 * p.strain:.2f}",
+            "step": p.step, "nominal strain [%]": f"{100 * p.strain:.4g}",
             **{f"eigenvalue {i + 1} [N/m]": f"{v:.5g}" for i, v in enumerate(p.eigenvalues)},
             "negative": p.negative, "mode's z share": f"{p.out_of_plane:.2f}",
             "amplitude [mm]": f"{1e3 * p.amplitude:.4g}", "Newton iterations": p.iterations,
