@@ -13,11 +13,17 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sim.apps.common import BAD_INPUT, FAILED, OK, load, parse_sets
 from sim.stamp import Stamp, add_results_option, write_results
+
+if TYPE_CHECKING:
+    from sim.apps.stability import PathPoint
+    from sim.scene.load import Scene
 
 
 def markdown_table(rows: list[dict]) -> str:
@@ -30,7 +36,7 @@ def markdown_table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def pulled_end(scene) -> tuple[str, np.ndarray]:
+def pulled_end(scene: Scene) -> tuple[str, np.ndarray]:
     """The region that pulls the sheet and the direction of the pull: the first BC with a
     nonzero displacement, else the first traction load; ValueError naming the fields when the
     scene has neither."""
@@ -46,7 +52,8 @@ def pulled_end(scene) -> tuple[str, np.ndarray]:
                      "displacement or a traction load; the scene has neither")
 
 
-def follow_scene(scene, modes: int, kick: float, progress=None) -> dict:
+def follow_scene(scene: Scene, modes: int, kick: float,
+                 progress: Callable[[PathPoint], None] | None = None) -> dict:
     """One element's path: ``{"element", "dofs", "edge", "points", "failure", "wall"}``, each
     point a sim.apps.stability.PathPoint; ``kick`` in thicknesses."""
     from sim.apps.stability import follow
@@ -143,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         scene = load(args.scene, o)  # SceneError: exit 2
         print(f"{scene.name}: {scene.shell.element}", file=sys.stderr, flush=True)
 
-        def show(p) -> None:
+        def show(p: PathPoint) -> None:
             if not args.quiet:
                 print(f"  step {p.step}: strain {100 * p.strain:.2f} %, lowest eigenvalues "
                       f"{np.array2string(np.asarray(p.eigenvalues), precision=4)} N/m, "

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
@@ -24,6 +25,9 @@ import scipy.sparse.linalg as spla
 
 from sim.frames.fields import mid_surface
 from sim.solve.problem import Problem
+
+if TYPE_CHECKING:
+    from sim.stepping.simulation import Simulation
 
 
 def free_hessian(problem: Problem, x: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
@@ -73,11 +77,11 @@ def lowest_eigenvalues(K: sp.spmatrix, k: int = 3) -> Spectrum:
 
     Shift-invert Lanczos (ARPACK) finds the eigenvalues nearest a shift s, fast; the lowest ones
     are those nearest s once no eigenvalue lies below s, which the inertia of K - s I says.
-    s starts as a tiny negative number (1e-13 of the mean diagonal, a few hundred times the round-off
-    of the entries: K itself is singular exactly
-    at a bifurcation), and while eigenvalues lie below it, goes ten times further down: a few
-    factorisations past a bifurcation, one before it. ``negative`` counts K's eigenvalues below
-    the first shift: the unstable modes."""
+    s starts as a tiny negative number, 1e-13 of the mean diagonal (K itself is singular exactly
+    at a bifurcation; a thin sheet's lowest eigenvalues are 1e-9 of its diagonal, so 1e-10 hid
+    some), and while eigenvalues lie below it goes ten times further down: a few factorisations
+    past a bifurcation, one before it. ``negative`` counts K's eigenvalues below the first
+    shift: the unstable modes."""
     n = K.shape[0]
     if not 1 <= k < n:
         raise ValueError(f"k = {k}: need 1 <= k < {n} (the free DoFs)")
@@ -125,7 +129,7 @@ class PathPoint:
     kicked: bool = False  # the state was pushed along the lowest mode after this step
 
 
-def nominal_strain(sim, nodes: np.ndarray, direction: np.ndarray) -> float:
+def nominal_strain(sim: Simulation, nodes: np.ndarray, direction: np.ndarray) -> float:
     """Mean displacement of ``nodes`` along ``direction`` over the sheet's rest extent along
     it: the engineering strain of a strip pulled at that end."""
     rest = sim.model.shell.rest
@@ -134,7 +138,7 @@ def nominal_strain(sim, nodes: np.ndarray, direction: np.ndarray) -> float:
     return float(u.mean() / extent)
 
 
-def follow(sim, nodes: np.ndarray, direction: np.ndarray, k: int = 3,
+def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3,
            kick: float = 0.0) -> Iterator[PathPoint]:
     """Step ``sim`` (a static Simulation) to its end, yielding at its start (step 0) and after
     each converged step the lowest ``k`` eigenvalues of its stiffness and how far the
@@ -176,7 +180,7 @@ def follow(sim, nodes: np.ndarray, direction: np.ndarray, k: int = 3,
 def bracket(points: list[PathPoint]) -> tuple[PathPoint, PathPoint] | None:
     """The two steps between which the lowest eigenvalue first goes from positive to
     negative; None if it never does."""
-    for a, b in zip(points, points[1:]):
+    for a, b in zip(points, points[1:], strict=False):
         if a.eigenvalues[0] > 0 >= b.eigenvalues[0]:
             return a, b
     return None

@@ -3,7 +3,6 @@ against a dense eigensolver, then on a case with an analytic answer (Euler buckl
 clamped at both ends), then on the stretched sheet of issue 17's Fig. 4 question."""
 
 import numpy as np
-import pytest
 import scipy.sparse as sp
 
 from sim.apps.stability import crossing, follow, free_hessian, lowest_eigenvalues
