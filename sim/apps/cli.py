@@ -1,5 +1,5 @@
-"""The ``q3t`` command: run, export, bench, serve, play, study, springback, splitring, check,
-warm."""
+"""The ``q3t`` command: run, export, bench, bifurcation, serve, play, study, springback,
+splitring, check, warm."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from importlib.metadata import entry_points
 
 from sim.apps import (
     bench,
+    bifurcation,
     check,
     export,
     meshtools,
@@ -43,8 +44,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="q3t", description=__doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)
     # matplotlib and dask load only when run
-    for app in (run, export, reference, bench, study, springback, splitring, sweep, check,
-                meshtools, warm):
+    for app in (run, export, reference, bench, bifurcation, study, springback, splitring, sweep,
+                check, meshtools, warm):
         app.add_parser(sub)
     add_plugins(sub)
     argv = sys.argv[1:] if argv is None else argv

@@ -1,0 +1,200 @@
+"""Stability of an equilibrium: the lowest eigenvalues of the stiffness (the exact Hessian of the
+total energy with the held DoFs removed), followed along a static load path.
+
+An equilibrium is stable while the stiffness is positive definite; where its lowest eigenvalue
+crosses zero the path bifurcates (a plate in tension that wrinkles, a column that buckles), and
+the eigenvector there is the shape it buckles into. A perfect model has no reason to leave the
+fundamental path (a flat plate pulled in its plane has no out-of-plane force), so past the
+crossing Newton keeps the unstable flat state; ``follow`` can then push the state along the
+unstable mode, as one seeds an eigenmode imperfection, and the next step finds the buckled
+branch.
+
+Lives in sim/apps, with the commands: it uses the solver (Problem, Simulation) and adds nothing
+the kernels reach, so editing it does not void numba's cache (sim.numba_cache_dir).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from sim.frames.fields import mid_surface
+from sim.solve.problem import Problem
+
+if TYPE_CHECKING:
+    from sim.stepping.simulation import Simulation
+
+
+def free_hessian(problem: Problem, x: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
+    """The exact Hessian of the total energy at x (no PSD projection: a projected tangent is
+    positive by construction and would hide the instability) restricted to the free DoFs, and
+    the flat indices of those DoFs."""
+    data = problem.evaluate(x, exact=True)[3]
+    free = np.flatnonzero(~problem.fixed.ravel())
+    K = problem.pattern.matrix(data).tocsc()
+    return K[free][:, free].tocsc(), free
+
+
+@dataclass
+class Spectrum:
+    """The lowest eigenvalues ``values`` (ascending), their ``vectors`` (free DoFs, unit
+    2-norm, columns), ``negative``: how many eigenvalues of the whole matrix are below zero (its
+    inertia), and ``shift``: where the Lanczos iteration was shifted to."""
+
+    values: np.ndarray
+    vectors: np.ndarray
+    negative: int
+    shift: float
+
+
+def _factor(K: sp.csc_matrix, shift: float) -> spla.SuperLU | None:
+    """SuperLU of K - shift I with a symmetric ordering and diagonal pivots only, so that it is
+    K - shift I = L D L^T up to scaling and the signs of U's diagonal are the signs of D; None
+    when a pivot is zero (the shift sits on an eigenvalue)."""
+    A = (K - shift * sp.identity(K.shape[0], format="csc")).tocsc()
+    try:
+        lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                       options=dict(SymmetricMode=True))
+    except RuntimeError:
+        return None
+    d = lu.U.diagonal()
+    return lu if np.all(np.isfinite(d)) and np.all(d != 0) else None
+
+
+def _below(lu: spla.SuperLU) -> int:
+    """How many eigenvalues lie below the shift of ``lu``: the negative pivots (Sylvester's law
+    of inertia)."""
+    return int(np.sum(lu.U.diagonal() < 0))
+
+
+def lowest_eigenvalues(K: sp.spmatrix, k: int = 3) -> Spectrum:
+    """The ``k`` algebraically lowest eigenpairs of the symmetric K and its inertia.
+
+    Shift-invert Lanczos (ARPACK) finds the eigenvalues nearest a shift s, fast; the lowest ones
+    are those nearest s once no eigenvalue lies below s, which the inertia of K - s I says.
+    s starts as a tiny negative number, 1e-13 of the mean diagonal (K itself is singular exactly
+    at a bifurcation; a thin sheet's lowest eigenvalues are 1e-9 of its diagonal, so 1e-10 hid
+    some), and while eigenvalues lie below it goes ten times further down: a few factorisations
+    past a bifurcation, one before it. ``negative`` counts K's eigenvalues below the first
+    shift: the unstable modes."""
+    n = K.shape[0]
+    if not 1 <= k < n:
+        raise ValueError(f"k = {k}: need 1 <= k < {n} (the free DoFs)")
+    K = sp.csc_matrix(K)
+    scale = float(np.abs(K.diagonal()).mean())
+    shift, negative, lu = -1e-13 * scale, None, None
+    for _ in range(40):
+        lu = _factor(K, shift)
+        if lu is not None:
+            below = _below(lu)
+            negative = below if negative is None else negative
+            if below == 0:
+                break
+        shift *= 10  # a pivot was zero, or eigenvalues lie below: further down
+    else:
+        raise RuntimeError(f"no shift down to {shift:.3g} has K - s I positive definite")
+    op = spla.LinearOperator((n, n), matvec=lu.solve, dtype=float)
+    # v0 fixed: ARPACK's random start would make the result differ from run to run in its
+    # last bits
+    v0 = np.ones(n) / np.sqrt(n)
+    vals, vecs = spla.eigsh(K, k=k, sigma=shift, which="LM", OPinv=op, v0=v0, tol=1e-10)
+    order = np.argsort(vals)
+    return Spectrum(vals[order], vecs[:, order], negative, shift)
+
+
+def expand(vector: np.ndarray, free: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A vector on the free DoFs as an (n_nodes, 3) array, zero on the held ones."""
+    out = np.zeros(int(np.prod(shape)))
+    out[free] = vector
+    return out.reshape(shape)
+
+
+@dataclass
+class PathPoint:
+    """One converged step of a followed load path."""
+
+    step: int
+    time: float  # scene time (the load factor of static stepping)
+    strain: float  # nominal strain of the pulled end (``follow``'s ``end``)
+    eigenvalues: list[float]  # the lowest, ascending (N/m)
+    negative: int  # eigenvalues below zero (the inertia)
+    out_of_plane: float  # share of the lowest mode's squared norm in z: 1 for a wrinkle
+    amplitude: float  # height range of the mid-surface (m)
+    iterations: int  # Newton iterations of the step
+    kicked: bool = False  # the state was pushed along the lowest mode after this step
+
+
+def nominal_strain(sim: Simulation, nodes: np.ndarray, direction: np.ndarray) -> float:
+    """Mean displacement of ``nodes`` along ``direction`` over the sheet's rest extent along
+    it: the engineering strain of a strip pulled at that end."""
+    rest = sim.model.shell.rest
+    u = (sim.x[nodes] - sim.model.x0[nodes]) @ direction
+    extent = np.ptp(rest[: sim.model.shell.n_nodes] @ direction)
+    return float(u.mean() / extent)
+
+
+def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3,
+           kick: float = 0.0) -> Iterator[PathPoint]:
+    """Step ``sim`` (a static Simulation) to its end, yielding at its start (step 0) and after
+    each converged step the lowest ``k`` eigenvalues of its stiffness and how far the
+    mid-surface left its plane.
+
+    ``kick`` (m, 0: never): the first time the lowest eigenvalue is negative, add the lowest
+    mode scaled so that its largest mid-surface z is ``kick`` to the state, so the next step
+    starts off the unstable fundamental path. The kick is small against the wrinkle (a tenth
+    of the thickness or less) and is made once. Ends early when a step fails (the Simulation's
+    ``failure`` says why)."""
+    from sim.stepping.simulation import SolverFailure
+
+    kicked = False
+    direction = np.asarray(direction, float) / np.linalg.norm(direction)
+    step, rec = 0, None
+    while True:
+        K, free = free_hessian(sim.model.problem, sim.x)
+        spec = lowest_eigenvalues(K, k)
+        mode = expand(spec.vectors[:, 0], free, sim.x.shape)
+        zshare = float(np.sum(mode[:, 2] ** 2) / np.sum(mode**2))
+        z = mid_surface(sim.model, sim.x)[:, 2]
+        point = PathPoint(step, sim.t, nominal_strain(sim, nodes, direction),
+                          spec.values.tolist(), spec.negative, zshare,
+                          float(z.max() - z.min()), rec.iterations if rec else 0)
+        if kick and not kicked and spec.values[0] < 0:
+            zmode = mid_surface(sim.model, mode)[:, 2]
+            sim.x = sim.x + mode * (kick / np.abs(zmode).max())
+            kicked = point.kicked = True
+        yield point
+        if sim.done:
+            return
+        try:
+            rec = sim.step()
+        except SolverFailure:
+            return
+        step = rec.step
+
+
+def bracket(points: list[PathPoint]) -> tuple[PathPoint, PathPoint] | None:
+    """The two steps between which the lowest eigenvalue first goes from positive to
+    negative; None if it never does."""
+    for a, b in zip(points, points[1:], strict=False):
+        if a.eigenvalues[0] > 0 >= b.eigenvalues[0]:
+            return a, b
+    return None
+
+
+def crossing(points: list[PathPoint]) -> float | None:
+    """The nominal strain where the lowest eigenvalue first goes from positive to negative,
+    linearly interpolated between the two steps around it (``bracket``); None if it never
+    does. Linear in the load is right near the crossing, not from the rest state: a thin
+    sheet's lowest eigenvalue first rises with tension, then falls (the bracket says how far
+    apart the two steps are)."""
+    ab = bracket(points)
+    if ab is None:
+        return None
+    a, b = ab
+    la, lb = a.eigenvalues[0], b.eigenvalues[0]
+    return a.strain + (b.strain - a.strain) * la / (la - lb)
