@@ -164,6 +164,11 @@ results: $(STAMP)
 	$(BIN)/q3t sweep stretch_plate --grid shell.element=linear,q3t --grid mesh.imperfection=0,1e-4 \
 	  --grid 'loads.0.vector=[1e4,0,0],[1e5,0,0],[3e5,0,0]' --set material.nu=0.499 \
 	  --set mesh.edge_length=0.035 --out runs/fig4 --results $(R)/fig4.md
+	$(BIN)/q3t bifurcation stretch_wrinkling --elements quadratic,q3t,linear --spacing 0.0025 \
+	  --results $(R)/fig4-wrinkling.md
+	$(BIN)/q3t bifurcation stretch_plate --elements quadratic,q3t,linear --spacing 0.0175 \
+	  --set material.nu=0.499 --set 'loads.0.vector=[3e5,0,0]' --set stepping.steps=10 \
+	  --results $(R)/fig4-plate.md
 
 # the scene field reference, rendered from the schema (tests/unit/test_docs.py fails when it is
 # stale)
