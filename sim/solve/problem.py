@@ -249,17 +249,32 @@ def factor_shifted(problem: Problem, data: np.ndarray) -> None:
     raise SingularMatrix(f"Hessian not positive definite even with shift {shift:.3g}")
 
 
-@dataclass
 class Floor:
     """What rounding the state costs, measured at x for d = one unit in the last place of every
     free coordinate, with random signs: ``force`` = |g(x + d) - g(x)| (N) and ``energy`` =
     |E(x + d) - E(x) - g . d| relative to the energy's scale. No iteration can push the residual
     much below what moving x by its own rounding error does, nor see an energy change smaller
     than the energy's jitter. Positions carry eps |X|, not eps |u|, so on thin shells this is
-    far above rtol times the load (cantilever h/L = 1e-2: 2.6e-7 N against 1.8e-9 N)."""
+    far above rtol times the load (cantilever h/L = 1e-2: 2.6e-7 N against 1.8e-9 N).
 
-    force: float
-    energy: float
+    ``force`` costs a gradient evaluation at x + d and is made when first asked for: the line
+    search asks only for ``energy``, near convergence of most steps (the cup's coarse target is
+    far above the force floor, so the gradient went unused)."""
+
+    def __init__(self, energy: float, force: Callable[[], float]):
+        self.energy = energy
+        self._force: float | Callable[[], float] = force
+
+    @property
+    def force(self) -> float:
+        if callable(self._force):
+            self._force = self._force()
+        return self._force
+
+    @property
+    def force_measured(self) -> float | None:
+        """``force`` if it was asked for, else None."""
+        return None if callable(self._force) else self._force
 
 
 EPS = float(np.finfo(float).eps)
@@ -276,10 +291,14 @@ def measure_floor(problem: Problem, x: np.ndarray, E: float, g: np.ndarray,
     rng = np.random.default_rng(0)
     d = np.where(free, rng.choice([-1.0, 1.0], x.shape) * np.spacing(np.abs(x)), 0.0)
     y = x + d  # exact: x plus or minus one ulp is the neighbouring double
-    gy = problem.gradient(y)
-    gy[~free] = 0.0
     de = problem.energy(y) - E - float(np.sum(g * d))
+    g = g.copy()  # the force is measured later, against the gradient at x of now
+
+    def force() -> float:
+        gy = problem.gradient(y)
+        gy[~free] = 0.0
+        return float(np.linalg.norm(gy - g))
+
     # the jitter sample can vanish by chance; 64 eps |E| is a floor under it (measured jitter
     # 1-4 eps |E| on the cantilever)
-    return Floor(float(np.linalg.norm(gy - g)),
-                 max(4 * abs(de), 64 * EPS * mag) / mag if mag > 0 else 0.0)
+    return Floor(max(4 * abs(de), 64 * EPS * mag) / mag if mag > 0 else 0.0, force)
