@@ -26,10 +26,11 @@ def keep_freed_memory() -> bool:
     """Have glibc's malloc keep freed memory in the process instead of handing it back to the
     system: every evaluation makes a Hessian data array (28 MB at the paper's cup size) and a
     copy of it, which glibc served from fresh pages of the system (mmap above its threshold,
-    or a heap trimmed after each free), and touching a fresh page costs a fault, measured
-    about 50 us on this project's VMs: a 28 MB copy into fresh memory 300-370 ms, into reused
-    memory 2-5 ms. Freed blocks below 1 GiB are then reused, and a heap's free top is kept
-    below 1 GiB. False where the C library has no mallopt (not glibc): nothing changes."""
+    or a heap trimmed after each free), which the kernel faults in and zeroes at first touch.
+    Measured on this project's 2-core VMs: a 28 MB array zeroed and copied 46 ms on fresh
+    pages, 3.5 ms on reused ones. Freed blocks below 1 GiB are then reused, and a heap's free
+    top is kept up to 1 GiB. False where the C library has no mallopt (not glibc): nothing
+    changes."""
     try:
         mallopt = ctypes.CDLL(None).mallopt
     except (OSError, AttributeError):
