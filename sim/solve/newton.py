@@ -110,6 +110,7 @@ class NewtonResult:
     timing: Timing = field(default_factory=Timing)
     ref: float = 0.0  # the force level the residual was measured against (N)
     floor: float | None = None  # measured force round-off floor (N), when it was needed
+    # (only the energy's was: None)
 
 
 @dataclass
@@ -162,7 +163,7 @@ class Newton:
     def result(self, x: np.ndarray, ok: bool, it: int, E: float, reason: str = "") -> NewtonResult:
         self.timing.iterations = it
         return NewtonResult(x, ok, it, E, self.res, reason, self.timing, self.ref,
-                            self.floor.force if self.floor else None)
+                            self.floor.force_measured if self.floor else None)
 
     def evaluate(self, y: np.ndarray) -> Evaluation:
         t = time.perf_counter()

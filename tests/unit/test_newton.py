@@ -73,6 +73,32 @@ def test_force_at_rest_is_exactly_zero(element):
     assert 0 < fl.force < 1e-4
 
 
+def test_the_floor_evaluates_its_force_only_when_asked_for():
+    """The line search needs the floor's energy jitter alone; its force costs a gradient
+    evaluation, made at the first ``force`` and then kept, equal to |g(x + d) - g(x)| at the
+    state it was measured at, even after that state's arrays change."""
+    sim = _sim(**{"stepping.steps": 1})
+    assert sim.run(), sim.failure
+    p, x = sim.model.problem, sim.x.copy()
+    free = ~sim.model.fixed
+    g = p.gradient(x)
+    g[~free] = 0.0
+    calls = []
+    p.gradient = lambda y: calls.append(y.copy()) or type(p).gradient(p, y)
+    fl = measure_floor(p, x, p.energy(x), g, free, abs(p.energy(x)))
+    assert fl.energy > 0 and fl.force_measured is None and not calls
+    g_at_x = g.copy()
+    g[:] = 1.0  # the caller's gradient array reused: the floor keeps its own
+    force = fl.force
+    assert len(calls) == 1 and fl.force == fl.force_measured == force and len(calls) == 1
+    gy = type(p).gradient(p, calls[0])
+    gy[~free] = 0.0
+    assert force == float(np.linalg.norm(gy - g_at_x)) > 0
+    # the state rounded by one ulp: every free coordinate moved, by at most its spacing
+    d = calls[0] - x
+    assert np.all((d[free] != 0) & (np.abs(d[free]) <= np.spacing(np.abs(x[free]))))
+
+
 def test_newton_goes_on_while_it_makes_progress():
     """E = 1 MPa: the plate hangs down (tip -0.68 m). Newton needs ~90 iterations, its energy
     falling all the way: past the old cap of 30 (which failed it through 10 cut-backs), without
