@@ -435,7 +435,7 @@ async function followView() {
   if (seq !== state.viewSeq) return;
   adoptRun(v.run);
   // the step this page's 3-D view was scrubbed to: marked on the run's plots
-  if (window.Plotly) Plots.scrubAt(v.run === state.run && !v.scene ? v.step : null);
+  Plots.scrubAt(v.run === state.run && !v.scene ? v.step : null);
 }
 
 async function poll() {

@@ -168,7 +168,7 @@ const Compare = (() => {
     document.body.classList.add("comparing");
     $("compare-title").textContent = "Comparing…";
     for (const id of ["compare-force", "compare-probes", ...VIEWS3D])
-      if ($(id).data) Plotly.purge($(id));
+      unplot($(id));
     await refresh();
   }
 
@@ -308,8 +308,7 @@ const Compare = (() => {
                hovertemplate: (byStroke ? "stroke %{x:.3f} mm<br>" : "") +
                  "force %{y:.4g} kN<br>step %{customdata}<extra>%{fullData.name}</extra>" };
     });
-    const P = await plotly();
-    await P.react($("compare-force"), traces, layout("Punch force against stroke", 300, {
+    await plotInto($("compare-force"), traces, layout("Punch force against stroke", 300, {
       xaxis: axis(byStroke ? "punch stroke (mm)" : "step", { rangemode: "tozero" }),
       yaxis: axis(`punch force (${curves[0].force.unit})`, { rangemode: "tozero" }),
       ...liveMarks(data, curves, byStroke) }), CONFIG);
@@ -361,7 +360,7 @@ const Compare = (() => {
       const text = kind === "?" ? "SI units" : `${kind.replaceAll("_", " ")} (${unit || "count"})`;
       lay[k ? `yaxis${k + 1}` : "yaxis"] = axis(text, { title: { text, font: { size: 10 } } });
     });
-    await (await plotly()).react($("compare-probes"), traces, lay, CONFIG);
+    await plotInto($("compare-probes"), traces, lay, CONFIG);
   }
 
   // ---- thickness on the formed part ----------------------------------------------------------
@@ -387,7 +386,7 @@ const Compare = (() => {
   function thicknessMissing(data, why) {
     const r = data.runs.find((x, i) => (i === 0 || i === view.against) && !x.result);
     const text = why || `${r.letter} has no final state yet: the thickness appears when it ends`;
-    if ($("compare-thickness").data) Plotly.purge($("compare-thickness"));
+    unplot($("compare-thickness"));
     $("compare-thickness-controls").replaceChildren(el("p", { className: "muted",
                                                               textContent: text }));
   }
@@ -478,7 +477,7 @@ const Compare = (() => {
       scene: { aspectmode: "data", xaxis: { title: { text: "x (mm)" } },
                yaxis: { title: { text: "y (mm)" } }, zaxis: { title: { text: "z (mm)" } },
                camera: view.camera || { eye: { x: 0.7, y: -1.5, z: 1.3 } } } });
-    await (await plotly()).react(div, [trace], lay, CONFIG);
+    await plotInto(div, [trace], lay, CONFIG);
     linkCamera(div);
   }
 
@@ -570,7 +569,7 @@ const Compare = (() => {
   function strokeMissing(why) {
     $("compare-stroke-msg").textContent = `no views at a stroke: ${why}`;
     $("compare-stroke-controls").hidden = $("compare-stroke-views").hidden = true;
-    for (const id of VIEWS3D.slice(1)) if ($(id).data) Plotly.purge($(id));
+    for (const id of VIEWS3D.slice(1)) unplot($(id));
   }
 
   function strokeControls(t) {
@@ -620,7 +619,8 @@ const Compare = (() => {
     if (!div.data) div.replaceChildren();  // the note that stood in for a view
     div.dataset.step = String(stroke.step);
     div.dataset.stroke = String(stroke.stroke);
-    return plotly().then((P) => P.react(div, [trace], lay, CONFIG)).then(() => linkCamera(div));
+    // a draw dropped for a newer one leaves no plot to link (plotInto)
+    return plotInto(div, [trace], lay, CONFIG).then((drawn) => drawn && linkCamera(div));
   }
 
   function strokeTrace(part, values, scale) {
@@ -661,7 +661,7 @@ const Compare = (() => {
         `A − ${B} (red: A thinner)` +
         (Math.abs(t.a.stroke - t.b.stroke) > 1e-4 ? ", at strokes that differ" : ""), t.a));
     } else {
-      if (div.data) Plotly.purge(div);
+      unplot(div);
       div.replaceChildren(el("p", { className: "muted",
                                     textContent: `no A − ${t.b.letter} map: ${d.reason}` }));
     }

@@ -3,17 +3,35 @@
 // units shown (kN, mm, %); every axis says its quantity and unit.
 "use strict";
 // plotly.js is megabytes of script: parsed before the page's own, it held the whole page for
-// seconds on a slow machine, so it is fetched when the first plot is drawn (one promise)
+// seconds on a slow machine, so it is fetched when the first run is shown (one promise; a
+// failed fetch stays failed until the page is reloaded, not retried at every poll)
 let plotlyLoad = null;
 function plotly() {
   plotlyLoad ||= new Promise((ok, fail) => {
     const s = document.createElement("script");
     s.src = "/static/vendor/plotly.min.js";
     s.onload = () => ok(window.Plotly);
-    s.onerror = () => { plotlyLoad = null; fail(new Error("plotly.js did not load")); };
+    s.onerror = () => { s.remove(); fail(new Error("plotly.js did not load")); };
     document.head.appendChild(s);
   });
   return plotlyLoad;
+}
+
+// Every plot of the page is drawn and cleared through these two. A draw waits for plotly.js,
+// so one asked for before the first fetch ended may come after a newer draw or a clear of
+// the same div: each carries the div's count, and one that is no longer the latest is dropped.
+const drawCount = new WeakMap();
+
+function plotInto(div, traces, layout, config) {
+  const n = (drawCount.get(div) || 0) + 1;
+  drawCount.set(div, n);
+  return plotly().then((P) => (drawCount.get(div) === n
+    ? P.react(div, traces, layout, config) : undefined));
+}
+
+function unplot(div) {
+  drawCount.set(div, (drawCount.get(div) || 0) + 1);
+  if (div.data) Plotly.purge(div);
 }
 
 const Plots = (() => {
@@ -52,7 +70,7 @@ const Plots = (() => {
       layout = { ...layout, ...withScrub(placed.get(div)) };
       div.dataset.scrub = scrubbed === null ? "" : String(scrubbed);
     }
-    return plotly().then((P) => P.react(div, traces, layout, CONFIG));
+    return plotInto(div, traces, layout, CONFIG);
   }
 
   function withScrub(p) {
@@ -246,7 +264,7 @@ const Plots = (() => {
 
   function purge(div) {
     placed.delete(div);
-    if (div.data) Plotly.purge(div);
+    unplot(div);
   }
 
   return { forceStroke, probes, sections, rim, fld, solver, show, purge, scrubAt };

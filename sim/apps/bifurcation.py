@@ -38,8 +38,10 @@ def markdown_table(rows: list[dict]) -> str:
 
 def pulled_end(scene: Scene) -> tuple[str, np.ndarray]:
     """The region that pulls the sheet and the direction of the pull: the first BC with a
-    nonzero displacement, else the first traction load; ValueError naming the fields when the
+    nonzero displacement, else the first traction load; SceneError naming the fields when the
     scene has neither."""
+    from sim.scene.load import SceneError
+
     for bc in scene.bcs:
         d = np.asarray(bc.displacement, float)
         if np.any(d != 0):
@@ -48,7 +50,7 @@ def pulled_end(scene: Scene) -> tuple[str, np.ndarray]:
         if ld.kind == "traction" and np.any(np.asarray(ld.vector) != 0):
             v = np.asarray(ld.vector, float)
             return ld.region, v / np.linalg.norm(v)
-    raise ValueError(f"{scene.name}: bcs, loads: bifurcation follows a pulled end, a BC with a "
+    raise SceneError(f"{scene.name}: bcs, loads: bifurcation follows a pulled end, a BC with a "
                      "displacement or a traction load; the scene has neither")
 
 
@@ -57,35 +59,48 @@ def follow_scene(scene: Scene, modes: int, kick: float,
     """One element's path: ``{"element", "dofs", "edge", "points", "failure", "wall"}``, each
     point a sim.apps.stability.PathPoint; ``kick`` in thicknesses."""
     from sim.apps.stability import follow
+    from sim.scene.load import SceneError
     from sim.stepping.simulation import Simulation
 
     if scene.stepping.kind != "static":
-        raise ValueError(f"{scene.name}: stepping.kind: bifurcation follows a static load path, "
+        raise SceneError(f"{scene.name}: stepping.kind: bifurcation follows a static load path, "
                          f"not {scene.stepping.kind!r}")
     region, direction = pulled_end(scene)
     sim = Simulation.from_scene(scene)
     m = sim.model
     nodes = m.column_nodes(m.regions[region])
-    t0 = time.perf_counter()
-    points = []
-    for p in follow(sim, nodes, direction, modes, kick * float(np.mean(m.shell.thickness))):
-        points.append(p)
-        if progress:
-            progress(p)
     c = sim.result()["counts"]
+    if modes >= c["free_dofs"]:
+        raise SceneError(f"--modes: {modes} eigenvalues of a stiffness with {c['free_dofs']} "
+                         "free DoFs (at most one fewer)")
+    t0 = time.perf_counter()
+    points, failure = [], None
+    thickness = float(np.mean(m.shell.thickness))
+    try:
+        for p in follow(sim, nodes, direction, modes, kick * thickness):
+            points.append(p)
+            if progress:
+                progress(p)
+    except RuntimeError as exc:  # the eigensolver's (SuperLU, ARPACK): the path so far stays
+        failure = {"step": points[-1].step + 1 if points else 0,
+                   "reason": f"eigenvalues: {exc}"}
     return {"element": scene.shell.element, "dofs": c["free_dofs"], "edge":
-            scene.mesh.edge_length, "points": points, "failure": sim.failure,
-            "wall": time.perf_counter() - t0}
+            scene.mesh.edge_length, "points": points, "failure": failure or sim.failure,
+            "thickness": thickness, "wall": time.perf_counter() - t0}
 
 
 def summary_row(run: dict) -> dict:
     """The path in a few numbers: where the lowest eigenvalue crosses zero (interpolated), the
-    largest out-of-plane amplitude and its strain, and the last step's."""
+    largest out-of-plane amplitude and its strain (none under 1 % of the thickness: "flat"),
+    and the last step's."""
     from sim.apps.stability import bracket, crossing
 
     pts = run["points"]
     cross, ab = crossing(pts), bracket(pts)
     peak = max(pts, key=lambda p: p.amplitude) if pts else None
+    # a sheet that never left its plane has round-off heights, no peak to come back from
+    if peak and peak.amplitude < 0.01 * run["thickness"]:
+        peak = None
     # flat again: the first step after the peak whose amplitude is under 1 % of it (a
     # wrinkled state comes back to the plane where its branch rejoins the flat one)
     flat = next((p for p in pts if peak and p.step > peak.step
@@ -99,7 +114,7 @@ def summary_row(run: dict) -> dict:
         "between steps at [%]": "" if ab is None
         else f"{100 * ab[0].strain:.3g} - {100 * ab[1].strain:.3g}",
         "most negative eigenvalues at once": max((p.negative for p in pts), default=0),
-        "largest amplitude [mm]": f"{1e3 * peak.amplitude:.4g}" if peak else "",
+        "largest amplitude [mm]": f"{1e3 * peak.amplitude:.4g}" if peak else "flat",
         "at strain [%]": f"{100 * peak.strain:.3g}" if peak else "",
         "flat again at strain [%]": f"{100 * flat.strain:.3g}" if flat else "",
         "last strain [%]": f"{100 * last.strain:.3g}" if last else "",
@@ -160,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
 
         try:
             runs.append(follow_scene(scene, args.modes, args.kick, show))
-        except ValueError as exc:
+        except SceneError as exc:
             print(f"q3t: {exc}", file=sys.stderr)
             return BAD_INPUT
     summary = [summary_row(r) for r in runs]

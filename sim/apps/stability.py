@@ -63,6 +63,11 @@ def _factor(K: sp.csc_matrix, shift: float) -> spla.SuperLU | None:
     except RuntimeError:
         return None
     d = lu.U.diagonal()
+    # SuperLU takes an off-diagonal pivot where a diagonal one is exactly zero, and then the
+    # signs of U's diagonal are no inertia: only a factor with the rows in the columns' order
+    # counts
+    if not np.array_equal(lu.perm_r, lu.perm_c):
+        return None
     return lu if np.all(np.isfinite(d)) and np.all(d != 0) else None
 
 
@@ -81,7 +86,7 @@ def lowest_eigenvalues(K: sp.spmatrix, k: int = 3) -> Spectrum:
     at a bifurcation; a thin sheet's lowest eigenvalues are 1e-9 of its diagonal, so 1e-10 hid
     some), and while eigenvalues lie below it goes ten times further down: a few factorisations
     past a bifurcation, one before it. ``negative`` counts K's eigenvalues below the first
-    shift: the unstable modes."""
+    shift that factors with diagonal pivots (s0, a hair below zero): the unstable modes."""
     n = K.shape[0]
     if not 1 <= k < n:
         raise ValueError(f"k = {k}: need 1 <= k < {n} (the free DoFs)")
@@ -92,19 +97,25 @@ def lowest_eigenvalues(K: sp.spmatrix, k: int = 3) -> Spectrum:
         lu = _factor(K, shift)
         if lu is not None:
             below = _below(lu)
-            negative = below if negative is None else negative
+            if negative is None:
+                negative, s0 = below, shift
             if below == 0:
                 break
         shift *= 10  # a pivot was zero, or eigenvalues lie below: further down
     else:
         raise RuntimeError(f"no shift down to {shift:.3g} has K - s I positive definite")
     op = spla.LinearOperator((n, n), matvec=lu.solve, dtype=float)
-    # v0 fixed: ARPACK's random start would make the result differ from run to run in its
-    # last bits
-    v0 = np.ones(n) / np.sqrt(n)
+    # a seeded random start: ARPACK's own would make the result differ from run to run in its
+    # last bits, and a uniform one is orthogonal to every mode a symmetric mesh turns
+    # antisymmetric, which Lanczos then never finds
+    v0 = np.random.default_rng(0).standard_normal(n)
     vals, vecs = spla.eigsh(K, k=k, sigma=shift, which="LM", OPinv=op, v0=v0, tol=1e-10)
     order = np.argsort(vals)
-    return Spectrum(vals[order], vecs[:, order], negative, shift)
+    vals, vecs = vals[order], vecs[:, order]
+    if negative < k and int(np.sum(vals < s0)) != negative:
+        raise RuntimeError(f"Lanczos found {int(np.sum(vals < s0))} eigenvalues below "
+                           f"{s0:.3g} where the inertia counts {negative}: it missed some")
+    return Spectrum(vals, vecs, negative, shift)
 
 
 def expand(vector: np.ndarray, free: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -122,7 +133,7 @@ class PathPoint:
     time: float  # scene time (the load factor of static stepping)
     strain: float  # nominal strain of the pulled end (``follow``'s ``end``)
     eigenvalues: list[float]  # the lowest, ascending (N/m)
-    negative: int  # eigenvalues below zero (the inertia)
+    negative: int  # eigenvalues below s0, a hair below zero (the inertia; lowest_eigenvalues)
     out_of_plane: float  # share of the lowest mode's squared norm in z: 1 for a wrinkle
     amplitude: float  # height range of the mid-surface (m)
     iterations: int  # Newton iterations of the step
@@ -144,7 +155,8 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     each converged step the lowest ``k`` eigenvalues of its stiffness and how far the
     mid-surface left its plane.
 
-    ``kick`` (m, 0: never): the first time the lowest eigenvalue is negative, add the lowest
+    ``kick`` (m, 0: never): the first time the lowest eigenvalue is negative and its mode
+    mostly out of plane, add the lowest
     mode scaled so that its largest mid-surface z is ``kick`` to the state, so the next step
     starts off the unstable fundamental path. The kick is small against the wrinkle (a tenth
     of the thickness or less) and is made once. Ends early when a step fails (the Simulation's
@@ -163,7 +175,9 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
         point = PathPoint(step, sim.t, nominal_strain(sim, nodes, direction),
                           spec.values.tolist(), spec.negative, zshare,
                           float(z.max() - z.min()), rec.iterations if rec else 0)
-        if kick and not kicked and spec.values[0] < 0:
+        # only a mode out of the plane is a wrinkle to push along (an in-plane one, a neck or
+        # an edge mode, has no z to scale the kick by)
+        if kick and not kicked and spec.values[0] < 0 and zshare > 0.5:
             zmode = mid_surface(sim.model, mode)[:, 2]
             sim.x = sim.x + mode * (kick / np.abs(zmode).max())
             kicked = point.kicked = True

@@ -166,9 +166,10 @@ def test_live_parameters_read_as_words_with_their_results(page, served):
     page.click("#start")
     # paused after one step at once (a step command pauses), the run's id read from the
     # server, not the page: on a loaded machine the coarse cup's 50 steps were all done
-    # before the page showed the run (measured: 20 s). A paused run still takes changes
+    # before the page showed the run. A paused run still takes changes
     run = until(lambda: httpx.get(f"{url}/api/health").json()["active"], "no run started")[0]
-    assert httpx.post(f"{url}/api/runs/{run}/step").status_code == 200
+    stepped = httpx.post(f"{url}/api/runs/{run}/step")
+    assert stepped.status_code == 200, stepped.text
     page.wait_for_function("r => document.getElementById('status').dataset.run === r",
                            arg=run)
     page.wait_for_function("(d => +d.step >= 1)(document.getElementById('status').dataset)")
