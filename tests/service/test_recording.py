@@ -201,8 +201,12 @@ def test_killed_server_leaves_verifiable_recordings(tmp_path):
     assert_verifies(path)
     tip = series(path, "/probes/tip_deflection")
     assert len(tip) >= 3
-    assert {r["step"]: r["probes"]["tip_deflection"] for r in lost[second]["records"]} == tip
-    assert lost[second]["step"] == max(tip)
+    # a step the SIGKILL cut short has its probes in the recording but not all its solver
+    # numbers, and is left out of the records (server.recording.read_steps): at most the last
+    rebuilt = {r["step"]: r["probes"]["tip_deflection"] for r in lost[second]["records"]}
+    assert rebuilt == {k: v for k, v in tip.items() if k in rebuilt}
+    assert set(tip) - set(rebuilt) <= {max(tip)}, (sorted(rebuilt)[-3:], sorted(tip)[-3:])
+    assert lost[second]["step"] == max(rebuilt)
     assert all(r["iterations"] > 0 for r in lost[second]["records"])
     saved = json.loads((tmp_path / "runs" / second / "run.json").read_text())
     assert saved["state"] == "failed" and saved["records"] == lost[second]["records"]
