@@ -66,6 +66,18 @@ def test_bad_input_meshes_have_one_bad_triangle_and_are_rejected(tmp_path, kind)
                                                      "mesh.path": str(tmp_path / "m.obj")}))
 
 
+def test_each_case_names_the_outcome_of_every_element():
+    """`q3t check` runs every registered element by default: a case whose outcome is given per
+    element names each one it does not skip, else the check stopped there with a KeyError (it
+    did once q3t_ans was registered)."""
+    from sim.elements import ELEMENTS
+
+    for c in make_cases(load_scene(CANTILEVER)):
+        if isinstance(c.expect, dict):
+            missing = set(ELEMENTS) - set(c.expect) - set(c.skip)
+            assert not missing, (c.name, sorted(missing))
+
+
 def test_outcomes_are_classified_and_a_wrong_one_is_a_problem():
     """A regression to "no convergence" everywhere must not pass: every case names the outcome
     it must end in, and a converged run must balance its loads."""
