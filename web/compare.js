@@ -477,8 +477,7 @@ const Compare = (() => {
       scene: { aspectmode: "data", xaxis: { title: { text: "x (mm)" } },
                yaxis: { title: { text: "y (mm)" } }, zaxis: { title: { text: "z (mm)" } },
                camera: view.camera || { eye: { x: 0.7, y: -1.5, z: 1.3 } } } });
-    await plotInto(div, [trace], lay, CONFIG);
-    linkCamera(div);
+    if (await plotInto(div, [trace], lay, CONFIG)) linkCamera(div);
   }
 
   function linkCamera(div) {
@@ -619,7 +618,6 @@ const Compare = (() => {
     if (!div.data) div.replaceChildren();  // the note that stood in for a view
     div.dataset.step = String(stroke.step);
     div.dataset.stroke = String(stroke.stroke);
-    // a draw dropped for a newer one leaves no plot to link (plotInto)
     return plotInto(div, [trace], lay, CONFIG).then((drawn) => drawn && linkCamera(div));
   }
 

@@ -17,20 +17,13 @@ function plotly() {
   return plotlyLoad;
 }
 
-// Every plot of the page is drawn and cleared through these two. A draw waits for plotly.js,
-// so one asked for before the first fetch ended may come after a newer draw or a clear of
-// the same div: each carries the div's count, and one that is no longer the latest is dropped.
-const drawCount = new WeakMap();
-
+// Every plot of the page is drawn and cleared through these two. Draws run in the order they
+// were asked for, each once plotly.js is there; a clear of a div not drawn yet clears nothing.
 function plotInto(div, traces, layout, config) {
-  const n = (drawCount.get(div) || 0) + 1;
-  drawCount.set(div, n);
-  return plotly().then((P) => (drawCount.get(div) === n
-    ? P.react(div, traces, layout, config) : undefined));
+  return plotly().then((P) => P.react(div, traces, layout, config));
 }
 
 function unplot(div) {
-  drawCount.set(div, (drawCount.get(div) || 0) + 1);
   if (div.data) Plotly.purge(div);
 }
 
