@@ -102,8 +102,13 @@ def main(argv: list[str] | None = None) -> int:
         end_sessions(list(running.values()), grace=30.0)
         for name in running:
             show(name, logs[name], None, time.monotonic() - t0)
-        for i in range(len(procs)):  # the tests' files; the logs stay for a look
-            shutil.rmtree(tmp / f"part{i}", ignore_errors=True)
+        # a passed part's files go; a failed (or stopped) part's stay with the logs: its
+        # servers' logs are what says why a browser test waited out its guard
+        for i, name in enumerate(procs):
+            if codes.get(name) in (0, 5):
+                shutil.rmtree(tmp / f"part{i}", ignore_errors=True)
+            else:
+                print(f"tests.split: {name}'s files kept in {tmp / f'part{i}'}", flush=True)
     if not warmed:
         print("tests.split: FAILED: q3t warm (its output is above the parts')", flush=True)
         return 1

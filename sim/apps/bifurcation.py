@@ -28,12 +28,11 @@ if TYPE_CHECKING:
 
 def markdown_table(rows: list[dict]) -> str:
     """Rows of already formatted cells under the first row's keys."""
+    from sim.apps.study_report import markdown_table as columns
+
     if not rows:
         return "(no step converged)\n"
-    keys = list(rows[0])
-    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
-    lines += ["| " + " | ".join(str(r.get(k, "")) for k in keys) + " |" for r in rows]
-    return "\n".join(lines) + "\n"
+    return columns(rows, [(k, k, "") for k in rows[0]])
 
 
 def pulled_end(scene: Scene) -> tuple[str, np.ndarray]:
