@@ -32,8 +32,10 @@ class _Mesh(Strict):
                     "sphere_patch, file or outline")
     imperfection: Coord = doc(
         "out-of-plane imperfection of a flat mid-surface: z += a sin(pi s) sin(pi t), with "
-        "(s, t) in [0, 1]^2 over its bounding box; a perfect plate in tension has no reason to "
-        "leave its plane, so buckling (Fig. 4 at nu = 0.499) needs a seed", "m", 0.0)
+        "(s, t) in [0, 1]^2 over its bounding box. A perfect flat sheet follows its flat path "
+        "past a bifurcation (Newton has no reason to leave the plane): a seed picks a "
+        "wrinkled branch; q3t bifurcation finds where the flat path loses stability and "
+        "kicks along the mode instead", "m", 0.0)
 
 
 class _Generated(_Mesh):
