@@ -31,6 +31,9 @@ if not Path(CHROMIUM).exists():
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 
 
+STEPS = 2000
+
+
 def tapered_toml(steps: int) -> str:
     """tiny with a thickness falling linearly from 7 mm at the clamp to 3.5 mm at the tip."""
     text = tiny_toml(steps=steps)
@@ -48,7 +51,10 @@ def server(served):
 def served(tmp_path_factory):
     """(url, folder with scenes/ and runs/)"""
     tmp = tmp_path_factory.mktemp("browser")
-    with serve(tmp, {"tiny": tapered_toml(steps=400)}, "tiny", "--step-delay", "0.2") as (
+    # steps x step delay outlasts the hang guard: the run cannot end by itself before the
+    # test's Stop arrives, however loaded the machine (it ended first once, and Stop then
+    # found a finished run)
+    with serve(tmp, {"tiny": tapered_toml(steps=STEPS)}, "tiny", "--step-delay", "0.2") as (
             url, _):
         yield url, tmp
 
@@ -206,7 +212,7 @@ def test_scene_form_and_run_estimate(served, browser):
         # the TOML view: an edit there rebuilds the form
         page.click("#tab-toml")
         toml = page.input_value("#toml").replace('name = "tiny"', 'name = "formed"')
-        page.fill("#toml", toml.replace("steps = 400", "steps = 2"))
+        page.fill("#toml", toml.replace(f"steps = {STEPS}", "steps = 2"))
         page.click("#tab-form")
         page.wait_for_function("document.querySelector('#scene-form [data-path=\"stepping.steps"
                                "\"] input').value === '2'")
@@ -223,7 +229,8 @@ def test_scene_form_and_run_estimate(served, browser):
             stop_all(c)  # left running by a failed test before this one
         page.select_option("#element", "linear")
         page.click("#start")
-        est = page.locator("#estimate .estimate-text")
+        # this run's estimate, not the one of tiny's last run the page showed before it
+        est = page.locator("#estimate[data-run^='formed-'] .estimate-text")
         est.wait_for()
         text = est.text_content()
         assert text.startswith("error estimate: 10 % vs quadratic at 3.5 mm (study of "
