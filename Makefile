@@ -61,6 +61,13 @@ ALUMINIUM := --set shell.thickness=0.00081 --set material.E=71e9 --set material.
   --set material.hardening.K=576.79e6 --set material.hardening.e0=0.01658 \
   --set material.hardening.n=0.3593 --set 'tools.0.position=[0,0,0.000405]' \
   --set 'tools.1.position=[0,0,-0.000405]' --set 'tools.2.position=[0,0,0.000405]'
+# the same sheet with the DEFORM-3D manual's own inputs (its E, nu, Swift law and friction)
+DEFORM_AL := --set shell.thickness=0.00081 --set material.E=70e9 --set material.nu=0.3 \
+  --set material.density=2700 --set material.yield_stress=132.943258e6 \
+  --set material.hardening.K=570.40e6 --set material.hardening.e0=0.01502 \
+  --set material.hardening.n=0.3469 --set 'tools.0.position=[0,0,0.000405]' \
+  --set 'tools.1.position=[0,0,-0.000405]' --set 'tools.2.position=[0,0,0.000405]' \
+  --set tools.0.friction=0.162 --set tools.1.friction=0.162 --set tools.2.friction=0.162
 results: $(STAMP)
 	$(BIN)/q3t check --results $(R)/check.md
 	$(BIN)/q3t bench --cases beam,cup,plastic --repeat 5 --results $(R)/bench.md
@@ -150,6 +157,11 @@ results: $(STAMP)
 	  --results $(R)/forming-square_cup-40.md
 	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --out runs/forming-square_cup-al-40 \
 	  --results $(R)/forming-square_cup-aluminium-40.md
+	$(BIN)/q3t run square_cup $(SQUARE15) --record-every 10 $(DEFORM_AL) \
+	  --out runs/forming-square_cup-deform --results $(R)/forming-square_cup-aluminium-deform.md
+	$(BIN)/q3t run square_cup --quiet --record-every 10 $(DEFORM_AL) \
+	  --out runs/forming-square_cup-deform-40 \
+	  --results $(R)/forming-square_cup-aluminium-deform-40.md
 	$(BIN)/q3t sweep cup_drawing --grid mesh.edge_length=0.004,0.003,0.0025,0.002 \
 	  --out runs/forming-cup_mesh --results $(R)/forming-cup_mesh.md
 	$(BIN)/q3t sweep cup_drawing --grid shell.element=linear,q3t --set mesh.edge_length=0.003 \
