@@ -157,9 +157,9 @@ results: $(STAMP)
 	  --results $(R)/forming-square_cup-40.md
 	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --out runs/forming-square_cup-al-40 \
 	  --results $(R)/forming-square_cup-aluminium-40.md
-	$(BIN)/q3t run square_cup $(SQUARE15) --record-every 10 $(DEFORM_AL) \
+	$(BIN)/q3t run square_cup $(SQUARE15) $(DEFORM_AL) \
 	  --out runs/forming-square_cup-deform --results $(R)/forming-square_cup-aluminium-deform.md
-	$(BIN)/q3t run square_cup --quiet --record-every 10 $(DEFORM_AL) \
+	$(BIN)/q3t run square_cup --quiet $(DEFORM_AL) \
 	  --out runs/forming-square_cup-deform-40 \
 	  --results $(R)/forming-square_cup-aluminium-deform-40.md
 	$(BIN)/q3t sweep cup_drawing --grid mesh.edge_length=0.004,0.003,0.0025,0.002 \

@@ -22,7 +22,7 @@ from server.tomlout import drop_none
 from tests.support import ROOT
 from tests.support.browser import CHROMIUM, new_page, serve, settled, shots_dir
 from tests.support.scenes import tiny_toml
-from tests.support.service import stop_all
+from tests.support.service import HANG, stop_all
 
 SHOTS = shots_dir("browser")
 pytestmark = pytest.mark.browser
@@ -31,7 +31,11 @@ if not Path(CHROMIUM).exists():
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
 
 
-STEPS = 2000
+# steps x step delay outlasts every wait of the test before its Stop (a few hang guards): the
+# run cannot end by itself first, however loaded the machine (it ended first once, and Stop
+# then found a finished run)
+STEP_DELAY = 0.2
+STEPS = int(4 * HANG / STEP_DELAY)
 
 
 def tapered_toml(steps: int) -> str:
@@ -51,11 +55,8 @@ def server(served):
 def served(tmp_path_factory):
     """(url, folder with scenes/ and runs/)"""
     tmp = tmp_path_factory.mktemp("browser")
-    # steps x step delay outlasts the hang guard: the run cannot end by itself before the
-    # test's Stop arrives, however loaded the machine (it ended first once, and Stop then
-    # found a finished run)
-    with serve(tmp, {"tiny": tapered_toml(steps=STEPS)}, "tiny", "--step-delay", "0.2") as (
-            url, _):
+    scenes = {"tiny": tapered_toml(steps=STEPS)}
+    with serve(tmp, scenes, "tiny", "--step-delay", str(STEP_DELAY)) as (url, _):
         yield url, tmp
 
 

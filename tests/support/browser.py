@@ -72,7 +72,11 @@ def serve(tmp: Path, scenes: dict[str, str], default: str,
             yield url, vport
         finally:
             proc.terminate()
-            proc.wait(10)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:  # a server that will not stop, and its run, go
+                proc.kill()
+                proc.wait()
 
 
 @contextlib.contextmanager

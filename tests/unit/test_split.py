@@ -27,6 +27,15 @@ def test_the_suite_splits_into_two_browser_parts_and_two_computing_parts():
     assert got["computing-2"][3:] == [f"--ignore={f}" for f in [*map(str, BROWSER), *first]]
 
 
+def test_a_folder_or_module_ignored_leaves_the_part_that_names_it():
+    # pytest ignores what it finds in a folder, not a path it is given: parts() must
+    got = parts(["--ignore", "tests/verification", f"--ignore={BROWSER[0]}"])
+    assert str(ROOT / "tests" / "verification") not in got["computing-1"]
+    assert str(BROWSER[0]) not in got["browser-1"] + got["browser-2"]
+    got = parts([f"--ignore={ROOT / 'tests' / 'service'}"])
+    assert set(got) == {"computing-1", "computing-2"}  # no browser part left to run
+
+
 def test_paths_given_run_as_one_part():
     args = ["./tests/service/test_page_api.py", "-q", "tests/unit::x"]
     assert parts(args) == {"selected": args}
