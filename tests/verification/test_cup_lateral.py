@@ -11,7 +11,7 @@ from sim.stepping.simulation import Simulation
 pytestmark = pytest.mark.fast
 
 
-def test_isotropic_blank_pushes_the_punch_sideways_by_under_2_percent():
+def test_outline_blank_pushes_the_punch_sideways_by_under_2_percent():
     """The outline cup as shipped (2 mm, q3t_ans, 0.5 mm of stroke per step), its first 5 mm:
     the sheet wrapping the punch's nose radius, where the lateral force of the stroke's first
     half arises (the full stroke's table in docs/elements-ans.md). Issue 17's bound is 2 % of
