@@ -123,6 +123,8 @@ results: $(STAMP)
 	  --results $(R)/forming-cup_drawing_aa5754-2mm.md
 	$(BIN)/q3t run cup_drawing_aa5754 --element q3t_ans --quiet \
 	  --results $(R)/forming-cup_drawing_aa5754-2mm-ans.md
+	$(BIN)/q3t run cup_drawing_outline --quiet \
+	  --results $(R)/forming-cup_drawing_outline-2mm-ans.md
 	$(BIN)/q3t run cup_drawing --quiet $(CUP30) --out runs/forming-cup_drawing-30mm-2mm \
 	  --results $(R)/forming-cup_drawing-30mm-2mm.md
 	$(BIN)/q3t run cup_drawing_aa5754 --quiet --set mesh.edge_length=0.00125 \
