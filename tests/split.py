@@ -1,21 +1,20 @@
-"""The whole suite as four pytest processes side by side (``make test``, what CI runs).
+"""The whole suite as two pytest processes side by side (``make test``, what CI runs).
 
 ``python -m tests.split [pytest options] [paths]``: the browser tests (tests/service's
-``test_*browser*.py``, which mostly wait on servers, solver processes and pages) in two
-processes, every other test (which mostly computes) in two more, each process with its own
-temporary folder. On a 2-core machine they overlap: the waiting of the browser parts is the
-computing parts' time, and two computing parts keep both cores busy.
-Options go to every part; paths given run as one part, as asked. Each part's
+``test_*browser*.py``, which mostly wait on servers, solver processes and pages) in one
+process, every other test (which mostly computes) in the other, each with its own temporary
+folder. On a 2-core machine the two overlap: the waiting of one is the other's computing time.
+Options go to both parts; paths given run as one part, as asked. Each part's
 output goes to a log (its path printed first) and is printed whole once the part ends, so the
 parts never interleave; every minute a line gives each running part's progress. Exits 0 only
 if every part run passes; a part that collects no test (pytest's 5) fails only if all do.
 
 The whole suite starts with ``q3t warm`` in two processes, each compiling half of the
-solver's numba kernels: otherwise each part compiles the kernels it meets first, the same
-ones at once (numba holds no lock), and a computing part pays for all of them in turn.
+solver's numba kernels: otherwise each part compiles the kernels it meets first, both the same
+ones at once (numba holds no lock), and the computing part pays for all of them in turn.
 
 Not pytest-xdist: one of its workers died mid-module here ("node down: Not properly
-terminated") with no trace, and the replacement then stalled the session; plain pytest
+terminated") with no trace, and the replacement then stalled the session; two plain pytest
 processes have no channel between them to lose.
 """
 
@@ -34,10 +33,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 # the page driven in chromium: mostly waiting on servers, solver processes and pages
 BROWSER = sorted((ROOT / "tests" / "service").glob("test_*browser*.py"))
-# the first computing part's folders, about half of the computing tests' time; the second
-# takes every other test. verification/ holds every test of the shipped cup that
-# tests.support.scenes.shipped_cup runs once per process, so they stay in one part
-COMPUTING_FIRST = ("tests/apps", "tests/scenes", "tests/verification")
 # a line per minute: CI shows the suite alive (and where) while the logs wait for their part
 HEARTBEAT = 60.0
 # processes of `q3t warm`, one per core (sim/apps/warm.py), and how long they may take (a
@@ -50,8 +45,7 @@ VALUED = {"-k", "-m", "-p", "-o", "-W", "-c", "--deselect", "--ignore", "--ignor
 
 
 def parts(args: list[str]) -> dict[str, list[str]]:
-    """Each part's pytest arguments: the options for every part. Paths given: one part, as
-    asked."""
+    """Each part's pytest arguments: the options for both. Paths given: one part, as asked."""
     options, paths, value = [], [], False
     for a in args:
         if value or a.startswith("-") or not Path(a.split("::")[0]).exists():
@@ -70,12 +64,9 @@ def parts(args: list[str]) -> dict[str, list[str]]:
         return [str(p) for p in paths if not any(p == d or d in p.parents for d in ignored)]
 
     browser = kept(BROWSER)
-    first = kept(ROOT / d for d in COMPUTING_FIRST)
-    # every other module by name: half the modules each, without a table of their times to
-    # go stale
-    chosen = {"browser-1": browser[0::2], "browser-2": browser[1::2], "computing-1": first}
-    return {**{name: [*options, *paths] for name, paths in chosen.items() if paths},
-            "computing-2": [*options, *(f"--ignore={f}" for f in [*browser, *first])]}
+    parted = {"browser": [*options, *browser],
+              "other": [*options, *(f"--ignore={f}" for f in BROWSER)]}
+    return parted if browser else {"other": parted["other"]}
 
 
 def main(argv: list[str] | None = None) -> int:

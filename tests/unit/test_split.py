@@ -8,32 +8,25 @@ import sys
 import pytest
 
 from tests import split
-from tests.split import BROWSER, COMPUTING_FIRST, ROOT, parts, progress
+from tests.split import BROWSER, ROOT, parts, progress
 
 pytestmark = pytest.mark.fast
 
 
-def test_the_suite_splits_into_two_browser_parts_and_two_computing_parts():
+def test_the_suite_splits_into_the_browser_tests_and_the_rest():
     got = parts(["-x", "-m", "not slow"])
-    assert set(got) == {"browser-1", "browser-2", "computing-1", "computing-2"}
-    assert len(BROWSER) > 10 and all("browser" in f.name for f in BROWSER)
-    assert all(a[:3] == ["-x", "-m", "not slow"] for a in got.values())
-    # each browser module in one browser part, half of them each
-    b1, b2 = got["browser-1"][3:], got["browser-2"][3:]
-    assert sorted(b1 + b2) == sorted(map(str, BROWSER)) and abs(len(b1) - len(b2)) <= 1
-    # the second computing part ignores what the others run, so no test runs twice or never
-    first = got["computing-1"][3:]
-    assert first == [str(ROOT / d) for d in COMPUTING_FIRST]
-    assert got["computing-2"][3:] == [f"--ignore={f}" for f in [*map(str, BROWSER), *first]]
+    assert set(got) == {"browser", "other"} and len(BROWSER) > 10
+    assert got["browser"] == ["-x", "-m", "not slow", *map(str, BROWSER)]
+    assert got["other"] == ["-x", "-m", "not slow", *(f"--ignore={f}" for f in BROWSER)]
+    assert all("browser" in f.name for f in BROWSER)
 
 
-def test_a_folder_or_module_ignored_leaves_the_part_that_names_it():
+def test_a_browser_module_ignored_leaves_the_browser_part():
     # pytest ignores what it finds in a folder, not a path it is given: parts() must
-    got = parts(["--ignore", "tests/verification", f"--ignore={BROWSER[0]}"])
-    assert str(ROOT / "tests" / "verification") not in got["computing-1"]
-    assert str(BROWSER[0]) not in got["browser-1"] + got["browser-2"]
-    got = parts([f"--ignore={ROOT / 'tests' / 'service'}"])
-    assert set(got) == {"computing-1", "computing-2"}  # no browser part left to run
+    got = parts([f"--ignore={BROWSER[0]}"])
+    assert str(BROWSER[0]) not in got["browser"] and str(BROWSER[1]) in got["browser"]
+    got = parts(["--ignore", str(ROOT / "tests" / "service")])
+    assert set(got) == {"other"}  # no browser part left to run
 
 
 def test_paths_given_run_as_one_part():
@@ -43,8 +36,8 @@ def test_paths_given_run_as_one_part():
 
 def test_an_options_value_is_no_path_even_when_it_names_one():
     got = parts(["--deselect", "tests/unit/test_split.py", "-k", "tests"])
-    assert len(got) == 4
-    assert got["computing-2"][:4] == ["--deselect", "tests/unit/test_split.py", "-k", "tests"]
+    assert set(got) == {"browser", "other"}
+    assert got["other"][:4] == ["--deselect", "tests/unit/test_split.py", "-k", "tests"]
 
 
 def test_progress_is_the_last_percentage_printed(tmp_path):
