@@ -8,20 +8,27 @@ import pytest
 from sim.scene.load import load_scene
 from sim.stepping.simulation import Simulation
 
-pytestmark = pytest.mark.fast
+pytestmark = pytest.mark.slow
+
+SCENE = "scenes/cup_drawing_outline.toml"
+STEPS = 24  # of the shipped 50: past the peak punch force (step 22), the holder still holding
 
 
-def test_outline_blank_pushes_the_punch_sideways_by_under_2_percent():
-    """The outline cup as shipped (2 mm, q3t_ans, 0.5 mm of stroke per step), its first 5 mm:
-    the sheet wrapping the punch's nose radius, where the lateral force of the stroke's first
-    half arises (the full stroke's table in docs/elements-ans.md). Issue 17's bound is 2 % of
-    the peak punch force; here of the largest force of these steps, which is under half the
-    full stroke's peak, so the bound is stricter than the issue's. Measured: 1.1 % (81 N at
-    3 mm of stroke, against 7.6 kN at 5 mm)."""
-    sim = Simulation.from_scene(load_scene("scenes/cup_drawing_outline.toml", {
-        "stepping.steps": 10, "tools.0.velocity": [0.0, 0.0, -0.005]}))
+def test_outline_blank_pushes_the_punch_sideways_by_under_2_percent_to_the_peak():
+    """The outline cup as shipped (2 mm, q3t_ans), its steps up to just past the peak punch
+    force, while the blank holder still holds the flange: issue 17's bound, the lateral force
+    under 2 % of the peak punch force, holds there on this blank and not on the structured
+    disk, whose aligned rings push the punch along +x (elements-ans.md gives both runs). The
+    later steps, after the holder rests on its blocks, do not meet it at 2 mm on any blank
+    (elements-ans.md): they are left out, not loosened."""
+    shipped = load_scene(SCENE)
+    stroke_per_step = np.asarray(shipped.tools[0].velocity) / shipped.stepping.steps
+    sim = Simulation.from_scene(load_scene(SCENE, {
+        "stepping.steps": STEPS, "tools.0.velocity": (stroke_per_step * STEPS).tolist()}))
     assert sim.run(), sim.failure
     p = {k: np.array([r.probes[k] for r in sim.records]) for k in sim.records[0].probes}
-    assert p["holder_height"].min() > 0.0004  # on the flange, not on its blocks
+    assert p["punch_force"].argmax() < STEPS - 1  # the peak is inside the window
+    # on the flange, not on its distance blocks (rest 0.5 mm above, blocks 0.1 mm below that)
+    assert p["holder_height"].min() > 0.0004
     lateral = np.hypot(p["punch_force_x"], p["punch_force_y"])
     assert lateral.max() < 0.02 * p["punch_force"].max()
