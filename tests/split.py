@@ -59,14 +59,9 @@ def parts(args: list[str]) -> dict[str, list[str]]:
     # parts' own paths leave out what the options ignore
     ignored = [Path(a.split("=", 1)[1] if "=" in a else options[i + 1]).resolve()
                for i, a in enumerate(options) if a.split("=", 1)[0] == "--ignore"]
-
-    def kept(paths):  # noqa: ANN001, ANN202
-        return [str(p) for p in paths if not any(p == d or d in p.parents for d in ignored)]
-
-    browser = kept(BROWSER)
-    parted = {"browser": [*options, *browser],
-              "other": [*options, *(f"--ignore={f}" for f in BROWSER)]}
-    return parted if browser else {"other": parted["other"]}
+    browser = [str(f) for f in BROWSER if not any(f == d or d in f.parents for d in ignored)]
+    other = [*options, *(f"--ignore={f}" for f in BROWSER)]
+    return {"browser": [*options, *browser], "other": other} if browser else {"other": other}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -6,6 +6,8 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
+import numpy as np
+
 from sim.model.sheet import build_mesh
 from sim.scene.load import Scene, load_scene, scene_from_toml
 from tests.support import ROOT
@@ -220,3 +222,8 @@ kind = "displacement"
 point = [0.0, 0.0, 0.0]
 component = "z"
 """
+
+
+def probe_series(sim) -> dict[str, np.ndarray]:  # noqa: ANN001
+    """Each probe of a run (a sim.stepping.simulation.Simulation) over its steps."""
+    return {k: np.array([r.probes[k] for r in sim.records]) for k in sim.records[0].probes}

@@ -7,6 +7,7 @@ import pytest
 
 from sim.scene.load import load_scene
 from sim.stepping.simulation import Simulation
+from tests.support.scenes import probe_series
 
 pytestmark = pytest.mark.slow
 
@@ -26,7 +27,7 @@ def test_outline_blank_pushes_the_punch_sideways_by_under_2_percent_to_the_peak(
     sim = Simulation.from_scene(load_scene(SCENE, {
         "stepping.steps": STEPS, "tools.0.velocity": (stroke_per_step * STEPS).tolist()}))
     assert sim.run(), sim.failure
-    p = {k: np.array([r.probes[k] for r in sim.records]) for k in sim.records[0].probes}
+    p = probe_series(sim)
     assert p["punch_force"].argmax() < STEPS - 1  # the peak is inside the window
     # on the flange, not on its distance blocks (rest 0.5 mm above, blocks 0.1 mm below that)
     assert p["holder_height"].min() > 0.0004

@@ -10,6 +10,7 @@ import pytest
 
 from sim.scene.load import load_scene
 from sim.stepping.simulation import Simulation
+from tests.support.scenes import probe_series
 
 pytestmark = pytest.mark.fast  # make test-fast runs all but the tests marked slow
 
@@ -106,7 +107,7 @@ def test_cup_volume_force_and_thickness():
     on the die, 20.21 mm at the end with the flange drawn in by 12.7 mm."""
     sim = cup("q3t")
     assert sim.result()["converged"], sim.failure
-    p = {k: np.array([r.probes[k] for r in sim.records]) for k in sim.records[0].probes}
+    p = probe_series(sim)
     v0 = float(np.sum(sim.model.elasticity.wdetJ))
     assert np.abs(p["volume"] / v0 - 1).max() < 0.01  # isochoric plastic flow
     f = p["punch_force"]
