@@ -40,7 +40,8 @@ def flat(value, path: str = "") -> dict:
         items = ((str(i), v) for i, v in enumerate(value))
     else:
         return {path: value}
-    return {k: v for key, sub in items for k, v in flat(sub, f"{path}.{key}" if path else key).items()}
+    return {k: v for key, sub in items
+            for k, v in flat(sub, f"{path}.{key}" if path else key).items()}
 
 
 def differing(a: dict, b: dict, allowed: dict) -> list[str]:
