@@ -104,8 +104,10 @@ async function selectScene(name) {
   state.tomlStale = false;
   state.editorChanged = false;
   showSlidersFor();
+  state.sceneElement = null;  // another scene: the run's element follows its own
   if (s.scene) {
     state.form.build(s.scene);
+    followElement(s.scene);
     showSceneErrors([]);
   } else {
     await syncFromToml();  // the raw tables and the errors naming the fields
@@ -154,6 +156,7 @@ async function syncFromForm() {
     state.tomlStale = r.toml === null;  // the form holds what TOML cannot say (a null)
     if (r.toml !== null) $("toml").value = r.toml;
     if (r.ok) state.base = r.toml;  // an invalid form's TOML has lost the comments
+    followElement(state.form.value());
     showSceneErrors(r.errors);
     $("sync").textContent = r.ok ? "valid" : `${r.errors.length} error(s)`;
   } catch (e) { say(e.message, true); }
@@ -170,9 +173,20 @@ async function syncFromToml() {
     state.tomlStale = false;
     if (r.ok) state.base = $("toml").value;
     if (r.scene || r.raw) state.form.build(r.scene || r.raw);
+    if (r.scene) followElement(r.scene);
     showSceneErrors(r.errors);
     $("sync").textContent = r.ok ? "valid" : `${r.errors.length} error(s)`;
   } catch (e) { say(e.message, true); }
+}
+
+function followElement(scene) {
+  // The run's element (the Run box's choice, which the server runs) follows the scene's
+  // shell.element whenever that changes, so a scene written for q3t_ans runs with it; a choice
+  // made in the Run box stands until then.
+  const e = scene && scene.shell && scene.shell.element;
+  if (!e || e === state.sceneElement || !state.config.elements.includes(e)) return;
+  state.sceneElement = e;
+  $("element").value = e;
 }
 
 function suggestNames(path, scene) {

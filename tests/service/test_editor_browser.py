@@ -223,3 +223,32 @@ def test_toml_typed_while_a_form_edit_converts_is_kept(page):
     page.wait_for_function("document.querySelector('#scene-form [data-path=\"stepping.steps"
                            "\"] input').value === '7'")
     assert page.input_value("#toml") == typed
+
+
+def test_the_runs_element_follows_the_scenes_own(page, served):
+    """Start runs the Run box's element (the server's `element`), which used to stay q3t
+    whatever the scene said: a scene written for q3t_ans ran with Q3T from the page. It
+    follows the scene's shell.element whenever that changes (another scene, a form or TOML
+    edit); a choice made in the Run box stands until then."""
+    _, scenes = served
+    (scenes / "cup_ans.toml").write_text(COARSE.replace('name = "cup"', 'name = "cup_ans"')
+                                         .replace('element = "q3t"', 'element = "q3t_ans"'))
+    try:
+        assert page.input_value("#element") == "q3t"
+        page.reload()
+        page.click("#scenes li[data-name='cup_ans']")
+        page.wait_for_selector("#scenes li.sel[data-name='cup_ans']")
+        page.wait_for_function("document.getElementById('element').value === 'q3t_ans'")
+        page.select_option("#element", "linear")  # the user's choice
+        page.fill("[name='material.nu']", "0.3")  # an edit that leaves the element alone
+        synced(page, "nu = 0.3\n")
+        assert page.input_value("#element") == "linear"
+        page.fill("[name='shell.element']", "quadratic")  # the scene's element changes
+        page.dispatch_event("[name='shell.element']", "change")
+        synced(page, 'element = "quadratic"')
+        page.wait_for_function("document.getElementById('element').value === 'quadratic'")
+        page.click("#scenes li[data-name='cup']")  # another scene: its own element
+        page.wait_for_selector("#scenes li.sel[data-name='cup']")
+        page.wait_for_function("document.getElementById('element').value === 'q3t'")
+    finally:
+        (scenes / "cup_ans.toml").unlink()
