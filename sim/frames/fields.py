@@ -9,7 +9,7 @@ import numpy as np
 
 from sim.elements.base import line_lagrange
 from sim.frames import forming_limits
-from sim.geometry.trimesh import TriMesh, vertex_normals
+from sim.geometry.trimesh import TriMesh, edges, vertex_normals
 from sim.materials.plasticity import net_plastic_strain
 
 if TYPE_CHECKING:  # the scene's validation imports this module: it loads no solver term
@@ -142,25 +142,45 @@ def field_summary(fields: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
             for k, v in fields.items() if not k.endswith("_elem")}
 
 
-def section_vertices(model: Discretised, spec: Ray) -> np.ndarray:
-    """Mid-surface vertices on the section ray, sorted by rest radius ``(m,)``."""
-    V = model.shell.mesh.vertices
+def section_points(model: Discretised, spec: Ray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the section's ray crosses the blank at rest, sorted by rest radius: the vertices
+    within ``width`` of it and the points where it cuts an edge between two others. Returns
+    each point's two vertices ``(m, 2)`` and its weight on the second ``(m,)`` (0 at a
+    vertex). A value there is linear along the edge, as the mid-surface is on a triangle's
+    edge: a mesh with vertices on the ray (a disk's spoke) gives its vertices, any other mesh
+    (an outline's, a user's) a section as well."""
+    V = model.shell.mesh.vertices[:, :2]
     d = np.asarray(spec.direction, float)
     d /= np.linalg.norm(d)
-    along = V[:, :2] @ d
-    across = np.abs(V[:, 0] * d[1] - V[:, 1] * d[0])
-    idx = np.flatnonzero((along >= -1e-12) & (across <= spec.width))
-    if len(idx) < 2:
-        raise ValueError(f"sections.{spec.name}: fewer than two vertices on the ray")
-    return idx[np.argsort(along[idx])]
+    side = V[:, 0] * d[1] - V[:, 1] * d[0]  # signed distance from the ray's line
+    side[np.abs(side) <= spec.width] = 0.0
+    E, _ = edges(model.shell.mesh.faces)
+    sa, sb = side[E[:, 0]], side[E[:, 1]]
+    cut = np.flatnonzero(sa * sb < 0)  # an end on the line is a vertex point, not a cut
+    on = np.flatnonzero(side == 0)
+    pairs = np.concatenate([np.column_stack([on, on]), E[cut]])
+    t = np.concatenate([np.zeros(len(on)), sa[cut] / (sa[cut] - sb[cut])])
+    along = ((1 - t)[:, None] * V[pairs[:, 0]] + t[:, None] * V[pairs[:, 1]]) @ d
+    keep = along >= -1e-12  # the ray, not the line's other half
+    if keep.sum() < 2:
+        raise ValueError(f"sections.{spec.name}: the ray crosses the blank at fewer than two "
+                         "points")
+    order = np.flatnonzero(keep)[np.argsort(along[keep], kind="stable")]
+    return pairs[order], t[order]
 
 
-def section(model: Discretised, x: np.ndarray, idx: np.ndarray) -> dict[str, list[float]]:
-    """Rest radius, current radius (from the z axis) and thickness along a section (m): at the
-    vertices ``idx (m,)`` of :func:`section_vertices`, state ``x (n, 3)``."""
-    mid = mid_surface(model, x)[idx]
-    rest = model.shell.mesh.vertices[idx]
+def section(model: Discretised, x: np.ndarray,
+            points: tuple[np.ndarray, np.ndarray]) -> dict[str, list[float]]:
+    """Rest radius, current radius (from the z axis), height and thickness along a section
+    (m): at the ``points`` of :func:`section_points`, state ``x (n, 3)``."""
+    pairs, t = points
+
+    def at(f: np.ndarray) -> np.ndarray:
+        w = t.reshape(-1, *([1] * (f.ndim - 1)))
+        return (1 - w) * f[pairs[:, 0]] + w * f[pairs[:, 1]]
+
+    mid, rest = at(mid_surface(model, x)), at(model.shell.mesh.vertices)
     return {"rest_radius": np.hypot(rest[:, 0], rest[:, 1]).tolist(),
             "radius": np.hypot(mid[:, 0], mid[:, 1]).tolist(),
             "z": mid[:, 2].tolist(),
-            "thickness": thickness(model, x)[idx].tolist()}
+            "thickness": at(thickness(model, x)).tolist()}

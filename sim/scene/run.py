@@ -147,13 +147,14 @@ class StudySpec(Strict):
 
 
 class SectionSpec(Strict):
-    """A radial section: the mid-surface vertices within ``width`` of the ray from the origin
-    along ``direction`` (rest state), sorted by rest radius; their current radius and
-    thickness are recorded at every step listed (all steps when empty)."""
+    """A radial section: where the ray from the origin along ``direction`` crosses the blank at
+    rest (its vertices within ``width`` of the ray, and the points where it cuts an edge, values
+    linear along the edge), sorted by rest radius; their current radius and thickness are
+    recorded at every step listed (all steps when empty)."""
 
     name: str = doc("the section's name (plots, studies)")
     direction: Direction2 = doc("the ray's (x, y) direction (any length)", "1", (1.0, 0.0))
-    width: Length = doc("how far from the ray a vertex may be", "m", 1e-4)
+    width: Length = doc("how far from the ray a vertex may be and count as on it", "m", 1e-4)
     steps: list[Annotated[int, Field(ge=0)]] = doc("the steps recorded; empty: every step",
                                                    "1", [])
 

@@ -96,7 +96,7 @@ class Simulation:
         # prescribed motion drives the run) met at a converged state; the floor of Newton's
         # reference in later steps (a slow sub-step's own forces can be tiny)
         self._force_level = 0.0
-        self._sections = {sp.name: fields.section_vertices(self.model, sp)
+        self._sections = {sp.name: fields.section_points(self.model, sp)
                           for sp in self.model.scene.sections}
         self.sections: dict[str, list[dict]] = {name: [] for name in self._sections}
         self._last_dt = 1.0

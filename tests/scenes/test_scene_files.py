@@ -27,7 +27,6 @@ DIFFERENCES = {
         "mesh.kind": "the unstructured blank is the point", "mesh.points": "its outline",
         "mesh.r_outer": "a disk's field", "shell.element": "issue 17's element",
         "probes.13": "the lateral force probed (x)", "probes.14": "and (y)",
-        "sections": "no vertex of an unstructured mesh need lie on the +x ray",
     },
 }
 

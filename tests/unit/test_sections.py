@@ -1,0 +1,75 @@
+"""Radial sections (sim.frames.fields.section_points / section): where the ray crosses the blank.
+On the structured disk, whose spoke along +x is a line of vertices, they are those vertices;
+on an unstructured blank (an outline's, a user's), which has almost none on any ray, the
+points where the ray cuts the edges, values linear along each edge."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from sim.frames import fields
+from sim.scene.load import load_scene, scene_from_toml
+from sim.stepping.simulation import Simulation
+from tests.support import ROOT
+
+# the outline cup has no section of its own (it had none before sections cut edges)
+RAYS = "".join(f'\n[[sections]]\nname = "{n}"\ndirection = {d}\nsteps = [0]\n'
+               for n, d in (("x", "[1.0, 0.0]"), ("diagonal", "[1.0, 1.0]")))
+
+
+def model(name: str, edge: float, extra: str = ""):
+    text = (ROOT / "scenes" / f"{name}.toml").read_text() + extra
+    sc = scene_from_toml(text, {"mesh.edge_length": edge, "stepping.steps": 1}, ROOT / "scenes")
+    return Simulation.from_scene(sc).model
+
+
+def test_on_the_disk_the_section_is_its_spokes_vertices():
+    m = model("cup_drawing", 0.006)
+    spec = load_scene(ROOT / "scenes" / "cup_drawing.toml").sections[0]
+    pairs, t = fields.section_points(m, spec)
+    V = m.shell.mesh.vertices
+    on = np.flatnonzero((np.abs(V[:, 1]) <= spec.width) & (V[:, 0] >= 0))
+    assert np.all(t == 0) and np.array_equal(pairs[:, 0], pairs[:, 1])
+    assert np.array_equal(pairs[:, 0], on[np.argsort(V[on, 0])])
+
+
+@pytest.mark.parametrize("which", ["x", "diagonal"])
+def test_on_an_unstructured_blank_the_section_runs_from_the_centre_to_the_edge(which):
+    m = model("cup_drawing_outline", 0.004, RAYS)
+    spec = next(s for s in m.scene.sections if s.name == which)
+    d = np.asarray(spec.direction) / np.linalg.norm(spec.direction)
+    pairs, t = fields.section_points(m, spec)
+    V = m.shell.mesh.vertices[:, :2]
+    P = (1 - t)[:, None] * V[pairs[:, 0]] + t[:, None] * V[pairs[:, 1]]
+    # on the ray: a cut exactly (round-off of the edge's parameter), a vertex within width
+    assert np.all(np.abs(P[:, 0] * d[1] - P[:, 1] * d[0]) <= spec.width)
+    r = P @ d
+    # from the centre (a vertex of the mesh within one edge of it) to the outline, with no
+    # gap wider than an edge of the 4 mm mesh (a cut on every triangle the ray crosses)
+    assert r[0] < 0.004 and r[-1] == pytest.approx(0.03, abs=1e-4)
+    assert np.all(np.diff(r) > 0) and np.diff(r).max() < 0.004 * 1.5
+    assert len(r) > 0.03 / 0.004
+
+
+def test_values_are_linear_along_the_cut_edges():
+    """A uniform stretch by 1.1 about the origin: every point's radius and thickness grow by
+    exactly 1.1, interpolated or not (linear fields are what the interpolation is exact for)."""
+    m = model("cup_drawing_outline", 0.004, RAYS)
+    sim_x = m.x0
+    for spec in m.scene.sections:
+        pts = fields.section_points(m, spec)
+        rest, stretched = fields.section(m, sim_x, pts), fields.section(m, 1.1 * sim_x, pts)
+        assert np.allclose(rest["radius"], rest["rest_radius"], rtol=0, atol=1e-12)
+        assert np.allclose(rest["thickness"], 0.001, rtol=1e-12)
+        assert np.allclose(stretched["radius"], 1.1 * np.array(rest["rest_radius"]), rtol=1e-12)
+        assert np.allclose(stretched["thickness"], 0.0011, rtol=1e-12)
+
+
+def test_a_ray_that_misses_the_blank_is_named():
+    """A blank that does not reach the origin's ray (a triangle beside it) has no section."""
+    mesh = SimpleNamespace(vertices=np.array([[0.01, 0.01, 0], [0.02, 0.01, 0], [0.01, 0.02, 0]]),
+                           faces=np.array([[0, 1, 2]]))
+    spec = SimpleNamespace(name="axis", direction=(1.0, 0.0), width=1e-4)
+    with pytest.raises(ValueError, match="sections.axis: the ray crosses the blank at fewer"):
+        fields.section_points(SimpleNamespace(shell=SimpleNamespace(mesh=mesh)), spec)
