@@ -317,9 +317,10 @@ def _lateral_punch_force(view: View) -> list[dict]:
                     ("holder_on_stop", "with the blank holder on its stop", split)):
                 j = int(np.flatnonzero(part)[np.argmax(side[part])])
                 out.append(entry(f"peak_lateral_punch_force_{name}",
-                                 f"Peak lateral punch force {label}", side[j], "N", at(j),
-                                 tool=tool, note=f"{note}; the holder came down on its stop "
-                                                 f"(distance blocks) at step {rests}"))
+                                 f"Peak lateral punch force {label}", side[j], "N",
+                                 at(j) | {"holder_on_stop_from_step": int(rests)}, tool=tool,
+                                 note=f"{note}; the holder came down on its stop (distance "
+                                      f"blocks) at step {rests}"))
     return out
 
 
@@ -473,7 +474,7 @@ def _volume_change(view: View) -> list[dict]:
 def _shown(m: dict) -> str:
     v, unit = m["display"]["value"], m["display"]["unit"]
     text = f"({', '.join(f'{c:.4g}' for c in v)})" if isinstance(v, list) else f"{v:.4g}"
-    return f"{text} {unit}"
+    return f"{text} {unit}".rstrip()  # a count has no unit
 
 
 def _where(at: dict) -> str:

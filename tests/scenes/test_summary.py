@@ -505,6 +505,7 @@ def test_cup_summary_is_plausible_at_a_coarse_mesh(tmp_path):
                        ("peak_lateral_punch_force_holder_on_stop", on_stop)):
         assert s[name]["value"] == pytest.approx(max(part), rel=1e-12)
         assert s[name]["at"]["step"] == res["steps"][side.index(max(part))]["step"]
+    assert s["peak_lateral_punch_force_holding"]["at"]["holder_on_stop_from_step"] == rests
     assert s["lateral_punch_force_share"]["value"] == pytest.approx(max(side) / max(fz))
     assert s["lateral_punch_steps"]["value"] == sum(f > 0.02 * max(fz) for f in side)
     assert s["peak_punch_force"]["value"] == pytest.approx(max(fz), rel=1e-12)
