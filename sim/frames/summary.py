@@ -17,11 +17,11 @@ when there is one; loaded: the end of the stroke):
   punch's motion, -(F . d), F the force the sheet exerts on the punch and d the unit direction
   of its largest excursion from where it started; the stroke (its travel along d) where it
   peaks; final: at the last step of the stroke. A punch that never moves: |F|.
-- ``peak_lateral_punch_force``, ``lateral_punch_force_share``, ``lateral_punch_steps`` (per
-  moving punch; ``tool``): the side thrust on the punch (an off-centre load on the press),
-  |F - (F . d) d|, its peak over the stroke with its step, stroke and angle about the punch
-  axis; that peak as a share of the run's peak punch force; how many steps it exceeds
-  ``LATERAL_SHARE`` of that peak. Where a blank holder came down on its stop (distance
+- ``peak_lateral_punch_force``, ``lateral_punch_force_share`` (per moving punch; ``tool``):
+  the side thrust on the punch (an off-centre load on the press), |F - (F . d) d|, its peak
+  over the stroke with its step, stroke and angle about the punch axis; that peak as a share
+  of the run's peak punch force, with (in ``at``) how many steps exceed ``LATERAL_SHARE`` of
+  that peak, the first and the last. Where a blank holder came down on its stop (distance
   blocks) during the stroke, also the peak before that step (``..._holding``) and from it on
   (``..._holder_on_stop``), each with its share in ``at``: a cup's flange is held, then free.
 - ``min_thickness``, ``max_thinning``, ``max_thickening``: over the mid-surface vertices
@@ -301,15 +301,13 @@ def _lateral_punch_force(view: View) -> list[dict]:
                       at(k), tool=tool, note=note),
                 entry("lateral_punch_force_share",
                       "Peak lateral punch force / peak punch force", side[k] / peak, "1",
-                      {"step": int(steps[k]), "stroke": measure(h["stroke"][k], "m")},
-                      tool=tool, note="peak lateral punch force over the peak punch force of "
-                                      "the same run"),
-                entry("lateral_punch_steps",
-                      f"Steps with a lateral punch force over {100 * LATERAL_SHARE:g} % of "
-                      "the peak punch force", len(over), "",
-                      {"first_step": int(over[0]), "last_step": int(over[-1])}
-                      if len(over) else {}, tool=tool,
-                      note=f"of the stroke's {len(steps)} steps")]
+                      {"step": int(steps[k]), "stroke": measure(h["stroke"][k], "m"),
+                       f"steps_over_{100 * LATERAL_SHARE:g}_percent": len(over),
+                       **({"first_step_over": int(over[0]), "last_step_over": int(over[-1])}
+                          if len(over) else {})},
+                      tool=tool, note=f"peak lateral punch force over the peak punch force of "
+                                      f"the same run; the steps (of {len(steps)}) whose lateral "
+                                      f"force is over {100 * LATERAL_SHARE:g} % of that peak")]
         split = steps >= rests if rests is not None else np.zeros(len(steps), bool)
         if split.any() and not split.all():
             for name, label, part in (
@@ -474,7 +472,7 @@ def _volume_change(view: View) -> list[dict]:
 def _shown(m: dict) -> str:
     v, unit = m["display"]["value"], m["display"]["unit"]
     text = f"({', '.join(f'{c:.4g}' for c in v)})" if isinstance(v, list) else f"{v:.4g}"
-    return f"{text} {unit}".rstrip()  # a count has no unit
+    return f"{text} {unit}"
 
 
 def _where(at: dict) -> str:
