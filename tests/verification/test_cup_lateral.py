@@ -43,4 +43,6 @@ def test_outline_blank_pushes_the_punch_sideways_by_under_2_percent_while_the_ho
     after = s["peak_lateral_punch_force_holder_on_stop"]
     assert after["value"] == pytest.approx(lateral[steps >= rests].max(), rel=1e-12)
     assert after["at"]["step"] >= rests > holding["at"]["step"]
-    assert s["lateral_punch_steps"]["value"] == int((lateral > 0.02 * peak).sum())
+    over = lateral > 0.02 * peak
+    at = s["lateral_punch_force_share"]["at"]
+    assert at["steps_over_2_percent"] == over.sum() and at["first_step_over"] == steps[over][0]
