@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 from sim.apps import case_table
 from sim.apps.common import BAD_INPUT, FAILED, OK, load, parse_sets
 from sim.apps.progress import Progress, summary_text
+from sim.frames import summary
 from sim.stamp import Stamp, add_results_option, write_results
 
 if TYPE_CHECKING:
@@ -74,13 +75,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def results_body(res: dict, overrides: dict, sim: Simulation) -> str:
-    """``--results``: the run's quantities (sim.apps.case_table), each probe over the steps
-    and the sections' thickness at their steps."""
+    """``--results``: the run's quantities (sim.apps.case_table), the summary's with where and
+    when (step, stroke, share of the peak), each probe over the steps and the sections'
+    thickness at their steps."""
     units = case_table.probe_units(sim.model.scene)
     row = case_table.row_of_result(res, overrides, sim.stroke_steps)
     keys = list(overrides)
     return "\n".join([
         "## The run", "", case_table.table([row], keys, units),
+        "## Where and when", "", summary.table(res["summary"]), "",
         "## Probes over the run", "", case_table.history_table(res, units),
         case_table.sections_table(res)])
 

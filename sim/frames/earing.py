@@ -42,19 +42,26 @@ class Rim:
         return float((self.height.max() - self.height.min()) / self.height.mean())
 
 
+def angle_about(direction: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Angle (rad, in [0, 2 pi)) of each vector ``p (..., 3)`` about the punch axis along unit
+    ``direction``: from the x axis (the y axis for a punch along x), counter-clockwise seen
+    against the punch's motion."""
+    d = direction
+    e1 = np.array([1.0, 0.0, 0.0]) - d[0] * d
+    if np.linalg.norm(e1) < 1e-6:  # a punch along x: angles from y
+        e1 = np.array([0.0, 1.0, 0.0]) - d[1] * d
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(-d, e1)
+    return np.arctan2(p @ e2, p @ e1) % (2 * np.pi)
+
+
 def rim(rest: np.ndarray, cur: np.ndarray, edge_vertices: np.ndarray, direction: np.ndarray,
         axis_point: np.ndarray) -> Rim:
     """The rim of edge vertices ``edge_vertices`` of the mid-surface, rest ``(n, 3)`` and
     current ``cur (n, 3)``; the punch moves along unit ``direction`` on the axis through
     ``axis_point``. Heights along -direction, from the lowest mid-surface point."""
     d = direction / np.linalg.norm(direction)
-    e1 = np.array([1.0, 0.0, 0.0]) - d[0] * d
-    if np.linalg.norm(e1) < 1e-6:  # a punch along x: angles from y
-        e1 = np.array([0.0, 1.0, 0.0]) - d[1] * d
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(-d, e1)  # angles counter-clockwise seen against the punch's motion
-    p = rest[edge_vertices] - axis_point
-    angle = np.arctan2(p @ e2, p @ e1) % (2 * np.pi)
+    angle = angle_about(d, rest[edge_vertices] - axis_point)
     along = cur @ d
     height = along.max() - along[edge_vertices]
     order = np.argsort(angle)

@@ -14,18 +14,21 @@ if TYPE_CHECKING:
 
 def punch_history(rows: list[tuple[int, dict]], start: np.ndarray) -> dict:
     """A punch's history from its step reports ``rows`` [(step, {fx, fy, fz, x, y, z})] and
-    its start translation: ``steps``, ``force`` resisting its motion (N) and ``stroke`` (m) at
+    its start translation: ``steps``, ``force`` resisting its motion (N), ``stroke`` (m) and
+    ``lateral`` (N, (k, 3)), the force's part perpendicular to the stroke (side thrust), at
     each, and ``direction``, the unit direction of its largest excursion from the start. A
-    punch that never moves: the force's size, no stroke or direction. Shapes: (k,)."""
+    punch that never moves: the force's size, no stroke, lateral force or direction. Shapes:
+    (k,) but ``lateral``."""
     steps = np.array([s for s, _ in rows], int)
     F = np.array([[r["fx"], r["fy"], r["fz"]] for _, r in rows], float).reshape(-1, 3)
     T = np.array([[r["x"], r["y"], r["z"]] for _, r in rows], float).reshape(-1, 3) - start
     reach = np.linalg.norm(T, axis=1)
     if not len(rows) or reach.max() == 0.0:
         return {"steps": steps, "force": np.linalg.norm(F, axis=1), "stroke": None,
-                "direction": None}
+                "lateral": None, "direction": None}
     d = T[int(np.argmax(reach))] / reach.max()
-    return {"steps": steps, "force": -F @ d, "stroke": T @ d, "direction": d}
+    return {"steps": steps, "force": -F @ d, "stroke": T @ d,
+            "lateral": F - np.outer(F @ d, d), "direction": d}
 
 
 def plotted(scene: Scene, starts: dict[str, np.ndarray]) -> dict:

@@ -17,6 +17,13 @@ when there is one; loaded: the end of the stroke):
   punch's motion, -(F . d), F the force the sheet exerts on the punch and d the unit direction
   of its largest excursion from where it started; the stroke (its travel along d) where it
   peaks; final: at the last step of the stroke. A punch that never moves: |F|.
+- ``peak_lateral_punch_force``, ``lateral_punch_force_share`` (per moving punch; ``tool``):
+  the side thrust on the punch (an off-centre load on the press), |F - (F . d) d|, its peak
+  over the stroke with its step, stroke and angle about the punch axis; that peak as a share
+  of the run's peak punch force, with (in ``at``) how many steps exceed ``LATERAL_SHARE`` of
+  that peak, the first and the last. Where a blank holder came down on its stop (distance
+  blocks) during the stroke, also the peak before that step (``..._holding``) and from it on
+  (``..._holder_on_stop``), each with its share in ``at``: a cup's flange is held, then free.
 - ``min_thickness``, ``max_thinning``, ``max_thickening``: over the mid-surface vertices
   (thickness: the fibre length between the skins), final state.
 - ``max_draw_in``, ``min_draw_in`` (a flat blank's outer edge): sim.frames.blank.draw_in,
@@ -73,6 +80,12 @@ FLAT = 0.5
 RESTS = 0.05
 # punches moving along one direction: their directions within a degree of each other
 PARALLEL = np.cos(np.radians(1.0))
+# side thrust counted against the run's peak punch force: issue 17's bar for an axisymmetric
+# cup, whose exact answer is no side thrust at all
+LATERAL_SHARE = 0.02
+# a force-controlled tool is on its stop within this many sheet thicknesses of it: the stop's
+# spring lets it in by F / k_stop, far less; a holder still pressing the flange is well above
+ON_STOP = 1e-3
 
 
 def entry(name: str, label: str, value: float, unit: str, at: dict | None = None,
@@ -252,6 +265,60 @@ def _punch_force(view: View) -> list[dict]:
             if stroke is not None:
                 at["stroke"] = measure(stroke[k], "m")
             out.append(entry(name, label, force[k], "N", at, tool=tool))
+    return out
+
+
+def holder_on_stop(view: View) -> int | None:
+    """The first step of the stroke at which a blank holder rests on its stop (its offset,
+    the travel from its start along z, at the stop), None when none came down on one."""
+    tol = ON_STOP * float(view.model.shell.thickness.min())
+    steps = [r.step for t in tools_of(view.model, "blank_holder") if t.stop is not None
+             for r in view.stroke if t.tool in r.tools
+             and r.tools[t.tool]["z"] - view.summary.starts[t.tool][2] <= t.stop + tol]
+    return min(steps, default=None)
+
+
+@quantity("lateral_punch_force", needs=("punch",))
+def _lateral_punch_force(view: View) -> list[dict]:
+    out, rests = [], holder_on_stop(view)
+    for tool, h in punches(view).items():
+        peak = float(h["force"].max())
+        if h["lateral"] is None or peak <= 0.0:  # no stroke, or a punch never pressed
+            continue
+        steps, side = h["steps"], np.linalg.norm(h["lateral"], axis=1)
+
+        def at(k: int, h: dict = h, side: np.ndarray = side, peak: float = peak) -> dict:
+            return {"step": int(h["steps"][k]), "stroke": measure(h["stroke"][k], "m"),
+                    "angle": measure(np.degrees(earing.angle_about(h["direction"],
+                                                                   h["lateral"][k])), "deg"),
+                    "share_of_peak": measure(side[k] / peak, "1")}
+
+        k = int(np.argmax(side))
+        over = steps[side > LATERAL_SHARE * peak]
+        note = ("the punch's force perpendicular to its stroke (side thrust), the angle about "
+                "the punch axis from the x axis; share: of the run's peak punch force")
+        out += [entry("peak_lateral_punch_force", "Peak lateral punch force", side[k], "N",
+                      at(k), tool=tool, note=note),
+                entry("lateral_punch_force_share",
+                      "Peak lateral punch force / peak punch force", side[k] / peak, "1",
+                      {"step": int(steps[k]), "stroke": measure(h["stroke"][k], "m"),
+                       f"steps_over_{100 * LATERAL_SHARE:g}_percent": len(over),
+                       **({"first_step_over": int(over[0]), "last_step_over": int(over[-1])}
+                          if len(over) else {})},
+                      tool=tool, note=f"peak lateral punch force over the peak punch force of "
+                                      f"the same run; the steps (of {len(steps)}) whose lateral "
+                                      f"force is over {100 * LATERAL_SHARE:g} % of that peak")]
+        split = steps >= rests if rests is not None else np.zeros(len(steps), bool)
+        if split.any() and not split.all():
+            for name, label, part in (
+                    ("holding", "while the blank holder holds", ~split),
+                    ("holder_on_stop", "with the blank holder on its stop", split)):
+                j = int(np.flatnonzero(part)[np.argmax(side[part])])
+                out.append(entry(f"peak_lateral_punch_force_{name}",
+                                 f"Peak lateral punch force {label}", side[j], "N",
+                                 at(j) | {"holder_on_stop_from_step": int(rests)}, tool=tool,
+                                 note=f"{note}; the holder came down on its stop (distance "
+                                      f"blocks) at step {rests}"))
     return out
 
 

@@ -6,6 +6,7 @@ stamped with the command, commit, date, CPU, load and software: each generator o
 import re
 import shlex
 import subprocess
+from importlib.metadata import version
 
 import pytest
 
@@ -149,6 +150,8 @@ def test_the_stamp_names_the_machine_and_the_code():
         "q3t study 'my scene' --results r.md"
     assert f["cpu"] and f["cpu"] != "unknown"
     assert f["commit"] != "unknown"  # the tests run in the project's checkout
+    # gmsh's version decides the outline blank's mesh (its Frontal-Delaunay lattice)
+    assert f"gmsh {version('gmsh')}" in f["software"].split(", ")
 
 
 def _git(cwd, *args):
