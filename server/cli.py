@@ -166,7 +166,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
     bench.add_parser(sub)
     s = sub.add_parser("serve", help="start the browser preview service")
-    s.add_argument("scene", nargs="?", default="cup_drawing",
+    s.add_argument("scene", nargs="?", default=Settings.default_scene,
                    help="default scene name (selected first on the page)")
     s.add_argument("--host", default="127.0.0.1")
     s.add_argument("--port", type=int, default=8080)

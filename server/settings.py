@@ -97,7 +97,9 @@ class Settings:
     # frames kept for scrubbing of each of the latest runs (one per solver); then every k-th
     history_frames: int = 400
     history_bytes: int = 256 * 2**20  # and at most this many bytes of them in all (server)
-    default_scene: str = "cup_drawing"  # the scene the page selects first
+    # the scene the page selects first: the cup whose 2 mm answer is nearest the converged one
+    # (docs/service.md, "The first scene")
+    default_scene: str = "cup_drawing_outline"
     # a run whose model would need more memory to build is refused (sim.model.size: the estimate and
     # why the default is half of this 24 GiB machine)
     max_model_bytes: float = DEFAULT_LIMIT
