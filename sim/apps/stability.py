@@ -198,10 +198,13 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     each converged step the lowest ``k`` eigenvalues of its stiffness and how far the
     mid-surface left its plane.
 
-    ``kick`` (m, 0: never): the first time the lowest eigenvalue is negative and its mode
-    mostly out of plane, add the lowest mode scaled so that its largest mid-surface z is
-    ``kick`` to the state, so the next step starts off the unstable fundamental path. The kick
-    is small against the wrinkle (a tenth of the thickness or less) and is made once.
+    ``kick`` (m, 0: never): each time a converged state's lowest eigenvalue is negative and
+    its mode mostly out of plane, add the lowest mode, scaled so that its largest mid-surface
+    z is ``kick`` (up: the eigensolver's sign is arbitrary), to the state, so the next step
+    starts off the unstable equilibrium: the first time off the flat (fundamental) path,
+    later off a wrinkled state that is itself unstable (a secondary bifurcation), which
+    Newton's iterates would otherwise leave or not as round-off has it. The kick is small
+    against the wrinkle (a tenth of the thickness or less).
 
     Until the kick the path is the flat (fundamental) one, and a step that ends with a
     negative eigenvalue of an out-of-plane mode, or off the plane (``FLAT``), is retaken in
@@ -226,9 +229,9 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     while True:
         # only a mode out of the plane is a wrinkle to push along (an in-plane one, a neck or
         # an edge mode, has no z to scale the kick by)
-        if kick and not kicked and point.eigenvalues[0] < 0 and point.out_of_plane > 0.5:
+        if kick and point.eigenvalues[0] < 0 and point.out_of_plane > 0.5:
             zmode = mid_surface(sim.model, mode)[:, 2]
-            sim.x = sim.x + mode * (kick / np.abs(zmode).max())
+            sim.x = sim.x + mode * (kick / zmode[np.argmax(np.abs(zmode))])
             kicked = point.kicked = True
         yield point
         if sim.done:

@@ -236,3 +236,9 @@ def test_bifurcation_command_writes_a_stamped_table(tmp_path, capsys):
     plain.write_text(STRIP.replace("displacement = [-6.0e-5, 0.0, 0.0]", ""))
     assert main(["bifurcation", str(plain)]) == 2
     assert "bifurcation follows a pulled end" in capsys.readouterr().err
+    # a kick retakes steps from a saved state: not where plastic flow remembers the path
+    plastic = tmp_path / "plastic.toml"
+    plastic.write_text(STRIP.replace('model = "neo_hookean"', 'model = "plastic"\n'
+                                     'yield_stress = 1.0e9\nhardening = { law = "perfect" }'))
+    assert main(["bifurcation", str(plastic), "--quiet"]) == 2
+    assert "--kick" in capsys.readouterr().err
