@@ -152,7 +152,7 @@ def nominal_strain(sim: Simulation, nodes: np.ndarray, direction: np.ndarray) ->
 # a height range under this many thicknesses is the flat sheet: a flat path's round-off
 # heights are 1e-8 of the thickness (docs/results/fig4-wrinkling.md), the kick a tenth of it
 FLAT = 1e-3
-# before the kick, a step that ends unstable or off the plane is retaken in halves, at most
+# before the first kick, a step that ends unstable or off the plane is retaken in halves, at most
 # this many times: the crossing then lies in a step of 1/8 of a planned one (tool_speed goes
 # down to 0.1 of a planned step, sim.stepping.parameters)
 HALVINGS = 3
@@ -206,7 +206,7 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     Newton's iterates would otherwise leave or not as round-off has it. The kick is small
     against the wrinkle (a tenth of the thickness or less).
 
-    Until the kick the path is the flat (fundamental) one, and a step that ends with a
+    Until the first kick the path is the flat (fundamental) one, and a step that ends with a
     negative eigenvalue of an out-of-plane mode, or off the plane (``FLAT``), is retaken in
     halves from the state before it (``HALVINGS`` times at most; a sim whose state has a
     ``history`` cannot be: ValueError), so the crossing is found on converged flat states and
@@ -215,7 +215,7 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     corrections are mirror-symmetric only to round-off), settle on whichever wrinkled branch
     round-off picked; a short one from a flat stable state stays on the plane. A step of 1/8
     that still leaves the plane ends the path failed (``sim.failure``), not on a branch
-    round-off chose. After the kick the steps realign with the planned ones. Ends early when
+    round-off chose. After it the steps realign with the planned ones. Ends early when
     a step fails (the Simulation's ``failure`` says why)."""
     from sim.stepping.simulation import SolverFailure
 
