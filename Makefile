@@ -180,6 +180,8 @@ results: $(STAMP)
 	  --set mesh.edge_length=0.035 --out runs/fig4 --results $(R)/fig4.md
 	$(BIN)/q3t bifurcation stretch_wrinkling --elements quadratic,q3t,linear --spacing 0.0025 \
 	  --results $(R)/fig4-wrinkling.md
+	$(BIN)/q3t bifurcation stretch_wrinkling --elements q3t_ans --spacing 0.0025 \
+	  --results $(R)/fig4-wrinkling-ans.md
 	$(BIN)/q3t bifurcation stretch_plate --elements quadratic,q3t,linear --spacing 0.0175 \
 	  --set material.nu=0.499 --set 'loads.0.vector=[3e5,0,0]' --set stepping.steps=10 \
 	  --results $(R)/fig4-plate.md

@@ -57,7 +57,7 @@ def follow_scene(scene: Scene, modes: int, kick: float,
                  progress: Callable[[PathPoint], None] | None = None) -> dict:
     """One element's path: ``{"element", "dofs", "edge", "points", "failure", "wall"}``, each
     point a sim.apps.stability.PathPoint; ``kick`` in thicknesses."""
-    from sim.apps.stability import follow
+    from sim.apps.stability import follow, history
     from sim.scene.load import SceneError
     from sim.stepping.simulation import Simulation
 
@@ -66,6 +66,10 @@ def follow_scene(scene: Scene, modes: int, kick: float,
                          f"not {scene.stepping.kind!r}")
     region, direction = pulled_end(scene)
     sim = Simulation.from_scene(scene)
+    if kick and (why := history(sim)):
+        raise SceneError(f"--kick: {kick:g} thicknesses retakes steps from a saved state, "
+                         f"which {scene.name}'s {why} makes path-dependent (--kick 0 follows "
+                         "it without)")
     m = sim.model
     nodes = m.column_nodes(m.regions[region])
     c = sim.result()["counts"]
@@ -186,7 +190,11 @@ def run(args: argparse.Namespace) -> int:
                 "removed), the lowest first; `negative`: how many are below zero; the mode's z "
                 "share: the part of the lowest mode's squared norm out of plane; amplitude: the "
                 f"mid-surface's height range. Kick: {args.kick:g} thickness along the lowest "
-                "mode the first time it is negative (sim.apps.stability.follow).", ""]
+                "mode each time it is negative (sim.apps.stability.follow); until the first, "
+                "a step that ends with a negative eigenvalue or off the plane is retaken in "
+                "halves, down to 1/8 of a step (strains between the planned ones), so the "
+                "crossing is found on flat converged states and the kick, not round-off, "
+                "picks the branch.", ""]
         for r in runs:
             body += [f"## {r['element']}, edge {1e3 * r['edge']:g} mm, {r['dofs']} free DoFs",
                      "", markdown_table(path_rows(r)), ""]
@@ -212,8 +220,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--modes", type=int, default=3, help="eigenvalues per step (default 3)")
     b.add_argument("--kick", type=float, default=0.1, metavar="THICKNESSES",
                    help="push the state this far (mid-surface z, in thicknesses) along the "
-                        "lowest mode the first time it is unstable, so the run leaves the "
-                        "flat path (default %(default)g; 0: never)")
+                        "lowest mode each time it is unstable, so the run leaves the flat "
+                        "path, and an unstable wrinkled one (default %(default)g; 0: never)")
     b.add_argument("--quiet", action="store_true")
     add_results_option(b, "fig4-wrinkling.md")
     b.set_defaults(func=run)

@@ -149,46 +149,120 @@ def nominal_strain(sim: Simulation, nodes: np.ndarray, direction: np.ndarray) ->
     return float(u.mean() / extent)
 
 
+# a height range under this many thicknesses is the flat sheet: a flat path's round-off
+# heights are 1e-8 of the thickness (docs/results/fig4-wrinkling.md), the kick a tenth of it
+FLAT = 1e-3
+# before the first kick, a step that ends unstable or off the plane is retaken in halves, at most
+# this many times: the crossing then lies in a step of 1/8 of a planned one (tool_speed goes
+# down to 0.1 of a planned step, sim.stepping.parameters)
+HALVINGS = 3
+# what a step changes in a Simulation, saved to retake it (``_mark``)
+_STEPPING = ("x", "t", "progress", "_stroked", "step_index", "_last_increment", "_last_dt",
+             "_force_level")
+
+
+def history(sim: Simulation) -> str:
+    """What makes the state depend on the path, not only on the load (plastic flow, tools'
+    contact and friction): a step cannot be retaken there by restoring the state; "" when
+    nothing does."""
+    plastic = any(getattr(t, "plastic", False) for t in sim.model.terms)
+    return "plastic flow" if plastic else "tools" if sim.tools else ""
+
+
+def _mark(sim: Simulation) -> dict:
+    return {k: np.copy(v) if isinstance(v := getattr(sim, k), np.ndarray) else v
+            for k in _STEPPING} | {"records": len(sim.records)}
+
+
+def _back(sim: Simulation, mark: dict) -> None:
+    for k in _STEPPING:
+        setattr(sim, k, mark[k])
+    del sim.records[mark["records"]:]
+
+
+def _observe(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int, step: int,
+             iterations: int) -> tuple[PathPoint, np.ndarray]:
+    """The path point of ``sim``'s state and its lowest mode ``(n_nodes, 3)``."""
+    K, free = free_hessian(sim.model.problem, sim.x)
+    spec = lowest_eigenvalues(K, k)
+    mode = expand(spec.vectors[:, 0], free, sim.x.shape)
+    zshare = float(np.sum(mode[:, 2] ** 2) / np.sum(mode**2))
+    z = mid_surface(sim.model, sim.x)[:, 2]
+    return PathPoint(step, sim.t, nominal_strain(sim, nodes, direction), spec.values.tolist(),
+                     spec.negative, zshare, float(z.max() - z.min()), iterations), mode
+
+
 def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3,
            kick: float = 0.0) -> Iterator[PathPoint]:
     """Step ``sim`` (a static Simulation) to its end, yielding at its start (step 0) and after
     each converged step the lowest ``k`` eigenvalues of its stiffness and how far the
     mid-surface left its plane.
 
-    ``kick`` (m, 0: never): the first time the lowest eigenvalue is negative and its mode
-    mostly out of plane, add the lowest
-    mode scaled so that its largest mid-surface z is ``kick`` to the state, so the next step
-    starts off the unstable fundamental path. The kick is small against the wrinkle (a tenth
-    of the thickness or less) and is made once. Ends early when a step fails (the Simulation's
-    ``failure`` says why)."""
+    ``kick`` (m, 0: never): each time a converged state's lowest eigenvalue is negative and
+    its mode mostly out of plane, add the lowest mode, scaled so that its largest mid-surface
+    z is ``kick`` (up: the eigensolver's sign is arbitrary), to the state, so the next step
+    starts off the unstable equilibrium: the first time off the flat (fundamental) path,
+    later off a wrinkled state that is itself unstable (a secondary bifurcation), which
+    Newton's iterates would otherwise leave or not as round-off has it. The kick is small
+    against the wrinkle (a tenth of the thickness or less).
+
+    Until the first kick the path is the flat (fundamental) one, and a step that ends with a
+    negative eigenvalue of an out-of-plane mode, or off the plane (``FLAT``), is retaken in
+    halves from the state before it (``HALVINGS`` times at most; a sim whose state has a
+    ``history`` cannot be: ValueError), so the crossing is found on converged flat states and
+    the kick made at most 1/8 of a step past it. A long step across the crossing lets
+    Newton's iterates, which leave the plane far from equilibrium (the projected Hessian's
+    corrections are mirror-symmetric only to round-off), settle on whichever wrinkled branch
+    round-off picked; a short one from a flat stable state stays on the plane. A step of 1/8
+    that still leaves the plane ends the path failed (``sim.failure``), not on a branch
+    round-off chose. After it the steps realign with the planned ones. Ends early when
+    a step fails (the Simulation's ``failure`` says why)."""
     from sim.stepping.simulation import SolverFailure
 
-    kicked = False
+    if kick and (why := history(sim)):
+        raise ValueError(f"a kick retakes steps from a saved state, which {why} makes "
+                         "path-dependent")
     direction = np.asarray(direction, float) / np.linalg.norm(direction)
-    step, rec = 0, None
+    thickness = float(np.mean(sim.model.shell.thickness))
+    kicked, length = False, 1.0  # the step's length in planned steps
+    point, mode = _observe(sim, nodes, direction, k, 0, 0)
     while True:
-        K, free = free_hessian(sim.model.problem, sim.x)
-        spec = lowest_eigenvalues(K, k)
-        mode = expand(spec.vectors[:, 0], free, sim.x.shape)
-        zshare = float(np.sum(mode[:, 2] ** 2) / np.sum(mode**2))
-        z = mid_surface(sim.model, sim.x)[:, 2]
-        point = PathPoint(step, sim.t, nominal_strain(sim, nodes, direction),
-                          spec.values.tolist(), spec.negative, zshare,
-                          float(z.max() - z.min()), rec.iterations if rec else 0)
         # only a mode out of the plane is a wrinkle to push along (an in-plane one, a neck or
         # an edge mode, has no z to scale the kick by)
-        if kick and not kicked and spec.values[0] < 0 and zshare > 0.5:
+        if kick and point.eigenvalues[0] < 0 and point.out_of_plane > 0.5:
             zmode = mid_surface(sim.model, mode)[:, 2]
-            sim.x = sim.x + mode * (kick / np.abs(zmode).max())
+            sim.x = sim.x + mode * (kick / zmode[np.argmax(np.abs(zmode))])
             kicked = point.kicked = True
         yield point
         if sim.done:
             return
-        try:
-            rec = sim.step()
-        except SolverFailure:
-            return
-        step = rec.step
+        flat_path = bool(kick) and not kicked
+        # the rest of the planned step (after halved ones), else a whole one
+        rest = float(np.ceil(sim.progress - 1e-9) - sim.progress)
+        rest = rest if rest > 1e-9 else 1.0
+        length = min(length, rest) if flat_path and rest < 1.0 else rest
+        while True:
+            mark = _mark(sim) if flat_path else None
+            if sim.parameters["tool_speed"] != length:
+                sim.set_parameter("tool_speed", length)
+            try:
+                rec = sim.step()
+            except SolverFailure:
+                return
+            point, mode = _observe(sim, nodes, direction, k, rec.step, rec.iterations)
+            left_plane = point.amplitude > FLAT * thickness
+            wrinkles = point.eigenvalues[0] < 0 and point.out_of_plane > 0.5  # to kick along
+            if not (flat_path and (wrinkles or left_plane)):
+                break
+            if length <= 2.0**-HALVINGS:
+                if left_plane:
+                    sim.end(f"the flat sheet left its plane ({point.amplitude:.3g} m) without "
+                            f"a kick in a step of {length:g} planned step: round-off chose "
+                            "the branch", stopped=False)
+                    return
+                break
+            _back(sim, mark)
+            length /= 2
 
 
 def bracket(points: list[PathPoint]) -> tuple[PathPoint, PathPoint] | None:

@@ -124,6 +124,40 @@ def test_euler_buckling_of_a_strip_clamped_at_both_ends():
     assert points[-1].out_of_plane > 0.99
 
 
+def test_kick_is_made_on_a_flat_state_at_most_an_eighth_of_a_step_past_the_crossing():
+    """With a kick, the step across the crossing (planned: 3e-4 to 4e-4, the Euler strain
+    3.29e-4 between) is retaken in halves from the flat stable state before it, so the kick
+    is made on a flat state with a negative eigenvalue, at most 1/8 of a step (1.25e-5 of
+    strain) past the last stable one, and not by round-off; the steps then realign with the
+    planned ones, and the kicked strip buckles onto its stable branch."""
+    from sim.apps.stability import FLAT, HALVINGS
+
+    scene = scene_from_toml(STRIP)
+    sim = Simulation.from_scene(scene)
+    m = sim.model
+    t = float(np.mean(m.shell.thickness))
+    nodes = m.column_nodes(m.regions["pushed_end"])
+    points = list(follow(sim, nodes, [-1.0, 0.0, 0.0], k=2, kick=0.1 * t))
+    assert sim.failure is None
+    kicked = [i for i, p in enumerate(points) if p.kicked]
+    assert len(kicked) == 1
+    before, at = points[kicked[0] - 1], points[kicked[0]]
+    assert before.eigenvalues[0] > 0 > at.eigenvalues[0]
+    step = 1e-4  # planned strain per step (6e-5 m over 0.1 m in 6 steps)
+    assert at.strain - before.strain <= step * 2.0**-HALVINGS * (1 + 1e-9)
+    assert all(p.amplitude < FLAT * t for p in points[: kicked[0] + 1])
+    # every planned strain is on the path, the halved ones in between
+    strains = [round(p.strain / step, 6) for p in points]
+    assert {0, 1, 2, 3, 4, 5, 6} <= set(strains) and strains == sorted(strains)
+    assert all(p.strain == pytest.approx(step * round(p.strain / step))
+               for p in points[kicked[0] + 2:])
+    euler = np.pi**2 / 3 * (0.001 / 0.1) ** 2
+    assert abs(crossing(points) / euler - 1) < 0.02
+    # buckled past the Euler strain (a clamped column at 1.8 times it: about a thickness of
+    # deflection), and stable there
+    assert points[-1].amplitude > 0.5 * t and points[-1].eigenvalues[0] > 0
+
+
 def _sheet_to_4_percent(element: str, edge: float) -> tuple[Simulation, list]:
     """stretch_wrinkling pulled to 4 % in one step, its rest state and that step."""
     scene = load_scene("scenes/stretch_wrinkling.toml", {
@@ -202,3 +236,9 @@ def test_bifurcation_command_writes_a_stamped_table(tmp_path, capsys):
     plain.write_text(STRIP.replace("displacement = [-6.0e-5, 0.0, 0.0]", ""))
     assert main(["bifurcation", str(plain)]) == 2
     assert "bifurcation follows a pulled end" in capsys.readouterr().err
+    # a kick retakes steps from a saved state: not where plastic flow remembers the path
+    plastic = tmp_path / "plastic.toml"
+    plastic.write_text(STRIP.replace('model = "neo_hookean"', 'model = "plastic"\n'
+                                     'yield_stress = 1.0e9\nhardening = { law = "perfect" }'))
+    assert main(["bifurcation", str(plastic), "--quiet"]) == 2
+    assert "--kick" in capsys.readouterr().err
