@@ -94,6 +94,7 @@ function previewScene(name) {
 
 async function selectScene(name) {
   const s = await api("GET", `/api/scenes/${encodeURIComponent(name)}`);
+  if (name !== state.scene) state.sceneElement = null;  // the run's element follows its own
   state.scene = name;
   $("scene-name").value = name;
   $("toml").value = s.toml;
@@ -104,7 +105,6 @@ async function selectScene(name) {
   state.tomlStale = false;
   state.editorChanged = false;
   showSlidersFor();
-  state.sceneElement = null;  // another scene: the run's element follows its own
   if (s.scene) {
     state.form.build(s.scene);
     followElement(s.scene);

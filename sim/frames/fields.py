@@ -148,7 +148,11 @@ def section_points(model: Discretised, spec: Ray) -> tuple[np.ndarray, np.ndarra
     each point's two vertices ``(m, 2)`` and its weight on the second ``(m,)`` (0 at a
     vertex). A value there is linear along the edge, as the mid-surface is on a triangle's
     edge: a mesh with vertices on the ray (a disk's spoke) gives its vertices, any other mesh
-    (an outline's, a user's) a section as well."""
+    (an outline's, a user's) a section as well. Two limits: elements curved in-plane
+    (quadratic, quartic) are read on the chord between the edge's corners, not through its
+    edge nodes; a ray that leaves the blank through a hole or notch and enters it again gives
+    one list, the gap not marked. The section starts at the first vertex or cut past the
+    origin, not at the origin itself."""
     V = model.shell.mesh.vertices[:, :2]
     d = np.asarray(spec.direction, float)
     d /= np.linalg.norm(d)

@@ -67,3 +67,10 @@ def test_the_check_sees_a_shared_value_edited_in_one_file():
     edited = tomllib.loads((SCENES / "cup_drawing_outline.toml").read_text())
     edited["tools"][2]["force"] = 2 * base["tools"][2].get("force", 1.0)
     assert differing(base, edited, DIFFERENCES["cup_drawing_outline"]) == ["tools.2.force"]
+
+
+def test_the_pages_first_scene_is_shipped():
+    """The page selects Settings.default_scene first; a name not in scenes/ would quietly fall
+    back to the list's first scene."""
+    settings = pytest.importorskip("server.settings")
+    assert (SCENES / f"{settings.Settings.default_scene}.toml").is_file()

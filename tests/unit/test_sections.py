@@ -53,17 +53,27 @@ def test_on_an_unstructured_blank_the_section_runs_from_the_centre_to_the_edge(w
 
 
 def test_values_are_linear_along_the_cut_edges():
-    """A uniform stretch by 1.1 about the origin: every point's radius and thickness grow by
-    exactly 1.1, interpolated or not (linear fields are what the interpolation is exact for)."""
+    """Fields linear in x (not radial, so weights that are wrong, swapped or not summing to one
+    fail in section; wrong cut points fail the on-the-ray test above): every node lifted by
+    c x, and the sheet's z scaled by 1 + a x. A cut point's height is then c x and its
+    thickness t0 (1 + a x) at its own x, exactly."""
     m = model("cup_drawing_outline", 0.004, RAYS)
-    sim_x = m.x0
+    x0 = m.x0
+    c, a = 0.3, 5.0
     for spec in m.scene.sections:
-        pts = fields.section_points(m, spec)
-        rest, stretched = fields.section(m, sim_x, pts), fields.section(m, 1.1 * sim_x, pts)
+        pairs, t = pts = fields.section_points(m, spec)
+        V = m.shell.mesh.vertices
+        px = (1 - t) * V[pairs[:, 0], 0] + t * V[pairs[:, 1], 0]
+        assert np.any((t > 0.1) & (t < 0.9))  # cut points, not only vertices
+        lifted = x0.copy()
+        lifted[:, 2] += c * x0[:, 0]
+        scaled = x0.copy()
+        scaled[:, 2] *= 1 + a * x0[:, 0]
+        assert np.allclose(fields.section(m, lifted, pts)["z"], c * px, rtol=0, atol=1e-15)
+        assert np.allclose(fields.section(m, scaled, pts)["thickness"], 0.001 * (1 + a * px),
+                           rtol=1e-12)
+        rest = fields.section(m, x0, pts)
         assert np.allclose(rest["radius"], rest["rest_radius"], rtol=0, atol=1e-12)
-        assert np.allclose(rest["thickness"], 0.001, rtol=1e-12)
-        assert np.allclose(stretched["radius"], 1.1 * np.array(rest["rest_radius"]), rtol=1e-12)
-        assert np.allclose(stretched["thickness"], 0.0011, rtol=1e-12)
 
 
 def test_a_ray_that_misses_the_blank_is_named():
