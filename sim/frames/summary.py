@@ -296,7 +296,8 @@ def _lateral_punch_force(view: View) -> list[dict]:
         k = int(np.argmax(side))
         over = steps[side > LATERAL_SHARE * peak]
         note = ("the punch's force perpendicular to its stroke (side thrust), the angle about "
-                "the punch axis from the x axis; share: of the run's peak punch force")
+                "the punch axis from the x axis (y for a punch along x); share: of the run's "
+                "peak punch force")
         out += [entry("peak_lateral_punch_force", "Peak lateral punch force", side[k], "N",
                       at(k), tool=tool, note=note),
                 entry("lateral_punch_force_share",
