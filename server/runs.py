@@ -75,6 +75,9 @@ class RunManager:
         self.views = Views(self)  # what the page and the viewer show
         self._retired: list[WorkerHandle] = []  # ended by a stop during a build; the bridge closes
         self.restarts = 0
+        # why the last solvers were replaced, newest last: what an operator (or a failing test)
+        # reads when runs do not start, e.g. a Dask cluster whose workers cannot make one
+        self.losses: collections.deque = collections.deque(maxlen=5)
         self.closing = threading.Event()  # the server shuts down: no new solver process
         self.bridge = Bridge(self)
 
@@ -151,7 +154,8 @@ class RunManager:
                 "solvers": solvers, "bridge_alive": bridge, "repairing_recording": b.repairing,
                 "bridge_errors": b.errors, "bridge_error": b.error,
                 "active": [s["run"] for s in solvers if s["run"]], "queued": queued,
-                "queue_limit": self.settings.queue_limit}
+                "queue_limit": self.settings.queue_limit,
+                "solver_losses": list(self.losses), "solver_log": list(self.logs)[-5:]}
 
     def active_runs(self) -> list[str]:
         """The runs on a solver process now."""
@@ -471,6 +475,7 @@ class RunManager:
             run = self.runs.get(slot.run or "")
         note = self.repair(run) if run is not None else ""
         reason = f"{w.death()}{note}"
+        self.losses.append(reason)
         if run is not None:
             # before the run reads as failed: a client that sees it failed finds its result.json
             self._result_if_missing(run, reason)

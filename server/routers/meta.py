@@ -52,6 +52,9 @@ class Health(BaseModel):
     active: list[str] = Field(description="the active runs' ids")
     queued: list[str] = Field(description="the queued runs' ids, the next to start first")
     queue_limit: int = Field(description="runs that may wait; then a start is a 429")
+    solver_losses: list[str] = Field(description="why the last solver processes were "
+                                     "replaced (at most 5, newest last)")
+    solver_log: list[str] = Field(description="the solvers' last log lines (at most 5)")
 
 
 @router.get("/config", response_model=Config)

@@ -34,6 +34,7 @@ from tests.support.service import (  # noqa: E402
     free_port,
     until,
     wait_done,
+    wait_ready,
     wait_state,
     wait_step,
 )
@@ -81,7 +82,7 @@ def served(tmp: Path, cluster, **options: object) -> Iterator[TestClient]:
                         **{"viewer": False, "ack_timeout": HANG, "stop_timeout": HANG,
                            **options})
     with TestClient(create_app(settings)) as client:
-        until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
+        wait_ready(client)
         yield client
 
 
@@ -197,7 +198,8 @@ def test_a_lost_worker_fails_its_run_and_nothing_else(tmp_path, cluster, cluster
             and "was lost" in st["reason"], st
         result = client.get(f"/api/runs/{lost}/result").json()
         assert len(result["steps"]) >= 2 and result["failure"]["reason"] == st["reason"]
-        assert client.get("/api/health").status_code == 200
+        health = client.get("/api/health")
+        assert health.status_code == 200 and health.json()["solver_losses"] == [st["reason"]]
         at = client.get(f"/api/runs/{kept}").json()
         st = wait_step(client, kept, at["step"] + 2)  # it went on through all this
         assert st["state"] == "running", st

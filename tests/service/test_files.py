@@ -22,7 +22,7 @@ from server.settings import Settings  # noqa: E402
 from server.store import SceneStore  # noqa: E402
 from sim.geometry.trimesh import rectangle  # noqa: E402
 from tests.support.scenes import tiny_toml  # noqa: E402
-from tests.support.service import HANG, file_scene, until, wait_state  # noqa: E402
+from tests.support.service import HANG, file_scene, wait_ready, wait_state  # noqa: E402
 
 LIMIT = 100_000  # bytes: the tiny plate is 3-4 kB in any format
 PLATE = rectangle((0.7, 0.07), 0.035)  # tiny's own mesh: 63 vertices, 80 triangles
@@ -53,7 +53,7 @@ def env(tmp_path_factory):
     settings = Settings(scenes_dir=scenes, runs_dir=tmp / "runs", viewer=False,
                         max_body=64_000, max_upload=LIMIT, ack_timeout=HANG)
     with TestClient(create_app(settings)) as client:
-        until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
+        wait_ready(client)
         yield client, scenes
 
 

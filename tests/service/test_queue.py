@@ -31,6 +31,7 @@ from tests.support.service import (  # noqa: E402
     HANG,
     free_port,
     until,
+    wait_ready,
     wait_state,
     wait_step,
 )
@@ -67,7 +68,7 @@ def served(tmp: Path, **options: object) -> Iterator[tuple[TestClient, Settings]
                         **{"viewer": False, "ack_timeout": HANG, "stop_timeout": HANG,
                            **options})
     with TestClient(create_app(settings)) as client:
-        until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
+        wait_ready(client)
         yield client, settings
     assert solver_children() - before == set(), "a solver process outlived its server"
 

@@ -15,7 +15,7 @@ from server.app import create_app  # noqa: E402
 from server.sceneform import schema  # noqa: E402
 from server.settings import Settings  # noqa: E402
 from tests.support.scenes import PRESS_TOML  # noqa: E402
-from tests.support.service import HANG, until, wait_state  # noqa: E402
+from tests.support.service import HANG, wait_ready, wait_state  # noqa: E402
 
 PUNCH = 'shape = { kind = "punch", radius = 0.004, height = 0.01, edge_radius = 0.001 }'
 
@@ -40,7 +40,7 @@ def env(tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("Q3T_CACHE", str(tmp / "cache"))  # the solver process inherits it
         with TestClient(create_app(settings)) as client:
-            until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
+            wait_ready(client)
             yield client, scenes
 
 

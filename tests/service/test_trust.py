@@ -31,6 +31,7 @@ from tests.support.service import (  # noqa: E402
     free_port,
     stop_all,
     until,
+    wait_ready,
     wait_state,
     wait_step,
 )
@@ -67,7 +68,7 @@ def env(tmp_path_factory):
     settings = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs", viewer=True,
                         viewer_port=free_port(), ack_timeout=HANG)
     with TestClient(create_app(settings)) as client:
-        until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
+        wait_ready(client)
         yield client, settings
 
 

@@ -32,6 +32,19 @@ def until(cond: Callable[[], Any], what: str, timeout: float = HANG) -> Any:
     return out
 
 
+def wait_ready(client, timeout: float = HANG) -> None:
+    """Until the solver has said it is ready; failing, say why the solvers were lost (the
+    health's ``solver_losses``: the one clue when it happens on a CI machine only)."""
+    try:
+        until(lambda: client.get("/api/config").json()["ready"], "", timeout)
+    except AssertionError:
+        health = client.get("/api/health").json()
+        raise AssertionError(f"the solver never got ready: "
+                             f"{health['worker_restarts']} solvers replaced; the last lost: "
+                             f"{health.get('solver_losses')}; their log: "
+                             f"{health.get('solver_log')}") from None
+
+
 def wait_state(client, run_id: str, states: set[str], timeout: float = HANG) -> dict:
     def done():
         st = client.get(f"/api/runs/{run_id}").json()
@@ -131,5 +144,5 @@ def in_process(tmp: Path, scenes: dict[str, str], **settings: Any) -> Iterator[t
     config = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs",
                       **{"viewer": False, "ack_timeout": HANG, **settings})
     with TestClient(create_app(config)) as client:
-        until(lambda: client.get("/api/config").json()["ready"], "the solver never got ready")
+        wait_ready(client)
         yield client, config
