@@ -11,6 +11,8 @@ the point where a check fails. All lengths in metres; outlines lie in the plane 
 
 from __future__ import annotations
 
+import ctypes
+import signal
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -212,6 +214,20 @@ def mesh(outline: Outline, h: float, bands: tuple[Band, ...] = ()) -> TriMesh:
     return TriMesh(V, F)
 
 
+def _keep_broken_pipes_ignored() -> None:
+    """gmsh's initialize sets SIGPIPE back to its default, which ends the process: after that
+    a write to a closed socket or pipe (a browser tab closed on the server, a solver's queue
+    after its server ended) killed the whole process without a trace, where Python raises
+    BrokenPipeError. Python ignores SIGPIPE from its start; where it still believes so, say it
+    again through libc, since signal.signal may be called from the main thread only."""
+    if not hasattr(signal, "SIGPIPE") or signal.getsignal(signal.SIGPIPE) != signal.SIG_IGN:
+        return
+    libc = ctypes.CDLL(None)
+    libc.signal.restype = ctypes.c_void_p
+    libc.signal.argtypes = (ctypes.c_int, ctypes.c_void_p)
+    libc.signal(int(signal.SIGPIPE), 1)  # 1: SIG_IGN
+
+
 def _gmsh(loops: list[np.ndarray], h: float,
           bands: tuple[Band, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
     import gmsh
@@ -222,6 +238,7 @@ def _gmsh(loops: list[np.ndarray], h: float,
 
     # not interruptible: gmsh would install a SIGINT handler, which only the main thread may
     gmsh.initialize(readConfigFiles=False, interruptible=False)
+    _keep_broken_pipes_ignored()
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("Mesh.Algorithm", 6)

@@ -1,6 +1,8 @@
 """Blanks from outlines (sim.geometry.outline): isotropic meshes of quality, corners and holes
 kept, drawings read, and bad outlines refused naming the field."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -190,3 +192,27 @@ def test_bad_refinement_names_the_field(band, field, words):
     with pytest.raises(ol.OutlineError, match=words) as err:
         ol.mesh(shape, 0.005, (band,))
     assert err.value.field == field
+
+
+def test_meshing_leaves_a_broken_pipe_an_exception(tmp_path):
+    """gmsh sets SIGPIPE back to its default, which ended the process: after one outline
+    blank was meshed, the test process (and a server: a closed browser tab) died without a
+    trace on its next write to a closed pipe or socket. In a process of its own, so that
+    without the fix this test fails instead of killing the suite."""
+    import subprocess
+    import sys
+
+    code = ("import os\n"
+            "from sim.geometry import outline\n"
+            "outline.mesh(outline.checked(outline.loop([[0, 0], [1, 0], [0, 1]], 'points'),"
+            " []), 0.1)\n"
+            "r, w = os.pipe()\n"
+            "os.close(r)\n"
+            "try:\n"
+            "    os.write(w, b'x')\n"
+            "except BrokenPipeError:\n"
+            "    print('raised')\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=Path(__file__).resolve().parents[2], timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == "raised", (done.returncode,
+                                                                     done.stderr[-2000:])
