@@ -205,18 +205,20 @@ def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
 KINDS = ("beam", "cup", "factorisation", "plastic", "forming", "calculix")  # --cases names
 
 
-def _check_input(cases: list[str], elements: list[str], forming_edge: float | None) -> None:
+def _check_input(cases: list[str], elements: list[str], forming_edge: float | None,
+                 forming_elements: list[str] = ("q3t",)) -> None:
     """ValueError naming the option, before anything is timed."""
     if forming_edge is not None and not forming_edge > 0:
         raise ValueError(f"--forming-edge must be a positive length (m), got {forming_edge:g}")
     unknown = [c for c in cases if c not in KINDS]
     if unknown:
         raise ValueError(f"--cases: unknown {', '.join(unknown)}; known: {', '.join(KINDS)}")
-    for el in elements:
-        try:
-            get_element(el)
-        except ValueError as exc:
-            raise ValueError(f"--elements: {exc}") from None
+    for option, names in (("--elements", elements), ("--forming-elements", forming_elements)):
+        for el in names:
+            try:
+                get_element(el)
+            except ValueError as exc:
+                raise ValueError(f"{option}: {exc}") from None
     if "calculix" in cases:
         alone = [el for el in elements if el not in bench_calculix.COUNTERPART]
         if alone:
@@ -239,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
     cases = args.cases.split(",")
     elements = args.elements.split(",")
     try:
-        _check_input(cases, elements, args.forming_edge)
+        _check_input(cases, elements, args.forming_edge, args.forming_elements.split(","))
     except ValueError as exc:
         print(f"q3t bench: {exc}", file=sys.stderr)
         return BAD_INPUT
@@ -275,14 +277,15 @@ def run(args: argparse.Namespace) -> int:
                       f"({r['ccx_status']})", flush=True)
             continue
         if case == "forming":
-            r = forming(args.forming_edge or case_edge("cup", "q3t"), args.forming_steps,
-                        args.forming_to)
-            rows.append(r)
-            print(f"cup_forming q3t {r['elements']} el {r['dofs']} dof: "
-                  f"{r['per_iteration']:.3f} s per Newton iteration, "
-                  f"{r['newton_per_step']:.1f} iterations per step (steps {r['steps']}, "
-                  f"{r['stroke_mm']:.1f} mm stroke, punch force {r['punch_force_kN']:.1f} kN, "
-                  f"converged {r['converged']})  paper {r['paper_s']}", flush=True)
+            for el in args.forming_elements.split(","):
+                r = forming(args.forming_edge or case_edge("cup", "q3t"), args.forming_steps,
+                            args.forming_to, el)
+                rows.append(r)
+                print(f"cup_forming {el} {r['elements']} el {r['dofs']} dof: "
+                      f"{r['per_iteration']:.3f} s per Newton iteration, "
+                      f"{r['newton_per_step']:.1f} iterations per step (steps {r['steps']}, "
+                      f"{r['stroke_mm']:.1f} mm stroke, punch force {r['punch_force_kN']:.1f} "
+                      f"kN, converged {r['converged']})  paper {r['paper_s']}", flush=True)
             continue
         for el in elements:
             r = measure(case, el, case_edge(case, el), args.repeat)
@@ -313,6 +316,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="forming: the step (of 50) the cup is run to; 25 = 12.5 mm, mid-stroke")
     b.add_argument("--forming-edge", type=float, default=None,
                    help="forming: the mesh edge length in m (default: the paper's cup size)")
+    b.add_argument("--forming-elements", default="q3t",
+                   help="forming: the elements timed, comma-separated (each against Q3T's "
+                        "iteration when q3t is among them)")
     b.add_argument("--elements", default="linear,q3t,quadratic")
     b.add_argument("--repeat", type=int, default=5)
     b.add_argument("--out", default="runs/bench")

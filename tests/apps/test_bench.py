@@ -36,3 +36,27 @@ def test_bench_refuses_an_unknown_case_or_element_before_timing_anything(tmp_pat
         err = capsys.readouterr().err
         assert words in err and "Traceback" not in err
     assert not (tmp_path / "b").exists()
+
+
+def test_bench_times_forming_per_element_against_q3t(tmp_path):
+    """The forming case per element of --forming-elements, the ratios to Q3T's iteration
+    in the results (a coarse cup, its first steps: the table's making, not its numbers)."""
+    out, md = tmp_path / "b", tmp_path / "bench.md"
+    code = main(["bench", "--cases", "forming", "--forming-elements", "q3t,q3t_ans",
+                 "--forming-edge", "0.004", "--forming-to", "2", "--forming-steps", "1",
+                 "--out", str(out), "--results", str(md)])
+    assert code == 0
+    rows = json.loads((out / "bench.json").read_text())["rows"]
+    assert [r["element"] for r in rows] == ["q3t", "q3t_ans"]
+    assert rows[0]["elements"] == rows[1]["elements"] and all(r["converged"] for r in rows)
+    assert all(r["per_iteration"] > 0 and r["newton_per_step"] >= 1 for r in rows)
+    text = md.read_text()
+    assert "per iteration / Q3T's" in text and "| q3t_ans |" in text
+
+
+def test_bench_refuses_an_unknown_forming_element(tmp_path, capsys):
+    assert main(["bench", "--cases", "forming", "--forming-elements", "q3t,q4t",
+                 "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert "--forming-elements: unknown element 'q4t'" in err and "Traceback" not in err
+    assert not (tmp_path / "b").exists()
