@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import random
 import socket
 import time
 from collections.abc import Callable, Iterator
@@ -91,9 +92,32 @@ def stop_all(client) -> None:
 
 
 def free_port() -> int:
-    with socket.socket() as s:
+    """A port free now, for a server the test starts next. Not the kernel's pick (bind to
+    0): that comes from the ephemeral range, which every outgoing connection of the suite's
+    two processes (Dask's, the browser's, the test clients') also draws from, so another may
+    take it before the server binds. Below that range only servers bind."""
+    low = _ephemeral_low()
+    for _ in range(200 if low > 2048 else 0):
+        port = _PORTS.randrange(max(1024, low - 12000), low)
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:  # in use: another
+                continue
+            return port
+    with socket.socket() as s:  # everything below the range taken: the kernel's pick
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+_PORTS = random.Random(os.getpid())  # the two parts of the suite draw different sequences
+
+
+def _ephemeral_low() -> int:
+    try:
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768  # Linux's default
 
 
 def no_temp_files(root: Path) -> list[Path]:
