@@ -135,28 +135,49 @@ const Plots = (() => {
     return k < 0 ? null : punch.stroke.values[k];
   }
 
+  // each quantity's row of the probes' plot (px): its plot, a gap below it and above it its
+  // legend's lines (as many as its names need at about 6 px a character and 40 px a mark)
+  const ROW = 124, GAP = 12, LINE = 16;
+
   function probes(div, series, log) {
-    // one y axis per quantity (the probes' kind: thickness, tool force, ...), stacked, the
-    // steps shared below
+    // one row per quantity (the probes' kind: thickness, tool force, ...), stacked, the steps
+    // shared below. Each row's legend sits above it, titled with the quantity and its unit:
+    // one legend for all rows put a dozen names far below the lines they name, and rotated
+    // titles longer than a row overlapped their neighbours'.
     const kindOf = (s) => s.kind || "?";
     const kinds = [...new Set(series.map(kindOf))];
+    const legendOf = (k) => (k ? `legend${k + 1}` : "legend");
     const traces = series.map((s) => {
       const k = kinds.indexOf(kindOf(s));
       return { x: s.steps, y: s.values, name: s.name, type: "scatter", mode: "lines+markers",
                marker: { size: 3 }, xaxis: "x", yaxis: k ? `y${k + 1}` : "y",
+               legend: legendOf(k), showlegend: true,
                hovertemplate: `${s.name}: %{y:.4g} ${s.unit}<br>step %{x}<extra></extra>` };
     });
-    const layout = { ...base("Probes", 80 + 125 * kinds.length),
-                     grid: { rows: kinds.length, columns: 1, pattern: "coupled",
-                             roworder: "top to bottom", ygap: 0.25 },
-                     xaxis: axis("step"), ...marks(log, (s) => s - 0.5) };
-    kinds.forEach((kind, k) => {
+    const width = Math.max(div.clientWidth, 200);
+    const rows = kinds.map((kind) => {
       const of = series.filter((s) => kindOf(s) === kind);
-      const unit = of[0].unit;
-      const title = kind === "?" ? "SI units"
-                                 : `${kind.replaceAll("_", " ")} (${unit || "count"})`;
-      layout[k ? `yaxis${k + 1}` : "yaxis"] = axis(title, { title: { text: title,
-        font: { size: 10 } } });
+      const unit = of[0].unit || "count";
+      const title = `<b>${kind === "?" ? "SI units" : kind.replaceAll("_", " ")}</b> (${unit})`;
+      const chars = title.length - 7 + of.reduce((n, s) => n + s.name.length, 0);
+      const lines = Math.ceil((6 * chars + 40 * of.length) / (width - 80));
+      return { unit, title, lead: 10 + LINE * lines };
+    });
+    const b = base("Probes", 0);
+    const plotted = rows.reduce((h, r) => h + r.lead + ROW + GAP, 0);
+    const layout = { ...b, height: plotted + b.margin.t + b.margin.b,
+                     xaxis: axis("step", { anchor: kinds.length > 1 ? `y${kinds.length}` : "y" }),
+                     ...marks(log, (s) => s - 0.5) };
+    let top = plotted;  // px above the bottom margin
+    rows.forEach((r, k) => {
+      layout[k ? `yaxis${k + 1}` : "yaxis"] = axis(r.unit, {
+        anchor: "x", title: { text: r.unit, standoff: 4, font: { size: 10 } },
+        domain: [(top - r.lead - ROW) / plotted, (top - r.lead) / plotted] });
+      layout[legendOf(k)] = { orientation: "h", x: 0, xref: "paper", xanchor: "left",
+                              y: top / plotted, yref: "paper", yanchor: "top",
+                              font: { size: 10 }, bgcolor: "rgba(0,0,0,0)",
+                              title: { text: r.title, side: "left" } };
+      top -= r.lead + ROW + GAP;
     });
     return draw(div, traces, layout, (s) => s);
   }

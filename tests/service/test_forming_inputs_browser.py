@@ -175,6 +175,32 @@ def test_a_hill48_cup_shows_its_rim_height_around_the_axis_in_mm(open_page, serv
     assert card.endswith(" %"), card
     page.locator("#rim-fig").scroll_into_view_if_needed()
     shot(page, SHOTS, "4-rim-height.png", settle_ms=500)  # the plot settles
+    probes_have_a_legend_per_quantity(page)
+
+
+def probes_have_a_legend_per_quantity(page) -> None:
+    """The probes' plot: a row per quantity (the cup's tool force, thickness, displacement),
+    each with a legend of its own above it, titled with the quantity and its unit and naming
+    that row's probes; the rows and their legends stacked without overlapping."""
+    page.wait_for_selector("#probes-fig:not([hidden])")
+    rows = page.evaluate("""() => { const d = document.getElementById('probes-plot');
+        const L = d._fullLayout;
+        return d.data.map((t) => ({ name: t.name, y: t.yaxis, legend: t.legend })).reduce(
+          (rows, t) => { const a = L['yaxis' + t.y.slice(1)], g = L[t.legend];
+            const r = rows[t.legend] ||= { domain: a.domain, top: g.y, names: [],
+                                           title: g.title.text, unit: a.title.text };
+            r.names.push(t.name); return rows; }, {}); }""")
+    assert {tuple(r["names"]) for r in rows.values()} == {
+        ("punch_force",), ("min_thickness",), ("punch_travel",)}, rows
+    units = {r["names"][0]: (r["title"], r["unit"]) for r in rows.values()}
+    assert units == {"punch_force": ("<b>tool force</b> (kN)", "kN"),
+                     "min_thickness": ("<b>thickness</b> (mm)", "mm"),
+                     "punch_travel": ("<b>displacement</b> (mm)", "mm")}, units
+    stacked = sorted(rows.values(), key=lambda r: -r["top"])
+    for upper, lower in zip(stacked, stacked[1:]):
+        assert upper["domain"][0] > lower["top"], (upper, lower)  # a gap between rows
+    for r in stacked:
+        assert r["top"] > r["domain"][1], r  # the legend above its own row
 
 
 def test_tool_meshes_are_offered_for_a_mesh_tool_labelled_by_kind(open_page, served):
