@@ -336,31 +336,21 @@ const Compare = (() => {
   }
 
   async function probes(data) {
-    // one y axis per quantity (the probe's kind), the runs' colours, a dash per probe
+    // a row per quantity (the probe's kind), the runs' colours, a dash per probe
     const series = data.probes;
     $("compare-probes-fig").hidden = !series.length;
     if (!series.length) return;
-    const kindOf = (s) => s.kind || "?";
-    const kinds = [...new Set(series.map(kindOf))];
     const names = [...new Set(series.map((s) => s.name))];
-    const traces = series.map((s) => {
-      const k = kinds.indexOf(kindOf(s)), i = runIndex(data, s.run);
-      return { x: s.steps, y: s.values, type: "scatter", mode: "lines+markers",
-               marker: { size: 3 }, name: `${s.letter}: ${s.name}`, yaxis: k ? `y${k + 1}` : "y",
-               line: { color: colour(i), dash: DASHES[names.indexOf(s.name) % 4] },
-               hovertemplate: `${s.letter} ${s.name}: %{y:.4g} ${s.unit}<br>step %{x}` +
-                              "<extra></extra>" };
-    });
-    const lay = layout("Probes", 90 + 130 * kinds.length, {
-      grid: { rows: kinds.length, columns: 1, pattern: "coupled", roworder: "top to bottom",
-              ygap: 0.3 },
-      xaxis: axis("step") });
-    kinds.forEach((kind, k) => {
-      const unit = series.find((s) => kindOf(s) === kind).unit;
-      const text = kind === "?" ? "SI units" : `${kind.replaceAll("_", " ")} (${unit || "count"})`;
-      lay[k ? `yaxis${k + 1}` : "yaxis"] = axis(text, { title: { text, font: { size: 10 } } });
-    });
-    await plotInto($("compare-probes"), traces, lay, CONFIG);
+    const labelled = series.map((s) => ({ ...s, label: `${s.letter}: ${s.name}` }));
+    const rows = Plots.quantities(labelled);
+    const lay = layout("Probes", 0);
+    const { layout: stack, row } = Plots.stacked($("compare-probes").clientWidth, lay.margin, rows);
+    const traces = labelled.map((s) => ({
+      x: s.steps, y: s.values, type: "scatter", mode: "lines+markers", marker: { size: 3 },
+      name: s.label, ...row(rows.findIndex((r) => r.kind === (s.kind || "?"))),
+      line: { color: colour(runIndex(data, s.run)), dash: DASHES[names.indexOf(s.name) % 4] },
+      hovertemplate: `${s.letter} ${s.name}: %{y:.4g} ${s.unit}<br>step %{x}<extra></extra>` }));
+    await plotInto($("compare-probes"), traces, { ...lay, ...stack }, CONFIG);
   }
 
   // ---- thickness on the formed part ----------------------------------------------------------

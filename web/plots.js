@@ -135,51 +135,63 @@ const Plots = (() => {
     return k < 0 ? null : punch.stroke.values[k];
   }
 
-  // each quantity's row of the probes' plot (px): its plot, a gap below it and above it its
-  // legend's lines (as many as its names need at about 6 px a character and 40 px a mark)
+  // each quantity's row of a stacked plot over steps (px): its plot, a gap below it and
+  // above it its legend's lines (as many as its names need at about 6 px a character and
+  // 40 px a mark)
   const ROW = 124, GAP = 12, LINE = 16;
 
-  function probes(div, series, log) {
-    // one row per quantity (the probes' kind: thickness, tool force, ...), stacked, the steps
-    // shared below. Each row's legend sits above it, titled with the quantity and its unit:
-    // one legend for all rows put a dozen names far below the lines they name, and rotated
-    // titles longer than a row overlapped their neighbours'.
-    const kindOf = (s) => s.kind || "?";
-    const kinds = [...new Set(series.map(kindOf))];
-    const legendOf = (k) => (k ? `legend${k + 1}` : "legend");
-    const traces = series.map((s) => {
-      const k = kinds.indexOf(kindOf(s));
-      return { x: s.steps, y: s.values, name: s.name, type: "scatter", mode: "lines+markers",
-               marker: { size: 3 }, xaxis: "x", yaxis: k ? `y${k + 1}` : "y",
-               legend: legendOf(k), showlegend: true,
-               hovertemplate: `${s.name}: %{y:.4g} ${s.unit}<br>step %{x}<extra></extra>` };
+  function stacked(width, margin, rows) {
+    // a row per quantity ({kind, unit, names}), stacked, the steps shared below. Each row's
+    // legend sits above it, titled with the quantity and its unit: one legend for all rows
+    // put a dozen names far below the lines they name, and rotated titles longer than a row
+    // overlapped their neighbours'. Returns the layout's height and axes and legends, and
+    // the y axis and legend of a trace of row k.
+    const leads = rows.map((r) => {
+      const chars = r.kind.length + (r.unit || "").length + r.names.join("").length;
+      return 10 + LINE * Math.ceil((6 * chars + 40 * r.names.length) / Math.max(width - 80, 100));
     });
-    const width = Math.max(div.clientWidth, 200);
-    const rows = kinds.map((kind) => {
-      const of = series.filter((s) => kindOf(s) === kind);
-      const unit = of[0].unit || "count";
-      const title = `<b>${kind === "?" ? "SI units" : kind.replaceAll("_", " ")}</b> (${unit})`;
-      const chars = title.length - 7 + of.reduce((n, s) => n + s.name.length, 0);
-      const lines = Math.ceil((6 * chars + 40 * of.length) / (width - 80));
-      return { unit, title, lead: 10 + LINE * lines };
-    });
-    const b = base("Probes", 0);
-    const plotted = rows.reduce((h, r) => h + r.lead + ROW + GAP, 0);
-    const layout = { ...b, height: plotted + b.margin.t + b.margin.b,
-                     xaxis: axis("step", { anchor: kinds.length > 1 ? `y${kinds.length}` : "y" }),
-                     ...marks(log, (s) => s - 0.5) };
+    const plotted = leads.reduce((h, lead) => h + lead + ROW + GAP, 0);
+    const layout = { height: plotted + margin.t + margin.b,
+                     xaxis: axis("step", { anchor: rows.length > 1 ? `y${rows.length}` : "y" }) };
     let top = plotted;  // px above the bottom margin
     rows.forEach((r, k) => {
-      layout[k ? `yaxis${k + 1}` : "yaxis"] = axis(r.unit, {
-        anchor: "x", title: { text: r.unit, standoff: 4, font: { size: 10 } },
-        domain: [(top - r.lead - ROW) / plotted, (top - r.lead) / plotted] });
-      layout[legendOf(k)] = { orientation: "h", x: 0, xref: "paper", xanchor: "left",
-                              y: top / plotted, yref: "paper", yanchor: "top",
-                              font: { size: 10 }, bgcolor: "rgba(0,0,0,0)",
-                              title: { text: r.title, side: "left" } };
-      top -= r.lead + ROW + GAP;
+      const unit = r.unit || "count";
+      const name = r.kind === "?" ? "SI units" : r.kind.replaceAll("_", " ");
+      layout[k ? `yaxis${k + 1}` : "yaxis"] = axis(unit, {
+        anchor: "x", title: { text: unit, standoff: 4, font: { size: 10 } },
+        domain: [(top - leads[k] - ROW) / plotted, (top - leads[k]) / plotted] });
+      layout[k ? `legend${k + 1}` : "legend"] = {
+        orientation: "h", x: 0, xref: "paper", xanchor: "left", y: top / plotted,
+        yref: "paper", yanchor: "top", font: { size: 10 }, bgcolor: "rgba(0,0,0,0)",
+        title: { text: `<b>${name}</b> (${unit})`, side: "left" } };
+      top -= leads[k] + ROW + GAP;
     });
-    return draw(div, traces, layout, (s) => s);
+    const row = (k) => ({ yaxis: k ? `y${k + 1}` : "y", legend: k ? `legend${k + 1}` : "legend",
+                          showlegend: true });
+    return { layout, row };
+  }
+
+  function quantities(series) {
+    // the probes' kinds in order of first appearance, each with its unit and trace names
+    const rows = [];
+    for (const s of series) {
+      const kind = s.kind || "?";
+      const r = rows.find((x) => x.kind === kind) ||
+                rows[rows.push({ kind, unit: s.unit, names: [] }) - 1];
+      r.names.push(s.label || s.name);
+    }
+    return rows;
+  }
+
+  function probes(div, series, log) {
+    const rows = quantities(series);
+    const b = base("Probes", 0);
+    const { layout, row } = stacked(div.clientWidth, b.margin, rows);
+    const traces = series.map((s) => ({
+      x: s.steps, y: s.values, name: s.name, type: "scatter", mode: "lines+markers",
+      marker: { size: 3 }, xaxis: "x", ...row(rows.findIndex((r) => r.kind === (s.kind || "?"))),
+      hovertemplate: `${s.name}: %{y:.4g} ${s.unit}<br>step %{x}<extra></extra>` }));
+    return draw(div, traces, { ...b, ...layout, ...marks(log, (s) => s - 0.5) }, (s) => s);
   }
 
   function sections(div, found, punch) {
@@ -281,5 +293,6 @@ const Plots = (() => {
     unplot(div);
   }
 
-  return { forceStroke, probes, sections, rim, fld, solver, show, purge, scrubAt };
+  return { forceStroke, probes, sections, rim, fld, solver, show, purge, scrubAt,
+           stacked, quantities };
 })();

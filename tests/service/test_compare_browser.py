@@ -24,7 +24,7 @@ import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import new_page, serve, shot, shots_dir
+from tests.support.browser import new_page, serve, shot, shots_dir, stacked_rows
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import HANG, finished_run, until
 
@@ -121,6 +121,12 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     b_punch = next(p for p in api["punches"] if p["run"] == a)
     assert marks == [[b_punch["stroke"]["values"][b_punch["steps"].index(2)]],
                      ["B: friction_scale = 2"]]
+    # the probes: a row per quantity, each with its legend of both runs' probes above it
+    rows = stacked_rows(page, "compare-probes")
+    assert [(r["title"], r["unit"]) for r in rows] == [
+        ("<b>tool force</b> (kN)", "kN"), ("<b>thickness</b> (mm)", "mm"),
+        ("<b>displacement</b> (mm)", "mm")], rows
+    assert rows[0]["names"] == ["A: punch_force", "B: punch_force"], rows
     shot(page, SHOTS, "compare-diff", settle_ms=SETTLE_MS)
     # the toggle: A, then B, with the camera the user left
     shown = "() => document.getElementById('compare-thickness').dataset.show"

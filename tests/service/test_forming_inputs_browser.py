@@ -19,7 +19,8 @@ import httpx
 import pytest
 import trimesh
 
-from tests.support.browser import open_scene, serve_without_viewer, shot, shots_dir
+from tests.support.browser import (open_scene, serve_without_viewer, shot, shots_dir,
+                                   stacked_rows)
 from tests.support.scenes import PRESS_TOML, tiny_cup_toml
 from tests.support.service import ENDED, until
 
@@ -183,24 +184,11 @@ def probes_have_a_legend_per_quantity(page) -> None:
     each with a legend of its own above it, titled with the quantity and its unit and naming
     that row's probes; the rows and their legends stacked without overlapping."""
     page.wait_for_selector("#probes-fig:not([hidden])")
-    rows = page.evaluate("""() => { const d = document.getElementById('probes-plot');
-        const L = d._fullLayout;
-        return d.data.map((t) => ({ name: t.name, y: t.yaxis, legend: t.legend })).reduce(
-          (rows, t) => { const a = L['yaxis' + t.y.slice(1)], g = L[t.legend];
-            const r = rows[t.legend] ||= { domain: a.domain, top: g.y, names: [],
-                                           title: g.title.text, unit: a.title.text };
-            r.names.push(t.name); return rows; }, {}); }""")
-    assert {tuple(r["names"]) for r in rows.values()} == {
-        ("punch_force",), ("min_thickness",), ("punch_travel",)}, rows
-    units = {r["names"][0]: (r["title"], r["unit"]) for r in rows.values()}
-    assert units == {"punch_force": ("<b>tool force</b> (kN)", "kN"),
-                     "min_thickness": ("<b>thickness</b> (mm)", "mm"),
-                     "punch_travel": ("<b>displacement</b> (mm)", "mm")}, units
-    stacked = sorted(rows.values(), key=lambda r: -r["top"])
-    for upper, lower in zip(stacked, stacked[1:]):
-        assert upper["domain"][0] > lower["top"], (upper, lower)  # a gap between rows
-    for r in stacked:
-        assert r["top"] > r["domain"][1], r  # the legend above its own row
+    rows = stacked_rows(page, "probes-plot")
+    assert [(r["title"], r["unit"], r["names"]) for r in rows] == [
+        ("<b>tool force</b> (kN)", "kN", ["punch_force"]),
+        ("<b>thickness</b> (mm)", "mm", ["min_thickness"]),
+        ("<b>displacement</b> (mm)", "mm", ["punch_travel"])], rows
 
 
 def test_tool_meshes_are_offered_for_a_mesh_tool_labelled_by_kind(open_page, served):

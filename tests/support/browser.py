@@ -148,3 +148,24 @@ def new_page(browser, url: str, *ready: str, width: int = 1400,
     for selector in ready:
         page.wait_for_selector(selector)
     return page, errors
+
+
+def stacked_rows(page, div: str) -> list[dict]:
+    """The rows of a plot of a quantity per row (web/plots.js's ``stacked``), top to bottom:
+    each one's legend title, y axis title (the unit) and trace names. Asserts that each
+    legend sits above its own row and that the rows do not overlap."""
+    rows = page.evaluate("""(id) => { const d = document.getElementById(id);
+        const L = d._fullLayout, rows = {};
+        for (const t of d.data) {
+          const a = L['yaxis' + t.yaxis.slice(1)], g = L[t.legend];
+          const r = rows[t.legend] ||= { domain: a.domain, top: g.y, names: [],
+                                         title: g.title.text, unit: a.title.text };
+          r.names.push(t.name);
+        }
+        return Object.values(rows); }""", div)
+    rows.sort(key=lambda r: -r["top"])
+    for upper, lower in zip(rows, rows[1:]):
+        assert upper["domain"][0] > lower["top"], (upper, lower)  # a gap between rows
+    for r in rows:
+        assert r["top"] > r["domain"][1], r  # the legend above its own row
+    return rows
