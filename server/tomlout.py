@@ -184,10 +184,22 @@ def _apply(node: MutableMapping, old: dict, new: dict, lean: dict) -> None:
                 node[k] = _item(lean[k], _inline(node))
         elif isinstance(v, dict) and isinstance(old.get(k), dict):
             _apply(node[k], old[k], v, lean.get(k, {}))
+            if isinstance(node[k], InlineTable):
+                _uncomment(node[k])
         elif _tables(v) and _tables(old.get(k)) and isinstance(node[k], (AoT, Array)):
             _apply_list(node[k], old[k], v, lean.get(k, []))
         else:
             node[k] = _item(lean.get(k, v), _inline(node))
+            _uncomment(node[k])
+
+
+def _uncomment(item: object) -> None:
+    """An edited line loses its trailing comment: it described the value the file had
+    (``velocity = [0.0, 0.0, -0.03]   # 25 mm stroke`` would mislead), and tomlkit carries
+    it over to the new value. Comment lines of their own stay."""
+    trivia = getattr(item, "trivia", None)
+    if trivia is not None:
+        trivia.comment = trivia.comment_ws = ""
 
 
 def _apply_list(items: AoT | Array, old: list, new: list, lean: list) -> None:

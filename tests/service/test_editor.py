@@ -35,6 +35,31 @@ def test_an_edit_keeps_the_files_comments_and_number_formats():
     assert scene_from_toml(text) == Scene.model_validate(scene)
 
 
+def test_an_edited_line_loses_its_trailing_comment_and_the_others_keep_theirs():
+    """A line's comment describes the value the file had: an edit drops it (a stroke made
+    30 mm would still say 25), on a plain value and on an inline table's line alike."""
+    base = CUP
+    scene = sceneform.parse(base)["scene"]
+    scene["tools"][0]["velocity"] = [0.0, 0.0, -0.03]
+    probe = next(p for p in scene["probes"] if p["name"] == "punch_travel")  # a commented line
+    probe["name"] = "centre_travel"
+    out = sceneform.render(scene, base=base)
+    assert out["ok"], out["error"]
+    text = out["toml"]
+    assert "velocity = [0.0, 0.0, -0.03]\n" in text and "25 mm stroke:" not in text
+    changed = [(a, b) for a, b in zip(base.splitlines(), text.splitlines(), strict=True)
+               if a != b]
+    assert [b for _, b in changed] == ["velocity = [0.0, 0.0, -0.03]",
+                                       'name = "centre_travel"'], changed
+    # every other line as it was, its comments with it
+    assert sum("#" in ln for ln in text.splitlines()) == \
+        sum("#" in ln for ln in base.splitlines()) - 2
+    inline = tomlout.edited('bend = { angle = 0.1, length = 0.1 }   # radius 1 m\n',
+                            {"bend": {"angle": 0.1, "length": 0.1}},
+                            {"bend": {"angle": 0.2, "length": 0.1}}, {})
+    assert inline == "bend = { angle = 0.2, length = 0.1 }\n"
+
+
 def test_an_edit_of_kind_tables_and_lists_reads_back_as_the_edited_scene():
     """A new mesh kind drops the old kind's fields and adds the new one's; an added tool is a
     new [[tools]] table, a removed probe is gone; the comments stay."""
