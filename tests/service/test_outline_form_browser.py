@@ -1,6 +1,7 @@
 """An outline blank's circle in the page's scene form, in Debian's chromium (Playwright),
 against the real server in a subprocess: cup_drawing_outline's circle shown in mm, its radius
-edited into the TOML, a segment count below the bound named at its field.
+edited into the TOML (a radius that leaves the rim ring off the blank named at the ring), a
+segment count below the bound named at its field.
 
 With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/outline-form/`."""
 
@@ -43,6 +44,13 @@ def test_the_circle_is_shown_and_edited_in_the_form(open_page, served):
     assert [page.input_value(f"[name='mesh.circle.center.{i}']") for i in (0, 1)] == ["0", "0"]
     assert page.input_value("[name='mesh.circle.segments']") == "360"
 
+    # a blank that no longer reaches the rim ring is named at the ring as it is edited
+    page.fill("[name='mesh.circle.radius']", "25")
+    synced(page, "circle = { radius = 0.025,", "1 error(s)")  # as the form has it
+    said = page.inner_text("[data-path='regions.1.ring'] > .field-error")
+    assert "selects no node: no boundary node of the blank lies 0.0295-0.031 m" in said, said
+    page.locator("[data-path='regions.1.ring']").scroll_into_view_if_needed()
+    shot(page, SHOTS, "1-rim-missed.png", where="#left")
     page.fill("[name='mesh.circle.radius']", "31")
     synced(page, "circle = { radius = 0.031, segments = 360 }", "valid")
     page.fill("[name='mesh.circle.segments']", "14")
@@ -52,4 +60,4 @@ def test_the_circle_is_shown_and_edited_in_the_form(open_page, served):
     assert page.evaluate("document.querySelector(\"[name='mesh.circle.segments']\")"
                          ".validationMessage") == "must be ≥ 15"
     page.locator(CIRCLE).scroll_into_view_if_needed()
-    shot(page, SHOTS, "1-circle-edited.png", where="#left")
+    shot(page, SHOTS, "2-circle-edited.png", where="#left")
