@@ -58,8 +58,10 @@ def ring_problem(mesh: MeshSpec, region: RegionSpec) -> str | None:
     ranges = radial_ranges(mesh, region.boundary)
     if region.ring is None or ranges is None:
         return None
-    # region_mask's tolerance is 1e-9 of the mesh's extent, at most twice its largest radius
-    tol = 2e-9 * max(hi for _, hi in ranges) + 1e-300
+    # region_mask's tolerance is 1e-9 of the mesh's extent: at most twice its largest radius
+    # in the plane, or the imperfection's height out of it (doubled, to stay on the safe side)
+    extent = max(2.0 * max(hi for _, hi in ranges), abs(mesh.imperfection))
+    tol = 2e-9 * extent + 1e-300
     lo, hi = region.ring.r_min - tol, region.ring.r_max + tol
     if any(a <= hi and lo <= b for a, b in ranges):
         return None
