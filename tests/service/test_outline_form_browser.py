@@ -40,7 +40,7 @@ def test_the_circle_is_shown_and_edited_in_the_form(open_page, served):
     assert page.is_checked("[data-path='mesh.points'] input.unset")  # points: not given
     assert not page.is_checked(f"{CIRCLE} input.unset")
     assert page.input_value("[name='mesh.circle.radius']") == "30"  # mm
-    assert page.inner_text(f"[data-path='mesh.circle.radius'] .unit") == "mm"
+    assert page.inner_text("[data-path='mesh.circle.radius'] .unit") == "mm"
     assert [page.input_value(f"[name='mesh.circle.center.{i}']") for i in (0, 1)] == ["0", "0"]
     assert page.input_value("[name='mesh.circle.segments']") == "360"
 
