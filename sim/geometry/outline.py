@@ -1,5 +1,5 @@
-"""Blanks from 2-D outlines: a closed outline with optional holes, given as points or read from
-an SVG or DXF drawing, meshed into isotropic triangles of a target edge length.
+"""Blanks from 2-D outlines: a closed outline with optional holes, given as points or a circle
+or read from an SVG or DXF drawing, meshed into isotropic triangles of a target edge length.
 
 The mesher is gmsh's Frontal-Delaunay (``Mesh.Algorithm = 6``): on a disk at 2 mm it gave a
 smallest angle of 42 degrees and an edge-length spread (standard deviation over mean) of 6 %,
@@ -12,6 +12,7 @@ the point where a check fails. All lengths in metres; outlines lie in the plane 
 from __future__ import annotations
 
 import ctypes
+import math
 import signal
 import threading
 from dataclasses import dataclass
@@ -24,6 +25,16 @@ from sim.geometry.trimesh import TriMesh
 # a turn sharper than this at an outline's vertex is a corner the mesh keeps; gentler turns
 # are a flattened curve, resampled through
 CORNER = np.radians(25.0)
+# the fewest segments of a circle: a polygon of n segments turns by 360 / n degrees at each
+# vertex, and with fewer than 360 / 25 = 14.4 every vertex would be a corner (a turn above
+# CORNER) the mesh keeps, the circle meshed as that polygon instead of resampled as a
+# flattened curve; 15 segments turn by 24 degrees
+MIN_SEGMENTS = math.floor(2 * math.pi / CORNER) + 1
+MAX_SEGMENTS = 100_000
+# a circle's points are rounded to a nanometre: gmsh's Frontal-Delaunay mesh changes when its
+# input moves by the last bits of a float, so the mesh must not hinge on how sin and cos round
+# on one machine; nine decimals of a metre are also how a scene lists points
+DECIMALS = 9
 # the largest mesh an outline may ask for: beyond it the edge length is a slip, and gmsh would
 # take minutes and gigabytes before the model's memory check could say so
 MAX_TRIANGLES = 2_000_000
@@ -106,6 +117,21 @@ def loop(points: object, field: str) -> np.ndarray:
         raise OutlineError(field, f"a closed outline needs at least 3 distinct points (got "
                                   f"{len(p)})")
     return p
+
+
+def circle(radius: float, center: tuple[float, float] = (0.0, 0.0),
+           segments: int = 360) -> np.ndarray:
+    """The loop ``(segments, 2)`` of a circle: the corners of the regular polygon inscribed
+    in it, counter-clockwise from the one on the +x side of ``center``, rounded to DECIMALS.
+    OutlineError naming ``circle.radius`` or ``circle.segments`` out of bounds."""
+    if not radius > 0.0:
+        raise OutlineError("circle.radius", f"a circle's radius must be positive (got {radius})")
+    if not MIN_SEGMENTS <= segments <= MAX_SEGMENTS:
+        raise OutlineError("circle.segments", f"a circle takes {MIN_SEGMENTS} to {MAX_SEGMENTS} "
+                                              f"segments (got {segments})")
+    t = 2.0 * np.pi * np.arange(segments) / segments
+    xy = np.column_stack([center[0] + radius * np.cos(t), center[1] + radius * np.sin(t)])
+    return np.round(xy, DECIMALS)
 
 
 def checked(outer: np.ndarray, holes: list[np.ndarray], field: str = "points",

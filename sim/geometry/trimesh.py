@@ -111,8 +111,12 @@ def annulus(r_inner: float, r_outer: float, edge_length: float) -> TriMesh:
 def rings(r_inner: float, r_outer: float, edge_length: float) -> tuple[np.ndarray, list[int]]:
     """The radii of an annulus's vertex rings and the vertices on each (one at radius 0)."""
     radii = np.linspace(r_inner, r_outer, divisions(r_outer - r_inner, edge_length) + 1)
-    return radii, [1 if r == 0 else max(6, int(round(2 * np.pi * r / edge_length)))
-                   for r in radii]
+    return radii, [ring_vertices(r, edge_length) for r in radii]
+
+
+def ring_vertices(r: float, edge_length: float) -> int:
+    """The vertices on an annulus's ring of radius ``r`` (one at radius 0)."""
+    return 1 if r == 0 else max(6, int(round(2 * np.pi * r / edge_length)))
 
 
 def band_divisions(radius: float, height: float, edge_length: float) -> tuple[int, int]:

@@ -34,11 +34,11 @@ def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
 
 
 def outline_of(spec: OutlineMesh) -> outline.Outline:
-    """The outline of an ``outline`` mesh: its points and holes, or its drawing's paths."""
+    """The outline of an ``outline`` mesh: its points or circle and holes, or its drawing's
+    paths."""
     if spec.path is not None:
         return outline.read_drawing(spec.path, spec.scale, spec.edge_length)
-    return outline.checked(outline.loop(spec.points, "points"),
-                           [outline.loop(h, f"holes.{i}") for i, h in enumerate(spec.holes)])
+    return spec.shape()
 
 
 def imperfect(mesh: meshes.TriMesh, amplitude: float) -> meshes.TriMesh:

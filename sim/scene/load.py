@@ -21,6 +21,7 @@ from sim.elements import ELEMENTS
 from sim.frames.probes import PROBES
 from sim.scene.boundary import BCSpec, LoadSpec, RegionSpec
 from sim.scene.fields import Strict, doc
+from sim.scene.footprint import ring_problem
 from sim.scene.run import ProbeSpec, SectionSpec, SolverSpec, SteppingSpec, StudySpec
 from sim.scene.shapes import ToolSpec
 from sim.scene.sheet import MaterialSpec, MeshSpec, ShellSpec
@@ -49,9 +50,7 @@ class Scene(Strict):
         if self.shell.element not in ELEMENTS:
             raise ValueError(f"shell.element: unknown {self.shell.element!r}, "
                              f"known: {sorted(ELEMENTS)}")
-        names = [r.name for r in self.regions]
-        if len(set(names)) != len(names):
-            raise ValueError("regions: names must be unique")
+        names = self._check_regions()
         for where, items in (("bcs", self.bcs), ("loads", self.loads), ("probes", self.probes)):
             for i, it in enumerate(items):
                 if getattr(it, "region", None) and it.region not in names:
@@ -79,6 +78,17 @@ class Scene(Strict):
         if self.study:
             self._check_study(self.study)
         return self
+
+    def _check_regions(self) -> list[str]:
+        """The regions' names, unique; a ring that misses a blank known before the build is
+        named now, not when the model is made (sim.scene.footprint)."""
+        names = [r.name for r in self.regions]
+        if len(set(names)) != len(names):
+            raise ValueError("regions: names must be unique")
+        for i, r in enumerate(self.regions):
+            if why := ring_problem(self.mesh, r):
+                raise ValueError(f"regions.{i}.ring: {why}")
+        return names
 
     def _check_study(self, st: StudySpec) -> None:
         probes = [p.name for p in self.probes]

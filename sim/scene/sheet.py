@@ -5,8 +5,10 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal, Self
 
+import numpy as np
 from pydantic import Field, model_validator
 
+from sim.geometry import outline
 from sim.scene.boundary import RingSpec
 from sim.scene.fields import (
     MAX_DENSITY,
@@ -136,6 +138,23 @@ class FileMesh(_Mesh):
 XY = tuple[Coord, Coord]
 
 
+class CircleSpec(Strict):
+    """A round outline: the regular polygon of ``segments`` sides inscribed in the circle, its
+    first corner on the +x side of the centre, its points rounded to a nanometre
+    (sim.geometry.outline.circle). The mesh resamples it at the edge length, as a curve."""
+
+    radius: Length = doc("the circle's radius", "m")
+    center: XY = doc("its centre [x, y]", "m", (0.0, 0.0))
+    segments: Annotated[int, Field(ge=outline.MIN_SEGMENTS, le=outline.MAX_SEGMENTS)] = doc(
+        "the inscribed polygon's sides; at least 15, since with fewer each corner turns by "
+        "25 degrees or more and the mesh keeps the polygon's corners instead of the curve",
+        "1", 360)
+
+    def loop(self) -> np.ndarray:
+        """The circle's points ``(segments, 2)``, counter-clockwise."""
+        return outline.circle(self.radius, self.center, self.segments)
+
+
 class RefineSpec(Strict):
     """A ring of finer triangles around the z axis, graded back to the mesh's edge length
     outside it: where a drawn blank's material passes a die's radius (the cup's wall), without
@@ -156,17 +175,20 @@ class RefineSpec(Strict):
 
 class OutlineMesh(_Generated):
     """A blank cut from a closed 2-D outline in z = 0, with optional holes, meshed into
-    isotropic triangles (sim.geometry.outline): the outline as ``points``, or the closed paths
-    of an SVG or DXF drawing (``path``: the path enclosing the most area is the outline, the
-    others its holes). A relative path is taken from the scene file's folder."""
+    isotropic triangles (sim.geometry.outline): the outline as ``points``, as a ``circle``, or
+    the closed paths of an SVG or DXF drawing (``path``: the path enclosing the most area is
+    the outline, the others its holes). A relative path is taken from the scene file's
+    folder."""
 
-    kind: Literal["outline"] = doc("a closed outline (points or an SVG/DXF drawing)")
+    kind: Literal["outline"] = doc("a closed outline (points, a circle or an SVG/DXF drawing)")
     points: list[XY] | None = doc("the outline's [x, y] corners in order (at least 3; curves "
                                   "as many points, which the mesh resamples)", "m", None)
-    holes: list[list[XY]] = doc("holes inside the outline, each a list of [x, y] points",
-                                "m", [])
-    path: str | None = doc("an SVG or DXF drawing of closed paths instead of points",
-                           default=None)
+    circle: CircleSpec | None = doc("a round outline instead of points: radius, center and "
+                                    "segments", default=None)
+    holes: list[list[XY]] = doc("holes inside the outline (points or circle), each a list of "
+                                "[x, y] points", "m", [])
+    path: str | None = doc("an SVG or DXF drawing of closed paths instead of points or a "
+                           "circle", default=None)
     scale: Annotated[float, Field(ge=1e-9, le=1e3)] = doc(
         "the drawing's units to metres (1e-3 for a drawing in mm)", "m per drawing unit", 1.0)
     refine: list[RefineSpec] = doc(
@@ -175,27 +197,34 @@ class OutlineMesh(_Generated):
     @property
     def bands(self) -> tuple:
         """``refine`` as the mesher's bands (sim.geometry.outline.Band)."""
-        from sim.geometry.outline import Band
-
-        return tuple(Band(r.ring.r_min, r.ring.r_max, r.edge_length, r.growth)
+        return tuple(outline.Band(r.ring.r_min, r.ring.r_max, r.edge_length, r.growth)
                      for r in self.refine)
+
+    def shape(self) -> outline.Outline | None:
+        """The outline as the scene gives it, ``points`` or ``circle``, with its holes,
+        checked and counter-clockwise; None for a drawing (``path``), read when the mesh is
+        built. OutlineError naming the field."""
+        if self.path is not None:
+            return None
+        field = "points" if self.points is not None else "circle"
+        outer = outline.loop(self.points if self.points is not None else self.circle.loop(),
+                             field)
+        return outline.checked(outer, [outline.loop(h, f"holes.{i}")
+                                       for i, h in enumerate(self.holes)], field)
 
     @model_validator(mode="after")
     def _outline(self) -> Self:
-        from sim.geometry import outline
-
-        if (self.points is None) == (self.path is None):
-            raise ValueError("give exactly one of points, path")
+        given = [k for k in ("points", "path", "circle") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give exactly one of points, path, circle (got "
+                             f"{', '.join(given) or 'none'})")
         if self.path is not None:
             if self.holes:
                 raise ValueError("holes: a drawing's holes are its inner paths (holes go with "
-                                 "points)")
+                                 "points or circle)")
             return self
         try:
-            shape = outline.checked(outline.loop(self.points, "points"),
-                                    [outline.loop(h, f"holes.{i}")
-                                     for i, h in enumerate(self.holes)])
-            outline.check_size(shape, self.edge_length, self.bands)
+            outline.check_size(self.shape(), self.edge_length, self.bands)
         except outline.OutlineError as exc:
             raise ValueError(f"{exc.field}: {exc}") from None
         return self

@@ -1,6 +1,9 @@
-"""The ``outline`` mesh kind in scenes: points or a drawing next to the scene file, checked
-when the scene is read (points) or built (a drawing), errors naming the field; its size known
-before the build."""
+"""The ``outline`` mesh kind in scenes: points, a circle or a drawing next to the scene file,
+checked when the scene is read (points, circle) or built (a drawing), errors naming the field;
+its size known before the build."""
+
+import math
+import tomllib
 
 import numpy as np
 import pytest
@@ -8,8 +11,9 @@ import pytest
 from server.store import SceneStore
 from sim.geometry.trimesh import boundary_edges
 from sim.model import size
-from sim.model.sheet import mesh_and_thickness
+from sim.model.sheet import build_mesh, mesh_and_thickness
 from sim.scene.load import SceneError, load_scene, scene_from_toml
+from tests.support import ROOT
 
 SCENE = """
 name = "blank"
@@ -41,14 +45,75 @@ def outline_toml(**fields) -> str:
      "mesh: holes.0: hole 0 does not lie inside the outline"),
     ({"points": SQUARE, "edge_length": "0.08"}, "mesh: edge_length: 0.08 m is too coarse"),
     ({"points": SQUARE, "edge_length": "1e-6"}, "mesh: edge_length: 1e-06 m would give"),
-    ({}, "mesh: give exactly one of points, path"),
-    ({"points": SQUARE, "path": '"b.svg"'}, "mesh: give exactly one of points, path"),
+    ({}, "mesh: give exactly one of points, path, circle (got none)"),
+    ({"points": SQUARE, "path": '"b.svg"'},
+     "mesh: give exactly one of points, path, circle (got points, path)"),
     ({"path": '"b.svg"', "holes": f"[{HOLE}]"}, "mesh: holes: a drawing's holes are its"),
+    ({"points": SQUARE, "circle": "{ radius = 0.05 }"},
+     "mesh: give exactly one of points, path, circle (got points, circle)"),
+    ({"circle": "{ radius = 0.05 }", "path": '"b.svg"'},
+     "mesh: give exactly one of points, path, circle (got path, circle)"),
+    ({"circle": "{ radius = 0.0 }"}, "mesh.circle.radius: Input should be greater than"),
+    ({"circle": "{ radius = -0.05 }"}, "mesh.circle.radius: Input should be greater than"),
+    ({"circle": "{ radius = 0.05, segments = 14 }"},
+     "mesh.circle.segments: Input should be greater than or equal to 15"),
+    ({"circle": "{ radius = 0.05, segments = 100001 }"},
+     "mesh.circle.segments: Input should be less than or equal to 100000"),
+    ({"circle": "{ radius = 0.05, segments = 36.5 }"}, "mesh.circle.segments"),
+    ({"circle": "{ radius = 0.05, center = [0.0] }"}, "mesh.circle.center"),
+    ({"circle": "{ radius = 0.05, centre = [0.0, 0.0] }"}, "mesh.circle.centre: Extra inputs"),
+    ({"circle": "{ center = [0.0, 0.0] }"}, "mesh.circle.radius: Field required"),
+    ({"circle": "{ radius = 0.05 }", "holes": "[[[0.06, 0.0], [0.08, 0.0], [0.07, 0.01]]]"},
+     "mesh: holes.0: hole 0 does not lie inside the outline"),
+    ({"circle": "{ radius = 0.05 }", "edge_length": "0.05"},
+     "mesh: edge_length: 0.05 m is too coarse"),
 ])
 def test_bad_outline_is_refused_naming_the_field(fields, words):
     with pytest.raises(SceneError) as err:
         scene_from_toml(outline_toml(**fields))
     assert words in str(err.value)
+
+
+def test_a_circle_takes_holes():
+    """A circle of 40 mm about the square hole's centre (50, 50) mm, with the hole: its
+    boundary on the circle's 360-gon and on the hole's sides, nothing meshed in the hole."""
+    scene = scene_from_toml(outline_toml(circle="{ radius = 0.04, center = [0.05, 0.05] }",
+                                         holes=f"[{HOLE}]"))
+    m = mesh_and_thickness(scene)[0]
+    xy = m.vertices[:, :2]
+    square = np.abs(xy - 0.05).max(1)  # the hole is square <= 0.01
+    edge = np.unique(boundary_edges(m.faces))
+    on_hole = square[edge] <= 0.01 + 1e-12
+    r = np.hypot(*(xy[edge[~on_hole]] - 0.05).T)
+    sag = 0.04 * (1 - math.cos(math.pi / 360))  # the 360-gon's sides lie this far inside
+    assert on_hole.sum() >= 4 and len(r) == round(2 * math.pi * 0.04 / 0.005)  # resampled
+    assert (r > 0.04 - sag - 1e-9).all() and (r < 0.04 + 1e-9).all()
+    assert (square > 0.01 - 1e-12).all()
+
+
+def listed(radius: float, segments: int) -> str:
+    """A circle's points as a scene lists them: nine decimals of a metre."""
+    t = [2 * math.pi * k / segments for k in range(segments)]
+    return "[" + ", ".join(f"[{radius * math.cos(a):.9f}, {radius * math.sin(a):.9f}]"
+                           for a in t) + "]"
+
+
+def test_the_shipped_circle_meshes_as_its_listed_points():
+    """cup_drawing_outline's circle gives the very mesh of the 360 points it listed before
+    (nine decimals, as written by hand): gmsh's Frontal-Delaunay mesh changes when its input
+    moves in the last bits, which the circle's rounding to a nanometre keeps out."""
+    text = (ROOT / "scenes/cup_drawing_outline.toml").read_text()
+    spec = scene_from_toml(text).mesh
+    circle = spec.circle
+    points = scene_from_toml(outline_toml(
+        points=listed(circle.radius, circle.segments),
+        edge_length=repr(spec.edge_length))).mesh
+    assert circle.center == (0.0, 0.0)
+    np.testing.assert_array_equal(spec.shape().outer, points.shape().outer)
+    a, b = build_mesh(spec), build_mesh(points)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.faces, b.faces)
+    assert tomllib.loads(text)["mesh"]["circle"] == {"radius": 0.03, "segments": 360}
 
 
 def test_points_and_drawing_give_the_same_blank(tmp_path):

@@ -24,7 +24,8 @@ DIFFERENCES = {
     },
     "cup_drawing_outline": {
         "name": "its own", "description": "its own",
-        "mesh.kind": "the unstructured blank is the point", "mesh.points": "its outline",
+        "mesh.kind": "the unstructured blank is the point",
+        "mesh.circle": "its outline, a circle of the disk's radius (checked below)",
         "mesh.r_outer": "a disk's field", "shell.element": "issue 17's element",
         "probes.13": "the lateral force probed (x)", "probes.14": "and (y)",
     },
@@ -60,6 +61,13 @@ def test_a_cup_variant_differs_from_the_cup_only_where_it_says(name):
     for q in DIFFERENCES[name]:
         under = [p for p in fa.keys() | fb.keys() if p == q or p.startswith(q + ".")]
         assert any(fa.get(p) != fb.get(p) for p in under), f"{name}: {q} is cup_drawing's again"
+
+
+def test_the_outline_cup_cuts_the_cups_blank():
+    """The outline blank is the disk's: a circle of its r_outer about the z axis."""
+    base = tomllib.loads((SCENES / "cup_drawing.toml").read_text())["mesh"]
+    circle = tomllib.loads((SCENES / "cup_drawing_outline.toml").read_text())["mesh"]["circle"]
+    assert circle["radius"] == base["r_outer"] and circle.get("center", [0, 0]) == [0, 0]
 
 
 def test_the_check_sees_a_shared_value_edited_in_one_file():

@@ -67,3 +67,55 @@ def test_the_form_offers_outline_drawings_for_an_outline_path():
     from server.sceneform import schema
 
     assert schema()["$defs"]["OutlineMesh"]["properties"]["path"]["x-file"] == "outline"
+
+
+ROUND = SCENE.replace('name = "drawn"', 'name = "round"').replace(
+    'path = "blank.svg"\nscale = 0.001', "circle = { radius = 0.1, segments = 90 }")
+
+
+@pytest.mark.parametrize("circle, loc, words", [
+    ("{ radius = -0.1 }", "mesh.circle.radius", "greater than or equal to"),
+    ("{ radius = 0.1, segments = 14 }", "mesh.circle.segments", "greater than or equal to 15"),
+    ("{ radius = 0.1, center = [0.0, 0.0, 0.0] }", "mesh.circle.center", "at most 2 items"),
+])
+def test_a_bad_circle_is_422_naming_its_field(client, circle, loc, words):
+    """From a scene's TOML (save, validate), a run's overrides, and the form's render, whose
+    error the form shows by the field it names."""
+    bad = ROUND.replace("{ radius = 0.1, segments = 90 }", circle)
+    for r in (client.put("/api/scenes/round", json={"toml": bad}),
+              client.post("/api/scenes/validate", json={"toml": bad})):
+        assert r.status_code == 422 and f"{loc}: " in r.text and words in r.text, r.text
+    assert client.get("/api/scenes/round").status_code == 404  # nothing saved
+    scene = client.post("/api/scenes/parse", json={"toml": ROUND}).json()["scene"]
+    assert scene["mesh"]["circle"] == {"radius": 0.1, "center": [0.0, 0.0], "segments": 90}
+    raw = client.post("/api/scenes/parse", json={"toml": bad}).json()["raw"]
+    r = client.post("/api/scenes/render", json={"scene": raw}).json()
+    assert not r["ok"] and loc in {e["loc"] for e in r["errors"]}, r["errors"]
+
+
+def test_a_runs_override_of_the_circle_is_checked(client):
+    assert client.put("/api/scenes/round", json={"toml": ROUND}).status_code == 200
+    try:
+        r = client.post("/api/runs", json={"scene": "round",
+                                           "overrides": {"mesh.circle.radius": 0.0}})
+        assert r.status_code == 422 and "mesh.circle.radius" in r.text, r.text
+        r = client.post("/api/runs", json={"scene": "round",
+                                           "overrides": {"mesh.circle.segments": 10}})
+        assert r.status_code == 422 and "mesh.circle.segments" in r.text, r.text
+    finally:
+        assert client.delete("/api/scenes/round").status_code == 204
+
+
+def test_the_form_shows_a_circles_fields_with_their_units():
+    """mesh.circle is an optional table (the form's "unset" box) of a length, a point and a
+    whole number: the form's number, tuple and integer widgets, lengths shown in mm."""
+    from server.sceneform import schema
+
+    defs = schema()["$defs"]
+    field = defs["OutlineMesh"]["properties"]["circle"]
+    assert {"type": "null"} in field["anyOf"] and field["default"] is None
+    props = defs["CircleSpec"]["properties"]
+    assert props["radius"]["unit"] == "m" and props["radius"]["type"] == "number"
+    assert props["center"]["unit"] == "m" and len(props["center"]["prefixItems"]) == 2
+    assert props["segments"] == {**props["segments"], "type": "integer", "minimum": 15,
+                                 "maximum": 100000, "default": 360}

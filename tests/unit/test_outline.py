@@ -109,6 +109,51 @@ def test_absurd_edge_length(h, words):
     assert err.value.field == "edge_length"
 
 
+def test_circle_points_lie_on_it_counter_clockwise():
+    """The corners of the inscribed polygon: on the radius to the nanometre grid they are
+    rounded to (half a grid step in x and in y), a step of 360 / segments degrees between
+    them, counter-clockwise, the first on the +x side of the centre."""
+    centre = (0.01, -0.02)
+    p = ol.circle(R, centre, 90)
+    assert p.shape == (90, 2)
+    d = p - centre
+    np.testing.assert_allclose(np.hypot(*d.T), R, rtol=0, atol=np.sqrt(2) * 0.5e-9)
+    angle = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    np.testing.assert_allclose(np.diff(angle), 2 * np.pi / 90, atol=1e-7)  # 1e-9 m / R
+    assert angle[0] == 0.0 and p[0, 0] == pytest.approx(centre[0] + R)
+    assert ol._area(p) == ol.Outline(ol._ccw(p, True)).area  # already counter-clockwise
+    assert (ol._ccw(p, True) == p).all()
+    assert (p == np.round(p, 9)).all()
+
+
+def test_circle_segments_are_bounded_by_the_corner_threshold():
+    """Below MIN_SEGMENTS every vertex turns by more than CORNER and the mesh keeps the
+    polygon's corners; from it on the circle is resampled as a flattened curve: 15 segments
+    (24 degrees) is the first count that is."""
+    assert ol.MIN_SEGMENTS == 15
+    assert 2 * np.pi / ol.MIN_SEGMENTS < ol.CORNER < 2 * np.pi / (ol.MIN_SEGMENTS - 1)
+    h = 0.002
+    polygon = circle(n=ol.MIN_SEGMENTS - 1)  # ol.circle refuses it
+    kept = ol.resample(polygon, h)
+    assert {tuple(c) for c in polygon} <= {tuple(q) for q in kept}  # its corners stay
+    curve = ol.circle(R, segments=ol.MIN_SEGMENTS)
+    resampled = ol.resample(curve, h)
+    # one stretch divided evenly along the perimeter, through the corners but the first
+    assert len(resampled) == round(ol._length(curve) / h)
+    assert not {tuple(c) for c in curve[1:]} & {tuple(q) for q in resampled}
+    for n in (ol.MIN_SEGMENTS - 1, ol.MAX_SEGMENTS + 1):
+        with pytest.raises(ol.OutlineError, match=f"got {n}") as err:
+            ol.circle(R, segments=n)
+        assert err.value.field == "circle.segments"
+
+
+@pytest.mark.parametrize("radius", [0.0, -R, float("nan")])
+def test_circle_radius_must_be_positive(radius):
+    with pytest.raises(ol.OutlineError, match="positive") as err:
+        ol.circle(radius)
+    assert err.value.field == "circle.radius"
+
+
 SVG = """<svg xmlns="http://www.w3.org/2000/svg" width="200mm" height="200mm"
  viewBox="-100 -100 200 200"><g transform="translate(10, 0)">
  <path d="M -75 -75 H 75 V 75 H -75 Z"/><circle cx="0" cy="0" r="20"/></g></svg>"""
