@@ -4,7 +4,9 @@ or read from an SVG or DXF drawing, meshed into isotropic triangles of a target 
 The mesher is gmsh's Frontal-Delaunay (``Mesh.Algorithm = 6``): on a disk at 2 mm it gave a
 smallest angle of 42 degrees and an edge-length spread (standard deviation over mean) of 6 %,
 against 30 degrees and 19 % for Shewchuk's Triangle with an area bound, whose licence also
-forbids commercial distribution without an arrangement. Geometry checks (self-intersection,
+forbids commercial distribution without an arrangement. Its regularity has a price: inside
+the blank its triangles form one lattice, so a scene may ask for gmsh's MeshAdapt instead
+(``MESHERS``), whose edges point every way. Geometry checks (self-intersection,
 holes outside the outline or inside each other) are shapely's polygon validity, which names
 the point where a check fails. All lengths in metres; outlines lie in the plane z = 0.
 """
@@ -42,6 +44,10 @@ MAX_TRIANGLES = 2_000_000
 # resampling at the edge length sees the curve, not the chords
 FLATTEN = 0.1
 SUFFIXES = (".svg", ".dxf")
+# gmsh's 2-D algorithms a scene may choose (``Mesh.Algorithm``). Frontal-Delaunay's triangles
+# are the more regular, but inside a blank they line up in one 60-degree lattice, whose three
+# edge directions a drawn disk's rim takes as six waves; MeshAdapt's edges point every way.
+MESHERS = {"frontal_delaunay": 6, "meshadapt": 1}
 _GMSH = threading.Lock()  # gmsh is one global state per process
 
 
@@ -226,15 +232,16 @@ def estimate(outline: Outline, h: float) -> tuple[int, int]:
     return int(n_f / 2 + n_b / 2 + 1), int(n_f)
 
 
-def mesh(outline: Outline, h: float, bands: tuple[Band, ...] = ()) -> TriMesh:
+def mesh(outline: Outline, h: float, bands: tuple[Band, ...] = (),
+         mesher: str = "frontal_delaunay") -> TriMesh:
     """Isotropic triangles of edge length about ``h`` filling the outline, finer in the
-    ``bands``, counter-clockwise about +z: gmsh's Frontal-Delaunay mesher on the loops
-    resampled at ``h`` (their chords divided again where a band asks for less)."""
+    ``bands``, counter-clockwise about +z: gmsh's ``mesher`` (MESHERS) on the loops resampled
+    at ``h`` (their chords divided again where a band asks for less)."""
     check_size(outline, h, bands)
     loops = [resample(p, h) for p in (outline.outer, *outline.holes)]
     checked(loops[0], loops[1:], "edge_length", "edge_length")  # still simple at this h
     with _GMSH:
-        V, F = _gmsh(loops, h, bands)
+        V, F = _gmsh(loops, h, bands, MESHERS[mesher])
     a = _cross(V[F[:, 1], :2] - V[F[:, 0], :2], V[F[:, 2], :2] - V[F[:, 0], :2])
     F = np.where((a < 0)[:, None], F[:, [0, 2, 1]], F)
     return TriMesh(V, F)
@@ -254,8 +261,8 @@ def _keep_broken_pipes_ignored() -> None:
     libc.signal(int(signal.SIGPIPE), 1)  # 1: SIG_IGN
 
 
-def _gmsh(loops: list[np.ndarray], h: float,
-          bands: tuple[Band, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
+def _gmsh(loops: list[np.ndarray], h: float, bands: tuple[Band, ...],
+          algorithm: int) -> tuple[np.ndarray, np.ndarray]:
     import gmsh
 
     def size(dim: int, tag: int, x: float, y: float, z: float, lc: float) -> float:
@@ -267,7 +274,7 @@ def _gmsh(loops: list[np.ndarray], h: float,
     _keep_broken_pipes_ignored()
     try:
         gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.option.setNumber("Mesh.Algorithm", 6)
+        gmsh.option.setNumber("Mesh.Algorithm", algorithm)
         gmsh.option.setNumber("Mesh.MeshSizeMax", h)
         if bands:
             # the sizes come from the bands and h alone: a boundary's fine chords near a band

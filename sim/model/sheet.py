@@ -29,7 +29,7 @@ def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
                 meshes.sphere_patch(spec.radius, spec.hole, spec.azimuth, spec.cells))
         return mesh if spec.curved else meshes.TriMesh(mesh.vertices, mesh.faces)
     if spec.kind == "outline":
-        return outline.mesh(outline_of(spec), spec.edge_length, spec.bands)
+        return outline.mesh(outline_of(spec), spec.edge_length, spec.bands, spec.mesher)
     return meshes.load(spec.path, spec.scale, spec.merge_vertices)
 
 

@@ -193,6 +193,11 @@ class OutlineMesh(_Generated):
         "the drawing's units to metres (1e-3 for a drawing in mm)", "m per drawing unit", 1.0)
     refine: list[RefineSpec] = doc(
         "rings around the z axis meshed finer (each graded back to edge_length)", default=[])
+    mesher: Literal[tuple(outline.MESHERS)] = doc(
+        "gmsh's algorithm: frontal_delaunay (the most regular triangles, lined up in a "
+        "60-degree lattice: a drawn disk's rim takes six waves from it) or meshadapt (edges "
+        "in every direction: no waves from the mesh, less regular triangles)",
+        default="frontal_delaunay")
 
     @property
     def bands(self) -> tuple:

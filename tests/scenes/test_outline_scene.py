@@ -116,6 +116,21 @@ def test_the_shipped_circle_meshes_as_its_listed_points():
     assert tomllib.loads(text)["mesh"]["circle"] == {"radius": 0.03, "segments": 360}
 
 
+def test_the_mesher_is_the_scenes_choice():
+    """mesh.mesher reaches the build: the shipped cup's blank with MeshAdapt is another mesh
+    on the same boundary (the outline resampled at the edge length, whichever mesher)."""
+    text = (ROOT / "scenes/cup_drawing_outline.toml").read_text()
+    frontal = scene_from_toml(text).mesh
+    adapt = frontal.model_copy(update={"mesher": "meshadapt"})
+    a, b = build_mesh(frontal), build_mesh(adapt)
+    assert len(a.faces) != len(b.faces)
+    rim = [np.sort(np.linalg.norm(m.vertices[np.unique(boundary_edges(m.faces))][:, :2], axis=1))
+           for m in (a, b)]
+    np.testing.assert_array_equal(rim[0], rim[1])
+    with pytest.raises(SceneError, match="mesh.mesher"):
+        scene_from_toml(text.replace("[mesh]\n", '[mesh]\nmesher = "delaunay"\n', 1))
+
+
 def test_points_and_drawing_give_the_same_blank(tmp_path):
     """A square with a square hole, as points and as an SVG in mm next to the scene: the same
     boundary vertices (the interior follows the order gmsh meets them in); its size estimated

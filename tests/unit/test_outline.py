@@ -56,6 +56,33 @@ def test_disk_is_isotropic():
     assert np.linalg.norm(m.vertices[:, :2], axis=1).max() == pytest.approx(R, rel=1e-12)
 
 
+def lattice_order(m, r_max: float) -> float:
+    """How far the mesh's edges inside ``r_max`` line up in one 60-degree lattice: the
+    length-weighted |mean of exp(6 i theta)| over their directions theta, 1 for a lattice's
+    three directions, about 1 / sqrt(edges) for directions at random."""
+    V, F = m.vertices[:, :2], m.faces
+    e = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), 1), axis=0)
+    d = V[e[:, 1]] - V[e[:, 0]]
+    inside = np.linalg.norm(V[e[:, 1]] + V[e[:, 0]], axis=1) / 2 < r_max
+    w = np.linalg.norm(d[inside], axis=1)
+    return float(abs(np.sum(w * np.exp(6j * np.arctan2(d[inside, 1], d[inside, 0])))) / w.sum())
+
+
+def test_meshadapt_blank_has_no_lattice():
+    """The 30 mm disk at 2 mm: Frontal-Delaunay's triangles inside r = 20 mm form one
+    lattice (order 1.000 measured: the six waves of a drawn cup's rim), MeshAdapt's edges
+    point every way (0.06 measured, over about 1,700 edges: 0.025 would be random). 0.9 and
+    0.2 tell the two apart with room for another gmsh version's details; MeshAdapt's triangles
+    are less regular (30 degrees smallest measured), still no sliver (over 25)."""
+    shape = ol.checked(ol.loop(circle(n=360), "points"), [])
+    assert lattice_order(ol.mesh(shape, H), 0.02) > 0.9
+    adapt = ol.mesh(shape, H, mesher="meshadapt")
+    assert lattice_order(adapt, 0.02) < 0.2
+    angles, length = angles_and_edges(adapt)
+    assert angles.min() > 25.0 and abs(length.mean() / H - 1) < 0.1
+    assert (signed_areas(adapt) > 0).all() and euler(adapt) == 1
+
+
 def test_corners_and_holes_kept():
     """A square's corners stay vertices with its sides divided evenly; a round hole leaves no
     vertex inside it and the area of the square less the hole's resampled polygon."""
