@@ -188,6 +188,8 @@ def _apply(node: MutableMapping, old: dict, new: dict, lean: dict) -> None:
                 _uncomment(node[k])
         elif _tables(v) and _tables(old.get(k)) and isinstance(node[k], (AoT, Array)):
             _apply_list(node[k], old[k], v, lean.get(k, []))
+            if isinstance(node[k], Array):  # inline tables on one line: one comment for all
+                _uncomment(node[k])
         else:
             node[k] = _item(lean.get(k, v), _inline(node))
             _uncomment(node[k])

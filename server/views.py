@@ -96,7 +96,8 @@ class Views:
             preview = v.preview or {}
             return {"view": view or DEFAULT, "run": v.run, "scene": preview.get("scene"),
                     "preview": preview.get("state"), "preview_error": preview.get("error"),
-                    "step": v.step, "notices": [n for n in v.notices if n["seq"] > since]}
+                    "preview_edited": preview.get("edited"), "step": v.step,
+                    "notices": [n for n in v.notices if n["seq"] > since]}
 
     def selected(self, view: str | None) -> str | None:
         with self.m.lock:
@@ -171,13 +172,14 @@ class Views:
         if not self.m.viewer:
             raise Conflict("the viewer is off (the server runs without it): nothing to "
                            "preview on")
-        text, _ = self.m.store.run_text(scene, toml)
+        text, edited = self.m.store.run_text(scene, toml)
         _, overrides = self.m.store.checked(text, {}, self.m.settings.max_model_bytes)
         with self.m.lock:  # a free solver builds it at once; else between an active run's steps
             worker = min(self.m.slots, key=lambda s: s.run is not None).worker
             rid = worker.send("preview", scene=scene, scene_toml=text, overrides=overrides)
-            self._get(view).preview = {"scene": scene, "request": rid, "state": "building"}
-        self.m.viewer.preview_status(f"Preview of scene `{scene}`: building its model…",
+            self._get(view).preview = {"scene": scene, "request": rid, "state": "building",
+                                       "edited": edited}
+        self.m.viewer.preview_status(f"Preview of {_named(scene, edited)}: building its model…",
                                      view or DEFAULT)
         return self.view(view)
 
@@ -226,11 +228,18 @@ class Views:
 
     def _draw_preview(self, view: str, ev: dict) -> None:
         scene = ev["scene"]
+        with self.m.lock:
+            named = _named(scene, (self._get(view).preview or {}).get("edited"))
         if "error" in ev:
-            self.m.viewer.preview_status(f"Preview of scene `{scene}` failed: {ev['error']}",
-                                         view)
+            self.m.viewer.preview_status(f"Preview of {named} failed: {ev['error']}", view)
             return
         self.m.viewer.show_preview(scene, ev["faces"], ev["tools"], ev["frame"],
-                                   f"Preview of scene `{scene}`: its blank and tools at the "
+                                   f"Preview of {named}: its blank and tools at the "
                                    "start, before any run  \n(choose a run to show it)",
                                    view=view)
+
+
+def _named(scene: str, edited: bool | None) -> str:
+    """The previewed scene as the viewer's status names it: a preview of edits not saved yet
+    says so, since the scene list's entry of that name is the saved file."""
+    return f"scene `{scene}`" + (" with its unsaved edits" if edited else "")

@@ -85,11 +85,30 @@ async function loadScenes() {
 }
 
 // a scene the user chooses shows in 3-D at rest, its blank and tools, before any run (the
-// solver builds it between the steps of a running run; selecting a run shows that run again)
-function previewScene(name) {
+// solver builds it between the steps of a running run; selecting a run shows that run again);
+// with ``toml``, as the editor holds it (edits not saved yet)
+function previewScene(name, toml) {
   if (!$("viewer")) return;  // no viewer here to show it in
-  api("PUT", "/api/view/scene", {scene: name})
+  state.previewing = name;  // before the next poll says so: the edits that follow show too
+  api("PUT", "/api/view/scene", toml === undefined ? { scene: name } : { scene: name, toml })
     .catch((e) => say(`preview of ${name}: ${e.message}`, true));
+}
+
+async function previewEditor() {
+  // the Preview button: the editor's scene, also while the viewer shows a run
+  await flushSync();
+  if (state.tomlStale || Number($("scene-error").dataset.count || 0) > 0)
+    return say("the scene has errors (see the fields): nothing to preview", true);
+  previewScene(state.scene, $("toml").value);
+}
+
+function previewEdits() {
+  // the editor's valid edits of the scene the viewer previews show there: a blank made
+  // larger, a tool moved, without a save or a run. The solver builds each preview, so a
+  // burst of edits asks for one, after the last.
+  if (!$("viewer") || state.previewing !== state.scene) return;
+  clearTimeout(state.previewTimer);
+  state.previewTimer = setTimeout(() => previewScene(state.scene, $("toml").value), 800);
 }
 
 async function selectScene(name) {
@@ -159,6 +178,7 @@ async function syncFromForm() {
     followElement(state.form.value());
     showSceneErrors(r.errors);
     $("sync").textContent = r.ok ? "valid" : `${r.errors.length} error(s)`;
+    if (r.ok) previewEdits();
   } catch (e) { say(e.message, true); }
 }
 
@@ -176,6 +196,7 @@ async function syncFromToml() {
     if (r.scene) followElement(r.scene);
     showSceneErrors(r.errors);
     $("sync").textContent = r.ok ? "valid" : `${r.errors.length} error(s)`;
+    if (r.ok) previewEdits();
   } catch (e) { say(e.message, true); }
 }
 
@@ -447,6 +468,7 @@ async function followView() {
   const v = await api("GET", `/api/view?since=${state.noticeSeq}`);
   Owner.showNotices(v.notices);
   if (seq !== state.viewSeq) return;
+  state.previewing = v.scene;  // the scene this page's viewer previews (null: a run)
   adoptRun(v.run);
   // the step this page's 3-D view was scrubbed to: marked on the run's plots
   Plots.scrubAt(v.run === state.run && !v.scene ? v.step : null);
@@ -500,6 +522,7 @@ function viewerOff(why) {
   // and the downloads need no viewer)
   $("viewer").remove();
   $("full-window").hidden = true;
+  $("preview-scene").hidden = true;  // nothing to preview in
   const box = $("viewer-box");
   box.classList.add("off");
   const p = (html) => Object.assign(document.createElement("p"), { innerHTML: html });
@@ -552,6 +575,7 @@ async function main() {
   Results.init();
   RunsTable.init({ select: selectRun, say, reload: loadRuns });
   $("save").onclick = saveScene;
+  $("preview-scene").onclick = previewEditor;
   state.form = new SceneForm.Form($("scene-form"), await api("GET", "/api/scenes/schema"),
                                   () => { editorEdited(); scheduleSync(syncFromForm, 300); },
                                   suggestNames);

@@ -136,9 +136,10 @@ const Plots = (() => {
   }
 
   // each quantity's row of a stacked plot over steps (px): its plot, a gap below it and
-  // above it its legend's lines (as many as its names need at about 6 px a character and
-  // 40 px a mark)
-  const ROW = 124, GAP = 12, LINE = 16;
+  // above it its legend: the title on a line of its own, then the names in columns of one
+  // width, as many lines as they take (about 6.5 px a character of the longest name and 46
+  // px for its mark). Fixed widths, not plotly's own, make the lines countable before drawing.
+  const ROW = 124, GAP = 12, LINE = 21, CHAR = 6.5, SWATCH = 46;
 
   function stacked(width, margin, rows) {
     // a row per quantity ({kind, unit, names}), stacked, the steps shared below. Each row's
@@ -146,25 +147,30 @@ const Plots = (() => {
     // put a dozen names far below the lines they name, and rotated titles longer than a row
     // overlapped their neighbours'. Returns the layout's height and axes and legends, and
     // the y axis and legend of a trace of row k.
-    const leads = rows.map((r) => {
-      const chars = r.kind.length + (r.unit || "").length + r.names.join("").length;
-      return 10 + LINE * Math.ceil((6 * chars + 40 * r.names.length) / Math.max(width - 80, 100));
+    // the legend's room: the plot's width less the y axis's labels (a hidden div: the page's)
+    const room = Math.max((width || 700) - margin.l - margin.r - 24, 120);
+    const legends = rows.map((r) => {
+      const entry = Math.min(room, SWATCH + CHAR * Math.max(...r.names.map((n) => n.length)));
+      const lines = 1 + Math.ceil(r.names.length / Math.max(1, Math.floor(room / entry)));
+      return { entry, lead: 4 + LINE * lines };
     });
-    const plotted = leads.reduce((h, lead) => h + lead + ROW + GAP, 0);
+    const plotted = legends.reduce((h, g) => h + g.lead + ROW + GAP, 0);
     const layout = { height: plotted + margin.t + margin.b,
                      xaxis: axis("step", { anchor: rows.length > 1 ? `y${rows.length}` : "y" }) };
     let top = plotted;  // px above the bottom margin
     rows.forEach((r, k) => {
-      const unit = r.unit || "count";
-      const name = r.kind === "?" ? "SI units" : r.kind.replaceAll("_", " ");
+      const { entry, lead } = legends[k];
+      const unit = r.kind === "?" ? "SI" : r.unit || "count";
+      const name = r.kind === "?" ? "no kind recorded" : r.kind.replaceAll("_", " ");
       layout[k ? `yaxis${k + 1}` : "yaxis"] = axis(unit, {
         anchor: "x", title: { text: unit, standoff: 4, font: { size: 10 } },
-        domain: [(top - leads[k] - ROW) / plotted, (top - leads[k]) / plotted] });
+        domain: [(top - lead - ROW) / plotted, (top - lead) / plotted] });
       layout[k ? `legend${k + 1}` : "legend"] = {
         orientation: "h", x: 0, xref: "paper", xanchor: "left", y: top / plotted,
         yref: "paper", yanchor: "top", font: { size: 10 }, bgcolor: "rgba(0,0,0,0)",
-        title: { text: `<b>${name}</b> (${unit})`, side: "left" } };
-      top -= leads[k] + ROW + GAP;
+        entrywidth: entry, entrywidthmode: "pixels", tracegroupgap: 0,
+        title: { text: `<b>${name}</b> (${unit})`, side: "top" } };
+      top -= lead + ROW + GAP;
     });
     const row = (k) => ({ yaxis: k ? `y${k + 1}` : "y", legend: k ? `legend${k + 1}` : "legend",
                           showlegend: true });
@@ -186,7 +192,8 @@ const Plots = (() => {
   function probes(div, series, log) {
     const rows = quantities(series);
     const b = base("Probes", 0);
-    const { layout, row } = stacked(div.clientWidth, b.margin, rows);
+    const { layout, row } = stacked(div.clientWidth || div.parentElement.clientWidth,
+                                     b.margin, rows);
     const traces = series.map((s) => ({
       x: s.steps, y: s.values, name: s.name, type: "scatter", mode: "lines+markers",
       marker: { size: 3 }, xaxis: "x", ...row(rows.findIndex((r) => r.kind === (s.kind || "?"))),

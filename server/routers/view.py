@@ -43,6 +43,8 @@ class View(BaseModel):
     preview: str | None = Field(None, description="the preview's state: building, shown or "
                                                   "failed (null: no preview)")
     preview_error: str | None = Field(None, description="why the preview failed to build")
+    preview_edited: bool | None = Field(None, description="whether the preview shows edits "
+                                        "not saved yet (`toml` in `PUT /api/view/scene`)")
     step: int | None = Field(None, description="the step this view's viewer shows after its "
                              "time slider was moved (null: the run's latest)")
     notices: list[Notice] = Field(default_factory=list, description=(

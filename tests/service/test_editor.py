@@ -58,6 +58,10 @@ def test_an_edited_line_loses_its_trailing_comment_and_the_others_keep_theirs():
                             {"bend": {"angle": 0.1, "length": 0.1}},
                             {"bend": {"angle": 0.2, "length": 0.1}}, {})
     assert inline == "bend = { angle = 0.2, length = 0.1 }\n"
+    listed = tomlout.edited('refine = [{ edge_length = 0.001 }]   # 1 mm at the die\n',
+                            {"refine": [{"edge_length": 0.001}]},
+                            {"refine": [{"edge_length": 0.002}]}, {})
+    assert listed == "refine = [{ edge_length = 0.002 }]\n"
 
 
 def test_an_edit_of_kind_tables_and_lists_reads_back_as_the_edited_scene():

@@ -19,8 +19,8 @@ import httpx
 import pytest
 import trimesh
 
-from tests.support.browser import (open_scene, serve_without_viewer, shot, shots_dir,
-                                   stacked_rows)
+from tests.support import ROOT
+from tests.support.browser import open_scene, serve_without_viewer, shot, shots_dir, stacked_rows
 from tests.support.scenes import PRESS_TOML, tiny_cup_toml
 from tests.support.service import ENDED, until
 
@@ -189,6 +189,37 @@ def probes_have_a_legend_per_quantity(page) -> None:
         ("<b>tool force</b> (kN)", "kN", ["punch_force"]),
         ("<b>thickness</b> (mm)", "mm", ["min_thickness"]),
         ("<b>displacement</b> (mm)", "mm", ["punch_travel"])], rows
+
+
+def test_probe_legends_fit_above_their_rows(open_page, served):
+    """The page's first scene's probes (cup_drawing_outline: 15 probes of 10 kinds) drawn at
+    the plot column's narrowest width (320 px) and at 600 px: each quantity's legend, as
+    plotly draws it, ends above its own row's plot and inside the plot's width."""
+    url, _ = served
+    page = open_page(url, "#scenes li.sel")
+    probes = tomllib.loads((ROOT / "scenes/cup_drawing_outline.toml").read_text())["probes"]
+    series = [{"name": p["name"], "kind": p["kind"], "unit": "mm", "steps": [0, 1, 2],
+               "values": [0.0, 1.0, 2.0]} for p in probes]
+    for width in (320, 600):
+        rows = page.evaluate("""async ([series, w]) => {
+            const div = document.createElement('div');
+            div.style.width = w + 'px';
+            document.body.append(div);
+            await Plots.probes(div, series, []);
+            const L = div._fullLayout, box = div.getBoundingClientRect(), rows = [];
+            for (let k = 1; L[k > 1 ? 'legend' + k : 'legend']; k++) {
+              const g = div.querySelector('g.legend' + (k > 1 ? k : '')).getBoundingClientRect();
+              rows.push({ bottom: g.bottom - box.top, right: g.right - box.left,
+                          plot: L[k > 1 ? 'yaxis' + k : 'yaxis']._offset,
+                          names: div.data.filter((t) => t.legend === (k > 1 ? 'legend' + k
+                                                                           : 'legend')).length });
+            }
+            div.remove();
+            return rows; }""", [series, width])
+        assert len(rows) == len({p["kind"] for p in probes}), rows
+        assert sum(r["names"] for r in rows) == len(probes)
+        for r in rows:
+            assert r["bottom"] <= r["plot"] and r["right"] <= width, (width, r)
 
 
 def test_tool_meshes_are_offered_for_a_mesh_tool_labelled_by_kind(open_page, served):

@@ -192,3 +192,35 @@ def test_choosing_a_scene_previews_it_in_3d(served, browser):
               "selecting a run did not end the preview")
     assert not [e for e in errors if "/static/" in e], errors
     page.close()
+
+
+def test_edits_in_the_form_show_in_the_preview(served, browser):
+    """Valid edits of the scene the viewer previews show there without a save, its status
+    saying they are unsaved; the Preview button shows them also while a run is shown; the
+    saved file stays as it was."""
+    url = served
+    page, errors = open_page(browser, url)
+    own = {"X-Q3T-View": page.evaluate("VIEW")}
+
+    def previewed(edited: bool) -> dict:
+        def shown() -> dict | None:
+            v = httpx.get(f"{url}/api/view", headers=own).json()
+            return v if v["preview"] == "shown" and v["preview_edited"] is edited else None
+        return until(shown, f"no preview with preview_edited {edited}")
+
+    page.click("#scenes li[data-name=tiny_cup]")
+    previewed(False)
+    page.fill("[name='mesh.r_outer']", "14")  # mm: the blank 28 mm across instead of 24
+    previewed(True)
+    page.frame_locator("#viewer").get_by_text("with its unsaved edits").first.wait_for()
+    shot(page, SHOTS, "preview-edited", settle_ms=SETTLE_MS)
+    assert "r_outer = 0.012\n" in httpx.get(f"{url}/api/scenes/tiny_cup").json()["toml"]
+    rows = page.locator("#runs tr[data-id]")
+    if rows.count():  # an earlier test's run: shown again, then the button previews the edits
+        rows.first.locator("td").first.click(force=True)  # a live row is redrawn at each poll
+        until(lambda: httpx.get(f"{url}/api/view", headers=own).json()["preview"] is None,
+              "selecting a run did not end the preview")
+        page.click("#preview-scene")
+        assert previewed(True)["scene"] == "tiny_cup"
+    assert not errors, errors
+    page.close()

@@ -164,7 +164,7 @@ def stacked_rows(page, div: str) -> list[dict]:
         }
         return Object.values(rows); }""", div)
     rows.sort(key=lambda r: -r["top"])
-    for upper, lower in zip(rows, rows[1:]):
+    for upper, lower in zip(rows, rows[1:], strict=False):
         assert upper["domain"][0] > lower["top"], (upper, lower)  # a gap between rows
     for r in rows:
         assert r["top"] > r["domain"][1], r  # the legend above its own row
