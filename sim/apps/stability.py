@@ -27,7 +27,7 @@ from sim.frames.fields import mid_surface
 from sim.solve.problem import Problem
 
 if TYPE_CHECKING:
-    from sim.stepping.simulation import Simulation
+    from sim.stepping.simulation import Simulation, StepRecord
 
 
 def free_hessian(problem: Problem, x: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
@@ -192,6 +192,49 @@ def _observe(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int, 
                      spec.negative, zshare, float(z.max() - z.min()), iterations), mode
 
 
+def _wrinkles(point: PathPoint) -> bool:
+    """Whether ``point``'s lowest mode is unstable and a wrinkle to kick along: mostly out of
+    the plane (an in-plane one, a neck or an edge mode, has no z to scale the kick by)."""
+    return point.eigenvalues[0] < 0 and point.out_of_plane > 0.5
+
+
+def _at_converged(sim: Simulation) -> None:
+    """The loads back at the scene time of ``sim``'s state after a failed step: its failed
+    sub-step left them at its own time (the Hessian of a follower load depends on them)."""
+    from sim.model.curves import load_factor
+
+    m = sim.model
+    if m.external is not None:
+        m.external.factor = float(load_factor(m.scene.stepping, sim.t)) \
+            * sim.parameters["load_scale"]
+
+
+def _shorter_step(sim: Simulation, iterations: int) -> StepRecord:
+    """The converged part of a failed step made a step of its own, ending at ``sim``'s state:
+    Simulation._advance commits each converged sub-step, so after a SolverFailure the state is
+    the last of them, at ``sim.t``, and only the step's bookkeeping is missing (what _advance
+    does after its last sub-step). The failure is cleared; ``iterations``: Newton's, failed
+    sub-steps' included, as a step counts them. The next step ends at the next planned one
+    (``follow`` realigns)."""
+    from sim.frames import probes
+    from sim.stepping.simulation import StepRecord
+
+    m = sim.model
+    cutbacks = sim.failure["cutbacks"]
+    sim.failure = None
+    sim.progress = sim.t / sim._dt()
+    sim._stroked += 1
+    sim.step_index += 1
+    g = m.problem.gradient(sim.x)
+    g[m.problem.fixed] = 0.0  # the residual Newton measures: the held DoFs' reactions left out
+    rec = StepRecord(sim.step_index, sim.t, iterations, float(np.linalg.norm(g)),
+                     m.problem.energy(sim.x), cutbacks, probes.evaluate(m, sim.x),
+                     sim._tool_reports(), sim._lag_change(sim.x))
+    sim.records.append(rec)
+    sim._record_sections()
+    return rec
+
+
 def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3,
            kick: float = 0.0) -> Iterator[PathPoint]:
     """Step ``sim`` (a static Simulation) to its end, yielding at its start (step 0) and after
@@ -215,8 +258,14 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     corrections are mirror-symmetric only to round-off), settle on whichever wrinkled branch
     round-off picked; a short one from a flat stable state stays on the plane. A step of 1/8
     that still leaves the plane ends the path failed (``sim.failure``), not on a branch
-    round-off chose. After it the steps realign with the planned ones. Ends early when
-    a step fails (the Simulation's ``failure`` says why)."""
+    round-off chose. After it the steps realign with the planned ones.
+
+    After the first kick, a step that fails after some of its sub-steps converged ends at the
+    last of them, a shorter step of the path, when that state's lowest eigenvalue is negative
+    and its mode out of plane: a further bifurcation inside the step, onto whose unstable
+    state Newton, with its projected (positive) Hessian, cannot converge. That state is then
+    kicked like any other, and the next step ends at the next planned one. Otherwise the path
+    ends early when a step fails (the Simulation's ``failure`` says why)."""
     from sim.stepping.simulation import SolverFailure
 
     if kick and (why := history(sim)):
@@ -227,9 +276,7 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     kicked, length = False, 1.0  # the step's length in planned steps
     point, mode = _observe(sim, nodes, direction, k, 0, 0)
     while True:
-        # only a mode out of the plane is a wrinkle to push along (an in-plane one, a neck or
-        # an edge mode, has no z to scale the kick by)
-        if kick and point.eigenvalues[0] < 0 and point.out_of_plane > 0.5:
+        if kick and _wrinkles(point):
             zmode = mid_surface(sim.model, mode)[:, 2]
             sim.x = sim.x + mode * (kick / zmode[np.argmax(np.abs(zmode))])
             kicked = point.kicked = True
@@ -240,19 +287,33 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
         # the rest of the planned step (after halved ones), else a whole one
         rest = float(np.ceil(sim.progress - 1e-9) - sim.progress)
         rest = rest if rest > 1e-9 else 1.0
+        # a shorter step (the converged part of a failed one) can end nearer a planned step
+        # than the least tool_speed: the next one goes on to the planned step after it
+        rest += 1.0 if rest < sim.ranges["tool_speed"][0] else 0.0
         length = min(length, rest) if flat_path and rest < 1.0 else rest
         while True:
             mark = _mark(sim) if flat_path else None
             if sim.parameters["tool_speed"] != length:
                 sim.set_parameter("tool_speed", length)
+            t0, iterations0 = sim.t, sim.timing.iterations
             try:
                 rec = sim.step()
             except SolverFailure:
-                return
+                # past the first kick a step can cross a further bifurcation, and Newton (its
+                # projected Hessian is positive) cannot settle on the unstable state past it:
+                # a converged sub-step that is unstable ends a shorter step, kicked at the top
+                if not kicked or sim.t <= t0:
+                    return
+                _at_converged(sim)
+                point, mode = _observe(sim, nodes, direction, k, sim.step_index + 1,
+                                       sim.timing.iterations - iterations0)
+                if not _wrinkles(point):
+                    return
+                _shorter_step(sim, point.iterations)
+                break
             point, mode = _observe(sim, nodes, direction, k, rec.step, rec.iterations)
             left_plane = point.amplitude > FLAT * thickness
-            wrinkles = point.eigenvalues[0] < 0 and point.out_of_plane > 0.5  # to kick along
-            if not (flat_path and (wrinkles or left_plane)):
+            if not (flat_path and (_wrinkles(point) or left_plane)):
                 break
             if length <= 2.0**-HALVINGS:
                 if left_plane:

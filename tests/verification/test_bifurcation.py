@@ -2,6 +2,8 @@
 against a dense eigensolver, then on a case with an analytic answer (Euler buckling of a strip
 clamped at both ends), then on the stretched sheet of issue 17's Fig. 4 question."""
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -156,6 +158,90 @@ def test_kick_is_made_on_a_flat_state_at_most_an_eighth_of_a_step_past_the_cross
     # buckled past the Euler strain (a clamped column at 1.8 times it: about a thickness of
     # deflection), and stable there
     assert points[-1].amplitude > 0.5 * t and points[-1].eigenvalues[0] > 0
+
+
+def _fail_after_half(sim: Simulation, half: Callable[[float, float], object]) -> dict:
+    """Fault injection into ``sim``'s next step, once ``armed`` is set: every Newton solve of
+    the step fails except the one ending half way, which ``half`` answers (a NewtonResult);
+    the step then fails (SolverFailure) with its first half converged, as q3t_ans's 10 -> 12 %
+    step did on the stretched sheet; ``half`` takes the solve's arguments (Simulation._attempt)."""
+    from sim.solve.newton import NewtonResult
+
+    attempt, state = sim._attempt, {"armed": False}
+
+    def injected(t_new: float, dt: float) -> NewtonResult:
+        if not state["armed"]:
+            return attempt(t_new, dt)
+        if abs(t_new - state["half"]) < 1e-12 * t_new:
+            return half(t_new, dt)
+        return NewtonResult(sim.x.copy(), False, 0, 0.0, [1.0], reason="injected failure")
+
+    sim._attempt = injected
+    return state
+
+
+def _kicked_strip_with_a_failing_step(flat: bool) -> tuple[Simulation, list]:
+    """The Euler strip followed with a kick; the step after the kick fails with its first half
+    converged: onto the flat (unbuckled) equilibrium there, unstable past the Euler strain,
+    when ``flat``, else onto the state Newton finds (on the buckled branch, stable)."""
+    scene = scene_from_toml(STRIP)
+    sim = Simulation.from_scene(scene)
+    m = sim.model
+    t = float(np.mean(m.shell.thickness))
+    from sim.solve.newton import NewtonResult
+
+    def flat_state(t_new: float, dt: float) -> object:
+        # the same strip pulled there without a kick stays on its plane (by symmetry)
+        other = Simulation.from_scene(scene)
+        other.set_parameter("tool_speed", t_new / other._dt())
+        other.step()
+        return NewtonResult(other.x, True, 0, 0.0, [0.0])
+
+    state = _fail_after_half(sim, flat_state if flat else sim._attempt)
+    points = []
+    for p in follow(sim, m.column_nodes(m.regions["pushed_end"]), [-1.0, 0.0, 0.0], k=2,
+                    kick=0.1 * t):
+        points.append(p)
+        if p.kicked and len([q for q in points if q.kicked]) == 1:
+            # the next step ends at the next planned one (follow realigns after halvings)
+            end = np.ceil(sim.progress - 1e-9) * sim._dt()
+            state.update(armed=True, half=(sim.t + end) / 2)
+        else:
+            state["armed"] = False
+    return sim, points
+
+
+def test_a_failed_step_after_the_kick_ends_at_its_last_converged_unstable_sub_step():
+    """After the first kick, a step that fails after converging onto an unstable state (a
+    further bifurcation inside the step, where Newton's projected Hessian cannot converge)
+    becomes a shorter step ending there, kicked along its mode; the path then goes on to its
+    planned steps. With a stable converged sub-step the failure ends the path as before."""
+    from sim.apps.stability import FLAT
+
+    sim, points = _kicked_strip_with_a_failing_step(flat=True)
+    assert sim.failure is None
+    first = next(i for i, p in enumerate(points) if p.kicked)
+    before, short = points[first], points[first + 1]
+    step = 1e-4  # planned strain per step
+    end = step * np.ceil(before.strain / step - 1e-6)
+    # the shorter step ends half way to the next planned strain, flat and unstable there
+    assert short.strain == pytest.approx((before.strain + end) / 2, rel=1e-9)
+    assert short.kicked and short.eigenvalues[0] < 0 and short.negative >= 1
+    assert short.out_of_plane > 0.5 and short.amplitude < FLAT * 0.001
+    assert short.step == before.step + 1 and sim.records[-1].step == points[-1].step
+    # the kick takes it onto the buckled branch, and the steps after go to planned strains
+    after = points[first + 2:]
+    assert after and all(p.strain == pytest.approx(step * round(p.strain / step))
+                         for p in after)
+    assert points[-1].strain == pytest.approx(6 * step) and points[-1].eigenvalues[0] > 0
+
+    sim, points = _kicked_strip_with_a_failing_step(flat=False)
+    first = next(i for i, p in enumerate(points) if p.kicked)
+    assert sim.failure is not None and sim.failure["reason"] == "injected failure"
+    # its first half converged (Newton's own state there), but no step was recorded past the
+    # kick: that state is stable
+    assert sim.t > points[first].time and len(points) == first + 1
+    assert lowest_eigenvalues(free_hessian(sim.model.problem, sim.x)[0], 1).values[0] > 0
 
 
 def _sheet_to_4_percent(element: str, edge: float) -> tuple[Simulation, list]:
