@@ -14,7 +14,7 @@ from sim.elements import get_element
 from sim.geometry import trimesh as meshes
 from sim.geometry.shell import Shell, extrude
 from sim.model.dirichlet import region_mask
-from sim.model.sheet import build_mesh
+from sim.model.sheet import build_mesh, imperfect
 from sim.scene.boundary import REGION_TOLERANCE, RegionSpec
 from sim.scene.footprint import ring_problem
 from sim.scene.load import SceneError, load_scene
@@ -81,7 +81,7 @@ def test_the_message_says_where_the_nodes_lie(name, ring, boundary, where):
 @functools.cache
 def built(name: str, element: str) -> Shell:
     spec = TypeAdapter(MeshSpec).validate_python(MESHES[name])
-    return extrude(build_mesh(spec), 0.001, get_element(element))
+    return extrude(imperfect(build_mesh(spec), spec.imperfection), 0.001, get_element(element))
 
 
 def covered(shell: Shell, boundary: bool) -> list[tuple[float, float]]:
