@@ -5,7 +5,7 @@ ring outside the blank), which the build (sim.model.dirichlet.region_mask) would
 find only when the model is made: the page's form says so at the field as it is edited.
 
 Each mesh kind that knows its ranges says so (``radial_ranges`` of sim.scene.sheet's mesh
-tables, from the helpers here). The ranges hold every node the build makes (a superset: a ring
+tables, made by the helpers here). The ranges hold every node the build makes (a superset: a ring
 inside them may still fall between nodes, which the build then names), so the check never
 refuses a scene that builds.
 """
@@ -13,6 +13,7 @@ refuses a scene that builds.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -23,25 +24,34 @@ from sim.scene.boundary import REGION_TOLERANCE, RegionSpec
 Ranges = list[tuple[float, float]]
 
 
+@dataclass(frozen=True)
+class RadialRanges:
+    """Intervals of the distance from the z axis (m) that hold every node of a built mesh
+    (``nodes``) and every boundary node (``boundary``)."""
+
+    nodes: Ranges
+    boundary: Ranges
+
+
 class Blank(Protocol):
     """A mesh table (sim.scene.sheet.MeshSpec) as the check reads it."""
 
     imperfection: float
 
-    def radial_ranges(self, boundary: bool) -> Ranges | None: ...
+    def radial_ranges(self) -> RadialRanges | None: ...
 
 
-def annulus_ranges(r_inner: float, r_outer: float, h: float, boundary: bool) -> Ranges:
+def annulus_ranges(r_inner: float, r_outer: float, h: float) -> RadialRanges:
     """The ranges of sim.geometry.trimesh.annulus (a disk: ``r_inner`` 0): its vertices lie on
     circles and every other node on their chords, so a rim of radius r with n vertices holds
     its nodes from r cos(pi / n) to r; the boundary is the rims (a disk's centre is not one),
     all the nodes lie between the hole's rim and the outer circle."""
     rims = [(r * np.cos(np.pi / meshes.ring_vertices(r, h)), r)
             for r in (r_inner, r_outer) if r > 0.0]
-    return rims if boundary else [(rims[0][0] if r_inner > 0.0 else 0.0, r_outer)]
+    return RadialRanges([(rims[0][0] if r_inner > 0.0 else 0.0, r_outer)], rims)
 
 
-def loop_ranges(loops: Sequence[np.ndarray], boundary: bool) -> Ranges:
+def loop_ranges(loops: Sequence[np.ndarray]) -> RadialRanges:
     """The ranges of a mesh whose boundary nodes lie on the chords of ``loops`` (each
     ``(n, 2)``: the outer one, then the holes) and whose other nodes lie between them: for the
     boundary, each loop's span from its nearest point to the axis to its farthest vertex; for
@@ -49,22 +59,23 @@ def loop_ranges(loops: Sequence[np.ndarray], boundary: bool) -> Ranges:
     import shapely
 
     axis = shapely.Point(0.0, 0.0)
-    if boundary:
-        return [(float(axis.distance(shapely.LinearRing(p))), _farthest(p)) for p in loops]
-    return [(float(axis.distance(shapely.Polygon(loops[0], loops[1:]))), _farthest(loops[0]))]
+    inside = float(axis.distance(shapely.Polygon(loops[0], loops[1:])))
+    return RadialRanges([(inside, _farthest(loops[0]))],
+                        [(float(axis.distance(shapely.LinearRing(p))), _farthest(p))
+                         for p in loops])
 
 
 def _farthest(p: np.ndarray) -> float:
     return float(np.hypot(p[:, 0], p[:, 1]).max())
 
 
-def tolerance(mesh: Blank, ranges: Ranges) -> float:
+def tolerance(mesh: Blank, ranges: RadialRanges) -> float:
     """How far past a ring's bounds the check still counts a node (m): at least region_mask's
     REGION_TOLERANCE of the mesh's extent, bounded here by twice its largest radius in the
     plane or the imperfection's height out of it. Doubled, since the ranges' ends (cos(pi / n),
     shapely's distances) and the nodes' radii (made by the mesher) are computed apart and may
     differ in their last bits, far less than the tolerance itself."""
-    extent = max(2.0 * max(hi for _, hi in ranges), abs(mesh.imperfection))
+    extent = max(2.0 * max(hi for _, hi in ranges.nodes), abs(mesh.imperfection))
     return 2.0 * REGION_TOLERANCE * extent
 
 
@@ -72,18 +83,16 @@ def ring_problem(mesh: Blank, regions: Sequence[RegionSpec]) -> str | None:
     """The first ring region of ``regions`` that selects no node of ``mesh`` (no interval of its
     radial_ranges meets the ring), as ``regions.N.ring: ...``; None when each may select some
     or the mesh is known only once built."""
-    ranges: dict[bool, Ranges | None] = {}  # by ``boundary``: a fine outline's are not cheap
-    for i, region in enumerate(regions):
-        ring = region.ring
-        if ring is None:
-            continue
-        if region.boundary not in ranges:
-            ranges[region.boundary] = mesh.radial_ranges(region.boundary)
-        spans = ranges[region.boundary]
-        if spans is None:
-            return None
-        tol = tolerance(mesh, spans)
-        if not any(a <= ring.r_max + tol and ring.r_min - tol <= b for a, b in spans):
+    rings = [(i, r) for i, r in enumerate(regions) if r.ring is not None]
+    # once for all rings, and none without one: a fine outline's are not cheap
+    ranges = mesh.radial_ranges() if rings else None
+    if ranges is None:
+        return None
+    tol = tolerance(mesh, ranges)
+    for i, region in rings:
+        spans = ranges.boundary if region.boundary else ranges.nodes
+        if not any(a <= region.ring.r_max + tol and region.ring.r_min - tol <= b
+                   for a, b in spans):
             return f"regions.{i}.ring: {_missed(region, spans)}"
     return None
 

@@ -40,11 +40,10 @@ class _Mesh(Strict):
         "wrinkled branch; q3t bifurcation finds where the flat path loses stability and "
         "kicks along the mode instead", "m", 0.0)
 
-    def radial_ranges(self, boundary: bool) -> footprint.Ranges | None:
+    def radial_ranges(self) -> footprint.RadialRanges | None:
         """Intervals of the distance from the z axis (m) that hold every node of the built
-        mesh, or only its boundary nodes (``boundary``), known before it is built
-        (sim.scene.footprint); None: known only once built (a file, a drawing, a curved
-        surface)."""
+        mesh, and every boundary node, known before it is built (sim.scene.footprint); None:
+        known only once built (a file, a drawing, a curved surface)."""
         return None
 
 
@@ -59,10 +58,10 @@ class RectangleMesh(_Generated):
     size: tuple[Length, Length] = doc("its sides (Lx, Ly)", "m")
     origin: tuple[Coord, Coord] = doc("its corner of least x and y", "m", (0.0, 0.0))
 
-    def radial_ranges(self, boundary: bool) -> footprint.Ranges:
+    def radial_ranges(self) -> footprint.RadialRanges:
         (x0, y0), (lx, ly) = self.origin, self.size
         corners = np.array([[x0, y0], [x0 + lx, y0], [x0 + lx, y0 + ly], [x0, y0 + ly]])
-        return footprint.loop_ranges([corners], boundary)
+        return footprint.loop_ranges([corners])
 
 
 class AnnulusMesh(_Generated):
@@ -78,8 +77,8 @@ class AnnulusMesh(_Generated):
             raise ValueError("r_inner must be smaller than r_outer")
         return self
 
-    def radial_ranges(self, boundary: bool) -> footprint.Ranges:
-        return footprint.annulus_ranges(self.r_inner, self.r_outer, self.edge_length, boundary)
+    def radial_ranges(self) -> footprint.RadialRanges:
+        return footprint.annulus_ranges(self.r_inner, self.r_outer, self.edge_length)
 
 
 class DiskMesh(_Generated):
@@ -88,8 +87,8 @@ class DiskMesh(_Generated):
     kind: Literal["disk"] = doc("a disk in z = 0 centred on the z axis")
     r_outer: Length = doc("the disk's radius", "m")
 
-    def radial_ranges(self, boundary: bool) -> footprint.Ranges:
-        return footprint.annulus_ranges(0.0, self.r_outer, self.edge_length, boundary)
+    def radial_ranges(self) -> footprint.RadialRanges:
+        return footprint.annulus_ranges(0.0, self.r_outer, self.edge_length)
 
 
 class CylinderBandMesh(_Generated):
@@ -236,11 +235,10 @@ class OutlineMesh(_Generated):
         return outline.checked(outer, [outline.loop(h, f"holes.{i}")
                                        for i, h in enumerate(self.holes)], field)
 
-    def radial_ranges(self, boundary: bool) -> footprint.Ranges | None:
+    def radial_ranges(self) -> footprint.RadialRanges | None:
         if self.path is not None:
             return None
-        return footprint.loop_ranges(outline.meshed_loops(self.shape(), self.edge_length),
-                                     boundary)
+        return footprint.loop_ranges(outline.meshed_loops(self.shape(), self.edge_length))
 
     @model_validator(mode="after")
     def _outline(self) -> Self:
