@@ -202,6 +202,13 @@ def resample(p: np.ndarray, h: float) -> np.ndarray:
     return np.concatenate(out)
 
 
+def meshed_loops(outline: Outline, h: float) -> list[np.ndarray]:
+    """The loops that :func:`mesh` gives gmsh, the outer one first: resampled at ``h``. Every
+    boundary node of the mesh lies on their chords (a band only divides them again) and every
+    other node inside the outer loop and outside the holes."""
+    return [resample(p, h) for p in (outline.outer, *outline.holes)]
+
+
 def check_size(outline: Outline, h: float, bands: tuple[Band, ...] = ()) -> None:
     """OutlineError naming ``edge_length`` when ``h`` is too coarse to resolve the outline
     (fewer than about four triangles across it), or naming ``refine`` when a band is not finer
@@ -238,7 +245,7 @@ def mesh(outline: Outline, h: float, bands: tuple[Band, ...] = (),
     ``bands``, counter-clockwise about +z: gmsh's ``mesher`` (MESHERS) on the loops resampled
     at ``h`` (their chords divided again where a band asks for less)."""
     check_size(outline, h, bands)
-    loops = [resample(p, h) for p in (outline.outer, *outline.holes)]
+    loops = meshed_loops(outline, h)
     checked(loops[0], loops[1:], "edge_length", "edge_length")  # still simple at this h
     with _GMSH:
         V, F = _gmsh(loops, h, bands, MESHERS[mesher])

@@ -9,7 +9,7 @@ import numpy as np
 
 from sim.geometry import trimesh as meshes
 from sim.geometry.shell import Shell
-from sim.scene.boundary import BCSpec, RegionSpec
+from sim.scene.boundary import REGION_TOLERANCE, BCSpec, RegionSpec
 from sim.scene.load import Scene
 
 
@@ -17,7 +17,7 @@ def region_mask(shell: Shell, r: RegionSpec) -> np.ndarray:
     """Selected in-plane nodes ``(n_plane,)`` by their rest mid-surface position."""
     X = shell.plane_mid
     scale = np.ptp(shell.mesh.vertices, axis=0).max()
-    tol = 1e-9 * scale
+    tol = REGION_TOLERANCE * scale
     if r.box is not None:
         mask = np.all((X >= np.array(r.box.min) - tol) & (X <= np.array(r.box.max) + tol), 1)
     elif r.ring is not None:

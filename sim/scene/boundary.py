@@ -40,6 +40,13 @@ class PlaneSpec(Strict):
     tolerance: Length = doc("how far from the plane a node may be", "m", 1e-9)
 
 
+# a box's or ring's bounds reach this fraction of the mesh's extent (its largest side) past
+# their values, so that a node placed on a bound by round-off (a rim vertex at r_outer, made
+# as r cos t, r sin t) is still selected: by the build (sim.model.dirichlet.region_mask) and
+# by the check of a ring when the scene is read (sim.scene.footprint)
+REGION_TOLERANCE = 1e-9
+
+
 class RingSpec(Strict):
     """Nodes whose rest distance from the z axis lies in [r_min, r_max]."""
 

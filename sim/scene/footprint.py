@@ -4,68 +4,102 @@ for a ring region that selects no node (an edit of the blank's radius that leave
 ring outside the blank), which the build (sim.model.dirichlet.region_mask) would otherwise
 find only when the model is made: the page's form says so at the field as it is edited.
 
-The ranges hold every node the build makes (a superset: a ring inside them may still fall
-between nodes, which the build then names), so the check never refuses a scene that builds.
+Each mesh kind that knows its ranges says so (``radial_ranges`` of sim.scene.sheet's mesh
+tables, made by the helpers here). The ranges hold every node the build makes (a superset: a ring
+inside them may still fall between nodes, which the build then names), so the check never
+refuses a scene that builds.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
 import numpy as np
 
-from sim.geometry import outline
 from sim.geometry import trimesh as meshes
-from sim.scene.boundary import RegionSpec
-from sim.scene.sheet import MeshSpec
+from sim.scene.boundary import REGION_TOLERANCE, RegionSpec
 
 Ranges = list[tuple[float, float]]
 
 
-def radial_ranges(mesh: MeshSpec, boundary: bool) -> Ranges | None:
-    """Intervals of the distance from the z axis (m) that hold every node of the built mesh
-    (only its boundary nodes: ``boundary``); None for a mesh known only once built (a file, a
-    drawing, a curved patch, a cylinder)."""
+@dataclass(frozen=True)
+class RadialRanges:
+    """Intervals of the distance from the z axis (m) that hold every node of a built mesh
+    (``nodes``) and every boundary node (``boundary``)."""
+
+    nodes: Ranges
+    boundary: Ranges
+
+
+class Blank(Protocol):
+    """A mesh table (sim.scene.sheet.MeshSpec) as the check reads it."""
+
+    imperfection: float
+
+    def radial_ranges(self) -> RadialRanges | None: ...
+
+
+def annulus_ranges(r_inner: float, r_outer: float, h: float) -> RadialRanges:
+    """The ranges of sim.geometry.trimesh.annulus (a disk: ``r_inner`` 0): its vertices lie on
+    circles and every other node on their chords, so a rim of radius r with n vertices holds
+    its nodes from r cos(pi / n) to r; the boundary is the rims (a disk's centre is not one),
+    all the nodes lie between the hole's rim and the outer circle."""
+    rims = [(r * np.cos(np.pi / meshes.ring_vertices(r, h)), r)
+            for r in (r_inner, r_outer) if r > 0.0]
+    return RadialRanges([(rims[0][0] if r_inner > 0.0 else 0.0, r_outer)], rims)
+
+
+def loop_ranges(loops: Sequence[np.ndarray]) -> RadialRanges:
+    """The ranges of a mesh whose boundary nodes lie on the chords of ``loops`` (each
+    ``(n, 2)``: the outer one, then the holes) and whose other nodes lie between them: for the
+    boundary, each loop's span from its nearest point to the axis to its farthest vertex; for
+    all nodes, the polygon's (its nearest point is 0 when it holds the axis)."""
     import shapely
 
-    if mesh.kind in ("disk", "annulus"):
-        # vertices on circles, edge nodes on their chords: the hole's lie inside its circle
-        r0 = getattr(mesh, "r_inner", 0.0)
-        n0 = meshes.ring_vertices(r0, mesh.edge_length)
-        return [(r0 * np.cos(np.pi / n0), mesh.r_outer)]
-    if mesh.kind == "rectangle":
-        (x0, y0), (lx, ly) = mesh.origin, mesh.size
-        loops = [np.array([[x0, y0], [x0 + lx, y0], [x0 + lx, y0 + ly], [x0, y0 + ly]])]
-    elif mesh.kind == "outline" and mesh.path is None:
-        # the loops as meshed: resampled at the edge length, every boundary node on their
-        # chords (a band's finer division too) and every other node inside them
-        shape = mesh.shape()
-        loops = [outline.resample(p, mesh.edge_length) for p in (shape.outer, *shape.holes)]
-    else:
-        return None
-    # the nearest point to the axis: 0 inside; the farthest: a vertex (of the outer loop)
     axis = shapely.Point(0.0, 0.0)
-    if boundary:
-        return [(axis.distance(shapely.LinearRing(p)), _farthest(p)) for p in loops]
-    return [(axis.distance(shapely.Polygon(loops[0], loops[1:])), _farthest(loops[0]))]
+    inside = float(axis.distance(shapely.Polygon(loops[0], loops[1:])))
+    return RadialRanges([(inside, _farthest(loops[0]))],
+                        [(float(axis.distance(shapely.LinearRing(p))), _farthest(p))
+                         for p in loops])
 
 
 def _farthest(p: np.ndarray) -> float:
     return float(np.hypot(p[:, 0], p[:, 1]).max())
 
 
-def ring_problem(mesh: MeshSpec, region: RegionSpec) -> str | None:
-    """Why ``region``'s ring selects no node of ``mesh`` (no interval of radial_ranges meets
-    it), or None: it may select some, or the mesh is known only once built."""
-    ranges = radial_ranges(mesh, region.boundary)
-    if region.ring is None or ranges is None:
+def tolerance(mesh: Blank, ranges: RadialRanges) -> float:
+    """How far past a ring's bounds the check still counts a node (m): at least region_mask's
+    REGION_TOLERANCE of the mesh's extent, bounded here by twice its largest radius in the
+    plane or the imperfection's height out of it. Doubled, since the ranges' ends (cos(pi / n),
+    shapely's distances) and the nodes' radii (made by the mesher) are computed apart and may
+    differ in their last bits, far less than the tolerance itself."""
+    extent = max(2.0 * max(hi for _, hi in ranges.nodes), abs(mesh.imperfection))
+    return 2.0 * REGION_TOLERANCE * extent
+
+
+def ring_problem(mesh: Blank, regions: Sequence[RegionSpec]) -> str | None:
+    """The first ring region of ``regions`` that selects no node of ``mesh`` (no interval of its
+    radial_ranges meets the ring), as ``regions.N.ring: ...``; None when each may select some
+    or the mesh is known only once built."""
+    rings = [(i, r) for i, r in enumerate(regions) if r.ring is not None]
+    # once for all rings, and none without one: a fine outline's are not cheap
+    ranges = mesh.radial_ranges() if rings else None
+    if ranges is None:
         return None
-    # region_mask's tolerance is 1e-9 of the mesh's extent: at most twice its largest radius
-    # in the plane, or the imperfection's height out of it (doubled, to stay on the safe side)
-    extent = max(2.0 * max(hi for _, hi in ranges), abs(mesh.imperfection))
-    tol = 2e-9 * extent + 1e-300
-    lo, hi = region.ring.r_min - tol, region.ring.r_max + tol
-    if any(a <= hi and lo <= b for a, b in ranges):
-        return None
+    tol = tolerance(mesh, ranges)
+    for i, region in rings:
+        spans = ranges.boundary if region.boundary else ranges.nodes
+        if not any(a <= region.ring.r_max + tol and region.ring.r_min - tol <= b
+                   for a, b in spans):
+            return f"regions.{i}.ring: {_missed(region, spans)}"
+    return None
+
+
+def _missed(region: RegionSpec, spans: Ranges) -> str:
     which = "boundary node" if region.boundary else "node"
-    where = ", ".join(f"{a:.4g}-{b:.4g} m" for a, b in ranges)
-    return (f"selects no node: no {which} of the blank lies {region.ring.r_min:.4g}-"
-            f"{region.ring.r_max:.4g} m from the z axis (they lie within {where} of it)")
+    where = " or ".join(f"{a:.4g} to {b:.4g} m" for a, b in spans)
+    return (f"region {region.name!r} selects no node: no {which} of the blank lies "
+            f"{region.ring.r_min:.4g} to {region.ring.r_max:.4g} m from the z axis (they lie "
+            f"{where} from it)")

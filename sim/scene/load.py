@@ -85,9 +85,8 @@ class Scene(Strict):
         names = [r.name for r in self.regions]
         if len(set(names)) != len(names):
             raise ValueError("regions: names must be unique")
-        for i, r in enumerate(self.regions):
-            if why := ring_problem(self.mesh, r):
-                raise ValueError(f"regions.{i}.ring: {why}")
+        if why := ring_problem(self.mesh, self.regions):
+            raise ValueError(why)
         return names
 
     def _check_study(self, st: StudySpec) -> None:

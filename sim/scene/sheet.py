@@ -9,6 +9,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from sim.geometry import outline
+from sim.scene import footprint
 from sim.scene.boundary import RingSpec
 from sim.scene.fields import (
     MAX_DENSITY,
@@ -39,6 +40,12 @@ class _Mesh(Strict):
         "wrinkled branch; q3t bifurcation finds where the flat path loses stability and "
         "kicks along the mode instead", "m", 0.0)
 
+    def radial_ranges(self) -> footprint.RadialRanges | None:
+        """Intervals of the distance from the z axis (m) that hold every node of the built
+        mesh, and every boundary node, known before it is built (sim.scene.footprint); None:
+        known only once built (a file, a drawing, a curved surface)."""
+        return None
+
 
 class _Generated(_Mesh):
     edge_length: Length = doc("the triangles' edge length: the mesh's resolution", "m")
@@ -50,6 +57,11 @@ class RectangleMesh(_Generated):
     kind: Literal["rectangle"] = doc("a rectangle in z = 0")
     size: tuple[Length, Length] = doc("its sides (Lx, Ly)", "m")
     origin: tuple[Coord, Coord] = doc("its corner of least x and y", "m", (0.0, 0.0))
+
+    def radial_ranges(self) -> footprint.RadialRanges:
+        (x0, y0), (lx, ly) = self.origin, self.size
+        corners = np.array([[x0, y0], [x0 + lx, y0], [x0 + lx, y0 + ly], [x0, y0 + ly]])
+        return footprint.loop_ranges([corners])
 
 
 class AnnulusMesh(_Generated):
@@ -65,12 +77,18 @@ class AnnulusMesh(_Generated):
             raise ValueError("r_inner must be smaller than r_outer")
         return self
 
+    def radial_ranges(self) -> footprint.RadialRanges:
+        return footprint.annulus_ranges(self.r_inner, self.r_outer, self.edge_length)
+
 
 class DiskMesh(_Generated):
     """A disk in the plane z = 0 centred on the z axis (a round blank)."""
 
     kind: Literal["disk"] = doc("a disk in z = 0 centred on the z axis")
     r_outer: Length = doc("the disk's radius", "m")
+
+    def radial_ranges(self) -> footprint.RadialRanges:
+        return footprint.annulus_ranges(0.0, self.r_outer, self.edge_length)
 
 
 class CylinderBandMesh(_Generated):
@@ -216,6 +234,11 @@ class OutlineMesh(_Generated):
                              field)
         return outline.checked(outer, [outline.loop(h, f"holes.{i}")
                                        for i, h in enumerate(self.holes)], field)
+
+    def radial_ranges(self) -> footprint.RadialRanges | None:
+        if self.path is not None:
+            return None
+        return footprint.loop_ranges(outline.meshed_loops(self.shape(), self.edge_length))
 
     @model_validator(mode="after")
     def _outline(self) -> Self:

@@ -1,16 +1,21 @@
 """A ring region that misses the blank is refused when the scene is read (sim.scene.footprint),
 naming the region's ring, and never one that the build would accept: checked against the
-build's own selection (sim.model.dirichlet.region_mask) on rings across the blanks' edges."""
+build's own selection (sim.model.dirichlet.region_mask) and the built mesh's own radii, for
+all nodes and the boundary's apart, on rings across the blanks' edges."""
+
+import functools
 
 import numpy as np
 import pytest
+import shapely
 from pydantic import TypeAdapter
 
 from sim.elements import get_element
-from sim.geometry.shell import extrude
+from sim.geometry import trimesh as meshes
+from sim.geometry.shell import Shell, extrude
 from sim.model.dirichlet import region_mask
-from sim.model.sheet import build_mesh
-from sim.scene.boundary import RegionSpec
+from sim.model.sheet import build_mesh, imperfect
+from sim.scene.boundary import REGION_TOLERANCE, RegionSpec
 from sim.scene.footprint import ring_problem
 from sim.scene.load import SceneError, load_scene
 from sim.scene.sheet import MeshSpec
@@ -20,20 +25,34 @@ CUP = ROOT / "scenes/cup_drawing_outline.toml"
 H = 0.004
 MESHES = {
     "circle": {"kind": "outline", "edge_length": H, "circle": {"radius": 0.03}},
+    "circle with a band": {
+        "kind": "outline", "edge_length": H, "circle": {"radius": 0.03},
+        "refine": [{"ring": {"r_min": 0.02, "r_max": 0.025}, "edge_length": 0.002}]},
+    "off-centre 15-gon": {  # its chords cut well inside the circle
+        "kind": "outline", "edge_length": H,
+        "circle": {"radius": 0.025, "center": [0.006, -0.004], "segments": 15}},
     "square with a hole": {
         "kind": "outline", "edge_length": H,
         "points": [[-0.02, -0.02], [0.03, -0.02], [0.03, 0.03], [-0.02, 0.03]],
         "holes": [[[-0.005, -0.005], [0.005, -0.005], [0.005, 0.005], [-0.005, 0.005]]]},
     "disk": {"kind": "disk", "edge_length": H, "r_outer": 0.03},
+    # an imperfection taller than the disk is wide: the mesh's extent, which sets region_mask's
+    # tolerance, is then its height
+    "imperfect disk": {"kind": "disk", "edge_length": H, "r_outer": 0.03, "imperfection": -0.5},
     "annulus": {"kind": "annulus", "edge_length": H, "r_inner": 0.01, "r_outer": 0.03},
     "rectangle": {"kind": "rectangle", "edge_length": H, "size": [0.04, 0.02],
                   "origin": [0.005, -0.01]},
 }
+ELEMENTS = ["linear", "quadratic", "quartic"]
+# a ring this far off the built mesh's radii is refused: far above the tolerances (about
+# 1e-10 m here) and the round-off of the radii, far below the rings' spacing
+CLEAR = 1e-6
 
 
 @pytest.mark.parametrize("radius, words", [
-    (0.025, "regions.1.ring: selects no node: no boundary node of the blank lies 0.0295-0.031 m"),
-    (0.0294, "they lie within 0.02938-0.0294 m of it"),
+    (0.025, "regions.1.ring: region 'rim' selects no node: no boundary node of the blank lies "
+            "0.0295 to 0.031 m from the z axis"),
+    (0.0294, "they lie 0.02938 to 0.0294 m from it"),
 ])
 def test_the_rim_ring_off_the_edited_blank_is_named(radius, words):
     """cup_drawing_outline's rim ring, 29.5-31 mm, once its blank's radius leaves it."""
@@ -42,31 +61,93 @@ def test_the_rim_ring_off_the_edited_blank_is_named(radius, words):
     load_scene(CUP, {"mesh.circle.radius": 0.0296})  # still on the ring
 
 
-def rings() -> list[tuple[float, float]]:
-    """Narrow rings across every radius the blanks above reach, at their edges and between
-    their nodes."""
-    lo = np.linspace(0.0, 0.0365, 99)
-    return [(a, a + w) for a in lo for w in (1e-4, 2e-3)]
+@pytest.mark.parametrize("name, ring, boundary, where", [
+    ("disk", (0.031, 0.032), False, "0 to 0.03 m"),
+    # between the rims: a boundary ring of an annulus lies on one of them
+    ("annulus", (0.015, 0.02), True, "0.009808 to 0.01 m or 0.02993 to 0.03 m"),
+])
+def test_the_message_says_where_the_nodes_lie(name, ring, boundary, where):
+    spec = TypeAdapter(MeshSpec).validate_python(MESHES[name])
+    region = RegionSpec(name="rim", ring={"r_min": ring[0], "r_max": ring[1]},
+                        boundary=boundary)
+    said = ring_problem(spec, [RegionSpec(name="all", box={"min": [-1] * 3, "max": [1] * 3}),
+                               region])
+    assert said.startswith("regions.1.ring: region 'rim' selects no "), said
+    assert said.endswith(f"(they lie {where} from it)"), said
+    with pytest.raises(ValueError, match="selects no node"):
+        region_mask(built(name, "quadratic"), region)
+
+
+@functools.cache
+def built(name: str, element: str) -> Shell:
+    spec = TypeAdapter(MeshSpec).validate_python(MESHES[name])
+    return extrude(imperfect(build_mesh(spec), spec.imperfection), 0.001, get_element(element))
+
+
+def covered(shell: Shell, boundary: bool) -> list[tuple[float, float]]:
+    """The radii the built mesh covers, where its nodes lie: those of its triangles (or of its
+    boundary edges), merged into intervals."""
+    V, F = shell.mesh.vertices[:, :2], shell.mesh.faces
+    cells = meshes.boundary_edges(F) if boundary else F
+    parts = shapely.linestrings(V[cells]) if boundary else shapely.polygons(V[cells])
+    near = shapely.distance(parts, shapely.Point(0.0, 0.0))
+    far = np.hypot(V[:, 0], V[:, 1])[cells].max(1)
+    spans: list[list[float]] = []
+    for a, b in sorted(zip(near, far, strict=True)):
+        if spans and a <= spans[-1][1]:
+            spans[-1][1] = max(spans[-1][1], b)
+        else:
+            spans.append([a, b])
+    return [(a, b) for a, b in spans]
+
+
+def rings(shell: Shell) -> list[tuple[float, float]]:
+    """Narrow and wide rings from the axis to past the blank, at its edges and between its
+    nodes."""
+    r_max = np.hypot(shell.plane_mid[:, 0], shell.plane_mid[:, 1]).max()
+    return [(a, a + w) for a in np.linspace(0.0, r_max + 0.005, 151) for w in (1e-4, 2e-3)]
 
 
 @pytest.mark.parametrize("name", sorted(MESHES))
-@pytest.mark.parametrize("element", ["linear", "quadratic"])
-def test_a_refused_ring_selects_nothing_in_the_build(name, element):
+@pytest.mark.parametrize("element", ELEMENTS)
+@pytest.mark.parametrize("boundary", [False, True], ids=["all", "boundary"])
+def test_a_ring_is_refused_when_it_misses_the_built_blank(name, element, boundary):
     """Sound: every ring refused selects no node of the built mesh (vertices and edge nodes,
-    all nodes or the boundary's). And useful: the rings that lie clear of the blank are
-    refused."""
-    mesh_spec = TypeAdapter(MeshSpec).validate_python(MESHES[name])
-    shell = extrude(build_mesh(mesh_spec), 0.001, get_element(element))
-    radius = np.hypot(shell.plane_mid[:, 0], shell.plane_mid[:, 1])
-    refused = 0
-    for boundary in (False, True):
-        for r_min, r_max in rings():
-            region = RegionSpec(name="r", ring={"r_min": r_min, "r_max": r_max},
-                                boundary=boundary)
-            if ring_problem(mesh_spec, region) is None:
-                continue
-            refused += 1
-            with pytest.raises(ValueError, match="selects no node"):
-                region_mask(shell, region)
-    assert refused >= sum(r_min > radius.max() for r_min, _ in rings())
+    all nodes or the boundary's). And useful: every ring clear of the radii the built mesh
+    covers is refused, so the check's ranges are those radii (between nodes a ring may still
+    select none: the build names it)."""
+    spec = TypeAdapter(MeshSpec).validate_python(MESHES[name])
+    shell = built(name, element)
+    spans = covered(shell, boundary)
+    missed = 0
+    for r_min, r_max in rings(shell):
+        region = RegionSpec(name="r", ring={"r_min": r_min, "r_max": r_max}, boundary=boundary)
+        clear = all(r_max < a - CLEAR or r_min > b + CLEAR for a, b in spans)
+        missed += clear
+        if ring_problem(spec, [region]) is None:
+            assert not clear, (r_min, r_max, spans)
+            continue
+        with pytest.raises(ValueError, match="selects no node"):
+            region_mask(shell, region)
+    assert missed >= 20  # the rings past the blank, at least
 
+
+@pytest.mark.parametrize("name", sorted(MESHES))
+@pytest.mark.parametrize("boundary", [False, True], ids=["all", "boundary"])
+def test_a_ring_within_the_builds_tolerance_of_a_node_is_accepted(name, boundary):
+    """A ring that begins half region_mask's tolerance past the outermost node (or ends half
+    of it short of the innermost, off the axis) selects that node in the build, and is
+    accepted."""
+    spec = TypeAdapter(MeshSpec).validate_python(MESHES[name])
+    shell = built(name, "quadratic")
+    tol = REGION_TOLERANCE * np.ptp(shell.mesh.vertices, axis=0).max()
+    everywhere = RegionSpec(name="r", ring={"r_max": 1.0}, boundary=boundary)
+    radius = np.hypot(shell.plane_mid[:, 0], shell.plane_mid[:, 1])[
+        region_mask(shell, everywhere)]
+    near = [(radius.max() + 0.5 * tol, radius.max() + 0.001)]
+    if radius.min() > 0.001:
+        near.append((radius.min() - 0.001, radius.min() - 0.5 * tol))
+    for r_min, r_max in near:
+        region = RegionSpec(name="r", ring={"r_min": r_min, "r_max": r_max}, boundary=boundary)
+        assert region_mask(shell, region).sum() >= 1
+        assert ring_problem(spec, [region]) is None, (r_min, r_max)
