@@ -35,18 +35,10 @@ from tests.support.service import (  # noqa: E402
     wait_state,
     wait_step,
 )
-from tests.support.viewer import attached  # noqa: E402
+from tests.support.viewer import attached, default_view  # noqa: E402
 
 ENDED = {"finished", "failed", "stopped"}
 
-
-
-
-def view(run: str) -> dict:
-    """``/api/view`` of the default view showing ``run`` (no scene previewed, its viewer at
-    the run's latest step, nothing done by others)."""
-    return {"view": "default", "run": run, "scene": None, "preview": None,
-            "preview_error": None, "step": None, "notices": []}
 
 def edited_toml() -> str:
     text = tiny_toml()
@@ -138,28 +130,28 @@ def test_one_selected_run_for_page_and_viewer(env, viewer):
     client, settings = env
     older = run_to_end(client, scene="tiny")["id"]
     newer = run_to_end(client, scene="tiny")["id"]
-    assert client.get("/api/view").json() == view(newer)  # a new run is selected
+    assert client.get("/api/view").json() == default_view(newer)  # a new run is selected
     assert viewer.selected == viewer.gui.run.value == newer
     until(lambda: viewer.mode == "live", "the latest run is not shown live")
     # the page selects the older run: the viewer shows its recording
-    assert client.put("/api/view", json={"run": older}).json() == view(older)
-    assert client.get("/api/view").json() == view(older)
+    assert client.put("/api/view", json={"run": older}).json() == default_view(older)
+    assert client.get("/api/view").json() == default_view(older)
     assert viewer.selected == viewer.gui.run.value == older
     until(lambda: viewer.mode == "replay", "the older run's recording is not shown")
     assert f"`{older}`" in viewer.gui.status.content
     # the viewer's dropdown selects for the page too
     viewer.gui.run.value = newer
-    assert client.get("/api/view").json() == view(newer) and viewer.mode == "live"
+    assert client.get("/api/view").json() == default_view(newer) and viewer.mode == "live"
     # refused selections change nothing
     assert client.put("/api/view", json={"run": "nope-linear-1"}).status_code == 404
     assert client.put("/api/view", json={"run": "../x"}).status_code == 422
     assert client.put("/api/view", json={}).status_code == 422
-    assert client.get("/api/view").json() == view(newer)
+    assert client.get("/api/view").json() == default_view(newer)
     # the selected run deleted: the newest left is selected
     client.put("/api/view", json={"run": older})
     assert client.delete(f"/api/runs/{older}").status_code == 204
     newest = client.get("/api/runs").json()[0]["id"]
-    assert client.get("/api/view").json() == view(newest)
+    assert client.get("/api/view").json() == default_view(newest)
     until(lambda: viewer.selected == newest and older not in viewer.gui.run.options,
           "the viewer kept the deleted run")
 

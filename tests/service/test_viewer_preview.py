@@ -20,7 +20,7 @@ from sim.scene.load import scene_from_toml  # noqa: E402
 from sim.stepping.simulation import Simulation  # noqa: E402
 from tests.support.scenes import PRESS_TOML, tiny_toml  # noqa: E402
 from tests.support.service import free_port, until, wait_state  # noqa: E402
-from tests.support.viewer import attached  # noqa: E402
+from tests.support.viewer import attached, default_view  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -113,9 +113,7 @@ def test_bad_preview_requests_name_the_field(client, body, status, names):
 
 def test_a_run_shows_again_once_started_or_selected(client, viewer):
     run = client.post("/api/runs", json={"scene": "tiny", "element": "linear"}).json()["id"]
-    assert client.get("/api/view").json() == {"view": "default", "run": run, "scene": None,
-                                              "preview": None, "preview_error": None,
-                                              "step": None, "notices": []}
+    assert client.get("/api/view").json() == default_view(run)
     assert wait_state(client, run, {"finished", "failed", "stopped"})["state"] == "finished"
     # the live parameters under the preview still act on the run: they say which (the
     # viewer draws on its own thread: mode, subject and legend are waited for together)

@@ -14,6 +14,13 @@ import msgspec
 from tests.support.service import until
 
 
+def default_view(run: str) -> dict:
+    """``/api/view`` of the default view showing ``run``: no scene previewed, its viewer at
+    the run's latest step, nothing done by others."""
+    return {"view": "default", "run": run, "scene": None, "preview": None,
+            "preview_error": None, "preview_edited": None, "step": None, "notices": []}
+
+
 class Socket:
     """A connected viser client; ``close()`` disconnects it."""
 
