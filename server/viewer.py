@@ -52,6 +52,7 @@ class Viewer:
         # embedded in the page's centre column: the narrow panel, and no share button (a
         # share link would expose the run's controls)
         self.server.gui.configure_theme(control_width="small", show_share_button=False)
+        self.server.scene.configure_default_lights(enabled=True, cast_shadow=False)
         self.actions = actions
         self.colour_period = 1.0 / colour_hz
         self.lock = threading.RLock()  # viser runs update callbacks in the assigning thread

@@ -61,6 +61,18 @@ const Owner = (() => {
 })();
 const ACTIVE = ["starting", "building", "running", "paused"];
 
+// the page's ?viewer_dpr=0.5 draws the 3-D view at that many pixels per CSS pixel (viser's
+// fixedDpr): without a GPU (software WebGL) every frame costs CPU in proportion to its pixels
+function viewerDensity() {
+  const v = new URLSearchParams(location.search).get("viewer_dpr");
+  if (v === null) return "";
+  const dpr = Number(v);
+  if (v.trim() !== "" && dpr >= 0.1 && dpr <= 4) return `&fixedDpr=${dpr}`;
+  say(`viewer_dpr: '${v}' is no pixel density from 0.1 to 4; the 3-D view draws at the `
+      + "screen's own", true);
+  return "";
+}
+
 function say(text, isError) {
   $("msg").textContent = text;
   $("msg").style.color = isError ? "#b00" : "#555";
@@ -568,7 +580,8 @@ async function main() {
     // mode and step, and another browser's viewer its own
     const host = `${location.hostname}:${vport}`;
     const ws = `${location.protocol === "https:" ? "wss" : "ws"}://${host}/view/${VIEW}`;
-    $("viewer").src = `${location.protocol}//${host}/?websocket=${encodeURIComponent(ws)}`;
+    $("viewer").src = `${location.protocol}//${host}/?websocket=${encodeURIComponent(ws)}`
+      + viewerDensity();
   }
   $("notice-close").onclick = () => { $("notice").hidden = true; };
   Layout.init();

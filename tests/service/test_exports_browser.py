@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from sim.frames import export
-from tests.support.browser import WAIT_MS, serve, shot, shots_dir
+from tests.support.browser import WAIT_MS, page_url, serve, shot, shots_dir
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import until
 
@@ -56,7 +56,7 @@ def test_an_ended_run_offers_each_format_and_a_click_downloads_it(served, browse
     page.set_default_timeout(WAIT_MS)
     errors = []
     page.on("pageerror", lambda e: errors.append(str(e)))
-    page.goto(url + "/")
+    page.goto(page_url(url))
     downloads(page, run, "true")
     links = page.locator("#downloads a")
     assert [links.nth(i).get_attribute("data-format") for i in range(links.count())] == \
@@ -86,7 +86,7 @@ def test_a_running_run_says_its_downloads_come_when_it_ends(served, browser):
     page = browser.new_page(viewport={"width": 1400, "height": 1000})
     page.set_default_timeout(WAIT_MS)
     try:
-        page.goto(url + "/")
+        page.goto(page_url(url))
         downloads(page, run, "false")
         assert "when the run ends" in page.inner_text("#downloads")
         assert page.locator("#downloads a").count() == 0

@@ -224,3 +224,33 @@ def test_edits_in_the_form_show_in_the_preview(served, browser):
         assert previewed(True)["scene"] == "tiny_cup"
     assert not errors, errors
     page.close()
+
+
+@pytest.mark.parametrize("dpr", ["0.5", "0.1", "2"])
+def test_the_viewer_draws_at_the_pixel_density_asked(served, browser, dpr):
+    # a GPU-less machine's lighter 3-D view: the page's viewer_dpr reaches viser's canvas,
+    # whose drawing buffer is its CSS size times that density (three.js floors it)
+    page, errors = new_page(browser, f"{served}/?viewer_dpr={dpr}", "#scenes li.sel")
+    assert f"fixedDpr={dpr}" in page.get_attribute("#viewer", "src")
+    canvases = page.frame_locator("#viewer").locator("canvas")
+    canvases.first.wait_for()
+    # the scene's canvas: the largest on screen (viser has others, 0 x 0)
+    size = until(lambda: next(iter(sorted(canvases.evaluate_all(
+        "(cs) => cs.map((c) => [c.clientWidth, c.width, c.clientHeight, c.height])"
+        ".filter((s) => s[0] > 0 && s[1] > 0)"), reverse=True)), None),
+        "no canvas drawn in the viewer")
+    css_width, width, css_height, height = size
+    assert (width, height) == (int(css_width * float(dpr)), int(css_height * float(dpr))), size
+    assert page.inner_text("#msg") == "" and not errors
+    page.close()
+
+
+@pytest.mark.parametrize("dpr", ["0", "5", "abc", ""])
+def test_a_bad_pixel_density_is_named_and_the_screens_own_used(served, browser, dpr):
+    page, errors = new_page(browser, f"{served}/?viewer_dpr={dpr}", "#scenes li.sel")
+    assert "fixedDpr" not in page.get_attribute("#viewer", "src")
+    assert page.inner_text("#msg") == (
+        f"viewer_dpr: '{dpr}' is no pixel density from 0.1 to 4; the 3-D view draws at the "
+        "screen's own")
+    assert not errors
+    page.close()

@@ -18,7 +18,7 @@ import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import WAIT_MS, serve, shot, shots_dir
+from tests.support.browser import WAIT_MS, page_url, serve, shot, shots_dir
 from tests.support.service import until
 
 SHOTS = shots_dir("viewer")
@@ -103,7 +103,7 @@ def test_embedded_viewer_legend_preview_zones_and_section(served, browser):
     url, _ = served
     page = browser.new_page(viewport={"width": 1400, "height": 1000})
     page.set_default_timeout(WAIT_MS)
-    page.goto(url + "/")
+    page.goto(page_url(url))
     frame = page.frame_locator("#viewer")
     frame.get_by_text("Colour by").first.wait_for()
     # no run yet: the page previews the scene it chose (the server's default), by itself

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.support.browser import WAIT_MS, serve, shot, shots_dir
+from tests.support.browser import WAIT_MS, page_url, serve, shot, shots_dir
 from tests.support.scenes import tiny_toml
 from tests.support.service import until
 
@@ -40,7 +40,7 @@ class Browser:
         self.dialogs: list[str] = []
         self.page.on("pageerror", lambda e: self.errors.append(str(e)))
         self.page.on("dialog", self._accept)
-        self.page.goto(url + "/")
+        self.page.goto(page_url(url))
         self.page.wait_for_selector("#scenes li.sel")
         self.page.wait_for_function(
             "document.getElementById('status').dataset.run !== undefined")

@@ -25,6 +25,11 @@ WAIT_MS = int(HANG * 1000)  # Playwright's waits: hang guards (its default is 30
 # WebGL without a GPU: chromium's software rasteriser, which headless chromium refuses unless
 # told it may use it
 SWIFTSHADER = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+# the pages' 3-D view at a quarter of the pixel density (the page's viewer_dpr): software
+# WebGL's cost per frame grows with the pixels, and one open viewer's frames kept nearly both
+# cores busy, which the browser tests share with the rest of the suite; the screenshots to be
+# looked at (Q3T_SHOTS) are drawn at the screen's own density
+VIEWER_DPR = None if SHOTS_ROOT else 0.25
 
 
 def settled(url: str, run: str) -> dict:
@@ -136,6 +141,15 @@ def chromium(shots: Path | None = None) -> Iterator[object]:
             b.close()
 
 
+def page_url(url: str) -> str:
+    """The address a test opens for the page at ``url`` (a url with a query names its page):
+    its 3-D view at VIEWER_DPR."""
+    url = url if "?" in url else url + "/"
+    if VIEWER_DPR is None:
+        return url
+    return f"{url}{'&' if '?' in url else '?'}viewer_dpr={VIEWER_DPR}"
+
+
 def new_page(browser, url: str, *ready: str, width: int = 1400,
              height: int = 1000) -> tuple[object, list[str]]:
     """A page of the service at ``url`` once each selector of ``ready`` is there, and the
@@ -144,7 +158,7 @@ def new_page(browser, url: str, *ready: str, width: int = 1400,
     page.set_default_timeout(WAIT_MS)
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(f"{e}\n{e.stack}"))
-    page.goto(url if "?" in url else url + "/")  # a url with a query names its page
+    page.goto(page_url(url))
     for selector in ready:
         page.wait_for_selector(selector)
     return page, errors
