@@ -1,14 +1,13 @@
-"""The whole suite as four pytest processes side by side (``make test``, what CI runs).
+"""The whole suite as two pytest processes side by side (``make test``, what CI runs).
 
 ``python -m tests.split [pytest options] [paths]``: the browser tests (tests/service's
-``test_*browser*.py``, which mostly wait on servers, solver processes and pages) in two
-processes, each with its chromium, every other test (which mostly computes) in two more, split
-by folder (SECOND), each with its own temporary folder. On a 2-core machine they overlap: the
-waiting of one is the others' computing time. Options go to every part; paths given run as one
-part, as asked. Each part's output goes to a log (its path printed first) and is printed whole
-once the part ends, so the parts never interleave; every minute a line gives each running
-part's progress. Exits 0 only if every part run passes; a part that collects no test (pytest's
-5) fails only if all do.
+``test_*browser*.py``, which mostly wait on servers, solver processes and pages) in one
+process, every other test (which mostly computes) in the other, each with its own temporary
+folder. On a 2-core machine the two overlap: the waiting of one is the other's computing time.
+Options go to both parts; paths given run as one part, as asked. Each part's
+output goes to a log (its path printed first) and is printed whole once the part ends, so the
+parts never interleave; every minute a line gives each running part's progress. Exits 0 only
+if every part run passes; a part that collects no test (pytest's 5) fails only if all do.
 
 The whole suite starts with ``q3t warm`` in two processes, each compiling half of the
 solver's numba kernels: otherwise each part compiles the kernels it meets first, both the same
@@ -34,9 +33,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 # the page driven in chromium: mostly waiting on servers, solver processes and pages
 BROWSER = sorted((ROOT / "tests" / "service").glob("test_*browser*.py"))
-# the computing tests' second part (about as long as the rest: scenes and service against
-# apps, unit and verification)
-SECOND = [ROOT / "tests" / "scenes", ROOT / "tests" / "service"]
 # a line per minute: CI shows the suite alive (and where) while the logs wait for their part
 HEARTBEAT = 60.0
 # processes of `q3t warm`, one per core (sim/apps/warm.py), and how long they may take (a
@@ -64,14 +60,8 @@ def parts(args: list[str]) -> dict[str, list[str]]:
     ignored = [Path(a.split("=", 1)[1] if "=" in a else options[i + 1]).resolve()
                for i, a in enumerate(options) if a.split("=", 1)[0] == "--ignore"]
     browser = [str(f) for f in BROWSER if not any(f == d or d in f.parents for d in ignored)]
-    no_browser = [f"--ignore={f}" for f in BROWSER]
-    second = [str(d) for d in SECOND if not any(d == i or i in d.parents for i in ignored)]
-    plan = {"browser 1": [*options, *browser[0::2]], "browser 2": [*options, *browser[1::2]],
-            "other 1": [*options, *no_browser, *(f"--ignore={d}" for d in SECOND)],
-            "other 2": [*options, *no_browser, *second]}
-    return {name: a for name, a in plan.items()
-            if not (name.startswith("browser") and a == options) and not (name == "other 2"
-                                                                          and not second)}
+    other = [*options, *(f"--ignore={f}" for f in BROWSER)]
+    return {"browser": [*options, *browser], "other": other} if browser else {"other": other}
 
 
 def main(argv: list[str] | None = None) -> int:

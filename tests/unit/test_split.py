@@ -13,31 +13,20 @@ from tests.split import BROWSER, ROOT, parts, progress
 pytestmark = pytest.mark.fast
 
 
-def test_the_suite_splits_into_two_browser_parts_and_two_others():
+def test_the_suite_splits_into_the_browser_tests_and_the_rest():
     got = parts(["-x", "-m", "not slow"])
-    assert set(got) == {"browser 1", "browser 2", "other 1", "other 2"} and len(BROWSER) > 10
+    assert set(got) == {"browser", "other"} and len(BROWSER) > 10
+    assert got["browser"] == ["-x", "-m", "not slow", *map(str, BROWSER)]
+    assert got["other"] == ["-x", "-m", "not slow", *(f"--ignore={f}" for f in BROWSER)]
     assert all("browser" in f.name for f in BROWSER)
-    # every browser module in one browser part
-    opts = ["-x", "-m", "not slow"]
-    assert got["browser 1"][:3] == got["browser 2"][:3] == opts
-    assert sorted(got["browser 1"][3:] + got["browser 2"][3:]) == sorted(map(str, BROWSER))
-    # the others: every test but the browser modules, split by folder
-    no_browser = [f"--ignore={f}" for f in BROWSER]
-    assert got["other 1"] == [*opts, *no_browser, *(f"--ignore={d}" for d in split.SECOND)]
-    assert got["other 2"] == [*opts, *no_browser, *map(str, split.SECOND)]
 
 
-def test_a_browser_module_ignored_leaves_the_browser_parts():
+def test_a_browser_module_ignored_leaves_the_browser_part():
     # pytest ignores what it finds in a folder, not a path it is given: parts() must
     got = parts([f"--ignore={BROWSER[0]}"])
-    assert str(BROWSER[0]) not in got["browser 1"] + got["browser 2"]
-    assert str(BROWSER[1]) in got["browser 1"] + got["browser 2"]
+    assert str(BROWSER[0]) not in got["browser"] and str(BROWSER[1]) in got["browser"]
     got = parts(["--ignore", str(ROOT / "tests" / "service")])
-    # no browser part left to run, and the second part is the scenes alone
-    assert set(got) == {"other 1", "other 2"}
-    assert got["other 2"][-1] == str(ROOT / "tests" / "scenes")
-    got = parts(["--ignore=tests/scenes", "--ignore=tests/service"])
-    assert set(got) == {"other 1"}
+    assert set(got) == {"other"}  # no browser part left to run
 
 
 def test_paths_given_run_as_one_part():
@@ -47,8 +36,8 @@ def test_paths_given_run_as_one_part():
 
 def test_an_options_value_is_no_path_even_when_it_names_one():
     got = parts(["--deselect", "tests/unit/test_split.py", "-k", "tests"])
-    assert set(got) == {"browser 1", "browser 2", "other 1", "other 2"}
-    assert got["other 1"][:4] == ["--deselect", "tests/unit/test_split.py", "-k", "tests"]
+    assert set(got) == {"browser", "other"}
+    assert got["other"][:4] == ["--deselect", "tests/unit/test_split.py", "-k", "tests"]
 
 
 def test_progress_is_the_last_percentage_printed(tmp_path):
