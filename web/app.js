@@ -67,7 +67,7 @@ function viewerDensity() {
   const v = new URLSearchParams(location.search).get("viewer_dpr");
   if (v === null) return "";
   const dpr = Number(v);
-  if (v.trim() !== "" && dpr >= 0.1 && dpr <= 4) return `&fixedDpr=${dpr}`;
+  if (dpr >= 0.1 && dpr <= 4) return `&fixedDpr=${dpr}`;  // NaN, and "" (0), fail it
   say(`viewer_dpr: '${v}' is no pixel density from 0.1 to 4; the 3-D view draws at the `
       + "screen's own", true);
   return "";
