@@ -20,7 +20,7 @@ import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import WAIT_MS, serve, settled, shot, shots_dir
+from tests.support.browser import VIEWER_FOR_SHOTS, WAIT_MS, serve, settled, shot, shots_dir
 from tests.support.service import stop_all, until
 
 SETTLE_MS = 1500  # the viewer draws in software WebGL
@@ -37,7 +37,8 @@ COARSE = CUP.replace("edge_length = 0.002", "edge_length = 0.006").replace(
 def served(tmp_path_factory):
     """The server's url and its scenes folder, which holds the coarse cup."""
     tmp = tmp_path_factory.mktemp("editor-browser")
-    with serve(tmp, {"cup": COARSE}, "cup", "--step-delay", "0.3") as (url, _):
+    with serve(tmp, {"cup": COARSE}, "cup", "--step-delay", "0.3",
+               *VIEWER_FOR_SHOTS) as (url, _):
         yield url, tmp / "scenes"
 
 

@@ -11,7 +11,7 @@ import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import new_page, serve, settled, shot, shots_dir
+from tests.support.browser import VIEWER_FOR_SHOTS, new_page, serve, settled, shot, shots_dir
 from tests.support.service import until
 
 SHOTS = shots_dir("tool-friction")
@@ -25,7 +25,8 @@ COARSE = (ROOT / "scenes" / "cup_drawing.toml").read_text().replace(
 @pytest.fixture(scope="module")
 def url(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("tool-friction-browser")
-    with serve(tmp, {"cup": COARSE}, "cup", "--step-delay", "0.3") as (url, _):
+    with serve(tmp, {"cup": COARSE}, "cup", "--step-delay", "0.3",
+               *VIEWER_FOR_SHOTS) as (url, _):
         yield url
 
 

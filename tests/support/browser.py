@@ -30,6 +30,10 @@ SWIFTSHADER = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
 # cores busy, which the browser tests share with the rest of the suite; the screenshots to be
 # looked at (Q3T_SHOTS) are drawn at the screen's own density
 VIEWER_DPR = None if SHOTS_ROOT else 0.25
+# a module whose workflow does not pass through the 3-D view serves without it but for the
+# screenshots: software WebGL drawing an open view (each frame of a live run, and its idle
+# redraws) took more of the suite's CPU than any other process
+VIEWER_FOR_SHOTS = () if SHOTS_ROOT else ("--no-viewer",)
 
 
 def settled(url: str, run: str) -> dict:
