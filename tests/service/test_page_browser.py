@@ -18,7 +18,7 @@ import json
 import httpx
 import pytest
 
-from tests.support.browser import new_page, serve, settled, shot, shots_dir
+from tests.support.browser import VIEWER_FOR_SHOTS, new_page, serve, settled, shot, shots_dir
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import until
 
@@ -35,6 +35,16 @@ def served(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("page-browser")
     with serve(tmp, {"tiny_cup": tiny_cup_toml(STEPS)}, "tiny_cup", "--step-delay",
                "0.2") as (url, _):
+        yield url
+
+
+@pytest.fixture(scope="module")
+def plain(tmp_path_factory):
+    """The same server for the results and plots, which need no 3-D view: without it unless
+    screenshots are asked."""
+    tmp = tmp_path_factory.mktemp("page-browser-plain")
+    with serve(tmp, {"tiny_cup": tiny_cup_toml(STEPS)}, "tiny_cup", "--step-delay",
+               "0.2", *VIEWER_FOR_SHOTS) as (url, _):
         yield url
 
 
@@ -92,8 +102,8 @@ def test_start_in_view_and_the_viewer_in_the_centre(served, browser, size):
         page.close()
 
 
-def test_results_of_a_finished_run(served, browser):
-    page, errors = open_page(browser, served)
+def test_results_of_a_finished_run(plain, browser):
+    page, errors = open_page(browser, plain)
     try:
         page.click("#start")
         page.wait_for_function("(d => d.run && d.state === 'finished')"
@@ -106,7 +116,7 @@ def test_results_of_a_finished_run(served, browser):
         assert page.get_attribute("#progress", "aria-valuenow") == "100"
         assert "100 %" in page.locator("#progress .text").text_content()
         # the summary's values, as the API gives them, in kN, mm, %
-        want = httpx.get(f"{served}/api/runs/{run}/summary").json()["summary"]
+        want = httpx.get(f"{plain}/api/runs/{run}/summary").json()["summary"]
         cards = page.locator("#summary .quantity")
         assert cards.count() == len(want) > 0
         for k, e in enumerate(want):
@@ -138,27 +148,27 @@ def test_results_of_a_finished_run(served, browser):
         page.close()
 
 
-def test_live_plots_follow_the_steps(served, browser):
+def test_live_plots_follow_the_steps(plain, browser):
     """A run started paused, stepped by hand: the force plot grows by a point a step, the
     remaining time is known after the first step, and a friction change is marked."""
-    page, errors = open_page(browser, served)
+    page, errors = open_page(browser, plain)
     try:
-        r = httpx.post(f"{served}/api/runs", json={"scene": "tiny_cup", "paused": True})
+        r = httpx.post(f"{plain}/api/runs", json={"scene": "tiny_cup", "paused": True})
         run = r.json()["id"]
         # a script's run: this browser's view shows it once its row is chosen (each browser
         # keeps its own selected run, and this one shows the run of the test before)
         page.click(f'#runs tbody tr[data-id="{run}"] td:first-child')
         page.wait_for_function(f"document.getElementById('status').dataset.run === {run!r}")
-        settled(served, run)
+        settled(plain, run)
         n_points = "document.getElementById('force-plot').data?.[0]?.x?.length"
         for step in (1, 2):
-            httpx.post(f"{served}/api/runs/{run}/step")
+            httpx.post(f"{plain}/api/runs/{run}/step")
             page.wait_for_function(f"{n_points} === {step}")
         assert "left" in page.locator("#progress .text").text_content()
         assert page.get_attribute("#progress", "data-fraction") == str(2 / STEPS)
-        r = httpx.put(f"{served}/api/runs/{run}/parameters/friction_scale", json={"value": 2})
+        r = httpx.put(f"{plain}/api/runs/{run}/parameters/friction_scale", json={"value": 2})
         assert r.json()["applies_from_step"] == 3
-        httpx.post(f"{served}/api/runs/{run}/resume")
+        httpx.post(f"{plain}/api/runs/{run}/resume")
         page.wait_for_function(f"{n_points} === {STEPS}")
         page.wait_for_function("document.getElementById('force-plot').layout.shapes.length "
                                "=== 1")
@@ -175,8 +185,8 @@ def test_live_plots_follow_the_steps(served, browser):
 
 def test_choosing_a_scene_previews_it_in_3d(served, browser):
     """A click on a scene in the list shows its blank and tools at rest in the viewer before
-    any run (``PUT /api/view/scene``, built by the solver process); selecting a run shows the
-    run again."""
+    any run (``PUT /api/view/scene``, built by the solver process); selecting a run then
+    shows the run again (the next test)."""
     url = served
     page, errors = open_page(browser, url)
     own = {"X-Q3T-View": page.evaluate("VIEW")}  # the page's own view (tests/.../test_views)
@@ -185,19 +195,14 @@ def test_choosing_a_scene_previews_it_in_3d(served, browser):
                  in ("shown", "failed") and v, "the preview never came")
     assert view["preview"] == "shown" and view["scene"] == "tiny_cup", view
     shot(page, SHOTS, "preview-tiny-cup", settle_ms=SETTLE_MS)
-    rows = page.locator("#runs tr[data-id]")
-    if rows.count():  # an earlier test's run: selecting it ends the preview
-        rows.first.locator("td").first.click()
-        until(lambda: httpx.get(f"{url}/api/view", headers=own).json()["preview"] is None,
-              "selecting a run did not end the preview")
     assert not [e for e in errors if "/static/" in e], errors
     page.close()
 
 
 def test_edits_in_the_form_show_in_the_preview(served, browser):
     """Valid edits of the scene the viewer previews show there without a save, its status
-    saying they are unsaved; the Preview button shows them also while a run is shown; the
-    saved file stays as it was."""
+    saying they are unsaved; a run chosen in the table ends the preview, and the Preview
+    button then shows the edits again; the saved file stays as it was."""
     url = served
     page, errors = open_page(browser, url)
     own = {"X-Q3T-View": page.evaluate("VIEW")}
@@ -208,20 +213,24 @@ def test_edits_in_the_form_show_in_the_preview(served, browser):
             return v if v["preview"] == "shown" and v["preview_edited"] is edited else None
         return until(shown, f"no preview with preview_edited {edited}")
 
+    # a click on the chosen scene builds its form again, and an edit made before that ends
+    # is lost with the old form (the edited preview then never came): edit the new one
+    page.evaluate("document.querySelector(\"[name='mesh.r_outer']\").dataset.old = 'yes'")
     page.click("#scenes li[data-name=tiny_cup]")
     previewed(False)
-    page.fill("[name='mesh.r_outer']", "14")  # mm: the blank 28 mm across instead of 24
+    page.fill("[name='mesh.r_outer']:not([data-old])", "14")  # mm: 28 mm across, not 24
     previewed(True)
     page.frame_locator("#viewer").get_by_text("with its unsaved edits").first.wait_for()
     shot(page, SHOTS, "preview-edited", settle_ms=SETTLE_MS)
     assert "r_outer = 0.012\n" in httpx.get(f"{url}/api/scenes/tiny_cup").json()["toml"]
-    rows = page.locator("#runs tr[data-id]")
-    if rows.count():  # an earlier test's run: shown again, then the button previews the edits
-        rows.first.locator("td").first.click(force=True)  # a live row is redrawn at each poll
-        until(lambda: httpx.get(f"{url}/api/view", headers=own).json()["preview"] is None,
-              "selecting a run did not end the preview")
-        page.click("#preview-scene")
-        assert previewed(True)["scene"] == "tiny_cup"
+    # a run chosen in the table is shown instead; then the button previews the edits
+    run = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup"}).json()["id"]
+    # force: a live row is redrawn at each poll
+    page.locator(f'#runs tbody tr[data-id="{run}"] td').first.click(force=True)
+    until(lambda: httpx.get(f"{url}/api/view", headers=own).json()["preview"] is None,
+          "selecting a run did not end the preview")
+    page.click("#preview-scene")
+    assert previewed(True)["scene"] == "tiny_cup"
     assert not errors, errors
     page.close()
 
