@@ -20,7 +20,7 @@ from server import sceneform
 from server.colormap import VIRIDIS
 from server.tomlout import drop_none
 from tests.support import ROOT
-from tests.support.browser import CHROMIUM, new_page, serve, settled, shots_dir
+from tests.support.browser import CHROMIUM, VIEWER_FOR_SHOTS, new_page, serve, settled, shots_dir
 from tests.support.scenes import tiny_toml
 from tests.support.service import HANG, stop_all
 
@@ -57,6 +57,17 @@ def served(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("browser")
     scenes = {"tiny": tapered_toml(steps=STEPS)}
     with serve(tmp, scenes, "tiny", "--step-delay", str(STEP_DELAY)) as (url, _):
+        yield url, tmp
+
+
+@pytest.fixture(scope="module")
+def plain(tmp_path_factory):
+    """(url, folder) of the same server for the scene form, which needs no 3-D view: without
+    it unless screenshots are asked."""
+    tmp = tmp_path_factory.mktemp("browser-plain")
+    scenes = {"tiny": tapered_toml(steps=STEPS)}
+    with serve(tmp, scenes, "tiny", "--step-delay", str(STEP_DELAY),
+               *VIEWER_FOR_SHOTS) as (url, _):
         yield url, tmp
 
 
@@ -143,8 +154,8 @@ def test_page_run_viewer_pause(server, browser, tmp_path):
         page.close()
 
 
-def test_scene_form_and_run_estimate(served, browser):
-    url, tmp = served
+def test_scene_form_and_run_estimate(plain, browser):
+    url, tmp = plain
     (tmp / "runs" / "study-formed").mkdir(parents=True)
     (tmp / "runs" / "study-formed" / "report.json").write_text(json.dumps({"study": {
         "plan": {"scene": "scenes/formed.toml", "probe": "tip", "elements": ["linear"],

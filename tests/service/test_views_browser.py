@@ -9,22 +9,32 @@ from __future__ import annotations
 
 import pytest
 
-from tests.support.browser import WAIT_MS, page_url, serve, shot, shots_dir
+from tests.support.browser import VIEWER_FOR_SHOTS, WAIT_MS, page_url, serve, shot, shots_dir
 from tests.support.scenes import tiny_toml
 from tests.support.service import until
 
 SHOTS = shots_dir("views")
 pytestmark = pytest.mark.browser
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
+# tiny (4 steps) and long (4000)
+SCENES = {"tiny": tiny_toml(),
+          "long": tiny_toml(steps=4000).replace('name = "tiny"', 'name = "long"')}
 
 
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
-    """The server's url: tiny (4 steps) and long (4000), every step recorded."""
+    """The server's url: SCENES, every step recorded."""
     tmp = tmp_path_factory.mktemp("views-browser")
-    scenes = {"tiny": tiny_toml(),
-              "long": tiny_toml(steps=4000).replace('name = "tiny"', 'name = "long"')}
-    with serve(tmp, scenes, "tiny", "--step-delay", "0.2", "--record-every", "1") as (url, _):
+    with serve(tmp, SCENES, "tiny", "--step-delay", "0.2", "--record-every", "1") as (url, _):
+        yield url
+
+
+@pytest.fixture(scope="module")
+def plain(tmp_path_factory):
+    """The same server for what the pages alone say: without the 3-D view unless screenshots
+    are asked."""
+    tmp = tmp_path_factory.mktemp("views-browser-plain")
+    with serve(tmp, SCENES, "tiny", "--step-delay", "0.2", *VIEWER_FOR_SHOTS) as (url, _):
         yield url
 
 
@@ -32,7 +42,7 @@ class Browser:
     """A browser of its own (a Playwright context: its own tabs' storage), with the page
     open; its confirmation dialogs are accepted and kept."""
 
-    def __init__(self, browser, url: str):
+    def __init__(self, browser, url: str, viewer: bool = True):
         self.context = browser.new_context(viewport={"width": 1400, "height": 1000})
         self.page = self.context.new_page()
         self.page.set_default_timeout(WAIT_MS)
@@ -45,7 +55,8 @@ class Browser:
         self.page.wait_for_function(
             "document.getElementById('status').dataset.run !== undefined")
         self.viewer = self.page.frame_locator("#viewer")
-        self.viewer.get_by_text("Colour by").first.wait_for()
+        if viewer:
+            self.viewer.get_by_text("Colour by").first.wait_for()
 
     def _accept(self, dialog) -> None:
         self.dialogs.append(dialog.message)
@@ -129,8 +140,9 @@ def test_two_browsers_show_their_own_run_colours_and_step(served, browser):
     b.close()
 
 
-def test_stopping_another_browsers_run_says_so(served, browser):
-    a, b = Browser(browser, served), Browser(browser, served)
+def test_stopping_another_browsers_run_says_so(plain, browser):
+    viewer = not VIEWER_FOR_SHOTS
+    a, b = Browser(browser, plain, viewer), Browser(browser, plain, viewer)
     run = a.start("long")
     a.wait_status(run=run, state="running")
     b.page.click(f'#runs tbody tr[data-id="{run}"] td:first-child')
