@@ -189,11 +189,24 @@ const Plots = (() => {
     return rows;
   }
 
+  // a probes plot's legend lines are counted at the width it was drawn at: plotly's own
+  // resize keeps that layout's heights, so a new width draws it again (what it was drawn
+  // from kept per div)
+  const probesDrawn = new Map();
+  const probesResized = new ResizeObserver((seen) => {
+    for (const e of seen) {
+      const d = probesDrawn.get(e.target), w = Math.round(e.contentRect.width);
+      if (d && w > 0 && w !== d.width) probes(e.target, d.series, d.log);
+    }
+  });
+
   function probes(div, series, log) {
     const rows = quantities(series);
     const b = base("Probes", 0);
-    const { layout, row } = stacked(div.clientWidth || div.parentElement.clientWidth,
-                                     b.margin, rows);
+    const width = div.clientWidth || div.parentElement.clientWidth;
+    if (!probesDrawn.has(div)) probesResized.observe(div);
+    probesDrawn.set(div, { series, log, width });
+    const { layout, row } = stacked(width, b.margin, rows);
     const traces = series.map((s) => ({
       x: s.steps, y: s.values, name: s.name, type: "scatter", mode: "lines+markers",
       marker: { size: 3 }, xaxis: "x", ...row(rows.findIndex((r) => r.kind === (s.kind || "?"))),
@@ -297,6 +310,8 @@ const Plots = (() => {
 
   function purge(div) {
     placed.delete(div);
+    probesDrawn.delete(div);
+    probesResized.unobserve(div);
     unplot(div);
   }
 

@@ -193,33 +193,51 @@ def probes_have_a_legend_per_quantity(page) -> None:
 
 def test_probe_legends_fit_above_their_rows(open_page, served):
     """The page's first scene's probes (cup_drawing_outline: 15 probes of 10 kinds) drawn at
-    the plot column's narrowest width (320 px) and at 600 px: each quantity's legend, as
+    the plot column's narrowest width (320 px), at 600 and 900 px, and drawn at one of 320
+    and 900 px then resized to the other (a window resized): each quantity's legend, as
     plotly draws it, ends above its own row's plot and inside the plot's width."""
     url, _ = served
     page = open_page(url, "#scenes li.sel")
     probes = tomllib.loads((ROOT / "scenes/cup_drawing_outline.toml").read_text())["probes"]
     series = [{"name": p["name"], "kind": p["kind"], "unit": "mm", "steps": [0, 1, 2],
                "values": [0.0, 1.0, 2.0]} for p in probes]
-    for width in (320, 600):
-        rows = page.evaluate("""async ([series, w]) => {
+    heights = {}
+    for widths in ((320,), (600,), (900,), (900, 320), (320, 900)):
+        rows = page.evaluate("""async ([series, widths]) => {
             const div = document.createElement('div');
-            div.style.width = w + 'px';
+            div.style.width = widths[0] + 'px';
             document.body.append(div);
             await Plots.probes(div, series, []);
+            for (const w of widths.slice(1)) {
+              // the plot is drawn again once the resize is seen: its height changes with
+              // the legends' lines (at most a second: a hang fails here, not in the wait)
+              const before = div._fullLayout.height;
+              div.style.width = w + 'px';
+              for (let t = 0; t < 50 && div._fullLayout.height === before; t++)
+                await new Promise((ok) => setTimeout(ok, 20));
+            }
             const L = div._fullLayout, box = div.getBoundingClientRect(), rows = [];
             for (let k = 1; L[k > 1 ? 'legend' + k : 'legend']; k++) {
               const g = div.querySelector('g.legend' + (k > 1 ? k : '')).getBoundingClientRect();
               rows.push({ bottom: g.bottom - box.top, right: g.right - box.left,
                           plot: L[k > 1 ? 'yaxis' + k : 'yaxis']._offset,
+                          height: L.height,
                           names: div.data.filter((t) => t.legend === (k > 1 ? 'legend' + k
                                                                            : 'legend')).length });
             }
+            Plots.purge(div);
             div.remove();
-            return rows; }""", [series, width])
+            return rows; }""", [series, list(widths)])
+        width = widths[-1]
         assert len(rows) == len({p["kind"] for p in probes}), rows
         assert sum(r["names"] for r in rows) == len(probes)
         for r in rows:
-            assert r["bottom"] <= r["plot"] and r["right"] <= width, (width, r)
+            assert r["bottom"] <= r["plot"] and r["right"] <= width, (widths, r)
+        heights[widths] = rows[0]["height"]
+    # the legends take more lines the narrower the plot, and a resized plot is laid out as
+    # one drawn at its new width
+    assert heights[(320,)] > heights[(600,)] > heights[(900,)], heights
+    assert heights[(900, 320)] == heights[(320,)] and heights[(320, 900)] == heights[(900,)]
 
 
 def test_tool_meshes_are_offered_for_a_mesh_tool_labelled_by_kind(open_page, served):
