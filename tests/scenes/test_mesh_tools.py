@@ -75,18 +75,25 @@ def test_a_few_steps_of_a_press_with_a_mesh_punch(tmp_path):
 @pytest.mark.slow
 def test_the_first_10_mm_of_the_cup_with_mesh_tools(tmp_path):
     """The stroke's first 10 mm at the scene's own step (20 of its 50 steps, up to the force
-    peak), tools tessellated at chordal error 0.01 mm and sampled at 0.5 mm. A few minutes on
-    a loaded machine: slow.
+    peak), tools tessellated at chordal error 0.01 mm and sampled at 0.5 mm, against the
+    shipped cup's first 20 steps (the analytic tools' run the other tests read: the same
+    0.5 mm steps, so the same states to Newton's tolerance, 1e-4 of the force level).
     Punch force within 1 % of each step's own analytic force at every step (the issue's bar;
     the full stroke measured 0.80 % at most, at step 50, and 0.32 % in these 20 steps; 1.12 %
     when the facets were sampled instead of the surface through their vertices); the radial
     thickness section within 1 % at every recorded step (full stroke: 0.11 %). The difference
     is deterministic (micrometres of geometry and the spline's smoothing), not round-off."""
+    from tests.support.scenes import shipped_cup
+
     part = {"stepping.steps": 20, "tools.0.velocity": [0.0, 0.0, -0.01],
             "sections.0.steps": [0, 10, 20]}
     mesh = mesh_overrides(tmp_path, 1e-5, {0: 5e-4, 1: 5e-4, 2: 5e-4})
-    fa, sa = run(part)
+    shipped = shipped_cup()[0]
+    assert shipped.failure is None, shipped.failure
+    fa = np.array([r.probes["punch_force"] for r in shipped.records[:20]])
+    sa = [np.asarray(s["thickness"]) for s in shipped.sections["radial"] if s["step"] <= 20]
     fm, sm = run({**part, **mesh})
+    assert len(sa) == len(sm) == 3
     assert np.all(np.abs(fm - fa) <= 0.01 * np.abs(fa)), (fm, fa)
     for a, m in zip(sa, sm, strict=True):
         assert np.all(np.abs(m - a) <= 0.01 * a)
