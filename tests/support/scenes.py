@@ -43,15 +43,15 @@ def coarse(scene_path: str | Path, element: str | None = None) -> Scene:
 @functools.cache
 def shipped_cup() -> tuple:
     """The shipped cup (2 mm mesh, 50 steps) run to its end once per test process, and how
-    many factorisations it took: several tests check its answers and only read it. A failed
-    run is kept too (its ``failure`` says why: each test asserts it has none), not run again
-    by every test that asks."""
+    many factorisations it had taken at the end of each step: several tests check its answers
+    and only read it. A failed run is kept too (its ``failure`` says why: each test asserts
+    it has none), not run again by every test that asks."""
     from sim.stepping.simulation import Simulation
 
     sim = Simulation.from_scene(load_scene(ROOT / "scenes" / "cup_drawing.toml"))
-    count = factor_counted(sim)
-    sim.run()
-    return sim, count[0]
+    count, counts = factor_counted(sim), []
+    sim.run(progress=lambda *_: counts.append(count[0]))
+    return sim, counts
 
 
 def factor_counted(sim) -> list[int]:  # noqa: ANN001
