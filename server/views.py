@@ -179,8 +179,7 @@ class Views:
             rid = worker.send("preview", scene=scene, scene_toml=text, overrides=overrides)
             self._get(view).preview = {"scene": scene, "request": rid, "state": "building",
                                        "edited": edited}
-        self.m.viewer.preview_status(f"Preview of {_named(scene, edited)}: building its model…",
-                                     view or DEFAULT)
+        self.m.viewer.preview_status(self._building(scene, edited), view or DEFAULT)
         return self.view(view)
 
     def show_selected(self, view: str | None = None) -> None:
@@ -188,26 +187,39 @@ class Views:
         while it is one of the latest, else its recording (loaded by the viewer)."""
         if not self.m.viewer:
             return
-        key = view or DEFAULT
         # in order: of two selections made at once, the viewer ends on the later one
         with self._showing:
-            with self.m.lock:
-                v = self._get(key)
-                v.preview = None
-                run = self.m.runs.get(v.run or "")
-                shown = None if run is None else (run.id, dict(run.parameters),
-                                                    run.state in ACTIVE, run.line())
-            self.m.viewer.show_run(*(shown or (None, {}, False, "No run yet")), key)
+            self._show_run(view or DEFAULT)
+
+    def _show_run(self, key: str) -> None:
+        """Under ``_showing``: ``key``'s viewer shows its selected run, its preview ended."""
+        with self.m.lock:
+            v = self._get(key)
+            v.preview = None
+            run = self.m.runs.get(v.run or "")
+            shown = None if run is None else (run.id, dict(run.parameters),
+                                                run.state in ACTIVE, run.line())
+        self.m.viewer.show_run(*(shown or (None, {}, False, "No run yet")), key)
+
+    @staticmethod
+    def _building(scene: str, edited: bool | None) -> str:
+        return f"Preview of {_named(scene, edited)}: building its model…"
 
     def connected(self, view: str) -> None:
-        """A viewer of ``view`` connected: it shows the view's preview, else its run."""
-        with self.m.lock:
-            p = self._get(view).preview
-            ev = p.get("event") if p else None
-        if ev is None:
-            self.show_selected(view)
-        else:
-            self._draw_preview(view, ev)
+        """A viewer of ``view`` connected: it shows the view's preview (built, or still
+        building: it is shown when built), else its run. A preview still building is kept:
+        taking the run instead would drop the preview when it comes (a page's viewer connects
+        while the preview its page asked for is being built)."""
+        with self._showing:
+            with self.m.lock:
+                p = self._get(view).preview
+                p = dict(p) if p else None
+            if p is None:
+                self._show_run(view)
+            elif p.get("event") is not None:
+                self._draw_preview(view, p["event"])
+            else:
+                self.m.viewer.preview_status(self._building(p["scene"], p.get("edited")), view)
 
     def show_preview(self, ev: dict) -> None:
         """The solver built the preview ``ev`` (its ``preview`` event): shown in the view that

@@ -18,7 +18,15 @@ import json
 import httpx
 import pytest
 
-from tests.support.browser import VIEWER_FOR_SHOTS, new_page, serve, settled, shot, shots_dir
+from tests.support.browser import (
+    VIEWER_FOR_SHOTS,
+    click_row,
+    new_page,
+    serve,
+    settled,
+    shot,
+    shots_dir,
+)
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import until
 
@@ -225,8 +233,7 @@ def test_edits_in_the_form_show_in_the_preview(served, browser):
     assert "r_outer = 0.012\n" in httpx.get(f"{url}/api/scenes/tiny_cup").json()["toml"]
     # a run chosen in the table is shown instead; then the button previews the edits
     run = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup"}).json()["id"]
-    # force: a live row is redrawn at each poll
-    page.locator(f'#runs tbody tr[data-id="{run}"] td').first.click(force=True)
+    click_row(page, run)
     until(lambda: httpx.get(f"{url}/api/view", headers=own).json()["preview"] is None,
           "selecting a run did not end the preview")
     page.click("#preview-scene")

@@ -151,3 +151,32 @@ def test_a_preview_that_cannot_be_built_says_why(client, viewer):
     assert "Preview of scene `broken` failed" in viewer.gui.status.content
     m.views.show_preview({**ev, "request": 6})  # an earlier request answered late: ignored
     assert client.get("/api/view").json() == view
+
+
+def test_a_viewer_connecting_while_its_preview_builds_shows_it_when_built(client, viewer):
+    """A page asks for its preview, and its viewer connects while the solver builds it (a
+    page's first look, on a loaded machine): the viewer says it is building, and shows the
+    preview when it comes, instead of taking the run and dropping the preview."""
+    import queue
+
+    from server.worker import Solver
+
+    events: queue.Queue = queue.Queue()
+    solver = Solver(events, queue.Queue(), record_every=1, step_delay=0.0)
+    m = client.app.state.manager
+    with m.lock:
+        m.views.views["default"].preview = {"scene": "press", "request": 9,
+                                            "state": "building"}
+    m.views.connected("default")  # what a viewer connecting now does
+    assert client.get("/api/view").json()["preview"] == "building"
+    assert "Preview of scene `press`: building its model" in viewer.gui.status.content
+    solver.handle({"cmd": "preview", "id": 9, "scene": "press", "scene_toml": PRESS_TOML})
+    ev = events.get_nowait()
+    assert ev["kind"] == "preview" and "error" not in ev, ev
+    m.views.show_preview(ev)
+    assert client.get("/api/view").json()["preview"] == "shown"
+    assert viewer.mode == "preview"
+    assert "Preview of scene `press`: its blank and tools" in viewer.gui.status.content
+    # a viewer connecting once it is built draws it too; with no preview, the run
+    m.views.connected("default")
+    assert viewer.mode == "preview" and client.get("/api/view").json()["preview"] == "shown"

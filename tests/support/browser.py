@@ -168,6 +168,21 @@ def new_page(browser, url: str, *ready: str, width: int = 1400,
     return page, errors
 
 
+def click_row(page, run: str) -> None:
+    """Click ``run``'s row in the runs table where it is drawn now, as a user does, until the
+    page marks it selected. A live run's row is drawn again at each poll, and Playwright's
+    click of an element can find it gone between checking it and clicking (the page selects
+    on the press, so a user's click does not miss)."""
+    row = page.locator(f'#runs tbody tr[data-id="{run}"]')
+
+    def selected() -> bool:
+        box = row.bounding_box()
+        if box is not None:
+            page.mouse.click(box["x"] + 10, box["y"] + box["height"] / 2)
+        return page.evaluate("document.querySelector('#runs tbody tr.sel')?.dataset.id") == run
+    until(selected, f"the row of {run} never showed selected")
+
+
 def stacked_rows(page, div: str) -> list[dict]:
     """The rows of a plot of a quantity per row (web/plots.js's ``stacked``), top to bottom:
     each one's legend title, y axis title (the unit) and trace names. Asserts that each
