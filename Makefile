@@ -20,7 +20,7 @@ serve: $(STAMP)
 pytest = $(BIN)/python -m pytest -q $(1); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests" >&2; exit 1; fi; exit $$rc
 
-# every tier (CI): the browser tests beside the rest, two pytest processes (tests/split.py)
+# every tier (CI): four pytest processes side by side (tests/split.py)
 test: $(STAMP)
 	$(BIN)/python -m tests.split
 

@@ -1,10 +1,14 @@
 """The whole suite as two pytest processes side by side (``make test``, what CI runs).
 
-``python -m tests.split [pytest options] [paths]``: the browser tests (tests/service's
-``test_*browser*.py``, which mostly wait on servers, solver processes and pages) in one
-process, every other test (which mostly computes) in the other, each with its own temporary
-folder. On a 2-core machine the two overlap: the waiting of one is the other's computing time.
-Options go to both parts; paths given run as one part, as asked. Each part's
+``python -m tests.split [pytest options] [paths]``: four pytest processes side by side, each
+with its own temporary folder: the browser tests (tests/service's ``test_*browser*.py``, which
+mostly wait on servers, solver processes and pages) in two, those of the page's forms and files
+and those that show, compare and export runs; the service's and the command line's other tests
+(tests/service, tests/apps: servers, solver processes and clusters started, driven and
+stopped) in the third; every other test (which mostly computes) in the fourth. On a 2-core
+machine they overlap: the waiting of one is another's computing time (with two parts the
+machine's two cores were a third idle). Options go to every part; paths given run as one part,
+as asked. Each part's
 output goes to a log (its path printed first) and is printed whole once the part ends, so the
 parts never interleave; every minute a line gives each running part's progress. Exits 0 only
 if every part run passes; a part that collects no test (pytest's 5) fails only if all do.
@@ -28,11 +32,20 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+SERVICE = ROOT / "tests" / "service"
 # the page driven in chromium: mostly waiting on servers, solver processes and pages
-BROWSER = sorted((ROOT / "tests" / "service").glob("test_*browser*.py"))
+BROWSER = sorted(SERVICE.glob("test_*browser*.py"))
+# the browser modules that show, compare and export runs (the rest drive the page's forms and
+# files): the two browser parts take about as long as each other
+RUNS_BROWSER = {"test_compare3d_browser", "test_compare_browser", "test_exports_browser",
+                "test_runs_table_browser", "test_runs_units_browser", "test_trust_browser",
+                "test_viewer_browser", "test_views_browser"}
+# the service and the command line, apart from the page
+SERVING = (SERVICE, ROOT / "tests" / "apps")
 # a line per minute: CI shows the suite alive (and where) while the logs wait for their part
 HEARTBEAT = 60.0
 # processes of `q3t warm`, one per core (sim/apps/warm.py), and how long they may take (a
@@ -59,9 +72,17 @@ def parts(args: list[str]) -> dict[str, list[str]]:
     # parts' own paths leave out what the options ignore
     ignored = [Path(a.split("=", 1)[1] if "=" in a else options[i + 1]).resolve()
                for i, a in enumerate(options) if a.split("=", 1)[0] == "--ignore"]
-    browser = [str(f) for f in BROWSER if not any(f == d or d in f.parents for d in ignored)]
-    other = [*options, *(f"--ignore={f}" for f in BROWSER)]
-    return {"browser": [*options, *browser], "other": other} if browser else {"other": other}
+
+    def kept(paths: Iterable[Path]) -> list[str]:
+        return [str(f) for f in paths if not any(f == d or d in f.parents for d in ignored)]
+
+    no_browser = [f"--ignore={f}" for f in BROWSER]
+    plan = {"browser-page": kept(f for f in BROWSER if f.stem not in RUNS_BROWSER),
+            "browser-runs": kept(f for f in BROWSER if f.stem in RUNS_BROWSER),
+            "service": kept(SERVING)}
+    plan = {name: [*options, *(no_browser if name == "service" else ()), *paths]
+            for name, paths in plan.items() if paths}
+    return {**plan, "other": [*options, *no_browser, *(f"--ignore={d}" for d in SERVING)]}
 
 
 def main(argv: list[str] | None = None) -> int:
