@@ -53,6 +53,13 @@ class Viewer:
         # share link would expose the run's controls)
         self.server.gui.configure_theme(control_width="small", show_share_button=False)
         self.server.scene.configure_default_lights(enabled=True, cast_shadow=False)
+        # no image-based light: its reflections washed the colour map out (a 1 mm teal drawn
+        # pale cyan, the FLD zones' green and purple pastel, unlike their legend swatches),
+        # and it was most of a frame's cost in software WebGL; a fill light from above in
+        # its place keeps the translucent tools from turning dark
+        self.server.scene.configure_environment_map(hdri=None)
+        self.server.scene.add_light_hemisphere("/fill", sky_color=(255, 255, 255),
+                                               ground_color=(160, 160, 160), intensity=2.5)
         self.actions = actions
         self.colour_period = 1.0 / colour_hz
         self.lock = threading.RLock()  # viser runs update callbacks in the assigning thread
