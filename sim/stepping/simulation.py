@@ -256,6 +256,31 @@ class Simulation:
                         f"= {self.MAX_PENETRATION:g} thickness)")
         return ""
 
+    def _drift(self, before: np.ndarray, x: np.ndarray, dt: float) -> str:
+        """The diagnostic when a converged static sub-step leaves the sheet touching no tool,
+        with no node held and no inertia, moved farther than any tool moved in it (plus a
+        contact layer), else ''. Such a sheet is a free body: its equilibrium stands anywhere, so
+        Newton may carry a sheet that lost its tools off to where nothing touches it, and
+        the step would report zero forces as converged."""
+        m, n = self.model, self.model.shell.n_nodes
+        terms = set(map(id, m.problem.terms))
+        if (m.inertia is not None and id(m.inertia) in terms) or m.problem.fixed[:n].any():
+            return ""
+        tools = [t for t in self.tools if id(t) in terms]
+        if any(float(t.gap(x).min()) < t.delta for t in tools):
+            return ""
+        moved = float(np.linalg.norm(x[:n] - before[:n], axis=1).max())
+        travel = max((t.travel(self.t, self.t + dt, before[:n]) for t in tools), default=0.0)
+        # a free sheet that Newton leaves where it lies (a punch gone up, the blank on the
+        # die outside its contact layer) moves by round-off; one carried along by a tool it
+        # then left moves by the tool's travel at most, and by a contact layer at its edge
+        if moved <= travel + max((t.delta for t in tools), default=0.0):
+            return ""
+        nearest = min((float(t.gap(x).min()) for t in tools), default=float("inf"))
+        return (f"sheet lost every tool: moved {moved:.3e} m in a sub-step in which the tools "
+                f"moved at most {travel:.3e} m, the nearest tool {nearest:.3e} m away, and "
+                "nothing else holds it")
+
     def _travel_limit(self, dt: float) -> float:
         """``dt`` halved until no tool moves more than a sheet thickness in it: penalty contact
         sees only where a sub-step ends, so a tool moving farther than that can start the
@@ -409,8 +434,9 @@ class Simulation:
             res = self._attempt(self.t + dt, dt)
             self.timing.add(res.timing)
             iters += res.iterations
-            if res.converged and (deep := self._penetration(res.x)):
-                res.converged, res.reason = False, deep
+            if res.converged and (bad := self._penetration(res.x)
+                                  or self._drift(self.x, res.x, dt)):
+                res.converged, res.reason = False, bad
             if not res.converged:
                 # a load below the force round-off floor stays below it in any increment
                 hopeless = res.reason.startswith("load below force round-off floor")

@@ -633,3 +633,35 @@ def test_friction_lag_from_the_rest_placement_is_a_guess():
     assert rec.friction_change < 1e-6  # the first step slid with its own normal forces
     punch.begin_step(sim.t + dt, dt, sim.x)
     assert not punch.guessed_lag and punch.lagged[0].any()
+
+
+def test_a_sheet_that_lost_every_tool_fails_its_step(monkeypatch):
+    """A static sheet that touches no tool and has no node held is a free body: its
+    equilibrium stands anywhere, and Newton can carry a sheet that lost its punch far off (a
+    coarse tiny cup with a mesh punch went 0.12 m up through the punch and reported zero
+    punch force as converged, docs/mesh-tools.md). Such a sub-step is refused: cut back, and
+    then the step fails saying so. A free sheet that stays where it lies is no failure."""
+    from sim.scene.load import scene_from_toml
+    from sim.stepping.simulation import SolverFailure
+    from tests.support.scenes import tiny_cup_toml
+
+    sim = Simulation.from_scene(scene_from_toml(tiny_cup_toml()))
+    n = sim.model.shell.n_nodes
+    gone = sim.x.copy()
+    gone[:n, 2] += 0.1  # m: above the 20 mm punch, no tool near
+    assert sim._drift(gone, gone.copy(), 0.1) == ""  # free, left where it lies
+    assert sim._drift(sim.x, sim.x, 0.1) == ""  # on its tools
+    assert sim._drift(sim.x, gone, 0.1).startswith("sheet lost every tool: moved 1.000e-01 m")
+    attempt = sim._attempt
+
+    def flown(t_new: float, dt: float):  # noqa: ANN202
+        res = attempt(t_new, dt)
+        res.x = res.x.copy()
+        res.x[:n, 2] += 0.1
+        return res
+
+    monkeypatch.setattr(sim, "_attempt", flown)
+    with pytest.raises(SolverFailure, match="sheet lost every tool"):
+        sim.step()
+    assert sim.failure["cutbacks"] == sim.model.scene.stepping.max_cutbacks
+    assert sim.failure["reason"].startswith("sheet lost every tool")
