@@ -218,6 +218,12 @@ class Simulation:
             for t in self.tools:
                 if t.vdof is not None and t.stop is not None:
                     x0[t.vdof, 2] = max(x0[t.vdof, 2], t.stop)
+            # a node that settled into a tool's contact layer in the last increment is
+            # carried as far again, out of it: with every node so, the sheet starts free, and
+            # Newton's first correction is a rigid motion that round-off decides (back onto
+            # the tools, or off them). From the last state, which the tools hold, instead
+            if self._free(x0) and not self._free(self.x):
+                x0 = self.x.copy()
         for t in self.tools:
             t.seat(x0)
         x0[m.fixed] = target[m.fixed]
@@ -256,19 +262,30 @@ class Simulation:
                         f"= {self.MAX_PENETRATION:g} thickness)")
         return ""
 
+    def _active_tools(self) -> list:
+        terms = set(map(id, self.model.problem.terms))
+        return [t for t in self.tools if id(t) in terms]
+
+    def _free(self, x: np.ndarray) -> bool:
+        """Whether nothing holds the sheet at ``x`` in a static problem: no inertia, no node
+        held, no node within a tool's contact layer (tools where the step puts them)."""
+        m, n = self.model, self.model.shell.n_nodes
+        if m.inertia is not None and id(m.inertia) in set(map(id, m.problem.terms)):
+            return False
+        if m.problem.fixed[:n].any():
+            return False
+        return not any(float(t.gap(x).min()) < t.delta for t in self._active_tools())
+
     def _drift(self, before: np.ndarray, x: np.ndarray, dt: float) -> str:
         """The diagnostic when a converged static sub-step leaves the sheet touching no tool,
         with no node held and no inertia, moved farther than any tool moved in it (plus a
         contact layer), else ''. Such a sheet is a free body: its equilibrium stands anywhere, so
         Newton may carry a sheet that lost its tools off to where nothing touches it, and
         the step would report zero forces as converged."""
-        m, n = self.model, self.model.shell.n_nodes
-        terms = set(map(id, m.problem.terms))
-        if (m.inertia is not None and id(m.inertia) in terms) or m.problem.fixed[:n].any():
+        if not self._free(x):
             return ""
-        tools = [t for t in self.tools if id(t) in terms]
-        if any(float(t.gap(x).min()) < t.delta for t in tools):
-            return ""
+        n = self.model.shell.n_nodes
+        tools = self._active_tools()
         moved = float(np.linalg.norm(x[:n] - before[:n], axis=1).max())
         travel = max((t.travel(self.t, self.t + dt, before[:n]) for t in tools), default=0.0)
         # a free sheet that Newton leaves where it lies (a punch gone up, the blank on the
