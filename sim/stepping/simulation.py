@@ -250,10 +250,7 @@ class Simulation:
     def _penetration(self, x: np.ndarray) -> str:
         """The diagnostic when a tool penetrates the sheet beyond the bound, else ''."""
         bound = self.MAX_PENETRATION * float(np.mean(self.model.shell.thickness))
-        active = set(map(id, self.model.problem.terms))
-        for t in self.tools:
-            if id(t) not in active:
-                continue
+        for t in self._active_tools():
             gap = t.gap(x)
             movable = ~self.model.problem.fixed[t.nodes].all(1)
             d = float(max(0.0, -gap[movable].min())) if movable.any() else 0.0
@@ -263,6 +260,7 @@ class Simulation:
         return ""
 
     def _active_tools(self) -> list:
+        """The tools whose contact is a term of the problem (a released tool's is not)."""
         terms = set(map(id, self.model.problem.terms))
         return [t for t in self.tools if id(t) in terms]
 
@@ -502,8 +500,7 @@ class Simulation:
         return True
 
     def _tool_reports(self) -> dict[str, dict]:
-        active = set(map(id, self.model.problem.terms))
-        return {t.tool: t.report(self.x) for t in self.tools if id(t) in active}
+        return {t.tool: t.report(self.x) for t in self._active_tools()}
 
     def tool_poses(self) -> dict[str, np.ndarray]:
         """Current translation (3,) of every tool."""
