@@ -219,7 +219,7 @@ def _to_natural(A: np.ndarray, Sh: np.ndarray, Sn: np.ndarray) -> None:
             Sn[j, i] = acc
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True)
 def _neo_hookean_natural(Eh: np.ndarray, A: np.ndarray, mu: float, lam: float, want: int,
                          Sn: np.ndarray, Dv: np.ndarray, Ci: np.ndarray,
                          Gi: np.ndarray) -> float:
@@ -262,7 +262,7 @@ def _neo_hookean_natural(Eh: np.ndarray, A: np.ndarray, mu: float, lam: float, w
     return W
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True)
 def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
                        params: np.ndarray, ep: float, want: int, Sn: np.ndarray, Dv: np.ndarray,
                        M: np.ndarray, cv: np.ndarray, Dp: np.ndarray) -> float:
@@ -323,7 +323,7 @@ def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarr
             Dv[v, u] = acc
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True)
 def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.ndarray,
                   ep: float, want: int, Sn: np.ndarray, Dv: np.ndarray, M: np.ndarray,
                   cv: np.ndarray, Dp: np.ndarray, Sp: np.ndarray) -> float:
@@ -498,6 +498,8 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
                 return np.inf
             _map(A0[q], plastic, fp_inv[q], A)
             _strain_hat(Gq[q], Hn, r, s, tv, A, plastic, fp_inv[q], en, Eh)
+            # the laws are called, not inlined by numba: inlined, they made the kernel's compile
+            # much longer and ran no faster
             if model == NEO_HOOKEAN:
                 W = _neo_hookean_natural(Eh, A, params[0], params[1], want, Sn, Dv, Ci, sig)
             elif model == HILL48:
@@ -622,42 +624,58 @@ def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarra
     Gt per element). Any
     projection (``project`` != 0) is the element's: the initial-stress term of the tied shear
     has no per-point PSD split."""
-    n_e, n_en = conn.shape
-    k = 3 * n_en
-    energies = np.zeros(n_e)
+    energies = np.zeros(conn.shape[0])
     for c in range(len(color_ptr) - 1):
         for blk in prange(color_ptr[c], color_ptr[c + 1]):
-            g = np.zeros(k)
-            Kg = np.empty((n_en, n_en))
-            n_lev = lev_ptr.shape[0] - 1
-            nb = 6 + (lev_ptr[1] - lev_ptr[0])
-            nbp = -(-nb // 3) * 3
-            nr = -(-n_lev * nbp // 9) * 9
-            # rows past a level's nb stay zero in P; T's are zero through Mb's
-            P, T, Mb = np.zeros((nr, k)), np.zeros((nr, k)), np.zeros((nbp, nbp))
-            K = np.empty((k, k) if want == 2 else (0, 0))
-            Hs, gvs, u = np.empty((nb - 3, 3, 3)), np.empty((4, nbp)), np.empty((n_en, 3))
-            sc, m3 = np.empty((3, 6, 6)), np.empty((7, 3, 3))
-            for t in range(block_ptr[blk], block_ptr[blk + 1]):
-                e = order[t]
-                E = _ans_element(x, rest, conn[e], (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e]),
-                                 wdetJ[e], model, params, fp_inv[e], ep[e], frames[e], plastic,
-                                 want, g,
-                                 K, Kg, P, T, Mb, Hs, gvs, sc, u, m3)
-                energies[e] = E
-                ok = np.isfinite(E)
-                if want >= 1:
-                    drain_element_gradient(grad, conn[e], g, ok)
-                if want == 2 and ok:
-                    if project != 0:
-                        _project(K)
-                    s = slots[e]
-                    p = 0
-                    for r in range(k):
-                        for col in range(r, k):
-                            data[np.uint64(s[p])] += K[r, col]
-                            p += 1
+            _ans_block(x, rest, conn, (dNq, dNt, lev_ptr, rs, Gq, A0, Gt), wdetJ, model, params,
+                       fp_inv, ep, frames, plastic, want, project,
+                       order[block_ptr[blk]:block_ptr[blk + 1]], slots, grad, data, energies)
     return energies.sum()
+
+
+@njit(cache=True)
+def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
+               wdetJ: np.ndarray, model: int, params: np.ndarray, fp_inv: np.ndarray,
+               ep: np.ndarray, frames: np.ndarray, plastic: bool, want: int, project: int,
+               elements: np.ndarray, slots: np.ndarray, grad: np.ndarray, data: np.ndarray,
+               energies: np.ndarray) -> None:
+    """One block of :func:`ans_kernel`: its ``elements`` with their scratch, each element's
+    energy into ``energies``, gradient and Hessian scattered. A function of its own, not the
+    prange body: numba's parallel passes then see one call, not the whole inlined element
+    (compiled so, the kernel took far longer to compile; the same machine code runs per
+    element)."""
+    dNq, dNt, lev_ptr, rs, Gq, A0, Gt = tying
+    n_en = conn.shape[1]
+    k = 3 * n_en
+    g = np.zeros(k)
+    Kg = np.empty((n_en, n_en))
+    n_lev = lev_ptr.shape[0] - 1
+    nb = 6 + (lev_ptr[1] - lev_ptr[0])
+    nbp = -(-nb // 3) * 3
+    nr = -(-n_lev * nbp // 9) * 9
+    # rows past a level's nb stay zero in P; T's are zero through Mb's
+    P, T, Mb = np.zeros((nr, k)), np.zeros((nr, k)), np.zeros((nbp, nbp))
+    K = np.empty((k, k) if want == 2 else (0, 0))
+    Hs, gvs, u = np.empty((nb - 3, 3, 3)), np.empty((4, nbp)), np.empty((n_en, 3))
+    sc, m3 = np.empty((3, 6, 6)), np.empty((7, 3, 3))
+    for e in elements:
+        E = _ans_element(x, rest, conn[e], (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e]),
+                         wdetJ[e], model, params, fp_inv[e], ep[e], frames[e], plastic,
+                         want, g,
+                         K, Kg, P, T, Mb, Hs, gvs, sc, u, m3)
+        energies[e] = E
+        ok = np.isfinite(E)
+        if want >= 1:
+            drain_element_gradient(grad, conn[e], g, ok)
+        if want == 2 and ok:
+            if project != 0:
+                _project(K)
+            s = slots[e]
+            p = 0
+            for r in range(k):
+                for col in range(r, k):
+                    data[np.uint64(s[p])] += K[r, col]
+                    p += 1
 
 
 @njit(cache=True)

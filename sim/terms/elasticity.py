@@ -83,7 +83,7 @@ def _element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNdX: np.ndarra
     a time on the packed node-major triangle, this cut the Q3T beam's Hessian arithmetic by
     more than a third (q3t bench).
 
-    Inlined into the kernel (as are the helpers it calls per quadrature point): a call passes
+    Inlined into the kernel's blocks (as are the helpers it calls per quadrature point): a call passes
     each array as a reference-counted struct, and those calls took 55 % of the Q3T beam's
     gradient and 30 % of its Hessian evaluation. numba's cache keys a kernel on its own file
     only; sim/__init__.py therefore keys the cache folder on all of sim's sources, so an edit
@@ -235,34 +235,48 @@ def elastic_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.n
     empty ``(n_elem, 0, ...)`` versions when not ``plastic``; frames ``(n_elem, 3, 3)`` the
     material axes of an anisotropic material, else ``(n_elem, 0, 0)``; pos as in
     :func:`_element`."""
-    n_e, n_en = conn.shape
-    k = 3 * n_en
-    energies = np.zeros(n_e)
+    energies = np.zeros(conn.shape[0])
     for c in range(len(color_ptr) - 1):
         for blk in prange(color_ptr[c], color_ptr[c + 1]):
-            # scratch per block (numba's heap arrays, made per element, cost as much as a
-            # linear prism's arithmetic); g is handed back zeroed by the scatter that drains it
-            g = np.zeros(k)
-            Kp = np.empty(k * (k + 1) // 2 if want == 2 else 0)
-            Kf = np.empty(k * k if want == 2 else 0)
-            CB, C = np.empty((3, 9, k)), np.empty((9, 9))
-            G, P = np.empty((3, 3)), np.empty((3, 3))
-            bT, u, FiT = np.empty((3, 3, n_en)), np.empty((n_en, 3)), np.empty((3, 3))
-            for t in range(block_ptr[blk], block_ptr[blk + 1]):
-                e = order[t]
-                E = _element(x, rest, conn[e], dNdX[e], wdetJ[e], model, params, fp_inv[e],
-                             ep[e], frames[e], plastic, want, project, g, Kp, Kf, pos, CB, G, P,
-                             C, bT, u, FiT)
-                energies[e] = E
-                ok = np.isfinite(E)
-                if want >= 1:
-                    drain_element_gradient(grad, conn[e], g, ok)
-                if want == 2 and ok:
-                    s = slots[e]
-                    for p in range(Kp.shape[0]):
-                        # slots are >= 0: unsigned, numba skips the wraparound test
-                        data[np.uint64(s[p])] += Kp[p]
+            _elastic_block(x, rest, conn, dNdX, wdetJ, model, params, fp_inv, ep, frames,
+                           plastic, want, project, order[block_ptr[blk]:block_ptr[blk + 1]],
+                           slots, pos, grad, data, energies)
     return energies.sum()
+
+
+@njit(cache=True)
+def _elastic_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.ndarray,
+                   wdetJ: np.ndarray, model: int, params: np.ndarray, fp_inv: np.ndarray,
+                   ep: np.ndarray, frames: np.ndarray, plastic: bool, want: int, project: int,
+                   elements: np.ndarray, slots: np.ndarray, pos: np.ndarray, grad: np.ndarray,
+                   data: np.ndarray, energies: np.ndarray) -> None:
+    """One block of :func:`elastic_kernel`: its ``elements`` with their scratch, each
+    element's energy into ``energies``, gradient and Hessian scattered. A function of its own,
+    not the prange body: numba's parallel passes then see one call, not the whole inlined
+    element (compiled so, the kernel took far longer to compile; the same machine code runs
+    per element)."""
+    k = 3 * conn.shape[1]
+    # scratch per block (numba's heap arrays, made per element, cost as much as a linear
+    # prism's arithmetic); g is handed back zeroed by the scatter that drains it
+    g = np.zeros(k)
+    Kp = np.empty(k * (k + 1) // 2 if want == 2 else 0)
+    Kf = np.empty(k * k if want == 2 else 0)
+    CB, C = np.empty((3, 9, k)), np.empty((9, 9))
+    G, P = np.empty((3, 3)), np.empty((3, 3))
+    bT, u, FiT = np.empty((3, 3, conn.shape[1])), np.empty((conn.shape[1], 3)), np.empty((3, 3))
+    for e in elements:
+        E = _element(x, rest, conn[e], dNdX[e], wdetJ[e], model, params, fp_inv[e],
+                     ep[e], frames[e], plastic, want, project, g, Kp, Kf, pos, CB, G, P,
+                     C, bT, u, FiT)
+        energies[e] = E
+        ok = np.isfinite(E)
+        if want >= 1:
+            drain_element_gradient(grad, conn[e], g, ok)
+        if want == 2 and ok:
+            s = slots[e]
+            for p in range(Kp.shape[0]):
+                # slots are >= 0: unsigned, numba skips the wraparound test
+                data[np.uint64(s[p])] += Kp[p]
 
 
 @njit(cache=True, inline='always')
