@@ -12,9 +12,9 @@ from sim.materials.plasticity import LAWS
 from sim.scene.load import Scene
 from sim.scene.sheet import MaterialSpec
 from sim.solve.assembly import Pattern, pair_slots
-from sim.terms import Term, loads
+from sim.terms import PROJECT_ELEMENT, PROJECT_NONE, PROJECT_QP, Term, loads
 from sim.terms.contact_kernels import auto_stiffness
-from sim.terms.elasticity import PROJECT_ELEMENT, PROJECT_NONE, PROJECT_QP, Elasticity
+from sim.terms.elasticity import Elasticity
 from sim.terms.inertia import Inertia, lumped_mass
 from sim.terms.small_strain import SmallStrain
 from sim.terms.tool_contact import ToolContact

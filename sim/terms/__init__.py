@@ -14,6 +14,10 @@ from collections.abc import Callable
 
 import numpy as np
 
+# how an elastic term's Hessian is made positive semi-definite (sim.model.terms.PROJECTIONS):
+# not at all, per quadrature point, or whole per element
+PROJECT_NONE, PROJECT_QP, PROJECT_ELEMENT = 0, 1, 2
+
 
 class Term:
     name = "term"

@@ -52,6 +52,7 @@ from sim.materials.isotropic import (
 )
 from sim.materials.plasticity import plastic_flow
 from sim.solve.assembly import drain_element_gradient
+from sim.terms import PROJECT_ELEMENT, PROJECT_QP
 
 # tying points in (u, v): A on the edge v = 0, B on u = 0, C on the third edge
 TYING = np.array([[0.5, 0.0], [0.0, 0.5], [0.5, 0.5]])
@@ -264,10 +265,12 @@ def _neo_hookean_natural(Eh: np.ndarray, A: np.ndarray, mu: float, lam: float, w
 
 @njit(cache=True)
 def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
-                       params: np.ndarray, ep: float, want: int, Sn: np.ndarray, Dv: np.ndarray,
-                       M: np.ndarray, cv: np.ndarray, Dp: np.ndarray) -> float:
+                       params: np.ndarray, ep: float, want: int, psd: bool, Sn: np.ndarray,
+                       Dv: np.ndarray, M: np.ndarray, cv: np.ndarray, Dp: np.ndarray) -> float:
     """Any isotropic model through the principal frame of E^ (module docstring): W, Sn and
-    Dv as :func:`_neo_hookean_natural`. Scratch: M (3, 3), cv (6, 6), Dp (6, 6)."""
+    Dv as :func:`_neo_hookean_natural`; ``psd``: Dv projected to positive semi-definite,
+    which in that frame is the 3 x 3 block's eigenvalues and the pairs' clamped at zero.
+    Scratch: M (3, 3), cv (2, 6, 6), Dp (6, 6)."""
     lam, V = eigh3(Eh)
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
@@ -292,6 +295,14 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
     for c in range(3):
         a, b = PAIRS[c, 0], PAIRS[c, 1]
         Dp[3 + c, 3 + c] = 2.0 * (sym[c] - twist[c]) / (st[a] * st[b])
+    if psd:
+        ev, Q = eigh3(Dp[:3, :3])
+        for a in range(3):
+            for b in range(3):
+                Dp[a, b] = (Q[a, 0] * max(ev[0], 0.0) * Q[b, 0] + Q[a, 1] * max(ev[1], 0.0)
+                            * Q[b, 1] + Q[a, 2] * max(ev[2], 0.0) * Q[b, 2])
+        for c in range(3, 6):
+            Dp[c, c] = max(Dp[c, c], 0.0)
     _natural_tangent(M, Dp, cv, Dv)
     return W
 
@@ -308,27 +319,37 @@ def _columns(A: np.ndarray, V: np.ndarray, M: np.ndarray) -> None:
 def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarray) -> None:
     """Dv = cv^T Dp cv: a tangent ``Dp`` over the unique components of X = M^T de~ M (the
     diagonal m_a^T de~ m_a, then the pairs m_a^T de~ m_b of PAIRS) over the natural rows,
-    X's components being cv (6, 6) times those rows."""
+    X's components being cv[0] (6, 6) times those rows; cv[1] scratch for Dp cv. Formed as
+    cv^T (Dp cv), its upper triangle mirrored: Dp is symmetric, and a point's tangent is
+    most of the assumed-strain element's arithmetic after the Hessian's congruence."""
+    C, DC = cv[0], cv[1]
     for c in range(6):
         a, b = (c, c) if c < 3 else (PAIRS[c - 3, 0], PAIRS[c - 3, 1])
         for v in range(6):
             i, j = VOIGT[v, 0], VOIGT[v, 1]
-            cv[c, v] = M[i, a] * M[j, b] + (M[j, a] * M[i, b] if i != j else 0.0)
-    for v in range(6):
+            C[c, v] = M[i, a] * M[j, b] + (M[j, a] * M[i, b] if i != j else 0.0)
+    for c in range(6):
         for u in range(6):
             acc = 0.0
+            for d in range(6):
+                acc += Dp[c, d] * C[d, u]
+            DC[c, u] = acc
+    for v in range(6):
+        for u in range(v, 6):
+            acc = 0.0
             for c in range(6):
-                for d in range(6):
-                    acc += cv[c, v] * Dp[c, d] * cv[d, u]
+                acc += C[c, v] * DC[c, u]
             Dv[v, u] = acc
+            Dv[u, v] = acc
 
 
 @njit(cache=True)
 def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.ndarray,
-                  ep: float, want: int, Sn: np.ndarray, Dv: np.ndarray, M: np.ndarray,
-                  cv: np.ndarray, Dp: np.ndarray, Sp: np.ndarray) -> float:
+                  ep: float, want: int, psd: bool, Sn: np.ndarray, Dv: np.ndarray,
+                  M: np.ndarray, cv: np.ndarray, Dp: np.ndarray, Sp: np.ndarray) -> float:
     """Hill48 in the frame of E^'s eigenvectors (module docstring): W, Sn and Dv as
-    :func:`_neo_hookean_natural`. Scratch: M, Sp (3, 3), cv, Dp (6, 6)."""
+    :func:`_neo_hookean_natural`, ``psd`` as :func:`_principal_natural` (Hill's Dp is full:
+    its eigenvalues). Scratch: M, Sp (3, 3), cv (2, 6, 6), Dp (6, 6)."""
     lam, V = eigh3(Eh)
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
@@ -344,8 +365,26 @@ def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.n
                     acc += M[i, a] * Sp[a, b] * M[j, b]
             Sn[i, j] = acc
     if want == 2:
+        if psd:
+            _clamp_psd(Dp)
         _natural_tangent(M, Dp, cv, Dv)
     return W
+
+
+@njit(cache=True)
+def _clamp_psd(S: np.ndarray) -> None:
+    """S (n, n), symmetric, <- its projection to positive semi-definite (its negative
+    eigenvalues set to zero)."""
+    ev, Q = np.linalg.eigh(S)
+    n = S.shape[0]
+    for a in range(n):
+        for b in range(a, n):
+            acc = 0.0
+            for c in range(n):
+                if ev[c] > 0.0:
+                    acc += Q[a, c] * ev[c] * Q[b, c]
+            S[a, b] = acc
+            S[b, a] = acc
 
 
 @njit(cache=True, inline='always')
@@ -438,14 +477,19 @@ def _level_geometric(dNq: np.ndarray, dNt: np.ndarray, s_in: np.ndarray, s_ww: n
 def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C901
                  tg: tuple, wdetJ: np.ndarray, model: int, params: np.ndarray,
                  fp_inv: np.ndarray, ep: np.ndarray, frame: np.ndarray, plastic: bool,
-                 want: int, g: np.ndarray,
+                 want: int, project: int, g: np.ndarray,
                  K: np.ndarray, Kg: np.ndarray, P: np.ndarray, T: np.ndarray,
                  Mb: np.ndarray, Hs: np.ndarray, gvs: np.ndarray, sc: np.ndarray, u: np.ndarray,
                  m3: np.ndarray) -> float:
     """Energy of one element; adds its gradient into ``g (k,)`` (want >= 1) and writes its
     Hessian's upper triangle, node-major, into ``K (k, k)`` (want == 2). ``tg``: the element's
     (dNq, dNt, lev_ptr, rs, Gq, A0, Gt) of :class:`Tying`; ``frame (3, 3)`` its material axes
-    (read by Hill48).
+    (read by Hill48). ``project``: PROJECT_QP makes the Hessian positive semi-definite by its
+    parts: each point's material tangent (over the natural strain rows, as a point's is in
+    Q3T's projection) and the element's initial-stress term (n_en x n_en: the tied shear's
+    stresses act at the tying points, so it has no per-point split); a sum of positive
+    semi-definite parts, without the element's 3 n_en x 3 n_en eigen-decomposition that
+    PROJECT_ELEMENT takes (:func:`ans_kernel`).
 
     Per level, the points' strain rows are combinations Phi of the level's basis rows P, so
     the material part is summed as P^T (sum_q w Phi^T D Phi) P, one product of n_b = 6 + n_in
@@ -453,13 +497,14 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     one product :func:`_congruence` forms all of it. Scratch: Kg (n_en, n_en); P and T
     (n_r, k), level l's rows from l n_bp on (n_b padded to n_bp, a multiple of 3; n_r a
     multiple of 9; the padding rows zero); Mb (n_bp, n_bp), Hs (n_b - 3, 3, 3), gvs (4, n_bp),
-    u (n_en, 3), sc (3, 6, 6), m3 (7, 3, 3)."""
+    u (n_en, 3), sc (4, 6, 6), m3 (7, 3, 3)."""
     dNq, dNt, lev_ptr, rs, Gq, A0, Gt = tg
     en, Eh, A, Sn, sig, M, Ci = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6]
-    Dv, cv, Dp = sc[0], sc[1], sc[2]
+    Dv, cv, Dp = sc[0], sc[1:3], sc[3]
     gv, tv, s_ww, s_in = gvs[0], gvs[1], gvs[2], gvs[3]  # tv, s_in: (3,) of nb >= 7
     n_en = nodes.shape[0]
     k = 3 * n_en
+    psd = want == 2 and project == PROJECT_QP
     nbp = Mb.shape[0]  # the level's rows in P, nb = 6 + n_in padded to a multiple of 3
     for a in range(n_en):
         for i in range(3):
@@ -500,13 +545,14 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             _strain_hat(Gq[q], Hn, r, s, tv, A, plastic, fp_inv[q], en, Eh)
             # the laws are called, not inlined by numba: inlined, they made the kernel's compile
             # much longer and ran no faster
-            if model == NEO_HOOKEAN:
+            # (Neo-Hookean's closed form has no principal frame to project in)
+            if model == NEO_HOOKEAN and not psd:
                 W = _neo_hookean_natural(Eh, A, params[0], params[1], want, Sn, Dv, Ci, sig)
             elif model == HILL48:
-                W = _hill_natural(Eh, A, params, frame, ep[q], want, Sn, Dv, M, cv, Dp, Ci)
+                W = _hill_natural(Eh, A, params, frame, ep[q], want, psd, Sn, Dv, M, cv, Dp, Ci)
             else:
                 W = _principal_natural(model, Eh, A, params, ep[q] if plastic else 0.0, want,
-                                       Sn, Dv, M, cv, Dp)
+                                       psd, Sn, Dv, M, cv, Dp)
             if not np.isfinite(W):
                 return np.inf
             w = wdetJ[q]
@@ -552,6 +598,11 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
         _level_geometric(dNq[q0:q0 + n_in], dNt[lev], s_in, s_ww[:n_in], tA, tB, tC, Kg)
     if want == 2:
         _congruence(P, T, K)
+        if psd:
+            for a in range(n_en):
+                for b in range(a):
+                    Kg[a, b] = Kg[b, a]
+            _clamp_psd(Kg)
         for a in range(n_en):
             for b in range(a, n_en):
                 for i in range(3):
@@ -621,9 +672,9 @@ def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarra
                slots: np.ndarray, grad: np.ndarray, data: np.ndarray) -> float:
     """:func:`sim.terms.elasticity.elastic_kernel` for assumed-shear elements: same arguments
     and scatter (``frames`` as there), the element's geometry from :class:`Tying` (Gq, A0,
-    Gt per element). Any
-    projection (``project`` != 0) is the element's: the initial-stress term of the tied shear
-    has no per-point PSD split."""
+    Gt per element). ``project``: PROJECT_QP by the Hessian's parts (:func:`_ans_element`),
+    PROJECT_ELEMENT the element's whole Hessian (an eigen-decomposition of its 3 n_en x 3 n_en
+    matrix, most of the evaluation's time)."""
     energies = np.zeros(conn.shape[0])
     for c in range(len(color_ptr) - 1):
         for blk in prange(color_ptr[c], color_ptr[c + 1]):
@@ -657,18 +708,18 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
     P, T, Mb = np.zeros((nr, k)), np.zeros((nr, k)), np.zeros((nbp, nbp))
     K = np.empty((k, k) if want == 2 else (0, 0))
     Hs, gvs, u = np.empty((nb - 3, 3, 3)), np.empty((4, nbp)), np.empty((n_en, 3))
-    sc, m3 = np.empty((3, 6, 6)), np.empty((7, 3, 3))
+    sc, m3 = np.empty((4, 6, 6)), np.empty((7, 3, 3))
     for e in elements:
         E = _ans_element(x, rest, conn[e], (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e]),
                          wdetJ[e], model, params, fp_inv[e], ep[e], frames[e], plastic,
-                         want, g,
+                         want, project, g,
                          K, Kg, P, T, Mb, Hs, gvs, sc, u, m3)
         energies[e] = E
         ok = np.isfinite(E)
         if want >= 1:
             drain_element_gradient(grad, conn[e], g, ok)
         if want == 2 and ok:
-            if project != 0:
+            if project == PROJECT_ELEMENT:
                 _project(K)
             s = slots[e]
             p = 0

@@ -27,10 +27,8 @@ from sim.materials.isotropic import (
 )
 from sim.materials.plasticity import plastic_flow
 from sim.solve.assembly import Pattern, drain_element_gradient
-from sim.terms import Term
+from sim.terms import PROJECT_ELEMENT, PROJECT_QP, Term
 from sim.terms.ans import Tying, ans_commit_kernel, ans_kernel, ans_stress_kernel
-
-PROJECT_NONE, PROJECT_QP, PROJECT_ELEMENT = 0, 1, 2
 
 
 def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
@@ -83,8 +81,8 @@ def _element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNdX: np.ndarra
     a time on the packed node-major triangle, this cut the Q3T beam's Hessian arithmetic by
     more than a third (q3t bench).
 
-    Inlined into the kernel's blocks (as are the helpers it calls per quadrature point): a call passes
-    each array as a reference-counted struct, and those calls took 55 % of the Q3T beam's
+    Inlined into the kernel's blocks (as are the helpers it calls per quadrature point): a call
+    passes each array as a reference-counted struct, and those calls took 55 % of the Q3T beam's
     gradient and 30 % of its Hessian evaluation. numba's cache keys a kernel on its own file
     only; sim/__init__.py therefore keys the cache folder on all of sim's sources, so an edit
     of an inlined helper in another module (sim.materials.isotropic) recompiles this kernel.

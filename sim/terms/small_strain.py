@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.terms import Term
-from sim.terms.elasticity import PROJECT_NONE, Elasticity
+from sim.terms import PROJECT_NONE, Term
+from sim.terms.elasticity import Elasticity
 
 
 class SmallStrain(Term):

@@ -10,7 +10,8 @@ from sim.geometry import trimesh as mesh
 from sim.geometry.quadrature import prism_rule, triangle_rule
 from sim.materials.isotropic import stress_tangent
 from sim.solve import assembly
-from sim.terms.elasticity import PROJECT_NONE, Elasticity
+from sim.terms import PROJECT_NONE
+from sim.terms.elasticity import Elasticity
 
 NAMES = sorted(ELEMENTS)
 
