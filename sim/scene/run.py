@@ -59,8 +59,9 @@ class SolverSpec(Strict):
         "auto: MKL PARDISO when installed, else SciPy", default="auto")
     hessian_projection: Literal["auto", "exact_near", "qp", "element", "none"] = doc(
         "auto: the exact Hessian where it is positive definite, else projected per "
-        "quadrature point; exact_near: projected per quadrature point while the residual is "
-        "above a tenth of the force level, then as auto", default="auto")
+        "quadrature point (q3t_ans: its points' material tangents and its initial-stress "
+        "term apart); exact_near: projected so while the residual is above a tenth of the "
+        "force level, then as auto; element: each element's whole Hessian", default="auto")
 
 
 class ProbeSpec(Strict):
