@@ -38,7 +38,7 @@ from sim.tools.program import OP_GRID, program, record
 
 BRICK = 6  # cells per brick side
 BAND = 3  # the spline is exact (sampled) wherever |d| < BAND h, and beyond
-FORMAT = 4  # of the cached records: bump when the layout or the sampling changes
+FORMAT = 5  # of the cached records: bump when the layout or the sampling changes
 MAX_NODES = 60_000_000  # grid nodes of a tool's box (a bool each): the memory bound
 MAX_EXTENT = 5.0  # m: a tool larger than a press bed is a file in other units
 MIN_EXTENT = 1e-4  # m
@@ -252,10 +252,10 @@ def facet_sag(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 
     * a corner's normal is fitted to its vertex's neighbours (_corner_normals): exact on a
       quadric however lopsided the fan, as long as its neighbours decide the quadric (a rim
-      vertex of an open surface has about four, all on one side, for five unknowns: there it
-      is approximate), and where a rounding meets a cylinder or a flat tangentially it is the
-      straight side's, where an angle-weighted normal tilts by a quarter of the rounding's
-      facet angle and bends a 10 mm edge by tens of micrometres;
+      vertex of an open surface has about four, all on one side, for five unknowns: its fit
+      takes the ring beyond them too), and where a rounding meets a cylinder or a flat
+      tangentially it is the straight side's, where an angle-weighted normal tilts by a
+      quarter of the rounding's facet angle and bends a 10 mm edge by tens of micrometres;
     * only faces within CREASE of the corner's face count (its smooth side): a sharp edge keeps
       its faces' own normals, so it gets no sag and is not rounded;
     * a flat face (a connected set of coplanar faces whose vertices do not lie on two lines, as
@@ -311,8 +311,8 @@ def _corner_normals(V: np.ndarray, F: np.ndarray,
     bend = [np.where(g >= 0, np.einsum("ij,ij->i", n[fb], n[np.maximum(g, 0)]), 1.0)
             for g in other]
 
-    def summed(w: np.ndarray) -> np.ndarray:
-        return np.bincount(a, weights=w, minlength=m)
+    def summed(w: np.ndarray, at: np.ndarray = a) -> np.ndarray:
+        return np.bincount(at, weights=w, minlength=m)
 
     M = np.zeros((m, 3, 3))
     for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)):
@@ -341,17 +341,24 @@ def _corner_normals(V: np.ndarray, F: np.ndarray,
         for i in range(2):
             line[:, i] += summed(np.where(on, phi[:, i] / length, 0.0))
 
+    # a rim vertex's neighbours all lie on one side of it, about four for the quadric's five
+    # terms: its fit takes the vertices one ring further out as well, unless a straight line
+    # decides what they leave open (a strip's end: its further ring lies along the line)
+    ring, ring_at = _second_ring(V, F, n, fitted, a, b, ~np.isfinite(straightest))
+    x, y, h = (np.einsum("ij,ij->i", ring, f[ring_at]) for f in (t1, t2, normal))
+    far = (np.hypot(x, y), h, np.stack((x, y, 0.5 * x * x, x * y, 0.5 * y * y), 1))
+
     def fit(keep: list[np.ndarray] | None, weight: float) -> np.ndarray:
-        """The quadric (m, 5) fitted to the neighbours ``keep`` (all), the line's sag
-        weighted by ``weight``."""
+        """The quadric (m, 5) fitted to the neighbours and the rim's further ring ``keep``
+        (all), the line's sag weighted by ``weight``."""
         A = weight * S
         rhs = np.zeros((m, 5))
-        for q, (_, h, phi) in enumerate(local):
+        for q, (at, (_, h, phi)) in enumerate([(a, lc) for lc in local] + [(ring_at, far)]):
             w = 1.0 if keep is None else keep[q].astype(float)
             for i in range(5):
-                rhs[:, i] += summed(w * phi[:, i] * h)
+                rhs[:, i] += summed(w * phi[:, i] * h, at)
                 for j in range(5):
-                    A[:, i, j] += summed(w * phi[:, i] * phi[:, j])
+                    A[:, i, j] += summed(w * phi[:, i] * phi[:, j], at)
         # what neither the neighbours nor the line decide (a fan of four): the flattest
         Q = [2, 3, 4]
         # (1e-9 of the largest diagonal: far below any curvature the neighbours decide, and
@@ -377,8 +384,9 @@ def _corner_normals(V: np.ndarray, F: np.ndarray,
     # the line's side: within 104.5 degrees of its direction (cos >= -0.25), the neighbours
     # ahead and beside it, not those behind it (the rounding a flat's radius runs away from)
     if bent.any():
-        side = [np.einsum("ij,ij->i", phi[:, :2], line[a])
-                >= -0.25 * length * np.linalg.norm(line[a], axis=1) for length, _, phi in local]
+        side = [np.einsum("ij,ij->i", phi[:, :2], line[at])
+                >= -0.25 * length * np.linalg.norm(line[at], axis=1)
+                for at, (length, _, phi) in [(a, lc) for lc in local] + [(ring_at, far)]]
         g[bent] = fit(side, STRAIGHT)[bent, :2]
     normal = normal - g[:, :1] * t1 - g[:, 1:] * t2
     normal /= np.linalg.norm(normal, axis=1)[:, None]
@@ -390,6 +398,38 @@ def _corner_normals(V: np.ndarray, F: np.ndarray,
     off = np.einsum("fij,fj->fi", normal, n) < math.cos(CREASE)
     normal[off] = np.broadcast_to(n[:, None], normal.shape)[off]
     return normal, tolerance
+
+
+def _second_ring(V: np.ndarray, F: np.ndarray, n: np.ndarray, fitted: np.ndarray,
+                 a: np.ndarray, b: np.ndarray,
+                 wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each fitted corner (``fitted``, with its fan's pairs ``a``, ``b`` of
+    :func:`_fan`) ``wanted`` at a rim vertex of an open surface: the vertices of the faces
+    around its neighbours within CREASE of its face's normal ``n``, its neighbours and itself
+    left out, as vectors (p, 3) from its vertex, and the fitted corner's index (p,) of each."""
+    across = _across(F)
+    rim = np.zeros(len(V), bool)
+    f, j = np.nonzero(across < 0)
+    rim[F[f, j]] = True
+    rim[F[f, (j + 1) % 3]] = True
+    vertex = F.ravel()[fitted]
+    todo = np.flatnonzero(rim[vertex] & wanted)
+    if not len(todo):
+        return np.zeros((0, 3)), np.zeros(0, int)
+    by_vertex = np.argsort(F.ravel(), kind="stable")
+    vptr = np.concatenate([[0], np.cumsum(np.bincount(F.ravel(), minlength=len(V)))])
+    by_corner = np.argsort(a, kind="stable")
+    cptr = np.concatenate([[0], np.cumsum(np.bincount(a, minlength=len(fitted)))])
+    vectors, at = [], []
+    for i in todo:
+        v = vertex[i]
+        ring = np.setdiff1d(F[b[by_corner[cptr[i]:cptr[i + 1]]] // 3], [v])
+        around = np.unique(np.concatenate([by_vertex[vptr[w]:vptr[w + 1]] // 3 for w in ring]))
+        around = around[n[around] @ n[fitted[i] // 3] > math.cos(CREASE)]
+        further = np.setdiff1d(F[around], np.append(ring, v))
+        vectors.append(V[further] - V[v])
+        at.append(np.full(len(further), i))
+    return np.concatenate(vectors), np.concatenate(at)
 
 
 def _fan(F: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
