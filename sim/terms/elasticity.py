@@ -52,10 +52,11 @@ def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
     return np.ascontiguousarray(dNdX), det * weights[None, :]
 
 
-# the element kernel, inlined into the parallel loops over elements: its scratch arrays come from
-# the caller so no element allocates, and its branches (material law, plastic state, what is
-# wanted, projection) are one loop body the compiler specialises; split into calls or given its
-# scratch as a tuple it would allocate or lose that inlining in the innermost loop
+# the element kernel, inlined into the loop over a block's elements (_elastic_block): its
+# scratch arrays come from the caller so no element allocates, and its branches (material law,
+# plastic state, what is wanted, projection) are one loop body the compiler specialises; split
+# into calls or given its scratch as a tuple it would allocate or lose that inlining in the
+# innermost loop
 @njit(cache=True, inline='always')
 def _element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNdX: np.ndarray,  # noqa: C901
              wdetJ: np.ndarray, model: int, params: np.ndarray, fp_inv: np.ndarray,

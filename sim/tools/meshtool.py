@@ -344,7 +344,7 @@ def _corner_normals(V: np.ndarray, F: np.ndarray,
     # a rim vertex's neighbours all lie on one side of it, about four for the quadric's five
     # terms: its fit takes the vertices one ring further out as well, unless a straight line
     # decides what they leave open (a strip's end: its further ring lies along the line)
-    ring, ring_at = _second_ring(V, F, n, fitted, a, b, ~np.isfinite(straightest))
+    ring, ring_at = _second_ring(V, F, n, across, fitted, a, b, ~np.isfinite(straightest))
     x, y, h = (np.einsum("ij,ij->i", ring, f[ring_at]) for f in (t1, t2, normal))
     far = (np.hypot(x, y), h, np.stack((x, y, 0.5 * x * x, x * y, 0.5 * y * y), 1))
 
@@ -384,9 +384,9 @@ def _corner_normals(V: np.ndarray, F: np.ndarray,
     # the line's side: within 104.5 degrees of its direction (cos >= -0.25), the neighbours
     # ahead and beside it, not those behind it (the rounding a flat's radius runs away from)
     if bent.any():
-        side = [np.einsum("ij,ij->i", phi[:, :2], line[at])
-                >= -0.25 * length * np.linalg.norm(line[at], axis=1)
-                for at, (length, _, phi) in [(a, lc) for lc in local] + [(ring_at, far)]]
+        side = [np.einsum("ij,ij->i", phi[:, :2], line[a])
+                >= -0.25 * length * np.linalg.norm(line[a], axis=1) for length, _, phi in local]
+        side.append(np.ones(len(ring_at), bool))  # the further ring's corners have no line
         g[bent] = fit(side, STRAIGHT)[bent, :2]
     normal = normal - g[:, :1] * t1 - g[:, 1:] * t2
     normal /= np.linalg.norm(normal, axis=1)[:, None]
@@ -400,14 +400,14 @@ def _corner_normals(V: np.ndarray, F: np.ndarray,
     return normal, tolerance
 
 
-def _second_ring(V: np.ndarray, F: np.ndarray, n: np.ndarray, fitted: np.ndarray,
-                 a: np.ndarray, b: np.ndarray,
+def _second_ring(V: np.ndarray, F: np.ndarray, n: np.ndarray, across: np.ndarray,
+                 fitted: np.ndarray, a: np.ndarray, b: np.ndarray,
                  wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For each fitted corner (``fitted``, with its fan's pairs ``a``, ``b`` of
     :func:`_fan`) ``wanted`` at a rim vertex of an open surface: the vertices of the faces
     around its neighbours within CREASE of its face's normal ``n``, its neighbours and itself
-    left out, as vectors (p, 3) from its vertex, and the fitted corner's index (p,) of each."""
-    across = _across(F)
+    left out, as vectors (p, 3) from its vertex, and the fitted corner's index (p,) of each;
+    ``across`` as :func:`_across` gives it."""
     rim = np.zeros(len(V), bool)
     f, j = np.nonzero(across < 0)
     rim[F[f, j]] = True

@@ -12,7 +12,7 @@ from sim.geometry import trimesh as mesh
 from sim.materials.hill import HILL48, coefficients, hill_matrix, hill_params
 from sim.materials.plasticity import LINEAR
 from sim.solve import assembly
-from sim.terms import PROJECT_ELEMENT, PROJECT_NONE, PROJECT_QP
+from sim.terms import PROJECT_ELEMENT, PROJECT_NONE, PROJECT_QP, ans
 from sim.terms.elasticity import Elasticity
 from tests.support.fd import fd_check
 from tests.support.hill import R_AA5754, rotation_z, tension
@@ -135,8 +135,8 @@ def test_inverted_element_has_infinite_energy():
 
 
 def test_element_projection_is_psd_and_exact_where_definite():
-    """Any projection is the element's (the tied shear's initial stress has no per-point PSD
-    split): the projected Hessian is PSD, and equals the exact one at rest (PSD there)."""
+    """PROJECT_ELEMENT projects the element's whole Hessian: PSD, and equal to the exact one
+    at rest (PSD there)."""
     exact, proj = _term(1), _term(1, PROJECT_ELEMENT)
     x = exact.rest + 1e-3 * RNG.standard_normal(exact.rest.shape)
     for y, check_equal in ((exact.rest.copy(), True), (x, False)):
@@ -150,8 +150,7 @@ def test_element_projection_is_psd_and_exact_where_definite():
             np.testing.assert_allclose(dp, de, atol=1e-10 * scale)
 
 
-@pytest.mark.parametrize("model", [0, 1, 2, HILL48], ids=["neo-hookean", "hencky", "plastic",
-                                                          "hill48"])
+@pytest.mark.parametrize(**MODELS)
 def test_projection_by_parts_is_psd_and_exact_where_definite(model):
     """PROJECT_QP projects each point's material tangent and the element's initial-stress term:
     the sum is PSD where the exact Hessian is not (a state squeezed in-plane and twisted,
@@ -178,6 +177,50 @@ def test_projection_by_parts_is_psd_and_exact_where_definite(model):
                 np.testing.assert_allclose(dp, de, atol=1e-10 * scale)
         else:  # the state does test it: the exact Hessian is indefinite there
             assert np.linalg.eigvalsh(Ke).min() < -1e-6 * scale
+
+
+@pytest.mark.parametrize("model", [1, 2, HILL48], ids=["hencky", "plastic", "hill48"])
+def test_a_points_projected_tangent_clamps_its_negative_modes(model):
+    """A point's tangent projected in its principal frame (Hill48: its 6 x 6 by its
+    eigenvalues), at large random strains where a seventh to a fifth of the exact tangents
+    are indefinite: the projection is PSD and equals the exact tangent where that is PSD."""
+    el = _term(model)
+    params, frame = el.params, np.eye(3)
+    if model == HILL48:
+        frame = el.frames[0]
+    rng = np.random.default_rng(5)
+    indefinite = 0
+    m = np.empty((5, 3, 3))
+    sc = np.empty((4, 6, 6))
+    for _ in range(300):
+        B = rng.standard_normal((3, 3))
+        Eh = 0.15 * (B + B.T)  # strains of tens of percent, compressive and tensile
+        A = np.eye(3) + 0.1 * rng.standard_normal((3, 3))
+        ep = 0.05 * rng.random()
+        out = []
+        for psd in (False, True):
+            Sn, Dv, M, Sp, Dp = m[0], sc[0], m[1], m[2], sc[3]
+            if model == HILL48:
+                W = ans._hill_natural(Eh, A, params, frame, ep, 2, psd, Sn, Dv, M, sc[1:3],
+                                      Dp, Sp)
+            else:
+                W = ans._principal_natural(model, Eh, A, params, ep, 2, psd, Sn, Dv, M,
+                                           sc[1:3], Dp)
+            if not np.isfinite(W):
+                break
+            out.append(Dv.copy())
+        if len(out) < 2:
+            continue
+        exact, proj = out
+        scale = np.abs(exact).max()
+        low = np.linalg.eigvalsh(exact).min()
+        # eigh round-off of the scale: measured 1e-15, bound a thousand times that
+        assert np.linalg.eigvalsh(proj).min() > -1e-12 * scale
+        if low < -1e-9 * scale:
+            indefinite += 1
+        elif low > 1e-9 * scale:
+            np.testing.assert_allclose(proj, exact, atol=1e-11 * scale)
+    assert indefinite >= 30  # the clamp was exercised (measured 43 to 64 of the 300 states)
 
 
 def test_hill48_at_r_one_is_von_mises():
