@@ -366,25 +366,9 @@ def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.n
             Sn[i, j] = acc
     if want == 2:
         if psd:
-            _clamp_psd(Dp)
+            _project(Dp)
         _natural_tangent(M, Dp, cv, Dv)
     return W
-
-
-@njit(cache=True)
-def _clamp_psd(S: np.ndarray) -> None:
-    """S (n, n), symmetric, <- its projection to positive semi-definite (its negative
-    eigenvalues set to zero)."""
-    ev, Q = np.linalg.eigh(S)
-    n = S.shape[0]
-    for a in range(n):
-        for b in range(a, n):
-            acc = 0.0
-            for c in range(n):
-                if ev[c] > 0.0:
-                    acc += Q[a, c] * ev[c] * Q[b, c]
-            S[a, b] = acc
-            S[b, a] = acc
 
 
 @njit(cache=True, inline='always')
@@ -599,10 +583,7 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     if want == 2:
         _congruence(P, T, K)
         if psd:
-            for a in range(n_en):
-                for b in range(a):
-                    Kg[a, b] = Kg[b, a]
-            _clamp_psd(Kg)
+            _project(Kg)
         for a in range(n_en):
             for b in range(a, n_en):
                 for i in range(3):
@@ -653,7 +634,8 @@ def _congruence(P: np.ndarray, T: np.ndarray, K: np.ndarray) -> None:
 
 @njit(cache=True)
 def _project(K: np.ndarray) -> None:
-    """K (upper triangle) <- its projection to positive semi-definite (both triangles)."""
+    """K (upper triangle) <- its projection to positive semi-definite (both triangles): an
+    element's Hessian, a point's Hill48 tangent, an initial-stress term."""
     k = K.shape[0]
     for p in range(k):
         for c in range(p):
