@@ -102,11 +102,12 @@ results: $(STAMP)
 	  --results $(R)/accuracy-quadrature.md
 	$(BIN)/q3t study --course --out runs/course \
 	  --results $(R)/shell-course.md
-	$(BIN)/q3t study --course --elements quadratic --set mesh.curved=false \
-	  --out runs/course-flat --results $(R)/shell-course-flat.md
-	$(BIN)/q3t study --course --elements quadratic:3x3 --out runs/course-3x3 \
+	$(BIN)/q3t study --course --scenes scordelis_lo,pinched_cylinder,pinched_hemisphere \
+	  --elements quadratic --set mesh.curved=false --out runs/course-flat --results $(R)/shell-course-flat.md
+	$(BIN)/q3t study --course --scenes scordelis_lo,pinched_cylinder,pinched_hemisphere \
+	  --elements quadratic:3x3 --out runs/course-3x3 \
 	  --results $(R)/shell-course-3x3.md
-	$(BIN)/q3t study --course --elements q3t_ans --cells 16,32,64 --out runs/course-ans \
+	$(BIN)/q3t study --course --elements q3t_ans --out runs/course-ans \
 	  --results $(R)/shell-course-ans.md
 	$(BIN)/q3t bench --cases beam,cup --elements q3t,q3t_ans --repeat 5 \
 	  --results $(R)/bench-ans.md

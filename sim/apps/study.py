@@ -380,6 +380,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "routine element (or --elements), their published references")
     s.add_argument("--cells", help="--course: cells per side, comma-separated (default: each "
                                    "scene's study.cells)")
+    s.add_argument("--scenes", help="--course: some of its scenes, comma-separated (default: "
+                                    "all of them)")
     s.add_argument("--max-dofs", type=int, default=60_000,
                    help="--course: leave out cases above this many DoFs (default 60000)")
     s.add_argument("--elements", help="comma-separated (default: the scene's study table)")

@@ -24,7 +24,9 @@ from sim.apps.study_report import markdown_table
 if TYPE_CHECKING:
     from sim.stamp import Stamp
 
-COURSE = ("scordelis_lo", "pinched_cylinder", "pinched_hemisphere")
+COURSE = ("scordelis_lo", "pinched_cylinder", "pinched_hemisphere", "clamped_plate",
+          "twisted_beam_inplane", "twisted_beam_outofplane", "straight_beam_inplane",
+          "straight_beam_outofplane")
 # linear and Q3T to 64 cells per side (about 38,000 DoFs), the quadratic prism to 32 (about
 # 37,000; at 64 it would have about 150,000)
 MAX_DOFS = 60_000
@@ -156,6 +158,19 @@ def write_course(rows: list[dict], out: Path, md: str) -> None:
     (out / "report.md").write_text(md)
 
 
+def chosen(scenes: str | None) -> list[str]:
+    """The course's scenes ``--scenes`` names (all of them when None), in the course's order;
+    ValueError naming one that is not in it."""
+    if scenes is None:
+        return list(COURSE)
+    names = [n.strip() for n in scenes.split(",")]
+    unknown = [n for n in names if n not in COURSE]
+    if unknown or not names:
+        raise ValueError(f"--scenes: {', '.join(unknown) or 'none given'} not in the course "
+                         f"({', '.join(COURSE)})")
+    return [n for n in COURSE if n in names]
+
+
 def run(args: argparse.Namespace, stamp: Stamp) -> int:
     """``q3t study --course``; exit codes as ``q3t study``'s."""
     import sys
@@ -173,7 +188,7 @@ def run(args: argparse.Namespace, stamp: Stamp) -> int:
         if cells is not None and min(cells) < 1:
             raise ValueError("--cells: cells per side must be at least 1")
         overrides = parse_sets(args.set)
-        marks = [benchmark(n, overrides) for n in COURSE]
+        marks = [benchmark(n, overrides) for n in chosen(args.scenes)]
         elements = args.elements.split(",") if args.elements else list(ROUTINE)
         plan = cases(marks, elements, cells, overrides, args.max_dofs)
     except (SceneError, ValueError) as exc:

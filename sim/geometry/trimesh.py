@@ -188,6 +188,19 @@ def sphere_patch(radius: float, hole: float, azimuth: float, cells: int) -> TriM
     return TriMesh(V, F, Sphere(radius))
 
 
+def strip(length: float, width: float, twist: float, cells: int, across: int) -> TriMesh:
+    """A strip along the x axis: x in [0, length], its width centred on the axis along
+    (0, cos a, sin a) with a = twist x / length (flat in z = 0 when ``twist`` is 0); ``cells``
+    x ``across`` quadrilaterals of two triangles each, normals +z at x = 0."""
+    def point(x: np.ndarray, s: np.ndarray) -> np.ndarray:
+        a = twist * x / length
+        return np.column_stack([x, s * np.cos(a), s * np.sin(a)])
+
+    V, F = _patch(np.linspace(0, length, cells + 1),
+                  np.linspace(-width / 2, width / 2, across + 1), point)
+    return TriMesh(V, F)
+
+
 class MeshFileError(ValueError):
     """A mesh file that is missing or cannot be read."""
 

@@ -28,6 +28,8 @@ def build_mesh(spec: MeshSpec) -> meshes.TriMesh:
                 if spec.kind == "cylinder_patch" else
                 meshes.sphere_patch(spec.radius, spec.hole, spec.azimuth, spec.cells))
         return mesh if spec.curved else meshes.TriMesh(mesh.vertices, mesh.faces)
+    if spec.kind == "strip":
+        return meshes.strip(spec.length, spec.width, spec.twist, spec.cells, spec.across)
     if spec.kind == "outline":
         return outline.mesh(outline_of(spec), spec.edge_length, spec.bands, spec.mesher)
     return meshes.load(spec.path, spec.scale, spec.merge_vertices)

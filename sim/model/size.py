@@ -47,6 +47,8 @@ def mesh_counts(spec: MeshSpec) -> tuple[int, int] | None:
         return _file_counts(spec.path)
     if spec.kind in ("cylinder_patch", "sphere_patch"):
         return (spec.cells + 1) ** 2, 2 * spec.cells**2
+    if spec.kind == "strip":
+        return (spec.cells + 1) * (spec.across + 1), 2 * spec.cells * spec.across
     if spec.kind == "outline":
         try:
             n_v, n_f = outline.estimate(outline_of(spec), spec.edge_length)

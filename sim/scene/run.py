@@ -127,7 +127,8 @@ class StudySpec(Strict):
     analytic: Literal["euler_bernoulli", "springback", "fibre"] | None = doc(
         "a closed-form (or fibre-model) reference instead of a reference run", default=None)
     cells: list[Annotated[int, Field(ge=1, le=4096)]] | None = doc(
-        "the levels of a mesh refined by cells per side (cylinder_patch, sphere_patch), "
+        "the levels of a mesh refined by cells per side (cylinder_patch, sphere_patch) or "
+        "along its length (strip), "
         "coarse to fine", "1", None)
     published: PublishedSpec | None = doc(
         "a published reference value of the probe (a benchmark's), instead of a reference "

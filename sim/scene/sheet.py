@@ -32,7 +32,7 @@ class _Mesh(Strict):
     takes its own fields only."""
 
     kind: str = doc("what mesh: rectangle, annulus, disk, cylinder_band, cylinder_patch, "
-                    "sphere_patch, file or outline")
+                    "sphere_patch, strip, file or outline")
     imperfection: Coord = doc(
         "out-of-plane imperfection of a flat mid-surface: z += a sin(pi s) sin(pi t), with "
         "(s, t) in [0, 1]^2 over its bounding box. A perfect flat sheet follows its flat path "
@@ -136,6 +136,38 @@ class SpherePatchMesh(_Patch):
     azimuth: bounded(0.0, math.pi) = doc(
         "the angle it spans around z from the x axis towards +y; unset: a quarter", "rad",
         math.pi / 2)
+
+
+class StripMesh(_Mesh):
+    """A strip along the x axis, refined by ``cells`` along it: x from 0 to ``length``, its
+    width centred on the axis, turned about it by ``twist`` from root to tip (a helicoid; 0: a
+    flat strip in z = 0, its width along y). A beam of shell elements; its triangles are flat,
+    so every element's nodes lie on them."""
+
+    kind: Literal["strip"] = doc("a strip along x, flat or twisted about its axis")
+    length: Length = doc("its length along x, from x = 0", "m")
+    width: Length = doc("its width, centred on the x axis (along y at x = 0)", "m")
+    twist: bounded(-math.pi, math.pi, lo_open=False) = doc(
+        "how far the width turns about the x axis from x = 0 to the tip, towards +z "
+        "(1.571 rad is 90 degrees)", "rad", 0.0)
+    cells: Annotated[int, Field(ge=1, le=4096)] = doc(
+        "cells along the length (quadrilaterals of two triangles each), the mesh's "
+        "resolution", "1")
+    aspect: bounded(0.01, 100.0) = doc(
+        "a cell's length over its width: the cells across are cells x width x aspect / length, "
+        "rounded, at least 1, so refining cells refines both ways", "1", 1.0)
+
+    @property
+    def across(self) -> int:
+        """Cells across the width."""
+        return max(1, round(self.cells * self.width * self.aspect / self.length))
+
+    @model_validator(mode="after")
+    def _across(self) -> Self:
+        if self.across > 4096:
+            raise ValueError(f"aspect: {self.across} cells across the width (cells x width x "
+                             "aspect / length) is more than 4096")
+        return self
 
 
 class FileMesh(_Mesh):
@@ -261,7 +293,7 @@ class OutlineMesh(_Generated):
 # the mesh of the chosen kind: only its own fields are accepted (pydantic tells the kinds
 # apart by ``kind`` and names a field of another kind as not permitted)
 MeshSpec = Annotated[RectangleMesh | AnnulusMesh | DiskMesh | CylinderBandMesh
-                     | CylinderPatchMesh | SpherePatchMesh | FileMesh | OutlineMesh,
+                     | CylinderPatchMesh | SpherePatchMesh | StripMesh | FileMesh | OutlineMesh,
                      Field(discriminator="kind")]
 
 

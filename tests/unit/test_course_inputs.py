@@ -94,6 +94,10 @@ BAD = [
     ("scenes/scordelis_lo.toml", "mesh.radius", -25.0),
     ("scenes/scordelis_lo.toml", "loads.0.vector", [0.0, 0.0, 1e20]),
     ("scenes/scordelis_lo.toml", "study.published.value", "big"),
+    ("scenes/twisted_beam_inplane.toml", "mesh.twist", 3.2),
+    ("scenes/twisted_beam_inplane.toml", "mesh.cells", 0),
+    ("scenes/straight_beam_inplane.toml", "mesh.aspect", 0.0),
+    ("scenes/straight_beam_inplane.toml", "mesh.aspect", 101.0),
 ]
 
 
@@ -101,6 +105,40 @@ BAD = [
 def test_bad_course_input_names_the_field(path, key, value):
     with pytest.raises(SceneError, match=key.replace(".", r"\.")):
         load_scene(path, {key: value})
+
+
+def test_a_strip_turns_its_width_by_the_twist_and_refines_both_ways():
+    """The twisted beam's mid-surface: the width along y at the root and along z at the tip (a
+    90 degree twist), every vertex on the helicoid (its distance from the x axis is its place
+    across the width, its angle twist x / length), MacNeal and Harder's 12 x 2 cells at 12 and
+    twice as many both ways at 24; the triangles face +z at the root."""
+    from sim.geometry import trimesh as meshes
+    from sim.model.sheet import build_mesh
+
+    spec = load_scene("scenes/twisted_beam_inplane.toml").mesh
+    for cells, across in ((12, 2), (24, 4), (48, 8)):
+        assert spec.model_copy(update={"cells": cells}).across == across
+    m = build_mesh(spec)
+    V = m.vertices
+    assert V.shape == (13 * 3, 3) and m.faces.shape == (2 * 12 * 2, 3)
+    root, tip = V[np.isclose(V[:, 0], 0.0)], V[np.isclose(V[:, 0], 12.0)]
+    assert np.allclose(root[:, 2], 0.0) and np.ptp(root[:, 1]) == pytest.approx(1.1)
+    assert np.allclose(tip[:, 1], 0.0, atol=1e-15) and np.ptp(tip[:, 2]) == pytest.approx(1.1)
+    a = np.arctan2(V[:, 2], V[:, 1])
+    s = np.hypot(V[:, 1], V[:, 2])
+    on = s > 1e-12  # the axis itself has no angle
+    turned = np.mod(a[on] - np.pi / 2 * V[on, 0] / 12.0 + np.pi / 2, np.pi) - np.pi / 2
+    assert np.allclose(turned, 0.0, atol=1e-12)
+    assert set(np.round(s, 12)) == {0.0, 0.55}
+    assert np.all(meshes.vertex_normals(m)[np.isclose(V[:, 0], 0.0), 2] > 0.99)
+    # no twist: a flat strip in z = 0, as the straight beam and the plate have it
+    flat = build_mesh(load_scene("scenes/straight_beam_inplane.toml").mesh)
+    assert np.all(flat.vertices[:, 2] == 0.0) and flat.faces.shape == (12, 3)
+
+
+def test_a_strip_of_too_many_cells_across_names_its_aspect():
+    with pytest.raises(SceneError, match=r"mesh.*aspect: 13653 cells across"):
+        load_scene("scenes/straight_beam_inplane.toml", {"mesh.cells": 4096, "mesh.aspect": 100})
 
 
 def test_study_levels_follow_the_mesh_kind():

@@ -1,6 +1,7 @@
 """The shell obstacle course's inputs against closed forms and its scenes against their
-published values: a small-strain bar in tension (exact for every element) and the quadratic
-prism on the Scordelis-Lo roof at a coarse mesh."""
+published values: a small-strain bar in tension (exact for every element), the quadratic prism
+on the Scordelis-Lo roof, the clamped plate and MacNeal and Harder's cantilevers at coarse
+meshes, q3t_ans where Q3T locks, and the in-plane bending no three-node triangle gets."""
 
 import numpy as np
 import pytest
@@ -53,3 +54,44 @@ def test_quadratic_prism_on_the_roof_at_a_coarse_mesh():
         ratio[el] = sim.records[-1].probes[sc.study.probe] / sc.study.published.value
     assert 0.95 < ratio["quadratic"] < 1.0
     assert ratio["q3t"] < 0.25
+
+
+def _ratio(scene: str, element: str, cells: int) -> float:
+    sc = load_scene(f"scenes/{scene}.toml", {"shell.element": element, "mesh.cells": cells})
+    sim = Simulation.from_scene(sc)
+    assert sim.run(), sim.failure
+    return sim.records[-1].probes[sc.study.probe] / sc.study.published.value
+
+
+@pytest.mark.parametrize("scene,cells", [("clamped_plate", 8), ("twisted_beam_inplane", 12),
+                                         ("twisted_beam_outofplane", 12),
+                                         ("straight_beam_outofplane", 6)])
+def test_quadratic_prism_meets_the_flat_and_twisted_references(scene, cells):
+    """The scenes against their published values through the element that needs no remedy:
+    the quadratic prism within 3.5 % at the coarsest level (measured 0.968, 0.991, 0.995 and
+    0.972: the plate's reference is thin-plate theory, which a plate of a / t = 100 exceeds
+    by under 0.3 %; the beams' are beam theory), from below."""
+    assert 0.965 < _ratio(scene, "quadratic", cells) < 1.0
+
+
+def test_q3t_ans_bends_plates_and_twisted_beams_at_coarse_meshes():
+    """q3t_ans where Q3T locks in transverse shear: the clamped plate at 8 cells per side of
+    the quarter (measured 0.935; Q3T 0.161) and 16 (0.980), the twisted beam under its
+    in-plane load at MacNeal and Harder's 12 x 2 cells (0.972; Q3T 0.489). The bounds sit
+    1.5 points under the measured values: a regression guard, not the issue's target."""
+    assert _ratio("clamped_plate", "q3t_ans", 8) > 0.92
+    assert _ratio("clamped_plate", "q3t_ans", 16) > 0.965
+    assert _ratio("twisted_beam_inplane", "q3t_ans", 12) > 0.955
+    assert _ratio("clamped_plate", "q3t", 8) < 0.2
+
+
+def test_in_plane_bending_is_the_three_node_triangles_limit():
+    """The straight cantilever under in-plane shear bends across its width, in the sheet's
+    plane, where a three-node triangle's membrane strain is constant: linear, Q3T and q3t_ans
+    share that membrane, so at MacNeal and Harder's 6 x 1 cells they give the same 3 % of the
+    deflection (measured 0.033 each, within 2 % of one another), where the quadratic prism's
+    six-node triangles give 0.969. The assumed shear strains do not reach it (docs/shells.md)."""
+    r = {el: _ratio("straight_beam_inplane", el, 6) for el in ("linear", "q3t", "q3t_ans")}
+    assert all(0.02 < v < 0.05 for v in r.values()), r
+    assert max(r.values()) / min(r.values()) < 1.05, r
+    assert _ratio("straight_beam_inplane", "quadratic", 6) > 0.95
