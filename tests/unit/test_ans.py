@@ -23,14 +23,15 @@ MU, LAM = 3e6, 5e6
 H = 0.004  # thickness; the in-plane size 0.01 makes the prisms as slender as a coarse sheet
 
 
-def _patch() -> shell.Shell:
-    """q3t_ans on a distorted 3 x 2 patch (12 prisms)."""
+def _patch(first: int = 0) -> shell.Shell:
+    """q3t_ans on a distorted 3 x 2 patch (12 prisms); ``first``: each triangle's corners
+    listed from its ``first``-th on (the same triangles, numbered from another corner)."""
     e = get_element("q3t_ans")
     rng = np.random.default_rng(3)  # the same patch on every call
     m = mesh.rectangle((0.03, 0.02), 0.01)
     V = m.vertices.copy()
     V[:, :2] += 0.002 * rng.uniform(-1, 1, (len(V), 2))
-    return shell.extrude(mesh.TriMesh(V, m.faces), H, e)
+    return shell.extrude(mesh.TriMesh(V, np.roll(m.faces, -first, axis=1)), H, e)
 
 
 def _term(model: int, project: int = PROJECT_NONE, r=R_AA5754) -> Elasticity:
@@ -124,6 +125,28 @@ def test_energy_is_objective(model):
     E0 = term.energy(x)
     E1 = term.energy(x @ _rotation([0.2, 0.7, -1.0], 2.0).T)
     assert E1 == pytest.approx(E0, rel=1e-10)  # round-off of O(1) positions over strain 1e-2
+
+
+@pytest.mark.parametrize("model", [0, 1], ids=["neo_hookean", "hencky"])
+def test_the_tying_does_not_depend_on_which_corner_is_first(model):
+    """MITC3's three tying points are one per edge and the same for every numbering of a
+    triangle's corners, so the element is spatially isotropic: the patch with every triangle
+    numbered from its second or third corner has the same energy and gradient in a deformed
+    state (round-off: sums in another order), which an element tied at one corner's edges
+    only would not."""
+    quad = get_element("q3t_ans").quadrature()
+    terms = []
+    for first in range(3):
+        sh = _patch(first)
+        terms.append(Elasticity(sh, quad, model, np.array([MU, LAM]),
+                                assembly.build_pattern(sh.conn, sh.n_nodes), PROJECT_NONE))
+    assert all(np.array_equal(t.rest, terms[0].rest) for t in terms)
+    x = terms[0].rest + 3e-4 * np.random.default_rng(5).standard_normal(terms[0].rest.shape)
+    E = [t.energy(x) for t in terms]
+    g = [_grad(t)(x) for t in terms]
+    assert E[1] == pytest.approx(E[0], rel=1e-12) and E[2] == pytest.approx(E[0], rel=1e-12)
+    scale = np.abs(g[0]).max()
+    assert np.abs(g[1] - g[0]).max() < 1e-10 * scale and np.abs(g[2] - g[0]).max() < 1e-10 * scale
 
 
 def test_inverted_element_has_infinite_energy():
