@@ -139,7 +139,8 @@ def course_md(marks: list[Benchmark], rows: list[dict]) -> str:
                         for b in marks)
     return ("Ratio of each benchmark's probe to its published value (1 is exact; below 1 "
             "stiffer) per element and cells per side (along the length of a strip: the beams), "
-            "and the run time of each case (build and solve, one thread):\n\n" + markdown_table(table, cols)
+            "and the run time of each case (build and solve, one thread):\n\n"
+            + markdown_table(table, cols)
             + "\nEvery case:\n\n" + markdown_table(rows, detail)
             + "\nPublished values:\n\n" + sources + "\n")
 
