@@ -51,6 +51,15 @@ def annulus_ranges(r_inner: float, r_outer: float, h: float) -> RadialRanges:
     return RadialRanges([(rims[0][0] if r_inner > 0.0 else 0.0, r_outer)], rims)
 
 
+def tube_ranges(radius: float, height: float, h: float) -> RadialRanges:
+    """The ranges of sim.geometry.trimesh.cylinder_band: its vertices on circles of
+    ``radius``, every other node on their chords (from radius cos(pi / n) to radius, n
+    vertices around), the two rims its boundary at the same radii."""
+    n, _ = meshes.band_divisions(radius, height, h)
+    span = [(radius * np.cos(np.pi / n), radius)]
+    return RadialRanges(span, span)
+
+
 def loop_ranges(loops: Sequence[np.ndarray]) -> RadialRanges:
     """The ranges of a mesh whose boundary nodes lie on the chords of ``loops`` (each
     ``(n, 2)``: the outer one, then the holes) and whose other nodes lie between them: for the

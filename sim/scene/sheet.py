@@ -43,7 +43,7 @@ class _Mesh(Strict):
     def radial_ranges(self) -> footprint.RadialRanges | None:
         """Intervals of the distance from the z axis (m) that hold every node of the built
         mesh, and every boundary node, known before it is built (sim.scene.footprint); None:
-        known only once built (a file, a drawing, a curved surface)."""
+        known only once built (a file, a drawing, a curved patch, a twisted strip)."""
         return None
 
 
@@ -97,6 +97,9 @@ class CylinderBandMesh(_Generated):
     kind: Literal["cylinder_band"] = doc("a cylinder's side around the z axis (a tube)")
     radius: Length = doc("the cylinder's radius", "m")
     height: Length = doc("its height along z", "m")
+
+    def radial_ranges(self) -> footprint.RadialRanges:
+        return footprint.tube_ranges(self.radius, self.height, self.edge_length)
 
 
 class _Patch(_Mesh):
@@ -156,6 +159,13 @@ class StripMesh(_Mesh):
     aspect: bounded(0.01, 100.0) = doc(
         "a cell's length over its width: the cells across are cells x width x aspect / length, "
         "rounded, at least 1, so refining cells refines both ways", "1", 1.0)
+
+    def radial_ranges(self) -> footprint.RadialRanges | None:
+        if self.twist != 0.0:  # turned out of z = 0: known once built
+            return None
+        h = self.width / 2
+        return footprint.loop_ranges([np.array([[0.0, -h], [self.length, -h],
+                                                [self.length, h], [0.0, h]])])
 
     @property
     def across(self) -> int:

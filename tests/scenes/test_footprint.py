@@ -42,6 +42,9 @@ MESHES = {
     "annulus": {"kind": "annulus", "edge_length": H, "r_inner": 0.01, "r_outer": 0.03},
     "rectangle": {"kind": "rectangle", "edge_length": H, "size": [0.04, 0.02],
                   "origin": [0.005, -0.01]},
+    "flat strip": {"kind": "strip", "length": 0.04, "width": 0.02, "cells": 10},
+    # a tube's triangles stand on the plane: seen from above, each is a chord of the circle
+    "tube": {"kind": "cylinder_band", "edge_length": H, "radius": 0.02, "height": 0.01},
 }
 ELEMENTS = ["linear", "quadratic", "quartic"]
 # a ring this far off the built mesh's radii is refused: far above the tolerances (about
