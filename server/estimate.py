@@ -220,7 +220,7 @@ def _course(out: dict, root: Path, scene: str, element: str, cells: int | None) 
                None)
     if row is None or not isinstance(row.get("ratio"), (int, float)):
         out["reason"] = "element_not_studied" if row is None else "no_error"
-        return (f"the {when} has no {element} result at {cells} cells per side: run "
+        return (f"the {when} has no {element} result at {cells} cells: run "
                 f"`{COURSE} --elements {element} --cells {cells}`")
     err = abs(row["ratio"] - 1)
     out["study"] = {"path": str(path), "date": _date(path)}

@@ -84,7 +84,7 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
                                                  (study or {}).items()}})
     st, notes = sc.study, []
     if hasattr(sc.mesh, "cells"):
-        raise ValueError(f"{sc.name}: mesh kind {sc.mesh.kind!r} is refined by cells per side: "
+        raise ValueError(f"{sc.name}: mesh kind {sc.mesh.kind!r} is refined by cells: "
                          "the shell obstacle course runs with q3t study --course")
     if getattr(sc.mesh, "edge_length", None) is None:
         raise ValueError(f"{sc.name}: mesh kind {sc.mesh.kind!r} has no edge_length to refine")
@@ -378,8 +378,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--course", action="store_true",
                    help="the shell obstacle course (sim.apps.study_course): its scenes, every "
                         "routine element (or --elements), their published references")
-    s.add_argument("--cells", help="--course: cells per side, comma-separated (default: each "
-                                   "scene's study.cells)")
+    s.add_argument("--cells", help="--course: cells per side (along a strip), comma-separated "
+                                   "(default: each scene's study.cells)")
     s.add_argument("--scenes", help="--course: some of its scenes, comma-separated (default: "
                                     "all of them)")
     s.add_argument("--max-dofs", type=int, default=60_000,

@@ -164,10 +164,12 @@ def chosen(scenes: str | None) -> list[str]:
     ValueError naming one that is not in it."""
     if scenes is None:
         return list(COURSE)
-    names = [n.strip() for n in scenes.split(",")]
+    names = [n.strip() for n in scenes.split(",") if n.strip()]
+    if not names:
+        raise ValueError(f"--scenes: none given (the course: {', '.join(COURSE)})")
     unknown = [n for n in names if n not in COURSE]
-    if unknown or not names:
-        raise ValueError(f"--scenes: {', '.join(unknown) or 'none given'} not in the course "
+    if unknown:
+        raise ValueError(f"--scenes: {', '.join(unknown)} not in the course "
                          f"({', '.join(COURSE)})")
     return [n for n in COURSE if n in names]
 

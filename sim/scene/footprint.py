@@ -1,8 +1,9 @@
-"""Where a flat generated blank's nodes lie, known without meshing it: the distances from the z
-axis of its nodes and of its boundary nodes. With them a scene is checked, when it is read,
-for a ring region that selects no node (an edit of the blank's radius that leaves the rim
-ring outside the blank), which the build (sim.model.dirichlet.region_mask) would otherwise
-find only when the model is made: the page's form says so at the field as it is edited.
+"""Where a generated blank's nodes lie (a flat one's, a tube's), known without meshing it: the
+distances from the z axis of its nodes and of its boundary nodes. With them a scene is checked,
+when it is read, for a ring region that selects no node (an edit of the blank's radius that
+leaves the rim ring outside the blank), which the build (sim.model.dirichlet.region_mask) would
+otherwise find only when the model is made: the page's form says so at the field as it is
+edited.
 
 Each mesh kind that knows its ranges says so (``radial_ranges`` of sim.scene.sheet's mesh
 tables, made by the helpers here). The ranges hold every node the build makes (a superset: a ring
@@ -31,6 +32,7 @@ class RadialRanges:
 
     nodes: Ranges
     boundary: Ranges
+    height: float = 0.0  # the mesh's extent along z (a tube's), which its radii do not bound
 
 
 class Blank(Protocol):
@@ -57,7 +59,7 @@ def tube_ranges(radius: float, height: float, h: float) -> RadialRanges:
     vertices around), the two rims its boundary at the same radii."""
     n, _ = meshes.band_divisions(radius, height, h)
     span = [(radius * np.cos(np.pi / n), radius)]
-    return RadialRanges(span, span)
+    return RadialRanges(span, span, height)
 
 
 def loop_ranges(loops: Sequence[np.ndarray]) -> RadialRanges:
@@ -81,10 +83,10 @@ def _farthest(p: np.ndarray) -> float:
 def tolerance(mesh: Blank, ranges: RadialRanges) -> float:
     """How far past a ring's bounds the check still counts a node (m): at least region_mask's
     REGION_TOLERANCE of the mesh's extent, bounded here by twice its largest radius in the
-    plane or the imperfection's height out of it. Doubled, since the ranges' ends (cos(pi / n),
-    shapely's distances) and the nodes' radii (made by the mesher) are computed apart and may
-    differ in their last bits, far less than the tolerance itself."""
-    extent = max(2.0 * max(hi for _, hi in ranges.nodes), abs(mesh.imperfection))
+    plane or its height out of it (an imperfection's, a tube's). Doubled, since the ranges'
+    ends (cos(pi / n), shapely's distances) and the nodes' radii (made by the mesher) are
+    computed apart and may differ in their last bits, far less than the tolerance itself."""
+    extent = max(2.0 * max(hi for _, hi in ranges.nodes), abs(mesh.imperfection), ranges.height)
     return 2.0 * REGION_TOLERANCE * extent
 
 

@@ -141,6 +141,9 @@ class SpherePatchMesh(_Patch):
         math.pi / 2)
 
 
+MAX_TWIST_PER_CELL = math.pi / 4  # rad
+
+
 class StripMesh(_Mesh):
     """A strip along the x axis, refined by ``cells`` along it: x from 0 to ``length``, its
     width centred on the axis, turned about it by ``twist`` from root to tip (a helicoid; 0: a
@@ -173,10 +176,18 @@ class StripMesh(_Mesh):
         return max(1, round(self.cells * self.width * self.aspect / self.length))
 
     @model_validator(mode="after")
-    def _across(self) -> Self:
+    def _cells(self) -> Self:
         if self.across > 4096:
             raise ValueError(f"aspect: {self.across} cells across the width (cells x width x "
-                             "aspect / length) is more than 4096")
+                             "aspect / length, from cells, width, aspect and length) is more "
+                             "than 4096")
+        # a cell turned by 90 degrees or more stands one of its triangles on edge or folds
+        # the two over each other; 45 keeps both facing the same side
+        if abs(self.twist) > MAX_TWIST_PER_CELL * self.cells:
+            raise ValueError(f"cells: {self.cells} cells turn by {math.degrees(self.twist):.4g} "
+                             f"degrees in all, more than "
+                             f"{math.degrees(MAX_TWIST_PER_CELL):.0f} each (the triangles "
+                             "would fold over); give more cells or less twist")
         return self
 
 

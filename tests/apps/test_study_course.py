@@ -22,7 +22,7 @@ def test_plan_takes_each_scenes_levels_and_leaves_out_the_largest():
     plan = cases(marks, ["q3t", "quadratic"], None, {}, 60_000)
     skipped = {(c["scene"], c["element"], c["cells"]) for c in plan if c["skip"]}
     # the quadratic prism at 64 cells per side has about 150,000 DoFs; everything else is
-    # below 40,000 (the strips are 12 x 2 to 48 x 8 cells)
+    # below 40,000 (the beams 6 x 1 to 48 x 8 cells, the plate 8 x 8 to 32 x 32)
     assert skipped == {(n, "quadratic", 64) for n in CURVED}
     assert all("DoFs > --max-dofs 60000" in c["skip"] for c in plan if c["skip"])
 
@@ -32,6 +32,9 @@ def test_scenes_picks_part_of_the_course_in_its_order():
     assert chosen("pinched_hemisphere,scordelis_lo") == ["scordelis_lo", "pinched_hemisphere"]
     with pytest.raises(ValueError, match="--scenes: cantilever not in the course"):
         chosen("scordelis_lo,cantilever")
+    assert chosen("clamped_plate,") == ["clamped_plate"]
+    with pytest.raises(ValueError, match="--scenes: none given"):
+        chosen(" , ")
 
 
 def test_course_bad_input_names_the_option(tmp_path, capsys):

@@ -45,6 +45,9 @@ MESHES = {
     "flat strip": {"kind": "strip", "length": 0.04, "width": 0.02, "cells": 10},
     # a tube's triangles stand on the plane: seen from above, each is a chord of the circle
     "tube": {"kind": "cylinder_band", "edge_length": H, "radius": 0.02, "height": 0.01},
+    # taller than it is wide: its height, not its radius, sets region_mask's tolerance
+    "tall tube": {"kind": "cylinder_band", "edge_length": 0.02, "radius": 0.01,
+                  "height": 0.5},
 }
 ELEMENTS = ["linear", "quadratic", "quartic"]
 # a ring this far off the built mesh's radii is refused: far above the tolerances (about

@@ -1,7 +1,7 @@
 """The cup scenes that restate cup_drawing.toml (the anisotropic sheet, the unstructured blank)
 differ from it only where their comments say: a run of one beside the other compares that
 difference and nothing else, so an edit of the shared tools, sheet or process made in one file
-and not the others fails here."""
+and not the others fails here. The shell course's beams, one scene per load case, likewise."""
 
 import tomllib
 
@@ -82,3 +82,18 @@ def test_the_pages_first_scene_is_shipped():
     back to the list's first scene."""
     settings = pytest.importorskip("server.settings")
     assert (SCENES / f"{settings.Settings.default_scene}.toml").is_file()
+
+
+# the shell course's two load cases of one beam: the same beam, mesh, material and supports
+LOAD_CASE = ("name", "description", "loads.0.vector", "probes.0.component", "study.published")
+
+
+@pytest.mark.parametrize("beam", ["twisted_beam", "straight_beam"])
+def test_a_beams_two_load_cases_differ_only_in_the_load(beam):
+    inplane = tomllib.loads((SCENES / f"{beam}_inplane.toml").read_text())
+    outofplane = tomllib.loads((SCENES / f"{beam}_outofplane.toml").read_text())
+    assert differing(inplane, outofplane, dict.fromkeys(LOAD_CASE)) == []
+    fa, fb = flat(inplane), flat(outofplane)
+    for q in LOAD_CASE:
+        under = [p for p in fa.keys() | fb.keys() if p == q or p.startswith(q + ".")]
+        assert any(fa.get(p) != fb.get(p) for p in under), f"{beam}: {q} is the same in both"

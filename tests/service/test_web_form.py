@@ -385,7 +385,7 @@ def test_a_course_scene_is_estimated_from_the_shell_course_report(tmp_path):
                                   "course of ")
     est = estimate(tmp_path, "scordelis_lo", "linear", None, None, **course, cells=16)
     assert not est["available"] and est["reason"] == "element_not_studied"
-    assert est["text"].endswith("has no linear result at 16 cells per side: run "
+    assert est["text"].endswith("has no linear result at 16 cells: run "
                                 "`q3t study --course --elements linear --cells 16`")
     est = estimate(tmp_path, "scordelis_lo", "quadratic", None, None, **course, cells=64)
     assert est["reason"] == "no_error"  # the case was left out (its size)

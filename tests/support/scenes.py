@@ -27,7 +27,7 @@ def coarse(scene_path: str | Path, element: str | None = None) -> Scene:
         e = getattr(sc.mesh, "edge_length", None)
         e = e * 3 if e else None
     o = {"stepping.steps": min(sc.stepping.steps, 2)}
-    if hasattr(sc.mesh, "cells"):  # a patch refined by cells per side: 8 x 8 x 2 triangles
+    if hasattr(sc.mesh, "cells"):  # a patch (8 x 8 x 2 triangles) or a strip (8 along)
         o["mesh.cells"] = 8
     # the first two steps of the real path: tools keep their stroke per step
     for i, t in enumerate(sc.tools):

@@ -30,6 +30,13 @@ def _bar(element: str, model: str) -> float:
     return sim.records[-1].probes["end_x"]
 
 
+def _ratio(scene: str, element: str, cells: int) -> float:
+    sc = load_scene(f"scenes/{scene}.toml", {"shell.element": element, "mesh.cells": cells})
+    sim = Simulation.from_scene(sc)
+    assert sim.run(), sim.failure
+    return sim.records[-1].probes[sc.study.probe] / sc.study.published.value
+
+
 @pytest.mark.parametrize("element", ROUTINE)
 def test_small_strain_bar_is_exact(element):
     """u = sigma L / E at any load: constant strain, which every element represents exactly;
@@ -46,32 +53,21 @@ def test_quadratic_prism_on_the_roof_at_a_coarse_mesh():
     published deflection, stiffer (its six-node triangles lock somewhat in membrane at this
     size, and converge from below: 0.99 at 16 cells, docs/shells.md); the linear-in-plane
     Q3T locks in transverse shear (a quarter of the deflection)."""
-    ratio = {}
-    for el in ("quadratic", "q3t"):
-        sc = load_scene("scenes/scordelis_lo.toml", {"shell.element": el, "mesh.cells": 8})
-        sim = Simulation.from_scene(sc)
-        assert sim.run(), sim.failure
-        ratio[el] = sim.records[-1].probes[sc.study.probe] / sc.study.published.value
-    assert 0.95 < ratio["quadratic"] < 1.0
-    assert ratio["q3t"] < 0.25
+    assert 0.95 < _ratio("scordelis_lo", "quadratic", 8) < 1.0
+    assert _ratio("scordelis_lo", "q3t", 8) < 0.25
 
 
-def _ratio(scene: str, element: str, cells: int) -> float:
-    sc = load_scene(f"scenes/{scene}.toml", {"shell.element": element, "mesh.cells": cells})
-    sim = Simulation.from_scene(sc)
-    assert sim.run(), sim.failure
-    return sim.records[-1].probes[sc.study.probe] / sc.study.published.value
-
-
-@pytest.mark.parametrize("scene,cells", [("clamped_plate", 8), ("twisted_beam_inplane", 12),
-                                         ("twisted_beam_outofplane", 12),
-                                         ("straight_beam_outofplane", 6)])
-def test_quadratic_prism_meets_the_flat_and_twisted_references(scene, cells):
-    """The scenes against their published values through the element that needs no remedy:
-    the quadratic prism within 3.5 % at the coarsest level (measured 0.968, 0.991, 0.995 and
-    0.972: the plate's reference is thin-plate theory, which a plate of a / t = 100 exceeds
-    by under 0.3 %; the beams' are beam theory), from below."""
-    assert 0.965 < _ratio(scene, "quadratic", cells) < 1.0
+@pytest.mark.parametrize("scene,cells,measured", [
+    ("clamped_plate", 8, 0.968), ("clamped_plate", 16, 0.993),
+    ("twisted_beam_inplane", 12, 0.991), ("twisted_beam_outofplane", 12, 0.995),
+    ("straight_beam_outofplane", 6, 0.972), ("straight_beam_inplane", 6, 0.969)])
+def test_quadratic_prism_meets_the_flat_and_twisted_references(scene, cells, measured):
+    """The scenes and their published values checked through the element that needs no
+    remedy: the quadratic prism from below, within a point of what it measured at the
+    coarsest levels (a regression guard: an error in a scene's load, supports or reference
+    moves these by far more), and closer at 16 cells of the plate (thin-plate theory, the
+    reference, is exceeded by a plate of a / t = 100 by under 0.3 %)."""
+    assert measured - 0.01 < _ratio(scene, "quadratic", cells) < 1.0
 
 
 def test_q3t_ans_bends_plates_and_twisted_beams_at_coarse_meshes():
@@ -85,13 +81,30 @@ def test_q3t_ans_bends_plates_and_twisted_beams_at_coarse_meshes():
     assert _ratio("clamped_plate", "q3t", 8) < 0.2
 
 
+@pytest.mark.parametrize("mesher,measured", [("frontal_delaunay", 0.948), ("meshadapt", 0.945)])
+def test_q3t_ans_bends_the_plate_on_unstructured_meshes(mesher, measured):
+    """The clamped plate's quarter meshed by gmsh (edges of 1 / 16, about 160 triangles of
+    no one diagonal direction) instead of the strip's grid: q3t_ans as close as on the grid
+    of 8 cells (0.935), no worse for the triangles' directions (a regression guard 1.5
+    points under the measured value)."""
+    sc = load_scene("scenes/clamped_plate.toml", {
+        "shell.element": "q3t_ans", "study": None,
+        "mesh": {"kind": "outline", "points": [[0, -0.25], [0.5, -0.25], [0.5, 0.25],
+                                               [0, 0.25]],
+                 "edge_length": 0.0625, "mesher": mesher}})
+    sim = Simulation.from_scene(sc)
+    assert sim.run(), sim.failure
+    published = load_scene("scenes/clamped_plate.toml").study.published.value
+    assert sim.records[-1].probes["centre_deflection"] / published > measured - 0.015
+
+
 def test_in_plane_bending_is_the_three_node_triangles_limit():
     """The straight cantilever under in-plane shear bends across its width, in the sheet's
     plane, where a three-node triangle's membrane strain is constant: linear, Q3T and q3t_ans
     share that membrane, so at MacNeal and Harder's 6 x 1 cells they give the same 3 % of the
-    deflection (measured 0.033 each, within 2 % of one another), where the quadratic prism's
-    six-node triangles give 0.969. The assumed shear strains do not reach it (docs/shells.md)."""
+    deflection (measured 0.033 each, within 0.3 % of one another; 1 % allowed, far below the
+    factor 29 to the quadratic prism's 0.969, tested above). The assumed shear strains do not
+    reach it (docs/shells.md)."""
     r = {el: _ratio("straight_beam_inplane", el, 6) for el in ("linear", "q3t", "q3t_ans")}
     assert all(0.02 < v < 0.05 for v in r.values()), r
-    assert max(r.values()) / min(r.values()) < 1.05, r
-    assert _ratio("straight_beam_inplane", "quadratic", 6) > 0.95
+    assert max(r.values()) / min(r.values()) < 1.01, r
