@@ -337,10 +337,11 @@ def test_estimate_function_edge_cases(tmp_path):
 
 @pytest.mark.parametrize("scene,from_file,command", [
     ("cantilever", False, "q3t study {scene}"),
-    # the shell obstacle course's scenes: `q3t study SCENE` refuses their patches (by cells)
+    # the shell obstacle course's scenes: `q3t study SCENE` refuses their meshes (by cells)
     ("scordelis_lo", False, "q3t study --course"),
     ("pinched_cylinder", False, "q3t study --course"),
     ("pinched_hemisphere", False, "q3t study --course"),
+    ("twisted_beam_inplane", False, "q3t study --course"),  # a strip, refined along it
     ("cantilever", True, None),  # its blank read from a mesh file: nothing to refine
 ])
 def test_the_estimate_names_the_command_that_studies_the_scene(tmp_path, scene, from_file,
