@@ -74,7 +74,7 @@ def frame(sim: Run) -> Frame:
     h = fields.thickness(m, x)
     limits = functools.cache(lambda: fields.limit_fields(m, x))  # three fields, one computation
     field_of = {"thickness_mm": lambda: 1e3 * h,
-                "thinning_pct": lambda: 100 * (1 - h / sim.h0),
+                "thinning_pct": lambda: 100 * fields.thinning(h, sim.h0, x),
                 "von_mises_MPa": lambda: 1e-6 * fields.vertex_average(
                     m, m.elasticity.von_mises(x)),
                 "eq_plastic_strain": lambda: fields.vertex_average(m, m.elasticity.ep),

@@ -63,7 +63,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sim.frames import blank, earing
-from sim.frames.fields import mid_surface, thickness, volume
+from sim.frames.fields import mid_surface, thickness, thinning, volume
 from sim.frames.punch import punch_history
 from sim.frames.units import measure
 from sim.scene.shapes import tool_role
@@ -326,11 +326,12 @@ def _lateral_punch_force(view: View) -> list[dict]:
 @quantity("thickness")
 def _thickness(view: View) -> list[dict]:
     h, h0, mid = thickness(view.model, view.x), view.sim.h0, view.mid()
-    thin, i = 1 - h / h0, int(np.argmin(h))
+    thin, i = thinning(h, h0, view.x), int(np.argmin(h))
     j, k = int(np.argmax(thin)), int(np.argmin(thin))
     return [entry("min_thickness", "Minimum thickness", h[i], "m", at_vertex(i, mid)),
             entry("max_thinning", "Maximum thinning", thin[j], "1", at_vertex(j, mid)),
-            entry("max_thickening", "Maximum thickening", -thin[k], "1", at_vertex(k, mid))]
+            entry("max_thickening", "Maximum thickening", 0.0 - thin[k], "1",
+                  at_vertex(k, mid))]
 
 
 @quantity("draw_in", needs=("punch", "edge"))
