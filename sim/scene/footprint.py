@@ -62,6 +62,13 @@ def tube_ranges(radius: float, height: float, h: float) -> RadialRanges:
     return RadialRanges(span, span, height)
 
 
+def rectangle_ranges(origin: tuple[float, float], size: tuple[float, float]) -> RadialRanges:
+    """The ranges of a rectangle in z = 0 from ``origin`` to ``origin + size`` (a grid of it:
+    the rectangle's and a flat strip's meshes)."""
+    (x0, y0), (lx, ly) = origin, size
+    return loop_ranges([np.array([[x0, y0], [x0 + lx, y0], [x0 + lx, y0 + ly], [x0, y0 + ly]])])
+
+
 def loop_ranges(loops: Sequence[np.ndarray]) -> RadialRanges:
     """The ranges of a mesh whose boundary nodes lie on the chords of ``loops`` (each
     ``(n, 2)``: the outer one, then the holes) and whose other nodes lie between them: for the

@@ -59,9 +59,7 @@ class RectangleMesh(_Generated):
     origin: tuple[Coord, Coord] = doc("its corner of least x and y", "m", (0.0, 0.0))
 
     def radial_ranges(self) -> footprint.RadialRanges:
-        (x0, y0), (lx, ly) = self.origin, self.size
-        corners = np.array([[x0, y0], [x0 + lx, y0], [x0 + lx, y0 + ly], [x0, y0 + ly]])
-        return footprint.loop_ranges([corners])
+        return footprint.rectangle_ranges(self.origin, self.size)
 
 
 class AnnulusMesh(_Generated):
@@ -166,9 +164,7 @@ class StripMesh(_Mesh):
     def radial_ranges(self) -> footprint.RadialRanges | None:
         if self.twist != 0.0:  # turned out of z = 0: known once built
             return None
-        h = self.width / 2
-        return footprint.loop_ranges([np.array([[0.0, -h], [self.length, -h],
-                                                [self.length, h], [0.0, h]])])
+        return footprint.rectangle_ranges((0.0, -self.width / 2), (self.length, self.width))
 
     @property
     def across(self) -> int:
