@@ -66,7 +66,8 @@ class Prism:
     modes'); ``routine``: run wherever every element is meant (each shipped scene in the
     tests); an element too costly for that (the quartic reference) runs only where it is named.
     ``assumed_shear``: its transverse shear strains come from tying points on the triangle's
-    edges (sim.terms.ans), not from the displacement field at the quadrature point."""
+    edges and its thickness strain from its corners (sim.terms.ans), not from the displacement
+    field at the quadrature point."""
 
     name: str
     p: int

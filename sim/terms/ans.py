@@ -1,4 +1,5 @@
-"""Assumed natural transverse shear strains (MITC3 tying) for prisms linear in-plane.
+"""Assumed natural strains for prisms linear in-plane: the transverse shear tied on the
+triangle's edges (MITC3), the thickness strain at its corners.
 
 Strains are covariant in the element's reference coordinates xi = (r, s, w) = (u, v, w):
 e_ij = 1/2 (g_i . g_j - G_i . G_j) with g_i = dx/dxi_i, G_i = dX/dxi_i, formed from the
@@ -10,10 +11,16 @@ C = (1/2, 1/2), so that each edge's tangential shear is constant along it:
 
     e~_rw = e_rw^A + s c,   e~_sw = e_sw^B - r c,   c = (e_sw^B - e_rw^A) - (e_sw^C - e_rw^C).
 
-The thickness strain stays the displacement field's: tied at the corners (the cure of curvature
-thickness locking, Betsch, Gruttmann and Stein 1996) it changed a Scordelis-Lo roof and a pinched
-cylinder by under 1 %, while the material's volume then parts from the geometry's
-(docs/elements-ans.md).
+The thickness strain e_ww is tied at the triangle's corners, at the point's own w, and
+interpolated linearly between them, e~_ww = (1 - r - s) e_ww^1 + r e_ww^2 + s e_ww^3 (Betsch,
+Gruttmann and Stein 1996; Bischoff and Ramm 1997): on a curved shell the corners' directors G_w
+differ, and the displacement field's e_ww = G_w . h_w + h_w . h_w / 2 at a point between them
+mixes one corner's director with another's rotation, a thickness strain from bending alone
+(curvature thickness locking: the pinched hemisphere at 16 cells 0.59 of its reference without
+the tying, 0.96 with it, docs/elements-ans.md). At each corner it is the field's, so a
+column's length stays the sheet's thickness; between the corners the interpolated geometry's
+thickness falls short of it where the directors fan out (the chord of their arc), so the
+geometry's volume there is less than the material's.
 
 The modified Green-Lagrange strain E = J^-T e~ J^-1 enters the material through C = I + 2 E; with
 a plastic state through C^ = Fp^-T C Fp^-1, i.e. E^ = A^T e~ A + (Fp^-T Fp^-1 - I) / 2 with
@@ -57,6 +64,9 @@ from sim.terms import PROJECT_ELEMENT, PROJECT_QP
 # tying points in (u, v): A on the edge v = 0, B on u = 0, C on the third edge
 TYING = np.array([[0.5, 0.0], [0.0, 0.5], [0.5, 0.5]])
 N_TIE = 3
+# the thickness strain's tying points: the corners, where the barycentric weights are
+# 1 - u - v, u and v
+CORNERS = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
 
 
 class Tying:
@@ -66,7 +76,9 @@ class Tying:
     3)``: at the tying points A, B, C of each thickness level; ``lev_ptr (n_lev + 1,)``: the
     quadrature points of level l are lev_ptr[l]:lev_ptr[l+1] (the rule is level-major);
     ``rs (n_qp, 2)``: their in-plane coordinates; ``Gq (n_e, n_qp, 3, 3)``: G[k, i] = dX_k/dxi_i,
-    ``A0`` its inverse; ``Gt (n_e, n_lev, 3, 3, 3)``: G at the tying points."""
+    ``A0`` its inverse; ``Gt (n_e, n_lev, 3, 3, 3)``: G at the tying points; ``dNc (n_lev, 3,
+    n_en)``: dN/dw at each level's corners, the thickness strain's tying points, and ``Gw (n_e,
+    n_lev, 3, 3)``: G_w there (corner, component)."""
 
     def __init__(self, shell: Shell, rule: Rule):
         el = shell.element
@@ -88,13 +100,18 @@ class Tying:
         self.Gq = np.ascontiguousarray(np.einsum("eak,qai->eqki", Xe, self.dNq))
         self.A0 = np.ascontiguousarray(np.linalg.inv(self.Gq))
         self.Gt = np.ascontiguousarray(np.einsum("eak,ltai->eltki", Xe, self.dNt))
+        cpts = np.array([(u, v, w) for w in levels for (u, v) in CORNERS])
+        dNc = el.basis(cpts)[1].reshape(len(levels), 3, el.n_nodes, 3)
+        self.dNc = np.ascontiguousarray(dNc[..., 2])
+        self.Gw = np.ascontiguousarray(np.einsum("eak,lca->elck", Xe, self.dNc))
         # the kernels form dN/dr, dN/ds once per level: a triangle linear in-plane has them
         # the same at every point of a level, to the bit (they are dL/dr times the same Q(w))
         for lev in range(len(levels)):
             inplane = self.dNq[self.lev_ptr[lev], :, :2]
             if not (all(np.array_equal(d[:, :2], inplane)
                         for d in self.dNq[self.lev_ptr[lev]:self.lev_ptr[lev + 1]])
-                    and all(np.array_equal(d[:, :2], inplane) for d in self.dNt[lev])):
+                    and all(np.array_equal(d[:, :2], inplane) for d in self.dNt[lev])
+                    and all(np.array_equal(d[:, :2], inplane) for d in dNc[lev])):
                 raise ValueError("assumed-strain elements need a prism linear in-plane")
 
 
@@ -154,17 +171,36 @@ def _tied(u: np.ndarray, dNt: np.ndarray, Gt: np.ndarray, Hn: np.ndarray,
 
 
 @njit(cache=True, inline='always')
+def _corner_thickness(u: np.ndarray, dNc: np.ndarray, Gw: np.ndarray, hc: np.ndarray,
+                      tw: np.ndarray) -> None:
+    """A level's thickness strains at its corners into ``tw (3,)``, e_ww = (G_w + h_w / 2) . h_w,
+    and h_w there into ``hc (3, 3)`` (corner, component); ``dNc (3, n_en)`` dN/dw and
+    ``Gw (3, 3)`` G_w at the corners."""
+    for c in range(3):
+        acc = 0.0
+        for k in range(3):
+            h = 0.0
+            for a in range(u.shape[0]):
+                h += u[a, k] * dNc[c, a]
+            hc[c, k] = h
+            acc += (Gw[c, k] + 0.5 * h) * h
+        tw[c] = acc
+
+
+@njit(cache=True, inline='always')
 def _strain_hat(Gq: np.ndarray, Hn: np.ndarray, r: float, s: float, tv: np.ndarray,
-                A: np.ndarray, plastic: bool, fp_inv: np.ndarray, en: np.ndarray,
-                Eh: np.ndarray) -> None:
-    """en: the assumed covariant strain e~ (3, 3) at (r, s) from the level's tied values
-    ``tv`` (:func:`_tied`); Eh: E^ = A^T e~ A (+ the plastic part)."""
+                tw: np.ndarray, A: np.ndarray, plastic: bool, fp_inv: np.ndarray,
+                en: np.ndarray, Eh: np.ndarray) -> None:
+    """en: the assumed covariant strain e~ (3, 3) at (r, s) from the level's tied shear values
+    ``tv`` (:func:`_tied`) and its corners' thickness strains ``tw``
+    (:func:`_corner_thickness`); Eh: E^ = A^T e~ A (+ the plastic part)."""
     for i in range(3):
         for j in range(i, 3):
             en[i, j] = _cov(Gq, Hn, i, j)
     c = (tv[1] - tv[0]) - tv[2]
     en[0, 2] = tv[0] + s * c
     en[1, 2] = tv[1] - r * c
+    en[2, 2] = (1.0 - r - s) * tw[0] + r * tw[1] + s * tw[2]
     for i in range(3):
         for j in range(i):
             en[i, j] = en[j, i]
@@ -372,14 +408,15 @@ def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.n
 
 
 @njit(cache=True, inline='always')
-def _level_rows(dNq: np.ndarray, dNt: np.ndarray, Gq: np.ndarray, Gt: np.ndarray,
-                Hs: np.ndarray, P: np.ndarray) -> None:
-    """The level's basis rows ``P (6 + n_in, k)``, node-major: de_rr, de_ss, de_rs (the same at
-    every point of a level: g_r, g_s and dN/dr, dN/ds do not vary in-plane for a triangle linear
-    in-plane), the tied shear rows (A's e_rw, B's e_sw, C's e_sw - e_rw) and de_ww at each of
-    the level's ``n_in`` points ``dNq (n_in, n_en, 3)``, ``Gq (n_in, 3, 3)``; every strain row
-    of the level is a combination of these (:func:`_add_point_tangent`). ``Hs (3 + n_in, 3,
-    3)``: the displacement's reference gradient at the tying points A, B, C, then at the points."""
+def _level_rows(dN: np.ndarray, dNt: np.ndarray, G: np.ndarray, Gt: np.ndarray, Hs: np.ndarray,
+                dNc: np.ndarray, Gw: np.ndarray, hc: np.ndarray, P: np.ndarray) -> None:
+    """The level's basis rows ``P (9, k)``, node-major: de_rr, de_ss, de_rs (the same at every
+    point of a level: g_r, g_s and dN/dr, dN/ds do not vary in-plane for a triangle linear
+    in-plane; ``dN (n_en, 3)`` and ``G (3, 3)`` at any of its points, ``Hs[3]`` the
+    displacement's reference gradient there), the tied shear rows (A's e_rw, B's e_sw, C's
+    e_sw - e_rw; ``Hs[:3]`` at A, B, C) and de_ww at the three corners (``dNc (3, n_en)``,
+    ``Gw``, ``hc`` as :func:`_corner_thickness` takes and gives them); every strain row of
+    the level is a combination of these (:func:`_add_point_tangent`)."""
     k = P.shape[1]
     for t in range(3, 6):
         for p in range(k):
@@ -388,72 +425,69 @@ def _level_rows(dNq: np.ndarray, dNt: np.ndarray, Gq: np.ndarray, Gt: np.ndarray
     _tie_rows(dNt[1], Gt[1], Hs[1], 1, P[4], 1.0)
     _tie_rows(dNt[2], Gt[2], Hs[2], 1, P[5], 1.0)
     _tie_rows(dNt[2], Gt[2], Hs[2], 0, P[5], -1.0)
-    for j in range(dNq.shape[0]):
-        Hn = Hs[3 + j]
-        for a in range(dNq.shape[1]):
-            d0, d1, d2 = dNq[j, a, 0], dNq[j, a, 1], dNq[j, a, 2]
-            for kk in range(3):
-                p = 3 * a + kk
-                g0, g1 = Gq[j, kk, 0] + Hn[kk, 0], Gq[j, kk, 1] + Hn[kk, 1]
-                if j == 0:
-                    P[0, p] = g0 * d0
-                    P[1, p] = g1 * d1
-                    P[2, p] = 0.5 * (g0 * d1 + g1 * d0)
-                P[6 + j, p] = (Gq[j, kk, 2] + Hn[kk, 2]) * d2
+    Hn = Hs[3]
+    for a in range(dN.shape[0]):
+        d0, d1 = dN[a, 0], dN[a, 1]
+        for kk in range(3):
+            p = 3 * a + kk
+            g0, g1 = G[kk, 0] + Hn[kk, 0], G[kk, 1] + Hn[kk, 1]
+            P[0, p] = g0 * d0
+            P[1, p] = g1 * d1
+            P[2, p] = 0.5 * (g0 * d1 + g1 * d0)
+            for c in range(3):
+                P[6 + c, p] = (Gw[c, kk] + hc[c, kk]) * dNc[c, a]
 
 
 @njit(cache=True, inline='always')
-def _add_point_tangent(Dv: np.ndarray, w: float, j: int, r: float, s: float,
-                       Mb: np.ndarray) -> None:
-    """Mb (upper triangle) += w Phi^T Dv Phi, Phi (6, 6 + n_in) the natural rows (VOIGT
-    order) of the level's point j at (r, s) over the level's basis rows (:func:`_level_rows`):
-    rr, ss, rs and the point's own ww are basis rows themselves, the shear pair the MITC3
-    interpolation of the tied rows (:func:`_strain_hat`), so Phi's product is a few sums."""
-    z0 = (1.0 - s, s, -s)  # e~_rw, e~_sw over the tied rows A, B, C
-    z1 = (r, 1.0 - r, r)
-    cmap = (0, 1, 6 + j, 2)  # the basis row of the natural rows rr, ss, ww, rs
-    for a in range(4):
-        ca = cmap[a]
-        for b in range(4):
-            cb = cmap[b]
-            if ca <= cb:
-                Mb[ca, cb] += w * Dv[a, b]
-        for t in range(3):
-            val = w * (Dv[a, 4] * z0[t] + Dv[a, 5] * z1[t])
-            if ca < 3 + t:
-                Mb[ca, 3 + t] += val
-            else:
-                Mb[3 + t, ca] += val
-    for t in range(3):
-        for t2 in range(t, 3):
-            Mb[3 + t, 3 + t2] += w * (z0[t] * (Dv[4, 4] * z0[t2] + Dv[4, 5] * z1[t2])
-                                      + z1[t] * (Dv[5, 4] * z0[t2] + Dv[5, 5] * z1[t2]))
+def _add_point_tangent(Dv: np.ndarray, w: float, r: float, s: float, Mb: np.ndarray) -> None:
+    """Mb (upper triangle) += w Phi^T Dv Phi, Phi (6, 9) the natural rows (VOIGT order) of the
+    level's point at (r, s) over the level's basis rows (:func:`_level_rows`): rr, ss, rs are
+    basis rows themselves, the shear pair the MITC3 interpolation of the tied rows 3, 4, 5
+    and ww the corners' rows 6, 7, 8 weighted (1 - r - s, r, s) (:func:`_strain_hat`). Each
+    natural row as up to three (basis row, weight) pairs; a term goes to Mb's upper triangle
+    only (a pair of basis rows c > d meets its mirror image, the same number, as d, c)."""
+    rows = ((0, 0, 0), (1, 1, 1), (6, 7, 8), (2, 2, 2), (3, 4, 5), (3, 4, 5))
+    wts = ((1.0, 0.0, 0.0), (1.0, 0.0, 0.0), (1.0 - r - s, r, s), (1.0, 0.0, 0.0),
+           (1.0 - s, s, -s), (r, 1.0 - r, r))
+    for a in range(6):
+        for b in range(6):
+            d = w * Dv[a, b]
+            for ta in range(3):
+                ca, fa = rows[a][ta], wts[a][ta]
+                if fa == 0.0:
+                    continue
+                for tb in range(3):
+                    cb, fb = rows[b][tb], wts[b][tb]
+                    if fb != 0.0 and ca <= cb:
+                        Mb[ca, cb] += d * fa * fb
 
 
 @njit(cache=True, inline='always')
-def _level_geometric(dNq: np.ndarray, dNt: np.ndarray, s_in: np.ndarray, s_ww: np.ndarray,
-                     tA: float, tB: float, tC: float, Kg: np.ndarray) -> None:
+def _level_geometric(dN: np.ndarray, dNt: np.ndarray, s_in: np.ndarray, dNc: np.ndarray,
+                     s_ww: np.ndarray, tA: float, tB: float, tC: float,
+                     Kg: np.ndarray) -> None:
     """Kg (upper, node b >= a) += the level's initial-stress term dN_a^T sig dN_b: the in-plane
-    stress ``s_in`` = (S_rr, S_ss, S_rs) summed over the level's points, ``s_ww`` (n_in,) at
-    each point with its own dN/dw, and the tied shear pair at the tying points with the
-    weights of the interpolation (tA, tB, tC). dN/dr, dN/ds are the same at all of them
+    stress ``s_in`` = (S_rr, S_ss, S_rs) summed over the level's points (``dN (n_en, 3)`` at
+    any of them), the thickness stress ``s_ww (3,)`` at the corners with the weights of the
+    interpolation (``dNc (3, n_en)`` dN/dw there), and the tied shear pair at the tying points
+    likewise (tA, tB, tC). dN/dr, dN/ds are the same at all of them
     (:class:`Tying`), so the shear's terms are dN/dr (x) v_r + dN/ds (x) v_s and transposes,
     v_r = (tA dN^A/dw - tC dN^C/dw) / 2, v_s = (tB dN^B/dw + tC dN^C/dw) / 2."""
     n = Kg.shape[0]
     srr, sss, srs = s_in[0], s_in[1], s_in[2]
     hA, hB, hC = 0.5 * tA, 0.5 * tB, 0.5 * tC
     for a in range(n):
-        ar, as_ = dNq[0, a, 0], dNq[0, a, 1]
+        ar, as_ = dN[a, 0], dN[a, 1]
         var = hA * dNt[0, a, 2] - hC * dNt[2, a, 2]
         vas = hB * dNt[1, a, 2] + hC * dNt[2, a, 2]
         tr, ts = srr * ar + srs * as_ + var, srs * ar + sss * as_ + vas
         for b in range(a, n):
-            br, bs = dNq[0, b, 0], dNq[0, b, 1]
+            br, bs = dN[b, 0], dN[b, 1]
             acc = (tr * br + ts * bs
                    + (hA * dNt[0, b, 2] - hC * dNt[2, b, 2]) * ar
                    + (hB * dNt[1, b, 2] + hC * dNt[2, b, 2]) * as_)
-            for j in range(s_ww.shape[0]):
-                acc += s_ww[j] * dNq[j, a, 2] * dNq[j, b, 2]
+            for c in range(3):
+                acc += s_ww[c] * dNc[c, a] * dNc[c, b]
             Kg[a, b] += acc
 
 
@@ -467,29 +501,29 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
                  m3: np.ndarray) -> float:
     """Energy of one element; adds its gradient into ``g (k,)`` (want >= 1) and writes its
     Hessian's upper triangle, node-major, into ``K (k, k)`` (want == 2). ``tg``: the element's
-    (dNq, dNt, lev_ptr, rs, Gq, A0, Gt) of :class:`Tying`; ``frame (3, 3)`` its material axes
-    (read by Hill48). ``project``: PROJECT_QP makes the Hessian positive semi-definite by its
-    parts: each point's material tangent (over the natural strain rows, as a point's is in
-    Q3T's projection) and the element's initial-stress term (n_en x n_en: the tied shear's
-    stresses act at the tying points, so it has no per-point split); a sum of positive
-    semi-definite parts, without the element's 3 n_en x 3 n_en eigen-decomposition that
-    PROJECT_ELEMENT takes (:func:`ans_kernel`).
+    (dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw) of :class:`Tying`; ``frame (3, 3)`` its
+    material axes (read by Hill48). ``project``: PROJECT_QP makes the Hessian positive
+    semi-definite by its parts: each point's material tangent (over the natural strain rows,
+    as a point's is in Q3T's projection) and the element's initial-stress term (n_en x n_en:
+    the tied strains' stresses act at the tying points, so it has no per-point split); a sum
+    of positive semi-definite parts, without the element's 3 n_en x 3 n_en
+    eigen-decomposition that PROJECT_ELEMENT takes (:func:`ans_kernel`).
 
     Per level, the points' strain rows are combinations Phi of the level's basis rows P, so
-    the material part is summed as P^T (sum_q w Phi^T D Phi) P, one product of n_b = 6 + n_in
-    rows per level instead of one of 6 rows per point; the levels' rows are stacked so that
-    one product :func:`_congruence` forms all of it. Scratch: Kg (n_en, n_en); P and T
-    (n_r, k), level l's rows from l n_bp on (n_b padded to n_bp, a multiple of 3; n_r a
-    multiple of 9; the padding rows zero); Mb (n_bp, n_bp), Hs (n_b - 3, 3, 3), gvs (4, n_bp),
-    u (n_en, 3), sc (4, 6, 6), m3 (7, 3, 3)."""
-    dNq, dNt, lev_ptr, rs, Gq, A0, Gt = tg
+    the material part is summed as P^T (sum_q w Phi^T D Phi) P, one product of the 9 rows
+    per level instead of one of 6 rows per point; the levels' rows are stacked so that one
+    product :func:`_congruence` forms all of it. Scratch: Kg (n_en, n_en); P and T (9 n_lev,
+    k), level l's rows from 9 l on; Mb (9, 9), Hs (3 + n_in, 3, 3), gvs (5, 9), u (n_en, 3),
+    sc (4, 6, 6), m3 (8, 3, 3)."""
+    dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw = tg
     en, Eh, A, Sn, sig, M, Ci = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6]
+    hc = m3[7]
     Dv, cv, Dp = sc[0], sc[1:3], sc[3]
-    gv, tv, s_ww, s_in = gvs[0], gvs[1], gvs[2], gvs[3]  # tv, s_in: (3,) of nb >= 7
+    gv, tv, s_ww, s_in, tw = gvs[0], gvs[1], gvs[2], gvs[3], gvs[4]  # all (3,) but gv (9,)
     n_en = nodes.shape[0]
     k = 3 * n_en
     psd = want == 2 and project == PROJECT_QP
-    nbp = Mb.shape[0]  # the level's rows in P, nb = 6 + n_in padded to a multiple of 3
+    nbp = Mb.shape[0]  # the level's rows in P: 9
     for a in range(n_en):
         for i in range(3):
             u[a, i] = x[nodes[a], i] - rest[nodes[a], i]
@@ -501,20 +535,21 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     for lev in range(lev_ptr.shape[0] - 1):
         q0 = lev_ptr[lev]
         n_in = lev_ptr[lev + 1] - q0
-        nb = 6 + n_in
-        Pl = P[lev * nbp:(lev + 1) * nbp]  # the level's rows; those past nb stay zero
+        Pl = P[lev * nbp:(lev + 1) * nbp]  # the level's rows
         _level_gradients(u, dNq[q0:q0 + n_in], dNt[lev], Hs)
+        _corner_thickness(u, dNc[lev], Gw[lev], hc, tw)
         Gl = Gt[lev]
         tv[0] = _cov(Gl[0], Hs[0], 0, 2)
         tv[1] = _cov(Gl[1], Hs[1], 1, 2)
         tv[2] = _cov(Gl[2], Hs[2], 1, 2) - _cov(Gl[2], Hs[2], 0, 2)
         if want >= 1:
-            _level_rows(dNq[q0:q0 + n_in], dNt[lev], Gq[q0:q0 + n_in], Gl, Hs, Pl)
+            _level_rows(dNq[q0], dNt[lev], Gq[q0], Gl, Hs, dNc[lev], Gw[lev], hc, Pl)
             for c in range(nbp):
                 gv[c] = 0.0
                 for d in range(nbp):
                     Mb[c, d] = 0.0
         tA = tB = tC = 0.0  # the level's weighted tying stresses (initial-stress term)
+        s_ww[0] = s_ww[1] = s_ww[2] = 0.0  # and thickness stresses at the corners
         srr = sss = srs = 0.0  # its weighted in-plane stress
         for j in range(n_in):
             q = q0 + j
@@ -526,7 +561,7 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             if not det3(en) > 0.0:
                 return np.inf
             _map(A0[q], plastic, fp_inv[q], A)
-            _strain_hat(Gq[q], Hn, r, s, tv, A, plastic, fp_inv[q], en, Eh)
+            _strain_hat(Gq[q], Hn, r, s, tv, tw, A, plastic, fp_inv[q], en, Eh)
             # the laws are called, not inlined by numba: inlined, they made the kernel's compile
             # much longer and ran no faster
             # (Neo-Hookean's closed form has no principal frame to project in)
@@ -551,10 +586,13 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             gv[3] += w * ((1.0 - s) * s02 + r * s12)
             gv[4] += w * (s * s02 + (1.0 - r) * s12)
             gv[5] += w * (-s * s02 + r * s12)
-            gv[6 + j] += w * Sn[2, 2]
+            sww = w * Sn[2, 2]
+            gv[6] += (1.0 - r - s) * sww
+            gv[7] += r * sww
+            gv[8] += s * sww
             if want < 2:
                 continue
-            _add_point_tangent(Dv, w, j, r, s, Mb)
+            _add_point_tangent(Dv, w, r, s, Mb)
             # initial stress: S~ at the point, its shear pair at the tying points with the
             # weights of the interpolation
             Srw, Ssw = w * Sn[0, 2], w * Sn[1, 2]
@@ -564,22 +602,24 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             srr += w * Sn[0, 0]
             sss += w * Sn[1, 1]
             srs += w * Sn[0, 1]
-            s_ww[j] = w * Sn[2, 2]
+            s_ww[0] += (1.0 - r - s) * sww
+            s_ww[1] += r * sww
+            s_ww[2] += s * sww
         if want == 0:
             continue
         for p in range(k):
             acc = 0.0
-            for c in range(nb):
+            for c in range(9):
                 acc += gv[c] * Pl[c, p]
             g[p] += acc
         if want < 2:
             continue
-        for c in range(nb):
+        for c in range(9):
             for d in range(c):
                 Mb[c, d] = Mb[d, c]
         _material_rows(Pl, Mb, T[lev * nbp:(lev + 1) * nbp])
         s_in[0], s_in[1], s_in[2] = srr, sss, srs
-        _level_geometric(dNq[q0:q0 + n_in], dNt[lev], s_in, s_ww[:n_in], tA, tB, tC, Kg)
+        _level_geometric(dNq[q0], dNt[lev], s_in, dNc[lev], s_ww, tA, tB, tC, Kg)
     if want == 2:
         _congruence(P, T, K)
         if psd:
@@ -647,20 +687,22 @@ def _project(K: np.ndarray) -> None:
 @njit(cache=True, parallel=True)
 def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
                dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
-               A0: np.ndarray, Gt: np.ndarray, wdetJ: np.ndarray, model: int, params: np.ndarray,
+               A0: np.ndarray, Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray,
+               wdetJ: np.ndarray, model: int, params: np.ndarray,
                fp_inv: np.ndarray, ep: np.ndarray, frames: np.ndarray, plastic: bool, want: int,
                project: int,
                order: np.ndarray, block_ptr: np.ndarray, color_ptr: np.ndarray,
                slots: np.ndarray, grad: np.ndarray, data: np.ndarray) -> float:
     """:func:`sim.terms.elasticity.elastic_kernel` for assumed-shear elements: same arguments
     and scatter (``frames`` as there), the element's geometry from :class:`Tying` (Gq, A0,
-    Gt per element). ``project``: PROJECT_QP by the Hessian's parts (:func:`_ans_element`),
+    Gt, Gw per element). ``project``: PROJECT_QP by the Hessian's parts (:func:`_ans_element`),
     PROJECT_ELEMENT the element's whole Hessian (an eigen-decomposition of its 3 n_en x 3 n_en
     matrix, most of the evaluation's time)."""
     energies = np.zeros(conn.shape[0])
     for c in range(len(color_ptr) - 1):
         for blk in prange(color_ptr[c], color_ptr[c + 1]):
-            _ans_block(x, rest, conn, (dNq, dNt, lev_ptr, rs, Gq, A0, Gt), wdetJ, model, params,
+            _ans_block(x, rest, conn, (dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw), wdetJ,
+                       model, params,
                        fp_inv, ep, frames, plastic, want, project,
                        order[block_ptr[blk]:block_ptr[blk + 1]], slots, grad, data, energies)
     return energies.sum()
@@ -677,22 +719,22 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
     prange body: numba's parallel passes then see one call, not the whole inlined element
     (compiled so, the kernel took far longer to compile; the same machine code runs per
     element)."""
-    dNq, dNt, lev_ptr, rs, Gq, A0, Gt = tying
+    dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw = tying
     n_en = conn.shape[1]
     k = 3 * n_en
     g = np.zeros(k)
     Kg = np.empty((n_en, n_en))
     n_lev = lev_ptr.shape[0] - 1
-    nb = 6 + (lev_ptr[1] - lev_ptr[0])
-    nbp = -(-nb // 3) * 3
-    nr = -(-n_lev * nbp // 9) * 9
-    # rows past a level's nb stay zero in P; T's are zero through Mb's
+    n_in = lev_ptr[1] - lev_ptr[0]
+    nbp = 9  # a level's rows (_level_rows): a multiple of 3 (_material_rows), and n_lev
+    nr = n_lev * nbp  # times them of 9 (_congruence)
     P, T, Mb = np.zeros((nr, k)), np.zeros((nr, k)), np.zeros((nbp, nbp))
     K = np.empty((k, k) if want == 2 else (0, 0))
-    Hs, gvs, u = np.empty((nb - 3, 3, 3)), np.empty((4, nbp)), np.empty((n_en, 3))
-    sc, m3 = np.empty((4, 6, 6)), np.empty((7, 3, 3))
+    Hs, gvs, u = np.empty((3 + n_in, 3, 3)), np.empty((5, nbp)), np.empty((n_en, 3))
+    sc, m3 = np.empty((4, 6, 6)), np.empty((8, 3, 3))
     for e in elements:
-        E = _ans_element(x, rest, conn[e], (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e]),
+        E = _ans_element(x, rest, conn[e],
+                         (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e], dNc, Gw[e]),
                          wdetJ[e], model, params, fp_inv[e], ep[e], frames[e], plastic,
                          want, project, g,
                          K, Kg, P, T, Mb, Hs, gvs, sc, u, m3)
@@ -714,7 +756,7 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
 @njit(cache=True)
 def _principal_at(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNq: np.ndarray,
                   dNt: np.ndarray, lev: int, rs: np.ndarray, Gq: np.ndarray, A0: np.ndarray,
-                  Gt: np.ndarray, q: int, plastic: bool,
+                  Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray, q: int, plastic: bool,
                   fp_inv: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
     """Stretches (3,), principal directions V (3, 3) of C^ at quadrature point q, and ok."""
     n_en = nodes.shape[0]
@@ -725,9 +767,11 @@ def _principal_at(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNq: np.nd
     Hn, en, Eh, A = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     tv = np.empty(N_TIE)
     _tied(u, dNt[lev], Gt[lev], Hn, tv)
+    tw = np.empty(3)
+    _corner_thickness(u, dNc[lev], Gw[lev], np.empty((3, 3)), tw)
     _nat_gradient(u, dNq[q], Hn)
     _map(A0[q], plastic, fp_inv, A)
-    _strain_hat(Gq[q], Hn, rs[q, 0], rs[q, 1], tv, A, plastic, fp_inv, en, Eh)
+    _strain_hat(Gq[q], Hn, rs[q, 0], rs[q, 1], tv, tw, A, plastic, fp_inv, en, Eh)
     lam, V = eigh3(Eh)
     ok = 1.0 + 2.0 * lam[0] > 0.0
     return np.sqrt(np.maximum(1.0 + 2.0 * lam, 1e-300)), V, ok
@@ -736,7 +780,8 @@ def _principal_at(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNq: np.nd
 @njit(cache=True, parallel=True)
 def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
                       dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
-                      A0: np.ndarray, Gt: np.ndarray, model: int, params: np.ndarray,
+                      A0: np.ndarray, Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray,
+                      model: int, params: np.ndarray,
                       frames: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray) -> None:
     """:func:`sim.terms.elasticity.plastic_commit_kernel` on the assumed strain: the return
     map in the principal frame V of C^, Fp^-1 <- Fp^-1 V diag(exp(-deps_p)) V^T (Hill48:
@@ -746,7 +791,7 @@ def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np
         for lev in range(lev_ptr.shape[0] - 1):
             for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
                 s, V, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
-                                         Gt[e], q, True, fp_inv[e, q])
+                                         Gt[e], dNc, Gw[e], q, True, fp_inv[e, q])
                 if not ok:
                     continue
                 if model == HILL48:
@@ -766,7 +811,8 @@ def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np
 @njit(cache=True, parallel=True)
 def ans_stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
                       dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
-                      A0: np.ndarray, Gt: np.ndarray, model: int, params: np.ndarray,
+                      A0: np.ndarray, Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray,
+                      model: int, params: np.ndarray,
                       frames: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray,
                       plastic: bool) -> np.ndarray:
     """Von Mises equivalent of the Cauchy stress ``(n_elem, n_qp)`` from the assumed strain
@@ -779,7 +825,7 @@ def ans_stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np
             for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
                 fi = fp_inv[e, q] if plastic else eye
                 s, V, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
-                                         Gt[e], q, plastic, fi)
+                                         Gt[e], dNc, Gw[e], q, plastic, fi)
                 if not ok:
                     continue
                 if model == HILL48:

@@ -386,14 +386,15 @@ class Elasticity(Term):
             self.fp_inv = np.zeros((n_e, 0, 3, 3))
             self.ep = np.zeros((n_e, 0))
         self._pos = packed_positions(self.conn.shape[1])
-        # an assumed-shear element's strain comes from its tying points (sim.terms.ans)
+        # an assumed-strain element's strain comes from its tying points (sim.terms.ans)
         self.tying = Tying(shell, rule) if shell.element.assumed_shear else None
         self.frames = (np.zeros((n_e, 0, 0)) if frames is None
                        else np.ascontiguousarray(frames, dtype=float))
 
     def _tied(self) -> tuple:
         t = self.tying
-        return (self.rest, self.conn, t.dNq, t.dNt, t.lev_ptr, t.rs, t.Gq, t.A0, t.Gt)
+        return (self.rest, self.conn, t.dNq, t.dNt, t.lev_ptr, t.rs, t.Gq, t.A0, t.Gt, t.dNc,
+                t.Gw)
 
     def _run(self, x: np.ndarray, want: int, grad: np.ndarray, data: np.ndarray) -> float:
         sc = self.pattern.schedule
