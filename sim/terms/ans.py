@@ -194,9 +194,9 @@ def _strain_hat(Gq: np.ndarray, Hn: np.ndarray, r: float, s: float, tv: np.ndarr
     """en: the assumed covariant strain e~ (3, 3) at (r, s) from the level's tied shear values
     ``tv`` (:func:`_tied`) and its corners' thickness strains ``tw``
     (:func:`_corner_thickness`); Eh: E^ = A^T e~ A (+ the plastic part)."""
-    for i in range(3):
-        for j in range(i, 3):
-            en[i, j] = _cov(Gq, Hn, i, j)
+    en[0, 0] = _cov(Gq, Hn, 0, 0)  # the in-plane strains are the field's, the rest tied
+    en[1, 1] = _cov(Gq, Hn, 1, 1)
+    en[0, 1] = _cov(Gq, Hn, 0, 1)
     c = (tv[1] - tv[0]) - tv[2]
     en[0, 2] = tv[0] + s * c
     en[1, 2] = tv[1] - r * c
@@ -442,24 +442,32 @@ def _level_rows(dN: np.ndarray, dNt: np.ndarray, G: np.ndarray, Gt: np.ndarray, 
 def _add_point_tangent(Dv: np.ndarray, w: float, r: float, s: float, Mb: np.ndarray) -> None:
     """Mb (upper triangle) += w Phi^T Dv Phi, Phi (6, 9) the natural rows (VOIGT order) of the
     level's point at (r, s) over the level's basis rows (:func:`_level_rows`): rr, ss, rs are
-    basis rows themselves, the shear pair the MITC3 interpolation of the tied rows 3, 4, 5
-    and ww the corners' rows 6, 7, 8 weighted (1 - r - s, r, s) (:func:`_strain_hat`). Each
-    natural row as up to three (basis row, weight) pairs; a term goes to Mb's upper triangle
-    only (a pair of basis rows c > d meets its mirror image, the same number, as d, c)."""
-    rows = ((0, 0, 0), (1, 1, 1), (6, 7, 8), (2, 2, 2), (3, 4, 5), (3, 4, 5))
-    wts = ((1.0, 0.0, 0.0), (1.0, 0.0, 0.0), (1.0 - r - s, r, s), (1.0, 0.0, 0.0),
-           (1.0 - s, s, -s), (r, 1.0 - r, r))
-    for a in range(6):
-        for b in range(6):
-            d = w * Dv[a, b]
-            for ta in range(3):
-                ca, fa = rows[a][ta], wts[a][ta]
-                if fa == 0.0:
-                    continue
-                for tb in range(3):
-                    cb, fb = rows[b][tb], wts[b][tb]
-                    if fb != 0.0 and ca <= cb:
-                        Mb[ca, cb] += d * fa * fb
+    the basis rows 0, 1, 2 themselves, the shear pair the MITC3 interpolation z0, z1 of the
+    tied rows 3, 4, 5 and ww the corners' rows 6, 7, 8 weighted z2 = (1 - r - s, r, s)
+    (:func:`_strain_hat`), so Phi's product is a few sums by blocks."""
+    z0 = (1.0 - s, s, -s)  # e~_rw, e~_sw over the tied rows A, B, C
+    z1 = (r, 1.0 - r, r)
+    z2 = (1.0 - r - s, r, s)  # e~_ww over the corners
+    single = (0, 1, 3)  # the natural rows rr, ss, rs: basis rows 0, 1, 2
+    for a in range(3):
+        na = single[a]
+        for b in range(a, 3):
+            Mb[a, b] += w * Dv[na, single[b]]
+        ds0, ds1, dw = w * Dv[na, 4], w * Dv[na, 5], w * Dv[na, 2]
+        for t in range(3):
+            Mb[a, 3 + t] += ds0 * z0[t] + ds1 * z1[t]
+            Mb[a, 6 + t] += dw * z2[t]
+    d44, d45, d55 = w * Dv[4, 4], w * Dv[4, 5], w * Dv[5, 5]
+    d42, d52, d22 = w * Dv[4, 2], w * Dv[5, 2], w * Dv[2, 2]
+    for t in range(3):
+        s0, s1 = z0[t], z1[t]
+        for t2 in range(t, 3):
+            Mb[3 + t, 3 + t2] += (s0 * (d44 * z0[t2] + d45 * z1[t2])
+                                  + s1 * (d45 * z0[t2] + d55 * z1[t2]))
+            Mb[6 + t, 6 + t2] += d22 * z2[t] * z2[t2]
+        sw = s0 * d42 + s1 * d52
+        for t2 in range(3):
+            Mb[3 + t, 6 + t2] += sw * z2[t2]
 
 
 @njit(cache=True, inline='always')
