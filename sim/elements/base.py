@@ -65,7 +65,7 @@ class Prism:
     patches of one or two triangles (docs/verification.md, 'Quadrature and spurious
     modes'); ``routine``: run wherever every element is meant (each shipped scene in the
     tests); an element too costly for that (the quartic reference) runs only where it is named.
-    ``assumed_shear``: its transverse shear strains come from tying points on the triangle's
+    ``assumed_strain``: its transverse shear strains come from tying points on the triangle's
     edges and its thickness strain from its corners (sim.terms.ans), not from the displacement
     field at the quadrature point."""
 
@@ -75,7 +75,7 @@ class Prism:
     default_quadrature: tuple[int, int]
     small_mesh_quadrature: tuple[int, int] | None = None
     routine: bool = True
-    assumed_shear: bool = False
+    assumed_strain: bool = False
 
     @cached_property
     def triangle_multi_indices(self) -> list[tuple[int, int, int]]:

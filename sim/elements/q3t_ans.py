@@ -16,4 +16,4 @@ stretching through the thickness (curvature thickness locking); tied at the corn
 from sim.elements.base import Prism
 
 Q3T_ANS = Prism("q3t_ans", p=1, q=2, default_quadrature=(3, 3), routine=False,
-                  assumed_shear=True)
+                  assumed_strain=True)

@@ -701,7 +701,7 @@ def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarra
                project: int,
                order: np.ndarray, block_ptr: np.ndarray, color_ptr: np.ndarray,
                slots: np.ndarray, grad: np.ndarray, data: np.ndarray) -> float:
-    """:func:`sim.terms.elasticity.elastic_kernel` for assumed-shear elements: same arguments
+    """:func:`sim.terms.elasticity.elastic_kernel` for assumed-strain elements: same arguments
     and scatter (``frames`` as there), the element's geometry from :class:`Tying` (Gq, A0,
     Gt, Gw per element). ``project``: PROJECT_QP by the Hessian's parts (:func:`_ans_element`),
     PROJECT_ELEMENT the element's whole Hessian (an eigen-decomposition of its 3 n_en x 3 n_en

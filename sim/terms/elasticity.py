@@ -387,7 +387,7 @@ class Elasticity(Term):
             self.ep = np.zeros((n_e, 0))
         self._pos = packed_positions(self.conn.shape[1])
         # an assumed-strain element's strain comes from its tying points (sim.terms.ans)
-        self.tying = Tying(shell, rule) if shell.element.assumed_shear else None
+        self.tying = Tying(shell, rule) if shell.element.assumed_strain else None
         self.frames = (np.zeros((n_e, 0, 0)) if frames is None
                        else np.ascontiguousarray(frames, dtype=float))
 

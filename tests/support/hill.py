@@ -53,9 +53,9 @@ def tension(kirchhoff, commit, strain=0.1, steps=20):
             tau = kirchhoff(symmetric_f(u, f11))
             return [tau[i, j] / MU for i, j in FREE]
 
-        # fsolve's first step is bounded by factor times |u|: from a state entering plastic
-        # flow its default (100) can leap past the solution and stall; a shorter one then
-        # reaches it (which one is needed changes with the stress's last bits)
+        # fsolve's first step is bounded by factor times the scaled |u|: from a state entering
+        # plastic flow its default (100) can leap past the solution and stall; a shorter one
+        # then reaches it (which one is needed changes with the stress's last bits)
         for factor in (100.0, 1.0, 0.1):
             trial = fsolve(residual, u, xtol=1e-12, factor=factor)
             if np.abs(residual(trial)).max() < 1e-12:

@@ -1,5 +1,6 @@
-"""The assumed-shear element q3t_ans (sim.terms.ans): energy, gradient and exact Hessian against
-finite differences for every material (Neo-Hookean, Hencky, plastic, Hill48), rest state,
+"""The assumed-strain element q3t_ans (sim.terms.ans): energy, gradient and exact Hessian against
+finite differences for every material (Neo-Hookean, Hencky, plastic, Hill48) on a flat and a
+curved patch (the thickness strain's tying between corners of other directors), rest state,
 objectivity, the Hessian's definiteness check of its element projection, and Hill48 through the
 element: von Mises as its r = 1 case, the r-values given back in uniaxial tension."""
 

@@ -164,7 +164,8 @@ def _fail_after_half(sim: Simulation, half: Callable[[float, float], object]) ->
     """Fault injection into ``sim``'s next step, once ``armed`` is set: every Newton solve of
     the step fails except the one ending half way, which ``half`` answers (a NewtonResult);
     the step then fails (SolverFailure) with its first half converged, as q3t_ans's 10 -> 12 %
-    step did on the stretched sheet; ``half`` takes the solve's arguments (Simulation._attempt)."""
+    step did on the stretched sheet (before its thickness strain was tied); ``half`` takes the
+    solve's arguments (Simulation._attempt)."""
     from sim.solve.newton import NewtonResult
 
     attempt, state = sim._attempt, {"armed": False}

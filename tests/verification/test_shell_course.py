@@ -73,7 +73,7 @@ def test_quadratic_prism_meets_the_flat_and_twisted_references(scene, cells, mea
 def test_q3t_ans_bends_plates_and_twisted_beams_at_coarse_meshes():
     """q3t_ans where Q3T locks in transverse shear: the clamped plate at 8 cells per side of
     the quarter (measured 0.935; Q3T 0.161) and 16 (0.980), the twisted beam under its
-    in-plane load at MacNeal and Harder's 12 x 2 cells (0.972; Q3T 0.489). The bounds sit
+    in-plane load at MacNeal and Harder's 12 x 2 cells (0.973; Q3T 0.489). The bounds sit
     1.5 points under the measured values: a regression guard, not the issue's target."""
     assert _ratio("clamped_plate", "q3t_ans", 8) > 0.92
     assert _ratio("clamped_plate", "q3t_ans", 16) > 0.965
@@ -82,15 +82,19 @@ def test_q3t_ans_bends_plates_and_twisted_beams_at_coarse_meshes():
 
 
 def test_q3t_ans_on_the_curved_shells_at_coarse_meshes():
-    """Issue 17's coarse-mesh bounds on the doubly and singly curved shells: Scordelis-Lo at
-    16 cells per side at least 0.95 (measured 0.958), the pinched hemisphere at 8 and 16
-    cells above 0.88 and 0.95 (measured 0.906 and 0.964). Without the thickness strain tied
-    at the corners the hemisphere gave 0.091 and 0.587 (curvature thickness locking: the
-    field's e_ww between two corners' directors mixes one's direction with the other's
-    rotation), the roof 0.957 (its directors turn about one axis only)."""
+    """The curved shells at 16 cells per side: Scordelis-Lo at least 0.95 and the pinched
+    hemisphere above 0.95 (issue 17's bound on the roof and its aim for all three; measured
+    0.958 and 0.964), and as regression guards, about 2.5 points under the measured values,
+    the hemisphere at 8 cells (0.906) and the pinched cylinder at 16 (0.816, short of the aim:
+    membrane locking, docs/elements-ans.md). Without the thickness strain tied at the corners
+    the hemisphere gave 0.091 and 0.587 (curvature thickness locking: the field's e_ww
+    between two corners' directors mixes one's direction with the other's rotation), the
+    roof 0.957 and the cylinder 0.801 (their directors turn about one axis only). Linear
+    analyses: one solve each, far from round-off."""
     assert _ratio("scordelis_lo", "q3t_ans", 16) >= 0.95
-    assert _ratio("pinched_hemisphere", "q3t_ans", 8) > 0.88
     assert _ratio("pinched_hemisphere", "q3t_ans", 16) > 0.95
+    assert _ratio("pinched_hemisphere", "q3t_ans", 8) > 0.88
+    assert _ratio("pinched_cylinder", "q3t_ans", 16) > 0.79
 
 
 @pytest.mark.parametrize("mesher,measured", [("frontal_delaunay", 0.948), ("meshadapt", 0.945)])
@@ -115,7 +119,7 @@ def test_in_plane_bending_is_the_three_node_triangles_limit():
     plane, where a three-node triangle's membrane strain is constant: linear, Q3T and q3t_ans
     share that membrane, so at MacNeal and Harder's 6 x 1 cells they give the same 3 % of the
     deflection (measured 0.033 each, within 0.3 % of one another; 1 % allowed, far below the
-    factor 29 to the quadratic prism's 0.969, tested above). The assumed shear strains do not
+    factor 29 to the quadratic prism's 0.969, tested above). The assumed strains do not
     reach it (docs/shells.md)."""
     r = {el: _ratio("straight_beam_inplane", el, 6) for el in ("linear", "q3t", "q3t_ans")}
     assert all(0.02 < v < 0.05 for v in r.values()), r
