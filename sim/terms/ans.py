@@ -17,10 +17,11 @@ Gruttmann and Stein 1996; Bischoff and Ramm 1997): on a curved shell the corners
 differ, and the displacement field's e_ww = G_w . h_w + h_w . h_w / 2 at a point between them
 mixes one corner's director with another's rotation, a thickness strain from bending alone
 (curvature thickness locking: the pinched hemisphere at 16 cells 0.59 of its reference without
-the tying, 0.96 with it, docs/elements-ans.md). At each corner it is the field's, so a
-column's length stays the sheet's thickness; between the corners the interpolated geometry's
-thickness falls short of it where the directors fan out (the chord of their arc), so the
-geometry's volume there is less than the material's.
+the tying, 0.96 with it, docs/elements-ans.md). At each corner it is the field's, so the
+length of a column of nodes is the material's thickness there; between the corners, where the
+directors fan out more than at rest (a sheet bent over a radius), the interpolated geometry's
+thickness is the chord of their arc, shorter than the material's, and the geometry's volume
+less than the material's (the other way round where a curved sheet is flattened).
 
 The modified Green-Lagrange strain E = J^-T e~ J^-1 enters the material through C = I + 2 E; with
 a plastic state through C^ = Fp^-T C Fp^-1, i.e. E^ = A^T e~ A + (Fp^-T Fp^-1 - I) / 2 with
