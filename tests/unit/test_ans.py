@@ -115,10 +115,12 @@ def test_energy_gradient_hessian_fd(model, rotated, radius):
 
 
 @pytest.mark.parametrize("model", [0, 1])
-def test_rest_state_and_rigid_motion_are_free(model):
+@pytest.mark.parametrize("radius", [0.0, 0.015], ids=["flat", "curved"])
+def test_rest_state_and_rigid_motion_are_free(model, radius):
     """At rest, and after any rigid motion, energy and force vanish: the strain is formed
-    from the displacement, so they are round-off of the strain, not of the positions."""
-    term = _term(model)
+    from the displacement, so they are round-off of the strain, not of the positions (on the
+    curved patch too, where each corner's thickness strain has its own director)."""
+    term = _term(model, radius=radius)
     R = _rotation([1.0, 2.0, -0.5], 1.1)
     for x in (term.rest.copy(), term.rest @ R.T + np.array([0.3, -0.1, 0.2])):
         g = _grad(term)(x)
@@ -128,9 +130,10 @@ def test_rest_state_and_rigid_motion_are_free(model):
 
 
 @pytest.mark.parametrize(**MODELS)
-def test_energy_is_objective(model):
+@pytest.mark.parametrize("radius", [0.0, 0.015], ids=["flat", "curved"])
+def test_energy_is_objective(model, radius):
     """The assumed strain is covariant: rotating a deformed state changes no energy."""
-    term = _term(model)
+    term = _term(model, radius=radius)
     x = term.rest + 3e-4 * RNG.standard_normal(term.rest.shape)
     E0 = term.energy(x)
     E1 = term.energy(x @ _rotation([0.2, 0.7, -1.0], 2.0).T)
@@ -138,16 +141,18 @@ def test_energy_is_objective(model):
 
 
 @pytest.mark.parametrize("model", [0, 1], ids=["neo_hookean", "hencky"])
-def test_the_tying_does_not_depend_on_which_corner_is_first(model):
-    """MITC3's three tying points are one per edge and the same for every numbering of a
-    triangle's corners, so the element is spatially isotropic: the patch with every triangle
-    numbered from its second or third corner has the same energy and gradient in a deformed
-    state (round-off: sums in another order), which an element tied at one corner's edges
-    only would not."""
+@pytest.mark.parametrize("radius", [0.0, 0.015], ids=["flat", "curved"])
+def test_the_tying_does_not_depend_on_which_corner_is_first(model, radius):
+    """MITC3's three tying points are one per edge and the thickness strain's the three
+    corners, the same for every numbering of a triangle's corners, so the element is
+    spatially isotropic: the patch (flat, and curved, where the corners' directors differ)
+    with every triangle numbered from its second or third corner has the same energy and
+    gradient in a deformed state (round-off: sums in another order), which an element tied at
+    one corner's edges only would not."""
     quad = get_element("q3t_ans").quadrature()
     terms = []
     for first in range(3):
-        sh = _patch(first)
+        sh = _patch(first, radius)
         terms.append(Elasticity(sh, quad, model, np.array([MU, LAM]),
                                 assembly.build_pattern(sh.conn, sh.n_nodes), PROJECT_NONE))
     assert all(np.array_equal(t.rest, terms[0].rest) for t in terms)
