@@ -155,7 +155,9 @@ def test_the_tying_does_not_depend_on_which_corner_is_first(model, radius):
         sh = _patch(first, radius)
         terms.append(Elasticity(sh, quad, model, np.array([MU, LAM]),
                                 assembly.build_pattern(sh.conn, sh.n_nodes), PROJECT_NONE))
-    assert all(np.array_equal(t.rest, terms[0].rest) for t in terms)
+    # the same nodes: to the bit when flat; curved, the extrusion's vertex normals are sums in
+    # another order, 4e-19 m apart (round-off of the 4 mm thickness)
+    assert all(np.abs(t.rest - terms[0].rest).max() <= 1e-15 * H for t in terms)
     x = terms[0].rest + 3e-4 * np.random.default_rng(5).standard_normal(terms[0].rest.shape)
     E = [t.energy(x) for t in terms]
     g = [_grad(t)(x) for t in terms]
