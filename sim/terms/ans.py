@@ -472,19 +472,19 @@ def _add_point_tangent(Dv: np.ndarray, w: float, r: float, s: float, Mb: np.ndar
 
 
 @njit(cache=True, inline='always')
-def _level_geometric(dN: np.ndarray, dNt: np.ndarray, s_in: np.ndarray, dNc: np.ndarray,
-                     s_ww: np.ndarray, tA: float, tB: float, tC: float,
+def _level_geometric(dN: np.ndarray, dNt: np.ndarray, dNc: np.ndarray, gv: np.ndarray,
                      Kg: np.ndarray) -> None:
-    """Kg (upper, node b >= a) += the level's initial-stress term dN_a^T sig dN_b: the in-plane
-    stress ``s_in`` = (S_rr, S_ss, S_rs) summed over the level's points (``dN (n_en, 3)`` at
-    any of them), the thickness stress ``s_ww (3,)`` at the corners with the weights of the
-    interpolation (``dNc (3, n_en)`` dN/dw there), and the tied shear pair at the tying points
-    likewise (tA, tB, tC). dN/dr, dN/ds are the same at all of them
-    (:class:`Tying`), so the shear's terms are dN/dr (x) v_r + dN/ds (x) v_s and transposes,
-    v_r = (tA dN^A/dw - tC dN^C/dw) / 2, v_s = (tB dN^B/dw + tC dN^C/dw) / 2."""
+    """Kg (upper, node b >= a) += the level's initial-stress term dN_a^T sig dN_b from its
+    stresses over the basis rows ``gv (9,)`` (:func:`_ans_element`: sum_q w Phi^T Sv, the
+    stress each basis row carries): S_rr, S_ss and 2 S_rs summed over the level's points
+    (``dN (n_en, 3)`` at any of them), the tied shear's at the tying points A, B, C (tA, tB,
+    tC) and the thickness stress at the corners (``dNc (3, n_en)`` dN/dw there). dN/dr, dN/ds
+    are the same at all of them (:class:`Tying`), so the shear's terms are dN/dr (x) v_r +
+    dN/ds (x) v_s and transposes, v_r = (tA dN^A/dw - tC dN^C/dw) / 2, v_s = (tB dN^B/dw +
+    tC dN^C/dw) / 2."""
     n = Kg.shape[0]
-    srr, sss, srs = s_in[0], s_in[1], s_in[2]
-    hA, hB, hC = 0.5 * tA, 0.5 * tB, 0.5 * tC
+    srr, sss, srs = gv[0], gv[1], 0.5 * gv[2]
+    hA, hB, hC = 0.5 * gv[3], 0.5 * gv[4], 0.5 * gv[5]
     for a in range(n):
         ar, as_ = dN[a, 0], dN[a, 1]
         var = hA * dNt[0, a, 2] - hC * dNt[2, a, 2]
@@ -496,7 +496,7 @@ def _level_geometric(dN: np.ndarray, dNt: np.ndarray, s_in: np.ndarray, dNc: np.
                    + (hA * dNt[0, b, 2] - hC * dNt[2, b, 2]) * ar
                    + (hB * dNt[1, b, 2] + hC * dNt[2, b, 2]) * as_)
             for c in range(3):
-                acc += s_ww[c] * dNc[c, a] * dNc[c, b]
+                acc += gv[6 + c] * dNc[c, a] * dNc[c, b]
             Kg[a, b] += acc
 
 
@@ -522,13 +522,13 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     the material part is summed as P^T (sum_q w Phi^T D Phi) P, one product of the 9 rows
     per level instead of one of 6 rows per point; the levels' rows are stacked so that one
     product :func:`_congruence` forms all of it. Scratch: Kg (n_en, n_en); P and T (9 n_lev,
-    k), level l's rows from 9 l on; Mb (9, 9), Hs (3 + n_in, 3, 3), gvs (5, 9), u (n_en, 3),
+    k), level l's rows from 9 l on; Mb (9, 9), Hs (3 + n_in, 3, 3), gvs (3, 9), u (n_en, 3),
     sc (4, 6, 6), m3 (8, 3, 3)."""
     dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw = tg
     en, Eh, A, Sn, sig, M, Ci = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6]
     hc = m3[7]
     Dv, cv, Dp = sc[0], sc[1:3], sc[3]
-    gv, tv, s_ww, s_in, tw = gvs[0], gvs[1], gvs[2], gvs[3], gvs[4]  # all (3,) but gv (9,)
+    gv, tv, tw = gvs[0], gvs[1], gvs[2]  # tv, tw: (3,) of them
     n_en = nodes.shape[0]
     k = 3 * n_en
     psd = want == 2 and project == PROJECT_QP
@@ -557,9 +557,6 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
                 gv[c] = 0.0
                 for d in range(nbp):
                     Mb[c, d] = 0.0
-        tA = tB = tC = 0.0  # the level's weighted tying stresses (initial-stress term)
-        s_ww[0] = s_ww[1] = s_ww[2] = 0.0  # and thickness stresses at the corners
-        srr = sss = srs = 0.0  # its weighted in-plane stress
         for j in range(n_in):
             q = q0 + j
             r, s = rs[q, 0], rs[q, 1]
@@ -602,18 +599,6 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             if want < 2:
                 continue
             _add_point_tangent(Dv, w, r, s, Mb)
-            # initial stress: S~ at the point, its shear pair at the tying points with the
-            # weights of the interpolation
-            Srw, Ssw = w * Sn[0, 2], w * Sn[1, 2]
-            tA += 2.0 * ((1.0 - s) * Srw + r * Ssw)
-            tB += 2.0 * (s * Srw + (1.0 - r) * Ssw)
-            tC += 2.0 * (r * Ssw - s * Srw)
-            srr += w * Sn[0, 0]
-            sss += w * Sn[1, 1]
-            srs += w * Sn[0, 1]
-            s_ww[0] += (1.0 - r - s) * sww
-            s_ww[1] += r * sww
-            s_ww[2] += s * sww
         if want == 0:
             continue
         for p in range(k):
@@ -627,8 +612,8 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             for d in range(c):
                 Mb[c, d] = Mb[d, c]
         _material_rows(Pl, Mb, T[lev * nbp:(lev + 1) * nbp])
-        s_in[0], s_in[1], s_in[2] = srr, sss, srs
-        _level_geometric(dNq[q0], dNt[lev], s_in, dNc[lev], s_ww, tA, tB, tC, Kg)
+        # the initial-stress term: the stresses at the tying points are the basis rows'
+        _level_geometric(dNq[q0], dNt[lev], dNc[lev], gv, Kg)
     if want == 2:
         _congruence(P, T, K)
         if psd:
@@ -739,7 +724,7 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
     nr = n_lev * nbp  # times them of 9 (_congruence)
     P, T, Mb = np.zeros((nr, k)), np.zeros((nr, k)), np.zeros((nbp, nbp))
     K = np.empty((k, k) if want == 2 else (0, 0))
-    Hs, gvs, u = np.empty((3 + n_in, 3, 3)), np.empty((5, nbp)), np.empty((n_en, 3))
+    Hs, gvs, u = np.empty((3 + n_in, 3, 3)), np.empty((3, nbp)), np.empty((n_en, 3))
     sc, m3 = np.empty((4, 6, 6)), np.empty((8, 3, 3))
     for e in elements:
         E = _ans_element(x, rest, conn[e],
