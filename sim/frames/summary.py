@@ -25,7 +25,8 @@ when there is one; loaded: the end of the stroke):
   blocks) during the stroke, also the peak before that step (``..._holding``) and from it on
   (``..._holder_on_stop``), each with its share in ``at``: a cup's flange is held, then free.
 - ``min_thickness``, ``max_thinning``, ``max_thickening``: over the mid-surface vertices
-  (thickness: the fibre length between the skins), final state.
+  (thickness: the fibre length between the skins), final state; a sheet that nowhere thins
+  (thickens) reads 0 with the nearest vertex's opposite change in the note.
 - ``max_draw_in``, ``min_draw_in`` (a flat blank's outer edge): sim.frames.blank.draw_in,
   final state.
 - ``part_height`` (punches moving along one direction d): the extent of the mid-surface along
@@ -51,7 +52,8 @@ when there is one; loaded: the end of the stroke):
   (sim.frames.earing), final state; ``earing`` is
   (max - min) / mean and carries the whole ``profile`` (angle, height); the four-fold
   harmonic is a rolled sheet's ears, the six-fold a hexagonal mesh's pattern.
-- ``volume_change``: V / V0 - 1 of the sheet, final state.
+- ``volume_change``: V / V0 - 1 of the sheet's material, final state (sim.frames.fields.volume:
+  an assumed-strain element's from its own strain, not its interpolated geometry's).
 """
 
 from __future__ import annotations
@@ -327,11 +329,23 @@ def _lateral_punch_force(view: View) -> list[dict]:
 def _thickness(view: View) -> list[dict]:
     h, h0, mid = thickness(view.model, view.x), view.sim.h0, view.mid()
     thin, i = thinning(h, h0, view.x), int(np.argmin(h))
-    j, k = int(np.argmax(thin)), int(np.argmin(thin))
     return [entry("min_thickness", "Minimum thickness", h[i], "m", at_vertex(i, mid)),
-            entry("max_thinning", "Maximum thinning", thin[j], "1", at_vertex(j, mid)),
-            entry("max_thickening", "Maximum thickening", 0.0 - thin[k], "1",
-                  at_vertex(k, mid))]
+            _most("max_thinning", "Maximum thinning", thin, mid, ("thinner", "thickening")),
+            _most("max_thickening", "Maximum thickening", 0.0 - thin, mid,
+                  ("thicker", "thinning"))]
+
+
+def _most(name: str, label: str, change: np.ndarray, mid: np.ndarray,
+          words: tuple[str, str]) -> dict:
+    """The largest thinning (or thickening) ``change`` over the vertices; 0 where no vertex
+    thinned (thickened), with the nearest one's opposite change in the note: "-6.8e-5 %"
+    reads as a measurement of thinning where the sheet only thickened."""
+    j = int(np.argmax(change))
+    if change[j] >= 0.0:
+        return entry(name, label, change[j], "1", at_vertex(j, mid))
+    return entry(name, label, 0.0, "1", at_vertex(j, mid),
+                 note=f"no vertex {words[0]} than the blank; the least {words[1]} "
+                      f"{-100.0 * change[j]:.3g} %, at the vertex given")
 
 
 @quantity("draw_in", needs=("punch", "edge"))

@@ -772,6 +772,26 @@ def _principal_at(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNq: np.nd
 
 
 @njit(cache=True, parallel=True)
+def ans_volume_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
+                      dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
+                      A0: np.ndarray, Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray
+                      ) -> np.ndarray:
+    """The material's volume ratio J = sqrt(det C) ``(n_elem, n_qp)`` of the assumed strain
+    (C = I + 2 E, the plastic state aside: its flow keeps volume), the J every material
+    takes; 0 where the strain inverts the point."""
+    out = np.zeros((conn.shape[0], dNq.shape[0]))
+    eye = np.eye(3)
+    for e in prange(conn.shape[0]):
+        for lev in range(lev_ptr.shape[0] - 1):
+            for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
+                s, _, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
+                                         Gt[e], dNc, Gw[e], q, False, eye)
+                if ok:
+                    out[e, q] = s[0] * s[1] * s[2]
+    return out
+
+
+@njit(cache=True, parallel=True)
 def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
                       dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
                       A0: np.ndarray, Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray,

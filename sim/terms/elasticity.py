@@ -28,7 +28,13 @@ from sim.materials.isotropic import (
 from sim.materials.plasticity import plastic_flow
 from sim.solve.assembly import Pattern, drain_element_gradient
 from sim.terms import PROJECT_ELEMENT, PROJECT_QP, Term
-from sim.terms.ans import Tying, ans_commit_kernel, ans_kernel, ans_stress_kernel
+from sim.terms.ans import (
+    Tying,
+    ans_commit_kernel,
+    ans_kernel,
+    ans_stress_kernel,
+    ans_volume_kernel,
+)
 
 
 def reference_gradients(rest: np.ndarray, conn: np.ndarray, dN: np.ndarray,
@@ -427,6 +433,16 @@ class Elasticity(Term):
         elif self.plastic:
             plastic_commit_kernel(x, self.rest, self.conn, self.dNdX, self.model, self.params,
                                   self.frames, self.fp_inv, self.ep)
+
+    def volume_ratios(self, x: np.ndarray) -> np.ndarray:
+        """The material's volume ratio J per element and quadrature point ``(n_elem, n_qp)``:
+        det F of the interpolated field, or an assumed-strain element's J of its own strain,
+        the volume its material keeps (on a bent sheet its interpolated geometry's columns
+        are chords between fanned directors, sim.terms.ans)."""
+        if self.tying is not None:
+            return ans_volume_kernel(x, *self._tied())
+        F = np.einsum("ead,eqaj->eqdj", x[self.conn], self.dNdX)
+        return np.linalg.det(F)
 
     def von_mises(self, x: np.ndarray) -> np.ndarray:
         """Von Mises stress (Pa) per element and quadrature point ``(n_elem, n_qp)``."""

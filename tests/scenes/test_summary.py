@@ -364,6 +364,11 @@ def test_stretched_sheet_strains_thinning_and_volume_match_the_closed_form(state
         assert s["min_thickness"]["value"] == pytest.approx(0.001 * np.exp(e3), rel=STRAIN_TOL)
         assert s["max_thinning"]["value"] == pytest.approx(-np.expm1(e3), rel=1e-6)
         assert s["max_thinning"]["display"]["unit"] == "%"
+        # nothing thickens: 0, the least thinning said (not a negative thickening)
+        assert s["max_thickening"]["value"] == 0.0
+        assert s["max_thickening"]["note"] == (
+            f"no vertex thicker than the blank; the least thinning "
+            f"{100 * s['max_thinning']['value']:.3g} %, at the vertex given")
         # isochoric flow: only the elastic volume change, exp(tr eps_e) - 1 = (1 - 2 nu) tr tau/E
         assert s["volume_change"]["value"] == pytest.approx(np.expm1(e1 + e2 + e3), rel=1e-6)
     # the frame carries the strains and zones per display vertex

@@ -166,6 +166,33 @@ def test_the_tying_does_not_depend_on_which_corner_is_first(model, radius):
     assert np.abs(g[1] - g[0]).max() < 1e-10 * scale and np.abs(g[2] - g[0]).max() < 1e-10 * scale
 
 
+@pytest.mark.parametrize("radius", [0.0, 0.015], ids=["flat", "curved"])
+def test_volume_is_the_materials(radius):
+    """The volume ratio J the summary's volume takes (Elasticity.volume_ratios) is the one
+    the materials see: with mu = 0 Neo-Hookean's energy is lam / 2 (ln J)^2, formed from the
+    assumed strain by its own closed form (no eigenvalues), so sum w (ln J)^2 from the
+    ratios is the energy at lam = 2, on the bent patch too. A homogeneous deformation of the
+    flat patch, which the assumed strain reproduces there, gives det F, as the interpolated
+    field does (on the curved one the tied shear and thickness strains are not those of a
+    homogeneous deformation: G_w varies in-plane)."""
+    sh = _patch(radius=radius)
+    pat = assembly.build_pattern(sh.conn, sh.n_nodes)
+    term = Elasticity(sh, get_element("q3t_ans").quadrature(), 0, np.array([0.0, 2.0]), pat,
+                      PROJECT_NONE)
+    bend = _rotation([0.0, 1.0, 0.0], 1.0)  # a bending mode on top of a random strain
+    x = term.rest + 2e-4 * RNG.standard_normal(term.rest.shape)
+    x = x + 3.0 * np.outer(x[:, 0] ** 2, bend[2])
+    J = term.volume_ratios(x)
+    assert J.min() > 0.0 and np.ptp(J) > 1e-2  # not homogeneous
+    # ln J and the energy both keep their relative digits: round-off of the sums
+    assert np.sum(term.wdetJ * np.log(J) ** 2) == pytest.approx(term.energy(x), rel=1e-12)
+    if radius:
+        return
+    F = np.array([[1.1, 0.2, 0.05], [-0.1, 0.95, 0.1], [0.02, 0.03, 1.2]])
+    np.testing.assert_allclose(term.volume_ratios(term.rest @ F.T), np.linalg.det(F),
+                               rtol=1e-13)
+
+
 def test_inverted_element_has_infinite_energy():
     term = _term(0)
     x = term.rest.copy()
