@@ -16,7 +16,7 @@ the kernels reach, so editing it does not void numba's cache (sim.numba_cache_di
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -156,6 +156,12 @@ FLAT = 1e-3
 # this many times: the crossing then lies in a step of 1/8 of a planned one (tool_speed goes
 # down to 0.1 of a planned step, sim.stepping.parameters)
 HALVINGS = 3
+# Newton's cap for the step after a kick. That step leaves an unstable equilibrium for the
+# branch down a valley whose stiffness is nearly neutral, which Newton's projected corrections
+# cross in many short steps, and a shorter increment does not shorten the valley (q3t_ans's
+# stretched sheet: 196 iterations before its thickness strain was tied, over 200 after, in
+# every cut-back alike). A stall still ends it sooner (NewtonSettings.patience)
+KICKED_ITERATIONS = 1000
 # what a step changes in a Simulation, saved to retake it (``_mark``)
 _STEPPING = ("x", "t", "progress", "_stroked", "step_index", "_last_increment", "_last_dt",
              "_force_level")
@@ -265,7 +271,9 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     and its mode out of plane: a further bifurcation inside the step, onto whose unstable
     state Newton, with its projected (positive) Hessian, cannot converge. That state is then
     kicked like any other, and the next step ends at the next planned one. Otherwise the path
-    ends early when a step fails (the Simulation's ``failure`` says why)."""
+    ends early when a step fails (the Simulation's ``failure`` says why). The step after a
+    kick may take Newton up to ``KICKED_ITERATIONS`` (each attempt), the others the scene's
+    cap."""
     from sim.stepping.simulation import SolverFailure
 
     if kick and (why := history(sim)):
@@ -291,6 +299,10 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
         # than the least tool_speed: the next one goes on to the planned step after it
         rest += 1.0 if rest < sim.ranges["tool_speed"][0] else 0.0
         length = min(length, rest) if flat_path and rest < 1.0 else rest
+        settings = sim.model.settings
+        if point.kicked:
+            sim.model.settings = replace(settings, max_iterations=max(
+                settings.max_iterations, KICKED_ITERATIONS))
         while True:
             mark = _mark(sim) if flat_path else None
             if sim.parameters["tool_speed"] != length:
@@ -299,6 +311,7 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
             try:
                 rec = sim.step()
             except SolverFailure:
+                sim.model.settings = settings
                 # past the first kick a step can cross a further bifurcation, and Newton (its
                 # projected Hessian is positive) cannot settle on the unstable state past it:
                 # a converged sub-step that is unstable ends a shorter step, kicked at the top
@@ -311,6 +324,7 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
                     return
                 _shorter_step(sim, point.iterations)
                 break
+            sim.model.settings = settings
             point, mode = _observe(sim, nodes, direction, k, rec.step, rec.iterations)
             left_plane = point.amplitude > FLAT * thickness
             if not (flat_path and (_wrinkles(point) or left_plane)):
