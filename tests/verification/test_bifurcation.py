@@ -160,6 +160,37 @@ def test_kick_is_made_on_a_flat_state_at_most_an_eighth_of_a_step_past_the_cross
     assert points[-1].amplitude > 0.5 * t and points[-1].eigenvalues[0] > 0
 
 
+def test_the_step_after_a_kick_may_take_more_newton_iterations():
+    """Newton's cap is KICKED_ITERATIONS in the step after a kick (in each of its attempts)
+    and the scene's in every other, the flat path's retaken halves included: the step
+    after a kick crosses a nearly neutral valley to the branch."""
+    from sim.apps.stability import KICKED_ITERATIONS
+
+    sim = Simulation.from_scene(scene_from_toml(STRIP))
+    m = sim.model
+    cap = m.settings.max_iterations
+    assert cap < KICKED_ITERATIONS
+    attempt, caps = sim._attempt, []
+
+    def spy(t_new: float, dt: float) -> object:
+        caps[-1].append(m.settings.max_iterations)
+        return attempt(t_new, dt)
+
+    sim._attempt = spy
+    points = []
+    for p in follow(sim, m.column_nodes(m.regions["pushed_end"]), [-1.0, 0.0, 0.0], k=2,
+                    kick=0.1 * float(np.mean(m.shell.thickness))):
+        points.append(p)
+        caps.append([])
+    assert sim.failure is None
+    kicked = [i for i, p in enumerate(points) if p.kicked]
+    assert len(kicked) == 1
+    # caps[i]: the attempts of the steps after point i, up to point i + 1
+    for i, seen in enumerate(caps[:-1]):
+        assert seen and set(seen) == {KICKED_ITERATIONS if i in kicked else cap}, (i, seen)
+    assert m.settings.max_iterations == cap
+
+
 def _fail_after_half(sim: Simulation, half: Callable[[float, float], object]) -> dict:
     """Fault injection into ``sim``'s next step, once ``armed`` is set: every Newton solve of
     the step fails except the one ending half way, which ``half`` answers (a NewtonResult);
