@@ -56,6 +56,7 @@ from sim.materials.isotropic import (
     det3,
     eigh3,
     neo_hookean_green,
+    positive_definite3,
     principal,
 )
 from sim.materials.plasticity import plastic_flow
@@ -332,7 +333,7 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
     for c in range(3):
         a, b = PAIRS[c, 0], PAIRS[c, 1]
         Dp[3 + c, 3 + c] = 2.0 * (sym[c] - twist[c]) / (st[a] * st[b])
-    if psd:
+    if psd and not positive_definite3(Dp):
         ev, Q = eigh3(Dp[:3, :3])
         for a in range(3):
             for b in range(3):
