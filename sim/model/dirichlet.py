@@ -128,8 +128,9 @@ def dirichlet(scene: Scene, shell: Shell, regions: dict[str, np.ndarray], tools:
 def _hold(out: Dirichlet, i: int, bc: BCSpec, nodes: np.ndarray, comps: list[int]) -> None:
     """BC ``i`` holds ``comps`` of ``nodes``: displaced, bent or moved along keyframes."""
     if bc.bend is not None:
-        # 'x' alone: the end section is turned like a rotated wall but free to move
-        # across the strip, so it carries a pure moment (no shear force)
+        # 'x' alone: the end section is turned by its layers' x but free to move across
+        # the strip, so it carries a pure moment (no shear force; up to WALL_BEND,
+        # sim.scene.boundary)
         if "x" not in bc.components:
             raise ValueError(f"bcs.{i}.bend: a bent end prescribes x (its rotation): "
                              "components must include 'x'")

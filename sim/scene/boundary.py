@@ -71,12 +71,23 @@ class RegionSpec(Strict):
         return self
 
 
+# the largest rotation (rad) of a bend held without z (BendSpec): a strip bent by a pure end
+# moment is then a circle to 0.04 % in radius and 0.15 % in curvature (the quadratic prism, 20
+# steps); at 1.2 rad 0.2 % and 0.5 %, at 1.5 rad 2 % and 4 %, and at 2 rad it bends the other
+# way, to 180 degrees less the angle, which its layers' x cannot tell apart
+WALL_BEND = 1.0
+
+
 class BendSpec(Strict):
     """Cylindrical bending about y of a strip whose symmetry plane is x = 0: the region (an end
     section at x = length) moves rigidly along the arc of curvature angle / length, rotating by
     ``angle`` (rad) at t = 1; positive angles bend the ends up (+z). Only the BC's components are
-    held: ``components = "x"`` turns the section like a rotated wall that it may slide along
-    (no shear force: a pure end moment), "xyz" moves it rigidly."""
+    held: ``components = "x"`` holds the x of each node of the section where the rigid motion
+    puts it, z free, so the section may slide across the strip (no shear force: a pure end
+    moment) and is turned by its layers' x, t sin(angle) apart. That turns it less and less
+    firmly towards 90 degrees (it cannot at 90, and 180 degrees less the angle gives the same
+    x), so such a bend is refused past ``WALL_BEND`` rad; "xyz" moves it rigidly, at any
+    angle."""
 
     angle: Angle = doc("the end section's rotation at t = 1", "rad")
     length: Length = doc("the distance of the end section from the symmetry plane x = 0", "m")
@@ -112,6 +123,13 @@ class BCSpec(Strict):
     def _motion(self) -> Self:
         if len(set(self.components)) != len(self.components):
             raise ValueError(f"components: {self.components!r} names a component twice")
+        if self.bend is not None and "z" not in self.components \
+                and abs(self.bend.angle) > WALL_BEND:
+            raise ValueError(
+                f"bend.angle: {self.bend.angle:g} rad held in {self.components!r} alone turns "
+                f"the section by its layers' x only, which fixes it less and less towards 90 "
+                f"degrees (and not at all at 90, or against 180 degrees less the angle): at "
+                f"most {WALL_BEND:g} rad so; hold 'xyz' (a rigid end) for larger bends")
         if not self.keyframes:
             return self
         if self.bend is not None or any(self.displacement):

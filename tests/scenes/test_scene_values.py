@@ -62,6 +62,13 @@ def test_a_bend_angle_and_keyframe_rotations_are_bounded():
     with pytest.raises(SceneError, match=r"bcs\.\d+\.bend\.angle"):
         load_scene(ROOT / "scenes" / "plastic_bending.toml",
                    {"bcs.3.bend.angle": 1e308})  # was 'inverted element at the start'
+    # held in x alone, the section is turned by its layers' x only: refused past WALL_BEND
+    # (1 rad), a rigid end ('xyz') is not
+    with pytest.raises(SceneError, match=r"bcs\.3: bend\.angle: -1\.2 rad held in 'x' alone"):
+        load_scene(ROOT / "scenes" / "plastic_bending.toml", {"bcs.3.bend.angle": -1.2})
+    load_scene(ROOT / "scenes" / "plastic_bending.toml",
+               {"bcs.3.bend.angle": 4.0, "bcs.3.components": "xyz"})
+    load_scene(ROOT / "scenes" / "plastic_bending.toml", {"bcs.3.bend.angle": 1.0})
     with pytest.raises(SceneError, match=r"tools\.1: keyframes\.0: .* rad is beyond"):
         load_scene(ROOT / "scenes" / "beam_forming.toml",
                    {"tools.1.keyframes": [[0.5, 0, 0, 0, 1e300, 0, 0]]})
