@@ -264,23 +264,26 @@ class Simulation:
         terms = set(map(id, self.model.problem.terms))
         return [t for t in self.tools if id(t) in terms]
 
-    def _free(self, x: np.ndarray) -> bool:
+    def _free(self, x: np.ndarray, direction: bool = False) -> bool:
         """Whether nothing holds the sheet at ``x`` in a static problem: no inertia, no node
-        held, no node within a tool's contact layer (tools where the step puts them)."""
+        held (``direction``: a direction in which no node is held, as a sheet held in x and y
+        only is free to go up), no node within a tool's contact layer (tools where the step
+        puts them)."""
         m, n = self.model, self.model.shell.n_nodes
         if m.inertia is not None and id(m.inertia) in set(map(id, m.problem.terms)):
             return False
-        if m.problem.fixed[:n].any():
+        held = m.problem.fixed[:n].any(0)
+        if held.all() if direction else held.any():
             return False
         return not any(float(t.gap(x).min()) < t.delta for t in self._active_tools())
 
     def _drift(self, before: np.ndarray, x: np.ndarray, dt: float) -> str:
         """The diagnostic when a converged static sub-step leaves the sheet touching no tool,
-        with no node held and no inertia, moved farther than any tool moved in it (plus a
-        contact layer), else ''. Such a sheet is a free body: its equilibrium stands anywhere, so
-        Newton may carry a sheet that lost its tools off to where nothing touches it, and
-        the step would report zero forces as converged."""
-        if not self._free(x):
+        free in a direction no node is held in, without inertia, moved farther than any tool
+        moved in it (plus a contact layer), else ''. Such a sheet is a free body: its
+        equilibrium stands anywhere, so Newton may carry a sheet that lost its tools off to
+        where nothing touches it, and the step would report zero forces as converged."""
+        if not self._free(x, direction=True):
             return ""
         n = self.model.shell.n_nodes
         tools = self._active_tools()

@@ -665,3 +665,19 @@ def test_a_sheet_that_lost_every_tool_fails_its_step(monkeypatch):
         sim.step()
     assert sim.failure["cutbacks"] == sim.model.scene.stepping.max_cutbacks
     assert sim.failure["reason"].startswith("sheet lost every tool")
+
+
+def test_a_sheet_held_in_some_directions_only_is_free_in_the_others():
+    """The press's plate is held in x and y at its centre and nowhere in z: carried 0.1 m up
+    through its punch it is as free as a sheet held nowhere (the mesh punch's press did
+    so at step 2 when the projection's last bits changed, tests/service/test_tool_files.py)."""
+    from sim.scene.load import scene_from_toml
+    from tests.support.scenes import PRESS_TOML
+
+    sim = Simulation.from_scene(scene_from_toml(PRESS_TOML))
+    n = sim.model.shell.n_nodes
+    assert sim.model.problem.fixed[:n].any(0).tolist() == [True, True, False]
+    up = sim.x.copy()
+    up[:n, 2] += 0.1
+    assert sim._drift(sim.x, up, 0.1).startswith("sheet lost every tool: moved 1.000e-01 m")
+    assert sim._drift(sim.x, sim.x, 0.1) == ""  # on its tools
