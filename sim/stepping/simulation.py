@@ -279,15 +279,18 @@ class Simulation:
 
     def _drift(self, before: np.ndarray, x: np.ndarray, dt: float) -> str:
         """The diagnostic when a converged static sub-step leaves the sheet touching no tool,
-        free in a direction no node is held in, without inertia, moved farther than any tool
-        moved in it (plus a contact layer), else ''. Such a sheet is a free body: its
-        equilibrium stands anywhere, so Newton may carry a sheet that lost its tools off to
-        where nothing touches it, and the step would report zero forces as converged."""
+        free in a direction no node is held in, without inertia, moved along such directions
+        farther than any tool moved in it (plus a contact layer), else ''. Such a sheet is a
+        free body: its equilibrium stands anywhere, so Newton may carry a sheet that lost its
+        tools off to where nothing touches it, and the step would report zero forces as
+        converged."""
         if not self._free(x, direction=True):
             return ""
         n = self.model.shell.n_nodes
         tools = self._active_tools()
-        moved = float(np.linalg.norm(x[:n] - before[:n], axis=1).max())
+        # along the directions no node is held in: a held one moves as it is told
+        loose = ~self.model.problem.fixed[:n].any(0)
+        moved = float(np.linalg.norm((x[:n] - before[:n])[:, loose], axis=1).max())
         travel = max((t.travel(self.t, self.t + dt, before[:n]) for t in tools), default=0.0)
         # a free sheet that Newton leaves where it lies (a punch gone up, the blank on the
         # die outside its contact layer) moves by round-off; one carried along by a tool it
