@@ -339,7 +339,7 @@ def stress_tangent_h(model: int, H: np.ndarray, params: np.ndarray, ep_n: float,
 def positive_definite3(D: np.ndarray) -> bool:
     """Whether D[:3, :3] (symmetric) is positive definite, by its leading minors: a projected
     tangent's 3 x 3 block then needs no eigen-decomposition (it would return the block, to
-    round-off), which most points of a formed sheet skip so (sim.terms.ans)."""
+    round-off), which most points of a formed sheet skip so."""
     m2 = D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0]
     det = (D[0, 0] * (D[1, 1] * D[2, 2] - D[1, 2] * D[2, 1])
            - D[0, 1] * (D[1, 0] * D[2, 2] - D[1, 2] * D[2, 0])
@@ -348,7 +348,8 @@ def positive_definite3(D: np.ndarray) -> bool:
 
 
 @njit(cache=True)
-def principal_stress_tangent_into(model: int, F: np.ndarray, params: np.ndarray, ep_n: float,
+def principal_stress_tangent_into(model: int, F: np.ndarray, params: np.ndarray,  # noqa: C901
+                                  ep_n: float,
                                   want_tangent: bool, project: bool, P: np.ndarray,
                                   C: np.ndarray) -> float:
     """W, P and C through the principal stretches of F (any model)."""
@@ -363,12 +364,9 @@ def principal_stress_tangent_into(model: int, F: np.ndarray, params: np.ndarray,
     if not want_tangent:
         return W
     if project:
-        # every block decomposed, positive definite or not: skipping the definite ones
-        # (as sim.terms.ans does) changed the last bits of the linear and Q3T beam's
-        # release enough that it stalled under other MKL code paths (test_roundoff), a
-        # fragility of that release not yet found
-        ev, Q = eigh3(H)
-        H = (Q * np.maximum(ev, 0.0)) @ np.ascontiguousarray(Q.T)
+        if not positive_definite3(H):  # a definite block is its own projection
+            ev, Q = eigh3(H)
+            H = (Q * np.maximum(ev, 0.0)) @ np.ascontiguousarray(Q.T)
         sym = np.maximum(sym, 0.0)
         twist = np.maximum(twist, 0.0)
     # C = sum_ab H_ab d_a d_b^T + sum_k sym_k s_k s_k^T + twist_k t_k t_k^T with d_a = u_a v_a^T,
