@@ -311,7 +311,6 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
             try:
                 rec = sim.step()
             except SolverFailure:
-                sim.model.settings = settings
                 # past the first kick a step can cross a further bifurcation, and Newton (its
                 # projected Hessian is positive) cannot settle on the unstable state past it:
                 # a converged sub-step that is unstable ends a shorter step, kicked at the top
@@ -324,7 +323,8 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
                     return
                 _shorter_step(sim, point.iterations)
                 break
-            sim.model.settings = settings
+            finally:
+                sim.model.settings = settings
             point, mode = _observe(sim, nodes, direction, k, rec.step, rec.iterations)
             left_plane = point.amplitude > FLAT * thickness
             if not (flat_path and (_wrinkles(point) or left_plane)):

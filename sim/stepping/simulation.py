@@ -264,32 +264,36 @@ class Simulation:
         terms = set(map(id, self.model.problem.terms))
         return [t for t in self.tools if id(t) in terms]
 
-    def _free(self, x: np.ndarray, direction: bool = False) -> bool:
-        """Whether nothing holds the sheet at ``x`` in a static problem: no inertia, no node
-        held (``direction``: a direction in which no node is held, as a sheet held in x and y
-        only is free to go up), no node within a tool's contact layer (tools where the step
-        puts them)."""
-        m, n = self.model, self.model.shell.n_nodes
+    def _untouched(self, x: np.ndarray) -> bool:
+        """Whether no inertia and no tool hold the sheet at ``x`` in a static problem: no node
+        within a tool's contact layer (tools where the step puts them)."""
+        m = self.model
         if m.inertia is not None and id(m.inertia) in set(map(id, m.problem.terms)):
-            return False
-        held = m.problem.fixed[:n].any(0)
-        if held.all() if direction else held.any():
             return False
         return not any(float(t.gap(x).min()) < t.delta for t in self._active_tools())
 
+    def _loose(self) -> np.ndarray:
+        """The directions (3,) in which no node of the sheet is held."""
+        return ~self.model.problem.fixed[:self.model.shell.n_nodes].any(0)
+
+    def _free(self, x: np.ndarray) -> bool:
+        """Whether nothing holds the sheet at ``x`` in a static problem: no node held and
+        ``_untouched``."""
+        return bool(self._loose().all()) and self._untouched(x)
+
     def _drift(self, before: np.ndarray, x: np.ndarray, dt: float) -> str:
         """The diagnostic when a converged static sub-step leaves the sheet touching no tool,
-        free in a direction no node is held in, without inertia, moved along such directions
-        farther than any tool moved in it (plus a contact layer), else ''. Such a sheet is a
-        free body: its equilibrium stands anywhere, so Newton may carry a sheet that lost its
-        tools off to where nothing touches it, and the step would report zero forces as
-        converged."""
-        if not self._free(x, direction=True):
+        free in a direction no node is held in (a sheet held in x and y only is free to go
+        up), without inertia, moved along such directions farther than any tool moved in it
+        (plus a contact layer), else ''. Such a sheet is a free body: its equilibrium stands
+        anywhere, so Newton may carry a sheet that lost its tools off to where nothing
+        touches it, and the step would report zero forces as converged."""
+        loose = self._loose()
+        if not loose.any() or not self._untouched(x):
             return ""
         n = self.model.shell.n_nodes
         tools = self._active_tools()
         # along the directions no node is held in: a held one moves as it is told
-        loose = ~self.model.problem.fixed[:n].any(0)
         moved = float(np.linalg.norm((x[:n] - before[:n])[:, loose], axis=1).max())
         travel = max((t.travel(self.t, self.t + dt, before[:n]) for t in tools), default=0.0)
         # a free sheet that Newton leaves where it lies (a punch gone up, the blank on the
