@@ -11,7 +11,7 @@ import pytest
 import sim.solve.newton
 from sim.elements import ROUTINE
 from sim.scene.load import load_scene
-from sim.solve.newton import NewtonResult
+from sim.solve.newton import Iterate, Newton, NewtonResult, _line_search
 from sim.solve.problem import measure_floor
 from sim.stepping.simulation import Simulation, SolverFailure
 
@@ -224,3 +224,34 @@ def test_the_watchdog_leaves_contact_and_plastic_steps_to_the_line_search():
         assert sim.run(), sim.failure
         runs.append([r.iterations for r in sim.records])
     assert runs[0] == runs[1]
+
+
+def test_the_residual_decides_a_step_whose_decrease_the_energy_cannot_resolve():
+    """Next to an equilibrium a Newton step's predicted decrease (its slope) is below the
+    energy's measured jitter, and the energy's change there is round-off of either sign:
+    the residual decides. Here the energy is made to read 4 jitters up at every trial (the
+    coarse beam's release read 1.8e-16 J up on a predicted 2.5e-17 J down, and its line
+    search halved the step that would have cut the residual 2,000-fold, until patience
+    ended it); the full step is taken on its residual."""
+    sim = _sim()
+    assert sim.run(), sim.failure
+    p, eq = sim.model.problem, sim.x.copy()
+    free = ~p.fixed
+    # 3e-14 m off the equilibrium: a predicted decrease of about 4e-16 J, under the jitter
+    x = eq + 3e-14 * np.random.default_rng(0).standard_normal(eq.shape) * free
+    E, mag, g, data, _ = p.evaluate(x, exact=True)
+    g[~free] = 0.0
+    nt = Newton(p, sim.model.settings, x, free)
+    cur = Iterate(x, E, mag, g, data, float(np.linalg.norm(g)))
+    noise = nt.measured_floor(cur).energy * mag
+    dx = eq - x
+    assert -float(np.sum(g * dx)) < noise
+    energy = p.energy
+    p.energy = lambda y: energy(y) + 4.0 * noise
+    step = _line_search(nt, cur, 1, dx, None)
+    assert not isinstance(step, NewtonResult), step.reason
+    x_new, _, by_energy = step
+    assert not by_energy and np.array_equal(x_new, x + dx)  # the full step, on its residual
+    g_new = p.gradient(x_new)
+    g_new[~free] = 0.0
+    assert np.linalg.norm(g_new) < 1e-2 * cur.r
