@@ -21,9 +21,11 @@ when there is one; loaded: the end of the stroke):
   the side thrust on the punch (an off-centre load on the press), |F - (F . d) d|, its peak
   over the stroke with its step, stroke and angle about the punch axis; that peak as a share
   of the run's peak punch force, with (in ``at``) how many steps exceed ``LATERAL_SHARE`` of
-  that peak, the first and the last. Where a blank holder came down on its stop (distance
-  blocks) during the stroke, also the peak before that step (``..._holding``) and from it on
-  (``..._holder_on_stop``), each with its share in ``at``: a cup's flange is held, then free.
+  that peak, the first and the last; a side force within the step's residual (what the
+  solve left unbalanced) reads 0, a symmetric punch's round-off not shown as thrust. Where a
+  blank holder came down on its stop (distance blocks) during the stroke, also the peak
+  before that step (``..._holding``) and from it on (``..._holder_on_stop``), each with its
+  share in ``at``: a cup's flange is held, then free.
 - ``min_thickness``, ``max_thinning``, ``max_thickening``: over the mid-surface vertices
   (thickness: the fibre length between the skins), final state; a sheet that nowhere thins
   (thickens) reads 0 with the nearest vertex's opposite change in the note.
@@ -288,18 +290,30 @@ def _lateral_punch_force(view: View) -> list[dict]:
         if h["lateral"] is None or peak <= 0.0:  # no stroke, or a punch never pressed
             continue
         steps, side = h["steps"], np.linalg.norm(h["lateral"], axis=1)
-
-        def at(k: int, h: dict = h, side: np.ndarray = side, peak: float = peak) -> dict:
-            return {"step": int(h["steps"][k]), "stroke": measure(h["stroke"][k], "m"),
-                    "angle": measure(np.degrees(earing.angle_about(h["direction"],
-                                                                   h["lateral"][k])), "deg"),
-                    "share_of_peak": measure(side[k] / peak, "1")}
-
+        # a converged state balances its forces only to the residual Newton left: a side
+        # force within it is not resolved (a symmetric punch's is round-off, 1e-14 of its
+        # peak) and reads 0, not as a measurement
+        left = np.array([r.residual for r in view.stroke if tool in r.tools])
+        resolved = side > left
         k = int(np.argmax(side))
-        over = steps[side > LATERAL_SHARE * peak]
         note = ("the punch's force perpendicular to its stroke (side thrust), the angle about "
                 "the punch axis from the x axis (y for a punch along x); share: of the run's "
                 "peak punch force")
+        if not resolved.any():
+            note = (f"no side thrust resolved: at every step within the residual force the "
+                    f"solve left (the largest, {side[k]:.3g} N at step {int(steps[k])}, "
+                    f"against its residual {left[k]:.3g} N)")
+        side = np.where(resolved, side, 0.0)
+        k = int(np.argmax(side)) if resolved.any() else k
+
+        def at(k: int, h: dict = h, side: np.ndarray = side, peak: float = peak) -> dict:
+            out = {"step": int(h["steps"][k]), "stroke": measure(h["stroke"][k], "m")}
+            if side[k] > 0.0:  # a force that is not there points nowhere
+                out["angle"] = measure(np.degrees(earing.angle_about(h["direction"],
+                                                                     h["lateral"][k])), "deg")
+            return out | {"share_of_peak": measure(side[k] / peak, "1")}
+
+        over = steps[side > LATERAL_SHARE * peak]
         out += [entry("peak_lateral_punch_force", "Peak lateral punch force", side[k], "N",
                       at(k), tool=tool, note=note),
                 entry("lateral_punch_force_share",

@@ -497,6 +497,31 @@ def test_an_off_centre_punch_is_pushed_back_towards_the_die_axis():
     assert at["steps_over_2_percent"] >= 3 and at["first_step_over"] < at["last_step_over"]
 
 
+def test_a_side_thrust_within_the_residual_reads_zero():
+    """cookie_cutter's middle punch (punch3) strokes along the band's mirror plane, frictionless
+    on a vertical cylinder: its exact side thrust is nil, and what the sum of its nodes' forces
+    leaves (1e-13 to 3e-12 N on the 3 mm mesh) is round-off, 1e4 times under the residual each
+    step converged to (3e-8 to 4e-7 N). It reads 0 with no angle, the note saying why; the
+    punches off the mirror plane keep their measured thrust (50 N and 96 N)."""
+    from sim.scene.load import load_scene
+
+    sim = Simulation.from_scene(load_scene(ROOT / "scenes/cookie_cutter.toml", {
+        "mesh.edge_length": 0.003, "stepping.steps": 8, "stepping.release": False}))
+    assert sim.run(), sim.failure
+    out = [e for e in sim.result()["summary"] if e["name"] == "peak_lateral_punch_force"]
+    by_tool = {e["tool"]: e for e in out}
+    mid = by_tool["punch3"]
+    raw = max(np.hypot(r.tools["punch3"]["fy"], r.tools["punch3"]["fz"]) for r in sim.records)
+    assert 0.0 < raw < min(r.residual for r in sim.records)  # what is hidden: round-off
+    assert mid["value"] == 0.0 and "angle" not in mid["at"]
+    assert mid["note"].startswith("no side thrust resolved")
+    share = next(e for e in sim.result()["summary"]
+                 if e["name"] == "lateral_punch_force_share" and e["tool"] == "punch3")
+    assert share["value"] == 0.0 and share["at"]["steps_over_2_percent"] == 0
+    for side in ("punch1", "punch2", "punch4", "punch5"):
+        assert by_tool[side]["value"] > 10.0 and "angle" in by_tool[side]["at"]
+
+
 # ---- shipped scenes, result.json, the service ---------------------------------------------------
 def test_cup_summary_is_plausible_at_a_coarse_mesh(tmp_path):
     """cup_drawing at 4 mm and 10 steps: the summary holds what applies (no springback without
