@@ -156,6 +156,9 @@ class Newton:
     inexact: int = 0  # such solves in a row leaving over 1 % of the residual
     at_floor: int = 0  # iterations in a row at the round-off floor
     trial: Evaluation | None = None  # the full step's evaluation (Problem.evaluate at x + dx)
+    # the last line search cut its step: the next full step's energy is tried before its
+    # evaluation (_stop)
+    cut: bool = False
     watch: Watch | None = None
     relags: int = 0
     factored: bool = False  # the solver holds factors of this minimisation's Hessians
@@ -217,7 +220,7 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
     correction (its solve exact to 1 %), or with the next correction below ``xtol`` or
     leaving the residual at the floor: the state is then as accurate as its representation
     allows."""
-    nt = Newton(problem, settings, x0, ~problem.fixed)
+    nt = Newton(problem, settings, x0, ~problem.fixed, cut=problem.first_step_cut)
     x = x0.copy()
     # a full evaluation at x from the last iteration, reused as its assembly; the start's is
     # the first iteration's (an energy alone first cost an evaluation of the sheet per step)
@@ -433,7 +436,13 @@ def _stop(nt: Newton, cur: Iterate, it: int, dx: np.ndarray) -> NewtonResult | N
     small = newton and float(np.abs(dx).max()) <= settings.xtol
     if small:
         nt.measured_floor(cur)
-    nt.trial = nt.evaluate(cur.x + dx)  # the full step is usually taken: the next assembly
+    # the full step is usually taken, and its evaluation is the next iterate's assembly; but
+    # after a step the line search cut (a forming step's first: the predictor carries the
+    # sheet into the tools, and Newton's step from there carries nodes next to a tool into
+    # it) the next full step is likely cut too, and its gradient and Hessian would be
+    # wasted: its energy alone first. The floor's exit and a watched step need the gradient
+    lazy = nt.cut and nt.watch is None and not _at_floor(nt, cur)
+    nt.trial = None if lazy else nt.evaluate(cur.x + dx)
     done = _floor_exit(nt, cur, it, dx, newton, small)
     if done is not None:
         return done
@@ -470,12 +479,16 @@ def _off_balance(cur: Iterate, g: np.ndarray) -> float:
     return float(np.linalg.norm(g.sum(0))) / cur.scale if cur.scale > 0 else 0.0
 
 
+def _at_floor(nt: Newton, cur: Iterate) -> bool:
+    return nt.floor is not None and cur.r <= FLOOR_MARGIN * nt.floor.force
+
+
 def _floor_exit(nt: Newton, cur: Iterate, it: int, dx: np.ndarray, newton: bool,
                 small: bool) -> NewtonResult | None:
     """At the round-off floor the residual carries no more information than rounding x does:
     apply the correction and stop if it is negligible or the residual stays at the floor; a
     few tries (converged states leave it in one or two), then say where it stands."""
-    if nt.floor is None or not cur.r <= FLOOR_MARGIN * nt.floor.force:
+    if not _at_floor(nt, cur):
         nt.at_floor = 0
         return None
     trial = nt.trial
@@ -504,13 +517,23 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
     """Backtracking along ``dx`` from the step ``alpha`` (the full step evaluated: ``trial``).
     At a minimisation's first iteration, a full step that fails the sufficient decrease is
     taken and watched (see the module's doc) when its energy is finite and no barrier rose.
-    Returns the new iterate, its full evaluation when it is the full step (else None) and
-    whether the energy decided; or the failed result."""
+    Returns the new iterate, its full evaluation when it is the full step and was evaluated
+    (else None) and whether the energy decided; or the failed result. Records whether it cut
+    Newton's step (``Newton.cut``; at the first iteration for the next minimisation too)."""
     problem, settings, timing = nt.problem, nt.settings, nt.timing
     x, E, g, r, mag = cur.x, cur.E, cur.g, cur.r, cur.mag
     slope = float(np.sum(g * dx))
-    if slope >= 0:  # not a descent direction (cannot happen with a PD matrix): use -g
+    newton = slope < 0
+    if not newton:  # not a descent direction (cannot happen with a PD matrix): use -g
         dx, slope, trial = -g, -r * r, None
+
+    def taken(x_new: np.ndarray, trial: Evaluation | None, by_energy: bool,
+              alpha: float) -> tuple[np.ndarray, Evaluation | None, bool]:
+        nt.cut = alpha < 1.0 or not newton
+        if it == 0:
+            problem.first_step_cut = nt.cut
+        return x_new, trial, by_energy
+
     alpha = min(alpha, problem.step_bound(x, dx))  # a kink ahead (Term.step_bound)
     for _ in range(settings.max_line_search):
         x_new = x + alpha * dx
@@ -529,11 +552,11 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
         # scale (far above any jitter measured, 1e-14) compare with the measured noise
         noise = nt.measured_floor(cur).energy * mag if abs(dE) <= 1e-6 * mag else 0.0
         if dE <= settings.armijo * alpha * slope and -dE > noise:
-            return x_new, trial, True
-        if (alpha == 1.0 and it == 0 and settings.watchdog > 0 and trial is not None
+            return taken(x_new, trial, True, alpha)
+        if (alpha == 1.0 and it == 0 and settings.watchdog > 0 and newton
                 and abs(dE) > noise and not _barrier_rose(problem, x, x_new, dE)):
             nt.watch = Watch(cur, dx, E + settings.armijo * slope, settings.watchdog)
-            return x_new, trial, True
+            return taken(x_new, trial, True, alpha)
         # the energy cannot tell, the residual decides: a change within its noise, or a step
         # whose predicted decrease (first order) is below that noise, whatever sign the
         # change shows (the beam's release: a full Newton step took the residual from 2e-5 to
@@ -544,6 +567,6 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
             g_new[~nt.free] = 0.0
             timing.line_search += time.perf_counter() - t3
             if np.linalg.norm(g_new) <= (1 - settings.armijo * alpha) * r:
-                return x_new, trial, False
+                return taken(x_new, trial, False, alpha)
         alpha *= 0.5
     return nt.failure(cur, it + 1, f"line search stalled (residual {r:.3e})")

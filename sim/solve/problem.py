@@ -49,6 +49,10 @@ class Problem:
                  fixed: np.ndarray):
         self.terms, self.pattern, self.solver = terms, pattern, solver
         self._unlagged: tuple[np.ndarray, bool, _Sum] | None = None  # see evaluate
+        # whether the line search of the last minimisation's first iteration cut its step:
+        # Newton then tries the next one's full step on its energy alone first
+        # (sim.solve.newton)
+        self.first_step_cut = False
         self.set_fixed(fixed)
 
     def set_fixed(self, fixed: np.ndarray) -> None:
