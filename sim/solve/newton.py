@@ -436,13 +436,7 @@ def _stop(nt: Newton, cur: Iterate, it: int, dx: np.ndarray) -> NewtonResult | N
     small = newton and float(np.abs(dx).max()) <= settings.xtol
     if small:
         nt.measured_floor(cur)
-    # the full step is usually taken, and its evaluation is the next iterate's assembly; but
-    # after a step the line search cut (a forming step's first: the predictor carries the
-    # sheet into the tools, and Newton's step from there carries nodes next to a tool into
-    # it) the next full step is likely cut too, and its gradient and Hessian would be
-    # wasted: its energy alone first. The floor's exit and a watched step need the gradient
-    lazy = nt.cut and nt.watch is None and not _at_floor(nt, cur)
-    nt.trial = None if lazy else nt.evaluate(cur.x + dx)
+    nt.trial = None if _energy_first(nt, cur) else nt.evaluate(cur.x + dx)
     done = _floor_exit(nt, cur, it, dx, newton, small)
     if done is not None:
         return done
@@ -477,6 +471,16 @@ def _off_balance(cur: Iterate, g: np.ndarray) -> float:
     modes are off. Measured at the floor: 1e-14..3e-6 of the applied resultants; 0.8-0.9
     where the Hessian's soft stiffness is lost to its round-off (h/L = 1e-4)."""
     return float(np.linalg.norm(g.sum(0))) / cur.scale if cur.scale > 0 else 0.0
+
+
+def _energy_first(nt: Newton, cur: Iterate) -> bool:
+    """Whether the full step's energy is tried before it is evaluated. The full step is
+    usually taken, and its evaluation is the next iterate's assembly; but after a step the
+    line search cut (a forming step's first: the predictor carries the sheet on into the
+    tools, and Newton's step from there carries nodes next to a tool into it) the next full
+    step is likely cut too, its gradient and Hessian wasted. The floor's exit and a watched
+    step need the gradient."""
+    return nt.cut and nt.watch is None and not _at_floor(nt, cur)
 
 
 def _at_floor(nt: Newton, cur: Iterate) -> bool:

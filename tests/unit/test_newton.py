@@ -255,3 +255,36 @@ def test_the_residual_decides_a_step_whose_decrease_the_energy_cannot_resolve():
     g_new = p.gradient(x_new)
     g_new[~free] = 0.0
     assert np.linalg.norm(g_new) < 1e-2 * cur.r
+
+
+def test_a_full_step_after_a_cut_one_is_tried_on_its_energy_first(monkeypatch):
+    """Each forming step's first full Newton step is cut by the line search (the predictor
+    carries the sheet on into the tools), and so are some after it: their gradient and
+    Hessian, assembled with the energy, were wasted. After a cut step (in the minimisation,
+    or at the last one's first iteration) the full step's energy is tried first. The 4 mm
+    cup in 10 steps: the same iterations (384) and forces as assembling every full step,
+    with 81 of its 580 evaluations saved."""
+    runs = {}
+    for first in (True, False):
+        if not first:
+            monkeypatch.setattr(sim.solve.newton, "_energy_first", lambda nt, cur: False)
+        s = Simulation.from_scene(load_scene("scenes/cup_drawing.toml", {
+            "mesh.edge_length": 0.004, "stepping.steps": 10}))
+        p, calls = s.model.problem, [0]
+        evaluate = p.evaluate
+
+        def counted(*a, evaluate=evaluate, calls=calls, **k):
+            calls[0] += 1
+            return evaluate(*a, **k)
+
+        p.evaluate = counted
+        assert s.run(), s.failure
+        runs[first] = (s, calls[0])
+    (lazy, n_lazy), (eager, n_eager) = runs[True], runs[False]
+    # the energy at a trial is the same sum either way: the line search decides alike (a
+    # decision at the margin of round-off could differ by an iteration; none did)
+    its = [[r.iterations for r in s.records] for s in (lazy, eager)]
+    assert its[0] == its[1]
+    assert n_lazy <= n_eager - len(lazy.records), (n_lazy, n_eager)
+    for a, b in zip(lazy.records, eager.records, strict=True):
+        assert a.tools["punch"]["fz"] == pytest.approx(b.tools["punch"]["fz"], rel=1e-9)
