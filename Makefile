@@ -167,6 +167,30 @@ results: $(STAMP)
 	$(BIN)/q3t run square_cup --quiet $(DEFORM_AL) \
 	  --out runs/forming-square_cup-deform-40 \
 	  --results $(R)/forming-square_cup-aluminium-deform-40.md
+	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=0.0025 \
+	  --out runs/forming-square_cup-al-2.5mm --results $(R)/forming-square_cup-aluminium-2.5mm.md
+	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=0.0025 --element q3t_ans \
+	  --out runs/forming-square_cup-al-ans-2.5mm \
+	  --results $(R)/forming-square_cup-aluminium-ans-2.5mm.md
+	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=0.0025 \
+	  --out runs/forming-square_cup-al-40-2.5mm \
+	  --results $(R)/forming-square_cup-aluminium-40-2.5mm.md
+	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=0.0025 --element q3t_ans \
+	  --out runs/forming-square_cup-al-40-ans-2.5mm \
+	  --results $(R)/forming-square_cup-aluminium-40-ans-2.5mm.md
+	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=0.00125 \
+	  --out runs/forming-square_cup-al-1.25mm --results $(R)/forming-square_cup-aluminium-1.25mm.md
+	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=0.00125 --element q3t_ans \
+	  --out runs/forming-square_cup-al-ans-1.25mm \
+	  --results $(R)/forming-square_cup-aluminium-ans-1.25mm.md
+	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=0.00125 \
+	  --out runs/forming-square_cup-al-40-1.25mm \
+	  --results $(R)/forming-square_cup-aluminium-40-1.25mm.md
+	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=0.00125 --element q3t_ans \
+	  --out runs/forming-square_cup-al-40-ans-1.25mm \
+	  --results $(R)/forming-square_cup-aluminium-40-ans-1.25mm.md
+	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --element q3t_ans \
+	  --out runs/forming-square_cup-al-ans --results $(R)/forming-square_cup-aluminium-ans.md
 	$(BIN)/q3t sweep cup_drawing --grid mesh.edge_length=0.004,0.003,0.0025,0.002 \
 	  --out runs/forming-cup_mesh --results $(R)/forming-cup_mesh.md
 	$(BIN)/q3t sweep cup_drawing --grid shell.element=linear,q3t --set mesh.edge_length=0.003 \
