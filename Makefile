@@ -68,6 +68,14 @@ DEFORM_AL := --set shell.thickness=0.00081 --set material.E=70e9 --set material.
   --set material.hardening.n=0.3469 --set 'tools.0.position=[0,0,0.000405]' \
   --set 'tools.1.position=[0,0,-0.000405]' --set 'tools.2.position=[0,0,0.000405]' \
   --set tools.0.friction=0.162 --set tools.1.friction=0.162 --set tools.2.friction=0.162
+# the aluminium square cup on an edge of $(1) m ($(2) mm): 15 and 40 mm, Q3T and q3t_ans
+define square_cup_al
+$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=$(1) --out runs/forming-square_cup-al-$(2)mm --results $(R)/forming-square_cup-aluminium-$(2)mm.md
+$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=$(1) --element q3t_ans --out runs/forming-square_cup-al-ans-$(2)mm --results $(R)/forming-square_cup-aluminium-ans-$(2)mm.md
+$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=$(1) --out runs/forming-square_cup-al-40-$(2)mm --results $(R)/forming-square_cup-aluminium-40-$(2)mm.md
+$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=$(1) --element q3t_ans --out runs/forming-square_cup-al-40-ans-$(2)mm --results $(R)/forming-square_cup-aluminium-40-ans-$(2)mm.md
+endef
+
 results: $(STAMP)
 	$(BIN)/q3t check --results $(R)/check.md
 	$(BIN)/q3t bench --cases beam,cup,plastic --repeat 5 --results $(R)/bench.md
@@ -167,28 +175,8 @@ results: $(STAMP)
 	$(BIN)/q3t run square_cup --quiet $(DEFORM_AL) \
 	  --out runs/forming-square_cup-deform-40 \
 	  --results $(R)/forming-square_cup-aluminium-deform-40.md
-	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=0.0025 \
-	  --out runs/forming-square_cup-al-2.5mm --results $(R)/forming-square_cup-aluminium-2.5mm.md
-	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=0.0025 --element q3t_ans \
-	  --out runs/forming-square_cup-al-ans-2.5mm \
-	  --results $(R)/forming-square_cup-aluminium-ans-2.5mm.md
-	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=0.0025 \
-	  --out runs/forming-square_cup-al-40-2.5mm \
-	  --results $(R)/forming-square_cup-aluminium-40-2.5mm.md
-	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=0.0025 --element q3t_ans \
-	  --out runs/forming-square_cup-al-40-ans-2.5mm \
-	  --results $(R)/forming-square_cup-aluminium-40-ans-2.5mm.md
-	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=0.00125 \
-	  --out runs/forming-square_cup-al-1.25mm --results $(R)/forming-square_cup-aluminium-1.25mm.md
-	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=0.00125 --element q3t_ans \
-	  --out runs/forming-square_cup-al-ans-1.25mm \
-	  --results $(R)/forming-square_cup-aluminium-ans-1.25mm.md
-	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=0.00125 \
-	  --out runs/forming-square_cup-al-40-1.25mm \
-	  --results $(R)/forming-square_cup-aluminium-40-1.25mm.md
-	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=0.00125 --element q3t_ans \
-	  --out runs/forming-square_cup-al-40-ans-1.25mm \
-	  --results $(R)/forming-square_cup-aluminium-40-ans-1.25mm.md
+	$(call square_cup_al,0.0025,2.5)
+	$(call square_cup_al,0.00125,1.25)
 	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --element q3t_ans \
 	  --out runs/forming-square_cup-al-ans --results $(R)/forming-square_cup-aluminium-ans.md
 	$(BIN)/q3t sweep cup_drawing --grid mesh.edge_length=0.004,0.003,0.0025,0.002 \
