@@ -352,8 +352,12 @@ def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:
     t1 = time.perf_counter()
     if nt.factored and cur.r <= max(s.reuse_below, s.reuse_within * s.rtol) * nt.ref:
         dx = _solve(nt, cur, data, stale=True)
+        t = time.perf_counter()
+        # a stale attempt that fails is solving too, not factorising: counted so, the
+        # factorisation column reads the factorisations' cost alone
+        timing.solve += t - t1
+        t1 = t
         if dx is not None:
-            timing.solve += time.perf_counter() - t1
             return dx
     try:
         if nt.settings.try_exact:
