@@ -99,8 +99,10 @@ def _element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNdX: np.ndarra
     ue = np.uint64(n_en)
     E = 0.0
     # Neo-Hookean's closed form serves energy, gradient and exact Hessian; a projected tangent
-    # needs the principal frame. The projection only changes the Hessian: energy and gradient
-    # of a line search come from the same formula as those of an assembly.
+    # needs the principal frame, whose energy and gradient agree with the closed form's to
+    # round-off only: a line search after a projected assembly reads the closed form's
+    # energy, not the assembly's (its change within that noise is judged by the residual,
+    # sim.solve.newton's line search)
     closed = model == NEO_HOOKEAN and not (want == 2 and project == PROJECT_QP)
     mu, lam = params[0], params[1]
     for a in range(n_en):
