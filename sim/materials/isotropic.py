@@ -336,15 +336,22 @@ def stress_tangent_h(model: int, H: np.ndarray, params: np.ndarray, ep_n: float,
 
 
 @njit(cache=True, inline='always')
-def positive_definite3(D: np.ndarray) -> bool:
-    """Whether D[:3, :3] (symmetric) is positive definite, by its leading minors: a projected
-    tangent's 3 x 3 block then needs no eigen-decomposition (it would return the block, to
-    round-off), which most points of a formed sheet skip so."""
+def project3(D: np.ndarray) -> None:
+    """D[:3, :3] (symmetric) <- its projection to positive semi-definite: its eigenvalues
+    clamped at zero. A block positive definite by its leading minors is its own projection
+    (to round-off) and takes no eigen-decomposition, which most points of a formed sheet skip
+    so."""
     m2 = D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0]
     det = (D[0, 0] * (D[1, 1] * D[2, 2] - D[1, 2] * D[2, 1])
            - D[0, 1] * (D[1, 0] * D[2, 2] - D[1, 2] * D[2, 0])
            + D[0, 2] * (D[1, 0] * D[2, 1] - D[1, 1] * D[2, 0]))
-    return D[0, 0] > 0.0 and m2 > 0.0 and det > 0.0
+    if D[0, 0] > 0.0 and m2 > 0.0 and det > 0.0:
+        return
+    ev, Q = eigh3(D[:3, :3])
+    e0, e1, e2 = max(ev[0], 0.0), max(ev[1], 0.0), max(ev[2], 0.0)
+    for a in range(3):
+        for b in range(3):
+            D[a, b] = Q[a, 0] * e0 * Q[b, 0] + Q[a, 1] * e1 * Q[b, 1] + Q[a, 2] * e2 * Q[b, 2]
 
 
 @njit(cache=True)
@@ -364,9 +371,7 @@ def principal_stress_tangent_into(model: int, F: np.ndarray, params: np.ndarray,
     if not want_tangent:
         return W
     if project:
-        if not positive_definite3(H):  # a definite block is its own projection
-            ev, Q = eigh3(H)
-            H = (Q * np.maximum(ev, 0.0)) @ np.ascontiguousarray(Q.T)
+        project3(H)
         sym = np.maximum(sym, 0.0)
         twist = np.maximum(twist, 0.0)
     # C = sum_ab H_ab d_a d_b^T + sum_k sym_k s_k s_k^T + twist_k t_k t_k^T with d_a = u_a v_a^T,

@@ -56,8 +56,8 @@ from sim.materials.isotropic import (
     det3,
     eigh3,
     neo_hookean_green,
-    positive_definite3,
     principal,
+    project3,
 )
 from sim.materials.plasticity import plastic_flow
 from sim.solve.assembly import drain_element_gradient
@@ -334,12 +334,7 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
         a, b = PAIRS[c, 0], PAIRS[c, 1]
         Dp[3 + c, 3 + c] = 2.0 * (sym[c] - twist[c]) / (st[a] * st[b])
     if psd:
-        if not positive_definite3(Dp):
-            ev, Q = eigh3(Dp[:3, :3])
-            for a in range(3):
-                for b in range(3):
-                    Dp[a, b] = (Q[a, 0] * max(ev[0], 0.0) * Q[b, 0] + Q[a, 1] * max(ev[1], 0.0)
-                                * Q[b, 1] + Q[a, 2] * max(ev[2], 0.0) * Q[b, 2])
+        project3(Dp)
         for c in range(3, 6):
             Dp[c, c] = max(Dp[c, c], 0.0)
     _natural_tangent(M, Dp, cv, Dv)

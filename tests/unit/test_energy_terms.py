@@ -6,8 +6,8 @@ import pytest
 
 from sim.elements import ROUTINE
 from sim.materials.isotropic import (
-    positive_definite3,
     principal_stress_tangent_into,
+    project3,
     stress_tangent,
 )
 from sim.scene.load import load_scene
@@ -43,21 +43,29 @@ def test_material_tangent(model, kind):
         assert np.allclose(Cp, C, atol=1e-10)  # and equal to the exact one where that is PSD
 
 
-def test_positive_definite3_agrees_with_the_eigenvalues():
-    """The projection skips the eigen-decomposition of a 3 x 3 block its leading minors call
-    positive definite: on random symmetric blocks (half of them shifted to definite), the
-    same verdict as their least eigenvalue, away from a relative 1e-9 of zero where either
-    answer projects to the same block to round-off."""
-    hits = 0
+def test_project3_is_the_eigenvalue_clamp():
+    """project3 clamps a 3 x 3 block's eigenvalues at zero in place, inside a larger tangent
+    (a 6 x 6's leading block, as q3t_ans's point tangent holds it): on random symmetric
+    blocks, half of them shifted to definite, it gives Q max(ev, 0) Q^T to round-off (1e-12 of
+    the block's largest entry: a 3 x 3 eigen-decomposition's), leaves a definite block
+    exactly as it was (its leading minors say so, no decomposition) and touches nothing
+    outside the block."""
+    definite = 0
     for i in range(2000):
         A = RNG.standard_normal((3, 3))
         A = A + A.T + (4.0 * np.eye(3) if i % 2 else 0.0)
-        lo = np.linalg.eigvalsh(A)[0]
-        if abs(lo) <= 1e-9 * np.abs(A).max():
-            continue
-        assert positive_definite3(A) == (lo > 0), A
-        hits += lo > 0
-    assert 500 < hits < 1500
+        D = RNG.standard_normal((6, 6))
+        D[:3, :3] = A
+        before = D.copy()
+        project3(D)
+        ev, Q = np.linalg.eigh(A)
+        assert np.abs(D[:3, :3] - (Q * np.maximum(ev, 0.0)) @ Q.T).max() \
+            <= 1e-12 * np.abs(A).max(), A
+        assert np.array_equal(D[3:], before[3:]) and np.array_equal(D[:3, 3:], before[:3, 3:])
+        if ev[0] > 1e-9 * np.abs(A).max():
+            assert np.array_equal(D, before), A
+            definite += 1
+    assert 500 < definite < 1500
 
 
 def _rotation(axis, angle):
