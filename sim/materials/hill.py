@@ -57,7 +57,7 @@ import math
 import numpy as np
 from numba import njit
 
-from sim.materials.isotropic import PAIRS, dlog, eigh3, polar_svd
+from sim.materials.isotropic import PAIRS, clamp_psd, dlog, eigh3, polar_svd
 from sim.materials.plasticity import hardening_work, yield_stress
 
 HILL48 = 3  # model id beside sim.materials.isotropic's
@@ -347,8 +347,7 @@ def hill_stress_tangent(G: np.ndarray, params: np.ndarray, frame: np.ndarray, ep
         return W
     K = _hessian_uv(s, lam, f1, Tp, D6, Vm)
     if project:
-        ev, Qk = np.linalg.eigh(K)
-        K = (Qk * np.maximum(ev, 0.0)) @ Qk.T
+        clamp_psd(K)
     M = np.empty((9, 9))  # M[3a + b, 3i + j] = U[i, a] V[j, b]
     for a in range(3):
         for b in range(3):

@@ -335,6 +335,35 @@ def stress_tangent_h(model: int, H: np.ndarray, params: np.ndarray, ep_n: float,
     return principal_stress_tangent_into(model, F, params, ep_n, want_tangent, project, P, C)
 
 
+@njit(cache=True)
+def clamp_psd(K: np.ndarray) -> None:
+    """K (n x n, symmetric, both triangles) <- its projection to positive semi-definite: its
+    eigenvalues clamped at zero. A K whose Cholesky factorisation goes through (positive
+    definite) is its own projection to round-off and takes no eigen-decomposition: the
+    factorisation costs a small part of one (n^3 / 6 multiplications against LAPACK's call
+    and its work arrays), and a point's tangent under tension mostly is definite."""
+    n = K.shape[0]
+    L = np.empty((n, n))
+    definite = True
+    for j in range(n):
+        d = K[j, j]
+        for m in range(j):
+            d -= L[j, m] * L[j, m]
+        if not d > 0.0:
+            definite = False
+            break
+        L[j, j] = np.sqrt(d)
+        for i in range(j + 1, n):
+            v = K[i, j]
+            for m in range(j):
+                v -= L[i, m] * L[j, m]
+            L[i, j] = v / L[j, j]
+    if definite:
+        return
+    ev, Q = np.linalg.eigh(K)
+    K[:, :] = (Q * np.maximum(ev, 0.0)) @ Q.T
+
+
 @njit(cache=True, inline='always')
 def project3(D: np.ndarray) -> None:
     """D[:3, :3] (symmetric) <- its projection to positive semi-definite: its eigenvalues

@@ -53,6 +53,7 @@ from sim.materials.hill import HILL48, hill_flow_strain, hill_green, hill_strain
 from sim.materials.isotropic import (
     NEO_HOOKEAN,
     PAIRS,
+    clamp_psd,
     det3,
     eigh3,
     neo_hookean_green,
@@ -671,8 +672,7 @@ def _project(K: np.ndarray) -> None:
     for p in range(k):
         for c in range(p):
             K[p, c] = K[c, p]
-    ev, Q = np.linalg.eigh(K)
-    K[:, :] = (Q * np.maximum(ev, 0.0)) @ Q.T
+    clamp_psd(K)
 
 
 @njit(cache=True, parallel=True)

@@ -19,6 +19,7 @@ from sim.geometry.shell import Shell
 from sim.materials.hill import HILL48, hill_flow, hill_kirchhoff, hill_stress_tangent_h
 from sim.materials.isotropic import (
     NEO_HOOKEAN,
+    clamp_psd,
     det3,
     neo_hookean_h,
     polar_svd,
@@ -204,8 +205,7 @@ def _element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNdX: np.ndarra
             for col in range(row, k):
                 K[row, col] = K[col, row] = Kp[off + col - row]
             off += k - row
-        ev, Q = np.linalg.eigh(K)
-        K = (Q * np.maximum(ev, 0.0)) @ Q.T
+        clamp_psd(K)
         off = 0
         for row in range(k):
             for col in range(row, k):

@@ -6,6 +6,7 @@ import pytest
 
 from sim.elements import ROUTINE
 from sim.materials.isotropic import (
+    clamp_psd,
     principal_stress_tangent_into,
     project3,
     stress_tangent,
@@ -66,6 +67,31 @@ def test_project3_is_the_eigenvalue_clamp():
             assert np.array_equal(D, before), A
             definite += 1
     assert 500 < definite < 1500
+
+
+@pytest.mark.parametrize("n", [6, 9, 27])
+def test_clamp_psd_is_the_eigenvalue_clamp(n):
+    """clamp_psd, the projection of a point's Hill48 tangent (6 x 6 or 9 x 9), of an
+    initial-stress term (9 x 9) and of an element's Hessian (27 x 27): Q max(ev, 0) Q^T to
+    round-off (1e-12 of the largest entry, an eigen-decomposition's at these sizes), and a
+    positive definite matrix, which its Cholesky factorisation recognises, left exactly as it
+    was (no eigen-decomposition), as is a semi-definite one's clamp to round-off."""
+    definite = 0
+    for i in range(400):
+        B = RNG.standard_normal((n, n))
+        K = B + B.T + (3.0 * np.sqrt(n) * np.eye(n) if i % 2 else 0.0)
+        if i % 5 == 4:  # rank-deficient semi-definite, as an element's rigid motions make it
+            K = B[:, : n // 2] @ B[:, : n // 2].T
+        before = K.copy()
+        clamp_psd(K)
+        ev, Q = np.linalg.eigh(before)
+        scale = np.abs(before).max()
+        assert np.abs(K - (Q * np.maximum(ev, 0.0)) @ Q.T).max() <= 1e-12 * scale
+        assert np.allclose(K, K.T, rtol=0, atol=1e-14 * scale)
+        if ev[0] > 1e-8 * scale:
+            assert np.array_equal(K, before)
+            definite += 1
+    assert 100 < definite < 300
 
 
 def _rotation(axis, angle):
