@@ -79,7 +79,7 @@ endef
 results: $(STAMP)
 	$(BIN)/q3t check --results $(R)/check.md
 	$(BIN)/q3t bench --cases beam,cup,plastic --repeat 5 --results $(R)/bench.md
-	$(BIN)/q3t bench --cases forming --results $(R)/bench-forming.md
+	$(BIN)/q3t bench --cases forming --repeat 3 --results $(R)/bench-forming.md
 	$(BIN)/q3t mesh-tools --results $(R)/mesh-tools.md
 	@if command -v ccx >/dev/null; then \
 	  echo "$(BIN)/q3t bench --cases calculix --repeat 3 --results $(R)/bench-calculix.md"; \

@@ -202,6 +202,32 @@ def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
             "total": sim.wall - wall, "paper_s": 1.887}
 
 
+FORMING_TIMES = ("per_iteration", "assembly", "factorisation", "solve", "line_search", "total")
+
+
+def forming_rounds(elements: list[str], edge: float, steps: int, until: int,
+                   rounds: int) -> list[dict]:
+    """:func:`forming` for each element, ``rounds`` times over, the elements interleaved in
+    each round, so that a drift of a shared machine's speed hits them alike: each element's
+    times the medians of its runs, and each element's ratios to Q3T's (``*_vs_q3t``) the
+    medians of the rounds' ratios."""
+    runs = {el: [] for el in elements}
+    for _ in range(max(1, rounds)):
+        for el in elements:
+            runs[el].append(forming(edge, steps, until, el))
+    rows = []
+    for el, rs in runs.items():
+        row = {**rs[0], **{k: float(np.median([r[k] for r in rs])) for k in FORMING_TIMES},
+               "runs": len(rs)}
+        if el != "q3t" and "q3t" in runs:
+            pairs = list(zip(rs, runs["q3t"], strict=True))
+            for k in ("per_iteration", "assembly", "line_search"):
+                row[f"{k}_vs_q3t"] = float(np.median(
+                    [r[k] / q[k] if q[k] else np.nan for r, q in pairs]))
+        rows.append(row)
+    return rows
+
+
 KINDS = ("beam", "cup", "factorisation", "plastic", "forming", "calculix")  # --cases names
 
 
@@ -277,11 +303,11 @@ def run(args: argparse.Namespace) -> int:
                       f"({r['ccx_status']})", flush=True)
             continue
         if case == "forming":
-            for el in args.forming_elements.split(","):
-                r = forming(args.forming_edge or case_edge("cup", "q3t"), args.forming_steps,
-                            args.forming_to, el)
+            for r in forming_rounds(args.forming_elements.split(","),
+                                    args.forming_edge or case_edge("cup", "q3t"),
+                                    args.forming_steps, args.forming_to, args.repeat):
                 rows.append(r)
-                print(f"cup_forming {el} {r['elements']} el {r['dofs']} dof: "
+                print(f"cup_forming {r['element']} {r['elements']} el {r['dofs']} dof: "
                       f"{r['per_iteration']:.3f} s per Newton iteration, "
                       f"{r['newton_per_step']:.1f} iterations per step (steps {r['steps']}, "
                       f"{r['stroke_mm']:.1f} mm stroke, punch force {r['punch_force_kN']:.1f} "
@@ -318,7 +344,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="forming: the mesh edge length in m (default: the paper's cup size)")
     b.add_argument("--forming-elements", default="q3t",
                    help="forming: the elements timed, comma-separated (each against Q3T's "
-                        "iteration when q3t is among them)")
+                        "iteration when q3t is among them); each run --repeat times, "
+                        "interleaved")
     b.add_argument("--elements", default="linear,q3t,quadratic")
     b.add_argument("--repeat", type=int, default=5)
     b.add_argument("--out", default="runs/bench")

@@ -39,19 +39,23 @@ def test_bench_refuses_an_unknown_case_or_element_before_timing_anything(tmp_pat
 
 
 def test_bench_times_forming_per_element_against_q3t(tmp_path):
-    """The forming case per element of --forming-elements, the ratios to Q3T's iteration
-    in the results (a coarse cup, its first steps: the table's making, not its numbers)."""
+    """The forming case per element of --forming-elements, each run --repeat times, the
+    ratios to Q3T's iteration (medians of the rounds') in the results (a coarse cup, its
+    first steps: the table's making, not its numbers)."""
     out, md = tmp_path / "b", tmp_path / "bench.md"
     code = main(["bench", "--cases", "forming", "--forming-elements", "q3t,q3t_ans",
                  "--forming-edge", "0.004", "--forming-to", "2", "--forming-steps", "1",
-                 "--out", str(out), "--results", str(md)])
+                 "--repeat", "2", "--out", str(out), "--results", str(md)])
     assert code == 0
     rows = json.loads((out / "bench.json").read_text())["rows"]
     assert [r["element"] for r in rows] == ["q3t", "q3t_ans"]
     assert rows[0]["elements"] == rows[1]["elements"] and all(r["converged"] for r in rows)
     assert all(r["per_iteration"] > 0 and r["newton_per_step"] >= 1 for r in rows)
+    assert [r["runs"] for r in rows] == [2, 2]
+    ratio = rows[1]["per_iteration_vs_q3t"]
+    assert ratio > 0 and "per_iteration_vs_q3t" not in rows[0]
     text = md.read_text()
-    assert "per iteration / Q3T's" in text and "| q3t_ans |" in text
+    assert "per iteration / Q3T's" in text and f"| q3t_ans | {ratio:.2f} |" in text
 
 
 def test_bench_refuses_an_unknown_forming_element(tmp_path, capsys):
