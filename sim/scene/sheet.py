@@ -43,7 +43,8 @@ class _Mesh(Strict):
     def radial_ranges(self) -> footprint.RadialRanges | None:
         """Intervals of the distance from the z axis (m) that hold every node of the built
         mesh, and every boundary node, known before it is built (sim.scene.footprint); None:
-        known only once built (a file, a drawing, a curved patch, a twisted strip)."""
+        known only once built (a file, a curved patch, a twisted strip, a drawing that cannot
+        be read)."""
         return None
 
 
@@ -285,9 +286,13 @@ class OutlineMesh(_Generated):
                                        for i, h in enumerate(self.holes)], field)
 
     def radial_ranges(self) -> footprint.RadialRanges | None:
-        if self.path is not None:
-            return None
-        return footprint.loop_ranges(outline.meshed_loops(self.shape(), self.edge_length))
+        shape = self.shape()
+        if shape is None:  # a drawing: read here too, or named by the build if it cannot be
+            try:
+                shape = outline.read_drawing(self.path, self.scale, self.edge_length)
+            except outline.OutlineError:
+                return None
+        return footprint.loop_ranges(outline.meshed_loops(shape, self.edge_length))
 
     @model_validator(mode="after")
     def _outline(self) -> Self:

@@ -35,6 +35,10 @@ MESHES = {
         "kind": "outline", "edge_length": H,
         "points": [[-0.02, -0.02], [0.03, -0.02], [0.03, 0.03], [-0.02, 0.03]],
         "holes": [[[-0.005, -0.005], [0.005, -0.005], [0.005, 0.005], [-0.005, 0.005]]]},
+    # a drawing (read when the scene is, as the build reads it): an off-centre circle with a
+    # square hole around the axis
+    "drawing": {"kind": "outline", "edge_length": H, "scale": 1e-3,
+                "path": str(ROOT / "tests/data/drawings/holed_blank.svg")},
     "disk": {"kind": "disk", "edge_length": H, "r_outer": 0.03},
     # an imperfection taller than the disk is wide: the mesh's extent, which sets region_mask's
     # tolerance, is then its height
@@ -157,3 +161,14 @@ def test_a_ring_within_the_builds_tolerance_of_a_node_is_accepted(name, boundary
         region = RegionSpec(name="r", ring={"r_min": r_min, "r_max": r_max}, boundary=boundary)
         assert region_mask(shell, region).sum() >= 1
         assert ring_problem(spec, [region]) is None, (r_min, r_max)
+
+
+def test_an_unreadable_drawing_is_left_to_the_build(tmp_path):
+    """A drawing the check cannot read gives it no ranges (no ring refused, nothing raised
+    when the scene is read); the build names the file's problem at mesh.path."""
+    spec = TypeAdapter(MeshSpec).validate_python(
+        {"kind": "outline", "edge_length": H, "path": str(tmp_path / "none.svg")})
+    region = RegionSpec(name="r", ring={"r_min": 1.0, "r_max": 2.0})
+    assert spec.radial_ranges() is None and ring_problem(spec, [region]) is None
+    with pytest.raises(ValueError, match="no drawing"):
+        build_mesh(spec)
