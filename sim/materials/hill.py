@@ -58,7 +58,7 @@ import numpy as np
 from numba import njit
 
 from sim.materials.isotropic import PAIRS, clamp_psd, dlog, eigh3, polar_svd
-from sim.materials.plasticity import hardening_work, yield_stress
+from sim.materials.plasticity import bracketed_step, hardening_work, yield_stress
 
 HILL48 = 3  # model id beside sim.materials.isotropic's
 N_PARAMS = 48
@@ -161,19 +161,9 @@ def _solve(a: np.ndarray, h: np.ndarray, ep_n: float, mu: float, law: int,
             der += 2.0 * t2 * (dy + 2.0 * mu * h[i]) / (den * den * den)
         if res == 0.0:
             return x
-        if res < 0.0:
-            lo = x
-        else:
-            hi = x
-        step = -res / der
-        if abs(step) <= 1e-14 * scale:
-            return x + step
-        xn = x + step
-        if not (lo < xn < hi):
-            xn = 0.5 * (lo + hi)
-        if hi - lo <= 1e-16 * scale:
-            return xn
-        x = xn
+        x, lo, hi, done = bracketed_step(x, -res / der, res < 0.0, lo, hi, scale)
+        if done:
+            return x
     return x
 
 

@@ -121,20 +121,30 @@ def _solve_dgamma(q_tr: float, ep_n: float, mu: float, law: int, hp: np.ndarray)
         res = q_tr - 3.0 * mu * x - y
         if res == 0.0:
             return x
-        if res > 0.0:
-            lo = x
-        else:
-            hi = x
-        step = res / (3.0 * mu + h)
-        if abs(step) <= 1e-14 * scale:
-            return x + step
-        xn = x + step
-        if not (lo < xn < hi):
-            xn = 0.5 * (lo + hi)
-        if hi - lo <= 1e-16 * scale:
-            return xn
-        x = xn
+        x, lo, hi, done = bracketed_step(x, res / (3.0 * mu + h), res > 0.0, lo, hi, scale)
+        if done:
+            return x
     return x
+
+
+@numba.njit(cache=True, inline='always')
+def bracketed_step(x: float, step: float, root_above: bool, lo: float, hi: float,
+                   scale: float) -> tuple[float, float, float, bool]:
+    """One step of a scalar root's Newton iteration kept inside a shrinking bracket: x
+    becomes the bracket's lower end when the root lies above it (``root_above``), else its
+    upper end; the Newton ``step`` from x, or the bracket's middle when the step leaves it.
+    Done (the returned x the root) when the step is below 1e-14 of ``scale``, the bracket's
+    first width, or the bracket below 1e-16 of it."""
+    if root_above:
+        lo = x
+    else:
+        hi = x
+    if abs(step) <= 1e-14 * scale:
+        return x + step, lo, hi, True
+    xn = x + step
+    if not (lo < xn < hi):
+        xn = 0.5 * (lo + hi)
+    return xn, lo, hi, hi - lo <= 1e-16 * scale
 
 
 @numba.njit(cache=True)
