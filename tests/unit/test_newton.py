@@ -168,6 +168,38 @@ def test_timing_counts_every_assembly_as_assembly(monkeypatch):
     assert t.line_search == t.factorisation == t.solve == 0.0
 
 
+def test_a_failed_solve_on_stale_factors_is_solve_time_not_factorisation(monkeypatch):
+    """Near convergence a correction is first tried on the last iterate's factors; when that
+    does not converge, the time it took is solving, and the factorisation after it is timed
+    alone. A fake clock that the solves and the factorisation advance by known amounts (1 s a
+    stale attempt, 2 a fresh solve, 4 a factorisation) reads each timer exactly."""
+    sim_ = _sim()
+    p = sim_.model.problem
+    x = sim_.x
+    E, mag, g, data, _ = p.evaluate(x, exact=True)
+    free = ~p.fixed
+    nt = Newton(p, sim_.model.settings, x, free)
+    nt.ref, nt.factored = 1.0, True  # a residual of 0 is below any reuse bound: stale first
+    cur = Iterate(x, E, mag, g * 0.0, data, 0.0)
+    now = [0.0]
+
+    def solve(nt_, cur_, data_, stale):
+        now[0] += 1.0 if stale else 2.0
+        return None if stale else np.zeros(x.shape)
+
+    def factor(d):
+        now[0] += 4.0
+
+    monkeypatch.setattr(sim.solve.newton, "_solve", solve)
+    monkeypatch.setattr(sim.solve.newton, "factor_shifted", lambda problem, d: factor(d))
+    monkeypatch.setattr(p.solver, "factor", factor)
+    clock = types.SimpleNamespace(perf_counter=lambda: now[0])
+    monkeypatch.setattr(sim.solve.newton, "time", clock)
+    dx = sim.solve.newton._direction(nt, cur, 1)
+    assert not isinstance(dx, NewtonResult)
+    assert nt.timing.factorisation == 4.0 and nt.timing.solve == 3.0
+
+
 @pytest.mark.parametrize("element", ROUTINE)
 def test_a_load_below_the_floor_whose_effect_is_below_xtol_converges(element):
     """A load below the force round-off floor cannot be resolved, but it need not be: when it
