@@ -295,7 +295,8 @@ def _lateral_punch_force(view: View) -> list[dict]:
         # peak) and reads 0, not as a measurement
         left = np.array([r.residual for r in view.stroke if tool in r.tools])
         resolved = side > left
-        k = int(np.argmax(np.where(resolved, side, 0.0) if resolved.any() else side))
+        shown = np.where(resolved, side, 0.0)
+        k = int(np.argmax(shown if resolved.any() else side))
         note = ("the punch's force perpendicular to its stroke (side thrust), the angle about "
                 "the punch axis from the x axis (y for a punch along x); share: of the run's "
                 "peak punch force")
@@ -303,7 +304,7 @@ def _lateral_punch_force(view: View) -> list[dict]:
             note = (f"no side thrust resolved: at every step within the residual force the "
                     f"solve left (the largest, {side[k]:.3g} N at step {int(steps[k])}, "
                     f"against its residual {left[k]:.3g} N)")
-        side = np.where(resolved, side, 0.0)
+        side = shown
 
         def at(k: int, h: dict = h, side: np.ndarray = side, peak: float = peak) -> dict:
             out = {"step": int(h["steps"][k]), "stroke": measure(h["stroke"][k], "m")}
