@@ -129,15 +129,19 @@ def summary_row(run: dict) -> dict:
     }
 
 
+def _modes(p: PathPoint) -> str:
+    return "the lowest mode" if p.cluster == 1 else f"the {p.cluster} lowest modes"
+
+
 def path_rows(run: dict) -> list[dict]:
     rows = []
     for p in run["points"]:
         rows.append({
             "step": p.step, "nominal strain [%]": f"{100 * p.strain:.4g}",
             **{f"eigenvalue {i + 1} [N/m]": f"{v:.5g}" for i, v in enumerate(p.eigenvalues)},
-            "negative": p.negative, "mode's z share": f"{p.out_of_plane:.2f}",
+            "negative": p.negative, "unstable direction's z share": f"{p.out_of_plane:.2f}",
             "amplitude [mm]": f"{1e3 * p.amplitude:.4g}", "Newton iterations": p.iterations,
-            "kicked": "yes" if p.kicked else ""})
+            "kicked": f"along {_modes(p)}" if p.kicked else ""})
     return rows
 
 
@@ -173,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"  step {p.step}: strain {100 * p.strain:.2f} %, lowest eigenvalues "
                       f"{np.array2string(np.asarray(p.eigenvalues), precision=4)} N/m, "
                       f"{p.negative} negative, amplitude {1e3 * p.amplitude:.4g} mm"
-                      + (" (kicked along the lowest mode)" if p.kicked else ""),
+                      + (f" (kicked along {_modes(p)})" if p.kicked else ""),
                       file=sys.stderr, flush=True)
 
         try:

@@ -118,6 +118,51 @@ def lowest_eigenvalues(K: sp.spmatrix, k: int = 3) -> Spectrum:
     return Spectrum(vals, vecs, negative, shift)
 
 
+# Eigenvalues within this fraction of the lowest one's magnitude make one cluster. Lanczos returns
+# a cluster's vectors in whatever basis its round-off gives: the stretched sheet's two lowest
+# wrinkle patterns cross together, equal to 5 digits, and a converged state's residual (1e-8 of
+# the force level) moves the Hessian by more than their gap. 1e-2 is far above that gap and
+# far below the next one (the third pattern lies 4-6 orders above the pair's).
+CLUSTER = 1e-2
+# a field whose overlap with the cluster is under this share of its norm misses it (round-off:
+# every mode of the cluster in another symmetry class than the field)
+MISSES = 1e-6
+
+
+def cluster(values: np.ndarray) -> int:
+    """How many of the ascending ``values`` lie within ``CLUSTER`` of the lowest."""
+    return int(np.sum(values - values[0] <= CLUSTER * abs(values[0])))
+
+
+def corner_lift(x0: np.ndarray) -> np.ndarray:
+    """A sheet lifted at one corner ``(n_nodes, 3)``: z = (1 + xi)(1 + eta), with xi, eta the
+    rest positions scaled to [-1, 1] over their bounding box, the same at every node of a fibre.
+    It holds all four symmetry classes of a rectangle (1, xi, eta, xi eta), and its overlap
+    with a smooth mode is an integral that converges with the mesh, so it picks the same
+    combination of a cluster on every element and mesh."""
+    lo, hi = x0.min(axis=0), x0.max(axis=0)
+    span = np.where(hi > lo, hi - lo, 1.0)
+    xi = 2.0 * (x0 - lo) / span - 1.0
+    out = np.zeros_like(x0)
+    out[:, 2] = (1.0 + xi[:, 0]) * (1.0 + xi[:, 1])
+    return out
+
+
+def unstable_direction(spec: Spectrum, field: np.ndarray) -> np.ndarray:
+    """The unit direction on the free DoFs to kick along: ``field`` (free DoFs) projected onto
+    the span of the lowest cluster of eigenvectors (``cluster``), so that it does not depend
+    on the basis the eigensolver returned within it, its sign the field's. A single mode is the
+    lowest eigenvector so signed. A field that misses the cluster (``MISSES``) leaves the
+    lowest eigenvector, its largest entry positive."""
+    vectors = spec.vectors[:, :cluster(spec.values)]
+    overlap = vectors.T @ field
+    if np.linalg.norm(overlap) <= MISSES * np.linalg.norm(field):
+        v = spec.vectors[:, 0]
+        return v * np.sign(v[np.argmax(np.abs(v))])
+    direction = vectors @ overlap
+    return direction / np.linalg.norm(direction)
+
+
 def expand(vector: np.ndarray, free: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """A vector on the free DoFs as an (n_nodes, 3) array, zero on the held ones."""
     out = np.zeros(int(np.prod(shape)))
@@ -134,10 +179,11 @@ class PathPoint:
     strain: float  # nominal strain of the pulled end (``follow``'s ``end``)
     eigenvalues: list[float]  # the lowest, ascending (N/m)
     negative: int  # eigenvalues below s0, a hair below zero (the inertia; lowest_eigenvalues)
-    out_of_plane: float  # share of the lowest mode's squared norm in z: 1 for a wrinkle
+    out_of_plane: float  # share of the unstable direction's squared norm in z: 1 for a wrinkle
     amplitude: float  # height range of the mid-surface (m)
     iterations: int  # Newton iterations of the step
-    kicked: bool = False  # the state was pushed along the lowest mode after this step
+    kicked: bool = False  # the state was pushed along the unstable direction after this step
+    cluster: int = 1  # eigenvalues within CLUSTER of the lowest (the direction's span)
 
 
 def nominal_strain(sim: Simulation, nodes: np.ndarray, direction: np.ndarray) -> float:
@@ -188,19 +234,26 @@ def _back(sim: Simulation, mark: dict) -> None:
 
 def _observe(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int, step: int,
              iterations: int) -> tuple[PathPoint, np.ndarray]:
-    """The path point of ``sim``'s state and its lowest mode ``(n_nodes, 3)``."""
+    """The path point of ``sim``'s state and its unstable direction ``(n_nodes, 3)``
+    (``unstable_direction`` with the ``corner_lift`` field)."""
     K, free = free_hessian(sim.model.problem, sim.x)
     spec = lowest_eigenvalues(K, k)
-    mode = expand(spec.vectors[:, 0], free, sim.x.shape)
+    # a cluster as wide as the eigenpairs computed may go on past them: its span needs them all
+    while cluster(spec.values) == spec.values.size < K.shape[0] // 2:
+        spec = lowest_eigenvalues(K, 2 * spec.values.size)
+    field = corner_lift(sim.model.x0).ravel()[free]
+    mode = expand(unstable_direction(spec, field), free, sim.x.shape)
     zshare = float(np.sum(mode[:, 2] ** 2) / np.sum(mode**2))
     z = mid_surface(sim.model, sim.x)[:, 2]
-    return PathPoint(step, sim.t, nominal_strain(sim, nodes, direction), spec.values.tolist(),
-                     spec.negative, zshare, float(z.max() - z.min()), iterations), mode
+    return PathPoint(step, sim.t, nominal_strain(sim, nodes, direction),
+                     spec.values[:k].tolist(), spec.negative, zshare, float(z.max() - z.min()),
+                     iterations, cluster=cluster(spec.values)), mode
 
 
 def _wrinkles(point: PathPoint) -> bool:
-    """Whether ``point``'s lowest mode is unstable and a wrinkle to kick along: mostly out of
-    the plane (an in-plane one, a neck or an edge mode, has no z to scale the kick by)."""
+    """Whether ``point``'s lowest eigenvalue is negative and its unstable direction a wrinkle
+    to kick along: mostly out of the plane (an in-plane one, a neck or an edge mode, has no z
+    to scale the kick by)."""
     return point.eigenvalues[0] < 0 and point.out_of_plane > 0.5
 
 
@@ -248,11 +301,15 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     mid-surface left its plane.
 
     ``kick`` (m, 0: never): each time a converged state's lowest eigenvalue is negative and
-    its mode mostly out of plane, add the lowest mode, scaled so that its largest mid-surface
-    z is ``kick`` (up: the eigensolver's sign is arbitrary), to the state, so the next step
-    starts off the unstable equilibrium: the first time off the flat (fundamental) path,
-    later off a wrinkled state that is itself unstable (a secondary bifurcation), which
-    Newton's iterates would otherwise leave or not as round-off has it. The kick is small
+    its unstable direction mostly out of plane, add that direction, scaled so that its largest
+    mid-surface |z| is ``kick``, to the state, so the next step starts off the unstable
+    equilibrium. The direction is the lowest mode, or the span of a cluster of nearly equal
+    lowest ones, met by a sheet lifted at one corner (``unstable_direction``, ``corner_lift``):
+    fixed by the modes, not by the basis or the signs the eigensolver returned them in, so
+    every element and every run is kicked towards the same branch. The kick moves the state
+    the first time off the flat (fundamental) path, later off a wrinkled state that is itself
+    unstable (a secondary bifurcation), which Newton's iterates would otherwise leave or not
+    as round-off has it. The kick is small
     against the wrinkle (a tenth of the thickness or less).
 
     Until the first kick the path is the flat (fundamental) one, and a step that ends with a
@@ -286,7 +343,7 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     while True:
         if kick and _wrinkles(point):
             zmode = mid_surface(sim.model, mode)[:, 2]
-            sim.x = sim.x + mode * (kick / zmode[np.argmax(np.abs(zmode))])
+            sim.x = sim.x + mode * (kick / np.abs(zmode).max())
             kicked = point.kicked = True
         yield point
         if sim.done:

@@ -46,6 +46,41 @@ def test_lowest_eigenvalues_of_a_symmetric_chain_include_its_antisymmetric_modes
     np.testing.assert_allclose(lowest_eigenvalues(K, 3).values, exact[:3], atol=1e-8)
 
 
+def test_the_kick_direction_does_not_depend_on_the_basis_of_a_degenerate_pair():
+    """Lanczos returns a pair of nearly equal eigenvalues' vectors in any basis of their span,
+    and any signs: the direction to kick along (the field projected onto the span) is the same
+    for every rotation and sign of the pair, to round-off. A single mode is kicked along as it
+    is, with the field's sign; a pair 2 % apart (past CLUSTER) is two single modes."""
+    from sim.apps.stability import CLUSTER, Spectrum, cluster, unstable_direction
+
+    rng = np.random.default_rng(5)
+    n = 40
+    Q, _ = np.linalg.qr(rng.normal(size=(n, 4)))
+    field = rng.normal(size=n)
+    pair = np.array([-4.8312e-5, -4.8311e-5, 3.7e-4, 4.4e-4])  # the stretched sheet's, 1.75 %
+    assert cluster(pair) == 2 and CLUSTER < 0.02
+    reference = unstable_direction(Spectrum(pair, Q, 2, 0.0), field)
+    # the field's projection onto the span (Q's columns orthonormal)
+    projected = Q[:, :2] @ (Q[:, :2].T @ field)
+    np.testing.assert_allclose(reference, projected / np.linalg.norm(projected), atol=1e-14)
+    for angle in (0.3, 1.1, 2.9):
+        c, s = np.cos(angle), np.sin(angle)
+        for signs in ((1, 1), (-1, 1), (1, -1)):
+            V = Q.copy()
+            V[:, 0], V[:, 1] = signs[0] * (c * Q[:, 0] + s * Q[:, 1]), \
+                signs[1] * (-s * Q[:, 0] + c * Q[:, 1])
+            np.testing.assert_allclose(unstable_direction(Spectrum(pair, V, 2, 0.0), field),
+                                       reference, atol=1e-14)
+    # apart by 2 % of the lowest: the lowest alone, signed to meet the field
+    apart = np.array([-1.0, -0.98, 0.5, 0.7])
+    assert cluster(apart) == 1
+    for sign in (1, -1):
+        V = Q.copy()
+        V[:, 0] *= sign
+        d = unstable_direction(Spectrum(apart, V, 2, 0.0), field)
+        np.testing.assert_allclose(d, Q[:, 0] * np.sign(Q[:, 0] @ field), atol=1e-15)
+
+
 STRIP = """
 name = "euler_strip"
 [mesh]
