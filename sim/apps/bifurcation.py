@@ -130,7 +130,7 @@ def summary_row(run: dict) -> dict:
 
 
 def _modes(p: PathPoint) -> str:
-    return "the lowest mode" if p.cluster == 1 else f"the {p.cluster} lowest modes"
+    return "the lowest mode" if p.modes == 1 else f"the {p.modes} unstable modes"
 
 
 def path_rows(run: dict) -> list[dict]:

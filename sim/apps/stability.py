@@ -118,20 +118,9 @@ def lowest_eigenvalues(K: sp.spmatrix, k: int = 3) -> Spectrum:
     return Spectrum(vals, vecs, negative, shift)
 
 
-# Eigenvalues within this fraction of the lowest one's magnitude make one cluster. Lanczos returns
-# a cluster's vectors in whatever basis its round-off gives: the stretched sheet's two lowest
-# wrinkle patterns cross together, equal to 5 digits, and a converged state's residual (1e-8 of
-# the force level) moves the Hessian by more than their gap. 1e-2 is far above that gap and
-# far below the next one (the third pattern lies 4-6 orders above the pair's).
-CLUSTER = 1e-2
-# a field whose overlap with the cluster is under this share of its norm misses it (round-off:
-# every mode of the cluster in another symmetry class than the field)
+# a field whose overlap with the unstable modes is under this share of its norm misses them
+# (round-off: every one of them in another symmetry class than the field)
 MISSES = 1e-6
-
-
-def cluster(values: np.ndarray) -> int:
-    """How many of the ascending ``values`` lie within ``CLUSTER`` of the lowest."""
-    return int(np.sum(values - values[0] <= CLUSTER * abs(values[0])))
 
 
 def corner_lift(x0: np.ndarray) -> np.ndarray:
@@ -139,7 +128,7 @@ def corner_lift(x0: np.ndarray) -> np.ndarray:
     rest positions scaled to [-1, 1] over their bounding box, the same at every node of a fibre.
     It holds all four symmetry classes of a rectangle (1, xi, eta, xi eta), and its overlap
     with a smooth mode is an integral that converges with the mesh, so it picks the same
-    combination of a cluster on every element and mesh."""
+    combination of unstable modes on every element and mesh."""
     lo, hi = x0.min(axis=0), x0.max(axis=0)
     span = np.where(hi > lo, hi - lo, 1.0)
     xi = 2.0 * (x0 - lo) / span - 1.0
@@ -149,17 +138,23 @@ def corner_lift(x0: np.ndarray) -> np.ndarray:
 
 
 def unstable_direction(spec: Spectrum, field: np.ndarray) -> np.ndarray:
-    """The unit direction on the free DoFs to kick along: ``field`` (free DoFs) projected onto
-    the span of the lowest cluster of eigenvectors (``cluster``), so that it does not depend
-    on the basis the eigensolver returned within it, its sign the field's. A single mode is the
-    lowest eigenvector so signed. A field that misses the cluster (``MISSES``) leaves the
-    lowest eigenvector, its largest entry positive."""
-    vectors = spec.vectors[:, :cluster(spec.values)]
+    """The unit direction on the free DoFs to kick along: ``field`` (free DoFs) through the
+    negative part of the stiffness, K_- field, each unstable mode weighted by -lambda, how fast
+    it grows (the unstable part of a step of gradient flow from ``field`` as imperfection);
+    ``spec`` holds every negative eigenvalue. A function of K, not of the vectors Lanczos
+    returned: a pair of nearly equal eigenvalues, whose vectors come in whatever basis
+    round-off gives, enters by its span, and the direction moves with K continuously, not by a
+    jump where round-off reorders the pair. A stable state's is its lowest mode; a field that
+    misses the modes (``MISSES``) leaves the lowest, its largest entry positive."""
+    weights = np.maximum(-spec.values, 0.0)
+    if not weights.any():
+        weights = (np.arange(spec.values.size) == 0).astype(float)
+    vectors = spec.vectors[:, weights > 0]
     overlap = vectors.T @ field
     if np.linalg.norm(overlap) <= MISSES * np.linalg.norm(field):
         v = spec.vectors[:, 0]
         return v * np.sign(v[np.argmax(np.abs(v))])
-    direction = vectors @ overlap
+    direction = vectors @ (weights[weights > 0] * overlap)
     return direction / np.linalg.norm(direction)
 
 
@@ -183,7 +178,7 @@ class PathPoint:
     amplitude: float  # height range of the mid-surface (m)
     iterations: int  # Newton iterations of the step
     kicked: bool = False  # the state was pushed along the unstable direction after this step
-    cluster: int = 1  # eigenvalues within CLUSTER of the lowest (the direction's span)
+    modes: int = 1  # eigenpairs the unstable direction is made of (its negative eigenvalues)
 
 
 def nominal_strain(sim: Simulation, nodes: np.ndarray, direction: np.ndarray) -> float:
@@ -238,8 +233,8 @@ def _observe(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int, 
     (``unstable_direction`` with the ``corner_lift`` field)."""
     K, free = free_hessian(sim.model.problem, sim.x)
     spec = lowest_eigenvalues(K, k)
-    # a cluster as wide as the eigenpairs computed may go on past them: its span needs them all
-    while cluster(spec.values) == spec.values.size < K.shape[0] // 2:
+    # the unstable direction needs every negative eigenvalue
+    while spec.values[-1] < 0 and spec.values.size < K.shape[0] // 2:
         spec = lowest_eigenvalues(K, 2 * spec.values.size)
     field = corner_lift(sim.model.x0).ravel()[free]
     mode = expand(unstable_direction(spec, field), free, sim.x.shape)
@@ -247,7 +242,7 @@ def _observe(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int, 
     z = mid_surface(sim.model, sim.x)[:, 2]
     return PathPoint(step, sim.t, nominal_strain(sim, nodes, direction),
                      spec.values[:k].tolist(), spec.negative, zshare, float(z.max() - z.min()),
-                     iterations, cluster=cluster(spec.values)), mode
+                     iterations, modes=max(int(np.sum(spec.values < 0)), 1)), mode
 
 
 def _wrinkles(point: PathPoint) -> bool:
@@ -303,10 +298,10 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     ``kick`` (m, 0: never): each time a converged state's lowest eigenvalue is negative and
     its unstable direction mostly out of plane, add that direction, scaled so that its largest
     mid-surface |z| is ``kick``, to the state, so the next step starts off the unstable
-    equilibrium. The direction is the lowest mode, or the span of a cluster of nearly equal
-    lowest ones, met by a sheet lifted at one corner (``unstable_direction``, ``corner_lift``):
-    fixed by the modes, not by the basis or the signs the eigensolver returned them in, so
-    every element and every run is kicked towards the same branch. The kick moves the state
+    equilibrium. The direction is a sheet lifted at one corner (``corner_lift``) through the
+    negative part of the stiffness (``unstable_direction``): fixed by the stiffness, not by the
+    basis or the signs the eigensolver returned its modes in, so every element and every run
+    is kicked alike, into the modes that crossed zero in the same step too. The kick moves the state
     the first time off the flat (fundamental) path, later off a wrinkled state that is itself
     unstable (a secondary bifurcation), which Newton's iterates would otherwise leave or not
     as round-off has it. The kick is small

@@ -46,39 +46,55 @@ def test_lowest_eigenvalues_of_a_symmetric_chain_include_its_antisymmetric_modes
     np.testing.assert_allclose(lowest_eigenvalues(K, 3).values, exact[:3], atol=1e-8)
 
 
-def test_the_kick_direction_does_not_depend_on_the_basis_of_a_degenerate_pair():
-    """Lanczos returns a pair of nearly equal eigenvalues' vectors in any basis of their span,
-    and any signs: the direction to kick along (the field projected onto the span) is the same
-    for every rotation and sign of the pair, to round-off. A single mode is kicked along as it
-    is, with the field's sign; a pair 2 % apart (past CLUSTER) is two single modes."""
-    from sim.apps.stability import CLUSTER, Spectrum, cluster, unstable_direction
+def test_the_kick_direction_is_the_stiffness_s_not_the_eigensolver_s():
+    """The direction to kick along is the field through the negative part of the stiffness,
+    K_- f: a function of K. Lanczos returns a nearly degenerate pair's vectors in any basis of
+    their span, with any signs, and in either order: the direction is the same for every
+    rotation and sign of an exactly equal pair (to round-off), and moves by the order of the
+    eigenvalues' relative gap, not by a jump, when they are 1e-9 apart (as the stretched
+    sheet's two wrinkle patterns are to 1e-5 where they cross). A single negative eigenvalue:
+    its mode, signed to meet the field."""
+    from sim.apps.stability import Spectrum, unstable_direction
 
     rng = np.random.default_rng(5)
     n = 40
     Q, _ = np.linalg.qr(rng.normal(size=(n, 4)))
     field = rng.normal(size=n)
-    pair = np.array([-4.8312e-5, -4.8311e-5, 3.7e-4, 4.4e-4])  # the stretched sheet's, 1.75 %
-    assert cluster(pair) == 2 and CLUSTER < 0.02
-    reference = unstable_direction(Spectrum(pair, Q, 2, 0.0), field)
-    # the field's projection onto the span (Q's columns orthonormal)
+
+    def rotated(angle: float, signs: tuple[int, int]) -> np.ndarray:
+        c, s = np.cos(angle), np.sin(angle)
+        V = Q.copy()
+        V[:, 0], V[:, 1] = signs[0] * (c * Q[:, 0] + s * Q[:, 1]), \
+            signs[1] * (-s * Q[:, 0] + c * Q[:, 1])
+        return V
+
+    turns = [(a, signs) for a in (0.3, 1.1, 2.9) for signs in ((1, 1), (-1, 1), (1, -1))]
+    equal = np.array([-4.8e-5, -4.8e-5, 3.7e-4, 4.4e-4])
+    reference = unstable_direction(Spectrum(equal, Q, 2, 0.0), field)
+    # the field's projection onto the pair's span (equal weights; Q's columns orthonormal)
     projected = Q[:, :2] @ (Q[:, :2].T @ field)
     np.testing.assert_allclose(reference, projected / np.linalg.norm(projected), atol=1e-14)
-    for angle in (0.3, 1.1, 2.9):
-        c, s = np.cos(angle), np.sin(angle)
-        for signs in ((1, 1), (-1, 1), (1, -1)):
-            V = Q.copy()
-            V[:, 0], V[:, 1] = signs[0] * (c * Q[:, 0] + s * Q[:, 1]), \
-                signs[1] * (-s * Q[:, 0] + c * Q[:, 1])
-            np.testing.assert_allclose(unstable_direction(Spectrum(pair, V, 2, 0.0), field),
-                                       reference, atol=1e-14)
-    # apart by 2 % of the lowest: the lowest alone, signed to meet the field
-    apart = np.array([-1.0, -0.98, 0.5, 0.7])
-    assert cluster(apart) == 1
+    for angle, signs in turns:
+        np.testing.assert_allclose(
+            unstable_direction(Spectrum(equal, rotated(angle, signs), 2, 0.0), field),
+            reference, atol=1e-14)
+    # 1e-9 apart (relative): any basis of the near-pair moves the direction by ~1e-9
+    near = np.array([-4.8e-5 * (1 + 1e-9), -4.8e-5, 3.7e-4, 4.4e-4])
+    for angle, signs in turns:
+        d = unstable_direction(Spectrum(near, rotated(angle, signs), 2, 0.0), field)
+        assert np.linalg.norm(d - reference) < 1e-8
+    # one negative eigenvalue: its mode alone, with the field's sign
+    one = np.array([-1.0, 0.5, 0.7, 0.9])
     for sign in (1, -1):
         V = Q.copy()
         V[:, 0] *= sign
-        d = unstable_direction(Spectrum(apart, V, 2, 0.0), field)
+        d = unstable_direction(Spectrum(one, V, 1, 0.0), field)
         np.testing.assert_allclose(d, Q[:, 0] * np.sign(Q[:, 0] @ field), atol=1e-15)
+    # two apart: each weighted by how unstable it is
+    two = np.array([-2.0, -1.0, 0.5, 0.7])
+    weighted = Q[:, :2] @ (np.array([2.0, 1.0]) * (Q[:, :2].T @ field))
+    np.testing.assert_allclose(unstable_direction(Spectrum(two, Q, 2, 0.0), field),
+                               weighted / np.linalg.norm(weighted), atol=1e-14)
 
 
 STRIP = """
