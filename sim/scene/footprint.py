@@ -116,8 +116,10 @@ def ring_problem(mesh: Blank, regions: Sequence[RegionSpec]) -> str | None:
 
 
 def _missed(region: RegionSpec, spans: Ranges) -> str:
+    # in mm, as the form shows a ring's radii (the scene file's are in m)
     which = "boundary node" if region.boundary else "node"
-    where = " or ".join(f"{a:.4g} to {b:.4g} m" for a, b in spans)
+    where = " or ".join(f"{1e3 * a:.4g} to {1e3 * b:.4g} mm" for a, b in spans)
     return (f"region {region.name!r} selects no node: no {which} of the blank lies "
-            f"{region.ring.r_min:.4g} to {region.ring.r_max:.4g} m from the z axis (they lie "
+            f"{1e3 * region.ring.r_min:.4g} to {1e3 * region.ring.r_max:.4g} mm from the z "
+            "axis (they lie "
             f"{where} from it)")

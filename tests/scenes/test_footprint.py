@@ -61,8 +61,8 @@ CLEAR = 1e-6
 
 @pytest.mark.parametrize("radius, words", [
     (0.025, "regions.1.ring: region 'rim' selects no node: no boundary node of the blank lies "
-            "0.0295 to 0.031 m from the z axis"),
-    (0.0294, "they lie 0.02938 to 0.0294 m from it"),
+            "29.5 to 31 mm from the z axis"),
+    (0.0294, "they lie 29.38 to 29.4 mm from it"),
 ])
 def test_the_rim_ring_off_the_edited_blank_is_named(radius, words):
     """cup_drawing_outline's rim ring, 29.5-31 mm, once its blank's radius leaves it."""
@@ -72,9 +72,9 @@ def test_the_rim_ring_off_the_edited_blank_is_named(radius, words):
 
 
 @pytest.mark.parametrize("name, ring, boundary, where", [
-    ("disk", (0.031, 0.032), False, "0 to 0.03 m"),
+    ("disk", (0.031, 0.032), False, "0 to 30 mm"),
     # between the rims: a boundary ring of an annulus lies on one of them
-    ("annulus", (0.015, 0.02), True, "0.009808 to 0.01 m or 0.02993 to 0.03 m"),
+    ("annulus", (0.015, 0.02), True, "9.808 to 10 mm or 29.93 to 30 mm"),
 ])
 def test_the_message_says_where_the_nodes_lie(name, ring, boundary, where):
     spec = TypeAdapter(MeshSpec).validate_python(MESHES[name])

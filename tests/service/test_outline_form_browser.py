@@ -49,8 +49,8 @@ def test_the_circle_is_shown_and_edited_in_the_form(open_page, served):
     synced(page, "circle = { radius = 0.025,", "1 error(s)")  # as the form has it
     said = page.inner_text("[data-path='regions.1.ring'] > .field-error")
     assert ("regions.1.ring" not in said  # the field is where it is shown
-            and "region 'rim' selects no node: no boundary node of the blank lies 0.0295 to "
-            "0.031 m" in said), said
+            and "region 'rim' selects no node: no boundary node of the blank lies 29.5 to 31 "
+            "mm" in said), said
     page.locator("[data-path='regions.1.ring']").scroll_into_view_if_needed()
     shot(page, SHOTS, "1-rim-missed.png", where="#left")
     page.fill("[name='mesh.circle.radius']", "31")
