@@ -39,6 +39,7 @@ import numpy as np
 
 from sim.elements import get_element
 from sim.frames.fields import mid_surface
+from sim.frames.rings import WALL
 from sim.geometry.quadrature import Rule
 from sim.geometry.rigid import determinate_support
 from sim.geometry.shell import Shell, extrude
@@ -53,9 +54,6 @@ from sim.solve.newton import minimise
 from sim.solve.problem import Problem
 from sim.terms.elasticity import Elasticity
 
-# an element belongs to the wall when its formed mid-surface is steeper than this (degrees from
-# the horizontal): the bottom and the flange are flat, the punch and die radii turn between
-WALL = 60.0
 # half-width (degrees) of the sector whose mean radius gives a diameter's end: three to four
 # vertex columns of the 2 mm cup's wall (R = 17 mm), so a diameter averages over the mesh
 WINDOW = 7.5
