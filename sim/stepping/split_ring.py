@@ -162,7 +162,8 @@ def _prune(shell: Shell, keep: np.ndarray) -> np.ndarray:
     keep = keep.copy()
     while True:
         ids = np.flatnonzero(keep)
-        small = small_patches(shell.mesh.faces[ids])
+        # all pruned: no patch is left to label (the caller says the band is no ring)
+        small = small_patches(shell.mesh.faces[ids]) if len(ids) else []
         if not len(small):
             return keep
         keep[ids[small]] = False
@@ -206,7 +207,8 @@ def band(formed: Formed, z1: float, z2: float) -> np.ndarray:
     keep = _prune(formed.shell, keep)
     ids = np.flatnonzero(keep)
     angles = np.sort(np.arctan2(c[ids, 1], c[ids, 0]))
-    gap = np.degrees(np.diff(np.concatenate([angles, angles[:1] + 2 * np.pi])).max())
+    gap = np.degrees(np.diff(np.concatenate([angles, angles[:1] + 2 * np.pi])).max()
+                     ) if len(ids) else 360.0
     if len(ids) < 3 or gap > 30.0 or patches(formed.shell.mesh.faces[ids]).max() > 0:
         raise SplitRingError(f"heights: {1e3 * z1:g}-{1e3 * z2:g} mm is not one closed ring "
                              "around the axis (a band that narrow misses elements: widen it)")
