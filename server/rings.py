@@ -67,7 +67,8 @@ class RingCutter:
         self._lock = threading.Lock()
         self.cutting: dict[str, dict] = {}  # run id -> the ring being cut (mm, deg)
 
-    def _executor(self) -> ProcessPoolExecutor:
+    def executor(self) -> ProcessPoolExecutor:
+        """The process rings are cut in (started now if need be)."""
         with self._lock:
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"))
@@ -93,7 +94,7 @@ class RingCutter:
             self.cutting[run_id] = ring
         try:
             z1, z2 = (1e-3 * z for z in heights_mm)
-            job = self._executor().submit(cut_ring, str(folder), z1, z2, cut_angle)
+            job = self.executor().submit(cut_ring, str(folder), z1, z2, cut_angle)
             out = await asyncio.wrap_future(job)
         except BrokenProcessPool:
             with self._lock:
