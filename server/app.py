@@ -10,6 +10,7 @@ from fastapi import FastAPI
 from fastapi_offline import FastAPIOffline
 
 from server import errors
+from server.rings import RingCutter
 from server.routers import (
     compare,
     events,
@@ -19,6 +20,7 @@ from server.routers import (
     plots,
     runs,
     scenes,
+    split_ring,
     view,
     web,
 )
@@ -46,8 +48,10 @@ def create_app(settings: Settings | None = None,
             manager.viewer = Viewer(settings.viewer_host, settings.viewer_port,
                                     ViewerActions(manager), live_runs=settings.solvers)
         app.state.store, app.state.manager = store, manager
+        app.state.rings = RingCutter()
         manager.start()
         yield
+        app.state.rings.close()
         manager.close()
         if manager.viewer:
             manager.viewer.stop()
@@ -64,6 +68,7 @@ def create_app(settings: Settings | None = None,
     app.state.settings = settings
     errors.install(app, settings)
     every = errors.documented(401) if settings.token else None
-    for module in (scenes, files, runs, events, exports, plots, compare, view, meta, web):
+    for module in (scenes, files, runs, split_ring, events, exports, plots, compare, view,
+                   meta, web):
         app.include_router(module.router, responses=every)
     return app

@@ -23,7 +23,7 @@ from starlette.exceptions import HTTPException
 from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from server.problems import Busy, Conflict, Invalid, NotFound, NotReady
+from server.problems import Busy, Conflict, Invalid, NotFound, NotReady, Unsolved
 from server.settings import Settings
 from sim.scene.load import SceneError
 from sim.scene.tree import MAX_DEPTH, tree_problem
@@ -44,7 +44,8 @@ ERRORS = {
     408: "The request body did not arrive in time",
     409: "The request does not fit the run's state, or the name is taken",
     413: "The request body is too large",
-    422: "Invalid input; the detail names the field and the reason",
+    422: "Invalid input; the detail names the field and the reason (or the solve asked for "
+         "failed on it, with the solver's numbers)",
     429: "The run queue is full (the server's --queue): retry when a queued run has started",
     503: "The solver process is still starting; retry (Retry-After)",
 }
@@ -202,6 +203,7 @@ def _token_bytes(text: str) -> bytes:
 def install(app: FastAPI, settings: Settings) -> None:
     app.add_exception_handler(SceneError, lambda r, e: _json(422, str(e)))
     app.add_exception_handler(Invalid, lambda r, e: _json(422, str(e)))
+    app.add_exception_handler(Unsolved, lambda r, e: _json(422, str(e)))
     app.add_exception_handler(NotFound, lambda r, e: _json(404, str(e)))
     app.add_exception_handler(Conflict, lambda r, e: _json(409, str(e)))
     app.add_exception_handler(NotReady, lambda r, e: _json(503, str(e), {"Retry-After": "1"}))

@@ -25,3 +25,8 @@ class NotReady(RuntimeError):
 
 class Busy(RuntimeError):
     """Every solver process is busy and the run queue is full (429)."""
+
+
+class Unsolved(RuntimeError):
+    """The solve a request asked for failed (a split ring's release): the solver's reason,
+    with its numbers, and nothing written (422)."""

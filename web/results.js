@@ -1,7 +1,8 @@
 // The selected run's headline and plots: its state and progress, its summary (peak punch
 // force, thinning, draw-in, ... as result.json has them), the solver's cost as a secondary
-// line, its downloads (CSV, VTU, STL, PLY, JSON) once it has ended, and the plots, redrawn as
-// steps arrive. What is shown is read from the server.
+// line, its downloads (CSV, VTU, STL, PLY, JSON) once it has ended, a cup's split rings
+// (web/rings.js), and the plots, redrawn as steps arrive. What is shown is read from the
+// server.
 "use strict";
 const Results = (() => {
   const ACTIVE = ["starting", "building", "running", "paused"];
@@ -348,6 +349,7 @@ const Results = (() => {
     document.getElementById("estimate").replaceChildren();
     document.getElementById("downloads").hidden = true;
     document.getElementById("downloads").replaceChildren();
+    Rings.forget();
   }
 
   async function show(st) {
@@ -360,6 +362,7 @@ const Results = (() => {
     showEstimate(st);
     await showSummary(st);
     await showDownloads(st);
+    await Rings.show(st);
     // not awaited: drawing (and fetching plotly.js the first time) never holds the status
     // line back
     plotly().then(() => refreshPlots(st), () => {
@@ -393,6 +396,7 @@ const Results = (() => {
 
   function init() {
     document.getElementById("solver-box").addEventListener("toggle", () => drawSolver());
+    Rings.init();
   }
 
   function none() {

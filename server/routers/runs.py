@@ -424,9 +424,10 @@ def recording(run_id: RunId, request: Request) -> FileResponse:
 @router.delete("/{run_id}", status_code=204, responses=documented(404, 409, 422))
 def delete_run(run_id: RunId, request: Request, view: ViewId = None) -> Response:
     """Delete a run that has ended and its folder (scene, results, recording), or a queued
-    one (it never starts); 409 while it is active: stop it first. A run another view
-    (``X-Q3T-View``) started is deleted all the same: that view is told, and the answer's
-    ``X-Q3T-Notice`` header says so."""
+    one (it never starts); 409 while it is active (stop it first) or a split ring is being
+    cut from it. A run another view (``X-Q3T-View``) started is deleted all the same: that
+    view is told, and the answer's ``X-Q3T-Notice`` header says so."""
     m = _runs(request)
+    request.app.state.rings.check_idle(run_id)  # the ring's child writes into its folder
     notice = m.delete(run_id, by=view)
     return Response(status_code=204, headers={"X-Q3T-Notice": notice} if notice else None)

@@ -12,15 +12,13 @@ file.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from sim.apps.common import BAD_INPUT, FAILED, OK
 from sim.apps.study_report import markdown_table
+from sim.frames import rings
 from sim.stamp import Stamp, add_results_option, write_results
 
 # a ring 5 mm high (Xia, Miller and Ren's rings, J. Manuf. Sci. Eng. 129 (2007) 352) from the
@@ -51,18 +49,17 @@ def parse_heights(text: str) -> tuple[float, float]:
 
 def row(folder: Path, scene: object, s: dict) -> dict:
     """One line of the table (mm) from a run's split-ring summary ``s`` (SI)."""
-    d = s["diameters"]
+    r = rings.shown(s)
+    d = r["diameters_mm"]
     return {"run": folder.name,
             "material": "Hill48" if scene.material.hill48 is not None else "von Mises",
             "edge": 1e3 * getattr(scene.mesh, "edge_length", math.nan),
-            "band": f"{1e3 * s['heights'][0]:g}-{1e3 * s['heights'][1]:g}",
-            "cut": s["cut_angle"],
-            "elements": s["elements"], "opening": 1e3 * s["opening"]["at_mid_height"],
-            "d_formed": 1e3 * d["formed"]["mean"], "d_released": 1e3 * d["released"]["mean"],
-            "d_split": 1e3 * d["split"]["mean"], "d0": 1e3 * d["split"]["d0"],
-            "d90": 1e3 * d["split"]["d90"],
-            "reyield": ", ".join(f"{k} {100 * v['fraction']:.1f} % (+{v['max']:.1e})"
-                                 for k, v in s["reyield"].items())}
+            "band": "-".join(f"{z:g}" for z in r["heights_mm"]), "cut": r["cut_angle_deg"],
+            "elements": r["elements"], "opening": r["opening_mm"]["at_mid_height"],
+            "d_formed": d["formed"]["mean"], "d_released": d["released"]["mean"],
+            "d_split": d["split"]["mean"], "d0": d["split"]["d0"], "d90": d["split"]["d90"],
+            "reyield": ", ".join(f"{k} {v:.1f} % (+{r['reyield_max_plastic_strain'][k]:.1e})"
+                                 for k, v in r["reyield_pct"].items())}
 
 
 def text(s: dict) -> str:
@@ -76,41 +73,6 @@ def text(s: dict) -> str:
         lines.append(f"diameter {name}: mean {1e3 * d[name]['mean']:.3f} mm, 0 deg "
                      f"{1e3 * d[name]['d0']:.3f} mm, 90 deg {1e3 * d[name]['d90']:.3f} mm")
     return "\n".join(lines)
-
-
-def name_of(s: dict) -> str:
-    """A ring's name from its heights and, when not 0, its cut's angle: ``split_ring-8-13mm``,
-    ``split_ring-8-13mm-45deg``."""
-    cut = f"-{s['cut_angle']:g}deg" if s["cut_angle"] else ""
-    return f"split_ring-{1e3 * s['heights'][0]:g}-{1e3 * s['heights'][1]:g}mm{cut}"
-
-
-def save(folder: Path, res: object, ep: np.ndarray) -> None:
-    """The summary into the run's result.json (``split_ring``: one entry per ring, the same
-    heights and cut replaced), the ring's states into ``<ring>.npz`` and, for ParaView, each
-    state as ``<ring>/ring_<state>.vtu`` (mm, the formed equivalent plastic strain ``ep`` per
-    ring element); ``<ring>``: :func:`name_of`."""
-    from sim.frames import export, results, series
-
-    path = folder / "result.json"
-    data = json.loads(path.read_text()) if path.is_file() else {}
-    key = (res.summary["heights"], res.summary["cut_angle"])
-    rings = [r for r in data.get("split_ring", []) if (r["heights"], r["cut_angle"]) != key]
-    data["split_ring"] = sorted([*rings, res.summary],
-                                key=lambda r: (r["heights"], r["cut_angle"]))
-    results.write(path, data)
-    sh = res.ring.shell
-    skins = series.skins(res.ring)
-    name = name_of(res.summary)
-    series.save_npz(folder / f"{name}.npz", rest=sh.rest, conn=sh.conn, faces=sh.mesh.faces,
-                    skins=skins, elements=res.ring.elements, twins=res.ring.twins,
-                    **res.states)
-    (folder / name).mkdir(exist_ok=True)
-    rest = sh.rest[skins.ravel()] * export.MM
-    for i, (state, x) in enumerate(res.states.items()):
-        shown = export.State(i, 0.0, x[skins.ravel()] * export.MM, rest, {},
-                             {"eq_plastic_strain": ep})
-        export.vtu(shown, sh.mesh.faces, folder / name / f"ring_{state}.vtu")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -138,7 +100,11 @@ def run(args: argparse.Namespace) -> int:
             except RuntimeError as exc:
                 print(f"q3t splitring: {folder}: FAILED: {exc}", file=sys.stderr)
                 return FAILED
-            save(folder, res, fm.ep[res.ring.elements].mean(1))
+            try:
+                rings.save(folder, res, fm.ep[res.ring.elements].mean(1))
+            except ValueError as exc:  # a number not finite: nothing written
+                print(f"q3t splitring: {folder}: FAILED: {exc}", file=sys.stderr)
+                return FAILED
             print(f"{folder}:\n{text(res.summary)}")
             rows.append(row(folder, fm.scene, res.summary))
     body = (f"The split-ring test (sim.stepping.split_ring) on each run's final state: rings "

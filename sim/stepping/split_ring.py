@@ -39,6 +39,7 @@ import numpy as np
 
 from sim.elements import get_element
 from sim.frames.fields import mid_surface
+from sim.frames.rings import WALL
 from sim.geometry.quadrature import Rule
 from sim.geometry.rigid import determinate_support
 from sim.geometry.shell import Shell, extrude
@@ -53,9 +54,6 @@ from sim.solve.newton import minimise
 from sim.solve.problem import Problem
 from sim.terms.elasticity import Elasticity
 
-# an element belongs to the wall when its formed mid-surface is steeper than this (degrees from
-# the horizontal): the bottom and the flange are flat, the punch and die radii turn between
-WALL = 60.0
 # half-width (degrees) of the sector whose mean radius gives a diameter's end: three to four
 # vertex columns of the 2 mm cup's wall (R = 17 mm), so a diameter averages over the mesh
 WINDOW = 7.5
@@ -164,7 +162,8 @@ def _prune(shell: Shell, keep: np.ndarray) -> np.ndarray:
     keep = keep.copy()
     while True:
         ids = np.flatnonzero(keep)
-        small = small_patches(shell.mesh.faces[ids])
+        # all pruned: no patch is left to label (the caller says the band is no ring)
+        small = small_patches(shell.mesh.faces[ids]) if len(ids) else []
         if not len(small):
             return keep
         keep[ids[small]] = False
@@ -208,7 +207,8 @@ def band(formed: Formed, z1: float, z2: float) -> np.ndarray:
     keep = _prune(formed.shell, keep)
     ids = np.flatnonzero(keep)
     angles = np.sort(np.arctan2(c[ids, 1], c[ids, 0]))
-    gap = np.degrees(np.diff(np.concatenate([angles, angles[:1] + 2 * np.pi])).max())
+    gap = np.degrees(np.diff(np.concatenate([angles, angles[:1] + 2 * np.pi])).max()
+                     ) if len(ids) else 360.0
     if len(ids) < 3 or gap > 30.0 or patches(formed.shell.mesh.faces[ids]).max() > 0:
         raise SplitRingError(f"heights: {1e3 * z1:g}-{1e3 * z2:g} mm is not one closed ring "
                              "around the axis (a band that narrow misses elements: widen it)")

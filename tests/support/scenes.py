@@ -157,6 +157,21 @@ def tiny_cup_toml(steps: int = 4) -> str:
     return TINY_CUP_TOML.replace("steps = 4\n", f"steps = {steps}\n", 1)
 
 
+def ring_cup_toml() -> str:
+    """The tiny cup drawn 8 mm through on a 1.5 mm mesh: the coarsest with a steep wall tall
+    enough for a split ring (sim.stepping.split_ring). Its wall's rows of elements lie about
+    1.6, 3, 5 and 6.2 mm above the bottom (the steep wall's extent, sim.frames.rings.wall, is
+    1.62 to 6.16 mm), the top 8.8 mm: RING_BAND, that extent rounded out, is a closed ring
+    that opens (0.53 mm); 3-5 mm catches no closed ring, 0-1 mm is the bottom, the command
+    line's 8-13 mm reaches above the part. About 4 s of solving."""
+    return (tiny_cup_toml(16).replace('name = "tiny_cup"', 'name = "ring_cup"')
+            .replace("edge_length = 0.003", "edge_length = 0.0015")
+            .replace("velocity = [0.0, 0.0, -0.002]", "velocity = [0.0, 0.0, -0.008]"))
+
+
+RING_BAND = [1.6, 6.2]  # mm above the ring cup's bottom
+
+
 TINY_CUP_TOML = """
 name = "tiny_cup"
 description = "A small cup drawn a few millimetres (page tests)"

@@ -33,6 +33,12 @@ def until(cond: Callable[[], Any], what: str, timeout: float = HANG) -> Any:
     return out
 
 
+def until_exists(path: str) -> None:
+    """Returns once ``path`` exists: a job that holds a process (server.rings') until the test
+    lets it go, never longer than HANG (a hang guard)."""
+    until(lambda: Path(path).exists(), f"{path} never appeared")
+
+
 def wait_ready(client, timeout: float = HANG) -> None:
     """Until the solver has said it is ready; failing, say why the solvers were lost (the
     health's ``solver_losses``: the one clue when it happens on a CI machine only)."""

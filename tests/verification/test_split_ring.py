@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from sim.apps.cli import main
+from sim.frames import rings as ring_files
 from sim.stepping import split_ring as sr
 from tests.support import rings
 
@@ -102,6 +103,20 @@ def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
     assert [(r["heights"], r["cut_angle"]) for r in res["split_ring"]] == [
         ([0.0, 0.0015], 0.0), ([0.0, 0.002], 0.0), ([0.0, 0.002], 45.0)]
     assert (run / "split_ring-0-2mm-45deg.npz").is_file()
+
+
+def test_a_ring_with_a_number_not_finite_is_not_saved(tmp_path):
+    """The summary is checked before any file is written: the run stays as it was (no NaN in
+    result.json, no npz or VTU of a ring it does not list)."""
+    run = rings.write_run(tmp_path / "ring", rings.ring(0.001, 1.02 * rings.R))
+    (run / "result.json").write_text(json.dumps({"scene": "ring"}))
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    formed = sr.open_formed(run)
+    res = sr.split_ring(formed, 0.0, rings.H)
+    res.summary["diameters"]["split"]["d0"] = float("nan")
+    with pytest.raises(ValueError, match=r"split_ring\.0\.diameters\.split\.d0"):
+        ring_files.save(run, res, formed.ep[res.ring.elements].mean(1))
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
 
 
 @pytest.mark.parametrize("args, field", [

@@ -1,0 +1,135 @@
+"""/api/runs/{id}/split_ring: the split-ring (Demeri) springback test on a finished cup run,
+as ``q3t splitring`` does it (sim.stepping.split_ring; saved by sim.frames.rings): cut a ring
+(in a child process, server.rings) and list the rings cut, in mm, % and degrees."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Request
+from fastapi.concurrency import run_in_threadpool
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from server.errors import BODY, CheckedRoute, documented
+from server.problems import Invalid
+from server.rings import RingCutter, cuttable
+from server.runs import RunManager
+from server.settings import RunId
+from sim.frames import rings
+
+router = APIRouter(prefix="/api/runs", tags=["split ring"], route_class=CheckedRoute)
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class NewRing(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid", json_schema_extra={"examples": [
+        {"heights": [8.0, 13.0], "cut_angle": 0.0}]})
+    heights: Annotated[list[Finite], Field(min_length=2, max_length=2, description=(
+        "the ring's lower and upper edge, mm above the cup's bottom (the lowest point of its "
+        "formed mid-surface); both on the steep wall"))]
+    cut_angle: Finite = Field(0.0, description="the split's meridian, degrees about the cup's "
+                              "axis (z) from x, the rolling direction")
+
+    @field_validator("heights")
+    @classmethod
+    def _increasing(cls, v: list[float]) -> list[float]:
+        if not 0.0 <= v[0] < v[1]:
+            raise ValueError(f"{v[0]:g}, {v[1]:g} mm: need 0 <= z1 < z2 (mm above the cup's "
+                             "bottom)")
+        return v
+
+
+class Opening(BaseModel):
+    at_mid_height: float = Field(description="the gap between the cut's faces along the "
+                                 "ring's circumference at its mid-height, mm (> 0: it opened)")
+    min: float = Field(description="its least value along the cut, mm")
+    max: float = Field(description="its largest value along the cut, mm")
+    distance_at_mid_height: float = Field(description="the straight distance between the "
+                                          "faces at mid-height, mm")
+
+
+class Diameters(BaseModel):
+    mean: float = Field(description="twice the radius of the least-squares circle through "
+                        "the ring's mid-surface, mm")
+    d0: float = Field(description="across the cut's meridian (0 deg), mm")
+    d90: float = Field(description="at 90 deg to it, mm")
+
+
+class Ring(BaseModel):
+    """A ring cut from the run (result.json's ``split_ring`` entry, SI, in these units)."""
+
+    name: str = Field(description="its files' name in the run folder (<name>.npz, "
+                      "<name>/ring_{formed,released,split}.vtu)")
+    heights_mm: list[float]
+    cut_angle_deg: float
+    elements: int
+    duplicated_nodes: int = Field(description="nodes duplicated along the cut")
+    opening_mm: Opening
+    diameters_mm: dict[str, Diameters] = Field(description="formed (in the tools), released "
+                                               "(the closed ring cut out) and split")
+    reyield_pct: dict[str, float] = Field(description="per release (closed, split): the % of "
+                                          "the ring's quadrature points that yielded again")
+    reyield_max_plastic_strain: dict[str, float] = Field(description="per release: the "
+                                                         "largest growth of the plastic strain")
+    solver: dict[str, dict] = Field(description="per release: Newton iterations, the force "
+                                    "released (N), what the supports carry (N)")
+
+
+class CutRing(Ring):
+    run: str
+
+
+class Cutting(BaseModel):
+    heights_mm: list[float]
+    cut_angle_deg: float
+
+
+class Rings(BaseModel):
+    run: str
+    available: bool = Field(description="a ring can be cut from the run: a finished, plastic, "
+                            "drawn cup (whether the heights are on its wall the cut says)")
+    reason: str | None = Field(description="why not, when not available")
+    wall_mm: list[float] | None = Field(description="how far the cup's steep wall reaches: "
+                                        "the lowest and highest centroid of its elements "
+                                        "steeper than 60 deg, mm above the bottom (about: the "
+                                        "cut uses each element's own mid-surface)")
+    cutting: Cutting | None = Field(description="the ring being cut now, if one is")
+    rings: list[Ring] = Field(description="the rings cut, by heights and cut angle")
+
+
+def _run(request: Request, run_id: str) -> tuple[RunManager, object, object]:
+    m: RunManager = request.app.state.manager
+    run = m.get(run_id)
+    return m, run, m.files.dir(run.id)
+
+
+@router.get("/{run_id}/split_ring", response_model=Rings, responses=documented(404, 422))
+def list_rings(run_id: RunId, request: Request) -> dict:
+    """The split rings cut from the run so far (``q3t splitring`` and this API write them
+    into its result.json), and whether one can be cut."""
+    _, run, folder = _run(request, run_id)
+    why, wall = cuttable(run.state, folder)
+    cutter: RingCutter = request.app.state.rings
+    return {"run": run.id, "available": why is None, "reason": why, "wall_mm": wall,
+            "cutting": cutter.cutting.get(run.id),
+            "rings": [rings.shown(s) for s in rings.of_run(folder)]}
+
+
+@router.post("/{run_id}/split_ring", response_model=CutRing,
+             responses=documented(404, 409, *BODY))
+async def cut_ring(run_id: RunId, body: NewRing, request: Request) -> dict:
+    """Cut a ring from the finished cup's wall between ``heights`` (mm above its bottom),
+    release it, split it along the meridian at ``cut_angle`` (deg) and release it again, as
+    ``q3t splitring``; saved into the run (result.json's ``split_ring``, the same heights and
+    cut replaced; its states as npz and VTU in the run folder). Answers when done (seconds to
+    minutes). 409 while another ring is being cut from the run; 422 naming ``run_id`` (not a
+    finished plastic cup, no final state), ``heights`` (not increasing, off the wall, not one
+    closed ring; or a release that failed, with the solver's numbers: nothing is written) or
+    ``cut_angle``."""
+    _, run, folder = _run(request, run_id)
+    why, _ = await run_in_threadpool(cuttable, run.state, folder)
+    if why:
+        raise Invalid(f"run_id: {run.id}: {why}")
+    cutter: RingCutter = request.app.state.rings
+    summary = await cutter.cut(run.id, folder, body.heights, body.cut_angle)
+    return {"run": run.id, **rings.shown(summary)}

@@ -1,0 +1,114 @@
+"""A run's split rings (sim.stepping.split_ring) on disk and in a forming engineer's units.
+
+Each ring's summary (SI) is an entry of the run's result.json (``split_ring``: one per heights
+and cut angle, sorted), its states are ``<ring>.npz`` beside it and, for ParaView,
+``<ring>/ring_<state>.vtu`` (``<ring>``: :func:`name_of`). ``q3t splitring`` and the service
+both write and read them here. Light on purpose, as sim.frames.results: the server reads the
+rings without importing the solver.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from sim.frames import results
+
+KEY = "split_ring"  # result.json's list of rings
+# an element belongs to the wall when its formed mid-surface is steeper than this (degrees from
+# the horizontal): the bottom and the flange are flat, the punch and die radii turn between
+WALL = 60.0
+
+
+def name_of(s: dict) -> str:
+    """A ring's name from its heights and, when not 0, its cut's angle: ``split_ring-8-13mm``,
+    ``split_ring-8-13mm-45deg``."""
+    cut = f"-{s['cut_angle']:g}deg" if s["cut_angle"] else ""
+    return f"split_ring-{1e3 * s['heights'][0]:g}-{1e3 * s['heights'][1]:g}mm{cut}"
+
+
+def of_run(folder: Path) -> list[dict]:
+    """The rings cut from the run in ``folder`` (SI, as result.json holds them); none when it
+    has no result."""
+    path = folder / "result.json"
+    return json.loads(path.read_text()).get(KEY, []) if path.is_file() else []
+
+
+def wall(folder: Path) -> tuple[float, float] | None:
+    """How far the steep wall of the part in ``folder``'s final.npz reaches: the lowest and
+    highest centroid (m above the part's lowest point) of the elements steeper than WALL, or
+    None without any. About: the mid-surface is taken halfway between the skins here (the
+    ring itself is cut by the element's own mid-surface, sim.stepping.split_ring), enough to
+    say where heights may go. The final state's positions, skins and faces are read, nothing
+    is built."""
+    with np.load(folder / "final.npz") as z:
+        x, skins, faces = z["deformed"], z["skins"], z["faces"]
+    mid = 0.5 * (x[skins[0]] + x[skins[1]])
+    n = np.cross(mid[faces[:, 1]] - mid[faces[:, 0]], mid[faces[:, 2]] - mid[faces[:, 0]])
+    steep = np.abs(n[:, 2]) < np.cos(np.radians(WALL)) * np.linalg.norm(n, axis=1)
+    if not steep.any():
+        return None
+    h = mid[faces[steep]].mean(1)[:, 2] - mid[:, 2].min()
+    return float(h.min()), float(h.max())
+
+
+def save(folder: Path, res: object, ep: np.ndarray) -> None:
+    """A ring (a sim.stepping.split_ring.Result) into the run in ``folder``: its states into
+    ``<ring>.npz`` and, each as ``<ring>/ring_<state>.vtu`` (mm, the formed equivalent plastic
+    strain ``ep`` per ring element), then its summary into result.json (the same heights and
+    cut replaced). The summary is checked first and result.json written last, each file
+    through a temporary name: a ring that cannot be saved (a number not finite: ValueError
+    naming it) leaves the run as it was, and a ring listed in result.json has its files."""
+    from sim.frames import export, series
+
+    path = folder / "result.json"
+    data = json.loads(path.read_text()) if path.is_file() else {}
+    key = (res.summary["heights"], res.summary["cut_angle"])
+    rings = [r for r in data.get(KEY, []) if (r["heights"], r["cut_angle"]) != key]
+    data[KEY] = sorted([*rings, res.summary], key=lambda r: (r["heights"], r["cut_angle"]))
+    results.dumps(data)  # a number not finite raises here, before anything is written
+    sh = res.ring.shell
+    skins = series.skins(res.ring)
+    name = name_of(res.summary)
+    series.save_npz(folder / f"{name}.npz", rest=sh.rest, conn=sh.conn, faces=sh.mesh.faces,
+                    skins=skins, elements=res.ring.elements, twins=res.ring.twins,
+                    **res.states)
+    tmp = folder / f".{name}.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    rest = sh.rest[skins.ravel()] * export.MM
+    for i, (state, x) in enumerate(res.states.items()):
+        shown = export.State(i, 0.0, x[skins.ravel()] * export.MM, rest, {},
+                             {"eq_plastic_strain": ep})
+        export.vtu(shown, sh.mesh.faces, tmp / f"ring_{state}.vtu")
+    shutil.rmtree(folder / name, ignore_errors=True)
+    tmp.rename(folder / name)
+    results.write(path, data)
+
+
+def shown(s: dict) -> dict:
+    """A ring's summary ``s`` (SI) in a forming engineer's units, each unit in its field's
+    name: heights and lengths in mm, the cut in degrees, re-yield as a % of the ring's
+    quadrature points (its largest growth a plastic strain, dimensionless)."""
+    mm = lambda v: 1e3 * v  # noqa: E731
+    o, d = s["opening"], s["diameters"]
+    return {
+        "name": name_of(s),
+        # 4.5 mm, not the 4.500000000000001 of its round trip through m
+        "heights_mm": [float(f"{mm(z):.12g}") for z in s["heights"]],
+        "cut_angle_deg": s["cut_angle"],
+        "elements": s["elements"], "duplicated_nodes": s["duplicated_nodes"],
+        "opening_mm": {"at_mid_height": mm(o["at_mid_height"]), "min": mm(o["min"]),
+                       "max": mm(o["max"]),
+                       "distance_at_mid_height": mm(o["distance_at_mid_height"])},
+        "diameters_mm": {state: {k: mm(d[state][k]) for k in ("mean", "d0", "d90")}
+                         for state in ("formed", "released", "split")},
+        "reyield_pct": {k: 100 * v["fraction"] for k, v in s["reyield"].items()},
+        "reyield_max_plastic_strain": {k: v["max"] for k, v in s["reyield"].items()},
+        "solver": {k: {"iterations": v["iterations"], "released_force_N": v["released_force"],
+                       "support_reaction_N": v["support_reaction"]}
+                   for k, v in s["solver"].items()},
+    }

@@ -1,0 +1,210 @@
+"""/api/runs/{id}/split_ring on a finished cup (tests/support/scenes.py's ring cup, the
+coarsest with a wall for a band): the ring the command line cuts, to round-off; 409 while one is
+cut from the run; 422 naming the field for every bad request, the run left as it was; a failed
+release answered with the solver's reason and nothing written; the ring's files deleted with
+the run."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import threading
+
+import numpy as np
+import pytest
+
+from sim.frames import rings
+from tests.support.scenes import RING_BAND, ring_cup_toml, tiny_cup_toml
+from tests.support.service import finished_run, in_process, until, until_exists
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("rings")
+    with in_process(tmp, {"ring_cup": ring_cup_toml(), "tiny_cup": tiny_cup_toml()}) as out:
+        yield out
+
+
+@pytest.fixture(scope="module")
+def cup(env):
+    """A finished ring cup: its id and folder."""
+    client, settings = env
+    run = finished_run(client, "ring_cup")
+    return run, settings.runs_dir / run
+
+
+def url(run: str) -> str:
+    return f"/api/runs/{run}/split_ring"
+
+
+def test_the_ring_is_the_command_lines_and_is_listed(env, cup, tmp_path):
+    client, _ = env
+    run, folder = cup
+    before = client.get(url(run)).json()
+    assert before["available"] and before["reason"] is None and before["rings"] == []
+    low, high = before["wall_mm"]
+    # the band is the wall's extent rounded out to 0.1 mm, as the page's default
+    assert [round(low - 0.05, 1), round(high + 0.05, 1)] == RING_BAND
+    r = client.post(url(run), json={"heights": RING_BAND})
+    assert r.status_code == 200, r.text
+    got = r.json()
+    assert got["run"] == run and got["heights_mm"] == RING_BAND and got["cut_angle_deg"] == 0
+    # the command line on a copy of the run, before the server's ring was added
+    copy = tmp_path / "copy"
+    shutil.copytree(folder, copy)
+    data = json.loads((copy / "result.json").read_text())
+    del data[rings.KEY]
+    (copy / "result.json").write_text(json.dumps(data))
+    from sim.apps.cli import main
+
+    assert main(["splitring", str(copy), "--heights", ",".join(map(str, RING_BAND))]) == 0
+    (cli,) = rings.of_run(copy)
+    want = {"run": run, **rings.shown(cli)}
+    assert _close(got, want), (got, want)
+    # the engineer's numbers: mm, %, deg
+    assert abs(got["opening_mm"]["at_mid_height"]) < 5 and got["elements"] > 0
+    assert 10 < got["diameters_mm"]["formed"]["mean"] < 13  # the 11 mm punch's cup
+    assert 0 <= got["reyield_pct"]["closed"] <= 100
+    # saved as the command saves it: result.json's entry (SI) and the files
+    (saved,) = rings.of_run(folder)
+    assert rings.shown(saved) == {k: v for k, v in got.items() if k != "run"}
+    with np.load(folder / f"{got['name']}.npz") as z:
+        assert z["split"].shape == z["rest"].shape
+    assert sorted(p.name for p in (folder / got["name"]).iterdir()) == [
+        "ring_formed.vtu", "ring_released.vtu", "ring_split.vtu"]
+    listed = client.get(url(run)).json()
+    assert listed["rings"] == [{k: v for k, v in got.items() if k != "run"}]
+    assert listed["cutting"] is None
+    # the same ring again replaces its entry; another cut is another ring
+    assert client.post(url(run), json={"heights": RING_BAND}).status_code == 200
+    assert client.post(url(run), json={"heights": RING_BAND, "cut_angle": 90}).status_code \
+        == 200
+    assert [(r["heights_mm"], r["cut_angle_deg"]) for r in client.get(url(run)).json()[
+        "rings"]] == [(RING_BAND, 0.0), (RING_BAND, 90.0)]
+
+
+def _close(got: dict, want: dict) -> bool:
+    """Nested dicts equal, numbers to round-off (pytest.approx compares flat ones only)."""
+    if isinstance(want, dict):
+        return got.keys() == want.keys() and all(_close(got[k], want[k]) for k in want)
+    if isinstance(want, list):
+        return len(got) == len(want) and all(map(_close, got, want))
+    if isinstance(want, float):
+        return got == pytest.approx(want, rel=1e-9, abs=1e-12)
+    return got == want
+
+
+@pytest.mark.parametrize("body, detail", [
+    ({"heights": [6.2, 1.6]}, "body.heights: 6.2, 1.6 mm: need 0 <= z1 < z2"),
+    ({"heights": [1.6]}, "body.heights: List should have at least 2 items"),
+    ('{"heights": [NaN, 6.2]}', "body.heights.0: Input should be a finite number"),
+    ('{"heights": [1.6, 1e999]}', "body.heights.1: Input should be a finite number"),
+    ('{"heights": [1.6, 6.2], "cut_angle": Infinity}', "body.cut_angle: Input should be a "
+                                                        "finite number"),
+    ({"heights": [8, 13]}, "heights: 13 mm is above the part (its top is"),
+    ({"heights": [0, 1]}, "heights: 0-1 mm is not all on the wall"),
+    ({"heights": [3, 5]}, "heights: 3-5 mm is not one closed ring around the axis"),
+])
+def test_bad_requests_are_422_naming_the_field_and_change_nothing(env, cup, body, detail):
+    client, _ = env
+    run, folder = cup
+    before = {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
+    if isinstance(body, str):
+        r = client.post(url(run), content=body, headers={"Content-Type": "application/json"})
+    else:
+        r = client.post(url(run), json=body)
+    assert r.status_code == 422 and detail in r.json()["detail"], r.text
+    assert {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()} == before
+
+
+def test_runs_a_ring_cannot_be_cut_from_are_422_naming_the_run(env):
+    client, settings = env
+    going = client.post("/api/runs", json={"scene": "ring_cup", "paused": True}).json()["id"]
+    try:
+        r = client.post(url(going), json={"heights": RING_BAND})
+        assert r.status_code == 422 and r.json()["detail"].startswith(f"run_id: {going}: "
+                                                                      "the run is ")
+        assert not client.get(url(going)).json()["available"]
+    finally:
+        client.post(f"/api/runs/{going}/stop")
+    shallow = finished_run(client, "tiny_cup")  # drawn 2 mm: all radius and flange
+    r = client.post(url(shallow), json={"heights": [0.5, 1.5]})
+    assert r.status_code == 422 and r.json()["detail"].startswith(
+        f"run_id: {shallow}: no steep wall: no element of the formed part is inclined more "
+        "than 60 deg")
+    assert client.get(url(shallow)).json()["wall_mm"] is None
+    (settings.runs_dir / shallow / "final.npz").unlink()
+    r = client.post(url(shallow), json={"heights": [0.5, 1.5]})
+    assert r.status_code == 422 and r.json()["detail"] == (
+        f"run_id: {shallow}: the run has no final.npz (its final state)")
+    assert client.get(url(shallow)).json()["reason"] == "the run has no final.npz (its final " \
+                                                        "state)"
+
+
+def test_an_unknown_run_is_404(env):
+    client, _ = env
+    assert client.get(url("nope")).status_code == 404
+    r = client.post(url("nope"), json={"heights": RING_BAND})
+    assert r.status_code == 404 and "no run 'nope'" in r.json()["detail"]
+
+
+def test_a_second_ring_while_one_is_cut_is_409_and_the_run_is_not_deleted(env, tmp_path):
+    """The ring process is held by a job that waits for a file the test writes: the first
+    ring waits behind it, marked as being cut, for as long as the test needs."""
+    client, settings = env
+    run = finished_run(client, "ring_cup")
+    gate = tmp_path / "gate"
+    held = client.app.state.rings.executor().submit(until_exists, str(gate))
+    first: dict = {}
+    t = threading.Thread(target=lambda: first.update(r=client.post(
+        url(run), json={"heights": RING_BAND})))
+    t.start()
+    try:
+        cutting = until(lambda: client.get(url(run)).json()["cutting"], "never cutting")
+        assert cutting == {"heights_mm": RING_BAND, "cut_angle_deg": 0.0}
+        r = client.post(url(run), json={"heights": RING_BAND, "cut_angle": 45})
+        assert r.status_code == 409 and "is being cut from it" in r.json()["detail"]
+        assert client.delete(f"/api/runs/{run}").status_code == 409
+    finally:
+        gate.touch()
+        t.join()
+        held.result()
+    assert first["r"].status_code == 200, first["r"].text
+    # deleting the run takes its rings' files with its folder
+    folder = settings.runs_dir / run
+    assert (folder / f"{first['r'].json()['name']}.npz").is_file()
+    assert client.delete(f"/api/runs/{run}").status_code == 204
+    assert not folder.exists()
+
+
+def test_a_release_that_fails_says_why_and_writes_nothing(env):
+    """The run's scene, as its final.npz keeps it, allowed one Newton iteration: the closed
+    ring's release needs more."""
+    client, settings = env
+    run = finished_run(client, "ring_cup")
+    folder = settings.runs_dir / run
+    with np.load(folder / "final.npz") as z:
+        data = dict(z)
+    scene = json.loads(str(data["scene"]))
+    scene["solver"]["max_iterations"] = 1
+    data["scene"] = np.array(json.dumps(scene))
+    np.savez_compressed(folder / "final.npz", **data)
+    before = {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
+    r = client.post(url(run), json={"heights": RING_BAND})
+    detail = r.json()["detail"]
+    assert r.status_code == 422 and detail.startswith(f"heights: ring {RING_BAND[0]:g}-"
+                                                      f"{RING_BAND[1]:g} mm, cut at 0 deg: "
+                                                      "the ring's release did not converge")
+    assert "no convergence in 1 iterations (residual " in detail  # the solver's numbers
+    assert detail.endswith("nothing was written")
+    assert {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()} == before
+    assert not list(folder.glob("*split_ring*"))
+    assert client.get(url(run)).json()["rings"] == []
+
+
+def test_the_openapi_schema_declares_the_routes(env):
+    client, _ = env
+    paths = client.get("/openapi.json").json()["paths"]
+    post = paths["/api/runs/{run_id}/split_ring"]["post"]
+    assert {"200", "404", "409", "422"} <= set(post["responses"])
+    assert "get" in paths["/api/runs/{run_id}/split_ring"]
