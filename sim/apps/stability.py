@@ -44,12 +44,14 @@ def free_hessian(problem: Problem, x: np.ndarray) -> tuple[sp.csc_matrix, np.nda
 class Spectrum:
     """The lowest eigenvalues ``values`` (ascending), their ``vectors`` (free DoFs, unit
     2-norm, columns), ``negative``: how many eigenvalues of the whole matrix are below zero (its
-    inertia), and ``shift``: where the Lanczos iteration was shifted to."""
+    inertia), and ``shift``: where the Lanczos iteration was shifted to; ``zero``: the
+    threshold of that count (s0 of :func:`lowest_eigenvalues`)."""
 
     values: np.ndarray
     vectors: np.ndarray
     negative: int
     shift: float
+    zero: float = 0.0  # s0: an eigenvalue below it is negative, counted in ``negative``
 
 
 def _factor(K: sp.csc_matrix, shift: float) -> spla.SuperLU | None:
@@ -115,7 +117,7 @@ def lowest_eigenvalues(K: sp.spmatrix, k: int = 3) -> Spectrum:
     if negative < k and int(np.sum(vals < s0)) != negative:
         raise RuntimeError(f"Lanczos found {int(np.sum(vals < s0))} eigenvalues below "
                            f"{s0:.3g} where the inertia counts {negative}: it missed some")
-    return Spectrum(vals, vecs, negative, shift)
+    return Spectrum(vals, vecs, negative, shift, s0)
 
 
 # a field whose overlap with the unstable modes is under this share of its norm misses them
@@ -141,12 +143,13 @@ def unstable_direction(spec: Spectrum, field: np.ndarray) -> np.ndarray:
     """The unit direction on the free DoFs to kick along: ``field`` (free DoFs) through the
     negative part of the stiffness, K_- field, each unstable mode weighted by -lambda, how fast
     it grows (the unstable part of a step of gradient flow from ``field`` as imperfection);
-    ``spec`` holds every negative eigenvalue. A function of K, not of the vectors Lanczos
+    negative: below the inertia's threshold ``spec.zero``, every such one in ``spec``, each
+    weighted by how far below it lies. A function of K, not of the vectors Lanczos
     returned: a pair of nearly equal eigenvalues, whose vectors come in whatever basis
     round-off gives, enters by its span, and the direction moves with K continuously, not by a
     jump where round-off reorders the pair. A stable state's is its lowest mode; a field that
     misses the modes (``MISSES``) leaves the lowest, its largest entry positive."""
-    weights = np.maximum(-spec.values, 0.0)
+    weights = np.maximum(spec.zero - spec.values, 0.0)
     if not weights.any():
         weights = (np.arange(spec.values.size) == 0).astype(float)
     vectors = spec.vectors[:, weights > 0]
@@ -234,7 +237,7 @@ def _observe(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int, 
     K, free = free_hessian(sim.model.problem, sim.x)
     spec = lowest_eigenvalues(K, k)
     # the unstable direction needs every negative eigenvalue
-    while spec.values[-1] < 0 and spec.values.size < K.shape[0] // 2:
+    while spec.values[-1] < spec.zero and spec.values.size < K.shape[0] // 2:
         spec = lowest_eigenvalues(K, 2 * spec.values.size)
     field = corner_lift(sim.model.x0).ravel()[free]
     mode = expand(unstable_direction(spec, field), free, sim.x.shape)
@@ -242,14 +245,18 @@ def _observe(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int, 
     z = mid_surface(sim.model, sim.x)[:, 2]
     return PathPoint(step, sim.t, nominal_strain(sim, nodes, direction),
                      spec.values[:k].tolist(), spec.negative, zshare, float(z.max() - z.min()),
-                     iterations, modes=max(int(np.sum(spec.values < 0)), 1)), mode
+                     iterations, modes=max(int(np.sum(spec.values < spec.zero)), 1)), mode
 
 
 def _wrinkles(point: PathPoint) -> bool:
-    """Whether ``point``'s lowest eigenvalue is negative and its unstable direction a wrinkle
-    to kick along: mostly out of the plane (an in-plane one, a neck or an edge mode, has no z
-    to scale the kick by)."""
-    return point.eigenvalues[0] < 0 and point.out_of_plane > 0.5
+    """Whether ``point`` is unstable and its unstable direction a wrinkle to kick along:
+    mostly out of the plane (an in-plane one, a neck or an edge mode, has no z to scale the
+    kick by). Unstable: the inertia counts a negative eigenvalue, one below its threshold a
+    hair below zero. A wrinkled branch can be so nearly neutral that its lowest eigenvalue
+    lies between that threshold and zero (q3t_ans's stretched sheet: -2.4e-8 N/m, the next
+    1.5e-4): its sign there is the converged state's residual as much as the branch's, and
+    the direction and sign of a kick along it decided whether the next step converged."""
+    return point.negative > 0 and point.out_of_plane > 0.5
 
 
 def _at_converged(sim: Simulation) -> None:
@@ -295,7 +302,7 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     each converged step the lowest ``k`` eigenvalues of its stiffness and how far the
     mid-surface left its plane.
 
-    ``kick`` (m, 0: never): each time a converged state's lowest eigenvalue is negative and
+    ``kick`` (m, 0: never): each time a converged state is unstable (``_wrinkles``) and
     its unstable direction mostly out of plane, add that direction, scaled so that its largest
     mid-surface |z| is ``kick``, to the state, so the next step starts off the unstable
     equilibrium. The direction is a sheet lifted at one corner (``corner_lift``) through the
@@ -319,8 +326,8 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     round-off chose. After it the steps realign with the planned ones.
 
     After the first kick, a step that fails after some of its sub-steps converged ends at the
-    last of them, a shorter step of the path, when that state's lowest eigenvalue is negative
-    and its mode out of plane: a further bifurcation inside the step, onto whose unstable
+    last of them, a shorter step of the path, when that state is unstable out of plane
+    (``_wrinkles``): a further bifurcation inside the step, onto whose unstable
     state Newton, with its projected (positive) Hessian, cannot converge. That state is then
     kicked like any other, and the next step ends at the next planned one. Otherwise the path
     ends early when a step fails (the Simulation's ``failure`` says why). The step after a

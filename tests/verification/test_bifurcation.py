@@ -90,6 +90,11 @@ def test_the_kick_direction_is_the_stiffness_s_not_the_eigensolver_s():
         V[:, 0] *= sign
         d = unstable_direction(Spectrum(one, V, 1, 0.0), field)
         np.testing.assert_allclose(d, Q[:, 0] * np.sign(Q[:, 0] @ field), atol=1e-15)
+    # an eigenvalue under zero but above the inertia's threshold (a nearly neutral mode) is
+    # not unstable: with none below it, the lowest mode as a stable state's
+    neutral = np.array([-2.4e-8, 1.5e-4, 2.3e-4, 3.0e-4])
+    d = unstable_direction(Spectrum(neutral, Q, 0, 0.0, -1e-7), field)
+    np.testing.assert_allclose(d, Q[:, 0] * np.sign(Q[:, 0] @ field), atol=1e-15)
     # two apart: each weighted by how unstable it is
     two = np.array([-2.0, -1.0, 0.5, 0.7])
     weighted = Q[:, :2] @ (np.array([2.0, 1.0]) * (Q[:, :2].T @ field))
