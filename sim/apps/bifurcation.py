@@ -191,11 +191,14 @@ def run(args: argparse.Namespace) -> int:
     if args.results:
         body = ["## Per element", "", text, "",
                 "Eigenvalues of the stiffness (exact Hessian of the total energy, held DoFs "
-                "removed), the lowest first; `negative`: how many are below zero; the mode's z "
-                "share: the part of the lowest mode's squared norm out of plane; amplitude: the "
-                f"mid-surface's height range. Kick: {args.kick:g} thickness along the lowest "
-                "mode each time it is negative (sim.apps.stability.follow); until the first, "
-                "a step that ends with a negative eigenvalue or off the plane is retaken in "
+                "removed), the lowest first; `negative`: how many are below s0, a hair below "
+                "zero (the inertia; what counts as unstable); the unstable direction's z share: "
+                "the part of its squared norm out of plane; amplitude: the mid-surface's height "
+                f"range. Kick: {args.kick:g} thickness along the unstable direction (a sheet "
+                "lifted at one corner through the negative part of the stiffness, each unstable "
+                "mode weighted by how far below s0 it lies) each time a state is unstable "
+                "(sim.apps.stability.follow); until the first, "
+                "a step that ends unstable or off the plane is retaken in "
                 "halves, down to 1/8 of a step (strains between the planned ones), so the "
                 "crossing is found on flat converged states and the kick, not round-off, "
                 "picks the branch.", ""]
@@ -223,9 +226,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "scene's edge_length for all)")
     b.add_argument("--modes", type=int, default=3, help="eigenvalues per step (default 3)")
     b.add_argument("--kick", type=float, default=0.1, metavar="THICKNESSES",
-                   help="push the state this far (mid-surface z, in thicknesses) along the "
-                        "lowest mode each time it is unstable, so the run leaves the flat "
-                        "path, and an unstable wrinkled one (default %(default)g; 0: never)")
+                   help="push the state this far (mid-surface z, in thicknesses) along its "
+                        "unstable direction each time it is unstable, so the run leaves the "
+                        "flat path, and an unstable wrinkled one (default %(default)g; 0: "
+                        "never)")
     b.add_argument("--quiet", action="store_true")
     add_results_option(b, "fig4-wrinkling.md")
     b.set_defaults(func=run)

@@ -51,7 +51,9 @@ class Spectrum:
     vectors: np.ndarray
     negative: int
     shift: float
-    zero: float = 0.0  # s0: an eigenvalue below it is negative, counted in ``negative``
+    # s0: an eigenvalue below it is negative, counted in ``negative``; a numerical threshold
+    # (1e-13 of the mean diagonal, lowest_eigenvalues), not one set by the physics
+    zero: float = 0.0
 
 
 def _factor(K: sp.csc_matrix, shift: float) -> spla.SuperLU | None:
@@ -128,9 +130,9 @@ MISSES = 1e-6
 def corner_lift(x0: np.ndarray) -> np.ndarray:
     """A sheet lifted at one corner ``(n_nodes, 3)``: z = (1 + xi)(1 + eta), with xi, eta the
     rest positions scaled to [-1, 1] over their bounding box, the same at every node of a fibre.
-    It holds all four symmetry classes of a rectangle (1, xi, eta, xi eta), and its overlap
-    with a smooth mode is an integral that converges with the mesh, so it picks the same
-    combination of unstable modes on every element and mesh."""
+    It holds all four symmetry classes of a rectangle (1, xi, eta, xi eta), and on a uniform
+    mesh its overlap with a smooth mode approximates an integral (a sum over nodes, not
+    weighted by their areas), so elements and meshes see nearly the same imperfection."""
     lo, hi = x0.min(axis=0), x0.max(axis=0)
     span = np.where(hi > lo, hi - lo, 1.0)
     xi = 2.0 * (x0 - lo) / span - 1.0
@@ -148,7 +150,9 @@ def unstable_direction(spec: Spectrum, field: np.ndarray) -> np.ndarray:
     returned: a pair of nearly equal eigenvalues, whose vectors come in whatever basis
     round-off gives, enters by its span, and the direction moves with K continuously, not by a
     jump where round-off reorders the pair. A stable state's is its lowest mode; a field that
-    misses the modes (``MISSES``) leaves the lowest, its largest entry positive."""
+    misses the modes (``MISSES``) leaves the lowest, its largest entry positive (a sign that
+    mirror-symmetric entries leave to round-off: in practice an in-plane mode, which ``follow``
+    does not kick along). Only z is lifted: an in-plane unstable mode gets no weight."""
     weights = np.maximum(spec.zero - spec.values, 0.0)
     if not weights.any():
         weights = (np.arange(spec.values.size) == 0).astype(float)
@@ -236,16 +240,20 @@ def _observe(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int, 
     (``unstable_direction`` with the ``corner_lift`` field)."""
     K, free = free_hessian(sim.model.problem, sim.x)
     spec = lowest_eigenvalues(K, k)
-    # the unstable direction needs every negative eigenvalue
-    while spec.values[-1] < spec.zero and spec.values.size < K.shape[0] // 2:
-        spec = lowest_eigenvalues(K, 2 * spec.values.size)
+    # the unstable direction needs every eigenvalue the inertia counts negative; asked for one
+    # more than that, lowest_eigenvalues checks that Lanczos found them all
+    if spec.negative >= spec.values.size:
+        if spec.negative + 1 >= K.shape[0]:
+            raise RuntimeError(f"{spec.negative} negative eigenvalues of {K.shape[0]}: no "
+                               "stable mode left to tell the unstable ones by")
+        spec = lowest_eigenvalues(K, spec.negative + 1)
     field = corner_lift(sim.model.x0).ravel()[free]
     mode = expand(unstable_direction(spec, field), free, sim.x.shape)
     zshare = float(np.sum(mode[:, 2] ** 2) / np.sum(mode**2))
     z = mid_surface(sim.model, sim.x)[:, 2]
     return PathPoint(step, sim.t, nominal_strain(sim, nodes, direction),
                      spec.values[:k].tolist(), spec.negative, zshare, float(z.max() - z.min()),
-                     iterations, modes=max(int(np.sum(spec.values < spec.zero)), 1)), mode
+                     iterations, modes=max(spec.negative, 1)), mode
 
 
 def _wrinkles(point: PathPoint) -> bool:
@@ -307,8 +315,9 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     mid-surface |z| is ``kick``, to the state, so the next step starts off the unstable
     equilibrium. The direction is a sheet lifted at one corner (``corner_lift``) through the
     negative part of the stiffness (``unstable_direction``): fixed by the stiffness, not by the
-    basis or the signs the eigensolver returned its modes in, so every element and every run
-    is kicked alike, into the modes that crossed zero in the same step too. The kick moves the state
+    basis or the signs the eigensolver returned its modes in, so runs are kicked alike and
+    every element by the same imperfection, into the modes that crossed zero in the same step
+    too. The kick moves the state
     the first time off the flat (fundamental) path, later off a wrinkled state that is itself
     unstable (a secondary bifurcation), which Newton's iterates would otherwise leave or not
     as round-off has it. The kick is small
@@ -401,7 +410,9 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
 
 def bracket(points: list[PathPoint]) -> tuple[PathPoint, PathPoint] | None:
     """The two steps between which the lowest eigenvalue first goes from positive to
-    negative; None if it never does."""
+    negative; None if it never does. Its sign, not the inertia's count (``_wrinkles``): the
+    crossing is interpolated between the two, and on the flat path the first negative
+    eigenvalue is far below the count's threshold within a step of it."""
     for a, b in zip(points, points[1:], strict=False):
         if a.eigenvalues[0] > 0 >= b.eigenvalues[0]:
             return a, b

@@ -102,6 +102,21 @@ def test_the_kick_direction_is_the_stiffness_s_not_the_eigensolver_s():
                                weighted / np.linalg.norm(weighted), atol=1e-14)
 
 
+def test_a_state_is_kicked_when_the_inertia_counts_an_unstable_mode_out_of_plane():
+    """A nearly neutral mode whose eigenvalue is under zero but above the inertia's threshold
+    (q3t_ans's wrinkled sheet at 2 %: -2.4e-8 N/m, none counted) is not kicked along: its sign
+    is the converged state's residual as much as the branch's; one the inertia counts is, when
+    out of plane, not when in plane."""
+    from sim.apps.stability import PathPoint, _wrinkles
+
+    def point(lowest: float, negative: int, zshare: float) -> PathPoint:
+        return PathPoint(4, 0.08, 0.02, [lowest, 1.5e-4], negative, zshare, 3e-4, 234)
+
+    assert not _wrinkles(point(-2.4e-8, 0, 1.0))
+    assert _wrinkles(point(-4.8e-5, 2, 1.0))
+    assert not _wrinkles(point(-4.8e-5, 1, 0.2))
+
+
 STRIP = """
 name = "euler_strip"
 [mesh]
