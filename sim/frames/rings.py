@@ -16,11 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from sim.frames import results
+from sim.stepping.wall import WALL
 
 KEY = "split_ring"  # result.json's list of rings
-# an element belongs to the wall when its formed mid-surface is steeper than this (degrees from
-# the horizontal): the bottom and the flange are flat, the punch and die radii turn between
-WALL = 60.0
 
 
 def name_of(s: dict) -> str:
