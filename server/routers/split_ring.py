@@ -27,7 +27,8 @@ class NewRing(BaseModel):
         "the ring's lower and upper edge, mm above the cup's bottom (the lowest point of its "
         "formed mid-surface); both on the steep wall"))]
     cut_angle: Finite = Field(0.0, description="the split's meridian, degrees about the cup's "
-                              "axis (z) from x, the rolling direction")
+                              "axis (z) from x, the rolling direction; taken modulo 360 (0 and "
+                              "360 are the same ring)")
 
     @field_validator("heights")
     @classmethod
@@ -36,6 +37,11 @@ class NewRing(BaseModel):
             raise ValueError(f"{v[0]:g}, {v[1]:g} mm: need 0 <= z1 < z2 (mm above the cup's "
                              "bottom)")
         return v
+
+    @field_validator("cut_angle")
+    @classmethod
+    def _turn(cls, v: float) -> float:
+        return rings.angle(v)
 
 
 class Opening(BaseModel):
@@ -121,7 +127,7 @@ def list_rings(run_id: RunId, request: Request) -> dict:
              responses=documented(404, 409, *BODY))
 async def cut_ring(run_id: RunId, body: NewRing, request: Request) -> dict:
     """Cut a ring from the finished cup's wall between ``heights`` (mm above its bottom),
-    release it, split it along the meridian at ``cut_angle`` (deg) and
+    release it, split it along the meridian at ``cut_angle`` (deg, taken modulo 360) and
     release it again, as ``q3t splitring``; saved into the run (result.json's ``split_ring``,
     the same heights and cut replaced; its states as npz and VTU in the run folder). Answers
     when done (seconds to minutes). 409 while another ring is being cut from the run or the

@@ -22,6 +22,13 @@ from sim.stepping.wall import WALL
 KEY = "split_ring"  # result.json's list of rings
 
 
+def angle(deg: float) -> float:
+    """A cut angle (deg) in [0, 360): the same meridian, the same ring (its name and its
+    entry)."""
+    a = deg % 360.0
+    return 0.0 if a == 360.0 else a  # a tiny negative angle rounds up to 360
+
+
 def name_of(s: dict) -> str:
     """A ring's name from its heights and, when not 0, its cut's angle: ``split_ring-8-13mm``,
     ``split_ring-8-13mm-45deg``."""

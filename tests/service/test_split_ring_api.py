@@ -80,10 +80,13 @@ def test_the_ring_is_the_command_lines_and_is_listed(env, cup, tmp_path):
     listed = client.get(url(run)).json()
     assert listed["rings"] == [{k: v for k, v in got.items() if k != "run"}]
     assert listed["cutting"] is None
-    # the same ring again replaces its entry; another cut is another ring
-    assert client.post(url(run), json={"heights": RING_BAND}).status_code == 200
-    assert client.post(url(run), json={"heights": RING_BAND, "cut_angle": 90}).status_code \
-        == 200
+    # the same ring again (360 deg is 0: the same meridian) replaces its entry; another cut
+    # is another ring (-270 deg is 90)
+    again = client.post(url(run), json={"heights": RING_BAND, "cut_angle": 360})
+    assert again.status_code == 200 and again.json()["cut_angle_deg"] == 0
+    assert again.json()["name"] == got["name"]
+    r = client.post(url(run), json={"heights": RING_BAND, "cut_angle": -270})
+    assert r.status_code == 200 and r.json()["cut_angle_deg"] == 90
     assert [(r["heights_mm"], r["cut_angle_deg"]) for r in client.get(url(run)).json()[
         "rings"]] == [(RING_BAND, 0.0), (RING_BAND, 90.0)]
 

@@ -98,11 +98,11 @@ def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
     assert f"{1e3 * s['opening']['at_mid_height']:.3f}" in capsys.readouterr().out
     # another ring is added, the same ring again replaces its entry, another cut is another
     assert main(["splitring", str(run), "--heights", "0,2", "--heights", "0,1.5"]) == 0
-    assert main(["splitring", str(run), "--heights", "0,2", "--cut-angle", "45"]) == 0
+    assert main(["splitring", str(run), "--heights", "0,2", "--cut-angle", "-315"]) == 0
     res = json.loads((run / "result.json").read_text())
     assert [(r["heights"], r["cut_angle"]) for r in res["split_ring"]] == [
         ([0.0, 0.0015], 0.0), ([0.0, 0.002], 0.0), ([0.0, 0.002], 45.0)]
-    assert (run / "split_ring-0-2mm-45deg.npz").is_file()
+    assert (run / "split_ring-0-2mm-45deg.npz").is_file()  # -315 deg is 45: one name
 
 
 def test_a_ring_with_a_number_not_finite_is_not_saved(tmp_path):
