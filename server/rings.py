@@ -10,7 +10,8 @@ and a solver that crashes or runs out of memory would take the server with it. N
 solver process either: that steps the queue's runs and reads commands only between steps, so a
 ring would wait for whole runs. One process: rings take turns (a ring uses a core as a run's
 solver does; the machine has few). One ring per run at a time: a second request while one is
-cut is a 409, and a run is not deleted under a ring being cut from it.
+cut is a 409, and a run is not deleted under a ring being cut from it, nor a ring cut from a
+run being deleted.
 """
 
 from __future__ import annotations
@@ -19,24 +20,28 @@ import asyncio
 import math
 import multiprocessing as mp
 import threading
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from server.problems import Conflict, Invalid, Unsolved
+from server.problems import Conflict, Invalid, NotFound, Unsolved
 from sim.frames import rings
 
 WALL_NOTE = ("a ring is cut from the steep wall of a drawn cup, between two heights above its "
              "bottom")
 
 
-def cut_ring(folder: str, z1: float, z2: float, cut_angle: float) -> dict:
+def cut_ring(run_id: str, folder: str, z1: float, z2: float, cut_angle: float) -> dict:
     """In the child process: the ring between ``z1 < z2`` (m above the cup's bottom), cut at
-    ``cut_angle`` (deg), released, split, released again and saved into the run in
+    ``cut_angle`` (deg), released, split, released again and saved into the run ``run_id`` in
     ``folder``. Returns ``{"ring": summary}`` (SI), ``{"invalid": why}`` naming the field, or
-    ``{"failed": why}``: the solver's types stay in the child."""
+    ``{"failed": why}``: the solver's types stay in the child. An OSError (the folder gone)
+    reaches the parent as itself."""
     from sim.stepping.split_ring import SplitRingError, open_formed, split_ring
 
     path = Path(folder)
@@ -44,12 +49,7 @@ def cut_ring(folder: str, z1: float, z2: float, cut_angle: float) -> dict:
         formed = open_formed(path)
         res = split_ring(formed, z1, z2, math.radians(cut_angle))
     except SplitRingError as exc:
-        # the command line's RUN is the request's run_id; the server's folder is no business
-        # of the client's
-        text = str(exc)
-        for where, name in ((path / "final.npz", "run_id: final.npz"), (path, "run_id")):
-            text = text.replace(f"RUN: {where}", name)
-        return {"invalid": text}
+        return {"invalid": _as_run(str(exc), run_id, path)}
     except RuntimeError as exc:
         return {"failed": str(exc)}
     try:
@@ -59,13 +59,25 @@ def cut_ring(folder: str, z1: float, z2: float, cut_angle: float) -> dict:
     return {"ring": res.summary}
 
 
+def _as_run(text: str, run_id: str, folder: Path) -> str:
+    """The command line's RUN (a folder) as the request's ``run_id``: the server's folder is no
+    business of the client's."""
+    for where, name in ((folder / "final.npz", f"run_id: {run_id}: final.npz"),
+                        (folder, f"run_id: {run_id}")):
+        text = text.replace(f"RUN: {where}", name)
+    return text
+
+
 class RingCutter:
-    """The child process that cuts rings, and the runs a ring is being cut from."""
+    """The child process that cuts rings, and the runs a ring is being cut from or that are
+    being deleted: both marked under one lock, so that no ring is cut from a folder being
+    removed."""
 
     def __init__(self) -> None:
         self._pool: ProcessPoolExecutor | None = None
         self._lock = threading.Lock()
         self.cutting: dict[str, dict] = {}  # run id -> the ring being cut (mm, deg)
+        self._deleting: set[str] = set()
 
     def executor(self) -> ProcessPoolExecutor:
         """The process rings are cut in (started now if need be)."""
@@ -74,41 +86,70 @@ class RingCutter:
                 self._pool = ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"))
             return self._pool
 
-    def check_idle(self, run_id: str) -> None:
-        """Conflict while a ring is being cut from the run."""
-        ring = self.cutting.get(run_id)
-        if ring is not None:
-            raise Conflict(f"run {run_id!r}: a split ring ({_band(ring)}) is being cut from "
-                           "it; wait until it is done")
+    @contextmanager
+    def deleting(self, run_id: str) -> Iterator[None]:
+        """Around deleting a run: Conflict while a ring is being cut from it, and a ring asked
+        for meanwhile is refused (Conflict), so the check and the deletion are one step for
+        the rings."""
+        with self._lock:
+            ring = self.cutting.get(run_id)
+            if ring is not None:
+                raise Conflict(f"run {run_id!r}: a split ring ({_band(ring)}) is being cut "
+                               "from it; wait until it is done")
+            self._deleting.add(run_id)
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._deleting.discard(run_id)
 
-    async def cut(self, run_id: str, folder: Path, heights_mm: list[float],
-                  cut_angle: float) -> dict:
+    async def cut(self, run_id: str, folder: Path, heights_mm: list[float], cut_angle: float,
+                  check: Callable[[], None]) -> dict:
         """The ring's summary (SI), saved into the run; Conflict while another ring is cut
-        from the run, Invalid naming the field, Unsolved (naming ``heights``) when a release
-        failed."""
+        from the run or the run is being deleted, Invalid naming the field, Unsolved (naming
+        ``heights``) when a release failed, NotFound naming ``run_id`` when its folder went
+        away. ``check`` (run in a thread once the ring is marked as being cut, so that the
+        run cannot be deleted from then on) raises when no ring can be cut from the run."""
         ring = {"heights_mm": list(heights_mm), "cut_angle_deg": cut_angle}
         with self._lock:
+            if run_id in self._deleting:
+                raise Conflict(f"run {run_id!r} is being deleted")
             if run_id in self.cutting:
                 raise Conflict(f"run {run_id!r}: a split ring ({_band(self.cutting[run_id])}) "
                                "is being cut from it; ask again when it is done")
             self.cutting[run_id] = ring
         try:
-            z1, z2 = (1e-3 * z for z in heights_mm)
-            job = self.executor().submit(cut_ring, str(folder), z1, z2, cut_angle)
-            out = await asyncio.wrap_future(job)
-        except BrokenProcessPool:
-            with self._lock:
-                self._pool = None  # a new process for the next ring
-            raise Unsolved(f"heights: {_band(ring)}: the process cutting the ring died (out of "
-                             "memory, or killed); nothing was written") from None
+            await asyncio.to_thread(check)
+            out = await self._solve(run_id, folder, ring)
+        except OSError:
+            if folder.is_dir():
+                raise  # not a folder gone: the server's trouble (a 500)
+            raise _gone(run_id) from None
         finally:
             with self._lock:
                 self.cutting.pop(run_id, None)
+        if "ring" not in out and not folder.is_dir():
+            raise _gone(run_id)
         if "invalid" in out:
             raise Invalid(out["invalid"])
         if "failed" in out:
             raise Unsolved(f"heights: {_band(ring)}: {out['failed']}; nothing was written")
         return out["ring"]
+
+    async def _solve(self, run_id: str, folder: Path, ring: dict) -> dict:
+        """The child's answer for ``ring`` (cut_ring's); Unsolved when the child died."""
+        z1, z2 = (1e-3 * z for z in ring["heights_mm"])
+        pool = self.executor()
+        try:
+            job = pool.submit(cut_ring, run_id, str(folder), z1, z2, ring["cut_angle_deg"])
+            return await asyncio.wrap_future(job)
+        except BrokenProcessPool:
+            with self._lock:
+                if self._pool is pool:  # not one another request started meanwhile
+                    self._pool = None  # a new process for the next ring
+            pool.shutdown(wait=False)
+            raise Unsolved(f"heights: {_band(ring)}: the process cutting the ring died (out of "
+                           "memory, or killed); nothing was written") from None
 
     def close(self) -> None:
         """At shutdown: a ring being cut is abandoned (its files are written through
@@ -126,6 +167,11 @@ class RingCutter:
             p.join(5.0)
 
 
+def _gone(run_id: str) -> NotFound:
+    return NotFound(f"run_id: {run_id}: its folder is gone (deleted outside the service); no "
+                    "ring was saved")
+
+
 def _band(ring: dict) -> str:
     z1, z2 = ring["heights_mm"]
     return f"ring {z1:g}-{z2:g} mm, cut at {ring['cut_angle_deg']:g} deg"
@@ -134,18 +180,29 @@ def _band(ring: dict) -> str:
 def cuttable(state: str, folder: Path) -> tuple[str | None, tuple[float, float] | None]:
     """Why no ring can be cut from a run in ``state`` with its ``folder`` (None: it can be
     tried), and how far its wall reaches (mm above the bottom, sim.frames.rings.wall): whether
-    the heights are on the wall and hold a closed ring only the cut says."""
+    the heights are on the wall and hold a closed ring only the cut says. OSError when the
+    folder goes meanwhile."""
     if state != "finished":
         return f"the run is {state}: {WALL_NOTE} of a finished run", None
     final = folder / "final.npz"
-    if not final.is_file():
+    try:
+        st = final.stat()
+    except FileNotFoundError:
         return "the run has no final.npz (its final state)", None
+    return _final_facts(str(final), st.st_mtime_ns, st.st_size)
+
+
+@lru_cache(maxsize=64)
+def _final_facts(final: str, mtime_ns: int, size: int) -> tuple[str | None,
+                                                                 tuple[float, float] | None]:
+    """cuttable's answer for a final.npz, read once per version of the file (by its
+    modification time and size): the page asks again every few seconds."""
     with np.load(final) as z:  # the names only: nothing is read
         names = set(z.files)
     if not {"fp_inv", "ep"} <= names:
         return ("its material is not plastic: the ring opens by the residual stresses of "
                 "plastic forming"), None
-    wall = rings.wall(folder)
+    wall = rings.wall(Path(final).parent)
     if wall is None:
         return (f"no steep wall: no element of the formed part is inclined more than "
                 f"{rings.WALL:g} deg from the horizontal ({WALL_NOTE})"), None

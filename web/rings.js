@@ -4,14 +4,25 @@
 "use strict";
 const Rings = (() => {
   const HEIGHTS = [8, 13];  // mm: the command line's default ring (sim/apps/splitring.py)
+  // ms between fetches of a run's rings while its section is on screen: a ring cut by another
+  // page or by `q3t splitring` shows within this (the server caches the final state's wall)
+  const REFRESH_MS = 5000;
   let drawn = null;  // "run/state" of the list on screen
+  let fetched = 0;  // when it was fetched (Date.now())
   let shown = null;  // the run the inputs were filled for
-  let busy = false;
-  let pending = false;  // this page's own request is out
   let current = null;  // the run shown
+  // this page's cuts, per run: {band, inputs, pending, error}; the answer for a run not on
+  // screen waits here until that run is shown again
+  const mine = new Map();
 
   const $ = (id) => document.getElementById(id);
-  const mm = (v) => Units.num(v, 3);
+  // lengths in mm to the µm, as the command line's table: the opening and the change of
+  // diameter between formed, released and split are tens of µm on diameters of tens of mm
+  const mm = (v) => {
+    if (v === null || v === undefined || !Number.isFinite(+v)) return "–";
+    const t = (+v).toFixed(3);
+    return t === "-0.000" ? "0.000" : t;
+  };
 
   function defaults(wall) {
     // the command line's ring where the wall holds it, else the wall's extent rounded out to
@@ -25,23 +36,33 @@ const Rings = (() => {
     for (const id of ["ring-z1", "ring-z2", "ring-angle"]) $(id).classList.remove("has-error");
   }
 
+  // a detail names its fields at the start of each part ("body.heights: ...; body.cut_angle:
+  // ..."); a reason may hold "; " itself ("...; nothing was written")
+  const PART = /; (?=(?:body\.)?(?:heights|cut_angle|run_id)\b|body\.)/;
+
   function showError(detail) {
-    // next to the field the server names: heights, cut_angle, else under the button
-    const field = /^(body\.)?heights/.test(detail) ? "heights"
-      : /^(body\.)?cut_angle/.test(detail) ? "angle" : null;
-    const text = detail.replace(/^body\./, "");
-    if (field === "heights") {
-      $("ring-heights-error").textContent = text;
+    // each part next to the field it names: heights, cut_angle, else under the button
+    const by = { heights: [], angle: [], other: [] };
+    for (const part of detail.split(PART)) {
+      const text = part.replace(/^body\./, "");
+      const field = /^heights\b/.test(text) ? "heights" : /^cut_angle\b/.test(text) ? "angle"
+        : "other";
+      by[field].push(text);
+    }
+    if (by.heights.length) {
+      $("ring-heights-error").textContent = by.heights.join("; ");
       $("ring-z1").classList.add("has-error");
       $("ring-z2").classList.add("has-error");
-    } else if (field === "angle") {
-      $("ring-angle-error").textContent = text;
+    }
+    if (by.angle.length) {
+      $("ring-angle-error").textContent = by.angle.join("; ");
       $("ring-angle").classList.add("has-error");
-    } else $("ring-error").textContent = text;
+    }
+    if (by.other.length) $("ring-error").textContent = by.other.join("; ");
   }
 
   function setBusy(on, what) {
-    busy = on;
+    // the run on screen only: another run's ring may be cut meanwhile
     const b = $("ring-cut");
     b.disabled = on;
     b.textContent = on ? "Cutting…" : "Cut ring";
@@ -99,6 +120,22 @@ const Rings = (() => {
     return t;
   }
 
+  function fill(run, wall) {
+    // the inputs of a run shown anew: what this page sent for it, else the defaults; the
+    // answer to a cut that came while another run was shown, now
+    const own = mine.get(run);
+    const [z1, z2] = defaults(wall);
+    const v = own ? own.inputs : { z1, z2, angle: 0 };
+    $("ring-z1").value = v.z1;
+    $("ring-z2").value = v.z2;
+    $("ring-angle").value = v.angle;
+    clearErrors();
+    if (own && !own.pending) {
+      mine.delete(run);
+      if (own.error) showError(own.error);
+    }
+  }
+
   function render(data) {
     const box = $("split-ring");
     box.hidden = !data.available && !data.rings.length;
@@ -106,19 +143,17 @@ const Rings = (() => {
     box.dataset.count = String(data.rings.length);
     $("ring-form").hidden = !data.available;
     $("ring-wall").textContent = data.wall_mm
-      ? `The steep wall (over 60° from the horizontal) runs ${mm(data.wall_mm[0])} to ` +
-        `${mm(data.wall_mm[1])} mm above the cup's bottom.`
+      ? `The steep wall (over 60° from the horizontal) runs ${Units.num(data.wall_mm[0])} to ` +
+        `${Units.num(data.wall_mm[1])} mm above the cup's bottom.`
       : (data.reason ? `No ring can be cut: ${data.reason}.` : "");
     if (shown !== data.run) {
       shown = data.run;
-      const [z1, z2] = defaults(data.wall_mm);
-      $("ring-z1").value = z1;
-      $("ring-z2").value = z2;
-      $("ring-angle").value = 0;
-      clearErrors();
+      fill(data.run, data.wall_mm);
     }
-    if (data.cutting && !busy) setBusy(true, band(data.cutting));
-    else if (!data.cutting && busy && !pending) setBusy(false);
+    const own = mine.get(data.run);
+    if (own && own.pending) setBusy(true, own.band);
+    else if (data.cutting) setBusy(true, band(data.cutting));  // by another page
+    else setBusy(false);
     const list = $("ring-list");
     if (!data.rings.length) {
       const p = document.createElement("p");
@@ -131,6 +166,7 @@ const Rings = (() => {
 
   async function load(id) {
     let data;
+    fetched = Date.now();
     try {
       data = await api("GET", `/api/runs/${id}/split_ring`);
     } catch (e) {
@@ -148,8 +184,10 @@ const Rings = (() => {
       drawn = null;
       return;
     }
-    // again while a ring is cut elsewhere (another browser): its end shows the new ring
-    if (drawn === k && !(busy && !pending)) return;
+    // again after a while while the section is on screen: a ring cut by another page or by
+    // the command line shows, and one being cut shows busy
+    if (drawn === k && ($("split-ring").hidden || document.hidden ||
+                        Date.now() - fetched < REFRESH_MS)) return;
     drawn = k;
     await load(st.id);
   }
@@ -157,9 +195,10 @@ const Rings = (() => {
   async function cut() {
     const id = current;
     clearErrors();
-    const z1 = parseFloat($("ring-z1").value.replace(",", "."));
-    const z2 = parseFloat($("ring-z2").value.replace(",", "."));
-    const angle = parseFloat($("ring-angle").value.replace(",", "."));
+    const inputs = { z1: $("ring-z1").value, z2: $("ring-z2").value, angle: $("ring-angle").value };
+    const z1 = parseFloat(inputs.z1.replace(",", "."));
+    const z2 = parseFloat(inputs.z2.replace(",", "."));
+    const angle = parseFloat(inputs.angle.replace(",", "."));
     if (!Number.isFinite(z1) || !Number.isFinite(z2)) {
       showError("heights: two numbers in mm above the cup's bottom");
       return;
@@ -168,22 +207,26 @@ const Rings = (() => {
       showError("cut_angle: a number of degrees");
       return;
     }
-    pending = true;
-    setBusy(true, `${Units.num(z1)}–${Units.num(z2)} mm`);
+    const own = { band: `${Units.num(z1)}–${Units.num(z2)} mm`, inputs, pending: true,
+                  error: null };
+    mine.set(id, own);
+    setBusy(true, own.band);
     try {
       await api("POST", `/api/runs/${id}/split_ring`, { heights: [z1, z2], cut_angle: angle });
     } catch (e) {
-      if (id === current) showError(e.message);
-    } finally {
-      pending = false;
-      setBusy(false);
-      if (id === current) await load(id);
+      own.error = e.message;
     }
+    own.pending = false;
+    if (id !== current) return;  // shown when the run is shown again (fill)
+    mine.delete(id);
+    setBusy(false);
+    if (own.error) showError(own.error);
+    await load(id);
   }
 
   function forget() {
     drawn = shown = current = null;
-    if (!pending) setBusy(false);
+    setBusy(false);
     $("split-ring").hidden = true;
     $("ring-list").replaceChildren();
     $("split-ring").dataset.ready = "false";

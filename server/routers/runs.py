@@ -428,6 +428,6 @@ def delete_run(run_id: RunId, request: Request, view: ViewId = None) -> Response
     cut from it. A run another view (``X-Q3T-View``) started is deleted all the same: that
     view is told, and the answer's ``X-Q3T-Notice`` header says so."""
     m = _runs(request)
-    request.app.state.rings.check_idle(run_id)  # the ring's child writes into its folder
-    notice = m.delete(run_id, by=view)
+    with request.app.state.rings.deleting(run_id):  # a ring's child writes into its folder
+        notice = m.delete(run_id, by=view)
     return Response(status_code=204, headers={"X-Q3T-Notice": notice} if notice else None)

@@ -7,11 +7,10 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Request
-from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from server.errors import BODY, CheckedRoute, documented
-from server.problems import Invalid
+from server.problems import Invalid, NotFound
 from server.rings import RingCutter, cuttable
 from server.runs import RunManager
 from server.settings import RunId
@@ -28,7 +27,8 @@ class NewRing(BaseModel):
         "the ring's lower and upper edge, mm above the cup's bottom (the lowest point of its "
         "formed mid-surface); both on the steep wall"))]
     cut_angle: Finite = Field(0.0, description="the split's meridian, degrees about the cup's "
-                              "axis (z) from x, the rolling direction")
+                              "axis (z) from x, the rolling direction; taken modulo 360 (0 and "
+                              "360 are the same ring)")
 
     @field_validator("heights")
     @classmethod
@@ -37,6 +37,11 @@ class NewRing(BaseModel):
             raise ValueError(f"{v[0]:g}, {v[1]:g} mm: need 0 <= z1 < z2 (mm above the cup's "
                              "bottom)")
         return v
+
+    @field_validator("cut_angle")
+    @classmethod
+    def _turn(cls, v: float) -> float:
+        return rings.angle(v)
 
 
 class Opening(BaseModel):
@@ -108,28 +113,36 @@ def list_rings(run_id: RunId, request: Request) -> dict:
     """The split rings cut from the run so far (``q3t splitring`` and this API write them
     into its result.json), and whether one can be cut."""
     _, run, folder = _run(request, run_id)
-    why, wall = cuttable(run.state, folder)
+    try:
+        why, wall = cuttable(run.state, folder)
+        cut = [rings.shown(s) for s in rings.of_run(folder)]
+    except OSError:  # deleted since _run found it
+        raise NotFound(f"run_id: {run.id}: its folder is gone") from None
     cutter: RingCutter = request.app.state.rings
     return {"run": run.id, "available": why is None, "reason": why, "wall_mm": wall,
-            "cutting": cutter.cutting.get(run.id),
-            "rings": [rings.shown(s) for s in rings.of_run(folder)]}
+            "cutting": cutter.cutting.get(run.id), "rings": cut}
 
 
 @router.post("/{run_id}/split_ring", response_model=CutRing,
              responses=documented(404, 409, *BODY))
 async def cut_ring(run_id: RunId, body: NewRing, request: Request) -> dict:
     """Cut a ring from the finished cup's wall between ``heights`` (mm above its bottom),
-    release it, split it along the meridian at ``cut_angle`` (deg) and release it again, as
-    ``q3t splitring``; saved into the run (result.json's ``split_ring``, the same heights and
-    cut replaced; its states as npz and VTU in the run folder). Answers when done (seconds to
-    minutes). 409 while another ring is being cut from the run; 422 naming ``run_id`` (not a
-    finished plastic cup, no final state), ``heights`` (not increasing, off the wall, not one
-    closed ring; or a release that failed, with the solver's numbers: nothing is written) or
-    ``cut_angle``."""
-    _, run, folder = _run(request, run_id)
-    why, _ = await run_in_threadpool(cuttable, run.state, folder)
-    if why:
-        raise Invalid(f"run_id: {run.id}: {why}")
+    release it, split it along the meridian at ``cut_angle`` (deg, taken modulo 360) and
+    release it again, as ``q3t splitring``; saved into the run (result.json's ``split_ring``,
+    the same heights and cut replaced; its states as npz and VTU in the run folder). Answers
+    when done (seconds to minutes). 409 while another ring is being cut from the run or the
+    run is being deleted; 404 naming ``run_id`` when the run (or its folder) is gone; 422
+    naming ``run_id`` (not a finished plastic cup, no final state), ``heights`` (not
+    increasing, off the wall, not one closed ring; or a release that failed, with the
+    solver's numbers: nothing is written) or ``cut_angle``."""
+    m, run, folder = _run(request, run_id)
+
+    def check() -> None:
+        # once the ring is marked as being cut: a DELETE before that has removed the run
+        why, _ = cuttable(m.get(run.id).state, folder)
+        if why:
+            raise Invalid(f"run_id: {run.id}: {why}")
+
     cutter: RingCutter = request.app.state.rings
-    summary = await cutter.cut(run.id, folder, body.heights, body.cut_angle)
+    summary = await cutter.cut(run.id, folder, body.heights, body.cut_angle, check)
     return {"run": run.id, **rings.shown(summary)}

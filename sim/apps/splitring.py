@@ -85,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         bands = [parse_heights(h) for h in args.heights or [HEIGHTS]]
         if not math.isfinite(args.cut_angle):
             raise ValueError("--cut-angle: must be a finite angle in degrees")
+        args.cut_angle = rings.angle(args.cut_angle)  # 360 is 0: the same ring
         formed = [(Path(f), open_formed(Path(f))) for f in args.runs]
     except (SplitRingError, ValueError) as exc:
         print(f"q3t splitring: {exc}", file=sys.stderr)
@@ -132,6 +133,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         f"more rings (default {HEIGHTS})")
     s.add_argument("--cut-angle", type=float, default=0.0, metavar="DEG",
                    help="the split's meridian, degrees about z from x (the rolling direction; "
-                        "default %(default)g)")
+                        "taken modulo 360; default %(default)g)")
     add_results_option(s, "split-ring.md")
     s.set_defaults(func=run)

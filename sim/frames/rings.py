@@ -10,17 +10,23 @@ rings without importing the solver.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
 import numpy as np
 
 from sim.frames import results
+from sim.stepping.wall import WALL
 
 KEY = "split_ring"  # result.json's list of rings
-# an element belongs to the wall when its formed mid-surface is steeper than this (degrees from
-# the horizontal): the bottom and the flange are flat, the punch and die radii turn between
-WALL = 60.0
+
+
+def angle(deg: float) -> float:
+    """A cut angle (deg) in [0, 360): the same meridian, the same ring (its name and its
+    entry)."""
+    a = deg % 360.0
+    return 0.0 if a == 360.0 else a  # a tiny negative angle rounds up to 360
 
 
 def name_of(s: dict) -> str:
@@ -59,34 +65,46 @@ def save(folder: Path, res: object, ep: np.ndarray) -> None:
     """A ring (a sim.stepping.split_ring.Result) into the run in ``folder``: its states into
     ``<ring>.npz`` and, each as ``<ring>/ring_<state>.vtu`` (mm, the formed equivalent plastic
     strain ``ep`` per ring element), then its summary into result.json (the same heights and
-    cut replaced). The summary is checked first and result.json written last, each file
-    through a temporary name: a ring that cannot be saved (a number not finite: ValueError
-    naming it) leaves the run as it was, and a ring listed in result.json has its files."""
-    from sim.frames import export, series
-
+    cut replaced). The summary is checked first (a number not finite: ValueError naming it),
+    every file is written into a hidden staging folder, then each is moved into place by a
+    rename and result.json is written last: a ring that cannot be saved leaves the run as it
+    was (its staging folder removed), and a ring listed in result.json has its files (those of
+    a ring cut again are replaced one by one, never missing)."""
     path = folder / "result.json"
     data = json.loads(path.read_text()) if path.is_file() else {}
     key = (res.summary["heights"], res.summary["cut_angle"])
     rings = [r for r in data.get(KEY, []) if (r["heights"], r["cut_angle"]) != key]
     data[KEY] = sorted([*rings, res.summary], key=lambda r: (r["heights"], r["cut_angle"]))
     results.dumps(data)  # a number not finite raises here, before anything is written
+    name = name_of(res.summary)
+    stage = folder / f".{name}.tmp"
+    shutil.rmtree(stage, ignore_errors=True)  # left by a save that was killed
+    try:
+        stage.mkdir()
+        _stage(stage, res, ep)
+        (folder / name).mkdir(exist_ok=True)
+        for f in sorted(stage.glob("*.vtu")):
+            os.replace(f, folder / name / f.name)
+        os.replace(stage / "ring.npz", folder / f"{name}.npz")
+        results.write(path, data)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def _stage(stage: Path, res: object, ep: np.ndarray) -> None:
+    """A ring's files into the folder ``stage``: ring.npz and ring_<state>.vtu (as save)."""
+    from sim.frames import export, series
+
     sh = res.ring.shell
     skins = series.skins(res.ring)
-    name = name_of(res.summary)
-    series.save_npz(folder / f"{name}.npz", rest=sh.rest, conn=sh.conn, faces=sh.mesh.faces,
-                    skins=skins, elements=res.ring.elements, twins=res.ring.twins,
-                    **res.states)
-    tmp = folder / f".{name}.tmp"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
+    with open(stage / "ring.npz", "wb") as f:
+        np.savez_compressed(f, rest=sh.rest, conn=sh.conn, faces=sh.mesh.faces, skins=skins,
+                            elements=res.ring.elements, twins=res.ring.twins, **res.states)
     rest = sh.rest[skins.ravel()] * export.MM
     for i, (state, x) in enumerate(res.states.items()):
         shown = export.State(i, 0.0, x[skins.ravel()] * export.MM, rest, {},
                              {"eq_plastic_strain": ep})
-        export.vtu(shown, sh.mesh.faces, tmp / f"ring_{state}.vtu")
-    shutil.rmtree(folder / name, ignore_errors=True)
-    tmp.rename(folder / name)
-    results.write(path, data)
+        export.vtu(shown, sh.mesh.faces, stage / f"ring_{state}.vtu")
 
 
 def shown(s: dict) -> dict:

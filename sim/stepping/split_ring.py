@@ -39,7 +39,6 @@ import numpy as np
 
 from sim.elements import get_element
 from sim.frames.fields import mid_surface
-from sim.frames.rings import WALL
 from sim.geometry.quadrature import Rule
 from sim.geometry.rigid import determinate_support
 from sim.geometry.shell import Shell, extrude
@@ -52,6 +51,7 @@ from sim.solve.assembly import build_pattern
 from sim.solve.linsolve import make_solver
 from sim.solve.newton import minimise
 from sim.solve.problem import Problem
+from sim.stepping.wall import WALL
 from sim.terms.elasticity import Elasticity
 
 # half-width (degrees) of the sector whose mean radius gives a diameter's end: three to four

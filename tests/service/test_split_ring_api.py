@@ -6,16 +6,21 @@ the run."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import shutil
 import threading
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from server.problems import NotFound, Unsolved
+from server.rings import RingCutter
 from sim.frames import rings
 from tests.support.scenes import RING_BAND, ring_cup_toml, tiny_cup_toml
-from tests.support.service import finished_run, in_process, until, until_exists
+from tests.support.service import HANG, finished_run, in_process, until, until_exists
 
 
 @pytest.fixture(scope="module")
@@ -75,10 +80,13 @@ def test_the_ring_is_the_command_lines_and_is_listed(env, cup, tmp_path):
     listed = client.get(url(run)).json()
     assert listed["rings"] == [{k: v for k, v in got.items() if k != "run"}]
     assert listed["cutting"] is None
-    # the same ring again replaces its entry; another cut is another ring
-    assert client.post(url(run), json={"heights": RING_BAND}).status_code == 200
-    assert client.post(url(run), json={"heights": RING_BAND, "cut_angle": 90}).status_code \
-        == 200
+    # the same ring again (360 deg is 0: the same meridian) replaces its entry; another cut
+    # is another ring (-270 deg is 90)
+    again = client.post(url(run), json={"heights": RING_BAND, "cut_angle": 360})
+    assert again.status_code == 200 and again.json()["cut_angle_deg"] == 0
+    assert again.json()["name"] == got["name"]
+    r = client.post(url(run), json={"heights": RING_BAND, "cut_angle": -270})
+    assert r.status_code == 200 and r.json()["cut_angle_deg"] == 90
     assert [(r["heights_mm"], r["cut_angle_deg"]) for r in client.get(url(run)).json()[
         "rings"]] == [(RING_BAND, 0.0), (RING_BAND, 90.0)]
 
@@ -101,6 +109,13 @@ def _close(got: dict, want: dict) -> bool:
     ('{"heights": [1.6, 1e999]}', "body.heights.1: Input should be a finite number"),
     ('{"heights": [1.6, 6.2], "cut_angle": Infinity}', "body.cut_angle: Input should be a "
                                                         "finite number"),
+    ({"heights": [1.6, 6.2], "colour": "red"}, "body.colour: Extra inputs are not permitted"),
+    ({"heights": ["1.6", 6.2]}, "body.heights.0: Input should be a valid number"),
+    ({"heights": "1.6, 6.2"}, "body.heights: Input should be a valid list"),
+    ({"heights": [1.6, 6.2], "cut_angle": "0"}, "body.cut_angle: Input should be a valid "
+                                                "number"),
+    ({"heights": [1.6, 6.2], "cut_angle": None}, "body.cut_angle: Input should be a valid "
+                                                 "number"),
     ({"heights": [8, 13]}, "heights: 13 mm is above the part (its top is"),
     ({"heights": [0, 1]}, "heights: 0-1 mm is not all on the wall"),
     ({"heights": [3, 5]}, "heights: 3-5 mm is not one closed ring around the axis"),
@@ -115,6 +130,17 @@ def test_bad_requests_are_422_naming_the_field_and_change_nothing(env, cup, body
         r = client.post(url(run), json=body)
     assert r.status_code == 422 and detail in r.json()["detail"], r.text
     assert {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()} == before
+
+
+def test_several_bad_fields_are_each_named(env, cup):
+    client, _ = env
+    run, _ = cup
+    r = client.post(url(run), json={"heights": [6.2, 1.6], "cut_angle": "north", "to": 1})
+    assert r.status_code == 422, r.text
+    parts = r.json()["detail"].split("; ")
+    assert sorted(p.partition(":")[0] for p in parts) == [
+        "body.cut_angle", "body.heights", "body.to"], parts
+    assert any(p.startswith("body.heights: 6.2, 1.6 mm: need 0 <= z1 < z2") for p in parts)
 
 
 def test_runs_a_ring_cannot_be_cut_from_are_422_naming_the_run(env):
@@ -175,6 +201,136 @@ def test_a_second_ring_while_one_is_cut_is_409_and_the_run_is_not_deleted(env, t
     assert (folder / f"{first['r'].json()['name']}.npz").is_file()
     assert client.delete(f"/api/runs/{run}").status_code == 204
     assert not folder.exists()
+
+
+def test_a_run_is_not_deleted_between_a_rings_request_and_its_cut(env, monkeypatch):
+    """The race a DELETE had with a ring: the ring is marked as being cut before the route
+    checks the run (the check is held here until the test lets it go), so the DELETE is a
+    409 and the ring's answer a 4xx, not a 500 from a folder gone under it; a ring asked for
+    while the run is being deleted (the deletion held) is a 409, and once the run is gone a
+    404."""
+    from server.routers import split_ring as route
+
+    client, settings = env
+    run = finished_run(client, "ring_cup")
+    checking, go = threading.Event(), threading.Event()
+    real = route.cuttable
+
+    def held(*args):
+        if not checking.is_set():  # the POST's check; the GETs' pass
+            checking.set()
+            assert go.wait(HANG)
+        return real(*args)
+
+    monkeypatch.setattr(route, "cuttable", held)
+    out: dict = {}
+    t = threading.Thread(target=lambda: out.update(r=client.post(
+        url(run), json={"heights": [3, 5]})))  # refused by the child, quickly
+    t.start()
+    try:
+        assert checking.wait(HANG)
+        assert client.get(url(run)).json()["cutting"]["heights_mm"] == [3, 5]
+        r = client.delete(f"/api/runs/{run}")
+        assert r.status_code == 409 and "is being cut from it" in r.json()["detail"], r.text
+    finally:
+        go.set()
+        t.join()
+    assert out["r"].status_code == 422, out["r"].text
+    assert out["r"].json()["detail"].startswith("heights: 3-5 mm is not one closed ring")
+    monkeypatch.setattr(route, "cuttable", real)
+    # the other way round: a DELETE under way (held as it starts)
+    manager = client.app.state.manager
+    deleting, go = threading.Event(), threading.Event()
+    delete = manager.delete
+
+    def held_delete(*args, **kw):
+        deleting.set()
+        assert go.wait(HANG)
+        return delete(*args, **kw)
+
+    monkeypatch.setattr(manager, "delete", held_delete)
+    t = threading.Thread(target=lambda: out.update(d=client.delete(f"/api/runs/{run}")))
+    t.start()
+    try:
+        assert deleting.wait(HANG)
+        r = client.post(url(run), json={"heights": RING_BAND})
+        assert r.status_code == 409 and r.json()["detail"] == f"run {run!r} is being deleted"
+    finally:
+        go.set()
+        t.join()
+    assert out["d"].status_code == 204
+    assert not (settings.runs_dir / run).exists()
+    r = client.post(url(run), json={"heights": RING_BAND})
+    assert r.status_code == 404 and run in r.json()["detail"], r.text
+
+
+def test_a_final_state_without_its_scene_or_a_folder_gone_name_the_run(env, tmp_path):
+    """The child's reasons name the request's run_id, not the server's folder; a folder that
+    goes (outside the service) while the ring waits for the process is a 404 naming it."""
+    client, settings = env
+    run = finished_run(client, "ring_cup")
+    folder = settings.runs_dir / run
+    with np.load(folder / "final.npz") as z:
+        data = {k: v for k, v in z.items() if k != "scene"}
+    np.savez_compressed(folder / "final.npz", **data)
+    r = client.post(url(run), json={"heights": RING_BAND})
+    assert r.status_code == 422 and r.json()["detail"].startswith(
+        f"run_id: {run}: final.npz: no scene in it"), r.text
+    assert str(settings.runs_dir) not in r.json()["detail"]
+    gate = tmp_path / "gate"
+    held = client.app.state.rings.executor().submit(until_exists, str(gate))
+    t = threading.Thread(target=lambda: data.update(r=client.post(
+        url(run), json={"heights": RING_BAND})))
+    t.start()
+    try:
+        until(lambda: client.get(url(run)).json()["cutting"], "never cutting")
+        shutil.rmtree(folder)
+    finally:
+        gate.touch()
+        t.join()
+        held.result()
+    r = data["r"]
+    assert r.status_code == 404 and r.json()["detail"].startswith(
+        f"run_id: {run}: its folder is gone"), r.text
+    assert client.get(url(run)).json()["reason"] == "the run has no final.npz (its final state)"
+
+
+def test_a_process_that_died_forgets_only_its_own_pool():
+    """Two rings on one process that dies: the second's failure must not drop the process a
+    third ring started meanwhile (it would never be closed)."""
+    cutter = RingCutter()
+    newer = object()
+
+    class Died:
+        def submit(self, *args):
+            cutter._pool = newer  # another request replaced the broken pool meanwhile
+            raise BrokenProcessPool("the child died")
+
+        def shutdown(self, wait=True):
+            self.down = True
+
+    died = cutter._pool = Died()
+    with pytest.raises(Unsolved, match="the process cutting the ring died"):
+        asyncio.run(cutter.cut("r1", Path("."), [1.0, 2.0], 0.0, lambda: None))
+    assert cutter._pool is newer and died.down and cutter.cutting == {}
+    cutter._pool = died
+    with pytest.raises(Unsolved):
+        asyncio.run(cutter.cut("r1", Path("."), [1.0, 2.0], 0.0, lambda: None))
+    assert cutter._pool is newer  # set by submit, kept
+
+
+def test_a_folder_gone_under_the_child_is_a_404_other_os_errors_stay_500(tmp_path):
+    cutter = RingCutter()
+
+    async def vanished(*args):
+        raise FileNotFoundError(2, "No such file or directory")
+
+    cutter._solve = vanished
+    with pytest.raises(NotFound, match="run_id: r1: its folder is gone"):
+        asyncio.run(cutter.cut("r1", tmp_path / "gone", [1.0, 2.0], 0.0, lambda: None))
+    with pytest.raises(FileNotFoundError):  # the folder is there: not the client's doing
+        asyncio.run(cutter.cut("r1", tmp_path, [1.0, 2.0], 0.0, lambda: None))
+    assert cutter.cutting == {}
 
 
 def test_a_release_that_fails_says_why_and_writes_nothing(env):

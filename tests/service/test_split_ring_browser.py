@@ -12,7 +12,7 @@ import pytest
 
 from tests.support.browser import VIEWER_FOR_SHOTS, click_row, open_scene, serve, shot, shots_dir
 from tests.support.scenes import RING_BAND, ring_cup_toml, tiny_cup_toml
-from tests.support.service import until
+from tests.support.service import HANG, finished_run, until
 
 SHOTS = shots_dir("split-ring")
 pytestmark = pytest.mark.browser
@@ -87,11 +87,13 @@ def test_a_ring_is_cut_from_the_page_and_tabled(served, open_page):
             for r in page.locator("#ring-table tbody tr").all()}
     num = lambda v, digits=3: page.evaluate("([v, d]) => Units.num(v, d)", [v, digits])  # noqa: E731
     o, d = ring["opening_mm"], ring["diameters_mm"]
+    # lengths to the µm, as the command line's table: the formed, released and split
+    # diameters differ by less than 3 significant digits show
     want = {"Cut angle (deg)": "0", "Elements": str(ring["elements"]),
-            "Opening at mid-height (mm)": num(o["at_mid_height"]),
-            "Opening along the cut, min (mm)": num(o["min"]),
-            "Opening along the cut, max (mm)": num(o["max"]),
-            **{f"D {s}, {name} (mm)": num(d[s][k]) for s in ("formed", "released", "split")
+            "Opening at mid-height (mm)": f"{o['at_mid_height']:.3f}",
+            "Opening along the cut, min (mm)": f"{o['min']:.3f}",
+            "Opening along the cut, max (mm)": f"{o['max']:.3f}",
+            **{f"D {s}, {name} (mm)": f"{d[s][k]:.3f}" for s in ("formed", "released", "split")
                for k, name in (("mean", "mean"), ("d0", "0°"), ("d90", "90°"))},
             "Re-yield on release, closed (%)": num(ring["reyield_pct"]["closed"], 2),
             "Re-yield on release, split (%)": num(ring["reyield_pct"]["split"], 2)}
@@ -106,6 +108,66 @@ def test_a_ring_is_cut_from_the_page_and_tabled(served, open_page):
     assert page.locator("#ring-table tbody tr").nth(0).locator("td").all_inner_texts() == \
         ["0", "90"]
     shot(page, SHOTS, "two-rings.png", where="#split-ring")
+
+
+def test_a_cut_belongs_to_its_run_and_rings_cut_elsewhere_show(served, open_page):
+    """Two finished cups A and B. A ring cut from A by another client shows on the page
+    showing A without selecting it again. The page's cut on A (its request held in the
+    browser until the test lets it go) shows A busy, not B when B is selected; its answer,
+    come while B is shown, shows when A is shown again: the error next to the heights typed,
+    or the ring in A's table."""
+    url = served
+    with httpx.Client(base_url=url, timeout=HANG) as client:
+        a, b = finished_run(client, "ring_cup"), finished_run(client, "ring_cup")
+    page = open_page(url, "#runs tbody tr")
+    click_row(page, a)
+    page.wait_for_selector(f"#split-ring[data-run='{a}'][data-count='0'][data-ready='true']")
+    r = httpx.post(f"{url}/api/runs/{a}/split_ring", json={"heights": RING_BAND},
+                   timeout=HANG)
+    assert r.status_code == 200, r.text
+    page.wait_for_selector(f"#split-ring[data-run='{a}'][data-count='1']")
+    held = []
+    page.route("**/api/runs/*/split_ring",
+               lambda route: held.append(route) if route.request.method == "POST"
+               else route.continue_())
+
+    def cut_then_show_b(z1: str, z2: str, angle: str) -> None:
+        page.fill("#ring-z1", z1)
+        page.fill("#ring-z2", z2)
+        page.fill("#ring-angle", angle)
+        page.click("#ring-cut")
+        page.wait_for_function("document.getElementById('ring-cut').disabled")
+        # Playwright calls the route's handler inside its own calls: evaluate lets it run
+        until(lambda: page.evaluate("true") and held, "the cut's request never left")
+        click_row(page, b)
+        page.wait_for_selector(f"#split-ring[data-run='{b}'][data-ready='true']")
+        assert not page.is_disabled("#ring-cut") and page.inner_text("#ring-cut") == "Cut ring"
+        assert not page.is_visible("#ring-busy")
+        assert page.get_attribute("#split-ring", "aria-busy") == "false"
+        assert page.input_value("#ring-z1") == str(RING_BAND[0])  # B's own defaults
+
+    # heights above the part: refused while B is shown
+    cut_then_show_b("8", "13", "0")
+    shot(page, SHOTS, "other-run-while-cutting.png", where="#split-ring")
+    with page.expect_response(lambda r: r.request.method == "POST"):
+        held.pop().continue_()
+    click_row(page, a)
+    page.wait_for_function("document.getElementById('ring-heights-error').textContent !== ''")
+    assert page.inner_text("#ring-heights-error").startswith("heights: 13 mm is above the part")
+    assert [page.input_value(f"#ring-{f}") for f in ("z1", "z2", "angle")] == ["8", "13", "0"]
+    assert not page.is_disabled("#ring-cut")
+    shot(page, SHOTS, "late-error-back-on-a.png", where="#split-ring")
+    # a ring at 90 deg: done while B is shown, in A's table when A is shown again
+    cut_then_show_b(*map(str, RING_BAND), "90")
+    with page.expect_response(lambda r: r.request.method == "POST") as answer:
+        held.pop().continue_()
+    assert answer.value.status == 200
+    click_row(page, a)
+    page.wait_for_selector(f"#split-ring[data-run='{a}'][data-count='2']")
+    assert page.locator("#ring-table tbody tr").nth(0).locator("td").all_inner_texts() == \
+        ["0", "90"]
+    assert not page.is_disabled("#ring-cut") and page.inner_text("#ring-heights-error") == ""
+    shot(page, SHOTS, "late-ring-back-on-a.png", where="#split-ring")
 
 
 def test_a_run_without_a_wall_has_no_split_ring_section(served, open_page):

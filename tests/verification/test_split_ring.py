@@ -98,11 +98,11 @@ def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
     assert f"{1e3 * s['opening']['at_mid_height']:.3f}" in capsys.readouterr().out
     # another ring is added, the same ring again replaces its entry, another cut is another
     assert main(["splitring", str(run), "--heights", "0,2", "--heights", "0,1.5"]) == 0
-    assert main(["splitring", str(run), "--heights", "0,2", "--cut-angle", "45"]) == 0
+    assert main(["splitring", str(run), "--heights", "0,2", "--cut-angle", "-315"]) == 0
     res = json.loads((run / "result.json").read_text())
     assert [(r["heights"], r["cut_angle"]) for r in res["split_ring"]] == [
         ([0.0, 0.0015], 0.0), ([0.0, 0.002], 0.0), ([0.0, 0.002], 45.0)]
-    assert (run / "split_ring-0-2mm-45deg.npz").is_file()
+    assert (run / "split_ring-0-2mm-45deg.npz").is_file()  # -315 deg is 45: one name
 
 
 def test_a_ring_with_a_number_not_finite_is_not_saved(tmp_path):
@@ -117,6 +117,43 @@ def test_a_ring_with_a_number_not_finite_is_not_saved(tmp_path):
     with pytest.raises(ValueError, match=r"split_ring\.0\.diameters\.split\.d0"):
         ring_files.save(run, res, formed.ep[res.ring.elements].mean(1))
     assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+
+
+def test_a_ring_whose_files_fail_is_not_saved_and_leaves_no_temporaries(tmp_path, monkeypatch):
+    """Every file is staged before any is moved into place: a VTU export that fails after the
+    npz and a first VTU were written leaves the run byte for byte, no staging folder either;
+    a staging folder left by a save that was killed goes with the next save of that ring, which
+    lists the ring with its files."""
+    from sim.frames import export
+
+    run = rings.write_run(tmp_path / "ring", rings.ring(0.001, 1.02 * rings.R))
+    (run / "result.json").write_text(json.dumps({"scene": "ring"}))
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    formed = sr.open_formed(run)
+    res = sr.split_ring(formed, 0.0, rings.H)
+    ep = formed.ep[res.ring.elements].mean(1)
+    vtu, calls = export.vtu, []
+
+    def second_fails(state, faces, path):
+        calls.append(path)
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+        vtu(state, faces, path)
+
+    monkeypatch.setattr(export, "vtu", second_fails)
+    with pytest.raises(OSError, match="No space left"):
+        ring_files.save(run, res, ep)
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+    monkeypatch.setattr(export, "vtu", vtu)
+    stray = run / ".split_ring-0-2mm.tmp"
+    stray.mkdir()
+    (stray / "ring_formed.vtu").write_text("half")
+    ring_files.save(run, res, ep)
+    assert sorted(p.name for p in run.iterdir()) == sorted(
+        [*before, "split_ring-0-2mm.npz", "split_ring-0-2mm"])
+    assert sorted(p.name for p in (run / "split_ring-0-2mm").iterdir()) == [
+        "ring_formed.vtu", "ring_released.vtu", "ring_split.vtu"]
+    assert [r["heights"] for r in ring_files.of_run(run)] == [[0.0, rings.H]]
 
 
 @pytest.mark.parametrize("args, field", [
