@@ -199,6 +199,8 @@ results: $(STAMP)
 	  --results $(R)/fig4-wrinkling-ans.md
 	$(BIN)/q3t bifurcation stretch_wrinkling --elements quadratic --spacing 0.00175 \
 	  --results $(R)/fig4-wrinkling-quadratic-3.5mm.md
+	$(BIN)/q3t bifurcation stretch_wrinkling --elements quadratic --spacing 0.00125 \
+	  --results $(R)/fig4-wrinkling-quadratic-2.5mm.md
 	$(BIN)/q3t bifurcation stretch_plate --elements quadratic,q3t,linear --spacing 0.0175 \
 	  --set material.nu=0.499 --set 'loads.0.vector=[3e5,0,0]' --set stepping.steps=10 \
 	  --results $(R)/fig4-plate.md
