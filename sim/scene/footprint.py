@@ -83,6 +83,53 @@ def loop_ranges(loops: Sequence[np.ndarray]) -> RadialRanges:
                          for p in loops])
 
 
+def mesh_ranges(V: np.ndarray, F: np.ndarray) -> RadialRanges:
+    """The ranges of a triangle mesh read from a file (``V (n_v, 3)``, ``F (n_f, 3)``), whose
+    nodes the build places on its triangles (vertices, edge and face nodes of the element):
+    for all nodes the union over the triangles of their radial spans (from the triangle's
+    nearest point to the axis, in the plane, to its farthest vertex), for the boundary that of
+    the edges used by one triangle only; height: its extent along z."""
+    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    unique, count = np.unique(edges, axis=0, return_counts=True)
+    rim = unique[count == 1]
+    P = V[:, :2]
+    r = np.hypot(P[:, 0], P[:, 1])
+    near = np.minimum.reduce([_segment_distance(P[F[:, i]], P[F[:, (i + 1) % 3]])
+                              for i in range(3)])
+    near[_holds_axis(P[F])] = 0.0
+    nodes = _union(near, r[F].max(axis=1))
+    boundary = _union(_segment_distance(P[rim[:, 0]], P[rim[:, 1]]), r[rim].max(axis=1)) \
+        if len(rim) else []
+    return RadialRanges(nodes, boundary, float(np.ptp(V[:, 2])))
+
+
+def _segment_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance from the origin of each segment a-b in the plane ``(n, 2)``."""
+    d = b - a
+    dd = np.einsum("ij,ij->i", d, d)
+    t = np.clip(-np.einsum("ij,ij->i", a, d) / np.where(dd > 0.0, dd, 1.0), 0.0, 1.0)
+    q = a + t[:, None] * d
+    return np.hypot(q[:, 0], q[:, 1])
+
+
+def _holds_axis(T: np.ndarray) -> np.ndarray:
+    """Whether each triangle ``(n, 3, 2)`` holds the origin (on its edge included)."""
+    a, b = T, np.roll(T, -1, axis=1)
+    c = [a[:, i, 0] * b[:, i, 1] - a[:, i, 1] * b[:, i, 0] for i in range(3)]
+    return ((c[0] >= 0) & (c[1] >= 0) & (c[2] >= 0)) | ((c[0] <= 0) & (c[1] <= 0) & (c[2] <= 0))
+
+
+def _union(lo: np.ndarray, hi: np.ndarray) -> Ranges:
+    """The intervals [lo_i, hi_i] merged where they overlap, ascending."""
+    out: Ranges = []
+    for a, b in sorted(zip(lo.tolist(), hi.tolist(), strict=True)):
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
 def _farthest(p: np.ndarray) -> float:
     return float(np.hypot(p[:, 0], p[:, 1]).max())
 

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import functools
 import math
+from pathlib import Path
 from typing import Annotated, Literal, Self
 
 import numpy as np
 from pydantic import Field, model_validator
 
 from sim.geometry import outline
+from sim.geometry import trimesh as meshes
 from sim.scene import footprint
 from sim.scene.boundary import RingSpec
 from sim.scene.fields import (
@@ -43,8 +46,8 @@ class _Mesh(Strict):
     def radial_ranges(self) -> footprint.RadialRanges | None:
         """Intervals of the distance from the z axis (m) that hold every node of the built
         mesh, and every boundary node, known before it is built (sim.scene.footprint); None:
-        known only once built (a file, a curved patch, a twisted strip, a drawing that cannot
-        be read)."""
+        known only once built (a curved patch, a twisted strip, a drawing or mesh file that
+        cannot be read)."""
         return None
 
 
@@ -201,6 +204,27 @@ class FileMesh(_Mesh):
     scale: Annotated[float, Field(ge=1e-9, le=1e3)] = doc(
         "file units to metres (1e-3 for a file in mm): between nanometres and kilometres",
         "m per file unit", 1.0)
+
+    def radial_ranges(self) -> footprint.RadialRanges | None:
+        """The file's ranges, read once per version of it (a form edit checks them again); one
+        it cannot read is left to the build, which names the file's problem."""
+        path = Path(self.path)
+        try:
+            st = path.stat()
+        except OSError:
+            return None
+        return _file_ranges(str(path.resolve()), st.st_mtime_ns, st.st_size, self.scale,
+                            self.merge_vertices)
+
+
+@functools.lru_cache(maxsize=8)
+def _file_ranges(path: str, mtime_ns: int, size: int, scale: float,
+                 merge: bool | None) -> footprint.RadialRanges | None:
+    try:
+        mesh = meshes.load(path, scale, merge)
+    except meshes.MeshFileError:
+        return None
+    return footprint.mesh_ranges(mesh.vertices, mesh.faces)
 
 
 XY = tuple[Coord, Coord]

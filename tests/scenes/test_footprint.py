@@ -4,6 +4,7 @@ build's own selection (sim.model.dirichlet.region_mask) and the built mesh's own
 all nodes and the boundary's apart, on rings across the blanks' edges."""
 
 import functools
+import os
 
 import numpy as np
 import pytest
@@ -39,6 +40,9 @@ MESHES = {
     # square hole around the axis
     "drawing": {"kind": "outline", "edge_length": H, "scale": 1e-3,
                 "path": str(ROOT / "tests/data/drawings/holed_blank.svg")},
+    # a mesh file (read once per version of it): a dished annulus off the axis, in mm
+    "file": {"kind": "file", "scale": 1e-3,
+             "path": str(ROOT / "tests/data/blanks/dished_annulus.obj")},
     "disk": {"kind": "disk", "edge_length": H, "r_outer": 0.03},
     # an imperfection taller than the disk is wide: the mesh's extent, which sets region_mask's
     # tolerance, is then its height
@@ -161,6 +165,29 @@ def test_a_ring_within_the_builds_tolerance_of_a_node_is_accepted(name, boundary
         region = RegionSpec(name="r", ring={"r_min": r_min, "r_max": r_max}, boundary=boundary)
         assert region_mask(shell, region).sum() >= 1
         assert ring_problem(spec, [region]) is None, (r_min, r_max)
+
+
+def test_a_mesh_file_is_read_again_when_it_changes_and_left_to_the_build_when_unreadable(
+        tmp_path):
+    """The ranges of a mesh file follow the file (its ranges are kept per version of it: a
+    file written anew is read anew); one the check cannot read (missing, not a mesh) gives no
+    ranges, and the build names its problem at mesh.path."""
+    path = tmp_path / "blank.obj"
+    region = RegionSpec(name="r", ring={"r_min": 0.05, "r_max": 0.06})
+    spec = TypeAdapter(MeshSpec).validate_python({"kind": "file", "path": str(path)})
+    for size, refused in ((0.04, True), (0.07, False)):
+        path.write_text(f"v 0 0 0\nv {size} 0 0\nv 0 {size} 0\nf 1 2 3\n")
+        os.utime(path, ns=(int(size * 1e12), int(size * 1e12)))  # a new version, whatever the clock
+        assert (ring_problem(spec, [region]) is not None) == refused, size
+    for text, why in (("", "no triangles"), ("v 0 0 0\nf 1 2 9\n", "not a readable mesh")):
+        path.write_text(text)
+        os.utime(path, ns=(len(text) + 1, len(text) + 1))
+        assert spec.radial_ranges() is None and ring_problem(spec, [region]) is None
+        with pytest.raises(ValueError, match=why):
+            build_mesh(spec)
+    missing = TypeAdapter(MeshSpec).validate_python(
+        {"kind": "file", "path": str(tmp_path / "none.obj")})
+    assert missing.radial_ranges() is None
 
 
 def test_an_unreadable_drawing_is_left_to_the_build(tmp_path):
