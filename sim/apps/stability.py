@@ -143,16 +143,16 @@ def corner_lift(x0: np.ndarray) -> np.ndarray:
 
 def unstable_direction(spec: Spectrum, field: np.ndarray) -> np.ndarray:
     """The unit direction on the free DoFs to kick along: ``field`` (free DoFs) through the
-    negative part of the stiffness, K_- field, each unstable mode weighted by -lambda, how fast
-    it grows (the unstable part of a step of gradient flow from ``field`` as imperfection);
-    negative: below the inertia's threshold ``spec.zero``, every such one in ``spec``, each
-    weighted by how far below it lies. A function of K, not of the vectors Lanczos
-    returned: a pair of nearly equal eigenvalues, whose vectors come in whatever basis
-    round-off gives, enters by its span, and the direction moves with K continuously, not by a
-    jump where round-off reorders the pair. A stable state's is its lowest mode; a field that
-    misses the modes (``MISSES``) leaves the lowest, its largest entry positive (a sign that
-    mirror-symmetric entries leave to round-off: in practice an in-plane mode, which ``follow``
-    does not kick along). Only z is lifted: an in-plane unstable mode gets no weight."""
+    negative part of the stiffness, K_- field: each unstable mode (its eigenvalue below the
+    inertia's threshold ``spec.zero``; ``spec`` holds every one) weighted by how far below it
+    lies, as a step of gradient flow grows an imperfection. A function of K, not of the
+    vectors Lanczos returned: a pair of nearly equal eigenvalues, whose vectors come in
+    whatever basis round-off gives, enters by its span, and the direction moves with K
+    continuously, not by a jump where round-off reorders the pair. A stable state's is its
+    lowest mode; a field that misses the modes (``MISSES``) leaves the lowest, its largest
+    entry positive (a sign that mirror-symmetric entries leave to round-off: in practice an
+    in-plane mode, which ``follow`` does not kick along). Only z is lifted: an in-plane
+    unstable mode gets no weight."""
     weights = np.maximum(spec.zero - spec.values, 0.0)
     if not weights.any():
         weights = (np.arange(spec.values.size) == 0).astype(float)
@@ -410,9 +410,8 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
 
 def bracket(points: list[PathPoint]) -> tuple[PathPoint, PathPoint] | None:
     """The two steps between which the lowest eigenvalue first goes from positive to
-    negative; None if it never does. Its sign, not the inertia's count (``_wrinkles``): the
-    crossing is interpolated between the two, and on the flat path the first negative
-    eigenvalue is far below the count's threshold within a step of it."""
+    negative; None if it never does. Its sign, not the inertia's count: the crossing is
+    interpolated in it; the count decides only where ``follow`` kicks (``_wrinkles``)."""
     for a, b in zip(points, points[1:], strict=False):
         if a.eigenvalues[0] > 0 >= b.eigenvalues[0]:
             return a, b

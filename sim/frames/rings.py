@@ -97,9 +97,8 @@ def _stage(stage: Path, res: object, ep: np.ndarray) -> None:
 
     sh = res.ring.shell
     skins = series.skins(res.ring)
-    with open(stage / "ring.npz", "wb") as f:
-        np.savez_compressed(f, rest=sh.rest, conn=sh.conn, faces=sh.mesh.faces, skins=skins,
-                            elements=res.ring.elements, twins=res.ring.twins, **res.states)
+    series.save_npz(stage / "ring.npz", rest=sh.rest, conn=sh.conn, faces=sh.mesh.faces,
+                    skins=skins, elements=res.ring.elements, twins=res.ring.twins, **res.states)
     rest = sh.rest[skins.ravel()] * export.MM
     for i, (state, x) in enumerate(res.states.items()):
         shown = export.State(i, 0.0, x[skins.ravel()] * export.MM, rest, {},
