@@ -197,6 +197,17 @@ def test_only_a_ring_the_run_lists_is_served_404_naming_the_field(env, cup, ring
     assert r.status_code == 422 and r.json()["detail"].startswith("path.format: "), r.text
 
 
+def test_a_listed_ring_whose_files_are_gone_is_a_404_naming_it(env, cup, ring, monkeypatch,
+                                                               tmp_path):
+    """Files removed by hand (the service never lists a ring without them)."""
+    client, _ = env
+    run, _ = cup
+    monkeypatch.setattr(rings, "npz_file", lambda folder, name: tmp_path / "gone.npz")
+    r = client.get(f"{url(run)}/{ring['name']}/npz")
+    assert r.status_code == 404 and r.json()["detail"] == (
+        f"ring: {ring['name']!r}: its files are gone from the run's folder"), r.text
+
+
 @pytest.mark.parametrize("body, detail", [
     ({"heights": [6.2, 1.6]}, "body.heights: 6.2, 1.6 mm: need 0 <= z1 < z2"),
     ({"heights": [1.6]}, "body.heights: List should have at least 2 items"),
