@@ -1,6 +1,7 @@
 // The split-ring test on a finished cup run (POST /api/runs/{id}/split_ring, as `q3t
 // splitring`): two heights and a cut angle, a button, and the run's rings as the server lists
-// them, one column each (the plots column is narrow; the quantities are the rows).
+// them, one column each (the plots column is narrow; the quantities are the rows), its files
+// to download at its foot.
 "use strict";
 const Rings = (() => {
   const HEIGHTS = [8, 13];  // mm: the command line's default ring (sim/apps/splitring.py)
@@ -89,6 +90,39 @@ const Rings = (() => {
     ["Re-yield on release, split (%)", (r) => Units.num(r.reyield_pct.split, 2)],
   ];
 
+  // a ring's files: the row's label says what each is, the link in a ring's column is short
+  // (the column stays as narrow as its numbers)
+  const FILES = { vtu: ["Download VTU (ParaView)", "VTU"], npz: ["Download npz (NumPy)", "npz"] };
+
+  function fileRows(foot, rings) {
+    // a row per file the server lists for the rings, a link per ring
+    const formats = [...new Set(rings.flatMap((r) => r.downloads.map((f) => f.format)))];
+    for (const fmt of formats) {
+      const [label, short] = FILES[fmt] || [fmt, fmt];
+      const tr = foot.insertRow();
+      tr.dataset.format = fmt;
+      const th = document.createElement("th");
+      th.scope = "row";
+      th.textContent = label;
+      tr.append(th);
+      for (const r of rings) {
+        const td = tr.insertCell();
+        const f = r.downloads.find((d) => d.format === fmt);
+        if (!f) {
+          td.textContent = "–";
+          continue;
+        }
+        const a = document.createElement("a");
+        a.href = f.url;
+        a.setAttribute("download", "");
+        a.dataset.format = fmt;
+        a.textContent = short;
+        a.title = `${r.name}: ${f.description}`;
+        td.append(a);
+      }
+    }
+  }
+
   function table(rings) {
     const t = document.createElement("table");
     t.id = "ring-table";
@@ -99,7 +133,7 @@ const Rings = (() => {
     for (const r of rings) {
       const th = document.createElement("th");
       th.textContent = `${Units.num(r.heights_mm[0])}–${Units.num(r.heights_mm[1])}`;
-      th.title = `${r.name} in the run folder (.npz; VTU for ParaView in the folder)`;
+      th.title = `${r.name} in the run folder (its files: the column's foot)`;
       th.dataset.name = r.name;
       head.append(th);
     }
@@ -117,6 +151,7 @@ const Rings = (() => {
         if (cls === "strong") td.className = cls;
       }
     }
+    fileRows(t.createTFoot(), rings);
     return t;
   }
 

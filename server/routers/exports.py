@@ -7,15 +7,14 @@ nothing itself)."""
 
 from __future__ import annotations
 
-import io
 import tempfile
-import zipfile
 from pathlib import Path
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import BaseModel, Field
 
+from server.downloads import attachment, content, zipped
 from server.errors import CheckedRoute, documented
 from server.problems import Conflict, NotFound, NotReady
 from server.records import ENDED, Run
@@ -26,10 +25,6 @@ from sim.frames import export
 
 router = APIRouter(prefix="/api/runs", tags=["exports"], route_class=CheckedRoute)
 Format = Literal[tuple(export.FORMATS)]
-# the media type and file name (after the run's id) of each format's download
-MEDIA = {"csv": ("text/csv; charset=utf-8", ".csv"), "json": ("application/json", "_summary.json"),
-         "stl": ("model/stl", ".stl"), "ply": ("application/octet-stream", ".ply"),
-         "vtu": ("application/zip", "_vtu.zip")}
 VIEWER_OFF = "the viewer is off (the server runs without it): no 3-D view to capture"
 PNG = "a PNG of the 3-D view as a browser shows it (its camera, colours and step)"
 # s: a browser renders in software at a few frames a second; one that never answers is a 503
@@ -130,14 +125,13 @@ def view_png(run_id: RunId, request: Request, view: Annotated[str | None, Query(
     except TimeoutError:
         raise NotReady(f"the browser showing the 3-D view did not render it in "
                        f"{RENDER_TIMEOUT:g} s") from None
-    return Response(iio.imwrite("<bytes>", image, extension=".png"), media_type="image/png",
-                    headers={"Content-Disposition": f'attachment; filename="{run.id}.png"'})
+    return attachment(iio.imwrite("<bytes>", image, extension=".png"), "png", run.id)
 
 
 @router.get("/{run_id}/export/{format}", response_class=Response, responses={
     **documented(404, 409, 422),
     200: {"description": "The file: CSV, JSON, STL, PLY, or a zip of the VTU files and their "
-                         "PVD", "content": {m: {} for m, _ in MEDIA.values()}}})
+                         "PVD", "content": content(list(export.FORMATS))}})
 def export_run(run_id: RunId, format: Format, request: Request) -> Response:
     """The run's results as ``format``: ``csv`` the probes per step (time, each punch's stroke
     and force, every probe; units in the header), ``vtu`` a zip of the final state and the
@@ -145,21 +139,12 @@ def export_run(run_id: RunId, format: Format, request: Request) -> Response:
     the formed part (the closed surface of the deformed sheet, mm), ``json`` the summary.
     Lengths in mm, forces in kN, stresses in MPa."""
     run, folder = _ended(request, run_id)
-    media, suffix = MEDIA[format]
     with tempfile.TemporaryDirectory(prefix="q3t-export-") as tmp:
         try:
             written = export.export(folder, format, Path(tmp))
         except export.ExportError as exc:  # no result.json or final.npz: nothing to export
             raise NotFound(str(exc)) from None
-        data = _zip(Path(tmp), written) if format == "vtu" else written[0].read_bytes()
-    return Response(data, media_type=media, headers={
-        "Content-Disposition": f'attachment; filename="{run.id}{suffix}"'})
-
-
-def _zip(root: Path, files: list[Path]) -> bytes:
-    """The files, by their paths under ``root`` (the PVD names the VTU files so)."""
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
-        for f in files:
-            z.write(f, f.relative_to(root).as_posix())
-    return buf.getvalue()
+        # the PVD names the VTU files by their paths under tmp
+        data = zipped({f.relative_to(tmp).as_posix(): f for f in written}) \
+            if format == "vtu" else written[0].read_bytes()
+    return attachment(data, format, run.id)

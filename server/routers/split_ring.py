@@ -1,14 +1,20 @@
 """/api/runs/{id}/split_ring: the split-ring (Demeri) springback test on a finished cup run,
 as ``q3t splitring`` does it (sim.stepping.split_ring; saved by sim.frames.rings): cut a ring
-(in a child process, server.rings) and list the rings cut, in mm, % and degrees."""
+(in a child process, server.rings), list the rings cut, in mm, % and degrees, and hand out a
+ring's files (its VTU for ParaView, its npz) as the run's other downloads are
+(server.downloads)."""
 
 from __future__ import annotations
 
-from typing import Annotated
+from pathlib import Path
+from typing import Annotated, Literal
+from urllib.parse import quote
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Request, Response
+from fastapi import Path as PathParam
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from server.downloads import attachment, content, zipped
 from server.errors import BODY, CheckedRoute, documented
 from server.problems import Invalid, NotFound
 from server.rings import RingCutter, cuttable
@@ -18,6 +24,9 @@ from sim.frames import rings
 
 router = APIRouter(prefix="/api/runs", tags=["split ring"], route_class=CheckedRoute)
 Finite = Annotated[float, Field(allow_inf_nan=False)]
+RingFormat = Literal[tuple(rings.DOWNLOADS)]
+RingName = Annotated[str, PathParam(description="the ring's name, as the run's list of rings "
+                                    "gives it (``split_ring-8-13mm``): only those are served")]
 
 
 class NewRing(BaseModel):
@@ -60,6 +69,13 @@ class Diameters(BaseModel):
     d90: float = Field(description="at 90 deg to it, mm")
 
 
+class RingFile(BaseModel):
+    format: str = Field(description="vtu (a zip of its VTU files and a PVD, for ParaView) or "
+                        "npz")
+    description: str
+    url: str
+
+
 class Ring(BaseModel):
     """A ring cut from the run (result.json's ``split_ring`` entry, SI, in these units)."""
 
@@ -78,6 +94,7 @@ class Ring(BaseModel):
                                                          "largest growth of the plastic strain")
     solver: dict[str, dict] = Field(description="per release: Newton iterations, the force "
                                     "released (N), what the supports carry (N)")
+    downloads: list[RingFile] = Field(description="the ring's files, each with its URL")
 
 
 class CutRing(Ring):
@@ -102,20 +119,42 @@ class Rings(BaseModel):
     rings: list[Ring] = Field(description="the rings cut, by heights and cut angle")
 
 
-def _run(request: Request, run_id: str) -> tuple[RunManager, object, object]:
+def _run(request: Request, run_id: str) -> tuple[RunManager, object, Path]:
     m: RunManager = request.app.state.manager
-    run = m.get(run_id)
+    try:
+        run = m.get(run_id)
+    except NotFound as exc:
+        raise NotFound(f"run_id: {exc}") from None
     return m, run, m.files.dir(run.id)
+
+
+def _listed(run_id: str, s: dict) -> dict:
+    """A ring's summary ``s`` (SI) as the API lists it: in an engineer's units, with the URL
+    of each of its files."""
+    r = rings.shown(s)
+    base = f"/api/runs/{run_id}/split_ring/{quote(r['name'])}"
+    return {**r, "downloads": [{"format": f, "description": text, "url": f"{base}/{f}"}
+                               for f, text in rings.DOWNLOADS.items()]}
+
+
+def _ring(folder: Path, run_id: str, ring: str) -> str:
+    """``ring`` when the run in ``folder`` lists it (a name from the request is never made
+    into a path otherwise); NotFound naming ``ring`` and the run's rings."""
+    names = [rings.name_of(s) for s in rings.of_run(folder)]
+    if ring not in names:
+        raise NotFound(f"ring: {ring!r}: no such ring cut from run {run_id!r} (its rings: "
+                       f"{', '.join(names) or 'none'})")
+    return ring
 
 
 @router.get("/{run_id}/split_ring", response_model=Rings, responses=documented(404, 422))
 def list_rings(run_id: RunId, request: Request) -> dict:
     """The split rings cut from the run so far (``q3t splitring`` and this API write them
-    into its result.json), and whether one can be cut."""
+    into its result.json), each with its files' URLs, and whether one can be cut."""
     _, run, folder = _run(request, run_id)
     try:
         why, wall = cuttable(run.state, folder)
-        cut = [rings.shown(s) for s in rings.of_run(folder)]
+        cut = [_listed(run.id, s) for s in rings.of_run(folder)]
     except OSError:  # deleted since _run found it
         raise NotFound(f"run_id: {run.id}: its folder is gone") from None
     cutter: RingCutter = request.app.state.rings
@@ -145,4 +184,27 @@ async def cut_ring(run_id: RunId, body: NewRing, request: Request) -> dict:
 
     cutter: RingCutter = request.app.state.rings
     summary = await cutter.cut(run.id, folder, body.heights, body.cut_angle, check)
-    return {"run": run.id, **rings.shown(summary)}
+    return {"run": run.id, **_listed(run.id, summary)}
+
+
+# the ring's name may hold a "/" (a %2F): it reaches the check and is refused there, naming it
+@router.get("/{run_id}/split_ring/{ring:path}/{format}", response_class=Response, responses={
+    **documented(404, 422),
+    200: {"description": "The file: a zip of the ring's VTU files and their PVD, or its npz",
+          "content": content(list(rings.DOWNLOADS))}})
+def ring_file(run_id: RunId, ring: RingName, format: RingFormat, request: Request) -> Response:
+    """A ring's files, as ``q3t splitring`` and this API saved them: ``vtu`` a zip of its
+    VTU files formed, released and split (mm), with a ``.pvd`` that steps through them in
+    ParaView; ``npz`` its states (SI). Saved as ``<run>_<ring>_vtu.zip`` / ``<run>_<ring>.npz``.
+    404 naming ``run_id`` (no such run, or its folder gone) or ``ring`` (not a ring the run
+    lists)."""
+    _, run, folder = _run(request, run_id)
+    try:
+        name = _ring(folder, run.id, ring)
+        stem = f"{run.id}_{name}"
+        data = rings.npz_file(folder, name).read_bytes() if format == "npz" else \
+            zipped(rings.vtu_series(folder, name, stem))
+    except FileNotFoundError:  # deleted since _run found it (a DELETE, or by hand)
+        raise NotFound(f"ring: {ring!r}: its files are gone from the run's folder"
+                       if folder.is_dir() else f"run_id: {run.id}: its folder is gone") from None
+    return attachment(data, format, stem)

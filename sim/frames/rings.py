@@ -3,8 +3,8 @@
 Each ring's summary (SI) is an entry of the run's result.json (``split_ring``: one per heights
 and cut angle, sorted), its states are ``<ring>.npz`` beside it and, for ParaView,
 ``<ring>/ring_<state>.vtu`` (``<ring>``: :func:`name_of`). ``q3t splitring`` and the service
-both write and read them here. Light on purpose, as sim.frames.results: the server reads the
-rings without importing the solver.
+both write and read them here; the service hands them out (DOWNLOADS). Light on purpose, as
+sim.frames.results: the server reads the rings without importing the solver.
 """
 
 from __future__ import annotations
@@ -20,6 +20,14 @@ from sim.frames import results
 from sim.stepping.wall import WALL
 
 KEY = "split_ring"  # result.json's list of rings
+STATES = ("formed", "released", "split")  # a ring's states, in the order the test goes
+# a ring's downloads, its files as saved (server.routers.split_ring): what each holds
+DOWNLOADS = {"vtu": "the ring formed, released and split as VTU (mm; displacement from rest, "
+                    "the formed equivalent plastic strain per element) with a PVD series for "
+                    "ParaView, zipped",
+             "npz": "the ring as saved (numpy, SI): its mesh (rest, conn, faces, skins), the "
+                    "run's element of each of its elements, the vertices duplicated along the "
+                    "cut (twins), its positions formed, released and split"}
 
 
 def angle(deg: float) -> float:
@@ -41,6 +49,21 @@ def of_run(folder: Path) -> list[dict]:
     has no result."""
     path = folder / "result.json"
     return json.loads(path.read_text()).get(KEY, []) if path.is_file() else []
+
+
+def npz_file(folder: Path, name: str) -> Path:
+    """Where the ring ``name`` of the run in ``folder`` keeps its states."""
+    return folder / f"{name}.npz"
+
+
+def vtu_series(folder: Path, name: str, stem: str) -> dict[str, Path | str]:
+    """The ring ``name``'s VTU files in the run folder ``folder`` and a PVD that steps
+    through them formed, released, split (the step each holds), by their names in a download:
+    ``<stem>/ring_<state>.vtu`` and ``<stem>.pvd``, as a run's VTU export names its own."""
+    from sim.frames import export
+
+    vtus = {f"{stem}/ring_{s}.vtu": folder / name / f"ring_{s}.vtu" for s in STATES}
+    return {**vtus, f"{stem}.pvd": export.pvd(list(enumerate(vtus)))}
 
 
 def wall(folder: Path) -> tuple[float, float] | None:
@@ -85,7 +108,7 @@ def save(folder: Path, res: object, ep: np.ndarray) -> None:
         (folder / name).mkdir(exist_ok=True)
         for f in sorted(stage.glob("*.vtu")):
             os.replace(f, folder / name / f.name)
-        os.replace(stage / "ring.npz", folder / f"{name}.npz")
+        os.replace(stage / "ring.npz", npz_file(folder, name))
         results.write(path, data)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
@@ -122,7 +145,7 @@ def shown(s: dict) -> dict:
                        "max": mm(o["max"]),
                        "distance_at_mid_height": mm(o["distance_at_mid_height"])},
         "diameters_mm": {state: {k: mm(d[state][k]) for k in ("mean", "d0", "d90")}
-                         for state in ("formed", "released", "split")},
+                         for state in STATES},
         "reyield_pct": {k: 100 * v["fraction"] for k, v in s["reyield"].items()},
         "reyield_max_plastic_strain": {k: v["max"] for k, v in s["reyield"].items()},
         "solver": {k: {"iterations": v["iterations"], "released_force_N": v["released_force"],

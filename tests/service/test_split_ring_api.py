@@ -1,18 +1,23 @@
 """/api/runs/{id}/split_ring on a finished cup (tests/support/scenes.py's ring cup, the
-coarsest with a wall for a band): the ring the command line cuts, to round-off; 409 while one is
-cut from the run; 422 naming the field for every bad request, the run left as it was; a failed
-release answered with the solver's reason and nothing written; the ring's files deleted with
-the run."""
+coarsest with a wall for a band): the ring the command line cuts, to round-off; its files
+downloaded as they are on disk, and only a ring the run lists; 409 while one is cut from the
+run; 422 naming the field for every bad request, the run left as it was; a failed release
+answered with the solver's reason and nothing written; the ring's files deleted with the
+run."""
 
 from __future__ import annotations
 
 import asyncio
+import io
 import json
 import shutil
 import threading
+import zipfile
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
+from xml.etree import ElementTree
 
+import meshio
 import numpy as np
 import pytest
 
@@ -64,15 +69,15 @@ def test_the_ring_is_the_command_lines_and_is_listed(env, cup, tmp_path):
 
     assert main(["splitring", str(copy), "--heights", ",".join(map(str, RING_BAND))]) == 0
     (cli,) = rings.of_run(copy)
-    want = {"run": run, **rings.shown(cli)}
-    assert _close(got, want), (got, want)
+    summary = {k: v for k, v in got.items() if k not in ("run", "downloads")}
+    assert _close(summary, rings.shown(cli)), (summary, rings.shown(cli))
     # the engineer's numbers: mm, %, deg
     assert abs(got["opening_mm"]["at_mid_height"]) < 5 and got["elements"] > 0
     assert 10 < got["diameters_mm"]["formed"]["mean"] < 13  # the 11 mm punch's cup
     assert 0 <= got["reyield_pct"]["closed"] <= 100
     # saved as the command saves it: result.json's entry (SI) and the files
     (saved,) = rings.of_run(folder)
-    assert rings.shown(saved) == {k: v for k, v in got.items() if k != "run"}
+    assert rings.shown(saved) == summary
     with np.load(folder / f"{got['name']}.npz") as z:
         assert z["split"].shape == z["rest"].shape
     assert sorted(p.name for p in (folder / got["name"]).iterdir()) == [
@@ -100,6 +105,107 @@ def _close(got: dict, want: dict) -> bool:
     if isinstance(want, float):
         return got == pytest.approx(want, rel=1e-9, abs=1e-12)
     return got == want
+
+
+@pytest.fixture(scope="module")
+def ring(env, cup) -> dict:
+    """The ring at RING_BAND cut at 0 deg from the cup, as listed: the one the first test
+    cuts, else cut here (a test run on its own)."""
+    client, _ = env
+    run, _ = cup
+    listed = [r for r in client.get(url(run)).json()["rings"]
+              if r["heights_mm"] == RING_BAND and r["cut_angle_deg"] == 0]
+    if listed:
+        return listed[0]
+    r = client.post(url(run), json={"heights": RING_BAND})
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def download(client, run: str, name: str, fmt: str, media: str) -> bytes:
+    """A ring's file, checked to be saved under the run's and the ring's name."""
+    r = client.get(f"{url(run)}/{name}/{fmt}")
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == media
+    suffix = "_vtu.zip" if fmt == "vtu" else ".npz"
+    assert r.headers["content-disposition"] == f'attachment; filename="{run}_{name}{suffix}"'
+    return r.content
+
+
+def test_a_rings_downloads_are_listed_with_their_urls(ring, cup):
+    run, _ = cup
+    assert [(f["format"], f["url"]) for f in ring["downloads"]] == [
+        (fmt, f"/api/runs/{run}/split_ring/{ring['name']}/{fmt}") for fmt in ("vtu", "npz")]
+    assert all(f["description"] == rings.DOWNLOADS[f["format"]] for f in ring["downloads"])
+
+
+def test_a_rings_npz_downloads_as_saved(env, cup, ring):
+    client, _ = env
+    run, folder = cup
+    data = download(client, run, ring["name"], "npz", "application/octet-stream")
+    assert data == (folder / f"{ring['name']}.npz").read_bytes()
+    with np.load(io.BytesIO(data)) as z:
+        assert set(z.files) == {"rest", "conn", "faces", "skins", "elements", "twins",
+                                "formed", "released", "split"}
+        assert len(z["elements"]) == ring["elements"] == len(z["faces"])
+        assert all(z[s].shape == z["rest"].shape for s in rings.STATES)
+
+
+def test_a_rings_vtu_downloads_as_saved_with_a_pvd_series(env, cup, ring, tmp_path):
+    """The zip holds the ring's VTU files byte for byte, and a PVD whose steps are the
+    states in the test's order: each VTU's points are its state's skins, in mm."""
+    client, _ = env
+    run, folder = cup
+    name, stem = ring["name"], f"{run}_{ring['name']}"
+    z = zipfile.ZipFile(io.BytesIO(download(client, run, name, "vtu", "application/zip")))
+    vtus = [f"{stem}/ring_{s}.vtu" for s in rings.STATES]
+    assert sorted(z.namelist()) == sorted([*vtus, f"{stem}.pvd"])
+    for s, member in zip(rings.STATES, vtus, strict=True):
+        assert z.read(member) == (folder / name / f"ring_{s}.vtu").read_bytes()
+    z.extractall(tmp_path)
+    sets = ElementTree.parse(tmp_path / f"{stem}.pvd").getroot().iter("DataSet")
+    assert [(int(d.get("timestep")), d.get("file")) for d in sets] == list(enumerate(vtus))
+    with np.load(folder / f"{name}.npz") as saved:
+        top_bottom = saved["skins"].ravel()
+        for step, (s, member) in enumerate(zip(rings.STATES, vtus, strict=True)):
+            m = meshio.read(tmp_path / member)
+            np.testing.assert_allclose(m.points, 1e3 * saved[s][top_bottom], rtol=1e-12)
+            assert len(m.cells_dict["wedge"]) == ring["elements"]
+            assert m.field_data["step"][0] == step
+
+
+def test_only_a_ring_the_run_lists_is_served_404_naming_the_field(env, cup, ring):
+    client, _ = env
+    run, _ = cup
+    name = ring["name"]
+    r = client.get(f"{url('nope')}/{name}/vtu")
+    assert r.status_code == 404 and r.json()["detail"] == "run_id: no run 'nope'"
+    listed = ", ".join(r["name"] for r in client.get(url(run)).json()["rings"])
+    for asked, ring_name in [
+        ("split_ring-1-2mm", "split_ring-1-2mm"),  # a ring's name, not cut
+        ("..%2Fresult.json", "../result.json"),
+        (f"{name}%2F..%2F..%2Fresult.json", f"{name}/../../result.json"),
+        ("..%2F..%2F..%2F..%2Fetc%2Fpasswd", "../../../../etc/passwd"),
+        (f"{name}%2Fring_split.vtu", f"{name}/ring_split.vtu"),  # a file of the ring
+        ("%2E%2E", ".."),
+    ]:
+        r = client.get(f"{url(run)}/{asked}/npz")
+        assert r.status_code == 404, (asked, r.text)
+        assert r.json()["detail"] == (f"ring: {ring_name!r}: no such ring cut from run "
+                                      f"{run!r} (its rings: {listed})"), asked
+    r = client.get(f"{url(run)}/{name}/stl")
+    assert r.status_code == 422 and r.json()["detail"].startswith("path.format: "), r.text
+
+
+def test_a_listed_ring_whose_files_are_gone_is_a_404_naming_it(env, cup, ring, monkeypatch,
+                                                               tmp_path):
+    """Files removed by hand (the service never lists a ring without them)."""
+    client, _ = env
+    run, _ = cup
+    monkeypatch.setattr(rings, "npz_file", lambda folder, name: tmp_path / "gone.npz")
+    r = client.get(f"{url(run)}/{ring['name']}/npz")
+    assert r.status_code == 404 and r.json()["detail"] == (
+        f"ring: {ring['name']!r}: its files are gone from the run's folder"), r.text
 
 
 @pytest.mark.parametrize("body, detail", [
@@ -167,11 +273,12 @@ def test_runs_a_ring_cannot_be_cut_from_are_422_naming_the_run(env):
                                                         "state)"
 
 
-def test_an_unknown_run_is_404(env):
+def test_an_unknown_run_is_404_naming_the_run(env):
     client, _ = env
-    assert client.get(url("nope")).status_code == 404
+    r = client.get(url("nope"))
+    assert r.status_code == 404 and r.json()["detail"] == "run_id: no run 'nope'"
     r = client.post(url("nope"), json={"heights": RING_BAND})
-    assert r.status_code == 404 and "no run 'nope'" in r.json()["detail"]
+    assert r.status_code == 404 and r.json()["detail"] == "run_id: no run 'nope'"
 
 
 def test_a_second_ring_while_one_is_cut_is_409_and_the_run_is_not_deleted(env, tmp_path):
@@ -364,3 +471,6 @@ def test_the_openapi_schema_declares_the_routes(env):
     post = paths["/api/runs/{run_id}/split_ring"]["post"]
     assert {"200", "404", "409", "422"} <= set(post["responses"])
     assert "get" in paths["/api/runs/{run_id}/split_ring"]
+    files = paths["/api/runs/{run_id}/split_ring/{ring}/{format}"]["get"]["responses"]
+    assert {"200", "404", "422"} <= set(files)
+    assert set(files["200"]["content"]) == {"application/zip", "application/octet-stream"}

@@ -2,12 +2,16 @@
 subprocess: a cup run started from the page and finished shows a "Split ring" section with
 heights its wall holds; heights above the part are refused next to the heights, a cut angle
 that is no number next to the angle; a ring cut shows busy, then its column in the table, the
-numbers the API lists. A plate run has no such section. With Q3T_SHOTS set, screenshots go to
-its folder split-ring."""
+numbers the API lists, and links to its files that download them as saved. A plate run has no
+such section. With Q3T_SHOTS set, screenshots go to its folder split-ring."""
 
 from __future__ import annotations
 
+import io
+import zipfile
+
 import httpx
+import numpy as np
 import pytest
 
 from tests.support.browser import VIEWER_FOR_SHOTS, click_row, open_scene, serve, shot, shots_dir
@@ -24,7 +28,7 @@ def served(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("split-ring-browser")
     with serve(tmp, {"ring_cup": ring_cup_toml(), "tiny_cup": tiny_cup_toml()}, "ring_cup",
                *VIEWER_FOR_SHOTS) as (url, _):
-        yield url
+        yield url, tmp / "runs"
 
 
 def finished(page, url: str) -> str:
@@ -36,8 +40,8 @@ def finished(page, url: str) -> str:
     return run
 
 
-def test_a_ring_is_cut_from_the_page_and_tabled(served, open_page):
-    url = served
+def test_a_ring_is_cut_from_the_page_and_tabled(served, open_page, tmp_path):
+    url, runs = served
     page = open_scene(open_page, url, "ring_cup", "[name='mesh.kind']")
     run = finished(page, url)
     page.wait_for_selector(f"#split-ring[data-run='{run}'][data-ready='true']")
@@ -101,13 +105,46 @@ def test_a_ring_is_cut_from_the_page_and_tabled(served, open_page):
     assert float(rows["Opening at mid-height (mm)"]) > 0  # this ring opens
     shot(page, SHOTS, "ring-tabled.png", settle_ms=1000)
     shot(page, SHOTS, "ring-tabled-section.png", where="#split-ring")
+    downloads_as_saved(page, ring, runs / run, tmp_path)
     # a second ring, at 90 degrees: a column of its own
     page.fill("#ring-angle", "90")
     page.click("#ring-cut")
     page.wait_for_selector("#split-ring[data-count='2']")
     assert page.locator("#ring-table tbody tr").nth(0).locator("td").all_inner_texts() == \
         ["0", "90"]
+    # each column's links are its own ring's
+    listed = httpx.get(f"{url}/api/runs/{run}/split_ring").json()["rings"]
+    hrefs = page.locator("#ring-table tfoot a").evaluate_all(
+        "links => links.map((a) => a.getAttribute('href'))")
+    assert hrefs == [f["url"] for fmt in ("vtu", "npz") for r in listed
+                     for f in r["downloads"] if f["format"] == fmt]
+    assert hrefs[1].endswith("-90deg/vtu")
     shot(page, SHOTS, "two-rings.png", where="#split-ring")
+
+
+def downloads_as_saved(page, ring: dict, folder, tmp_path) -> None:
+    """The ring's column ends in its files' links, a row each, which save them as they are
+    in the run's ``folder``: its npz, its VTU files zipped with their PVD."""
+    rows = page.locator("#ring-table tfoot tr")
+    assert rows.locator("th").all_inner_texts() == ["Download VTU (ParaView)",
+                                                    "Download npz (NumPy)"]
+    assert rows.locator("td").all_inner_texts() == ["VTU", "npz"]
+    stem = f"{folder.name}_{ring['name']}"
+    with page.expect_download() as d:
+        page.click("#ring-table tfoot a[data-format=npz]")
+    path = tmp_path / d.value.suggested_filename
+    d.value.save_as(path)
+    assert path.name == f"{stem}.npz"
+    assert path.read_bytes() == (folder / f"{ring['name']}.npz").read_bytes()
+    with np.load(path) as z:
+        assert len(z["elements"]) == ring["elements"] and z["split"].shape == z["rest"].shape
+    with page.expect_download() as d:
+        page.click("#ring-table tfoot a[data-format=vtu]")
+    assert d.value.suggested_filename == f"{stem}_vtu.zip"
+    with zipfile.ZipFile(io.BytesIO(d.value.path().read_bytes())) as z:
+        assert z.read(f"{stem}/ring_split.vtu") == \
+            (folder / ring["name"] / "ring_split.vtu").read_bytes()
+        assert f"{stem}.pvd" in z.namelist()
 
 
 def test_a_cut_belongs_to_its_run_and_rings_cut_elsewhere_show(served, open_page):
@@ -116,7 +153,7 @@ def test_a_cut_belongs_to_its_run_and_rings_cut_elsewhere_show(served, open_page
     browser until the test lets it go) shows A busy, not B when B is selected; its answer,
     come while B is shown, shows when A is shown again: the error next to the heights typed,
     or the ring in A's table."""
-    url = served
+    url, _ = served
     with httpx.Client(base_url=url, timeout=HANG) as client:
         a, b = finished_run(client, "ring_cup"), finished_run(client, "ring_cup")
     page = open_page(url, "#runs tbody tr")
@@ -171,7 +208,7 @@ def test_a_cut_belongs_to_its_run_and_rings_cut_elsewhere_show(served, open_page
 
 
 def test_a_run_without_a_wall_has_no_split_ring_section(served, open_page):
-    url = served
+    url, _ = served
     run = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup"}).json()["id"]
     until(lambda: httpx.get(f"{url}/api/runs/{run}").json()["state"] == "finished",
           f"run {run} never finished")
