@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sim.solve.assembly import sym_matvec
 from sim.solve.linsolve import SingularMatrix
 from sim.solve.problem import (
     FLOOR_MARGIN,
@@ -38,6 +39,9 @@ from sim.solve.problem import (
 )
 
 INVERTED_AT_START = "inverted element at the start of the step"
+# a Newton step with at most this share of its length off one direction lies along a soft
+# valley of the energy (_soft_split); the stretched sheet's wrinkled states put 1e-4 off it
+SOFT_SHARE = 1e-2
 
 
 @dataclass(frozen=True)
@@ -162,6 +166,7 @@ class Newton:
     watch: Watch | None = None
     relags: int = 0
     factored: bool = False  # the solver holds factors of this minimisation's Hessians
+    matrix: np.ndarray | None = None  # the Hessian data the last correction solved against
 
     def result(self, x: np.ndarray, ok: bool, it: int, E: float, reason: str = "") -> NewtonResult:
         self.timing.iterations = it
@@ -251,6 +256,8 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
         dx = _direction(nt, cur, it)
         if isinstance(dx, NewtonResult):
             return dx
+        if stalled or nt.cut:
+            dx = _off_valley(nt, cur, dx)
         stop = _stop(nt, cur, it, dx)
         if stop is not None:
             return stop
@@ -352,6 +359,7 @@ def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:
     t1 = time.perf_counter()
     if nt.factored and cur.r <= max(s.reuse_below, s.reuse_within * s.rtol) * nt.ref:
         dx = _solve(nt, cur, data, stale=True)
+        nt.matrix = data
         t = time.perf_counter()
         # a stale attempt that fails is solving too, not factorising: counted so, the
         # factorisation column reads the factorisations' cost alone
@@ -374,6 +382,7 @@ def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:
     except SingularMatrix as exc:
         return nt.result(nt.x0, False, it, cur.E, f"singular factorisation: {exc}")
     nt.factored = True
+    nt.matrix = data
     t2 = time.perf_counter()
     timing.factorisation += t2 - t1
     dx = _solve(nt, cur, data, stale=False)
@@ -525,6 +534,8 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
     """Backtracking along ``dx`` from the step ``alpha`` (the full step evaluated: ``trial``).
     At a minimisation's first iteration, a full step that fails the sufficient decrease is
     taken and watched (see the module's doc) when its energy is finite and no barrier rose.
+    A full step that fails along a soft valley (``_soft_split``) is cut in its soft part
+    only, its stiff part kept whole; if no such step is accepted, the whole step is cut.
     Returns the new iterate, its full evaluation when it is the full step and was evaluated
     (else None) and whether the energy decided; or the failed result. Records whether it cut
     Newton's step (``Newton.cut``; at the first iteration for the next minimisation too)."""
@@ -543,8 +554,10 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
         return x_new, trial, by_energy
 
     alpha = min(alpha, problem.step_bound(x, dx))  # a kink ahead (Term.step_bound)
+    split = None  # (stiff, soft) parts of dx once its full step failed along a soft valley
     for _ in range(settings.max_line_search):
-        x_new = x + alpha * dx
+        step = alpha * dx if split is None else split[0] + alpha * split[1]
+        x_new = x + step
         t3 = time.perf_counter()
         if alpha == 1.0 and trial is not None:
             E_new = trial[0]
@@ -553,15 +566,15 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
             E_new = problem.energy(x_new)
             timing.line_search += time.perf_counter() - t3
         dE = E_new - E
-        if not np.isfinite(dE):
-            alpha *= 0.5
-            continue
+        # the first-order change of the energy
+        decrease = alpha * slope if split is None else float(np.sum(g * step))
         # a decrease the energy's round-off could fake proves nothing: within 1e-6 of its
         # scale (far above any jitter measured, 1e-14) compare with the measured noise
-        noise = nt.measured_floor(cur).energy * mag if abs(dE) <= 1e-6 * mag else 0.0
-        if dE <= settings.armijo * alpha * slope and -dE > noise:
+        noise = (nt.measured_floor(cur).energy * mag
+                 if np.isfinite(dE) and abs(dE) <= 1e-6 * mag else 0.0)
+        if np.isfinite(dE) and dE <= settings.armijo * decrease and -dE > noise:
             return taken(x_new, trial, True, alpha)
-        if (alpha == 1.0 and it == 0 and settings.watchdog > 0 and newton
+        if (np.isfinite(dE) and alpha == 1.0 and it == 0 and settings.watchdog > 0 and newton
                 and abs(dE) > noise and not _barrier_rose(problem, x, x_new, dE)):
             nt.watch = Watch(cur, dx, E + settings.armijo * slope, settings.watchdog)
             return taken(x_new, trial, True, alpha)
@@ -569,12 +582,65 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
         # whose predicted decrease (first order) is below that noise, whatever sign the
         # change shows (the beam's release: a full Newton step took the residual from 2e-5 to
         # 1e-8 N, its energy 1.8e-16 J up, its predicted decrease 2.5e-17 J)
-        if abs(dE) <= noise or -alpha * slope <= noise:
+        if np.isfinite(dE) and (abs(dE) <= noise or -decrease <= noise):
             t3 = time.perf_counter()
             g_new = trial[2].copy() if trial else problem.gradient(x_new)
             g_new[~nt.free] = 0.0
             timing.line_search += time.perf_counter() - t3
             if np.linalg.norm(g_new) <= (1 - settings.armijo * alpha) * r:
                 return taken(x_new, trial, False, alpha)
+        if split is None and alpha == 1.0 and newton:
+            split = _soft_split(nt, dx)
         alpha *= 0.5
+    if split is not None:  # no step along the valley: the whole step cut, as everywhere
+        return _line_search(nt, cur, it, dx, None, alpha=0.5)
     return nt.failure(cur, it + 1, f"line search stalled (residual {r:.3e})")
+
+
+def _off_valley(nt: Newton, cur: Iterate, dx: np.ndarray) -> np.ndarray:
+    """Newton's step ``dx`` without its soft part (``_soft_split``) where the residual along
+    the soft direction is a tenth of the target or less: the target does not need the state
+    moved along it, and each step along it (a curved valley) lifts the stiff modes' residual
+    that the target does need (a wrinkled sheet: an energy-accepted step 10 um along its
+    wrinkles' soft mode took the residual from 7e-8 to 6e-6 N, target 1.4e-8, where the
+    soft mode's own residual was 4e-12). Asked only once Newton stalls or was cut: a solve
+    more per iteration."""
+    split = _soft_split(nt, dx)
+    if split is None:
+        return dx
+    s, t = split
+    soft = abs(float(np.sum(cur.g * t))) / float(np.linalg.norm(t))
+    return s if soft <= 0.1 * nt.settings.rtol * nt.ref else dx
+
+
+def _soft_split(nt: Newton, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The Newton step ``dx`` as (s, t), s + t = dx: t along the softest direction of the
+    Hessian that ``dx`` holds, s the rest, H-orthogonal to it (the Newton step on the
+    stiff modes); None unless t is all of ``dx`` but a ``SOFT_SHARE``.
+
+    A mode far softer than the rest (a wrinkled sheet whose wrinkles can shift or mix at
+    almost no cost: 3e-7 N/m against the next 4e-4) takes a residual component far below the
+    target to a Newton step of its size over that stiffness, micrometres along a valley that
+    curves within them; the full step climbs the valley's wall, the whole step is cut to a
+    sixteenth, and the stiff modes, which hold the residual, converge a sixteenth at a time:
+    Newton crawled for hundreds of iterations at 1e-6 N with a target of 1e-8. Cutting only
+    the soft part keeps the stiff modes' Newton step, and the residual falls as it should.
+    The direction is one step of inverse iteration from ``dx`` (the factors at hand), which
+    the soft mode already dominates."""
+    p, free = nt.problem.pattern, nt.free.ravel()
+    d = dx.ravel()
+    w = nt.problem.solver.solve(d)
+    w[~free] = 0.0
+    size = float(np.linalg.norm(w))
+    if not (np.isfinite(size) and size > 0.0):
+        return None
+    v = w / size
+    Hv = sym_matvec(p.indptr, p.indices, nt.matrix, v)
+    vHv = float(v @ Hv)
+    if not vHv > 0.0:
+        return None
+    t = v * (float(Hv @ d) / vHv)
+    s = d - t
+    if np.linalg.norm(s) > SOFT_SHARE * np.linalg.norm(d):
+        return None
+    return s.reshape(dx.shape), t.reshape(dx.shape)
