@@ -39,6 +39,26 @@ def until_exists(path: str) -> None:
     until(lambda: Path(path).exists(), f"{path} never appeared")
 
 
+def hold_ring_at(stage: str, gate: str, iteration: int | None = None) -> None:
+    """A job for server.rings' process: the next ring it cuts reports ``stage`` (words, as
+    the server lists it; at Newton's ``iteration``, if given), then waits until ``gate``
+    exists (until_exists) before it goes on. Once: later reports go as they come."""
+    import server.rings as child
+
+    reports = child._reports
+
+    class Held:
+        def put(self, msg: dict) -> None:
+            reports.put(msg)
+            newton = msg["newton"] or {}
+            if msg["stage"] == stage and (iteration is None or
+                                          newton.get("iteration") == iteration):
+                child._reports = reports
+                until_exists(gate)
+
+    child._reports = Held()
+
+
 def wait_ready(client, timeout: float = HANG) -> None:
     """Until the solver has said it is ready; failing, say why the solvers were lost (the
     health's ``solver_losses``: the one clue when it happens on a CI machine only)."""
