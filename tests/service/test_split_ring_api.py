@@ -352,8 +352,10 @@ def test_a_ring_being_cut_is_listed_with_its_stage_then_gone(env, cup, tmp_path,
     t, out = _cut_held(client, run, {"heights": RING_BAND, "cut_angle": 90}, STAGES["closed"],
                        gate, iteration=0)
     try:
+        # the stage is reported as it starts, then Newton's first iterate, where it is held
         listed = until(lambda: (c := client.get(url(run)).json()["cutting"]) and
-                       c["stage"] == STAGES["closed"] and c, "the release never listed")
+                       c["stage"] == STAGES["closed"] and c["newton"] and c,
+                       "the release's first iterate never listed")
         assert listed["heights_mm"] == RING_BAND and listed["cut_angle_deg"] == 90
         newton = listed["newton"]
         assert newton["iteration"] == 0 and 0 < newton["target_N"] < newton["residual_N"]

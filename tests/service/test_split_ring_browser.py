@@ -260,7 +260,9 @@ def test_a_ring_being_cut_shows_its_stage_and_time(here, open_page, tmp_path):
                                arg=page.text_content("#ring-busy .stage"))
         shot(page, SHOTS, "cutting-waiting.png", where="#split-ring")
         busy.touch()
-        page.wait_for_function("document.querySelector('#ring-busy .newton') !== null")
+        # held at the first iteration: the page shows the iterate before it, then this one
+        page.wait_for_function("(document.querySelector('#ring-busy .newton') || {})"
+                               ".textContent?.startsWith('Newton iteration 1:')")
         listed = httpx.get(f"{url}/api/runs/{run}/split_ring").json()["cutting"]
         newton = listed["newton"]
         assert listed["stage"] == STAGES["closed"] and newton["iteration"] == 1
