@@ -12,47 +12,91 @@ ring would wait for whole runs. One process: rings take turns (a ring uses a cor
 solver does; the machine has few). One ring per run at a time: a second request while one is
 cut is a 409, and a run is not deleted under a ring being cut from it, nor a ring cut from a
 run being deleted.
+
+The child says what it is doing as it goes (its stage, and each Newton iterate of a release):
+messages on a queue, shaped as a run's solver sends its events (server.worker), which a thread
+of the server's reads onto the ring being cut, for GET /api/runs/{id}/split_ring to list while
+the POST waits.
 """
 
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 import multiprocessing as mp
+import queue
 import threading
+import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from functools import lru_cache
+from multiprocessing.queues import Queue
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from server.problems import Conflict, Invalid, NotFound, Unsolved
 from sim.frames import rings
 
+if TYPE_CHECKING:
+    from sim.stepping.split_ring import Report
+
 WALL_NOTE = ("a ring is cut from the steep wall of a drawn cup, between two heights above its "
              "bottom")
+# the ring's stages before and after the solver's (sim.stepping.split_ring.STAGES), in words
+READ = "reading the cup's final state"
+SAVE = "saving the ring into the run"
+HEAR_S = 1.0  # s: how often the reader of a process's reports looks whether it still should
+
+_reports: Queue | None = None  # in the child: where it reports (None: nobody listens)
 
 
-def cut_ring(run_id: str, folder: str, z1: float, z2: float, cut_angle: float) -> dict:
+def _report_to(reports: Queue) -> None:
+    """In the child, as it starts: its reports go to ``reports``."""
+    global _reports
+    _reports = reports
+
+
+def _reporter(run_id: str, cut: int, words: dict[str, str]) -> Callable[[Report], None]:
+    """In the child: reports of the solver's kind (sim.stepping.split_ring.Report) as the
+    server's messages about the cut numbered ``cut`` from the run ``run_id``, each stage in
+    ``words``."""
+    def tell(r: Report) -> None:
+        newton = None if r.iteration is None else {
+            "iteration": r.iteration, "residual_N": r.residual, "target_N": r.target}
+        if _reports is not None:  # looked up at each report: a test may hold the child here
+            _reports.put({"kind": "ring", "run": run_id, "cut": cut, "stage": words[r.stage],
+                          "newton": newton})
+    return tell
+
+
+def cut_ring(run_id: str, cut: int, folder: str, z1: float, z2: float,
+             cut_angle: float) -> dict:
     """In the child process: the ring between ``z1 < z2`` (m above the cup's bottom), cut at
     ``cut_angle`` (deg), released, split, released again and saved into the run ``run_id`` in
-    ``folder``. Returns ``{"ring": summary}`` (SI), ``{"invalid": why}`` naming the field, or
-    ``{"failed": why}``: the solver's types stay in the child. An OSError (the folder gone)
-    reaches the parent as itself."""
-    from sim.stepping.split_ring import SplitRingError, open_formed, split_ring
+    ``folder``, each stage reported as it starts (as the cut numbered ``cut``). Returns
+    ``{"ring": summary}`` (SI), ``{"invalid": why}`` naming the field, or ``{"failed": why}``:
+    the solver's types stay in the child. An OSError (the folder gone) reaches the parent as
+    itself."""
+    from sim.stepping.split_ring import STAGES, Report, SplitRingError, open_formed, split_ring
 
+    tell = _reporter(run_id, cut, {"read": READ, **STAGES, "save": SAVE})
     path = Path(folder)
     try:
+        tell(Report("read"))
         formed = open_formed(path)
-        res = split_ring(formed, z1, z2, math.radians(cut_angle))
+        res = split_ring(formed, z1, z2, math.radians(cut_angle), tell)
     except SplitRingError as exc:
         return {"invalid": _as_run(str(exc), run_id, path)}
     except RuntimeError as exc:
         return {"failed": str(exc)}
     try:
+        tell(Report("save"))
         rings.save(path, res, formed.ep[res.ring.elements].mean(1))
     except ValueError as exc:  # a number not finite: nothing written
         return {"failed": str(exc)}
@@ -68,6 +112,26 @@ def _as_run(text: str, run_id: str, folder: Path) -> str:
     return text
 
 
+@dataclass
+class Cut:
+    """A ring being cut from a run: what was asked (mm, deg), its number (the child's reports
+    name it: a report of the run's last ring, come late, is not this one's), when it was
+    asked for (time.monotonic) and what the child last said it is doing."""
+
+    heights_mm: list[float]
+    cut_angle_deg: float
+    number: int
+    stage: str
+    newton: dict | None = None  # in a release: its last iterate
+    asked: float = field(default_factory=time.monotonic)
+
+    def shown(self, now: float) -> dict:
+        """As the API lists it: the ring, its stage and the seconds since it was asked for."""
+        return {"heights_mm": list(self.heights_mm), "cut_angle_deg": self.cut_angle_deg,
+                "stage": self.stage, "newton": dict(self.newton) if self.newton else None,
+                "elapsed_s": max(now - self.asked, 0.0)}
+
+
 class RingCutter:
     """The child process that cuts rings, and the runs a ring is being cut from or that are
     being deleted: both marked under one lock, so that no ring is cut from a folder being
@@ -75,16 +139,51 @@ class RingCutter:
 
     def __init__(self) -> None:
         self._pool: ProcessPoolExecutor | None = None
+        self._reports: Queue | None = None  # where the pool's process reports
         self._lock = threading.Lock()
-        self.cutting: dict[str, dict] = {}  # run id -> the ring being cut (mm, deg)
+        self.cutting: dict[str, Cut] = {}  # run id -> the ring being cut
         self._deleting: set[str] = set()
+        self._numbers = itertools.count(1)
 
     def executor(self) -> ProcessPoolExecutor:
-        """The process rings are cut in (started now if need be)."""
+        """The process rings are cut in (started now if need be), and a thread that reads its
+        reports."""
         with self._lock:
             if self._pool is None:
-                self._pool = ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"))
+                ctx = mp.get_context("spawn")
+                self._reports = ctx.Queue()
+                self._pool = ProcessPoolExecutor(1, mp_context=ctx, initializer=_report_to,
+                                                 initargs=(self._reports,))
+                threading.Thread(target=self._hear, args=(self._reports,), daemon=True,
+                                 name="q3t-ring-reports").start()
             return self._pool
+
+    def progress(self, run_id: str) -> dict | None:
+        """The ring being cut from the run as the API lists it (Cut.shown); None: none is."""
+        with self._lock:
+            ring = self.cutting.get(run_id)
+            return ring.shown(time.monotonic()) if ring else None
+
+    def _hear(self, reports: Queue) -> None:
+        """In a thread: the child's reports onto the rings they are of, for as long as the
+        process is this cutter's. A report is a few hundred bytes, written to the pipe at once:
+        a child killed mid-report leaves no half of one to wait for."""
+        while self._reports is reports:
+            try:
+                msg = reports.get(timeout=HEAR_S)
+            except queue.Empty:
+                continue
+            except (EOFError, OSError, ValueError):  # the queue closed under it
+                return
+            self._heard(msg)
+
+    def _heard(self, msg: dict) -> None:
+        """A child's report (cut_ring's): the stage of the ring it names, if that one is
+        still being cut."""
+        with self._lock:
+            ring = self.cutting.get(msg["run"])
+            if ring is not None and ring.number == msg["cut"]:
+                ring.stage, ring.newton = msg["stage"], msg["newton"]
 
     @contextmanager
     def deleting(self, run_id: str) -> Iterator[None]:
@@ -110,14 +209,14 @@ class RingCutter:
         ``heights``) when a release failed, NotFound naming ``run_id`` when its folder went
         away. ``check`` (run in a thread once the ring is marked as being cut, so that the
         run cannot be deleted from then on) raises when no ring can be cut from the run."""
-        ring = {"heights_mm": list(heights_mm), "cut_angle_deg": cut_angle}
         with self._lock:
             if run_id in self._deleting:
                 raise Conflict(f"run {run_id!r} is being deleted")
             if run_id in self.cutting:
                 raise Conflict(f"run {run_id!r}: a split ring ({_band(self.cutting[run_id])}) "
                                "is being cut from it; ask again when it is done")
-            self.cutting[run_id] = ring
+            ring = self.cutting[run_id] = Cut(list(heights_mm), cut_angle,
+                                              next(self._numbers), self._waiting())
         try:
             await asyncio.to_thread(check)
             out = await self._solve(run_id, folder, ring)
@@ -136,17 +235,26 @@ class RingCutter:
             raise Unsolved(f"heights: {_band(ring)}: {out['failed']}; nothing was written")
         return out["ring"]
 
-    async def _solve(self, run_id: str, folder: Path, ring: dict) -> dict:
+    def _waiting(self) -> str:
+        """What a ring asked for now waits for, in words (under the lock)."""
+        if self.cutting:
+            return "waiting for another run's ring to be cut"
+        return "starting the process that cuts rings" if self._pool is None else \
+            "waiting for the process that cuts rings"
+
+    async def _solve(self, run_id: str, folder: Path, ring: Cut) -> dict:
         """The child's answer for ``ring`` (cut_ring's); Unsolved when the child died."""
-        z1, z2 = (1e-3 * z for z in ring["heights_mm"])
+        z1, z2 = (1e-3 * z for z in ring.heights_mm)
         pool = self.executor()
         try:
-            job = pool.submit(cut_ring, run_id, str(folder), z1, z2, ring["cut_angle_deg"])
+            job = pool.submit(cut_ring, run_id, ring.number, str(folder), z1, z2,
+                              ring.cut_angle_deg)
             return await asyncio.wrap_future(job)
         except BrokenProcessPool:
             with self._lock:
                 if self._pool is pool:  # not one another request started meanwhile
-                    self._pool = None  # a new process for the next ring
+                    # a new process for the next ring; the reader of this one's reports ends
+                    self._pool = self._reports = None
             pool.shutdown(wait=False)
             raise Unsolved(f"heights: {_band(ring)}: the process cutting the ring died (out of "
                            "memory, or killed); nothing was written") from None
@@ -155,7 +263,7 @@ class RingCutter:
         """At shutdown: a ring being cut is abandoned (its files are written through
         temporary names: the run keeps what it had)."""
         with self._lock:
-            pool, self._pool = self._pool, None
+            pool, self._pool, self._reports = self._pool, None, None
         if pool is None:
             return
         # no public way to end a busy worker before Python 3.14 (terminate_workers)
@@ -172,9 +280,9 @@ def _gone(run_id: str) -> NotFound:
                     "ring was saved")
 
 
-def _band(ring: dict) -> str:
-    z1, z2 = ring["heights_mm"]
-    return f"ring {z1:g}-{z2:g} mm, cut at {ring['cut_angle_deg']:g} deg"
+def _band(ring: Cut) -> str:
+    z1, z2 = ring.heights_mm
+    return f"ring {z1:g}-{z2:g} mm, cut at {ring.cut_angle_deg:g} deg"
 
 
 def cuttable(state: str, folder: Path) -> tuple[str | None, tuple[float, float] | None]:

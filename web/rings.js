@@ -1,13 +1,17 @@
 // The split-ring test on a finished cup run (POST /api/runs/{id}/split_ring, as `q3t
 // splitring`): two heights and a cut angle, a button, and the run's rings as the server lists
 // them, one column each (the plots column is narrow; the quantities are the rows), its files
-// to download at its foot.
+// to download at its foot. While a ring is cut (by this page or another), the server's word
+// on how far it has got, next to the button.
 "use strict";
 const Rings = (() => {
   const HEIGHTS = [8, 13];  // mm: the command line's default ring (sim/apps/splitring.py)
   // ms between fetches of a run's rings while its section is on screen: a ring cut by another
   // page or by `q3t splitring` shows within this (the server caches the final state's wall)
   const REFRESH_MS = 5000;
+  // ... and while a ring is being cut: its stage and time move on within seconds
+  const CUTTING_MS = 1000;
+  let cutting = false;  // a ring of the run shown is being cut (this page's, or as listed)
   let drawn = null;  // "run/state" of the list on screen
   let fetched = 0;  // when it was fetched (Date.now())
   let shown = null;  // the run the inputs were filled for
@@ -62,18 +66,51 @@ const Rings = (() => {
     if (by.other.length) $("ring-error").textContent = by.other.join("; ");
   }
 
-  function setBusy(on, what) {
-    // the run on screen only: another run's ring may be cut meanwhile
+  const band = (r) => `${Units.num(r.heights_mm[0])}–${Units.num(r.heights_mm[1])} mm`;
+  const upper = (t) => t.charAt(0).toUpperCase() + t.slice(1);
+  const force = (v) => Units.withUnit(v, "N", 2);
+
+  function progressLines(p) {
+    // the server's listing of a ring being cut: its stage and time (kept on one line: "under
+    // 1 s elapsed" wraps whole), and in a release how far Newton has got (the out-of-balance
+    // force falls to its target as it converges)
+    const time = `${Units.duration(p.elapsed_s)} elapsed`.replace(/ /g, "\u00a0");
+    const lines = [`${upper(p.stage)} · ${time}`];
+    if (p.newton) {
+      lines.push(`Newton iteration ${p.newton.iteration}: out-of-balance force ` +
+                 `${force(p.newton.residual_N)}, converged once below ` +
+                 `${force(p.newton.target_N)}`);
+    }
+    return lines;
+  }
+
+  function setBusy(on, what, progress) {
+    // the run on screen only: another run's ring may be cut meanwhile. ``progress``: the
+    // server's listing of the cut (none yet right after this page's click)
+    cutting = on;
     const b = $("ring-cut");
     b.disabled = on;
     b.textContent = on ? "Cutting…" : "Cut ring";
     $("split-ring").setAttribute("aria-busy", String(on));
-    $("ring-busy").hidden = !on;
-    $("ring-busy").textContent = on ? `Cutting the ring ${what}: released closed, split, ` +
-      "released again (seconds to minutes)…" : "";
+    const box = $("ring-busy");
+    box.hidden = !on;
+    box.dataset.stage = on && progress ? progress.stage : "";
+    if (!on) {
+      box.replaceChildren();
+      return;
+    }
+    const lines = progress
+      ? [`Cutting the ring ${what} at ${Units.num(progress.cut_angle_deg)}°:`,
+         ...progressLines(progress)]
+      : [`Cutting the ring ${what}:`, "released closed, split, released again (seconds to " +
+         "minutes)…"];
+    box.replaceChildren(...lines.map((text, i) => {
+      const line = document.createElement("span");
+      line.className = ["what", "stage", "newton"][i];
+      line.textContent = text;
+      return line;
+    }));
   }
-
-  const band = (r) => `${Units.num(r.heights_mm[0])}–${Units.num(r.heights_mm[1])} mm`;
 
   // the table's rows: a label with its unit, and the value of a ring (one number a cell, so
   // a ring's column stays narrow)
@@ -186,8 +223,9 @@ const Rings = (() => {
       fill(data.run, data.wall_mm);
     }
     const own = mine.get(data.run);
-    if (own && own.pending) setBusy(true, own.band);
-    else if (data.cutting) setBusy(true, band(data.cutting));  // by another page
+    // this page's cut, or another page's: as far as the server says it has got
+    if (data.cutting) setBusy(true, band(data.cutting), data.cutting);
+    else if (own && own.pending) setBusy(true, own.band);
     else setBusy(false);
     const list = $("ring-list");
     if (!data.rings.length) {
@@ -220,9 +258,10 @@ const Rings = (() => {
       return;
     }
     // again after a while while the section is on screen: a ring cut by another page or by
-    // the command line shows, and one being cut shows busy
+    // the command line shows, and one being cut shows busy, its progress each second
+    const every = cutting ? CUTTING_MS : REFRESH_MS;
     if (drawn === k && ($("split-ring").hidden || document.hidden ||
-                        Date.now() - fetched < REFRESH_MS)) return;
+                        Date.now() - fetched < every)) return;
     drawn = k;
     await load(st.id);
   }

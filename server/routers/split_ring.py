@@ -101,9 +101,27 @@ class CutRing(Ring):
     run: str
 
 
+class Newton(BaseModel):
+    iteration: int = Field(description="Newton iterations the release has made (0: the ring "
+                           "as cut, before the first)")
+    residual_N: float = Field(description="the out-of-balance force left at that iterate (the "
+                              "norm of the residual on the free degrees of freedom), N")
+    target_N: float = Field(description="the release has converged once the residual is below "
+                            "this, N (a small fraction of the force the release frees)")
+
+
 class Cutting(BaseModel):
     heights_mm: list[float]
     cut_angle_deg: float
+    stage: str = Field(description="what is being done, in words: waiting for the process "
+                       "that cuts rings (or starting it, or another run's ring), then reading "
+                       "the cup's final state, cutting the band from the wall, releasing the "
+                       "closed ring, splitting the ring along its meridian, releasing the split "
+                       "ring, measuring the opening and the diameters, saving the ring into "
+                       "the run")
+    newton: Newton | None = Field(description="in a release: its last Newton iterate")
+    elapsed_s: float = Field(description="seconds since the ring was asked for (its wait for "
+                             "the process included)")
 
 
 class Rings(BaseModel):
@@ -115,7 +133,8 @@ class Rings(BaseModel):
                                         "the lowest and highest centroid of its elements "
                                         "steeper than 60 deg, mm above the bottom (about: the "
                                         "cut uses each element's own mid-surface)")
-    cutting: Cutting | None = Field(description="the ring being cut now, if one is")
+    cutting: Cutting | None = Field(description="the ring being cut now, if one is, and how "
+                                    "far it has got")
     rings: list[Ring] = Field(description="the rings cut, by heights and cut angle")
 
 
@@ -150,7 +169,9 @@ def _ring(folder: Path, run_id: str, ring: str) -> str:
 @router.get("/{run_id}/split_ring", response_model=Rings, responses=documented(404, 422))
 def list_rings(run_id: RunId, request: Request) -> dict:
     """The split rings cut from the run so far (``q3t splitring`` and this API write them
-    into its result.json), each with its files' URLs, and whether one can be cut."""
+    into its result.json), each with its files' URLs, whether one can be cut, and the ring
+    being cut now, if one is: its stage and the time it has taken so far (a page asks again
+    every second or so while it waits for the POST)."""
     _, run, folder = _run(request, run_id)
     try:
         why, wall = cuttable(run.state, folder)
@@ -159,7 +180,7 @@ def list_rings(run_id: RunId, request: Request) -> dict:
         raise NotFound(f"run_id: {run.id}: its folder is gone") from None
     cutter: RingCutter = request.app.state.rings
     return {"run": run.id, "available": why is None, "reason": why, "wall_mm": wall,
-            "cutting": cutter.cutting.get(run.id), "rings": cut}
+            "cutting": cutter.progress(run.id), "rings": cut}
 
 
 @router.post("/{run_id}/split_ring", response_model=CutRing,
@@ -173,7 +194,8 @@ async def cut_ring(run_id: RunId, body: NewRing, request: Request) -> dict:
     run is being deleted; 404 naming ``run_id`` when the run (or its folder) is gone; 422
     naming ``run_id`` (not a finished plastic cup, no final state), ``heights`` (not
     increasing, off the wall, not one closed ring; or a release that failed, with the
-    solver's numbers: nothing is written) or ``cut_angle``."""
+    solver's numbers: nothing is written) or ``cut_angle``. Meanwhile the GET lists the ring
+    as ``cutting``, with its stage."""
     m, run, folder = _run(request, run_id)
 
     def check() -> None:

@@ -21,6 +21,7 @@ energy rises (past its layer Newton's model of the barrier fails), nor at later 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -212,9 +213,16 @@ class Newton:
         return self.result(cur.x, False, it, cur.E, why)
 
 
+# told of each iterate as it is reached: (iteration, residual N, the residual it converges
+# below N); a minimisation of seconds to minutes shows its progress
+Iterated = Callable[[int, float, float], None]
+
+
 def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
-             force_level: float = 0.0, reactions: bool = False) -> NewtonResult:
-    """Minimise the total energy from ``x0`` (Dirichlet DoFs already at their values).
+             force_level: float = 0.0, reactions: bool = False,
+             iterated: Iterated | None = None) -> NewtonResult:
+    """Minimise the total energy from ``x0`` (Dirichlet DoFs already at their values);
+    ``iterated`` is told of each iterate (:data:`Iterated`).
 
     Converged when the residual (gradient 2-norm on the free DoFs) is below ``rtol`` times the
     step's force level: the largest of ``force_level`` (the caller's: the run's force level so
@@ -236,6 +244,8 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
         # exact Hessian first: where it is positive definite Newton converges quadratically;
         # the projected one is the fallback when the factorisation finds it indefinite
         cur, bad = _iterate(nt, x, cached or nt.evaluate(x), force_level, reactions)
+        if iterated is not None and not bad:
+            iterated(it, cur.r, settings.rtol * nt.ref)
         if nt.watch is not None and _watch_fails(nt, cur, bad, settings.rtol * nt.ref):
             step = _give_up_watch(nt, it)
             if isinstance(step, NewtonResult):

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,7 +50,7 @@ from sim.model.sheet import mesh_and_thickness, rule_of
 from sim.scene.load import Scene, scene_from_dict
 from sim.solve.assembly import build_pattern
 from sim.solve.linsolve import make_solver
-from sim.solve.newton import minimise
+from sim.solve.newton import Iterated, minimise
 from sim.solve.problem import Problem
 from sim.stepping.wall import WALL
 from sim.terms.elasticity import Elasticity
@@ -57,10 +58,41 @@ from sim.terms.elasticity import Elasticity
 # half-width (degrees) of the sector whose mean radius gives a diameter's end: three to four
 # vertex columns of the 2 mm cup's wall (R = 17 mm), so a diameter averages over the mesh
 WINDOW = 7.5
+# what split_ring does, in the order it does it, in a forming engineer's words (its progress
+# names them by key): a ring of a fine cup takes minutes, its releases most of them
+STAGES = {"band": "cutting the band from the wall",
+          "closed": "releasing the closed ring",
+          "split": "splitting the ring along its meridian",
+          "opened": "releasing the split ring",
+          "measure": "measuring the opening and the diameters"}
 
 
 class SplitRingError(ValueError):
     """Bad input: no run there, a run without what the stage needs, heights off the wall."""
+
+
+@dataclass(frozen=True)
+class Report:
+    """Where the test is: its ``stage`` (a key of STAGES, or a caller's own, such as reading
+    the run) and, in a release, Newton's last iterate: its ``iteration`` (0: the ring as cut),
+    ``residual`` and the residual it converges below, ``target`` (N)."""
+
+    stage: str
+    iteration: int | None = None
+    residual: float | None = None
+    target: float | None = None
+
+
+Progress = Callable[[Report], None]
+
+
+def _quiet(report: Report) -> None:
+    """No one is told."""
+
+
+def _iterations(progress: Progress, stage: str) -> Iterated:
+    """Newton's iterates as reports of ``stage``."""
+    return lambda it, residual, target: progress(Report(stage, it, residual, target))
 
 
 @dataclass
@@ -273,13 +305,16 @@ def stage(formed: Formed, ring: Ring, fp_inv: np.ndarray, ep: np.ndarray,
     return Stage(ring, el, problem, support)
 
 
-def release(formed: Formed, st: Stage, x: np.ndarray) -> tuple[np.ndarray, dict]:
+def release(formed: Formed, st: Stage, x: np.ndarray,
+            iterated: Iterated | None = None) -> tuple[np.ndarray, dict]:
     """Static equilibrium of the free ring from ``x``, committed (re-yield, if any, enters its
     plastic state); the solver's numbers. Its force reference is the force the release
-    frees: the residual at ``x`` (zero for a stress-free ring, which then stays where it is)."""
+    frees: the residual at ``x`` (zero for a stress-free ring, which then stays where it is).
+    ``iterated``: told of each Newton iterate (sim.solve.newton.Iterated)."""
     g0 = st.problem.gradient(x)
     level = float(np.linalg.norm(g0[~st.problem.fixed]))
-    res = minimise(st.problem, x, newton_settings(formed.scene, st.shell), level)
+    res = minimise(st.problem, x, newton_settings(formed.scene, st.shell), level,
+                   iterated=iterated)
     if not res.converged:
         raise RuntimeError(f"the ring's release did not converge: {res.reason}")
     st.elasticity.commit(res.x)
@@ -357,22 +392,30 @@ class Result:
     states: dict[str, np.ndarray]
 
 
-def split_ring(formed: Formed, z1: float, z2: float, cut_angle: float = 0.0) -> Result:
+def split_ring(formed: Formed, z1: float, z2: float, cut_angle: float = 0.0,
+               progress: Progress = _quiet) -> Result:
     """The split-ring test on the formed state between heights ``z1 < z2`` (m above the cup's
-    bottom), cut at ``cut_angle`` (rad from x about z)."""
+    bottom), cut at ``cut_angle`` (rad from x about z). ``progress`` is told of each stage as
+    it starts (STAGES, in their order) and of each Newton iterate of the releases."""
+    progress(Report("band"))
     ids = band(formed, z1, z2)
     closed_ring = _sub_shell(formed.shell, ids, np.zeros(formed.shell.n_plane, bool),
                              np.zeros(len(ids), bool))
+    # split now, not after the first release: a cut the ring cannot take is refused at once
     split = cut(formed, ids, cut_angle)
+    progress(Report("closed"))
     x_formed = formed.x[closed_ring.nodes]
     st = stage(formed, closed_ring, formed.fp_inv[ids], formed.ep[ids], x_formed)
-    x_closed, solve_closed = release(formed, st, x_formed)
+    x_closed, solve_closed = release(formed, st, x_formed, _iterations(progress, "closed"))
+    progress(Report("split"))
     # the split ring's nodes from the closed ring's: a copy starts where its twin is
     where = {int(n): i for i, n in enumerate(closed_ring.nodes)}
     to_closed = np.array([where[int(n)] for n in split.nodes])
     x_start = x_closed[to_closed]
     st2 = stage(formed, split, st.elasticity.fp_inv, st.elasticity.ep, x_start)
-    x_split, solve_split = release(formed, st2, x_start)
+    progress(Report("opened"))
+    x_split, solve_split = release(formed, st2, x_start, _iterations(progress, "opened"))
+    progress(Report("measure"))
     mid_formed = mid_surface(st2, formed.x[split.nodes])
     mid_closed, mid_split = mid_surface(st2, x_start), mid_surface(st2, x_split)
     _, bottom, _, _ = heights(formed)

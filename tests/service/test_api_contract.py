@@ -5,13 +5,11 @@ no answer the schema does not describe; and the HTTP edges the fuzzer does not r
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import re
 import shutil
 import socket
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -19,13 +17,13 @@ import pytest
 
 schemathesis = pytest.importorskip("schemathesis")
 import httpx  # noqa: E402
-import uvicorn  # noqa: E402
 from hypothesis import HealthCheck, settings  # noqa: E402
 
 from server.app import create_app  # noqa: E402
 from server.bench import frame_generator  # noqa: E402
 from server.settings import Settings  # noqa: E402
 from tests.support.scenes import tiny_toml  # noqa: E402
+from tests.support.service import on_uvicorn  # noqa: E402
 
 # Statuses a schema-valid request may get. 422 among them: what a scene's TOML must hold, the
 # live parameters' ranges (named by the solver process at run time) and the scene's own rules
@@ -50,26 +48,6 @@ FUZZ = settings(max_examples=8, derandomize=True, deadline=None,
                 suppress_health_check=list(HealthCheck))
 
 
-@contextlib.contextmanager
-def served(app, **config):
-    """``app`` on a real uvicorn server in a thread, lifespan and all: yields its base URL."""
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", **config))
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 120  # the lifespan starts the solver process
-    while not server.started:
-        assert thread.is_alive() and time.monotonic() < deadline, "the server did not start"
-        time.sleep(0.02)
-    try:
-        yield f"http://127.0.0.1:{sock.getsockname()[1]}"
-    finally:
-        server.should_exit = True
-        thread.join(60)
-        sock.close()
-
-
 @pytest.fixture(scope="module")
 def base_url():
     """The service on a throwaway scenes folder (the stateful phase deletes scenes), with a
@@ -83,7 +61,7 @@ def base_url():
     app = create_app(s, worker_target=functools.partial(frame_generator, n_vertices=64,
                                                         rate=200.0))
     try:
-        with served(app) as url:
+        with on_uvicorn(app) as url:
             yield url
         manager = app.state.manager  # shut down: the run the fuzzer left is over, no process
         assert manager.active_runs() == [] and not manager.slots[0].worker.alive()
@@ -183,7 +161,7 @@ def quick_server():
                  body_timeout=0.5)
     app = create_app(s, worker_target=functools.partial(frame_generator, n_vertices=64))
     try:
-        with served(app) as url:
+        with on_uvicorn(app) as url:
             yield url
     finally:
         shutil.rmtree(root)

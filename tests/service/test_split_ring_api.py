@@ -1,9 +1,10 @@
 """/api/runs/{id}/split_ring on a finished cup (tests/support/scenes.py's ring cup, the
 coarsest with a wall for a band): the ring the command line cuts, to round-off; its files
-downloaded as they are on disk, and only a ring the run lists; 409 while one is cut from the
-run; 422 naming the field for every bad request, the run left as it was; a failed release
-answered with the solver's reason and nothing written; the ring's files deleted with the
-run."""
+downloaded as they are on disk, and only a ring the run lists; a ring being cut listed with
+its stage as the child reports it, gone once the cut has ended, well or not; 409 while one is
+cut from the run; 422 naming the field for every bad request, the run left as it was; a
+failed release answered with the solver's reason and nothing written; the ring's files
+deleted with the run."""
 
 from __future__ import annotations
 
@@ -22,10 +23,18 @@ import numpy as np
 import pytest
 
 from server.problems import NotFound, Unsolved
-from server.rings import RingCutter
+from server.rings import READ, SAVE, RingCutter
 from sim.frames import rings
+from sim.stepping.split_ring import STAGES
 from tests.support.scenes import RING_BAND, ring_cup_toml, tiny_cup_toml
-from tests.support.service import HANG, finished_run, in_process, until, until_exists
+from tests.support.service import (
+    HANG,
+    finished_run,
+    hold_ring_at,
+    in_process,
+    until,
+    until_exists,
+)
 
 
 @pytest.fixture(scope="module")
@@ -294,7 +303,9 @@ def test_a_second_ring_while_one_is_cut_is_409_and_the_run_is_not_deleted(env, t
     t.start()
     try:
         cutting = until(lambda: client.get(url(run)).json()["cutting"], "never cutting")
-        assert cutting == {"heights_mm": RING_BAND, "cut_angle_deg": 0.0}
+        assert cutting.pop("elapsed_s") >= 0
+        assert cutting == {"heights_mm": RING_BAND, "cut_angle_deg": 0.0, "newton": None,
+                           "stage": "waiting for the process that cuts rings"}
         r = client.post(url(run), json={"heights": RING_BAND, "cut_angle": 45})
         assert r.status_code == 409 and "is being cut from it" in r.json()["detail"]
         assert client.delete(f"/api/runs/{run}").status_code == 409
@@ -308,6 +319,108 @@ def test_a_second_ring_while_one_is_cut_is_409_and_the_run_is_not_deleted(env, t
     assert (folder / f"{first['r'].json()['name']}.npz").is_file()
     assert client.delete(f"/api/runs/{run}").status_code == 204
     assert not folder.exists()
+
+
+def _heard(monkeypatch, cutter: RingCutter) -> list[dict]:
+    """Every report of its child the server reads, from now on, in order."""
+    seen: list[dict] = []
+    heard = cutter._heard
+    monkeypatch.setattr(cutter, "_heard", lambda msg: (seen.append(msg), heard(msg)))
+    return seen
+
+
+def _cut_held(client, run: str, body: dict, stage: str, gate: Path,
+              iteration: int | None = None) -> tuple[threading.Thread, dict]:
+    """A ring asked for (``body``) in a thread, its child held once it has reported ``stage``
+    (at ``iteration``) until ``gate`` exists; the thread and where its answer goes (``r``)."""
+    client.app.state.rings.executor().submit(hold_ring_at, stage, str(gate), iteration).result()
+    out: dict = {}
+    t = threading.Thread(target=lambda: out.update(r=client.post(url(run), json=body)))
+    t.start()
+    return t, out
+
+
+def test_a_ring_being_cut_is_listed_with_its_stage_then_gone(env, cup, tmp_path, monkeypatch):
+    """The child held at the closed ring's release, as Newton starts: the ring is listed
+    with that stage, the residual it starts from and the time so far; let go, it is cut
+    and no longer listed. Every report the server read, in order: each stage once, in the
+    test's order, each release's iterates counted up to the iterations its answer gives."""
+    client, _ = env
+    run, _ = cup
+    seen = _heard(monkeypatch, client.app.state.rings)
+    gate = tmp_path / "gate"
+    t, out = _cut_held(client, run, {"heights": RING_BAND, "cut_angle": 90}, STAGES["closed"],
+                       gate, iteration=0)
+    try:
+        # the stage is reported as it starts, then Newton's first iterate, where it is held
+        listed = until(lambda: (c := client.get(url(run)).json()["cutting"]) and
+                       c["stage"] == STAGES["closed"] and c["newton"] and c,
+                       "the release's first iterate never listed")
+        assert listed["heights_mm"] == RING_BAND and listed["cut_angle_deg"] == 90
+        newton = listed["newton"]
+        assert newton["iteration"] == 0 and 0 < newton["target_N"] < newton["residual_N"]
+        later = client.get(url(run)).json()["cutting"]
+        assert later["stage"] == listed["stage"] and later["newton"] == newton  # held
+        assert later["elapsed_s"] >= listed["elapsed_s"] >= 0
+    finally:
+        gate.touch()
+        t.join()
+    assert out["r"].status_code == 200, out["r"].text
+    assert client.get(url(run)).json()["cutting"] is None
+    until(lambda: seen and seen[-1]["stage"] == SAVE, "the saving never reported")
+    assert {(m["kind"], m["run"]) for m in seen} == {("ring", run)}
+    assert len({m["cut"] for m in seen}) == 1
+    stages = [m["stage"] for m in seen]
+    assert list(dict.fromkeys(stages)) == [READ, *STAGES.values(), SAVE]
+    solver = out["r"].json()["solver"]
+    for key, release in (("closed", "closed"), ("opened", "split")):
+        iterations = [m["newton"]["iteration"] for m in seen if m["stage"] == STAGES[key]
+                      and m["newton"]]
+        assert iterations == list(range(solver[release]["iterations"] + 1)), key
+    assert all(m["newton"] is None for m in seen
+               if m["stage"] not in (STAGES["closed"], STAGES["opened"]))
+
+
+def test_a_cut_that_fails_is_a_422_and_no_longer_listed(env, cup, tmp_path, monkeypatch):
+    """Heights with no closed ring, the child held as it cuts the band: listed so, then
+    refused as before, and not listed any more; nothing written. A late report of a cut that
+    has ended moves no ring listed after it."""
+    client, _ = env
+    run, folder = cup
+    cutter = client.app.state.rings
+    seen = _heard(monkeypatch, cutter)
+    before = {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
+    gate = tmp_path / "gate"
+    t, out = _cut_held(client, run, {"heights": [3, 5]}, STAGES["band"], gate)
+    try:
+        listed = until(lambda: (c := client.get(url(run)).json()["cutting"]) and
+                       c["stage"] == STAGES["band"] and c, "the band never listed")
+        assert listed["heights_mm"] == [3, 5] and listed["newton"] is None
+    finally:
+        gate.touch()
+        t.join()
+    r = out["r"]
+    assert r.status_code == 422 and r.json()["detail"].startswith(
+        "heights: 3-5 mm is not one closed ring"), r.text
+    assert client.get(url(run)).json()["cutting"] is None
+    assert {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()} == before
+    assert [m["stage"] for m in seen] == [READ, STAGES["band"]]
+    # a report of that cut, come after it ended, onto a ring cut from the run since
+    gate = tmp_path / "gate2"
+    held = cutter.executor().submit(until_exists, str(gate))
+    t = threading.Thread(target=lambda: out.update(r=client.post(url(run), json={
+        "heights": [3, 5]})))
+    t.start()
+    try:
+        until(lambda: client.get(url(run)).json()["cutting"], "never cutting")
+        cutter._heard({**seen[-1], "stage": SAVE})
+        assert client.get(url(run)).json()["cutting"]["stage"] == \
+            "waiting for the process that cuts rings"
+    finally:
+        gate.touch()
+        t.join()
+        held.result()
+    assert out["r"].status_code == 422
 
 
 def test_a_run_is_not_deleted_between_a_rings_request_and_its_cut(env, monkeypatch):
@@ -462,7 +575,8 @@ def test_a_release_that_fails_says_why_and_writes_nothing(env):
     assert detail.endswith("nothing was written")
     assert {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()} == before
     assert not list(folder.glob("*split_ring*"))
-    assert client.get(url(run)).json()["rings"] == []
+    listed = client.get(url(run)).json()
+    assert listed["rings"] == [] and listed["cutting"] is None
 
 
 def test_the_openapi_schema_declares_the_routes(env):

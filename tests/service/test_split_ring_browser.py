@@ -2,8 +2,9 @@
 subprocess: a cup run started from the page and finished shows a "Split ring" section with
 heights its wall holds; heights above the part are refused next to the heights, a cut angle
 that is no number next to the angle; a ring cut shows busy, then its column in the table, the
-numbers the API lists, and links to its files that download them as saved. A plate run has no
-such section. With Q3T_SHOTS set, screenshots go to its folder split-ring."""
+numbers the API lists, and links to its files that download them as saved; while a ring is
+cut, the stage the server lists and the time so far, Newton's progress in a release. A plate
+run has no such section. With Q3T_SHOTS set, screenshots go to its folder split-ring."""
 
 from __future__ import annotations
 
@@ -14,9 +15,17 @@ import httpx
 import numpy as np
 import pytest
 
+from sim.stepping.split_ring import STAGES
 from tests.support.browser import VIEWER_FOR_SHOTS, click_row, open_scene, serve, shot, shots_dir
 from tests.support.scenes import RING_BAND, ring_cup_toml, tiny_cup_toml
-from tests.support.service import HANG, finished_run, until
+from tests.support.service import (
+    HANG,
+    finished_run,
+    hold_ring_at,
+    in_thread,
+    until,
+    until_exists,
+)
 
 SHOTS = shots_dir("split-ring")
 pytestmark = pytest.mark.browser
@@ -205,6 +214,74 @@ def test_a_cut_belongs_to_its_run_and_rings_cut_elsewhere_show(served, open_page
         ["0", "90"]
     assert not page.is_disabled("#ring-cut") and page.inner_text("#ring-heights-error") == ""
     shot(page, SHOTS, "late-ring-back-on-a.png", where="#split-ring")
+
+
+@pytest.fixture(scope="module")
+def here(tmp_path_factory):
+    """The service in this process, on uvicorn in a thread: a test holds its process that
+    cuts rings (app.state.rings) at a stage for as long as it needs. Its url and app."""
+    tmp = tmp_path_factory.mktemp("split-ring-here")
+    with in_thread(tmp, {"ring_cup": ring_cup_toml()}) as out:
+        yield out
+
+
+def busy_lines(page) -> list[str]:
+    """The lines beside the busy button, their no-break spaces (a time kept on one line)
+    as spaces."""
+    return [t.replace("\xa0", " ") for t in page.locator("#ring-busy > span").all_inner_texts()]
+
+
+def test_a_ring_being_cut_shows_its_stage_and_time(here, open_page, tmp_path):
+    """Beside the busy button, while a ring is cut: the ring, then what it waits for while
+    the process that cuts rings is busy (held here), the time so far moving on; then, the
+    child held as the closed ring's release makes its first Newton iteration, that stage and
+    Newton's iteration and out-of-balance force against its target, in N, as the server lists
+    them. Let go: the ring is tabled and the busy line is gone."""
+    url, app = here
+    with httpx.Client(base_url=url, timeout=HANG) as client:
+        run = finished_run(client, "ring_cup")
+    page = open_page(url, "#runs tbody tr")
+    click_row(page, run)
+    page.wait_for_selector(f"#split-ring[data-run='{run}'][data-count='0'][data-ready='true']")
+    pool = app.state.rings.executor()
+    release, busy = tmp_path / "release", tmp_path / "busy"
+    pool.submit(hold_ring_at, STAGES["closed"], str(release), 1).result()
+    held = pool.submit(until_exists, str(busy))
+    try:
+        page.click("#ring-cut")
+        page.wait_for_function("document.getElementById('ring-busy').dataset.stage === "
+                               "'waiting for the process that cuts rings'")
+        lines = busy_lines(page)
+        assert lines[0] == f"Cutting the ring {RING_BAND[0]}–{RING_BAND[1]} mm at 0°:"
+        assert lines[1].startswith("Waiting for the process that cuts rings · ")
+        assert lines[1].endswith(" elapsed") and len(lines) == 2
+        page.wait_for_function("(t) => document.querySelector('#ring-busy .stage')"
+                               ".textContent !== t",  # the time moves on
+                               arg=page.text_content("#ring-busy .stage"))
+        shot(page, SHOTS, "cutting-waiting.png", where="#split-ring")
+        busy.touch()
+        # held at the first iteration: the page shows the iterate before it, then this one
+        page.wait_for_function("(document.querySelector('#ring-busy .newton') || {})"
+                               ".textContent?.startsWith('Newton iteration 1:')")
+        listed = httpx.get(f"{url}/api/runs/{run}/split_ring").json()["cutting"]
+        newton = listed["newton"]
+        assert listed["stage"] == STAGES["closed"] and newton["iteration"] == 1
+        lines = busy_lines(page)
+        assert lines[1].startswith("Releasing the closed ring · ")
+        force = lambda v: page.evaluate("(v) => Units.withUnit(v, 'N', 2)", v)  # noqa: E731
+        assert lines[2] == (f"Newton iteration 1: out-of-balance force "
+                            f"{force(newton['residual_N'])}, converged once below "
+                            f"{force(newton['target_N'])}")
+        assert page.inner_text("#ring-cut") == "Cutting…" and page.is_disabled("#ring-cut")
+        shot(page, SHOTS, "cutting-progress.png", where="#split-ring")
+        shot(page, SHOTS, "cutting-progress-page.png", settle_ms=500)
+    finally:
+        busy.touch()
+        release.touch()
+        held.result()
+    page.wait_for_selector("#split-ring[data-count='1']")
+    assert not page.is_visible("#ring-busy") and page.inner_text("#ring-cut") == "Cut ring"
+    assert page.get_attribute("#ring-busy", "data-stage") == ""
 
 
 def test_a_run_without_a_wall_has_no_split_ring_section(served, open_page):

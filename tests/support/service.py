@@ -6,6 +6,7 @@ import contextlib
 import os
 import random
 import socket
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -37,6 +38,26 @@ def until_exists(path: str) -> None:
     """Returns once ``path`` exists: a job that holds a process (server.rings') until the test
     lets it go, never longer than HANG (a hang guard)."""
     until(lambda: Path(path).exists(), f"{path} never appeared")
+
+
+def hold_ring_at(stage: str, gate: str, iteration: int | None = None) -> None:
+    """A job for server.rings' process: the next ring it cuts reports ``stage`` (words, as
+    the server lists it; at Newton's ``iteration``, if given), then waits until ``gate``
+    exists (until_exists) before it goes on. Once: later reports go as they come."""
+    import server.rings as child
+
+    reports = child._reports
+
+    class Held:
+        def put(self, msg: dict) -> None:
+            reports.put(msg)
+            newton = msg["newton"] or {}
+            if msg["stage"] == stage and (iteration is None or
+                                          newton.get("iteration") == iteration):
+                child._reports = reports
+                until_exists(gate)
+
+    child._reports = Held()
 
 
 def wait_ready(client, timeout: float = HANG) -> None:
@@ -154,16 +175,11 @@ def nested(depth: int) -> str:
     return "[" * depth + "]" * depth
 
 
-@contextlib.contextmanager
-def in_process(tmp: Path, scenes: dict[str, str], **settings: Any) -> Iterator[tuple]:
-    """The service in this process (FastAPI's TestClient, which runs the lifespan) over
-    ``tmp/scenes`` (written from ``scenes``: name -> TOML) and ``tmp/runs``, without the viewer
-    unless ``settings`` say otherwise; yields (client, Settings) once the solver is ready. The
-    solver answers a request between two steps: on a loaded machine that may take longer than
-    the default second, never HANG (a hang guard)."""
-    from fastapi.testclient import TestClient
-
-    from server.app import create_app
+def service_settings(tmp: Path, scenes: dict[str, str], settings: dict) -> Any:
+    """The service's Settings over ``tmp/scenes`` (written from ``scenes``: name -> TOML) and
+    ``tmp/runs``, without the viewer unless ``settings`` say otherwise. The solver answers a
+    request between two steps: on a loaded machine that may take longer than the default
+    second, never HANG (a hang guard)."""
     from server.settings import Settings
 
     os.environ.setdefault("XDG_CONFIG_HOME", str(tmp / "config"))
@@ -171,8 +187,56 @@ def in_process(tmp: Path, scenes: dict[str, str], **settings: Any) -> Iterator[t
     (tmp / "scenes").mkdir(exist_ok=True)
     for name, text in scenes.items():
         (tmp / "scenes" / f"{name}.toml").write_text(text)
-    config = Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs",
-                      **{"viewer": False, "ack_timeout": HANG, **settings})
+    return Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs",
+                    **{"viewer": False, "ack_timeout": HANG, **settings})
+
+
+@contextlib.contextmanager
+def in_process(tmp: Path, scenes: dict[str, str], **settings: Any) -> Iterator[tuple]:
+    """The service in this process (FastAPI's TestClient, which runs the lifespan) with
+    service_settings; yields (client, Settings) once the solver is ready."""
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+
+    config = service_settings(tmp, scenes, settings)
     with TestClient(create_app(config)) as client:
         wait_ready(client)
         yield client, config
+
+
+@contextlib.contextmanager
+def on_uvicorn(app: Any, **config: Any) -> Iterator[str]:
+    """``app`` on a real uvicorn server in a thread, lifespan and all: yields its base URL."""
+    import uvicorn
+
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", **config))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 120  # the lifespan starts the solver process
+    while not server.started:
+        assert thread.is_alive() and time.monotonic() < deadline, "the server did not start"
+        time.sleep(0.02)
+    try:
+        yield f"http://127.0.0.1:{sock.getsockname()[1]}"
+    finally:
+        server.should_exit = True
+        thread.join(60)
+        sock.close()
+
+
+@contextlib.contextmanager
+def in_thread(tmp: Path, scenes: dict[str, str], **settings: Any) -> Iterator[tuple]:
+    """The service in this process with service_settings, on uvicorn in a thread: a browser talks
+    to it over HTTP while the test reaches into its app (``app.state``: the process that cuts
+    rings, to hold one at a stage). Yields (url, app) once the solver is ready."""
+    import httpx
+
+    from server.app import create_app
+
+    app = create_app(service_settings(tmp, scenes, settings))
+    with on_uvicorn(app) as url:
+        until(lambda: httpx.get(f"{url}/api/config").json()["ready"], "solver never ready")
+        yield url, app

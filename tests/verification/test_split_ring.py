@@ -79,6 +79,24 @@ def test_a_ring_with_a_known_residual_moment_opens_by_the_exact_amount():
     assert extrapolated == pytest.approx(exact, rel=5e-3)
 
 
+def test_each_stage_and_each_newton_iterate_is_reported_as_it_comes():
+    """``progress`` hears of each stage once, as it starts, in STAGES' order; in each release
+    of every Newton iterate, numbered from the ring as cut (0) to the iterations the summary
+    gives, the last one's residual the summary's, the target a fixed fraction of the force
+    the release frees."""
+    heard: list[sr.Report] = []
+    s = sr.split_ring(rings.ring(0.001, 1.02 * rings.R), 0.0, rings.H, 0.0, heard.append).summary
+    assert list(dict.fromkeys(r.stage for r in heard)) == list(sr.STAGES)
+    for key, release in (("closed", "closed"), ("opened", "split")):
+        solver = s["solver"][release]
+        iterates = [r for r in heard if r.stage == key and r.iteration is not None]
+        assert [r.iteration for r in iterates] == list(range(solver["iterations"] + 1))
+        assert iterates[0].residual == pytest.approx(solver["released_force"], rel=1e-12)
+        assert iterates[-1].residual == solver["residual"] <= iterates[-1].target
+        assert {r.target for r in iterates} == {iterates[0].target}
+    assert sum(r.iteration is None for r in heard) == len(sr.STAGES)
+
+
 def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
     run = rings.write_run(tmp_path / "ring", rings.ring(0.001, 1.02 * rings.R))
     (run / "result.json").write_text(json.dumps({"scene": "ring"}))
