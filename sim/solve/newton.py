@@ -266,8 +266,7 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
         dx = _direction(nt, cur, it)
         if isinstance(dx, NewtonResult):
             return dx
-        if stalled or nt.cut:
-            dx = _off_valley(nt, cur, dx)
+        dx = _off_valley(nt, cur, dx, stalled)
         stop = _stop(nt, cur, it, dx)
         if stop is not None:
             return stop
@@ -607,15 +606,15 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
     return nt.failure(cur, it + 1, f"line search stalled (residual {r:.3e})")
 
 
-def _off_valley(nt: Newton, cur: Iterate, dx: np.ndarray) -> np.ndarray:
+def _off_valley(nt: Newton, cur: Iterate, dx: np.ndarray, stalled: bool) -> np.ndarray:
     """Newton's step ``dx`` without its soft part (``_soft_split``) where the residual along
     the soft direction is a tenth of the target or less: the target does not need the state
     moved along it, and each step along it (a curved valley) lifts the stiff modes' residual
     that the target does need (a wrinkled sheet: an energy-accepted step 10 um along its
     wrinkles' soft mode took the residual from 7e-8 to 6e-6 N, target 1.4e-8, where the
-    soft mode's own residual was 4e-12). Asked only once Newton stalls or was cut: a solve
-    more per iteration."""
-    split = _soft_split(nt, dx)
+    soft mode's own residual was 4e-12). Asked only once Newton ``stalled`` or was cut: a
+    solve more per iteration."""
+    split = _soft_split(nt, dx) if stalled or nt.cut else None
     if split is None:
         return dx
     s, t = split
