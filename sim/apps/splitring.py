@@ -15,11 +15,15 @@ import argparse
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sim.apps.common import BAD_INPUT, FAILED, OK
 from sim.apps.study_report import markdown_table
 from sim.frames import rings
 from sim.stamp import Stamp, add_results_option, write_results
+
+if TYPE_CHECKING:
+    from sim.stepping.split_ring import Progress, Report
 
 # a ring 5 mm high (Xia, Miller and Ren's rings, J. Manuf. Sci. Eng. 129 (2007) 352) from the
 # middle of the 1 mm cup's straight wall: its punch radius ends 5.5 mm above the bottom, the
@@ -75,6 +79,19 @@ def text(s: dict) -> str:
     return "\n".join(lines)
 
 
+def _told(folder: Path) -> Progress:
+    """The test's progress on stderr, a line as each stage starts: a fine cup's ring takes
+    minutes, most of them in its two releases."""
+    from sim.stepping.split_ring import STAGES
+
+    def tell(report: Report) -> None:
+        if report.iteration is None:  # a stage starts (Newton's iterates are not printed)
+            print(f"q3t splitring: {folder}: {STAGES[report.stage]}", file=sys.stderr,
+                  flush=True)
+
+    return tell
+
+
 def run(args: argparse.Namespace) -> int:
     """Exit 0 when every ring was released, 2 on bad input (before any solve), 1 when a
     release failed."""
@@ -94,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     for folder, fm in formed:
         for z1, z2 in bands:
             try:
-                res = split_ring(fm, z1, z2, math.radians(args.cut_angle))
+                res = split_ring(fm, z1, z2, math.radians(args.cut_angle), _told(folder))
             except SplitRingError as exc:
                 print(f"q3t splitring: {folder}: {exc}", file=sys.stderr)
                 return BAD_INPUT

@@ -113,7 +113,11 @@ def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
     vtu = meshio.read(run / "split_ring-0-2mm" / "ring_split.vtu")
     assert vtu.cells[0].type == "wedge" and len(vtu.cells[0].data) == s["elements"]
     assert "opening [mm]" in out.read_text() and "commit" in out.read_text()
-    assert f"{1e3 * s['opening']['at_mid_height']:.3f}" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert f"{1e3 * s['opening']['at_mid_height']:.3f}" in said.out
+    # each stage named on stderr as it starts, in the test's order
+    stages = [said.err.index(words) for words in sr.STAGES.values()]
+    assert stages == sorted(stages), said.err
     # another ring is added, the same ring again replaces its entry, another cut is another
     assert main(["splitring", str(run), "--heights", "0,2", "--heights", "0,1.5"]) == 0
     assert main(["splitring", str(run), "--heights", "0,2", "--cut-angle", "-315"]) == 0
