@@ -369,7 +369,7 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
         length = min(length, rest) if flat_path and rest < 1.0 else rest
         settings = sim.model.settings
         if point.kicked:
-            sim.model.settings = replace(settings, max_iterations=max(
+            sim.model.settings = replace(settings, indefinite="shift", max_iterations=max(
                 settings.max_iterations, KICKED_ITERATIONS))
         while True:
             mark = _mark(sim) if flat_path else None

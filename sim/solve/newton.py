@@ -43,6 +43,12 @@ INVERTED_AT_START = "inverted element at the start of the step"
 # a Newton step with at most this share of its length off one direction lies along a soft
 # valley of the energy (_soft_split); the stretched sheet's wrinkled states put 1e-4 off it
 SOFT_SHARE = 1e-2
+# an exact Hessian shifted to factor (_factor_shift): its shift within this ratio of the least
+# that factors, found by at most this many bisections
+SHIFT_BRACKET = 1.2
+SHIFT_BISECTIONS = 4
+# a correction on a shifted Hessian is tried up to 2^this times longer (_extended)
+SHIFT_EXTENSIONS = 10
 
 
 @dataclass(frozen=True)
@@ -61,6 +67,12 @@ class NewtonSettings:
     # below the sufficient decrease asked of that step (0: backtrack at once)
     watchdog: int = 1
     try_exact: bool = True  # exact Hessian when positive definite, projected otherwise
+    # with try_exact, what replaces an exact Hessian that does not factor: "project", the
+    # terms' PSD projection (shifted if need be); "shift", the exact Hessian itself plus the
+    # least multiple of the identity that factors (_factor_shift). Leaving a saddle (a kicked
+    # unstable state) the way down is the negative curvature the projection drops: the
+    # stretched sheet's descent after a kick crawled for hundreds of projected iterations
+    indefinite: str = "project"
     # with try_exact: the projected Hessian while the last residual is above this fraction of
     # the force level (and at a minimisation's start), the exact one below (0: exact
     # throughout). Far from equilibrium the exact Hessian of plastic flow and of contact
@@ -168,6 +180,8 @@ class Newton:
     relags: int = 0
     factored: bool = False  # the solver holds factors of this minimisation's Hessians
     matrix: np.ndarray | None = None  # the Hessian data the last correction solved against
+    shift: float = 0.0  # the last identity shift that made the exact Hessian factor (N/m)
+    shifted: bool = False  # the solver's factors are of a shifted Hessian
 
     def result(self, x: np.ndarray, ok: bool, it: int, E: float, reason: str = "") -> NewtonResult:
         self.timing.iterations = it
@@ -358,15 +372,16 @@ def _relag(nt: Newton, cur: Iterate, force_level: float,
 
 
 def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:
-    """The Newton correction at ``cur``: the exact Hessian's when it factors, the projected
-    one's (shifted if need be) otherwise; the failed result when nothing factors. Once the
+    """The Newton correction at ``cur``: the exact Hessian's when it factors, its replacement's
+    otherwise (``_factor``); the failed result when nothing factors. Once the
     lag follows the iterates, with its coupling (``_solve``). Close to convergence the
     Hessian barely changes from one iterate to the next: the last factors are tried first
     (``reuse_below``), refined against the new Hessian."""
-    problem, timing, data = nt.problem, nt.timing, cur.data
-    s = nt.settings
+    timing, data, s = nt.timing, cur.data, nt.settings
     t1 = time.perf_counter()
-    if nt.factored and cur.r <= max(s.reuse_below, s.reuse_within * s.rtol) * nt.ref:
+    near = cur.r <= max(s.reuse_below, s.reuse_within * s.rtol) * nt.ref
+    # a shifted Hessian's factors are no preconditioner for an indefinite one's correction
+    if nt.factored and near and not nt.shifted:
         dx = _solve(nt, cur, data, stale=True)
         nt.matrix = data
         t = time.perf_counter()
@@ -376,27 +391,83 @@ def _direction(nt: Newton, cur: Iterate, it: int) -> np.ndarray | NewtonResult:
         t1 = t
         if dx is not None:
             return dx
+    assembled = timing.assembly
     try:
-        if nt.settings.try_exact:
-            try:
-                problem.solver.factor(data)
-            except SingularMatrix:
-                t_a = time.perf_counter()
-                _, data = problem.gradient_hessian(cur.x)
-                t1 += time.perf_counter() - t_a
-                timing.assembly += time.perf_counter() - t_a
-                factor_shifted(problem, data)
-        else:
-            factor_shifted(problem, data)
+        data = _factor(nt, cur, data)
     except SingularMatrix as exc:
         return nt.result(nt.x0, False, it, cur.E, f"singular factorisation: {exc}")
     nt.factored = True
     nt.matrix = data
     t2 = time.perf_counter()
-    timing.factorisation += t2 - t1
+    # the projected Hessian's assembly (_factor) is counted as assembly
+    timing.factorisation += t2 - t1 - (timing.assembly - assembled)
     dx = _solve(nt, cur, data, stale=False)
     timing.solve += time.perf_counter() - t2
     return dx
+
+
+def _factor(nt: Newton, cur: Iterate, data: np.ndarray) -> np.ndarray:
+    """Factor the Hessian ``data``, the exact one if it is positive definite, else its
+    replacement (NewtonSettings.indefinite); the data factored."""
+    problem, s = nt.problem, nt.settings
+    nt.shifted = False
+    if not s.try_exact:
+        factor_shifted(problem, data)
+        return data
+    try:
+        problem.solver.factor(data)
+        return data
+    except SingularMatrix:
+        shifted = _factor_shift(nt, data) if s.indefinite == "shift" else None
+    if shifted is not None:
+        return shifted
+    t = time.perf_counter()
+    _, data = problem.gradient_hessian(cur.x)
+    nt.timing.assembly += time.perf_counter() - t
+    factor_shifted(problem, data)
+    return data
+
+
+def _factor_shift(nt: Newton, data: np.ndarray) -> np.ndarray | None:
+    """The exact Hessian plus mu times the identity on the free DoFs, factored (the data
+    returned), mu within ``SHIFT_BRACKET`` above the least that factors, which is the most
+    negative eigenvalue's magnitude: up from a quarter of the last mu in this minimisation
+    (the Hessian changes little from one iterate to the next), else from 1e-10 of the mean
+    diagonal, by fours to the first that factors (None if none does: past the diagonal
+    itself) or down by fours to the first that does not, then bisected (geometrically)
+    between the two.
+
+    Along the most negative curvature -lambda the correction is a / (mu / lambda - 1) for a
+    state a from the saddle along it: mu close to lambda takes the descent a long way down
+    the valley in one step (the line search takes back what overshoots), mu four times lambda
+    a third of a; a descent then crawled out of the saddle, as the projected Hessian does
+    where the compression barely exceeds the critical one (the stretched sheet just past its
+    crossing, 234 projected iterations after the kick)."""
+    diag = nt.problem.pattern.indptr[:-1][nt.free.ravel()]
+    lo, mu = 0.0, nt.shift / 4 if nt.shift else 1e-10 * float(np.abs(data[diag]).mean())
+    best, last = None, False
+    for _ in range(16 + SHIFT_BISECTIONS):
+        trial = data.copy()
+        trial[diag] += mu
+        try:
+            nt.problem.solver.factor(trial)
+            best, last = (mu, trial), True
+        except SingularMatrix:
+            lo, last = mu, False
+        if best is None:
+            mu *= 4
+        elif lo == 0.0:  # the Hessian is indefinite: some smaller shift fails
+            mu /= 4
+        elif best[0] <= SHIFT_BRACKET * lo:
+            break
+        else:
+            mu = float(np.sqrt(lo * best[0]))
+    if best is None:
+        return None
+    if not last:  # the factors of the last one tried, which did not factor
+        nt.problem.solver.factor(best[1])
+    nt.shift, nt.shifted = best[0], True
+    return best[1]
 
 
 def _solve(nt: Newton, cur: Iterate, data: np.ndarray, stale: bool) -> np.ndarray | None:
@@ -582,6 +653,10 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
         noise = (nt.measured_floor(cur).energy * mag
                  if np.isfinite(dE) and abs(dE) <= 1e-6 * mag else 0.0)
         if np.isfinite(dE) and dE <= settings.armijo * decrease and -dE > noise:
+            if nt.shifted and alpha == 1.0 and split is None:
+                longer = _extended(nt, x, dx, E_new)
+                if longer is not None:
+                    return taken(longer, None, True, alpha)
             return taken(x_new, trial, True, alpha)
         if (np.isfinite(dE) and alpha == 1.0 and it == 0 and settings.watchdog > 0 and newton
                 and abs(dE) > noise and not _barrier_rose(problem, x, x_new, dE)):
@@ -604,6 +679,26 @@ def _line_search(nt: Newton, cur: Iterate, it: int, dx: np.ndarray,
     if split is not None:  # no step along the valley: the whole step cut, as everywhere
         return _line_search(nt, cur, it, dx, None, alpha=0.5)
     return nt.failure(cur, it + 1, f"line search stalled (residual {r:.3e})")
+
+
+def _extended(nt: Newton, x: np.ndarray, dx: np.ndarray, E: float) -> np.ndarray | None:
+    """x + alpha dx for the alpha of 2, 4, ... up to ``SHIFT_EXTENSIONS`` doublings with the
+    least energy, as long as the energy falls from one to the next (``E``: at x + dx), for a
+    correction on a shifted Hessian (_factor_shift); None if 2 dx does not lower it. The shift
+    is the most negative eigenvalue's, and the way down a saddle need not be that mode: a strip
+    compressed to eight times its Euler load, kicked along its first mode, has its most
+    negative eigenvalue in a higher one, and the correction along the first is a small part
+    of its way down."""
+    best = None
+    for k in range(1, SHIFT_EXTENSIONS + 1):
+        t = time.perf_counter()
+        y = x + 2.0**k * dx
+        E_new = nt.problem.energy(y)
+        nt.timing.line_search += time.perf_counter() - t
+        if not E_new < E:
+            break
+        best, E = y, E_new
+    return best
 
 
 def _off_valley(nt: Newton, cur: Iterate, dx: np.ndarray, stalled: bool) -> np.ndarray:
