@@ -205,10 +205,10 @@ FLAT = 1e-3
 # down to 0.1 of a planned step, sim.stepping.parameters)
 HALVINGS = 3
 # Newton's cap for the step after a kick. That step leaves an unstable equilibrium for the
-# branch down a valley whose stiffness is nearly neutral, which Newton's projected corrections
-# cross in many short steps, and a shorter increment does not shorten the valley (q3t_ans's
-# stretched sheet: 196 iterations before its thickness strain was tied, over 200 after, in
-# every cut-back alike). A stall still ends it sooner (NewtonSettings.patience)
+# branch down a valley whose stiffness is nearly neutral; it runs on the exact Hessian shifted
+# past its negative eigenvalues (NewtonSettings.indefinite), as projected corrections crossed
+# it in many short steps (q3t_ans's stretched sheet: 234), and a shorter increment does not
+# shorten the valley. A stall still ends it sooner (NewtonSettings.patience)
 KICKED_ITERATIONS = 1000
 # what a step changes in a Simulation, saved to retake it (``_mark``)
 _STEPPING = ("x", "t", "progress", "_stroked", "step_index", "_last_increment", "_last_dt",
