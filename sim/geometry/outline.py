@@ -14,6 +14,7 @@ the point where a check fails. All lengths in metres; outlines lie in the plane 
 from __future__ import annotations
 
 import ctypes
+import functools
 import math
 import signal
 import threading
@@ -319,10 +320,23 @@ def read_drawing(path: str | Path, scale: float, h: float) -> Outline:
     """The outline of an SVG or DXF drawing: its closed paths, the one of largest area the
     outline and the others its holes; coordinates (an SVG's user units, those of its viewBox,
     with y turned up) times ``scale`` are metres. Curves are
-    flattened to chords FLATTEN h long. OutlineError naming ``path`` when it cannot be read."""
+    flattened to chords FLATTEN h long. OutlineError naming ``path`` when it cannot be read.
+
+    Read once per version of the file (its path, modification time and size): a scene's
+    ring check reads it, then the build, and the page's form checks it again at every edit.
+    The outline's arrays are read-only, being shared."""
     path = Path(path)
-    if not path.is_file():
+    try:
+        st = path.stat()
+    except OSError:
+        st = None
+    if st is None or not path.is_file():
         raise OutlineError("path", f"no drawing {str(path)!r}")
+    return _read_drawing(path.resolve(), st.st_mtime_ns, st.st_size, scale, h)
+
+
+@functools.lru_cache(maxsize=8)
+def _read_drawing(path: Path, mtime_ns: int, size: int, scale: float, h: float) -> Outline:
     reader = {".svg": _svg_loops, ".dxf": _dxf_loops}.get(path.suffix.lower())
     if reader is None:
         raise OutlineError("path", f"{path.name}: an outline is an SVG or DXF drawing "
@@ -337,7 +351,10 @@ def read_drawing(path: str | Path, scale: float, h: float) -> Outline:
     if not loops:
         raise OutlineError("path", f"{path.name}: no closed path")
     loops.sort(key=_area, reverse=True)
-    return checked(loops[0], loops[1:], "path", "path")
+    shape = checked(loops[0], loops[1:], "path", "path")
+    for a in (shape.outer, *shape.holes):
+        a.setflags(write=False)
+    return shape
 
 
 def _svg_loops(path: Path, step: float) -> list[np.ndarray]:

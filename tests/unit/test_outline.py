@@ -288,3 +288,26 @@ def test_meshing_leaves_a_broken_pipe_an_exception(tmp_path):
                           cwd=Path(__file__).resolve().parents[2], timeout=300)
     assert done.returncode == 0 and done.stdout.strip() == "raised", (done.returncode,
                                                                      done.stderr[-2000:])
+
+
+def test_a_drawing_is_read_once_per_version(tmp_path, monkeypatch):
+    """The ring check, the build and every form edit ask for the same drawing: it is parsed
+    once per version of the file (path, modification time, size), again once rewritten; the
+    shared outline cannot be changed in place."""
+    import os
+
+    calls = []
+    parse = ol._svg_loops
+    monkeypatch.setattr(ol, "_svg_loops", lambda p, step: calls.append(p) or parse(p, step))
+    f = tmp_path / "blank.svg"
+    f.write_text(SVG)
+    first = ol.read_drawing(f, 1e-3, 0.005)
+    assert ol.read_drawing(str(f), 1e-3, 0.005) is first
+    assert len(calls) == 1
+    with pytest.raises(ValueError, match="read-only"):
+        first.outer[0, 0] = 1.0
+    f.write_text(SVG.replace("r=\"20\"", "r=\"10\""))
+    os.utime(f, ns=(0, 1))  # the same size: its time told apart from the first write's
+    second = ol.read_drawing(f, 1e-3, 0.005)
+    assert len(calls) == 2
+    assert second.area == pytest.approx(0.15**2 - np.pi * 0.01**2, rel=1e-3)
