@@ -688,7 +688,8 @@ def _extended(nt: Newton, x: np.ndarray, dx: np.ndarray, E: float) -> np.ndarray
     is the most negative eigenvalue's, and the way down a saddle need not be that mode: a strip
     compressed to eight times its Euler load, kicked along its first mode, has its most
     negative eigenvalue in a higher one, and the correction along the first is a small part
-    of its way down."""
+    of its way down. It does not look for kinks ahead (Term.step_bound holds to the full step
+    only): the bifurcation tool, which asks for the shift, follows sheets without tools."""
     best = None
     for k in range(1, SHIFT_EXTENSIONS + 1):
         t = time.perf_counter()
