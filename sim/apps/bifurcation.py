@@ -140,7 +140,8 @@ def path_rows(run: dict) -> list[dict]:
             "step": p.step, "nominal strain [%]": f"{100 * p.strain:.4g}",
             **{f"eigenvalue {i + 1} [N/m]": f"{v:.5g}" for i, v in enumerate(p.eigenvalues)},
             "negative": p.negative, "unstable direction's z share": f"{p.out_of_plane:.2f}",
-            "amplitude [mm]": f"{1e3 * p.amplitude:.4g}", "Newton iterations": p.iterations,
+            "amplitude [mm]": f"{1e3 * p.amplitude:.4g}", "RMS height [mm]": f"{1e3 * p.rms:.4g}",
+            "Newton iterations": p.iterations,
             "kicked": f"along {_modes(p)}" if p.kicked else ""})
     return rows
 
@@ -176,7 +177,8 @@ def run(args: argparse.Namespace) -> int:
             if not args.quiet:
                 print(f"  step {p.step}: strain {100 * p.strain:.2f} %, lowest eigenvalues "
                       f"{np.array2string(np.asarray(p.eigenvalues), precision=4)} N/m, "
-                      f"{p.negative} negative, amplitude {1e3 * p.amplitude:.4g} mm"
+                      f"{p.negative} negative, amplitude {1e3 * p.amplitude:.4g} mm, RMS "
+                      f"{1e3 * p.rms:.4g} mm"
                       + (f" (kicked along {_modes(p)})" if p.kicked else ""),
                       file=sys.stderr, flush=True)
 
@@ -194,7 +196,10 @@ def run(args: argparse.Namespace) -> int:
                 "removed), the lowest first; `negative`: how many are below s0, a hair below "
                 "zero (the inertia; what counts as unstable); the unstable direction's z share: "
                 "the part of its squared norm out of plane; amplitude: the mid-surface's height "
-                f"range. Kick: {args.kick:g} thickness along the unstable direction (a sheet "
+                "range; RMS height: the root mean square of its height over its area (the same "
+                "where nearly equal wrinkle patterns mix, which moves the range: "
+                "sim.apps.stability.rms_height). "
+                f"Kick: {args.kick:g} thickness along the unstable direction (a sheet "
                 "lifted at one corner through the negative part of the stiffness, each unstable "
                 "mode weighted by how far below s0 it lies) each time a state is unstable "
                 "(sim.apps.stability.follow); until the first, "

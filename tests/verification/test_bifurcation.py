@@ -431,3 +431,28 @@ def test_bifurcation_command_writes_a_stamped_table(tmp_path, capsys):
                                      'yield_stress = 1.0e9\nhardening = { law = "perfect" }'))
     assert main(["bifurcation", str(plastic), "--quiet"]) == 2
     assert "--kick" in capsys.readouterr().err
+
+
+def test_the_rms_height_stays_where_two_wrinkle_patterns_mix():
+    """rms_height is the area integral's: a sine across the width gives its amplitude over
+    sqrt(2) (to the vertex rule's O(h^2)); a symmetric and an antisymmetric pattern of the same
+    norm, mixed at any angle, keep it (their weighted product is zero on a mirror-symmetric
+    mesh) while the height range moves: what a nearly neutral mode between them does to
+    the stretched sheet's states."""
+    from sim.apps.stability import rms_height
+    from sim.geometry.trimesh import rectangle
+
+    mesh = rectangle((0.25, 0.1), 0.0025)
+    x, y = mesh.vertices[:, 0], mesh.vertices[:, 1]
+    # h / wavelength = 1/40: the vertex rule's error (h k)^2 / 12 under 3e-3
+    assert rms_height(mesh, 1e-3 * np.sin(2 * np.pi * y / 0.1)) == pytest.approx(
+        1e-3 / np.sqrt(2), rel=3e-3)
+    assert rms_height(mesh, np.full(len(x), -2e-4)) == pytest.approx(2e-4, rel=1e-12)
+    bump = np.sin(np.pi * x / 0.25) ** 2
+    sym = bump * np.cos(3 * np.pi * (y - 0.05) / 0.1)  # even about the centre line
+    anti = bump * np.sin(4 * np.pi * (y - 0.05) / 0.1)  # odd
+    anti *= rms_height(mesh, sym) / rms_height(mesh, anti)
+    mixes = [np.cos(a) * sym + np.sin(a) * anti for a in np.linspace(0.0, np.pi / 2, 7)]
+    rms = [rms_height(mesh, z) for z in mixes]
+    assert np.ptp(rms) <= 1e-12 * rms[0]
+    assert np.ptp([np.ptp(z) for z in mixes]) > 0.1 * np.ptp(sym)
