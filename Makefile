@@ -197,6 +197,8 @@ results: $(STAMP)
 	  --results $(R)/fig4-wrinkling.md
 	$(BIN)/q3t bifurcation stretch_wrinkling --elements q3t_ans --spacing 0.0025 \
 	  --results $(R)/fig4-wrinkling-ans.md
+	$(BIN)/q3t bifurcation stretch_wrinkling --elements q3t_ans --spacing 0.00175 \
+	  --results $(R)/fig4-wrinkling-ans-1.75mm.md
 	$(BIN)/q3t bifurcation stretch_wrinkling --elements quadratic --spacing 0.00175 \
 	  --results $(R)/fig4-wrinkling-quadratic-3.5mm.md
 	$(BIN)/q3t bifurcation stretch_wrinkling --elements quadratic --spacing 0.00125 \
