@@ -184,13 +184,7 @@ def eigh3_into(A: np.ndarray, a: np.ndarray, w: np.ndarray, V: np.ndarray,
         for p, q in ((0, 1), (0, 2), (1, 2)):
             _jacobi_rotation(a, V, vectors, p, q)
     w[0], w[1], w[2] = a[0, 0], a[1, 1], a[2, 2]
-    for i in range(2):  # ascending by swaps: no argsort and fancy-index copies per call
-        for j in range(2 - i):
-            if w[j] > w[j + 1]:
-                w[j], w[j + 1] = w[j + 1], w[j]
-                if vectors:
-                    for k in range(3):
-                        V[k, j], V[k, j + 1] = V[k, j + 1], V[k, j]
+    _ascending(w, V, vectors)
 
 
 @njit(cache=True, inline='always')
@@ -218,6 +212,75 @@ def _jacobi_rotation(a: np.ndarray, V: np.ndarray, vectors: bool, p: int, q: int
             vkp, vkq = V[k, p], V[k, q]
             V[k, p] = c * vkp - s * vkq
             V[k, q] = s * vkp + c * vkq
+
+
+@njit(cache=True)
+def jacobi3_into(A: np.ndarray, w: np.ndarray, V: np.ndarray, vectors: bool) -> None:
+    """:func:`eigh3_into`'s cyclic Jacobi rotations on A's six entries held as scalars (the
+    rotated entries by the symmetric update, the zeroed one set to zero), no scratch: an
+    assumed-strain point decomposes E^ at every evaluation, and its rotations' square roots and
+    divisions are what that costs. Eigenvalues ``w (3,)`` ascending, the same numbers with
+    or without the vectors ``V (3, 3)``."""
+    a00, a11, a22 = A[0, 0], A[1, 1], A[2, 2]
+    a01, a02, a12 = A[0, 1], A[0, 2], A[1, 2]
+    if vectors:
+        for i in range(3):
+            for j in range(3):
+                V[i, j] = 1.0 if i == j else 0.0
+    for _ in range(12):
+        off = a01 * a01 + a02 * a02 + a12 * a12
+        if off <= 1e-40 * (a00 * a00 + a11 * a11 + a22 * a22) or off == 0.0:
+            break
+        if a01 != 0.0:  # (p, q, r) = (0, 1, 2)
+            a00, a11, a02, a12, c, s = _rotated(a00, a11, a01, a02, a12)
+            a01 = 0.0
+            if vectors:
+                _rotate_columns(V, 0, 1, c, s)
+        if a02 != 0.0:  # (0, 2, 1)
+            a00, a22, a01, a12, c, s = _rotated(a00, a22, a02, a01, a12)
+            a02 = 0.0
+            if vectors:
+                _rotate_columns(V, 0, 2, c, s)
+        if a12 != 0.0:  # (1, 2, 0)
+            a11, a22, a01, a02, c, s = _rotated(a11, a22, a12, a01, a02)
+            a12 = 0.0
+            if vectors:
+                _rotate_columns(V, 1, 2, c, s)
+    w[0], w[1], w[2] = a00, a11, a22
+    _ascending(w, V, vectors)
+
+
+@njit(cache=True, inline='always')
+def _rotated(app: float, aqq: float, apq: float, arp: float,
+             arq: float) -> tuple[float, float, float, float, float, float]:
+    """The entries (pp, qq, rp, rq) after the rotation (c, s) that zeroes a[p, q]."""
+    theta = (aqq - app) / (2.0 * apq)
+    t = np.sign(theta) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+    if theta == 0.0:
+        t = 1.0
+    c = 1.0 / np.sqrt(t * t + 1.0)
+    s = t * c
+    return app - t * apq, aqq + t * apq, c * arp - s * arq, s * arp + c * arq, c, s
+
+
+@njit(cache=True, inline='always')
+def _rotate_columns(V: np.ndarray, p: int, q: int, c: float, s: float) -> None:
+    for k in range(3):
+        vkp, vkq = V[k, p], V[k, q]
+        V[k, p] = c * vkp - s * vkq
+        V[k, q] = s * vkp + c * vkq
+
+
+@njit(cache=True, inline='always')
+def _ascending(w: np.ndarray, V: np.ndarray, vectors: bool) -> None:
+    """w (3,) sorted by swaps, V's columns with it: no argsort and fancy-index copies."""
+    for i in range(2):
+        for j in range(2 - i):
+            if w[j] > w[j + 1]:
+                w[j], w[j + 1] = w[j + 1], w[j]
+                if vectors:
+                    for k in range(3):
+                        V[k, j], V[k, j + 1] = V[k, j + 1], V[k, j]
 
 
 @njit(cache=True)
@@ -559,7 +622,7 @@ def _tql(z: np.ndarray, d: np.ndarray, e: np.ndarray) -> bool:
                 return False
             it += 1
             g = (d[ll + 1] - d[ll]) / (2.0 * e[ll])
-            r = np.hypot(g, 1.0)
+            r = np.sqrt(g * g + 1.0)  # not hypot, a libm call: |g| is below 1e16 here
             g = d[m] - d[ll] + e[ll] / (g + (r if g >= 0.0 else -r))
             s, c, p = 1.0, 1.0, 0.0
             underflow = False
@@ -567,7 +630,7 @@ def _tql(z: np.ndarray, d: np.ndarray, e: np.ndarray) -> bool:
             while i >= ll:
                 f = s * e[i]
                 b = c * e[i]
-                r = np.hypot(f, g)
+                r = np.sqrt(f * f + g * g)
                 e[i + 1] = r
                 if r == 0.0:
                     d[i + 1] -= p

@@ -57,7 +57,7 @@ from sim.materials.isotropic import (
     clamp_psd_into,
     det3,
     eigh3,
-    eigh3_into,
+    jacobi3_into,
     neo_hookean_green,
     principal,
     principal_energy,
@@ -319,7 +319,7 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
     Scratch: M (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (3, 3, 3), v3 (10, 3)."""
     lam, st, pr = v3[7], v3[8], v3[:7]
     V = m3[1]
-    eigh3_into(Eh, m3[0], lam, V, want > 0)
+    jacobi3_into(Eh, lam, V, want > 0)
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
     for i in range(3):
@@ -401,7 +401,7 @@ def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.n
     its eigenvalues). Scratch: M, Sp (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (2, 3, 3), v3 (9, 3),
     q6 (8, 6)."""
     lam, cl, V = v3[7], v3[8], m3[1]
-    eigh3_into(Eh, m3[0], lam, V, True)
+    jacobi3_into(Eh, lam, V, True)
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
     for i in range(3):
