@@ -351,7 +351,7 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
         project3_into(Dp, m3[0], v3[9], m3[2])
         for c in range(3, 6):
             Dp[c, c] = max(Dp[c, c], 0.0)
-    _natural_tangent(M, Dp, cv, Dv)
+    _natural_tangent(M, Dp, cv, Dv, True)
     return W
 
 
@@ -364,7 +364,8 @@ def _columns(A: np.ndarray, V: np.ndarray, M: np.ndarray) -> None:
 
 
 @njit(cache=True, inline='always')
-def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarray) -> None:
+def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarray,
+                     block: bool) -> None:
     """Dv = cv^T Dp cv: a tangent ``Dp`` over the unique components of X = M^T de~ M (the
     diagonal m_a^T de~ m_a, then the pairs m_a^T de~ m_b of PAIRS) over the natural rows,
     X's components being cv[0] (6, 6) times those rows; cv[1] scratch for Dp cv. Formed as
@@ -377,9 +378,12 @@ def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarr
             i, j = VOIGT[v, 0], VOIGT[v, 1]
             C[c, v] = M[i, a] * M[j, b] + (M[j, a] * M[i, b] if i != j else 0.0)
     for c in range(6):
+        # an isotropic Dp (``block``) is its 3 x 3 block and the pairs' diagonal: the rest of
+        # its row adds zeros
+        d0, d1 = (0, 6) if not block else ((0, 3) if c < 3 else (c, c + 1))
         for u in range(6):
             acc = 0.0
-            for d in range(6):
+            for d in range(d0, d1):
                 acc += Dp[c, d] * C[d, u]
             DC[c, u] = acc
     for v in range(6):
@@ -420,7 +424,7 @@ def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.n
     if want == 2:
         if psd:
             _project_into(Dp, q6)
-        _natural_tangent(M, Dp, cv, Dv)
+        _natural_tangent(M, Dp, cv, Dv, False)
     return W
 
 
@@ -663,22 +667,25 @@ def _material_rows(P: np.ndarray, Mb: np.ndarray, T: np.ndarray) -> None:
 
 @njit(cache=True, inline='always')
 def _congruence(P: np.ndarray, T: np.ndarray, K: np.ndarray) -> None:
-    """K = P^T T, the material part sum_l P_l^T Mb_l P_l of all levels at once (rows of P and T
-    stacked, ``(n_r, k)``, n_r a multiple of 9): full rows of K, nine rows of T per pass, so that
-    every column loop has the element's full length and vectorises (the upper triangle's rows
-    shorten to a scalar remainder) and each entry of K is loaded and stored once per nine."""
+    """K (upper triangle) = P^T T, the material part sum_l P_l^T Mb_l P_l of all levels at
+    once (rows of P and T stacked, ``(n_r, k)``, n_r a multiple of 9): each row of K from its
+    diagonal on, nine rows of T per pass, so that the column loops are contiguous and
+    vectorise and each entry of K is loaded and stored once per nine. The lower triangle,
+    which nothing reads (the scatter, the initial-stress term and the element's projection
+    take the upper), would double the arithmetic."""
     nr, k = P.shape
     uk = np.uint64(k)
     for p in range(k):
         kr = K[p]
-        for col in range(uk):
+        up = np.uint64(p)
+        for col in range(up, uk):
             kr[col] = 0.0
         for c in range(0, nr, 9):
             p0, p1, p2 = P[c, p], P[c + 1, p], P[c + 2, p]
             p3, p4, p5 = P[c + 3, p], P[c + 4, p], P[c + 5, p]
             p6, p7, p8 = P[c + 6, p], P[c + 7, p], P[c + 8, p]
             t = T[c:c + 9]
-            for col in range(uk):
+            for col in range(up, uk):
                 kr[col] += ((((p0 * t[0, col] + p1 * t[1, col]) + p2 * t[2, col])
                              + ((p3 * t[3, col] + p4 * t[4, col]) + p5 * t[5, col]))
                             + ((p6 * t[6, col] + p7 * t[7, col]) + p8 * t[8, col]))
