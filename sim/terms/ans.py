@@ -402,8 +402,8 @@ def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.n
                   m3: np.ndarray, v3: np.ndarray, q6: np.ndarray) -> float:
     """Hill48 in the frame of E^'s eigenvectors (module docstring): W, Sn and Dv as
     :func:`_neo_hookean_natural`, ``psd`` as :func:`_principal_natural` (Hill's Dp is full:
-    its eigenvalues). Scratch: M, Sp (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (2, 3, 3), v3 (9, 3),
-    q6 (8, 6)."""
+    its eigenvalues). Scratch: M, Sp (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (>= 2, 3, 3),
+    v3 (>= 9, 3), q6 (8, 6)."""
     lam, cl, V = v3[7], v3[8], m3[1]
     jacobi3_into(Eh, lam, V, True)
     if not 1.0 + 2.0 * lam[0] > 0.0:
@@ -705,7 +705,7 @@ def _project_into(K: np.ndarray, q: np.ndarray) -> None:
 @njit(cache=True)
 def _project(K: np.ndarray) -> None:
     """K (upper triangle) <- its projection to positive semi-definite (both triangles): an
-    element's Hessian, a point's Hill48 tangent, an initial-stress term."""
+    element's Hessian (PROJECT_ELEMENT)."""
     k = K.shape[0]
     for p in range(k):
         for c in range(p):
