@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.materials.plasticity import return_map
+from sim.materials.plasticity import incremental_energy, return_map_into
 
 NEO_HOOKEAN, HENCKY, HENCKY_PLASTIC = 0, 1, 2
 PAIRS = np.array([[0, 1], [0, 2], [1, 2]])
@@ -39,24 +39,23 @@ def dlog(a: float, b: float) -> float:
     return (np.log(a) - np.log(b)) / (a - b)
 
 
-@njit(cache=True)
-def _from_log(s: np.ndarray, W: float, tau: np.ndarray, D: np.ndarray,
-              a_dd: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+@njit(cache=True, inline='always')
+def _from_log(s: np.ndarray, tau: np.ndarray, D: np.ndarray, a_dd: float,
+              pr: np.ndarray) -> None:
     """Principal derivatives in stretches s (3,) from those in log strains (Kirchhoff
-    tau = dW/deps (3,), D = dtau/deps (3, 3))."""
-    g = tau / s
-    H = np.empty((3, 3))
+    tau = dW/deps (3,), D = dtau/deps (3, 3)) into ``pr`` (:func:`principal_into`)."""
+    for i in range(3):
+        pr[0, i] = tau[i] / s[i]
     for i in range(3):
         for j in range(3):
-            H[i, j] = D[i, j] / (s[i] * s[j])
-        H[i, i] -= tau[i] / (s[i] * s[i])
-    sym = np.empty(3)
-    twist = np.empty(3)
+            pr[1 + i, j] = D[i, j] / (s[i] * s[j])
+        pr[1 + i, i] -= tau[i] / (s[i] * s[i])
     for k in range(3):
         i, j = PAIRS[k, 0], PAIRS[k, 1]
-        sym[k] = a_dd * dlog(s[i], s[j]) / s[i] - tau[j] / (s[i] * s[j])
-        twist[k] = (g[i] + g[j]) / (s[i] + s[j])
-    return W, g, H, sym, twist
+        pr[4, k] = a_dd * dlog(s[i], s[j]) / s[i] - tau[j] / (s[i] * s[j])
+    for k in range(3):  # after sym: tau may be pr[5] (principal_into)
+        i, j = PAIRS[k, 0], PAIRS[k, 1]
+        pr[5, k] = (pr[0, i] + pr[0, j]) / (s[i] + s[j])
 
 
 @njit(cache=True)
@@ -69,39 +68,90 @@ def _sq_minus_log(s: float) -> float:
     return s * s - 1.0 - 2.0 * np.log(s)
 
 
-@njit(cache=True)
-def _neo_hookean(s: np.ndarray, mu: float,
-                 lam: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    lj = np.log(s[0]) + np.log(s[1]) + np.log(s[2])
-    c = mu - lam * lj
+@njit(cache=True, inline='always')
+def _neo_hookean_energy(s0: float, s1: float, s2: float, mu: float,
+                        lam: float) -> tuple[float, float]:
+    """(W, ln J) at stretches s0, s1, s2."""
+    lj = np.log(s0) + np.log(s1) + np.log(s2)
     # mu/2 (I1 - 3) - mu ln J summed per stretch: the two O(s-1) parts cancel analytically,
     # so energy differences near rest are not lost in round-off (the line search needs them)
-    W = 0.5 * mu * (_sq_minus_log(s[0]) + _sq_minus_log(s[1]) + _sq_minus_log(s[2]))
-    W += 0.5 * lam * lj * lj
-    g = mu * s - c / s
-    H = np.empty((3, 3))
+    W = 0.5 * mu * (_sq_minus_log(s0) + _sq_minus_log(s1) + _sq_minus_log(s2))
+    return W + 0.5 * lam * lj * lj, lj
+
+
+@njit(cache=True, inline='always')
+def _neo_hookean(s: np.ndarray, mu: float, lam: float, pr: np.ndarray) -> float:
+    W, lj = _neo_hookean_energy(s[0], s[1], s[2], mu, lam)
+    c = mu - lam * lj
+    for i in range(3):
+        pr[0, i] = mu * s[i] - c / s[i]
     for i in range(3):
         for j in range(3):
-            H[i, j] = lam / (s[i] * s[j])
-        H[i, i] += mu + c / (s[i] * s[i])
-    sym = np.empty(3)
-    twist = np.empty(3)
+            pr[1 + i, j] = lam / (s[i] * s[j])
+        pr[1 + i, i] += mu + c / (s[i] * s[i])
     for k in range(3):
         p = s[PAIRS[k, 0]] * s[PAIRS[k, 1]]
-        sym[k] = mu + c / p
-        twist[k] = mu - c / p
-    return W, g, H, sym, twist
+        pr[4, k] = mu + c / p
+        pr[5, k] = mu - c / p
+    return W
+
+
+@njit(cache=True, inline='always')
+def _hencky_energy(e0: float, e1: float, e2: float, mu: float, lam: float) -> float:
+    """W at the principal log strains e0, e1, e2."""
+    tr = e0 + e1 + e2
+    return mu * (e0 * e0 + e1 * e1 + e2 * e2) + 0.5 * lam * tr * tr
 
 
 @njit(cache=True)
-def _hencky(s: np.ndarray, mu: float,
-            lam: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    eps = np.log(s)
-    tr = eps.sum()
-    W = mu * (eps @ eps) + 0.5 * lam * tr * tr
-    tau = 2 * mu * eps + lam * tr
-    D = np.full((3, 3), lam) + 2 * mu * np.eye(3)
-    return _from_log(s, W, tau, D, 2 * mu)
+def principal_energy(model: int, s0: float, s1: float, s2: float, params: np.ndarray,
+                     ep_n: float) -> float:
+    """W of :func:`principal` alone, at stretches s0, s1, s2: a line search's energy, with no
+    stress, tangent or array."""
+    mu, lam = params[0], params[1]
+    if model == NEO_HOOKEAN:
+        return _neo_hookean_energy(s0, s1, s2, mu, lam)[0]
+    e0, e1, e2 = np.log(s0), np.log(s1), np.log(s2)
+    if model == HENCKY:
+        return _hencky_energy(e0, e1, e2, mu, lam)
+    return incremental_energy(e0, e1, e2, ep_n, mu, lam, int(params[2]), params[3:])
+
+
+@njit(cache=True)
+def principal_into(model: int, s: np.ndarray, params: np.ndarray, ep_n: float,
+                   pr: np.ndarray) -> float:
+    """:func:`principal` into the scratch ``pr (7, 3)``: rows 0 dW/ds, 1-3 d2W/ds2, 4 sym,
+    5 twist (6 scratch): a quadrature point's law with no array made. Returns W. The log
+    strains' tau and D are formed in the rows of twist and d2W/ds2, which _from_log turns
+    into them in place."""
+    mu, lam = params[0], params[1]
+    if model == NEO_HOOKEAN:
+        return _neo_hookean(s, mu, lam, pr)
+    eps = pr[6]
+    for i in range(3):
+        eps[i] = np.log(s[i])
+    if model == HENCKY:
+        W = _hencky_energy(eps[0], eps[1], eps[2], mu, lam)
+        tr = eps[0] + eps[1] + eps[2]
+        tau = pr[5]
+        for i in range(3):
+            tau[i] = 2 * mu * eps[i] + lam * tr
+        for i in range(3):
+            for j in range(3):
+                pr[1 + i, j] = lam + (2 * mu if i == j else 0.0)
+        _from_log(s, tau, pr[1:4], 2 * mu, pr)
+        return W
+    return _plastic_principal(s, eps, params, ep_n, pr)
+
+
+@njit(cache=True, inline='always')
+def _plastic_principal(s: np.ndarray, eps: np.ndarray, params: np.ndarray, ep_n: float,
+                       pr: np.ndarray) -> float:
+    tau, D = pr[5], pr[1:4]
+    W, a_dd, _ = return_map_into(eps, ep_n, params[0], params[1], int(params[2]), params[3:],
+                                 tau, D)
+    _from_log(s, tau, D, a_dd, pr)
+    return W
 
 
 @njit(cache=True)
@@ -109,55 +159,135 @@ def principal(model: int, s: np.ndarray, params: np.ndarray,
               ep_n: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Principal energy at stretches s (3,): (W, dW/ds (3,), d2W/ds2 (3,3), sym (3,),
     twist (3,)) for pairs (0,1), (0,2), (1,2)."""
-    mu, lam = params[0], params[1]
-    if model == NEO_HOOKEAN:
-        return _neo_hookean(s, mu, lam)
-    if model == HENCKY:
-        return _hencky(s, mu, lam)
-    W, tau, D, a_dd, _ = return_map(np.log(s), ep_n, mu, lam, int(params[2]), params[3:])
-    return _from_log(s, W, tau, D, a_dd)
+    pr = np.empty((7, 3))
+    W = principal_into(model, s, params, ep_n, pr)
+    return W, pr[0].copy(), pr[1:4].copy(), pr[4].copy(), pr[5].copy()
 
 
 @njit(cache=True)
-def eigh3(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eigen-decomposition of a symmetric 3x3 by cyclic Jacobi rotations: (w (3,), V (3,3)),
-    ascending. About 20x cheaper than a LAPACK call from numba at this size, and accurate to
-    round-off relative to |A|."""
-    a = A.copy()
-    V = np.eye(3)
+def eigh3_into(A: np.ndarray, a: np.ndarray, w: np.ndarray, V: np.ndarray,
+               vectors: bool) -> None:
+    """Eigen-decomposition of a symmetric 3x3 ``A`` by cyclic Jacobi rotations into ``w (3,)``
+    ascending and, when ``vectors``, ``V (3, 3)``; ``a (3, 3)`` scratch. About 20x cheaper
+    than a LAPACK call from numba at this size, and accurate to round-off relative to |A|.
+    The rotations do not depend on V, so the eigenvalues alone (an energy's) are the same
+    numbers as with the vectors."""
+    for i in range(3):
+        for j in range(3):
+            a[i, j] = A[i, j]
+            if vectors:
+                V[i, j] = 1.0 if i == j else 0.0
     for _ in range(12):
         off = a[0, 1] ** 2 + a[0, 2] ** 2 + a[1, 2] ** 2
         if off <= 1e-40 * (a[0, 0] ** 2 + a[1, 1] ** 2 + a[2, 2] ** 2) or off == 0.0:
             break
         for p, q in ((0, 1), (0, 2), (1, 2)):
-            apq = a[p, q]
-            if apq == 0.0:
-                continue
-            theta = (a[q, q] - a[p, p]) / (2.0 * apq)
-            t = np.sign(theta) / (abs(theta) + np.sqrt(theta * theta + 1.0))
-            if theta == 0.0:
-                t = 1.0
-            c = 1.0 / np.sqrt(t * t + 1.0)
-            s = t * c
-            for k in range(3):  # a <- a J
-                akp, akq = a[k, p], a[k, q]
-                a[k, p] = c * akp - s * akq
-                a[k, q] = s * akp + c * akq
-            for k in range(3):  # a <- J^T a
-                apk, aqk = a[p, k], a[q, k]
-                a[p, k] = c * apk - s * aqk
-                a[q, k] = s * apk + c * aqk
-            for k in range(3):
-                vkp, vkq = V[k, p], V[k, q]
-                V[k, p] = c * vkp - s * vkq
-                V[k, q] = s * vkp + c * vkq
-    w = np.array([a[0, 0], a[1, 1], a[2, 2]])
-    for i in range(2):  # ascending by swaps: no argsort and fancy-index copies per call
+            _jacobi_rotation(a, V, vectors, p, q)
+    w[0], w[1], w[2] = a[0, 0], a[1, 1], a[2, 2]
+    _ascending(w, V, vectors)
+
+
+@njit(cache=True, inline='always')
+def _jacobi_rotation(a: np.ndarray, V: np.ndarray, vectors: bool, p: int, q: int) -> None:
+    """The rotation that zeroes a[p, q], applied to a and (``vectors``) to V's columns."""
+    apq = a[p, q]
+    if apq == 0.0:
+        return
+    theta = (a[q, q] - a[p, p]) / (2.0 * apq)
+    t = np.sign(theta) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+    if theta == 0.0:
+        t = 1.0
+    c = 1.0 / np.sqrt(t * t + 1.0)
+    s = t * c
+    for k in range(3):  # a <- a J
+        akp, akq = a[k, p], a[k, q]
+        a[k, p] = c * akp - s * akq
+        a[k, q] = s * akp + c * akq
+    for k in range(3):  # a <- J^T a
+        apk, aqk = a[p, k], a[q, k]
+        a[p, k] = c * apk - s * aqk
+        a[q, k] = s * apk + c * aqk
+    if vectors:
+        for k in range(3):
+            vkp, vkq = V[k, p], V[k, q]
+            V[k, p] = c * vkp - s * vkq
+            V[k, q] = s * vkp + c * vkq
+
+
+@njit(cache=True)
+def jacobi3_into(A: np.ndarray, w: np.ndarray, V: np.ndarray, vectors: bool) -> None:
+    """:func:`eigh3_into`'s cyclic Jacobi rotations on A's six entries held as scalars (the
+    rotated entries by the symmetric update, the zeroed one set to zero), no scratch: an
+    assumed-strain point decomposes E^ at every evaluation, and its rotations' square roots and
+    divisions are what that costs. Eigenvalues ``w (3,)`` ascending, the same numbers with
+    or without the vectors ``V (3, 3)``."""
+    a00, a11, a22 = A[0, 0], A[1, 1], A[2, 2]
+    a01, a02, a12 = A[0, 1], A[0, 2], A[1, 2]
+    if vectors:
+        for i in range(3):
+            for j in range(3):
+                V[i, j] = 1.0 if i == j else 0.0
+    for _ in range(12):
+        off = a01 * a01 + a02 * a02 + a12 * a12
+        if off <= 1e-40 * (a00 * a00 + a11 * a11 + a22 * a22) or off == 0.0:
+            break
+        if a01 != 0.0:  # (p, q, r) = (0, 1, 2)
+            a00, a11, a02, a12, c, s = _rotated(a00, a11, a01, a02, a12)
+            a01 = 0.0
+            if vectors:
+                _rotate_columns(V, 0, 1, c, s)
+        if a02 != 0.0:  # (0, 2, 1)
+            a00, a22, a01, a12, c, s = _rotated(a00, a22, a02, a01, a12)
+            a02 = 0.0
+            if vectors:
+                _rotate_columns(V, 0, 2, c, s)
+        if a12 != 0.0:  # (1, 2, 0)
+            a11, a22, a01, a02, c, s = _rotated(a11, a22, a12, a01, a02)
+            a12 = 0.0
+            if vectors:
+                _rotate_columns(V, 1, 2, c, s)
+    w[0], w[1], w[2] = a00, a11, a22
+    _ascending(w, V, vectors)
+
+
+@njit(cache=True, inline='always')
+def _rotated(app: float, aqq: float, apq: float, arp: float,
+             arq: float) -> tuple[float, float, float, float, float, float]:
+    """The entries (pp, qq, rp, rq) after the rotation (c, s) that zeroes a[p, q]."""
+    theta = (aqq - app) / (2.0 * apq)
+    t = np.sign(theta) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+    if theta == 0.0:
+        t = 1.0
+    c = 1.0 / np.sqrt(t * t + 1.0)
+    s = t * c
+    return app - t * apq, aqq + t * apq, c * arp - s * arq, s * arp + c * arq, c, s
+
+
+@njit(cache=True, inline='always')
+def _rotate_columns(V: np.ndarray, p: int, q: int, c: float, s: float) -> None:
+    for k in range(3):
+        vkp, vkq = V[k, p], V[k, q]
+        V[k, p] = c * vkp - s * vkq
+        V[k, q] = s * vkp + c * vkq
+
+
+@njit(cache=True, inline='always')
+def _ascending(w: np.ndarray, V: np.ndarray, vectors: bool) -> None:
+    """w (3,) sorted by swaps, V's columns with it: no argsort and fancy-index copies."""
+    for i in range(2):
         for j in range(2 - i):
             if w[j] > w[j + 1]:
                 w[j], w[j + 1] = w[j + 1], w[j]
-                for k in range(3):
-                    V[k, j], V[k, j + 1] = V[k, j + 1], V[k, j]
+                if vectors:
+                    for k in range(3):
+                        V[k, j], V[k, j + 1] = V[k, j + 1], V[k, j]
+
+
+@njit(cache=True)
+def eigh3(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`eigh3_into`, allocating: (w (3,), V (3, 3)), ascending."""
+    w, V = np.empty(3), np.empty((3, 3))
+    eigh3_into(A, np.empty((3, 3)), w, V, True)
     return w, V
 
 
@@ -343,44 +473,213 @@ def clamp_psd(K: np.ndarray) -> None:
     factorisation costs a small part of one (n^3 / 6 multiplications against LAPACK's call
     and its work arrays), and a point's tangent under tension mostly is definite."""
     n = K.shape[0]
-    L = np.empty((n, n))
-    definite = True
-    for j in range(n):
-        d = K[j, j]
-        for m in range(j):
-            d -= L[j, m] * L[j, m]
-        if not d > 0.0:
-            definite = False
-            break
-        L[j, j] = np.sqrt(d)
-        for i in range(j + 1, n):
-            v = K[i, j]
-            for m in range(j):
-                v -= L[i, m] * L[j, m]
-            L[i, j] = v / L[j, j]
-    if definite:
+    if _cholesky_ok(K, np.empty((n, n))):
         return
     ev, Q = np.linalg.eigh(K)
     K[:, :] = (Q * np.maximum(ev, 0.0)) @ Q.T
 
 
 @njit(cache=True, inline='always')
-def project3(D: np.ndarray) -> None:
+def _cholesky_ok(K: np.ndarray, L: np.ndarray) -> bool:
+    """Whether K's Cholesky factorisation (into the scratch ``L``) goes through."""
+    n = K.shape[0]
+    for j in range(n):
+        d = K[j, j]
+        for m in range(j):
+            d -= L[j, m] * L[j, m]
+        if not d > 0.0:
+            return False
+        L[j, j] = np.sqrt(d)
+        for i in range(j + 1, n):
+            v = K[i, j]
+            for m in range(j):
+                v -= L[i, m] * L[j, m]
+            L[i, j] = v / L[j, j]
+    return True
+
+
+@njit(cache=True)
+def clamp_psd_into(K: np.ndarray, Q: np.ndarray, d: np.ndarray, e: np.ndarray) -> None:
+    """:func:`clamp_psd` for the small matrices of an element's loop, on scratch ``Q (n, n)``,
+    ``d, e (n,)``: the eigen-decomposition by Householder tridiagonalisation and implicit QL
+    (:func:`sym_eig_into`), not LAPACK's, whose call and work arrays cost more than its
+    arithmetic at this size (LAPACK's where the QL iteration does not converge)."""
+    if _cholesky_ok(K, Q):
+        return
+    for i in range(K.shape[0]):
+        for j in range(K.shape[0]):
+            Q[i, j] = K[i, j]
+    if not sym_eig_into(Q, d, e):
+        clamp_psd(K)
+        return
+    n = K.shape[0]
+    for i in range(n):
+        d[i] = max(d[i], 0.0)
+    for i in range(n):
+        for j in range(i, n):
+            acc = 0.0
+            for m in range(n):
+                acc += Q[i, m] * d[m] * Q[j, m]
+            K[i, j] = acc
+            K[j, i] = acc
+
+
+@njit(cache=True)
+def sym_eig_into(Q: np.ndarray, d: np.ndarray, e: np.ndarray) -> bool:
+    """Eigenvalues ``d (n,)`` and eigenvectors (Q's columns) of the symmetric ``Q (n, n)``,
+    overwritten: Householder reduction to tridiagonal form, then the QL algorithm with
+    implicit shifts (tred2 and tqli, Numerical Recipes 11.2-11.3); ``e (n,)`` scratch. False
+    where an eigenvalue takes over 30 iterations (Q then not its eigenvectors)."""
+    _tridiagonalise(Q, d, e)
+    return _tql(Q, d, e)
+
+
+@njit(cache=True, inline='always')
+def _tridiagonalise(a: np.ndarray, d: np.ndarray, e: np.ndarray) -> None:
+    """a <- Q of a = Q T Q^T, T's diagonal in d and its subdiagonal in e[1:] (e[0] = 0)."""
+    n = a.shape[0]
+    for i in range(n - 1, 0, -1):
+        d[i] = _householder(a, e, i) if i > 1 else 0.0
+        if i == 1:
+            e[i] = a[i, i - 1]
+    d[0] = 0.0
+    e[0] = 0.0
+    for i in range(n):  # Q from the reflections, last first
+        if d[i] != 0.0:
+            for j in range(i):
+                g = 0.0
+                for k in range(i):
+                    g += a[i, k] * a[k, j]
+                for k in range(i):
+                    a[k, j] -= g * a[k, i]
+        d[i] = a[i, i]
+        a[i, i] = 1.0
+        for j in range(i):
+            a[j, i] = 0.0
+            a[i, j] = 0.0
+
+
+@njit(cache=True, inline='always')
+def _householder(a: np.ndarray, e: np.ndarray, i: int) -> float:
+    """The reflection that zeroes row i of a left of its subdiagonal, applied to a's leading
+    i x i block; e[i] the subdiagonal, the reflection kept in row i and column i. Returns its
+    h (0: none)."""
+    h = 0.0
+    scale = 0.0
+    for k in range(i):
+        scale += abs(a[i, k])
+    if scale == 0.0:
+        e[i] = a[i, i - 1]
+        return 0.0
+    for k in range(i):
+        a[i, k] /= scale
+        h += a[i, k] * a[i, k]
+    f = a[i, i - 1]
+    g = -np.sqrt(h) if f >= 0.0 else np.sqrt(h)
+    e[i] = scale * g
+    h -= f * g
+    a[i, i - 1] = f - g
+    f = 0.0
+    for j in range(i):
+        a[j, i] = a[i, j] / h
+        g = 0.0
+        for k in range(j + 1):
+            g += a[j, k] * a[i, k]
+        for k in range(j + 1, i):
+            g += a[k, j] * a[i, k]
+        e[j] = g / h
+        f += e[j] * a[i, j]
+    hh = f / (h + h)
+    for j in range(i):
+        f = a[i, j]
+        g = e[j] - hh * f
+        e[j] = g
+        for k in range(j + 1):
+            a[j, k] -= f * e[k] + g * a[i, k]
+    return h
+
+
+@njit(cache=True, inline='always')
+def _tql(z: np.ndarray, d: np.ndarray, e: np.ndarray) -> bool:
+    """The tridiagonal (d, e) of :func:`_tridiagonalise` diagonalised by implicit QL, its
+    rotations applied to z's columns."""
+    n = d.shape[0]
+    for i in range(1, n):
+        e[i - 1] = e[i]
+    e[n - 1] = 0.0
+    for ll in range(n):
+        it = 0
+        while True:
+            m = ll
+            while m < n - 1:
+                dd = abs(d[m]) + abs(d[m + 1])
+                if abs(e[m]) <= 2.2e-16 * dd:
+                    break
+                m += 1
+            if m == ll:
+                break
+            if it == 30:
+                return False
+            it += 1
+            g = (d[ll + 1] - d[ll]) / (2.0 * e[ll])
+            r = np.sqrt(g * g + 1.0)  # not hypot, a libm call: |g| is below 1e16 here
+            g = d[m] - d[ll] + e[ll] / (g + (r if g >= 0.0 else -r))
+            s, c, p = 1.0, 1.0, 0.0
+            underflow = False
+            i = m - 1
+            while i >= ll:
+                f = s * e[i]
+                b = c * e[i]
+                r = np.sqrt(f * f + g * g)
+                e[i + 1] = r
+                if r == 0.0:
+                    d[i + 1] -= p
+                    e[m] = 0.0
+                    underflow = True
+                    break
+                s = f / r
+                c = g / r
+                g = d[i + 1] - p
+                r = (d[i] - g) * s + 2.0 * c * b
+                p = s * r
+                d[i + 1] = g + p
+                g = c * r - b
+                for k in range(n):
+                    f = z[k, i + 1]
+                    z[k, i + 1] = s * z[k, i] + c * f
+                    z[k, i] = c * z[k, i] - s * f
+                i -= 1
+            if underflow:
+                continue
+            d[ll] -= p
+            e[ll] = g
+            e[m] = 0.0
+    return True
+
+
+@njit(cache=True, inline='always')
+def project3_into(D: np.ndarray, a: np.ndarray, w: np.ndarray, Q: np.ndarray) -> None:
     """D[:3, :3] (symmetric) <- its projection to positive semi-definite: its eigenvalues
-    clamped at zero. A block positive definite by its leading minors is its own projection
-    (to round-off) and takes no eigen-decomposition, which most points of a formed sheet skip
-    so."""
+    clamped at zero; ``a, Q (3, 3)``, ``w (3,)`` scratch. A block positive definite by its
+    leading minors is its own projection (to round-off) and takes no eigen-decomposition,
+    which most points of a formed sheet skip so."""
     m2 = D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0]
     det = (D[0, 0] * (D[1, 1] * D[2, 2] - D[1, 2] * D[2, 1])
            - D[0, 1] * (D[1, 0] * D[2, 2] - D[1, 2] * D[2, 0])
            + D[0, 2] * (D[1, 0] * D[2, 1] - D[1, 1] * D[2, 0]))
     if D[0, 0] > 0.0 and m2 > 0.0 and det > 0.0:
         return
-    ev, Q = eigh3(D[:3, :3])
-    e0, e1, e2 = max(ev[0], 0.0), max(ev[1], 0.0), max(ev[2], 0.0)
-    for a in range(3):
-        for b in range(3):
-            D[a, b] = Q[a, 0] * e0 * Q[b, 0] + Q[a, 1] * e1 * Q[b, 1] + Q[a, 2] * e2 * Q[b, 2]
+    eigh3_into(D[:3, :3], a, w, Q, True)
+    e0, e1, e2 = max(w[0], 0.0), max(w[1], 0.0), max(w[2], 0.0)
+    for i in range(3):
+        for j in range(3):
+            D[i, j] = Q[i, 0] * e0 * Q[j, 0] + Q[i, 1] * e1 * Q[j, 1] + Q[i, 2] * e2 * Q[j, 2]
+
+
+@njit(cache=True, inline='always')
+def project3(D: np.ndarray) -> None:
+    """:func:`project3_into`, its scratch made here."""
+    project3_into(D, np.empty((3, 3)), np.empty(3), np.empty((3, 3)))
 
 
 @njit(cache=True)

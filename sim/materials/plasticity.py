@@ -98,12 +98,20 @@ def hardening_work(law: int, hp: np.ndarray, ep_a: float, ep_b: float) -> float:
     raise ValueError("unknown hardening law")
 
 
+@numba.njit(cache=True, inline='always')
+def _trial3(e0: float, e1: float, e2: float) -> tuple[float, float, float, float, float]:
+    """Trace, deviator and deviator norm of the trial strain (e0, e1, e2): scalars, so that
+    a quadrature point's return map allocates nothing."""
+    tr = e0 + e1 + e2
+    d0, d1, d2 = e0 - tr / 3.0, e1 - tr / 3.0, e2 - tr / 3.0
+    return tr, d0, d1, d2, math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
 @numba.njit(cache=True)
 def _trial(eps_tr: np.ndarray) -> tuple[float, np.ndarray, float]:
     """Trace, deviator (3,) and deviator norm of the trial strain."""
-    tr = eps_tr[0] + eps_tr[1] + eps_tr[2]
-    e = eps_tr - tr / 3.0
-    return tr, e, math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    tr, d0, d1, d2, r = _trial3(eps_tr[0], eps_tr[1], eps_tr[2])
+    return tr, np.array([d0, d1, d2]), r
 
 
 @numba.njit(cache=True)
@@ -147,15 +155,65 @@ def bracketed_step(x: float, step: float, root_above: bool, lo: float, hi: float
     return xn, lo, hi, hi - lo <= 1e-16 * scale
 
 
-@numba.njit(cache=True)
-def _dgamma(eps_tr: np.ndarray, ep_n: float, mu: float, law: int, hp: np.ndarray) -> float:
-    """Plastic multiplier dg >= 0 for trial strain eps_tr (0 in the elastic branch)."""
-    _, _, r = _trial(eps_tr)
+@numba.njit(cache=True, inline='always')
+def _dgamma_r(r: float, ep_n: float, mu: float, law: int, hp: np.ndarray) -> float:
+    """Plastic multiplier dg >= 0 for a trial deviator of norm r (0 in the elastic branch)."""
     q_tr = _SQRT6 * mu * r
     y_n, _ = yield_stress(law, hp, ep_n)
     if r == 0.0 or q_tr - y_n <= 1e-12 * abs(y_n):
         return 0.0
     return _solve_dgamma(q_tr, ep_n, mu, law, hp)
+
+
+@numba.njit(cache=True)
+def _dgamma(eps_tr: np.ndarray, ep_n: float, mu: float, law: int, hp: np.ndarray) -> float:
+    """Plastic multiplier dg >= 0 for trial strain eps_tr (0 in the elastic branch)."""
+    _, _, _, _, r = _trial3(eps_tr[0], eps_tr[1], eps_tr[2])
+    return _dgamma_r(r, ep_n, mu, law, hp)
+
+
+@numba.njit(cache=True, inline='always')
+def _branch(r: float, ep_n: float, mu: float, law: int,
+            hp: np.ndarray) -> tuple[float, float, float, float]:
+    """(dg, s, c, work) of the return at a trial deviator of norm r: s the deviatoric scaling
+    of tau, c the extra n n^T coefficient of D, work the hardening's (module docstring)."""
+    dg = _dgamma_r(r, ep_n, mu, law, hp)
+    if not dg > 0.0:
+        return dg, 1.0, 0.0, 0.0
+    y, h = yield_stress(law, hp, ep_n + dg)
+    s = y / (_SQRT6 * mu * r)  # = 1 - 3 mu dg / q_tr at the root, free of cancellation
+    return dg, s, 2.0 * mu * (h / (3.0 * mu + h) - s), hardening_work(law, hp, ep_n, ep_n + dg)
+
+
+@numba.njit(cache=True)
+def incremental_energy(e0: float, e1: float, e2: float, ep_n: float, mu: float, lam: float,
+                       law: int, hp: np.ndarray) -> float:
+    """W of :func:`return_map` alone, at the principal trial log strains (e0, e1, e2): what a
+    line search needs, without the stress, the tangent or an array."""
+    kappa = lam + 2.0 * mu / 3.0
+    tr, _, _, _, r = _trial3(e0, e1, e2)
+    _, s, _, work = _branch(r, ep_n, mu, law, hp)
+    return mu * (s * r) ** 2 + 0.5 * kappa * tr * tr + work
+
+
+@numba.njit(cache=True)
+def return_map_into(eps_tr: np.ndarray, ep_n: float, mu: float, lam: float, law: int,
+                    hp: np.ndarray, tau: np.ndarray, D: np.ndarray) -> tuple[float, float, float]:
+    """:func:`return_map` into ``tau (3,)`` and ``D (3, 3)``: returns (W, a_dd, dgamma)."""
+    kappa = lam + 2.0 * mu / 3.0
+    tr, d0, d1, d2, r = _trial3(eps_tr[0], eps_tr[1], eps_tr[2])
+    dg, s, c, work = _branch(r, ep_n, mu, law, hp)
+    a = 2.0 * mu * s
+    W = mu * (s * r) ** 2 + 0.5 * kappa * tr * tr + work
+    tau[0], tau[1], tau[2] = a * d0 + kappa * tr, a * d1 + kappa * tr, a * d2 + kappa * tr
+    for i in range(3):
+        di = d0 if i == 0 else (d1 if i == 1 else d2)
+        for j in range(3):
+            dj = d0 if j == 0 else (d1 if j == 1 else d2)
+            D[i, j] = kappa - a / 3.0 + (a if i == j else 0.0)
+            if c != 0.0:
+                D[i, j] += c * (di * dj) / (r * r)  # exactly symmetric
+    return W, a, dg
 
 
 @numba.njit(cache=True)
@@ -166,25 +224,8 @@ def return_map(eps_tr: np.ndarray, ep_n: float, mu: float, lam: float, law: int,
     eps_tr (3,) principal trial log strains, ep_n equivalent plastic strain at step start.
     Returns (W, tau (3,), D (3, 3) = dtau/deps_tr, a_dd, dgamma); see the module docstring.
     """
-    kappa = lam + 2.0 * mu / 3.0
-    tr, e, r = _trial(eps_tr)
-    dg = _dgamma(eps_tr, ep_n, mu, law, hp)
-    s, c = 1.0, 0.0  # deviatoric scaling of tau and extra n n^T coefficient of D
-    work = 0.0
-    if dg > 0.0:
-        y, h = yield_stress(law, hp, ep_n + dg)
-        s = y / (_SQRT6 * mu * r)  # = 1 - 3 mu dg / q_tr at the root, free of cancellation
-        c = 2.0 * mu * (h / (3.0 * mu + h) - s)
-        work = hardening_work(law, hp, ep_n, ep_n + dg)
-    a = 2.0 * mu * s
-    W = mu * (s * r) ** 2 + 0.5 * kappa * tr * tr + work
-    tau = a * e + kappa * tr
-    D = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            D[i, j] = kappa - a / 3.0 + (a if i == j else 0.0)
-            if c != 0.0:
-                D[i, j] += c * (e[i] * e[j]) / (r * r)  # exactly symmetric
+    tau, D = np.empty(3), np.empty((3, 3))
+    W, a, dg = return_map_into(eps_tr, ep_n, mu, lam, law, hp, tau, D)
     return W, tau, D, a, dg
 
 

@@ -54,11 +54,15 @@ from sim.materials.isotropic import (
     NEO_HOOKEAN,
     PAIRS,
     clamp_psd,
+    clamp_psd_into,
     det3,
     eigh3,
+    jacobi3_into,
     neo_hookean_green,
     principal,
-    project3,
+    principal_energy,
+    principal_into,
+    project3_into,
 )
 from sim.materials.plasticity import plastic_flow
 from sim.solve.assembly import drain_element_gradient
@@ -305,18 +309,27 @@ def _neo_hookean_natural(Eh: np.ndarray, A: np.ndarray, mu: float, lam: float, w
 @njit(cache=True)
 def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
                        params: np.ndarray, ep: float, want: int, psd: bool, Sn: np.ndarray,
-                       Dv: np.ndarray, M: np.ndarray, cv: np.ndarray, Dp: np.ndarray) -> float:
+                       Dv: np.ndarray, M: np.ndarray, cv: np.ndarray, Dp: np.ndarray,
+                       m3: np.ndarray, v3: np.ndarray) -> float:
     """Any isotropic model through the principal frame of E^ (module docstring): W, Sn and
     Dv as :func:`_neo_hookean_natural`; ``psd``: Dv projected to positive semi-definite,
     which in that frame is the 3 x 3 block's eigenvalues and the pairs' clamped at zero.
-    Scratch: M (3, 3), cv (2, 6, 6), Dp (6, 6)."""
-    lam, V = eigh3(Eh)
+    An energy alone (want == 0, a line search's) takes E^'s eigenvalues without their
+    vectors (the same numbers) and the law's energy without its derivatives.
+    Scratch: M (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (3, 3, 3), v3 (10, 3)."""
+    lam, st, pr = v3[7], v3[8], v3[:7]
+    V = m3[1]
+    jacobi3_into(Eh, lam, V, want > 0)
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
-    st = np.sqrt(1.0 + 2.0 * lam)
-    W, gs, H, sym, twist = principal(model, st, params, ep)
-    if want == 0 or not np.isfinite(W):
+    for i in range(3):
+        st[i] = np.sqrt(1.0 + 2.0 * lam[i])
+    if want == 0:
+        return principal_energy(model, st[0], st[1], st[2], params, ep)
+    W = principal_into(model, st, params, ep, pr)
+    if not np.isfinite(W):
         return W
+    gs, H, sym, twist = pr[0], pr[1:4], pr[4], pr[5]
     _columns(A, V, M)
     Sp0, Sp1, Sp2 = gs[0] / st[0], gs[1] / st[1], gs[2] / st[2]
     for i in range(3):
@@ -335,10 +348,10 @@ def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
         a, b = PAIRS[c, 0], PAIRS[c, 1]
         Dp[3 + c, 3 + c] = 2.0 * (sym[c] - twist[c]) / (st[a] * st[b])
     if psd:
-        project3(Dp)
+        project3_into(Dp, m3[0], v3[9], m3[2])
         for c in range(3, 6):
             Dp[c, c] = max(Dp[c, c], 0.0)
-    _natural_tangent(M, Dp, cv, Dv)
+    _natural_tangent(M, Dp, cv, Dv, True)
     return W
 
 
@@ -351,7 +364,8 @@ def _columns(A: np.ndarray, V: np.ndarray, M: np.ndarray) -> None:
 
 
 @njit(cache=True, inline='always')
-def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarray) -> None:
+def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarray,
+                     block: bool) -> None:
     """Dv = cv^T Dp cv: a tangent ``Dp`` over the unique components of X = M^T de~ M (the
     diagonal m_a^T de~ m_a, then the pairs m_a^T de~ m_b of PAIRS) over the natural rows,
     X's components being cv[0] (6, 6) times those rows; cv[1] scratch for Dp cv. Formed as
@@ -364,9 +378,12 @@ def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarr
             i, j = VOIGT[v, 0], VOIGT[v, 1]
             C[c, v] = M[i, a] * M[j, b] + (M[j, a] * M[i, b] if i != j else 0.0)
     for c in range(6):
+        # an isotropic Dp (``block``) is its 3 x 3 block and the pairs' diagonal: the rest of
+        # its row adds zeros
+        d0, d1 = (0, 6) if not block else ((0, 3) if c < 3 else (c, c + 1))
         for u in range(6):
             acc = 0.0
-            for d in range(6):
+            for d in range(d0, d1):
                 acc += Dp[c, d] * C[d, u]
             DC[c, u] = acc
     for v in range(6):
@@ -381,14 +398,19 @@ def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarr
 @njit(cache=True)
 def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.ndarray,
                   ep: float, want: int, psd: bool, Sn: np.ndarray, Dv: np.ndarray,
-                  M: np.ndarray, cv: np.ndarray, Dp: np.ndarray, Sp: np.ndarray) -> float:
+                  M: np.ndarray, cv: np.ndarray, Dp: np.ndarray, Sp: np.ndarray,
+                  m3: np.ndarray, v3: np.ndarray, q6: np.ndarray) -> float:
     """Hill48 in the frame of E^'s eigenvectors (module docstring): W, Sn and Dv as
     :func:`_neo_hookean_natural`, ``psd`` as :func:`_principal_natural` (Hill's Dp is full:
-    its eigenvalues). Scratch: M, Sp (3, 3), cv (2, 6, 6), Dp (6, 6)."""
-    lam, V = eigh3(Eh)
+    its eigenvalues). Scratch: M, Sp (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (>= 2, 3, 3),
+    v3 (>= 9, 3), q6 (8, 6)."""
+    lam, cl, V = v3[7], v3[8], m3[1]
+    jacobi3_into(Eh, lam, V, True)
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
-    W = hill_green(1.0 + 2.0 * lam, V, params, frame, ep, want, Sp, Dp)
+    for i in range(3):
+        cl[i] = 1.0 + 2.0 * lam[i]
+    W = hill_green(cl, V, params, frame, ep, want, Sp, Dp)
     if want == 0 or not np.isfinite(W):
         return W
     _columns(A, V, M)
@@ -401,8 +423,8 @@ def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.n
             Sn[i, j] = acc
     if want == 2:
         if psd:
-            _project(Dp)
-        _natural_tangent(M, Dp, cv, Dv)
+            _project_into(Dp, q6)
+        _natural_tangent(M, Dp, cv, Dv, False)
     return W
 
 
@@ -505,7 +527,7 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
                  want: int, project: int, g: np.ndarray,
                  K: np.ndarray, Kg: np.ndarray, P: np.ndarray, T: np.ndarray,
                  Mb: np.ndarray, Hs: np.ndarray, gvs: np.ndarray, sc: np.ndarray, u: np.ndarray,
-                 m3: np.ndarray) -> float:
+                 m3: np.ndarray, v3: np.ndarray, kq: np.ndarray) -> float:
     """Energy of one element; adds its gradient into ``g (k,)`` (want >= 1) and writes its
     Hessian's upper triangle, node-major, into ``K (k, k)`` (want == 2). ``tg``: the element's
     (dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw) of :class:`Tying`; ``frame (3, 3)`` its
@@ -521,7 +543,8 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     per level instead of one of 6 rows per point; the levels' rows are stacked so that one
     product :func:`_congruence` forms all of it. Scratch: Kg (n_en, n_en); P and T (9 n_lev,
     k), level l's rows from 9 l on; Mb (9, 9), Hs (3 + n_in, 3, 3), gvs (3, 9), u (n_en, 3),
-    sc (4, 6, 6), m3 (8, 3, 3)."""
+    sc (4, 6, 6), m3 (11, 3, 3), v3 (10, 3), kq (n_en + 10, max(n_en, 6)): the projections'
+    (Kg's in its first n_en + 2 rows, a point's 6 x 6 in the next 8)."""
     dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw = tg
     en, Eh, A, Sn, sig, M, Ci = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6]
     hc = m3[7]
@@ -572,10 +595,11 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             if model == NEO_HOOKEAN and not psd:
                 W = _neo_hookean_natural(Eh, A, params[0], params[1], want, Sn, Dv, Ci, sig)
             elif model == HILL48:
-                W = _hill_natural(Eh, A, params, frame, ep[q], want, psd, Sn, Dv, M, cv, Dp, Ci)
+                W = _hill_natural(Eh, A, params, frame, ep[q], want, psd, Sn, Dv, M, cv, Dp, Ci,
+                                  m3[8:], v3, kq[n_en + 2:, :6])
             else:
                 W = _principal_natural(model, Eh, A, params, ep[q] if plastic else 0.0, want,
-                                       psd, Sn, Dv, M, cv, Dp)
+                                       psd, Sn, Dv, M, cv, Dp, m3[8:], v3)
             if not np.isfinite(W):
                 return np.inf
             w = wdetJ[q]
@@ -615,7 +639,7 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     if want == 2:
         _congruence(P, T, K)
         if psd:
-            _project(Kg)
+            _project_into(Kg, kq[:n_en + 2])
         for a in range(n_en):
             for b in range(a, n_en):
                 for i in range(3):
@@ -643,31 +667,45 @@ def _material_rows(P: np.ndarray, Mb: np.ndarray, T: np.ndarray) -> None:
 
 @njit(cache=True, inline='always')
 def _congruence(P: np.ndarray, T: np.ndarray, K: np.ndarray) -> None:
-    """K = P^T T, the material part sum_l P_l^T Mb_l P_l of all levels at once (rows of P and T
-    stacked, ``(n_r, k)``, n_r a multiple of 9): full rows of K, nine rows of T per pass, so that
-    every column loop has the element's full length and vectorises (the upper triangle's rows
-    shorten to a scalar remainder) and each entry of K is loaded and stored once per nine."""
+    """K (upper triangle) = P^T T, the material part sum_l P_l^T Mb_l P_l of all levels at
+    once (rows of P and T stacked, ``(n_r, k)``, n_r a multiple of 9): each row of K from its
+    diagonal on, nine rows of T per pass, so that the column loops are contiguous and
+    vectorise and each entry of K is loaded and stored once per nine. The lower triangle,
+    which nothing reads (the scatter, the initial-stress term and the element's projection
+    take the upper), would double the arithmetic."""
     nr, k = P.shape
     uk = np.uint64(k)
     for p in range(k):
         kr = K[p]
-        for col in range(uk):
+        up = np.uint64(p)
+        for col in range(up, uk):
             kr[col] = 0.0
         for c in range(0, nr, 9):
             p0, p1, p2 = P[c, p], P[c + 1, p], P[c + 2, p]
             p3, p4, p5 = P[c + 3, p], P[c + 4, p], P[c + 5, p]
             p6, p7, p8 = P[c + 6, p], P[c + 7, p], P[c + 8, p]
             t = T[c:c + 9]
-            for col in range(uk):
+            for col in range(up, uk):
                 kr[col] += ((((p0 * t[0, col] + p1 * t[1, col]) + p2 * t[2, col])
                              + ((p3 * t[3, col] + p4 * t[4, col]) + p5 * t[5, col]))
                             + ((p6 * t[6, col] + p7 * t[7, col]) + p8 * t[8, col]))
 
 
+@njit(cache=True, inline='always')
+def _project_into(K: np.ndarray, q: np.ndarray) -> None:
+    """:func:`_project` of a small K (n, n) on the scratch ``q (n + 2, n)``: a point's Hill48
+    tangent, an element's initial-stress term (sim.materials.isotropic.clamp_psd_into)."""
+    n = K.shape[0]
+    for p in range(n):
+        for c in range(p):
+            K[p, c] = K[c, p]
+    clamp_psd_into(K, q[:n], q[n], q[n + 1])
+
+
 @njit(cache=True)
 def _project(K: np.ndarray) -> None:
     """K (upper triangle) <- its projection to positive semi-definite (both triangles): an
-    element's Hessian, a point's Hill48 tangent, an initial-stress term."""
+    element's Hessian (PROJECT_ELEMENT)."""
     k = K.shape[0]
     for p in range(k):
         for c in range(p):
@@ -722,13 +760,14 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
     P, T, Mb = np.zeros((nr, k)), np.zeros((nr, k)), np.zeros((nbp, nbp))
     K = np.empty((k, k) if want == 2 else (0, 0))
     Hs, gvs, u = np.empty((3 + n_in, 3, 3)), np.empty((3, nbp)), np.empty((n_en, 3))
-    sc, m3 = np.empty((4, 6, 6)), np.empty((8, 3, 3))
+    sc, m3, v3 = np.empty((4, 6, 6)), np.empty((11, 3, 3)), np.empty((10, 3))
+    kq = np.empty((n_en + 10, max(n_en, 6)))
     for e in elements:
         E = _ans_element(x, rest, conn[e],
                          (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e], dNc, Gw[e]),
                          wdetJ[e], model, params, fp_inv[e], ep[e], frames[e], plastic,
                          want, project, g,
-                         K, Kg, P, T, Mb, Hs, gvs, sc, u, m3)
+                         K, Kg, P, T, Mb, Hs, gvs, sc, u, m3, v3, kq)
         energies[e] = E
         ok = np.isfinite(E)
         if want >= 1:

@@ -259,6 +259,7 @@ def test_a_points_projected_tangent_clamps_its_negative_modes(model):
     indefinite = 0
     m = np.empty((5, 3, 3))
     sc = np.empty((4, 6, 6))
+    m3, v3, q6 = np.empty((3, 3, 3)), np.empty((10, 3)), np.empty((8, 6))
     for _ in range(300):
         B = rng.standard_normal((3, 3))
         Eh = 0.15 * (B + B.T)  # strains of tens of percent, compressive and tensile
@@ -269,10 +270,10 @@ def test_a_points_projected_tangent_clamps_its_negative_modes(model):
             Sn, Dv, M, Sp, Dp = m[0], sc[0], m[1], m[2], sc[3]
             if model == HILL48:
                 W = ans._hill_natural(Eh, A, params, frame, ep, 2, psd, Sn, Dv, M, sc[1:3],
-                                      Dp, Sp)
+                                      Dp, Sp, m3, v3, q6)
             else:
                 W = ans._principal_natural(model, Eh, A, params, ep, 2, psd, Sn, Dv, M,
-                                           sc[1:3], Dp)
+                                           sc[1:3], Dp, m3, v3)
             if not np.isfinite(W):
                 break
             out.append(Dv.copy())
