@@ -193,12 +193,7 @@ def _jacobi_rotation(a: np.ndarray, V: np.ndarray, vectors: bool, p: int, q: int
     apq = a[p, q]
     if apq == 0.0:
         return
-    theta = (a[q, q] - a[p, p]) / (2.0 * apq)
-    t = np.sign(theta) / (abs(theta) + np.sqrt(theta * theta + 1.0))
-    if theta == 0.0:
-        t = 1.0
-    c = 1.0 / np.sqrt(t * t + 1.0)
-    s = t * c
+    _, c, s = _rotation(a[p, p], a[q, q], apq)
     for k in range(3):  # a <- a J
         akp, akq = a[k, p], a[k, q]
         a[k, p] = c * akp - s * akq
@@ -208,10 +203,7 @@ def _jacobi_rotation(a: np.ndarray, V: np.ndarray, vectors: bool, p: int, q: int
         a[p, k] = c * apk - s * aqk
         a[q, k] = s * apk + c * aqk
     if vectors:
-        for k in range(3):
-            vkp, vkq = V[k, p], V[k, q]
-            V[k, p] = c * vkp - s * vkq
-            V[k, q] = s * vkp + c * vkq
+        _rotate_columns(V, p, q, c, s)
 
 
 @njit(cache=True)
@@ -254,13 +246,19 @@ def jacobi3_into(A: np.ndarray, w: np.ndarray, V: np.ndarray, vectors: bool) -> 
 def _rotated(app: float, aqq: float, apq: float, arp: float,
              arq: float) -> tuple[float, float, float, float, float, float]:
     """The entries (pp, qq, rp, rq) after the rotation (c, s) that zeroes a[p, q]."""
+    t, c, s = _rotation(app, aqq, apq)
+    return app - t * apq, aqq + t * apq, c * arp - s * arq, s * arp + c * arq, c, s
+
+
+@njit(cache=True, inline='always')
+def _rotation(app: float, aqq: float, apq: float) -> tuple[float, float, float]:
+    """Jacobi's rotation zeroing a[p, q] (apq != 0): its tangent t, cosine c and sine s."""
     theta = (aqq - app) / (2.0 * apq)
     t = np.sign(theta) / (abs(theta) + np.sqrt(theta * theta + 1.0))
     if theta == 0.0:
         t = 1.0
     c = 1.0 / np.sqrt(t * t + 1.0)
-    s = t * c
-    return app - t * apq, aqq + t * apq, c * arp - s * arq, s * arp + c * arq, c, s
+    return t, c, t * c
 
 
 @njit(cache=True, inline='always')
