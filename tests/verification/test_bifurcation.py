@@ -232,9 +232,10 @@ def test_kick_is_made_on_a_flat_state_at_most_an_eighth_of_a_step_past_the_cross
 
 
 def test_the_step_after_a_kick_may_take_more_newton_iterations():
-    """Newton's cap is KICKED_ITERATIONS in the step after a kick (in each of its attempts)
-    and the scene's in every other, the flat path's retaken halves included: the step
-    after a kick crosses a nearly neutral valley to the branch."""
+    """Newton's cap is KICKED_ITERATIONS in the step after a kick (in each of its attempts),
+    on the exact Hessian shifted where it is indefinite, and the scene's in every other, the
+    flat path's retaken halves included: the step after a kick crosses a nearly neutral
+    valley to the branch."""
     from sim.apps.stability import KICKED_ITERATIONS
 
     sim = Simulation.from_scene(scene_from_toml(STRIP))
@@ -244,7 +245,7 @@ def test_the_step_after_a_kick_may_take_more_newton_iterations():
     attempt, caps = sim._attempt, []
 
     def spy(t_new: float, dt: float) -> object:
-        caps[-1].append(m.settings.max_iterations)
+        caps[-1].append((m.settings.max_iterations, m.settings.indefinite))
         return attempt(t_new, dt)
 
     sim._attempt = spy
@@ -258,8 +259,10 @@ def test_the_step_after_a_kick_may_take_more_newton_iterations():
     assert len(kicked) == 1
     # caps[i]: the attempts of the steps after point i, up to point i + 1
     for i, seen in enumerate(caps[:-1]):
-        assert seen and set(seen) == {KICKED_ITERATIONS if i in kicked else cap}, (i, seen)
-    assert m.settings.max_iterations == cap
+        # the step after a kick descends from a saddle: on the shifted exact Hessian
+        after = (KICKED_ITERATIONS, "shift") if i in kicked else (cap, "project")
+        assert seen and set(seen) == {after}, (i, seen)
+    assert m.settings.max_iterations == cap and m.settings.indefinite == "project"
 
 
 def _fail_after_half(sim: Simulation, half: Callable[[float, float], object]) -> dict:
