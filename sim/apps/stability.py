@@ -355,10 +355,16 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
     last of them, a shorter step of the path, when that state is unstable out of plane
     (``_wrinkles``): a further bifurcation inside the step, onto whose unstable
     state Newton, with its projected (positive) Hessian, cannot converge. That state is then
-    kicked like any other, and the next step ends at the next planned one. Otherwise the path
-    ends early when a step fails (the Simulation's ``failure`` says why). The step after a
+    kicked like any other, and the next step ends at the next planned one. The step after a
     kick may take Newton up to ``KICKED_ITERATIONS`` (each attempt), the others the scene's
-    cap."""
+    cap; in those others an iterate whose exact Hessian is indefinite makes progress only by
+    its residual's fall, not by its energy's (NewtonSettings.descent_is_progress), so an
+    attempt that crawls down a negative curvature fails after the scene's ``patience`` (the
+    stretched sheet's step across its second instability spent hundreds of iterations in
+    attempts that crawled to the cap). A failed step with no unstable state to kick (none
+    converged, or a stable one) is retaken from its start with the descent counted as
+    progress, as a snap to a far branch needs; the path ends early when that fails too, or
+    when the step after a kick fails (the Simulation's ``failure`` says why)."""
     from sim.stepping.simulation import SolverFailure
 
     if kick and (why := history(sim)):
@@ -384,30 +390,40 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
         # than the least tool_speed: the next one goes on to the planned step after it
         rest += 1.0 if rest < sim.ranges["tool_speed"][0] else 0.0
         length = min(length, rest) if flat_path and rest < 1.0 else rest
-        settings = sim.model.settings
-        if point.kicked:
-            sim.model.settings = replace(settings, indefinite="shift", max_iterations=max(
-                settings.max_iterations, KICKED_ITERATIONS))
+        # without a kick a failed step is not retaken (nothing to restore it from): its
+        # attempts count a descent as progress from the first
+        settings, after_kick, crawl = sim.model.settings, point.kicked, not kick
         while True:
-            mark = _mark(sim) if flat_path else None
+            mark = _mark(sim) if kick else None
             if sim.parameters["tool_speed"] != length:
                 sim.set_parameter("tool_speed", length)
             t0, iterations0 = sim.t, sim.timing.iterations
+            # a step after a kick descends from the unstable state, and its energy's fall is
+            # its progress; any other ends at a stable state, or fails where its projected
+            # corrections only go down a negative curvature (``crawl``: retaken allowing it)
+            sim.model.settings = (replace(settings, indefinite="shift", max_iterations=max(
+                settings.max_iterations, KICKED_ITERATIONS)) if after_kick
+                else replace(settings, descent_is_progress=crawl))
             try:
                 rec = sim.step()
             except SolverFailure:
                 # past the first kick a step can cross a further bifurcation, and Newton (its
                 # projected Hessian is positive) cannot settle on the unstable state past it:
                 # a converged sub-step that is unstable ends a shorter step, kicked at the top
-                if not kicked or sim.t <= t0:
+                if kicked and sim.t > t0:
+                    _at_converged(sim)
+                    point, mode = _observe(sim, nodes, direction, k, sim.step_index + 1,
+                                           sim.timing.iterations - iterations0)
+                    if _wrinkles(point):
+                        _shorter_step(sim, point.iterations)
+                        break
+                if after_kick or crawl or mark is None:
                     return
-                _at_converged(sim)
-                point, mode = _observe(sim, nodes, direction, k, sim.step_index + 1,
-                                       sim.timing.iterations - iterations0)
-                if not _wrinkles(point):
-                    return
-                _shorter_step(sim, point.iterations)
-                break
+                # no unstable state to kick: the step again from its start, a descent on
+                # an indefinite Hessian progress this time (a snap to a far branch)
+                _back(sim, mark)
+                sim.failure, crawl = None, True
+                continue
             finally:
                 sim.model.settings = settings
             point, mode = _observe(sim, nodes, direction, k, rec.step, rec.iterations)
@@ -422,7 +438,7 @@ def follow(sim: Simulation, nodes: np.ndarray, direction: np.ndarray, k: int = 3
                     return
                 break
             _back(sim, mark)
-            length /= 2
+            length, crawl = length / 2, False
 
 
 def bracket(points: list[PathPoint]) -> tuple[PathPoint, PathPoint] | None:

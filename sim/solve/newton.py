@@ -97,6 +97,14 @@ class NewtonSettings:
     # correction is only asked what the target needs (``_forcing``)
     reuse_below: float = 1e-5
     reuse_within: float = 1e3
+    # an energy decrease counts as progress (``patience``) at an iterate whose exact Hessian
+    # was indefinite and replaced by the projected one; False: only the residual's fall
+    # does there. Next to an unstable equilibrium the projected corrections go down its
+    # negative curvature in short steps, each lowering the energy, without nearing any
+    # equilibrium: the stretched sheet's step across a secondary bifurcation spent hundreds
+    # of iterations so in attempts that failed at the cap. sim.apps.stability.follow, which
+    # retakes such a step in shorter ones, sets it False
+    descent_is_progress: bool = True
 
 
 @dataclass
@@ -182,6 +190,8 @@ class Newton:
     matrix: np.ndarray | None = None  # the Hessian data the last correction solved against
     shift: float = 0.0  # the last identity shift that made the exact Hessian factor (N/m)
     shifted: bool = False  # the solver's factors are of a shifted Hessian
+    # the last correction's exact Hessian was indefinite, the projected one solved instead
+    projected: bool = False
 
     def result(self, x: np.ndarray, ok: bool, it: int, E: float, reason: str = "") -> NewtonResult:
         self.timing.iterations = it
@@ -294,7 +304,8 @@ def minimise(problem: Problem, x0: np.ndarray, settings: NewtonSettings,
         if isinstance(step, NewtonResult):
             return step
         x, cached, by_energy = step
-        nt.idle = 0 if by_energy or not stalled else nt.idle + 1
+        descent = by_energy and (settings.descent_is_progress or not nt.projected)
+        nt.idle = 0 if descent or not stalled else nt.idle + 1
     raise AssertionError("unreachable")
 
 
@@ -410,7 +421,7 @@ def _factor(nt: Newton, cur: Iterate, data: np.ndarray) -> np.ndarray:
     """Factor the Hessian ``data``, the exact one if it is positive definite, else its
     replacement (NewtonSettings.indefinite); the data factored."""
     problem, s = nt.problem, nt.settings
-    nt.shifted = False
+    nt.shifted = nt.projected = False
     if not s.try_exact:
         factor_shifted(problem, data)
         return data
@@ -421,6 +432,7 @@ def _factor(nt: Newton, cur: Iterate, data: np.ndarray) -> np.ndarray:
         shifted = _factor_shift(nt, data) if s.indefinite == "shift" else None
     if shifted is not None:
         return shifted
+    nt.projected = True
     t = time.perf_counter()
     _, data = problem.gradient_hessian(cur.x)
     nt.timing.assembly += time.perf_counter() - t

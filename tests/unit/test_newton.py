@@ -496,6 +496,28 @@ def test_the_descent_from_a_saddle_follows_the_exact_negative_curvature(c, s):
         projected.iterations
 
 
+def test_a_projected_descent_down_a_negative_curvature_is_not_progress_when_asked():
+    """With descent_is_progress False, an energy decrease at an iterate whose exact Hessian
+    is indefinite (projected instead) does not reset ``patience``: the column kicked off its
+    saddle, whose projected corrections move it out a little per iteration (each lowering the
+    energy, the residual rising), fails after ``patience`` iterations, not at the cap; a
+    descent on a positive definite Hessian (the column below its critical load) converges in
+    the same iterations either way."""
+    c, s, q = 1.0, 1.01, 1.0
+    problem, x0 = _buckle(c, s, q, 0.01 * np.sqrt((s - c) / q))
+    crawl = minimise(problem, x0, NewtonSettings(), force_level=1.0)
+    assert not crawl.converged and crawl.iterations == 200, crawl.iterations
+    patience = NewtonSettings().patience
+    ended = minimise(problem, x0, NewtonSettings(descent_is_progress=False), force_level=1.0)
+    assert not ended.converged and "no progress" in ended.reason, ended.reason
+    # the residual rises from the first iteration on: patience iterations and the first
+    assert ended.iterations <= patience + 2, ended.iterations
+    problem, x0 = _buckle(1.1, 1.0, q, 0.3)  # stable: the flat state is the minimum
+    runs = [minimise(problem, x0, NewtonSettings(descent_is_progress=d), force_level=1.0)
+            for d in (True, False)]
+    assert all(r.converged for r in runs) and runs[0].iterations == runs[1].iterations
+
+
 def test_the_shift_is_just_past_the_most_negative_eigenvalue():
     """_factor_shift's mu lies between the most negative eigenvalue's magnitude (below it the
     shifted Hessian is indefinite and does not factor) and SHIFT_BRACKET times it, from a

@@ -233,9 +233,11 @@ def test_kick_is_made_on_a_flat_state_at_most_an_eighth_of_a_step_past_the_cross
 
 def test_the_step_after_a_kick_may_take_more_newton_iterations():
     """Newton's cap is KICKED_ITERATIONS in the step after a kick (in each of its attempts),
-    on the exact Hessian shifted where it is indefinite, and the scene's in every other, the
-    flat path's retaken halves included: the step after a kick crosses a nearly neutral
-    valley to the branch."""
+    on the exact Hessian shifted where it is indefinite, its energy's fall progress; the
+    scene's in every other, the flat path's retaken halves included, on the projected
+    Hessian, where an energy's fall on an indefinite Hessian is not progress: the step after
+    a kick crosses a nearly neutral valley to the branch, the others end at a stable state
+    or fail."""
     from sim.apps.stability import KICKED_ITERATIONS
 
     sim = Simulation.from_scene(scene_from_toml(STRIP))
@@ -245,7 +247,8 @@ def test_the_step_after_a_kick_may_take_more_newton_iterations():
     attempt, caps = sim._attempt, []
 
     def spy(t_new: float, dt: float) -> object:
-        caps[-1].append((m.settings.max_iterations, m.settings.indefinite))
+        caps[-1].append((m.settings.max_iterations, m.settings.indefinite,
+                         m.settings.descent_is_progress))
         return attempt(t_new, dt)
 
     sim._attempt = spy
@@ -260,9 +263,10 @@ def test_the_step_after_a_kick_may_take_more_newton_iterations():
     # caps[i]: the attempts of the steps after point i, up to point i + 1
     for i, seen in enumerate(caps[:-1]):
         # the step after a kick descends from a saddle: on the shifted exact Hessian
-        after = (KICKED_ITERATIONS, "shift") if i in kicked else (cap, "project")
+        after = (KICKED_ITERATIONS, "shift", True) if i in kicked else (cap, "project", False)
         assert seen and set(seen) == {after}, (i, seen)
     assert m.settings.max_iterations == cap and m.settings.indefinite == "project"
+    assert m.settings.descent_is_progress
 
 
 def _fail_after_half(sim: Simulation, half: Callable[[float, float], object]) -> dict:
