@@ -354,6 +354,55 @@ def test_a_failed_step_after_the_kick_ends_at_its_last_converged_unstable_sub_st
     assert lowest_eigenvalues(free_hessian(sim.model.problem, sim.x)[0], 1).values[0] > 0
 
 
+def _strip_path(fail_without_descent: bool) -> tuple[Simulation, list, list]:
+    """The Euler strip followed with a kick; with ``fail_without_descent`` every Newton solve
+    of the second step after the kick fails while its settings do not count a descent on an
+    indefinite Hessian as progress. Returns the sim, its path and, per solve of that step,
+    whether they did."""
+    from sim.solve.newton import NewtonResult
+
+    sim = Simulation.from_scene(scene_from_toml(STRIP))
+    m = sim.model
+    attempt, state, seen = sim._attempt, {"armed": False}, []
+
+    def injected(t_new: float, dt: float) -> NewtonResult:
+        if state["armed"]:
+            seen.append(m.settings.descent_is_progress)
+            if fail_without_descent and not m.settings.descent_is_progress:
+                return NewtonResult(sim.x.copy(), False, 0, 0.0, [1.0],
+                                    reason="injected failure")
+        return attempt(t_new, dt)
+
+    sim._attempt = injected
+    points = []
+    for p in follow(sim, m.column_nodes(m.regions["pushed_end"]), [-1.0, 0.0, 0.0], k=2,
+                    kick=0.1 * float(np.mean(m.shell.thickness))):
+        points.append(p)
+        first = next((i for i, q in enumerate(points) if q.kicked), None)
+        state["armed"] = first is not None and len(points) == first + 2
+    return sim, points, seen
+
+
+def test_a_failed_step_with_nothing_to_kick_is_retaken_counting_the_descent():
+    """A step past the kick (not the one after it) whose attempts all fail while a descent on
+    an indefinite Hessian is not progress, with no converged sub-step to kick, is retaken from
+    its start with the descent counted, and the path goes on as it does without the failure:
+    the setting decides only when an attempt gives up, not its iterates, so the retaken step
+    ends on the same state."""
+    sim, points, seen = _strip_path(fail_without_descent=True)
+    assert sim.failure is None
+    # every cut-back of the first try fails, then the retake's solves count the descent
+    assert seen and not seen[0] and True in seen
+    retake = seen.index(True)
+    assert retake >= 2 and all(seen[retake:]), seen
+    plain, reference, plain_seen = _strip_path(fail_without_descent=False)
+    assert plain.failure is None and not any(plain_seen)
+    assert [p.strain for p in points] == [p.strain for p in reference]
+    for a, b in zip(points, reference, strict=True):
+        assert a.eigenvalues == pytest.approx(b.eigenvalues, rel=1e-9, abs=1e-12)
+    assert np.allclose(sim.x, plain.x, rtol=0.0, atol=1e-12)
+
+
 def _sheet_to_4_percent(element: str, edge: float) -> tuple[Simulation, list]:
     """stretch_wrinkling pulled to 4 % in one step, its rest state and that step."""
     scene = load_scene("scenes/stretch_wrinkling.toml", {
