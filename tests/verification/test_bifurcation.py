@@ -231,6 +231,14 @@ def test_kick_is_made_on_a_flat_state_at_most_an_eighth_of_a_step_past_the_cross
     assert points[-1].amplitude > 0.5 * t and points[-1].eigenvalues[0] > 0
 
 
+def _kicked_path(sim: Simulation):
+    """``follow`` of the Euler strip ``sim`` pushed at its end, kicked by a tenth of its
+    thickness."""
+    m = sim.model
+    return follow(sim, m.column_nodes(m.regions["pushed_end"]), [-1.0, 0.0, 0.0], k=2,
+                  kick=0.1 * float(np.mean(m.shell.thickness)))
+
+
 def test_the_step_after_a_kick_may_take_more_newton_iterations():
     """Newton's cap is KICKED_ITERATIONS in the step after a kick (in each of its attempts),
     on the exact Hessian shifted where it is indefinite, its energy's fall progress; the
@@ -253,8 +261,7 @@ def test_the_step_after_a_kick_may_take_more_newton_iterations():
 
     sim._attempt = spy
     points = []
-    for p in follow(sim, m.column_nodes(m.regions["pushed_end"]), [-1.0, 0.0, 0.0], k=2,
-                    kick=0.1 * float(np.mean(m.shell.thickness))):
+    for p in _kicked_path(sim):
         points.append(p)
         caps.append([])
     assert sim.failure is None
@@ -296,8 +303,6 @@ def _kicked_strip_with_a_failing_step(flat: bool) -> tuple[Simulation, list]:
     when ``flat``, else onto the state Newton finds (on the buckled branch, stable)."""
     scene = scene_from_toml(STRIP)
     sim = Simulation.from_scene(scene)
-    m = sim.model
-    t = float(np.mean(m.shell.thickness))
     from sim.solve.newton import NewtonResult
 
     def flat_state(t_new: float, dt: float) -> object:
@@ -309,8 +314,7 @@ def _kicked_strip_with_a_failing_step(flat: bool) -> tuple[Simulation, list]:
 
     state = _fail_after_half(sim, flat_state if flat else sim._attempt)
     points = []
-    for p in follow(sim, m.column_nodes(m.regions["pushed_end"]), [-1.0, 0.0, 0.0], k=2,
-                    kick=0.1 * t):
+    for p in _kicked_path(sim):
         points.append(p)
         if p.kicked and len([q for q in points if q.kicked]) == 1:
             # the next step ends at the next planned one (follow realigns after halvings)
@@ -375,8 +379,7 @@ def _strip_path(fail_without_descent: bool) -> tuple[Simulation, list, list]:
 
     sim._attempt = injected
     points = []
-    for p in follow(sim, m.column_nodes(m.regions["pushed_end"]), [-1.0, 0.0, 0.0], k=2,
-                    kick=0.1 * float(np.mean(m.shell.thickness))):
+    for p in _kicked_path(sim):
         points.append(p)
         first = next((i for i, q in enumerate(points) if q.kicked), None)
         state["armed"] = first is not None and len(points) == first + 2
