@@ -57,7 +57,7 @@ from sim.materials.isotropic import (
     clamp_psd_into,
     det3,
     eigh3,
-    jacobi3_into,
+    jacobi3_lanes_into,
     neo_hookean_green,
     principal,
     principal_energy,
@@ -307,19 +307,18 @@ def _neo_hookean_natural(Eh: np.ndarray, A: np.ndarray, mu: float, lam: float, w
 
 
 @njit(cache=True)
-def _principal_natural(model: int, Eh: np.ndarray, A: np.ndarray,  # noqa: C901
+def _principal_natural(model: int, lam: np.ndarray, V: np.ndarray, A: np.ndarray,  # noqa: C901
                        params: np.ndarray, ep: float, want: int, psd: bool, Sn: np.ndarray,
                        Dv: np.ndarray, M: np.ndarray, cv: np.ndarray, Dp: np.ndarray,
                        m3: np.ndarray, v3: np.ndarray) -> float:
-    """Any isotropic model through the principal frame of E^ (module docstring): W, Sn and
-    Dv as :func:`_neo_hookean_natural`; ``psd``: Dv projected to positive semi-definite,
-    which in that frame is the 3 x 3 block's eigenvalues and the pairs' clamped at zero.
-    An energy alone (want == 0, a line search's) takes E^'s eigenvalues without their
-    vectors (the same numbers) and the law's energy without its derivatives.
+    """Any isotropic model through the principal frame of E^ (module docstring), its
+    eigenvalues ``lam (3,)`` ascending and vectors ``V (3, 3)`` (read for want >= 1;
+    :func:`_ans_element` decomposes E^, an energy alone without the vectors): W, Sn and Dv as
+    :func:`_neo_hookean_natural`; ``psd``: Dv projected to positive semi-definite, which in
+    that frame is the 3 x 3 block's eigenvalues and the pairs' clamped at zero. An energy
+    alone (want == 0, a line search's) is the law's energy without its derivatives.
     Scratch: M (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (3, 3, 3), v3 (10, 3)."""
-    lam, st, pr = v3[7], v3[8], v3[:7]
-    V = m3[1]
-    jacobi3_into(Eh, lam, V, want > 0)
+    st, pr = v3[8], v3[:7]
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
     for i in range(3):
@@ -396,16 +395,16 @@ def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarr
 
 
 @njit(cache=True)
-def _hill_natural(Eh: np.ndarray, A: np.ndarray, params: np.ndarray, frame: np.ndarray,
-                  ep: float, want: int, psd: bool, Sn: np.ndarray, Dv: np.ndarray,
-                  M: np.ndarray, cv: np.ndarray, Dp: np.ndarray, Sp: np.ndarray,
+def _hill_natural(lam: np.ndarray, V: np.ndarray, A: np.ndarray, params: np.ndarray,
+                  frame: np.ndarray, ep: float, want: int, psd: bool, Sn: np.ndarray,
+                  Dv: np.ndarray, M: np.ndarray, cv: np.ndarray, Dp: np.ndarray, Sp: np.ndarray,
                   m3: np.ndarray, v3: np.ndarray, q6: np.ndarray) -> float:
-    """Hill48 in the frame of E^'s eigenvectors (module docstring): W, Sn and Dv as
+    """Hill48 in the frame of E^'s eigenvectors (module docstring; ``lam``, ``V`` as
+    :func:`_principal_natural` takes them, the vectors for an energy too): W, Sn and Dv as
     :func:`_neo_hookean_natural`, ``psd`` as :func:`_principal_natural` (Hill's Dp is full:
     its eigenvalues). Scratch: M, Sp (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (>= 2, 3, 3),
     v3 (>= 9, 3), q6 (8, 6)."""
-    lam, cl, V = v3[7], v3[8], m3[1]
-    jacobi3_into(Eh, lam, V, True)
+    cl = v3[8]
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
     for i in range(3):
@@ -527,7 +526,7 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
                  want: int, project: int, g: np.ndarray,
                  K: np.ndarray, Kg: np.ndarray, P: np.ndarray, T: np.ndarray,
                  Mb: np.ndarray, Hs: np.ndarray, gvs: np.ndarray, sc: np.ndarray, u: np.ndarray,
-                 m3: np.ndarray, v3: np.ndarray, kq: np.ndarray) -> float:
+                 m3: np.ndarray, v3: np.ndarray, kq: np.ndarray, bt: np.ndarray) -> float:
     """Energy of one element; adds its gradient into ``g (k,)`` (want >= 1) and writes its
     Hessian's upper triangle, node-major, into ``K (k, k)`` (want == 2). ``tg``: the element's
     (dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw) of :class:`Tying`; ``frame (3, 3)`` its
@@ -544,15 +543,18 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     product :func:`_congruence` forms all of it. Scratch: Kg (n_en, n_en); P and T (9 n_lev,
     k), level l's rows from 9 l on; Mb (9, 9), Hs (3 + n_in, 3, 3), gvs (3, 9), u (n_en, 3),
     sc (4, 6, 6), m3 (11, 3, 3), v3 (10, 3), kq (n_en + 10, max(n_en, 6)): the projections'
-    (Kg's in its first n_en + 2 rows, a point's 6 x 6 in the next 8)."""
+    (Kg's in its first n_en + 2 rows, a point's 6 x 6 in the next 8); bt (10, 3, 3): three
+    points' E^, A, E^'s eigenvectors and (its last) eigenvalues."""
     dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw = tg
-    en, Eh, A, Sn, sig, M, Ci = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6]
-    hc = m3[7]
+    en, Sn, sig, M, Ci, hc = m3[0], m3[3], m3[4], m3[5], m3[6], m3[7]
+    Ehs, As, Vs, lams = bt[0:3], bt[3:6], bt[6:9], bt[9]
     Dv, cv, Dp = sc[0], sc[1:3], sc[3]
     gv, tv, tw = gvs[0], gvs[1], gvs[2]  # tv, tw: (3,) of them
     n_en = nodes.shape[0]
     k = 3 * n_en
     psd = want == 2 and project == PROJECT_QP
+    # Neo-Hookean's closed form, where no principal frame is needed to project in
+    closed = model == NEO_HOOKEAN and not psd
     nbp = Mb.shape[0]  # the level's rows in P: 9
     for a in range(n_en):
         for i in range(3):
@@ -578,49 +580,60 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
                 gv[c] = 0.0
                 for d in range(nbp):
                     Mb[c, d] = 0.0
-        for j in range(n_in):
-            q = q0 + j
-            r, s = rs[q, 0], rs[q, 1]
-            Hn = Hs[3 + j]
-            for i in range(3):  # g = G + h: an inverted element has no energy
-                for jj in range(3):
-                    en[i, jj] = Gq[q, i, jj] + Hn[i, jj]
-            if not det3(en) > 0.0:
-                return np.inf
-            _map(A0[q], plastic, fp_inv[q], A)
-            _strain_hat(Gq[q], Hn, r, s, tv, tw, A, plastic, fp_inv[q], en, Eh)
-            # the laws are called, not inlined by numba: inlined, they made the kernel's compile
-            # much longer and ran no faster
-            # (Neo-Hookean's closed form has no principal frame to project in)
-            if model == NEO_HOOKEAN and not psd:
-                W = _neo_hookean_natural(Eh, A, params[0], params[1], want, Sn, Dv, Ci, sig)
-            elif model == HILL48:
-                W = _hill_natural(Eh, A, params, frame, ep[q], want, psd, Sn, Dv, M, cv, Dp, Ci,
-                                  m3[8:], v3, kq[n_en + 2:, :6])
-            else:
-                W = _principal_natural(model, Eh, A, params, ep[q] if plastic else 0.0, want,
-                                       psd, Sn, Dv, M, cv, Dp, m3[8:], v3)
-            if not np.isfinite(W):
-                return np.inf
-            w = wdetJ[q]
-            E += w * W
-            if want == 0:
-                continue
-            # gv += w Phi^T Sv, Sv the stress over the natural rows (off-diagonals twice)
-            s02, s12 = Sn[0, 2] * 2.0, Sn[1, 2] * 2.0
-            gv[0] += w * Sn[0, 0]
-            gv[1] += w * Sn[1, 1]
-            gv[2] += w * (Sn[0, 1] * 2.0)
-            gv[3] += w * ((1.0 - s) * s02 + r * s12)
-            gv[4] += w * (s * s02 + (1.0 - r) * s12)
-            gv[5] += w * (-s * s02 + r * s12)
-            sww = w * Sn[2, 2]
-            gv[6] += (1.0 - r - s) * sww
-            gv[7] += r * sww
-            gv[8] += s * sww
-            if want < 2:
-                continue
-            _add_point_tangent(Dv, w, r, s, Mb)
+        # the points three at a time: their strains first, E^'s eigen-decompositions side
+        # by side (jacobi3_lanes_into), then each point's law
+        for j0 in range(0, n_in, 3):
+            nb = min(3, n_in - j0)
+            for b in range(nb):
+                q = q0 + j0 + b
+                Hn = Hs[3 + j0 + b]
+                for i in range(3):  # g = G + h: an inverted element has no energy
+                    for jj in range(3):
+                        en[i, jj] = Gq[q, i, jj] + Hn[i, jj]
+                if not det3(en) > 0.0:
+                    return np.inf
+                _map(A0[q], plastic, fp_inv[q], As[b])
+                _strain_hat(Gq[q], Hn, rs[q, 0], rs[q, 1], tv, tw, As[b], plastic, fp_inv[q],
+                            en, Ehs[b])
+            if not closed:
+                jacobi3_lanes_into(Ehs, nb, lams, Vs, want > 0 or model == HILL48)
+            for b in range(nb):
+                q = q0 + j0 + b
+                r, s = rs[q, 0], rs[q, 1]
+                A = As[b]
+                # the laws are called, not inlined by numba: inlined, they made the kernel's
+                # compile much longer and ran no faster
+                if closed:
+                    W = _neo_hookean_natural(Ehs[b], A, params[0], params[1], want, Sn, Dv, Ci,
+                                             sig)
+                elif model == HILL48:
+                    W = _hill_natural(lams[b], Vs[b], A, params, frame, ep[q], want, psd, Sn, Dv,
+                                      M, cv, Dp, Ci, m3[8:], v3, kq[n_en + 2:, :6])
+                else:
+                    W = _principal_natural(model, lams[b], Vs[b], A, params,
+                                           ep[q] if plastic else 0.0, want, psd, Sn, Dv, M, cv,
+                                           Dp, m3[8:], v3)
+                if not np.isfinite(W):
+                    return np.inf
+                w = wdetJ[q]
+                E += w * W
+                if want == 0:
+                    continue
+                # gv += w Phi^T Sv, Sv the stress over the natural rows (off-diagonals twice)
+                s02, s12 = Sn[0, 2] * 2.0, Sn[1, 2] * 2.0
+                gv[0] += w * Sn[0, 0]
+                gv[1] += w * Sn[1, 1]
+                gv[2] += w * (Sn[0, 1] * 2.0)
+                gv[3] += w * ((1.0 - s) * s02 + r * s12)
+                gv[4] += w * (s * s02 + (1.0 - r) * s12)
+                gv[5] += w * (-s * s02 + r * s12)
+                sww = w * Sn[2, 2]
+                gv[6] += (1.0 - r - s) * sww
+                gv[7] += r * sww
+                gv[8] += s * sww
+                if want < 2:
+                    continue
+                _add_point_tangent(Dv, w, r, s, Mb)
         if want == 0:
             continue
         for p in range(k):
@@ -761,13 +774,13 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
     K = np.empty((k, k) if want == 2 else (0, 0))
     Hs, gvs, u = np.empty((3 + n_in, 3, 3)), np.empty((3, nbp)), np.empty((n_en, 3))
     sc, m3, v3 = np.empty((4, 6, 6)), np.empty((11, 3, 3)), np.empty((10, 3))
-    kq = np.empty((n_en + 10, max(n_en, 6)))
+    kq, bt = np.empty((n_en + 10, max(n_en, 6))), np.empty((10, 3, 3))
     for e in elements:
         E = _ans_element(x, rest, conn[e],
                          (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e], dNc, Gw[e]),
                          wdetJ[e], model, params, fp_inv[e], ep[e], frames[e], plastic,
                          want, project, g,
-                         K, Kg, P, T, Mb, Hs, gvs, sc, u, m3, v3, kq)
+                         K, Kg, P, T, Mb, Hs, gvs, sc, u, m3, v3, kq, bt)
         energies[e] = E
         ok = np.isfinite(E)
         if want >= 1:

@@ -11,6 +11,7 @@ from sim.elements import get_element
 from sim.geometry import shell
 from sim.geometry import trimesh as mesh
 from sim.materials.hill import HILL48, coefficients, hill_matrix, hill_params
+from sim.materials.isotropic import jacobi3_lanes_into
 from sim.materials.plasticity import LINEAR
 from sim.solve import assembly
 from sim.terms import PROJECT_ELEMENT, PROJECT_NONE, PROJECT_QP, ans
@@ -266,14 +267,16 @@ def test_a_points_projected_tangent_clamps_its_negative_modes(model):
         A = np.eye(3) + 0.1 * rng.standard_normal((3, 3))
         ep = 0.05 * rng.random()
         out = []
+        lam, V = np.empty((3, 3)), np.empty((3, 3, 3))
+        jacobi3_lanes_into(np.stack([Eh] * 3), 1, lam, V, True)
         for psd in (False, True):
             Sn, Dv, M, Sp, Dp = m[0], sc[0], m[1], m[2], sc[3]
             if model == HILL48:
-                W = ans._hill_natural(Eh, A, params, frame, ep, 2, psd, Sn, Dv, M, sc[1:3],
-                                      Dp, Sp, m3, v3, q6)
+                W = ans._hill_natural(lam[0], V[0], A, params, frame, ep, 2, psd, Sn, Dv, M,
+                                      sc[1:3], Dp, Sp, m3, v3, q6)
             else:
-                W = ans._principal_natural(model, Eh, A, params, ep, 2, psd, Sn, Dv, M,
-                                           sc[1:3], Dp, m3, v3)
+                W = ans._principal_natural(model, lam[0], V[0], A, params, ep, 2, psd, Sn, Dv,
+                                           M, sc[1:3], Dp, m3, v3)
             if not np.isfinite(W):
                 break
             out.append(Dv.copy())

@@ -7,6 +7,7 @@ import pytest
 from sim.elements import ROUTINE
 from sim.materials.isotropic import (
     clamp_psd,
+    jacobi3_lanes_into,
     principal_stress_tangent_into,
     project3,
     stress_tangent,
@@ -67,6 +68,41 @@ def test_project3_is_the_eigenvalue_clamp():
             assert np.array_equal(D, before), A
             definite += 1
     assert 500 < definite < 1500
+
+
+def test_jacobi_lanes_decompose_each_matrix_as_it_would_be_alone():
+    """jacobi3_lanes_into, E^'s eigen-decomposition at q3t_ans's points three at a time:
+    each lane's eigenvalues and vectors are those of that matrix decomposed alone (n = 1),
+    bit for bit, whatever its neighbours (a diagonal one that takes no rotation, a nearly
+    diagonal one, a general one), with and without the vectors; they are the eigenvalues in
+    ascending order and A V = V diag(w) to round-off (1e-14 of |A|: a few rotations'), V
+    orthogonal."""
+    kinds = [np.diag([0.3, -0.1, 0.2]), np.diag([0.01, 0.02, -0.03]) + 1e-9,
+             0.01 * RNG.standard_normal((3, 3)), RNG.standard_normal((3, 3))]
+    mats = [0.5 * (K + K.T) for K in kinds]
+    for n in (1, 2, 3):
+        for trial in range(20):
+            pick = [mats[(trial + i) % len(mats)] for i in range(n)] if trial < 4 else \
+                [0.5 * (B + B.T) for B in RNG.standard_normal((n, 3, 3))]
+            A = np.zeros((3, 3, 3))
+            A[:n] = pick
+            for vectors in (True, False):
+                w, V = np.zeros((3, 3)), np.zeros((3, 3, 3))
+                jacobi3_lanes_into(A, n, w, V, vectors)
+                for lane in range(n):
+                    w1, V1 = np.zeros((3, 3)), np.zeros((3, 3, 3))
+                    jacobi3_lanes_into(A[lane:lane + 1].copy().repeat(3, 0), 1, w1, V1,
+                                       vectors)
+                    assert np.array_equal(w[lane], w1[0])
+                    assert np.array_equal(w[lane], np.sort(w[lane]))
+                    scale = np.abs(A[lane]).max()
+                    assert np.abs(w[lane] - np.linalg.eigvalsh(A[lane])).max() \
+                        <= 1e-14 * scale
+                    if vectors:
+                        assert np.array_equal(V[lane], V1[0])
+                        Vl = V[lane]
+                        assert np.abs(A[lane] @ Vl - Vl * w[lane]).max() <= 1e-14 * scale
+                        assert np.abs(Vl.T @ Vl - np.eye(3)).max() <= 1e-14
 
 
 @pytest.mark.parametrize("n", [6, 9, 27])
