@@ -120,7 +120,7 @@ results: $(STAMP)
 	$(BIN)/q3t bench --cases beam,cup --elements q3t,q3t_ans --repeat 5 \
 	  --results $(R)/bench-ans.md
 	$(BIN)/q3t bench --cases forming --forming-elements q3t,q3t_ans --forming-edge 0.002 \
-	  --repeat 3 --results $(R)/bench-forming-ans.md
+	  --repeat 7 --results $(R)/bench-forming-ans.md
 	$(BIN)/q3t springback --elements q3t,quadratic,quartic --out runs/springback \
 	  --results $(R)/springback-formula.md
 	$(BIN)/q3t bench-service --results $(R)/service.md
