@@ -246,8 +246,8 @@ def jacobi3_lanes_into(A: np.ndarray, n: int, w: np.ndarray, V: np.ndarray,
     ``V[l] (3, 3)`` (``A, V (>= 3, 3, 3)``, ``w (>= 3, 3)``). An assumed-strain point
     decomposes E^ at every evaluation, and each rotation is a chain of square roots and
     divisions that waits on the one before; the lanes' chains are independent, and
-    interleaved the processor overlaps them (three points' decompositions took 2.4 times less
-    time so). Each lane's arithmetic is the one it would take alone."""
+    interleaved the processor overlaps them (docs/elements-ans.md has the measurements). Each
+    lane's arithmetic is the one it would take alone."""
     x0 = (A[0, 0, 0], A[0, 1, 1], A[0, 2, 2], A[0, 0, 1], A[0, 0, 2], A[0, 1, 2])
     x1, x2 = x0, x0
     if n > 1:
