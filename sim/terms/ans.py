@@ -317,8 +317,8 @@ def _principal_natural(model: int, lam: np.ndarray, V: np.ndarray, A: np.ndarray
     :func:`_neo_hookean_natural`; ``psd``: Dv projected to positive semi-definite, which in
     that frame is the 3 x 3 block's eigenvalues and the pairs' clamped at zero. An energy
     alone (want == 0, a line search's) is the law's energy without its derivatives.
-    Scratch: M (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (3, 3, 3), v3 (10, 3)."""
-    st, pr = v3[8], v3[:7]
+    Scratch: M (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (2, 3, 3), v3 (9, 3)."""
+    st, pr = v3[7], v3[:7]
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
     for i in range(3):
@@ -347,7 +347,7 @@ def _principal_natural(model: int, lam: np.ndarray, V: np.ndarray, A: np.ndarray
         a, b = PAIRS[c, 0], PAIRS[c, 1]
         Dp[3 + c, 3 + c] = 2.0 * (sym[c] - twist[c]) / (st[a] * st[b])
     if psd:
-        project3_into(Dp, m3[0], v3[9], m3[2])
+        project3_into(Dp, m3[0], v3[8], m3[1])
         for c in range(3, 6):
             Dp[c, c] = max(Dp[c, c], 0.0)
     _natural_tangent(M, Dp, cv, Dv, True)
@@ -398,13 +398,13 @@ def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarr
 def _hill_natural(lam: np.ndarray, V: np.ndarray, A: np.ndarray, params: np.ndarray,
                   frame: np.ndarray, ep: float, want: int, psd: bool, Sn: np.ndarray,
                   Dv: np.ndarray, M: np.ndarray, cv: np.ndarray, Dp: np.ndarray, Sp: np.ndarray,
-                  m3: np.ndarray, v3: np.ndarray, q6: np.ndarray) -> float:
+                  v3: np.ndarray, q6: np.ndarray) -> float:
     """Hill48 in the frame of E^'s eigenvectors (module docstring; ``lam``, ``V`` as
     :func:`_principal_natural` takes them, the vectors for an energy too): W, Sn and Dv as
     :func:`_neo_hookean_natural`, ``psd`` as :func:`_principal_natural` (Hill's Dp is full:
-    its eigenvalues). Scratch: M, Sp (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (>= 2, 3, 3),
-    v3 (>= 9, 3), q6 (8, 6)."""
-    cl = v3[8]
+    its eigenvalues). Scratch: M, Sp (3, 3), cv (2, 6, 6), Dp (6, 6), v3 (>= 8, 3),
+    q6 (8, 6)."""
+    cl = v3[7]
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
     for i in range(3):
@@ -542,11 +542,11 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     per level instead of one of 6 rows per point; the levels' rows are stacked so that one
     product :func:`_congruence` forms all of it. Scratch: Kg (n_en, n_en); P and T (9 n_lev,
     k), level l's rows from 9 l on; Mb (9, 9), Hs (3 + n_in, 3, 3), gvs (3, 9), u (n_en, 3),
-    sc (4, 6, 6), m3 (11, 3, 3), v3 (10, 3), kq (n_en + 10, max(n_en, 6)): the projections'
+    sc (4, 6, 6), m3 (8, 3, 3), v3 (9, 3), kq (n_en + 10, max(n_en, 6)): the projections'
     (Kg's in its first n_en + 2 rows, a point's 6 x 6 in the next 8); bt (10, 3, 3): three
     points' E^, A, E^'s eigenvectors and (its last) eigenvalues."""
     dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw = tg
-    en, Sn, sig, M, Ci, hc = m3[0], m3[3], m3[4], m3[5], m3[6], m3[7]
+    en, Sn, sig, M, Ci, hc = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5]
     Ehs, As, Vs, lams = bt[0:3], bt[3:6], bt[6:9], bt[9]
     Dv, cv, Dp = sc[0], sc[1:3], sc[3]
     gv, tv, tw = gvs[0], gvs[1], gvs[2]  # tv, tw: (3,) of them
@@ -608,11 +608,11 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
                                              sig)
                 elif model == HILL48:
                     W = _hill_natural(lams[b], Vs[b], A, params, frame, ep[q], want, psd, Sn, Dv,
-                                      M, cv, Dp, Ci, m3[8:], v3, kq[n_en + 2:, :6])
+                                      M, cv, Dp, Ci, v3, kq[n_en + 2:, :6])
                 else:
                     W = _principal_natural(model, lams[b], Vs[b], A, params,
                                            ep[q] if plastic else 0.0, want, psd, Sn, Dv, M, cv,
-                                           Dp, m3[8:], v3)
+                                           Dp, m3[6:], v3)
                 if not np.isfinite(W):
                     return np.inf
                 w = wdetJ[q]
@@ -773,7 +773,7 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
     P, T, Mb = np.zeros((nr, k)), np.zeros((nr, k)), np.zeros((nbp, nbp))
     K = np.empty((k, k) if want == 2 else (0, 0))
     Hs, gvs, u = np.empty((3 + n_in, 3, 3)), np.empty((3, nbp)), np.empty((n_en, 3))
-    sc, m3, v3 = np.empty((4, 6, 6)), np.empty((11, 3, 3)), np.empty((10, 3))
+    sc, m3, v3 = np.empty((4, 6, 6)), np.empty((8, 3, 3)), np.empty((9, 3))
     kq, bt = np.empty((n_en + 10, max(n_en, 6))), np.empty((10, 3, 3))
     for e in elements:
         E = _ans_element(x, rest, conn[e],

@@ -273,7 +273,7 @@ def test_a_points_projected_tangent_clamps_its_negative_modes(model):
             Sn, Dv, M, Sp, Dp = m[0], sc[0], m[1], m[2], sc[3]
             if model == HILL48:
                 W = ans._hill_natural(lam[0], V[0], A, params, frame, ep, 2, psd, Sn, Dv, M,
-                                      sc[1:3], Dp, Sp, m3, v3, q6)
+                                      sc[1:3], Dp, Sp, v3, q6)
             else:
                 W = ans._principal_natural(model, lam[0], V[0], A, params, ep, 2, psd, Sn, Dv,
                                            M, sc[1:3], Dp, m3, v3)
