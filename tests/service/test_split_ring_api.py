@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import io
+import itertools
 import json
 import shutil
 import threading
@@ -322,10 +323,21 @@ def test_a_second_ring_while_one_is_cut_is_409_and_the_run_is_not_deleted(env, t
 
 
 def _heard(monkeypatch, cutter: RingCutter) -> list[dict]:
-    """Every report of its child the server reads, from now on, in order."""
+    """Every report of its child the server reads from now on, in order, of the rings asked
+    for from now on. An earlier ring's last reports may still be on their way: its answer
+    comes back on the pool's own pipe, apart from the reports' queue, and the server reads
+    those late ones by their cut's number and drops them (RingCutter._heard)."""
     seen: list[dict] = []
     heard = cutter._heard
-    monkeypatch.setattr(cutter, "_heard", lambda msg: (seen.append(msg), heard(msg)))
+    first = next(cutter._numbers)
+    cutter._numbers = itertools.count(first)  # for good: numbers never given twice
+
+    def hear(msg: dict) -> None:
+        if msg["cut"] >= first:
+            seen.append(msg)
+        heard(msg)
+
+    monkeypatch.setattr(cutter, "_heard", hear)
     return seen
 
 
