@@ -30,7 +30,8 @@ if TYPE_CHECKING:
 # die's shoulder begins 5 mm below the 30 mm stroke's rim (docs/split-ring.md)
 HEIGHTS = "8,13"
 
-COLS = [("run", "run", ""), ("material", "material", ""), ("edge", "edge [mm]", "g"),
+COLS = [("run", "run", ""), ("element", "element", ""), ("material", "material", ""),
+        ("edge", "edge [mm]", ""),
         ("band", "ring [mm above the bottom]", ""), ("cut", "cut [deg]", "g"),
         ("elements", "elements", "d"),
         ("opening", "opening [mm]", ".3f"), ("d_formed", "D formed [mm]", ".3f"),
@@ -55,15 +56,25 @@ def row(folder: Path, scene: object, s: dict) -> dict:
     """One line of the table (mm) from a run's split-ring summary ``s`` (SI)."""
     r = rings.shown(s)
     d = r["diameters_mm"]
-    return {"run": folder.name,
+    return {"run": folder.name, "element": scene.shell.element,
             "material": "Hill48" if scene.material.hill48 is not None else "von Mises",
-            "edge": 1e3 * getattr(scene.mesh, "edge_length", math.nan),
+            "edge": edges(scene.mesh),
             "band": "-".join(f"{z:g}" for z in r["heights_mm"]), "cut": r["cut_angle_deg"],
             "elements": r["elements"], "opening": r["opening_mm"]["at_mid_height"],
             "d_formed": d["formed"]["mean"], "d_released": d["released"]["mean"],
             "d_split": d["split"]["mean"], "d0": d["split"]["d0"], "d90": d["split"]["d90"],
             "reyield": ", ".join(f"{k} {v:.1f} % (+{r['reyield_max_plastic_strain'][k]:.1e})"
                                  for k, v in r["reyield_pct"].items())}
+
+
+def edges(mesh: object) -> str:
+    """The blank's edge length in mm, and those of its refined rings (``mesh.refine``), which
+    decide a ring's opening where they hold the wall."""
+    if not hasattr(mesh, "edge_length"):
+        return "-"  # a mesh file's
+    bands = [f"{1e3 * r.edge_length:g} in r {1e3 * r.ring.r_min:g}-{1e3 * r.ring.r_max:g}"
+             for r in getattr(mesh, "refine", ())]
+    return ", ".join([f"{1e3 * mesh.edge_length:g}", *bands])
 
 
 def text(s: dict) -> str:

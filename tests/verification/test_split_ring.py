@@ -125,6 +125,21 @@ def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
     assert [(r["heights"], r["cut_angle"]) for r in res["split_ring"]] == [
         ([0.0, 0.0015], 0.0), ([0.0, 0.002], 0.0), ([0.0, 0.002], 45.0)]
     assert (run / "split_ring-0-2mm-45deg.npz").is_file()  # -315 deg is 45: one name
+    table = out.read_text()
+    assert "| element |" in table and "| q3t |" in table
+
+
+def test_the_table_gives_every_edge_length_that_meshed_the_wall():
+    """A graded blank's band decides its rings' openings, not the mesh's own edge length."""
+    from pathlib import Path
+
+    from sim.apps.splitring import edges
+    from sim.scene.load import load_scene
+
+    cup = Path(__file__).resolve().parents[2] / "docs" / "split-ring-cup.toml"
+    band = {"ring": {"r_min": 0.021, "r_max": 0.029}, "edge_length": 0.0005}
+    assert edges(load_scene(cup).mesh) == "2"
+    assert edges(load_scene(cup, {"mesh.refine": [band]}).mesh) == "2, 0.5 in r 21-29"
 
 
 def test_a_ring_with_a_number_not_finite_is_not_saved(tmp_path):
