@@ -23,14 +23,15 @@ from sim.frames import rings
 from sim.stamp import Stamp, add_results_option, write_results
 
 if TYPE_CHECKING:
-    from sim.stepping.split_ring import Progress, Report
+    from sim.stepping.split_ring import Formed, Progress, Report
 
 # a ring 5 mm high (Xia, Miller and Ren's rings, J. Manuf. Sci. Eng. 129 (2007) 352) from the
 # middle of the 1 mm cup's straight wall: its punch radius ends 5.5 mm above the bottom, the
 # die's shoulder begins 5 mm below the 30 mm stroke's rim (docs/split-ring.md)
 HEIGHTS = "8,13"
 
-COLS = [("run", "run", ""), ("element", "element", ""), ("material", "material", ""),
+COLS = [("run", "run", ""), ("element", "element", ""),
+        ("section", "section points", "d"), ("material", "material", ""),
         ("edge", "edge [mm]", ""),
         ("band", "ring [mm above the bottom]", ""), ("cut", "cut [deg]", "g"),
         ("elements", "elements", "d"),
@@ -52,11 +53,17 @@ def parse_heights(text: str) -> tuple[float, float]:
     return 1e-3 * z1, 1e-3 * z2
 
 
-def row(folder: Path, scene: object, s: dict) -> dict:
-    """One line of the table (mm) from a run's split-ring summary ``s`` (SI)."""
+def row(folder: Path, formed: Formed, s: dict) -> dict:
+    """One line of the table (mm) from a run's split-ring summary ``s`` (SI): ``formed`` its
+    run's final state (sim.stepping.split_ring.open_formed)."""
+    import numpy as np
+
     r = rings.shown(s)
     d = r["diameters_mm"]
-    return {"run": folder.name, "element": scene.shell.element,
+    scene = formed.scene
+    # the residual bending stress that opens the ring is integrated on these points
+    section = len(np.unique(formed.rule.points[:, 2]))
+    return {"run": folder.name, "element": scene.shell.element, "section": section,
             "material": "Hill48" if scene.material.hill48 is not None else "von Mises",
             "edge": edges(scene.mesh),
             "band": "-".join(f"{z:g}" for z in r["heights_mm"]), "cut": r["cut_angle_deg"],
@@ -135,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"q3t splitring: {folder}: FAILED: {exc}", file=sys.stderr)
                 return FAILED
             print(f"{folder}:\n{text(res.summary)}")
-            rows.append(row(folder, fm.scene, res.summary))
+            rows.append(row(folder, fm, res.summary))
     body = (f"The split-ring test (sim.stepping.split_ring) on each run's final state: rings "
             "cut between the heights given (mm above the cup's bottom), split along the "
             f"meridian at {args.cut_angle:g} degrees from the rolling direction (x); the "

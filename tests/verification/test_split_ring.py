@@ -126,7 +126,7 @@ def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
         ([0.0, 0.0015], 0.0), ([0.0, 0.002], 0.0), ([0.0, 0.002], 45.0)]
     assert (run / "split_ring-0-2mm-45deg.npz").is_file()  # -315 deg is 45: one name
     table = out.read_text()
-    assert "| element |" in table and "| q3t |" in table
+    assert "| element | section points |" in table and "| q3t | 3 |" in table
 
 
 def test_the_table_gives_every_edge_length_that_meshed_the_wall():
