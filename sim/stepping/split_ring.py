@@ -24,7 +24,8 @@ What is measured (lengths in m): the opening, the gap between the cut's two face
 ring's circumference at the ring's mid-height (the mid-surface of each duplicated vertex
 against its twin, interpolated in height), and the ring's diameters: the mean (a least-squares
 circle through the mid-surface) and along 0 and 90 degrees to the cut's meridian (the mean
-radius within ``WINDOW`` of the direction and of its opposite), formed, released and split.
+radius within ``WINDOW`` of the direction and of its opposite, or beyond the cut's faces where
+the gap spans the direction), formed, released and split.
 The cup's axis is the scene's z axis through the origin.
 """
 
@@ -338,7 +339,9 @@ def circle(P: np.ndarray) -> tuple[np.ndarray, float]:
 def diameters(P: np.ndarray, cut_angle: float) -> dict:
     """The ring's diameters from its mid-surface vertices ``P (n, 3)``: the mean (twice the
     least-squares circle's radius) and along 0 and 90 degrees to the cut's meridian (the mean
-    distance from the circle's centre within WINDOW degrees of each end)."""
+    distance from the circle's centre within WINDOW degrees of each end; where a split ring's
+    gap is wider than that, as it is once it opens by more than about 2 WINDOW R, within
+    WINDOW beyond the nearer of the cut's faces)."""
     c, R = circle(P)
     d = P[:, :2] - c
     r, phi = np.hypot(d[:, 0], d[:, 1]), np.arctan2(d[:, 1], d[:, 0]) - cut_angle
@@ -347,8 +350,11 @@ def diameters(P: np.ndarray, cut_angle: float) -> dict:
     def across(a: float) -> float:
         ends = []
         for b in (a, a + math.pi):
-            near = np.abs(np.angle(np.exp(1j * (phi - b)))) <= win
-            ends.append(float(r[near].mean()) if near.any() else math.nan)
+            off = np.abs(np.angle(np.exp(1j * (phi - b))))
+            near = off <= win
+            if not near.any():  # the split ring's gap spans b: its faces' ends instead
+                near = off <= off.min() + win
+            ends.append(float(r[near].mean()))
         return ends[0] + ends[1]
 
     return {"mean": 2 * R, "d0": across(0.0), "d90": across(math.pi / 2),

@@ -4,6 +4,7 @@ ring with a known residual moment opens by the exact amount as the mesh is refin
 command (q3t splitring) writes its result and rejects bad input naming the field."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -140,6 +141,29 @@ def test_the_table_gives_every_edge_length_that_meshed_the_wall():
     band = {"ring": {"r_min": 0.021, "r_max": 0.029}, "edge_length": 0.0005}
     assert edges(load_scene(cup).mesh) == "2"
     assert edges(load_scene(cup, {"mesh.refine": [band]}).mesh) == "2, 0.5 in r 21-29"
+
+
+def test_a_ring_opened_wider_than_the_diameters_window_has_its_diameters():
+    """A split ring whose gap spans more than the window around the cut's meridian (the 0.5
+    mm q3t_ans cup's 6-11 mm ring opened 7.7 mm, +-12 degrees at R = 18 mm, against a 7.5
+    degree window): d0 from the vertices beyond the cut's faces, not NaN (which refused the
+    whole ring); a ring with vertices in the window keeps its diameters."""
+    R, gap = 0.018, math.radians(15.0)
+    phi = np.linspace(gap, 2 * math.pi - gap, 400)
+    P = np.column_stack([R * np.cos(phi), R * np.sin(phi), np.zeros_like(phi)])
+    d = sr.diameters(P, 0.0)
+    assert d["d0"] == pytest.approx(2 * R, rel=1e-9) and d["d90"] == pytest.approx(2 * R,
+                                                                                   rel=1e-9)
+    closed = np.linspace(0.0, 2 * math.pi, 400, endpoint=False)
+    Q = np.column_stack([R * np.cos(closed) * (1 + 0.01 * np.cos(closed)),
+                         R * np.sin(closed), np.zeros_like(closed)])
+    c, _ = sr.circle(Q)
+    r = np.hypot(*(Q[:, :2] - c).T)
+    ang = np.arctan2(*(Q[:, 1::-1] - c[::-1]).T)
+    win = np.abs(np.angle(np.exp(1j * ang))) <= math.radians(sr.WINDOW)
+    opp = np.abs(np.angle(np.exp(1j * (ang - math.pi)))) <= math.radians(sr.WINDOW)
+    assert sr.diameters(Q, 0.0)["d0"] == pytest.approx(r[win].mean() + r[opp].mean(),
+                                                       rel=1e-12)
 
 
 def test_a_ring_with_a_number_not_finite_is_not_saved(tmp_path):
