@@ -152,6 +152,7 @@ def test_a_ring_opened_wider_than_the_diameters_window_has_its_diameters():
     phi = np.linspace(gap, 2 * math.pi - gap, 400)
     P = np.column_stack([R * np.cos(phi), R * np.sin(phi), np.zeros_like(phi)])
     d = sr.diameters(P, 0.0)
+    # every vertex on the circle: the fit and the means are exact but for round-off
     assert d["d0"] == pytest.approx(2 * R, rel=1e-9) and d["d90"] == pytest.approx(2 * R,
                                                                                    rel=1e-9)
     closed = np.linspace(0.0, 2 * math.pi, 400, endpoint=False)
