@@ -117,6 +117,8 @@ const Rings = (() => {
   const D = { mean: "mean", d0: "0°", d90: "90°" };
   const ROWS = [
     ["Cut angle (deg)", (r) => Units.num(r.cut_angle_deg)],
+    ["Section points through the thickness",
+     (r) => (r.section_points == null ? "–" : String(r.section_points))],
     ["Elements", (r) => String(r.elements)],
     ["Opening at mid-height (mm)", (r) => mm(r.opening_mm.at_mid_height), "strong"],
     ["Opening along the cut, min (mm)", (r) => mm(r.opening_mm.min)],
@@ -233,7 +235,17 @@ const Rings = (() => {
       p.className = "muted";
       p.textContent = "No ring cut from this run yet.";
       list.replaceChildren(p);
-    } else list.replaceChildren(table(data.rings));
+    } else {
+      // what the server says makes an opening untrustworthy, once for the rings it concerns
+      const cautions = [...new Set(data.rings.map((r) => r.caution).filter(Boolean))];
+      list.replaceChildren(table(data.rings), ...cautions.map((text) => {
+        const p = document.createElement("p");
+        p.className = "caution";
+        p.setAttribute("role", "note");
+        p.textContent = text;
+        return p;
+      }));
+    }
     box.dataset.ready = "true";
   }
 

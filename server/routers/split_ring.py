@@ -83,6 +83,11 @@ class Ring(BaseModel):
                       "<name>/ring_{formed,released,split}.vtu)")
     heights_mm: list[float]
     cut_angle_deg: float
+    section_points: int | None = Field(description="points through the thickness the run "
+                                       "integrated its stress on (None: a ring saved before "
+                                       "they were recorded)")
+    caution: str | None = Field(description="why the opening is not to be trusted as it is "
+                                "(too few section points), or None")
     elements: int
     duplicated_nodes: int = Field(description="nodes duplicated along the cut")
     opening_mm: Opening

@@ -56,14 +56,10 @@ def parse_heights(text: str) -> tuple[float, float]:
 def row(folder: Path, formed: Formed, s: dict) -> dict:
     """One line of the table (mm) from a run's split-ring summary ``s`` (SI): ``formed`` its
     run's final state (sim.stepping.split_ring.open_formed)."""
-    import numpy as np
-
     r = rings.shown(s)
     d = r["diameters_mm"]
     scene = formed.scene
-    # the residual bending stress that opens the ring is integrated on these points
-    section = len(np.unique(formed.rule.points[:, 2]))
-    return {"run": folder.name, "element": scene.shell.element, "section": section,
+    return {"run": folder.name, "element": scene.shell.element, "section": r["section_points"],
             "material": "Hill48" if scene.material.hill48 is not None else "von Mises",
             "edge": edges(scene.mesh),
             "band": "-".join(f"{z:g}" for z in r["heights_mm"]), "cut": r["cut_angle_deg"],
@@ -94,7 +90,8 @@ def text(s: dict) -> str:
     for name in ("formed", "released", "split"):
         lines.append(f"diameter {name}: mean {1e3 * d[name]['mean']:.3f} mm, 0 deg "
                      f"{1e3 * d[name]['d0']:.3f} mm, 90 deg {1e3 * d[name]['d90']:.3f} mm")
-    return "\n".join(lines)
+    caution = rings.caution(s.get("section_points"))
+    return "\n".join([*lines, *([f"caution: {caution}"] if caution else [])])
 
 
 def _told(folder: Path) -> Progress:

@@ -30,6 +30,23 @@ DOWNLOADS = {"vtu": "the ring formed, released and split as VTU (mm; displacemen
                     "cut (twins), its positions formed, released and split"}
 
 
+# section points through the thickness a ring's opening needs: the residual bending stress
+# that opens it is an elastic-plastic profile, which three points (the elements' own rule)
+# integrate too coarsely; on the split-ring cup (docs/split-ring.md) seven moved the openings
+# by millimetres from three, and eleven or nineteen by a fraction of that
+SPRINGBACK_POINTS = 7
+
+
+def caution(points: int | None) -> str | None:
+    """What a forming engineer should know of a ring's opening integrated on ``points``
+    section points (None: a ring saved before they were recorded), or None."""
+    if points is None or points >= SPRINGBACK_POINTS:
+        return None
+    return (f"{points} section points through the thickness are too few for springback: the "
+            "opening moves when more are taken; form the cup with shell.thickness_points = "
+            f"{SPRINGBACK_POINTS} or more (docs/split-ring.md)")
+
+
 def angle(deg: float) -> float:
     """A cut angle (deg) in [0, 360): the same meridian, the same ring (its name and its
     entry)."""
@@ -140,6 +157,8 @@ def shown(s: dict) -> dict:
         # 4.5 mm, not the 4.500000000000001 of its round trip through m
         "heights_mm": [float(f"{mm(z):.12g}") for z in s["heights"]],
         "cut_angle_deg": s["cut_angle"],
+        "section_points": s.get("section_points"),
+        "caution": caution(s.get("section_points")),
         "elements": s["elements"], "duplicated_nodes": s["duplicated_nodes"],
         "opening_mm": {"at_mid_height": mm(o["at_mid_height"]), "min": mm(o["min"]),
                        "max": mm(o["max"]),

@@ -428,6 +428,8 @@ def split_ring(formed: Formed, z1: float, z2: float, cut_angle: float = 0.0,
     z_mid = bottom + 0.5 * (z1 + z2)
     summary = {
         "heights": [z1, z2], "cut_angle": math.degrees(cut_angle), "bottom_z": bottom,
+        # the residual bending stress that opens the ring is integrated on these points
+        "section_points": len(np.unique(formed.rule.points[:, 2])),
         "elements": len(ids), "nodes": split.shell.n_nodes,
         "duplicated_nodes": split.shell.n_nodes - closed_ring.shell.n_nodes,
         "ring_height": float(np.ptp(mid_formed[:, 2])),

@@ -35,8 +35,12 @@ sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not ins
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("split-ring-browser")
-    with serve(tmp, {"ring_cup": ring_cup_toml(), "tiny_cup": tiny_cup_toml()}, "ring_cup",
-               *VIEWER_FOR_SHOTS) as (url, _):
+    # the ring cup with seven points through the thickness, which springback needs
+    seven = (ring_cup_toml().replace('name = "ring_cup"', 'name = "ring_cup_7"')
+             .replace('element = "q3t"', 'element = "q3t"\nthickness_points = 7'))
+    assert "thickness_points = 7" in seven
+    with serve(tmp, {"ring_cup": ring_cup_toml(), "ring_cup_7": seven,
+                     "tiny_cup": tiny_cup_toml()}, "ring_cup", *VIEWER_FOR_SHOTS) as (url, _):
         yield url, tmp / "runs"
 
 
@@ -102,7 +106,8 @@ def test_a_ring_is_cut_from_the_page_and_tabled(served, open_page, tmp_path):
     o, d = ring["opening_mm"], ring["diameters_mm"]
     # lengths to the µm, as the command line's table: the formed, released and split
     # diameters differ by less than 3 significant digits show
-    want = {"Cut angle (deg)": "0", "Elements": str(ring["elements"]),
+    want = {"Cut angle (deg)": "0", "Section points through the thickness": "3",
+            "Elements": str(ring["elements"]),
             "Opening at mid-height (mm)": f"{o['at_mid_height']:.3f}",
             "Opening along the cut, min (mm)": f"{o['min']:.3f}",
             "Opening along the cut, max (mm)": f"{o['max']:.3f}",
@@ -112,6 +117,9 @@ def test_a_ring_is_cut_from_the_page_and_tabled(served, open_page, tmp_path):
             "Re-yield on release, split (%)": num(ring["reyield_pct"]["split"], 2)}
     assert rows == want
     assert float(rows["Opening at mid-height (mm)"]) > 0  # this ring opens
+    # the cup has Q3T's own three points through the thickness: the opening is flagged
+    assert page.locator("#ring-list p.caution").all_inner_texts() == [ring["caution"]]
+    assert ring["caution"].startswith("3 section points through the thickness are too few")
     shot(page, SHOTS, "ring-tabled.png", settle_ms=1000)
     shot(page, SHOTS, "ring-tabled-section.png", where="#split-ring")
     downloads_as_saved(page, ring, runs / run, tmp_path)
@@ -128,6 +136,7 @@ def test_a_ring_is_cut_from_the_page_and_tabled(served, open_page, tmp_path):
     assert hrefs == [f["url"] for fmt in ("vtu", "npz") for r in listed
                      for f in r["downloads"] if f["format"] == fmt]
     assert hrefs[1].endswith("-90deg/vtu")
+    assert page.locator("#ring-list p.caution").count() == 1  # said once for both rings
     shot(page, SHOTS, "two-rings.png", where="#split-ring")
 
 
@@ -214,6 +223,24 @@ def test_a_cut_belongs_to_its_run_and_rings_cut_elsewhere_show(served, open_page
         ["0", "90"]
     assert not page.is_disabled("#ring-cut") and page.inner_text("#ring-heights-error") == ""
     shot(page, SHOTS, "late-ring-back-on-a.png", where="#split-ring")
+
+
+def test_a_ring_from_a_cup_with_seven_section_points_carries_no_caution(served, open_page):
+    """The cup formed with seven points through the thickness: its ring's column says 7 and
+    no caution shows under the table."""
+    url, _ = served
+    with httpx.Client(base_url=url, timeout=HANG) as client:
+        run = finished_run(client, "ring_cup_7")
+        r = client.post(f"/api/runs/{run}/split_ring", json={"heights": RING_BAND})
+    assert r.status_code == 200, r.text
+    assert r.json()["section_points"] == 7 and r.json()["caution"] is None
+    page = open_page(url, "#runs tbody tr")
+    click_row(page, run)
+    page.wait_for_selector(f"#split-ring[data-run='{run}'][data-count='1'][data-ready='true']")
+    rows = {r.locator("th").inner_text(): r.locator("td").inner_text()
+            for r in page.locator("#ring-table tbody tr").all()}
+    assert rows["Section points through the thickness"] == "7"
+    assert page.locator("#ring-list p.caution").count() == 0
 
 
 @pytest.fixture(scope="module")

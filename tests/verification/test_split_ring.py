@@ -107,6 +107,7 @@ def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
     assert res["scene"] == "ring"  # the run's result kept, the ring's added
     (s,) = res["split_ring"]
     assert s["heights"] == [0.0, 0.002] and s["opening"]["at_mid_height"] > 0
+    assert s["section_points"] == 3  # Q3T's own rule through the thickness
     with np.load(run / "split_ring-0-2mm.npz") as z:
         assert z["split"].shape == z["rest"].shape == (s["nodes"], 3)
     import meshio
@@ -116,6 +117,8 @@ def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
     assert "opening [mm]" in out.read_text() and "commit" in out.read_text()
     said = capsys.readouterr()
     assert f"{1e3 * s['opening']['at_mid_height']:.3f}" in said.out
+    assert "caution: 3 section points through the thickness are too few for springback" in \
+        said.out and "shell.thickness_points = 7" in said.out
     # each stage named on stderr as it starts, in the test's order
     stages = [said.err.index(words) for words in sr.STAGES.values()]
     assert stages == sorted(stages), said.err
@@ -128,6 +131,17 @@ def test_the_command_writes_the_ring_into_the_run(tmp_path, capsys):
     assert (run / "split_ring-0-2mm-45deg.npz").is_file()  # -315 deg is 45: one name
     table = out.read_text()
     assert "| element | section points |" in table and "| q3t | 3 |" in table
+
+
+def test_a_ring_says_when_its_section_points_are_too_few_for_springback():
+    """Seven points through the thickness or more: no caution; fewer: one naming the scene's
+    field; a ring saved before the points were recorded: neither number nor caution."""
+    from sim.frames.rings import SPRINGBACK_POINTS, caution
+
+    assert caution(None) is None and caution(SPRINGBACK_POINTS) is None and caution(19) is None
+    said = caution(SPRINGBACK_POINTS - 1)
+    assert said.startswith(f"{SPRINGBACK_POINTS - 1} section points") and \
+        f"shell.thickness_points = {SPRINGBACK_POINTS}" in said
 
 
 def test_the_table_gives_every_edge_length_that_meshed_the_wall():
