@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import resource
 import shutil
 import signal
 import subprocess
@@ -108,13 +109,18 @@ def main(argv: list[str] | None = None) -> int:
                     [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
                      f"--basetemp={tmp / f'part{i}'}", *a],
                     cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
-        beat = t0
+        beat, cpu = t0, cpu_children()
         while len(codes) < len(procs):
             time.sleep(1.0)
             for name, p in procs.items():
                 if name not in codes and p.poll() is not None:
                     codes[name] = p.returncode
-                    show(name, logs[name], p.returncode, time.monotonic() - t0)
+                    # the parts are waited for one at a time: what the children's CPU grew
+                    # by since the last is this part's, its servers', solvers' and browsers'
+                    # (those it waited for)
+                    now = cpu_children()
+                    show(name, logs[name], p.returncode, time.monotonic() - t0, now - cpu)
+                    cpu = now
             if time.monotonic() - beat >= HEARTBEAT and len(codes) < len(procs):
                 beat = time.monotonic()
                 running = "; ".join(f"{n} {progress(logs[n])}" for n in procs if n not in codes)
@@ -211,12 +217,23 @@ def progress(log: Path) -> str:
     return text[text.rfind("[", 0, i):i + 2] + (f" +{done}" if done else "")
 
 
-def show(name: str, log: Path, code: int | None, elapsed: float) -> None:
-    """A part's whole output, then a line with its end."""
+def cpu_children() -> float:
+    """CPU seconds (user and system) of this process's children that have ended and been
+    waited for, theirs included."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def show(name: str, log: Path, code: int | None, elapsed: float,
+         cpu: float | None = None) -> None:
+    """A part's whole output, then a line with its end (and the CPU it used: on a machine
+    the parts share, that, not the wall time, is what a cut in the suite's time must
+    lower)."""
     sys.stdout.write(f"\n===== {name} =====\n{log.read_text(errors='replace')}")
     end = "stopped before its end" if code is None else "passed" if code == 0 else \
         "collected no tests" if code == 5 else f"FAILED (pytest exit {code})"
-    print(f"===== {name}: {end} after {elapsed / 60:.1f} min =====", flush=True)
+    used = "" if cpu is None else f", {cpu / 60:.1f} min of CPU"
+    print(f"===== {name}: {end} after {elapsed / 60:.1f} min{used} =====", flush=True)
 
 
 if __name__ == "__main__":

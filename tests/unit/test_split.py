@@ -64,6 +64,18 @@ def test_progress_is_the_last_percentage_printed(tmp_path):
     assert progress(log) == "[ 21%] +3"
 
 
+def test_a_parts_end_says_the_cpu_its_processes_used(tmp_path, capsys):
+    before = split.cpu_children()
+    burn = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.3: pass"
+    subprocess.run([sys.executable, "-c", burn], check=True)
+    assert split.cpu_children() - before >= 0.3  # a child waited for counts
+    log = tmp_path / "part.log"
+    log.write_text("1 passed\n")
+    split.show("other", log, 0, 600.0, 90.0)
+    assert capsys.readouterr().out.endswith(
+        "===== other: passed after 10.0 min, 1.5 min of CPU =====\n")
+
+
 def test_warm_runs_its_shares_side_by_side_and_fails_if_one_does(tmp_path, monkeypatch, capsys):
     # a stand-in for `q3t warm` that fails its second share, saying why
     fail_2 = "import sys; print('share', sys.argv[-1]); sys.exit(3 if sys.argv[-1] == '2/2' else 0)"
