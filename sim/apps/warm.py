@@ -50,7 +50,8 @@ def _isotropic() -> None:
 
 def _anisotropic() -> None:
     """The assumed-strain element loop (q3t_ans) under Hill48: energy, gradient, Hessian,
-    commit and stress, past the yield point; no tools (the other share compiles those)."""
+    commit, stress and the volume ratio (the summary's volume change), past the yield point;
+    no tools (the other share compiles those)."""
     from sim.model.build import build_model
     from sim.scene.load import load_scene
 
@@ -61,6 +62,7 @@ def _anisotropic() -> None:
     term.commit(x)
     term.add_gradient_hessian(x, np.zeros_like(x), np.zeros(m.pattern.nnz))
     term.von_mises(x)
+    term.volume_ratios(x)
 
 
 # name -> what it compiles; the shares are about equal in compile time
