@@ -30,11 +30,13 @@ DOWNLOADS = {"vtu": "the ring formed, released and split as VTU (mm; displacemen
                     "cut (twins), its positions formed, released and split"}
 
 
-# section points through the thickness a ring's opening needs: the residual bending stress
-# that opens it is an elastic-plastic profile, which three points (the elements' own rule)
-# integrate too coarsely; on the split-ring cup (docs/split-ring.md) seven moved the openings
-# by millimetres from three, and eleven or nineteen by a fraction of that
+# section points through the thickness a ring's opening needs at the least: the residual
+# bending stress that opens it is an elastic-plastic profile, which three points (the
+# elements' own rule) integrate too coarsely; on the split-ring cup (docs/split-ring.md) seven
+# moved the openings by millimetres from three and were converged on the coarse blank, while
+# a fine wall mesh, whose profile is sharper, needed eleven
 SPRINGBACK_POINTS = 7
+FINE_WALL_POINTS = 11
 
 
 def caution(points: int | None) -> str | None:
@@ -44,7 +46,8 @@ def caution(points: int | None) -> str | None:
         return None
     return (f"{points} section points through the thickness are too few for springback: the "
             "opening moves when more are taken; form the cup with shell.thickness_points = "
-            f"{SPRINGBACK_POINTS} or more (docs/split-ring.md)")
+            f"{SPRINGBACK_POINTS} or more ({FINE_WALL_POINTS} on a fine mesh of the wall; "
+            "docs/split-ring.md)")
 
 
 def angle(deg: float) -> float:
