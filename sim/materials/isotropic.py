@@ -402,7 +402,7 @@ def neo_hookean_h(H: np.ndarray, mu: float, lam: float, want_tangent: bool, P: n
            + H[0, 0] * H[1, 1] - H[0, 1] * H[1, 0] + H[0, 0] * H[2, 2] - H[0, 2] * H[2, 0]
            + H[1, 1] * H[2, 2] - H[1, 2] * H[2, 1] + det3(H))
     if not jm1 > -1.0:
-        for i in range(3):  # loops: inlined into prange bodies, where P[:] = 0 is a parfor
+        for i in range(3):
             for j in range(3):
                 P[i, j] = 0.0
         return np.inf

@@ -45,7 +45,7 @@ M^T de~ M (:func:`sim.materials.hill.hill_green`).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from sim.geometry.quadrature import Rule
 from sim.geometry.shell import Shell
@@ -66,6 +66,7 @@ from sim.materials.isotropic import (
 )
 from sim.materials.plasticity import plastic_flow
 from sim.solve.assembly import drain_element_gradient
+from sim.solve.threads import over_colours, total
 from sim.terms import PROJECT_ELEMENT, PROJECT_QP
 
 # tying points in (u, v): A on the edge v = 0, B on u = 0, C on the third edge
@@ -726,7 +727,6 @@ def _project(K: np.ndarray) -> None:
     clamp_psd(K)
 
 
-@njit(cache=True, parallel=True)
 def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
                dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
                A0: np.ndarray, Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray,
@@ -741,26 +741,20 @@ def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarra
     PROJECT_ELEMENT the element's whole Hessian (an eigen-decomposition of its 3 n_en x 3 n_en
     matrix, most of the evaluation's time)."""
     energies = np.zeros(conn.shape[0])
-    for c in range(len(color_ptr) - 1):
-        for blk in prange(color_ptr[c], color_ptr[c + 1]):
-            _ans_block(x, rest, conn, (dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw), wdetJ,
-                       model, params,
-                       fp_inv, ep, frames, plastic, want, project,
-                       order[block_ptr[blk]:block_ptr[blk + 1]], slots, grad, data, energies)
-    return energies.sum()
+    over_colours(_ans_block, order, block_ptr, color_ptr, x, rest, conn,
+                 (dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw), wdetJ, model, params, fp_inv, ep,
+                 frames, plastic, want, project, slots, grad, data, energies)
+    return total(energies)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
                wdetJ: np.ndarray, model: int, params: np.ndarray, fp_inv: np.ndarray,
                ep: np.ndarray, frames: np.ndarray, plastic: bool, want: int, project: int,
-               elements: np.ndarray, slots: np.ndarray, grad: np.ndarray, data: np.ndarray,
-               energies: np.ndarray) -> None:
-    """One block of :func:`ans_kernel`: its ``elements`` with their scratch, each element's
-    energy into ``energies``, gradient and Hessian scattered. A function of its own, not the
-    prange body: numba's parallel passes then see one call, not the whole inlined element
-    (compiled so, the kernel took far longer to compile; the same machine code runs per
-    element)."""
+               slots: np.ndarray, grad: np.ndarray, data: np.ndarray, energies: np.ndarray,
+               elements: np.ndarray) -> None:
+    """A thread's share of a colour's blocks in :func:`ans_kernel`: its ``elements`` with their
+    scratch, each element's energy into ``energies``, gradient and Hessian scattered."""
     dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw = tying
     n_en = conn.shape[1]
     k = 3 * n_en
@@ -820,37 +814,37 @@ def _principal_at(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNq: np.nd
     return np.sqrt(np.maximum(1.0 + 2.0 * lam, 1e-300)), V, ok
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def ans_volume_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
                       dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
-                      A0: np.ndarray, Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray
-                      ) -> np.ndarray:
-    """The material's volume ratio J = sqrt(det C) ``(n_elem, n_qp)`` of the assumed strain
-    (C = I + 2 E, the plastic state aside: its flow keeps volume), the J every material
-    takes; 0 where the strain inverts the point."""
-    out = np.zeros((conn.shape[0], dNq.shape[0]))
+                      A0: np.ndarray, Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray,
+                      out: np.ndarray, e0: int, e1: int) -> None:
+    """The material's volume ratio J = sqrt(det C) of the assumed strain into ``out (n_elem,
+    n_qp)``, elements e0 to e1 (C = I + 2 E, the plastic state aside: its flow keeps volume),
+    the J every material takes; 0 where the strain inverts the point."""
     eye = np.eye(3)
-    for e in prange(conn.shape[0]):
+    for e in range(e0, e1):
         for lev in range(lev_ptr.shape[0] - 1):
             for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
                 s, _, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
                                          Gt[e], dNc, Gw[e], q, False, eye)
                 if ok:
                     out[e, q] = s[0] * s[1] * s[2]
-    return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
                       dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
                       A0: np.ndarray, Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray,
                       model: int, params: np.ndarray,
-                      frames: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray) -> None:
-    """:func:`sim.terms.elasticity.plastic_commit_kernel` on the assumed strain: the return
+                      frames: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray, e0: int,
+                      e1: int) -> None:
+    """:func:`sim.terms.elasticity.plastic_commit_kernel` on the assumed strain, elements e0 to
+    e1: the return
     map in the principal frame V of C^, Fp^-1 <- Fp^-1 V diag(exp(-deps_p)) V^T (Hill48:
     Fp^-1 <- Fp^-1 exp(-dEp), sim.materials.hill)."""
     mu, law, hp = params[0], int(params[2]), params[3:]
-    for e in prange(conn.shape[0]):
+    for e in range(e0, e1):
         for lev in range(lev_ptr.shape[0] - 1):
             for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
                 s, V, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
@@ -871,18 +865,18 @@ def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np
                 ep[e, q] += dg
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def ans_stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarray,
                       dNt: np.ndarray, lev_ptr: np.ndarray, rs: np.ndarray, Gq: np.ndarray,
                       A0: np.ndarray, Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray,
                       model: int, params: np.ndarray,
                       frames: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray,
-                      plastic: bool) -> np.ndarray:
-    """Von Mises equivalent of the Cauchy stress ``(n_elem, n_qp)`` from the assumed strain
-    (of the Kirchhoff stress U S^ U over J, U = C^^1/2: a rotation of it, the same invariants)."""
-    out = np.zeros((conn.shape[0], dNq.shape[0]))
+                      plastic: bool, out: np.ndarray, e0: int, e1: int) -> None:
+    """Von Mises equivalent of the Cauchy stress into ``out (n_elem, n_qp)``, elements e0 to
+    e1, from the assumed strain (of the Kirchhoff stress U S^ U over J, U = C^^1/2: a rotation
+    of it, the same invariants)."""
     eye = np.eye(3)
-    for e in prange(conn.shape[0]):
+    for e in range(e0, e1):
         Sp, Dp = np.empty((3, 3)), np.empty((6, 6))
         for lev in range(lev_ptr.shape[0] - 1):
             for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
@@ -901,4 +895,3 @@ def ans_stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np
                 tau = gs * s
                 dev = tau - tau.mean()
                 out[e, q] = np.sqrt(1.5 * (dev @ dev)) / (s[0] * s[1] * s[2])
-    return out

@@ -12,7 +12,7 @@ b = dN/dX Fp^{-1}.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from sim.geometry.quadrature import Rule
 from sim.geometry.shell import Shell
@@ -28,6 +28,7 @@ from sim.materials.isotropic import (
 )
 from sim.materials.plasticity import plastic_flow
 from sim.solve.assembly import Pattern, drain_element_gradient
+from sim.solve.threads import over_colours, over_ranges, total
 from sim.terms import PROJECT_ELEMENT, PROJECT_QP, Term
 from sim.terms.ans import (
     Tying,
@@ -226,7 +227,6 @@ def packed_positions(n_en: int) -> np.ndarray:
     return np.where(i <= kk, row * k + col, col * k + row).astype(np.uint64)
 
 
-@njit(cache=True, parallel=True)
 def elastic_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.ndarray,
                    wdetJ: np.ndarray, model: int, params: np.ndarray, fp_inv: np.ndarray,
                    ep: np.ndarray, frames: np.ndarray, plastic: bool, want: int, project: int,
@@ -235,33 +235,29 @@ def elastic_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.n
                    grad: np.ndarray, data: np.ndarray) -> float:
     """Total energy; adds the gradient into ``grad (n_nodes, 3)`` (want >= 1) and the Hessian
     into ``data (nnz,)`` through the packed upper-triangle ``slots (n_elem, k (k+1) / 2)``
-    (want == 2). Blocks of one colour share no node (:class:`sim.solve.assembly.Schedule`), so each
-    colour runs a block per thread without races. Returns inf on inversion.
+    (want == 2). Blocks of one colour share no node (:class:`sim.solve.assembly.Schedule`), so
+    each colour's blocks are shared among the threads without races (sim.solve.threads).
+    Returns inf on inversion.
     x, rest ``(n_nodes, 3)``; conn ``(n_elem, n_en)``; dNdX ``(n_elem, n_qp, n_en, 3)``; wdetJ
     ``(n_elem, n_qp)``; fp_inv ``(n_elem, n_qp, 3, 3)`` and ep ``(n_elem, n_qp)``, or their
     empty ``(n_elem, 0, ...)`` versions when not ``plastic``; frames ``(n_elem, 3, 3)`` the
     material axes of an anisotropic material, else ``(n_elem, 0, 0)``; pos as in
     :func:`_element`."""
     energies = np.zeros(conn.shape[0])
-    for c in range(len(color_ptr) - 1):
-        for blk in prange(color_ptr[c], color_ptr[c + 1]):
-            _elastic_block(x, rest, conn, dNdX, wdetJ, model, params, fp_inv, ep, frames,
-                           plastic, want, project, order[block_ptr[blk]:block_ptr[blk + 1]],
-                           slots, pos, grad, data, energies)
-    return energies.sum()
+    over_colours(_elastic_block, order, block_ptr, color_ptr, x, rest, conn, dNdX, wdetJ, model,
+                 params, fp_inv, ep, frames, plastic, want, project, slots, pos, grad, data,
+                 energies)
+    return total(energies)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _elastic_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.ndarray,
                    wdetJ: np.ndarray, model: int, params: np.ndarray, fp_inv: np.ndarray,
                    ep: np.ndarray, frames: np.ndarray, plastic: bool, want: int, project: int,
-                   elements: np.ndarray, slots: np.ndarray, pos: np.ndarray, grad: np.ndarray,
-                   data: np.ndarray, energies: np.ndarray) -> None:
-    """One block of :func:`elastic_kernel`: its ``elements`` with their scratch, each
-    element's energy into ``energies``, gradient and Hessian scattered. A function of its own,
-    not the prange body: numba's parallel passes then see one call, not the whole inlined
-    element (compiled so, the kernel took far longer to compile; the same machine code runs
-    per element)."""
+                   slots: np.ndarray, pos: np.ndarray, grad: np.ndarray, data: np.ndarray,
+                   energies: np.ndarray, elements: np.ndarray) -> None:
+    """A thread's share of a colour's blocks in :func:`elastic_kernel`: its ``elements`` with
+    their scratch, each element's energy into ``energies``, gradient and Hessian scattered."""
     k = 3 * conn.shape[1]
     # scratch per block (numba's heap arrays, made per element, cost as much as a linear
     # prism's arithmetic); g is handed back zeroed by the scatter that drains it
@@ -289,7 +285,7 @@ def _elastic_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.n
 @njit(cache=True, inline='always')
 def _displacement_gradient(u: np.ndarray, bT: np.ndarray, H: np.ndarray) -> None:
     """H = sum_a u_a (x) b_a into ``H (3, 3)``; u ``(n_en, 3)``, b transposed ``(3, n_en)``."""
-    for i in range(3):  # loops: inlined into a prange body, H[:] = 0 would be a nested parfor
+    for i in range(3):
         for J in range(3):
             H[i, J] = 0.0
     for a in range(u.shape[0]):
@@ -311,15 +307,16 @@ def _deformation_gradient(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, b:
     return G + G0
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def plastic_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.ndarray,
                           model: int, params: np.ndarray, frames: np.ndarray, fp_inv: np.ndarray,
-                          ep: np.ndarray) -> None:
-    """Return-map every quadrature point at the converged state x and update, in place,
+                          ep: np.ndarray, e0: int, e1: int) -> None:
+    """Return-map every quadrature point of elements e0 to e1 (a thread's share,
+    sim.solve.threads) at the converged state x and update, in place,
     Fp^-1 (n_elem, n_qp, 3, 3) <- Fp_n^-1 V diag(exp(-deps_p)) V^T and ep (n_elem, n_qp) += dgamma
     (the flow is isochoric: det Fp^-1 stays 1 to round-off)."""
     mu, law, hp = params[0], int(params[2]), params[3:]
-    for e in prange(conn.shape[0]):
+    for e in range(e0, e1):
         for q in range(dNdX.shape[1]):
             G = _deformation_gradient(x, rest, conn[e], dNdX[e, q] @ fp_inv[e, q], fp_inv[e, q])
             if model == HILL48:
@@ -339,14 +336,13 @@ def plastic_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNd
             ep[e, q] += dg
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.ndarray, model: int,
                   params: np.ndarray, frames: np.ndarray, fp_inv: np.ndarray, ep: np.ndarray,
-                  plastic: bool) -> np.ndarray:
-    """Von Mises equivalent of the Cauchy stress (n_elem, n_qp) at state x (with the trial
-    return map at the committed plastic state)."""
-    out = np.zeros(dNdX.shape[:2])
-    for e in prange(conn.shape[0]):
+                  plastic: bool, out: np.ndarray, e0: int, e1: int) -> None:
+    """Von Mises equivalent of the Cauchy stress into ``out (n_elem, n_qp)``, elements e0 to
+    e1, at state x (with the trial return map at the committed plastic state)."""
+    for e in range(e0, e1):
         for q in range(dNdX.shape[1]):
             if plastic:
                 G = _deformation_gradient(x, rest, conn[e], dNdX[e, q] @ fp_inv[e, q],
@@ -366,7 +362,6 @@ def stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.nd
             dev = tau - tau.mean()
             J = s[0] * s[1] * s[2]  # det G = det F: the plastic part is isochoric
             out[e, q] = np.sqrt(1.5 * (dev @ dev)) / J
-    return out
 
 
 class Elasticity(Term):
@@ -429,12 +424,13 @@ class Elasticity(Term):
         return self._run(x, 2, g, data)
 
     def commit(self, x: np.ndarray) -> None:
+        n = len(self.conn)
         if self.plastic and self.tying is not None:
-            ans_commit_kernel(x, *self._tied(), self.model, self.params, self.frames,
-                              self.fp_inv, self.ep)
+            over_ranges(ans_commit_kernel, 0, n, x, *self._tied(), self.model, self.params,
+                        self.frames, self.fp_inv, self.ep)
         elif self.plastic:
-            plastic_commit_kernel(x, self.rest, self.conn, self.dNdX, self.model, self.params,
-                                  self.frames, self.fp_inv, self.ep)
+            over_ranges(plastic_commit_kernel, 0, n, x, self.rest, self.conn, self.dNdX,
+                        self.model, self.params, self.frames, self.fp_inv, self.ep)
 
     def volume_ratios(self, x: np.ndarray) -> np.ndarray:
         """The material's volume ratio J per element and quadrature point ``(n_elem, n_qp)``:
@@ -442,14 +438,20 @@ class Elasticity(Term):
         the volume its material keeps (on a bent sheet its interpolated geometry's columns
         are chords between fanned directors, sim.terms.ans)."""
         if self.tying is not None:
-            return ans_volume_kernel(x, *self._tied())
+            out = np.zeros(self.wdetJ.shape)
+            over_ranges(ans_volume_kernel, 0, len(self.conn), x, *self._tied(), out)
+            return out
         F = np.einsum("ead,eqaj->eqdj", x[self.conn], self.dNdX)
         return np.linalg.det(F)
 
     def von_mises(self, x: np.ndarray) -> np.ndarray:
         """Von Mises stress (Pa) per element and quadrature point ``(n_elem, n_qp)``."""
+        out = np.zeros(self.wdetJ.shape)
         if self.tying is not None:
-            return ans_stress_kernel(x, *self._tied(), self.model, self.params, self.frames,
-                                     self.fp_inv, self.ep, self.plastic)
-        return stress_kernel(x, self.rest, self.conn, self.dNdX, self.model, self.params,
-                             self.frames, self.fp_inv, self.ep, self.plastic)
+            over_ranges(ans_stress_kernel, 0, len(self.conn), x, *self._tied(), self.model,
+                        self.params, self.frames, self.fp_inv, self.ep, self.plastic, out)
+        else:
+            over_ranges(stress_kernel, 0, len(self.conn), x, self.rest, self.conn, self.dNdX,
+                        self.model, self.params, self.frames, self.fp_inv, self.ep,
+                        self.plastic, out)
+        return out

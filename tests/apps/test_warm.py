@@ -34,7 +34,7 @@ def test_warm_leaves_the_kernels_in_the_cache(capsys):
     out = capsys.readouterr().out
     assert all(f"{name} kernels ready" in out for name in warm.TASKS)
     cache = Path(os.environ["NUMBA_CACHE_DIR"])  # set by sim on import (sim.numba_cache_dir)
-    for kernel in ("elastic_kernel", "plastic_commit_kernel", "stress_kernel", "ans_kernel",
-                   "ans_commit_kernel", "ans_stress_kernel", "ans_volume_kernel",
+    for kernel in ("_elastic_block", "plastic_commit_kernel", "stress_kernel", "_ans_block",
+                   "total", "ans_commit_kernel", "ans_stress_kernel", "ans_volume_kernel",
                    "_penalty_kernel", "sdf_world"):
         assert any(cache.rglob(f"*.{kernel}-*.nbi")), kernel
