@@ -23,8 +23,12 @@ CHROMIUM = "/usr/bin/chromium"
 SHOTS_ROOT = os.environ.get("Q3T_SHOTS")
 WAIT_MS = int(HANG * 1000)  # Playwright's waits: hang guards (its default is 30 s)
 # WebGL without a GPU: chromium's software rasteriser, which headless chromium refuses unless
-# told it may use it
-SWIFTSHADER = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+# told it may use it. The page itself is rastered and composited by chromium's software paths:
+# Debian's chromium turns GPU rasterisation on (/etc/chromium.d/default-flags), and without a
+# GPU that, and compositing, went through the emulated GL too, at several times the CPU of the
+# software paths; WebGL's canvas is still drawn by SwiftShader
+SWIFTSHADER = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+               "--disable-gpu-rasterization", "--disable-gpu-compositing"]
 # the pages' 3-D view at a quarter of the pixel density (the page's viewer_dpr): software
 # WebGL's cost per frame grows with the pixels, and one open viewer's frames kept nearly both
 # cores busy, which the browser tests share with the rest of the suite; the screenshots to be
