@@ -259,8 +259,9 @@ def _elastic_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.n
     """A thread's share of a colour's blocks in :func:`elastic_kernel`: its ``elements`` with
     their scratch, each element's energy into ``energies``, gradient and Hessian scattered."""
     k = 3 * conn.shape[1]
-    # scratch per block (numba's heap arrays, made per element, cost as much as a linear
-    # prism's arithmetic); g is handed back zeroed by the scatter that drains it
+    # scratch per call, for the share's elements (numba's heap arrays, made per element, cost
+    # as much as a linear prism's arithmetic); g is handed back zeroed by the scatter that
+    # drains it
     g = np.zeros(k)
     Kp = np.empty(k * (k + 1) // 2 if want == 2 else 0)
     Kf = np.empty(k * k if want == 2 else 0)
