@@ -15,6 +15,7 @@ stamped result or a Dask worker asks for one), read at import.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
@@ -23,6 +24,16 @@ import numpy as np
 
 COUNT = max(1, int(numba.config.NUMBA_NUM_THREADS))
 _pool: ThreadPoolExecutor | None = None
+
+
+def _forget_pool() -> None:
+    # A forked child inherits the pool but not its threads: work submitted to it would wait
+    # forever. It makes its own at its first kernel.
+    global _pool
+    _pool = None
+
+
+os.register_at_fork(after_in_child=_forget_pool)
 
 
 def shares(lo: int, hi: int, parts: int) -> list[tuple[int, int]]:
@@ -52,10 +63,19 @@ def over_ranges(kernel: Callable[..., object], lo: int, hi: int, *args: object) 
 
 
 def over_colours(kernel: Callable[..., object], order: np.ndarray, block_ptr: np.ndarray,
-                 color_ptr: np.ndarray, *args: object) -> None:
+                 color_ptr: np.ndarray, *args: object, scatter: bool = True) -> None:
     """``kernel(*args, elements)`` per colour, its blocks shared out among the threads
     (``elements``: a thread's blocks' elements, contiguous in ``order``), one colour after the
-    other: a colour's blocks touch no node another of its blocks does."""
+    other: a colour's blocks touch no node another of its blocks does. Without ``scatter``
+    (an energy alone, written per element) the colours need not wait for each other: all of
+    ``order`` is shared out at once."""
+    if not scatter:
+        def elements(*a: object) -> None:
+            kernel(*a[:-2], order[a[-2]:a[-1]])
+
+        over_ranges(elements, 0, len(order), *args)
+        return
+
     def blocks(*a: object) -> None:
         b0, b1 = a[-2], a[-1]
         kernel(*a[:-2], order[block_ptr[b0]:block_ptr[b1]])

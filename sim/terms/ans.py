@@ -743,7 +743,7 @@ def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarra
     energies = np.zeros(conn.shape[0])
     over_colours(_ans_block, order, block_ptr, color_ptr, x, rest, conn,
                  (dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw), wdetJ, model, params, fp_inv, ep,
-                 frames, plastic, want, project, slots, grad, data, energies)
+                 frames, plastic, want, project, slots, grad, data, energies, scatter=want > 0)
     return total(energies)
 
 

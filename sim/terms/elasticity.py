@@ -246,7 +246,7 @@ def elastic_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNdX: np.n
     energies = np.zeros(conn.shape[0])
     over_colours(_elastic_block, order, block_ptr, color_ptr, x, rest, conn, dNdX, wdetJ, model,
                  params, fp_inv, ep, frames, plastic, want, project, slots, pos, grad, data,
-                 energies)
+                 energies, scatter=want > 0)
     return total(energies)
 
 

@@ -3,6 +3,7 @@ on one numba thread beside MKL's own threads."""
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
 import subprocess
 import sys
@@ -57,6 +58,8 @@ def test_one_two_and_three_threads_give_the_same_bits(element, monkeypatch):
         monkeypatch.setattr(threads, "COUNT", n)
         got[n] = _evaluate(element)
     assert got[1]["ep"].max() > 0  # it flowed: the commit kernels ran
+    # the energy alone (no scatter, no colours) sums the same per-element energies in order
+    assert got[1]["energy"][0] == got[1]["energy"][1]
     for n in (2, 3):
         for key, value in got[1].items():
             assert np.array_equal(got[n][key], value), (n, key)
@@ -75,3 +78,28 @@ def test_a_run_on_one_numba_thread_beside_mkls_threads(tmp_path):
                         "--out", str(tmp_path / "run")],
                        env=env, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def _fill(out: np.ndarray, a: int, b: int) -> None:
+    out[a:b] = np.arange(a, b)
+
+
+def _in_a_forked_child() -> None:
+    out = np.zeros(8)
+    threads.over_ranges(_fill, 0, 8, out)
+    os._exit(0 if np.array_equal(out, np.arange(8)) else 1)
+
+
+def test_a_forked_child_makes_its_own_pool(monkeypatch):
+    """A child forked after the pool was made inherits it without its threads; work handed to
+    it would wait forever, so the child starts from no pool."""
+    monkeypatch.setattr(threads, "COUNT", 2)
+    out = np.zeros(8)
+    threads.over_ranges(_fill, 0, 8, out)  # the parent's pool, made here if not before
+    assert threads._pool is not None and np.array_equal(out, np.arange(8))
+    child = mp.get_context("fork").Process(target=_in_a_forked_child)
+    child.start()
+    child.join(60)  # a hang shows as no exit code; the work itself takes microseconds
+    if child.exitcode is None:
+        child.kill()
+    assert child.exitcode == 0
