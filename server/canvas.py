@@ -29,6 +29,41 @@ from server.section import AXES, Section
 RUN_RANGE, FIXED_RANGE = "this run's", "fixed"
 NO_SECTION = "off"
 SECTIONS = {NO_SECTION: None, "x plane (keep x ≥ at)": "x", "y plane (keep y ≥ at)": "y"}
+
+
+def _matte(tree: dict) -> None:
+    # A primitive without a material gets three.js's glTF default, a fully metallic one: lit by
+    # reflections alone, which the view has none of (no image-based light), it drew every
+    # face not mirroring a light black (a drawn cup's whole wall). A matte, two-sided material
+    # shows the colour map on both skins, shaded by the lights.
+    tree["materials"] = [{"pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0],
+                                                   "metallicFactor": 0.0,
+                                                   "roughnessFactor": 0.8},
+                          "doubleSided": True}]
+    for mesh in tree.get("meshes", []):
+        for primitive in mesh["primitives"]:
+            primitive["material"] = 0
+
+
+def surface_glb(positions: np.ndarray, faces: np.ndarray, rgb: np.ndarray) -> bytes:
+    """The sheet's surface as a GLB: vertex colours ``rgb (n, 3) uint8``, smooth normals, a
+    matte two-sided material."""
+    mesh = trimesh.Trimesh(positions, faces, process=False,
+                           vertex_colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
+    return trimesh.exchange.gltf.export_glb(trimesh.Scene(mesh), include_normals=True,
+                                            tree_postprocessor=_matte)
+
+
+def typing_step(lo: float, hi: float) -> tuple[float, int]:
+    """The step and decimals of a colour range's Min and Max boxes for a range lo..hi: a
+    thousandth of its span's decade, so its ends show and can be typed to three digits of the
+    span (viser rounds what a box shows and takes to its step: thickness around 1 mm with a
+    step of 1 read "1 / 1" and took 0.85 as 85)."""
+    span = hi - lo
+    if not (np.isfinite(span) and span > 0):
+        span = max(abs(lo), abs(hi), 1.0) if np.isfinite(lo) and np.isfinite(hi) else 1.0
+    decimals = max(0, 3 - int(np.floor(np.log10(span))))
+    return 10.0 ** -decimals, decimals
 # px: the legend panel, floated over the view's bottom-left corner. Its height is fixed, to
 # hold the tallest legend (the five FLD zones): a floating panel is placed by its height when
 # placed, and a taller legend later would push it past the view's bottom edge
@@ -92,8 +127,10 @@ class Canvas:
                                          initial_value=RUN_RANGE,
                                          hint="the shown field's colour range: the run's own, "
                                               "or fixed (kept for every run: compare runs)"),
-                 "min": g.add_number("Min", 0.0, disabled=True, hint="in the field's unit"),
-                 "max": g.add_number("Max", 1.0, disabled=True, hint="in the field's unit"),
+                 "min": g.add_number("Min", 0.0, disabled=True, hint="in the field's unit",
+                                     step=typing_step(0.0, 1.0)[0]),
+                 "max": g.add_number("Max", 1.0, disabled=True, hint="in the field's unit",
+                                     step=typing_step(0.0, 1.0)[0]),
                  "marginal": g.add_number("Thinning marginal %",
                                           self.palette.thinning.bounds[1], step=0.5),
                  "failure": g.add_number("Thinning failure %",
@@ -203,7 +240,10 @@ class Canvas:
                  (c["min"], "disabled", not (ranged and fixed)),
                  (c["max"], "disabled", not (ranged and fixed))]
         if ranged:
-            shown += [(c["min"], "value", float(scale.lo)), (c["max"], "value", float(scale.hi))]
+            step, decimals = typing_step(float(scale.lo), float(scale.hi))
+            for end, value in (("min", scale.lo), ("max", scale.hi)):
+                shown += [(c[end], "step", step), (c[end], "precision", decimals),
+                          (c[end], "value", float(value))]
         with self.from_code():
             for handle, prop, value in shown:
                 if getattr(handle, prop) != value:  # each change is a message to every client
@@ -263,9 +303,8 @@ class Canvas:
                       "frame's min to max)</div>")
         self.painted = (key if fields else None, rgb, faces)
         if len(faces):  # the same name: the new surface replaces the old
-            mesh = trimesh.Trimesh(positions, faces, process=False,
-                                   vertex_colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
-            self.surface = self.client.scene.add_mesh_trimesh("/sheet/surface", mesh)
+            self.surface = self.client.scene.add_glb("/sheet/surface",
+                                                     surface_glb(positions, faces, rgb))
         elif self.surface is not None:  # the section left nothing of the sheet
             self.surface.remove()
             self.surface = None

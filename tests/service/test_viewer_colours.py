@@ -10,11 +10,14 @@ which runs its callbacks as a browser's change does).
 
 from __future__ import annotations
 
+import json
+import struct
+
 import numpy as np
 import pytest
 
 pytest.importorskip("viser")
-from server.canvas import FIXED_RANGE, RUN_RANGE  # noqa: E402
+from server.canvas import FIXED_RANGE, RUN_RANGE, surface_glb  # noqa: E402
 from server.clientview import ClientView  # noqa: E402
 from server.colormap import THINNING_COLOURS, ZONE_COLOURS  # noqa: E402
 from server.replay import Replay  # noqa: E402
@@ -135,6 +138,35 @@ def test_a_fixed_range_is_kept_across_runs(viewer):
     viewer.canvas.colour["range"].value = RUN_RANGE  # back to run b's own range
     assert colour_of(viewer, 0) == colour_of(viewer, 1) != in_a
     assert "fixed" not in viewer.canvas.legend.content
+
+
+def test_the_sheet_is_sent_matte_two_sided_with_its_colours_and_normals():
+    """three.js gives a glTF primitive without a material a fully metallic one, which without
+    reflections to show drew a drawn cup's wall black: the surface carries its own."""
+    rgb = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255], [9, 9, 9]], np.uint8)
+    glb = surface_glb(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
+                      np.array([[0, 1, 2], [0, 1, 3]]), rgb)
+    n = struct.unpack("<I", glb[12:16])[0]
+    tree = json.loads(glb[20:20 + n])
+    (material,) = tree["materials"]
+    assert material["pbrMetallicRoughness"]["metallicFactor"] == 0.0
+    assert material["doubleSided"]
+    (primitive,) = tree["meshes"][0]["primitives"]
+    assert primitive["material"] == 0 and {"COLOR_0", "NORMAL"} <= set(primitive["attributes"])
+    assert tree["accessors"][primitive["attributes"]["COLOR_0"]]["count"] == len(rgb)
+
+
+def test_the_range_boxes_show_and_take_a_thickness_to_its_digits(viewer):
+    """Around 1 mm a range's ends differ in the first decimals: the boxes' step follows the
+    span, so they show 0.934 and 1.233 mm, not 1 and 1 (viser rounds a box to its step)."""
+    live(viewer, "a", frame("a", 1, thickness_mm=[0.934, 1.0, 1.1, 1.2, 1.233, 1.233]))
+    lo, hi = viewer.canvas.colour["min"], viewer.canvas.colour["max"]
+    for box, want in ((lo, 0.934), (hi, 1.233)):
+        assert box.value == pytest.approx(want, abs=1e-6)
+        assert box.step <= 1e-3 and round(want, box.precision) == pytest.approx(want)
+    viewer.canvas.colour["range"].value = FIXED_RANGE
+    lo.value = 0.85  # typed
+    assert viewer.canvas.palette.ranges.fixed["thickness_mm"] == pytest.approx((0.85, 1.233))
 
 
 def test_a_bad_fixed_range_is_refused_with_the_reason(viewer):
