@@ -62,6 +62,10 @@ def check_file_name(name: str) -> str:
     return name
 
 
+def _article(word: str) -> str:
+    return "an" if word[:1] in "aeiou" else "a"
+
+
 def kind_of(name: str, kind: str | None = None) -> str:
     """The kind a file name's suffix says, the first of those that share it (and ``kind``,
     when given, must be one of them)."""
@@ -70,12 +74,12 @@ def kind_of(name: str, kind: str | None = None) -> str:
     if kind is not None and kind in found:
         return kind
     if not found:
-        known = "; ".join(f"{', '.join(s)} for a {k}" for k, s in KINDS.items())
+        known = "; ".join(f"{', '.join(s)} for {_article(k)} {k}" for k, s in KINDS.items())
         raise Invalid(f"name {name!r}: unknown extension {suffix or '(none)'!r} (lower case: "
                       f"{known})")
     if kind is not None and kind != found[0]:
         raise Invalid(f"kind {kind!r}: {name!r} is a {found[0]} file by its extension "
-                      f"(a {kind}: {', '.join(KINDS[kind])})")
+                      f"({_article(kind)} {kind}: {', '.join(KINDS[kind])})")
     return found[0]
 
 

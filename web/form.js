@@ -597,7 +597,8 @@ const SceneForm = (() => {
         const left = loc.slice(matched.length + 1);
         const span = target.querySelector(":scope > .field-error");
         target.classList.add("has-error");
-        span.textContent += (span.textContent ? "; " : "") + (left ? `${left}: ` : "") + msg;
+        span.textContent += (span.textContent ? "; " : "") + (left ? `${left}: ` : "")
+                            + Units.shownMessage(msg);
       }
       return rest;
     }

@@ -301,10 +301,18 @@ const Plots = (() => {
         marker: { size: 3 }, hovertemplate: "residual %{y:.2e}<br>step %{x}<extra></extra>" },
       { x: s.steps, y: s.iterations, name: "Newton iterations", yaxis: "y2", type: "bar",
         opacity: 0.35, hovertemplate: "%{y} iterations<br>step %{x}<extra></extra>" }];
+    // iterations are counted: whole ticks, about five (an overlaid axis's ticks are synced
+    // to the residual's by default, which put them at 1.7, 3.47, ...); the residual a label
+    // a decade
+    const most = Math.max(1, ...s.iterations.filter(Number.isFinite));
+    const decade = 10 ** Math.floor(Math.log10(most / 5 || 1));
+    const every = Math.max(1, [1, 2, 5, 10].map((f) => f * decade).find((d) => most / d <= 6));
     const layout = { ...base("", 220), margin: { l: 58, r: 50, t: 10, b: 42 },
-                     xaxis: axis("step"), yaxis: axis("relative residual", { type: "log" }),
+                     xaxis: axis("step"),
+                     yaxis: axis("relative residual", { type: "log", dtick: 1 }),
                      yaxis2: axis("Newton iterations", { overlaying: "y", side: "right",
-                                                         rangemode: "tozero" }) };
+                                                         rangemode: "tozero", tickmode: "linear",
+                                                         tick0: 0, dtick: every }) };
     return draw(div, traces, layout, (x) => x);
   }
 

@@ -5,6 +5,8 @@ const Units = (() => {
   function num(v, digits = 3) {
     if (v === null || v === undefined || !Number.isFinite(+v)) return "–";
     const a = Math.abs(v);
+    // a count (elements, DoFs, iterations) whole: 8004 DoFs are not "8000"
+    if (Number.isInteger(+v) && a < 1e9) return (+v).toLocaleString("en-US");
     if (a !== 0 && (a >= 1e5 || a < 1e-3)) return (+v).toExponential(digits - 1);
     return String(+(+v).toPrecision(digits));
   }
@@ -45,6 +47,16 @@ const Units = (() => {
     return (unit && SCENE[unit]) || [unit === "1" ? "" : unit || "", 1];
   }
 
+  // a server's message in the units the page shows: "0.1 m is too coarse (at most 0.0266 m)"
+  // under a box in mm reads "100 mm ... (at most 26.6 mm)"; a unit with a power (m^2) is left
+  const QUANTITY = /(-?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?) (m\/s\^2|kg\/m\^3|m\/s|m\/m|N\/m|m|Pa|N|rad)(?![\w^\/²³])/g;
+  function shownMessage(text) {
+    return text.replace(QUANTITY, (all, v, unit) => {
+      const [u, f] = SCENE[unit];
+      return f === 1 ? all : `${toShown(+v, unit)} ${u}`;
+    });
+  }
+
   function columns(unit) {
     return COLUMNS[unit] || null;
   }
@@ -79,5 +91,5 @@ const Units = (() => {
     return shownUnit ? `${text} ${shownUnit}` : text;
   }
 
-  return { num, withUnit, duration, sceneUnit, columns, toShown, toSI, sceneValue };
+  return { num, withUnit, duration, sceneUnit, columns, toShown, toSI, sceneValue, shownMessage };
 })();

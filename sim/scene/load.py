@@ -131,6 +131,12 @@ def _key(part: str | int) -> str:
     return str(part) if BARE_KEY.fullmatch(str(part)) else json.dumps(part)
 
 
+# pydantic's bound errors: their words and the bound's key in the error's context
+BOUNDS = {"greater_than": ("greater than", "gt"),
+          "greater_than_equal": ("greater than or equal to", "ge"),
+          "less_than": ("less than", "lt"), "less_than_equal": ("less than or equal to", "le")}
+
+
 def scene_errors(err: ValidationError) -> list[dict]:
     """pydantic's errors as ``{loc, msg}``, ``loc`` the field's dotted path. A check on the
     whole scene names its field in the message (``bcs.0.region: unknown region 'x'``): that
@@ -140,6 +146,11 @@ def scene_errors(err: ValidationError) -> list[dict]:
         parts, kind, tag = _untagged(e["loc"])
         loc = ".".join(_key(p) for p in parts)
         msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] in BOUNDS and (unit := unit_of(loc)) not in (None, "1"):
+            # the bound with its unit (pydantic writes 1e-12 as 0.000000000001 and no unit):
+            # the page shows it in the unit of the field's box (0.1 m as 100 mm)
+            words, key = BOUNDS[e["type"]]
+            msg = f"Input should be {words} {e['ctx'][key]:g} {unit}"
         if e["type"] == "union_tag_not_found":  # a table of several kinds without its kind
             msg = f"give its {e['ctx']['discriminator'].strip(chr(39))} (which kind it is)"
         if e["type"] == "extra_forbidden" and kind is not None:  # a field of another kind

@@ -39,6 +39,19 @@ def test_toml_of_the_wrong_type_is_refused_and_integers_are_numbers():
     assert load_scene(CANTILEVER, {"material.E": 200}).material.E == 200.0
 
 
+@pytest.mark.parametrize("key,value,why", [
+    ("mesh.edge_length", 0.0, "mesh.edge_length: Input should be greater than or equal to 1e-12 m"),
+    ("material.E", -1.0, "material.E: Input should be greater than or equal to 1e-06 Pa"),
+    ("material.nu", 0.5, "material.nu: Input should be less than 0.5"),  # no unit: none shown
+])
+def test_a_bound_is_named_with_its_unit(key, value, why):
+    """pydantic writes a bound without its unit, and 1e-12 as 0.000000000001: the page shows
+    the message under a box in mm (web/units.js converts "1e-12 m")."""
+    with pytest.raises(SceneError) as err:
+        load_scene(CANTILEVER, {key: value})
+    assert str(err.value).startswith(why), str(err.value)
+
+
 TOO_SMALL_OR_LARGE = [
     ("shell.thickness", 1e-300, "shell.thickness"),  # was a run ending in NaN fields, exit 0
     ("shell.thickness", 4.9e-324, "shell.thickness"),

@@ -170,16 +170,18 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     assert not errors, errors
 
 
-def js_num(v: float) -> str:
-    """A number as the page writes it (units.js num: three significant digits)."""
-    x = float(f"{v:.3g}")
+def js_num(v: float, digits: int = 3) -> str:
+    """A number as the page writes it (units.js num: three significant digits; a count whole,
+    in thousands)."""
+    if float(v).is_integer() and abs(v) < 1e9:
+        return f"{int(v):,}"
+    x = float(f"{v:.{digits}g}")
     return str(int(x)) if x.is_integer() else repr(x)
 
 
 def js_num2(v: float) -> str:
     """Two significant digits (units.js num(v, 2))."""
-    x = float(f"{v:.2g}")
-    return str(int(x)) if x.is_integer() else repr(x)
+    return js_num(v, 2)
 
 
 def test_sweep_cases_open_from_the_panel(served, browser):

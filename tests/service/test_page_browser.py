@@ -64,6 +64,8 @@ def open_page(browser, url: str, width: int = 1400, height: int = 1000):
 
 def js_number(v: float) -> str:
     """A number as the page writes it (units.js num: three significant digits)."""
+    if float(v).is_integer() and abs(v) < 1e9:  # a count: whole, in thousands
+        return f"{int(v):,}"
     x = float(f"{v:.3g}")
     return str(int(x)) if x.is_integer() else repr(x)
 
@@ -148,6 +150,18 @@ def test_results_of_a_finished_run(plain, browser):
         assert axis_titles(page, "fld-plot") == ("minor true strain (%)",
                                                   "major true strain (%)")
         assert "cost" in page.locator("#estimate").text_content()  # the solver's, below
+        # the solver's plot: Newton iterations are counted, so their axis ticks are whole
+        page.click("#solver-box summary")
+        page.wait_for_selector("#solver-plot .g-y2title")
+        ticks = page.eval_on_selector_all("#solver-plot .y2tick text",
+                                          "ts => ts.map(t => t.textContent)")
+        assert ticks and all(t.isdigit() for t in ticks), ticks
+        # a server's message in SI under a box in mm, and counts, as the page writes them
+        assert page.evaluate("Units.shownMessage('0.1 m is too coarse (at most 0.0266 m; "
+                             "area 0.00283 m^2)')") == \
+            "100 mm is too coarse (at most 26.6 mm; area 0.00283 m^2)"
+        assert page.evaluate("[Units.num(8004), Units.num(121716), Units.num(0.93412)]") == \
+            ["8,004", "121,716", "0.934"]
         shot(page, SHOTS, "finished-1400x1000", settle_ms=SETTLE_MS)
         page.locator("#plots").evaluate("el => el.scrollTo(0, el.scrollHeight)")
         shot(page, SHOTS, "finished-plots-scrolled", settle_ms=SETTLE_MS)
