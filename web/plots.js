@@ -219,7 +219,10 @@ const Plots = (() => {
     for (const sec of found) {
       for (const s of sec.steps) {
         const stroke = punch && punch.stroke ? strokeAt(punch, s.step + 1) : null;
-        traces.push({ x: s.position.values, y: s.thickness.values, type: "scatter",
+        // to nine digits: a sheet not yet thinned is uniform but for its last bits, which the
+        // axis's autoscale otherwise spread over the plot (a zigzag, ticks 0.7799999999999999)
+        const y = s.thickness.values.map((t) => (Number.isFinite(t) ? +t.toPrecision(9) : t));
+        traces.push({ x: s.position.values, y, type: "scatter",
                       mode: "lines+markers", marker: { size: 4 },
                       name: `${found.length > 1 ? sec.name + ", " : ""}step ${s.step}` +
                             (stroke !== null ? ` (${Units.num(stroke)} mm)` : ""),
@@ -309,7 +312,8 @@ const Plots = (() => {
     const every = Math.max(1, [1, 2, 5, 10].map((f) => f * decade).find((d) => most / d <= 6));
     const layout = { ...base("", 220), margin: { l: 58, r: 50, t: 10, b: 42 },
                      xaxis: axis("step"),
-                     yaxis: axis("relative residual", { type: "log", dtick: 1 }),
+                     yaxis: axis("relative residual", { type: "log", dtick: 1,
+                                                        exponentformat: "power" }),
                      yaxis2: axis("Newton iterations", { overlaying: "y", side: "right",
                                                          rangemode: "tozero", tickmode: "linear",
                                                          tick0: 0, dtick: every }) };

@@ -115,6 +115,15 @@ const Results = (() => {
                                                      "had a result.";
       cards.push(none);
     }
+    if (s.summary.length && st.state !== "finished") {
+      // a stopped or failed run's cards are the part at its last step, not the formed part
+      const ended = document.createElement("div");
+      ended.className = "live ended-early";
+      ended.textContent = `${st.state[0].toUpperCase()}${st.state.slice(1)} at step ` +
+        `${st.step} of ${st.n_steps ?? "?"}: the values below are the part's at that step, ` +
+        "not at the end of the planned stroke.";
+      cards.unshift(ended);
+    }
     box.replaceChildren(...cards);
     Object.assign(box.dataset, { run: st.id, ready: "true", count: String(s.summary.length) });
     await showRim(s.summary);

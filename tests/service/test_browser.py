@@ -150,6 +150,12 @@ def test_page_run_viewer_pause(server, browser, tmp_path):
         page.wait_for_function(f"+document.getElementById('status').dataset.step > {step}")
         page.click("#stop")
         page.wait_for_function("document.getElementById('status').dataset.state == 'stopped'")
+        # its summary is the sheet at its last step, and says so above the cards
+        page.wait_for_function("document.getElementById('summary').dataset.ready === 'true'")
+        step = int(page.get_attribute("#status", "data-step"))
+        assert int(page.get_attribute("#summary", "data-count")) > 0
+        note = page.locator("#summary .ended-early").text_content()
+        assert note.startswith(f"Stopped at step {step} of "), note
     finally:
         page.close()
 

@@ -156,6 +156,18 @@ def test_results_of_a_finished_run(plain, browser):
         ticks = page.eval_on_selector_all("#solver-plot .y2tick text",
                                           "ts => ts.map(t => t.textContent)")
         assert ticks and all(t.isdigit() for t in ticks), ticks
+        # a uniform sheet's section is drawn flat, not its last bits spread over the axis
+        ys = page.evaluate("""async () => {
+            const div = document.createElement("div");
+            document.body.append(div);
+            await Plots.sections(div, [{ name: "a", steps: [{ step: 0,
+                position: { values: [0, 1, 2] },
+                thickness: { values: [0.78, 0.7799999999999999, 0.7800000000000001] } }] }],
+                null);
+            const y = div.data[0].y;
+            div.remove();
+            return y; }""")
+        assert ys == [0.78, 0.78, 0.78]
         # a server's message in SI under a box in mm, and counts, as the page writes them
         assert page.evaluate("Units.shownMessage('0.1 m is too coarse (at most 0.0266 m; "
                              "area 0.00283 m^2)')") == \
