@@ -156,6 +156,12 @@ def test_results_of_a_finished_run(plain, browser):
         ticks = page.eval_on_selector_all("#solver-plot .y2tick text",
                                           "ts => ts.map(t => t.textContent)")
         assert ticks and all(t.isdigit() for t in ticks), ticks
+        # a long summary scrolls in its headline: the 3-D view stays above the Runs table
+        page.evaluate("""() => { const s = document.getElementById("summary");
+            const card = s.querySelector(".quantity");
+            for (let i = 0; i < 40; i++) s.append(card.cloneNode(true)); }""")
+        view, runs = (page.locator(sel).bounding_box() for sel in ("#viewer-box", "#runs-box"))
+        assert view["y"] + view["height"] <= runs["y"] + 1 and view["height"] >= 300
         # a uniform sheet's section is drawn flat, not its last bits spread over the axis
         ys = page.evaluate("""async () => {
             const div = document.createElement("div");
