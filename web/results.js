@@ -58,10 +58,25 @@ const Results = (() => {
   }
 
   function where(at) {
-    // in the card's tooltip: the place (mid-surface point, or the edge's rest point)
-    if (at.point) return `at ${m(at.point)} (x, y, z)`;
-    if (at.rest_point) return `the edge point at ${m(at.rest_point)} at rest`;
-    return "";
+    // in the card's tooltip: the place (mid-surface point, or the edge's rest point) and
+    // what else the summary says of it (its notes name these)
+    const lines = [];
+    if (at.point) lines.push(`at ${m(at.point)} (x, y, z)`);
+    else if (at.rest_point) lines.push(`the edge point at ${m(at.rest_point)} at rest`);
+    if (at.angle) lines.push(`at ${m(at.angle)} about the punch axis`);
+    if (at.first_crest) lines.push(`first crest at ${m(at.first_crest)}`);
+    if (at.share_of_peak) lines.push(`${m(at.share_of_peak)} of the peak punch force`);
+    if (at.steps_over_2_percent !== undefined) {
+      lines.push(`${at.steps_over_2_percent} step(s) over 2 % of the peak` +
+                 (at.steps_over_2_percent ? `, steps ${at.first_step_over}` +
+                                            `–${at.last_step_over}` : ""));
+    }
+    if (at.holder_on_stop_from_step !== undefined && at.holder_on_stop_from_step !== null)
+      lines.push(`the blank holder on its stop from step ${at.holder_on_stop_from_step}`);
+    if (at.peak_to_valley) lines.push(`peak to valley ${m(at.peak_to_valley)}`);
+    if (at.edge_left_die_face !== undefined && at.edge_left_die_face !== null)
+      lines.push(`the flange's edge left the die face at step ${at.edge_left_die_face}`);
+    return lines.join("\n");
   }
 
   function card(e, tools) {

@@ -24,7 +24,7 @@ import httpx
 import pytest
 
 from tests.support import ROOT
-from tests.support.browser import new_page, serve, shot, shots_dir, stacked_rows
+from tests.support.browser import js_number, new_page, serve, shot, shots_dir, stacked_rows
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import HANG, finished_run, until
 
@@ -104,11 +104,11 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     row = page.locator("#compare-summary tr[data-name='peak_punch_force']")
     values = row.locator("td .value").all_text_contents()
     peak = next(r for r in api["summary"] if r["name"] == "peak_punch_force")
-    assert values == [js_num(v) for v in peak["values"]]
+    assert values == [js_number(v) for v in peak["values"]]
     delta = row.locator("td .delta").all_text_contents()
-    assert delta == [f"{'+' if peak['delta'][1] > 0 else '−'}{js_num(abs(peak['delta'][1]))} "
+    assert delta == [f"{'+' if peak['delta'][1] > 0 else '−'}{js_number(abs(peak['delta'][1]))} "
                      f"kN ({'+' if peak['delta'][1] > 0 else '−'}"
-                     f"{js_num2(abs(peak['delta_pct'][1]))} %)"]
+                     f"{js_number(abs(peak['delta_pct'][1]), 2)} %)"]
     # the force-stroke plot: one curve per run, in mm and kN
     force = page.evaluate("() => { const d = document.getElementById('compare-force');"
                           " return {n: d.data.length, names: d.data.map(t => t.name), x: "
@@ -168,20 +168,6 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
                          " return s.scrollWidth <= s.clientWidth; }")
     shot(page, SHOTS, "compare-1280", settle_ms=SETTLE_MS)
     assert not errors, errors
-
-
-def js_num(v: float, digits: int = 3) -> str:
-    """A number as the page writes it (units.js num: three significant digits; a count whole,
-    in thousands)."""
-    if float(v).is_integer() and abs(v) < 1e9:
-        return f"{int(v):,}"
-    x = float(f"{v:.{digits}g}")
-    return str(int(x)) if x.is_integer() else repr(x)
-
-
-def js_num2(v: float) -> str:
-    """Two significant digits (units.js num(v, 2))."""
-    return js_num(v, 2)
 
 
 def test_sweep_cases_open_from_the_panel(served, browser):

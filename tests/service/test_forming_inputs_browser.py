@@ -20,7 +20,14 @@ import pytest
 import trimesh
 
 from tests.support import ROOT
-from tests.support.browser import open_scene, serve_without_viewer, shot, shots_dir, stacked_rows
+from tests.support.browser import (
+    js_number,
+    open_scene,
+    serve_without_viewer,
+    shot,
+    shots_dir,
+    stacked_rows,
+)
 from tests.support.scenes import PRESS_TOML, tiny_cup_toml
 from tests.support.service import ENDED, until
 
@@ -174,6 +181,10 @@ def test_a_hill48_cup_shows_its_rim_height_around_the_axis_in_mm(open_page, serv
     assert min(plot["x"]) >= 0 and max(plot["x"]) <= 360 and plot["x"] == sorted(plot["x"])
     card = page.locator("#summary .quantity[data-name='earing'] .value").inner_text()
     assert card.endswith(" %"), card
+    # a card's tooltip says what else its entry holds: the rim's highest point's angle
+    angle = summary["max_rim_height"]["at"]["angle"]["display"]["value"]
+    tip = page.get_attribute("#summary .quantity[data-name='max_rim_height']", "title")
+    assert f"at {js_number(angle)} deg about the punch axis" in tip, tip
     page.locator("#rim-fig").scroll_into_view_if_needed()
     shot(page, SHOTS, "4-rim-height.png", settle_ms=500)  # the plot settles
     probes_have_a_legend_per_quantity(page)

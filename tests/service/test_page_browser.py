@@ -21,6 +21,7 @@ import pytest
 from tests.support.browser import (
     VIEWER_FOR_SHOTS,
     click_row,
+    js_number,
     new_page,
     serve,
     settled,
@@ -60,14 +61,6 @@ def open_page(browser, url: str, width: int = 1400, height: int = 1000):
     page, errors = new_page(browser, url, "#scenes li.sel", width=width, height=height)
     page.wait_for_function("document.getElementById('status').dataset.run !== undefined")
     return page, errors
-
-
-def js_number(v: float) -> str:
-    """A number as the page writes it (units.js num: three significant digits)."""
-    if float(v).is_integer() and abs(v) < 1e9:  # a count: whole, in thousands
-        return f"{int(v):,}"
-    x = float(f"{v:.3g}")
-    return str(int(x)) if x.is_integer() else repr(x)
 
 
 def in_view(page, selector: str) -> bool:

@@ -206,3 +206,12 @@ def stacked_rows(page, div: str) -> list[dict]:
     for r in rows:
         assert r["top"] > r["domain"][1], r  # the legend above its own row
     return rows
+
+
+def js_number(v: float, digits: int = 3) -> str:
+    """A number as the page writes it (web/units.js num): a count whole, in thousands; else
+    ``digits`` significant digits."""
+    if float(v).is_integer() and abs(v) < 1e9:
+        return f"{int(v):,}"
+    x = float(f"{v:.{digits}g}")
+    return str(int(x)) if x.is_integer() else repr(x)
