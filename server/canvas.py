@@ -62,7 +62,8 @@ def typing_step(lo: float, hi: float) -> tuple[float, int]:
     span = hi - lo
     if not (np.isfinite(span) and span > 0):
         span = max(abs(lo), abs(hi), 1.0) if np.isfinite(lo) and np.isfinite(hi) else 1.0
-    decimals = max(0, 3 - int(np.floor(np.log10(span))))
+    # at most 12 decimals: a range fixed narrower than that is typed no finer
+    decimals = min(12, max(0, 3 - int(np.floor(np.log10(span)))))
     return 10.0 ** -decimals, decimals
 # px: the legend panel, floated over the view's bottom-left corner. Its height is fixed, to
 # hold the tallest legend (the five FLD zones): a floating panel is placed by its height when

@@ -307,7 +307,7 @@ const Plots = (() => {
     // iterations are counted: whole ticks, about five (an overlaid axis's ticks are synced
     // to the residual's by default, which put them at 1.7, 3.47, ...); the residual a label
     // a decade
-    const most = Math.max(1, ...s.iterations.filter(Number.isFinite));
+    const most = s.iterations.reduce((a, n) => (Number.isFinite(n) && n > a ? n : a), 1);
     const decade = 10 ** Math.floor(Math.log10(most / 5 || 1));
     const every = Math.max(1, [1, 2, 5, 10].map((f) => f * decade).find((d) => most / d <= 6));
     const layout = { ...base("", 220), margin: { l: 58, r: 50, t: 10, b: 42 },

@@ -136,7 +136,7 @@ const Results = (() => {
       ended.className = "live ended-early";
       ended.textContent = `${st.state[0].toUpperCase()}${st.state.slice(1)} at step ` +
         `${st.step} of ${st.n_steps ?? "?"}: the values below are the part's at that step, ` +
-        "not at the end of the planned stroke.";
+        "not at the end of the run as planned.";
       cards.unshift(ended);
     }
     box.replaceChildren(...cards);

@@ -6,7 +6,7 @@ const Units = (() => {
     if (v === null || v === undefined || !Number.isFinite(+v)) return "–";
     const a = Math.abs(v);
     // a count (elements, DoFs, iterations) whole: 8004 DoFs are not "8000"
-    if (Number.isInteger(+v) && a < 1e9) return (+v).toLocaleString("en-US");
+    if (Number.isInteger(+v) && a < 1e9) return (a === 0 ? 0 : +v).toLocaleString("en-US");
     if (a !== 0 && (a >= 1e5 || a < 1e-3)) return (+v).toExponential(digits - 1);
     return String(+(+v).toPrecision(digits));
   }
@@ -49,7 +49,8 @@ const Units = (() => {
 
   // a server's message in the units the page shows: "0.1 m is too coarse (at most 0.0266 m)"
   // under a box in mm reads "100 mm ... (at most 26.6 mm)"; a unit with a power (m^2) is left
-  const QUANTITY = /(-?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?) (m\/s\^2|kg\/m\^3|m\/s|m\/m|N\/m|m|Pa|N|rad)(?![\w^\/²³])/g;
+  // (a number after a space or a bracket; not "m per file unit", a scale's unit)
+  const QUANTITY = /(?<=^|[\s(])(-?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?) (m\/s\^2|kg\/m\^3|m\/s|m\/m|N\/m|m|Pa|N|rad)(?![\w^\/²³]| per\b)/g;
   function shownMessage(text) {
     return text.replace(QUANTITY, (all, v, unit) => {
       const [u, f] = SCENE[unit];

@@ -146,7 +146,9 @@ def scene_errors(err: ValidationError) -> list[dict]:
         parts, kind, tag = _untagged(e["loc"])
         loc = ".".join(_key(p) for p in parts)
         msg = e["msg"].removeprefix("Value error, ")
-        if e["type"] in BOUNDS and (unit := unit_of(loc)) not in (None, "1"):
+        # a plain unit only: "m per file unit" is a scale's, whose kinds differ in it
+        if e["type"] in BOUNDS and (unit := unit_of(loc)) not in (None, "1") \
+                and " " not in unit:
             # the bound with its unit (pydantic writes 1e-12 as 0.000000000001 and no unit):
             # the page shows it in the unit of the field's box (0.1 m as 100 mm)
             words, key = BOUNDS[e["type"]]

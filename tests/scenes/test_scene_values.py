@@ -52,6 +52,15 @@ def test_a_bound_is_named_with_its_unit(key, value, why):
     assert str(err.value).startswith(why), str(err.value)
 
 
+def test_a_scale_bound_names_no_unit_of_another_kind():
+    """mesh.scale is in m per file unit on a file mesh, per drawing unit on an outline: its
+    bound is left as pydantic writes it, without either."""
+    with pytest.raises(SceneError) as err:
+        load_scene(ROOT / "scenes" / "cup_drawing_outline.toml", {"mesh.scale": 5000.0})
+    assert str(err.value).startswith("mesh.scale: Input should be less than") \
+        and "per" not in str(err.value), str(err.value)
+
+
 TOO_SMALL_OR_LARGE = [
     ("shell.thickness", 1e-300, "shell.thickness"),  # was a run ending in NaN fields, exit 0
     ("shell.thickness", 4.9e-324, "shell.thickness"),

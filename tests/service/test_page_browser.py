@@ -171,6 +171,9 @@ def test_results_of_a_finished_run(plain, browser):
         assert page.evaluate("Units.shownMessage('0.1 m is too coarse (at most 0.0266 m; "
                              "area 0.00283 m^2)')") == \
             "100 mm is too coarse (at most 26.6 mm; area 0.00283 m^2)"
+        # a compound unit (a scale's, m per file unit) and a number inside a name are left
+        assert page.evaluate("Units.shownMessage('at most 1000 m per file unit; tools.0 m')") \
+            == "at most 1000 m per file unit; tools.0 m"
         assert page.evaluate("[Units.num(8004), Units.num(121716), Units.num(0.93412)]") == \
             ["8,004", "121,716", "0.934"]
         shot(page, SHOTS, "finished-1400x1000", settle_ms=SETTLE_MS)
