@@ -29,6 +29,7 @@ VIEWER_OFF = "the viewer is off (the server runs without it): no 3-D view to cap
 PNG = "a PNG of the 3-D view as a browser shows it (its camera, colours and step)"
 # s: a browser renders in software at a few frames a second; one that never answers is a 503
 RENDER_TIMEOUT = 60.0
+PNG_HEIGHT = 720  # px: the 3-D view's PNG at least this high
 
 
 class Export(BaseModel):
@@ -116,11 +117,14 @@ def view_png(run_id: RunId, request: Request, view: Annotated[str | None, Query(
     m: RunManager = request.app.state.manager
     run = m.get(run_id)
     client = _viewer_client(m, run.id, view)
-    # the browser's camera at its canvas height, at least 4:3 wide (the page docks the
+    # the browser's camera at its canvas's shape, at least PNG_HEIGHT high (a canvas drawn at
+    # a low pixel density, viewer_dpr=0.5, gave 345 x 259 px) and 4:3 wide (the page docks the
     # viewer's panel beside a narrow canvas; the camera's vertical field of view is kept)
-    h = client.camera.image_height or 720
+    h0 = client.camera.image_height or PNG_HEIGHT
+    h = max(h0, PNG_HEIGHT)
+    w = max(round((client.camera.image_width or h0) * h / h0), h * 4 // 3)
     try:
-        image = client.get_render(h, max(client.camera.image_width, h * 4 // 3),
+        image = client.get_render(h, w,
                                   transport_format="png", timeout=RENDER_TIMEOUT)
     except TimeoutError:
         raise NotReady(f"the browser showing the 3-D view did not render it in "

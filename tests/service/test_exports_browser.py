@@ -14,6 +14,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from server.routers.exports import PNG_HEIGHT
 from sim.frames import export
 from tests.support.browser import WAIT_MS, page_url, serve, shot, shots_dir
 from tests.support.scenes import tiny_cup_toml
@@ -118,7 +119,7 @@ def test_png_of_the_3d_view_is_rendered_by_the_pages_viewer(viewed, browser, tmp
     url, run = viewed
     page = browser.new_page(viewport={"width": 1400, "height": 1000}, accept_downloads=True)
     page.set_default_timeout(WAIT_MS)
-    page.goto(url + "/")
+    page.goto(url + "/?viewer_dpr=0.5")  # a canvas of half the pixels: the PNG is not
     downloads(page, run, "true")
     viewer = page.frame_locator("#viewer")
     # connected is not showing: the view loads the run's recording after it connects, and a
@@ -133,7 +134,7 @@ def test_png_of_the_3d_view_is_rendered_by_the_pages_viewer(viewed, browser, tmp
     path = (SHOTS or tmp_path) / "downloaded-view.png"  # kept with the shots, to be looked at
     d.value.save_as(path)
     image = iio.imread(path)
-    assert image.ndim == 3 and image.shape[0] > 100 and image.shape[1] > 100
+    assert image.ndim == 3 and image.shape[0] >= PNG_HEIGHT and image.shape[1] >= PNG_HEIGHT
     # the sheet is drawn: a part of the image is neither the background nor transparent
     rgb = image[..., :3].reshape(-1, 3)
     background = np.all(rgb == rgb[0], axis=1)
