@@ -29,6 +29,10 @@ from server.section import AXES, Section
 RUN_RANGE, FIXED_RANGE = "this run's", "fixed"
 NO_SECTION = "off"
 SECTIONS = {NO_SECTION: None, "x plane (keep x ≥ at)": "x", "y plane (keep y ≥ at)": "y"}
+# px: the legend panel, floated over the view's bottom-left corner. Its height is fixed, to
+# hold the tallest legend (the five FLD zones): a floating panel is placed by its height when
+# placed, and a taller legend later would push it past the view's bottom edge
+LEGEND_WIDTH, LEGEND_HEIGHT = 250, 232
 
 
 def _matte(tree: dict) -> None:
@@ -65,10 +69,6 @@ def typing_step(lo: float, hi: float) -> tuple[float, int]:
     # at most 12 decimals: a range fixed narrower than that is typed no finer
     decimals = min(12, max(0, 3 - int(np.floor(np.log10(span)))))
     return 10.0 ** -decimals, decimals
-# px: the legend panel, floated over the view's bottom-left corner. Its height is fixed, to
-# hold the tallest legend (the five FLD zones): a floating panel is placed by its height when
-# placed, and a taller legend later would push it past the view's bottom edge
-LEGEND_WIDTH, LEGEND_HEIGHT = 250, 232
 
 
 class Canvas:
@@ -123,15 +123,16 @@ class Canvas:
 
     def _colour_controls(self) -> dict:
         g = self.client.gui
+        step, _ = typing_step(0.0, 1.0)  # the run's range sets its own (_show_range_controls)
         with g.add_folder("Colour scale"):
             c = {"range": g.add_dropdown("Range", (RUN_RANGE, FIXED_RANGE),
                                          initial_value=RUN_RANGE,
                                          hint="the shown field's colour range: the run's own, "
                                               "or fixed (kept for every run: compare runs)"),
                  "min": g.add_number("Min", 0.0, disabled=True, hint="in the field's unit",
-                                     step=typing_step(0.0, 1.0)[0]),
+                                     step=step),
                  "max": g.add_number("Max", 1.0, disabled=True, hint="in the field's unit",
-                                     step=typing_step(0.0, 1.0)[0]),
+                                     step=step),
                  "marginal": g.add_number("Thinning marginal %",
                                           self.palette.thinning.bounds[1], step=0.5),
                  "failure": g.add_number("Thinning failure %",
