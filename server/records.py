@@ -29,8 +29,9 @@ CANCELLED = "cancelled"  # ended while queued: it never ran
 ENDED = {"finished", "failed", "stopped", CANCELLED}  # a run in one of these is over
 LOST = "the server stopped during the run"
 # the result.json summary entries the Runs table shows (sim.frames.summary), each by its
-# display value (kN, mm, %); of several punches the largest peak force
-TABLED = ("peak_punch_force", "min_thickness", "max_thinning")
+# display value (kN, mm, %) and flag (a forming limit reached); of several punches the largest
+# peak force
+TABLED = ("peak_punch_force", "min_thickness", "max_thinning", "forming_limit_margin")
 NOT_RUN = "not run: the server stopped before its turn"
 AS_WRITTEN = 1.0  # every live parameter multiplies a value of the scene: 1 runs it as written
 
@@ -148,7 +149,7 @@ def _tabled(entries: list) -> dict:
         except (KeyError, TypeError, ValueError):  # not one number: not a table's value
             continue
         if name in TABLED and (name not in out or shown["value"] > out[name]["value"]):
-            out[name] = shown
+            out[name] = shown | ({"flag": e["flag"]} if e.get("flag") else {})
     return out
 
 

@@ -50,8 +50,13 @@ const Results = (() => {
 
   const m = (v) => Units.withUnit(v.display.value, v.display.unit);
 
-  function when(at) {
-    // on the card: the stroke or step it happened at
+  function when(at, flag) {
+    // on the card: the stroke or step it happened at; for a forming limit reached, how many
+    // elements reached it
+    if (flag && at.zone_counts) {
+      const n = at.zone_counts[flag];
+      return `${flag} in ${Units.num(n)} element${n === 1 ? "" : "s"}`;
+    }
     if (at.stroke) return `at ${m(at.stroke)} stroke` +
                           (at.step !== undefined ? ` (step ${at.step})` : "");
     return at.step !== undefined ? `at step ${at.step}` : "";
@@ -76,14 +81,21 @@ const Results = (() => {
     if (at.peak_to_valley) lines.push(`peak to valley ${m(at.peak_to_valley)}`);
     if (at.edge_left_die_face !== undefined && at.edge_left_die_face !== null)
       lines.push(`the flange's edge left the die face at step ${at.edge_left_die_face}`);
+    if (at.major && at.minor)
+      lines.push(`its element's strains: major ${m(at.major)}, minor ${m(at.minor)} (true)`);
+    if (at.zone_counts) {
+      lines.push("elements per zone of the forming limit diagram: " +
+                 Object.entries(at.zone_counts).map(([z, n]) => `${z} ${Units.num(n)}`)
+                   .join(", "));
+    }
     return lines.join("\n");
   }
 
   function card(e, tools) {
     const div = document.createElement("div");
-    div.className = "quantity";
+    div.className = "quantity" + (e.flag ? ` flag-${e.flag}` : "");
     Object.assign(div.dataset, { name: e.name, value: JSON.stringify(e.display.value),
-                                 unit: e.display.unit });
+                                 unit: e.display.unit, flag: e.flag || "" });
     const label = document.createElement("div");
     label.className = "label";
     label.textContent = e.label + (e.tool && tools > 1 ? ` (${e.tool})` : "");
@@ -92,7 +104,7 @@ const Results = (() => {
     value.textContent = Units.withUnit(e.display.value, e.display.unit);
     const at = document.createElement("div");
     at.className = "at";
-    at.textContent = when(e.at || {});
+    at.textContent = when(e.at || {}, e.flag);
     div.title = [label.textContent, where(e.at || {}), e.note].filter(Boolean).join("\n");
     div.append(label, value, at);
     return div;

@@ -33,6 +33,10 @@ const RunsTable = (() => {
       sort: result("min_thickness"), cell: valueCell("min_thickness", "mm") },
     { key: "max_thinning", label: "max. thinning", unit: "%",
       sort: result("max_thinning"), cell: valueCell("max_thinning", "%") },
+    { key: "forming_limit_margin", label: "FLD margin", unit: "%",
+      sort: result("forming_limit_margin"), cell: valueCell("forming_limit_margin", "%"),
+      title: "forming limit margin: the least distance of an element's major strain below " +
+             "the forming limit curve (true strain), marked where marginal or over the curve" },
     { key: "actions", label: "", cell: actionsCell },
   ];
   function stateOrder(r) {
@@ -119,7 +123,10 @@ const RunsTable = (() => {
     return (r) => {
       const v = r.results[name];
       if (!v) return text("span", "–", "muted");
-      return text("span", Units.withUnit(v.value, v.unit === unit ? "" : v.unit), "num");
+      const span = text("span", Units.withUnit(v.value, v.unit === unit ? "" : v.unit),
+                        "num" + (v.flag ? ` flag-${v.flag}` : ""));
+      if (v.flag) span.title = `${v.flag}: a forming limit reached`;
+      return span;
     };
   }
 

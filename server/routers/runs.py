@@ -106,12 +106,14 @@ class Acted(RunSummary):
 class Shown(BaseModel):
     value: float
     unit: str = Field(description="kN, mm, %")
+    flag: str | None = Field(None, description="a forming limit reached: marginal, failure")
 
 
 class RunListEntry(RunSummary):
     results: dict[str, Shown] = Field(default_factory=dict, description=(
         "of an ended run's result: peak_punch_force (the largest of its punches), "
-        "min_thickness, max_thinning, as the page shows them; those the scene has"))
+        "min_thickness, max_thinning, forming_limit_margin (with its flag), as the page shows "
+        "them; those the scene has"))
 
 
 class ToolReport(BaseModel):
@@ -298,6 +300,9 @@ class SummaryEntry(Measure):
                      "and the like as a Measure")
     tool: str | None = Field(None, description="the punch, for a punch's quantity")
     note: str | None = Field(None, description="how the quantity is defined, where needed")
+    flag: str | None = Field(None, description=(
+        "a forming limit reached: 'marginal' or 'failure' (the forming limit margin); null "
+        "when none is"))
 
 
 class RunResultSummary(BaseModel):

@@ -29,6 +29,13 @@ when there is one; loaded: the end of the stroke):
 - ``min_thickness``, ``max_thinning``, ``max_thickening``: over the mid-surface vertices
   (thickness: the fibre length between the skins), final state; a sheet that nowhere thins
   (thickens) reads 0 with the nearest vertex's opposite change in the note.
+- ``forming_limit_margin`` (a plastic sheet with a forming limit curve in its material card):
+  the smallest distance of an element's major strain below the curve at its minor strain,
+  e1*(e2) - e1 in true strain (sim.frames.forming_limits), at the end of the stroke as the
+  run's FLD; negative where an element is over the curve. ``at`` holds the element, its
+  centre, its strains and how many elements each zone of the diagram holds; ``flag`` is the
+  worst zone an element is in when that is marginal or failure (the card and the Runs table
+  show it), None for a safe part.
 - ``max_draw_in``, ``min_draw_in`` (a flat blank's outer edge): sim.frames.blank.draw_in,
   final state.
 - ``part_height`` (punches moving along one direction d): the extent of the mid-surface along
@@ -66,8 +73,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sim.frames import blank, earing
-from sim.frames.fields import mid_surface, thickness, thinning, volume
+from sim.frames import blank, earing, forming_limits
+from sim.frames.fields import element_strains, mid_surface, thickness, thinning, volume
 from sim.frames.punch import punch_history
 from sim.frames.units import measure
 from sim.scene.shapes import tool_role
@@ -124,7 +131,8 @@ class View:
 @dataclass(frozen=True)
 class Quantity:
     value: Callable  # (View) -> list of entries
-    needs: tuple[str, ...] = ()  # "tools", "punch", "edge", "flange", "release" (features)
+    # "tools", "punch", "edge", "flange", "release", "flc" (features)
+    needs: tuple[str, ...] = ()
 
 
 QUANTITIES: dict[str, Quantity] = {}
@@ -172,6 +180,8 @@ def features(model: Model) -> tuple[set[str], blank.Edge | None, np.ndarray | No
     """What the scene has that a quantity may need, the blank's outer edge and, for a flange,
     the direction into its die."""
     have = {"tools"} if any(isinstance(t, ToolContact) for t in model.terms) else set()
+    if model.elasticity.plastic and model.scene.material.flc is not None:
+        have.add("flc")
     if tools_of(model, "punch"):
         have.add("punch")
     if model.scene.stepping.release:
@@ -360,6 +370,29 @@ def _most(name: str, label: str, change: np.ndarray, mid: np.ndarray,
     return entry(name, label, 0.0, "1", at_vertex(j, mid),
                  note=f"no vertex {words[0]} than the blank; the least {words[1]} "
                       f"{-100.0 * change[j]:.3g} %, at the vertex given")
+
+
+@quantity("forming_limit", needs=("flc",))
+def _forming_limit(view: View) -> list[dict]:
+    m = view.model
+    flc = forming_limits.curve_of(m.scene.material, m.scene.shell)
+    end = view.x if view.loaded is None else view.loaded
+    major, minor = element_strains(m, end)
+    zone = forming_limits.zones(major, minor, flc)
+    margin = flc(minor) - major
+    e = int(np.argmin(margin))
+    counts = {name: int(np.count_nonzero(zone == code))
+              for code, name in forming_limits.ZONES.items()}
+    worst = forming_limits.ZONES[int(zone.max())]
+    centre = view.mid(end)[m.shell.mesh.faces[e]].mean(0)
+    return [entry("forming_limit_margin", "Forming limit margin", margin[e], "1",
+                  {"step": min(view.sim.step_index, view.sim.stroke_steps), "element": e,
+                   "point": measure(centre, "m"), "major": measure(major[e], "1"),
+                   "minor": measure(minor[e], "1"), "zone_counts": counts},
+                  flag=worst if worst in ("marginal", "failure") else None,
+                  note=f"the least distance of an element's major strain below the forming "
+                       f"limit curve (true strain), at the end of the stroke; under "
+                       f"{100 * flc.margin:g} %: marginal, under 0: over the curve (failure)")]
 
 
 @quantity("draw_in", needs=("punch", "edge"))

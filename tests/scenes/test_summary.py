@@ -360,6 +360,13 @@ def test_stretched_sheet_strains_thinning_and_volume_match_the_closed_form(state
     assert fl["zone_counts"] == {"safe": len(fl["major"]), "insufficient stretch": 0,
                                  "wrinkling tendency": 0, "marginal": 0, "failure": 0}
     s = entries(res)
+    # the summary's margin: the curve at the minor strain less the major, in every element the
+    # same homogeneous state (each strain within STRAIN_TOL, the curve's slope under 1 in size:
+    # 2 STRAIN_TOL); a safe part carries no flag
+    flc = forming_limits.curve_of(sim.model.scene.material, sim.model.scene.shell)
+    margin = s["forming_limit_margin"]
+    assert margin["value"] == pytest.approx(float(flc(np.float64(e2)) - e1), abs=2 * STRAIN_TOL)
+    assert margin["flag"] is None and margin["at"]["zone_counts"] == fl["zone_counts"]
     if e3 is not None:
         assert s["min_thickness"]["value"] == pytest.approx(0.001 * np.exp(e3), rel=STRAIN_TOL)
         assert s["max_thinning"]["value"] == pytest.approx(-np.expm1(e3), rel=1e-6)
@@ -386,8 +393,14 @@ def test_a_stretch_past_the_curve_fails_and_the_zones_follow():
         raw["material"]["flc"] = {"kind": "points", "points": [[-0.5, top], [0.5, top]]}
         sim = Simulation.from_scene(scene_from_dict(raw))
         assert sim.run()
-        counts = sim.result()["forming_limits"]["zone_counts"]
+        res = sim.result()
+        counts = res["forming_limits"]["zone_counts"]
         assert counts[zone] == sum(counts.values()), (top, counts)
+        # the summary flags a marginal or failed part, with the curve's distance to the strain
+        margin = entries(res)["forming_limit_margin"]
+        assert margin["flag"] == (None if zone == "safe" else zone)
+        assert margin["value"] == pytest.approx(top - e1, abs=1e-6)
+        assert margin["at"]["zone_counts"] == counts
 
 
 def test_an_elastic_sheet_has_no_forming_limits():

@@ -128,6 +128,8 @@ def test_results_of_a_finished_run(plain, browser):
             assert json.loads(card.get_attribute("data-value")) == e["display"]["value"]
             text = card.locator(".value").text_content()
             assert text == f"{js_number(e['display']['value'])} {e['display']['unit']}"
+            # a forming limit reached marks the card (the cup stays under its curve)
+            assert card.get_attribute("data-flag") == (e.get("flag") or "")
         peak = next(e for e in want if e["name"] == "peak_punch_force")
         at = page.locator('#summary .quantity[data-name="peak_punch_force"] .at').text_content()
         assert f"{js_number(peak['at']['stroke']['display']['value'])} mm stroke" in at

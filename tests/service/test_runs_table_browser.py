@@ -169,3 +169,35 @@ def test_delete_asks_first(served, browser):
     shot(page, SHOTS, "04-deleted.png")
     assert not [e for e in errors if "/static/" in e], errors
     page.close()
+
+
+def test_a_part_over_its_forming_limit_is_marked(served, browser):
+    """The cup against a forming limit curve far below its strains (Keeler-Brazier with a
+    hardening exponent of 0.001: FLC0 0.0015): elements over the curve; its FLD margin is
+    negative and marked as failure in the Runs table. Runs last: the sorting test counts two
+    results."""
+    url = served
+    run = start(url, "tiny_cup", overrides={"material.flc.n": 0.001})["id"]
+    until(lambda: httpx.get(f"{url}/api/runs/{run}").json()["state"] in ENDED, f"{run} never ended")
+    page, errors = open_page(browser, url)
+    wait_cell(page, run, "state", "finished")
+    page.wait_for_function(
+        f"(document.querySelector('#runs tbody tr[data-id=\"{run}\"] "
+        f"td.col-forming_limit_margin')?.textContent || '–') !== '–'")
+    headers = page.eval_on_selector_all("#runs thead th", "ths => ths.map(t => t.textContent)")
+    assert headers[10] == "FLD margin (%)"
+    margin = {e["name"]: e for e in
+              httpx.get(f"{url}/api/runs/{run}/summary").json()["summary"]}[
+        "forming_limit_margin"]
+    assert margin["flag"] == "failure" and margin["value"] < 0
+    assert margin["at"]["zone_counts"]["failure"] > 0
+    shown = page.locator(f'#runs tbody tr[data-id="{run}"] td.col-forming_limit_margin span')
+    assert "flag-failure" in shown.get_attribute("class")
+    assert float(shown.text_content()) == pytest.approx(margin["display"]["value"], rel=5e-3)
+    # the cups as saved stay under their curve: no mark
+    for r in httpx.get(f"{url}/api/runs").json():
+        if r["id"] != run and "forming_limit_margin" in r["results"]:
+            assert r["results"]["forming_limit_margin"].get("flag") is None, r
+    shot(page, SHOTS, "05-over-the-forming-limit.png")
+    assert not [e for e in errors if "/static/" in e], errors
+    page.close()
