@@ -73,9 +73,12 @@ function viewerDensity() {
   return "";
 }
 
-function say(text, isError) {
+function say(text, isError, run) {
+  // ``run``: the message is about that run's start or control, and goes once the run has
+  // ended (the status line says how it ended; "started ..." would read as still running)
   $("msg").textContent = text;
   $("msg").style.color = isError ? "#b00" : "#555";
+  $("msg").dataset.run = run || "";
 }
 
 async function loadScenes() {
@@ -275,7 +278,7 @@ async function startRun() {
     adoptRun(run.id);
     say((run.state === "queued" ? `queued ${run.id} (#${run.place} in the queue)`
                                  : `started ${run.id}`) +
-        (run.edited ? " with the unsaved edits of " + run.scene : ""));
+        (run.edited ? " with the unsaved edits of " + run.scene : ""), false, run.id);
     await loadRuns();
   } catch (e) { say(e.message, true); }
 }
@@ -286,7 +289,8 @@ async function control(action) {
   if (!Owner.allow(state.status, word)) return;
   try {
     const r = await api("POST", `/api/runs/${state.run}/${action}`);
-    say(r.notice || `${action}: ${state.run}`);
+    // a notice (the run is another view's) stays: it says what happened to whose run
+    say(r.notice || `${action}: ${state.run}`, false, r.notice ? null : state.run);
   } catch (e) { say(e.message, true); }
 }
 
@@ -504,6 +508,8 @@ async function showRun(id) {
   const st = await api("GET", `/api/runs/${id}?since=${since}&limit=1`);
   if (state.run !== id) return;
   state.status = st;
+  if ($("msg").dataset.run === id && !ACTIVE.includes(st.state) && st.state !== "queued")
+    say("");
   Owner.showTouched(st);
   for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = !ACTIVE.includes(st.state);
   $("stop").disabled &&= st.state !== "queued";  // a queued run's Stop cancels it

@@ -114,6 +114,8 @@ def test_results_of_a_finished_run(plain, browser):
         run = page.get_attribute("#status", "data-run")
         page.wait_for_function(f"document.getElementById('summary').dataset.run === {run!r} "
                                "&& document.getElementById('summary').dataset.ready === 'true'")
+        # "started <run>" goes once the run has ended: the status line says how it did
+        page.wait_for_function("document.getElementById('msg').textContent === ''")
         # the progress bar, full
         page.wait_for_function("document.getElementById('progress').dataset.fraction === '1'")
         assert page.get_attribute("#progress", "aria-valuenow") == "100"
