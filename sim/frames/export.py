@@ -149,15 +149,22 @@ def _at_steps(steps: list[dict], at: dict[int, int], values: np.ndarray) -> list
     return [float(values[at[r["step"]]]) if r["step"] in at else None for r in steps]
 
 
+# significant digits of a CSV value: the unit conversion's last bit goes (24.5 kN, not
+# 24.499999999999993), while the solver's tolerances (Newton's rtol 1e-8) stay far coarser
+DIGITS = 12
+
+
 def probes_csv(run: RunFolder) -> str:
     """A row per step: step, time, each punch's stroke and force, every probe; units in the
-    header. A value the run could not compute (not finite) is an empty cell."""
+    header; ``DIGITS`` significant digits. A value the run could not compute (not finite) is an
+    empty cell."""
     cols = columns(run)
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow([h for h, _ in cols])
     for row in zip(*(v for _, v in cols), strict=True):
-        w.writerow(["" if v is None else repr(v) if isinstance(v, float) else v for v in row])
+        w.writerow(["" if v is None else f"{v:.{DIGITS}g}" if isinstance(v, float) else v
+                    for v in row])
     return out.getvalue()
 
 

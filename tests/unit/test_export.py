@@ -60,19 +60,23 @@ def test_csv_a_row_per_step_with_units_in_the_header(cup, tmp_path):
     assert len(body) == len(res["steps"]) == 3
     col = {h: [float(r[i]) for r in body] for i, h in enumerate(head)}
     steps = res["steps"]
-    assert col["step"] == [r["step"] for r in steps] and col["time [s]"] == [r["time"]
-                                                                             for r in steps]
+    assert col["step"] == [r["step"] for r in steps]
+    # written to export.DIGITS significant digits: equal to half a unit of the 12th digit
+    digits = 0.5 * 10.0 ** (1 - export.DIGITS)
+    np.testing.assert_allclose(col["time [s]"], [r["time"] for r in steps], rtol=digits)
     for name, unit in (("punch_force", "N"), ("min_thickness", "m"), ("punch_travel", "m")):
         factor = DISPLAY[unit][1]
-        # the same float operations as the export: equal to the last bit
-        assert col[f"{name} [{DISPLAY[unit][0]}]"] == [r["probes"][name] * factor
-                                                        for r in steps]
+        np.testing.assert_allclose(col[f"{name} [{DISPLAY[unit][0]}]"],
+                                   [r["probes"][name] * factor for r in steps], rtol=digits)
+    # no float's last bit in the file (24.499999999999993 kN): every cell as DIGITS write it
+    cells = [c for row in body for c in row if c]
+    assert cells == [f"{float(c):.{export.DIGITS}g}" for c in cells]
     # the punch moves down from its start: the stroke is its travel, the force the sheet's
     # push against it (its z force, as the tool_force probe says)
     z0 = res["punches"]["punch"][2]
     np.testing.assert_allclose(col["punch stroke [mm]"],
                                [1e3 * (z0 - r["tools"]["punch"]["z"]) for r in steps],
-                               rtol=1e-12)
+                               rtol=digits)
     np.testing.assert_allclose(col["punch force [kN]"], col["punch_force [kN]"], rtol=1e-9)
 
 
