@@ -172,15 +172,20 @@ def hill_return(e6: np.ndarray, ep_n: float, params: np.ndarray
                 ) -> tuple[float, np.ndarray, np.ndarray, float, np.ndarray]:
     """Incremental potential at one point: trial log strain ``e6 (6,)`` (material frame,
     Mandel), ``ep_n`` the committed equivalent plastic strain. Returns (W, T (6,),
-    D = dT/de (6, 6), dg, dEp (6,)), all in the material frame."""
+    D = dT/de (6, 6), dg, dEp (6,)), all in the material frame. Q is read from ``params`` in
+    place and D formed as Q (diag - beta w w^T) Q^T by loops, symmetric by construction: this
+    runs at every point of a Hill sheet, where small temporaries cost more than the
+    arithmetic."""
     mu, lam, law = params[0], params[1], int(params[2])
     hp, h = params[3:6], params[6:12]
-    Q = np.ascontiguousarray(params[12:48]).reshape((6, 6))
     kappa = lam + 2.0 * mu / 3.0
-    a = np.zeros(6)
+    work = np.zeros((4, 6))
+    a, Ta, dEa, w = work[0], work[1], work[2], work[3]  # w: diag of the tangent, then w_i
     for i in range(6):
+        acc = 0.0
         for k in range(6):
-            a[i] += Q[k, i] * e6[k]
+            acc += params[12 + 6 * k + i] * e6[k]
+        a[i] = acc
     phi2 = 0.0
     for i in range(1, 6):
         phi2 += h[i] * (2.0 * mu * a[i]) ** 2
@@ -190,40 +195,37 @@ def hill_return(e6: np.ndarray, ep_n: float, params: np.ndarray
         dg = _solve(a, h, ep_n, mu, law, hp)
     y, dy = yield_stress(law, hp, ep_n + dg)
     c = 2.0 * mu * dg / y
-    b = np.ones(6)
-    for i in range(1, 6):
-        b[i] = 1.0 + c * h[i]
-    Ta = np.empty(6)
     Ta[0] = 3.0 * kappa * a[0]
     W = 1.5 * kappa * a[0] * a[0]
-    dEa = np.zeros(6)
+    diag = np.empty(6)
+    diag[0] = 3.0 * kappa
+    beta, der = 0.0, 0.0
     for i in range(1, 6):
-        Ta[i] = 2.0 * mu * a[i] / b[i]
-        W += mu * (a[i] / b[i]) ** 2
-        dEa[i] = a[i] * c * h[i] / b[i]
-    Da = np.zeros((6, 6))
-    Da[0, 0] = 3.0 * kappa
-    for i in range(1, 6):
-        Da[i, i] = 2.0 * mu / b[i]
+        b = 1.0 + c * h[i]
+        Ta[i] = 2.0 * mu * a[i] / b
+        W += mu * (a[i] / b) ** 2
+        dEa[i] = a[i] * c * h[i] / b
+        diag[i] = 2.0 * mu / b
+        der += 2.0 * h[i] * (2.0 * mu * a[i]) ** 2 * (dy + 2.0 * mu * h[i]) / (y * b) ** 3
+        w[i] = h[i] * a[i] / (b * b)
     if dg > 0.0:
         W += hardening_work(law, hp, ep_n, ep_n + dg)
-        der = 0.0
-        w = np.zeros(6)
-        for i in range(1, 6):
-            t2 = h[i] * (2.0 * mu * a[i]) ** 2
-            der += 2.0 * t2 * (dy + 2.0 * mu * h[i]) / (y * b[i]) ** 3
-            w[i] = h[i] * a[i] / (b[i] * b[i])
         beta = 32.0 * mu**4 * (y - dg * dy) / (y**4 * der)
-        for i in range(1, 6):
-            for j in range(1, 6):
-                Da[i, j] -= beta * w[i] * w[j]
-    T, dE = np.zeros(6), np.zeros(6)
+    T, dE, D = np.zeros(6), np.zeros(6), np.empty((6, 6))
+    Qw = np.zeros(6)
     for i in range(6):
         for k in range(6):
-            T[i] += Q[i, k] * Ta[k]
-            dE[i] += Q[i, k] * dEa[k]
-    D = _mm(_mm(Q, Da), Q.T)
-    return W, T, 0.5 * (D + D.T), dg, dE
+            q = params[12 + 6 * i + k]
+            T[i] += q * Ta[k]
+            dE[i] += q * dEa[k]
+            Qw[i] += q * w[k]
+    for i in range(6):
+        for j in range(i, 6):
+            acc = 0.0
+            for k in range(6):
+                acc += params[12 + 6 * i + k] * diag[k] * params[12 + 6 * j + k]
+            D[i, j] = D[j, i] = acc - beta * Qw[i] * Qw[j]
+    return W, T, D, dg, dE
 
 
 @njit(cache=True)
@@ -257,29 +259,28 @@ def unmandel(v: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _half_log_dd2(x: np.ndarray) -> float:
-    """Second divided difference of f = 1/2 ln at the three positive numbers x, free of
-    cancellation: the recursion over the widest pair when the spread exceeds 1e-2 of the mean
-    (error ~1e-14 relative), else the Taylor series about the mean, sum_k f^(k+2)(m) / (k+2)!
-    h_k(x - m) with h_k the complete homogeneous polynomials (truncation 1e-2^11)."""
-    lo, hi = min(x[0], min(x[1], x[2])), max(x[0], max(x[1], x[2]))
-    mid = x[0] + x[1] + x[2] - lo - hi
-    m = (x[0] + x[1] + x[2]) / 3.0
+def _half_log_dd2(x0: float, x1: float, x2: float) -> float:
+    """Second divided difference of f = 1/2 ln at the three positive numbers x0, x1, x2, free
+    of cancellation: the recursion over the widest pair when the spread exceeds 1e-2 of the
+    mean (error ~1e-14 relative), else the Taylor series about the mean,
+    sum_k f^(k+2)(m) / (k+2)! h_k(y) with y = (x - m) / m and h_k the complete homogeneous
+    polynomials (truncation 1e-2^11), those by h_k(y0, y1, y2) = h_k(y1, y2) + y0
+    h_{k-1}(y0, y1, y2) and h_k(y1, y2) = y2^k + y1 h_{k-1}(y1, y2): scalars only, as this
+    runs ten times at every point of a Hill sheet."""
+    lo, hi = min(x0, min(x1, x2)), max(x0, max(x1, x2))
+    mid = x0 + x1 + x2 - lo - hi
+    m = (x0 + x1 + x2) / 3.0
     if hi - lo > 1e-2 * m:
         return 0.5 * (dlog(hi, mid) - dlog(mid, lo)) / (hi - lo)
-    y = (x - m) / m
-    p = np.zeros(11)
-    for i in range(1, 11):
-        p[i] = y[0] ** i + y[1] ** i + y[2] ** i
-    hk = np.zeros(11)
-    hk[0] = 1.0
-    total = -0.25
+    y0, y1, y2 = (x0 - m) / m, (x1 - m) / m, (x2 - m) / m
+    h2, h12, h012 = 1.0, 1.0, 1.0  # h_k(y2), h_k(y1, y2), h_k(y0, y1, y2) at k = 0
+    total, sign = -0.25, 0.5
     for k in range(1, 11):
-        acc = 0.0
-        for i in range(1, k + 1):
-            acc += p[i] * hk[k - i]
-        hk[k] = acc / k
-        total += 0.5 * (-1.0) ** (k + 1) / (k + 2) * hk[k]
+        h2 *= y2
+        h12 = h2 + y1 * h12
+        h012 = h12 + y0 * h012
+        total += sign / (k + 2) * h012
+        sign = -sign
     return total / (m * m)
 
 
@@ -398,12 +399,10 @@ def _hessian_uv(s: np.ndarray, lam: np.ndarray, f1: np.ndarray, Tp: np.ndarray,
 def _half_log_dd2_table(lam: np.ndarray) -> np.ndarray:
     """f2[i, j, k] = the second divided difference of f = 1/2 ln at lam[i], lam[j], lam[k]."""
     f2 = np.empty((3, 3, 3))
-    x = np.empty(3)
     for i in range(3):  # symmetric in its arguments: ten distinct values
         for j in range(i, 3):
             for k in range(j, 3):
-                x[0], x[1], x[2] = lam[i], lam[j], lam[k]
-                v = _half_log_dd2(x)
+                v = _half_log_dd2(lam[i], lam[j], lam[k])
                 f2[i, j, k] = f2[i, k, j] = f2[j, i, k] = v
                 f2[j, k, i] = f2[k, i, j] = f2[k, j, i] = v
     return f2
@@ -437,26 +436,35 @@ def hill_green(lam: np.ndarray, V: np.ndarray, params: np.ndarray, frame: np.nda
     Mr = mandel_rotation(Vm)
     Dv = _mm(_mm(Mr.T, D6), Mr)
     f2 = _half_log_dd2_table(lam)
-    B = np.zeros((6, 3, 3))  # the unit directions of x
-    Lm = np.zeros((6, 6))  # Lm[p]: the Mandel vector (V's frame) of dL along B[p]
+    # x's unit directions B_p = e_a e_b^T + e_b e_a^T (pair p of the diagonal, then PAIRS);
+    # dL along B_p is the single Mandel component m(p) = MANDEL[a, b], of size size[p]
+    ends = np.empty((6, 2), np.int64)
+    m, size = np.empty(6, np.int64), np.empty(6)
     for p in range(6):
         a, b = (p, p) if p < 3 else (PAIRS[p - 3, 0], PAIRS[p - 3, 1])
-        B[p, a, b] = B[p, b, a] = 1.0
-        Lm[p, MANDEL[a, b]] = 2.0 * f1[a, b] * (1.0 if a == b else _R2)
-    LD = _mm(Lm, Dv)
+        ends[p, 0], ends[p, 1], m[p] = a, b, MANDEL[a, b]
+        size[p] = 2.0 * f1[a, b] * (1.0 if a == b else _R2)
     for p in range(6):
         for q in range(p, 6):
-            v = 0.0
-            for m in range(6):
-                v += LD[p, m] * Lm[q, m]
-            t = 0.0
-            for a in range(3):
-                for b in range(3):
-                    for c in range(3):
-                        t += Tp[a, b] * f2[a, b, c] * (B[p, a, c] * B[q, c, b]
-                                                       + B[q, a, c] * B[p, c, b])
-            Dp[p, q] = Dp[q, p] = v + 4.0 * t
+            t = _log_term(ends[p], ends[q], Tp, f2) + _log_term(ends[q], ends[p], Tp, f2)
+            Dp[p, q] = Dp[q, p] = size[p] * size[q] * Dv[m[p], m[q]] + 4.0 * t
     return W
+
+
+
+@njit(cache=True, inline='always')
+def _log_term(ep: np.ndarray, eq: np.ndarray, Tp: np.ndarray, f2: np.ndarray) -> float:
+    """sum_abc T'_ab f2_abc (B_p)_ac (B_q)_cb over the non-zero entries of the unit
+    directions B_p, B_q (ends ``ep``, ``eq``: (a, b) of e_a e_b^T + e_b e_a^T, one entry where
+    a == b)."""
+    t = 0.0
+    for i in range(1 if ep[0] == ep[1] else 2):
+        a, c = (ep[0], ep[1]) if i == 0 else (ep[1], ep[0])
+        for j in range(1 if eq[0] == eq[1] else 2):
+            c2, b = (eq[0], eq[1]) if j == 0 else (eq[1], eq[0])
+            if c == c2:
+                t += Tp[a, b] * f2[a, b, c]
+    return t
 
 
 @njit(cache=True)
