@@ -356,7 +356,10 @@ class ClientView:
         with self.lock:
             run, mode = self.selected, self.mode
             if mode == "replay":
-                step = self._show_recorded(step, f"Recording of `{run}`")
+                asked, step = step, self._show_recorded(step, f"Recording of `{run}`")
+                if step != asked:  # the box says the step drawn, not the one asked
+                    with self.v.from_code():
+                        self.gui.time.value = step
         if mode == "replay":
             self.scrubbed = True
             self.actions.shows_step(self.view, run, step)

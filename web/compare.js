@@ -66,11 +66,12 @@ const Compare = (() => {
   }
 
   function describe(r) {
-    // what tells runs of one scene apart: the element, the overrides, the time it started
-    const o = Object.entries(r.overrides || {}).filter(([k]) => k !== "shell.element")
-      .map(([k, v]) => `${k}=${Array.isArray(v) ? `[${v}]` : v}`);
+    // what tells runs of one scene apart: the element, what it changed of the scene (as the
+    // Runs table says it: overrides in the form's units, live parameters, unsaved edits), the
+    // time it started
     const when = new Date(r.created * 1000).toLocaleTimeString([], { hour12: false });
-    return { main: `${r.scene} · ${r.element}`, more: [...o, when].join(" · ") };
+    return { main: `${r.scene} · ${r.element}`,
+             more: [...RunsTable.changes(r), when].join(" · ") };  // runs.js
   }
 
   async function refreshPanel() {

@@ -53,6 +53,9 @@ const Results = (() => {
   function when(at, flag) {
     // on the card: the stroke or step it happened at; for a forming limit reached, how many
     // elements reached it
+    if (flag && at.over_limit) {
+      return `${flag} in ${Units.num(at.over_limit)} vert${at.over_limit === 1 ? "ex" : "ices"}`;
+    }
     if (flag && at.zone_counts) {
       const n = at.zone_counts[flag];
       return `${flag} in ${Units.num(n)} element${n === 1 ? "" : "s"}`;

@@ -273,5 +273,5 @@ const RunsTable = (() => {
     });
   }
 
-  return { init, show };
+  return { init, show, changes };
 })();

@@ -28,7 +28,9 @@ when there is one; loaded: the end of the stroke):
   share in ``at``: a cup's flange is held, then free.
 - ``min_thickness``, ``max_thinning``, ``max_thickening``: over the mid-surface vertices
   (thickness: the fibre length between the skins), final state; a sheet that nowhere thins
-  (thickens) reads 0 with the nearest vertex's opposite change in the note.
+  (thickens) reads 0 with the nearest vertex's opposite change in the note. With a thinning
+  limit in the material card's forming limits (``flc.max_thinning``), ``max_thinning`` says
+  how many vertices reach it (``at.over_limit``) and is flagged ``failure`` when any does.
 - ``forming_limit_margin`` (a plastic sheet with a forming limit curve in its material card):
   the smallest distance of an element's major strain below the curve at its minor strain,
   e1*(e2) - e1 in true strain (sim.frames.forming_limits), at the end of the stroke as the
@@ -353,8 +355,16 @@ def _lateral_punch_force(view: View) -> list[dict]:
 def _thickness(view: View) -> list[dict]:
     h, h0, mid = thickness(view.model, view.x), view.sim.h0, view.mid()
     thin, i = thinning(h, h0, view.x), int(np.argmin(h))
-    return [entry("min_thickness", "Minimum thickness", h[i], "m", at_vertex(i, mid)),
-            _most("max_thinning", "Maximum thinning", thin, mid, ("thinner", "thickening")),
+    most = _most("max_thinning", "Maximum thinning", thin, mid, ("thinner", "thickening"))
+    flc = view.model.scene.material.flc
+    if flc is not None and flc.max_thinning is not None and view.model.elasticity.plastic:
+        over = int(np.count_nonzero(thin >= flc.max_thinning))
+        most["at"]["over_limit"] = over
+        most["flag"] = "failure" if over else None
+        most["note"] = "; ".join(filter(None, (
+            most.get("note"), f"the material card's limit {100 * flc.max_thinning:g} % "
+                              f"(excessive thinning): {over} vertices at or over it")))
+    return [entry("min_thickness", "Minimum thickness", h[i], "m", at_vertex(i, mid)), most,
             _most("max_thickening", "Maximum thickening", 0.0 - thin, mid,
                   ("thicker", "thinning"))]
 

@@ -451,6 +451,10 @@ class _FLC(Strict):
         "the marginal zone: this far (true major strain) below the curve", "1", 0.1)
     insufficient_stretch: bounded(0.0, 1.0, lo_open=False) = doc(
         "insufficient stretch: both strains smaller than this in size", "1", 0.02)
+    max_thinning: bounded(0.0, 1.0, lo_open=True) | None = doc(
+        "excessive thinning: the share of the rest thickness whose loss fails the part whatever "
+        "its strains (a criterion beside the curve, as forming packages apply one); the "
+        "summary's maximum thinning is flagged from it; unset: none", "1", None)
 
 
 class PointsFLC(_FLC):

@@ -403,6 +403,26 @@ def test_a_stretch_past_the_curve_fails_and_the_zones_follow():
         assert margin["at"]["zone_counts"] == counts
 
 
+def test_thinning_over_the_cards_limit_is_flagged():
+    """The plane-strain sheet thins uniformly: a thinning limit just under its thinning flags
+    the summary's maximum thinning as failure at every vertex, one just over it flags
+    nothing; without a limit the entry carries no count."""
+    sim, res = stretched("plane_strain")
+    thin = entries(res)["max_thinning"]
+    assert "flag" not in thin and "over_limit" not in thin["at"]
+    raw = stretch_raw("plane_strain")
+    n = sim.model.shell.n_vertices
+    # the uniform state's thinning is the same at every vertex to Newton's tolerance (rtol
+    # 1e-8): a limit 1 % away is on one side of all of them
+    for factor, flag, over in ((0.99, "failure", n), (1.01, None, 0)):
+        raw["material"]["flc"]["max_thinning"] = factor * thin["value"]
+        sim = Simulation.from_scene(scene_from_dict(raw))
+        assert sim.run()
+        got = entries(sim.result())["max_thinning"]
+        assert got["flag"] == flag and got["at"]["over_limit"] == over, got
+        assert f"limit {100 * factor * thin['value']:g} %" in got["note"]
+
+
 def test_an_elastic_sheet_has_no_forming_limits():
     raw = stretch_raw("uniaxial")
     raw["material"] = {"E": E, "nu": NU}

@@ -92,6 +92,13 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
                                         "[r.querySelector('input').value, "
                                         "r.querySelector('.letter').textContent])")
     assert dict(letters) == {c: "A", a: "B"}  # the order ticked
+    # each run says what it changed of the scene, as the Runs table does: the live parameter
+    # from its step, the overrides in the form's units
+    more = dict(page.eval_on_selector_all("#compare-runs tr", "rows => rows.map(r => "
+                                          "[r.querySelector('input').value, "
+                                          "r.querySelector('.more').textContent])"))
+    assert more[a].startswith("friction_scale ×2 from step "), more
+    assert more[b].startswith("tools.0.friction = 0.05 · tools.1.friction = 0.05 · "), more
     shot(page, SHOTS, "panel", settle_ms=SETTLE_MS)
     page.click("#compare-open")
     page.wait_for_selector("#compare-view:not([hidden])")

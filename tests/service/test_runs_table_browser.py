@@ -175,11 +175,13 @@ def test_a_part_over_its_forming_limit_is_marked(served, browser):
     """The cup against a forming limit curve far below its strains (Keeler-Brazier with a
     hardening exponent of 0.001: FLC0 0.0015): elements over the curve; its FLD margin is
     negative and marked as failure in the Runs table. Runs last: the sorting test counts two
-    results."""
+    results. Run with unsaved edits (its description), at 1400 px: the table fits the window,
+    the badge under the run's id."""
     url = served
-    run = start(url, "tiny_cup", overrides={"material.flc.n": 0.001})["id"]
+    edited = tiny_cup_toml().replace("(page tests)", "(edited)")
+    run = start(url, "tiny_cup", toml=edited, overrides={"material.flc.n": 0.001})["id"]
     until(lambda: httpx.get(f"{url}/api/runs/{run}").json()["state"] in ENDED, f"{run} never ended")
-    page, errors = open_page(browser, url)
+    page, errors = new_page(browser, url, "#scenes li.sel", width=1400, height=950)
     wait_cell(page, run, "state", "finished")
     page.wait_for_function(
         f"(document.querySelector('#runs tbody tr[data-id=\"{run}\"] "
@@ -198,6 +200,10 @@ def test_a_part_over_its_forming_limit_is_marked(served, browser):
     for r in httpx.get(f"{url}/api/runs").json():
         if r["id"] != run and "forming_limit_margin" in r["results"]:
             assert r["results"]["forming_limit_margin"].get("flag") is None, r
+    assert "unsaved edits" in cell(page, run, "run")
     shot(page, SHOTS, "05-over-the-forming-limit.png")
+    widths = page.evaluate("(e => [e.scrollWidth, e.clientWidth])"
+                           "(document.querySelector('#runs-box .runs-scroll'))")
+    assert widths[0] <= widths[1], widths
     assert not [e for e in errors if "/static/" in e], errors
     page.close()

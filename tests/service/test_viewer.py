@@ -252,6 +252,7 @@ def test_viewer_replays_an_older_recorded_run(done, viewer):
     assert sorted(viewer.canvas.tools) == ["ground", "punch"]
     viewer.gui.time.value = 1  # recorded at 0 and 2: shows 0, the nearest before
     assert viewer.gui.status.content.endswith("showing recorded step 0")
+    assert viewer.gui.time.value == 0  # and the slider's box says so
     np.testing.assert_allclose(viewer.canvas.tools["punch"].position, rep.pose("punch", 0),
                                atol=1e-9)
     viewer.gui.time.value = 2
