@@ -104,6 +104,7 @@ class ClientView:
         # (a scene's rest state) or "none"
         self.mode = "none"
         self.replay: Replay | None = None  # a recorded run being shown
+        self.replay_step = 0  # the recorded step it shows
         self.previewed: str | None = None  # the scene previewed
         self.canvas: Canvas  # what is drawn: made with the GUI, its folders after ours
         self.gui = self._build_gui()
@@ -335,10 +336,16 @@ class ClientView:
         else:
             self.status(line)
 
-    def _show_recorded(self, step: int, message: str) -> int:
-        """The recorded frame at ``step`` or the nearest before it; returns its step."""
+    def _show_recorded(self, step: int, message: str, forward: bool = False) -> int:
+        """The recorded frame at ``step`` or the nearest before it (``forward``: after it, so
+        that a slider moved on by one step from a recorded frame reaches the next one); returns
+        its step."""
         rep = self.replay
-        i = max(int(np.searchsorted(rep.steps, step, side="right")) - 1, 0)
+        if forward:
+            i = min(int(np.searchsorted(rep.steps, step, side="left")), len(rep.steps) - 1)
+        else:
+            i = max(int(np.searchsorted(rep.steps, step, side="right")) - 1, 0)
+        self.replay_step = int(rep.steps[i])
         with self.client.atomic():
             self.canvas.draw(rep.frame(i), colour=True)
             self.status(f"{message}  \nshowing recorded step {rep.steps[i]}")
@@ -356,7 +363,8 @@ class ClientView:
         with self.lock:
             run, mode = self.selected, self.mode
             if mode == "replay":
-                asked, step = step, self._show_recorded(step, f"Recording of `{run}`")
+                asked, step = step, self._show_recorded(step, f"Recording of `{run}`",
+                                                        forward=step > self.replay_step)
                 if step != asked:  # the box says the step drawn, not the one asked
                     with self.v.from_code():
                         self.gui.time.value = step

@@ -33,7 +33,7 @@ const RunsTable = (() => {
       sort: result("min_thickness"), cell: valueCell("min_thickness", "mm") },
     { key: "max_thinning", label: "max. thinning", unit: "%",
       sort: result("max_thinning"), cell: valueCell("max_thinning", "%") },
-    { key: "forming_limit_margin", label: "FLD margin", unit: "%",
+    { key: "forming_limit_margin", label: "FLD margin", unit: "% true strain",
       sort: result("forming_limit_margin"), cell: valueCell("forming_limit_margin", "%"),
       title: "forming limit margin: the least distance of an element's major strain below " +
              "the forming limit curve (true strain), marked where marginal or over the curve" },
@@ -125,7 +125,11 @@ const RunsTable = (() => {
       if (!v) return text("span", "–", "muted");
       const span = text("span", Units.withUnit(v.value, v.unit === unit ? "" : v.unit),
                         "num" + (v.flag ? ` flag-${v.flag}` : ""));
-      if (v.flag) span.title = `${v.flag}: a forming limit reached`;
+      if (v.flag) {
+        span.title = `${v.flag}: ` + (name === "max_thinning" ? "the thinning reaches the " +
+                                      "material card's limit (excessive thinning)"
+                                                              : "a forming limit reached");
+      }
       return span;
     };
   }

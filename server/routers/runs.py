@@ -106,7 +106,7 @@ class Acted(RunSummary):
 class Shown(BaseModel):
     value: float
     unit: str = Field(description="kN, mm, %")
-    flag: str | None = Field(None, description="a forming limit reached: marginal, failure")
+    flag: str | None = Field(None, description="a forming limit reached (SummaryEntry.flag)")
 
 
 class RunListEntry(RunSummary):
@@ -301,8 +301,9 @@ class SummaryEntry(Measure):
     tool: str | None = Field(None, description="the punch, for a punch's quantity")
     note: str | None = Field(None, description="how the quantity is defined, where needed")
     flag: str | None = Field(None, description=(
-        "a forming limit reached: 'marginal' or 'failure' (the forming limit margin); null "
-        "when none is"))
+        "a forming limit reached: 'marginal' or 'failure' of the forming limit margin, "
+        "'failure' of the maximum thinning at the material card's flc.max_thinning; null when "
+        "none is"))
 
 
 class RunResultSummary(BaseModel):

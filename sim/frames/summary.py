@@ -357,13 +357,14 @@ def _thickness(view: View) -> list[dict]:
     thin, i = thinning(h, h0, view.x), int(np.argmin(h))
     most = _most("max_thinning", "Maximum thinning", thin, mid, ("thinner", "thickening"))
     flc = view.model.scene.material.flc
-    if flc is not None and flc.max_thinning is not None and view.model.elasticity.plastic:
+    if flc is not None and flc.max_thinning is not None:  # (flc: plastic materials only)
         over = int(np.count_nonzero(thin >= flc.max_thinning))
         most["at"]["over_limit"] = over
         most["flag"] = "failure" if over else None
         most["note"] = "; ".join(filter(None, (
             most.get("note"), f"the material card's limit {100 * flc.max_thinning:g} % "
-                              f"(excessive thinning): {over} vertices at or over it")))
+                              f"(excessive thinning): {over} vertices at or over it in the "
+                              f"final state")))
     return [entry("min_thickness", "Minimum thickness", h[i], "m", at_vertex(i, mid)), most,
             _most("max_thickening", "Maximum thickening", 0.0 - thin, mid,
                   ("thicker", "thinning"))]
@@ -401,8 +402,10 @@ def _forming_limit(view: View) -> list[dict]:
                    "minor": measure(minor[e], "1"), "zone_counts": counts},
                   flag=worst if worst in ("marginal", "failure") else None,
                   note=f"the least distance of an element's major strain below the forming "
-                       f"limit curve (true strain), at the end of the stroke; under "
-                       f"{100 * flc.margin:g} %: marginal, under 0: over the curve (failure)")]
+                       f"limit curve (true strain), at the end of the stroke (the last step "
+                       f"of a run that ended before it) as the FLD; under "
+                       f"{100 * flc.margin:g} %: marginal, at or under 0: on or over the "
+                       f"curve (failure)")]
 
 
 @quantity("draw_in", needs=("punch", "edge"))

@@ -180,7 +180,7 @@ def hill_return(e6: np.ndarray, ep_n: float, params: np.ndarray
     hp, h = params[3:6], params[6:12]
     kappa = lam + 2.0 * mu / 3.0
     work = np.zeros((4, 6))
-    a, Ta, dEa, w = work[0], work[1], work[2], work[3]  # w: diag of the tangent, then w_i
+    a, Ta, dEa, w = work[0], work[1], work[2], work[3]
     for i in range(6):
         acc = 0.0
         for k in range(6):
@@ -206,8 +206,9 @@ def hill_return(e6: np.ndarray, ep_n: float, params: np.ndarray
         W += mu * (a[i] / b) ** 2
         dEa[i] = a[i] * c * h[i] / b
         diag[i] = 2.0 * mu / b
-        der += 2.0 * h[i] * (2.0 * mu * a[i]) ** 2 * (dy + 2.0 * mu * h[i]) / (y * b) ** 3
-        w[i] = h[i] * a[i] / (b * b)
+        if dg > 0.0:
+            der += 2.0 * h[i] * (2.0 * mu * a[i]) ** 2 * (dy + 2.0 * mu * h[i]) / (y * b) ** 3
+            w[i] = h[i] * a[i] / (b * b)
     if dg > 0.0:
         W += hardening_work(law, hp, ep_n, ep_n + dg)
         beta = 32.0 * mu**4 * (y - dg * dy) / (y**4 * der)
@@ -258,24 +259,30 @@ def unmandel(v: np.ndarray) -> np.ndarray:
     return A
 
 
+# the second divided difference of 1/2 ln by its Taylor series up to this spread (of the mean),
+# by the recursion over the widest pair beyond it: the series' twenty terms are exact to a few
+# ulps up to 0.3 (|y| <= 0.2: truncation 0.2^21), while the recursion divides two differences
+# of logarithms (dlog) by the spread and loses 1e-11 of its value at 1e-2, 1e-13 from 0.3 on
+SERIES_SPREAD, SERIES_TERMS = 0.3, 20
+
+
 @njit(cache=True)
 def _half_log_dd2(x0: float, x1: float, x2: float) -> float:
-    """Second divided difference of f = 1/2 ln at the three positive numbers x0, x1, x2, free
-    of cancellation: the recursion over the widest pair when the spread exceeds 1e-2 of the
-    mean (error ~1e-14 relative), else the Taylor series about the mean,
+    """Second divided difference of f = 1/2 ln at the three positive numbers x0, x1, x2:
+    within ``SERIES_SPREAD`` of the mean the Taylor series about it,
     sum_k f^(k+2)(m) / (k+2)! h_k(y) with y = (x - m) / m and h_k the complete homogeneous
-    polynomials (truncation 1e-2^11), those by h_k(y0, y1, y2) = h_k(y1, y2) + y0
-    h_{k-1}(y0, y1, y2) and h_k(y1, y2) = y2^k + y1 h_{k-1}(y1, y2): scalars only, as this
-    runs ten times at every point of a Hill sheet."""
+    polynomials, those by h_k(y0, y1, y2) = h_k(y1, y2) + y0 h_{k-1}(y0, y1, y2) and
+    h_k(y1, y2) = y2^k + y1 h_{k-1}(y1, y2) (scalars only: this runs ten times at every point
+    of a Hill sheet); wider, the recursion over the widest pair."""
     lo, hi = min(x0, min(x1, x2)), max(x0, max(x1, x2))
     mid = x0 + x1 + x2 - lo - hi
     m = (x0 + x1 + x2) / 3.0
-    if hi - lo > 1e-2 * m:
+    if hi - lo > SERIES_SPREAD * m:
         return 0.5 * (dlog(hi, mid) - dlog(mid, lo)) / (hi - lo)
     y0, y1, y2 = (x0 - m) / m, (x1 - m) / m, (x2 - m) / m
     h2, h12, h012 = 1.0, 1.0, 1.0  # h_k(y2), h_k(y1, y2), h_k(y0, y1, y2) at k = 0
     total, sign = -0.25, 0.5
-    for k in range(1, 11):
+    for k in range(1, SERIES_TERMS + 1):
         h2 *= y2
         h12 = h2 + y1 * h12
         h012 = h12 + y0 * h012
@@ -449,7 +456,6 @@ def hill_green(lam: np.ndarray, V: np.ndarray, params: np.ndarray, frame: np.nda
             t = _log_term(ends[p], ends[q], Tp, f2) + _log_term(ends[q], ends[p], Tp, f2)
             Dp[p, q] = Dp[q, p] = size[p] * size[q] * Dv[m[p], m[q]] + 4.0 * t
     return W
-
 
 
 @njit(cache=True, inline='always')

@@ -570,7 +570,8 @@ def test_cup_summary_is_plausible_at_a_coarse_mesh(tmp_path):
     assert list(s) == ["peak_punch_force", "final_punch_force", "peak_lateral_punch_force",
                        "lateral_punch_force_share", "peak_lateral_punch_force_holding",
                        "peak_lateral_punch_force_holder_on_stop", "min_thickness",
-                       "max_thinning", "max_thickening", "max_draw_in", "min_draw_in",
+                       "max_thinning", "max_thickening", "forming_limit_margin",
+                       "max_draw_in", "min_draw_in",
                        "part_height", "flange_wrinkle_amplitude", "volume_change"]
     fz = [r["tools"]["punch"]["fz"] for r in res["steps"]]
     # the lateral force is the step records' (x, y) part (the punch moves along -z); split at

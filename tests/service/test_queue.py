@@ -345,7 +345,8 @@ def test_the_list_says_what_each_run_changed(tmp_path):
         wait_state(client, run, ENDED)
         listed = {r["id"]: r for r in client.get("/api/runs").json()}[run]
         # the cantilever: no punch, its thickness as written (7 mm, no thinning)
+        # (no forming limit in its material card: nothing flagged)
         assert listed["results"] == {"min_thickness": {"value": pytest.approx(7.0),
-                                                       "unit": "mm"},
+                                                       "unit": "mm", "flag": None},
                                      "max_thinning": {"value": pytest.approx(0.0, abs=1e-9),
-                                                      "unit": "%"}}
+                                                      "unit": "%", "flag": None}}

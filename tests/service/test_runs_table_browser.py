@@ -187,7 +187,7 @@ def test_a_part_over_its_forming_limit_is_marked(served, browser):
         f"(document.querySelector('#runs tbody tr[data-id=\"{run}\"] "
         f"td.col-forming_limit_margin')?.textContent || '–') !== '–'")
     headers = page.eval_on_selector_all("#runs thead th", "ths => ths.map(t => t.textContent)")
-    assert headers[10] == "FLD margin (%)"
+    assert headers[10] == "FLD margin (% true strain)"
     margin = {e["name"]: e for e in
               httpx.get(f"{url}/api/runs/{run}/summary").json()["summary"]}[
         "forming_limit_margin"]

@@ -253,6 +253,10 @@ def test_viewer_replays_an_older_recorded_run(done, viewer):
     viewer.gui.time.value = 1  # recorded at 0 and 2: shows 0, the nearest before
     assert viewer.gui.status.content.endswith("showing recorded step 0")
     assert viewer.gui.time.value == 0  # and the slider's box says so
+    viewer.gui.time.value = 1  # on by one from 0: the next recorded frame, not back to 0
+    assert viewer.gui.status.content.endswith("showing recorded step 2")
+    assert viewer.gui.time.value == 2
+    viewer.gui.time.value = 0
     np.testing.assert_allclose(viewer.canvas.tools["punch"].position, rep.pose("punch", 0),
                                atol=1e-9)
     viewer.gui.time.value = 2

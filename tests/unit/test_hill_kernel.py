@@ -2,11 +2,14 @@
 tangent, von Mises as its r = 1 case, and the r-values given back in uniaxial tension."""
 
 import math
+from decimal import Decimal, localcontext
 
 import numpy as np
 import pytest
 
 from sim.materials.hill import (
+    SERIES_SPREAD,
+    _half_log_dd2,
     coefficients,
     hill_flow,
     hill_matrix,
@@ -40,6 +43,34 @@ def test_coefficients_and_r_values_are_inverse():
     assert G + H == pytest.approx(1.0, rel=1e-15)
     np.testing.assert_allclose(r_values(F, G, H, N), R_AA5754, rtol=1e-14)
     np.testing.assert_allclose(coefficients(1.0, 1.0, 1.0), (0.5, 0.5, 0.5, 1.5), rtol=1e-15)
+
+
+def exact_dd2(x0: float, x1: float, x2: float) -> float:
+    """The second divided difference of 1/2 ln at three distinct floats, in 60-digit decimals:
+    the recursion's cancellation (a spread s of the mean loses about 2 log10(1/s) digits)
+    leaves over 30 exact digits at the spreads tested."""
+    with localcontext() as ctx:
+        ctx.prec = 60
+        a, b, c = (Decimal(x) for x in (x0, x1, x2))
+        f = [v.ln() / 2 for v in (a, b, c)]
+        ab, bc = (f[0] - f[1]) / (a - b), (f[1] - f[2]) / (b - c)
+        return float((ab - bc) / (a - c))
+
+
+@pytest.mark.parametrize("spread", [1e-9, 1e-6, 1e-4, 5e-3, 2e-2, 0.1, 0.5])
+def test_second_divided_difference_of_the_log_is_exact(spread):
+    """Both branches of _half_log_dd2 (the Taylor series within SERIES_SPREAD of the mean, the
+    recursion beyond) against the exact value, about a mean of 1.3 (a sheet's elastic C is
+    near 1: nearly every point of a Hill sheet takes the series): the series within 1e-14 (a
+    few ulps of its sum, its truncation under 1e-15), the recursion within 5e-13 (its two
+    differences of logarithms lose 1e-16 of their size over the spread)."""
+    for _ in range(20):
+        x = 1.3 * (1.0 + spread * RNG.uniform(-1.0, 1.0, 3))
+        got = _half_log_dd2(*x)
+        series = x.max() - x.min() <= SERIES_SPREAD * x.mean()
+        assert got == pytest.approx(exact_dd2(*x), rel=1e-14 if series else 5e-13)
+        # symmetric in its arguments, to the ulp or two another order of the sums gives
+        assert _half_log_dd2(x[2], x[0], x[1]) == pytest.approx(got, rel=1e-15)
 
 
 @pytest.mark.parametrize("law", list(LAWS))
