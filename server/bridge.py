@@ -181,7 +181,8 @@ def _meta(m: Books, ev: dict) -> Booked:
         line, values = run.line(), dict(run.parameters)
     booked.later.append(lambda: m.save(run))
     if m.viewer:
-        booked.later.append(lambda: m.viewer.new_run(run.id, ev["faces"], tools, line, values))
+        booked.later.append(lambda: m.viewer.new_run(run.id, ev["faces"], tools, line, values,
+                                                     ev.get("thinning_limit")))
     return booked
 
 

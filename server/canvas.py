@@ -22,7 +22,7 @@ import numpy as np
 import trimesh
 import viser
 
-from server.colormap import TOOL_OPACITY, tool_colour
+from server.colormap import FAILURE_PCT, MARGINAL_PCT, TOOL_OPACITY, tool_colour
 from server.palette import DEFAULT_FIELD, FIELDS, Palette, field_label, field_options
 from server.section import AXES, Section
 
@@ -99,6 +99,7 @@ class Canvas:
         self.frame: dict | None = None  # the frame drawn
         # the surface last sent: its field (None: recorded colours), RGB per vertex and faces
         self.painted: tuple[str | None, np.ndarray, np.ndarray] | None = None
+        self.limits_by_user = False  # the thinning limits set in this browser
         self.colour, self.view = self._colour_controls(), self._view_controls()
         self.field, self.legend = self._legend_panel()
 
@@ -274,8 +275,21 @@ class Canvas:
                 return
             self.recolour()
 
+    def card_thinning(self, limit: float | None) -> None:
+        """The thinning bands of a run whose material card has a thinning limit (%): failure
+        from it, marginal from half of it (the defaults' ratio); without one the defaults.
+        Limits the user set in this browser stay: theirs to compare runs by."""
+        if self.limits_by_user:
+            return
+        marginal, failure = ((0.5 * limit, limit) if limit is not None
+                             else (MARGINAL_PCT, FAILURE_PCT))
+        self.palette.set_thinning(marginal, failure)
+        with self.from_code():
+            self.colour["marginal"].value, self.colour["failure"].value = marginal, failure
+
     def _limits_set(self) -> None:
         with self.lock:
+            self.limits_by_user = True
             c = self.colour
             try:
                 self.palette.set_thinning(float(c["marginal"].value), float(c["failure"].value))

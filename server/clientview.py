@@ -329,6 +329,7 @@ class ClientView:
         self.canvas.set_scene(live.faces, [(t["name"], t["vertices"], t["faces"])
                                            for t in live.tools])
         self.canvas.palette.ranges.show(live.seen)
+        self.canvas.card_thinning(live.thinning_limit)
         with self.v.from_code():
             self.gui.time.value, self.gui.time.max = 0, 1
         if live.frame is not None:

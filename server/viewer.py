@@ -42,6 +42,7 @@ class Live:
     frame: dict | None = None
     seen: dict[str, tuple[float, float]] = field(default_factory=dict)
     ended: bool = False  # the run is over: its place may go to a newer run
+    thinning_limit: float | None = None  # %, the material card's (flc.max_thinning)
 
 
 class Viewer:
@@ -159,14 +160,15 @@ class Viewer:
                 c.run_status(run_id, line, active)
 
     def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict], line: str,
-                parameters: dict[str, float]) -> None:
+                parameters: dict[str, float], thinning_limit: float | None = None) -> None:
         """A run is built: its sheet's faces and its tools (meshes sent once), kept live in
         place of the oldest live run that is over (its kept frames go with it: a browser
         showing it switches to its recording), and shown by the clients that have it
         selected."""
         with self.lock:
             self.live_run = run_id
-            self.lives[run_id] = Live(np.asarray(faces, np.uint32), list(tools))
+            self.lives[run_id] = Live(np.asarray(faces, np.uint32), list(tools),
+                                      thinning_limit=thinning_limit)
             for old in [r for r, v in self.lives.items() if v.ended]:
                 if len(self.lives) <= self.live_runs:
                     break

@@ -124,6 +124,13 @@ def preview(scene_toml: str, overrides: dict, cache: dict) -> dict:
             "tools": tool_meshes(scene, plane_size(frame["positions"]), cache)}
 
 
+def thinning_limit(scene: Scene) -> float | None:
+    """The material card's excessive-thinning limit (``flc.max_thinning``) in %, or None: the
+    viewer's thinning bands start from it, as the summary's card flags from it."""
+    flc = scene.material.flc
+    return None if flc is None or flc.max_thinning is None else 100.0 * flc.max_thinning
+
+
 class RecordingFailed(RuntimeError):
     pass
 
@@ -263,6 +270,7 @@ class Solver:
                "element": scene.shell.element, "probes": [p.name for p in scene.probes],
                "tools": tools, "timing": timing, "parameters": dict(self.sim.parameters),
                "scaled": self.sim.scaled(), "note": self.note,
+               "thinning_limit": thinning_limit(scene),
                **plotted(scene, self.sim.tool_poses())}
         ForkingPickler.dumps(msg)
         self.events.put(msg)

@@ -22,6 +22,7 @@ from fastapi.testclient import TestClient  # noqa: E402
 from rerun.chunk import RrdReader  # noqa: E402
 
 from server.app import create_app  # noqa: E402
+from server.colormap import FAILURE_PCT, MARGINAL_PCT  # noqa: E402
 from server.history import FrameHistory  # noqa: E402
 from server.settings import Settings  # noqa: E402
 from tests.support.scenes import PRESS_TOML, tiny_toml  # noqa: E402
@@ -295,3 +296,39 @@ def test_a_users_choice_counts_while_the_code_updates_the_viewer(done, viewer):
     finally:
         release.set()
         t.join()
+
+
+def test_thinning_bands_start_from_the_material_cards_limit(done, viewer):
+    """A run whose material card sets a thinning limit (flc.max_thinning 15 %) is coloured
+    in bands from it (failure from 15 %, marginal from 7.5 %), as its summary flags from it; a
+    run without one in the defaults; limits a user set stay for every run."""
+    client, settings, _ = done
+    limited = PRESS_TOML.replace('name = "press"', 'name = "press_limit"').replace(
+        'hardening = { law = "perfect" }',
+        'hardening = { law = "perfect" }\n'
+        'flc = { kind = "points", points = [[-0.5, 0.5], [0.5, 0.5]], max_thinning = 0.15 }')
+    assert limited != PRESS_TOML
+    (settings.scenes_dir / "press_limit.toml").write_text(limited)
+
+    def ran(scene: str) -> str:
+        r = client.post("/api/runs", json={"scene": scene, "element": "linear"})
+        assert r.status_code == 201, r.text
+        run = r.json()["id"]
+        assert wait_state(client, run, {"finished", "failed", "stopped"})["state"] == "finished"
+        until(lambda: viewer.selected == run and viewer.mode == "live", "not shown")
+        return run
+
+    def bands() -> tuple[float, float]:
+        c = viewer.canvas
+        assert c.palette.thinning.bounds[1:] == (c.colour["marginal"].value,
+                                                 c.colour["failure"].value)
+        return c.palette.thinning.bounds[1:]
+
+    ran("press_limit")
+    assert bands() == (7.5, 15.0)
+    ran("press")
+    assert bands() == (MARGINAL_PCT, FAILURE_PCT)
+    viewer.canvas.colour["failure"].value = 25.0  # as a user setting it
+    assert bands() == (MARGINAL_PCT, 25.0)
+    ran("press_limit")
+    assert bands() == (MARGINAL_PCT, 25.0)  # the user's limits stay
