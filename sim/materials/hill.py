@@ -66,6 +66,10 @@ _R2 = math.sqrt(2.0)
 # Mandel index of the tensor component (i, j)
 MANDEL = np.array([[0, 5, 4], [5, 1, 3], [4, 3, 2]])
 _PAIRS = np.array([[1, 2], [0, 2], [0, 1]])  # off-diagonal component of Mandel index 3, 4, 5
+# the unique components of a symmetric tensor (the diagonal, then isotropic.PAIRS) as (a, b), and
+# their Mandel indices: constant tables, not made at every point
+_ENDS = np.array([[0, 0], [1, 1], [2, 2], *PAIRS.tolist()])
+_M = np.array([MANDEL[a, b] for a, b in _ENDS])
 
 
 def coefficients(r0: float, r45: float, r90: float) -> tuple[float, float, float, float]:
@@ -443,18 +447,16 @@ def hill_green(lam: np.ndarray, V: np.ndarray, params: np.ndarray, frame: np.nda
     Mr = mandel_rotation(Vm)
     Dv = _mm(_mm(Mr.T, D6), Mr)
     f2 = _half_log_dd2_table(lam)
-    # x's unit directions B_p = e_a e_b^T + e_b e_a^T (pair p of the diagonal, then PAIRS);
-    # dL along B_p is the single Mandel component m(p) = MANDEL[a, b], of size size[p]
-    ends = np.empty((6, 2), np.int64)
-    m, size = np.empty(6, np.int64), np.empty(6)
+    # x's unit directions B_p = e_a e_b^T + e_b e_a^T (_ENDS[p] = (a, b)); dL along B_p is
+    # the single Mandel component _M[p] = MANDEL[a, b], of size size[p]
+    size = np.empty(6)
     for p in range(6):
-        a, b = (p, p) if p < 3 else (PAIRS[p - 3, 0], PAIRS[p - 3, 1])
-        ends[p, 0], ends[p, 1], m[p] = a, b, MANDEL[a, b]
+        a, b = _ENDS[p, 0], _ENDS[p, 1]
         size[p] = 2.0 * f1[a, b] * (1.0 if a == b else _R2)
     for p in range(6):
         for q in range(p, 6):
-            t = _log_term(ends[p], ends[q], Tp, f2) + _log_term(ends[q], ends[p], Tp, f2)
-            Dp[p, q] = Dp[q, p] = size[p] * size[q] * Dv[m[p], m[q]] + 4.0 * t
+            t = _log_term(_ENDS[p], _ENDS[q], Tp, f2) + _log_term(_ENDS[q], _ENDS[p], Tp, f2)
+            Dp[p, q] = Dp[q, p] = size[p] * size[q] * Dv[_M[p], _M[q]] + 4.0 * t
     return W
 
 
