@@ -313,19 +313,16 @@ def _principal_natural(model: int, lam: np.ndarray, V: np.ndarray, A: np.ndarray
                        Dv: np.ndarray, M: np.ndarray, cv: np.ndarray, Dp: np.ndarray,
                        m3: np.ndarray, v3: np.ndarray) -> float:
     """Any isotropic model through the principal frame of E^ (module docstring), its
-    eigenvalues ``lam (3,)`` ascending and vectors ``V (3, 3)`` (read for want >= 1;
-    :func:`_ans_element` decomposes E^, an energy alone without the vectors): W, Sn and Dv as
-    :func:`_neo_hookean_natural`; ``psd``: Dv projected to positive semi-definite, which in
-    that frame is the 3 x 3 block's eigenvalues and the pairs' clamped at zero. An energy
-    alone (want == 0, a line search's) is the law's energy without its derivatives.
+    eigenvalues ``lam (3,)`` ascending and vectors ``V (3, 3)``, for want >= 1 (an energy
+    alone is :func:`_isotropic_energy`'s): W, Sn and Dv as :func:`_neo_hookean_natural`;
+    ``psd``: Dv projected to positive semi-definite, which in that frame is the 3 x 3 block's
+    eigenvalues and the pairs' clamped at zero.
     Scratch: M (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (2, 3, 3), v3 (9, 3)."""
     st, pr = v3[7], v3[:7]
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
     for i in range(3):
         st[i] = np.sqrt(1.0 + 2.0 * lam[i])
-    if want == 0:
-        return principal_energy(model, st[0], st[1], st[2], params, ep)
     W = principal_into(model, st, params, ep, pr)
     if not np.isfinite(W):
         return W
@@ -353,6 +350,19 @@ def _principal_natural(model: int, lam: np.ndarray, V: np.ndarray, A: np.ndarray
             Dp[c, c] = max(Dp[c, c], 0.0)
     _natural_tangent(M, Dp, cv, Dv, True)
     return W
+
+
+@njit(cache=True, inline='always')
+def _isotropic_energy(model: int, closed: bool, Eh: np.ndarray, lam: np.ndarray,
+                      params: np.ndarray, ep: float) -> float:
+    """W alone of an isotropic law at E^ ``Eh``: Neo-Hookean's closed form (``closed``), else
+    the law's at the stretches of E^'s eigenvalues ``lam (3,)`` ascending."""
+    if closed:
+        return neo_hookean_green(Eh, params[0], params[1])[0]
+    if not 1.0 + 2.0 * lam[0] > 0.0:
+        return np.inf
+    return principal_energy(model, np.sqrt(1.0 + 2.0 * lam[0]), np.sqrt(1.0 + 2.0 * lam[1]),
+                            np.sqrt(1.0 + 2.0 * lam[2]), params, ep)
 
 
 @njit(cache=True, inline='always')
@@ -603,8 +613,13 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
                 r, s = rs[q, 0], rs[q, 1]
                 A = As[b]
                 # the laws are called, not inlined by numba: inlined, they made the kernel's
-                # compile much longer and ran no faster
-                if closed:
+                # compile much longer and ran no faster. A line search's energy alone is the
+                # law's W, inlined: a call passes every array it is given, and the tangent's
+                # scratch made a third of an isotropic energy's time
+                if want == 0 and model != HILL48:
+                    W = _isotropic_energy(model, closed, Ehs[b], lams[b], params,
+                                          ep[q] if plastic else 0.0)
+                elif closed:
                     W = _neo_hookean_natural(Ehs[b], A, params[0], params[1], want, Sn, Dv, Ci,
                                              sig)
                 elif model == HILL48:
