@@ -96,6 +96,7 @@ class ViewerActions:
             return None, f"Cannot read its recording: {exc}"
         if not rep.steps or rep.faces is None:
             return None, "Its recording holds no sheet mesh"
+        rep.thinning_limit = run.thinning_limit
         colours = "" if rep.fields[-1] else " (coloured by thickness, as recorded)"
         return rep, (f"Recording: {len(rep.steps)} frames, steps {rep.steps[0]}-"
                      f"{rep.steps[-1]}{colours}")

@@ -176,13 +176,14 @@ def _meta(m: Books, ev: dict) -> Booked:
         run.parameters.update(ev.get("parameters") or {})
         run.punches, run.probe_kinds = ev.get("punches") or {}, ev.get("probe_kinds") or {}
         run.scaled = ev.get("scaled") or {}
+        run.thinning_limit = ev.get("thinning_limit")
         if ev.get("note"):  # a problem that does not end the run (the tools not shown)
             run.reason = ev["note"]
         line, values = run.line(), dict(run.parameters)
     booked.later.append(lambda: m.save(run))
     if m.viewer:
         booked.later.append(lambda: m.viewer.new_run(run.id, ev["faces"], tools, line, values,
-                                                     ev.get("thinning_limit")))
+                                                     run.thinning_limit))
     return booked
 
 

@@ -313,6 +313,7 @@ class ClientView:
             self.replay = rep
             self.canvas.set_scene(rep.faces, [(n, V, F) for n, (V, F) in rep.tools.items()])
             self.canvas.palette.ranges.show({})
+            self.canvas.card_thinning(rep.thinning_limit)
             for fields in rep.fields:  # a recorded run is over: its range is known at once
                 self.canvas.palette.ranges.add(fields)
             with self.v.from_code():

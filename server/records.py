@@ -58,6 +58,9 @@ class Run:
     given: dict = field(default_factory=dict)  # the live parameters given at the start
     # what each live parameter multiplies (sim's Simulation.scaled): the page shows the result
     scaled: dict = field(default_factory=dict)
+    # %, the material card's excessive-thinning limit (flc.max_thinning): the viewer's thinning
+    # bands start from it, the run's recording replayed too (the recording does not hold it)
+    thinning_limit: float | None = None
     parameter_log: list[dict] = field(default_factory=list)
     # frames made and dropped (queue full) by the solver; received and pushed to the viewer here
     frames: dict = field(default_factory=dict)

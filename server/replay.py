@@ -42,6 +42,9 @@ class Replay:
     poses: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)  # tool -> step -> t
     # tool -> step -> unit quaternion (w, x, y, z), for tools the recording turns
     rotations: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)
+    # %, the run's material card's thinning limit: its record's (server.records.Run), not the
+    # recording's, set by whoever replays it from the run
+    thinning_limit: float | None = None
 
     def frame(self, i: int) -> dict:
         """The ``i``-th recorded frame as the viewer draws it (a live frame's keys); a

@@ -90,6 +90,10 @@ class RunSummary(BaseModel):
     override_units: dict[str, str | None] = Field(default_factory=dict, description=(
         "the SI unit of each override's scene field (null: none), as the scene schema gives "
         "it"))
+    thinning_limit: float | None = Field(None, description=(
+        "the material card's excessive-thinning limit (flc.max_thinning) in %, from which the "
+        "3-D view's thinning bands start (failure from it, marginal from half of it); null "
+        "without one or before the run is built"))
     started_by: str | None = Field(None, description=(
         "the view (browser page, `X-Q3T-View`) that started it; `default`: a script"))
     touched: list[dict] = Field(default_factory=list, description=(

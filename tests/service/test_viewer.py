@@ -300,8 +300,9 @@ def test_a_users_choice_counts_while_the_code_updates_the_viewer(done, viewer):
 
 def test_thinning_bands_start_from_the_material_cards_limit(done, viewer):
     """A run whose material card sets a thinning limit (flc.max_thinning 15 %) is coloured
-    in bands from it (failure from 15 %, marginal from 7.5 %), as its summary flags from it; a
-    run without one in the defaults; limits a user set stay for every run."""
+    in bands from it (failure from 15 %, marginal from 7.5 %), as its summary flags from it,
+    live and replayed from its recording; a run without one in the defaults; limits a user
+    set stay for every run."""
     client, settings, _ = done
     limited = PRESS_TOML.replace('name = "press"', 'name = "press_limit"').replace(
         'hardening = { law = "perfect" }',
@@ -324,10 +325,17 @@ def test_thinning_bands_start_from_the_material_cards_limit(done, viewer):
                                                  c.colour["failure"].value)
         return c.palette.thinning.bounds[1:]
 
-    ran("press_limit")
+    first = ran("press_limit")
     assert bands() == (7.5, 15.0)
-    ran("press")
+    assert client.get(f"/api/runs/{first}").json()["thinning_limit"] == pytest.approx(15.0)
+    latest = ran("press")
     assert bands() == (MARGINAL_PCT, FAILURE_PCT)
+    assert client.get(f"/api/runs/{latest}").json()["thinning_limit"] is None
+    viewer.gui.run.value = first  # no longer live (one solver): its recording
+    until(lambda: viewer.mode == "replay", "the recording was not shown")
+    assert bands() == (7.5, 15.0)
+    viewer.gui.run.value = latest
+    assert viewer.mode == "live" and bands() == (MARGINAL_PCT, FAILURE_PCT)
     viewer.canvas.colour["failure"].value = 25.0  # as a user setting it
     assert bands() == (MARGINAL_PCT, 25.0)
     ran("press_limit")
