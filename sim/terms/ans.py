@@ -614,8 +614,8 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
                 A = As[b]
                 # the laws are called, not inlined by numba: inlined, they made the kernel's
                 # compile much longer and ran no faster. A line search's energy alone is the
-                # law's W, inlined: a call passes every array it is given, and the tangent's
-                # scratch made a third of an isotropic energy's time
+                # law's W, inlined: a call passes every array it is given, most of them the
+                # tangent's scratch, which an energy does not touch
                 if want == 0 and model != HILL48:
                     W = _isotropic_energy(model, closed, Ehs[b], lams[b], params,
                                           ep[q] if plastic else 0.0)
