@@ -264,7 +264,12 @@ class RunManager:
                     run.state = "paused"  # at once, so a status read after the request agrees
                 elif cmd == "resume" and run.state == "paused":
                     run.state = "running"
-                self._send(run, cmd)
+                rid = self._send(run, cmd)
+                if cmd == "stop":
+                    grace = threading.Timer(self.settings.stop_grace, self._stop_overdue,
+                                            (run.id, rid))
+                    grace.daemon = True
+                    grace.start()
                 return run.summary()
         self._after_build_ended(run, old)
         return run.summary()
@@ -432,13 +437,43 @@ class RunManager:
         only between steps, and a build is one long call (minutes for a large model), so the
         process is killed and a new one started: the stop takes effect at once, and the memory
         the build held is freed. Returns the old process's handle."""
+        old, how = self._replace(run)
+        self.finish(run, "stopped", f"stopped during the build ({how} and a new one started)")
+        return old
+
+    def _replace(self, run: Run) -> tuple[WorkerHandle, str]:
+        """Under ``lock``: kill ``run``'s solver process and start a new one in its slot;
+        the old process's handle and how it ended."""
         slot = self._slot(run.id)
         old = slot.worker
         how = old.kill()
         slot.worker = self._new_worker()
         self.restarts += 1
-        self.finish(run, "stopped", f"stopped during the build ({how} and a new one started)")
-        return old
+        return old, how
+
+    def _stop_overdue(self, run_id: str, rid: int) -> None:
+        """A stop sent ``stop_grace`` seconds ago: if the solver has not answered it (it is
+        still inside a step), its process is killed and a new one started, and the run ends
+        stopped with the steps it finished: result.json from them and its recording repaired
+        before it reads as stopped (as ``worker_died`` does), so a client that sees it stopped
+        finds them. The new process takes the next queued run once it has."""
+        with self.lock:
+            run = self.runs.get(run_id)
+            if (run is None or run.state not in ACTIVE or self.sent.get(rid) != run_id
+                    or self.closing.is_set()):
+                return
+            old, how = self._replace(run)
+        reason = (f"stopped by request in step {run.step + 1}, which had not ended "
+                  f"{self.settings.stop_grace:g} s after the stop ({how} and a new one started)")
+        old.join(5.0)
+        self._retired.append(old)
+        self._result_if_missing(run, reason)
+        if self.files.recording(run.id).is_file():
+            reason += self.repair(run)
+        with self.lock:
+            self.finish(run, "stopped", reason)
+        self.save(run)
+        self.run_ended(run)
 
     def _after_build_ended(self, run: Run, old: WorkerHandle | None) -> None:
         """The files of a run whose build was stopped: result.json, its recording repaired if
@@ -459,8 +494,8 @@ class RunManager:
         self.run_ended(run)
 
     def close_retired(self) -> None:
-        """Close the handles of processes ended by a stop during a build (the bridge calls
-        this: it is the one thread that reads their queues)."""
+        """Close the handles of processes ended by a stop (during a build, or overdue; the
+        bridge calls this: it is the one thread that reads their queues)."""
         while self._retired:
             self._retired.pop().close(timeout=0.1)
 

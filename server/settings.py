@@ -94,6 +94,10 @@ class Settings:
     step_delay: float = 0.0  # seconds between steps (lets a tiny scene be watched)
     ack_timeout: float = 1.0  # seconds a parameter change waits for the solver's answer
     stop_timeout: float = 5.0  # seconds shutdown waits for the solver to stop the run
+    # seconds a stop waits for the solver to end the step under way (it reads commands
+    # between steps); then its process is killed and a new one started, so that a step that
+    # does not end (a huge model, a solver stuck) cannot hold a solver for ever
+    stop_grace: float = 20.0
     # frames kept for scrubbing of each of the latest runs (one per solver); then every k-th
     history_frames: int = 400
     history_bytes: int = 256 * 2**20  # and at most this many bytes of them in all (server)

@@ -306,17 +306,35 @@ class Simulation:
                 f"moved at most {travel:.3e} m, the nearest tool {nearest:.3e} m away, and "
                 "nothing else holds it")
 
+    # how often the tools' travel may halve a step: a tool moving 4,096 thicknesses in one
+    # step is split into 4,096 sub-steps of a Newton solve each; a step needing more (a
+    # thickness of micrometres under a millimetre stroke, a tool sped up a millionfold)
+    # would run for hours or for ever, and fails at once instead, naming what to change
+    MAX_TRAVEL_SPLITS = 12
+
     def _travel_limit(self, dt: float) -> float:
         """``dt`` halved until no tool moves more than a sheet thickness in it: penalty contact
         sees only where a sub-step ends, so a tool moving farther than that can start the
-        iteration deep inside the sheet or pass through it unseen."""
+        iteration deep inside the sheet or pass through it unseen. A SolverFailure when
+        ``MAX_TRAVEL_SPLITS`` halvings are not enough."""
         h = float(np.mean(self.model.shell.thickness))
         sheet = self.x[: self.model.shell.n_nodes]
-        for _ in range(30):
-            if all(t.travel(self.t, self.t + dt, sheet) <= h for t in self.tools):
-                break
+        for _ in range(self.MAX_TRAVEL_SPLITS + 1):
+            far = [(t.tool, d) for t in self.tools
+                   if (d := t.travel(self.t, self.t + dt, sheet)) > h]
+            if not far:
+                return dt
             dt /= 2
-        return dt
+        tool, d = max(far, key=lambda f: f[1])  # over 2 dt, the last increment tried
+        self.failure = {
+            "step": self.step_index + 1, "t": self.t, "cutbacks": 0, "iterations": 0,
+            "residuals": [],
+            "reason": (f"the tools move too far for the sheet's thickness: {tool} moves "
+                       f"{d:.3e} m in {2 * dt:.3e} s, {d / h:.3g} times the thickness "
+                       f"{h:.3e} m, after {self.MAX_TRAVEL_SPLITS} halvings of the step; "
+                       f"penalty contact needs at most one thickness per sub-step: take "
+                       f"more steps (stepping.steps), a slower tool or a thicker sheet")}
+        raise SolverFailure(self.failure)
 
     def _lag_change(self, x: np.ndarray) -> float:
         """How far friction's lagged normal forces are from those of the converged state x

@@ -179,7 +179,8 @@ def service_settings(tmp: Path, scenes: dict[str, str], settings: dict) -> Any:
     """The service's Settings over ``tmp/scenes`` (written from ``scenes``: name -> TOML) and
     ``tmp/runs``, without the viewer unless ``settings`` say otherwise. The solver answers a
     request between two steps: on a loaded machine that may take longer than the default
-    second, never HANG (a hang guard)."""
+    second, never HANG (a hang guard); a stop likewise waits for the step under way
+    (``stop_grace``) rather than kill the solver."""
     from server.settings import Settings
 
     os.environ.setdefault("XDG_CONFIG_HOME", str(tmp / "config"))
@@ -188,7 +189,7 @@ def service_settings(tmp: Path, scenes: dict[str, str], settings: dict) -> Any:
     for name, text in scenes.items():
         (tmp / "scenes" / f"{name}.toml").write_text(text)
     return Settings(scenes_dir=tmp / "scenes", runs_dir=tmp / "runs",
-                    **{"viewer": False, "ack_timeout": HANG, **settings})
+                    **{"viewer": False, "ack_timeout": HANG, "stop_grace": HANG, **settings})
 
 
 @contextlib.contextmanager
@@ -240,3 +241,17 @@ def in_thread(tmp: Path, scenes: dict[str, str], **settings: Any) -> Iterator[tu
     with on_uvicorn(app) as url:
         until(lambda: httpx.get(f"{url}/api/config").json()["ready"], "solver never ready")
         yield url, app
+
+
+def stuck_worker(*args: Any, **kwargs: Any) -> None:
+    """``server.worker.worker_main`` whose steps never end, as a step stuck in the solver: a
+    solver process's entry point for a service under test (``create_app(worker_target=...)``)."""
+    from server.worker import worker_main
+    from sim.stepping.simulation import Simulation
+
+    def stuck(self: Simulation) -> None:
+        while True:
+            time.sleep(1.0)
+
+    Simulation.step = stuck
+    worker_main(*args, **kwargs)

@@ -154,6 +154,25 @@ def test_a_tool_moves_at_most_a_thickness_per_sub_step():
     assert sim._travel_limit(1 / 24) == 1 / 24  # the shipped 0.5 mm per step is untouched
 
 
+def test_a_step_the_tools_would_split_past_reason_fails_at_once():
+    """beam_forming's punch, 13.2 mm in one step (its stroke and its approach) on a sheet of
+    1 um, would need 13,000 sub-steps of a thickness each, more than the 2^12 allowed: the step fails before any Newton
+    iteration, naming the tool, its travel and the thickness (a scene within every field's
+    bounds, a sheet of 1e-12 m, held a service's solver in its first step for ever)."""
+    sim = Simulation.from_scene(load_scene("scenes/beam_forming.toml",
+                                           {"stepping.steps": 1, "stepping.release": False,
+                                            "shell.thickness": 1e-6}))
+    with pytest.raises(SolverFailure, match=r"the tools move too far for the sheet's "
+                                            r"thickness: \w+ moves .* thickness 1\.000e-06 m"):
+        sim.step()
+    assert sim.failure["iterations"] == 0 and sim.records == []
+    # 13.2 mm in 4,096 sub-steps is 3.2 um a sub-step: 4 um of sheet takes the whole step
+    ok = Simulation.from_scene(load_scene("scenes/beam_forming.toml",
+                                          {"stepping.steps": 1, "stepping.release": False,
+                                           "shell.thickness": 4e-6}))
+    assert ok._travel_limit(1.0) == 1 / 4096
+
+
 def test_timing_counts_every_assembly_as_assembly(monkeypatch):
     """The full-step evaluation runs inside the line search and is reused as the next
     assembly: it is assembly time, not line-search time. Newton's clock is replaced by one
