@@ -14,7 +14,7 @@ import typing
 from pathlib import Path
 from typing import Any, Self
 
-from pydantic import BaseModel, ValidationError, model_validator
+from pydantic import BaseModel, ValidationError, field_validator, model_validator
 
 from sim.analytic import reference
 from sim.elements import ELEMENTS
@@ -27,9 +27,12 @@ from sim.scene.shapes import ToolSpec
 from sim.scene.sheet import MaterialSpec, MeshSpec, ShellSpec
 from sim.scene.tree import MAX_DEPTH, tree_problem
 
+SCENE_NAME_MAX = 100
+
 
 class Scene(Strict):
-    name: str = doc("the scene's name")
+    name: str = doc(f"the scene's name: 1 to {SCENE_NAME_MAX} characters, no / or \\, no "
+                    "control character, not starting with a dot")
     description: str = doc("one line on what it shows", default="")
     mesh: MeshSpec = doc("the sheet's mid-surface mesh")
     shell: ShellSpec = doc("the sheet's thickness and element")
@@ -44,6 +47,17 @@ class Scene(Strict):
     sections: list[SectionSpec] = doc("radial sections recorded (thickness along a ray)",
                                       default=[])
     study: StudySpec | None = doc("a refinement study (q3t study)", default=None)
+
+    @field_validator("name")
+    @classmethod
+    def _plain_name(cls, v: str) -> str:
+        """A scene's name names its runs' folders (``q3t run``'s runs/<name>-...): no path in
+        it, no control character, not hidden; a space or any other letter is a user's."""
+        if (not 0 < len(v) <= SCENE_NAME_MAX or v.startswith(".")
+                or any(c in "/\\" or ord(c) < 32 or ord(c) == 127 for c in v)):
+            raise ValueError(f"it names the runs' folders: 1 to {SCENE_NAME_MAX} characters, "
+                             "no / or \\, no control character, not starting with a dot")
+        return v
 
     @model_validator(mode="after")
     def _references(self) -> Self:

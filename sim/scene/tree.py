@@ -1,9 +1,13 @@
 """Checks on parsed TOML or JSON (nested dicts and lists) before anything recursive sees it:
-nesting depth and text that is not Unicode. Both parsers accept what the rest cannot take:
-arrays nested a thousand deep (every recursive walk after them overflows the stack) and JSON's
-``"\\ud800"``, a lone surrogate (no UTF-8 for it: it cannot be written or sent back)."""
+nesting depth, text that is not Unicode and TOML's dates. Both parsers accept what the rest
+cannot take: arrays nested a thousand deep (every recursive walk after them overflows the
+stack), JSON's ``"\\ud800"``, a lone surrogate (no UTF-8 for it: it cannot be written or sent
+back), and TOML's dates and times, which no scene field takes and JSON cannot carry (the
+scene is validated as JSON, whose error would name no field)."""
 
 from __future__ import annotations
+
+import datetime
 
 # levels of tables and arrays within each other; the deepest scene (a tool's CSG shape of CSG
 # operands with polygon points) needs 9, a request body with a scene 11
@@ -40,4 +44,6 @@ def tree_problem(data: object, limit: int = MAX_DEPTH, prefix: tuple = ()) -> st
                 stack.append((path + (key,), item))
         elif isinstance(value, list):
             stack.extend((path + (i,), item) for i, item in enumerate(value))
+        elif isinstance(value, (datetime.date, datetime.time)):  # a datetime is a date
+            return f"{_dotted(path) or 'value'}: a TOML date or time, which no scene field takes"
     return None

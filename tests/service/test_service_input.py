@@ -186,3 +186,22 @@ def test_scene_errors_name_the_field_without_pydantic_noise(env):
     assert r.json()["detail"].startswith("shell.element: unknown 'nonesuch'"), r.text
     r = client.post("/api/scenes/validate", json={"toml": '"" = 1\n' + tiny_toml()})
     assert r.json()["detail"] == '"": Extra inputs are not permitted', r.text
+    # a TOML date (no field takes one; the scene is validated as JSON, which has none): named
+    dated = tiny_toml().replace("[material]", "[material]\nmade = 1979-05-27", 1)
+    assert dated != tiny_toml()
+    for method, url, body in [("post", "/api/scenes/validate", {"toml": dated}),
+                              ("post", "/api/runs", {"scene": "tiny", "toml": dated}),
+                              ("post", "/api/scenes/validate",
+                               {"toml": "when = 07:32:00\n" + tiny_toml()})]:
+        r = client.request(method.upper(), url, json=body)
+        assert r.status_code == 422, r.text
+        assert r.json()["detail"].split(":")[0] in ("material.made", "when"), r.text
+        assert "a TOML date or time" in r.json()["detail"], r.text
+    # the scene's own name names a CLI run's folder: no path, no control character
+    for name in ("../x", "a/b", "a\\b", ".hidden", "a\u0000b", "x" * 101, ""):
+        r = client.post("/api/runs", json={"scene": "tiny", "overrides": {"name": name}})
+        assert r.status_code == 422, (name, r.text)
+        assert r.json()["detail"].startswith("name: it names the runs' folders"), r.text
+    named = tiny_toml().replace('name = "tiny"', 'name = "my cup 2"', 1)
+    assert named != tiny_toml()
+    assert client.post("/api/scenes/validate", json={"toml": named}).status_code == 200

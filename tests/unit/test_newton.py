@@ -156,9 +156,10 @@ def test_a_tool_moves_at_most_a_thickness_per_sub_step():
 
 def test_a_step_the_tools_would_split_past_reason_fails_at_once():
     """beam_forming's punch, 13.2 mm in one step (its stroke and its approach) on a sheet of
-    1 um, would need 13,000 sub-steps of a thickness each, more than the 2^12 allowed: the step fails before any Newton
-    iteration, naming the tool, its travel and the thickness (a scene within every field's
-    bounds, a sheet of 1e-12 m, held a service's solver in its first step for ever)."""
+    1 um, would need 13,000 sub-steps of a thickness each, more than the 2^12 allowed: the
+    step fails before any Newton iteration, naming the tool, its travel and the thickness (a
+    scene within every field's bounds, a sheet of 1e-12 m, held a service's solver in its
+    first step for ever)."""
     sim = Simulation.from_scene(load_scene("scenes/beam_forming.toml",
                                            {"stepping.steps": 1, "stepping.release": False,
                                             "shell.thickness": 1e-6}))
