@@ -205,5 +205,16 @@ def test_a_part_over_its_forming_limit_is_marked(served, browser):
     widths = page.evaluate("(e => [e.scrollWidth, e.clientWidth])"
                            "(document.querySelector('#runs-box .runs-scroll'))")
     assert widths[0] <= widths[1], widths
+    # a long reason (a stop during a build, a solver's failure) stays within the window: on
+    # one line it pushed the table 86 px past it (a run stopped while it built, on a loaded
+    # machine); drawn and measured at once, before the next poll redraws the table
+    widths = page.evaluate("""async () => {
+        const runs = await (await fetch('/api/runs')).json();
+        runs[0].state = 'failed';
+        runs[0].reason = 'step 7 failed at t = 0.35 after 10 cut-backs: ' + 'residual '.repeat(40);
+        RunsTable.show(runs, null);
+        const e = document.querySelector('#runs-box .runs-scroll');
+        return [e.scrollWidth, e.clientWidth]; }""")
+    assert widths[0] <= widths[1], widths
     assert not [e for e in errors if "/static/" in e], errors
     page.close()
