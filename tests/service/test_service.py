@@ -200,7 +200,9 @@ def test_finished_run_shows_its_error_estimate_from_a_study(env):
         "reference": {"value": -1.0}, "rows": rows, "date": "2026-11-22"}}))
     try:
         run_id = client.post("/api/runs", json={"scene": "tiny", "element": "q3t"}).json()["id"]
-        assert client.get(f"/api/runs/{run_id}").json()["estimate"] is None  # not finished
+        first = client.get(f"/api/runs/{run_id}").json()
+        if first["state"] != "finished":  # the tiny run may be over already (a quiet machine)
+            assert first["estimate"] is None, first
         st = wait_state(client, run_id, {"finished", "failed", "stopped"})
         assert st["state"] == "finished", st["reason"]
         est = st["estimate"]
