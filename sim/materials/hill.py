@@ -171,50 +171,77 @@ def _solve(a: np.ndarray, h: np.ndarray, ep_n: float, mu: float, law: int,
     return x
 
 
-@njit(cache=True)
-def hill_return(e6: np.ndarray, ep_n: float, params: np.ndarray
-                ) -> tuple[float, np.ndarray, np.ndarray, float, np.ndarray]:
-    """Incremental potential at one point: trial log strain ``e6 (6,)`` (material frame,
-    Mandel), ``ep_n`` the committed equivalent plastic strain. Returns (W, T (6,),
-    D = dT/de (6, 6), dg, dEp (6,)), all in the material frame. Q is read from ``params`` in
-    place and D formed as Q (diag - beta w w^T) Q^T by loops, symmetric by construction: this
-    runs at every point of a Hill sheet, where small temporaries cost more than the
-    arithmetic."""
-    mu, lam, law = params[0], params[1], int(params[2])
-    hp, h = params[3:6], params[6:12]
-    kappa = lam + 2.0 * mu / 3.0
-    work = np.zeros((4, 6))
-    a, Ta, dEa, w = work[0], work[1], work[2], work[3]
+@njit(cache=True, inline='always')
+def _eigen_strain(e6: np.ndarray, params: np.ndarray, a: np.ndarray) -> None:
+    """a = Q^T e6 (6,): the trial strain in Hm's eigenbasis, Q read from ``params`` in place."""
     for i in range(6):
         acc = 0.0
         for k in range(6):
             acc += params[12 + 6 * k + i] * e6[k]
         a[i] = acc
+
+
+@njit(cache=True, inline='always')
+def _return_dg(a: np.ndarray, ep_n: float, params: np.ndarray) -> float:
+    """The return's dg at ``a`` (:func:`_eigen_strain`): 0 in the elastic branch."""
+    mu, law = params[0], int(params[2])
+    hp, h = params[3:6], params[6:12]
     phi2 = 0.0
     for i in range(1, 6):
         phi2 += h[i] * (2.0 * mu * a[i]) ** 2
     y_n, _ = yield_stress(law, hp, ep_n)
-    dg = 0.0
     if math.sqrt(phi2) - y_n > 1e-12 * abs(y_n):
-        dg = _solve(a, h, ep_n, mu, law, hp)
+        return _solve(a, h, ep_n, mu, law, hp)
+    return 0.0
+
+
+@njit(cache=True, inline='always')
+def _potential(a: np.ndarray, ep_n: float, dg: float, params: np.ndarray) -> float:
+    """W (module docstring) at ``a`` after the return ``dg``."""
+    mu, lam, law = params[0], params[1], int(params[2])
+    hp, h = params[3:6], params[6:12]
+    kappa = lam + 2.0 * mu / 3.0
+    y, _ = yield_stress(law, hp, ep_n + dg)
+    c = 2.0 * mu * dg / y
+    W = 1.5 * kappa * a[0] * a[0]
+    for i in range(1, 6):
+        W += mu * (a[i] / (1.0 + c * h[i])) ** 2
+    if dg > 0.0:
+        W += hardening_work(law, hp, ep_n, ep_n + dg)
+    return W
+
+
+@njit(cache=True)
+def hill_return(e6: np.ndarray, ep_n: float, params: np.ndarray
+                ) -> tuple[float, np.ndarray, np.ndarray, float, np.ndarray]:
+    """Incremental potential at one point: trial log strain ``e6 (6,)`` (material frame,
+    Mandel), ``ep_n`` the committed equivalent plastic strain. Returns (W, T (6,),
+    D = dT/de (6, 6), dg, dEp (6,)), all in the material frame. D is formed as
+    Q (diag - beta w w^T) Q^T by loops, symmetric by construction: this runs at every point of
+    a Hill sheet, where small temporaries cost more than the arithmetic."""
+    mu, lam, law = params[0], params[1], int(params[2])
+    hp, h = params[3:6], params[6:12]
+    kappa = lam + 2.0 * mu / 3.0
+    work = np.zeros((4, 6))
+    a, Ta, dEa, w = work[0], work[1], work[2], work[3]
+    _eigen_strain(e6, params, a)
+    dg = _return_dg(a, ep_n, params)
+    W = _potential(a, ep_n, dg, params)
     y, dy = yield_stress(law, hp, ep_n + dg)
     c = 2.0 * mu * dg / y
     Ta[0] = 3.0 * kappa * a[0]
-    W = 1.5 * kappa * a[0] * a[0]
     diag = np.empty(6)
     diag[0] = 3.0 * kappa
     beta, der = 0.0, 0.0
     for i in range(1, 6):
         b = 1.0 + c * h[i]
         Ta[i] = 2.0 * mu * a[i] / b
-        W += mu * (a[i] / b) ** 2
         dEa[i] = a[i] * c * h[i] / b
         diag[i] = 2.0 * mu / b
         if dg > 0.0:
             der += 2.0 * h[i] * (2.0 * mu * a[i]) ** 2 * (dy + 2.0 * mu * h[i]) / (y * b) ** 3
             w[i] = h[i] * a[i] / (b * b)
     if dg > 0.0:
-        W += hardening_work(law, hp, ep_n, ep_n + dg)
         beta = 32.0 * mu**4 * (y - dg * dy) / (y**4 * der)
     T, dE, D = np.zeros(6), np.zeros(6), np.empty((6, 6))
     Qw = np.zeros(6)
@@ -295,19 +322,32 @@ def _half_log_dd2(x0: float, x1: float, x2: float) -> float:
     return total / (m * m)
 
 
+@njit(cache=True, inline='always')
+def _strain6_into(V: np.ndarray, e: np.ndarray, frame: np.ndarray, Vm: np.ndarray,
+                  e6: np.ndarray) -> None:
+    """``Vm (3, 3)`` = frame^T V and ``e6 (6,)``, the Mandel vector in the material frame of
+    the log strain V diag(e) V^T."""
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for p in range(3):
+                acc += frame[p, i] * V[p, j]
+            Vm[i, j] = acc
+    for m in range(6):
+        i, j = (m, m) if m < 3 else (_PAIRS[m - 3, 0], _PAIRS[m - 3, 1])
+        acc = 0.0
+        for p in range(3):
+            acc += Vm[i, p] * e[p] * Vm[j, p]
+        e6[m] = acc if m < 3 else _R2 * acc
+
+
 @njit(cache=True)
 def hill_strain6(V: np.ndarray, e: np.ndarray,
                  frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(Vm = frame^T V, the Mandel vector (6,) in the material frame) of the log strain
     V diag(e) V^T."""
-    Vm = _mm(frame.T, V)
-    Em = _mm(Vm * e, Vm.T)
-    e6 = np.zeros(6)
-    for i in range(3):
-        e6[i] = Em[i, i]
-    for m in range(3):
-        i, j = _PAIRS[m, 0], _PAIRS[m, 1]
-        e6[3 + m] = _R2 * Em[i, j]
+    Vm, e6 = np.empty((3, 3)), np.empty(6)
+    _strain6_into(V, e, frame, Vm, e6)
     return Vm, e6
 
 
@@ -432,10 +472,11 @@ def hill_green(lam: np.ndarray, V: np.ndarray, params: np.ndarray, frame: np.nda
     lam; d2L[dC^, dC^]_ab = 2 sum_c f2_acb dC^_ac dC^_cb, Daleckii-Krein) and dC^ = 2 dE^:
         S' = 2 f1 o T',   d2W = (2 f1 o X) : D' : (2 f1 o X) + 8 sum_abc T'_ab f2_abc X_ac X_cb,
     T' and D' Hill's stress and tangent (:func:`hill_return`) in V's frame."""
+    if want == 0:
+        return hill_energy(0.5 * np.log(lam), V, params, frame, ep_n, np.empty((3, 3)),
+                           np.empty((2, 6)))
     Vm, e6 = hill_strain6(V, 0.5 * np.log(lam), frame)
     W, T6, D6, _, _ = hill_return(e6, ep_n, params)
-    if want == 0:
-        return W
     Tp = _mm(_mm(Vm.T, unmandel(T6)), Vm)
     f1 = np.empty((3, 3))
     for a in range(3):
@@ -458,6 +499,33 @@ def hill_green(lam: np.ndarray, V: np.ndarray, params: np.ndarray, frame: np.nda
             t = _log_term(_ENDS[p], _ENDS[q], Tp, f2) + _log_term(_ENDS[q], _ENDS[p], Tp, f2)
             Dp[p, q] = Dp[q, p] = size[p] * size[q] * Dv[_M[p], _M[q]] + 4.0 * t
     return W
+
+
+@njit(cache=True, inline='always')
+def hill_energy(e: np.ndarray, V: np.ndarray, params: np.ndarray, frame: np.ndarray,
+                ep_n: float, Vm: np.ndarray, w6: np.ndarray) -> float:
+    """W alone at the log strain V diag(``e``) V^T, with no temporary array: a line search
+    evaluates it at every point of a Hill sheet, where the stress's and the tangent's
+    allocations and arithmetic cost more than the return. The same bits as the W of
+    :func:`hill_green` and :func:`hill_stress_tangent` given the e they form. Scratch: Vm
+    (3, 3), w6 (2, 6)."""
+    e6, a = w6[0], w6[1]
+    _strain6_into(V, e, frame, Vm, e6)
+    _eigen_strain(e6, params, a)
+    return _potential(a, ep_n, _return_dg(a, ep_n, params), params)
+
+
+@njit(cache=True)
+def hill_energy_h(H: np.ndarray, params: np.ndarray, frame: np.ndarray, ep_n: float) -> float:
+    """:func:`hill_energy` at G = I + H (``H (3, 3)``, the element kernel's form), the W of
+    :func:`hill_stress_tangent_h` to the bit; inf when det G <= 0."""
+    G = H.copy()
+    for i in range(3):
+        G[i, i] += 1.0
+    _, s, V, ok = polar_svd(G)
+    if not ok:
+        return np.inf
+    return hill_energy(np.log(s), V, params, frame, ep_n, np.empty((3, 3)), np.empty((2, 6)))
 
 
 @njit(cache=True, inline='always')

@@ -49,7 +49,7 @@ from numba import njit
 
 from sim.geometry.quadrature import Rule
 from sim.geometry.shell import Shell
-from sim.materials.hill import HILL48, hill_flow_strain, hill_green, hill_strain6
+from sim.materials.hill import HILL48, hill_energy, hill_flow_strain, hill_green, hill_strain6
 from sim.materials.isotropic import (
     NEO_HOOKEAN,
     PAIRS,
@@ -314,7 +314,7 @@ def _principal_natural(model: int, lam: np.ndarray, V: np.ndarray, A: np.ndarray
                        m3: np.ndarray, v3: np.ndarray) -> float:
     """Any isotropic model through the principal frame of E^ (module docstring), its
     eigenvalues ``lam (3,)`` ascending and vectors ``V (3, 3)``, for want >= 1 (an energy
-    alone is :func:`_isotropic_energy`'s): W, Sn and Dv as :func:`_neo_hookean_natural`;
+    alone is :func:`_point_energy`'s): W, Sn and Dv as :func:`_neo_hookean_natural`;
     ``psd``: Dv projected to positive semi-definite, which in that frame is the 3 x 3 block's
     eigenvalues and the pairs' clamped at zero.
     Scratch: M (3, 3), cv (2, 6, 6), Dp (6, 6), m3 (2, 3, 3), v3 (9, 3)."""
@@ -353,14 +353,20 @@ def _principal_natural(model: int, lam: np.ndarray, V: np.ndarray, A: np.ndarray
 
 
 @njit(cache=True, inline='always')
-def _isotropic_energy(model: int, closed: bool, Eh: np.ndarray, lam: np.ndarray,
-                      params: np.ndarray, ep: float) -> float:
-    """W alone of an isotropic law at E^ ``Eh``: Neo-Hookean's closed form (``closed``), else
-    the law's at the stretches of E^'s eigenvalues ``lam (3,)`` ascending."""
+def _point_energy(model: int, closed: bool, Eh: np.ndarray, lam: np.ndarray, V: np.ndarray,
+                  params: np.ndarray, frame: np.ndarray, ep: float, cl: np.ndarray,
+                  Vm: np.ndarray, w6: np.ndarray) -> float:
+    """W alone of the law at E^ ``Eh``: Neo-Hookean's closed form (``closed``), else the law's
+    at E^'s eigenvalues ``lam (3,)`` ascending (Hill48 with its vectors ``V``; scratch: cl (3,)
+    for the log strain, Vm (3, 3) and w6 (2, 6) of :func:`sim.materials.hill.hill_energy`)."""
     if closed:
         return neo_hookean_green(Eh, params[0], params[1])[0]
     if not 1.0 + 2.0 * lam[0] > 0.0:
         return np.inf
+    if model == HILL48:  # the log strain as hill_green forms it from C^'s eigenvalues
+        for i in range(3):
+            cl[i] = 0.5 * np.log(1.0 + 2.0 * lam[i])
+        return hill_energy(cl, V, params, frame, ep, Vm, w6)
     return principal_energy(model, np.sqrt(1.0 + 2.0 * lam[0]), np.sqrt(1.0 + 2.0 * lam[1]),
                             np.sqrt(1.0 + 2.0 * lam[2]), params, ep)
 
@@ -616,9 +622,10 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
                 # compile much longer and ran no faster. A line search's energy alone is the
                 # law's W, inlined: a call passes every array it is given, most of them the
                 # tangent's scratch, which an energy does not touch
-                if want == 0 and model != HILL48:
-                    W = _isotropic_energy(model, closed, Ehs[b], lams[b], params,
-                                          ep[q] if plastic else 0.0)
+                if want == 0:
+                    W = _point_energy(model, closed, Ehs[b], lams[b], Vs[b], params, frame,
+                                      ep[q] if plastic else 0.0, v3[7], M,
+                                      kq[n_en + 2:n_en + 4, :6])
                 elif closed:
                     W = _neo_hookean_natural(Ehs[b], A, params[0], params[1], want, Sn, Dv, Ci,
                                              sig)

@@ -16,7 +16,13 @@ from numba import njit
 
 from sim.geometry.quadrature import Rule
 from sim.geometry.shell import Shell
-from sim.materials.hill import HILL48, hill_flow, hill_kirchhoff, hill_stress_tangent_h
+from sim.materials.hill import (
+    HILL48,
+    hill_energy_h,
+    hill_flow,
+    hill_kirchhoff,
+    hill_stress_tangent_h,
+)
 from sim.materials.isotropic import (
     NEO_HOOKEAN,
     clamp_psd,
@@ -136,6 +142,8 @@ def _element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNdX: np.ndarra
                         G[i, J] += fp_inv[q, i, J] - (1.0 if i == J else 0.0)
             if closed:
                 W = neo_hookean_h(G, mu, lam, want == 2, P, C, FiT)
+            elif model == HILL48 and want == 0:  # a line search's: W alone
+                W = hill_energy_h(G, params, frame, ep[q])
             elif model == HILL48:
                 W = hill_stress_tangent_h(G, params, frame, ep[q], want == 2,
                                           want == 2 and project == PROJECT_QP, P, C)
