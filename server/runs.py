@@ -465,11 +465,8 @@ class RunManager:
             old, how = self._replace(run)
         reason = (f"stopped by request in step {run.step + 1}, which had not ended "
                   f"{self.settings.stop_grace:g} s after the stop ({how} and a new one started)")
-        old.join(5.0)
-        self._retired.append(old)
-        self._result_if_missing(run, reason)
-        if self.files.recording(run.id).is_file():
-            reason += self.repair(run)
+        self._retire(old)
+        reason += self._mend(run, reason)
         with self.lock:
             self.finish(run, "stopped", reason)
         self.save(run)
@@ -483,15 +480,24 @@ class RunManager:
             self.save(run)
             self.run_ended(run)
             return
-        old.join(5.0)
-        self._retired.append(old)
-        self._result_if_missing(run)
-        if self.files.recording(run.id).is_file():
-            note = self.repair(run)
-            if note:
-                self.note(run.id, run.reason + note)
+        self._retire(old)
+        note = self._mend(run)
+        if note:
+            self.note(run.id, run.reason + note)
         self.save(run)
         self.run_ended(run)
+
+    def _retire(self, old: WorkerHandle) -> None:
+        """A killed solver process: reaped, its handle closed later (:meth:`close_retired`)."""
+        old.join(5.0)
+        self._retired.append(old)
+
+    def _mend(self, run: Run, reason: str | None = None) -> str:
+        """The files of a run whose solver process was killed in it: result.json from what the
+        server knows (:meth:`_result_if_missing`) and its recording, if any, repaired; returns
+        what the repair adds to the reason."""
+        self._result_if_missing(run, reason)
+        return self.repair(run) if self.files.recording(run.id).is_file() else ""
 
     def close_retired(self) -> None:
         """Close the handles of processes ended by a stop (during a build, or overdue; the
