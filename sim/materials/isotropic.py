@@ -32,13 +32,19 @@ PAIRS = np.array([[0, 1], [0, 2], [1, 2]])
 
 @njit(cache=True)
 def dlog(a: float, b: float) -> float:
-    """(ln a - ln b) / (a - b), exact as a -> b. ln(a / b) as log1p(r), r = (a - b) / b: the
-    difference of the two logarithms cancels, which lost up to 5e-12 of the value at r = 1e-4
-    with a, b near 4 (a stretch of 2); log1p's is a few ulps at any r."""
+    """(ln a - ln b) / (a - b), exact as a -> b; symmetric. ln(a / b) as log1p(r) with
+    r = (a - b) / b >= 0 (the larger argument first): the difference of the two logarithms
+    cancels, which lost up to 5e-12 of the value at r = 1e-4 with a, b near 4 (a stretch of
+    2); log1p's is a few ulps, and from r >= 0 it stays so however far apart a and b are (r
+    near -1 would carry its rounding into the logarithm)."""
+    if a < b:
+        a, b = b, a
     r = (a - b) / b
-    if abs(r) < 1e-4:
+    if r < 1e-4:
         return (1.0 - r / 2 + r * r / 3 - r * r * r / 4) / b
-    return np.log1p(r) / (a - b)
+    if r < np.inf:
+        return np.log1p(r) / (a - b)
+    return (np.log(a) - np.log(b)) / (a - b)  # a / b beyond the largest float
 
 
 @njit(cache=True, inline='always')

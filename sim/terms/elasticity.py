@@ -390,6 +390,8 @@ class Elasticity(Term):
         self.model, self.params = model, np.asarray(params, float)
         self.pattern, self.project = pattern, project
         n_e, n_q = self.wdetJ.shape
+        if model == HILL48 and not plastic:  # its kernels read the plastic state
+            raise ValueError("Hill48 is a plastic law: its term needs plastic=True")
         self.plastic = plastic
         if plastic:
             self.fp_inv = np.tile(np.eye(3), (n_e, n_q, 1, 1))

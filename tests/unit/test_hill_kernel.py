@@ -60,18 +60,22 @@ def exact_dd2(x0: float, x1: float, x2: float) -> float:
         return float((ab - bc) / (a - c))
 
 
-@pytest.mark.parametrize("b", [0.3, 1.0, 4.0, 100.0])
+@pytest.mark.parametrize("b", [1e-10, 0.3, 1.0, 4.0, 100.0, 1e10])
 def test_divided_difference_of_the_log_is_exact(b):
     """dlog (every principal law's and Hill's first divided difference of the log) against the
-    exact value at relative spreads r from 1e-9 to 3, both signs, about b: within 2e-15, a
-    few ulps (log1p's, the division's and r's rounding). The difference of two logarithms it
-    replaced lost up to 5e-12 of the value near r = 1e-4 away from 1 (2e-12 at b = 4)."""
+    exact value about b, at relative spreads from 1e-9 to 1e9 either way, in both orders (the
+    laws call it with the smaller argument first): within 2e-15, a few ulps (log1p's, the
+    division's and r's rounding). The difference of two logarithms it replaced lost up to
+    5e-12 of the value near a spread of 1e-4 away from 1 (2e-12 at b = 4)."""
     with localcontext() as ctx:
         ctx.prec = 50
-        for r in np.geomspace(1e-9, 3.0, 60):
-            for a in (b * (1.0 + r), b * (1.0 - min(r, 0.9))):
+        for r in np.geomspace(1e-9, 1e9, 90):
+            for a in (b * (1.0 + r), b / (1.0 + r)):
                 exact = float((Decimal(a).ln() - Decimal(b).ln()) / (Decimal(a) - Decimal(b)))
                 assert dlog(a, b) == pytest.approx(exact, rel=2e-15), (a, b)
+                assert dlog(b, a) == dlog(a, b)
+    assert dlog(1e300, 1e-10) == pytest.approx(
+        float((Decimal(1e300).ln() - Decimal(1e-10).ln()) / Decimal(1e300)), rel=2e-15)
 
 
 @pytest.mark.parametrize("spread", [1e-9, 1e-6, 1e-4, 5e-3, 2e-2, 0.1, 0.5])
