@@ -1,9 +1,9 @@
-"""Where a generated blank's nodes lie (a flat one's, a tube's), known without meshing it: the
-distances from the z axis of its nodes and of its boundary nodes. With them a scene is checked,
-when it is read, for a ring region that selects no node (an edit of the blank's radius that
-leaves the rim ring outside the blank), which the build (sim.model.dirichlet.region_mask) would
-otherwise find only when the model is made: the page's form says so at the field as it is
-edited.
+"""Where a generated blank's nodes lie (a flat one's, a tube's, a curved patch's), known
+without meshing it: the distances from the z axis of its nodes and of its boundary nodes. With
+them a scene is checked, when it is read, for a ring region that selects no node (an edit of
+the blank's radius that leaves the rim ring outside the blank), which the build
+(sim.model.dirichlet.region_mask) would otherwise find only when the model is made: the page's
+form says so at the field as it is edited.
 
 Each mesh kind that knows its ranges says so (``radial_ranges`` of sim.scene.sheet's mesh
 tables, made by the helpers here). The ranges hold every node the build makes (a superset: a ring
@@ -60,6 +60,30 @@ def tube_ranges(radius: float, height: float, h: float) -> RadialRanges:
     n, _ = meshes.band_divisions(radius, height, h)
     span = [(radius * np.cos(np.pi / n), radius)]
     return RadialRanges(span, span, height)
+
+
+def cylinder_patch_ranges(radius: float, length: float, angle: float,
+                          cells: int) -> RadialRanges:
+    """The ranges of sim.geometry.trimesh.cylinder_patch (about the x axis, from the top by
+    ``angle``): seen from above a grid of x from 0 to ``length`` by y = radius sin(theta), from
+    its vertex on the axis to its far corner. Past a quarter turn y comes back: the top of the
+    vertices' grid is below the radius, and the curved elements' edge nodes on the exact surface
+    rise above it, so the radius bounds them. Every side spans the same: the boundary's."""
+    y = radius * (np.sin(np.linspace(0.0, angle, cells + 1)).max() if angle <= np.pi / 2
+                  else 1.0)
+    span = [(0.0, float(np.hypot(length, y)))]
+    return RadialRanges(span, span, radius * (1.0 - np.cos(angle)))
+
+
+def sphere_patch_ranges(radius: float, hole: float, azimuth: float,
+                        cells: int) -> RadialRanges:
+    """The ranges of sim.geometry.trimesh.sphere_patch (from the polar hole's rim down to the
+    equator, ``cells`` steps of azimuth / cells around): from the rim's chords, nearest the
+    axis, to the equator's vertices; a meridian side joins the two, so the boundary spans the
+    same."""
+    near = radius * np.sin(hole) * np.cos(0.5 * azimuth / cells)
+    span = [(float(near), radius)]
+    return RadialRanges(span, span, radius * np.cos(hole))
 
 
 def rectangle_ranges(origin: tuple[float, float], size: tuple[float, float]) -> RadialRanges:

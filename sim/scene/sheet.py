@@ -46,8 +46,8 @@ class _Mesh(Strict):
     def radial_ranges(self) -> footprint.RadialRanges | None:
         """Intervals of the distance from the z axis (m) that hold every node of the built
         mesh, and every boundary node, known before it is built (sim.scene.footprint); None:
-        known only once built (a curved patch, a twisted strip, a drawing or mesh file that
-        cannot be read)."""
+        known only once built (a twisted strip, a drawing or mesh file that cannot be
+        read)."""
         return None
 
 
@@ -127,6 +127,9 @@ class CylinderPatchMesh(_Patch):
     angle: bounded(0.0, math.pi) = doc(
         "the angle it spans, from the top (+z) towards +y (0.698 rad is 40 degrees)", "rad")
 
+    def radial_ranges(self) -> footprint.RadialRanges:
+        return footprint.cylinder_patch_ranges(self.radius, self.length, self.angle, self.cells)
+
 
 class SpherePatchMesh(_Patch):
     """Part of a sphere around the origin (a hemisphere with a polar hole, or a sector of
@@ -141,6 +144,9 @@ class SpherePatchMesh(_Patch):
     azimuth: bounded(0.0, math.pi) = doc(
         "the angle it spans around z from the x axis towards +y; unset: a quarter", "rad",
         math.pi / 2)
+
+    def radial_ranges(self) -> footprint.RadialRanges:
+        return footprint.sphere_patch_ranges(self.radius, self.hole, self.azimuth, self.cells)
 
 
 MAX_TWIST_PER_CELL = math.pi / 4  # rad

@@ -4,6 +4,7 @@ build's own selection (sim.model.dirichlet.region_mask) and the built mesh's own
 all nodes and the boundary's apart, on rings across the blanks' edges."""
 
 import functools
+import math
 import os
 
 import numpy as np
@@ -56,6 +57,17 @@ MESHES = {
     # taller than it is wide: its height, not its radius, sets region_mask's tolerance
     "tall tube": {"kind": "cylinder_band", "edge_length": 0.02, "radius": 0.01,
                   "height": 0.5},
+    # curved patches: the quadratic and quartic elements' edge nodes on the exact surface, or
+    # (faceted) on the triangles
+    "roof": {"kind": "cylinder_patch", "radius": 0.025, "length": 0.03, "angle": 0.698,
+             "cells": 5},
+    "faceted octant of a tube": {"kind": "cylinder_patch", "radius": 0.02, "length": 0.015,
+                                 "angle": math.pi / 2, "cells": 4, "curved": False},
+    "hemisphere with a hole": {"kind": "sphere_patch", "radius": 0.02, "hole": 0.314,
+                               "cells": 5},
+    # three steps around half a turn: the hole's rim chords cut well inside its circle
+    "half of it": {"kind": "sphere_patch", "radius": 0.02, "hole": 0.6, "azimuth": math.pi,
+                   "cells": 3},
 }
 ELEMENTS = ["linear", "quadratic", "quartic"]
 # a ring this far off the built mesh's radii is refused: far above the tolerances (about
