@@ -37,6 +37,7 @@ from server.settings import Settings
 from server.views import Views
 from server.worker import Channel
 from server.workerhandle import Slot, WorkerHandle
+from sim.stepping.parameters import log_change
 
 if TYPE_CHECKING:  # imports viser
     from server.viewer import Viewer
@@ -214,7 +215,7 @@ def _parameter(m: Books, ev: dict) -> Booked:
         run = _active(m, ev)
         if run is None:
             return booked
-        run.parameter_log.append(entry)
+        log_change(run.parameter_log, entry)
         run.parameters[entry["name"]] = entry["value"]
         run.n_steps = ev.get("n_steps", run.n_steps)
     if m.viewer:

@@ -38,6 +38,16 @@ TOOL_LABELS = {
 }
 
 
+def log_change(log: list[dict], entry: dict) -> None:
+    """Add a change ``{step, name, value}`` to a run's parameter log: a second change of the
+    same parameter before the step it applies from replaces the first (only the last applies:
+    a slider's values while paused are one change)."""
+    if log and log[-1]["step"] == entry["step"] and log[-1]["name"] == entry["name"]:
+        log[-1] = entry
+    else:
+        log.append(entry)
+
+
 def per_tool(tools: Iterable) -> dict[str, tuple[float, float]]:
     """The per-tool multipliers of a scene's ``tools`` (ToolSpec-like: ``name`` and the fields
     of PER_TOOL) and their ranges: ``{"friction_scale.die": (0.0, 10.0), ...}``."""

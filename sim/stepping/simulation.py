@@ -156,7 +156,8 @@ class Simulation:
         for t in self.tools:
             t.mu = self._mu0[t.tool] * self._friction_scale(t.tool)
             t.force_scale = self.parameters["holder_force_scale"]
-        self.parameter_log.append({"step": self.step_index + 1, "name": name, "value": value})
+        parameters.log_change(self.parameter_log,
+                              {"step": self.step_index + 1, "name": name, "value": value})
 
     def _friction_scale(self, tool: str) -> float:
         """What a tool's friction coefficient is multiplied by: the run-wide friction_scale

@@ -35,14 +35,16 @@ def env(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def finished(env):
-    """A finished run of tiny_cup, with friction doubled from its second step."""
+    """A finished run of tiny_cup, with friction doubled from its second step (set to 1.5,
+    then 2, while paused after the first: one change, the last)."""
     client, settings = env
     run = client.post("/api/runs", json={"scene": "tiny_cup", "paused": True}).json()["id"]
     wait_state(client, run, {"paused"})
     client.post(f"/api/runs/{run}/step")
     until(lambda: client.get(f"/api/runs/{run}").json()["step"] >= 1, "no first step")
-    r = client.put(f"/api/runs/{run}/parameters/friction_scale", json={"value": 2.0})
-    assert r.status_code == 202 and r.json()["applied"], r.text
+    for value in (1.5, 2.0):
+        r = client.put(f"/api/runs/{run}/parameters/friction_scale", json={"value": value})
+        assert r.status_code == 202 and r.json()["applied"], r.text
     client.post(f"/api/runs/{run}/resume")
     st = wait_state(client, run, ENDED)
     assert st["state"] == "finished", st["reason"]
@@ -153,6 +155,7 @@ def test_sections_and_parameter_marks(env, finished):
                                                           rel=SCALED)
     assert sec["steps"][0]["thickness"]["values"] == pytest.approx([0.5] * 5, rel=1e-9)
     assert plots["parameter_log"] == [{"step": 2, "name": "friction_scale", "value": 2.0}]
+    assert result["parameters"] == plots["parameter_log"]  # the solver's log: the same
 
 
 def test_plots_of_an_unknown_run(env):
