@@ -131,10 +131,39 @@ def settings(r: Loaded) -> tuple[dict[str, object], dict[str, str]]:
         tree = scene_from_toml(text, overrides).model_dump(mode="json")
     except ValueError:  # SceneError is one
         tree = _as_written(text, overrides)
-    for k in ("name", "description"):  # the scene's name is compared as the run's
+    return _flat_scene(tree)
+
+
+def _flat_scene(tree: dict) -> tuple[dict[str, object], dict[str, str]]:
+    """``flatten`` of a scene's tree with its paths, the name and description left out (a
+    run's scene is compared by the run's name)."""
+    for k in ("name", "description"):
         tree.pop(k, None)
     paths: dict[str, str] = {}
     return flatten(tree, paths=paths), paths
+
+
+# the edits of a scene the Runs table lists, the rest counted
+EDITS_SHOWN = 6
+
+
+def edits(saved: str, edited: str) -> list[str]:
+    """What the page's unsaved edits (``edited``, a valid scene) changed of the saved scene
+    ``saved``, each setting as 'tools.blank_holder.force 3 → 6 kN' in the form's units: the
+    Runs table tells runs of one scene apart by them. [] when the saved scene no longer
+    validates (the run then says only that it ran edits)."""
+    try:
+        a, paths_a = _flat_scene(scene_from_toml(saved, {}).model_dump(mode="json"))
+    except ValueError:
+        return []
+    b, paths = _flat_scene(scene_from_toml(edited, {}).model_dump(mode="json"))
+    paths = paths_a | paths
+    keys = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+    out = [_shown({"what": k, "values": [a.get(k), b.get(k)], "unit": unit_of(paths[k])},
+                  " → ") for k in keys[:EDITS_SHOWN]]
+    if len(keys) > EDITS_SHOWN:
+        out.append(f"and {len(keys) - EDITS_SHOWN} more edits")
+    return out
 
 
 def _as_written(text: str, overrides: dict) -> dict:
@@ -198,19 +227,25 @@ def differences(runs: list[Loaded]) -> dict:
 SHOWN = {**DISPLAY, "1": ("", 1.0), "rad": ("deg", 180 / np.pi)}
 
 
+# a list value longer than this (an outline's points) is shown by its length
+LIST_SHOWN = 6
+
+
 def _value(v: object, factor: float = 1.0) -> str:
     if isinstance(v, float) or (isinstance(v, int) and not isinstance(v, bool) and factor != 1):
         return f"{v * factor:.4g}"
+    if isinstance(v, list) and len(v) > LIST_SHOWN:
+        return f"[{len(v)} values]"
     if isinstance(v, list):
         return "[" + ", ".join(_value(x, factor) for x in v) + "]"
     return "–" if v is None else str(v)
 
 
-def _shown(item: dict) -> str:
+def _shown(item: dict, between: str = " | ") -> str:
     """A setting's values side by side in the unit the page shows, labelled."""
     unit = item.get("unit")
     shown, factor = SHOWN.get(unit or "", (unit, 1.0))
-    text = " | ".join(_value(v, factor) for v in item["values"])
+    text = between.join(_value(v, factor) for v in item["values"])
     return f"{item['what']} {text} {shown}" if shown else f"{item['what']} {text}"
 
 

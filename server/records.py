@@ -43,8 +43,10 @@ class Run:
     element: str
     overrides: dict
     created: float
-    # the scene it ran is not the saved file: the page's unsaved edits (scene.toml holds it)
+    # the scene it ran is not the saved file: the page's unsaved edits (scene.toml holds it),
+    # and what they changed of it in words (server.compare.edits)
     edited: bool = False
+    edits: list[str] = field(default_factory=list)
     state: str = QUEUED
     place: int | None = None  # its place in the queue (1: next to start) while queued
     reason: str | None = None
@@ -92,10 +94,11 @@ class Run:
                                  "override_units": {k: unit_of(k) for k in self.overrides}}
 
     def changes(self) -> list[str]:
-        """What this run changed of its saved scene, in words: the page's unsaved edits, the
+        """What this run changed of its saved scene, in words: the page's unsaved edits (each
+        setting from the saved value to the edited one), the
         overrides (the element is a column of its own), the live parameters given at the
         start (from step 1) and those changed while it ran, from the step each applied."""
-        out = ["unsaved edits of the scene"] if self.edited else []
+        out = list(self.edits or ["unsaved edits of the scene"]) if self.edited else []
         out += [f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}"
                 for k, v in self.overrides.items() if k != "shell.element"]
         out += [f"{k} ×{v:.4g} from step 1" for k, v in self.given.items() if v != AS_WRITTEN]

@@ -23,6 +23,7 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
+from server import compare
 from server.bridge import Bridge
 from server.estimate import EstimateCache
 from server.events import Changes
@@ -193,6 +194,13 @@ class RunManager:
         out["estimate"] = self.estimates.get(run)  # reads files: outside the lock
         return out
 
+    def _edits(self, scene: str, text: str) -> list[str]:
+        """What the page's edits ``text`` changed of the saved ``scene`` (none saved: [])."""
+        try:
+            return compare.edits(self.store.text(scene), text)
+        except NotFound:
+            return []
+
     def run_ids(self) -> list[str]:
         """Every run, newest first."""
         with self.lock:
@@ -214,6 +222,7 @@ class RunManager:
             overrides["shell.element"] = element
         spec, solver_overrides = self.store.checked(text, overrides,
                                                     self.settings.max_model_bytes)
+        edits = self._edits(scene, text) if edited else []
         tools = live.per_tool(spec.tools)  # its per-tool live parameters
         for name, value in (parameters or {}).items():
             self.check_parameter(name, value, tools)
@@ -221,7 +230,7 @@ class RunManager:
             self._check_room()
             stamp = time.strftime("%Y%m%d-%H%M%S")
             run = Run(f"{scene}-{spec.shell.element}-{stamp}-{secrets.token_hex(2)}", scene,
-                      spec.shell.element, overrides, time.time(), edited=edited,
+                      spec.shell.element, overrides, time.time(), edited=edited, edits=edits,
                       parameters=self._start_values({**dict.fromkeys(tools, AS_WRITTEN),
                                                      **(parameters or {})}),
                       given=dict(parameters or {}))

@@ -77,7 +77,9 @@ const RunsTable = (() => {
     const units = r.override_units || {};
     const given = Object.entries(r.given || {}).filter(([, v]) => v !== 1);
     return [
-      ...(r.edited ? ["unsaved edits of the scene"] : []),
+      // each edited setting, saved → edited (the server's words), else that it ran edits
+      ...(r.edited ? (r.edits && r.edits.length ? r.edits : ["unsaved edits of the scene"])
+                   : []),
       ...Object.entries(r.overrides || {}).filter(([k]) => k !== "shell.element")
         .map(([k, v]) => `${k} = ${Units.sceneValue(v, units[k])}`),
       ...given.map(([k, v]) => `${k} ×${Units.num(v, 4)} from step 1`),

@@ -67,6 +67,9 @@ class RunSummary(BaseModel):
     overrides: dict
     edited: bool = Field(default=False, description="it ran unsaved edits of its scene, not "
                          "the saved file (its scene.toml holds what ran)")
+    edits: list[str] = Field(default_factory=list, description=(
+        "what the unsaved edits changed of the saved scene, each setting as 'key saved → "
+        "edited unit' in the form's units (empty when the saved scene no longer validates)"))
     created: float = Field(description="Unix time")
     state: Literal["queued", "starting", "building", "running", "paused", "finished",
                    "failed", "stopped", "cancelled"] = Field(description=(

@@ -95,6 +95,14 @@ def test_start_runs_the_edited_scene(env):
     assert (settings.scenes_dir / "tiny.toml").read_text() == saved  # nothing saved
     listed = {r["id"]: r for r in client.get("/api/runs").json()}
     assert listed[st["id"]]["edited"] is True
+    # the Runs table tells such runs apart by what the edits changed, in the form's units
+    edit = f"mesh.edge_length 35 → {EDITED_EDGE * 1e3:.4g} mm"
+    assert st["edits"] == [edit] and st["changes"] == [edit]
+    # with an override beside them, read twice: each read says each once
+    other = run_to_end(client, scene="tiny", toml=text, overrides={"stepping.steps": 4})
+    for _ in range(2):
+        again = client.get(f"/api/runs/{other['id']}").json()
+        assert again["edits"] == [edit] and again["changes"] == [edit, "stepping.steps = 4"]
 
 
 def test_the_saved_scene_rerendered_by_the_form_is_no_edit(env):
