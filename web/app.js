@@ -289,6 +289,7 @@ async function control(action) {
   if (!Owner.allow(state.status, word)) return;
   try {
     const r = await api("POST", `/api/runs/${state.run}/${action}`);
+    if (r.id === state.run && r.state) showControls(r);  // at once, not at the next poll
     // a notice (the run is another view's) stays: it says what happened to whose run
     say(r.notice || `${action}: ${state.run}`, false, r.notice ? null : state.run);
   } catch (e) { say(e.message, true); }
@@ -511,10 +512,22 @@ async function showRun(id) {
   if ($("msg").dataset.run === id && !ACTIVE.includes(st.state) && st.state !== "queued")
     say("");
   Owner.showTouched(st);
-  for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = !ACTIVE.includes(st.state);
-  $("stop").disabled &&= st.state !== "queued";  // a queued run's Stop cancels it
+  showControls(st);
   showParameters(st, paramSeq);
   await Results.show(st);
+}
+
+function showControls(st) {
+  // Pause while it runs, Resume while it is paused (or a pause is on its way to the solver:
+  // the last of the two commands it has not acted on yet decides); Step either way; a queued
+  // run's Stop cancels it
+  const active = ACTIVE.includes(st.state);
+  const last = (st.pending || []).filter((c) => c === "pause" || c === "resume").pop();
+  const paused = last ? last === "pause" : st.state === "paused";
+  $("pause").disabled = !active || paused;
+  $("resume").disabled = !active || !paused;
+  $("step").disabled = !active;
+  $("stop").disabled = !active && st.state !== "queued";
 }
 
 function showNoRun() {
