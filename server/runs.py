@@ -23,7 +23,7 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
-from server import compare
+from server import scenediff
 from server.bridge import Bridge
 from server.estimate import EstimateCache
 from server.events import Changes
@@ -197,7 +197,7 @@ class RunManager:
     def _edits(self, scene: str, text: str) -> list[str]:
         """What the page's edits ``text`` changed of the saved ``scene`` (none saved: [])."""
         try:
-            return compare.edits(self.store.text(scene), text)
+            return scenediff.edits(self.store.text(scene), text)
         except NotFound:
             return []
 

@@ -1,0 +1,89 @@
+"""A scene's settings as dotted keys (``tools.punch.friction``) and their values in the units
+the page's form shows: what the comparison of runs and a run of unsaved edits say differs."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.frames.units import DISPLAY
+from sim.scene.load import scene_from_toml, unit_of
+
+
+def flatten(node: object, prefix: str = "", paths: dict | None = None,
+            path: str = "") -> dict[str, object]:
+    """Dotted keys to leaf values; a list of named tables is keyed by the names. ``paths``,
+    when given, gets each key's schema path (the list's index in place of the name), which
+    ``unit_of`` reads."""
+    if isinstance(node, dict):
+        items = ((k, k, v) for k, v in node.items())
+    elif isinstance(node, list) and node and all(isinstance(x, dict) for x in node):
+        items = ((x.get("name") or str(i), str(i), x) for i, x in enumerate(node))
+    else:
+        if paths is not None:
+            paths[prefix] = path
+        return {prefix: node}
+    out: dict[str, object] = {}
+    for k, index, v in items:
+        out.update(flatten(v, f"{prefix}.{k}" if prefix else str(k), paths,
+                           f"{path}.{index}" if path else str(index)))
+    return out
+
+
+def flat_scene(tree: dict) -> tuple[dict[str, object], dict[str, str]]:
+    """``flatten`` of a scene's tree with its paths, the name and description left out (a
+    run's scene is compared by the run's name)."""
+    for k in ("name", "description"):
+        tree.pop(k, None)
+    paths: dict[str, str] = {}
+    return flatten(tree, paths=paths), paths
+
+
+# the edits of a scene the Runs table lists, the rest counted
+EDITS_SHOWN = 6
+
+
+def edits(saved: str, edited: str) -> list[str]:
+    """What the page's unsaved edits (``edited``, a valid scene) changed of the saved scene
+    ``saved``, each setting as 'tools.blank_holder.force 3 → 6 kN' in the form's units: the
+    Runs table tells runs of one scene apart by them. [] when the saved scene no longer
+    validates (the run then says only that it ran edits)."""
+    try:
+        a, paths_a = flat_scene(scene_from_toml(saved, {}).model_dump(mode="json"))
+    except ValueError:
+        return []
+    b, paths = flat_scene(scene_from_toml(edited, {}).model_dump(mode="json"))
+    paths = paths_a | paths
+    keys = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+    out = [shown({"what": k, "values": [a.get(k), b.get(k)], "unit": unit_of(paths[k])},
+                  " → ") for k in keys[:EDITS_SHOWN]]
+    if len(keys) > EDITS_SHOWN:
+        out.append(f"and {len(keys) - EDITS_SHOWN} more edits")
+    return out
+
+
+# a scene field's SI unit and the unit the page's form shows it in: the results' (mm, MPa, kN),
+# but a scene's plain number (friction, Poisson's ratio) stays one rather than a %, and angles
+# are in deg; other units as they are
+SHOWN = {**DISPLAY, "1": ("", 1.0), "rad": ("deg", 180 / np.pi)}
+
+
+# a list value longer than this (an outline's points) is shown by its length
+LIST_SHOWN = 6
+
+
+def value_text(v: object, factor: float = 1.0) -> str:
+    if isinstance(v, float) or (isinstance(v, int) and not isinstance(v, bool) and factor != 1):
+        return f"{v * factor:.4g}"
+    if isinstance(v, list) and len(v) > LIST_SHOWN:
+        return f"[{len(v)} values]"
+    if isinstance(v, list):
+        return "[" + ", ".join(value_text(x, factor) for x in v) + "]"
+    return "–" if v is None else str(v)
+
+
+def shown(item: dict, between: str = " | ") -> str:
+    """A setting's values side by side in the unit the page shows, labelled."""
+    unit = item.get("unit")
+    label, factor = SHOWN.get(unit or "", (unit, 1.0))
+    text = between.join(value_text(v, factor) for v in item["values"])
+    return f"{item['what']} {text} {label}" if label else f"{item['what']} {text}"
