@@ -182,6 +182,9 @@ def grow(seen: dict[str, tuple[float, float]], fields: dict[str, np.ndarray]) ->
         seen[key] = (lo, hi)
 
 
+RUN_SUBJECT = "this run, steps shown"
+
+
 class Ranges:
     """The range each continuous field is coloured over: the shown run's own (the smallest that
     holds every frame of it seen so far: it only grows, and a finished run's stays put) or one
@@ -191,9 +194,11 @@ class Ranges:
         # the shown run's min..max per field; the viewer swaps it when it shows another run
         self.seen: dict[str, tuple[float, float]] = {}
         self.fixed: dict[str, tuple[float, float]] = {}
-        self.subject = "this run"  # what ``seen`` is the range of, as the legend names it
+        # what ``seen`` is the range of, as the legend names it: the frames shown, which a
+        # summary's final value (the formed part's least thickness) need not reach
+        self.subject = RUN_SUBJECT
 
-    def show(self, seen: dict[str, tuple[float, float]], subject: str = "this run") -> None:
+    def show(self, seen: dict[str, tuple[float, float]], subject: str = RUN_SUBJECT) -> None:
         """Colour over ``seen`` (a run's ranges, shared with it so they grow with it), the range
         of ``subject``: a run, or a scene's blank previewed at rest before any run."""
         self.seen, self.subject = seen, subject

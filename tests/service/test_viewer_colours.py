@@ -216,7 +216,7 @@ def test_fld_zones_have_one_colour_each_and_a_legend(viewer):
 
 def test_the_legend_says_a_live_runs_range_grows(viewer):
     live(viewer, "a", frame("a", 1, thickness_mm=[1.0, 1.0, 1.0, 1.0, 1.0, 0.9]), active=True)
-    assert "range of this run so far" in viewer.canvas.legend.content
+    assert "range of this run, steps shown so far" in viewer.canvas.legend.content
     viewer.v.show(frame("a", 2, thickness_mm=[1.0, 1.0, 1.0, 1.0, 1.0, 0.8]), "a", final=True)
     assert "0.8" in viewer.canvas.legend.content  # the range grew to hold the new frame
     viewer.v.run_status("a", "a finished", active=False)
