@@ -44,7 +44,7 @@ class Run:
     overrides: dict
     created: float
     # the scene it ran is not the saved file: the page's unsaved edits (scene.toml holds it),
-    # and what they changed of it in words (server.compare.edits)
+    # and what they changed of it in words (server.scenediff.edits)
     edited: bool = False
     edits: list[str] = field(default_factory=list)
     state: str = QUEUED
