@@ -76,7 +76,8 @@ function viewerDensity() {
 function say(text, isError, run) {
   // ``run``: the message is about that run's start or control, and goes once the run has
   // ended (the status line says how it ended; "started ..." would read as still running)
-  $("msg").textContent = text;
+  // an error names values in the form's units, as its fields do (the server's are SI)
+  $("msg").textContent = isError ? Units.shownMessage(text) : text;
   $("msg").style.color = isError ? "#b00" : "#555";
   $("msg").dataset.run = run || "";
 }
@@ -154,7 +155,7 @@ async function selectScene(name) {
 function showSceneErrors(errors) {
   const rest = state.form.showErrors(errors);
   const box = $("scene-error");
-  box.textContent = errors.map((e) => `${e.loc}: ${e.msg}`).join("\n");
+  box.textContent = errors.map((e) => `${e.loc}: ${Units.shownMessage(e.msg)}`).join("\n");
   box.dataset.count = errors.length;
   box.dataset.unplaced = rest.length;
 }
@@ -258,7 +259,7 @@ async function saveScene() {
     await loadScenes();
   } catch (e) {
     say(`${name} not saved: ${e.message}`, true);
-    $("scene-error").textContent = e.message;
+    $("scene-error").textContent = Units.shownMessage(e.message);
     // the error where the user looks: the first field named, else the error box
     const where = $("scene-form").querySelector(".has-error") || $("scene-error");
     where.scrollIntoView({ block: "center" });

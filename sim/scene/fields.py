@@ -43,10 +43,22 @@ def bounded(lo: float, hi: float, lo_open: bool = True) -> type[float]:
     return Annotated[float, Field(le=hi, **({"gt": lo} if lo_open else {"ge": lo}))]
 
 
-Length = bounded(MIN_LENGTH, MAX_LENGTH, lo_open=False)  # m, positive
+def positive(floor: float, hi: float, unit: str) -> type[float]:
+    """A float in ``(0, hi]`` whose schema bound is 0, as the engineer thinks of it (a
+    thickness is positive: "greater than 0 mm", not "at least 1e-9 mm"); values between 0 and
+    the underflow guard ``floor`` are refused by a check of their own, naming the guard."""
+    def above(v: float) -> float:
+        if v < floor:
+            raise ValueError(f"{v:.3g} {unit} is below {floor:g} {unit}, under which the "
+                             "model's products of it underflow (a slipped exponent?)")
+        return v
+    return Annotated[float, Field(gt=0.0, le=hi), AfterValidator(above)]
+
+
+Length = positive(MIN_LENGTH, MAX_LENGTH, "m")
 Extent = bounded(0.0, MAX_LENGTH, lo_open=False)  # m, zero allowed (radii, fillets)
 Coord = bounded(-MAX_LENGTH, MAX_LENGTH, lo_open=False)  # m: positions, displacements
-Stress = bounded(MIN_STRESS, MAX_STRESS, lo_open=False)  # Pa, positive
+Stress = positive(MIN_STRESS, MAX_STRESS, "Pa")
 Point = tuple[Coord, Coord, Coord]
 Vec3 = tuple[float, float, float]  # finite; bounded by the field that uses it
 Angle = bounded(-MAX_ANGLE, MAX_ANGLE, lo_open=False)  # rad

@@ -17,6 +17,7 @@ from sim.scene.fields import (
     Strict,
     bounded,
     doc,
+    positive,
 )
 
 
@@ -27,7 +28,7 @@ class SteppingSpec(Strict):
         "static: equilibrium at each step, scene time t from 0 to 1 over the run; dynamic: "
         "implicit Euler in time", default="static")
     steps: Annotated[int, Field(ge=1, le=100000)] = doc("the number of steps", "1", 1)
-    dt: bounded(MIN_TIME_STEP, MAX_TIME, lo_open=False) | None = doc(
+    dt: positive(MIN_TIME_STEP, MAX_TIME, "s") | None = doc(
         "dynamic: the time step; the run lasts steps * dt", "s", None)
     load_ramp: bounded(0.0, MAX_TIME, lo_open=False) = doc(
         "dynamic: loads ramp over this time, 0 = applied at once; also the default ramp of "

@@ -126,8 +126,8 @@ def test_a_handful_of_hard_cases_end_in_their_expected_outcome():
                                                                                 rel=1e-6)
     for el in ("linear", "q3t"):
         z = by["zero thickness", el]
-        # refused below a picometre (sim.scene.fields.MIN_LENGTH), naming the field
-        assert "shell.thickness" in z["reason"] and "greater than or equal to" in z["reason"]
+        # refused as not positive, naming the field
+        assert "shell.thickness: Input should be greater than 0 m" in z["reason"], z["reason"]
     low = by["h/L=1e-04", "q3t"]["reason"]
     assert "load below force round-off floor (load" in low and "floor" in low
     # Q3T does not lock: at nu = 0.4999 it bends far more than the linear prism

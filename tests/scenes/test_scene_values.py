@@ -40,13 +40,17 @@ def test_toml_of_the_wrong_type_is_refused_and_integers_are_numbers():
 
 
 @pytest.mark.parametrize("key,value,why", [
-    ("mesh.edge_length", 0.0, "mesh.edge_length: Input should be greater than or equal to 1e-12 m"),
-    ("material.E", -1.0, "material.E: Input should be greater than or equal to 1e-06 Pa"),
+    ("mesh.edge_length", 0.0, "mesh.edge_length: Input should be greater than 0 m"),
+    ("material.E", -1.0, "material.E: Input should be greater than 0 Pa"),
+    ("shell.thickness", 1e-13, "shell.thickness: 1e-13 m is below 1e-12 m, under which"),
     ("material.nu", 0.5, "material.nu: Input should be less than 0.5"),  # no unit: none shown
+    ("stepping.dt", -1.0, "stepping.dt: Input should be greater than 0 s"),
 ])
 def test_a_bound_is_named_with_its_unit(key, value, why):
     """pydantic writes a bound without its unit, and 1e-12 as 0.000000000001: the page shows
-    the message under a box in mm (web/units.js converts "1e-12 m")."""
+    the message under a box in mm (web/units.js converts "1e-12 m"). A positive magnitude's
+    bound is 0, as an engineer says it; its underflow guard (a picometre, a micropascal) is a
+    check of its own, met only by a value between the two."""
     with pytest.raises(SceneError) as err:
         load_scene(CANTILEVER, {key: value})
     assert str(err.value).startswith(why), str(err.value)

@@ -74,7 +74,7 @@ ROUND = SCENE.replace('name = "drawn"', 'name = "round"').replace(
 
 
 @pytest.mark.parametrize("circle, loc, words", [
-    ("{ radius = -0.1 }", "mesh.circle.radius", "greater than or equal to"),
+    ("{ radius = -0.1 }", "mesh.circle.radius", "greater than 0 m"),
     ("{ radius = 0.1, segments = 14 }", "mesh.circle.segments", "greater than or equal to 15"),
     ("{ radius = 0.1, center = [0.0, 0.0, 0.0] }", "mesh.circle.center", "at most 2 items"),
 ])

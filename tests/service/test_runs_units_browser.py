@@ -57,3 +57,22 @@ def test_overrides_in_engineers_units_and_the_flc_warning(served, browser):
     shot(page, SHOTS, "03-page.png")
     page.close()
     assert not errors, errors
+
+
+def test_a_refused_start_names_values_in_the_forms_units(served, browser):
+    """The server's refusal is SI ("greater than 0 m"); the message line and the error box say
+    it as the field's box does (mm), not in a unit the form never shows."""
+    page, errors = new_page(browser, served, "#scenes li.sel", width=1500, height=950)
+    box = page.locator('[data-path="shell.thickness"] input').first
+    box.fill("-0.5")
+    box.press("Tab")
+    page.wait_for_selector('[data-path="shell.thickness"].has-error')
+    page.click("#start")
+    page.wait_for_function("document.getElementById('msg').style.color == 'rgb(187, 0, 0)'")
+    said = "shell.thickness: Input should be greater than 0 mm"
+    for where in ("#msg", "#scene-error"):
+        text = page.text_content(where)
+        assert said in text and "0 m " not in f"{text} ", (where, text)
+    shot(page, SHOTS, "04-refused-start.png", where="#msg")
+    page.close()
+    assert not errors, errors
