@@ -155,8 +155,8 @@ def _state(m: Books, ev: dict) -> Booked:
             m.finish(run, ev["state"], ev.get("reason"))
             booked.later.append(lambda: m.save(run))
         if m.viewer:
-            line, active = run.line(), run.state in ACTIVE
-            booked.later.append(lambda: m.viewer.run_status(run.id, line, active))
+            line, active, controls = run.line(), run.state in ACTIVE, run.controls()
+            booked.later.append(lambda: m.viewer.run_status(run.id, line, active, controls))
     return booked
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from typing import Protocol
@@ -213,11 +213,14 @@ class ClientView:
                     s.value = min(max(values[name], s.min), s.max)
         self._show_results()
 
-    def _enable(self, active: bool) -> None:
-        """Run controls act on the shown run: only while it is active."""
+    def _enable(self, active: bool, controls: Sequence[str]) -> None:
+        """The live parameters act on the shown run while it is active; each button while
+        its command does (the page's rule: ``Run.controls``)."""
         self.active = active
-        for h in (*self.gui.buttons.values(), *self.gui.sliders.values()):
+        for h in self.gui.sliders.values():
             h.disabled = not active
+        for label, cmd in COMMANDS.items():
+            self.gui.buttons[label].disabled = cmd not in controls
 
     def set_runs(self, run_ids: tuple[str, ...]) -> None:
         options = run_ids or (NO_RUN,)
@@ -229,7 +232,7 @@ class ClientView:
 
     # ---- what is shown ------------------------------------------------------------------------
     def show_run(self, run_id: str | None, parameters: dict[str, float], active: bool,
-                 line: str) -> None:
+                 controls: Sequence[str], line: str) -> None:
         """Show the view's run: live if it is one of the latest, else its recording (loaded
         in the background: a large one takes seconds); nothing else meanwhile."""
         with self.lock:
@@ -238,7 +241,7 @@ class ClientView:
                 with self.v.from_code():
                     self.gui.run.value = run_id
             self._show_parameters(parameters)
-            self._enable(active)
+            self._enable(active, controls)
             if run_id is not None and run_id in self.v.lives:
                 if self.mode == "live":
                     self.status(line)
@@ -253,14 +256,15 @@ class ClientView:
         threading.Thread(target=self._load, args=(run_id, line), daemon=True,
                          name="q3t-viewer-load").start()
 
-    def run_status(self, run_id: str, line: str, active: bool) -> None:
+    def run_status(self, run_id: str, line: str, active: bool,
+                   controls: Sequence[str]) -> None:
         if run_id != self.selected:
             return
         self.line = line
         if self.mode != "preview":
             self.status(line)
         was = self.active
-        self._enable(active)
+        self._enable(active, controls)
         if was and not active and self.mode == "live":
             self.canvas.recolour()  # the legend: the run's range, no longer growing
 

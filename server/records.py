@@ -90,8 +90,19 @@ class Run:
         progress and what it changed of its scene (with each override's SI unit, so a page
         can show it in its own)."""
         return self._fields() | {"progress": self.progress(time.time()),
-                                 "changes": self.changes(),
+                                 "changes": self.changes(), "controls": self.controls(),
                                  "override_units": {k: unit_of(k) for k in self.overrides}}
+
+    def controls(self) -> list[str]:
+        """The commands that act on it now, for the page's and the viewer's buttons: Pause
+        while it runs, Resume while it is paused or a pause is on its way to the solver (the
+        later of the two it has not acted on decides), Step either way; Stop while it is
+        active, or queued (which cancels it)."""
+        if self.state not in ACTIVE:
+            return ["stop"] if self.state == QUEUED else []
+        last = [c for c in self.pending if c in ("pause", "resume")][-1:]
+        paused = last == ["pause"] if last else self.state == "paused"
+        return ["resume" if paused else "pause", "step", "stop"]
 
     def changes(self) -> list[str]:
         """What this run changed of its saved scene, in words: the page's unsaved edits (each

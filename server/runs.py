@@ -410,7 +410,7 @@ class RunManager:
         if self.viewer:
             with self.lock:
                 line = run.line()
-            self.viewer.run_status(run.id, line, active=False)
+            self.viewer.run_status(run.id, line, active=False, controls=())
 
     def note(self, run_id: str | None, text: str) -> None:
         """Replace the run's reason (a problem that does not end it)."""

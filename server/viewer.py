@@ -18,7 +18,7 @@ by every client showing its run.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -151,13 +151,15 @@ class Viewer:
             for c in self.clients.values():
                 c.set_parameter_value(run_id, name, value)
 
-    def run_status(self, run_id: str, line: str, active: bool) -> None:
-        """A run's state changed: its line and whether the controls act on it, where shown."""
+    def run_status(self, run_id: str, line: str, active: bool,
+                   controls: Sequence[str]) -> None:
+        """A run's state changed: its line, whether it is active and the commands that act on
+        it now (``Run.controls``), where shown."""
         with self.lock:
             if run_id in self.lives:
                 self.lives[run_id].ended = not active
             for c in self.clients.values():
-                c.run_status(run_id, line, active)
+                c.run_status(run_id, line, active, controls)
 
     def new_run(self, run_id: str, faces: np.ndarray, tools: list[dict], line: str,
                 parameters: dict[str, float], thinning_limit: float | None = None) -> None:
@@ -192,11 +194,11 @@ class Viewer:
 
     # ---- what one view shows ------------------------------------------------------------------
     def show_run(self, run_id: str | None, parameters: dict[str, float], active: bool,
-                 line: str, view: str = DEFAULT) -> None:
+                 controls: Sequence[str], line: str, view: str = DEFAULT) -> None:
         """``view``'s clients show ``run_id`` (``line``: its status line; ``active``: whether
-        the run controls act on it)."""
+        it is active; ``controls``: the commands that act on it now)."""
         for c in self.of_view(view):
-            c.show_run(run_id, parameters, active, line)
+            c.show_run(run_id, parameters, active, controls, line)
 
     def show_preview(self, scene: str, faces: np.ndarray, tools: list[dict], frame: dict,
                      line: str, view: str = DEFAULT) -> None:

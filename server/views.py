@@ -198,8 +198,8 @@ class Views:
             v.preview = None
             run = self.m.runs.get(v.run or "")
             shown = None if run is None else (run.id, dict(run.parameters),
-                                                run.state in ACTIVE, run.line())
-        self.m.viewer.show_run(*(shown or (None, {}, False, "No run yet")), key)
+                                                run.state in ACTIVE, run.controls(), run.line())
+        self.m.viewer.show_run(*(shown or (None, {}, False, (), "No run yet")), key)
 
     @staticmethod
     def _building(scene: str, edited: bool | None) -> str:

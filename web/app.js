@@ -519,16 +519,9 @@ async function showRun(id) {
 }
 
 function showControls(st) {
-  // Pause while it runs, Resume while it is paused (or a pause is on its way to the solver:
-  // the last of the two commands it has not acted on yet decides); Step either way; a queued
-  // run's Stop cancels it
-  const active = ACTIVE.includes(st.state);
-  const last = (st.pending || []).filter((c) => c === "pause" || c === "resume").pop();
-  const paused = last ? last === "pause" : st.state === "paused";
-  $("pause").disabled = !active || paused;
-  $("resume").disabled = !active || !paused;
-  $("step").disabled = !active;
-  $("stop").disabled = !active && st.state !== "queued";
+  // the commands that act on the run now, as the server says (server.records.Run.controls)
+  for (const a of ["pause", "resume", "step", "stop"])
+    $(a).disabled = !(st.controls || []).includes(a);
 }
 
 function showNoRun() {

@@ -84,6 +84,11 @@ class RunSummary(BaseModel):
     pending: list[str] = Field(description="commands sent to the solver that it has not acted "
                                "on yet, in order: empty once a pause has taken effect and a "
                                "step asked for is made")
+    controls: list[Literal["pause", "resume", "step", "stop"]] = Field(
+        default_factory=list, description=(
+            "the commands that act on it now: pause while it runs, resume while it is paused "
+            "or a pause is pending (the later of the two pending decides), step either way; "
+            "stop while it is active or queued"))
     parameters: dict[str, float] = Field(default_factory=dict, description=(
         "every live parameter's value from the next step on (as the solver last said)"))
     progress: Progress

@@ -164,6 +164,36 @@ def test_one_selected_run_for_page_and_viewer(env, viewer):
           "the viewer kept the deleted run")
 
 
+def enabled(viewer) -> set[str]:
+    return {label for label, b in viewer.gui.buttons.items() if not b.disabled}
+
+
+def test_run_buttons_follow_its_state_on_the_page_and_in_the_viewer(env, viewer):
+    """One rule (``Run.controls``) for the page's buttons and the viewer's: Pause while it
+    runs, Resume while it is paused or a pause is on its way, Step and Stop while active;
+    none once it has ended (the viewer's were all enabled while active)."""
+    client, _ = env
+    stop_active(client)
+    run = client.post("/api/runs", json={"scene": "long", "element": "linear"}).json()["id"]
+    try:
+        assert wait_step(client, run, 1)["controls"] == ["pause", "step", "stop"]
+        client.put("/api/view", json={"run": run})
+        until(lambda: enabled(viewer) == {"Pause", "Step", "Stop"},
+              f"viewer's buttons while running: {enabled(viewer)}")
+        # the answer to Pause offers Resume at once: the pause is on its way (pending) or done
+        r = client.post(f"/api/runs/{run}/pause").json()
+        assert r["controls"] == ["resume", "step", "stop"], r
+        wait_state(client, run, {"paused"})
+        until(lambda: enabled(viewer) == {"Resume", "Step", "Stop"},
+              f"viewer's buttons while paused: {enabled(viewer)}")
+        assert client.post(f"/api/runs/{run}/resume").json()["controls"] == \
+            ["pause", "step", "stop"]
+    finally:
+        stop_active(client)
+    assert client.get(f"/api/runs/{run}").json()["controls"] == []
+    until(lambda: not enabled(viewer), f"viewer's buttons of an ended run: {enabled(viewer)}")
+
+
 def sliders(viewer) -> dict:
     return {k: s.value for k, s in viewer.gui.sliders.items()}
 

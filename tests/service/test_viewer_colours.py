@@ -84,11 +84,11 @@ def viewer():
 
 def live(v: ClientView, run: str, *frames: dict, active: bool = False) -> None:
     """Show ``run`` as the latest run and push ``frames`` to it."""
-    v.show_run(run, {}, active=True, line=run)
+    v.show_run(run, {}, active=True, controls=("pause", "step", "stop"), line=run)
     v.v.new_run(run, FACES, [{"name": "punch", "vertices": BOX, "faces": BOX_FACES}], run, {})
     for f in frames:
         v.v.show(f, run, final=True)
-    v.v.run_status(run, run, active=active)
+    v.v.run_status(run, run, active=active, controls=())
 
 
 def colour_of(v: ClientView, vertex: int) -> tuple[int, ...]:
@@ -109,7 +109,7 @@ def test_a_value_keeps_its_colour_across_the_frames_of_a_recording(viewer):
                  faces=FACES, tools={"punch": (BOX, BOX_FACES)},
                  poses={"punch": {0: np.zeros(3), 5: np.array([0, 0, -1e-3])}})
     viewer.actions.replays["old"] = rep
-    viewer.show_run("old", {}, active=False, line="old")
+    viewer.show_run("old", {}, active=False, controls=(), line="old")
     until(lambda: viewer.mode == "replay", "the recording was not shown")
     last = colour_of(viewer, 0)
     viewer.gui.time.value = 0  # a user scrubbing back
@@ -219,7 +219,7 @@ def test_the_legend_says_a_live_runs_range_grows(viewer):
     assert "range of this run, steps shown so far" in viewer.canvas.legend.content
     viewer.v.show(frame("a", 2, thickness_mm=[1.0, 1.0, 1.0, 1.0, 1.0, 0.8]), "a", final=True)
     assert "0.8" in viewer.canvas.legend.content  # the range grew to hold the new frame
-    viewer.v.run_status("a", "a finished", active=False)
+    viewer.v.run_status("a", "a finished", active=False, controls=())
     assert "so far" not in viewer.canvas.legend.content
 
 
