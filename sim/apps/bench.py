@@ -192,7 +192,7 @@ def forming(edge: float, steps: int, until: int, element: str = "q3t") -> dict:
     res = sim.result()
     return {"case": "cup_forming", "element": element, **res["counts"],
             "converged": sim.failure is None, "steps": f"{first + 1}-{until}",
-            "stroke_mm": -1e3 * rec.probes.get("punch_travel", float("nan")),
+            "stroke_mm": -1e3 * rec.probes.get("centre_dz", float("nan")),
             "punch_force_kN": 1e-3 * rec.probes.get("punch_force", float("nan")),
             "newton_per_step": t["iterations"] / max(1, until - first),
             "per_iteration": (t["assembly"] + t["factorisation"] + t["solve"]

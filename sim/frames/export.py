@@ -123,7 +123,10 @@ def probe_units(run: RunFolder) -> dict[str, str | None]:
 
 
 def columns(run: RunFolder) -> list[tuple[str, list]]:
-    """The CSV's columns: ``(header with unit, value per step)``."""
+    """The CSV's columns: ``(header with unit, value per step)``. A probe that says what a
+    punch's column already says, under its name (the scenes' ``punch_force``, the punch's z
+    force, beside "punch force", the force resisting its stroke: the same numbers when it
+    moves along z), is left out: one quantity, one column."""
     steps = run.result.get("steps") or []
     cols = [("step", [r["step"] for r in steps]), ("time [s]", [r["time"] for r in steps])]
     punches = run.result.get("punches") or run.status.get("punches") or {}
@@ -140,8 +143,17 @@ def columns(run: RunFolder) -> list[tuple[str, list]]:
     for name, unit in probe_units(run).items():
         shown, factor = unit_of(unit)
         values = [(r.get("probes") or {}).get(name) for r in steps]
-        cols.append((f"{name} [{shown}]", [None if v is None else v * factor for v in values]))
+        col = (f"{name} [{shown}]", [None if v is None else v * factor for v in values])
+        if not any(_same(col, c) for c in cols):
+            cols.append(col)
     return cols
+
+
+def _same(a: tuple[str, list], b: tuple[str, list]) -> bool:
+    """Whether two columns have one name (an underscore read as a space) and the same cells."""
+    def cells(c: tuple[str, list]) -> list:
+        return ["" if v is None else f"{v:.{DIGITS}g}" for v in c[1]]
+    return a[0].replace("_", " ") == b[0].replace("_", " ") and cells(a) == cells(b)
 
 
 def _at_steps(steps: list[dict], at: dict[int, int], values: np.ndarray) -> list:

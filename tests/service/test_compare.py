@@ -85,7 +85,7 @@ def test_curves_are_each_runs_own(env, runs):
         assert punch[0]["force"] == mine["force"] and punch[0]["force"]["unit"] == "kN"
         assert punch[0]["stroke"] == mine["stroke"] and punch[0]["stroke"]["unit"] == "mm"
         probes = {p["name"]: p for p in cmp["probes"] if p["run"] == run}
-        assert set(probes) == {"punch_force", "min_thickness", "punch_travel"}
+        assert set(probes) == {"punch_force", "min_thickness", "centre_dz"}
         for p in own["probes"]:
             assert probes[p["name"]]["values"] == p["values"]
             assert probes[p["name"]]["unit"] == p["unit"]

@@ -41,7 +41,7 @@ def test_an_edited_line_loses_its_trailing_comment_and_the_others_keep_theirs():
     base = CUP
     scene = sceneform.parse(base)["scene"]
     scene["tools"][0]["velocity"] = [0.0, 0.0, -0.03]
-    probe = next(p for p in scene["probes"] if p["name"] == "punch_travel")  # a commented line
+    probe = next(p for p in scene["probes"] if p["name"] == "centre_dz")  # a commented line
     probe["name"] = "centre_travel"
     out = sceneform.render(scene, base=base)
     assert out["ok"], out["error"]

@@ -199,7 +199,7 @@ def probes_have_a_legend_per_quantity(page) -> None:
     assert [(r["title"], r["unit"], r["names"]) for r in rows] == [
         ("<b>tool force</b> (kN)", "kN", ["punch_force"]),
         ("<b>thickness</b> (mm)", "mm", ["min_thickness"]),
-        ("<b>displacement</b> (mm)", "mm", ["punch_travel"])], rows
+        ("<b>displacement</b> (mm)", "mm", ["centre_dz"])], rows
 
 
 def test_probe_legends_fit_above_their_rows(open_page, served):

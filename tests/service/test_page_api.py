@@ -131,7 +131,7 @@ def test_probes_in_their_units(env, finished):
     probes = {p["name"]: p for p in client.get(f"/api/runs/{run}/plots").json()["probes"]}
     assert {n: (p["kind"], p["unit"], p["si_unit"]) for n, p in probes.items()} == {
         "punch_force": ("tool_force", "kN", "N"), "min_thickness": ("thickness", "mm", "m"),
-        "punch_travel": ("displacement", "mm", "m")}
+        "centre_dz": ("displacement", "mm", "m")}
     h = [s["probes"]["min_thickness"] for s in result["steps"]]
     assert probes["min_thickness"]["values"] == pytest.approx(np.array(h) * 1e3, rel=SCALED)
     assert probes["min_thickness"]["steps"] == [1, 2, 3, 4]

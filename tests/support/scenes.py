@@ -232,7 +232,7 @@ kind = "thickness"
 stat = "min"
 
 [[probes]]
-name = "punch_travel"
+name = "centre_dz"
 kind = "displacement"
 point = [0.0, 0.0, 0.0]
 component = "z"

@@ -55,8 +55,9 @@ def test_csv_a_row_per_step_with_units_in_the_header(cup, tmp_path):
     [path] = export.export(folder, "csv", tmp_path)
     rows = list(csv.reader(path.open()))
     head, body = rows[0], rows[1:]
+    # the scene's punch_force probe (the punch's z force) says what "punch force" says: once
     assert head == ["step", "time [s]", "punch stroke [mm]", "punch force [kN]",
-                    "punch_force [kN]", "min_thickness [mm]", "punch_travel [mm]"]
+                    "min_thickness [mm]", "centre_dz [mm]"]
     assert len(body) == len(res["steps"]) == 3
     col = {h: [float(r[i]) for r in body] for i, h in enumerate(head)}
     steps = res["steps"]
@@ -64,7 +65,7 @@ def test_csv_a_row_per_step_with_units_in_the_header(cup, tmp_path):
     # written to export.DIGITS significant digits: equal to half a unit of the 12th digit
     digits = 0.5 * 10.0 ** (1 - export.DIGITS)
     np.testing.assert_allclose(col["time [s]"], [r["time"] for r in steps], rtol=digits)
-    for name, unit in (("punch_force", "N"), ("min_thickness", "m"), ("punch_travel", "m")):
+    for name, unit in (("min_thickness", "m"), ("centre_dz", "m")):
         factor = DISPLAY[unit][1]
         np.testing.assert_allclose(col[f"{name} [{DISPLAY[unit][0]}]"],
                                    [r["probes"][name] * factor for r in steps], rtol=digits)
@@ -77,7 +78,8 @@ def test_csv_a_row_per_step_with_units_in_the_header(cup, tmp_path):
     np.testing.assert_allclose(col["punch stroke [mm]"],
                                [1e3 * (z0 - r["tools"]["punch"]["z"]) for r in steps],
                                rtol=digits)
-    np.testing.assert_allclose(col["punch force [kN]"], col["punch_force [kN]"], rtol=1e-9)
+    np.testing.assert_allclose(col["punch force [kN]"],
+                               [r["probes"]["punch_force"] * 1e-3 for r in steps], rtol=digits)
 
 
 def test_csv_leaves_a_released_punchs_cells_empty(cup, tmp_path):
@@ -90,6 +92,7 @@ def test_csv_leaves_a_released_punchs_cells_empty(cup, tmp_path):
     rows = list(csv.DictReader(export.export(tmp_path / "run", "csv", tmp_path)[0].open()))
     assert [r["punch force [kN]"] == "" for r in rows] == [False, False, True]
     assert [r["punch stroke [mm]"] == "" for r in rows] == [False, False, True]
+    # there the probe says what the punch column does not: its column stays
     assert all(r["punch_force [kN]"] for r in rows)
 
 
