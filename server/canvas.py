@@ -29,10 +29,6 @@ from server.section import AXES, Section
 RUN_RANGE, FIXED_RANGE = "this run's", "fixed"
 NO_SECTION = "off"
 SECTIONS = {NO_SECTION: None, "x plane (keep x ≥ at)": "x", "y plane (keep y ≥ at)": "y"}
-# px: the legend panel, floated over the view's bottom-left corner. Its height is fixed, to
-# hold the tallest legend (the five FLD zones): a floating panel is placed by its height when
-# placed, and a taller legend later would push it past the view's bottom edge
-LEGEND_WIDTH, LEGEND_HEIGHT = 250, 232
 
 
 def _matte(tree: dict) -> None:
@@ -110,15 +106,17 @@ class Canvas:
         self.legend.content = ""
 
     def _legend_panel(self) -> tuple[viser.GuiDropdownHandle, viser.GuiHtmlHandle]:
-        """The colour choice and the legend in a panel of their own, floated over the view's
-        bottom-left corner: in view whatever the control panel shows or folds."""
+        """The colour choice and the legend in a panel of their own, docked below the control
+        panel: beside the part, never over it. Floated over the view's corner it covered two
+        thirds of a 360 px tall view (the page at 1280 x 720); the price is that folding the
+        control panel folds the legend with it."""
         g = self.client.gui
         panel = g.add_panel()
         with panel.add_tab("Legend"):
             field = g.add_dropdown("Colour by", tuple(field_options(FIELDS)),
                                    initial_value=field_label(DEFAULT_FIELD))
             legend = g.add_html("")
-        panel.float(x=12, y=-12, width=LEGEND_WIDTH, height=LEGEND_HEIGHT)
+        panel.dock_below(g.main_panel)  # the main panel is docked first (ClientView)
         field.on_update(self.by_user(self._field_chosen))
         return field, legend
 

@@ -33,7 +33,7 @@ MIN_SPAN = {"thickness_mm": 1e-3, "thinning_pct": 1e-2, "eq_plastic_strain": 1e-
 # tools: muted greys with a tint each (never colour-map hues), drawn semi-transparent
 TOOL_COLOURS = [(150, 155, 170), (170, 150, 130), (150, 150, 150), (160, 140, 160),
                 (140, 150, 120)]
-TOOL_OPACITY = 0.35
+TOOL_OPACITY = 0.2
 
 # Thinning limits (% of the rest thickness) until the user sets others: failure from 20 %, the
 # acceptance limit press shops commonly apply to the maximum thinning of a drawn part (beyond

@@ -5,8 +5,8 @@ curve):
 - a scene is previewed before any run: the blank and the three tools; the page's first look
   previews the scene it has chosen, rather than an empty box;
 - the legend is in the window wherever the viewer is shown (its box inside the viewport and
-  inside the embedded viewer's frame), and stays so when the colour changes to thinning bands
-  or FLD zones;
+  inside the embedded viewer's frame) and never over the drawing (beside its canvas), and
+  stays so when the colour changes to thinning bands or FLD zones, on a 1280 x 720 page too;
 - the tools are translucent (the blank shows through the blank holder) and the section plane
   cuts them.
 
@@ -81,7 +81,14 @@ def legend_in_view(page, frame, within: str | None = None) -> dict:
     if within is not None:
         outer = page.locator(within).bounding_box()
         assert inside(box, outer), f"legend {box} outside the viewer {outer}"
+    drawn = frame.locator("canvas").first.bounding_box()
+    assert drawn["width"] > 200 and not overlap(box, drawn), f"legend {box} over the part {drawn}"
     return box
+
+
+def overlap(a: dict, b: dict) -> bool:
+    return (a["x"] < b["x"] + b["width"] - 0.5 and b["x"] < a["x"] + a["width"] - 0.5
+            and a["y"] < b["y"] + b["height"] - 0.5 and b["y"] < a["y"] + a["height"] - 0.5)
 
 
 def choose(frame, name: str, option: str) -> None:
@@ -149,4 +156,25 @@ def test_viewer_alone_legend_in_view(served, browser):
     page.get_by_text("Preview of scene").first.wait_for()
     legend_in_view(page, page)
     viewer_shot(page, "07-viewer-alone-preview")
+    page.close()
+
+
+def test_a_small_window_keeps_the_part_clear(served, browser):
+    """At 1280 x 720 the page's 3-D view is about 360 px tall: the legend (FLD zones, the
+    tallest) sits beside the drawing, which keeps most of the view's width."""
+    url, _ = served
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    page.set_default_timeout(WAIT_MS)
+    page.goto(page_url(url))
+    frame = page.frame_locator("#viewer")
+    frame.get_by_text("Colour by").first.wait_for()
+    preview(url, "cup", page)
+    choose(frame, "Colour by", "FLD zone")
+    frame.get_by_text("wrinkling tendency").first.wait_for()
+    legend_in_view(page, frame, "#viewer")
+    drawn = frame.locator("canvas").first.bounding_box()
+    view = page.locator("#viewer").bounding_box()
+    assert drawn["width"] >= 0.55 * view["width"] and drawn["height"] >= view["height"] - 4, \
+        (drawn, view)
+    viewer_shot(page, "08-small-window", frame)
     page.close()
