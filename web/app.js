@@ -6,10 +6,11 @@ const $ = (id) => document.getElementById(id);
 // run: the selected run of this tab's view, as the server holds it (/api/view, VIEW in
 // api.js: the embedded viewer shows the same one; another browser's view its own);
 // viewSeq / paramSeq count the page's own changes, so an answer to a request sent before one
-// of them is not taken for the server's state after it; noticeSeq: the last notice shown
+// of them is not taken for the server's state after it; noticeSeq: the last notice shown;
+// nudge(): ends the wait before the next poll
 const state = { scene: null, run: null, config: null, form: null, syncSeq: 0,
                 syncTimer: null, syncPending: null, syncRunning: null, viewSeq: 0,
-                paramSeq: 0, status: null, noticeSeq: 0, editorChanged: false };
+                paramSeq: 0, status: null, noticeSeq: 0, editorChanged: false, nudge: null };
 
 // a run another browser (or a script) started: an action on it asks first, once per run,
 // and says whose it was; what others did to this view's runs is shown here
@@ -467,6 +468,7 @@ async function selectRun(id) {
     const v = await api("PUT", "/api/view", { run: id });
     if (seq === state.viewSeq) adoptRun(v.run);
     say("");  // a message about the run shown before would read as about this one
+    pollNow();
   } catch (e) { say(e.message, true); }
 }
 
@@ -499,7 +501,14 @@ async function poll() {
     if (state.run) await showRun(state.run);
     else showNoRun();
   } catch (e) { say(e.message, true); }
-  setTimeout(poll, 500);
+  await new Promise((ok) => { state.nudge = ok; setTimeout(ok, 500); });
+  poll();
+}
+
+function pollNow() {
+  // a run selected: the next poll at once, not half a second later (headline, sliders and
+  // plots then follow the click together)
+  if (state.nudge) state.nudge();
 }
 
 async function showRun(id) {
@@ -513,6 +522,7 @@ async function showRun(id) {
   if ($("msg").dataset.run === id && !ACTIVE.includes(st.state) && st.state !== "queued")
     say("");
   Owner.showTouched(st);
+  RunsTable.update(st);
   showControls(st);
   showParameters(st, paramSeq);
   await Results.show(st);

@@ -262,9 +262,24 @@ const RunsTable = (() => {
     box.querySelector("summary").textContent = `Runs (${runs.length})`;
   }
 
+  // the selected run's row says what the headline says (its state, step and progress): the
+  // headline's status over the list's entry, whichever of the two was read later
+  let headline = null;
+  const merged = (r) => {
+    if (!headline || r.id !== headline.id) return r;
+    const { records, ...fresh } = headline;
+    return { ...r, ...fresh };
+  };
+
   function show(list, selectedRun) {
-    runs = list;
     selected = selectedRun;
+    runs = list.map(merged);
+    draw();
+  }
+
+  function update(st) {
+    headline = st;
+    runs = runs.map(merged);
     draw();
   }
 
@@ -279,5 +294,5 @@ const RunsTable = (() => {
     });
   }
 
-  return { init, show, changes };
+  return { init, show, update, changes };
 })();

@@ -148,6 +148,13 @@ def test_page_run_viewer_pause(server, browser, tmp_path):
         step += 1
         page.click("#resume")
         page.wait_for_function(f"+document.getElementById('status').dataset.step > {step}")
+        # the run's row in the Runs table says the headline's step at every look (it read the
+        # newer list, a step or four ahead, between two polls of the headline)
+        for _ in range(12):
+            head, row = page.evaluate("""() => [document.getElementById('status').dataset.step,
+                document.querySelector('#runs tbody tr.sel td.col-progress').innerText]""")
+            assert row.strip().startswith(f"{head}/"), (head, row)
+            page.wait_for_timeout(150)
         page.click("#stop")
         page.wait_for_function("document.getElementById('status').dataset.state == 'stopped'")
         # its summary is the sheet at its last step, and says so above the cards
