@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
+from server.scenediff import override_text
 from server.settings import check_run_id
 from server.store import atomic_write
 from sim.frames import results
@@ -110,8 +111,8 @@ class Run:
         overrides (the element is a column of its own), the live parameters given at the
         start (from step 1) and those changed while it ran, from the step each applied."""
         out = list(self.edits or ["unsaved edits of the scene"]) if self.edited else []
-        out += [f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}"
-                for k, v in self.overrides.items() if k != "shell.element"]
+        out += [f"{k} = {override_text(k, v)}" for k, v in self.overrides.items()
+                if k != "shell.element"]
         out += [f"{k} ×{v:.4g} from step 1" for k, v in self.given.items() if v != AS_WRITTEN]
         out += [f"{e['name']} ×{e['value']:.4g} from step {e['step']}"
                 for e in self.parameter_log]

@@ -61,10 +61,11 @@ def edits(saved: str, edited: str) -> list[str]:
     return out
 
 
-# a scene field's SI unit and the unit the page's form shows it in: the results' (mm, MPa, kN),
-# but a scene's plain number (friction, Poisson's ratio) stays one rather than a %, and angles
-# are in deg; other units as they are
-SHOWN = {**DISPLAY, "1": ("", 1.0), "rad": ("deg", 180 / np.pi)}
+# a scene field's SI unit and the unit the page's form shows it in (web/units.js SCENE): the
+# results' (mm, MPa, kN), but a scene's plain number (friction, Poisson's ratio) stays one
+# rather than a %, and angles are in deg; other units as they are
+SHOWN = {**DISPLAY, "1": ("", 1.0), "rad": ("deg", 180 / np.pi), "N/m": ("N/mm", 1e-3),
+         "m/s": ("mm/s", 1e3)}
 
 
 # a list value longer than this (an outline's points) is shown by its length
@@ -79,6 +80,20 @@ def value_text(v: object, factor: float = 1.0) -> str:
     if isinstance(v, list):
         return "[" + ", ".join(value_text(x, factor) for x in v) + "]"
     return "–" if v is None else str(v)
+
+
+def override_text(key: str, value: object) -> str:
+    """An override (``mesh.edge_length`` = 0.004) as the form shows the field: "4 mm", to
+    twelve digits (the value given, not a rounding of it)."""
+    label, factor = SHOWN.get(unit_of(key) or "", (unit_of(key), 1.0))
+
+    def text(v: object) -> str:
+        if isinstance(v, list):
+            return "[" + ", ".join(text(x) for x in v) + "]"
+        if isinstance(v, float) or (isinstance(v, int) and not isinstance(v, bool)):
+            return f"{v * factor:.12g}"
+        return str(v)
+    return f"{text(value)} {label}" if label else text(value)
 
 
 def shown(item: dict, between: str = " | ") -> str:

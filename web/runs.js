@@ -71,22 +71,8 @@ const RunsTable = (() => {
     return span;
   }
 
-  function changes(r) {
-    // what the run changed of its saved scene (the server's ``changes``), the overrides in
-    // the units the scene form shows (0.0005 m of an edge length: 0.5 mm), labelled
-    const units = r.override_units || {};
-    const given = Object.entries(r.given || {}).filter(([, v]) => v !== 1);
-    return [
-      // each edited setting, saved → edited (the server's words), else that it ran edits
-      ...(r.edited ? (r.edits && r.edits.length ? r.edits : ["unsaved edits of the scene"])
-                   : []),
-      ...Object.entries(r.overrides || {}).filter(([k]) => k !== "shell.element")
-        .map(([k, v]) => `${k} = ${Units.sceneValue(v, units[k])}`),
-      ...given.map(([k, v]) => `${k} ×${Units.num(v, 4)} from step 1`),
-      ...(r.parameter_log || []).map((e) => `${e.name} ×${Units.num(e.value, 4)} from step ` +
-                                             `${e.step}`),
-    ];
-  }
+  // what the run changed of its saved scene, in the form's units (the server's words)
+  const changes = (r) => r.changes || [];
 
   function changesCell(r) {
     const list = changes(r);
