@@ -93,8 +93,9 @@ class RunSummary(BaseModel):
         "every live parameter's value from the next step on (as the solver last said)"))
     progress: Progress
     changes: list[str] = Field(default_factory=list, description=(
-        "what the run changed of its saved scene, in words: unsaved edits, overrides, live "
-        "parameter values and the step each applied from"))
+        "what the run changed of its saved scene, in words, values in the scene form's units "
+        "(mm, MPa, kN): unsaved edits, overrides, live parameter values and the step each "
+        "applied from"))
     override_units: dict[str, str | None] = Field(default_factory=dict, description=(
         "the SI unit of each override's scene field (null: none), as the scene schema gives "
         "it"))
