@@ -55,7 +55,7 @@ def test_csv_reads_back_as_the_results_probes(cup):
     assert f'filename="{run_id}.csv"' in r.headers["content-disposition"]
     rows = list(csv.reader(io.StringIO(r.text)))
     assert len(rows) - 1 == len(res["steps"])
-    i = rows[0].index("punch_force [kN]")
+    i = rows[0].index("punch force [kN]")  # the punch_force probe says the same: once
     # export.DIGITS significant digits: within half a unit of the last
     np.testing.assert_allclose([float(row[i]) for row in rows[1:]],
                                [s["probes"]["punch_force"] * 1e-3 for s in res["steps"]],

@@ -74,7 +74,7 @@ def test_an_ended_run_offers_each_format_and_a_click_downloads_it(served, browse
     assert path.name == f"{run}.csv"
     assert path.read_text() == httpx.get(f"{url}/api/runs/{run}/export/csv").text
     rows = list(csv.reader(path.open()))
-    assert "punch_force [kN]" in rows[0] and len(rows) == 1 + 4
+    assert "punch force [kN]" in rows[0] and len(rows) == 1 + 4
     with page.expect_download() as d:
         page.click("#downloads a[data-format=vtu]")
     assert d.value.suggested_filename == f"{run}_vtu.zip"
