@@ -104,7 +104,21 @@ def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray, dict]:
         raise ValueError(f"{field_name}: thickness must be positive (and at most "
                          f"{MAX_LENGTH:.0e} m) at every vertex ({int(bad.sum())} are not; "
                          f"vertex {v}: {h[v]:.3g} m)")
+    check_sheet(mesh, h, "shell.thickness" if field_name.endswith("gradient") and
+                not np.any(sh.thickness_gradient) else field_name)
     return mesh, np.asarray(h, float), {"kind": spec.kind, **report}
+
+
+def check_sheet(mesh: meshes.TriMesh, h: np.ndarray, field_name: str) -> None:
+    """A sheet is thinner than it is long: a blank 5 m thick on a 60 mm disk is a typo (it ran,
+    and "converged" with no force: the tools were inside it). Its length: the largest side of
+    the mid-surface's bounding box. Not its width: a plane-strain strip one cell across, thicker
+    than that cell, is a model (the springback study's). Nor is a mesh coarser than the blank
+    refused: a coarse look is the user's to take."""
+    length = float(np.ptp(mesh.vertices, axis=0).max())
+    if h.max() > length:
+        raise ValueError(f"{field_name}: {h.max():.3g} m thick, more than the blank's largest "
+                         f"extent ({length:.3g} m): not a sheet")
 
 
 

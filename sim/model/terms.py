@@ -9,7 +9,7 @@ from sim.geometry.quadrature import Rule
 from sim.geometry.shell import Shell
 from sim.materials.hill import HILL48, hill_matrix, hill_params, sheet_frames
 from sim.materials.plasticity import LAWS
-from sim.scene.load import Scene
+from sim.scene.load import Scene, SceneError
 from sim.scene.sheet import MaterialSpec
 from sim.solve.assembly import Pattern, pair_slots
 from sim.terms import PROJECT_ELEMENT, PROJECT_NONE, PROJECT_QP, Term, loads
@@ -18,6 +18,7 @@ from sim.terms.elasticity import Elasticity
 from sim.terms.inertia import Inertia, lumped_mass
 from sim.terms.small_strain import SmallStrain
 from sim.terms.tool_contact import ToolContact
+from sim.tools.evaluate import sdf_world_distance
 from sim.tools.shapes import tool_program
 
 # linear_elastic is the elastic term linearised at rest, where every law is Hooke's
@@ -128,6 +129,34 @@ def tools(scene: Scene, shell: Shell, pattern: Pattern, nodes: np.ndarray) -> li
                                1e-2 * h, pattern, delta=2e-2 * h, keyframes=t.keyframes, **kw))
     return out
 
+
+
+# a blank that starts deeper inside a tool than this share of its thickness is a scene's error
+# (a thickness or a tool's position mistyped: a 5 m sheet swallowed the cup's tools and its run
+# "converged" with no force), not contact to resolve; the shipped scenes start clear or
+# touching, and a tessellated tool's facets sag by micrometres
+START_OVERLAP = 0.1
+FIBRE_POINTS = 9  # along each fibre, skin to skin: a tool inside the sheet is found too
+
+
+def check_start(scene: Scene, shell: Shell, tools: list[ToolContact], x0: np.ndarray) -> None:
+    """SceneError naming the first tool the blank starts inside, deeper than START_OVERLAP of
+    its thickness: where, how deep, and what to check."""
+    bottom, top = shell.rest[shell.skin_nodes(False)], shell.rest[shell.skin_nodes(True)]
+    f = np.linspace(0.0, 1.0, FIBRE_POINTS)[:, None, None]
+    points = (bottom + f * (top - bottom)).reshape(-1, 3)
+    for i, term in enumerate(tools):
+        d = sdf_world_distance(term.prog, term.R_now, term.translation(x0), points)
+        depth = -d.reshape(FIBRE_POINTS, -1).min(axis=0)
+        share = depth / shell.thickness
+        v = int(np.argmax(share))
+        if share[v] > START_OVERLAP:
+            x, y, _ = shell.mesh.vertices[v]
+            raise SceneError(
+                f"tools.{i}: tool {scene.tools[i].name!r}: the blank starts inside it, "
+                f"{depth[v]:.3g} m deep at (x, y) = ({x:.3g} m, {y:.3g} m), {share[v]:.0%} of "
+                f"the sheet's thickness there ({shell.thickness[v]:.3g} m): place the tool "
+                "clear of the sheet (its shape's position) or check shell.thickness")
 
 def external_force(scene: Scene, shell: Shell, rule: Rule, elastic: Elasticity,
                    regions: dict[str, np.ndarray], x0: np.ndarray) -> loads.ExternalForce | None:

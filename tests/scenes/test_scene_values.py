@@ -188,3 +188,19 @@ def test_the_kernel_cache_follows_the_solver_not_its_apps(tmp_path):
         made.append(d)
     kept = sorted(str(p) for p in (tmp_path / ".numba-cache").iterdir())
     assert len(made) == 5 and kept == sorted(made[-KEEP_CACHES:])
+
+
+def test_a_sheet_thicker_than_wide_or_inside_a_tool_is_refused_naming_the_field():
+    """A browser review set the cup's thickness to 5000 mm: the run 'converged' with no force,
+    the tools inside the sheet. A sheet thicker than its blank is long is refused naming the
+    thickness; one that starts inside a tool by more than a tenth of its thickness (50 mm in
+    the cup's 1.2 mm clearance) naming the tool, where and how deep."""
+    from sim.model.build import build_model
+
+    cup = ROOT / "scenes" / "cup_drawing.toml"
+    with pytest.raises(ValueError, match=r"^shell\.thickness: 5 m thick, more than the "
+                                         r"blank's largest extent \(0\.06 m\): not a sheet"):
+        build_model(load_scene(cup, {"shell.thickness": 5.0}))
+    with pytest.raises(SceneError, match=r"^tools\.0: tool 'punch': the blank starts inside "
+                                         r"it, 0\.0165 m deep at \(x, y\) = \(0 m, 0 m\)"):
+        build_model(load_scene(cup, {"shell.thickness": 0.05}))
