@@ -22,7 +22,7 @@ import numpy as np
 import trimesh
 import viser
 
-from server.colormap import FAILURE_PCT, MARGINAL_PCT, TOOL_OPACITY, tool_colour
+from server.colormap import FAILURE_PCT, MARGINAL_PCT, MARGINAL_SHARE, TOOL_OPACITY, tool_colour
 from server.palette import DEFAULT_FIELD, FIELDS, Palette, field_label, field_options
 from server.section import AXES, Section
 
@@ -275,11 +275,11 @@ class Canvas:
 
     def card_thinning(self, limit: float | None) -> None:
         """The thinning bands of a run whose material card has a thinning limit (%): failure
-        from it, marginal from half of it (the defaults' ratio); without one the defaults.
+        from it, marginal from MARGINAL_SHARE of it; without one the rule of thumb.
         Limits the user set in this browser stay: theirs to compare runs by."""
         if self.limits_by_user:
             return
-        marginal, failure = ((0.5 * limit, limit) if limit is not None
+        marginal, failure = ((MARGINAL_SHARE * limit, limit) if limit is not None
                              else (MARGINAL_PCT, FAILURE_PCT))
         self.palette.set_thinning(marginal, failure)
         with self.from_code():

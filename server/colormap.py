@@ -22,6 +22,7 @@ from html import escape
 import numpy as np
 
 from sim.frames.forming_limits import FAILURE, INSUFFICIENT, MARGINAL, SAFE, WRINKLING, ZONES
+from sim.frames.summary import MARGINAL_SHARE, THINNING_LIMIT
 
 # viridis sampled at 9 evenly spaced points (matplotlib's values, rounded to 8 bits)
 VIRIDIS = np.array([[68, 1, 84], [71, 44, 122], [59, 81, 139], [44, 113, 142], [33, 144, 141],
@@ -35,12 +36,12 @@ TOOL_COLOURS = [(150, 155, 170), (170, 150, 130), (150, 150, 150), (160, 140, 16
                 (140, 150, 120)]
 TOOL_OPACITY = 0.2
 
-# Thinning limits (% of the rest thickness) until the user sets others: failure from 20 %, the
-# acceptance limit press shops commonly apply to the maximum thinning of a drawn part (beyond
-# it a split is near); marginal from 10 %, so that a region halfway there is flagged early.
-# They are rules of thumb, not the material's: set them for the material and part (its forming
-# limit curve, in the FLD-zone colours, is the material's own criterion).
-MARGINAL_PCT, FAILURE_PCT = 10.0, 20.0
+# Thinning limits (% of the rest thickness) until the user sets others: the summary's rule of
+# thumb (sim.frames.summary.THINNING_LIMIT, marginal from half of it), so the bands and the
+# summary's flag agree. Set them for the material and part (its forming limit curve, in the
+# FLD-zone colours, is the material's own criterion).
+FAILURE_PCT = 100.0 * THINNING_LIMIT
+MARGINAL_PCT = MARGINAL_SHARE * FAILURE_PCT
 THINNING_COLOURS = {"thickened": (90, 140, 215), "safe": (60, 165, 85),
                     "marginal": (240, 185, 30), "failure": (210, 35, 35)}
 # the FLD zones in the colours forming simulation packages use for them: failure red, marginal

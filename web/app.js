@@ -413,6 +413,9 @@ function showResult(name, value, st) {
     return `${it.what} ${num(it.value * f)} × ${factors.map(num).join(" × ")} = ${num(result)}${u}`;
   });
   if (name === "tool_speed" && st && st.n_steps) parts.push(`run: ${st.n_steps} steps`);
+  // a multiplier of nothing in this run's scene (Load × on a cup without loads) says so
+  if (st && Object.keys(st.scaled || {}).length && !parts.length)
+    parts.push("nothing in this run's scene to scale");
   box.textContent = parts.join("; ");
   box.title = box.textContent;
 }
@@ -490,6 +493,11 @@ async function followView() {
   if (seq !== state.viewSeq) return;
   state.previewing = v.scene;  // the scene this page's viewer previews (null: a run)
   adoptRun(v.run);
+  // the headline and plots are the run's; the 3-D view below them may be a scene's preview
+  const other = v.scene && v.run;
+  $("previewing").hidden = !other;
+  if (other) $("previewing").textContent = `The 3-D view shows a preview of scene ${v.scene}, ` +
+    `not this run: click the run in the Runs table to draw it there.`;
   // the step this page's 3-D view was scrubbed to: marked on the run's plots
   Plots.scrubAt(v.run === state.run && !v.scene ? v.step : null);
 }

@@ -96,6 +96,13 @@ PARALLEL = np.cos(np.radians(1.0))
 # side thrust counted against the run's peak punch force: issue 17's bar for an axisymmetric
 # cup, whose exact answer is no side thrust at all
 LATERAL_SHARE = 0.02
+# the thinning limit (of the rest thickness) a material card without one is judged by: 20 %, the
+# acceptance limit press shops commonly apply to a drawn part's maximum thinning (beyond it a
+# split is near); marginal from half of any limit, so a region halfway there shows early. A
+# rule of thumb, not the material's (its forming limit curve is): the summary, the Runs table
+# and the 3-D view's bands say the same, and the summary's note says which limit it was
+THINNING_LIMIT = 0.20
+MARGINAL_SHARE = 0.5
 # a force-controlled tool is on its stop within this many sheet thicknesses of it: the stop's
 # spring lets it in by F / k_stop, far less; a holder still pressing the flange is well above
 ON_STOP = 1e-3
@@ -357,14 +364,17 @@ def _thickness(view: View) -> list[dict]:
     thin, i = thinning(h, h0, view.x), int(np.argmin(h))
     most = _most("max_thinning", "Maximum thinning", thin, mid, ("thinner", "thickening"))
     flc = view.model.scene.material.flc
-    if flc is not None and flc.max_thinning is not None:  # (flc: plastic materials only)
-        over = int(np.count_nonzero(thin >= flc.max_thinning))
-        most["at"]["over_limit"] = over
-        most["flag"] = "failure" if over else None
-        most["note"] = "; ".join(filter(None, (
-            most.get("note"), f"the material card's limit {100 * flc.max_thinning:g} % "
-                              f"(excessive thinning): {over} vertices at or over it in the "
-                              f"final state")))
+    carded = flc is not None and flc.max_thinning is not None  # (flc: plastic materials only)
+    limit = flc.max_thinning if carded else THINNING_LIMIT
+    over = int(np.count_nonzero(thin >= limit))
+    near = int(np.count_nonzero(thin >= MARGINAL_SHARE * limit))
+    most["at"]["over_limit"] = over
+    most["flag"] = "failure" if over else "marginal" if near else None
+    whose = (f"the material card's limit {100 * limit:g} %" if carded else
+             f"the rule-of-thumb limit {100 * limit:g} % (the material card sets none)")
+    most["note"] = "; ".join(filter(None, (
+        most.get("note"), f"{whose} (excessive thinning): {over} vertices at or over it, "
+                          f"{near} over half of it, in the final state")))
     return [entry("min_thickness", "Minimum thickness", h[i], "m", at_vertex(i, mid)), most,
             _most("max_thickening", "Maximum thickening", 0.0 - thin, mid,
                   ("thicker", "thinning"))]

@@ -460,7 +460,8 @@ class _FLC(Strict):
     max_thinning: bounded(0.0, 1.0, lo_open=True) | None = doc(
         "excessive thinning: the share of the rest thickness whose loss fails the part whatever "
         "its strains (a criterion beside the curve, as forming packages apply one); the "
-        "summary's maximum thinning is flagged from it; unset: none", "1", None)
+        "summary's maximum thinning is flagged from it; unset: the rule of thumb, 20 %", "1",
+        None)
 
 
 class PointsFLC(_FLC):

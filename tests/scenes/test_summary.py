@@ -26,6 +26,7 @@ from sim.frames.forming_limits import (
     FormingLimitCurve,
 )
 from sim.frames.punch import punch_history
+from sim.frames.summary import MARGINAL_SHARE, THINNING_LIMIT
 from sim.geometry.trimesh import annulus, rectangle
 from sim.scene.load import SceneError, scene_from_dict, scene_from_toml
 from sim.scene.shapes import tool_role
@@ -405,16 +406,21 @@ def test_a_stretch_past_the_curve_fails_and_the_zones_follow():
 
 def test_thinning_over_the_cards_limit_is_flagged():
     """The plane-strain sheet thins uniformly: a thinning limit just under its thinning flags
-    the summary's maximum thinning as failure at every vertex, one just over it flags
-    nothing; without a limit the entry carries no count."""
+    the summary's maximum thinning as failure at every vertex, one just over it as marginal
+    (over half of it), one over twice it nothing; without a limit in the card the rule of
+    thumb (20 %, as the 3-D view's bands) judges, and the note says so."""
     sim, res = stretched("plane_strain")
     thin = entries(res)["max_thinning"]
-    assert "flag" not in thin and "over_limit" not in thin["at"]
-    raw = stretch_raw("plane_strain")
     n = sim.model.shell.n_vertices
+    rule = {"failure": n, "marginal": 0, None: 0}
+    want = ("failure" if thin["value"] >= THINNING_LIMIT else
+            "marginal" if thin["value"] >= MARGINAL_SHARE * THINNING_LIMIT else None)
+    assert thin.get("flag") == want and thin["at"]["over_limit"] == rule[want], thin
+    assert "rule-of-thumb limit 20 % (the material card sets none)" in thin["note"]
+    raw = stretch_raw("plane_strain")
     # the uniform state's thinning is the same at every vertex to Newton's tolerance (rtol
     # 1e-8): a limit 1 % away is on one side of all of them
-    for factor, flag, over in ((0.99, "failure", n), (1.01, None, 0)):
+    for factor, flag, over in ((0.99, "failure", n), (1.01, "marginal", 0), (2.02, None, 0)):
         raw["material"]["flc"]["max_thinning"] = factor * thin["value"]
         sim = Simulation.from_scene(scene_from_dict(raw))
         assert sim.run()

@@ -197,6 +197,9 @@ def test_live_parameters_read_as_words_with_their_results(page, served):
     assert holder == "blank_holder 3 × 1 = 3 kN", holder
     speed = page.text_content("#param-tool_speed-result")
     assert speed.startswith("punch 0.5 × 2 = 1 mm/step; "), speed
+    # the cup has no loads: Load × says it scales nothing, rather than nothing at all
+    load = page.text_content("#param-load_scale-result")
+    assert load == "nothing in this run's scene to scale", load
     assert page.text_content("#param-friction_scale-value") == "2"
     shot(page, SHOTS, "05-live-parameters", settle_ms=SETTLE_MS)
     httpx.post(f"{url}/api/runs/{run}/stop")

@@ -141,6 +141,13 @@ def test_embedded_viewer_legend_preview_zones_and_section(served, browser):
 
     choose(frame, "Section", "y plane (keep y ≥ at)")
     viewer_shot(page, "05-embedded-section", frame)
+    # a scene previewed while a run is selected: the headline (the run's) says the 3-D view
+    # is not the run's part, until the run is clicked again
+    preview(url, "cup", page)
+    page.wait_for_selector("#previewing:not([hidden])")
+    assert "preview of scene cup, not this run" in page.text_content("#previewing")
+    page.click(f'#runs tbody tr[data-id="{run}"] td.col-scene')
+    page.wait_for_selector("#previewing[hidden]", state="attached")
     page.close()
 
 
