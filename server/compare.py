@@ -190,7 +190,9 @@ def _line(runs: list[Loaded], items: list[dict], live: dict, edited: list[str]) 
 def summary_rows(runs: list[Loaded]) -> list[dict]:
     """One row per summary quantity (and tool) found in any run: each run's display value,
     and each run's difference from the first (``delta``, in the row's unit; ``delta_pct``,
-    relative to the first's value); null where a run has no such quantity or result."""
+    relative to the first's value); null where a run has no such quantity or result, and
+    ``delta_pct`` null on a row in % (a thinning, a margin: its difference is in points, and
+    a share of a share near zero read "-3000 %")."""
     rows: dict[tuple, dict] = {}
     for i, r in enumerate(runs):
         for e in _entries(r.result):
@@ -204,8 +206,8 @@ def summary_rows(runs: list[Loaded]) -> list[dict]:
     for row in rows.values():
         a = row["values"][0]
         row["delta"] = [None if a is None or v is None else v - a for v in row["values"]]
-        row["delta_pct"] = [None if a in (None, 0) or v is None else 100 * (v - a) / abs(a)
-                            for v in row["values"]]
+        row["delta_pct"] = [None if a in (None, 0) or v is None or row["unit"] == "%"
+                            else 100 * (v - a) / abs(a) for v in row["values"]]
     return list(rows.values())
 
 

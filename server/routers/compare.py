@@ -65,7 +65,8 @@ class SummaryRow(BaseModel):
     note: str | None = None
     delta: list[float | None] = Field(description="each run's value minus the reference's")
     delta_pct: list[float | None] = Field(description="delta relative to the reference's "
-                                          "value, %")
+                                          "value, %; null on a row whose unit is % (its "
+                                          "delta is in points)")
 
 
 class ComparedPunch(PunchCurve):

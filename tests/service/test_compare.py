@@ -120,6 +120,9 @@ def test_summaries_side_by_side_with_differences(env, runs):
                                                      abs=SCALED)
     assert peak["delta"][0] == 0 and peak["delta_pct"][0] == 0
     assert peak["values"][1] != ref  # half the friction: another force
+    # a quantity in % differs by points, not by a percentage of a percentage
+    margin = rows[("max_thinning", None)]
+    assert margin["unit"] == "%" and set(margin["delta_pct"]) == {None}
     cost = rows[("dofs", None)]
     assert cost["values"] == [float(r["counts"]["dofs"]) for r in results]
 
