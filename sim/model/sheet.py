@@ -67,7 +67,26 @@ def read_values(path: str) -> np.ndarray:
             return np.asarray(np.load(p, allow_pickle=False), float).ravel()
         return np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, ndmin=1).ravel()
     except ValueError as exc:
-        raise ValueError(f"{p.name} is not an array of numbers ({exc})") from None
+        raise ValueError(f"{p.name} is not an array of numbers ({_not_a_number(p) or exc})"
+                         ) from None
+
+
+def _not_a_number(p: Path) -> str | None:
+    """Where a text file of numbers holds something else, as its editor counts: "line 3,
+    value 1: 'abc'" (numpy counts data rows from 0, skipping comments and blank lines, and
+    columns from 1)."""
+    try:
+        lines = p.read_text(errors="replace").splitlines()
+    except OSError:
+        return None
+    for n, line in enumerate(lines, 1):
+        words = line.split("#")[0].replace(",", " " if p.suffix == ".csv" else ",").split()
+        for k, w in enumerate(words, 1):
+            try:
+                float(w)
+            except ValueError:
+                return f"line {n}, value {k}: {w!r} is not a number"
+    return None
 
 
 def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray, dict]:

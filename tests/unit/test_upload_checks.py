@@ -108,6 +108,9 @@ def test_a_thickness_file_is_positive_numbers(tmp_path):
     ("zero.csv", b"0.001,0,0.002\n", "zero.csv: 1 values are no thickness"),
     ("nan.txt", b"0.001 nan\n", "nan.txt: 1 values are no thickness"),
     ("words.txt", b"seven millimetres\n", "words.txt is not an array of numbers"),
+    # where, as an editor counts lines (numpy said "row 2, column 1": rows from 0, data only)
+    ("line.csv", b"# mm\n0.001\n\n0.002\nabc\n",
+     "line.csv is not an array of numbers (line 5, value 1: 'abc' is not a number)"),
     ("ragged.txt", b"0.001 0.002\n0.003\n", "ragged.txt is not an array of numbers"),
     ("empty.txt", b"", "empty.txt: no values"),
     ("empty.npy", b"", "empty.npy is not an array of numbers"),
