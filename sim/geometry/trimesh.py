@@ -234,7 +234,8 @@ def load_with_values(path: str | Path, scale: float = 1.0, values: np.ndarray | 
     except Exception as exc:  # trimesh's parsers raise anything on a malformed file
         raise MeshFileError(f"{path.name}: not a readable mesh ({exc})") from None
     if not hasattr(m, "faces") or len(m.faces) == 0:
-        raise MeshFileError(f"{path.name}: no triangles")
+        raise MeshFileError(f"{path.name}: no triangles: not a {path.suffix} mesh file (text, "
+                            "another format?), or an empty one")
     if attribute is not None:
         values = _ply_property(m, path, attribute)
     V, F = np.asarray(m.vertices, float) * scale, np.asarray(m.faces, np.int64)
