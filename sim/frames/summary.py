@@ -538,7 +538,7 @@ def _rim_height(view: View) -> list[dict]:
                  {"angle": measure(deg[j], "deg"), **at_vertex(r.vertices[j], mid)}),
            entry("earing", "Earing", r.earing, "1", profile=profile,
                  note="(largest - smallest) / mean rim height; angles about the punch axis "
-                      "from the x axis")]
+                      "from the x axis" + _mesh_earing(r.harmonic(4)[0], r.harmonic(6)[0]))]
     for k, name in ((4, "four-fold (ears)"), (6, "six-fold (mesh)")):
         amp, crest = r.harmonic(k)
         out.append(entry(f"rim_harmonic_{k}", f"Rim height, {name} harmonic", amp, "m",
@@ -546,6 +546,17 @@ def _rim_height(view: View) -> list[dict]:
                          note=f"amplitude of the {k}-fold term of the rim height's "
                               "least-squares Fourier series"))
     return out
+
+
+def _mesh_earing(ears: float, mesh: float) -> str:
+    """What the earing note adds when the rim's six-fold wave, which a blank meshed in one
+    60-degree lattice gives linear triangles, outgrows the rolled sheet's four ears: that this
+    earing is the mesh's (docs/elements-ans.md, "The cup's lateral force")."""
+    if mesh <= ears:
+        return ""
+    return (f"; mostly the mesh's: its six-fold wave ({1e3 * mesh:.3g} mm) is larger than the "
+            f"four ears ({1e3 * ears:.3g} mm), the pattern of a blank meshed in one lattice; an "
+            "outline blank with mesh.mesher = \"meshadapt\", or a finer mesh, shows the sheet's")
 
 
 @quantity("volume_change")

@@ -41,3 +41,14 @@ def test_rim_heights_and_harmonics():
     assert np.degrees(c6) == pytest.approx(10.0, abs=1e-7)
     assert r.harmonic(2)[0] <= 1e-13
     assert r.earing == pytest.approx((h.max() - h.min()) / h.mean(), rel=1e-12)
+
+
+def test_an_earing_made_by_the_mesh_says_so():
+    """A review read 'Earing 11.8 %' beside a six-fold (mesh) harmonic of 0.859 mm and four
+    ears of 0.141 mm: the earing's note says when the mesh's wave is the larger."""
+    from sim.frames.summary import _mesh_earing
+
+    assert _mesh_earing(0.5e-3, 0.1e-3) == ""  # a rolled sheet's ears: the sheet's earing
+    note = _mesh_earing(0.141e-3, 0.859e-3)
+    assert "mostly the mesh's: its six-fold wave (0.859 mm) is larger than the four ears " \
+           "(0.141 mm)" in note and 'mesh.mesher = "meshadapt"' in note
