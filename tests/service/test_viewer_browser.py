@@ -106,13 +106,20 @@ def preview(url: str, scene: str, page=None) -> None:
           f"the preview of {scene} was not shown")
 
 
-def test_embedded_viewer_legend_preview_zones_and_section(served, browser):
-    url, _ = served
-    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+def embedded(browser, url: str, width: int, height: int) -> tuple:
+    """The page at ``width`` x ``height``, its viewer's frame once the viewer has drawn its
+    panel."""
+    page = browser.new_page(viewport={"width": width, "height": height})
     page.set_default_timeout(WAIT_MS)
     page.goto(page_url(url))
     frame = page.frame_locator("#viewer")
     frame.get_by_text("Colour by").first.wait_for()
+    return page, frame
+
+
+def test_embedded_viewer_legend_preview_zones_and_section(served, browser):
+    url, _ = served
+    page, frame = embedded(browser, url, 1400, 1000)
     # no run yet: the page previews the scene it chose (the server's default), by itself
     frame.get_by_text("Preview of scene").first.wait_for()
     own = {"X-Q3T-View": page.evaluate("VIEW")}
@@ -167,14 +174,10 @@ def test_viewer_alone_legend_in_view(served, browser):
 
 
 def test_a_small_window_keeps_the_part_clear(served, browser):
-    """At 1280 x 720 the page's 3-D view is about 360 px tall: the legend (FLD zones, the
-    tallest) sits beside the drawing, which keeps most of the view's width."""
+    """At 1280 x 720 the page's 3-D view is 420 px tall: the legend (FLD zones, the tallest)
+    sits beside the drawing, which keeps most of the view's width."""
     url, _ = served
-    page = browser.new_page(viewport={"width": 1280, "height": 720})
-    page.set_default_timeout(WAIT_MS)
-    page.goto(page_url(url))
-    frame = page.frame_locator("#viewer")
-    frame.get_by_text("Colour by").first.wait_for()
+    page, frame = embedded(browser, url, 1280, 720)
     preview(url, "cup", page)
     choose(frame, "Colour by", "FLD zone")
     frame.get_by_text("wrinkling tendency").first.wait_for()
