@@ -80,8 +80,18 @@ def colorize(values: np.ndarray, lo: float, hi: float, name: str = "viridis") ->
     return np.round(table[i] * (1 - w) + table[i + 1] * w).astype(np.uint8)
 
 
-def _fmt(v: float) -> str:
-    return f"{v:.4g}"
+def _fmt(v: float, digits: int = 4) -> str:
+    return f"{v:.{digits}g}"
+
+
+def _ends(lo: float, mid: float, hi: float) -> list[str]:
+    """A scale's ends and middle, to the digits that tell them apart: a uniform 1 mm blank's
+    scale (its least span, 1 um) read "0.9995 | 1 | 1" at four."""
+    for digits in range(4, 9):
+        out = [_fmt(v, digits) for v in (lo, mid, hi)]
+        if len(set(out)) == 3:
+            break
+    return out
 
 
 def _title(label: str, unit: str, note: str) -> str:
@@ -114,14 +124,14 @@ class Continuous:
     def legend(self) -> str:
         stops = ", ".join(f"rgb({r:.0f},{g:.0f},{b:.0f})" for r, g, b in COLORMAPS[self.cmap])
         u = f" {self.unit}" if self.unit and self.unit != "-" else ""
-        mid = 0.5 * (self.lo + self.hi)
+        lo, mid, hi = _ends(self.lo, 0.5 * (self.lo + self.hi), self.hi)
         return (f'<div class="q3t-legend" data-scale="continuous" style="font-size:0.85em">'
                 f"{_title(self.label, self.unit, self.note)}"
                 f'<div style="height:12px;border-radius:2px;margin:3px 0;border:1px solid #777;'
                 f'background:linear-gradient(to right, {stops})"></div>'
                 f'<div style="display:flex;justify-content:space-between">'
-                f"<span>&le; {_fmt(self.lo)}{u}</span><span>{_fmt(mid)}</span>"
-                f"<span>&ge; {_fmt(self.hi)}{u}</span></div></div>")
+                f"<span>&le; {lo}{u}</span><span>{mid}</span>"
+                f"<span>&ge; {hi}{u}</span></div></div>")
 
 
 @dataclass(frozen=True)

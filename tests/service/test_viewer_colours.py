@@ -19,7 +19,7 @@ import pytest
 pytest.importorskip("viser")
 from server.canvas import FIXED_RANGE, RUN_RANGE, surface_glb  # noqa: E402
 from server.clientview import ClientView  # noqa: E402
-from server.colormap import THINNING_COLOURS, ZONE_COLOURS  # noqa: E402
+from server.colormap import THINNING_COLOURS, ZONE_COLOURS, Continuous  # noqa: E402
 from server.replay import Replay  # noqa: E402
 from server.viewer import Viewer  # noqa: E402
 from sim.frames.forming_limits import ZONES  # noqa: E402
@@ -242,3 +242,12 @@ def test_tool_opacity_and_the_section_plane(viewer):
     np.testing.assert_array_equal(viewer.canvas.wire.faces, faces)
     viewer.canvas.view["section"].value = "off"
     assert len(viewer.canvas.painted[2]) == len(FACES) and len(punch.faces) == len(BOX_FACES)
+
+
+def test_a_narrow_scale_tells_its_ends_apart():
+    """A uniform 1 mm blank's thickness scale spans its least span, 1 um: four digits read
+    '≤ 0.9995 mm | 1 | ≥ 1 mm', the end as the middle; now to the digits that tell them apart."""
+    html = Continuous("Thickness", "mm", 0.9995, 1.0005).legend()
+    assert "&le; 0.9995 mm" in html and "<span>1</span>" in html and "&ge; 1.0005 mm" in html
+    wide = Continuous("Thickness", "mm", 0.8035, 1.529).legend()
+    assert "&le; 0.8035 mm" in wide and "<span>1.166</span>" in wide and "&ge; 1.529 mm" in wide
