@@ -62,7 +62,7 @@ class View:
 
 def who(view: str | None) -> str:
     """The starter of a run, in a notice's words."""
-    return "a script" if view in (None, DEFAULT) else "another browser"
+    return "a script" if view in (None, DEFAULT) else "another page"
 
 
 class Views:

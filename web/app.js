@@ -16,7 +16,7 @@ const state = { scene: null, run: null, config: null, form: null, syncSeq: 0,
 // and says whose it was; what others did to this view's runs is shown here
 const Owner = (() => {
   const asked = new Set();
-  const who = (r) => (r.started_by === "default" ? "a script" : "another browser");
+  const who = (r) => (r.started_by === "default" ? "a script" : "another page");
   const foreign = (r) => !!r && !!r.started_by && r.started_by !== VIEW;
 
   function note(r) {
@@ -25,8 +25,9 @@ const Owner = (() => {
 
   function allow(r, what) {
     if (!foreign(r) || asked.has(r.id)) return true;
+    // a page: another browser's, or another tab or window of this one (each has its view)
     if (!confirm(`Run ${r.id} was started by ${who(r)}.\n${what} it anyway? ` +
-                 "(That browser's page says so.)")) return false;
+                 "(That page is told.)")) return false;
     asked.add(r.id);
     return true;
   }

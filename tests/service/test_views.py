@@ -142,23 +142,23 @@ def test_acting_on_another_views_run_says_so(client):
         assert own.status_code == 200 and own.json()["notice"] is None
         r = client.put(f"/api/runs/{run}/parameters/friction_scale", json={"value": 2.0},
                        headers=B)
-        assert r.status_code == 202 and "started by another browser" in r.json()["notice"]
+        assert r.status_code == 202 and "started by another page" in r.json()["notice"]
         r = client.post(f"/api/runs/{run}/stop", headers=B)
         assert r.status_code == 200, r.text
-        assert r.json()["notice"] == (f"run {run} was started by another browser: stopped "
+        assert r.json()["notice"] == (f"run {run} was started by another page: stopped "
                                       "all the same")
         st = wait_state(client, run, ENDED)
         assert st["state"] == "stopped"
         assert [t["action"] for t in st["touched"]] == ["set friction_scale", "stop"]
-        assert {t["by"] for t in st["touched"]} == {"another browser"}
+        assert {t["by"] for t in st["touched"]} == {"another page"}
         notices = client.get(f"/api/view?since={since}", headers=A).json()["notices"]
         assert [n["action"] for n in notices] == ["set friction_scale", "stop"]
-        assert notices[-1]["text"].startswith(f"Run {run} stopped by another browser")
+        assert notices[-1]["text"].startswith(f"Run {run} stopped by another page")
         assert client.get(f"/api/view?since={notices[-1]['seq']}",
                           headers=A).json()["notices"] == []
         assert client.get("/api/view", headers=B).json()["notices"] == []  # not B's run
         r = client.delete(f"/api/runs/{run}")  # a script deletes it
-        assert r.status_code == 204 and "started by another browser" in \
+        assert r.status_code == 204 and "started by another page" in \
             r.headers["X-Q3T-Notice"]
         last = client.get("/api/view", headers=A).json()["notices"][-1]
         assert last["text"].startswith(f"Run {run} deleted by a script")
@@ -179,7 +179,7 @@ def test_a_viewers_button_on_another_views_run_says_so(client):
         client.put("/api/view", json={"run": run}, headers=B)
         until(lambda: not b.gui.buttons["Stop"].disabled, "B's buttons stayed disabled")
         b.gui.buttons["Stop"].value = True  # pressed in browser B
-        assert "started by another browser" in b.gui.status.content, b.gui.status.content
+        assert "started by another page" in b.gui.status.content, b.gui.status.content
     assert wait_state(client, run, ENDED)["state"] == "stopped"
     assert client.get("/api/view", headers=A).json()["notices"][-1]["action"] == "stop"
 

@@ -153,11 +153,11 @@ def test_stopping_another_browsers_run_says_so(plain, browser):
     b.wait_status(run=run, state="running")
     b.page.click("#stop")
     b.wait_status(run=run, state="stopped")
-    assert any("was started by another browser" in d for d in b.dialogs), b.dialogs
-    assert "started by another browser" in b.page.inner_text("#msg")
+    assert any("was started by another page" in d for d in b.dialogs), b.dialogs
+    assert "started by another page" in b.page.inner_text("#msg")
     a.wait_status(run=run, state="stopped")
     a.page.wait_for_selector("#touched:not([hidden])")
-    assert "stopped by another browser" in a.page.inner_text("#touched")
+    assert "stopped by another page" in a.page.inner_text("#touched")
     # the run shown: said once, under its status (the notice box is for runs not shown)
     assert a.page.is_hidden("#notice")
     assert a.dialogs == []  # its own run: nothing asked
