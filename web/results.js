@@ -42,8 +42,14 @@ const Results = (() => {
     } else if (ACTIVE.includes(st.state)) {
       parts.push(`${Units.duration(p.elapsed_s)} elapsed`);
       parts.push(p.remaining_s === null ? "remaining: after the first step"
-                                        : `about ${Units.duration(p.remaining_s)} left`);
-    } else if (p.elapsed_s !== null) parts.push(`took ${Units.duration(p.elapsed_s)}`);
+                 : `about ${Units.duration(p.remaining_s)} left` +
+                   (st.state === "paused" ? " once resumed" : ""));
+    } else if (p.elapsed_s !== null) {
+      // the wall time holds the build and any pause; the solver's steps are what runs compare by
+      const took = Units.duration(p.elapsed_s), steps = Units.duration(st.stepping_s || 0);
+      parts.push(`took ${took}` + (st.stepping_s && steps !== took ? ` (${steps} of it stepping)`
+                                                                   : ""));
+    }
     box.querySelector(".text").textContent = parts.join(" · ");
     box.classList.toggle("ended", !ACTIVE.includes(st.state));
   }
