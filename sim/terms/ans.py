@@ -124,87 +124,82 @@ class Tying:
 
 
 @njit(cache=True, inline='always')
-def _nat_gradient(u: np.ndarray, dN: np.ndarray, Hn: np.ndarray) -> None:
-    """Hn[k, i] = sum_a u[a, k] dN[a, i]: the displacement's reference gradient."""
-    for k in range(3):
-        for i in range(3):
-            Hn[k, i] = 0.0
-    for a in range(u.shape[0]):
-        for k in range(3):
-            for i in range(3):
-                Hn[k, i] += u[a, k] * dN[a, i]
-
-
-@njit(cache=True, inline='always')
-def _level_gradients(u: np.ndarray, dNq: np.ndarray, dNt: np.ndarray, Hs: np.ndarray) -> None:
-    """The displacement's reference gradient at a level's tying points ``dNt (3, n_en, 3)``
-    and points ``dNq (n_in, n_en, 3)`` into ``Hs (3 + n_in, 3, 3)``, as :func:`_nat_gradient`
-    forms it (the same sums in the same order): the in-plane columns once, as dN/dr and dN/ds
-    are the same at all of them (:class:`Tying` checks it)."""
-    n_t = dNt.shape[0]
+def _level_gradients(u: np.ndarray, dNq: np.ndarray, q0: int, dNt: np.ndarray, lev: int,
+                     Hs: np.ndarray) -> None:
+    """The displacement's reference gradient at level ``lev``'s tying points (``dNt (3 n_lev,
+    n_en, 3)``, level-major) and points ``q0, q0 + 1, ...`` of ``dNq`` into ``Hs (3 + n_in, 3,
+    3)``, Hn[k, i] = sum_a u[a, k] dN[a, i]: the in-plane columns once, as dN/dr and dN/ds are
+    the same at all of them (:class:`Tying` checks it). The tables are indexed, not sliced:
+    a slice in numba is a new array whose reference count is taken and dropped, and in the
+    element's loops those atomic counts cost more than the sums."""
+    n_en = u.shape[0]
     for k in range(3):
         for i in range(2):
             acc = 0.0
-            for a in range(u.shape[0]):
-                acc += u[a, k] * dNq[0, a, i]
+            for a in range(n_en):
+                acc += u[a, k] * dNq[q0, a, i]
             for t in range(Hs.shape[0]):
                 Hs[t, k, i] = acc
-        for t in range(Hs.shape[0]):
-            dN = dNt[t] if t < n_t else dNq[t - n_t]
+        for t in range(3):
             acc = 0.0
-            for a in range(u.shape[0]):
-                acc += u[a, k] * dN[a, 2]
+            for a in range(n_en):
+                acc += u[a, k] * dNt[3 * lev + t, a, 2]
+            Hs[t, k, 2] = acc
+        for t in range(3, Hs.shape[0]):
+            acc = 0.0
+            for a in range(n_en):
+                acc += u[a, k] * dNq[q0 + t - 3, a, 2]
             Hs[t, k, 2] = acc
 
 
 @njit(cache=True, inline='always')
-def _cov(G: np.ndarray, Hn: np.ndarray, i: int, j: int) -> float:
-    """e_ij = 1/2 (G_i . h_j + h_i . G_j + h_i . h_j)."""
+def _cov(G: np.ndarray, e: int, p: int, Hs: np.ndarray, t: int, i: int, j: int) -> float:
+    """e_ij = 1/2 (G_i . h_j + h_i . G_j + h_i . h_j), G = G[e, p] and h = Hs[t]."""
     acc = 0.0
     for k in range(3):
-        acc += G[k, i] * Hn[k, j] + Hn[k, i] * G[k, j] + Hn[k, i] * Hn[k, j]
+        acc += (G[e, p, k, i] * Hs[t, k, j] + Hs[t, k, i] * G[e, p, k, j]
+                + Hs[t, k, i] * Hs[t, k, j])
     return 0.5 * acc
 
 
 @njit(cache=True, inline='always')
-def _tied(u: np.ndarray, dNt: np.ndarray, Gt: np.ndarray, Hn: np.ndarray,
-          tv: np.ndarray) -> None:
-    """The tied values of one level into ``tv (3,)``: e_rw at A, e_sw at B, e_sw - e_rw at C."""
-    _nat_gradient(u, dNt[0], Hn)
-    tv[0] = _cov(Gt[0], Hn, 0, 2)
-    _nat_gradient(u, dNt[1], Hn)
-    tv[1] = _cov(Gt[1], Hn, 1, 2)
-    _nat_gradient(u, dNt[2], Hn)
-    tv[2] = _cov(Gt[2], Hn, 1, 2) - _cov(Gt[2], Hn, 0, 2)
+def _tied(Gt: np.ndarray, e: int, lev: int, Hs: np.ndarray, tv: np.ndarray) -> None:
+    """Level ``lev``'s tied values into ``tv (3,)``: e_rw at A, e_sw at B, e_sw - e_rw at C,
+    from Hs[:3] (:func:`_level_gradients`); ``Gt (n_e, 3 n_lev, 3, 3)``."""
+    t0 = 3 * lev
+    tv[0] = _cov(Gt, e, t0, Hs, 0, 0, 2)
+    tv[1] = _cov(Gt, e, t0 + 1, Hs, 1, 1, 2)
+    tv[2] = _cov(Gt, e, t0 + 2, Hs, 2, 1, 2) - _cov(Gt, e, t0 + 2, Hs, 2, 0, 2)
 
 
 @njit(cache=True, inline='always')
-def _corner_thickness(u: np.ndarray, dNc: np.ndarray, Gw: np.ndarray, hc: np.ndarray,
-                      tw: np.ndarray) -> None:
-    """A level's thickness strains at its corners into ``tw (3,)``, e_ww = (G_w + h_w / 2) . h_w,
-    and h_w there into ``hc (3, 3)`` (corner, component); ``dNc (3, n_en)`` dN/dw and
-    ``Gw (3, 3)`` G_w at the corners."""
+def _corner_thickness(u: np.ndarray, dNc: np.ndarray, Gw: np.ndarray, e: int, lev: int,
+                      hc: np.ndarray, tw: np.ndarray) -> None:
+    """Level ``lev``'s thickness strains at its corners into ``tw (3,)``, e_ww = (G_w + h_w / 2)
+    . h_w, and h_w there into ``hc (3, 3)`` (corner, component); ``dNc (n_lev, 3, n_en)`` dN/dw
+    and ``Gw (n_e, n_lev, 3, 3)`` G_w at the corners."""
     for c in range(3):
         acc = 0.0
         for k in range(3):
             h = 0.0
             for a in range(u.shape[0]):
-                h += u[a, k] * dNc[c, a]
+                h += u[a, k] * dNc[lev, c, a]
             hc[c, k] = h
-            acc += (Gw[c, k] + 0.5 * h) * h
+            acc += (Gw[e, lev, c, k] + 0.5 * h) * h
         tw[c] = acc
 
 
 @njit(cache=True, inline='always')
-def _strain_hat(Gq: np.ndarray, Hn: np.ndarray, r: float, s: float, tv: np.ndarray,
-                tw: np.ndarray, A: np.ndarray, plastic: bool, fp_inv: np.ndarray,
-                en: np.ndarray, Eh: np.ndarray) -> None:
-    """en: the assumed covariant strain e~ (3, 3) at (r, s) from the level's tied shear values
-    ``tv`` (:func:`_tied`) and its corners' thickness strains ``tw``
-    (:func:`_corner_thickness`); Eh: E^ = A^T e~ A (+ the plastic part)."""
-    en[0, 0] = _cov(Gq, Hn, 0, 0)  # the in-plane strains are the field's, the rest tied
-    en[1, 1] = _cov(Gq, Hn, 1, 1)
-    en[0, 1] = _cov(Gq, Hn, 0, 1)
+def _strain_hat(Gq: np.ndarray, e: int, q: int, Hs: np.ndarray, h: int, r: float, s: float,
+                tv: np.ndarray, tw: np.ndarray, A: np.ndarray, plastic: bool,
+                fp_inv: np.ndarray, en: np.ndarray, Eh: np.ndarray) -> None:
+    """en: the assumed covariant strain e~ (3, 3) at point q, (r, s), its displacement gradient
+    Hs[h], from the level's tied shear values ``tv`` (:func:`_tied`) and its corners' thickness
+    strains ``tw`` (:func:`_corner_thickness`); Eh: E^ = A^T e~ A (+ the plastic part, from
+    ``fp_inv (n_e, n_qp, 3, 3)``)."""
+    en[0, 0] = _cov(Gq, e, q, Hs, h, 0, 0)  # the in-plane strains are the field's, the rest tied
+    en[1, 1] = _cov(Gq, e, q, Hs, h, 1, 1)
+    en[0, 1] = _cov(Gq, e, q, Hs, h, 0, 1)
     c = (tv[1] - tv[0]) - tv[2]
     en[0, 2] = tv[0] + s * c
     en[1, 2] = tv[1] - r * c
@@ -219,32 +214,36 @@ def _strain_hat(Gq: np.ndarray, Hn: np.ndarray, r: float, s: float, tv: np.ndarr
                 for j in range(3):
                     acc += A[i, I] * en[i, j] * A[j, J]
             if plastic:  # (Fp^-T Fp^-1 - I) / 2
-                acc += 0.5 * (fp_inv[0, I] * fp_inv[0, J] + fp_inv[1, I] * fp_inv[1, J]
-                              + fp_inv[2, I] * fp_inv[2, J] - (1.0 if I == J else 0.0))
+                acc += 0.5 * (fp_inv[e, q, 0, I] * fp_inv[e, q, 0, J]
+                              + fp_inv[e, q, 1, I] * fp_inv[e, q, 1, J]
+                              + fp_inv[e, q, 2, I] * fp_inv[e, q, 2, J] - (1.0 if I == J else 0.0))
             Eh[I, J] = acc
             Eh[J, I] = acc
 
 
 @njit(cache=True, inline='always')
-def _map(A0: np.ndarray, plastic: bool, fp_inv: np.ndarray, A: np.ndarray) -> None:
-    """A = J^-1 Fp^-1 (J^-1 alone without a plastic state)."""
+def _map(A0: np.ndarray, e: int, q: int, plastic: bool, fp_inv: np.ndarray,
+         A: np.ndarray) -> None:
+    """A = J^-1 Fp^-1 at point q (J^-1 alone without a plastic state)."""
     for i in range(3):
         for J in range(3):
             if plastic:
-                A[i, J] = (A0[i, 0] * fp_inv[0, J] + A0[i, 1] * fp_inv[1, J]
-                           + A0[i, 2] * fp_inv[2, J])
+                A[i, J] = (A0[e, q, i, 0] * fp_inv[e, q, 0, J] + A0[e, q, i, 1] * fp_inv[e, q, 1, J]
+                           + A0[e, q, i, 2] * fp_inv[e, q, 2, J])
             else:
-                A[i, J] = A0[i, J]
+                A[i, J] = A0[e, q, i, J]
 
 
 @njit(cache=True, inline='always')
-def _tie_rows(dN: np.ndarray, G: np.ndarray, Hn: np.ndarray, i: int, out: np.ndarray,
-              sign: float) -> None:
-    """out += sign de_iw/du (node-major DoF 3 a + k) at a tying point: 1/2 (g_i dN_w + g_w dN_i)."""
-    for a in range(dN.shape[0]):
+def _tie_rows(dNt: np.ndarray, Gt: np.ndarray, e: int, lt: int, Hs: np.ndarray, t: int, i: int,
+              P: np.ndarray, row: int, sign: float) -> None:
+    """P[row] += sign de_iw/du (node-major DoF 3 a + k) at the tying point ``lt`` of dNt and Gt
+    (level-major), Hs[t] its displacement gradient: 1/2 (g_i dN_w + g_w dN_i)."""
+    for a in range(dNt.shape[1]):
         for k in range(3):
-            out[3 * a + k] += sign * 0.5 * ((G[k, i] + Hn[k, i]) * dN[a, 2]
-                                            + (G[k, 2] + Hn[k, 2]) * dN[a, i])
+            P[row, 3 * a + k] += sign * 0.5 * (
+                (Gt[e, lt, k, i] + Hs[t, k, i]) * dNt[lt, a, 2]
+                + (Gt[e, lt, k, 2] + Hs[t, k, 2]) * dNt[lt, a, i])
 
 
 # natural strain components in row order: rr, ss, ww, rs, rw, sw
@@ -353,22 +352,24 @@ def _principal_natural(model: int, lam: np.ndarray, V: np.ndarray, A: np.ndarray
 
 
 @njit(cache=True, inline='always')
-def _point_energy(model: int, closed: bool, Eh: np.ndarray, lam: np.ndarray, V: np.ndarray,
-                  params: np.ndarray, frame: np.ndarray, ep: float, cl: np.ndarray,
-                  Vm: np.ndarray, w6: np.ndarray) -> float:
-    """W alone of the law at E^ ``Eh``: Neo-Hookean's closed form (``closed``), else the law's
-    at E^'s eigenvalues ``lam (3,)`` ascending (Hill48 with its vectors ``V``; scratch: cl (3,)
-    for the log strain, Vm (3, 3) and w6 (2, 6) of :func:`sim.materials.hill.hill_energy`)."""
+def _point_energy(model: int, closed: bool, Ehs: np.ndarray, lams: np.ndarray, Vs: np.ndarray,
+                  b: int, params: np.ndarray, frames: np.ndarray, e: int, ep: float,
+                  cl: np.ndarray, Vm: np.ndarray, w6: np.ndarray) -> float:
+    """W alone of the law at E^ ``Ehs[b]``: Neo-Hookean's closed form (``closed``), else the
+    law's at E^'s eigenvalues ``lams[b] (3,)`` ascending (Hill48 with its vectors ``Vs[b]`` in
+    the material axes ``frames[e]``; scratch: cl (3,) for the log strain, Vm (3, 3) and w6
+    (2, 6) of :func:`sim.materials.hill.hill_energy`)."""
     if closed:
-        return neo_hookean_green(Eh, params[0], params[1])[0]
-    if not 1.0 + 2.0 * lam[0] > 0.0:
+        return neo_hookean_green(Ehs[b], params[0], params[1])[0]
+    if not 1.0 + 2.0 * lams[b, 0] > 0.0:
         return np.inf
     if model == HILL48:  # the log strain as hill_green forms it from C^'s eigenvalues
         for i in range(3):
-            cl[i] = 0.5 * np.log(1.0 + 2.0 * lam[i])
-        return hill_energy(cl, V, params, frame, ep, Vm, w6)
-    return principal_energy(model, np.sqrt(1.0 + 2.0 * lam[0]), np.sqrt(1.0 + 2.0 * lam[1]),
-                            np.sqrt(1.0 + 2.0 * lam[2]), params, ep)
+            cl[i] = 0.5 * np.log(1.0 + 2.0 * lams[b, i])
+        return hill_energy(cl, Vs[b], params, frames[e], ep, Vm, w6)
+    return principal_energy(model, np.sqrt(1.0 + 2.0 * lams[b, 0]),
+                            np.sqrt(1.0 + 2.0 * lams[b, 1]), np.sqrt(1.0 + 2.0 * lams[b, 2]),
+                            params, ep)
 
 
 @njit(cache=True, inline='always')
@@ -445,34 +446,34 @@ def _hill_natural(lam: np.ndarray, V: np.ndarray, A: np.ndarray, params: np.ndar
 
 
 @njit(cache=True, inline='always')
-def _level_rows(dN: np.ndarray, dNt: np.ndarray, G: np.ndarray, Gt: np.ndarray, Hs: np.ndarray,
-                dNc: np.ndarray, Gw: np.ndarray, hc: np.ndarray, P: np.ndarray) -> None:
-    """The level's basis rows ``P (9, k)``, node-major: de_rr, de_ss, de_rs (the same at every
-    point of a level: g_r, g_s and dN/dr, dN/ds do not vary in-plane for a triangle linear
-    in-plane; ``dN (n_en, 3)`` and ``G (3, 3)`` at any of its points, ``Hs[3]`` the
-    displacement's reference gradient there), the tied shear rows (A's e_rw, B's e_sw, C's
-    e_sw - e_rw; ``Hs[:3]`` at A, B, C) and de_ww at the three corners (``dNc (3, n_en)``,
-    ``Gw``, ``hc`` as :func:`_corner_thickness` takes and gives them); every strain row of
-    the level is a combination of these (:func:`_add_point_tangent`)."""
-    k = P.shape[1]
+def _level_rows(dNq: np.ndarray, q0: int, dNt: np.ndarray, Gq: np.ndarray, Gt: np.ndarray,
+                e: int, lev: int, Hs: np.ndarray, dNc: np.ndarray, Gw: np.ndarray,
+                hc: np.ndarray, P: np.ndarray, r0: int) -> None:
+    """Level ``lev``'s basis rows into ``P[r0:r0 + 9]`` (k columns), node-major: de_rr, de_ss,
+    de_rs (the same at every point of a level: g_r, g_s and dN/dr, dN/ds do not vary in-plane
+    for a triangle linear in-plane; dNq and Gq at its point q0, ``Hs[3]`` the displacement's
+    reference gradient there), the tied shear rows (A's e_rw, B's e_sw, C's e_sw - e_rw;
+    ``Hs[:3]`` at A, B, C) and de_ww at the three corners (dNc, Gw and ``hc`` as
+    :func:`_corner_thickness` takes and gives them); every strain row of the level is a
+    combination of these (:func:`_add_point_tangent`)."""
     for t in range(3, 6):
-        for p in range(k):
-            P[t, p] = 0.0
-    _tie_rows(dNt[0], Gt[0], Hs[0], 0, P[3], 1.0)
-    _tie_rows(dNt[1], Gt[1], Hs[1], 1, P[4], 1.0)
-    _tie_rows(dNt[2], Gt[2], Hs[2], 1, P[5], 1.0)
-    _tie_rows(dNt[2], Gt[2], Hs[2], 0, P[5], -1.0)
-    Hn = Hs[3]
-    for a in range(dN.shape[0]):
-        d0, d1 = dN[a, 0], dN[a, 1]
+        for p in range(P.shape[1]):
+            P[r0 + t, p] = 0.0
+    t0 = 3 * lev
+    _tie_rows(dNt, Gt, e, t0, Hs, 0, 0, P, r0 + 3, 1.0)
+    _tie_rows(dNt, Gt, e, t0 + 1, Hs, 1, 1, P, r0 + 4, 1.0)
+    _tie_rows(dNt, Gt, e, t0 + 2, Hs, 2, 1, P, r0 + 5, 1.0)
+    _tie_rows(dNt, Gt, e, t0 + 2, Hs, 2, 0, P, r0 + 5, -1.0)
+    for a in range(dNq.shape[1]):
+        d0, d1 = dNq[q0, a, 0], dNq[q0, a, 1]
         for kk in range(3):
             p = 3 * a + kk
-            g0, g1 = G[kk, 0] + Hn[kk, 0], G[kk, 1] + Hn[kk, 1]
-            P[0, p] = g0 * d0
-            P[1, p] = g1 * d1
-            P[2, p] = 0.5 * (g0 * d1 + g1 * d0)
+            g0, g1 = Gq[e, q0, kk, 0] + Hs[3, kk, 0], Gq[e, q0, kk, 1] + Hs[3, kk, 1]
+            P[r0, p] = g0 * d0
+            P[r0 + 1, p] = g1 * d1
+            P[r0 + 2, p] = 0.5 * (g0 * d1 + g1 * d0)
             for c in range(3):
-                P[6 + c, p] = (Gw[c, kk] + hc[c, kk]) * dNc[c, a]
+                P[r0 + 6 + c, p] = (Gw[e, lev, c, kk] + hc[c, kk]) * dNc[lev, c, a]
 
 
 @njit(cache=True, inline='always')
@@ -508,46 +509,47 @@ def _add_point_tangent(Dv: np.ndarray, w: float, r: float, s: float, Mb: np.ndar
 
 
 @njit(cache=True, inline='always')
-def _level_geometric(dN: np.ndarray, dNt: np.ndarray, dNc: np.ndarray, gv: np.ndarray,
-                     Kg: np.ndarray) -> None:
-    """Kg (upper, node b >= a) += the level's initial-stress term dN_a^T sig dN_b from its
+def _level_geometric(dNq: np.ndarray, q0: int, dNt: np.ndarray, dNc: np.ndarray, lev: int,
+                     gv: np.ndarray, Kg: np.ndarray) -> None:
+    """Kg (upper, node b >= a) += level ``lev``'s initial-stress term dN_a^T sig dN_b from its
     stresses over the basis rows ``gv (9,)`` (:func:`_ans_element`: sum_q w Phi^T Sv, the
     stress each basis row carries): S_rr, S_ss and 2 S_rs summed over the level's points
-    (``dN (n_en, 3)`` at any of them), the tied shear's at the tying points A, B, C (tA, tB,
-    tC) and the thickness stress at the corners (``dNc (3, n_en)`` dN/dw there). dN/dr, dN/ds
-    are the same at all of them (:class:`Tying`), so the shear's terms are dN/dr (x) v_r +
-    dN/ds (x) v_s and transposes, v_r = (tA dN^A/dw - tC dN^C/dw) / 2, v_s = (tB dN^B/dw +
-    tC dN^C/dw) / 2."""
+    (dNq at any of them, q0), the tied shear's at the tying points A, B, C (tA, tB, tC) and
+    the thickness stress at the corners (dNc, dN/dw there). dN/dr, dN/ds are the same at all
+    of them (:class:`Tying`), so the shear's terms are dN/dr (x) v_r + dN/ds (x) v_s and
+    transposes, v_r = (tA dN^A/dw - tC dN^C/dw) / 2, v_s = (tB dN^B/dw + tC dN^C/dw) / 2."""
     n = Kg.shape[0]
     srr, sss, srs = gv[0], gv[1], 0.5 * gv[2]
     hA, hB, hC = 0.5 * gv[3], 0.5 * gv[4], 0.5 * gv[5]
+    tA, tB, tC = 3 * lev, 3 * lev + 1, 3 * lev + 2
     for a in range(n):
-        ar, as_ = dN[a, 0], dN[a, 1]
-        var = hA * dNt[0, a, 2] - hC * dNt[2, a, 2]
-        vas = hB * dNt[1, a, 2] + hC * dNt[2, a, 2]
+        ar, as_ = dNq[q0, a, 0], dNq[q0, a, 1]
+        var = hA * dNt[tA, a, 2] - hC * dNt[tC, a, 2]
+        vas = hB * dNt[tB, a, 2] + hC * dNt[tC, a, 2]
         tr, ts = srr * ar + srs * as_ + var, srs * ar + sss * as_ + vas
         for b in range(a, n):
-            br, bs = dN[b, 0], dN[b, 1]
+            br, bs = dNq[q0, b, 0], dNq[q0, b, 1]
             acc = (tr * br + ts * bs
-                   + (hA * dNt[0, b, 2] - hC * dNt[2, b, 2]) * ar
-                   + (hB * dNt[1, b, 2] + hC * dNt[2, b, 2]) * as_)
+                   + (hA * dNt[tA, b, 2] - hC * dNt[tC, b, 2]) * ar
+                   + (hB * dNt[tB, b, 2] + hC * dNt[tC, b, 2]) * as_)
             for c in range(3):
-                acc += gv[6 + c] * dNc[c, a] * dNc[c, b]
+                acc += gv[6 + c] * dNc[lev, c, a] * dNc[lev, c, b]
             Kg[a, b] += acc
 
 
 @njit(cache=True, inline='always')
-def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C901
+def _ans_element(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, e: int,  # noqa: C901
                  tg: tuple, wdetJ: np.ndarray, model: int, params: np.ndarray,
-                 fp_inv: np.ndarray, ep: np.ndarray, frame: np.ndarray, plastic: bool,
+                 fp_inv: np.ndarray, ep: np.ndarray, frames: np.ndarray, plastic: bool,
                  want: int, project: int, g: np.ndarray,
                  K: np.ndarray, Kg: np.ndarray, P: np.ndarray, T: np.ndarray,
-                 Mb: np.ndarray, Hs: np.ndarray, gvs: np.ndarray, sc: np.ndarray, u: np.ndarray,
-                 m3: np.ndarray, v3: np.ndarray, kq: np.ndarray, bt: np.ndarray) -> float:
-    """Energy of one element; adds its gradient into ``g (k,)`` (want >= 1) and writes its
-    Hessian's upper triangle, node-major, into ``K (k, k)`` (want == 2). ``tg``: the element's
-    (dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw) of :class:`Tying`; ``frame (3, 3)`` its
-    material axes (read by Hill48). ``project``: PROJECT_QP makes the Hessian positive
+                 Mb: np.ndarray, Hs: np.ndarray, u: np.ndarray, m3: tuple, bt: tuple,
+                 sc: tuple, gvs: tuple, v3: np.ndarray, kq: tuple) -> float:
+    """Energy of element ``e``; adds its gradient into ``g (k,)`` (want >= 1) and writes its
+    Hessian's upper triangle, node-major, into ``K (k, k)`` (want == 2). ``tg``: (dNq, dNt,
+    lev_ptr, rs, Gq, A0, Gt, dNc, Gw) of :class:`Tying`, all elements', dNt and Gt with the
+    levels' tying points on one axis (:func:`_ans_block`); ``frames[e] (3, 3)`` its material
+    axes (read by Hill48). ``project``: PROJECT_QP makes the Hessian positive
     semi-definite by its parts: each point's material tangent (over the natural strain rows,
     as a point's is in Q3T's projection) and the element's initial-stress term (n_en x n_en:
     the tied strains' stresses act at the tying points, so it has no per-point split); a sum
@@ -558,16 +560,20 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     the material part is summed as P^T (sum_q w Phi^T D Phi) P, one product of the 9 rows
     per level instead of one of 6 rows per point; the levels' rows are stacked so that one
     product :func:`_congruence` forms all of it. Scratch: Kg (n_en, n_en); P and T (9 n_lev,
-    k), level l's rows from 9 l on; Mb (9, 9), Hs (3 + n_in, 3, 3), gvs (3, 9), u (n_en, 3),
-    sc (4, 6, 6), m3 (8, 3, 3), v3 (9, 3), kq (n_en + 10, max(n_en, 6)): the projections'
-    (Kg's in its first n_en + 2 rows, a point's 6 x 6 in the next 8); bt (10, 3, 3): three
-    points' E^, A, E^'s eigenvectors and (its last) eigenvalues."""
+    k), level l's rows from 9 l on; Mb (9, 9), Hs (3 + n_in, 3, 3), u (n_en, 3); the 3 x 3s
+    ``m3`` (en, Sn, sig, M, Ci, hc, and (2, 3, 3) for :func:`_principal_natural`); ``bt``:
+    three points' E^, A, E^'s eigenvectors (3, 3, 3) and eigenvalues (3, 3); ``sc``: Dv, Dp
+    (6, 6) and cv (2, 6, 6); ``gvs``: gv (9,), tv, tw (3,); v3 (9, 3); ``kq``: cl (3,), w6 (2, 6)
+    of :func:`_point_energy`, and the projections' scratch, a point's (8, 6) and Kg's
+    (n_en + 2, n_en). The tables and scratch are indexed, not sliced, in the loops over levels and
+    points (:func:`_level_gradients`)."""
     dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw = tg
-    en, Sn, sig, M, Ci, hc = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5]
-    Ehs, As, Vs, lams = bt[0:3], bt[3:6], bt[6:9], bt[9]
-    Dv, cv, Dp = sc[0], sc[1:3], sc[3]
-    gv, tv, tw = gvs[0], gvs[1], gvs[2]  # tv, tw: (3,) of them
-    n_en = nodes.shape[0]
+    en, Sn, sig, M, Ci, hc, m2 = m3
+    Ehs, As, Vs, lams = bt
+    Dv, Dp, cv = sc
+    gv, tv, tw = gvs
+    cl, w6, kqh, kqg = kq
+    n_en = conn.shape[1]
     k = 3 * n_en
     psd = want == 2 and project == PROJECT_QP
     # Neo-Hookean's closed form, where no principal frame is needed to project in
@@ -575,7 +581,7 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     nbp = Mb.shape[0]  # the level's rows in P: 9
     for a in range(n_en):
         for i in range(3):
-            u[a, i] = x[nodes[a], i] - rest[nodes[a], i]
+            u[a, i] = x[conn[e, a], i] - rest[conn[e, a], i]
     if want == 2:
         for a in range(n_en):
             for b in range(n_en):
@@ -584,15 +590,12 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
     for lev in range(lev_ptr.shape[0] - 1):
         q0 = lev_ptr[lev]
         n_in = lev_ptr[lev + 1] - q0
-        Pl = P[lev * nbp:(lev + 1) * nbp]  # the level's rows
-        _level_gradients(u, dNq[q0:q0 + n_in], dNt[lev], Hs)
-        _corner_thickness(u, dNc[lev], Gw[lev], hc, tw)
-        Gl = Gt[lev]
-        tv[0] = _cov(Gl[0], Hs[0], 0, 2)
-        tv[1] = _cov(Gl[1], Hs[1], 1, 2)
-        tv[2] = _cov(Gl[2], Hs[2], 1, 2) - _cov(Gl[2], Hs[2], 0, 2)
+        r0 = lev * nbp  # the level's rows in P and T
+        _level_gradients(u, dNq, q0, dNt, lev, Hs)
+        _corner_thickness(u, dNc, Gw, e, lev, hc, tw)
+        _tied(Gt, e, lev, Hs, tv)
         if want >= 1:
-            _level_rows(dNq[q0], dNt[lev], Gq[q0], Gl, Hs, dNc[lev], Gw[lev], hc, Pl)
+            _level_rows(dNq, q0, dNt, Gq, Gt, e, lev, Hs, dNc, Gw, hc, P, r0)
             for c in range(nbp):
                 gv[c] = 0.0
                 for d in range(nbp):
@@ -603,14 +606,15 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
             nb = min(3, n_in - j0)
             for b in range(nb):
                 q = q0 + j0 + b
-                Hn = Hs[3 + j0 + b]
+                h = 3 + j0 + b
                 for i in range(3):  # g = G + h: an inverted element has no energy
                     for jj in range(3):
-                        en[i, jj] = Gq[q, i, jj] + Hn[i, jj]
+                        en[i, jj] = Gq[e, q, i, jj] + Hs[h, i, jj]
                 if not det3(en) > 0.0:
                     return np.inf
-                _map(A0[q], plastic, fp_inv[q], As[b])
-                _strain_hat(Gq[q], Hn, rs[q, 0], rs[q, 1], tv, tw, As[b], plastic, fp_inv[q],
+                A = As[b]
+                _map(A0, e, q, plastic, fp_inv, A)
+                _strain_hat(Gq, e, q, Hs, h, rs[q, 0], rs[q, 1], tv, tw, A, plastic, fp_inv,
                             en, Ehs[b])
             if not closed:
                 jacobi3_lanes_into(Ehs, nb, lams, Vs, want > 0 or model == HILL48)
@@ -618,27 +622,26 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
                 q = q0 + j0 + b
                 r, s = rs[q, 0], rs[q, 1]
                 A = As[b]
+                epq = ep[e, q] if plastic else 0.0
                 # the laws are called, not inlined by numba: inlined, they made the kernel's
                 # compile much longer and ran no faster. A line search's energy alone is the
                 # law's W, inlined: a call passes every array it is given, most of them the
                 # tangent's scratch, which an energy does not touch
                 if want == 0:
-                    W = _point_energy(model, closed, Ehs[b], lams[b], Vs[b], params, frame,
-                                      ep[q] if plastic else 0.0, v3[7], M,
-                                      kq[n_en + 2:n_en + 4, :6])
+                    W = _point_energy(model, closed, Ehs, lams, Vs, b, params, frames, e, epq,
+                                      cl, M, w6)
                 elif closed:
                     W = _neo_hookean_natural(Ehs[b], A, params[0], params[1], want, Sn, Dv, Ci,
                                              sig)
                 elif model == HILL48:
-                    W = _hill_natural(lams[b], Vs[b], A, params, frame, ep[q], want, psd, Sn, Dv,
-                                      M, cv, Dp, Ci, v3, kq[n_en + 2:, :6])
+                    W = _hill_natural(lams[b], Vs[b], A, params, frames[e], epq, want, psd, Sn,
+                                      Dv, M, cv, Dp, Ci, v3, kqh)
                 else:
-                    W = _principal_natural(model, lams[b], Vs[b], A, params,
-                                           ep[q] if plastic else 0.0, want, psd, Sn, Dv, M, cv,
-                                           Dp, m3[6:], v3)
+                    W = _principal_natural(model, lams[b], Vs[b], A, params, epq, want, psd, Sn,
+                                           Dv, M, cv, Dp, m2, v3)
                 if not np.isfinite(W):
                     return np.inf
-                w = wdetJ[q]
+                w = wdetJ[e, q]
                 E += w * W
                 if want == 0:
                     continue
@@ -662,20 +665,20 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
         for p in range(k):
             acc = 0.0
             for c in range(9):
-                acc += gv[c] * Pl[c, p]
+                acc += gv[c] * P[r0 + c, p]
             g[p] += acc
         if want < 2:
             continue
         for c in range(9):
             for d in range(c):
                 Mb[c, d] = Mb[d, c]
-        _material_rows(Pl, Mb, T[lev * nbp:(lev + 1) * nbp])
+        _material_rows(P, Mb, T, r0)
         # the initial-stress term: the stresses at the tying points are the basis rows'
-        _level_geometric(dNq[q0], dNt[lev], dNc[lev], gv, Kg)
+        _level_geometric(dNq, q0, dNt, dNc, lev, gv, Kg)
     if want == 2:
         _congruence(P, T, K)
         if psd:
-            _project_into(Kg, kq[:n_en + 2])
+            _project_into(Kg, kqg)
         for a in range(n_en):
             for b in range(a, n_en):
                 for i in range(3):
@@ -684,21 +687,22 @@ def _ans_element(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray,  # noqa: C9
 
 
 @njit(cache=True, inline='always')
-def _material_rows(P: np.ndarray, Mb: np.ndarray, T: np.ndarray) -> None:
-    """T = Mb P, a level's rows ``P (n_bp, k)`` with ``Mb (n_bp, n_bp)``, n_bp a multiple of
-    three: three rows of P per pass over a row of T, whose column loops are contiguous, over
-    unsigned indices (numba then adds no wraparound test) and vectorise."""
-    nbp, k = P.shape
-    uk = np.uint64(k)
+def _material_rows(P: np.ndarray, Mb: np.ndarray, T: np.ndarray, r0: int) -> None:
+    """T = Mb P on the rows r0 to r0 + n_bp of P and T ``(n_r, k)``, a level's, with ``Mb
+    (n_bp, n_bp)``, n_bp a multiple of three: three rows of P per pass over a row of T, whose
+    column loops are contiguous, over unsigned indices (numba then adds no wraparound test)
+    and vectorise."""
+    nbp = Mb.shape[0]
+    uk = np.uint64(P.shape[1])
     for c in range(nbp):
-        tr = T[c]
+        tc = r0 + c
         for col in range(uk):
-            tr[col] = 0.0
+            T[tc, col] = 0.0
         for d in range(0, nbp, 3):
             m0, m1, m2 = Mb[c, d], Mb[c, d + 1], Mb[c, d + 2]
-            p0, p1, p2 = P[d], P[d + 1], P[d + 2]
+            pd = r0 + d
             for col in range(uk):
-                tr[col] += (m0 * p0[col] + m1 * p1[col]) + m2 * p2[col]
+                T[tc, col] += (m0 * P[pd, col] + m1 * P[pd + 1, col]) + m2 * P[pd + 2, col]
 
 
 @njit(cache=True, inline='always')
@@ -784,19 +788,31 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
     Kg = np.empty((n_en, n_en))
     n_lev = lev_ptr.shape[0] - 1
     n_in = lev_ptr[1] - lev_ptr[0]
+    # the levels' tying points on one axis, as the points are on dNq's and Gq's
+    tg = (dNq, dNt.reshape((3 * n_lev, n_en, 3)), lev_ptr, rs, Gq, A0,
+          Gt.reshape((Gt.shape[0], 3 * n_lev, 3, 3)), dNc, Gw)
     nbp = 9  # a level's rows (_level_rows): a multiple of 3 (_material_rows), and n_lev
     nr = n_lev * nbp  # times them of 9 (_congruence)
     P, T, Mb = np.zeros((nr, k)), np.zeros((nr, k)), np.zeros((nbp, nbp))
     K = np.empty((k, k) if want == 2 else (0, 0))
-    Hs, gvs, u = np.empty((3 + n_in, 3, 3)), np.empty((3, nbp)), np.empty((n_en, 3))
-    sc, m3, v3 = np.empty((4, 6, 6)), np.empty((8, 3, 3)), np.empty((9, 3))
-    kq, bt = np.empty((n_en + 10, max(n_en, 6))), np.empty((10, 3, 3))
+    Hs, u = np.empty((3 + n_in, 3, 3)), np.empty((n_en, 3))
+    m3 = np.empty((8, 3, 3))
+    bt = np.empty((10, 3, 3))
+    sc = np.empty((4, 6, 6))
+    gvs = np.empty((3, nbp))
+    v3 = np.empty((9, 3))
+    kq = np.empty((n_en + 10, max(n_en, 6)))
+    # the scratch's parts made once: a part made per element or point is a new array, whose
+    # reference count numba takes and drops
+    m3s = (m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6:])
+    bts = (bt[0:3], bt[3:6], bt[6:9], bt[9])
+    scs = (sc[0], sc[3], sc[1:3])
+    gvss = (gvs[0], gvs[1, :3], gvs[2, :3])
+    kqs = (v3[7], kq[n_en + 2:n_en + 4, :6], kq[n_en + 2:, :6], kq[:n_en + 2])
     for e in elements:
-        E = _ans_element(x, rest, conn[e],
-                         (dNq, dNt, lev_ptr, rs, Gq[e], A0[e], Gt[e], dNc, Gw[e]),
-                         wdetJ[e], model, params, fp_inv[e], ep[e], frames[e], plastic,
-                         want, project, g,
-                         K, Kg, P, T, Mb, Hs, gvs, sc, u, m3, v3, kq, bt)
+        E = _ans_element(x, rest, conn, e, tg, wdetJ, model, params, fp_inv, ep, frames,
+                         plastic, want, project, g, K, Kg, P, T, Mb, Hs, u, m3s, bts, scs, gvss,
+                         v3, kqs)
         energies[e] = E
         ok = np.isfinite(E)
         if want >= 1:
@@ -813,24 +829,31 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
 
 
 @njit(cache=True)
-def _principal_at(x: np.ndarray, rest: np.ndarray, nodes: np.ndarray, dNq: np.ndarray,
-                  dNt: np.ndarray, lev: int, rs: np.ndarray, Gq: np.ndarray, A0: np.ndarray,
-                  Gt: np.ndarray, dNc: np.ndarray, Gw: np.ndarray, q: int, plastic: bool,
+def _principal_at(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, e: int, dNq: np.ndarray,
+                  dNt: np.ndarray, lev_ptr: np.ndarray, lev: int, rs: np.ndarray,
+                  Gq: np.ndarray, A0: np.ndarray, Gt: np.ndarray, dNc: np.ndarray,
+                  Gw: np.ndarray, q: int, plastic: bool,
                   fp_inv: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Stretches (3,), principal directions V (3, 3) of C^ at quadrature point q, and ok."""
-    n_en = nodes.shape[0]
+    """Stretches (3,), principal directions V (3, 3) of C^ at element e's quadrature point q
+    (of level ``lev``), and ok; the arrays :class:`Tying`'s."""
+    n_en = conn.shape[1]
+    n_lev = lev_ptr.shape[0] - 1
     u = np.empty((n_en, 3))
     for a in range(n_en):
         for i in range(3):
-            u[a, i] = x[nodes[a], i] - rest[nodes[a], i]
-    Hn, en, Eh, A = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
-    tv = np.empty(N_TIE)
-    _tied(u, dNt[lev], Gt[lev], Hn, tv)
-    tw = np.empty(3)
-    _corner_thickness(u, dNc[lev], Gw[lev], np.empty((3, 3)), tw)
-    _nat_gradient(u, dNq[q], Hn)
-    _map(A0[q], plastic, fp_inv, A)
-    _strain_hat(Gq[q], Hn, rs[q, 0], rs[q, 1], tv, tw, A, plastic, fp_inv, en, Eh)
+            u[a, i] = x[conn[e, a], i] - rest[conn[e, a], i]
+    q0 = lev_ptr[lev]
+    Hs = np.empty((3 + lev_ptr[lev + 1] - q0, 3, 3))
+    dNt = dNt.reshape((3 * n_lev, n_en, 3))
+    Gt = Gt.reshape((Gt.shape[0], 3 * n_lev, 3, 3))
+    _level_gradients(u, dNq, q0, dNt, lev, Hs)
+    tv, tw = np.empty(N_TIE), np.empty(3)
+    _tied(Gt, e, lev, Hs, tv)
+    _corner_thickness(u, dNc, Gw, e, lev, np.empty((3, 3)), tw)
+    en, Eh, A = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    _map(A0, e, q, plastic, fp_inv, A)
+    _strain_hat(Gq, e, q, Hs, 3 + q - q0, rs[q, 0], rs[q, 1], tv, tw, A, plastic, fp_inv, en,
+                Eh)
     lam, V = eigh3(Eh)
     ok = 1.0 + 2.0 * lam[0] > 0.0
     return np.sqrt(np.maximum(1.0 + 2.0 * lam, 1e-300)), V, ok
@@ -844,12 +867,12 @@ def ans_volume_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np
     """The material's volume ratio J = sqrt(det C) of the assumed strain into ``out (n_elem,
     n_qp)``, elements e0 to e1 (C = I + 2 E, the plastic state aside: its flow keeps volume),
     the J every material takes; 0 where the strain inverts the point."""
-    eye = np.eye(3)
+    none = np.empty((0, 0, 3, 3))  # no plastic state: never read
     for e in range(e0, e1):
         for lev in range(lev_ptr.shape[0] - 1):
             for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
-                s, _, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
-                                         Gt[e], dNc, Gw[e], q, False, eye)
+                s, _, ok = _principal_at(x, rest, conn, e, dNq, dNt, lev_ptr, lev, rs, Gq, A0,
+                                         Gt, dNc, Gw, q, False, none)
                 if ok:
                     out[e, q] = s[0] * s[1] * s[2]
 
@@ -869,8 +892,8 @@ def ans_commit_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np
     for e in range(e0, e1):
         for lev in range(lev_ptr.shape[0] - 1):
             for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
-                s, V, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
-                                         Gt[e], dNc, Gw[e], q, True, fp_inv[e, q])
+                s, V, ok = _principal_at(x, rest, conn, e, dNq, dNt, lev_ptr, lev, rs, Gq, A0,
+                                         Gt, dNc, Gw, q, True, fp_inv)
                 if not ok:
                     continue
                 if model == HILL48:
@@ -902,9 +925,8 @@ def ans_stress_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np
         Sp, Dp = np.empty((3, 3)), np.empty((6, 6))
         for lev in range(lev_ptr.shape[0] - 1):
             for q in range(lev_ptr[lev], lev_ptr[lev + 1]):
-                fi = fp_inv[e, q] if plastic else eye
-                s, V, ok = _principal_at(x, rest, conn[e], dNq, dNt, lev, rs, Gq[e], A0[e],
-                                         Gt[e], dNc, Gw[e], q, plastic, fi)
+                s, V, ok = _principal_at(x, rest, conn, e, dNq, dNt, lev_ptr, lev, rs, Gq, A0,
+                                         Gt, dNc, Gw, q, plastic, fp_inv)
                 if not ok:
                     continue
                 if model == HILL48:
