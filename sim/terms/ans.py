@@ -295,14 +295,16 @@ def _neo_hookean_natural(Eh: np.ndarray, A: np.ndarray, mu: float, lam: float, w
         return W
     _to_natural(A, Ci, Gi)
     c = mu - lam * lj
-    for v in range(6):
+    for v in range(6):  # symmetric but for the products' round-off: the upper half, mirrored
         i, j = VOIGT[v, 0], VOIGT[v, 1]
         mv = 1.0 if i == j else 2.0
-        for u in range(6):
+        for u in range(v, 6):
             k, ll = VOIGT[u, 0], VOIGT[u, 1]
             mu_ = 1.0 if k == ll else 2.0
-            Dv[v, u] = mv * mu_ * (lam * Gi[i, j] * Gi[k, ll]
-                                   + c * (Gi[i, k] * Gi[j, ll] + Gi[i, ll] * Gi[j, k]))
+            d = mv * mu_ * (lam * Gi[i, j] * Gi[k, ll]
+                            + c * (Gi[i, k] * Gi[j, ll] + Gi[i, ll] * Gi[j, k]))
+            Dv[v, u] = d
+            Dv[u, v] = d
     return W
 
 
@@ -510,199 +512,52 @@ def _add_point_tangent(Dv: np.ndarray, w: float, r: float, s: float, Mb: np.ndar
 
 @njit(cache=True, inline='always')
 def _level_geometric(dNq: np.ndarray, q0: int, dNt: np.ndarray, dNc: np.ndarray, lev: int,
-                     gv: np.ndarray, Kg: np.ndarray) -> None:
+                     gv: np.ndarray, v: np.ndarray, Kg: np.ndarray) -> None:
     """Kg (upper, node b >= a) += level ``lev``'s initial-stress term dN_a^T sig dN_b from its
-    stresses over the basis rows ``gv (9,)`` (:func:`_ans_element`: sum_q w Phi^T Sv, the
+    stresses over the basis rows ``gv (9,)`` (:func:`_ans_block`: sum_q w Phi^T Sv, the
     stress each basis row carries): S_rr, S_ss and 2 S_rs summed over the level's points
     (dNq at any of them, q0), the tied shear's at the tying points A, B, C (tA, tB, tC) and
     the thickness stress at the corners (dNc, dN/dw there). dN/dr, dN/ds are the same at all
     of them (:class:`Tying`), so the shear's terms are dN/dr (x) v_r + dN/ds (x) v_s and
-    transposes, v_r = (tA dN^A/dw - tC dN^C/dw) / 2, v_s = (tB dN^B/dw + tC dN^C/dw) / 2."""
+    transposes, v_r = (tA dN^A/dw - tC dN^C/dw) / 2, v_s = (tB dN^B/dw + tC dN^C/dw) / 2,
+    formed once per node into the scratch ``v (2, n_en)``."""
     n = Kg.shape[0]
     srr, sss, srs = gv[0], gv[1], 0.5 * gv[2]
     hA, hB, hC = 0.5 * gv[3], 0.5 * gv[4], 0.5 * gv[5]
     tA, tB, tC = 3 * lev, 3 * lev + 1, 3 * lev + 2
     for a in range(n):
+        v[0, a] = hA * dNt[tA, a, 2] - hC * dNt[tC, a, 2]
+        v[1, a] = hB * dNt[tB, a, 2] + hC * dNt[tC, a, 2]
+    for a in range(n):
         ar, as_ = dNq[q0, a, 0], dNq[q0, a, 1]
-        var = hA * dNt[tA, a, 2] - hC * dNt[tC, a, 2]
-        vas = hB * dNt[tB, a, 2] + hC * dNt[tC, a, 2]
-        tr, ts = srr * ar + srs * as_ + var, srs * ar + sss * as_ + vas
+        tr, ts = srr * ar + srs * as_ + v[0, a], srs * ar + sss * as_ + v[1, a]
+        w0, w1, w2 = gv[6] * dNc[lev, 0, a], gv[7] * dNc[lev, 1, a], gv[8] * dNc[lev, 2, a]
         for b in range(a, n):
-            br, bs = dNq[q0, b, 0], dNq[q0, b, 1]
-            acc = (tr * br + ts * bs
-                   + (hA * dNt[tA, b, 2] - hC * dNt[tC, b, 2]) * ar
-                   + (hB * dNt[tB, b, 2] + hC * dNt[tC, b, 2]) * as_)
-            for c in range(3):
-                acc += gv[6 + c] * dNc[lev, c, a] * dNc[lev, c, b]
+            acc = tr * dNq[q0, b, 0] + ts * dNq[q0, b, 1] + v[0, b] * ar + v[1, b] * as_
+            acc += w0 * dNc[lev, 0, b]
+            acc += w1 * dNc[lev, 1, b]
+            acc += w2 * dNc[lev, 2, b]
             Kg[a, b] += acc
 
 
 @njit(cache=True, inline='always')
-def _ans_element(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, e: int,  # noqa: C901
-                 tg: tuple, wdetJ: np.ndarray, model: int, params: np.ndarray,
-                 fp_inv: np.ndarray, ep: np.ndarray, frames: np.ndarray, plastic: bool,
-                 want: int, project: int, g: np.ndarray,
-                 K: np.ndarray, Kg: np.ndarray, P: np.ndarray, T: np.ndarray,
-                 Mb: np.ndarray, Hs: np.ndarray, u: np.ndarray, m3: tuple, bt: tuple,
-                 sc: tuple, gvs: tuple, v3: np.ndarray, kq: tuple) -> float:
-    """Energy of element ``e``; adds its gradient into ``g (k,)`` (want >= 1) and writes its
-    Hessian's upper triangle, node-major, into ``K (k, k)`` (want == 2). ``tg``: (dNq, dNt,
-    lev_ptr, rs, Gq, A0, Gt, dNc, Gw) of :class:`Tying`, all elements', dNt and Gt with the
-    levels' tying points on one axis (:func:`_ans_block`); ``frames[e] (3, 3)`` its material
-    axes (read by Hill48). ``project``: PROJECT_QP makes the Hessian positive
-    semi-definite by its parts: each point's material tangent (over the natural strain rows,
-    as a point's is in Q3T's projection) and the element's initial-stress term (n_en x n_en:
-    the tied strains' stresses act at the tying points, so it has no per-point split); a sum
-    of positive semi-definite parts, without the element's 3 n_en x 3 n_en
-    eigen-decomposition that PROJECT_ELEMENT takes (:func:`ans_kernel`).
-
-    Per level, the points' strain rows are combinations Phi of the level's basis rows P, so
-    the material part is summed as P^T (sum_q w Phi^T D Phi) P, one product of the 9 rows
-    per level instead of one of 6 rows per point; the levels' rows are stacked so that one
-    product :func:`_congruence` forms all of it. Scratch: Kg (n_en, n_en); P and T (9 n_lev,
-    k), level l's rows from 9 l on; Mb (9, 9), Hs (3 + n_in, 3, 3), u (n_en, 3); the 3 x 3s
-    ``m3`` (en, Sn, sig, M, Ci, hc, and (2, 3, 3) for :func:`_principal_natural`); ``bt``:
-    three points' E^, A, E^'s eigenvectors (3, 3, 3) and eigenvalues (3, 3); ``sc``: Dv, Dp
-    (6, 6) and cv (2, 6, 6); ``gvs``: gv (9,), tv, tw (3,); v3 (9, 3); ``kq``: cl (3,), w6 (2, 6)
-    of :func:`_point_energy`, and the projections' scratch, a point's (8, 6) and Kg's
-    (n_en + 2, n_en). The tables and scratch are indexed, not sliced, in the loops over levels and
-    points (:func:`_level_gradients`)."""
-    dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw = tg
-    en, Sn, sig, M, Ci, hc, m2 = m3
-    Ehs, As, Vs, lams = bt
-    Dv, Dp, cv = sc
-    gv, tv, tw = gvs
-    cl, w6, kqh, kqg = kq
-    n_en = conn.shape[1]
-    k = 3 * n_en
-    psd = want == 2 and project == PROJECT_QP
-    # Neo-Hookean's closed form, where no principal frame is needed to project in
-    closed = model == NEO_HOOKEAN and not psd
-    nbp = Mb.shape[0]  # the level's rows in P: 9
-    for a in range(n_en):
-        for i in range(3):
-            u[a, i] = x[conn[e, a], i] - rest[conn[e, a], i]
-    if want == 2:
-        for a in range(n_en):
-            for b in range(n_en):
-                Kg[a, b] = 0.0
-    E = 0.0
-    for lev in range(lev_ptr.shape[0] - 1):
-        q0 = lev_ptr[lev]
-        n_in = lev_ptr[lev + 1] - q0
-        r0 = lev * nbp  # the level's rows in P and T
-        _level_gradients(u, dNq, q0, dNt, lev, Hs)
-        _corner_thickness(u, dNc, Gw, e, lev, hc, tw)
-        _tied(Gt, e, lev, Hs, tv)
-        if want >= 1:
-            _level_rows(dNq, q0, dNt, Gq, Gt, e, lev, Hs, dNc, Gw, hc, P, r0)
-            for c in range(nbp):
-                gv[c] = 0.0
-                for d in range(nbp):
-                    Mb[c, d] = 0.0
-        # the points three at a time: their strains first, E^'s eigen-decompositions side
-        # by side (jacobi3_lanes_into), then each point's law
-        for j0 in range(0, n_in, 3):
-            nb = min(3, n_in - j0)
-            for b in range(nb):
-                q = q0 + j0 + b
-                h = 3 + j0 + b
-                for i in range(3):  # g = G + h: an inverted element has no energy
-                    for jj in range(3):
-                        en[i, jj] = Gq[e, q, i, jj] + Hs[h, i, jj]
-                if not det3(en) > 0.0:
-                    return np.inf
-                A = As[b]
-                _map(A0, e, q, plastic, fp_inv, A)
-                _strain_hat(Gq, e, q, Hs, h, rs[q, 0], rs[q, 1], tv, tw, A, plastic, fp_inv,
-                            en, Ehs[b])
-            if not closed:
-                jacobi3_lanes_into(Ehs, nb, lams, Vs, want > 0 or model == HILL48)
-            for b in range(nb):
-                q = q0 + j0 + b
-                r, s = rs[q, 0], rs[q, 1]
-                A = As[b]
-                epq = ep[e, q] if plastic else 0.0
-                # the laws are called, not inlined by numba: inlined, they made the kernel's
-                # compile much longer and ran no faster. A line search's energy alone is the
-                # law's W, inlined: a call passes every array it is given, most of them the
-                # tangent's scratch, which an energy does not touch
-                if want == 0:
-                    W = _point_energy(model, closed, Ehs, lams, Vs, b, params, frames, e, epq,
-                                      cl, M, w6)
-                elif closed:
-                    W = _neo_hookean_natural(Ehs[b], A, params[0], params[1], want, Sn, Dv, Ci,
-                                             sig)
-                elif model == HILL48:
-                    W = _hill_natural(lams[b], Vs[b], A, params, frames[e], epq, want, psd, Sn,
-                                      Dv, M, cv, Dp, Ci, v3, kqh)
-                else:
-                    W = _principal_natural(model, lams[b], Vs[b], A, params, epq, want, psd, Sn,
-                                           Dv, M, cv, Dp, m2, v3)
-                if not np.isfinite(W):
-                    return np.inf
-                w = wdetJ[e, q]
-                E += w * W
-                if want == 0:
-                    continue
-                # gv += w Phi^T Sv, Sv the stress over the natural rows (off-diagonals twice)
-                s02, s12 = Sn[0, 2] * 2.0, Sn[1, 2] * 2.0
-                gv[0] += w * Sn[0, 0]
-                gv[1] += w * Sn[1, 1]
-                gv[2] += w * (Sn[0, 1] * 2.0)
-                gv[3] += w * ((1.0 - s) * s02 + r * s12)
-                gv[4] += w * (s * s02 + (1.0 - r) * s12)
-                gv[5] += w * (-s * s02 + r * s12)
-                sww = w * Sn[2, 2]
-                gv[6] += (1.0 - r - s) * sww
-                gv[7] += r * sww
-                gv[8] += s * sww
-                if want < 2:
-                    continue
-                _add_point_tangent(Dv, w, r, s, Mb)
-        if want == 0:
-            continue
-        for p in range(k):
-            acc = 0.0
-            for c in range(9):
-                acc += gv[c] * P[r0 + c, p]
-            g[p] += acc
-        if want < 2:
-            continue
-        for c in range(9):
-            for d in range(c):
-                Mb[c, d] = Mb[d, c]
-        _material_rows(P, Mb, T, r0)
-        # the initial-stress term: the stresses at the tying points are the basis rows'
-        _level_geometric(dNq, q0, dNt, dNc, lev, gv, Kg)
-    if want == 2:
-        _congruence(P, T, K)
-        if psd:
-            _project_into(Kg, kqg)
-        for a in range(n_en):
-            for b in range(a, n_en):
-                for i in range(3):
-                    K[3 * a + i, 3 * b + i] += Kg[a, b]
-    return E
-
-
-@njit(cache=True, inline='always')
 def _material_rows(P: np.ndarray, Mb: np.ndarray, T: np.ndarray, r0: int) -> None:
-    """T = Mb P on the rows r0 to r0 + n_bp of P and T ``(n_r, k)``, a level's, with ``Mb
-    (n_bp, n_bp)``, n_bp a multiple of three: three rows of P per pass over a row of T, whose
-    column loops are contiguous, over unsigned indices (numba then adds no wraparound test)
-    and vectorise."""
-    nbp = Mb.shape[0]
+    """T = Mb P on a level's nine rows r0 to r0 + 9 of P and T ``(n_r, k)``, ``Mb (9, 9)``:
+    each row of T in one pass over its columns, contiguous, which vectorise, so that each
+    entry of T is stored once (a pass per three rows of P, each adding into T, loaded and
+    stored it three times). Indexed, not sliced into rows (:func:`_level_gradients`), over
+    unsigned indices: numba then adds no wraparound test."""
     uk = np.uint64(P.shape[1])
-    for c in range(nbp):
-        tc = r0 + c
+    ur = np.uint64(r0)
+    for c in range(9):
+        m0, m1, m2 = Mb[c, 0], Mb[c, 1], Mb[c, 2]
+        m3, m4, m5 = Mb[c, 3], Mb[c, 4], Mb[c, 5]
+        m6, m7, m8 = Mb[c, 6], Mb[c, 7], Mb[c, 8]
+        uc = ur + np.uint64(c)
         for col in range(uk):
-            T[tc, col] = 0.0
-        for d in range(0, nbp, 3):
-            m0, m1, m2 = Mb[c, d], Mb[c, d + 1], Mb[c, d + 2]
-            pd = r0 + d
-            for col in range(uk):
-                T[tc, col] += (m0 * P[pd, col] + m1 * P[pd + 1, col]) + m2 * P[pd + 2, col]
+            T[uc, col] = ((((m0 * P[ur, col] + m1 * P[ur + 1, col]) + m2 * P[ur + 2, col])
+                           + ((m3 * P[ur + 3, col] + m4 * P[ur + 4, col]) + m5 * P[ur + 5, col]))
+                          + ((m6 * P[ur + 6, col] + m7 * P[ur + 7, col]) + m8 * P[ur + 8, col]))
 
 
 @njit(cache=True, inline='always')
@@ -763,7 +618,7 @@ def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarra
                slots: np.ndarray, grad: np.ndarray, data: np.ndarray) -> float:
     """:func:`sim.terms.elasticity.elastic_kernel` for assumed-strain elements: same arguments
     and scatter (``frames`` as there), the element's geometry from :class:`Tying` (Gq, A0,
-    Gt, Gw per element). ``project``: PROJECT_QP by the Hessian's parts (:func:`_ans_element`),
+    Gt, Gw per element). ``project``: PROJECT_QP by the Hessian's parts (:func:`_ans_elements`),
     PROJECT_ELEMENT the element's whole Hessian (an eigen-decomposition of its 3 n_en x 3 n_en
     matrix, most of the evaluation's time)."""
     energies = np.zeros(conn.shape[0])
@@ -774,58 +629,188 @@ def ans_kernel(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, dNq: np.ndarra
 
 
 @njit(cache=True, nogil=True)
-def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,
+def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple,  # noqa: C901
                wdetJ: np.ndarray, model: int, params: np.ndarray, fp_inv: np.ndarray,
                ep: np.ndarray, frames: np.ndarray, plastic: bool, want: int, project: int,
                slots: np.ndarray, grad: np.ndarray, data: np.ndarray, energies: np.ndarray,
                elements: np.ndarray) -> None:
-    """A thread's share of a colour's blocks in :func:`ans_kernel`: its ``elements`` with their
-    scratch, each element's energy into ``energies``, gradient and Hessian scattered."""
-    dNq, dNt, lev_ptr, rs, Gq, A0, Gt, dNc, Gw = tying
+    """A thread's share of a colour's blocks in :func:`ans_kernel`: each element e of its
+    ``elements``, its energy into energies[e], its gradient (want >= 1) through ``g (k,)``
+    into ``grad``, its Hessian (want == 2) through ``K (k, k)``, its upper triangle
+    node-major, into ``data`` at ``slots[e]``; an element with an inverted point or one
+    without energy has E = inf, and nothing is added. ``frames[e] (3, 3)``: its material
+    axes (read by Hill48). ``project``: PROJECT_QP makes the Hessian positive
+    semi-definite by its parts: each point's material tangent (over the natural strain rows,
+    as a point's is in Q3T's projection) and the element's initial-stress term (n_en x n_en:
+    the tied strains' stresses act at the tying points, so it has no per-point split); a sum
+    of positive semi-definite parts, without the element's 3 n_en x 3 n_en
+    eigen-decomposition that PROJECT_ELEMENT takes (:func:`ans_kernel`).
+
+    Per level, the points' strain rows are combinations Phi of the level's basis rows P, so
+    the material part is summed as P^T (sum_q w Phi^T D Phi) P, one product of the 9 rows
+    per level instead of one of 6 rows per point; the levels' rows are stacked so that one
+    product :func:`_congruence` forms all of it. Scratch, made once for the share's elements:
+    Kg (n_en, n_en); P and T (9 n_lev, k), level l's rows from 9 l on; Mb (9, 9), Hs (3 +
+    n_in, 3, 3) (:func:`_level_gradients`), u (n_en, 3); 3 x 3s (en, Sn, sig, M, Ci, hc, and
+    m2 (2, 3, 3) for :func:`_principal_natural`); three points' E^, A, E^'s eigenvectors
+    (3, 3, 3) and eigenvalues (3, 3); Dv, Dp (6, 6) and cv (2, 6, 6); gv (9,), tv, tw (3,); v3
+    (9, 3); kq (n_en + 10, max(n_en, 6)), the projections' (a point's 6 x 6 in 8 rows, Kg's in
+    n_en + 2); vg (2, n_en) (:func:`_level_geometric`). The tables and scratch are indexed,
+    not sliced, in the loops over levels and points (:func:`_level_gradients`), and the loop
+    over the elements is this function's, not a loop around an inlined function of one
+    element: an inlined function takes a reference count of each array it is given, at every
+    call."""
+    dNq, dNt_lev, lev_ptr, rs, Gq, A0, Gt_lev, dNc, Gw = tying
     n_en = conn.shape[1]
     k = 3 * n_en
-    g = np.zeros(k)
-    Kg = np.empty((n_en, n_en))
     n_lev = lev_ptr.shape[0] - 1
     n_in = lev_ptr[1] - lev_ptr[0]
     # the levels' tying points on one axis, as the points are on dNq's and Gq's
-    tg = (dNq, dNt.reshape((3 * n_lev, n_en, 3)), lev_ptr, rs, Gq, A0,
-          Gt.reshape((Gt.shape[0], 3 * n_lev, 3, 3)), dNc, Gw)
-    nbp = 9  # a level's rows (_level_rows): a multiple of 3 (_material_rows), and n_lev
-    nr = n_lev * nbp  # times them of 9 (_congruence)
+    dNt = dNt_lev.reshape((3 * n_lev, n_en, 3))
+    Gt = Gt_lev.reshape((Gt_lev.shape[0], 3 * n_lev, 3, 3))
+    nbp = 9  # a level's rows (_level_rows, _material_rows)
+    nr = n_lev * nbp  # a multiple of 9 (_congruence)
+    g = np.zeros(k)
+    Kg = np.empty((n_en, n_en))
     P, T, Mb = np.zeros((nr, k)), np.zeros((nr, k)), np.zeros((nbp, nbp))
     K = np.empty((k, k) if want == 2 else (0, 0))
     Hs, u = np.empty((3 + n_in, 3, 3)), np.empty((n_en, 3))
-    m3 = np.empty((8, 3, 3))
-    bt = np.empty((10, 3, 3))
-    sc = np.empty((4, 6, 6))
-    gvs = np.empty((3, nbp))
-    v3 = np.empty((9, 3))
-    kq = np.empty((n_en + 10, max(n_en, 6)))
-    # the scratch's parts made once: a part made per element or point is a new array, whose
-    # reference count numba takes and drops
-    m3s = (m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6:])
-    bts = (bt[0:3], bt[3:6], bt[6:9], bt[9])
-    scs = (sc[0], sc[3], sc[1:3])
-    gvss = (gvs[0], gvs[1, :3], gvs[2, :3])
-    kqs = (v3[7], kq[n_en + 2:n_en + 4, :6], kq[n_en + 2:, :6], kq[:n_en + 2])
+    m3, bt, sc = np.empty((8, 3, 3)), np.empty((10, 3, 3)), np.empty((4, 6, 6))
+    gvs, v3 = np.empty((3, nbp)), np.empty((9, 3))
+    kq, vg = np.empty((n_en + 10, max(n_en, 6))), np.empty((2, n_en))
+    en, Sn, sig, M, Ci, hc, m2 = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6:]
+    Ehs, As, Vs, lams = bt[0:3], bt[3:6], bt[6:9], bt[9]
+    Dv, Dp, cv = sc[0], sc[3], sc[1:3]
+    gv, tv, tw = gvs[0], gvs[1, :3], gvs[2, :3]
+    cl, w6, kqh, kqg = v3[7], kq[n_en + 2:n_en + 4, :6], kq[n_en + 2:, :6], kq[:n_en + 2]
+    psd = want == 2 and project == PROJECT_QP
+    # Neo-Hookean's closed form, where no principal frame is needed to project in
+    closed = model == NEO_HOOKEAN and not psd
     for e in elements:
-        E = _ans_element(x, rest, conn, e, tg, wdetJ, model, params, fp_inv, ep, frames,
-                         plastic, want, project, g, K, Kg, P, T, Mb, Hs, u, m3s, bts, scs, gvss,
-                         v3, kqs)
-        energies[e] = E
-        ok = np.isfinite(E)
+        for a in range(n_en):
+            for i in range(3):
+                u[a, i] = x[conn[e, a], i] - rest[conn[e, a], i]
+        if want == 2:
+            for a in range(n_en):
+                for b in range(n_en):
+                    Kg[a, b] = 0.0
+        E = 0.0
+        ok = True  # False: an inverted point, or one without energy
+        for lev in range(lev_ptr.shape[0] - 1):
+            q0 = lev_ptr[lev]
+            n_in = lev_ptr[lev + 1] - q0
+            r0 = lev * nbp  # the level's rows in P and T
+            _level_gradients(u, dNq, q0, dNt, lev, Hs)
+            _corner_thickness(u, dNc, Gw, e, lev, hc, tw)
+            _tied(Gt, e, lev, Hs, tv)
+            if want >= 1:
+                _level_rows(dNq, q0, dNt, Gq, Gt, e, lev, Hs, dNc, Gw, hc, P, r0)
+                for c in range(nbp):
+                    gv[c] = 0.0
+                    for d in range(nbp):
+                        Mb[c, d] = 0.0
+            # the points three at a time: their strains first, E^'s eigen-decompositions side
+            # by side (jacobi3_lanes_into), then each point's law
+            for j0 in range(0, n_in, 3):
+                nb = min(3, n_in - j0)
+                for b in range(nb):
+                    q = q0 + j0 + b
+                    h = 3 + j0 + b
+                    for i in range(3):  # g = G + h: an inverted element has no energy
+                        for jj in range(3):
+                            en[i, jj] = Gq[e, q, i, jj] + Hs[h, i, jj]
+                    if not det3(en) > 0.0:
+                        ok = False
+                        break
+                    A = As[b]
+                    _map(A0, e, q, plastic, fp_inv, A)
+                    _strain_hat(Gq, e, q, Hs, h, rs[q, 0], rs[q, 1], tv, tw, A, plastic,
+                                fp_inv, en, Ehs[b])
+                if not ok:
+                    break
+                if not closed:
+                    jacobi3_lanes_into(Ehs, nb, lams, Vs, want > 0 or model == HILL48)
+                for b in range(nb):
+                    q = q0 + j0 + b
+                    r, s = rs[q, 0], rs[q, 1]
+                    A = As[b]
+                    epq = ep[e, q] if plastic else 0.0
+                    # the laws are called, not inlined by numba: inlined, they made the kernel's
+                    # compile much longer and ran no faster. A line search's energy alone is the
+                    # law's W, inlined: a call passes every array it is given, most of them the
+                    # tangent's scratch, which an energy does not touch
+                    if want == 0:
+                        W = _point_energy(model, closed, Ehs, lams, Vs, b, params, frames, e, epq,
+                                          cl, M, w6)
+                    elif closed:
+                        W = _neo_hookean_natural(Ehs[b], A, params[0], params[1], want, Sn, Dv, Ci,
+                                                 sig)
+                    elif model == HILL48:
+                        W = _hill_natural(lams[b], Vs[b], A, params, frames[e], epq, want, psd, Sn,
+                                          Dv, M, cv, Dp, Ci, v3, kqh)
+                    else:
+                        W = _principal_natural(model, lams[b], Vs[b], A, params, epq, want, psd, Sn,
+                                               Dv, M, cv, Dp, m2, v3)
+                    if not np.isfinite(W):
+                        ok = False
+                        break
+                    w = wdetJ[e, q]
+                    E += w * W
+                    if want == 0:
+                        continue
+                    # gv += w Phi^T Sv, Sv the stress over the natural rows (off-diagonals twice)
+                    s02, s12 = Sn[0, 2] * 2.0, Sn[1, 2] * 2.0
+                    gv[0] += w * Sn[0, 0]
+                    gv[1] += w * Sn[1, 1]
+                    gv[2] += w * (Sn[0, 1] * 2.0)
+                    gv[3] += w * ((1.0 - s) * s02 + r * s12)
+                    gv[4] += w * (s * s02 + (1.0 - r) * s12)
+                    gv[5] += w * (-s * s02 + r * s12)
+                    sww = w * Sn[2, 2]
+                    gv[6] += (1.0 - r - s) * sww
+                    gv[7] += r * sww
+                    gv[8] += s * sww
+                    if want < 2:
+                        continue
+                    _add_point_tangent(Dv, w, r, s, Mb)
+                if not ok:
+                    break
+            if not ok:
+                break
+            if want == 0:
+                continue
+            for p in range(k):
+                acc = 0.0
+                for c in range(9):
+                    acc += gv[c] * P[r0 + c, p]
+                g[p] += acc
+            if want < 2:
+                continue
+            for c in range(9):
+                for d in range(c):
+                    Mb[c, d] = Mb[d, c]
+            _material_rows(P, Mb, T, r0)
+            # the initial-stress term: the stresses at the tying points are the basis rows'
+            _level_geometric(dNq, q0, dNt, dNc, lev, gv, vg, Kg)
+        energies[e] = E if ok else np.inf
         if want >= 1:
             drain_element_gradient(grad, conn[e], g, ok)
-        if want == 2 and ok:
-            if project == PROJECT_ELEMENT:
-                _project(K)
-            s = slots[e]
-            p = 0
-            for r in range(k):
-                for col in range(r, k):
-                    data[np.uint64(s[p])] += K[r, col]
-                    p += 1
+        if want < 2 or not ok:
+            continue
+        _congruence(P, T, K)
+        if psd:
+            _project_into(Kg, kqg)
+        for a in range(n_en):
+            for b in range(a, n_en):
+                for i in range(3):
+                    K[3 * a + i, 3 * b + i] += Kg[a, b]
+        if project == PROJECT_ELEMENT:
+            _project(K)
+        p = 0
+        for r in range(k):
+            for col in range(r, k):
+                data[np.uint64(slots[e, p])] += K[r, col]
+                p += 1
 
 
 @njit(cache=True)
