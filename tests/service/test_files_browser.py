@@ -126,7 +126,8 @@ def test_a_file_that_is_no_mesh_says_why(page, served):
     page.wait_for_selector("[data-path='mesh.path'] select.file-select")
     choose(page, "mesh.path", junk)
     until(lambda: "no triangles" in status(page, "mesh.path"), "no refusal shown", 300)
-    assert status(page, "mesh.path") == "junk.stl: no triangles"
+    assert status(page, "mesh.path") == ("junk.stl: no triangles: not a .stl mesh file (text, "
+                                          "another format?), or an empty one")
     assert page.locator("[data-path='mesh.path'] .upload-status.bad").count() == 1
     assert not (tmp / "scenes" / "junk.stl").exists()
     page.locator("[data-path='mesh.path']").scroll_into_view_if_needed()
