@@ -141,6 +141,7 @@ async function selectScene(name) {
   state.syncSeq++;  // answers to edits of the previous scene are stale now
   state.tomlStale = false;
   state.editorChanged = false;
+  state.unsaved = false;  // the editor holds the saved file
   showSlidersFor();
   if (s.scene) {
     state.form.build(s.scene);
@@ -257,6 +258,7 @@ async function saveScene() {
     await api("PUT", `/api/scenes/${encodeURIComponent(name)}`, { toml: $("toml").value });
     $("scene-error").textContent = "";
     state.scene = name;
+    state.unsaved = false;
     say(`saved ${name}`);
     await loadScenes();
   } catch (e) {
@@ -315,8 +317,10 @@ async function buildSliders() {
 }
 
 function editorEdited() {
-  // an edit in the form or the TOML view: the scene being edited is not what runs
+  // an edit in the form or the TOML view: the scene being edited is not what runs, nor what
+  // is saved (a reload asks first)
   state.editorChanged = true;
+  state.unsaved = true;
   showSlidersFor();
 }
 
@@ -652,4 +656,8 @@ async function main() {
   solverUp.then(previewFirst).catch((e) => say(e.message, true));
 }
 
+// a reload or a closed tab would drop the editor's unsaved edits: the browser asks first
+window.addEventListener("beforeunload", (ev) => {
+  if (state.unsaved) ev.preventDefault();
+});
 main().catch((e) => say(e.message, true));

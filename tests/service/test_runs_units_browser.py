@@ -76,3 +76,23 @@ def test_a_refused_start_names_values_in_the_forms_units(served, browser):
     shot(page, SHOTS, "04-refused-start.png", where="#msg")
     page.close()
     assert not errors, errors
+
+
+def test_a_reload_asks_before_dropping_unsaved_edits(served, browser):
+    """A review reloaded mid-run and lost the form's edits without a word: with edits not
+    saved the browser asks first (beforeunload); a page without edits reloads as it is."""
+    page, errors = new_page(browser, served, "#scenes li.sel", width=1500, height=950)
+    asked = []
+    page.on("dialog", lambda d: (asked.append(d.type), d.accept()))
+    page.reload()
+    page.wait_for_selector("#scenes li.sel")
+    assert asked == []
+    box = page.locator('[data-path="shell.thickness"] input').first
+    box.fill("0.8")
+    box.press("Tab")
+    page.wait_for_function("() => state.unsaved")
+    page.reload()
+    page.wait_for_selector("#scenes li.sel")
+    assert asked == ["beforeunload"], asked
+    page.close()
+    assert not errors, errors
