@@ -72,33 +72,34 @@ SHOWN = {**DISPLAY, "1": ("", 1.0), "rad": ("deg", 180 / np.pi), "N/m": ("N/mm",
 LIST_SHOWN = 6
 
 
-def value_text(v: object, factor: float = 1.0) -> str:
+def value_text(v: object, factor: float = 1.0, digits: int = 4,
+               longest: int | None = LIST_SHOWN) -> str:
+    """A value in the shown unit (``factor``) to ``digits``; a list longer than ``longest``
+    by its length."""
     if isinstance(v, float) or (isinstance(v, int) and not isinstance(v, bool) and factor != 1):
-        return f"{v * factor:.4g}"
-    if isinstance(v, list) and len(v) > LIST_SHOWN:
+        return f"{v * factor:.{digits}g}"
+    if isinstance(v, list) and longest is not None and len(v) > longest:
         return f"[{len(v)} values]"
     if isinstance(v, list):
-        return "[" + ", ".join(value_text(x, factor) for x in v) + "]"
+        return "[" + ", ".join(value_text(x, factor, digits, longest) for x in v) + "]"
     return "–" if v is None else str(v)
+
+
+def _labelled(text: str, label: str | None) -> str:
+    return f"{text} {label}" if label else text
 
 
 def override_text(key: str, value: object) -> str:
     """An override (``mesh.edge_length`` = 0.004) as the form shows the field: "4 mm", to
-    twelve digits (the value given, not a rounding of it)."""
-    label, factor = SHOWN.get(unit_of(key) or "", (unit_of(key), 1.0))
-
-    def text(v: object) -> str:
-        if isinstance(v, list):
-            return "[" + ", ".join(text(x) for x in v) + "]"
-        if isinstance(v, float) or (isinstance(v, int) and not isinstance(v, bool)):
-            return f"{v * factor:.12g}"
-        return str(v)
-    return f"{text(value)} {label}" if label else text(value)
+    twelve digits (the value given, not a rounding of it), every item of a list."""
+    unit = unit_of(key)
+    label, factor = SHOWN.get(unit or "", (unit, 1.0))
+    return _labelled(value_text(value, factor, 12, None), label)
 
 
 def shown(item: dict, between: str = " | ") -> str:
     """A setting's values side by side in the unit the page shows, labelled."""
     unit = item.get("unit")
     label, factor = SHOWN.get(unit or "", (unit, 1.0))
-    text = between.join(value_text(v, factor) for v in item["values"])
-    return f"{item['what']} {text} {label}" if label else f"{item['what']} {text}"
+    return _labelled(f"{item['what']} " + between.join(value_text(v, factor)
+                                                       for v in item["values"]), label)

@@ -7,10 +7,12 @@ const $ = (id) => document.getElementById(id);
 // api.js: the embedded viewer shows the same one; another browser's view its own);
 // viewSeq / paramSeq count the page's own changes, so an answer to a request sent before one
 // of them is not taken for the server's state after it; noticeSeq: the last notice shown;
-// nudge(): ends the wait before the next poll
+// nudge(): ends the wait before the next poll; unsaved: the editor differs from the saved file
+// (editorChanged: from what the selected run ran)
 const state = { scene: null, run: null, config: null, form: null, syncSeq: 0,
                 syncTimer: null, syncPending: null, syncRunning: null, viewSeq: 0,
-                paramSeq: 0, status: null, noticeSeq: 0, editorChanged: false, nudge: null };
+                paramSeq: 0, status: null, noticeSeq: 0, editorChanged: false, nudge: null,
+                unsaved: false };
 
 // a run another browser (or a script) started: an action on it asks first, once per run,
 // and says whose it was; what others did to this view's runs is shown here

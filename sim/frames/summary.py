@@ -532,15 +532,16 @@ def _rim_height(view: View) -> list[dict]:
     i, j = int(np.argmax(r.height)), int(np.argmin(r.height))
     deg = np.degrees(r.angle)
     profile = {"angle": measure(deg, "deg"), "height": measure(r.height, "m")}
+    harmonics = {k: r.harmonic(k) for k in (4, 6)}  # k -> (amplitude, first crest)
     out = [entry("max_rim_height", "Rim height, largest", r.height[i], "m",
                  {"angle": measure(deg[i], "deg"), **at_vertex(r.vertices[i], mid)}),
            entry("min_rim_height", "Rim height, smallest", r.height[j], "m",
                  {"angle": measure(deg[j], "deg"), **at_vertex(r.vertices[j], mid)}),
            entry("earing", "Earing", r.earing, "1", profile=profile,
                  note="(largest - smallest) / mean rim height; angles about the punch axis "
-                      "from the x axis" + _mesh_earing(r.harmonic(4)[0], r.harmonic(6)[0]))]
+                      "from the x axis" + _mesh_earing(harmonics[4][0], harmonics[6][0]))]
     for k, name in ((4, "four-fold (ears)"), (6, "six-fold (mesh)")):
-        amp, crest = r.harmonic(k)
+        amp, crest = harmonics[k]
         out.append(entry(f"rim_harmonic_{k}", f"Rim height, {name} harmonic", amp, "m",
                          {"first_crest": measure(np.degrees(crest), "deg")},
                          note=f"amplitude of the {k}-fold term of the rim height's "

@@ -116,15 +116,15 @@ def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray, dict]:
     mesh = imperfect(mesh, spec.imperfection)
     if h is None:
         h = sh.thickness + mesh.vertices @ np.asarray(sh.thickness_gradient)
-        field_name = "shell.thickness_gradient"
+        field_name = ("shell.thickness_gradient" if np.any(sh.thickness_gradient)
+                      else "shell.thickness")
     bad = ~np.isfinite(h) | (h <= 0) | (h > MAX_LENGTH)
     if bad.any():
         v = int(np.flatnonzero(bad)[0])
         raise ValueError(f"{field_name}: thickness must be positive (and at most "
                          f"{MAX_LENGTH:.0e} m) at every vertex ({int(bad.sum())} are not; "
                          f"vertex {v}: {h[v]:.3g} m)")
-    check_sheet(mesh, h, "shell.thickness" if field_name.endswith("gradient") and
-                not np.any(sh.thickness_gradient) else field_name)
+    check_sheet(mesh, h, field_name)
     return mesh, np.asarray(h, float), {"kind": spec.kind, **report}
 
 
