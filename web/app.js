@@ -95,7 +95,12 @@ async function loadScenes() {
     li.textContent = s.name + (s.description ? " — " + s.description : "");
     li.dataset.name = s.name;
     li.className = s.name === state.scene ? "sel" : "";
-    li.onclick = () => selectScene(s.name).then(() => previewScene(s.name));
+    li.onclick = () => {
+      // choosing another scene replaces the editor's text: unsaved edits are asked for first
+      if (s.name !== state.scene && state.unsaved &&
+          !confirm(`${state.scene} has unsaved edits: open ${s.name} and drop them?`)) return;
+      selectScene(s.name).then(() => previewScene(s.name));
+    };
     ul.appendChild(li);
   }
   if (!state.scene && list.length) {
@@ -637,7 +642,10 @@ async function main() {
     const name = prompt("name of the copy", `${state.scene}-copy`);
     if (!name) return;
     try {
-      await api("POST", `/api/scenes/${state.scene}/duplicate`, { name });
+      // the copy is of what the editor holds: its unsaved edits go with it, not lost
+      const body = { name };
+      if (state.unsaved) { await flushSync(); body.toml = $("toml").value; }
+      await api("POST", `/api/scenes/${state.scene}/duplicate`, body);
       state.scene = name;
       await loadScenes();
       await selectScene(name);

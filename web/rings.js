@@ -37,8 +37,46 @@ const Rings = (() => {
   }
 
   function clearErrors() {
-    for (const id of ["ring-heights-error", "ring-angle-error", "ring-error"]) $(id).textContent = "";
+    for (const id of ["ring-heights-error", "ring-angle-error", "ring-error", "ring-heights-note",
+                      "ring-angle-note"]) $(id).textContent = "";
     for (const id of ["ring-z1", "ring-z2", "ring-angle"]) $(id).classList.remove("has-error");
+  }
+
+  let wallMm = null;  // the steep wall of the run shown, mm above the bottom (server's listing)
+  const number = (id) => parseFloat($(id).value.replace(",", "."));
+  // defaults() rounds the wall's ends out to 0.1 mm: heights that far past it are its own
+  const ROUNDED = 0.1;
+
+  function check() {
+    // the inputs as typed: what the server refuses by the same rule (not numbers, not 0 <= z1 <
+    // z2) is said at once; heights past the steep wall and an angle past a turn get a note (a
+    // band past the wall takes flatter elements if it reaches one's centre, which only the
+    // cut knows; an angle is taken modulo 360). False when the inputs cannot be sent.
+    clearErrors();
+    const z1 = number("ring-z1"), z2 = number("ring-z2"), angle = number("ring-angle");
+    let ok = true;
+    if (!Number.isFinite(z1) || !Number.isFinite(z2)) {
+      showError("heights: two numbers in mm above the cup's bottom");
+      ok = false;
+    } else if (!(z1 >= 0 && z1 < z2)) {
+      showError(`heights: ${Units.num(z1)}, ${Units.num(z2)} mm: need 0 <= z1 < z2 (mm above ` +
+                "the cup's bottom)");
+      ok = false;
+    } else if (wallMm && (z1 < wallMm[0] - ROUNDED || z2 > wallMm[1] + ROUNDED)) {
+      $("ring-heights-note").textContent =
+        `${Units.num(z1)}–${Units.num(z2)} mm reaches past the steep wall ` +
+        `(${Units.num(wallMm[0])}–${Units.num(wallMm[1])} mm): the cut is refused if a ` +
+        "flatter element lies in the band";
+    }
+    if (!Number.isFinite(angle)) {
+      showError("cut_angle: a number of degrees");
+      ok = false;
+    } else if (angle < 0 || angle >= 360) {
+      const turn = ((angle % 360) + 360) % 360;
+      $("ring-angle-note").textContent = `${Units.num(angle)}° is the meridian at ` +
+        `${Units.num(turn)}° (taken modulo 360°)`;
+    }
+    return ok;
   }
 
   // a detail names its fields at the start of each part ("body.heights: ...; body.cut_angle:
@@ -56,11 +94,13 @@ const Rings = (() => {
     }
     if (by.heights.length) {
       $("ring-heights-error").textContent = by.heights.join("; ");
+      $("ring-heights-note").textContent = "";  // the error says more than the note
       $("ring-z1").classList.add("has-error");
       $("ring-z2").classList.add("has-error");
     }
     if (by.angle.length) {
       $("ring-angle-error").textContent = by.angle.join("; ");
+      $("ring-angle-note").textContent = "";
       $("ring-angle").classList.add("has-error");
     }
     if (by.other.length) $("ring-error").textContent = by.other.join("; ");
@@ -203,7 +243,7 @@ const Rings = (() => {
     $("ring-z1").value = v.z1;
     $("ring-z2").value = v.z2;
     $("ring-angle").value = v.angle;
-    clearErrors();
+    check();  // the notes of inputs this page sent (past the wall, past a turn)
     if (own && !own.pending) {
       mine.delete(run);
       if (own.error) showError(own.error);
@@ -216,6 +256,7 @@ const Rings = (() => {
     box.dataset.run = data.run;
     box.dataset.count = String(data.rings.length);
     $("ring-form").hidden = !data.available;
+    wallMm = data.wall_mm || null;
     $("ring-wall").textContent = data.wall_mm
       ? `The steep wall (over 60° from the horizontal) runs ${Units.num(data.wall_mm[0])} to ` +
         `${Units.num(data.wall_mm[1])} mm above the cup's bottom.`
@@ -280,19 +321,9 @@ const Rings = (() => {
 
   async function cut() {
     const id = current;
-    clearErrors();
+    if (!check()) return;  // said next to the fields, nothing sent
     const inputs = { z1: $("ring-z1").value, z2: $("ring-z2").value, angle: $("ring-angle").value };
-    const z1 = parseFloat(inputs.z1.replace(",", "."));
-    const z2 = parseFloat(inputs.z2.replace(",", "."));
-    const angle = parseFloat(inputs.angle.replace(",", "."));
-    if (!Number.isFinite(z1) || !Number.isFinite(z2)) {
-      showError("heights: two numbers in mm above the cup's bottom");
-      return;
-    }
-    if (!Number.isFinite(angle)) {
-      showError("cut_angle: a number of degrees");
-      return;
-    }
+    const z1 = number("ring-z1"), z2 = number("ring-z2"), angle = number("ring-angle");
     const own = { band: `${Units.num(z1)}–${Units.num(z2)} mm`, inputs, pending: true,
                   error: null };
     mine.set(id, own);
@@ -320,6 +351,7 @@ const Rings = (() => {
 
   function init() {
     $("ring-cut").addEventListener("click", cut);
+    for (const id of ["ring-z1", "ring-z2", "ring-angle"]) $(id).addEventListener("input", check);
   }
 
   return { show, forget, init };

@@ -60,6 +60,9 @@ class NewScene(BaseModel):
 class NewName(BaseModel):
     model_config = _example(name="cantilever-copy")
     name: SceneName
+    toml: str | None = Field(None,
+                             description="the text to copy instead of the saved file's (an "
+                             "editor's unsaved edits); its name follows the new name too")
 
 
 class SceneJSON(BaseModel):
@@ -211,6 +214,8 @@ def duplicate_scene(name: ScenePath, body: NewName, request: Request,
     """A copy of the scene file under a new name; its ``name`` field follows the new name
     (the rest of the file, comments included, as it is)."""
     store = _store(request)
-    store.create(body.name, tomlout.renamed(store.text(name), body.name))
+    text = store.text(name)  # 404 for a missing scene, whatever the body holds
+    text = text if body.toml is None else body.toml
+    store.create(body.name, tomlout.renamed(text, body.name))
     response.headers["Location"] = f"/api/scenes/{body.name}"
     return _read(store, body.name)

@@ -120,3 +120,22 @@ def test_a_duplicate_is_named_as_its_file(env):
     text = (settings.scenes_dir / "cup-copy.toml").read_text()
     assert tomllib.loads(text)["name"] == "cup-copy"
     assert text.replace('name = "cup-copy"', 'name = "cup_drawing"', 1) == CUP  # the rest kept
+
+
+def test_a_duplicate_of_an_editors_text_copies_it_and_refuses_a_bad_one(env):
+    """``toml`` in the request: the copy is of that text (a page's unsaved edits), renamed; a
+    text that is no valid scene is refused naming the field, and nothing is written."""
+    client, settings = env
+    client.post("/api/scenes", json={"name": "cup3", "toml": CUP})
+    edited = CUP.replace("nu = 0.33", "nu = 0.31")
+    r = client.post("/api/scenes/cup3/duplicate", json={"name": "cup3-edited", "toml": edited})
+    assert r.status_code == 201, r.text
+    text = (settings.scenes_dir / "cup3-edited.toml").read_text()
+    assert text.replace('name = "cup3-edited"', 'name = "cup_drawing"', 1) == edited
+    assert tomllib.loads((settings.scenes_dir / "cup3.toml").read_text())["material"]["nu"] == 0.33
+    bad = client.post("/api/scenes/cup3/duplicate",
+                      json={"name": "cup3-bad", "toml": CUP.replace("nu = 0.33", "nu = 0.7")})
+    assert bad.status_code == 422 and "material.nu" in bad.text, bad.text
+    assert not (settings.scenes_dir / "cup3-bad.toml").exists()
+    missing = client.post("/api/scenes/nope/duplicate", json={"name": "x", "toml": edited})
+    assert missing.status_code == 404, missing.text

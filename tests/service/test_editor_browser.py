@@ -7,6 +7,7 @@ subprocess, on a copy of the shipped cup scene (its comments are the point):
   number formats; the value reaches the file in SI.
 - A duplicate's name field follows its new name; a failed save says so (no stale "saved")
   with the error in view.
+- Unsaved edits are asked for before another scene replaces them, and go with a duplicate.
 - The live parameters read as words, with the result beside each multiplier.
 
 With Q3T_SHOTS set, screenshots of each step go to `$Q3T_SHOTS/editor/`."""
@@ -156,6 +157,39 @@ def test_a_duplicate_takes_its_name_and_a_failed_save_says_so(page, served):
     httpx.delete(f"{url}/api/scenes/cup-copy")
 
 
+def test_unsaved_edits_are_asked_for_before_another_scene_and_go_with_a_duplicate(
+        page, served):
+    """Clicking another scene would replace the editor's text: with unsaved edits the page
+    asks first, and keeps them when told no; a duplicate is of the editor's text, edits
+    included, under the copy's name."""
+    url, scenes = served
+    (scenes / "other.toml").write_text(COARSE.replace('name = "cup"', 'name = "other"'))
+    page.reload()
+    page.wait_for_selector("#scenes li[data-name='other']")
+    page.fill("[name='material.nu']", "0.31")
+    synced(page, "nu = 0.31")
+    asked: list[str] = []
+    page.once("dialog", lambda d: (asked.append(d.message), d.dismiss()))
+    page.click("#scenes li[data-name='other']")
+    until(lambda: asked, "no question before dropping the edits")
+    assert asked == ["cup has unsaved edits: open other and drop them?"], asked
+    assert page.input_value("#scene-name") == "cup"
+    assert "nu = 0.31" in page.input_value("#toml")  # told no: the edits stay
+    page.once("dialog", lambda d: d.accept("cup-edited"))
+    page.click("#duplicate")
+    page.wait_for_function("document.getElementById('scene-name').value === 'cup-edited'")
+    copy = tomllib.loads((scenes / "cup-edited.toml").read_text())
+    assert copy["name"] == "cup-edited" and copy["material"]["nu"] == 0.31, copy
+    assert tomllib.loads((scenes / "cup.toml").read_text())["material"]["nu"] == 0.33
+    # the copy is saved: another scene opens without a question
+    page.on("dialog", lambda d: (asked.append(d.message), d.dismiss()))
+    page.click("#scenes li[data-name='other']")
+    page.wait_for_function("document.getElementById('scene-name').value === 'other'")
+    assert len(asked) == 1, asked
+    httpx.delete(f"{url}/api/scenes/cup-edited")
+    httpx.delete(f"{url}/api/scenes/other")
+
+
 def test_live_parameters_read_as_words_with_their_results(page, served):
     url, _ = served
     sliders = page.locator("#sliders")
@@ -251,6 +285,7 @@ def test_the_runs_element_follows_the_scenes_own(page, served):
         page.dispatch_event("[name='shell.element']", "change")
         synced(page, 'element = "quadratic"')
         page.wait_for_function("document.getElementById('element').value === 'quadratic'")
+        page.once("dialog", lambda d: d.accept())  # drop the unsaved edits
         page.click("#scenes li[data-name='cup']")  # another scene: its own element
         page.wait_for_selector("#scenes li.sel[data-name='cup']")
         page.wait_for_function("document.getElementById('element').value === 'q3t'")

@@ -1,8 +1,9 @@
 """The split ring on the page (web/rings.js) in Debian's chromium, against the real server in a
 subprocess: a cup run started from the page and finished shows a "Split ring" section with
-heights its wall holds; heights above the part are refused next to the heights, a cut angle
-that is no number next to the angle; a ring cut shows busy, then its column in the table, the
-numbers the API lists, and links to its files that download them as saved; while a ring is
+heights its wall holds; heights the wrong way round are said as typed, heights past the wall
+and an angle past a turn get a note; heights above the part are refused next to the heights, a
+cut angle that is no number next to the angle; a ring cut shows busy, then its column in the
+table, the numbers the API lists, and links to its files that download them as saved; while a ring is
 cut, the stage the server lists and the time so far, Newton's progress in a release. A plate
 run has no such section. With Q3T_SHOTS set, screenshots go to its folder split-ring."""
 
@@ -67,9 +68,23 @@ def test_a_ring_is_cut_from_the_page_and_tabled(served, open_page, tmp_path):
     assert wall.startswith("The steep wall (over 60° from the horizontal) runs 1.62 to 6.16 mm")
     assert page.inner_text("#ring-list") == "No ring cut from this run yet."
     shot(page, SHOTS, "ready.png", settle_ms=1500)
-    # heights above the part: the server's reason, next to the heights
+    assert page.inner_text("#split-ring .field-note") == ""  # the defaults: on the wall
+    # as typed: heights the wrong way round are said at once, by the server's rule
+    page.fill("#ring-z2", "1")
+    assert page.inner_text("#ring-heights-error") == (
+        "heights: 1.6, 1 mm: need 0 <= z1 < z2 (mm above the cup's bottom)")
+    # ... an angle past a turn gets the meridian it is
+    page.fill("#ring-angle", "400")
+    assert page.inner_text("#ring-angle-note") == "400° is the meridian at 40° (taken modulo 360°)"
+    page.fill("#ring-angle", "0")
+    assert page.inner_text("#ring-angle-note") == ""
+    # heights above the part: a note as typed, then the server's reason, next to the heights
     page.fill("#ring-z1", "8")
     page.fill("#ring-z2", "13")
+    assert page.inner_text("#ring-heights-error") == ""
+    assert page.inner_text("#ring-heights-note") == (
+        "8–13 mm reaches past the steep wall (1.62–6.16 mm): the cut is refused if a flatter "
+        "element lies in the band")
     page.click("#ring-cut")
     page.wait_for_function("document.getElementById('ring-heights-error').textContent !== ''")
     assert page.inner_text("#ring-heights-error").startswith(
