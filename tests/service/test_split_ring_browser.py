@@ -3,9 +3,9 @@ subprocess: a cup run started from the page and finished shows a "Split ring" se
 heights its wall holds; heights the wrong way round are said as typed, heights past the wall
 and an angle past a turn get a note; heights above the part are refused next to the heights, a
 cut angle that is no number next to the angle; a ring cut shows busy, then its column in the
-table, the numbers the API lists, and links to its files that download them as saved; while a ring is
-cut, the stage the server lists and the time so far, Newton's progress in a release. A plate
-run has no such section. With Q3T_SHOTS set, screenshots go to its folder split-ring."""
+table, the numbers the API lists, and links to its files that download them as saved; while a
+ring is cut, the stage the server lists and the time so far, Newton's progress in a release. A
+plate run has no such section. With Q3T_SHOTS set, screenshots go to its folder split-ring."""
 
 from __future__ import annotations
 
