@@ -92,6 +92,9 @@ class RunSummary(BaseModel):
     parameters: dict[str, float] = Field(default_factory=dict, description=(
         "every live parameter's value from the next step on (as the solver last said)"))
     progress: Progress
+    stepping_s: float = Field(0.0, description=(
+        "the wall time its steps took on the solver process, s: what runs compare by "
+        "(progress.elapsed_s also holds the build, pauses and the viewer's pacing)"))
     changes: list[str] = Field(default_factory=list, description=(
         "what the run changed of its saved scene, in words, values in the scene form's units "
         "(mm, MPa, kN): unsaved edits, overrides, live parameter values and the step each "

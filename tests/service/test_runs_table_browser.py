@@ -1,7 +1,7 @@
 """The page's Runs table in Debian's chromium: runs waiting in the queue show their place and
-can be cancelled; ended runs show what they changed of the scene, their wall time and the
-headline values of their result in labelled units; a click on a header sorts by it (again: the
-other way round); Delete asks first and does nothing when the user says no.
+can be cancelled; ended runs show what they changed of the scene, their solver time (the wall
+time in its title) and the headline values of their result in labelled units; a click on a
+header sorts by it (again: the other way round); Delete asks first and does nothing when the user says no.
 
 With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/runs-table/`."""
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from tests.support.browser import new_page, serve, shot, shots_dir
+from tests.support.browser import js_duration, new_page, serve, shot, shots_dir
 from tests.support.scenes import tiny_cup_toml, tiny_toml
 from tests.support.service import ENDED, until
 
@@ -89,6 +89,12 @@ def test_the_queue_in_the_table(served, browser):
         page.wait_for_function(  # a number, from its result
             f"(document.querySelector('#runs tbody tr[data-id=\"{run}\"] "
             f"td.col-peak_punch_force')?.textContent || '–') !== '–'")
+    for run in cups[:2]:  # the solver's time in the cell, the wall time in its title
+        st = httpx.get(f"{url}/api/runs/{run}").json()
+        assert cell(page, run, "wall") == js_duration(st["stepping_s"])
+        title = page.get_attribute(f'#runs tbody tr[data-id="{run}"] td.col-wall span', "title")
+        assert title == (f"wall time {js_duration(st['progress']['elapsed_s'])} from its start "
+                         "on a solver process (build, pauses and pacing included)"), title
     headers = page.eval_on_selector_all("#runs thead th", "ths => ths.map(t => t.textContent)")
     assert headers[7:10] == ["peak force (kN)", "min. thickness (mm)", "max. thinning (%)"]
     for run in cups[:2]:  # the values of the run's summary, in the headers' units

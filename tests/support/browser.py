@@ -215,3 +215,18 @@ def js_number(v: float, digits: int = 3) -> str:
         return f"{int(v):,}"
     x = float(f"{v:.{digits}g}")
     return str(int(x)) if x.is_integer() else repr(x)
+
+
+def js_duration(s: float | None) -> str:
+    """A duration as the page writes it (web/units.js duration)."""
+    if s is None:
+        return "–"
+    if s < 1:
+        return "under 1 s"
+    s = int(s + 0.5)  # Math.round: halves up
+    if s < 60:
+        return f"{s} s"
+    m = s // 60
+    if m < 60:
+        return f"{m} min {s % 60:02d} s"
+    return f"{m // 60} h {m % 60:02d} min"
