@@ -1,7 +1,8 @@
 """The page's Runs table in Debian's chromium: runs waiting in the queue show their place and
 can be cancelled; ended runs show what they changed of the scene, their solver time (the wall
 time in its title) and the headline values of their result in labelled units; a click on a
-header sorts by it (again: the other way round); Delete asks first and does nothing when the user says no.
+header sorts by it (again: the other way round); Delete asks first and does nothing when the
+user says no.
 
 With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/runs-table/`."""
 
