@@ -3,10 +3,14 @@ the page's form shows: what the comparison of runs and a run of unsaved edits sa
 
 from __future__ import annotations
 
+import textwrap
+import tomllib
+
 import numpy as np
 
 from sim.frames.units import DISPLAY
 from sim.scene.load import scene_from_toml, unit_of
+from sim.scene.sheet import ShellSpec
 
 
 def flatten(node: object, prefix: str = "", paths: dict | None = None,
@@ -103,3 +107,31 @@ def shown(item: dict, between: str = " | ") -> str:
     label, factor = SHOWN.get(unit or "", (unit, 1.0))
     return _labelled(f"{item['what']} " + between.join(value_text(v, factor)
                                                        for v in item["values"]), label)
+
+
+def ran_head(run_id: str, scene: str, text: str, edits: list[str] | None,
+             overrides: dict) -> str:
+    """The comment lines that head a run's scene.toml (``text``, a valid scene) when what ran
+    is not that text as it stands: the page's unsaved edits (``edits``, None: none; the
+    comments below are the saved file's and may describe its values), overrides on top of
+    it, an element other than its own; '' otherwise (the file is the saved one, comments
+    true)."""
+    file_element = tomllib.loads(text).get("shell", {}).get(
+        "element", ShellSpec.model_fields["element"].default)
+    parts = []
+    if edits is not None:
+        parts.append(f"It ran the page's unsaved edits of {scene}: "
+                     f"{'; '.join(edits) or 'the saved scene no longer validates'}. The "
+                     "comments below are the saved file's: they may describe its values.")
+    given = {k: v for k, v in overrides.items() if k != "shell.element"}
+    if given:
+        parts.append("Overrides on top of this file (run.json): " +
+                     "; ".join(f"{k} = {override_text(k, v)}" for k, v in given.items()) + ".")
+    element = overrides.get("shell.element", file_element)
+    if element != file_element:
+        parts.append(f"It ran element {element}, not the file's {file_element}.")
+    if not parts:
+        return ""
+    lines = textwrap.wrap(f"Run {run_id}, the scene as it ran. " + " ".join(parts), 96,
+                          break_long_words=False, break_on_hyphens=False)
+    return "".join(f"# {line}\n" for line in lines) + "\n"

@@ -90,8 +90,15 @@ def test_start_runs_the_edited_scene(env):
     assert st["state"] == "finished", st["reason"]
     assert st["edited"] is True
     assert st["counts"]["vertices"] == vertices(text)  # the edited mesh, not the saved one
-    assert (settings.runs_dir / st["id"] / "scene.toml").read_text() == text
-    assert client.get(f"/api/runs/{st['id']}/scene").text == text
+    # what ran: the edited text under a head that says so (its comments are the saved file's)
+    kept = (settings.runs_dir / st["id"] / "scene.toml").read_text()
+    assert client.get(f"/api/runs/{st['id']}/scene").text == kept
+    head, rest = kept.split("\n\n", 1)
+    assert rest == text and tomllib.loads(kept) == tomllib.loads(text)
+    assert " ".join(line.removeprefix("# ") for line in head.splitlines()) == (
+        f"Run {st['id']}, the scene as it ran. It ran the page's unsaved edits of tiny: "
+        f"mesh.edge_length 35 → {EDITED_EDGE * 1e3:.4g} mm. The comments below are the saved "
+        "file's: they may describe its values. It ran element linear, not the file's q3t.")
     assert (settings.scenes_dir / "tiny.toml").read_text() == saved  # nothing saved
     listed = {r["id"]: r for r in client.get("/api/runs").json()}
     assert listed[st["id"]]["edited"] is True
@@ -103,6 +110,15 @@ def test_start_runs_the_edited_scene(env):
     for _ in range(2):
         again = client.get(f"/api/runs/{other['id']}").json()
         assert again["edits"] == [edit] and again["changes"] == [edit, "stepping.steps = 4"]
+    kept = (settings.runs_dir / other["id"] / "scene.toml").read_text()
+    assert "Overrides on top of this file (run.json): stepping.steps = 4." in \
+        kept.replace("\n# ", " ")
+    # an element other than the file's, alone: said too
+    linear = run_to_end(client, scene="tiny")
+    kept = (settings.runs_dir / linear["id"] / "scene.toml").read_text()
+    head, rest = kept.split("\n\n", 1)
+    assert rest == saved and " ".join(line.removeprefix("# ") for line in head.splitlines()) \
+        == f"Run {linear['id']}, the scene as it ran. It ran element linear, not the file's q3t."
 
 
 def test_the_saved_scene_rerendered_by_the_form_is_no_edit(env):
@@ -112,9 +128,10 @@ def test_the_saved_scene_rerendered_by_the_form_is_no_edit(env):
     saved = (settings.scenes_dir / "tiny.toml").read_text()
     rendered = sceneform.render(sceneform.parse(saved)["scene"])["toml"]
     assert rendered != saved and tomllib.loads(rendered)["mesh"]["edge_length"] == 0.035
-    st = run_to_end(client, scene="tiny", toml=rendered)
+    st = run_to_end(client, scene="tiny", toml=rendered, element="q3t")
     assert st["state"] == "finished" and st["edited"] is False, st
     assert st["counts"]["vertices"] == vertices(saved)
+    # the saved file with its own element: as saved, no head
     assert (settings.runs_dir / st["id"] / "scene.toml").read_text() == saved
     plain = run_to_end(client, scene="tiny")  # no text sent: the saved file, as before
     assert plain["edited"] is False

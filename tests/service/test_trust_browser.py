@@ -119,7 +119,8 @@ def test_start_with_unsaved_edits_runs_the_edit(served, browser):
     st = httpx.get(f"{url}/api/runs/{run}").json()
     # the edited mesh ran (the saved one has about a third of the vertices)
     assert st["counts"]["vertices"] == vertices(edited) != vertices(saved), st["counts"]
-    assert httpx.get(f"{url}/api/runs/{run}/scene").text == edited
+    ran = httpx.get(f"{url}/api/runs/{run}/scene").text  # under a head that says what ran
+    assert ran.split("\n\n", 1)[1] == edited and ran.startswith(f"# Run {run}, the scene as")
     assert (tmp / "scenes" / "tiny.toml").read_text() == saved  # nothing was saved
     assert "ran unsaved edits of tiny" in page.text_content("#status")
     row = page.locator(f'#runs tbody tr[data-id="{run}"]')
