@@ -140,6 +140,9 @@ def columns(run: RunFolder) -> list[tuple[str, list]]:
         if h["stroke"] is not None:
             cols.append((f"{tool} stroke [mm]", _at_steps(steps, at, h["stroke"] * MM)))
         cols.append((f"{tool} force [kN]", _at_steps(steps, at, h["force"] * DISPLAY["N"][1])))
+        if h["lateral"] is not None:  # side thrust: an axisymmetric draw's should be nil
+            cols.append((f"{tool} lateral force [kN]", _at_steps(
+                steps, at, np.linalg.norm(h["lateral"], axis=1) * DISPLAY["N"][1])))
     for name, unit in probe_units(run).items():
         shown, factor = unit_of(unit)
         values = [(r.get("probes") or {}).get(name) for r in steps]
@@ -167,8 +170,9 @@ DIGITS = 12
 
 
 def probes_csv(run: RunFolder) -> str:
-    """A row per step: step, time, each punch's stroke and force, every probe; units in the
-    header; ``DIGITS`` significant digits. A value the run could not compute (not finite) is an
+    """A row per step: step, time, each punch's stroke, force and lateral force (the size of
+    its part perpendicular to the stroke), every probe; units in the header; ``DIGITS``
+    significant digits. A value the run could not compute (not finite) is an
     empty cell."""
     cols = columns(run)
     out = io.StringIO()

@@ -57,7 +57,7 @@ def test_csv_a_row_per_step_with_units_in_the_header(cup, tmp_path):
     head, body = rows[0], rows[1:]
     # the scene's punch_force probe (the punch's z force) says what "punch force" says: once
     assert head == ["step", "time [s]", "punch stroke [mm]", "punch force [kN]",
-                    "min_thickness [mm]", "centre_dz [mm]"]
+                    "punch lateral force [kN]", "min_thickness [mm]", "centre_dz [mm]"]
     assert len(body) == len(res["steps"]) == 3
     col = {h: [float(r[i]) for r in body] for i, h in enumerate(head)}
     steps = res["steps"]
@@ -80,6 +80,10 @@ def test_csv_a_row_per_step_with_units_in_the_header(cup, tmp_path):
                                rtol=digits)
     np.testing.assert_allclose(col["punch force [kN]"],
                                [r["probes"]["punch_force"] * 1e-3 for r in steps], rtol=digits)
+    # its side thrust: the force's x and y (the stroke is along z), as the summary's peak says
+    np.testing.assert_allclose(col["punch lateral force [kN]"],
+                               [1e-3 * np.hypot(r["tools"]["punch"]["fx"], r["tools"]["punch"]["fy"])
+                                for r in steps], rtol=digits, atol=1e-15)
 
 
 def test_csv_leaves_a_released_punchs_cells_empty(cup, tmp_path):
