@@ -81,9 +81,8 @@ def test_csv_a_row_per_step_with_units_in_the_header(cup, tmp_path):
     np.testing.assert_allclose(col["punch force [kN]"],
                                [r["probes"]["punch_force"] * 1e-3 for r in steps], rtol=digits)
     # its side thrust: the force's x and y (the stroke is along z), as the summary's peak says
-    np.testing.assert_allclose(col["punch lateral force [kN]"],
-                               [1e-3 * np.hypot(r["tools"]["punch"]["fx"], r["tools"]["punch"]["fy"])
-                                for r in steps], rtol=digits, atol=1e-15)
+    side = [1e-3 * np.hypot(r["tools"]["punch"]["fx"], r["tools"]["punch"]["fy"]) for r in steps]
+    np.testing.assert_allclose(col["punch lateral force [kN]"], side, rtol=digits, atol=1e-15)
 
 
 def test_csv_leaves_a_released_punchs_cells_empty(cup, tmp_path):
