@@ -30,7 +30,7 @@ import viser
 
 from server.canvas import Canvas
 from server.replay import Replay
-from sim.stepping.parameters import LABELS
+from sim.stepping import parameters as live
 
 # the page's run controls and what each sends, in the page's order and words
 COMMANDS = {"Pause": "pause", "Resume": "resume", "Step": "step", "Stop": "stop"}
@@ -41,14 +41,18 @@ SCALED_UNITS = {"m/step": ("mm/step", 1e3), "N": ("kN", 1e-3), "Pa": ("MPa", 1e-
                 "m/s^2": ("m/s²", 1.0), "1": ("", 1.0)}
 
 
-def scaled_text(items: list[dict], value: float) -> str:
-    """``friction 0.1 × 2 = 0.2`` for each thing a multiplier scales."""
+def scaled_text(items: list[dict], value: float, others: dict[str, float]) -> str:
+    """``friction 0.1 × 2 = 0.2`` for each thing a multiplier scales; the other multipliers of
+    the same value (``also``: a tool's friction, run-wide and its own) as ``others`` holds
+    them, where they are not 1 (``die 0.1 × 2 × 1.5 = 0.3``), as the page writes it."""
     parts = []
     for it in items:
         unit, f = SCALED_UNITS.get(it["unit"], (it["unit"], 1.0))
+        factors = [value, *(a for a in (others.get(k, 1.0) for k in it.get("also", ()))
+                            if a != 1.0)]
         base = it["value"] * f
-        parts.append(f"{it['what']} {base:.4g} × {value:.4g} = {base * value:.4g}"
-                     + (f" {unit}" if unit else ""))
+        parts.append(f"{it['what']} {base:.4g} × {' × '.join(f'{a:.4g}' for a in factors)} = "
+                     f"{base * math.prod(factors):.4g}" + (f" {unit}" if unit else ""))
     return "; ".join(parts)
 
 
@@ -147,7 +151,7 @@ class ClientView:
                 if name in self.gui.sliders:
                     continue
                 value = self.parameters.get(name, 1.0)  # no run shown: as written
-                label, hint = LABELS.get(name, (name, ""))
+                label, hint = live.label(name)
                 # about 1000 steps of a round size: 1 (as written) is one of them
                 step = 10.0 ** math.floor(math.log10((hi - lo) / 1000))
                 s = g.add_slider(label, min=lo, max=hi, step=step,
@@ -171,8 +175,9 @@ class ClientView:
 
     def _show_results(self) -> None:
         """Beside each multiplier, what it makes of the scene's values (friction 0.1 × 2)."""
+        values = {n: float(h.value) for n, h in self.gui.sliders.items()}
         for name, md in self.gui.results.items():
-            text = scaled_text(self.scaled.get(name) or [], float(self.gui.sliders[name].value))
+            text = scaled_text(self.scaled.get(name) or [], values[name], values)
             text = f"<small>{text}</small>" if text else ""
             if md.content != text:
                 md.content = text
@@ -204,9 +209,15 @@ class ClientView:
             self._show_results()
 
     def _show_parameters(self, values: dict[str, float]) -> None:
-        """The sliders show the shown run's values."""
+        """The sliders show the shown run's values; its per-tool multipliers (Friction × die)
+        have a slider each while it is shown, after the run-wide ones, as on the page."""
         self.parameters = dict(values)
         self.scaled = self.actions.scaled(self.selected)
+        tools = live.per_tool_of(values)
+        for name in [n for n in self.gui.sliders if "." in n and n not in tools]:
+            self.gui.sliders.pop(name).remove()
+            self.gui.results.pop(name).remove()
+        self.add_parameters(tools)
         with self.v.from_code():
             for name, s in self.gui.sliders.items():
                 if name in values:

@@ -38,6 +38,15 @@ TOOL_LABELS = {
 }
 
 
+def label(name: str) -> tuple[str, str]:
+    """A live parameter's label and hint as the page shows them: a per-tool one's label ends
+    in its tool's name (``Friction × die``)."""
+    base, dot, tool = name.partition(".")
+    if dot and base in TOOL_LABELS:
+        return f"{TOOL_LABELS[base][0]} {tool}", TOOL_LABELS[base][1]
+    return LABELS.get(name, (name, ""))
+
+
 def log_change(log: list[dict], entry: dict) -> None:
     """Add a change ``{step, name, value}`` to a run's parameter log: a second change of the
     same parameter before the step it applies from replaces the first (only the last applies:

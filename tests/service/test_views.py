@@ -187,7 +187,11 @@ def test_a_viewers_button_on_another_views_run_says_so(client):
 def test_the_sliders_show_what_each_multiplier_makes():
     items = [{"what": "punch", "unit": "1", "value": 0.1},
              {"what": "holder", "unit": "1", "value": 0.05}]
-    assert scaled_text(items, 2.0) == "punch 0.1 × 2 = 0.2; holder 0.05 × 2 = 0.1"
+    assert scaled_text(items, 2.0, {}) == "punch 0.1 × 2 = 0.2; holder 0.05 × 2 = 0.1"
     force = [{"what": "holder", "unit": "N", "value": 20e3}]
-    assert scaled_text(force, 1.5) == "holder 20 × 1.5 = 30 kN"
-    assert scaled_text([], 2.0) == ""
+    assert scaled_text(force, 1.5, {}) == "holder 20 × 1.5 = 30 kN"
+    assert scaled_text([], 2.0, {}) == ""
+    # a tool's friction under the run-wide and its own multiplier: both, as the page writes it
+    die = [{"what": "die", "unit": "1", "value": 0.1, "also": ["friction_scale.die"]}]
+    assert scaled_text(die, 2.0, {"friction_scale.die": 1.5}) == "die 0.1 × 2 × 1.5 = 0.3"
+    assert scaled_text(die, 2.0, {"friction_scale.die": 1.0}) == "die 0.1 × 2 = 0.2"
