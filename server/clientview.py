@@ -310,6 +310,10 @@ class ClientView:
             self.status(line)
             self._say_subject()
 
+    def clear(self, line: str) -> None:
+        with self.lock:
+            self._clear(line)
+
     def _clear(self, line: str) -> None:
         self.mode, self.replay, self.previewed = "none", None, None
         self.canvas.clear()

@@ -209,5 +209,11 @@ class Viewer:
         for c in self.of_view(view):
             c.status(line)
 
+    def preview_failed(self, line: str, view: str = DEFAULT) -> None:
+        """A preview could not be built: its view shows nothing but why (not the geometry of
+        what it showed before, under words that would name the scene that failed)."""
+        for c in self.of_view(view):
+            c.clear(line)
+
     def stop(self) -> None:
         self.server.stop()

@@ -243,7 +243,7 @@ class Views:
         with self.m.lock:
             named = _named(scene, (self._get(view).preview or {}).get("edited"))
         if "error" in ev:
-            self.m.viewer.preview_status(f"Preview of {named} failed: {ev['error']}", view)
+            self.m.viewer.preview_failed(f"Preview of {named} failed: {ev['error']}", view)
             return
         self.m.viewer.show_preview(scene, ev["faces"], ev["tools"], ev["frame"],
                                    f"Preview of {named}: its blank and tools at the "

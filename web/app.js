@@ -277,11 +277,20 @@ async function saveScene() {
   }
 }
 
+function dropPreview() {
+  // a preview of the editor's edits still to be asked for would take the viewer from the run
+  // about to be shown (an edit, then Start within the preview's delay)
+  clearTimeout(state.previewTimer);
+  state.previewing = null;
+}
+
 async function startRun() {
   // runs the scene as shown (the form's or the TOML view's edits, saved or not); the server
   // validates it as a saved scene and says whether it differs from the saved file
+  dropPreview();
   try {
     await flushSync();
+    dropPreview();  // the sync's own edits may have asked for one
     if (state.tomlStale) throw new Error("the form has errors (see the fields): not started");
     const run = await api("POST", "/api/runs",
       { scene: state.scene, element: $("element").value, toml: $("toml").value });
@@ -657,6 +666,7 @@ async function main() {
       await api("DELETE", `/api/scenes/${state.scene}`);
       state.scene = null;
       await loadScenes();
+      previewScene(state.scene);  // not the deleted scene's preview left in the viewer
     } catch (e) { say(e.message, true); }
   };
   $("start").onclick = startRun;

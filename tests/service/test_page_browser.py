@@ -270,6 +270,16 @@ def test_edits_in_the_form_show_in_the_preview(served, browser):
           "selecting a run did not end the preview")
     page.click("#preview-scene")
     assert previewed(True)["scene"] == "tiny_cup"
+    # an edit, then Start within the preview's delay (800 ms): the new run is shown, and no
+    # preview asked for by the edit takes the viewer from it afterwards
+    page.fill("[name='mesh.r_outer']:not([data-old])", "13")
+    page.click("#start")
+    page.wait_for_function("document.getElementById('msg').textContent.startsWith('started ')")
+    started = page.evaluate("document.getElementById('msg').dataset.run")
+    assert started and started != run
+    page.wait_for_timeout(2000)  # past the delay: a preview would have been asked for by now
+    view = httpx.get(f"{url}/api/view", headers=own).json()
+    assert view["run"] == started and view["preview"] is None, view
     assert not errors, errors
     page.close()
 

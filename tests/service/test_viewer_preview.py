@@ -149,6 +149,8 @@ def test_a_preview_that_cannot_be_built_says_why(client, viewer):
     view = client.get("/api/view").json()
     assert view["preview"] == "failed" and view["preview_error"] == ev["error"]
     assert "Preview of scene `broken` failed" in viewer.gui.status.content
+    # nothing drawn under those words: not the geometry the view showed before
+    assert viewer.mode == "none" and viewer.previewed is None
     m.views.show_preview({**ev, "request": 6})  # an earlier request answered late: ignored
     assert client.get("/api/view").json() == view
 
