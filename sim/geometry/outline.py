@@ -41,6 +41,9 @@ DECIMALS = 9
 # the largest mesh an outline may ask for: beyond it the edge length is a slip, and gmsh would
 # take minutes and gigabytes before the model's memory check could say so
 MAX_TRIANGLES = 2_000_000
+# a blank's extent, m: larger than a press bed or smaller than a tenth of a millimetre is a
+# drawing read in other units than its scale says (a drawing in mm at scale = 1 is 1000x)
+EXTENT = (1e-4, 5.0)
 # curves of a drawing are flattened to chords this fine against the edge length, so that the
 # resampling at the edge length sees the curve, not the chords
 FLATTEN = 0.1
@@ -210,22 +213,35 @@ def meshed_loops(outline: Outline, h: float) -> list[np.ndarray]:
     return [resample(p, h) for p in (outline.outer, *outline.holes)]
 
 
+def check_extent(outline: Outline, scale: float) -> None:
+    """OutlineError naming ``scale`` when a drawing read at ``scale`` is no blank's size."""
+    ext = float(np.ptp(outline.outer, axis=0).max())
+    if not EXTENT[0] <= ext <= EXTENT[1]:
+        raise OutlineError("scale", f"absurd size: the drawing is {1e3 * ext:.3g} mm across "
+                                    f"with scale = {scale:g} (a blank is {1e3 * EXTENT[0]:g}-"
+                                    f"{1e3 * EXTENT[1]:g} mm across; a drawing in mm needs "
+                                    "scale = 0.001)")
+
+
 def check_size(outline: Outline, h: float, bands: tuple[Band, ...] = ()) -> None:
     """OutlineError naming ``edge_length`` when ``h`` is too coarse to resolve the outline
     (fewer than about four triangles across it), or naming ``refine`` when a band is not finer
     than ``h``, or either when the mesh would pass MAX_TRIANGLES."""
     width = np.sqrt(outline.area)
     if h > 0.5 * width:
-        raise OutlineError("edge_length", f"{h:.3g} m is too coarse for an outline of area "
-                                          f"{outline.area:.3g} m^2 (at most {0.5 * width:.3g} m)")
+        raise OutlineError("edge_length", f"{1e3 * h:.3g} mm is too coarse for an outline of "
+                                          f"area {1e6 * outline.area:.3g} mm² (at most "
+                                          f"{0.5e3 * width:.3g} mm)")
     for i, b in enumerate(bands):
         if b.h >= h:
-            raise OutlineError(f"refine.{i}.edge_length", f"{b.h:.3g} m is not finer than the "
-                                                          f"mesh's edge_length {h:.3g} m")
+            raise OutlineError(f"refine.{i}.edge_length", f"{1e3 * b.h:.3g} mm is not finer "
+                                                          f"than the mesh's edge_length "
+                                                          f"{1e3 * h:.3g} mm")
     n = estimate(outline, h)[1]
     if n > MAX_TRIANGLES:
-        raise OutlineError("edge_length", f"{h:.3g} m would give about {n:.3g} triangles, above "
-                                          f"{MAX_TRIANGLES:.0e}; use a coarser mesh")
+        raise OutlineError("edge_length", f"{1e3 * h:.3g} mm would give about {n:.3g} "
+                                          f"triangles, above {MAX_TRIANGLES:.0e}; use a "
+                                          "coarser mesh")
     n += sum(b.triangles(h) for b in bands)
     if n > MAX_TRIANGLES:
         raise OutlineError("refine", f"the refined rings would give about {n:.3g} triangles, "
@@ -357,6 +373,17 @@ def _read_drawing(path: Path, mtime_ns: int, size: int, scale: float, h: float) 
     return shape
 
 
+# a shape without these attributes of its own is not drawn (SVG: they default to 0), but
+# svgelements fills a rect's width and height from the root <svg>'s: an empty <rect/> read as
+# the whole page
+OWN_SIZE = {"rect": ("width", "height"), "circle": ("r",), "ellipse": ("rx", "ry")}
+
+
+def _undrawn(shape: object) -> bool:
+    own = shape.values.get("attributes") or {}
+    return not all(own.get(k) for k in OWN_SIZE.get(own.get("tag"), ()))
+
+
 def _svg_loops(path: Path, step: float) -> list[np.ndarray]:
     import svgelements as se
 
@@ -366,7 +393,7 @@ def _svg_loops(path: Path, step: float) -> list[np.ndarray]:
     to_user = ~se.Matrix(svg.viewbox_transform or "")
     loops = []
     for shape in svg.elements():
-        if not isinstance(shape, se.Shape) or isinstance(shape, se.Text):
+        if not isinstance(shape, se.Shape) or isinstance(shape, se.Text) or _undrawn(shape):
             continue
         whole = se.Path(shape) * to_user
         whole.reify()

@@ -39,7 +39,9 @@ def outline_of(spec: OutlineMesh) -> outline.Outline:
     """The outline of an ``outline`` mesh: its points or circle and holes, or its drawing's
     paths."""
     if spec.path is not None:
-        return outline.read_drawing(spec.path, spec.scale, spec.edge_length)
+        shape = outline.read_drawing(spec.path, spec.scale, spec.edge_length)
+        outline.check_extent(shape, spec.scale)
+        return shape
     return spec.shape()
 
 
@@ -136,8 +138,8 @@ def check_sheet(mesh: meshes.TriMesh, h: np.ndarray, field_name: str) -> None:
     refused: a coarse look is the user's to take."""
     length = float(np.ptp(mesh.vertices, axis=0).max())
     if h.max() > length:
-        raise ValueError(f"{field_name}: {h.max():.3g} m thick, more than the blank's largest "
-                         f"extent ({length:.3g} m): not a sheet")
+        raise ValueError(f"{field_name}: {1e3 * h.max():.3g} mm thick, more than the blank's "
+                         f"largest extent ({1e3 * length:.3g} mm): not a sheet")
 
 
 

@@ -52,8 +52,8 @@ def mesh_counts(spec: MeshSpec) -> tuple[int, int] | None:
     if spec.kind == "outline":
         try:
             n_v, n_f = outline.estimate(outline_of(spec), spec.edge_length)
-        except outline.OutlineError:  # the build says why
-            return None
+        except outline.OutlineError as exc:  # refused here, before a run is started
+            raise SceneError(f"mesh.{exc.field}: {exc}") from None
         extra = sum(b.triangles(spec.edge_length) for b in spec.bands)
         return n_v + int(extra / 2), n_f + int(extra)  # Euler: about a vertex per two
     e = spec.edge_length

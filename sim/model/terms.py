@@ -154,8 +154,9 @@ def check_start(scene: Scene, shell: Shell, tools: list[ToolContact], x0: np.nda
             x, y, _ = shell.mesh.vertices[v]
             raise SceneError(
                 f"tools.{i}: tool {scene.tools[i].name!r}: the blank starts inside it, "
-                f"{depth[v]:.3g} m deep at (x, y) = ({x:.3g} m, {y:.3g} m), {share[v]:.0%} of "
-                f"the sheet's thickness there ({shell.thickness[v]:.3g} m): place the tool "
+                f"{1e3 * depth[v]:.3g} mm deep at (x, y) = ({1e3 * x:.3g} mm, {1e3 * y:.3g} mm), "
+                f"{share[v]:.0%} of the sheet's thickness there ({1e3 * shell.thickness[v]:.3g} "
+                "mm): place the tool "
                 "clear of the sheet (its shape's position) or check shell.thickness")
 
 def external_force(scene: Scene, shell: Shell, rule: Rule, elastic: Elasticity,

@@ -244,7 +244,8 @@ def band(formed: Formed, z1: float, z2: float) -> np.ndarray:
                      ) if len(ids) else 360.0
     if len(ids) < 3 or gap > 30.0 or patches(formed.shell.mesh.faces[ids]).max() > 0:
         raise SplitRingError(f"heights: {1e3 * z1:g}-{1e3 * z2:g} mm is not one closed ring "
-                             "around the axis (a band that narrow misses elements: widen it)")
+                             "around the axis: the elements whose centres lie in the band "
+                             "leave gaps (widen it, or cut from a run on a finer mesh)")
     return ids
 
 

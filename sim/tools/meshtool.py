@@ -104,12 +104,13 @@ def read_surface(path: str | Path, opts: MeshOptions,
 def _size_problem(V: np.ndarray, opts: MeshOptions) -> str | None:
     ext = float((V.max(0) - V.min(0)).max())
     if not MIN_EXTENT <= ext <= MAX_EXTENT:
-        return (f"absurd size: {ext:.3g} m across with scale = {opts.scale:g} (a tool is "
-                f"{MIN_EXTENT:g}-{MAX_EXTENT:g} m; a file in mm needs scale = 0.001)")
+        return (f"absurd size: {1e3 * ext:.3g} mm across with scale = {opts.scale:g} (a tool "
+                f"is {1e3 * MIN_EXTENT:g}-{1e3 * MAX_EXTENT:g} mm across; a file in mm needs "
+                "scale = 0.001)")
     cells = (V.max(0) - V.min(0)) / opts.spacing + 2 * (BRICK + 2)
     if float(np.prod(cells)) > MAX_NODES:
-        return (f"spacing {opts.spacing:g} m is too fine for a tool {ext:.3g} m across (over "
-                f"{MAX_NODES:.0e} grid nodes): give a larger spacing")
+        return (f"spacing {1e3 * opts.spacing:g} mm is too fine for a tool {1e3 * ext:.3g} mm "
+                f"across (over {MAX_NODES:.0e} grid nodes): give a larger spacing")
     return None
 
 

@@ -43,8 +43,8 @@ def outline_toml(**fields) -> str:
      "mesh: points: the outline is not a simple closed curve: Self-intersection[0.05 0.05]"),
     ({"points": SQUARE, "holes": "[[[0.2, 0.2], [0.3, 0.2], [0.3, 0.3]]]"},
      "mesh: holes.0: hole 0 does not lie inside the outline"),
-    ({"points": SQUARE, "edge_length": "0.08"}, "mesh: edge_length: 0.08 m is too coarse"),
-    ({"points": SQUARE, "edge_length": "1e-6"}, "mesh: edge_length: 1e-06 m would give"),
+    ({"points": SQUARE, "edge_length": "0.08"}, "mesh: edge_length: 80 mm is too coarse"),
+    ({"points": SQUARE, "edge_length": "1e-6"}, "mesh: edge_length: 0.001 mm would give"),
     ({}, "mesh: give exactly one of points, path, circle (got none)"),
     ({"points": SQUARE, "path": '"b.svg"'},
      "mesh: give exactly one of points, path, circle (got points, path)"),
@@ -66,7 +66,7 @@ def outline_toml(**fields) -> str:
     ({"circle": "{ radius = 0.05 }", "holes": "[[[0.06, 0.0], [0.08, 0.0], [0.07, 0.01]]]"},
      "mesh: holes.0: hole 0 does not lie inside the outline"),
     ({"circle": "{ radius = 0.05 }", "edge_length": "0.05"},
-     "mesh: edge_length: 0.05 m is too coarse"),
+     "mesh: edge_length: 50 mm is too coarse"),
 ])
 def test_bad_outline_is_refused_naming_the_field(fields, words):
     with pytest.raises(SceneError) as err:
@@ -152,16 +152,30 @@ def test_points_and_drawing_give_the_same_blank(tmp_path):
         assert n_f == pytest.approx(len(m.faces), rel=0.1)
 
 
-def test_a_bad_drawing_fails_the_build_naming_mesh_path(tmp_path):
-    (tmp_path / "open.svg").write_text('<svg xmlns="http://www.w3.org/2000/svg">'
-                                       '<path d="M 0 0 L 100 0 L 100 100"/></svg>')
-    for name, words in (("none.svg", "mesh.path: no drawing"),
-                        ("open.svg", "mesh.path: open.svg: an open path")):
-        (tmp_path / "s.toml").write_text(outline_toml(path=f'"{name}"', scale="0.001"))
+def test_a_bad_drawing_is_refused_naming_the_field(tmp_path):
+    """By the model's size check, before a run starts (a 422 from the service), and by the
+    build: a drawing that is missing, has an open path or only an empty rect (svgelements
+    read it as the whole page), or is read in other units than its scale says."""
+    svg = '<svg xmlns="http://www.w3.org/2000/svg" width="60mm" height="40mm" ' \
+          'viewBox="0 0 60 40">{}</svg>'
+    (tmp_path / "open.svg").write_text(svg.format('<path d="M 0 0 L 100 0 L 100 100"/>'))
+    (tmp_path / "empty.svg").write_text(svg.format("<rect/>"))
+    (tmp_path / "mm.svg").write_text(svg.format('<rect width="60" height="40"/>'))
+    for name, scale, words in (
+            ("none.svg", "0.001", "mesh.path: no drawing"),
+            ("open.svg", "0.001", "mesh.path: open.svg: an open path"),
+            ("empty.svg", "0.001", "mesh.path: empty.svg: no closed path"),
+            ("mm.svg", "1", "mesh.scale: absurd size: the drawing is 6e.04 mm across with "
+                            "scale = 1 .a blank is 0.1-5000 mm across; a drawing in mm needs "
+                            "scale = 0.001.")):
+        (tmp_path / "s.toml").write_text(outline_toml(path=f'"{name}"', scale=scale))
         sc = load_scene(tmp_path / "s.toml")
-        assert size.mesh_counts(sc.mesh) is None  # the build says why
+        with pytest.raises(SceneError, match=words):
+            size.mesh_counts(sc.mesh)
         with pytest.raises(ValueError, match=words):
             mesh_and_thickness(sc)
+    (tmp_path / "s.toml").write_text(outline_toml(path='"mm.svg"', scale="0.001"))
+    assert size.mesh_counts(load_scene(tmp_path / "s.toml").mesh)[1] > 0  # in mm: a blank
 
 
 def test_the_service_reads_drawings_from_its_scenes_folder_only(tmp_path):
@@ -200,7 +214,7 @@ def test_refined_outline_builds_finer_where_asked():
     ("[{ ring = { r_min = 0.04, r_max = 0.02 }, edge_length = 0.001 }]",
      "mesh.refine.0: ring: r_min must be smaller than r_max"),
     ("[{ ring = { r_max = 0.02 }, edge_length = 0.01 }]",
-     "mesh: refine.0.edge_length: 0.01 m is not finer"),
+     "mesh: refine.0.edge_length: 10 mm is not finer"),
     ("[{ ring = { r_max = 0.02 }, edge_length = -0.001 }]", "mesh.refine.0.edge_length"),
     ("[{ ring = { r_max = 0.02 }, edge_length = 0.001, growth = 0.0 }]",
      "mesh.refine.0.growth"),

@@ -198,9 +198,9 @@ def test_a_sheet_thicker_than_wide_or_inside_a_tool_is_refused_naming_the_field(
     from sim.model.build import build_model
 
     cup = ROOT / "scenes" / "cup_drawing.toml"
-    with pytest.raises(ValueError, match=r"^shell\.thickness: 5 m thick, more than the "
-                                         r"blank's largest extent \(0\.06 m\): not a sheet"):
+    with pytest.raises(ValueError, match=r"^shell\.thickness: 5e\+03 mm thick, more than the "
+                                         r"blank's largest extent \(60 mm\): not a sheet"):
         build_model(load_scene(cup, {"shell.thickness": 5.0}))
     with pytest.raises(SceneError, match=r"^tools\.0: tool 'punch': the blank starts inside "
-                                         r"it, 0\.0165 m deep at \(x, y\) = \(0 m, 0 m\)"):
+                                         r"it, 16\.5 mm deep at \(x, y\) = \(0 mm, 0 mm\)"):
         build_model(load_scene(cup, {"shell.thickness": 0.05}))
