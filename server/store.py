@@ -199,7 +199,7 @@ class SceneStore:
         path = self.path(name)
         scene = self.validate(text)
         if not exclusive_write(path, text):
-            raise Conflict(f"scene {name!r} exists; use PUT to change it")
+            raise Conflict(f"scene {name!r} exists: choose another name (a save replaces it)")
         return scene
 
     def delete(self, name: str) -> None:

@@ -23,7 +23,10 @@ async function api(method, url, body) {
   const data = r.status === 204 ? null : await r.json().catch(() => null);
   if (!r.ok) {
     const d = data && data.detail;
-    const err = new Error(typeof d === "string" ? d : JSON.stringify(d));
+    // a field of the request's JSON is the field the user typed in: "name: ...", not
+    // "body.name: ..." (the API's own word for where)
+    const text = typeof d === "string" ? d.replace(/(^|; )body\./g, "$1") : JSON.stringify(d);
+    const err = new Error(text);
     err.status = r.status;
     throw err;
   }

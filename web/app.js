@@ -84,6 +84,7 @@ function say(text, isError, run) {
   $("msg").textContent = isError ? Units.shownMessage(text) : text;
   $("msg").style.color = isError ? "#b00" : "#555";
   $("msg").dataset.run = run || "";
+  $("msg").dataset.preview = "";
 }
 
 async function loadScenes() {
@@ -116,7 +117,14 @@ function previewScene(name, toml) {
   if (!$("viewer")) return;  // no viewer here to show it in
   state.previewing = name;  // before the next poll says so: the edits that follow show too
   api("PUT", "/api/view/scene", toml === undefined ? { scene: name } : { scene: name, toml })
-    .catch((e) => say(`preview of ${name}: ${e.message}`, true));
+    .then(() => {
+      // a refused preview's error goes once a preview is taken: the edits that fixed it
+      if ($("msg").dataset.preview) say("");
+    })
+    .catch((e) => {
+      say(`preview of ${name}: ${e.message}`, true);
+      $("msg").dataset.preview = name;
+    });
 }
 
 async function previewEditor() {

@@ -127,6 +127,15 @@ def test_a_form_edit_saved_keeps_the_files_comments(page, served):
 
 def test_a_duplicate_takes_its_name_and_a_failed_save_says_so(page, served):
     url, scenes = served
+    # a name taken, or no name at all: said in the user's words (not "use PUT", "body.name")
+    page.once("dialog", lambda d: d.accept("cup"))
+    page.click("#duplicate")
+    page.wait_for_function("document.getElementById('msg').textContent !== ''")
+    assert page.text_content("#msg") == "scene 'cup' exists: choose another name (a save " \
+        "replaces it)"
+    page.once("dialog", lambda d: d.accept("a b/c"))
+    page.click("#duplicate")
+    page.wait_for_function("document.getElementById('msg').textContent.startsWith('name: ')")
     page.once("dialog", lambda d: d.accept("cup-copy"))
     page.click("#duplicate")
     page.wait_for_function("document.getElementById('scene-name').value === 'cup-copy'")

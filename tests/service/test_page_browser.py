@@ -270,6 +270,14 @@ def test_edits_in_the_form_show_in_the_preview(served, browser):
           "selecting a run did not end the preview")
     page.click("#preview-scene")
     assert previewed(True)["scene"] == "tiny_cup"
+    # an edit the preview refuses (a model too large to build) says so; the edit that fixes
+    # it takes the error away with the preview it gets
+    page.fill("[name='mesh.edge_length']:not([data-old])", "0.01")  # mm, on a 26 mm blank
+    page.wait_for_function("document.getElementById('msg').textContent.startsWith("
+                           "'preview of tiny_cup: mesh.edge_length: the model would have')")
+    page.fill("[name='mesh.edge_length']:not([data-old])", "3")
+    page.wait_for_function("document.getElementById('msg').textContent === ''")
+    previewed(True)
     # an edit, then Start within the preview's delay (800 ms): the new run is shown, and no
     # preview asked for by the edit takes the viewer from it afterwards
     page.fill("[name='mesh.r_outer']:not([data-old])", "13")
