@@ -89,6 +89,17 @@ class DiskMesh(_Generated):
     kind: Literal["disk"] = doc("a disk in z = 0 centred on the z axis")
     r_outer: Length = doc("the disk's radius", "m")
 
+    @model_validator(mode="after")
+    def _resolved(self) -> Self:
+        # an edge longer than the radius makes a hexagon of six triangles, no disk: a typo (an
+        # edge length of 5 m on a 60 mm blank ran and "finished"). A coarse mesh short of that
+        # is the user's look to take.
+        if self.edge_length > self.r_outer:
+            raise ValueError(f"edge_length: {1e3 * self.edge_length:.4g} mm is longer than the "
+                             f"disk's radius ({1e3 * self.r_outer:.4g} mm): at most that, a "
+                             "hexagon of six triangles")
+        return self
+
     def radial_ranges(self) -> footprint.RadialRanges:
         return footprint.annulus_ranges(0.0, self.r_outer, self.edge_length)
 

@@ -204,3 +204,13 @@ def test_a_sheet_thicker_than_wide_or_inside_a_tool_is_refused_naming_the_field(
     with pytest.raises(SceneError, match=r"^tools\.0: tool 'punch': the blank starts inside "
                                          r"it, 16\.5 mm deep at \(x, y\) = \(0 mm, 0 mm\)"):
         build_model(load_scene(cup, {"shell.thickness": 0.05}))
+
+
+def test_a_disk_meshed_coarser_than_its_radius_is_refused_naming_the_edge_length():
+    """A browser review set the cup's edge length to 5 m: six triangles ran and "finished"
+    with a full summary. An edge up to the radius is taken (a coarse look is the user's)."""
+    cup = ROOT / "scenes" / "cup_drawing.toml"
+    with pytest.raises(SceneError, match=r"mesh: edge_length: 5000 mm is longer than the disk's "
+                                         r"radius \(30 mm\)"):
+        load_scene(cup, {"mesh.edge_length": 5.0})
+    assert load_scene(cup, {"mesh.edge_length": 0.03}).mesh.edge_length == 0.03
