@@ -153,6 +153,15 @@ def test_results_of_a_finished_run(plain, browser):
         ticks = page.eval_on_selector_all("#solver-plot .y2tick text",
                                           "ts => ts.map(t => t.textContent)")
         assert ticks and all(t.isdigit() for t in ticks), ticks
+        # at 1280 x 720 the headline shows a row of the summary's cards, values and all (a
+        # review saw their titles only); the page scrolls for the rest
+        page.set_viewport_size({"width": 1280, "height": 720})
+        page.wait_for_timeout(300)
+        assert page.evaluate("""() => {
+            const h = document.getElementById("headline").getBoundingClientRect();
+            const v = document.querySelector("#summary .quantity .value").getBoundingClientRect();
+            return v.top >= h.top && v.bottom <= h.bottom; }""")
+        page.set_viewport_size({"width": 1400, "height": 1000})
         # a long summary scrolls in its headline: the 3-D view stays above the Runs table
         page.evaluate("""() => { const s = document.getElementById("summary");
             const card = s.querySelector(".quantity");
