@@ -75,6 +75,11 @@ N_TIE = 3
 # the thickness strain's tying points: the corners, where the barycentric weights are
 # 1 - u - v, u and v
 CORNERS = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+# The basis rows of a level (_level_rows) that can be nonzero in a node's columns, by its vertex
+# a % 3 (nodes layer-major, the vertices at (1, 0), (0, 1), (0, 0)): dN/dr vanishes at the
+# vertex (0, 1), dN/ds at (1, 0), dN/dw at each tying point on the vertex off its edge and at
+# each corner on the other vertices. _congruence sums only these; Tying checks the rest are 0.
+LIVE_ROWS = ((0, 2, 3, 5, 7), (1, 2, 4, 5, 8), (0, 1, 2, 3, 4, 5, 6))
 
 
 class Tying:
@@ -121,6 +126,25 @@ class Tying:
                     and all(np.array_equal(d[:, :2], inplane) for d in self.dNt[lev])
                     and all(np.array_equal(d[:, :2], inplane) for d in dNc[lev])):
                 raise ValueError("assumed-strain elements need a prism linear in-plane")
+            for a in range(el.n_nodes):
+                if not np.all(_basis_rows_zero(self.dNq[self.lev_ptr[lev]], self.dNt[lev],
+                                               self.dNc[lev], a)[_dead_rows(a)]):
+                    raise ValueError("assumed-strain elements need the prism's vertex order "
+                                     "(sim.terms.ans.LIVE_ROWS)")
+
+
+def _basis_rows_zero(dN: np.ndarray, dNt: np.ndarray, dNc: np.ndarray, a: int) -> np.ndarray:
+    """(9,) bool: which of a level's basis rows (:func:`_level_rows`) vanish at node a
+    whatever the displacement, from dN (n_en, 3) at a point, dNt (3, n_en, 3) at the tying
+    points and dNc (3, n_en) at the corners."""
+    r, s = dN[a, 0] == 0.0, dN[a, 1] == 0.0
+    return np.array([r, s, r and s, r and dNt[0, a, 2] == 0.0, s and dNt[1, a, 2] == 0.0,
+                     r and s and dNt[2, a, 2] == 0.0, dNc[0, a] == 0.0, dNc[1, a] == 0.0,
+                     dNc[2, a] == 0.0])
+
+
+def _dead_rows(a: int) -> np.ndarray:
+    return np.setdiff1d(np.arange(9), LIVE_ROWS[a % 3])
 
 
 @njit(cache=True, inline='always')
@@ -251,49 +275,53 @@ VOIGT = np.array([[0, 0], [1, 1], [2, 2], [0, 1], [0, 2], [1, 2]])
 
 
 @njit(cache=True, inline='always')
-def _to_natural(A: np.ndarray, Sh: np.ndarray, Sn: np.ndarray) -> None:
-    """Sn = A Sh A^T: a stress of the E^ frame as the contravariant natural components."""
+def _to_natural(bt: np.ndarray, ia: int, Sh: np.ndarray, js: int, Sn: np.ndarray,
+                jn: int) -> None:
+    """Sn[jn] = A Sh[js] A^T, A = bt[ia]: a stress of the E^ frame as the contravariant natural
+    components. The 3 x 3s by their index in a stack, not as views: each view or array handed
+    to a function is a reference count taken and dropped, per point."""
     for i in range(3):
         for j in range(i, 3):
             acc = 0.0
             for I in range(3):  # noqa: E741
                 for J in range(3):
-                    acc += A[i, I] * Sh[I, J] * A[j, J]
-            Sn[i, j] = acc
-            Sn[j, i] = acc
+                    acc += bt[ia, i, I] * Sh[js, I, J] * bt[ia, j, J]
+            Sn[jn, i, j] = acc
+            Sn[jn, j, i] = acc
 
 
 @njit(cache=True)
-def _neo_hookean_natural(Eh: np.ndarray, A: np.ndarray, mu: float, lam: float, want: int,
-                         Sn: np.ndarray, Dv: np.ndarray, Ci: np.ndarray,
-                         Gi: np.ndarray) -> float:
-    """Neo-Hookean in closed form, no eigen-decomposition: W; for want >= 1 the natural stress
-    Sn = A S^ A^T with S^ = 2 mu C^-1 E^ + lam ln J C^-1 (= mu (I - C^-1) + lam ln J C^-1,
-    without its cancellation at small strain); for want == 2 the natural tangent
-    Dv = lam g g + (mu - lam ln J) (g g + g g) over the rows, g = A C^-1 A^T. Scratch: Ci, Gi."""
-    W, lj = neo_hookean_green(Eh, mu, lam)
+def _neo_hookean_natural(bt: np.ndarray, b: int, mu: float, lam: float, want: int,
+                         m3: np.ndarray, Dv: np.ndarray) -> float:
+    """Neo-Hookean in closed form, no eigen-decomposition, at E^ = bt[b] with A = bt[3 + b]
+    (:func:`_ans_block`'s stack): W; for want >= 1 the natural stress Sn = m3[1] = A S^ A^T
+    with S^ = 2 mu C^-1 E^ + lam ln J C^-1 (= mu (I - C^-1) + lam ln J C^-1, without its
+    cancellation at small strain); for want == 2 the natural tangent
+    Dv = lam g g + (mu - lam ln J) (g g + g g) over the rows, g = A C^-1 A^T. Scratch: m3[2],
+    m3[4]. The arrays are stacks indexed here (:func:`_to_natural`)."""
+    W, lj = neo_hookean_green(bt[b], mu, lam)
     if want == 0 or not np.isfinite(W):
         return W
-    c00, c11, c22 = 1.0 + 2.0 * Eh[0, 0], 1.0 + 2.0 * Eh[1, 1], 1.0 + 2.0 * Eh[2, 2]
-    c01, c02, c12 = 2.0 * Eh[0, 1], 2.0 * Eh[0, 2], 2.0 * Eh[1, 2]
-    Ci[0, 0] = c11 * c22 - c12 * c12
-    Ci[1, 1] = c00 * c22 - c02 * c02
-    Ci[2, 2] = c00 * c11 - c01 * c01
-    Ci[0, 1] = Ci[1, 0] = c02 * c12 - c01 * c22
-    Ci[0, 2] = Ci[2, 0] = c01 * c12 - c02 * c11
-    Ci[1, 2] = Ci[2, 1] = c01 * c02 - c00 * c12
-    det = c00 * Ci[0, 0] + c01 * Ci[0, 1] + c02 * Ci[0, 2]
+    c00, c11, c22 = 1.0 + 2.0 * bt[b, 0, 0], 1.0 + 2.0 * bt[b, 1, 1], 1.0 + 2.0 * bt[b, 2, 2]
+    c01, c02, c12 = 2.0 * bt[b, 0, 1], 2.0 * bt[b, 0, 2], 2.0 * bt[b, 1, 2]
+    m3[4, 0, 0] = c11 * c22 - c12 * c12
+    m3[4, 1, 1] = c00 * c22 - c02 * c02
+    m3[4, 2, 2] = c00 * c11 - c01 * c01
+    m3[4, 0, 1] = m3[4, 1, 0] = c02 * c12 - c01 * c22
+    m3[4, 0, 2] = m3[4, 2, 0] = c01 * c12 - c02 * c11
+    m3[4, 1, 2] = m3[4, 2, 1] = c01 * c02 - c00 * c12
+    det = c00 * m3[4, 0, 0] + c01 * m3[4, 0, 1] + c02 * m3[4, 0, 2]
     for i in range(3):
         for j in range(3):
-            Ci[i, j] /= det
-    for i in range(3):  # S^ into Gi (scratch), then to natural
+            m3[4, i, j] /= det
+    for i in range(3):  # S^ into m3[2] (scratch), then to natural
         for j in range(3):
-            Gi[i, j] = (2.0 * mu * (Ci[i, 0] * Eh[0, j] + Ci[i, 1] * Eh[1, j]
-                                     + Ci[i, 2] * Eh[2, j]) + lam * lj * Ci[i, j])
-    _to_natural(A, Gi, Sn)
+            m3[2, i, j] = (2.0 * mu * (m3[4, i, 0] * bt[b, 0, j] + m3[4, i, 1] * bt[b, 1, j]
+                                       + m3[4, i, 2] * bt[b, 2, j]) + lam * lj * m3[4, i, j])
+    _to_natural(bt, 3 + b, m3, 2, m3, 1)
     if want < 2:
         return W
-    _to_natural(A, Ci, Gi)
+    _to_natural(bt, 3 + b, m3, 4, m3, 2)
     c = mu - lam * lj
     for v in range(6):  # symmetric but for the products' round-off: the upper half, mirrored
         i, j = VOIGT[v, 0], VOIGT[v, 1]
@@ -301,8 +329,8 @@ def _neo_hookean_natural(Eh: np.ndarray, A: np.ndarray, mu: float, lam: float, w
         for u in range(v, 6):
             k, ll = VOIGT[u, 0], VOIGT[u, 1]
             mu_ = 1.0 if k == ll else 2.0
-            d = mv * mu_ * (lam * Gi[i, j] * Gi[k, ll]
-                            + c * (Gi[i, k] * Gi[j, ll] + Gi[i, ll] * Gi[j, k]))
+            d = mv * mu_ * (lam * m3[2, i, j] * m3[2, k, ll]
+                            + c * (m3[2, i, k] * m3[2, j, ll] + m3[2, i, ll] * m3[2, j, k]))
             Dv[v, u] = d
             Dv[u, v] = d
     return W
@@ -567,23 +595,36 @@ def _congruence(P: np.ndarray, T: np.ndarray, K: np.ndarray) -> None:
     diagonal on, nine rows of T per pass, so that the column loops are contiguous and
     vectorise and each entry of K is loaded and stored once per nine. The lower triangle,
     which nothing reads (the scatter, the initial-stress term and the element's projection
-    take the upper), would double the arithmetic."""
+    take the upper), would double the arithmetic. Row p of K sums only the basis rows alive
+    at its node (LIVE_ROWS, checked by :class:`Tying`), in the same order as all nine: the
+    others' products are zeros, and dropping them changes no bit of K."""
     nr, k = P.shape
     uk = np.uint64(k)
     for p in range(k):
         kr = K[p]
         up = np.uint64(p)
+        vertex = (p // 3) % 3
         for col in range(up, uk):
             kr[col] = 0.0
         for c in range(0, nr, 9):
-            p0, p1, p2 = P[c, p], P[c + 1, p], P[c + 2, p]
-            p3, p4, p5 = P[c + 3, p], P[c + 4, p], P[c + 5, p]
-            p6, p7, p8 = P[c + 6, p], P[c + 7, p], P[c + 8, p]
             t = T[c:c + 9]
-            for col in range(up, uk):
-                kr[col] += ((((p0 * t[0, col] + p1 * t[1, col]) + p2 * t[2, col])
-                             + ((p3 * t[3, col] + p4 * t[4, col]) + p5 * t[5, col]))
-                            + ((p6 * t[6, col] + p7 * t[7, col]) + p8 * t[8, col]))
+            if vertex == 0:
+                p0, p2, p3, p5, p7 = P[c, p], P[c + 2, p], P[c + 3, p], P[c + 5, p], P[c + 7, p]
+                for col in range(up, uk):
+                    kr[col] += (((p0 * t[0, col] + p2 * t[2, col])
+                                 + (p3 * t[3, col] + p5 * t[5, col])) + p7 * t[7, col])
+            elif vertex == 1:
+                p1, p2, p4, p5, p8 = P[c + 1, p], P[c + 2, p], P[c + 4, p], P[c + 5, p], P[c + 8, p]
+                for col in range(up, uk):
+                    kr[col] += (((p1 * t[1, col] + p2 * t[2, col])
+                                 + (p4 * t[4, col] + p5 * t[5, col])) + p8 * t[8, col])
+            else:
+                p0, p1, p2 = P[c, p], P[c + 1, p], P[c + 2, p]
+                p3, p4, p5, p6 = P[c + 3, p], P[c + 4, p], P[c + 5, p], P[c + 6, p]
+                for col in range(up, uk):
+                    kr[col] += ((((p0 * t[0, col] + p1 * t[1, col]) + p2 * t[2, col])
+                                 + ((p3 * t[3, col] + p4 * t[4, col]) + p5 * t[5, col]))
+                                + p6 * t[6, col])
 
 
 @njit(cache=True, inline='always')
@@ -651,7 +692,7 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple, 
     per level instead of one of 6 rows per point; the levels' rows are stacked so that one
     product :func:`_congruence` forms all of it. Scratch, made once for the share's elements:
     Kg (n_en, n_en); P and T (9 n_lev, k), level l's rows from 9 l on; Mb (9, 9), Hs (3 +
-    n_in, 3, 3) (:func:`_level_gradients`), u (n_en, 3); 3 x 3s (en, Sn, sig, M, Ci, hc, and
+    n_in, 3, 3) (:func:`_level_gradients`), u (n_en, 3); 3 x 3s (en, Sn, a scratch, M, Ci, hc, and
     m2 (2, 3, 3) for :func:`_principal_natural`); three points' E^, A, E^'s eigenvectors
     (3, 3, 3) and eigenvalues (3, 3); Dv, Dp (6, 6) and cv (2, 6, 6); gv (9,), tv, tw (3,); v3
     (9, 3); kq (n_en + 10, max(n_en, 6)), the projections' (a point's 6 x 6 in 8 rows, Kg's in
@@ -678,7 +719,7 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple, 
     m3, bt, sc = np.empty((8, 3, 3)), np.empty((10, 3, 3)), np.empty((4, 6, 6))
     gvs, v3 = np.empty((3, nbp)), np.empty((9, 3))
     kq, vg = np.empty((n_en + 10, max(n_en, 6))), np.empty((2, n_en))
-    en, Sn, sig, M, Ci, hc, m2 = m3[0], m3[1], m3[2], m3[3], m3[4], m3[5], m3[6:]
+    en, Sn, M, Ci, hc, m2 = m3[0], m3[1], m3[3], m3[4], m3[5], m3[6:]
     Ehs, As, Vs, lams = bt[0:3], bt[3:6], bt[6:9], bt[9]
     Dv, Dp, cv = sc[0], sc[3], sc[1:3]
     gv, tv, tw = gvs[0], gvs[1, :3], gvs[2, :3]
@@ -743,8 +784,7 @@ def _ans_block(x: np.ndarray, rest: np.ndarray, conn: np.ndarray, tying: tuple, 
                         W = _point_energy(model, closed, Ehs, lams, Vs, b, params, frames, e, epq,
                                           cl, M, w6)
                     elif closed:
-                        W = _neo_hookean_natural(Ehs[b], A, params[0], params[1], want, Sn, Dv, Ci,
-                                                 sig)
+                        W = _neo_hookean_natural(bt, b, params[0], params[1], want, m3, Dv)
                     elif model == HILL48:
                         W = _hill_natural(lams[b], Vs[b], A, params, frames[e], epq, want, psd, Sn,
                                           Dv, M, cv, Dp, Ci, v3, kqh)
