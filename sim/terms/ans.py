@@ -259,15 +259,24 @@ def _map(A0: np.ndarray, e: int, q: int, plastic: bool, fp_inv: np.ndarray,
 
 
 @njit(cache=True, inline='always')
-def _tie_rows(dNt: np.ndarray, Gt: np.ndarray, e: int, lt: int, Hs: np.ndarray, t: int, i: int,
-              P: np.ndarray, row: int, sign: float) -> None:
-    """P[row] += sign de_iw/du (node-major DoF 3 a + k) at the tying point ``lt`` of dNt and Gt
-    (level-major), Hs[t] its displacement gradient: 1/2 (g_i dN_w + g_w dN_i)."""
-    for a in range(dNt.shape[1]):
-        for k in range(3):
-            P[row, 3 * a + k] += sign * 0.5 * (
-                (Gt[e, lt, k, i] + Hs[t, k, i]) * dNt[lt, a, 2]
-                + (Gt[e, lt, k, 2] + Hs[t, k, 2]) * dNt[lt, a, i])
+def _tie_rows(dNt: np.ndarray, Gt: np.ndarray, e: int, t0: int, Hs: np.ndarray, P: np.ndarray,
+              r0: int) -> None:
+    """The tied shear rows into P[r0 + 3], P[r0 + 4], P[r0 + 5] (node-major DoF 3 a + k): de_rw
+    at A, de_sw at B and de_sw - de_rw at C, the tying points t0, t0 + 1, t0 + 2 of dNt and Gt
+    (level-major), Hs[0], Hs[1], Hs[2] their displacement gradients; de_iw/du = 1/2 (g_i dN_w +
+    g_w dN_i). Stored in one pass, each entry once."""
+    tA, tB, tC = t0, t0 + 1, t0 + 2
+    for k in range(3):
+        gAr, gAw = Gt[e, tA, k, 0] + Hs[0, k, 0], Gt[e, tA, k, 2] + Hs[0, k, 2]
+        gBs, gBw = Gt[e, tB, k, 1] + Hs[1, k, 1], Gt[e, tB, k, 2] + Hs[1, k, 2]
+        gCr, gCs = Gt[e, tC, k, 0] + Hs[2, k, 0], Gt[e, tC, k, 1] + Hs[2, k, 1]
+        gCw = Gt[e, tC, k, 2] + Hs[2, k, 2]
+        for a in range(dNt.shape[1]):
+            p = 3 * a + k
+            P[r0 + 3, p] = 0.5 * (gAr * dNt[tA, a, 2] + gAw * dNt[tA, a, 0])
+            P[r0 + 4, p] = 0.5 * (gBs * dNt[tB, a, 2] + gBw * dNt[tB, a, 1])
+            P[r0 + 5, p] = (0.5 * (gCs * dNt[tC, a, 2] + gCw * dNt[tC, a, 1])
+                            - 0.5 * (gCr * dNt[tC, a, 2] + gCw * dNt[tC, a, 0]))
 
 
 # natural strain components in row order: rr, ss, ww, rs, rw, sw
@@ -486,14 +495,7 @@ def _level_rows(dNq: np.ndarray, q0: int, dNt: np.ndarray, Gq: np.ndarray, Gt: n
     ``Hs[:3]`` at A, B, C) and de_ww at the three corners (dNc, Gw and ``hc`` as
     :func:`_corner_thickness` takes and gives them); every strain row of the level is a
     combination of these (:func:`_add_point_tangent`)."""
-    for t in range(3, 6):
-        for p in range(P.shape[1]):
-            P[r0 + t, p] = 0.0
-    t0 = 3 * lev
-    _tie_rows(dNt, Gt, e, t0, Hs, 0, 0, P, r0 + 3, 1.0)
-    _tie_rows(dNt, Gt, e, t0 + 1, Hs, 1, 1, P, r0 + 4, 1.0)
-    _tie_rows(dNt, Gt, e, t0 + 2, Hs, 2, 1, P, r0 + 5, 1.0)
-    _tie_rows(dNt, Gt, e, t0 + 2, Hs, 2, 0, P, r0 + 5, -1.0)
+    _tie_rows(dNt, Gt, e, 3 * lev, Hs, P, r0)
     for a in range(dNq.shape[1]):
         d0, d1 = dNq[q0, a, 0], dNq[q0, a, 1]
         for kk in range(3):
@@ -589,42 +591,73 @@ def _material_rows(P: np.ndarray, Mb: np.ndarray, T: np.ndarray, r0: int) -> Non
 
 
 @njit(cache=True, inline='always')
-def _congruence(P: np.ndarray, T: np.ndarray, K: np.ndarray) -> None:
+def _congruence(P: np.ndarray, T: np.ndarray, K: np.ndarray) -> None:  # noqa: C901
     """K (upper triangle) = P^T T, the material part sum_l P_l^T Mb_l P_l of all levels at
-    once (rows of P and T stacked, ``(n_r, k)``, n_r a multiple of 9): each row of K from its
-    diagonal on, nine rows of T per pass, so that the column loops are contiguous and
-    vectorise and each entry of K is loaded and stored once per nine. The lower triangle,
-    which nothing reads (the scatter, the initial-stress term and the element's projection
-    take the upper), would double the arithmetic. Row p of K sums only the basis rows alive
-    at its node (LIVE_ROWS, checked by :class:`Tying`), in the same order as all nine: the
+    once (rows of P and T stacked, ``(n_r, k)``, n_r a multiple of 9). A node's three rows of
+    K at a time, from its diagonal block on, in one pass over the columns per level: the
+    column loops are contiguous and vectorise, and each entry of T is loaded once per node,
+    not once per row. The lower triangle, which nothing reads (the scatter, the
+    initial-stress term and the element's projection take the upper), would double the
+    arithmetic; the node's diagonal block is formed whole. A node's rows sum only the basis
+    rows alive there (LIVE_ROWS, checked by :class:`Tying`), in the order of all nine: the
     others' products are zeros, and dropping them changes no bit of K."""
     nr, k = P.shape
     uk = np.uint64(k)
-    for p in range(k):
-        kr = K[p]
+    for a in range(k // 3):
+        p = 3 * a
         up = np.uint64(p)
-        vertex = (p // 3) % 3
-        for col in range(up, uk):
-            kr[col] = 0.0
+        k0, k1, k2 = K[p], K[p + 1], K[p + 2]
         for c in range(0, nr, 9):
             t = T[c:c + 9]
-            if vertex == 0:
-                p0, p2, p3, p5, p7 = P[c, p], P[c + 2, p], P[c + 3, p], P[c + 5, p], P[c + 7, p]
+            first = c == 0  # the first level's sums are stored, not added to zeros
+            if a % 3 == 0:  # LIVE_ROWS[0]
+                x0, x2, x3, x5, x7 = P[c, p], P[c + 2, p], P[c + 3, p], P[c + 5, p], P[c + 7, p]
+                y0, y2, y3 = P[c, p + 1], P[c + 2, p + 1], P[c + 3, p + 1]
+                y5, y7 = P[c + 5, p + 1], P[c + 7, p + 1]
+                z0, z2, z3 = P[c, p + 2], P[c + 2, p + 2], P[c + 3, p + 2]
+                z5, z7 = P[c + 5, p + 2], P[c + 7, p + 2]
                 for col in range(up, uk):
-                    kr[col] += (((p0 * t[0, col] + p2 * t[2, col])
-                                 + (p3 * t[3, col] + p5 * t[5, col])) + p7 * t[7, col])
-            elif vertex == 1:
-                p1, p2, p4, p5, p8 = P[c + 1, p], P[c + 2, p], P[c + 4, p], P[c + 5, p], P[c + 8, p]
+                    t0, t2, t3, t5, t7 = t[0, col], t[2, col], t[3, col], t[5, col], t[7, col]
+                    s0 = ((x0 * t0 + x2 * t2) + (x3 * t3 + x5 * t5)) + x7 * t7
+                    s1 = ((y0 * t0 + y2 * t2) + (y3 * t3 + y5 * t5)) + y7 * t7
+                    s2 = ((z0 * t0 + z2 * t2) + (z3 * t3 + z5 * t5)) + z7 * t7
+                    k0[col] = s0 if first else k0[col] + s0
+                    k1[col] = s1 if first else k1[col] + s1
+                    k2[col] = s2 if first else k2[col] + s2
+            elif a % 3 == 1:  # LIVE_ROWS[1]
+                x1, x2, x4, x5, x8 = (P[c + 1, p], P[c + 2, p], P[c + 4, p], P[c + 5, p],
+                                      P[c + 8, p])
+                y1, y2, y4 = P[c + 1, p + 1], P[c + 2, p + 1], P[c + 4, p + 1]
+                y5, y8 = P[c + 5, p + 1], P[c + 8, p + 1]
+                z1, z2, z4 = P[c + 1, p + 2], P[c + 2, p + 2], P[c + 4, p + 2]
+                z5, z8 = P[c + 5, p + 2], P[c + 8, p + 2]
                 for col in range(up, uk):
-                    kr[col] += (((p1 * t[1, col] + p2 * t[2, col])
-                                 + (p4 * t[4, col] + p5 * t[5, col])) + p8 * t[8, col])
-            else:
-                p0, p1, p2 = P[c, p], P[c + 1, p], P[c + 2, p]
-                p3, p4, p5, p6 = P[c + 3, p], P[c + 4, p], P[c + 5, p], P[c + 6, p]
+                    t1, t2, t4, t5, t8 = t[1, col], t[2, col], t[4, col], t[5, col], t[8, col]
+                    s0 = ((x1 * t1 + x2 * t2) + (x4 * t4 + x5 * t5)) + x8 * t8
+                    s1 = ((y1 * t1 + y2 * t2) + (y4 * t4 + y5 * t5)) + y8 * t8
+                    s2 = ((z1 * t1 + z2 * t2) + (z4 * t4 + z5 * t5)) + z8 * t8
+                    k0[col] = s0 if first else k0[col] + s0
+                    k1[col] = s1 if first else k1[col] + s1
+                    k2[col] = s2 if first else k2[col] + s2
+            else:  # LIVE_ROWS[2]: rows 0 to 6
+                x0, x1, x2, x3 = P[c, p], P[c + 1, p], P[c + 2, p], P[c + 3, p]
+                x4, x5, x6 = P[c + 4, p], P[c + 5, p], P[c + 6, p]
+                y0, y1, y2, y3 = P[c, p + 1], P[c + 1, p + 1], P[c + 2, p + 1], P[c + 3, p + 1]
+                y4, y5, y6 = P[c + 4, p + 1], P[c + 5, p + 1], P[c + 6, p + 1]
+                z0, z1, z2, z3 = P[c, p + 2], P[c + 1, p + 2], P[c + 2, p + 2], P[c + 3, p + 2]
+                z4, z5, z6 = P[c + 4, p + 2], P[c + 5, p + 2], P[c + 6, p + 2]
                 for col in range(up, uk):
-                    kr[col] += ((((p0 * t[0, col] + p1 * t[1, col]) + p2 * t[2, col])
-                                 + ((p3 * t[3, col] + p4 * t[4, col]) + p5 * t[5, col]))
-                                + p6 * t[6, col])
+                    t0, t1, t2, t3 = t[0, col], t[1, col], t[2, col], t[3, col]
+                    t4, t5, t6 = t[4, col], t[5, col], t[6, col]
+                    s0 = ((((x0 * t0 + x1 * t1) + x2 * t2) + ((x3 * t3 + x4 * t4) + x5 * t5))
+                          + x6 * t6)
+                    s1 = ((((y0 * t0 + y1 * t1) + y2 * t2) + ((y3 * t3 + y4 * t4) + y5 * t5))
+                          + y6 * t6)
+                    s2 = ((((z0 * t0 + z1 * t1) + z2 * t2) + ((z3 * t3 + z4 * t4) + z5 * t5))
+                          + z6 * t6)
+                    k0[col] = s0 if first else k0[col] + s0
+                    k1[col] = s1 if first else k1[col] + s1
+                    k2[col] = s2 if first else k2[col] + s2
 
 
 @njit(cache=True, inline='always')
