@@ -280,7 +280,11 @@ def _tie_rows(dNt: np.ndarray, Gt: np.ndarray, e: int, t0: int, Hs: np.ndarray, 
 
 
 # natural strain components in row order: rr, ss, ww, rs, rw, sw
-VOIGT = np.array([[0, 0], [1, 1], [2, 2], [0, 1], [0, 2], [1, 2]])
+VOIGT = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+# VOIGT's and PAIRS's rows and columns apart, as tuples: numba reads a global tuple as a
+# constant, where a global array's every read in a loop took and dropped a reference count
+VOIGT_I, VOIGT_J = tuple(i for i, _ in VOIGT), tuple(j for _, j in VOIGT)
+PAIRS_I, PAIRS_J = tuple(int(i) for i in PAIRS[:, 0]), tuple(int(j) for j in PAIRS[:, 1])
 
 
 @njit(cache=True, inline='always')
@@ -333,10 +337,10 @@ def _neo_hookean_natural(bt: np.ndarray, b: int, mu: float, lam: float, want: in
     _to_natural(bt, 3 + b, m3, 4, m3, 2)
     c = mu - lam * lj
     for v in range(6):  # symmetric but for the products' round-off: the upper half, mirrored
-        i, j = VOIGT[v, 0], VOIGT[v, 1]
+        i, j = VOIGT_I[v], VOIGT_J[v]
         mv = 1.0 if i == j else 2.0
         for u in range(v, 6):
-            k, ll = VOIGT[u, 0], VOIGT[u, 1]
+            k, ll = VOIGT_I[u], VOIGT_J[u]
             mu_ = 1.0 if k == ll else 2.0
             d = mv * mu_ * (lam * m3[2, i, j] * m3[2, k, ll]
                             + c * (m3[2, i, k] * m3[2, j, ll] + m3[2, i, ll] * m3[2, j, k]))
@@ -380,7 +384,7 @@ def _principal_natural(model: int, lam: np.ndarray, V: np.ndarray, A: np.ndarray
             Dp[a, b] = H[a, b] / (st[a] * st[b])
         Dp[a, a] -= gs[a] / st[a] ** 3
     for c in range(3):
-        a, b = PAIRS[c, 0], PAIRS[c, 1]
+        a, b = PAIRS_I[c], PAIRS_J[c]
         Dp[3 + c, 3 + c] = 2.0 * (sym[c] - twist[c]) / (st[a] * st[b])
     if psd:
         project3_into(Dp, m3[0], v3[8], m3[1])
@@ -429,9 +433,9 @@ def _natural_tangent(M: np.ndarray, Dp: np.ndarray, cv: np.ndarray, Dv: np.ndarr
     most of the assumed-strain element's arithmetic after the Hessian's congruence."""
     C, DC = cv[0], cv[1]
     for c in range(6):
-        a, b = (c, c) if c < 3 else (PAIRS[c - 3, 0], PAIRS[c - 3, 1])
+        a, b = (c, c) if c < 3 else (PAIRS_I[c - 3], PAIRS_J[c - 3])
         for v in range(6):
-            i, j = VOIGT[v, 0], VOIGT[v, 1]
+            i, j = VOIGT_I[v], VOIGT_J[v]
             C[c, v] = M[i, a] * M[j, b] + (M[j, a] * M[i, b] if i != j else 0.0)
     for c in range(6):
         # an isotropic Dp (``block``) is its 3 x 3 block and the pairs' diagonal: the rest of
