@@ -97,10 +97,13 @@ def check_format(fmt: str) -> str:
 
 def missing(run: RunFolder, fmt: str) -> str | None:
     """Why ``run`` cannot be exported as ``fmt``, or None when it can."""
+    reason = (run.result.get("failure") or {}).get("reason")
+    because = f" ({reason})" if reason else ""
     if fmt in STATE_FORMATS and not run.final.is_file():
-        reason = (run.result.get("failure") or {}).get("reason")
         return (f"run {run.name!r} has no final state (final.npz): it ended before it had one"
-                + (f" ({reason})" if reason else ""))
+                + because)
+    if fmt == "csv" and not run.result.get("steps"):  # a header and no row is no table
+        return f"run {run.name!r} has no steps: it ended before its first" + because
     return None
 
 

@@ -140,6 +140,22 @@ def test_a_run_without_a_final_state_says_so(cup):
         (folder / "kept.npz").rename(folder / "final.npz")
 
 
+def test_a_run_without_steps_has_no_csv(cup):
+    """A run that failed before its first step: no table of steps to download (it offered a
+    header without rows), and the reason says why."""
+    client, run_id, folder, res = cup
+    kept = (folder / "result.json").read_text()
+    (folder / "result.json").write_text(json.dumps({**res, "steps": [],
+                                                    "failure": {"reason": "no contact"}}))
+    try:
+        r = client.get(f"/api/runs/{run_id}/export/csv")
+        assert r.status_code == 404, r.text
+        assert r.json()["detail"] == (f"run {run_id!r} has no steps: it ended before its "
+                                      "first (no contact)")
+    finally:
+        (folder / "result.json").write_text(kept)
+
+
 def test_a_queued_run_has_no_downloads_until_it_has_run(env):
     """A run waiting in the queue is neither going nor ended: its downloads are refused as a
     going run's are (409 saying it is queued), not as a run that lost its files (404)."""
