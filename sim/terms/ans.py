@@ -604,7 +604,9 @@ def _congruence(P: np.ndarray, T: np.ndarray, K: np.ndarray) -> None:  # noqa: C
     initial-stress term and the element's projection take the upper), would double the
     arithmetic; the node's diagonal block is formed whole. A node's rows sum only the basis
     rows alive there (LIVE_ROWS, checked by :class:`Tying`), in the order of all nine: the
-    others' products are zeros, and dropping them changes no bit of K."""
+    others' products are zeros, and dropping them changes no bit of K. The three vertex kinds'
+    loops are written out, alike but for their rows: a helper taking the rows would count its
+    five array arguments at every call, per node and level (numba's reference counts)."""
     nr, k = P.shape
     uk = np.uint64(k)
     for a in range(k // 3):
