@@ -127,7 +127,7 @@ def _result(sim: Run) -> dict:
         # unit, sim.frames.probes), as the server's run.json has them
         "punches": sim.summary.punch_starts(),
         "probe_kinds": {p.name: p.kind for p in m.scene.probes},
-        "sections": sim.sections,
+        "sections": sim.recorded_sections(),
         "fields": fields.field_summary(fields.output_fields(m, sim.x, sim.h0)),
         "summary": sim.summary.result(sim),
         "forming_limits": forming_limit_diagram(sim),

@@ -158,7 +158,9 @@ class SectionSpec(Strict):
     name: str = doc("the section's name (plots, studies)")
     direction: Direction2 = doc("the ray's (x, y) direction (any length)", "1", (1.0, 0.0))
     width: Length = doc("how far from the ray a vertex may be and count as on it", "m", 1e-4)
-    steps: list[Annotated[int, Field(ge=0)]] = doc("the steps recorded; empty: every step",
+    steps: list[Annotated[int, Field(ge=0)]] = doc("the steps recorded; empty: every step. "
+                                                   "The run's last step is recorded too "
+                                                   "(a run stopped early, or steps changed)",
                                                    "1", [])
 
 

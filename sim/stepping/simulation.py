@@ -517,6 +517,18 @@ class Simulation:
                     {"step": self.step_index, "time": self.t,
                      **fields.section(self.model, self.x, self._sections[sp.name])})
 
+    def recorded_sections(self) -> dict[str, list[dict]]:
+        """The sections as recorded, each ending at the last step made: a section that lists
+        its steps and missed it (a run stopped early, steps or the tool speed changed since the
+        steps were listed) gets that step too, so that its plot ends where the part is."""
+        out = {}
+        for name, rows in self.sections.items():
+            last = rows and rows[-1]["step"] == self.step_index
+            out[name] = rows if last or not self.records else [
+                *rows, {"step": self.step_index, "time": self.t,
+                        **fields.section(self.model, self.x, self._sections[name])}]
+        return out
+
     def run(self, progress: Callable[[Simulation, StepRecord], None] | None = None) -> bool:
         """Step to the end; returns converged. ``progress(sim, record)`` after each step."""
         while not self.done:

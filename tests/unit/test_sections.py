@@ -83,3 +83,29 @@ def test_a_ray_that_misses_the_blank_is_named():
     spec = SimpleNamespace(name="axis", direction=(1.0, 0.0), width=1e-4)
     with pytest.raises(ValueError, match="sections.axis: the ray crosses the blank at fewer"):
         fields.section_points(SimpleNamespace(shell=SimpleNamespace(mesh=mesh)), spec)
+
+
+def test_a_section_ends_at_the_last_step_made():
+    """A section lists its steps for the scene as written; a run that ends before the last
+    of them (stopped, its steps or tool speed changed) gets the step it ended at too, at
+    that state, so the plot ends where the part is (a review's stopped run ended at step 50
+    of 280). Listed steps the run made are kept as they are, the final one not repeated."""
+    from tests.support.scenes import tiny_cup_toml
+
+    text = tiny_cup_toml(3) + '\n[[sections]]\nname = "x"\ndirection = [1.0, 0.0]\n' \
+        'steps = [0, 2, 5]\n'
+    sim = Simulation.from_scene(scene_from_toml(text))
+    for _ in range(3):
+        sim.step()
+    kept = [r["step"] for r in sim.sections["x"]]
+    got = sim.recorded_sections()["x"]
+    assert kept == [0, 2] and [r["step"] for r in got] == [0, 2, 3]
+    final = fields.section(sim.model, sim.x, sim._sections["x"])
+    assert got[-1]["thickness"] == final["thickness"] and got[-1]["time"] == sim.t
+    assert [r["step"] for r in sim.sections["x"]] == [0, 2]  # the record itself unchanged
+    # a run that made its last listed step: as recorded
+    text = text.replace("steps = [0, 2, 5]", "steps = [0, 3]")
+    sim = Simulation.from_scene(scene_from_toml(text))
+    for _ in range(3):
+        sim.step()
+    assert [r["step"] for r in sim.recorded_sections()["x"]] == [0, 3]
