@@ -277,6 +277,11 @@ const Compare = (() => {
     if (none.length)
       box.append(el("p", { className: "muted", textContent: `${none.join(", ")}: no summary ` +
                            "yet (see the note above); its column shows –." }));
+    // every difference is from A: without A's summary the table has none to show
+    if (data.summary.length && data.summary.every((row) => row.values[0] === null))
+      box.append(el("p", { className: "caution", role: "note", textContent: "A has no " +
+                           "summary, so no difference from it can be taken: tick a run with a " +
+                           "result first to compare the others against it." }));
   }
 
   // ---- the curves -----------------------------------------------------------------------------

@@ -215,3 +215,27 @@ def test_sweep_cases_open_from_the_panel(served, browser):
                            ".startsWith('Thickness difference A − C')")
     shot(page, SHOTS, "sweep-compare", settle_ms=SETTLE_MS)
     assert not errors, errors
+
+
+def test_a_failed_run_as_a_says_no_difference_can_be_taken(served, browser):
+    """Every difference is from A: a run that failed before any summary, ticked first, left
+    the table all "–" without a word (a browser review); the page says why, and what to do."""
+    url, _, (a, _, _) = served
+    r = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup",
+                                            "overrides": {"shell.thickness": 0.05}})
+    failed = r.json()["id"]
+    st = until(lambda: (s := httpx.get(f"{url}/api/runs/{failed}").json())["state"] in ENDED
+               and s, f"run {failed} never ended")
+    assert st["state"] == "failed" and "not a sheet" in st["reason"], st
+    page, errors = open_page(browser, url)
+    page.wait_for_selector(f"#compare-runs input[value='{failed}']")
+    tick(page, failed)
+    tick(page, a)
+    page.click("#compare-open")
+    page.wait_for_selector("#compare-summary p.caution")
+    assert page.text_content("#compare-summary p.caution") == (
+        "A has no summary, so no difference from it can be taken: tick a run with a result "
+        "first to compare the others against it.")
+    shot(page, SHOTS, "failed-a", settle_ms=SETTLE_MS)
+    assert not errors, errors
+    page.close()
