@@ -172,8 +172,15 @@ class Views:
         if not self.m.viewer:
             raise Conflict("the viewer is off (the server runs without it): nothing to "
                            "preview on")
-        text, edited = self.m.store.run_text(scene, toml)
-        _, overrides = self.m.store.checked(text, {}, self.m.settings.max_model_bytes)
+        try:
+            text, edited = self.m.store.run_text(scene, toml)
+            _, overrides = self.m.store.checked(text, {}, self.m.settings.max_model_bytes)
+        except ValueError as exc:  # refused (422): not the previous geometry under its words
+            with self.m.lock:
+                self._get(view).preview = None
+            self.m.viewer.preview_failed(
+                f"Preview of {_named(scene, toml is not None)} refused: {exc}", view or DEFAULT)
+            raise
         with self.m.lock:  # a free solver builds it at once; else between an active run's steps
             worker = min(self.m.slots, key=lambda s: s.run is not None).worker
             rid = worker.send("preview", scene=scene, scene_toml=text, overrides=overrides)

@@ -111,6 +111,20 @@ def test_bad_preview_requests_name_the_field(client, body, status, names):
     assert names in r.json()["detail"]
 
 
+def test_a_refused_preview_clears_the_view_under_its_reason(client, viewer):
+    """Edits the server refuses to preview (a 422): the view no longer shows the previous
+    preview under words that claim it is these edits' (a browser review)."""
+    assert client.put("/api/view/scene", json={"scene": "press"}).status_code == 200
+    until(lambda: viewer.mode == "preview", "no preview of press")
+    bad = PRESS_TOML.replace("nu = 0.33", "nu = 0.7")
+    r = client.put("/api/view/scene", json={"scene": "press", "toml": bad})
+    assert r.status_code == 422, r.text
+    assert viewer.mode == "none" and viewer.previewed is None
+    assert viewer.gui.status.content.startswith(
+        "Preview of scene `press` with its unsaved edits refused: material.nu"), \
+        viewer.gui.status.content
+
+
 def test_a_run_shows_again_once_started_or_selected(client, viewer):
     run = client.post("/api/runs", json={"scene": "tiny", "element": "linear"}).json()["id"]
     assert client.get("/api/view").json() == default_view(run)
