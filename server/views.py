@@ -175,11 +175,14 @@ class Views:
         try:
             text, edited = self.m.store.run_text(scene, toml)
             _, overrides = self.m.store.checked(text, {}, self.m.settings.max_model_bytes)
-        except ValueError as exc:  # refused (422): not the previous geometry under its words
+        except ValueError as exc:  # refused (422): not the previous geometry under its words;
+            # still this scene's preview, failed, so that the edit that fixes it shows
+            line = f"Preview of {_named(scene, toml is not None)} refused: {exc}"
             with self.m.lock:
-                self._get(view).preview = None
-            self.m.viewer.preview_failed(
-                f"Preview of {_named(scene, toml is not None)} refused: {exc}", view or DEFAULT)
+                self._get(view).preview = {"scene": scene, "request": None, "state": "failed",
+                                           "error": str(exc), "edited": toml is not None,
+                                           "line": line}
+            self.m.viewer.preview_failed(line, view or DEFAULT)
             raise
         with self.m.lock:  # a free solver builds it at once; else between an active run's steps
             worker = min(self.m.slots, key=lambda s: s.run is not None).worker
@@ -223,6 +226,8 @@ class Views:
                 p = dict(p) if p else None
             if p is None:
                 self._show_run(view)
+            elif p.get("line") is not None:  # refused: nothing built to draw
+                self.m.viewer.preview_failed(p["line"], view)
             elif p.get("event") is not None:
                 self._draw_preview(view, p["event"])
             else:

@@ -120,6 +120,9 @@ def test_a_refused_preview_clears_the_view_under_its_reason(client, viewer):
     r = client.put("/api/view/scene", json={"scene": "press", "toml": bad})
     assert r.status_code == 422, r.text
     assert viewer.mode == "none" and viewer.previewed is None
+    view = client.get("/api/view").json()  # still the scene's preview: its edits go on to show
+    assert (view["scene"], view["preview"]) == ("press", "failed")
+    assert view["preview_error"].startswith("material.nu"), view
     assert viewer.gui.status.content.startswith(
         "Preview of scene `press` with its unsaved edits refused: material.nu"), \
         viewer.gui.status.content
