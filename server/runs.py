@@ -236,7 +236,7 @@ class RunManager:
                       given=dict(parameters or {}))
             run.place = len(self.queue) + 1  # run.json says queued, and where
             out = self.files.create(run, scenediff.ran_head(
-                run.id, scene, text, edits if edited else None, overrides) + text)
+                run.id, scene, text, edits if edited else None, overrides, parameters) + text)
             self.runs[run.id] = run
             self._starts[run.id] = dict(run=run.id, out=str(out), scene_toml=text,
                                         overrides=solver_overrides,

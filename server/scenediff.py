@@ -110,12 +110,13 @@ def shown(item: dict, between: str = " | ") -> str:
 
 
 def ran_head(run_id: str, scene: str, text: str, edits: list[str] | None,
-             overrides: dict) -> str:
+             overrides: dict, parameters: dict | None = None) -> str:
     """The comment lines that head a run's scene.toml (``text``, a valid scene) when what ran
     is not that text as it stands: the page's unsaved edits (``edits``, None: none; the
     comments below are the saved file's and may describe its values), overrides on top of
-    it, an element other than its own; '' otherwise (the file is the saved one, comments
-    true)."""
+    it, an element other than its own, live parameters given at the start (``parameters``;
+    those changed while it ran are in run.json's parameter log); '' otherwise (the file is the
+    saved one, comments true)."""
     file_element = tomllib.loads(text).get("shell", {}).get(
         "element", ShellSpec.model_fields["element"].default)
     parts = []
@@ -130,6 +131,10 @@ def ran_head(run_id: str, scene: str, text: str, edits: list[str] | None,
     element = overrides.get("shell.element", file_element)
     if element != file_element:
         parts.append(f"It ran element {element}, not the file's {file_element}.")
+    if parameters:
+        parts.append("Live parameters from its start: " +
+                     "; ".join(f"{k} ×{v:g}" for k, v in parameters.items()) +
+                     " (changes while it ran: run.json's parameter log).")
     if not parts:
         return ""
     lines = textwrap.wrap(f"Run {run_id}, the scene as it ran. " + " ".join(parts), 96,

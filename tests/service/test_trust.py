@@ -113,6 +113,10 @@ def test_start_runs_the_edited_scene(env):
     kept = (settings.runs_dir / other["id"] / "scene.toml").read_text()
     assert "Overrides on top of this file (run.json): stepping.steps = 4." in \
         kept.replace("\n# ", " ")
+    given = run_to_end(client, scene="tiny", parameters={"friction_scale": 2.0}, element="q3t")
+    kept = (settings.runs_dir / given["id"] / "scene.toml").read_text().replace("\n# ", " ")
+    assert "Live parameters from its start: friction_scale ×2 (changes while it ran: " \
+        "run.json's parameter log)." in kept, kept
     # an element other than the file's, alone: said too
     linear = run_to_end(client, scene="tiny")
     kept = (settings.runs_dir / linear["id"] / "scene.toml").read_text()
