@@ -214,7 +214,7 @@ class ClientView:
         self.parameters = dict(values)
         self.scaled = self.actions.scaled(self.selected)
         tools = live.per_tool_of(values)
-        for name in [n for n in self.gui.sliders if "." in n and n not in tools]:
+        for name in [n for n in live.per_tool_of(self.gui.sliders) if n not in tools]:
             self.gui.sliders.pop(name).remove()
             self.gui.results.pop(name).remove()
         self.add_parameters(tools)

@@ -156,7 +156,7 @@ def inspect_outline(path: Path) -> dict:
     from sim.geometry import outline
 
     try:
-        shape = outline.read_drawing(path, 1.0, 1.0)
+        shape = outline.read_drawing(path, 1.0, 1.0, extent=False)  # its scale is a scene's
     except outline.OutlineError as exc:
         raise Invalid(str(exc)) from None
     return {"holes": len(shape.holes)}

@@ -121,9 +121,10 @@ def ran_head(run_id: str, scene: str, text: str, edits: list[str] | None,
         "element", ShellSpec.model_fields["element"].default)
     parts = []
     if edits is not None:
-        parts.append(f"It ran the page's unsaved edits of {scene}: "
-                     f"{'; '.join(edits) or 'the saved scene no longer validates'}. The "
-                     "comments below are the saved file's: they may describe its values.")
+        parts.append(f"It ran the page's unsaved edits of {scene}: {'; '.join(edits)}. The "
+                     "comments below are the saved file's: they may describe its values."
+                     if edits else f"It ran the page's text of {scene}, not a saved file "
+                     "(none saved, or the saved one no longer validates).")
     given = {k: v for k, v in overrides.items() if k != "shell.element"}
     if given:
         parts.append("Overrides on top of this file (run.json): " +
@@ -131,9 +132,10 @@ def ran_head(run_id: str, scene: str, text: str, edits: list[str] | None,
     element = overrides.get("shell.element", file_element)
     if element != file_element:
         parts.append(f"It ran element {element}, not the file's {file_element}.")
-    if parameters:
+    live = {k: v for k, v in (parameters or {}).items() if v != 1.0}  # 1: as written
+    if live:
         parts.append("Live parameters from its start: " +
-                     "; ".join(f"{k} ×{v:g}" for k, v in parameters.items()) +
+                     "; ".join(f"{k} ×{v:g}" for k, v in live.items()) +
                      " (changes while it ran: run.json's parameter log).")
     if not parts:
         return ""

@@ -52,8 +52,9 @@ class Shows(Protocol):
 class View:
     run: str | None  # the selected run
     # the scene previewed instead (before any run): {"scene", "request" (the solver's
-    # request id), "state" (building, shown, failed), "error", "event" (the built preview,
-    # for a viewer that connects later)}; None: the run is shown
+    # request id; None: refused before any was sent), "state" (building, shown, failed),
+    # "error", "event" (the built preview, for a viewer that connects later), "line" (a
+    # refused one's status line)}; None: the run is shown
     preview: dict | None = None
     step: int | None = None  # the step its viewer's time slider was moved to (None: the last)
     notices: collections.deque = field(default_factory=lambda: collections.deque(
@@ -178,11 +179,12 @@ class Views:
         except ValueError as exc:  # refused (422): not the previous geometry under its words;
             # still this scene's preview, failed, so that the edit that fixes it shows
             line = f"Preview of {_named(scene, toml is not None)} refused: {exc}"
-            with self.m.lock:
-                self._get(view).preview = {"scene": scene, "request": None, "state": "failed",
-                                           "error": str(exc), "edited": toml is not None,
-                                           "line": line}
-            self.m.viewer.preview_failed(line, view or DEFAULT)
+            with self._showing:  # in order with an earlier build's drawing (show_preview)
+                with self.m.lock:
+                    self._get(view).preview = {"scene": scene, "request": None,
+                                               "state": "failed", "error": str(exc),
+                                               "edited": toml is not None, "line": line}
+                self.m.viewer.preview_failed(line, view or DEFAULT)
             raise
         with self.m.lock:  # a free solver builds it at once; else between an active run's steps
             worker = min(self.m.slots, key=lambda s: s.run is not None).worker

@@ -5,14 +5,14 @@
 const $ = (id) => document.getElementById(id);
 // run: the selected run of this tab's view, as the server holds it (/api/view, VIEW in
 // api.js: the embedded viewer shows the same one; another browser's view its own);
-// viewSeq / paramSeq count the page's own changes, so an answer to a request sent before one
+// viewSeq / paramSeq / previewSeq count the page's own changes, so an answer to a request sent before one
 // of them is not taken for the server's state after it; noticeSeq: the last notice shown;
 // nudge(): ends the wait before the next poll; unsaved: the editor differs from the saved file
 // (editorChanged: from what the selected run ran)
 const state = { scene: null, run: null, config: null, form: null, syncSeq: 0,
                 syncTimer: null, syncPending: null, syncRunning: null, viewSeq: 0,
                 paramSeq: 0, status: null, noticeSeq: 0, editorChanged: false, nudge: null,
-                unsaved: false };
+                unsaved: false, previewSeq: 0 };
 
 // a run another browser (or a script) started: an action on it asks first, once per run,
 // and says whose it was; what others did to this view's runs is shown here
@@ -97,9 +97,10 @@ async function loadScenes() {
     li.dataset.name = s.name;
     li.className = s.name === state.scene ? "sel" : "";
     li.onclick = () => {
-      // choosing another scene replaces the editor's text: unsaved edits are asked for first
-      if (s.name !== state.scene && state.unsaved &&
-          !confirm(`${state.scene} has unsaved edits: open ${s.name} and drop them?`)) return;
+      // choosing a scene (again) replaces the editor's text: unsaved edits are asked for first
+      if (state.unsaved && !confirm(s.name === state.scene
+        ? `${state.scene} has unsaved edits: reload it from its file and drop them?`
+        : `${state.scene} has unsaved edits: open ${s.name} and drop them?`)) return;
       selectScene(s.name).then(() => previewScene(s.name));
     };
     ul.appendChild(li);
@@ -116,12 +117,14 @@ async function loadScenes() {
 function previewScene(name, toml) {
   if (!$("viewer")) return;  // no viewer here to show it in
   state.previewing = name;  // before the next poll says so: the edits that follow show too
+  const seq = ++state.previewSeq;  // an earlier request answered late says nothing
   api("PUT", "/api/view/scene", toml === undefined ? { scene: name } : { scene: name, toml })
     .then(() => {
       // a refused preview's error goes once a preview is taken: the edits that fixed it
-      if ($("msg").dataset.preview) say("");
+      if (seq === state.previewSeq && $("msg").dataset.preview) say("");
     })
     .catch((e) => {
+      if (seq !== state.previewSeq) return;
       say(`preview of ${name}: ${e.message}`, true);
       $("msg").dataset.preview = name;
     });
@@ -287,7 +290,8 @@ async function saveScene() {
 
 function dropPreview() {
   // a preview of the editor's edits still to be asked for would take the viewer from the run
-  // about to be shown (an edit, then Start within the preview's delay)
+  // about to be shown (an edit, then Start within the preview's delay); one already sent is
+  // the server's to order (a run selected after it ends it)
   clearTimeout(state.previewTimer);
   state.previewing = null;
 }
@@ -671,10 +675,12 @@ async function main() {
   $("delete-scene").onclick = async () => {
     if (!confirm(`delete scene ${state.scene}?`)) return;
     try {
+      const previewed = state.previewing === state.scene;
       await api("DELETE", `/api/scenes/${state.scene}`);
       state.scene = null;
       await loadScenes();
-      previewScene(state.scene);  // not the deleted scene's preview left in the viewer
+      // not the deleted scene's preview left in the viewer; a run it shows stays
+      if (previewed && state.scene) previewScene(state.scene);
     } catch (e) { say(e.message, true); }
   };
   $("start").onclick = startRun;

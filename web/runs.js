@@ -103,7 +103,7 @@ const RunsTable = (() => {
     if (wall === null) return "–";
     const cell = text("span", Units.duration(r.stepping_s || 0));
     cell.title = `wall time ${Units.duration(wall)}` +
-      (r.state === "paused" || r.state === "running" ? " so far" : "") +
+      (ACTIVE.includes(r.state) ? " so far" : "") +
       " from its start on a solver process (build, pauses and pacing included)";
     return cell;
   }

@@ -44,6 +44,7 @@ MAX_TRIANGLES = 2_000_000
 # a blank's extent, m: larger than a press bed or smaller than a tenth of a millimetre is a
 # drawing read in other units than its scale says (a drawing in mm at scale = 1 is 1000x)
 EXTENT = (1e-4, 5.0)
+COARSE = 1e300  # a flattening step longer than any curve: its ends and a midpoint
 # curves of a drawing are flattened to chords this fine against the edge length, so that the
 # resampling at the edge length sees the curve, not the chords
 FLATTEN = 0.1
@@ -213,9 +214,10 @@ def meshed_loops(outline: Outline, h: float) -> list[np.ndarray]:
     return [resample(p, h) for p in (outline.outer, *outline.holes)]
 
 
-def check_extent(outline: Outline, scale: float) -> None:
-    """OutlineError naming ``scale`` when a drawing read at ``scale`` is no blank's size."""
-    ext = float(np.ptp(outline.outer, axis=0).max())
+def check_extent(loops: list[np.ndarray], scale: float) -> None:
+    """OutlineError naming ``scale`` when a drawing's paths (its units) read at ``scale``
+    are no blank's size."""
+    ext = scale * float(np.ptp(np.concatenate(loops), axis=0).max())
     if not EXTENT[0] <= ext <= EXTENT[1]:
         raise OutlineError("scale", f"absurd size: the drawing is {1e3 * ext:.3g} mm across "
                                     f"with scale = {scale:g} (a blank is {1e3 * EXTENT[0]:g}-"
@@ -332,7 +334,7 @@ def _gmsh(loops: list[np.ndarray], h: float, bands: tuple[Band, ...],
     return V, renumber[F].astype(np.int64)
 
 
-def read_drawing(path: str | Path, scale: float, h: float) -> Outline:
+def read_drawing(path: str | Path, scale: float, h: float, extent: bool = True) -> Outline:
     """The outline of an SVG or DXF drawing: its closed paths, the one of largest area the
     outline and the others its holes; coordinates (an SVG's user units, those of its viewBox,
     with y turned up) times ``scale`` are metres. Curves are
@@ -340,7 +342,8 @@ def read_drawing(path: str | Path, scale: float, h: float) -> Outline:
 
     Read once per version of the file (its path, modification time and size): a scene's
     ring check reads it, then the build, and the page's form checks it again at every edit.
-    The outline's arrays are read-only, being shared."""
+    The outline's arrays are read-only, being shared. ``extent``: refuse (naming ``scale``) a
+    drawing that is no blank's size at ``scale``."""
     path = Path(path)
     try:
         st = path.stat()
@@ -348,16 +351,23 @@ def read_drawing(path: str | Path, scale: float, h: float) -> Outline:
         st = None
     if st is None or not path.is_file():
         raise OutlineError("path", f"no drawing {str(path)!r}")
-    return _read_drawing(path.resolve(), st.st_mtime_ns, st.st_size, scale, h)
+    return _read_drawing(path.resolve(), st.st_mtime_ns, st.st_size, scale, h, extent)
 
 
 @functools.lru_cache(maxsize=8)
-def _read_drawing(path: Path, mtime_ns: int, size: int, scale: float, h: float) -> Outline:
+def _read_drawing(path: Path, mtime_ns: int, size: int, scale: float, h: float,
+                  extent: bool) -> Outline:
     reader = {".svg": _svg_loops, ".dxf": _dxf_loops}.get(path.suffix.lower())
     if reader is None:
         raise OutlineError("path", f"{path.name}: an outline is an SVG or DXF drawing "
                                    f"({', '.join(SUFFIXES)})")
     try:
+        if extent:  # first its size, from the paths' ends and a chord or two per curve: a
+            # drawing in mm read at scale = 1 would be flattened into a thousand times as
+            # many chords (a minute) before it could be refused
+            coarse = reader(path, COARSE)
+            if coarse:
+                check_extent(coarse, scale)
         raw = reader(path, FLATTEN * h / scale)
     except OutlineError:
         raise

@@ -39,9 +39,7 @@ def outline_of(spec: OutlineMesh) -> outline.Outline:
     """The outline of an ``outline`` mesh: its points or circle and holes, or its drawing's
     paths."""
     if spec.path is not None:
-        shape = outline.read_drawing(spec.path, spec.scale, spec.edge_length)
-        outline.check_extent(shape, spec.scale)
-        return shape
+        return outline.read_drawing(spec.path, spec.scale, spec.edge_length)
     return spec.shape()
 
 
@@ -138,8 +136,8 @@ def check_sheet(mesh: meshes.TriMesh, h: np.ndarray, field_name: str) -> None:
     refused: a coarse look is the user's to take."""
     length = float(np.ptp(mesh.vertices, axis=0).max())
     if h.max() > length:
-        raise ValueError(f"{field_name}: {1e3 * h.max():.3g} mm thick, more than the blank's "
-                         f"largest extent ({1e3 * length:.3g} mm): not a sheet")
+        raise ValueError(f"{field_name}: {1e3 * h.max():.4g} mm thick, more than the blank's "
+                         f"largest extent ({1e3 * length:.4g} mm): not a sheet")
 
 
 

@@ -42,7 +42,8 @@ class ModelSize:
 
 def mesh_counts(spec: MeshSpec) -> tuple[int, int] | None:
     """Vertices and triangles of the mid-surface mesh the build will make (a file: read;
-    None when it cannot be)."""
+    None when it cannot be, the build says why). An outline's drawing that cannot be read or
+    is no blank's size: SceneError naming the field, before any run."""
     if spec.kind == "file":
         return _file_counts(spec.path)
     if spec.kind in ("cylinder_patch", "sphere_patch"):

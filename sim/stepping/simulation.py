@@ -524,7 +524,8 @@ class Simulation:
         out = {}
         for name, rows in self.sections.items():
             last = rows and rows[-1]["step"] == self.step_index
-            out[name] = rows if last or not self.records else [
+            # after a failure the state is partway into the next step: not the last one's
+            out[name] = rows if last or not self.records or self.failure is not None else [
                 *rows, {"step": self.step_index, "time": self.t,
                         **fields.section(self.model, self.x, self._sections[name])}]
         return out

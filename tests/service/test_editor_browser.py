@@ -184,6 +184,12 @@ def test_unsaved_edits_are_asked_for_before_another_scene_and_go_with_a_duplicat
     assert asked == ["cup has unsaved edits: open other and drop them?"], asked
     assert page.input_value("#scene-name") == "cup"
     assert "nu = 0.31" in page.input_value("#toml")  # told no: the edits stay
+    # the same scene clicked again would reload its file: asked too
+    page.once("dialog", lambda d: (asked.append(d.message), d.dismiss()))
+    page.click("#scenes li[data-name='cup']")
+    until(lambda: len(asked) == 2, "no question before reloading the scene")
+    assert asked[1] == "cup has unsaved edits: reload it from its file and drop them?"
+    assert "nu = 0.31" in page.input_value("#toml")
     page.once("dialog", lambda d: d.accept("cup-edited"))
     page.click("#duplicate")
     page.wait_for_function("document.getElementById('scene-name').value === 'cup-edited'")
@@ -194,7 +200,7 @@ def test_unsaved_edits_are_asked_for_before_another_scene_and_go_with_a_duplicat
     page.on("dialog", lambda d: (asked.append(d.message), d.dismiss()))
     page.click("#scenes li[data-name='other']")
     page.wait_for_function("document.getElementById('scene-name').value === 'other'")
-    assert len(asked) == 1, asked
+    assert len(asked) == 2, asked
     httpx.delete(f"{url}/api/scenes/cup-edited")
     httpx.delete(f"{url}/api/scenes/other")
 
