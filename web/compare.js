@@ -333,8 +333,8 @@ const Compare = (() => {
         if (x === null) continue;
         shapes.push({ type: "line", xref: "x", yref: "paper", x0: x, x1: x, y0: 0, y1: 1,
                       line: { color: colour(i), width: 1.5, dash: "dot" } });
-        annotations.push({ xref: "x", yref: "paper", x, y: 1, yanchor: "bottom",
-                           showarrow: false, font: { size: 10, color: colour(i) },
+        annotations.push({ ...Plots.markLabel(annotations.length), x,
+                           font: { size: 10, color: colour(i) },
                            text: `${r.letter}: ${e.name} = ${Units.num(e.value)}` });
       }
     });

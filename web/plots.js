@@ -90,7 +90,12 @@ const Plots = (() => {
     }
   }
 
-  // the live-parameter changes as vertical marks, at x = where(step it applies from)
+  // the live-parameter changes as vertical marks, at x = where(step it applies from); their
+  // labels inside the plot's top, on three rows in turn: changes a few steps apart wrote their
+  // labels over each other and over the title
+  const markLabel = (k) => ({ xref: "x", yref: "paper", y: 1, yanchor: "top", showarrow: false,
+                              yshift: -13 * (k % 3), bgcolor: "rgba(255, 255, 255, 0.8)" });
+
   function marks(log, where) {
     const shapes = [], notes = [];
     for (const e of log || []) {
@@ -98,7 +103,7 @@ const Plots = (() => {
       if (x === null || x === undefined) continue;
       shapes.push({ type: "line", xref: "x", yref: "paper", x0: x, x1: x, y0: 0, y1: 1,
                     line: { color: MARK, width: 1.5, dash: "dot" } });
-      notes.push({ xref: "x", yref: "paper", x, y: 1, yanchor: "bottom", showarrow: false,
+      notes.push({ ...markLabel(notes.length), x,
                    text: `${e.name} = ${Units.num(e.value)} (step ${e.step})`,
                    font: { size: 10, color: MARK } });
     }
@@ -327,6 +332,6 @@ const Plots = (() => {
     unplot(div);
   }
 
-  return { forceStroke, probes, sections, rim, fld, solver, show, purge, scrubAt,
+  return { markLabel, forceStroke, probes, sections, rim, fld, solver, show, purge, scrubAt,
            stacked, quantities };
 })();
