@@ -153,6 +153,7 @@ async function selectScene(name) {
   state.scene = name;
   $("scene-name").value = name;
   $("toml").value = s.toml;
+  state.loadedName = s.scene ? s.scene.name : null;  // a changed name field saves a new scene
   state.base = s.toml;  // the form's edits are written into this text (comments kept)
   clearTimeout(state.syncTimer);
   state.syncTimer = null;
@@ -268,15 +269,39 @@ function showTab(which) {
 }
 
 async function saveScene() {
-  const name = $("scene-name").value.trim();
+  // One name per scene, its file's: the scene-name box names the file saved; the form's name
+  // field changed (and the box not) names it too. A name other than the open scene's saves a
+  // new scene (the open one stays as it was), its name field following the file's; a taken
+  // name asks before it replaces that scene.
+  let name = $("scene-name").value.trim();
   say("");  // a message of an earlier save must not stand over this one's outcome
   try {
     await flushSync();
     if (state.tomlStale) throw new Error("the form has errors (see the fields)");
-    await api("PUT", `/api/scenes/${encodeURIComponent(name)}`, { toml: $("toml").value });
+    const field = state.form.value().name;
+    if (name === state.scene && state.loadedName !== null && typeof field === "string"
+        && field.trim() && field !== state.loadedName) name = field.trim();
+    let toml = $("toml").value;
+    if (name !== state.scene) {
+      if (field !== name) toml = await renamedText(name, toml);
+      try {
+        await api("POST", "/api/scenes", { name, toml });
+      } catch (e) {
+        if (e.status !== 409) throw e;
+        if (!confirm(`A scene named ${name} exists. Replace it with this one?`))
+          return say(`not saved: ${name} exists (choose another name)`, true);
+        await api("PUT", `/api/scenes/${encodeURIComponent(name)}`, { toml });
+      }
+      const from = state.scene;
+      state.scene = name;
+      await loadScenes();
+      await selectScene(name);
+      return say(`saved as ${name}${from ? ` (${from} unchanged)` : ""}`);
+    }
+    await api("PUT", `/api/scenes/${encodeURIComponent(name)}`, { toml });
     $("scene-error").textContent = "";
-    state.scene = name;
     state.unsaved = false;
+    state.loadedName = field;
     say(`saved ${name}`);
     await loadScenes();
   } catch (e) {
@@ -286,6 +311,14 @@ async function saveScene() {
     const where = $("scene-form").querySelector(".has-error") || $("scene-error");
     where.scrollIntoView({ block: "center" });
   }
+}
+
+async function renamedText(name, toml) {
+  // the editor's text with its name field set (comments kept: the server writes the change
+  // into the text); a form the server cannot render saves as it is, and says why
+  const r = await api("POST", "/api/scenes/render",
+                      { scene: { ...state.form.value(), name }, base: toml });
+  return r.toml === null ? toml : r.toml;
 }
 
 function dropPreview() {

@@ -8,6 +8,8 @@ subprocess, on a copy of the shipped cup scene (its comments are the point):
 - A duplicate's name field follows its new name; a failed save says so (no stale "saved")
   with the error in view.
 - Unsaved edits are asked for before another scene replaces them, and go with a duplicate.
+- A name changed (the form's name field, or the scene-name box) saves a new scene whose name
+  field is its file's; a taken name is asked for before it is replaced.
 - The live parameters read as words, with the result beside each multiplier.
 
 With Q3T_SHOTS set, screenshots of each step go to `$Q3T_SHOTS/editor/`."""
@@ -203,6 +205,42 @@ def test_unsaved_edits_are_asked_for_before_another_scene_and_go_with_a_duplicat
     assert len(asked) == 2, asked
     httpx.delete(f"{url}/api/scenes/cup-edited")
     httpx.delete(f"{url}/api/scenes/other")
+
+
+def test_a_changed_name_saves_a_new_scene_named_as_its_file(page, served):
+    """One name per scene, the file's: the name field changed and saved writes a scene of
+    that name (not cup.toml holding another name); a name typed in the scene-name box does
+    too, its name field following; a taken name is replaced only when the user says so."""
+    url, scenes = served
+    page.fill("[name='name']", "cup-renamed")
+    synced(page, 'name = "cup-renamed"')
+    page.click("#save")
+    page.wait_for_function("document.getElementById('msg').textContent === "
+                           "'saved as cup-renamed (cup unchanged)'")
+    text = (scenes / "cup-renamed.toml").read_text()
+    assert text.replace('name = "cup-renamed"', 'name = "cup"') == COARSE  # comments and all
+    assert (scenes / "cup.toml").read_text() == COARSE
+    assert page.input_value("#scene-name") == "cup-renamed"
+    assert page.text_content("#scenes li.sel").startswith("cup-renamed")
+    # the box names a taken scene: asked; told no, nothing written
+    asked: list[str] = []
+    page.once("dialog", lambda d: (asked.append(d.message), d.dismiss()))
+    page.fill("#scene-name", "cup")
+    page.click("#save")
+    page.wait_for_function("document.getElementById('msg').textContent === "
+                           "'not saved: cup exists (choose another name)'")
+    assert asked == ["A scene named cup exists. Replace it with this one?"], asked
+    assert (scenes / "cup.toml").read_text() == COARSE
+    # a free name in the box: the new file's name field is its own
+    page.fill("#scene-name", "cup-box")
+    page.click("#save")
+    page.wait_for_function("document.getElementById('msg').textContent === "
+                           "'saved as cup-box (cup-renamed unchanged)'")
+    assert tomllib.loads((scenes / "cup-box.toml").read_text())["name"] == "cup-box"
+    assert page.input_value("[name='name']") == "cup-box"
+    shot(page, SHOTS, "05-saved-as", settle_ms=SETTLE_MS)
+    for n in ("cup-renamed", "cup-box"):
+        httpx.delete(f"{url}/api/scenes/{n}")
 
 
 def test_live_parameters_read_as_words_with_their_results(page, served):
