@@ -80,11 +80,17 @@ def exports(run_id: RunId, request: Request, view: ViewId = None) -> dict:
         out.append({"format": fmt, "description": text, "available": why is None,
                     "reason": why, "url": f"/api/runs/{run.id}/export/{fmt}"})
     # the PNG needs a browser showing the run when it is asked for: offered while the viewer
-    # is on (its answer says why not, if no browser shows the run then)
-    why = None if m.viewer else VIEWER_OFF
+    # is on (its answer says why not, if no browser shows the run then), and for an ended run
+    # only if it has a state to show (one that failed before it had one draws nothing)
+    why = _no_view(m, run) or (None if m.viewer else VIEWER_OFF)
     out.append({"format": "png", "description": PNG, "available": why is None, "reason": why,
                 "url": f"/api/runs/{run.id}/export/png" + (f"?view={view}" if view else "")})
     return {"run": run.id, "formats": out}
+
+
+def _no_view(m: RunManager, run: Run) -> str | None:
+    """Why an ended run's 3-D view shows no sheet to capture (no final state), or None."""
+    return _why_not(m.files.dir(run.id))["stl"] if run.state in ENDED else None
 
 
 def _viewer_client(m: RunManager, run_id: str, view: str | None) -> object:
@@ -111,11 +117,14 @@ def view_png(run_id: RunId, request: Request, view: Annotated[str | None, Query(
         "3-D view to capture, when it shows the run")] = None) -> Response:
     """A PNG of the 3-D view of the run, as the browser that has it open shows it (its
     camera, colour mode and step), rendered by that browser: 409 when no browser shows the run
-    (the viewer off, another run shown, no page open), 503 when it does not answer in time."""
+    (the viewer off, another run shown, no page open), 503 when it does not answer in time,
+    404 for a run that ended without a state to show (its view would be empty)."""
     import imageio.v3 as iio  # viser's dependency, loaded with the viewer
 
     m: RunManager = request.app.state.manager
     run = m.get(run_id)
+    if why := _no_view(m, run):
+        raise NotFound(why)
     client = _viewer_client(m, run.id, view)
     # the browser's camera at its canvas's shape, at least PNG_HEIGHT high (a canvas drawn at
     # a low pixel density, viewer_dpr=0.5, gave 345 x 259 px) and 4:3 wide (the page docks the

@@ -136,6 +136,10 @@ def test_a_run_without_a_final_state_says_so(cup):
                    client.get(f"/api/runs/{run_id}/exports").json()["formats"]}
         assert formats["csv"]["available"] and not formats["stl"]["available"]
         assert "final.npz" in formats["stl"]["reason"]
+        # nor a 3-D view of it: the viewer would draw no sheet (a PNG of an empty view)
+        assert formats["png"]["reason"] == formats["stl"]["reason"], formats["png"]
+        r = client.get(f"/api/runs/{run_id}/export/png")
+        assert r.status_code == 404 and r.json()["detail"] == formats["stl"]["reason"]
     finally:
         (folder / "kept.npz").rename(folder / "final.npz")
 
