@@ -570,19 +570,39 @@ async function followView() {
 
 async function poll() {
   try {
-    await loadRuns();
-    await followView();
-    if (state.run) await showRun(state.run);
-    else showNoRun();
+    // the runs list beside the view and its run: each request waits on a browser whose
+    // main thread also draws the 3-D view, and one after another they left the headline
+    // several steps behind the viewer
+    await Promise.all([loadRuns(), followView().then(
+      () => (state.run ? showRun(state.run) : showNoRun()))]);
   } catch (e) { say(e.message, true); }
-  await new Promise((ok) => { state.nudge = ok; setTimeout(ok, 500); });
+  // at most a few polls a second, however fast the run steps; sooner than half a second when
+  // something happened meanwhile (a click, a step of the run shown)
+  await new Promise((ok) => setTimeout(ok, 150));
+  if (!state.nudged) await new Promise((ok) => { state.nudge = ok; setTimeout(ok, 350); });
+  state.nudged = false;
+  state.nudge = null;
   poll();
 }
 
 function pollNow() {
   // a run selected: the next poll at once, not half a second later (headline, sliders and
   // plots then follow the click together)
+  state.nudged = true;
   if (state.nudge) state.nudge();
+}
+
+function followEvents(st) {
+  // the run shown, while it goes: its steps as the server has them (server-sent events) wake
+  // the poll, so the headline follows the 3-D view, which the solver's frames reach at once
+  const id = st && ACTIVE.includes(st.state) ? st.id : null;
+  if (state.events && state.events.run === id) return;
+  if (state.events) state.events.source.close();
+  state.events = null;
+  if (!id) return;
+  const source = new EventSource(`/api/runs/${encodeURIComponent(id)}/events?since=${st.step}`);
+  for (const e of ["step", "state", "end"]) source.addEventListener(e, pollNow);
+  state.events = { run: id, source };
 }
 
 async function showRun(id) {
@@ -593,6 +613,7 @@ async function showRun(id) {
   const st = await api("GET", `/api/runs/${id}?since=${since}&limit=1`);
   if (state.run !== id) return;
   state.status = st;
+  followEvents(st);
   if ($("msg").dataset.run === id && !ACTIVE.includes(st.state) && st.state !== "queued")
     say("");
   Owner.showTouched(st);
@@ -611,6 +632,7 @@ function showControls(st) {
 function showNoRun() {
   Results.none();
   state.status = null;
+  followEvents(null);
   showSlidersFor();
   Owner.showTouched(null);
   for (const a of ["pause", "resume", "step", "stop"]) $(a).disabled = true;

@@ -28,8 +28,11 @@ function unplot(div) {
 }
 
 const Plots = (() => {
+  // the toolbar keeps the image, box zoom and reset: with pan and the zoom steps as well it
+  // covered a plot's title in a narrow column (1280 px wide)
   const CONFIG = { displaylogo: false, responsive: true,
-                   modeBarButtonsToRemove: ["lasso2d", "select2d", "autoScale2d"] };
+                   modeBarButtonsToRemove: ["lasso2d", "select2d", "autoScale2d", "pan2d",
+                                            "zoomIn2d", "zoomOut2d"] };
   const FONT = { family: "system-ui, sans-serif", size: 11 };
   const ZONE_COLOURS = { failure: "#d62728", marginal: "#ff9f1c", safe: "#2ca02c",
                          "insufficient stretch": "#8c8c8c", "wrinkling tendency": "#9467bd" };
@@ -236,7 +239,7 @@ const Plots = (() => {
       }
     }
     const names = found.map((s) => `"${s.name}"`).join(", ");
-    const layout = { ...base(`Thickness along the section ${names}`, 280),
+    const layout = { ...base(`Thickness, section ${names}`, 280),
                      xaxis: axis("rest radius (mm)"), yaxis: axis("thickness (mm)") };
     return draw(div, traces, layout);
   }

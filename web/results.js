@@ -145,7 +145,7 @@ const Results = (() => {
     const cards = s.summary.map((e) => card(e, tools));
     if (!cards.length) {
       const none = document.createElement("div");
-      none.className = "muted";
+      none.className = "muted none";  // across the cards' columns, not in one
       none.textContent = st.state === "cancelled" ? "No summary: it never ran."
                                                    : "No summary: the run ended before it " +
                                                      "had a result.";
@@ -318,6 +318,9 @@ const Results = (() => {
     if (data.run !== shown) return;  // another run was selected meanwhile
     drawn.plots = k;
     plotsData = data;
+    // the live line reads the punch force from these: drawn again now, not a poll later
+    const box = document.getElementById("summary");
+    if (COMING.includes(st.state) && box.dataset.run === st.id) box.replaceChildren(liveLine());
     const $ = (id) => document.getElementById(id);
     const force = data.punches.filter((p) => p.force.values.length);
     Plots.show("force-fig", force.length > 0);

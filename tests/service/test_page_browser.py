@@ -6,8 +6,9 @@ server in a subprocess, with a small cup drawn by a punch (tests.support.scenes.
 - the summary cards show the API's summary values in their display units;
 - the punch force plot is against the stroke, with kN and mm on its axes, as are the section
   and forming limit plots in theirs;
-- the progress bar reaches 100 %; a live run's plots follow its steps, and a live-parameter
-  change is marked on the force plot.
+- the progress bar reaches 100 %; a live run's plots follow its steps, the headline's punch
+  force with them (the run's events wake the page's poll), and a live-parameter change is
+  marked on the force plot.
 
 With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/page/`."""
 
@@ -210,9 +211,15 @@ def test_live_plots_follow_the_steps(plain, browser):
         page.wait_for_function(f"document.getElementById('status').dataset.run === {run!r}")
         settled(plain, run)
         n_points = "document.getElementById('force-plot').data?.[0]?.x?.length"
+        # the run shown, while it goes, wakes the page's poll with its events (its steps)
+        page.wait_for_function(f"state.events && state.events.run === {run!r}")
         for step in (1, 2):
             httpx.post(f"{plain}/api/runs/{run}/step")
             page.wait_for_function(f"{n_points} === {step}")
+            # the headline's punch force is the plot's newest point (it read the plots of the
+            # poll before: a step behind)
+            x = page.evaluate("Units.num(document.getElementById('force-plot').data[0].x.at(-1))")
+            assert f"at {x} mm stroke" in page.text_content("#summary .live").split(";")[0]
         assert "left" in page.locator("#progress .text").text_content()
         assert page.get_attribute("#progress", "data-fraction") == str(2 / STEPS)
         r = httpx.put(f"{plain}/api/runs/{run}/parameters/friction_scale", json={"value": 2})
@@ -226,6 +233,7 @@ def test_live_plots_follow_the_steps(plain, browser):
         assert mark["shapes"][0]["x0"] == stroke_at_2  # where the change took effect
         assert "friction_scale = 2 (step 3)" in mark["annotations"][0]["text"]
         page.wait_for_function("document.getElementById('progress').dataset.fraction === '1'")
+        page.wait_for_function("state.events === null")  # closed with the run
         shot(page, SHOTS, "live-marked", settle_ms=SETTLE_MS)
         assert errors == []
     finally:
