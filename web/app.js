@@ -728,8 +728,13 @@ async function main() {
     } catch (e) { say(e.message, true); }
   };
   $("delete-scene").onclick = async () => {
-    if (!confirm(`delete scene ${state.scene}?`)) return;
     try {
+      // its runs stay, each with its own copy of the scene: said, so the question is not
+      // read as deleting them
+      const runs = (await api("GET", "/api/runs")).filter((r) => r.scene === state.scene);
+      const kept = runs.length ? ` Its ${runs.length === 1 ? "run stays" : `${runs.length} ` +
+        "runs stay"} in the Runs table, with the scene as it ran.` : "";
+      if (!confirm(`Delete scene ${state.scene}?${kept}`)) return;
       const previewed = state.previewing === state.scene;
       await api("DELETE", `/api/scenes/${state.scene}`);
       state.scene = null;

@@ -243,6 +243,30 @@ def test_a_changed_name_saves_a_new_scene_named_as_its_file(page, served):
         httpx.delete(f"{url}/api/scenes/{n}")
 
 
+def test_deleting_a_scene_says_its_runs_stay(page, served):
+    """Delete asks first, saying the scene's runs stay (each keeps its own copy of the
+    scene): the question is not read as deleting them, nor are they deleted."""
+    url, scenes = served
+    (scenes / "gone.toml").write_text(COARSE.replace('name = "cup"', 'name = "gone"'))
+    run = httpx.post(f"{url}/api/runs", json={"scene": "gone", "paused": True}).json()["id"]
+    httpx.post(f"{url}/api/runs/{run}/stop")
+    until(lambda: httpx.get(f"{url}/api/runs/{run}").json()["state"] in
+          ("stopped", "cancelled"), "the run did not stop")
+    page.reload()
+    page.click("#scenes li[data-name='gone']")
+    page.wait_for_function("document.getElementById('scene-name').value === 'gone'")
+    asked: list[str] = []
+    page.once("dialog", lambda d: (asked.append(d.message), d.accept()))
+    page.click("#delete-scene")
+    page.wait_for_function("!document.querySelector(\"#scenes li[data-name='gone']\")")
+    assert asked == ["Delete scene gone? Its run stays in the Runs table, with the scene "
+                     "as it ran."], asked
+    assert not (scenes / "gone.toml").exists()
+    assert httpx.get(f"{url}/api/runs/{run}").status_code == 200
+    page.wait_for_selector(f'#runs tbody tr[data-id="{run}"]')
+    httpx.delete(f"{url}/api/runs/{run}")
+
+
 def test_live_parameters_read_as_words_with_their_results(page, served):
     url, _ = served
     sliders = page.locator("#sliders")
