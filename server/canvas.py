@@ -23,7 +23,7 @@ import trimesh
 import viser
 
 from server.colormap import FAILURE_PCT, MARGINAL_PCT, MARGINAL_SHARE, TOOL_OPACITY, tool_colour
-from server.palette import DEFAULT_FIELD, FIELDS, Palette, field_label, field_options
+from server.palette import DEFAULT_FIELD, FIELDS, Palette, Scale, field_label, field_options
 from server.section import AXES, Section
 
 RUN_RANGE, FIXED_RANGE = "this run's", "fixed"
@@ -95,6 +95,7 @@ class Canvas:
         self.frame: dict | None = None  # the frame drawn
         # the surface last sent: its field (None: recorded colours), RGB per vertex and faces
         self.painted: tuple[str | None, np.ndarray, np.ndarray] | None = None
+        self.scale: Scale | None = None  # its colour scale (None: recorded colours)
         self.limits_by_user = False  # the thinning limits set in this browser
         self.colour, self.view = self._colour_controls(), self._view_controls()
         self.field, self.legend = self._legend_panel()
@@ -316,6 +317,7 @@ class Canvas:
             legend = ("<div class='q3t-legend'><b>Thickness</b>, colours as recorded (each "
                       "frame's min to max)</div>")
         self.painted = (key if fields else None, rgb, faces)
+        self.scale = scale if fields else None  # the legend's, for a PNG of the view
         if len(faces):  # the same name: the new surface replaces the old
             self.surface = self.client.scene.add_glb("/sheet/surface",
                                                      surface_glb(positions, faces, rgb))

@@ -84,7 +84,7 @@ def _fmt(v: float, digits: int = 4) -> str:
     return f"{v:.{digits}g}"
 
 
-def _ends(lo: float, mid: float, hi: float) -> list[str]:
+def scale_ends(lo: float, mid: float, hi: float) -> list[str]:
     """A scale's ends and middle, to the digits that tell them apart: a uniform 1 mm blank's
     scale (its least span, 1 um) read "0.9995 | 1 | 1" at four."""
     for digits in range(4, 9):
@@ -124,7 +124,7 @@ class Continuous:
     def legend(self) -> str:
         stops = ", ".join(f"rgb({r:.0f},{g:.0f},{b:.0f})" for r, g, b in COLORMAPS[self.cmap])
         u = f" {self.unit}" if self.unit and self.unit != "-" else ""
-        lo, mid, hi = _ends(self.lo, 0.5 * (self.lo + self.hi), self.hi)
+        lo, mid, hi = scale_ends(self.lo, 0.5 * (self.lo + self.hi), self.hi)
         return (f'<div class="q3t-legend" data-scale="continuous" style="font-size:0.85em">'
                 f"{_title(self.label, self.unit, self.note)}"
                 f'<div style="height:12px;border-radius:2px;margin:3px 0;border:1px solid #777;'

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import BaseModel, Field
@@ -21,7 +21,11 @@ from server.records import ENDED, Run
 from server.routers.view import ViewId
 from server.runs import RunManager
 from server.settings import RunId
+from server.snapshot import with_legend
 from sim.frames import export
+
+if TYPE_CHECKING:
+    from server.clientview import ClientView
 
 router = APIRouter(prefix="/api/runs", tags=["exports"], route_class=CheckedRoute)
 Format = Literal[tuple(export.FORMATS)]
@@ -93,9 +97,9 @@ def _no_view(m: RunManager, run: Run) -> str | None:
     return _why_not(m.files.dir(run.id))["stl"] if run.state in ENDED else None
 
 
-def _viewer_client(m: RunManager, run_id: str, view: str | None) -> object:
-    """The browser whose 3-D view shows ``run_id``: that of ``view`` if it does, else the
-    newest connected; Conflict saying why there is none."""
+def _viewer_client(m: RunManager, run_id: str, view: str | None) -> ClientView:
+    """The view of the browser whose 3-D view shows ``run_id``: that of ``view`` if it does,
+    else the newest connected; Conflict saying why there is none."""
     v = m.viewer
     if v is None:
         raise Conflict(VIEWER_OFF)
@@ -105,7 +109,7 @@ def _viewer_client(m: RunManager, run_id: str, view: str | None) -> object:
     showing = v.showing(run_id)
     if not showing:
         raise Conflict(f"no browser's 3-D view shows run {run_id!r}: select the run first")
-    return next((c for c in showing if c.view == view), showing[0]).client
+    return next((c for c in showing if c.view == view), showing[0])
 
 
 # before /export/{format}, which would answer png with a 422
@@ -125,7 +129,8 @@ def view_png(run_id: RunId, request: Request, view: Annotated[str | None, Query(
     run = m.get(run_id)
     if why := _no_view(m, run):
         raise NotFound(why)
-    client = _viewer_client(m, run.id, view)
+    shown = _viewer_client(m, run.id, view)
+    client = shown.client
     # the browser's camera at its canvas's shape, at least PNG_HEIGHT high (a canvas drawn at
     # a low pixel density, viewer_dpr=0.5, gave 345 x 259 px) and 4:3 wide (the page docks the
     # viewer's panel beside a narrow canvas; the camera's vertical field of view is kept)
@@ -138,6 +143,11 @@ def view_png(run_id: RunId, request: Request, view: Annotated[str | None, Query(
     except TimeoutError:
         raise NotReady(f"the browser showing the 3-D view did not render it in "
                        f"{RENDER_TIMEOUT:g} s") from None
+    # the browser renders the scene alone: the colour scale and what is shown drawn in
+    frame = shown.canvas.frame
+    step = "" if frame is None else \
+        f", step {frame['step']} of {'?' if run.n_steps is None else run.n_steps}"
+    image = with_legend(image, shown.canvas.scale, f"{run.scene}: run {run.id}{step}")
     return attachment(iio.imwrite("<bytes>", image, extension=".png"), "png", run.id)
 
 

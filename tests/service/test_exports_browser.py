@@ -14,6 +14,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from server.colormap import VIRIDIS
 from server.routers.exports import PNG_HEIGHT
 from sim.frames import export
 from tests.support.browser import WAIT_MS, page_url, serve, shot, shots_dir
@@ -137,10 +138,15 @@ def test_png_of_the_3d_view_is_rendered_by_the_pages_viewer(viewed, browser, tmp
     d.value.save_as(path)
     image = iio.imread(path)
     assert image.ndim == 3 and image.shape[0] >= PNG_HEIGHT and image.shape[1] >= PNG_HEIGHT
-    # the sheet is drawn: a part of the image is neither the background nor transparent
-    rgb = image[..., :3].reshape(-1, 3)
+    # the sheet is drawn: a part of the image above the legend (its bottom-left corner) is
+    # neither the background nor transparent
+    rgb = image[: image.shape[0] * 3 // 5, :, :3].reshape(-1, 3)
     background = np.all(rgb == rgb[0], axis=1)
     assert (~background).mean() > 0.01
+    # the thickness scale drawn in, at the bottom left: its bar's end colours, its caption
+    corner = image[-image.shape[0] // 5:, : image.shape[1] // 2, :3].reshape(-1, 3)
+    for end in (VIRIDIS[0], VIRIDIS[-1]):
+        assert np.all(corner == end, axis=1).any(), end
     # the API answers the same way while the page is open
     r = httpx.get(f"{url}/api/runs/{run}/export/png", timeout=120)
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
