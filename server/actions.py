@@ -12,6 +12,7 @@ from server import replay
 from server.problems import Conflict, Invalid, NotFound, NotReady
 from server.records import ACTIVE, CANCELLED, QUEUED
 from server.runs import RunManager
+from sim.stepping.parameters import label
 
 
 class ViewerActions:
@@ -48,7 +49,7 @@ class ViewerActions:
         except (Conflict, Invalid, NotFound, NotReady) as exc:
             return str(exc)
         when = f"from step {r['applies_from_step']}" if r["applied"] else "from the next step"
-        out = f"{name} = {value:.4g} {when}"
+        out = f"{label(name)[0]} {value:.4g} {when}"
         return f"{out}  \n{notice}" if notice else out
 
     def scaled(self, run_id: str | None) -> dict:

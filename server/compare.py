@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from server.plots import plots
+from server.plots import labelled, plots
 from server.problems import Conflict, Invalid, NotFound
 from server.records import ENDED
 from server.scenediff import flat_scene, shown, value_text
@@ -164,7 +164,7 @@ def differences(runs: list[Loaded]) -> dict:
             path = next(p[k] for p in paths if k in p)
             items.append({"what": k, "values": values, "unit": unit_of(path)})
     edited = [r.letter for r in runs if r.status.get("edited")]
-    live = {r.letter: r.status.get("parameter_log") or [] for r in runs}
+    live = {r.letter: labelled(r.status.get("parameter_log") or []) for r in runs}
     return {"items": items, "live": live, "edited": edited,
             "line": _line(runs, items, live, edited)}
 
@@ -174,7 +174,7 @@ def _line(runs: list[Loaded], items: list[dict], live: dict, edited: list[str]) 
     parts = [shown(it) for it in items[:LINE_ITEMS]]
     if len(items) > LINE_ITEMS:
         parts.append(f"and {len(items) - LINE_ITEMS} more settings")
-    changes = [f"{letter}: {e['name']} = {value_text(e['value'])} from step {e['step']}"
+    changes = [f"{letter}: {e['label']} {value_text(e['value'])} from step {e['step']}"
                for letter, log in live.items() for e in log]
     if changes:
         parts.append("live changes " + "; ".join(changes))

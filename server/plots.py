@@ -11,6 +11,7 @@ from sim.frames import results
 from sim.frames.probes import PROBES
 from sim.frames.punch import punch_history
 from sim.frames.units import measure
+from sim.stepping.parameters import label
 
 # the most steps a plot shows: a longer run's every k-th step and its last (a browser draws a
 # few thousand points at once; the summary holds the exact peaks)
@@ -36,9 +37,14 @@ def plots(status: dict, result: dict | None) -> dict:
            "solver": {"steps": [r["step"] for r in records],
                       "residual": [r["residual"] for r in records],
                       "iterations": [r["iterations"] for r in records]},
-           "parameter_log": status.get("parameter_log") or [],
+           "parameter_log": labelled(status.get("parameter_log") or []),
            "sections": sections((result or {}).get("sections") or {})}
     return results.finite(out)[0]  # JSON has no NaN: a missing value is null
+
+
+def labelled(log: list[dict]) -> list[dict]:
+    """A run's live-parameter changes, each with the label the page's slider has (Friction ×)."""
+    return [{**e, "label": label(e["name"])[0]} for e in log]
 
 
 def shown(values: list | np.ndarray, unit: str) -> dict:

@@ -22,6 +22,7 @@ from server.settings import check_run_id
 from server.store import atomic_write
 from sim.frames import results
 from sim.scene.load import unit_of
+from sim.stepping.parameters import label
 
 ACTIVE = {"starting", "building", "running", "paused"}
 # waits for a free solver process (``RunManager.queue``); then starts, or is cancelled
@@ -113,8 +114,10 @@ class Run:
         out = list(self.edits or ["unsaved edits of the scene"]) if self.edited else []
         out += [f"{k} = {override_text(k, v)}" for k, v in self.overrides.items()
                 if k != "shell.element"]
-        out += [f"{k} ×{v:.4g} from step 1" for k, v in self.given.items() if v != AS_WRITTEN]
-        out += [f"{e['name']} ×{e['value']:.4g} from step {e['step']}"
+        # the live parameters as the page's sliders name them (Friction × 0.5)
+        out += [f"{label(k)[0]} {v:.4g} from step 1" for k, v in self.given.items()
+                if v != AS_WRITTEN]
+        out += [f"{label(e['name'])[0]} {e['value']:.4g} from step {e['step']}"
                 for e in self.parameter_log]
         return out
 

@@ -96,6 +96,10 @@ async function loadScenes() {
     li.textContent = s.name + (s.description ? " — " + s.description : "");
     li.dataset.name = s.name;
     li.className = s.name === state.scene ? "sel" : "";
+    li.tabIndex = 0;  // opened with the keyboard too (Enter or Space)
+    li.onkeydown = (ev) => {
+      if (ev.key === "Enter" || ev.key === " ") { ev.preventDefault(); li.onclick(); }
+    };
     li.onclick = () => {
       // choosing a scene (again) replaces the editor's text: unsaved edits are asked for first
       if (state.unsaved && !confirm(s.name === state.scene
@@ -416,7 +420,11 @@ function paramRow(name, r, text) {
   row.className = "param";
   row.dataset.name = name;
   const label = document.createElement("label");
-  const out = document.createElement("output");
+  // the value, also typed: an exact value without dragging (a tap on a touch screen's
+  // slider moved a running run's holder force to wherever it landed)
+  const out = Object.assign(document.createElement("input"), {
+    type: "text", inputMode: "decimal", className: "param-box", value: "1", disabled: true });
+  out.setAttribute("aria-label", `${text} value`);
   const result = document.createElement("span");
   const inp = document.createElement("input");
   // the whole range the server accepts (load_scale goes to 100), in about 1000 steps of a
@@ -428,13 +436,26 @@ function paramRow(name, r, text) {
   out.id = `param-${name}-value`;
   result.id = `param-${name}-result`;
   result.className = "param-result";
-  out.textContent = "1";  // no run shown yet: as written
+  inp.dataset.label = text;
   inp.oninput = () => {
     inp.dataset.busy = "1";
-    out.textContent = inp.value;
+    out.value = inp.value;
     showResult(name, +inp.value, state.status);
   };
   inp.onchange = () => setParameter(inp, out);
+  out.oninput = () => { inp.dataset.busy = "1"; };  // the run's value waits for Enter
+  out.onchange = () => {
+    const v = Number(out.value.trim().replace(",", "."));
+    if (out.value.trim() === "" || !Number.isFinite(v) || v < r.min || v > r.max) {
+      say(`${text}: ${out.value.trim() || "nothing"} is not a number from ${r.min} to ${r.max}`,
+          true);
+      delete inp.dataset.busy;
+      return showValue(inp, out, state.status && state.status.parameters[name]);
+    }
+    inp.value = v;
+    showResult(name, v, state.status);
+    setParameter(inp, out, v);
+  };
   const span = document.createElement("span");
   span.className = "param-name";
   span.textContent = text;
@@ -486,14 +507,16 @@ function showResult(name, value, st) {
   box.title = box.textContent;
 }
 
-async function setParameter(inp, out) {
+async function setParameter(inp, out, value = +inp.value) {
+  // ``value``: the slider's, or the one typed (the slider rounds to its step)
   const run = state.run;
+  const what = inp.dataset.label;
   state.paramSeq++;
   try {
-    if (!Owner.allow(state.status, `Change ${inp.name} of`)) throw new Error("not changed");
-    const r = await api("PUT", `/api/runs/${run}/parameters/${inp.name}`, { value: +inp.value });
-    say((r.applied ? `${inp.name} = ${r.value} from step ${r.applies_from_step}`
-                   : `${inp.name} = ${r.value} from the next step (the solver is mid-step)`) +
+    if (!Owner.allow(state.status, `Set ${what} on`)) throw new Error("not changed");
+    const r = await api("PUT", `/api/runs/${run}/parameters/${inp.name}`, { value });
+    say((r.applied ? `${what} ${r.value} from step ${r.applies_from_step}`
+                   : `${what} ${r.value} from the next step (the solver is mid-step)`) +
         (r.notice ? `; ${r.notice}` : ""));
   } catch (e) {
     say(e.message, true);
@@ -507,7 +530,7 @@ async function setParameter(inp, out) {
 function showValue(inp, out, value) {
   if (value === undefined || value === null) return;
   inp.value = value;
-  out.textContent = String(+(+value).toPrecision(6));
+  if (document.activeElement !== out) out.value = String(+(+value).toPrecision(6));
 }
 
 function showParameters(st, paramSeq = state.paramSeq) {
@@ -517,9 +540,10 @@ function showParameters(st, paramSeq = state.paramSeq) {
   const settled = paramSeq === state.paramSeq && !(st.pending || []).includes("set");
   showSlidersFor();
   toolSliders(st);
-  for (const inp of document.querySelectorAll("#sliders input")) {
-    inp.disabled = !active;
-    inp.title = active ? "" : `run ${st.id} is ${st.state}: its values, as it ended`;
+  for (const inp of document.querySelectorAll("#sliders input[type=range]")) {
+    const box = $(`param-${inp.name}-value`);
+    inp.disabled = box.disabled = !active;
+    inp.title = box.title = active ? "" : `run ${st.id} is ${st.state}: its values, as it ended`;
     if (settled && !inp.dataset.busy)
       showValue(inp, $(`param-${inp.name}-value`), st.parameters[inp.name]);
     if (!inp.dataset.busy) showResult(inp.name, st.parameters[inp.name] ?? +inp.value, st);
@@ -721,10 +745,12 @@ async function main() {
       // the copy is of what the editor holds: its unsaved edits go with it, not lost
       const body = { name };
       if (state.unsaved) { await flushSync(); body.toml = $("toml").value; }
-      await api("POST", `/api/scenes/${state.scene}/duplicate`, body);
+      const from = state.scene;
+      await api("POST", `/api/scenes/${from}/duplicate`, body);
       state.scene = name;
       await loadScenes();
       await selectScene(name);
+      say(`duplicated ${from} as ${name}`);  // in place of an earlier refusal's words
     } catch (e) { say(e.message, true); }
   };
   $("delete-scene").onclick = async () => {
@@ -736,9 +762,11 @@ async function main() {
         "runs stay"} in the Runs table, with the scene as it ran.` : "";
       if (!confirm(`Delete scene ${state.scene}?${kept}`)) return;
       const previewed = state.previewing === state.scene;
-      await api("DELETE", `/api/scenes/${state.scene}`);
+      const gone = state.scene;
+      await api("DELETE", `/api/scenes/${gone}`);
       state.scene = null;
       await loadScenes();
+      say(`deleted scene ${gone}`);
       // not the deleted scene's preview left in the viewer; a run it shows stays
       if (previewed && state.scene) previewScene(state.scene);
     } catch (e) { say(e.message, true); }

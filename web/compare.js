@@ -335,7 +335,7 @@ const Compare = (() => {
                       line: { color: colour(i), width: 1.5, dash: "dot" } });
         annotations.push({ ...Plots.markLabel(annotations.length), x,
                            font: { size: 10, color: colour(i) },
-                           text: `${r.letter}: ${e.name} = ${Units.num(e.value)}` });
+                           text: `${r.letter}: ${e.label} ${Units.num(e.value)}` });
       }
     });
     return { shapes, annotations };

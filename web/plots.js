@@ -107,7 +107,7 @@ const Plots = (() => {
       shapes.push({ type: "line", xref: "x", yref: "paper", x0: x, x1: x, y0: 0, y1: 1,
                     line: { color: MARK, width: 1.5, dash: "dot" } });
       notes.push({ ...markLabel(notes.length), x,
-                   text: `${e.name} = ${Units.num(e.value)} (step ${e.step})`,
+                   text: `${e.label} ${Units.num(e.value)} (step ${e.step})`,
                    font: { size: 10, color: MARK } });
     }
     return { shapes, annotations: notes };

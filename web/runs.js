@@ -226,6 +226,7 @@ const RunsTable = (() => {
   function row(r) {
     const tr = document.createElement("tr");
     tr.className = r.id === selected ? "sel" : "";
+    tr.tabIndex = 0;  // chosen with the keyboard too (Enter or Space)
     Object.assign(tr.dataset, { id: r.id, state: r.state, edited: String(!!r.edited) });
     for (const c of COLUMNS) {
       const td = document.createElement("td");
@@ -256,8 +257,13 @@ const RunsTable = (() => {
     const tbody = table.querySelector("tbody");
     const old = new Map([...tbody.rows].map((tr) => [tr.dataset.id, tr]));
     const rows = order(runs).map((r) => rowFor(r, old));
+    // a row with the keyboard's focus keeps it when a poll redraws it (its selection does)
+    const focused = document.activeElement;
+    const kept = focused && focused.parentNode === tbody ? focused.dataset.id : null;
     if (rows.length !== tbody.rows.length || rows.some((tr, i) => tbody.rows[i] !== tr))
       tbody.replaceChildren(...rows);
+    const again = kept && rows.find((tr) => tr.dataset.id === kept);
+    if (again && again !== document.activeElement) again.focus({ preventScroll: true });
     const box = document.getElementById("runs-box");
     box.querySelector("summary").textContent = `Runs (${runs.length})`;
   }
@@ -290,6 +296,12 @@ const RunsTable = (() => {
     document.querySelector("#runs tbody").addEventListener("pointerdown", (ev) => {
       const tr = ev.target.closest("tr[data-id]");
       if (ev.button !== 0 || !tr || ev.target.closest("a, button")) return;
+      hooks.select(tr.dataset.id);
+    });
+    document.querySelector("#runs tbody").addEventListener("keydown", (ev) => {
+      const tr = ev.target;
+      if ((ev.key !== "Enter" && ev.key !== " ") || !tr.matches("tr[data-id]")) return;
+      ev.preventDefault();  // Space would scroll the page
       hooks.select(tr.dataset.id);
     });
   }

@@ -56,7 +56,8 @@ class Plots(BaseModel):
     probes: list[ProbeSeries]
     solver: dict[str, list[float | None]] = Field(description="steps, residual, iterations")
     parameter_log: list[dict] = Field(description="live parameter changes: {step (the first "
-                                      "it applies to), name, value}")
+                                      "it applies to), name, value, label (as the page's "
+                                      "slider names it)}")
     sections: list[Section] = Field(description="the scene's [[sections]] at their steps "
                                     "(once the run has written its result)")
 

@@ -138,12 +138,13 @@ def test_the_line_says_what_differs(env, runs):
     assert "scene" not in items and len(items) == 3  # nothing else differs
     # a tool's field found by its name (tools.punch: tools.0 in the schema); friction has no unit
     assert {it["what"]: it["unit"] for it in d["items"]}["tools.punch.friction"] == "1"
-    assert d["live"]["B"] == [{"step": 3, "name": "friction_scale", "value": 2.0}]
+    assert d["live"]["B"] == [{"step": 3, "name": "friction_scale", "value": 2.0,
+                               "label": "Friction ×"}]
     assert d["live"]["A"] == d["live"]["C"] == []
     line = d["line"]
     assert line.startswith("A/B/C differ in: shell.element q3t | q3t | linear")
     assert "tools.punch.friction 0.1 | 0.05 | 0.1" in line
-    assert "B: friction_scale = 2 from step 3" in line
+    assert "B: Friction × 2 from step 3" in line
     same = client.get(f"/api/compare?runs={a},{a}")
     assert same.status_code == 422  # a run named twice
     alike = client.get(f"/api/compare?runs={a},{c}").json()["differs"]

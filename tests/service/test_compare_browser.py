@@ -97,7 +97,7 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     more = dict(page.eval_on_selector_all("#compare-runs tr", "rows => rows.map(r => "
                                           "[r.querySelector('input').value, "
                                           "r.querySelector('.more').textContent])"))
-    assert more[a].startswith("friction_scale ×2 from step "), more
+    assert more[a].startswith("Friction × 2 from step "), more
     assert more[b].startswith("tools.0.friction = 0.05 · tools.1.friction = 0.05 · "), more
     shot(page, SHOTS, "panel", settle_ms=SETTLE_MS)
     page.click("#compare-open")
@@ -106,7 +106,7 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     api = httpx.get(f"{url}/api/compare?runs={c},{a}").json()
     assert page.text_content("#compare-differs") == api["differs"]["line"]
     assert "shell.element linear | q3t" in api["differs"]["line"]
-    assert "live changes B: friction_scale = 2 from step 3" in api["differs"]["line"]
+    assert "live changes B: Friction × 2 from step 3" in api["differs"]["line"]
     # the summary table: A's value, B's and B - A as the API gives them
     row = page.locator("#compare-summary tr[data-name='peak_punch_force']")
     values = row.locator("td .value").all_text_contents()
@@ -127,7 +127,7 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
                           " return [l.shapes.map(s => s.x0), l.annotations.map(a => a.text)]; }")
     b_punch = next(p for p in api["punches"] if p["run"] == a)
     assert marks == [[b_punch["stroke"]["values"][b_punch["steps"].index(2)]],
-                     ["B: friction_scale = 2"]]
+                     ["B: Friction × 2"]]
     # the probes: a row per quantity, each with its legend of both runs' probes above it
     rows = stacked_rows(page, "compare-probes")
     assert [(r["title"], r["unit"]) for r in rows] == [

@@ -311,7 +311,7 @@ def test_live_parameters_read_as_words_with_their_results(page, served):
     # the cup has no loads: Load × says it scales nothing, rather than nothing at all
     load = page.text_content("#param-load_scale-result")
     assert load == "nothing in this run's scene to scale", load
-    assert page.text_content("#param-friction_scale-value") == "2"
+    assert page.input_value("#param-friction_scale-value") == "2"
     shot(page, SHOTS, "05-live-parameters", settle_ms=SETTLE_MS)
     httpx.post(f"{url}/api/runs/{run}/stop")
 

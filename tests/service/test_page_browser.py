@@ -231,7 +231,7 @@ def test_live_plots_follow_the_steps(plain, browser):
         mark = page.evaluate("document.getElementById('force-plot').layout")
         stroke_at_2 = page.evaluate("document.getElementById('force-plot').data[0].x[1]")
         assert mark["shapes"][0]["x0"] == stroke_at_2  # where the change took effect
-        assert "friction_scale = 2 (step 3)" in mark["annotations"][0]["text"]
+        assert "Friction × 2 (step 3)" in mark["annotations"][0]["text"]
         page.wait_for_function("document.getElementById('progress').dataset.fraction === '1'")
         page.wait_for_function("state.events === null")  # closed with the run
         shot(page, SHOTS, "live-marked", settle_ms=SETTLE_MS)

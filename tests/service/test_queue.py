@@ -338,8 +338,8 @@ def test_the_list_says_what_each_run_changed(tmp_path):
         assert r.status_code == 202 and r.json()["applied"], r.text
         step = r.json()["applies_from_step"]
         listed = {r["id"]: r for r in client.get("/api/runs").json()}[run]
-        assert listed["changes"] == ["material.nu = 0.25", "load_scale ×2 from step 1",
-                                     f"friction_scale ×0.5 from step {step}"]
+        assert listed["changes"] == ["material.nu = 0.25", "Load × 2 from step 1",
+                                     f"Friction × 0.5 from step {step}"]
         assert listed["results"] == {}  # not ended: no result yet
         client.post(f"/api/runs/{run}/stop")
         wait_state(client, run, ENDED)

@@ -69,7 +69,7 @@ def test_the_queue_in_the_table(served, browser):
     # in the unit the scene form shows it in, labelled (the scene holds 6e7 Pa)
     assert cell(page, cups[1], "changes") == "material.yield_stress = 60 MPa"
     assert cell(page, cups[0], "changes") == "as saved"
-    assert cell(page, cups[2], "changes") == "friction_scale ×0.5 from step 1"
+    assert cell(page, cups[2], "changes") == "Friction × 0.5 from step 1"
     # the id without its scene and element, which have columns of their own
     assert cups[0].endswith(cell(page, cups[0], "run"))
     assert cell(page, cups[0], "scene") == "tiny_cup" and cell(page, cups[0], "element") == "q3t"

@@ -46,7 +46,7 @@ def test_overrides_in_engineers_units_and_the_flc_warning(served, browser):
     changes = page.text_content(f"{row} td.col-changes")
     assert changes == ("mesh.edge_length = 4 mm; material.E = 70000 MPa; "
                        "shell.thickness = 0.5 mm; tools.0.friction = 0.15; "
-                       "material.flc.n = 0.25; friction_scale ×0.5 from step 1"), changes
+                       "material.flc.n = 0.25; Friction × 0.5 from step 1"), changes
     shot(page, SHOTS, "01-runs-table.png", where="#runs-box")
     # the run selected (it is: the newest), its FLD with the curve's warning under it
     page.click(f"{row} td.col-scene")

@@ -40,7 +40,8 @@ def slide(page, name: str, value: float) -> None:
 
 
 def text(page, selector: str) -> str:
-    return page.text_content(f"[id='{selector}']") or ""
+    """The element's text, or a box's value (a live parameter's value is a box to type in)."""
+    return page.eval_on_selector(f"[id='{selector}']", "e => e.value ?? e.textContent") or ""
 
 
 def test_a_slider_per_tool_changes_that_tools_friction(browser, url):

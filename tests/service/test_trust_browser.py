@@ -189,7 +189,7 @@ def test_sliders_show_the_runs_values(served, browser):
     page.click("#pause")  # streaming stops: the viewer is slow in software WebGL
     settled(url, run)
     until(lambda: viewer_slider(page, "friction_scale") == 2.0, "viewer slider")
-    assert page.text_content("#param-friction_scale-value") == "2"
+    assert page.input_value("#param-friction_scale-value") == "2"
     shot(page, SHOTS, "06-friction-2-page-and-viewer", settle_ms=SETTLE_MS)
 
     page.click("#resume")
