@@ -106,6 +106,39 @@ def test_start_in_view_and_the_viewer_in_the_centre(served, browser, size):
         page.close()
 
 
+@pytest.mark.parametrize("size", [(1024, 768), (768, 1024), (390, 844)])
+def test_tablets_and_phones_get_a_layout_of_their_own(served, browser, size):
+    """A tablet in landscape: two columns, the 3-D view most of the width; upright or on a
+    phone: one column, the run's headline and view first, then the scene, its Start and the
+    live parameters, then the plots. Nothing is wider than the screen (the desktop's three
+    columns, drawn shrunk to 40 % on a phone, left the view a 93 px strip at 768 px)."""
+    w, h = size
+    context = browser.new_context(viewport={"width": w, "height": h}, has_touch=True,
+                                  is_mobile=w < 500)
+    page = context.new_page()
+    try:
+        page.goto(served)
+        page.wait_for_selector("#scenes li.sel")
+        assert page.evaluate("document.documentElement.scrollWidth") <= w
+        view = page.locator("#viewer-box").bounding_box()
+        assert view["width"] >= (0.6 if w > 820 else 0.9) * w, view
+        assert view["height"] >= 0.5 * min(h, 1000), view
+        centre, left = (page.locator(s).bounding_box() for s in ("#centre", "#left"))
+        if w > 820:
+            assert centre["x"] > left["x"] and abs(centre["y"] - left["y"]) < 5
+        else:
+            assert centre["y"] < left["y"]  # the run first
+        # every control reachable: Start and a live parameter's box in the page's width
+        for sel in ("#start", "#sliders .param-box"):
+            page.locator(sel).first.scroll_into_view_if_needed()
+            box = page.locator(sel).first.bounding_box()
+            assert box["x"] >= 0 and box["x"] + box["width"] <= w, (sel, box)
+        page.evaluate("window.scrollTo(0, 0)")
+        shot(page, SHOTS, f"narrow-{w}x{h}", settle_ms=SETTLE_MS)
+    finally:
+        context.close()
+
+
 def test_results_of_a_finished_run(plain, browser):
     page, errors = open_page(browser, plain)
     try:
