@@ -189,6 +189,11 @@ class RunManager:
             after = [r for r in run.records if r["step"] > since]
             page = after[:limit]
             out = {**run.summary(), "records": page, "records_left": len(after) - len(page)}
+            # a queued run waits on the runs the solvers hold: a paused one holds its solver
+            # until it is resumed or stopped, which the page says (it waited in silence)
+            out["waiting_for"] = [{"id": s.run, "state": self.runs[s.run].state}
+                                  for s in self.slots if s.run and s.run in self.runs] \
+                if run.state == QUEUED else []
             # a run saved before its status held every parameter: the others were as written
             out["parameters"] = self._start_values(out["parameters"])
         out["estimate"] = self.estimates.get(run)  # reads files: outside the lock

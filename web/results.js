@@ -39,6 +39,11 @@ const Results = (() => {
     const parts = [`step ${p.step}/${p.steps ?? "?"}`, `${Math.floor(pct)} %`];
     if (st.state === "queued") {
       parts.push(`waiting for a solver, #${st.place} in the queue`);
+      // a paused run keeps its solver: the queue waits for it to be resumed or stopped
+      const paused = (st.waiting_for || []).filter((r) => r.state === "paused");
+      if (paused.length && paused.length === (st.waiting_for || []).length)
+        parts.push(`${paused.map((r) => r.id).join(", ")} ${paused.length > 1 ? "hold" :
+          "holds"} it paused: resume or stop ${paused.length > 1 ? "them" : "it"} to start this run`);
     } else if (ACTIVE.includes(st.state)) {
       parts.push(`${Units.duration(p.elapsed_s)} elapsed`);
       parts.push(p.remaining_s === null ? "remaining: after the first step"

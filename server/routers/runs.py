@@ -167,9 +167,17 @@ class StepRecord(BaseModel):
                                    "normal forces are (relative; settled at 1e-3)")
 
 
+class Holder(BaseModel):
+    id: str
+    state: str
+
+
 class RunStatus(RunSummary):
     records: list[StepRecord] = Field(description="step records after ``since``, in step "
                                       "order")
+    waiting_for: list[Holder] = Field(default_factory=list, description=(
+        "a queued run: the runs on the solver processes now, one of which it waits for (a "
+        "paused one holds its solver until resumed or stopped); [] otherwise"))
     records_left: int = Field(description="records after these: ask again from the last step")
 
 

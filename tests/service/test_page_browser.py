@@ -273,6 +273,28 @@ def test_live_plots_follow_the_steps(plain, browser):
         page.close()
 
 
+def test_a_queued_run_names_the_paused_run_it_waits_for(plain, browser):
+    """One solver, held by a paused run: a run started after it waits, and its headline says
+    for what and what to do (it said only 'waiting for a solver', for ever)."""
+    page, errors = open_page(browser, plain)
+    held = httpx.post(f"{plain}/api/runs", json={"scene": "tiny_cup", "paused": True}).json()
+    waiting = httpx.post(f"{plain}/api/runs", json={"scene": "tiny_cup"}).json()
+    try:
+        assert waiting["state"] == "queued", waiting
+        until(lambda: httpx.get(f"{plain}/api/runs/{held['id']}").json()["state"] == "paused",
+              "the first run never paused")
+        page.click(f'#runs tbody tr[data-id="{waiting["id"]}"] td:first-child')
+        page.wait_for_function("t => document.querySelector('#progress .text').textContent"
+                               ".includes(t)", arg=f"{held['id']} holds it paused: resume or "
+                               "stop it to start this run")
+        shot(page, SHOTS, "queued-behind-paused")
+        assert errors == []
+    finally:
+        for run in (waiting["id"], held["id"]):
+            httpx.post(f"{plain}/api/runs/{run}/stop")
+        page.close()
+
+
 def test_choosing_a_scene_previews_it_in_3d(served, browser):
     """A click on a scene in the list shows its blank and tools at rest in the viewer before
     any run (``PUT /api/view/scene``, built by the solver process); selecting a run then

@@ -101,6 +101,11 @@ def test_queued_runs_start_in_order_and_a_cancelled_one_never(tmp_path):
         b, c, d = (r["id"] for r in runs)
         st = client.get(f"/api/runs/{c}").json()
         assert st["place"] == 2 and st["progress"]["elapsed_s"] is None
+        # what it waits for: the run on the one solver, paused (the page says to resume it)
+        wait_state(client, holder["id"], {"paused"})
+        st = client.get(f"/api/runs/{c}").json()
+        assert st["waiting_for"] == [{"id": holder["id"], "state": "paused"}], st
+        assert client.get(f"/api/runs/{holder['id']}").json()["waiting_for"] == []
         r = client.post(f"/api/runs/{c}/pause")  # only a stop acts on a queued run
         assert r.status_code == 409 and "queued (2nd in the queue)" in r.json()["detail"]
         r = client.post(f"/api/runs/{c}/stop")
