@@ -38,8 +38,18 @@ def plots(status: dict, result: dict | None) -> dict:
                       "residual": [r["residual"] for r in records],
                       "iterations": [r["iterations"] for r in records]},
            "parameter_log": labelled(status.get("parameter_log") or []),
+           "sheet": sheet_series(records),
            "sections": sections((result or {}).get("sections") or {})}
     return results.finite(out)[0]  # JSON has no NaN: a missing value is null
+
+
+def sheet_series(records: list[dict]) -> dict:
+    """The sheet's least thickness (mm) and largest thinning (%) at each step (none for a
+    run recorded before its steps held them)."""
+    kept = [r for r in records if r.get("sheet")]
+    return {"steps": [r["step"] for r in kept],
+            "min_thickness": shown([r["sheet"]["min_thickness"] for r in kept], "m"),
+            "max_thinning": shown([r["sheet"]["max_thinning"] for r in kept], "1")}
 
 
 def labelled(log: list[dict]) -> list[dict]:

@@ -185,16 +185,25 @@ const Results = (() => {
     const div = document.createElement("div");
     div.className = "live muted";
     const p = plotsData && plotsData.punches.find((c) => c.force.values.length);
-    if (!p) {
-      div.textContent = "The summary appears when the run ends.";
-      return div;
+    const parts = [];
+    if (p) {
+      const f = p.force.values, n = f.length - 1;
+      const peak = f.reduce((k, v, i) => (v > f[k] ? i : k), 0);
+      const at = (i) => (p.stroke ? ` at ${Units.num(p.stroke.values[i])} mm stroke` :
+                                    ` at step ${p.steps[i]}`);
+      parts.push(`Punch force now ${Units.num(f[n])} kN${at(n)}; peak so far ` +
+                 `${Units.num(f[peak])} kN${at(peak)}.`);
     }
-    const f = p.force.values, n = f.length - 1;
-    const peak = f.reduce((k, v, i) => (v > f[k] ? i : k), 0);
-    const at = (i) => (p.stroke ? ` at ${Units.num(p.stroke.values[i])} mm stroke` :
-                                  ` at step ${p.steps[i]}`);
-    div.textContent = `Punch force now ${Units.num(f[n])} kN${at(n)}; peak so far ` +
-      `${Units.num(f[peak])} kN${at(peak)}. The summary appears when the run ends.`;
+    // the sheet now: what the engineer watches for besides the force (the cards come at the
+    // end); thinning to one decimal, as the cards show it
+    const s = plotsData && plotsData.sheet;
+    if (s && s.steps.length) {
+      const k = s.steps.length - 1, thin = s.max_thinning.values[k];
+      parts.push(`Sheet now: thinnest ${Units.num(s.min_thickness.values[k])} mm, ` +
+                 `thinning up to ${thin === null ? "–" : thin.toFixed(1)} %.`);
+    }
+    parts.push("The summary appears when the run ends.");
+    div.textContent = parts.join(" ");
     return div;
   }
 

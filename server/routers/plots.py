@@ -47,6 +47,12 @@ class Section(BaseModel):
     steps: list[SectionStep]
 
 
+class SheetSeries(BaseModel):
+    steps: list[int]
+    min_thickness: Series = Field(description="the least thickness over the vertices")
+    max_thinning: Series = Field(description="the largest thinning over the vertices")
+
+
 class Plots(BaseModel):
     run: str
     step: int
@@ -60,6 +66,8 @@ class Plots(BaseModel):
                                       "slider names it)}")
     sections: list[Section] = Field(description="the scene's [[sections]] at their steps "
                                     "(once the run has written its result)")
+    sheet: SheetSeries = Field(description="the sheet at each step, while the run goes (its "
+                               "summary comes at the end)")
 
 
 @router.get("/{run_id}/plots", response_model=Plots, responses=documented(404, 422))

@@ -165,6 +165,9 @@ class StepRecord(BaseModel):
     tools: dict[str, ToolReport] = Field(default_factory=dict, description="per tool")
     friction_change: float = Field(0.0, description="how far from settled friction's lagged "
                                    "normal forces are (relative; settled at 1e-3)")
+    sheet: dict[str, float] = Field(default_factory=dict, description=(
+        "the sheet at the step's end: min_thickness (m), max_thinning (a fraction) over its "
+        "vertices"))
 
 
 class Holder(BaseModel):

@@ -51,6 +51,9 @@ class StepRecord:
     # friction: how far from the state's own the lagged normal forces are (largest change,
     # relative to the largest force; Newton takes them at every iterate, sim.solve.newton)
     friction_change: float = 0.0
+    # the sheet now: its least thickness (m) and largest thinning (a fraction) over the
+    # vertices, which a page shows while the run goes (the summary comes at its end)
+    sheet: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -394,7 +397,7 @@ class Simulation:
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, res.iterations, res.residuals[-1],
                          res.energy, 0, probes.evaluate(m, self.x, formed=self.formed),
-                         self._tool_reports(), change)
+                         self._tool_reports(), change, self._sheet())
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start
@@ -504,7 +507,7 @@ class Simulation:
         self.step_index += 1
         rec = StepRecord(self.step_index, self.t, iters, res.residuals[-1], res.energy, cutbacks,
                          probes.evaluate(self.model, self.x), self._tool_reports(),
-                         self._lag_change(self.x))
+                         self._lag_change(self.x), self._sheet())
         self.records.append(rec)
         self._record_sections()
         self.wall += time.perf_counter() - start
@@ -540,6 +543,11 @@ class Simulation:
             if progress:
                 progress(self, rec)
         return True
+
+    def _sheet(self) -> dict[str, float]:
+        h = fields.thickness(self.model, self.x)
+        return {"min_thickness": float(h.min()),
+                "max_thinning": float(fields.thinning(h, self.h0, self.x).max())}
 
     def _tool_reports(self) -> dict[str, dict]:
         return {t.tool: t.report(self.x) for t in self._active_tools()}

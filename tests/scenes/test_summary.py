@@ -372,6 +372,14 @@ def test_stretched_sheet_strains_thinning_and_volume_match_the_closed_form(state
         assert s["min_thickness"]["value"] == pytest.approx(0.001 * np.exp(e3), rel=STRAIN_TOL)
         assert s["max_thinning"]["value"] == pytest.approx(-np.expm1(e3), rel=1e-6)
         assert s["max_thinning"]["display"]["unit"] == "%"
+        # the step's own record of the sheet (what a page shows while the run goes): at the
+        # last step, the summary's values
+        last = sim.records[-1].sheet
+        assert last["min_thickness"] == pytest.approx(s["min_thickness"]["value"], rel=1e-12)
+        assert last["max_thinning"] == pytest.approx(s["max_thinning"]["value"], rel=1e-12)
+        # and it grows with the stretch, step by step
+        thin = [r.sheet["max_thinning"] for r in sim.records]
+        assert all(b > a for a, b in zip(thin, thin[1:], strict=False)), thin
         # nothing thickens: 0, the least thinning said (not a negative thickening)
         assert s["max_thickening"]["value"] == 0.0
         assert s["max_thickening"]["note"] == (

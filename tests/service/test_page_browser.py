@@ -252,7 +252,14 @@ def test_live_plots_follow_the_steps(plain, browser):
             # the headline's punch force is the plot's newest point (it read the plots of the
             # poll before: a step behind)
             x = page.evaluate("Units.num(document.getElementById('force-plot').data[0].x.at(-1))")
-            assert f"at {x} mm stroke" in page.text_content("#summary .live").split(";")[0]
+            live = page.text_content("#summary .live")
+            assert f"at {x} mm stroke" in live.split(";")[0]
+            # and the sheet now, from the same step's record: thinnest (mm), thinning (%)
+            rec = httpx.get(f"{plain}/api/runs/{run}?since={step - 1}&limit=1").json()
+            sheet = rec["records"][0]["sheet"]
+            thin = page.evaluate("t => Units.num(t)", sheet["min_thickness"] * 1e3)
+            assert (f"Sheet now: thinnest {thin} mm, thinning up to "
+                    f"{100 * sheet['max_thinning']:.1f} %.") in live, live
         assert "left" in page.locator("#progress .text").text_content()
         assert page.get_attribute("#progress", "data-fraction") == str(2 / STEPS)
         r = httpx.put(f"{plain}/api/runs/{run}/parameters/friction_scale", json={"value": 2})
