@@ -22,7 +22,7 @@ def region_mask(shell: Shell, r: RegionSpec) -> np.ndarray:
         mask = np.all((X >= np.array(r.box.min) - tol) & (X <= np.array(r.box.max) + tol), 1)
     elif r.ring is not None:
         rho = np.hypot(X[:, 0], X[:, 1])
-        mask = (rho >= r.ring.r_min - tol) & (rho <= r.ring.r_max + tol)
+        mask = (rho >= r.ring.r_min - tol) & (rho <= r.ring.outer + tol)
     else:
         n = np.asarray(r.plane.normal, float)
         n = n / np.linalg.norm(n)

@@ -51,7 +51,14 @@ class RingSpec(Strict):
     """Nodes whose rest distance from the z axis lies in [r_min, r_max]."""
 
     r_min: Extent = doc("the ring's inner radius", "m", 0.0)
-    r_max: Length = doc("its outer radius", "m")
+    # unset: the ring reaches the blank's edge, whatever its size (a cup's rim and flange
+    # follow a blank made larger in the form, where a fixed r_max selected nothing)
+    r_max: Length | None = doc("its outer radius; unset: every node from r_min out", "m",
+                               None)
+
+    @property
+    def outer(self) -> float:
+        return float("inf") if self.r_max is None else self.r_max
 
 
 class RegionSpec(Strict):

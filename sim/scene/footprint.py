@@ -180,7 +180,7 @@ def ring_problem(mesh: Blank, regions: Sequence[RegionSpec]) -> str | None:
     tol = tolerance(mesh, ranges)
     for i, region in rings:
         spans = ranges.boundary if region.boundary else ranges.nodes
-        if not any(a <= region.ring.r_max + tol and region.ring.r_min - tol <= b
+        if not any(a <= region.ring.outer + tol and region.ring.r_min - tol <= b
                    for a, b in spans):
             return f"regions.{i}.ring: {_missed(region, spans)}"
     return None
@@ -190,7 +190,8 @@ def _missed(region: RegionSpec, spans: Ranges) -> str:
     # in mm, as the form shows a ring's radii (the scene file's are in m)
     which = "boundary node" if region.boundary else "node"
     where = " or ".join(f"{1e3 * a:.4g} to {1e3 * b:.4g} mm" for a, b in spans)
-    return (f"region {region.name!r} selects no node: no {which} of the blank lies "
-            f"{1e3 * region.ring.r_min:.4g} to {1e3 * region.ring.r_max:.4g} mm from the z "
-            "axis (they lie "
-            f"{where} from it)")
+    ring = region.ring
+    span = (f"{1e3 * ring.r_min:.4g} mm or more" if ring.r_max is None
+            else f"{1e3 * ring.r_min:.4g} to {1e3 * ring.r_max:.4g} mm")
+    return (f"region {region.name!r} selects no node: no {which} of the blank lies {span} "
+            f"from the z axis (they lie {where} from it)")

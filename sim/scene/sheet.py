@@ -277,6 +277,8 @@ class RefineSpec(Strict):
 
     @model_validator(mode="after")
     def _radii(self) -> Self:
+        if self.ring.r_max is None:
+            raise ValueError("ring: r_max: a refinement needs the ring's outer radius")
         if self.ring.r_min >= self.ring.r_max:
             raise ValueError("ring: r_min must be smaller than r_max")
         return self

@@ -76,15 +76,17 @@ CLEAR = 1e-6
 
 
 @pytest.mark.parametrize("radius, words", [
-    (0.025, "regions.1.ring: region 'rim' selects no node: no boundary node of the blank lies "
-            "29.5 to 31 mm from the z axis"),
-    (0.0294, "they lie 29.38 to 29.4 mm from it"),
+    (0.018, "regions.0.ring: region 'flange' selects no node: no node of the blank lies "
+            "24 mm or more from the z axis"),
+    (0.0239, "they lie 0 to 23.9 mm from it"),
 ])
-def test_the_rim_ring_off_the_edited_blank_is_named(radius, words):
-    """cup_drawing_outline's rim ring, 29.5-31 mm, once its blank's radius leaves it."""
+def test_a_ring_off_the_edited_blank_is_named(radius, words):
+    """cup_drawing_outline's flange (24 mm out to the edge) once its blank is smaller than
+    that; a blank larger than the shipped one keeps its flange and rim (they reach its edge)."""
     with pytest.raises(SceneError, match=words):
         load_scene(CUP, {"mesh.circle.radius": radius})
-    load_scene(CUP, {"mesh.circle.radius": 0.0296})  # still on the ring
+    for fits in (0.0241, 0.035):
+        load_scene(CUP, {"mesh.circle.radius": fits})
 
 
 @pytest.mark.parametrize("name, ring, boundary, where", [

@@ -164,3 +164,22 @@ def test_scaled_says_what_each_multiplier_multiplies():
     assert sc["holder_force_scale"] == [{"what": "blank_holder", "unit": "N", "value": 3000.0}]
     punch = next(e for e in sc["tool_speed"] if e["what"] == "punch")
     assert punch["value"] == pytest.approx(0.025 / 50, rel=1e-12) and punch["unit"] == "m/step"
+
+
+@pytest.mark.parametrize("r_outer", [0.026, 0.03, 0.036])
+def test_the_cups_rim_and_flange_follow_the_blanks_size(r_outer):
+    """The shipped cup's rim is its blank's edge and its flange reaches it, whatever the blank's
+    radius: an engineer's first change (a larger blank) was refused, its rim region, a fixed
+    ring of 29.5 to 31 mm, selecting no node of a 32 mm blank."""
+    from sim.model.dirichlet import region_mask
+
+    scene = load_scene(ROOT / "scenes" / "cup_drawing.toml",
+                       {"mesh.r_outer": r_outer, "mesh.edge_length": 0.004})
+    sim = Simulation.from_scene(scene)
+    shell = sim.model.shell
+    rho = np.hypot(*shell.plane_mid[:, :2].T)
+    regions = {r.name: region_mask(shell, r) for r in scene.regions}
+    # the rim: the outer edge's nodes, all of them (a disk: its whole boundary)
+    assert np.allclose(rho[regions["rim"]], r_outer, rtol=1e-6)
+    assert regions["rim"].sum() == np.isclose(rho, r_outer, rtol=1e-6).sum()
+    assert np.all(regions["flange"] == (rho >= 0.024 - 1e-9))
