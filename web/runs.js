@@ -142,12 +142,26 @@ const RunsTable = (() => {
     // a run that never reached a solver (queued, cancelled) has its scene and nothing else
     const ran = !["queued", "cancelled"].includes(r.state);
     const links = [["scene", `/api/runs/${r.id}/scene`, "_blank"]];
-    if (ran) links.unshift(["rrd", `/api/runs/${r.id}/recording`, "download"],
+    if (ran) links.unshift(["recording", `/api/runs/${r.id}/recording`, "download"],
                            ["result", `/api/runs/${r.id}/result`, "_blank"]);
     for (const [label, href, extra] of links) {
+      // the recording: a file once the run has ended with a frame (a run that failed while
+      // it was built has none: its link answered 404 into a failed download)
+      const framed = ((r.frames || {}).received || 0) > 0;
+      if (label === "recording" && (ACTIVE.includes(r.state) || !framed)) {
+        const none = text("span", label, "unavailable muted");
+        none.title = ACTIVE.includes(r.state)
+          ? "its recording (rerun .rrd) is complete when the run ends"
+          : "no recording: the run ended before its first frame";
+        span.append(none, " ");
+        continue;
+      }
       const a = text("a", label);
       a.href = href;
       if (extra === "download") a.download = ""; else a.target = extra;
+      if (label === "recording")
+        a.title = "the run's recording (rerun .rrd): play it back with q3t play, or in the " +
+                  "Rerun viewer; the page's 3-D view plays it when the run is selected";
       span.append(a, " ");
     }
     if (r.state === "queued") span.append(button("Cancel", "cancel", () => cancel(r)));

@@ -167,9 +167,10 @@ def _at_steps(steps: list[dict], at: dict[int, int], values: np.ndarray) -> list
     return [float(values[at[r["step"]]]) if r["step"] in at else None for r in steps]
 
 
-# significant digits of a CSV value: the unit conversion's last bit goes (24.5 kN, not
-# 24.499999999999993), while the solver's tolerances (Newton's rtol 1e-8) stay far coarser
-DIGITS = 12
+# significant digits of a CSV value, a spreadsheet's: a holder's 5 kN read 5.00000000858 at
+# twelve, the solver's residual in its last digits; six keep a micrometre in a metre and a
+# newton in a meganewton. Every bit stays in result.json (and the JSON export)
+DIGITS = 6
 
 
 def probes_csv(run: RunFolder) -> str:

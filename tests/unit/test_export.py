@@ -62,7 +62,7 @@ def test_csv_a_row_per_step_with_units_in_the_header(cup, tmp_path):
     col = {h: [float(r[i]) for r in body] for i, h in enumerate(head)}
     steps = res["steps"]
     assert col["step"] == [r["step"] for r in steps]
-    # written to export.DIGITS significant digits: equal to half a unit of the 12th digit
+    # written to export.DIGITS significant digits: equal to half a unit of the last one
     digits = 0.5 * 10.0 ** (1 - export.DIGITS)
     np.testing.assert_allclose(col["time [s]"], [r["time"] for r in steps], rtol=digits)
     for name, unit in (("min_thickness", "m"), ("centre_dz", "m")):
