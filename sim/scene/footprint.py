@@ -168,13 +168,37 @@ def tolerance(mesh: Blank, ranges: RadialRanges) -> float:
     return 2.0 * REGION_TOLERANCE * extent
 
 
-def ring_problem(mesh: Blank, regions: Sequence[RegionSpec]) -> str | None:
+def ranges_needed(mesh: Blank, regions: Sequence[RegionSpec]) -> RadialRanges | None:
+    """``mesh``'s radial ranges where a check reads them: for its ring regions, or cheap (a
+    fine outline's are not: without a ring it is left to the build's checks)."""
+    if any(r.ring is not None for r in regions) or getattr(mesh, "kind", "") != "outline":
+        return mesh.radial_ranges()
+    return None
+
+
+def sheet_problem(thickness: float | None, ranges: RadialRanges | None) -> str | None:
+    """A constant thickness more than the blank is across at all (twice its largest radius,
+    or its height along z), as ``shell.thickness: ...``: a typo (100 mm on a 60 mm disk)
+    refused when the scene is read, not after Start (the build's check_sheet, which measures
+    the built blank, holds the finer rule)."""
+    if thickness is None or ranges is None:
+        return None
+    across = max(2.0 * max(hi for _, hi in ranges.nodes), ranges.height)
+    if thickness <= across:
+        return None
+    return (f"shell.thickness: {1e3 * thickness:.4g} mm thick, more than the blank is across "
+            f"({1e3 * across:.4g} mm at most): not a sheet")
+
+
+def ring_problem(mesh: Blank, regions: Sequence[RegionSpec],
+                 ranges: RadialRanges | None = None) -> str | None:
     """The first ring region of ``regions`` that selects no node of ``mesh`` (no interval of its
-    radial_ranges meets the ring), as ``regions.N.ring: ...``; None when each may select some
-    or the mesh is known only once built."""
+    radial_ranges, ``ranges`` when already read, meets the ring), as ``regions.N.ring: ...``;
+    None when each may select some or the mesh is known only once built."""
     rings = [(i, r) for i, r in enumerate(regions) if r.ring is not None]
-    # once for all rings, and none without one: a fine outline's are not cheap
-    ranges = mesh.radial_ranges() if rings else None
+    if not rings:
+        return None
+    ranges = ranges or mesh.radial_ranges()
     if ranges is None:
         return None
     tol = tolerance(mesh, ranges)

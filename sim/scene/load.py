@@ -21,7 +21,7 @@ from sim.elements import ELEMENTS
 from sim.frames.probes import PROBES
 from sim.scene.boundary import BCSpec, LoadSpec, RegionSpec
 from sim.scene.fields import Strict, doc
-from sim.scene.footprint import ring_problem
+from sim.scene.footprint import ranges_needed, ring_problem, sheet_problem
 from sim.scene.run import ProbeSpec, SectionSpec, SolverSpec, SteppingSpec, StudySpec
 from sim.scene.shapes import ToolSpec
 from sim.scene.sheet import MaterialSpec, MeshSpec, ShellSpec
@@ -99,7 +99,12 @@ class Scene(Strict):
         names = [r.name for r in self.regions]
         if len(set(names)) != len(names):
             raise ValueError("regions: names must be unique")
-        if why := ring_problem(self.mesh, self.regions):
+        # the blank's radial ranges once, for its rings and its thickness
+        ranges = ranges_needed(self.mesh, self.regions)
+        if why := ring_problem(self.mesh, self.regions, ranges):
+            raise ValueError(why)
+        gradient = any(self.shell.thickness_gradient or ())
+        if why := sheet_problem(None if gradient else self.shell.thickness, ranges):
             raise ValueError(why)
         return names
 

@@ -213,3 +213,17 @@ def test_an_unreadable_drawing_is_left_to_the_build(tmp_path):
     assert spec.radial_ranges() is None and ring_problem(spec, [region]) is None
     with pytest.raises(ValueError, match="no drawing"):
         build_mesh(spec)
+
+
+@pytest.mark.parametrize("thickness, refused", [(0.1, True), (0.061, True), (0.059, False)])
+def test_a_sheet_thicker_than_its_blank_is_across_is_refused_when_read(thickness, refused):
+    """100 mm on the 60 mm cup blank read 'valid' in the form and failed after Start (the
+    build's 'not a sheet'): refused when the scene is read, naming shell.thickness, once it
+    is more than the blank is across at all (twice its radius); nearer the build decides."""
+    cup = ROOT / "scenes/cup_drawing.toml"
+    if not refused:
+        load_scene(cup, {"shell.thickness": thickness})
+        return
+    with pytest.raises(SceneError, match=r"shell.thickness: .* mm thick, more than the blank "
+                                         r"is across \(60 mm at most\): not a sheet"):
+        load_scene(cup, {"shell.thickness": thickness})

@@ -5,6 +5,7 @@ run's exit code, and a stopped run's result.json that did not say why."""
 import json
 import queue
 
+import numpy as np
 import pytest
 
 from sim.apps.cli import main
@@ -195,12 +196,21 @@ def test_a_sheet_thicker_than_wide_or_inside_a_tool_is_refused_naming_the_field(
     the tools inside the sheet. A sheet thicker than its blank is long is refused naming the
     thickness; one that starts inside a tool by more than a tenth of its thickness (50 mm in
     the cup's 1.2 mm clearance) naming the tool, where and how deep."""
+    from types import SimpleNamespace
+
     from sim.model.build import build_model
+    from sim.model.sheet import check_sheet
 
     cup = ROOT / "scenes" / "cup_drawing.toml"
+    # refused when read (twice the disk's radius bounds it), and by the build's own rule on
+    # the built blank, which also holds where the scene cannot tell (a drawing's outline)
+    with pytest.raises(SceneError, match=r"^shell\.thickness: 5000 mm thick, more than the "
+                                         r"blank is across \(60 mm at most\): not a sheet"):
+        load_scene(cup, {"shell.thickness": 5.0})
+    disk = SimpleNamespace(vertices=np.array([[-0.03, 0, 0], [0.03, 0, 0], [0, 0.03, 0]]))
     with pytest.raises(ValueError, match=r"^shell\.thickness: 5000 mm thick, more than the "
                                          r"blank's largest extent \(60 mm\): not a sheet"):
-        build_model(load_scene(cup, {"shell.thickness": 5.0}))
+        check_sheet(disk, np.full(3, 5.0), "shell.thickness")
     with pytest.raises(SceneError, match=r"^tools\.0: tool 'punch': the blank starts inside "
                                          r"it, 16\.5 mm deep at \(x, y\) = \(0 mm, 0 mm\)"):
         build_model(load_scene(cup, {"shell.thickness": 0.05}))
