@@ -105,7 +105,9 @@ const Results = (() => {
     return lines.join("\n");
   }
 
-  function card(e, tools) {
+  function card(e, tools, last) {
+    // ``last``: the run's last step, which a quantity of the part as it ended is of (the
+    // least thickness: the 3-D view's scale, over every step shown, may reach lower)
     const div = document.createElement("div");
     div.className = "quantity" + (e.flag ? ` flag-${e.flag}` : "");
     Object.assign(div.dataset, { name: e.name, value: JSON.stringify(e.display.value),
@@ -118,7 +120,7 @@ const Results = (() => {
     value.textContent = Units.withUnit(e.display.value, e.display.unit);
     const at = document.createElement("div");
     at.className = "at";
-    at.textContent = when(e.at || {}, e.flag);
+    at.textContent = when(e.at || {}, e.flag) || `at the end (step ${last})`;
     div.title = [label.textContent, where(e.at || {}), e.note].filter(Boolean).join("\n");
     div.append(label, value, at);
     return div;
@@ -147,7 +149,7 @@ const Results = (() => {
     if (st.id !== shown) return;
     drawn.summary = k;
     const tools = new Set(s.summary.filter((e) => e.tool).map((e) => e.tool)).size;
-    const cards = s.summary.map((e) => card(e, tools));
+    const cards = s.summary.map((e) => card(e, tools, st.step));
     if (!cards.length) {
       const none = document.createElement("div");
       none.className = "muted none";  // across the cards' columns, not in one

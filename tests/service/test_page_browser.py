@@ -169,6 +169,10 @@ def test_results_of_a_finished_run(plain, browser):
         peak = next(e for e in want if e["name"] == "peak_punch_force")
         at = page.locator('#summary .quantity[data-name="peak_punch_force"] .at').text_content()
         assert f"{js_number(peak['at']['stroke']['display']['value'])} mm stroke" in at
+        # a quantity of the part as it ended says so (the view's colour scale, over every
+        # step shown, read lower than the card's least thickness, with nothing to say why)
+        thinnest = page.locator('#summary .quantity[data-name="min_thickness"] .at')
+        assert thinnest.text_content() == f"at the end (step {STEPS})"
         # the plots: force against stroke, the section and the FLD, with their units
         page.wait_for_selector("#force-plot .g-xtitle")
         x, y = axis_titles(page, "force-plot")
