@@ -35,6 +35,9 @@ from sim.stepping import parameters as live
 # the page's run controls and what each sends, in the page's order and words
 COMMANDS = {"Pause": "pause", "Resume": "resume", "Step": "step", "Stop": "stop"}
 PANEL_WIDTH = 220
+# s between the frames Play shows: a browser drawing in software keeps up, and a cup's
+# recording (a frame every few steps) plays in a few seconds
+PLAY_INTERVAL = 0.4
 NO_RUN = "(no runs yet)"  # the "Run" dropdown's one option before any run (viser needs one)
 # the scene's value a multiplier scales, in the units engineers read (as the page shows it)
 SCALED_UNITS = {"m/step": ("mm/step", 1e3), "N": ("kN", 1e-3), "Pa": ("MPa", 1e-6),
@@ -91,6 +94,7 @@ class Gui:
     time: viser.GuiSliderHandle
     run: viser.GuiDropdownHandle
     buttons: dict  # label -> button handle (Pause, Resume, Step, Stop: the page's words)
+    play: viser.GuiCheckboxHandle  # the shown run played from the step shown to its end
 
 
 class ClientView:
@@ -132,15 +136,19 @@ class ClientView:
         with g.add_folder("Time"):
             time_slider = g.add_slider("Step", min=0, max=1, step=1, initial_value=0,
                                        hint="pause the run (or let it finish), then drag")
+            play = g.add_checkbox("Play", initial_value=False, disabled=True,
+                                  hint="the run played back from the step shown to its end "
+                                       "(a run that has ended, or is paused)")
         run.on_update(by_user(lambda: self._choose_run(run.value)))
         time_slider.on_update(by_user(self._scrub))
+        play.on_update(by_user(self._play))
         self.param_folder = g.add_folder("Live parameters")
         with self.param_folder:  # what they act on: the run, never a scene previewed
             self.subject = g.add_markdown("")
         self.canvas = Canvas(self.client, self.v.server.initial_camera, self.lock, self.status,
                              by_user, self.v.from_code,
                              lambda: self.mode == "live" and self.active)
-        return Gui(status, {}, {}, time_slider, run, buttons)
+        return Gui(status, {}, {}, time_slider, run, buttons, play)
 
     def add_parameters(self, parameters: dict[str, tuple[float, float]]) -> None:
         """One slider per live parameter, each showing the shown run's value, and what it
@@ -232,6 +240,12 @@ class ClientView:
             h.disabled = not active
         for label, cmd in COMMANDS.items():
             self.gui.buttons[label].disabled = cmd not in controls
+        # a running run's slider follows it; paused or ended, it plays back
+        running = active and "pause" in controls
+        self.gui.play.disabled = running
+        if running and self.gui.play.value:
+            with self.v.from_code():
+                self.gui.play.value = False
 
     def set_runs(self, run_ids: tuple[str, ...]) -> None:
         options = run_ids or (NO_RUN,)
@@ -377,6 +391,38 @@ class ClientView:
         with self.v.from_code():
             self.gui.time.max = max(1, int(step), int(self.gui.time.max))
             self.gui.time.value = int(step)
+
+    def _play(self) -> None:
+        """Play ticked: the time slider moves on by itself, a frame every PLAY_INTERVAL, as
+        a user's drag would (``_scrub`` draws each), from the step shown (from the start when
+        that is the last) to the run's last step; then Play unticks itself."""
+        if not self.gui.play.value:
+            return
+        if self.gui.time.value >= self.gui.time.max:
+            self.gui.time.value = 0  # as a drag back to the start: its frame drawn
+        threading.Thread(target=self._playing, daemon=True, name="q3t-viewer-play").start()
+
+    def _playing(self) -> None:
+        run = self.selected
+        while True:
+            time.sleep(PLAY_INTERVAL)
+            with self.lock:
+                if (not self.gui.play.value or self.selected != run
+                        or self.mode not in ("live", "replay")):
+                    return
+                now, end = int(self.gui.time.value), int(self.gui.time.max)
+                if now >= end:
+                    with self.v.from_code():
+                        self.gui.play.value = False
+                    return
+                if self.mode == "replay":  # the next recorded frame
+                    steps = self.replay.steps
+                    i = int(np.searchsorted(steps, now, side="right"))
+                    target = int(steps[min(i, len(steps) - 1)])
+                else:  # a live run's kept frames: about 40 of them over the run
+                    target = min(end, now + max(1, end // 40))
+            # as a drag: the slider's callback draws the frame and tells the page
+            self.gui.time.value = target
 
     def _scrub(self) -> None:
         """A user moved the time slider: the frame at that step, and the view told."""

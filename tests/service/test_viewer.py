@@ -265,6 +265,18 @@ def test_viewer_replays_an_older_recorded_run(done, viewer):
     np.testing.assert_allclose(viewer.canvas.tools["punch"].position, rep.pose("punch", 2),
                                atol=1e-9)
     assert rep.pose("punch", 2)[2] < rep.pose("punch", 0)[2]
+    # Play: from the last step, back to the start and through the recorded frames, the page
+    # told each step; at the end it unticks itself
+    assert not viewer.gui.play.disabled  # an ended run plays back
+    seen: list[int] = []
+    viewer.gui.time.on_update(lambda _e: seen.append(int(viewer.gui.time.value)))
+    viewer.gui.time.value = 3
+    seen.clear()
+    viewer.gui.play.value = True  # as a user ticking it
+    until(lambda: not viewer.gui.play.value, "Play never reached the end")
+    # the recorded frames in order (a step the slider passed through snaps to one)
+    assert seen[0] == 0 and seen[-1] == 3 and seen == sorted(seen) and 2 in seen, seen
+    assert viewer.gui.status.content.endswith("showing recorded step 3")
     viewer.gui.run.value = latest
     assert viewer.mode == "live" and viewer.replay is None
     assert client.get("/api/view").json()["run"] == latest

@@ -109,8 +109,8 @@ def test_the_png_is_of_the_asking_browsers_view(client):
     client.put("/api/view", json={"run": run}, headers=B)
     with attached(m.viewer, "browser-a") as a, attached(m.viewer, "browser-b") as b:
         until(lambda: a.mode == b.mode == "live", "the run is not shown in both")
-        assert _viewer_client(m, run, "browser-a") is a.client
-        assert _viewer_client(m, run, "browser-b") is b.client
+        assert _viewer_client(m, run, "browser-a") is a
+        assert _viewer_client(m, run, "browser-b") is b
     formats = client.get(f"/api/runs/{run}/exports", headers=B).json()["formats"]
     assert formats[-1]["url"] == f"/api/runs/{run}/export/png?view=browser-b"
     assert client.get(f"/api/runs/{run}/export/png?view=../x").status_code == 422
