@@ -221,12 +221,14 @@ def test_a_failed_run_as_a_says_no_difference_can_be_taken(served, browser):
     """Every difference is from A: a run that failed before any summary, ticked first, left
     the table all "–" without a word (a browser review); the page says why, and what to do."""
     url, _, (a, _, _) = served
+    # 20 mm thick: valid as read (the 24 mm blank is wider), refused by the build (the
+    # punch's nose inside it): a run that failed before any step
     r = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup",
-                                            "overrides": {"shell.thickness": 0.05}})
+                                            "overrides": {"shell.thickness": 0.02}})
     failed = r.json()["id"]
     st = until(lambda: (s := httpx.get(f"{url}/api/runs/{failed}").json())["state"] in ENDED
                and s, f"run {failed} never ended")
-    assert st["state"] == "failed" and "not a sheet" in st["reason"], st
+    assert st["state"] == "failed" and "starts inside it" in st["reason"], st
     page, errors = open_page(browser, url)
     page.wait_for_selector(f"#compare-runs input[value='{failed}']")
     tick(page, failed)
