@@ -154,8 +154,9 @@ def test_sections_and_parameter_marks(env, finished):
         assert got["position"]["values"] == pytest.approx(np.array(want["rest_radius"]) * 1e3,
                                                           rel=SCALED)
     assert sec["steps"][0]["thickness"]["values"] == pytest.approx([0.5] * 5, rel=1e-9)
-    assert plots["parameter_log"] == [{"step": 2, "name": "friction_scale", "value": 2.0}]
-    assert result["parameters"] == plots["parameter_log"]  # the solver's log: the same
+    # the solver's log, each change with the label the page's slider has
+    assert result["parameters"] == [{"step": 2, "name": "friction_scale", "value": 2.0}]
+    assert plots["parameter_log"] == [{**result["parameters"][0], "label": "Friction ×"}]
 
 
 def test_plots_of_an_unknown_run(env):
