@@ -97,7 +97,9 @@ def test_a_blank_and_a_thickness_uploaded_from_the_form_run(page, served):
 
     page.fill("#scene-name", "uploaded")
     page.click("#save")
-    page.wait_for_function("document.getElementById('msg').textContent === 'saved uploaded'")
+    # a new name: saved as a new scene (the one opened stays as it was)
+    page.wait_for_function("document.getElementById('msg').textContent"
+                           ".startsWith('saved as uploaded (')")
     files = {f["name"]: f for f in httpx.get(url + "/api/files").json()["files"]}
     assert files["My_plate_v2.obj"]["used_by"] == ["uploaded"]
     page.click("#start")

@@ -44,14 +44,15 @@ def test_the_circle_is_shown_and_edited_in_the_form(open_page, served):
     assert [page.input_value(f"[name='mesh.circle.center.{i}']") for i in (0, 1)] == ["0", "0"]
     assert page.input_value("[name='mesh.circle.segments']") == "360"
 
-    # a blank that no longer reaches the rim ring is named at the ring as it is edited
-    page.fill("[name='mesh.circle.radius']", "25")
-    synced(page, "circle = { radius = 0.025,", "1 error(s)")  # as the form has it
-    said = page.inner_text("[data-path='regions.1.ring'] > .field-error")
-    assert ("regions.1.ring" not in said  # the field is where it is shown
-            and "region 'rim' selects no node: no boundary node of the blank lies 29.5 to 31 "
-            "mm" in said), said
-    page.locator("[data-path='regions.1.ring']").scroll_into_view_if_needed()
+    # a blank that no longer reaches the flange's ring (24 mm out to the edge) is named at
+    # the ring as it is edited
+    page.fill("[name='mesh.circle.radius']", "22")
+    synced(page, "circle = { radius = 0.022,", "1 error(s)")  # as the form has it
+    said = page.inner_text("[data-path='regions.0.ring'] > .field-error")
+    assert ("regions.0.ring" not in said  # the field is where it is shown
+            and "region 'flange' selects no node: no node of the blank lies 24 mm or more"
+            in said), said
+    page.locator("[data-path='regions.0.ring']").scroll_into_view_if_needed()
     shot(page, SHOTS, "1-rim-missed.png", where="#left")
     page.fill("[name='mesh.circle.radius']", "31")
     synced(page, "circle = { radius = 0.031, segments = 360 }", "valid")

@@ -90,7 +90,9 @@ def test_a_tool_surface_uploaded_from_the_form_runs(page, served):
 
     page.fill("#scene-name", "meshpress")
     page.click("#save")
-    page.wait_for_function("document.getElementById('msg').textContent === 'saved meshpress'")
+    # a new name: saved as a new scene (the one opened stays as it was)
+    page.wait_for_function("document.getElementById('msg').textContent"
+                           ".startsWith('saved as meshpress (')")
     page.click("#start")
     run = until(lambda: httpx.get(url + "/api/runs").json(), "no run")[0]["id"]
     done = until(lambda: (st := httpx.get(f"{url}/api/runs/{run}").json())["state"]
