@@ -26,7 +26,8 @@ def _font(px: int) -> ImageFont.ImageFont:
 
 
 # the default font's glyphs are Latin-1's: the legend's signs written as text
-PLAIN = str.maketrans({"≥": ">=", "≤": "<=", "–": "-", "—": "-", "›": ">"})
+PLAIN = str.maketrans({"≥": ">=", "≤": "<=", "–": "-", "—": "-", "›": ">", "→": "->",
+                       "…": "..."})
 
 
 def _text_w(draw: ImageDraw.ImageDraw, text: str, font: ImageFont.ImageFont) -> int:
@@ -35,16 +36,18 @@ def _text_w(draw: ImageDraw.ImageDraw, text: str, font: ImageFont.ImageFont) -> 
 
 
 def with_legend(image: np.ndarray, scale: Continuous | Categories | None,
-                caption: str) -> np.ndarray:
-    """``image`` (h, w, 3 or 4) uint8 with ``caption`` and ``scale``'s legend in a box at its
-    bottom-left corner (no scale: the caption alone). The same shape and dtype back."""
+                caption: str | list[str]) -> np.ndarray:
+    """``image`` (h, w, 3 or 4) uint8 with ``caption`` (its first line larger) and ``scale``'s
+    legend in a box at its bottom-left corner (no scale: the caption alone). The same shape
+    and dtype back."""
+    captions = [caption] if isinstance(caption, str) else list(caption)
     base = Image.fromarray(np.ascontiguousarray(image)).convert("RGBA")
     scale_px = max(1.0, base.height / 720)  # a tall render gets a legend of the same share
     big, small = _font(round(14 * scale_px)), _font(round(12 * scale_px))
     pad, line = round(PAD * scale_px), round(18 * scale_px)
     probe = ImageDraw.Draw(base)
     lines: list[tuple[str, ImageFont.ImageFont, tuple[int, int, int]]] = [
-        (caption.translate(PLAIN), big, INK)]
+        (c.translate(PLAIN), big if i == 0 else small, INK) for i, c in enumerate(captions)]
     if scale is not None:
         unit = f" [{scale.unit}]" if isinstance(scale, Continuous) and scale.unit not in ("", "-") \
             else ""

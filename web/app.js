@@ -439,22 +439,38 @@ function paramRow(name, r, text) {
   inp.dataset.label = text;
   inp.oninput = () => {
     inp.dataset.busy = "1";
+    result.classList.remove("error");
     out.value = inp.value;
     showResult(name, +inp.value, state.status);
   };
   inp.onchange = () => setParameter(inp, out);
-  out.oninput = () => { inp.dataset.busy = "1"; };  // the run's value waits for Enter
-  out.onchange = () => {
-    const v = Number(out.value.trim().replace(",", "."));
-    if (out.value.trim() === "" || !Number.isFinite(v) || v < r.min || v > r.max) {
-      say(`${text}: ${out.value.trim() || "nothing"} is not a number from ${r.min} to ${r.max}`,
-          true);
-      delete inp.dataset.busy;
-      return showValue(inp, out, state.status && state.status.parameters[name]);
+  // typed: set on Enter only; Escape, or leaving the box, puts the run's value back (a
+  // change to a running run is never made by a stray tap or a Tab)
+  const revert = () => {
+    delete inp.dataset.busy;
+    const v = state.status && state.status.parameters[name];
+    if (v !== undefined && v !== null) { inp.value = v; out.value = String(+(+v).toPrecision(6)); }
+    showResult(name, +inp.value, state.status);
+  };
+  out.oninput = () => { inp.dataset.busy = "1"; result.classList.remove("error"); };
+  out.onblur = () => { if (inp.dataset.busy) revert(); };
+  out.onkeydown = (ev) => {
+    if (ev.key === "Escape") { revert(); return; }
+    if (ev.key !== "Enter") return;
+    const typed = out.value.trim(), v = Number(typed.replace(",", "."));
+    if (typed === "" || !Number.isFinite(v) || v < r.min || v > r.max) {
+      // said beside the box (on a phone the page's message line is far above it) and there
+      const why = `${text}: ${typed || "nothing"} is not a number from ${r.min} to ${r.max}`;
+      say(why, true);
+      revert();
+      result.textContent = why;
+      result.classList.add("error");
+      return;
     }
+    result.classList.remove("error");
     inp.value = v;
     showResult(name, v, state.status);
-    setParameter(inp, out, v);
+    setParameter(inp, out, v).then(() => out.blur());
   };
   const span = document.createElement("span");
   span.className = "param-name";
@@ -487,7 +503,7 @@ const num = (v) => String(+v.toPrecision(4));
 function showResult(name, value, st) {
   // friction 0.1 × 2 = 0.2 for each tool; the run's step count under tool_speed
   const box = $(`param-${name}-result`);
-  if (!box) return;
+  if (!box || box.classList.contains("error")) return;  // a refusal stands until the next edit
   const items = (st && st.scaled && st.scaled[name]) || [];
   const parts = items.map((it) => {
     const [unit, f] = SCALED_UNITS[it.unit] || [it.unit, 1];
@@ -562,6 +578,8 @@ async function selectRun(id) {
     if (seq === state.viewSeq) adoptRun(v.run);
     say("");  // a message about the run shown before would read as about this one
     pollNow();
+    // one column (a phone): the run's headline and view are far above the Runs table
+    if (matchMedia("(max-width: 820px)").matches) $("centre").scrollIntoView({ block: "start" });
   } catch (e) { say(e.message, true); }
 }
 

@@ -285,9 +285,12 @@ const Compare = (() => {
   }
 
   // ---- the curves -----------------------------------------------------------------------------
+  const MARGIN = { l: 60, r: 16, t: 34, b: 42 };
+
   function layout(title, height, extra) {
-    return { title: { text: title, font: { size: 13 }, x: 0.02 }, height, autosize: true,
-             font: FONT, margin: { l: 60, r: 16, t: 34, b: 42 }, hovermode: "closest",
+    return { title: { text: title, font: { size: 13 }, x: 0.02, yref: "container", y: 1,
+                      yanchor: "top", pad: { t: 9 } }, height, autosize: true,
+             font: FONT, margin: MARGIN, hovermode: "closest",
              legend: { orientation: "h", y: -0.22, font: { size: 10 } }, ...extra };
   }
 
@@ -338,7 +341,7 @@ const Compare = (() => {
                            text: `${r.letter}: ${e.label} ${Units.num(e.value)}` });
       }
     });
-    return { shapes, annotations };
+    return { shapes, annotations, margin: Plots.markRoom(MARGIN, annotations.length) };
   }
 
   async function probes(data) {

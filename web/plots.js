@@ -44,7 +44,9 @@ const Plots = (() => {
   const placed = new Map();
 
   function base(title, height) {
-    return { title: { text: title, font: { size: 13 }, x: 0.02 }, height, autosize: true,
+    // the title at the top, whatever room the marks' labels take under it
+    return { title: { text: title, font: { size: 13 }, x: 0.02, yref: "container", y: 1,
+                      yanchor: "top", pad: { t: 9 } }, height, autosize: true,
              font: FONT, margin: { l: 58, r: 16, t: 34, b: 42 }, hovermode: "closest",
              legend: { orientation: "h", y: -0.25, font: { size: 10 } } };
   }
@@ -94,12 +96,16 @@ const Plots = (() => {
   }
 
   // the live-parameter changes as vertical marks, at x = where(step it applies from); their
-  // labels inside the plot's top, on three rows in turn: changes a few steps apart wrote their
-  // labels over each other and over the title
-  const markLabel = (k) => ({ xref: "x", yref: "paper", y: 1, yanchor: "top", showarrow: false,
-                              yshift: -13 * (k % 3), bgcolor: "rgba(255, 255, 255, 0.8)" });
+  // labels above the plot, in a top margin made that much taller (markRoom), on up to three
+  // rows in turn: inside the plot they covered the curve's peak and the probes' row titles,
+  // and changes a few steps apart wrote them over each other
+  const markLabel = (k) => ({ xref: "x", yref: "paper", y: 1, yanchor: "bottom",
+                              showarrow: false, yshift: 1 + 13 * (k % 3),
+                              bgcolor: "rgba(255, 255, 255, 0.8)" });
+  const markRoom = (margin, n) => (n ? { ...margin, t: margin.t + 13 * Math.min(3, n) }
+                                     : margin);
 
-  function marks(log, where) {
+  function marks(log, where, margin) {
     const shapes = [], notes = [];
     for (const e of log || []) {
       const x = where(e.step);
@@ -110,7 +116,7 @@ const Plots = (() => {
                    text: `${e.label} ${Units.num(e.value)} (step ${e.step})`,
                    font: { size: 10, color: MARK } });
     }
-    return { shapes, annotations: notes };
+    return { shapes, annotations: notes, margin: markRoom(margin, notes.length) };
   }
 
   function strokeAt(punch, step) {
@@ -129,10 +135,11 @@ const Plots = (() => {
         "force %{y:.4g} kN<br>step %{customdata}<extra>%{fullData.name}</extra>" }));
     const first = punches.find((p) => p.stroke);
     const where = first ? (s) => strokeAt(first, s) : (s) => s - 0.5;
-    const layout = { ...base("Punch force against stroke", 280),
+    const b = base("Punch force against stroke", 280);
+    const layout = { ...b,
                      xaxis: axis(byStroke ? "punch stroke (mm)" : "step", { rangemode: "tozero" }),
                      yaxis: axis(`punch force (${punches[0].force.unit})`, { rangemode: "tozero" }),
-                     showlegend: punches.length > 1, ...marks(log, where) };
+                     showlegend: punches.length > 1, ...marks(log, where, b.margin) };
     // a step's own point: the stroke at its end (the rest state at 0)
     const at = first ? (s) => (s === 0 ? 0 : stepValue(first, s)) : (s) => s;
     return draw(div, traces, layout, at);
@@ -214,12 +221,13 @@ const Plots = (() => {
     const width = div.clientWidth || div.parentElement.clientWidth;
     if (!probesDrawn.has(div)) probesResized.observe(div);
     probesDrawn.set(div, { series, log, width });
-    const { layout, row } = stacked(width, b.margin, rows);
+    const mk = marks(log, (s) => s - 0.5, b.margin);
+    const { layout, row } = stacked(width, mk.margin, rows);
     const traces = series.map((s) => ({
       x: s.steps, y: s.values, name: s.name, type: "scatter", mode: "lines+markers",
       marker: { size: 3 }, xaxis: "x", ...row(rows.findIndex((r) => r.kind === (s.kind || "?"))),
       hovertemplate: `${s.name}: %{y:.4g} ${s.unit}<br>step %{x}<extra></extra>` }));
-    return draw(div, traces, { ...b, ...layout, ...marks(log, (s) => s - 0.5) }, (s) => s);
+    return draw(div, traces, { ...b, ...layout, ...mk }, (s) => s);
   }
 
   function sections(div, found, punch) {
@@ -335,6 +343,6 @@ const Plots = (() => {
     unplot(div);
   }
 
-  return { markLabel, forceStroke, probes, sections, rim, fld, solver, show, purge, scrubAt,
+  return { markLabel, markRoom, forceStroke, probes, sections, rim, fld, solver, show, purge, scrubAt,
            stacked, quantities };
 })();

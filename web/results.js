@@ -120,7 +120,8 @@ const Results = (() => {
     value.textContent = Units.withUnit(e.display.value, e.display.unit);
     const at = document.createElement("div");
     at.className = "at";
-    at.textContent = when(e.at || {}, e.flag) || `at the end (step ${last})`;
+    const said = when(e.at || {}, e.flag);
+    at.textContent = !said || said === `at step ${last}` ? `at the end (step ${last})` : said;
     div.title = [label.textContent, where(e.at || {}), e.note].filter(Boolean).join("\n");
     div.append(label, value, at);
     return div;
@@ -250,7 +251,7 @@ const Results = (() => {
     const box = document.getElementById("downloads");
     box.hidden = false;
     box.dataset.run = st.id;
-    if (ACTIVE.includes(st.state)) {
+    if (COMING.includes(st.state)) {  // queued too: nothing to download, nor a view to capture
       drawn.downloads = null;
       box.dataset.ready = "false";
       const wait = document.createElement("span");

@@ -223,7 +223,9 @@ const RunsTable = (() => {
         th.setAttribute("aria-sort", sorted.key !== c.key ? "none"
                                     : sorted.dir > 0 ? "ascending" : "descending");
         th.onclick = () => sortBy(c.key);
-        th.onkeydown = (ev) => { if (ev.key === "Enter") sortBy(c.key); };
+        th.onkeydown = (ev) => {
+          if (ev.key === "Enter" || ev.key === " ") { ev.preventDefault(); sortBy(c.key); }
+        };
       }
       tr.append(th);
     }
@@ -235,6 +237,9 @@ const RunsTable = (() => {
     sorted.dir = sorted.key === key ? -sorted.dir : 1;
     sorted.key = key;
     draw(true);
+    // the header row is drawn anew: the keyboard's focus goes back to the header pressed
+    const th = document.querySelector(`#runs thead th[data-key="${key}"]`);
+    if (th) th.focus({ preventScroll: true });
   }
 
   function row(r) {

@@ -17,7 +17,7 @@ from pydantic import BaseModel, Field
 from server.downloads import attachment, content, zipped
 from server.errors import CheckedRoute, documented
 from server.problems import Conflict, NotFound, NotReady
-from server.records import ENDED, Run
+from server.records import ENDED, QUEUED, Run
 from server.routers.view import ViewId
 from server.runs import RunManager
 from server.settings import RunId
@@ -34,6 +34,7 @@ PNG = "a PNG of the 3-D view as a browser shows it (its camera, colours and step
 # s: a browser renders in software at a few frames a second; one that never answers is a 503
 RENDER_TIMEOUT = 60.0
 PNG_HEIGHT = 720  # px: the 3-D view's PNG at least this high
+CAPTION_CHARS = 110  # a caption line's most: the image's width at 720 px high holds it
 
 
 class Export(BaseModel):
@@ -86,10 +87,15 @@ def exports(run_id: RunId, request: Request, view: ViewId = None) -> dict:
     # the PNG needs a browser showing the run when it is asked for: offered while the viewer
     # is on (its answer says why not, if no browser shows the run then), and for an ended run
     # only if it has a state to show (one that failed before it had one draws nothing)
-    why = _no_view(m, run) or (None if m.viewer else VIEWER_OFF)
+    why = (_no_view(m, run) or (going if run.state == QUEUED else None)  # nothing to show yet
+           or (None if m.viewer else VIEWER_OFF))
     out.append({"format": "png", "description": PNG, "available": why is None, "reason": why,
                 "url": f"/api/runs/{run.id}/export/png" + (f"?view={view}" if view else "")})
     return {"run": run.id, "formats": out}
+
+
+def _clipped(text: str, most: int = CAPTION_CHARS) -> str:
+    return text if len(text) <= most else text[: most - 1].rstrip("; ") + "…"
 
 
 def _no_view(m: RunManager, run: Run) -> str | None:
@@ -147,7 +153,10 @@ def view_png(run_id: RunId, request: Request, view: Annotated[str | None, Query(
     frame = shown.canvas.frame
     step = "" if frame is None else \
         f", step {frame['step']} of {'?' if run.n_steps is None else run.n_steps}"
-    image = with_legend(image, shown.canvas.scale, f"{run.scene}: run {run.id}{step}")
+    caption = [f"{run.scene}: run {run.id}{step}"]
+    if changes := run.changes():  # what it ran besides its saved scene, as the Runs table says
+        caption.append(_clipped("as run: " + "; ".join(changes)))
+    image = with_legend(image, shown.canvas.scale, caption)
     return attachment(iio.imwrite("<bytes>", image, extension=".png"), "png", run.id)
 
 

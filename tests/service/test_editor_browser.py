@@ -316,6 +316,42 @@ def test_live_parameters_read_as_words_with_their_results(page, served):
     httpx.post(f"{url}/api/runs/{run}/stop")
 
 
+def test_a_live_parameter_typed_is_set_on_enter_only(page, served):
+    """The box beside each slider: Enter sets the value on the run; Escape or leaving the box
+    puts the run's value back (a stray tap or Tab changes nothing); a bad value is refused
+    beside the box, naming the parameter and its range, the box back to the run's value. The
+    sliders, names and boxes fit the left column (at 1400 px they ran 11 px past it)."""
+    url, _ = served
+    with httpx.Client(base_url=url) as client:
+        stop_all(client)
+        run = client.post("/api/runs", json={"scene": "cup", "paused": True}).json()["id"]
+    page.click(f'#runs tbody tr[data-id="{run}"] td:first-child')
+    box = "#param-holder_force_scale-value"
+    page.wait_for_selector(f"{box}:not([disabled])")
+    left = page.evaluate("(e => [e.scrollWidth, e.clientWidth])(document.getElementById('left'))")
+    assert left[0] <= left[1], left
+    value = lambda: httpx.get(f"{url}/api/runs/{run}").json()["parameters"][  # noqa: E731
+        "holder_force_scale"]
+    result = page.locator("#param-holder_force_scale-result")
+    page.fill(box, "2")
+    page.keyboard.press("Escape")
+    assert page.input_value(box) == "1"
+    page.fill(box, "1.5")
+    page.keyboard.press("Tab")  # leaving the box: not set
+    assert page.input_value(box) == "1"
+    page.fill(box, "abc")
+    page.keyboard.press("Enter")
+    assert page.input_value(box) == "1"
+    assert result.text_content() == "Holder force ×: abc is not a number from 0 to 10"
+    page.fill(box, "2,5")  # a decimal comma
+    page.once("dialog", lambda d: d.accept())  # the run is a script's: the page asks first
+    page.keyboard.press("Enter")
+    page.wait_for_function("document.getElementById('msg').textContent"
+                           ".startsWith('Holder force × 2.5 from ')")
+    assert value() == 2.5 and "× 2.5 = 7.5 kN" in result.text_content()
+    httpx.post(f"{url}/api/runs/{run}/stop")
+
+
 def test_toml_typed_while_a_form_edit_converts_is_kept(page):
     """A form edit's render still on its way when the user types in the TOML view must not
     overwrite what they typed (it did, and the form was then rebuilt from the old TOML)."""

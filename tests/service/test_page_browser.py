@@ -276,6 +276,9 @@ def test_live_plots_follow_the_steps(plain, browser):
         stroke_at_2 = page.evaluate("document.getElementById('force-plot').data[0].x[1]")
         assert mark["shapes"][0]["x0"] == stroke_at_2  # where the change took effect
         assert "Friction × 2 (step 3)" in mark["annotations"][0]["text"]
+        # above the plot, in a top margin made taller for it: inside, labels covered the
+        # curve's peak
+        assert mark["annotations"][0]["yanchor"] == "bottom" and mark["margin"]["t"] > 34
         page.wait_for_function("document.getElementById('progress').dataset.fraction === '1'")
         page.wait_for_function("state.events === null")  # closed with the run
         shot(page, SHOTS, "live-marked", settle_ms=SETTLE_MS)

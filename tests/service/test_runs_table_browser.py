@@ -143,6 +143,24 @@ def test_sorting_by_a_header(served, browser):
     assert [scenes[r] for r in shown_ids(page)] == sorted(scenes.values())
     page.wait_for_timeout(1500)  # polls redraw the rows: the order holds
     assert [scenes[r] for r in shown_ids(page)] == sorted(scenes.values())
+    # with the keyboard: the header pressed keeps the focus (the row of headers is drawn
+    # anew; the focus fell to the page), Space sorts as Enter does
+    page.focus("#runs thead th[data-key=scene]")
+    page.keyboard.press("Enter")
+    assert page.evaluate("document.activeElement.dataset.key") == "scene"
+    assert page.get_attribute("#runs thead th[data-key=scene]", "aria-sort") == "descending"
+    page.keyboard.press(" ")
+    assert page.get_attribute("#runs thead th[data-key=scene]", "aria-sort") == "ascending"
+    # Tab on from the headers reaches a row, and Enter selects its run
+    page.keyboard.press("Tab")
+    first = page.evaluate("document.activeElement.dataset.key")
+    while first is not None:  # the headers after it
+        page.keyboard.press("Tab")
+        first = page.evaluate("document.activeElement.dataset.key")
+    row = page.evaluate("document.activeElement.dataset.id")
+    assert row == shown_ids(page)[0], row
+    page.keyboard.press("Enter")
+    page.wait_for_function("r => document.getElementById('status').dataset.run === r", arg=row)
     assert not [e for e in errors if "/static/" in e], errors
     page.close()
 

@@ -45,3 +45,18 @@ def test_categories_show_each_swatch_and_the_caption_alone_without_a_scale():
     alone = with_legend(image, None, "cup: run x, step 3 of 6")
     assert np.any(alone != image, axis=2).sum() < np.any(out != image, axis=2).sum()
     assert np.all(alone[: 1080 // 2] == image[: 1080 // 2])
+
+
+def test_a_second_caption_line_and_signs_the_font_lacks():
+    """What the run changed goes under the first line (smaller); the arrows and ellipses of
+    the Runs table's words are written as text (the default font has no glyph for them: a
+    box was drawn)."""
+    from server.snapshot import PLAIN
+
+    image = np.full((720, 960, 3), 200, np.uint8)
+    one = with_legend(image, None, "cup: run x, step 50 of 50")
+    two = with_legend(image, None, ["cup: run x, step 50 of 50",
+                                    "as run: mesh.edge_length 2 → 4 mm; Friction × 0.5 …"])
+    rows = lambda out: np.flatnonzero(np.any(out != image, axis=(1, 2)))  # noqa: E731
+    assert rows(two).min() < rows(one).min()  # a taller box
+    assert "2 -> 4 mm; Friction × 0.5 ..." in "2 → 4 mm; Friction × 0.5 …".translate(PLAIN)
