@@ -247,7 +247,14 @@ const Plots = (() => {
       }
     }
     const names = found.map((s) => `"${s.name}"`).join(", ");
-    const layout = { ...base(`Thickness, section ${names}`, 280),
+    // the steps' names in two columns, the plot taller by the rows they take: one below the
+    // other, seven steps overflowed plotly's legend into a scroll bar
+    const rows = Math.ceil(traces.length / 2), PLOT = 196;  // px: the plot area's height
+    const b = base(`Thickness, section ${names}`, 0);
+    const margin = { ...b.margin, b: 50 + 18 * rows };
+    const layout = { ...b, height: PLOT + margin.t + margin.b, margin,
+                     legend: { ...b.legend, entrywidth: 0.5, entrywidthmode: "fraction",
+                               y: -44 / PLOT, yanchor: "top" },
                      xaxis: axis("rest radius (mm)"), yaxis: axis("thickness (mm)") };
     return draw(div, traces, layout);
   }
