@@ -113,6 +113,7 @@ class ClientView:
         self.mode = "none"
         self.replay: Replay | None = None  # a recorded run being shown
         self.replay_step = 0  # the recorded step it shows
+        self.plays = 0  # Play's ticks: only the newest one's thread moves the slider
         self.previewed: str | None = None  # the scene previewed
         self.canvas: Canvas  # what is drawn: made with the GUI, its folders after ours
         self.gui = self._build_gui()
@@ -329,6 +330,7 @@ class ClientView:
             self._clear(line)
 
     def _clear(self, line: str) -> None:
+        self._stop_play()
         self.mode, self.replay, self.previewed = "none", None, None
         self.canvas.clear()
         self.status(line)
@@ -396,24 +398,37 @@ class ClientView:
         """Play ticked: the time slider moves on by itself, a frame every PLAY_INTERVAL, as
         a user's drag would (``_scrub`` draws each), from the step shown (from the start when
         that is the last) to the run's last step; then Play unticks itself."""
-        if not self.gui.play.value:
-            return
+        with self.lock:
+            self.plays += 1
+            if not self.gui.play.value:
+                return
+            if self.mode not in ("live", "replay"):  # nothing shown to play back
+                self._stop_play()
+                return
+            gen = self.plays
         if self.gui.time.value >= self.gui.time.max:
             self.gui.time.value = 0  # as a drag back to the start: its frame drawn
-        threading.Thread(target=self._playing, daemon=True, name="q3t-viewer-play").start()
+        threading.Thread(target=self._playing, args=(gen,), daemon=True,
+                         name="q3t-viewer-play").start()
 
-    def _playing(self) -> None:
+    def _stop_play(self) -> None:
+        """Play unticked by the code (under lock): its end, or the run shown changed."""
+        self.plays += 1
+        if self.gui.play.value:
+            with self.v.from_code():
+                self.gui.play.value = False
+
+    def _playing(self, gen: int) -> None:
         run = self.selected
         while True:
             time.sleep(PLAY_INTERVAL)
             with self.lock:
-                if (not self.gui.play.value or self.selected != run
-                        or self.mode not in ("live", "replay")):
+                if gen != self.plays:  # unticked, ticked again, or stopped by the code
                     return
                 now, end = int(self.gui.time.value), int(self.gui.time.max)
-                if now >= end:
-                    with self.v.from_code():
-                        self.gui.play.value = False
+                if (self.selected != run or self.mode not in ("live", "replay")
+                        or now >= end):
+                    self._stop_play()
                     return
                 if self.mode == "replay":  # the next recorded frame
                     steps = self.replay.steps

@@ -465,6 +465,8 @@ function paramRow(name, r, text) {
       revert();
       result.textContent = why;
       result.classList.add("error");
+      // the result line comes back after a while (and with the next edit, or another run)
+      setTimeout(() => result.classList.remove("error"), 12000);
       return;
     }
     result.classList.remove("error");
@@ -536,17 +538,18 @@ async function setParameter(inp, out, value = +inp.value) {
         (r.notice ? `; ${r.notice}` : ""));
   } catch (e) {
     say(e.message, true);
-    showValue(inp, out, state.status && state.status.parameters[inp.name]);  // unchanged
+    showValue(inp, out, state.status && state.status.parameters[inp.name], true);  // unchanged
   } finally {
     delete inp.dataset.busy;
     state.paramSeq++;
   }
 }
 
-function showValue(inp, out, value) {
+function showValue(inp, out, value, typed = false) {
+  // ``typed``: over a value being typed too (the server refused it)
   if (value === undefined || value === null) return;
   inp.value = value;
-  if (document.activeElement !== out) out.value = String(+(+value).toPrecision(6));
+  if (typed || document.activeElement !== out) out.value = String(+(+value).toPrecision(6));
 }
 
 function showParameters(st, paramSeq = state.paramSeq) {
@@ -589,6 +592,8 @@ function adoptRun(id) {
     state.run = id;
     state.status = null;
     Results.forget();  // nothing of the run shown before stays on screen
+    for (const r of document.querySelectorAll("#sliders .param-result.error"))
+      r.classList.remove("error");  // a refusal of a value for the run shown before
   }
   for (const tr of $("runs").querySelectorAll("tbody tr"))
     tr.className = tr.dataset.id === id ? "sel" : "";
@@ -636,8 +641,9 @@ function pollNow() {
 
 function followEvents(st) {
   // the run shown, while it goes: its steps as the server has them (server-sent events) wake
-  // the poll, so the headline follows the 3-D view, which the solver's frames reach at once
-  const id = st && ACTIVE.includes(st.state) ? st.id : null;
+  // the poll, so the headline follows the 3-D view, which the solver's frames reach at once.
+  // Not in a hidden tab: each stream holds one of the browser's six connections to the server
+  const id = st && ACTIVE.includes(st.state) && !document.hidden ? st.id : null;
   if (state.events && state.events.run === id) return;
   if (state.events) state.events.source.close();
   state.events = null;
@@ -795,6 +801,8 @@ async function main() {
   poll();
   solverUp.then(previewFirst).catch((e) => say(e.message, true));
 }
+
+document.addEventListener("visibilitychange", () => followEvents(state.status));
 
 // a reload or a closed tab would drop the editor's unsaved edits: the browser asks first
 window.addEventListener("beforeunload", (ev) => {

@@ -135,6 +135,8 @@ def view_png(run_id: RunId, request: Request, view: Annotated[str | None, Query(
     run = m.get(run_id)
     if why := _no_view(m, run):
         raise NotFound(why)
+    if run.state == QUEUED:
+        raise Conflict(f"run {run.id!r} is queued: no view of it until it starts")
     shown = _viewer_client(m, run.id, view)
     client = shown.client
     # the browser's camera at its canvas's shape, at least PNG_HEIGHT high (a canvas drawn at

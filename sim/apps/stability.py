@@ -315,7 +315,7 @@ def _shorter_step(sim: Simulation, iterations: int) -> StepRecord:
     g[m.problem.fixed] = 0.0  # the residual Newton measures: the held DoFs' reactions left out
     rec = StepRecord(sim.step_index, sim.t, iterations, float(np.linalg.norm(g)),
                      m.problem.energy(sim.x), cutbacks, probes.evaluate(m, sim.x),
-                     sim._tool_reports(), sim._lag_change(sim.x))
+                     sim._tool_reports(), sim._lag_change(sim.x), sim._sheet())
     sim.records.append(rec)
     sim._record_sections()
     return rec

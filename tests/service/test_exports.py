@@ -173,6 +173,8 @@ def test_a_queued_run_has_no_downloads_until_it_has_run(env):
     assert not any(f["available"] for f in listed)
     # the PNG too: no browser can show a run that has not started
     assert all("queued" in f["reason"] for f in listed), listed
+    r = client.get(f"/api/runs/{queued['id']}/export/png")
+    assert r.status_code == 409 and "queued" in r.json()["detail"], r.text
     for run in (queued["id"], ahead):
         client.post(f"/api/runs/{run}/stop")
         wait_state(client, run, {"stopped", "cancelled", "finished"})

@@ -277,7 +277,14 @@ def test_viewer_replays_an_older_recorded_run(done, viewer):
     # the recorded frames in order (a step the slider passed through snaps to one)
     assert seen[0] == 0 and seen[-1] == 3 and seen == sorted(seen) and 2 in seen, seen
     assert viewer.gui.status.content.endswith("showing recorded step 3")
+    # ticked and unticked at once, then ticked: only the newest tick's play moves on, and
+    # another run chosen while it plays unticks it
+    viewer.gui.play.value = True
+    viewer.gui.play.value = False
+    viewer.gui.play.value = True
+    assert viewer.plays >= 3
     viewer.gui.run.value = latest
+    until(lambda: not viewer.gui.play.value, "Play stayed ticked for another run")
     assert viewer.mode == "live" and viewer.replay is None
     assert client.get("/api/view").json()["run"] == latest
 
