@@ -76,8 +76,13 @@ def test_tool_run_frames_and_poses(done):
     assert [r["step"] for r in st["records"]] == [1, 2, 3]
     assert {"build_s", "tool_meshes_s", "first_frame_s"} <= set(st["timing"])
     kept = client.get(f"/api/runs/{run}/frames").json()
-    assert kept["steps"] == [0, 1, 2, 3] and kept["stride"] == 1
-    frames = [client.get(f"/api/runs/{run}/frames/{k}").json() for k in range(4)]
+    # the rest state and the last frame always arrive; a frame between may be dropped when
+    # the server is slower than the solver (by design, server.worker: a loaded machine kept
+    # [0, 3] once, the last frame's message overtaking the two queued before it)
+    steps = kept["steps"]
+    assert steps[0] == 0 and steps[-1] == 3 and set(steps) <= {0, 1, 2, 3}, steps
+    assert kept["stride"] == 1
+    frames = [client.get(f"/api/runs/{run}/frames/{k}").json() for k in steps]
     for f in frames:
         assert set(f["fields"]) == FIELDS
         assert f["fields"]["thickness_mm"]["min"] > 0
