@@ -244,9 +244,8 @@ class ClientView:
         # a running run's slider follows it; paused or ended, it plays back
         running = active and "pause" in controls
         self.gui.play.disabled = running
-        if running and self.gui.play.value:
-            with self.v.from_code():
-                self.gui.play.value = False
+        if running:
+            self._stop_play()
 
     def set_runs(self, run_ids: tuple[str, ...]) -> None:
         options = run_ids or (NO_RUN,)

@@ -448,8 +448,7 @@ function paramRow(name, r, text) {
   // change to a running run is never made by a stray tap or a Tab)
   const revert = () => {
     delete inp.dataset.busy;
-    const v = state.status && state.status.parameters[name];
-    if (v !== undefined && v !== null) { inp.value = v; out.value = String(+(+v).toPrecision(6)); }
+    showValue(inp, out, state.status && state.status.parameters[name], true);
     showResult(name, +inp.value, state.status);
   };
   out.oninput = () => { inp.dataset.busy = "1"; result.classList.remove("error"); };

@@ -87,8 +87,7 @@ def exports(run_id: RunId, request: Request, view: ViewId = None) -> dict:
     # the PNG needs a browser showing the run when it is asked for: offered while the viewer
     # is on (its answer says why not, if no browser shows the run then), and for an ended run
     # only if it has a state to show (one that failed before it had one draws nothing)
-    why = (_no_view(m, run) or (going if run.state == QUEUED else None)  # nothing to show yet
-           or (None if m.viewer else VIEWER_OFF))
+    why = _no_view(m, run) or (None if m.viewer else VIEWER_OFF)
     out.append({"format": "png", "description": PNG, "available": why is None, "reason": why,
                 "url": f"/api/runs/{run.id}/export/png" + (f"?view={view}" if view else "")})
     return {"run": run.id, "formats": out}
@@ -99,7 +98,10 @@ def _clipped(text: str, most: int = CAPTION_CHARS) -> str:
 
 
 def _no_view(m: RunManager, run: Run) -> str | None:
-    """Why an ended run's 3-D view shows no sheet to capture (no final state), or None."""
+    """Why the run's 3-D view has no sheet to capture, or None: a queued run is not shown
+    yet, an ended one without a final state never was."""
+    if run.state == QUEUED:
+        return f"run {run.id!r} is queued: no view of it until it starts"
     return _why_not(m.files.dir(run.id))["stl"] if run.state in ENDED else None
 
 
@@ -134,9 +136,7 @@ def view_png(run_id: RunId, request: Request, view: Annotated[str | None, Query(
     m: RunManager = request.app.state.manager
     run = m.get(run_id)
     if why := _no_view(m, run):
-        raise NotFound(why)
-    if run.state == QUEUED:
-        raise Conflict(f"run {run.id!r} is queued: no view of it until it starts")
+        raise (NotFound if run.state in ENDED else Conflict)(why)
     shown = _viewer_client(m, run.id, view)
     client = shown.client
     # the browser's camera at its canvas's shape, at least PNG_HEIGHT high (a canvas drawn at
