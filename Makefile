@@ -70,9 +70,9 @@ DEFORM_AL := --set shell.thickness=0.00081 --set material.E=70e9 --set material.
   --set tools.0.friction=0.162 --set tools.1.friction=0.162 --set tools.2.friction=0.162
 # the aluminium square cup on an edge of $(1) m ($(2) mm): 15 and 40 mm, Q3T and q3t_ans
 define square_cup_al
-$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=$(1) --out runs/forming-square_cup-al-$(2)mm --results $(R)/forming-square_cup-aluminium-$(2)mm.md
+$(BIN)/q3t run square_cup --element q3t $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=$(1) --out runs/forming-square_cup-al-$(2)mm --results $(R)/forming-square_cup-aluminium-$(2)mm.md
 $(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --set mesh.edge_length=$(1) --element q3t_ans --out runs/forming-square_cup-al-ans-$(2)mm --results $(R)/forming-square_cup-aluminium-ans-$(2)mm.md
-$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=$(1) --out runs/forming-square_cup-al-40-$(2)mm --results $(R)/forming-square_cup-aluminium-40-$(2)mm.md
+$(BIN)/q3t run square_cup --element q3t --quiet $(ALUMINIUM) --set mesh.edge_length=$(1) --out runs/forming-square_cup-al-40-$(2)mm --results $(R)/forming-square_cup-aluminium-40-$(2)mm.md
 $(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --set mesh.edge_length=$(1) --element q3t_ans --out runs/forming-square_cup-al-40-ans-$(2)mm --results $(R)/forming-square_cup-aluminium-40-ans-$(2)mm.md
 endef
 
@@ -124,32 +124,34 @@ results: $(STAMP)
 	$(BIN)/q3t springback --elements q3t,quadratic,quartic --out runs/springback \
 	  --results $(R)/springback-formula.md
 	$(BIN)/q3t bench-service --results $(R)/service.md
-	$(BIN)/q3t reference cup_drawing --check tests/data/reference/cup_drawing-q3t-2mm.json \
+	$(BIN)/q3t reference cup_drawing --element q3t --check tests/data/reference/cup_drawing-q3t-2mm.json \
 	  --results $(R)/stroke-cup_drawing.md
+	$(BIN)/q3t reference cup_drawing --check tests/data/reference/cup_drawing-q3t_ans-2mm.json \
+	  --results $(R)/stroke-cup_drawing-ans.md
 	$(BIN)/q3t run cup_drawing --quiet --out runs/forming-cup_drawing \
 	  --results $(R)/forming-cup_drawing.md
-	$(BIN)/q3t run cup_drawing --quiet --set mesh.edge_length=0.0005 \
+	$(BIN)/q3t run cup_drawing --element q3t --quiet --set mesh.edge_length=0.0005 \
 	  --out runs/forming-cup_drawing-paper --results $(R)/forming-cup_drawing-paper.md
-	$(BIN)/q3t run cup_drawing_aa5754 --quiet --out runs/forming-cup_drawing_aa5754-2mm \
+	$(BIN)/q3t run cup_drawing_aa5754 --element q3t --quiet --out runs/forming-cup_drawing_aa5754-2mm \
 	  --results $(R)/forming-cup_drawing_aa5754-2mm.md
 	$(BIN)/q3t run cup_drawing_aa5754 --element q3t_ans --quiet \
 	  --results $(R)/forming-cup_drawing_aa5754-2mm-ans.md
 	$(BIN)/q3t run cup_drawing_outline --quiet \
 	  --results $(R)/forming-cup_drawing_outline-2mm-ans.md
-	$(BIN)/q3t run cup_drawing --quiet $(CUP30) --out runs/forming-cup_drawing-30mm-2mm \
+	$(BIN)/q3t run cup_drawing --element q3t --quiet $(CUP30) --out runs/forming-cup_drawing-30mm-2mm \
 	  --results $(R)/forming-cup_drawing-30mm-2mm.md
-	$(BIN)/q3t run cup_drawing_aa5754 --quiet --set mesh.edge_length=0.00125 \
+	$(BIN)/q3t run cup_drawing_aa5754 --element q3t --quiet --set mesh.edge_length=0.00125 \
 	  --out runs/forming-cup_drawing_aa5754 --results $(R)/forming-cup_drawing_aa5754-1.25mm.md
-	$(BIN)/q3t run cup_drawing --quiet $(CUP30) --set mesh.edge_length=0.00125 \
+	$(BIN)/q3t run cup_drawing --element q3t --quiet $(CUP30) --set mesh.edge_length=0.00125 \
 	  --out runs/forming-cup_drawing-30mm \
 	  --results $(R)/forming-cup_drawing-30mm-1.25mm.md
-	$(BIN)/q3t run cup_drawing --quiet $(CUP30) --set mesh.edge_length=0.0008 \
+	$(BIN)/q3t run cup_drawing --element q3t --quiet $(CUP30) --set mesh.edge_length=0.0008 \
 	  --out runs/forming-cup_drawing-30mm-0.8mm
-	$(BIN)/q3t run cup_drawing --quiet $(CUP30) --set mesh.edge_length=0.0005 \
+	$(BIN)/q3t run cup_drawing --element q3t --quiet $(CUP30) --set mesh.edge_length=0.0005 \
 	  --out runs/forming-cup_drawing-30mm-0.5mm
-	$(BIN)/q3t run cup_drawing --quiet $(CUP30) --set mesh.edge_length=0.00125 \
+	$(BIN)/q3t run cup_drawing --element q3t --quiet $(CUP30) --set mesh.edge_length=0.00125 \
 	  --set shell.thickness_points=7 --out runs/forming-cup_drawing-30mm-7points
-	$(BIN)/q3t run cup_drawing_aa5754 --quiet --set mesh.edge_length=0.0008 \
+	$(BIN)/q3t run cup_drawing_aa5754 --element q3t --quiet --set mesh.edge_length=0.0008 \
 	  --out runs/forming-cup_drawing_aa5754-0.8mm
 	$(BIN)/q3t splitring runs/forming-cup_drawing-30mm-2mm runs/forming-cup_drawing_aa5754-2mm \
 	  runs/forming-cup_drawing-30mm runs/forming-cup_drawing_aa5754 \
@@ -162,27 +164,29 @@ results: $(STAMP)
 	  runs/forming-cup_drawing-30mm-7points runs/forming-cup_drawing-30mm-0.8mm \
 	  runs/forming-cup_drawing-30mm-0.5mm \
 	  --heights 6,11 --heights 8,13 --heights 12,17 --results $(R)/split-ring-refinement.md
-	$(BIN)/q3t run square_cup $(SQUARE15) --out runs/forming-square_cup \
+	$(BIN)/q3t run square_cup --element q3t $(SQUARE15) --out runs/forming-square_cup \
 	  --results $(R)/forming-square_cup.md
-	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --out runs/forming-square_cup-al \
+	$(BIN)/q3t run square_cup --element q3t $(SQUARE15) $(ALUMINIUM) --out runs/forming-square_cup-al \
 	  --results $(R)/forming-square_cup-aluminium.md
-	$(BIN)/q3t run square_cup --quiet --out runs/forming-square_cup-40 \
+	$(BIN)/q3t run square_cup --element q3t --quiet --out runs/forming-square_cup-40 \
 	  --results $(R)/forming-square_cup-40.md
-	$(BIN)/q3t run square_cup --quiet $(ALUMINIUM) --out runs/forming-square_cup-al-40 \
+	$(BIN)/q3t run square_cup --element q3t --quiet $(ALUMINIUM) --out runs/forming-square_cup-al-40 \
 	  --results $(R)/forming-square_cup-aluminium-40.md
-	$(BIN)/q3t run square_cup $(SQUARE15) $(DEFORM_AL) \
+	$(BIN)/q3t run square_cup --element q3t $(SQUARE15) $(DEFORM_AL) \
 	  --out runs/forming-square_cup-deform --results $(R)/forming-square_cup-aluminium-deform.md
-	$(BIN)/q3t run square_cup --quiet $(DEFORM_AL) \
+	$(BIN)/q3t run square_cup --element q3t --quiet $(DEFORM_AL) \
 	  --out runs/forming-square_cup-deform-40 \
 	  --results $(R)/forming-square_cup-aluminium-deform-40.md
 	$(call square_cup_al,0.0025,2.5)
 	$(call square_cup_al,0.00125,1.25)
 	$(BIN)/q3t run square_cup $(SQUARE15) $(ALUMINIUM) --element q3t_ans \
 	  --out runs/forming-square_cup-al-ans --results $(R)/forming-square_cup-aluminium-ans.md
-	$(BIN)/q3t sweep cup_drawing --grid mesh.edge_length=0.004,0.003,0.0025,0.002 \
+	$(BIN)/q3t sweep cup_drawing --grid mesh.edge_length=0.004,0.003,0.0025,0.002 --set shell.element=q3t \
 	  --out runs/forming-cup_mesh --results $(R)/forming-cup_mesh.md
 	$(BIN)/q3t sweep cup_drawing --grid shell.element=linear,q3t --set mesh.edge_length=0.003 \
 	  --out runs/forming-cup_elements --results $(R)/forming-cup_elements.md
+	$(BIN)/q3t sweep cup_drawing --grid shell.element=q3t,q3t_ans,quadratic \
+	  --out runs/forming-cup_elements-2mm --results $(R)/forming-cup_elements-2mm.md
 	$(BIN)/q3t sweep beam_forming --grid shell.element=linear,q3t,quadratic --ratio curvature \
 	  --out runs/forming-beam_forming --results $(R)/forming-beam_forming.md
 	$(BIN)/q3t sweep cookie_cutter --grid shell.element=linear,q3t --set mesh.edge_length=0.003 \

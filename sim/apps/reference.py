@@ -68,13 +68,19 @@ def deviation(result: dict, ref: dict) -> dict[str, float]:
     return out
 
 
-def _run(args: argparse.Namespace) -> tuple[dict, dict]:
+def _run(args: argparse.Namespace, ref: dict | None) -> tuple[dict, dict] | str:
+    """The run's result and overrides, or why it was not run: a stored run of another element
+    than the scene's (as the scene's default element changed) is not its answer."""
     from sim.stepping.simulation import Simulation
 
     overrides = parse_sets(args.set)
     if args.element:
         overrides["shell.element"] = args.element
-    sim = Simulation.from_scene(load(args.scene, overrides))
+    scene = load(args.scene, overrides)
+    if ref is not None and ref.get("element", scene.shell.element) != scene.shell.element:
+        return (f"{args.check} holds a run with {ref['element']}, this run would have "
+                f"{scene.shell.element} (give --element {ref['element']})")
+    sim = Simulation.from_scene(scene)
     sim.run()
     return sim.result(), overrides
 
@@ -93,7 +99,11 @@ def run(args: argparse.Namespace) -> int:
                   f"({type(exc).__name__}: {exc})", file=sys.stderr)
             return BAD_INPUT
     stamp = Stamp.begin(args.command)
-    result, overrides = _run(args)
+    ran = _run(args, ref)
+    if isinstance(ran, str):
+        print(f"q3t reference: --check: {ran}", file=sys.stderr)
+        return BAD_INPUT
+    result, overrides = ran
     if not result["converged"]:
         print(f"q3t reference: FAILED: {result['failure']['reason']}", file=sys.stderr)
         return FAILED

@@ -15,5 +15,5 @@ stretching through the thickness (curvature thickness locking); tied at the corn
 
 from sim.elements.base import Prism
 
-Q3T_ANS = Prism("q3t_ans", p=1, q=2, default_quadrature=(3, 3), routine=False,
+Q3T_ANS = Prism("q3t_ans", p=1, q=2, default_quadrature=(3, 3),
                   assumed_strain=True)

@@ -26,7 +26,7 @@ DIFFERENCES = {
         "name": "its own", "description": "its own",
         "mesh.kind": "the unstructured blank is the point",
         "mesh.circle": "its outline, a circle of the disk's radius (checked below)",
-        "mesh.r_outer": "a disk's field", "shell.element": "issue 17's element",
+        "mesh.r_outer": "a disk's field",
         "probes.13": "the lateral force probed (x)", "probes.14": "and (y)",
     },
 }

@@ -89,7 +89,7 @@ def test_cookie_cutter_linear_prisms_shear_at_the_strip_edges():
 @functools.cache
 def cup(element: str, edge: float = 0.002) -> Simulation:
     """The cup as shipped (2 mm edges, 25 mm stroke in 50 steps) or coarser."""
-    if (element, edge) == ("q3t", 0.002):  # the shipped scene's: its run shared with others
+    if (element, edge) == ("q3t_ans", 0.002):  # the shipped scene's: its run shared with others
         from tests.support.scenes import shipped_cup
 
         return shipped_cup()[0]
@@ -101,11 +101,10 @@ def cup(element: str, edge: float = 0.002) -> Simulation:
 
 @pytest.mark.slow
 def test_cup_volume_force_and_thickness():
-    """The shipped cup (2 mm mesh, Q3T). Measured: volume within 6e-4; punch force peaking
-    at 20.56 kN at 10.6 mm of stroke and falling to 13.6 kN; thinnest 0.805 mm; cup height
-    (rim above the bottom) 15.44 mm at 15.09 mm of punch travel while the flange still lies
-    on the die, 20.21 mm at the end with the flange drawn in by 12.7 mm."""
-    sim = cup("q3t")
+    """The shipped cup (2 mm mesh, q3t_ans). Measured (2026-12-07): volume within 6e-4; punch
+    force peaking at 21.06 kN at 10.5 mm of stroke and falling; thinnest 0.920 mm; the flange
+    drawn in by 12.4-12.9 mm."""
+    sim = cup("q3t_ans")
     assert sim.result()["converged"], sim.failure
     p = probe_series(sim)
     v0 = float(np.sum(sim.model.elasticity.wdetJ))
@@ -123,7 +122,11 @@ def test_cup_volume_force_and_thickness():
     # Fig. 10 stages: thinning at the punch radius, thickening of the flange under compression
     h_min = p["min_thickness"]
     # contact chatter moves the thinnest node by ~1 um between steps: the trend is what counts
-    assert h_min[-1] < 0.9e-3 and np.all(np.diff(h_min) < 5e-6)
+    assert np.all(np.diff(h_min) < 5e-6)
+    # how thin: the quadratic prism on this mesh ends at 0.908 mm, Q3T on the paper's 0.5 mm
+    # mesh at 0.926 (docs/results/forming-cup_elements-2mm.md, forming-cup_drawing-paper.md):
+    # between the two, to 1 %; Q3T on this mesh thins to 0.804 mm, its one-point rule's noise
+    assert 0.90e-3 < h_min[-1] < 0.935e-3
     assert p["max_thickness"][-1] > 1.1e-3
     assert p["punch_penetration"].max() <= 0.01 * 0.001  # the documented bound: 1 % of t
     # cup height: while the flange lies on the die (rim at the die's top, z = 0) it follows
@@ -135,36 +138,46 @@ def test_cup_volume_force_and_thickness():
 
 
 @pytest.mark.slow
-def test_cup_rim_thickens_to_the_free_edge_value_then_is_ironed():
+def test_cup_rim_thickens_then_is_ironed_to_the_gap():
     """Drawn in from r0 = 30 mm to r, the free rim is compressed in hoop only (no radial
     stress at the edge), so volume constancy gives t = t0 (r0 / r)^(1/2): 1.32 mm at the
-    rim's 17.2 mm. Measured at the end (2 mm mesh): rim mean 1.265 mm, between the 1.2 mm
-    punch-die gap that irons the part of it already through and that free-edge value; the
-    thickest rim node (1.51 mm) still sits on the die shoulder, where the gap to the punch
-    is 1.5 mm, while the section's point from rest radius 26 mm, thickened to 1.25 mm at
-    20 mm of stroke, is 1.19 mm in the gap at 25 mm."""
+    rim's 17.2 mm. At the end of the stroke the rim is in the punch-die gap (1.2 mm) or on the
+    last millimetre of the die's shoulder, and ironed: no rim point thicker than the gap where
+    it is, plus the two contact layers (the documented penetration bound, 1 % of t on each
+    side); the quadratic prism on this mesh irons the whole rim to 1.200-1.207 mm, Q3T's rim
+    pokes 0.049 mm past its gap. The rim's mean within 3 % of the quadratic prism's 1.205 mm
+    (q3t_ans 1.176, its rim's six waves on the disk's lattice; Q3T 1.264; measured 2026-12-07:
+    ring means along the radius differ from the quadratic's by at most 2.5 % (q3t_ans) and 5 %
+    (Q3T))."""
     from sim.frames import fields
 
-    sim = cup("q3t")
+    sim = cup("q3t_ans")
     m, x = sim.model, sim.x
     V = m.shell.mesh.vertices
     rim = np.hypot(V[:, 0], V[:, 1]) > 0.0295
     h = fields.thickness(m, x)[rim]
     mid = fields.mid_surface(m, x)[rim]
     free_edge = 1e-3 * np.sqrt(0.03 / np.hypot(mid[:, 0], mid[:, 1]).mean())
-    assert 1.2e-3 < h.mean() < free_edge
+    assert h.max() < free_edge
+    assert abs(h.mean() / 1.205e-3 - 1) < 0.03
+    # the die's opening (radius 17.7 mm) and its 5 mm shoulder from z = -0.5 mm down to -5.5
+    dz = np.clip(mid[:, 2] + 5.5e-3, 0.0, 5e-3)
+    gap = 22.7e-3 - np.sqrt(25e-6 - dz**2) - 16.5e-3
+    assert (gap < 1.25e-3).sum() > rim.sum() / 2  # most of the rim is in the gap
+    assert np.all(h <= gap + 2 * 0.01e-3)
 
 
 @pytest.mark.slow
-def test_cup_section_shows_the_three_thickness_stages():
+def test_cup_section_shows_thinning_then_thickening():
     """Paper Fig. 10 along the radial section of cup_drawing, each stage where it happens:
     (1) at 5 mm of stroke the blank bent over the punch nose has thinned slightly while the
-    flange has not thickened yet (measured: 0.967 mm at rest radius 14 mm, the flange at most
-    1.010 mm); (2) the flange thickens under hoop compression (1.117 mm at 15 mm, 1.251 mm at
-    20 mm); (3) that thickened wall is ironed to the punch-die gap (1.2 mm) as it passes
-    through it (a point at 1.251 mm is 1.191 mm inside the gap at 25 mm). The thinnest point
-    over the punch radius ends at 0.937 mm."""
-    sec = cup("q3t").sections["radial"]
+    flange has not thickened yet (measured 2026-12-07: 0.970 mm at rest radius 12 mm, the
+    flange at most 1.008 mm); (2) the flange thickens under hoop compression (1.084 mm at 15
+    mm, 1.188 mm at 20 mm). The thinnest point over the punch radius ends at 0.941 mm. The
+    third stage, the thickened rim ironed to the punch-die gap, is the rim's test above: on
+    this ray (+x, where the disk mesh's six waves leave the rim highest) the rim has not
+    reached the gap's straight part at 25 mm."""
+    sec = cup("q3t_ans").sections["radial"]
     assert [s["step"] for s in sec] == [0, 10, 20, 30, 40, 50]
     h = np.array([s["thickness"] for s in sec])
     r = np.array([s["radius"] for s in sec])
@@ -178,9 +191,6 @@ def test_cup_section_shows_the_three_thickness_stages():
     assert h[-1].min() < 0.95e-3  # and it stays thinned
     # stage 2: the compressed flange (rest r > 20 mm) thickens by more than 5 %
     assert h[:4, r0 > 0.02].max() > 1.05e-3
-    in_gap = (r[-1] > 0.0165) & (r[-1] < 0.0177)
-    ironed = in_gap & (h.max(0) > 1.22e-3) & (h[-1] < 1.205e-3)  # stage 3
-    assert ironed.any()
 
 
 @pytest.mark.slow
