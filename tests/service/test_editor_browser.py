@@ -382,14 +382,15 @@ def test_the_runs_element_follows_the_scenes_own(page, served):
     follows the scene's shell.element whenever that changes (another scene, a form or TOML
     edit); a choice made in the Run box stands until then."""
     _, scenes = served
-    (scenes / "cup_ans.toml").write_text(COARSE.replace('name = "cup"', 'name = "cup_ans"')
-                                         .replace('element = "q3t"', 'element = "q3t_ans"'))
+    assert 'element = "q3t_ans"' in COARSE  # the shipped cup's
+    (scenes / "cup_q3t.toml").write_text(COARSE.replace('name = "cup"', 'name = "cup_q3t"')
+                                         .replace('element = "q3t_ans"', 'element = "q3t"'))
     try:
-        assert page.input_value("#element") == "q3t"
+        assert page.input_value("#element") == "q3t_ans"
         page.reload()
-        page.click("#scenes li[data-name='cup_ans']")
-        page.wait_for_selector("#scenes li.sel[data-name='cup_ans']")
-        page.wait_for_function("document.getElementById('element').value === 'q3t_ans'")
+        page.click("#scenes li[data-name='cup_q3t']")
+        page.wait_for_selector("#scenes li.sel[data-name='cup_q3t']")
+        page.wait_for_function("document.getElementById('element').value === 'q3t'")
         page.select_option("#element", "linear")  # the user's choice
         page.fill("[name='material.nu']", "0.3")  # an edit that leaves the element alone
         synced(page, "nu = 0.3\n")
@@ -401,6 +402,6 @@ def test_the_runs_element_follows_the_scenes_own(page, served):
         page.once("dialog", lambda d: d.accept())  # drop the unsaved edits
         page.click("#scenes li[data-name='cup']")  # another scene: its own element
         page.wait_for_selector("#scenes li.sel[data-name='cup']")
-        page.wait_for_function("document.getElementById('element').value === 'q3t'")
+        page.wait_for_function("document.getElementById('element').value === 'q3t_ans'")
     finally:
-        (scenes / "cup_ans.toml").unlink()
+        (scenes / "cup_q3t.toml").unlink()
