@@ -131,7 +131,10 @@ def columns(run: RunFolder) -> list[tuple[str, list]]:
     force, beside "punch force", the force resisting its stroke: the same numbers when it
     moves along z), is left out: one quantity, one column."""
     steps = run.result.get("steps") or []
-    cols = [("step", [r["step"] for r in steps]), ("time [s]", [r["time"] for r in steps])]
+    # a static run's time is the pseudo-time that moves its tools and loads, 0 to 1 over the
+    # run, not seconds (a run written before result.json said which kind says seconds)
+    time = "pseudo-time [-]" if run.result.get("stepping") == "static" else "time [s]"
+    cols = [("step", [r["step"] for r in steps]), (time, [r["time"] for r in steps])]
     punches = run.result.get("punches") or run.status.get("punches") or {}
     for tool, start in punches.items():
         # a released punch reports nothing in the release stage: empty cells there

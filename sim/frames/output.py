@@ -106,6 +106,8 @@ def _result(sim: Run) -> dict:
     return {
         "scene": m.scene.name,
         "element": m.shell.element.name,
+        # static: a step's time is the scene's pseudo-time, 0 to 1 over the run; dynamic: seconds
+        "stepping": m.scene.stepping.kind,
         "quadrature": [len(np.unique(m.elasticity.rule.points[:, :2], axis=0)),
                        len(np.unique(m.elasticity.rule.points[:, 2]))],
         "counts": {"vertices": m.shell.n_vertices, "nodes": m.shell.n_nodes,

@@ -50,13 +50,22 @@ def test_frames_saved_every_nth_step_and_the_last_whole(cup):
         assert int(z["step"]) == 2 and float(z["time"]) == res["steps"][1]["time"]
 
 
+def test_the_time_column_says_seconds_only_in_a_dynamic_run(tmp_path):
+    steps = [{"step": 1, "time": 0.5, "probes": {}}]
+    for kind, head in (("static", "pseudo-time [-]"), ("dynamic", "time [s]"),
+                       (None, "time [s]")):  # a result written before it said its kind
+        result = {"steps": steps} | ({"stepping": kind} if kind else {})
+        assert export.columns(export.RunFolder(tmp_path, result, {}))[1] == (head, [0.5])
+
+
 def test_csv_a_row_per_step_with_units_in_the_header(cup, tmp_path):
     folder, res, _ = cup
     [path] = export.export(folder, "csv", tmp_path)
     rows = list(csv.reader(path.open()))
     head, body = rows[0], rows[1:]
     # the scene's punch_force probe (the punch's z force) says what "punch force" says: once
-    assert head == ["step", "time [s]", "punch stroke [mm]", "punch force [kN]",
+    # a static run's time is its pseudo-time (0 to 1), not seconds
+    assert head == ["step", "pseudo-time [-]", "punch stroke [mm]", "punch force [kN]",
                     "punch lateral force [kN]", "min_thickness [mm]", "centre_dz [mm]"]
     assert len(body) == len(res["steps"]) == 3
     col = {h: [float(r[i]) for r in body] for i, h in enumerate(head)}
@@ -64,7 +73,7 @@ def test_csv_a_row_per_step_with_units_in_the_header(cup, tmp_path):
     assert col["step"] == [r["step"] for r in steps]
     # written to export.DIGITS significant digits: equal to half a unit of the last one
     digits = 0.5 * 10.0 ** (1 - export.DIGITS)
-    np.testing.assert_allclose(col["time [s]"], [r["time"] for r in steps], rtol=digits)
+    np.testing.assert_allclose(col["pseudo-time [-]"], [r["time"] for r in steps], rtol=digits)
     for name, unit in (("min_thickness", "m"), ("centre_dz", "m")):
         factor = DISPLAY[unit][1]
         np.testing.assert_allclose(col[f"{name} [{DISPLAY[unit][0]}]"],
