@@ -199,8 +199,10 @@ def summary_rows(runs: list[Loaded]) -> list[dict]:
             row = rows.setdefault((e["name"], e.get("tool")), {
                 "name": e["name"], "label": e["label"], "tool": e.get("tool"),
                 "unit": e["display"]["unit"], "values": [None] * len(runs),
-                "at": [None] * len(runs), "note": e.get("note")})
+                "at": [None] * len(runs), "flags": [None] * len(runs),
+                "note": e.get("note")})
             v = e["display"]["value"]
+            row["flags"][i] = e.get("flag")
             row["values"][i] = v if isinstance(v, (int, float)) else None
             row["at"][i] = _at(e.get("at") or {})
     for row in rows.values():

@@ -60,6 +60,8 @@ class Run:
     timing: dict = field(default_factory=dict)  # build_s, tool_meshes_s, first_frame_s, ...
     parameters: dict = field(default_factory=dict)
     given: dict = field(default_factory=dict)  # the live parameters given at the start
+    # the scene's own element when the run took another (None: the scene's)
+    scene_element: str | None = None
     # what each live parameter multiplies (sim's Simulation.scaled): the page shows the result
     scaled: dict = field(default_factory=dict)
     # %, the material card's excessive-thinning limit (flc.max_thinning): the viewer's thinning
@@ -112,6 +114,8 @@ class Run:
         overrides (the element is a column of its own), the live parameters given at the
         start (from step 1) and those changed while it ran, from the step each applied."""
         out = list(self.edits or ["unsaved edits of the scene"]) if self.edited else []
+        if self.scene_element:  # the element has its own column, but this is a change
+            out.append(f"element {self.element} (the scene's {self.scene_element})")
         out += [f"{k} = {override_text(k, v)}" for k, v in self.overrides.items()
                 if k != "shell.element"]
         # the live parameters as the page's sliders name them (Friction × 0.5)

@@ -23,7 +23,7 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
-from server import scenediff
+from server import scenediff, tomlout
 from server.bridge import Bridge
 from server.estimate import EstimateCache
 from server.events import Changes
@@ -238,10 +238,12 @@ class RunManager:
                       spec.shell.element, overrides, time.time(), edited=edited, edits=edits,
                       parameters=self._start_values({**dict.fromkeys(tools, AS_WRITTEN),
                                                      **(parameters or {})}),
-                      given=dict(parameters or {}))
+                      given=dict(parameters or {}),
+                      scene_element=scenediff.element_of(text, spec.shell.element))
             run.place = len(self.queue) + 1  # run.json says queued, and where
+            ran = text if run.scene_element is None else tomlout.with_element(text, run.element)
             out = self.files.create(run, scenediff.ran_head(
-                run.id, scene, text, edits if edited else None, overrides, parameters) + text)
+                run.id, scene, text, edits if edited else None, overrides, parameters) + ran)
             self.runs[run.id] = run
             self._starts[run.id] = dict(run=run.id, out=str(out), scene_toml=text,
                                         overrides=solver_overrides,

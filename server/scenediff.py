@@ -109,16 +109,23 @@ def shown(item: dict, between: str = " | ") -> str:
                                                        for v in item["values"]), label)
 
 
+def element_of(text: str, element: str) -> str | None:
+    """The element the scene ``text`` names when a run takes another (``element``); None when
+    the run takes the scene's own."""
+    own = tomllib.loads(text).get("shell", {}).get(
+        "element", ShellSpec.model_fields["element"].default)
+    return None if own == element else own
+
+
 def ran_head(run_id: str, scene: str, text: str, edits: list[str] | None,
              overrides: dict, parameters: dict | None = None) -> str:
-    """The comment lines that head a run's scene.toml (``text``, a valid scene) when what ran
+    """The comment lines that head a run's scene.toml (``text``, a valid scene, as the page or
+    the file had it; the copy below them takes the run's element) when what ran
     is not that text as it stands: the page's unsaved edits (``edits``, None: none; the
     comments below are the saved file's and may describe its values), overrides on top of
     it, an element other than its own, live parameters given at the start (``parameters``;
     those changed while it ran are in run.json's parameter log); '' otherwise (the file is the
     saved one, comments true)."""
-    file_element = tomllib.loads(text).get("shell", {}).get(
-        "element", ShellSpec.model_fields["element"].default)
     parts = []
     if edits is not None:
         parts.append(f"It ran the page's unsaved edits of {scene}: {'; '.join(edits)}. The "
@@ -129,9 +136,11 @@ def ran_head(run_id: str, scene: str, text: str, edits: list[str] | None,
     if given:
         parts.append("Overrides on top of this file (run.json): " +
                      "; ".join(f"{k} = {override_text(k, v)}" for k, v in given.items()) + ".")
-    element = overrides.get("shell.element", file_element)
-    if element != file_element:
-        parts.append(f"It ran element {element}, not the file's {file_element}.")
+    element = overrides.get("shell.element")
+    own = element and element_of(text, element)
+    if own:
+        parts.append(f"It ran element {element}, not the file's {own}: [shell] below says "
+                     "what ran.")
     live = {k: v for k, v in (parameters or {}).items() if v != 1.0}  # 1: as written
     if live:
         parts.append("Live parameters from its start: " +

@@ -173,6 +173,21 @@ def renamed(text: str, name: str) -> str:
     return tomlkit.dumps(doc)
 
 
+def with_element(text: str, element: str) -> str:
+    """A scene file's text with ``[shell] element`` set to ``element`` (the copy of a run
+    made with another element than its file's: it runs again as it ran); its trailing comment,
+    which described the file's element, dropped. A text that is not TOML, as it was."""
+    try:
+        doc = tomlkit.parse(text)
+    except TOMLKitError:
+        return text
+    if "shell" not in doc:
+        doc["shell"] = tomlkit.table()
+    doc["shell"]["element"] = element
+    _uncomment(doc["shell"]["element"])
+    return tomlkit.dumps(doc)
+
+
 def _apply(node: MutableMapping, old: dict, new: dict, lean: dict) -> None:
     for k in [k for k in node if new.get(k) is None]:
         del node[k]

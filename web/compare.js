@@ -236,11 +236,22 @@ const Compare = (() => {
     return (v > 0 ? "+" : v < 0 ? "−" : "±") + Units.num(Math.abs(v), digits);
   }
 
+  const MESH_FLAG = "mostly the mesh's: its six-fold wave is larger than the four ears " +
+                    "(a blank meshed in one lattice)";
+
   function cell(row, i) {
     // the run's value; below it, for B, C, ...: its difference from A and that in % of A's
     const td = el("td", { className: "num" },
                   el("div", { className: "value", textContent: fmt(row.values[i], "") }));
     if (row.at[i]) td.title = row.at[i];
+    const flag = row.flags && row.flags[i];
+    if (flag) {
+      td.classList.add(`flag-${flag}`);
+      if (flag === "mesh") {
+        td.append(el("div", { className: "flag-word", textContent: "the mesh's" }));
+        td.title = [td.title, MESH_FLAG].filter(Boolean).join("\n");
+      }
+    }
     if (!i) return td;
     const big = row.delta_pct[i] !== null && Math.abs(row.delta_pct[i]) >= 5;
     const unit = row.unit === "%" ? " pt" : row.unit ? ` ${row.unit}` : "";

@@ -67,6 +67,7 @@ const Results = (() => {
     if (flag && at.over_limit) {
       return `${flag} in ${Units.num(at.over_limit)} vert${at.over_limit === 1 ? "ex" : "ices"}`;
     }
+    if (flag === "mesh") return "the mesh's, not ears";  // why: the card's tooltip
     if (flag && at.zone_counts) {
       const n = at.zone_counts[flag];
       return `${flag} in ${Units.num(n)} element${n === 1 ? "" : "s"}`;

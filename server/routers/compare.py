@@ -62,6 +62,9 @@ class SummaryRow(BaseModel):
     unit: str = Field(description="of values and delta (kN, mm, %, s; '' a count)")
     values: list[float | None] = Field(description="one per run (null: not in its result)")
     at: list[str | None] = Field(description="where or when each run's value was found")
+    flags: list[str | None] = Field(description="each run's flag of its value (failure, "
+                                    "marginal: the forming limit; mesh: the mesh's pattern "
+                                    "more than the part's, as an isotropic cup's earing)")
     note: str | None = None
     delta: list[float | None] = Field(description="each run's value minus the reference's")
     delta_pct: list[float | None] = Field(description="delta relative to the reference's "

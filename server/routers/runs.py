@@ -329,8 +329,9 @@ class SummaryEntry(Measure):
     note: str | None = Field(None, description="how the quantity is defined, where needed")
     flag: str | None = Field(None, description=(
         "a forming limit reached: 'marginal' or 'failure' of the forming limit margin, "
-        "'failure' of the maximum thinning at the material card's flc.max_thinning; null when "
-        "none is"))
+        "'failure' of the maximum thinning at the material card's flc.max_thinning; 'mesh' of "
+        "an earing whose rim's six-fold wave (a blank meshed in one lattice) outgrows its four "
+        "ears; null when none is"))
 
 
 class RunResultSummary(BaseModel):

@@ -539,7 +539,10 @@ def _rim_height(view: View) -> list[dict]:
                  {"angle": measure(deg[j], "deg"), **at_vertex(r.vertices[j], mid)}),
            entry("earing", "Earing", r.earing, "1", profile=profile,
                  note="(largest - smallest) / mean rim height; angles about the punch axis "
-                      "from the x axis" + _mesh_earing(harmonics[4][0], harmonics[6][0]))]
+                      "from the x axis" + _mesh_earing(harmonics[4][0], harmonics[6][0]),
+                 # shown on the card, not only in its note: an isotropic cup's earing on a
+                 # lattice is its mesh's six waves
+                 flag="mesh" if harmonics[6][0] > harmonics[4][0] else None)]
     for k, name in ((4, "four-fold (ears)"), (6, "six-fold (mesh)")):
         amp, crest = harmonics[k]
         out.append(entry(f"rim_harmonic_{k}", f"Rim height, {name} harmonic", amp, "m",

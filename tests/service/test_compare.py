@@ -111,6 +111,7 @@ def test_summaries_side_by_side_with_differences(env, runs):
             row = rows[(e["name"], e.get("tool"))]
             assert row["unit"] == e["display"]["unit"]
             assert row["values"][res_i] == e["display"]["value"]
+            assert row["flags"][res_i] == e.get("flag")  # a thinning's limit, the mesh's earing
     peak = rows[("peak_punch_force", "punch")]
     assert peak["unit"] == "kN" and None not in peak["values"]
     ref = peak["values"][0]

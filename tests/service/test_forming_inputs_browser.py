@@ -181,6 +181,12 @@ def test_a_hill48_cup_shows_its_rim_height_around_the_axis_in_mm(open_page, serv
     assert min(plot["x"]) >= 0 and max(plot["x"]) <= 360 and plot["x"] == sorted(plot["x"])
     card = page.locator("#summary .quantity[data-name='earing'] .value").inner_text()
     assert card.endswith(" %"), card
+    # an earing that is the mesh's six waves more than the sheet's four ears says so on the card
+    flag = summary["earing"].get("flag") or ""
+    earing = page.locator("#summary .quantity[data-name='earing']")
+    assert earing.get_attribute("data-flag") == flag
+    assert ("the mesh's, not ears" in earing.locator(".at").inner_text()) == \
+        (flag == "mesh")
     # a card's tooltip says what else its entry holds: the rim's highest point's angle
     angle = summary["max_rim_height"]["at"]["angle"]["display"]["value"]
     tip = page.get_attribute("#summary .quantity[data-name='max_rim_height']", "title")

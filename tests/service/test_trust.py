@@ -22,7 +22,7 @@ import pytest
 pytest.importorskip("viser")
 from fastapi.testclient import TestClient  # noqa: E402
 
-from server import sceneform  # noqa: E402
+from server import sceneform, tomlout  # noqa: E402
 from server.app import create_app  # noqa: E402
 from server.settings import Settings  # noqa: E402
 from tests.support.scenes import EDITED_EDGE, tiny_toml, vertices  # noqa: E402
@@ -90,26 +90,33 @@ def test_start_runs_the_edited_scene(env):
     assert st["state"] == "finished", st["reason"]
     assert st["edited"] is True
     assert st["counts"]["vertices"] == vertices(text)  # the edited mesh, not the saved one
-    # what ran: the edited text under a head that says so (its comments are the saved file's)
+    # what ran: the edited text with the run's element (linear, the file's q3t) under a head
+    # that says so (its comments are the saved file's): it runs again as it ran
     kept = (settings.runs_dir / st["id"] / "scene.toml").read_text()
     assert client.get(f"/api/runs/{st['id']}/scene").text == kept
     head, rest = kept.split("\n\n", 1)
-    assert rest == text and tomllib.loads(kept) == tomllib.loads(text)
+    assert rest == tomlout.with_element(text, "linear")
+    ran = tomllib.loads(text)
+    ran["shell"]["element"] = "linear"
+    assert tomllib.loads(kept) == ran
     assert " ".join(line.removeprefix("# ") for line in head.splitlines()) == (
         f"Run {st['id']}, the scene as it ran. It ran the page's unsaved edits of tiny: "
         f"mesh.edge_length 35 → {EDITED_EDGE * 1e3:.4g} mm. The comments below are the saved "
-        "file's: they may describe its values. It ran element linear, not the file's q3t.")
+        "file's: they may describe its values. It ran element linear, not the file's q3t: "
+        "[shell] below says what ran.")
     assert (settings.scenes_dir / "tiny.toml").read_text() == saved  # nothing saved
     listed = {r["id"]: r for r in client.get("/api/runs").json()}
     assert listed[st["id"]]["edited"] is True
     # the Runs table tells such runs apart by what the edits changed, in the form's units
     edit = f"mesh.edge_length 35 → {EDITED_EDGE * 1e3:.4g} mm"
-    assert st["edits"] == [edit] and st["changes"] == [edit]
+    element = "element linear (the scene's q3t)"  # a column of its own, and a change too
+    assert st["edits"] == [edit] and st["changes"] == [edit, element]
     # with an override beside them, read twice: each read says each once
     other = run_to_end(client, scene="tiny", toml=text, overrides={"stepping.steps": 4})
     for _ in range(2):
         again = client.get(f"/api/runs/{other['id']}").json()
-        assert again["edits"] == [edit] and again["changes"] == [edit, "stepping.steps = 4"]
+        assert again["edits"] == [edit]
+        assert again["changes"] == [edit, element, "stepping.steps = 4"]
     kept = (settings.runs_dir / other["id"] / "scene.toml").read_text()
     assert "Overrides on top of this file (run.json): stepping.steps = 4." in \
         kept.replace("\n# ", " ")
@@ -121,8 +128,11 @@ def test_start_runs_the_edited_scene(env):
     linear = run_to_end(client, scene="tiny")
     kept = (settings.runs_dir / linear["id"] / "scene.toml").read_text()
     head, rest = kept.split("\n\n", 1)
-    assert rest == saved and " ".join(line.removeprefix("# ") for line in head.splitlines()) \
-        == f"Run {linear['id']}, the scene as it ran. It ran element linear, not the file's q3t."
+    assert rest == tomlout.with_element(saved, "linear")
+    assert 'element = "linear"' in rest and 'element = "q3t"' not in rest
+    assert " ".join(line.removeprefix("# ") for line in head.splitlines()) == (
+        f"Run {linear['id']}, the scene as it ran. It ran element linear, not the file's q3t: "
+        "[shell] below says what ran.")
 
 
 def test_the_saved_scene_rerendered_by_the_form_is_no_edit(env):
