@@ -250,6 +250,12 @@ function followElement(scene) {
   if (!e || e === state.sceneElement || !state.config.elements.includes(e)) return;
   state.sceneElement = e;
   $("element").value = e;
+  showElementNote();
+}
+
+function showElementNote() {
+  // what the chosen element is for, under the Run box's choice (the registry's note)
+  $("element-note").textContent = state.config.element_notes[$("element").value] || "";
 }
 
 function suggestNames(path, scene) {
@@ -734,8 +740,11 @@ async function main() {
     const o = document.createElement("option");
     o.value = o.textContent = e;
     o.selected = e === "q3t";
+    o.title = state.config.element_notes[e] || "";
     $("element").appendChild(o);
   }
+  $("element").addEventListener("change", showElementNote);
+  showElementNote();
   const solverUp = buildSliders().catch((e) => say(e.message, true));
   const vport = state.config.viewer_port;
   if (!vport) viewerOff(OFF);

@@ -20,6 +20,7 @@ class Range(BaseModel):
 class Config(BaseModel):
     ready: bool = Field(description="the solver process is up and has named the parameters")
     elements: list[str]
+    element_notes: dict[str, str] = Field(description="a line on when to choose each element")
     parameters: dict[str, Range] = Field(description="the live parameters and their ranges")
     tool_parameters: dict[str, Range] = Field(description=(
         "the per-tool live parameters: a run has `<name>.<tool>` (as `friction_scale.die`) "
@@ -68,6 +69,7 @@ def config(request: Request) -> dict:
     # the solver process names the live parameters once it is up (a few seconds after the
     # server); until then ``ready`` is false and the page asks again
     return {"ready": m.ready.is_set(), "elements": sorted(ELEMENTS),
+            "element_notes": {k: e.note for k, e in ELEMENTS.items()},
             "parameters": {k: {"min": lo, "max": hi, "label": LABELS.get(k, (k, ""))[0],
                                "hint": LABELS.get(k, (k, ""))[1]}
                            for k, (lo, hi) in m.parameter_ranges.items()},

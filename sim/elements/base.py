@@ -65,9 +65,9 @@ class Prism:
     patches of one or two triangles (docs/verification.md, 'Quadrature and spurious
     modes'); ``routine``: run wherever every element is meant (each shipped scene in the
     tests); an element too costly for that (the quartic reference) runs only where it is named.
-    ``assumed_strain``: its transverse shear strains come from tying points on the triangle's
-    edges and its thickness strain from its corners (sim.terms.ans), not from the displacement
-    field at the quadrature point."""
+    ``note``: a line on when to choose it. ``assumed_strain``: its transverse shear strains
+    come from tying points on the triangle's edges and its thickness strain from its corners
+    (sim.terms.ans), not from the displacement field at the quadrature point."""
 
     name: str
     p: int
@@ -76,6 +76,8 @@ class Prism:
     small_mesh_quadrature: tuple[int, int] | None = None
     routine: bool = True
     assumed_strain: bool = False
+    # what an engineer choosing it should know, in a line (the page's element box)
+    note: str = ""
 
     @cached_property
     def triangle_multi_indices(self) -> list[tuple[int, int, int]]:

@@ -12,4 +12,6 @@ from sim.elements.base import Prism
 # any clamp. The 3 x 2 rule has none anywhere but is stiffer still (0.39 against 0.53 of the
 # reference cantilever deflection at 8.75 mm, nu = 0.49); it is taken for meshes with patches of one
 # or two triangles (sim.model.sheet.quadrature_rule).
-LINEAR = Prism("linear", p=1, q=1, default_quadrature=(1, 2), small_mesh_quadrature=(3, 2))
+LINEAR = Prism("linear", p=1, q=1, default_quadrature=(1, 2), small_mesh_quadrature=(3, 2),
+               note="6-node prism, linear through the thickness: it locks in bending (the "
+                    "paper's counter-example), for comparison only")

@@ -7,4 +7,5 @@ points through the thickness.
 from sim.elements.base import Prism
 
 # 75 nodes a prism: the reference of studies and checks, too slow to run every scene with
-QUARTIC = Prism("quartic", p=4, q=4, default_quadrature=(25, 5), routine=False)
+QUARTIC = Prism("quartic", p=4, q=4, default_quadrature=(25, 5), routine=False,
+                note="quartic prism: a reference for convergence studies, far slower")

@@ -381,17 +381,26 @@ def test_the_runs_element_follows_the_scenes_own(page, served):
     whatever the scene said: a scene written for q3t_ans ran with Q3T from the page. It
     follows the scene's shell.element whenever that changes (another scene, a form or TOML
     edit); a choice made in the Run box stands until then."""
-    _, scenes = served
+    url, scenes = served
+    notes = httpx.get(f"{url}/api/config").json()["element_notes"]
+    assert notes["q3t_ans"] and notes["q3t"] and notes["q3t"] != notes["q3t_ans"]
+
+    def noted(element):  # the line under the Run box says what the chosen element is for
+        assert page.text_content("#element-note") == notes[element]
+
     assert 'element = "q3t_ans"' in COARSE  # the shipped cup's
     (scenes / "cup_q3t.toml").write_text(COARSE.replace('name = "cup"', 'name = "cup_q3t"')
                                          .replace('element = "q3t_ans"', 'element = "q3t"'))
     try:
         assert page.input_value("#element") == "q3t_ans"
+        noted("q3t_ans")
         page.reload()
         page.click("#scenes li[data-name='cup_q3t']")
         page.wait_for_selector("#scenes li.sel[data-name='cup_q3t']")
         page.wait_for_function("document.getElementById('element').value === 'q3t'")
+        noted("q3t")
         page.select_option("#element", "linear")  # the user's choice
+        noted("linear")
         page.fill("[name='material.nu']", "0.3")  # an edit that leaves the element alone
         synced(page, "nu = 0.3\n")
         assert page.input_value("#element") == "linear"
@@ -399,6 +408,7 @@ def test_the_runs_element_follows_the_scenes_own(page, served):
         page.dispatch_event("[name='shell.element']", "change")
         synced(page, 'element = "quadratic"')
         page.wait_for_function("document.getElementById('element').value === 'quadratic'")
+        noted("quadratic")
         page.once("dialog", lambda d: d.accept())  # drop the unsaved edits
         page.click("#scenes li[data-name='cup']")  # another scene: its own element
         page.wait_for_selector("#scenes li.sel[data-name='cup']")
