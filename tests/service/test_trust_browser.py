@@ -16,6 +16,7 @@ from __future__ import annotations
 import httpx
 import pytest
 
+from server import tomlout
 from sim.stepping.parameters import LABELS
 from tests.support.browser import new_page, serve, settled, shot, shots_dir
 from tests.support.scenes import EDITED_EDGE, tiny_toml, vertices
@@ -119,8 +120,10 @@ def test_start_with_unsaved_edits_runs_the_edit(served, browser):
     st = httpx.get(f"{url}/api/runs/{run}").json()
     # the edited mesh ran (the saved one has about a third of the vertices)
     assert st["counts"]["vertices"] == vertices(edited) != vertices(saved), st["counts"]
-    ran = httpx.get(f"{url}/api/runs/{run}/scene").text  # under a head that says what ran
-    assert ran.split("\n\n", 1)[1] == edited and ran.startswith(f"# Run {run}, the scene as")
+    # under a head that says what ran, with the element that ran (linear; the scene's q3t)
+    ran = httpx.get(f"{url}/api/runs/{run}/scene").text
+    assert ran.split("\n\n", 1)[1] == tomlout.with_element(edited, "linear")
+    assert ran.startswith(f"# Run {run}, the scene as")
     assert (tmp / "scenes" / "tiny.toml").read_text() == saved  # nothing was saved
     assert "ran unsaved edits of tiny" in page.text_content("#status")
     row = page.locator(f'#runs tbody tr[data-id="{run}"]')
