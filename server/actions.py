@@ -98,6 +98,7 @@ class ViewerActions:
         if not rep.steps or rep.faces is None:
             return None, "Its recording holds no sheet mesh"
         rep.thinning_limit = run.thinning_limit
+        rep.ranges = dict(run.field_ranges or {})
         colours = "" if rep.fields[-1] else " (coloured by thickness, as recorded)"
         return rep, (f"Recording: {len(rep.steps)} frames, steps {rep.steps[0]}-"
                      f"{rep.steps[-1]}{colours}")

@@ -152,6 +152,7 @@ def _state(m: Books, ev: dict) -> Booked:
                 booked.later.append(lambda: m.save(run))
             run.state = ev["state"]
         else:
+            run.field_ranges = ev.get("field_ranges") or {}
             m.finish(run, ev["state"], ev.get("reason"))
             booked.later.append(lambda: m.save(run))
         if m.viewer:

@@ -29,6 +29,7 @@ import numpy as np
 import viser
 
 from server.canvas import Canvas
+from server.colormap import EVERY_STEP, RUN_SUBJECT
 from server.replay import Replay
 from sim.stepping import parameters as live
 
@@ -346,10 +347,14 @@ class ClientView:
                 return
             self.replay = rep
             self.canvas.set_scene(rep.faces, [(n, V, F) for n, (V, F) in rep.tools.items()])
-            self.canvas.palette.ranges.show({})
+            # a recorded run is over: its range is known at once, over every step when its
+            # record has it (the recording keeps every N-th), else over the frames kept
+            ranges = self.canvas.palette.ranges
+            ranges.show({}, EVERY_STEP if rep.ranges else RUN_SUBJECT)
             self.canvas.card_thinning(rep.thinning_limit)
-            for fields in rep.fields:  # a recorded run is over: its range is known at once
-                self.canvas.palette.ranges.add(fields)
+            for fields in rep.fields:
+                ranges.add(fields)
+            ranges.add({k: np.asarray(v, float) for k, v in rep.ranges.items()})
             with self.v.from_code():
                 self.gui.time.max = max(1, rep.steps[-1])
                 self.gui.time.value = rep.steps[-1]

@@ -22,6 +22,7 @@ from html import escape
 import numpy as np
 
 from sim.frames.forming_limits import FAILURE, INSUFFICIENT, MARGINAL, SAFE, WRINKLING, ZONES
+from sim.frames.output import grow
 from sim.frames.summary import MARGINAL_SHARE, THINNING_LIMIT
 
 # viridis sampled at 9 evenly spaced points (matplotlib's values, rounded to 8 bits)
@@ -184,16 +185,8 @@ def zone_scale() -> Categories:
                       note="by the material's forming limit curve")
 
 
-def grow(seen: dict[str, tuple[float, float]], fields: dict[str, np.ndarray]) -> None:
-    """Widen each field's ``seen`` min..max to hold ``fields`` too."""
-    for key, v in fields.items():
-        lo, hi = float(np.min(v)), float(np.max(v))
-        if key in seen:
-            lo, hi = min(lo, seen[key][0]), max(hi, seen[key][1])
-        seen[key] = (lo, hi)
-
-
 RUN_SUBJECT = "this run, steps shown"
+EVERY_STEP = "this run, every step"  # a finished run whose record holds its ranges
 
 
 class Ranges:

@@ -60,6 +60,9 @@ class Run:
     timing: dict = field(default_factory=dict)  # build_s, tool_meshes_s, first_frame_s, ...
     parameters: dict = field(default_factory=dict)
     given: dict = field(default_factory=dict)  # the live parameters given at the start
+    # each frame field's (lo, hi) over every step the solver framed, once it ended: the scale
+    # a view of its kept frames colours on (sim.frames.output.result's field_ranges)
+    field_ranges: dict = field(default_factory=dict)
     # the scene's own element when the run took another (None: the scene's)
     scene_element: str | None = None
     # what each live parameter multiplies (sim's Simulation.scaled): the page shows the result

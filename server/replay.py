@@ -45,6 +45,9 @@ class Replay:
     # %, the run's material card's thinning limit: its record's (server.records.Run), not the
     # recording's, set by whoever replays it from the run
     thinning_limit: float | None = None
+    # each field's (lo, hi) over every step of the run, which the recording keeps only some of:
+    # its record's (server.records.Run.field_ranges), set by whoever replays it from the run
+    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def frame(self, i: int) -> dict:
         """The ``i``-th recorded frame as the viewer draws it (a live frame's keys); a

@@ -26,7 +26,7 @@ import numpy as np
 import viser
 
 from server.clientview import Actions, ClientView
-from server.colormap import grow
+from sim.frames.output import grow
 
 DEFAULT = "default"  # server.views.DEFAULT: the view of a viewer opened on its own
 VIEW_PATH = "/view/"  # the websocket path a page's viewer names its view under

@@ -445,7 +445,8 @@ class Solver:
             state = "failed" if state == "finished" else state
             reason = "; ".join([reason or state, *problems])
         self.emit("state", state=state, reason=reason,
-                  frames={"produced": self.produced, "dropped": self.dropped})
+                  frames={"produced": self.produced, "dropped": self.dropped},
+                  field_ranges=dict(self.sim.field_ranges))
         self.sim, self.paused = None, False
 
 

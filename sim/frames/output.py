@@ -42,6 +42,7 @@ class Run(Protocol):
     loaded: np.ndarray | None  # the state at the end of the stroke, before any release
     release_support: list[dict]
     sections: dict[str, list[dict]]
+    field_ranges: dict[str, tuple[float, float]]  # over the frames made of it (frame())
 
     @property
     def n_steps(self) -> int: ...
@@ -64,6 +65,15 @@ class Frame:
     probes: dict[str, float]
     iterations: int
     residual: float
+
+
+def grow(seen: dict[str, tuple[float, float]], fields: dict[str, np.ndarray]) -> None:
+    """Widen each field's ``seen`` min..max to hold ``fields`` too."""
+    for key, v in fields.items():
+        lo, hi = float(np.min(v)), float(np.max(v))
+        if key in seen:
+            lo, hi = min(lo, seen[key][0]), max(hi, seen[key][1])
+        seen[key] = (lo, hi)
 
 
 def frame(sim: Run) -> Frame:
@@ -130,6 +140,10 @@ def _result(sim: Run) -> dict:
         "punches": sim.summary.punch_starts(),
         "probe_kinds": {p.name: p.kind for p in m.scene.probes},
         "sections": sim.recorded_sections(),
+        # each frame field's min and max over every frame made of the run (a viewer's frame of
+        # each step in the service), so that a view of it later, from the frames kept, colours
+        # on the scale it was watched on; {} when none was made (a run without a viewer)
+        "field_ranges": {k: list(v) for k, v in sim.field_ranges.items()},
         "fields": fields.field_summary(fields.output_fields(m, sim.x, sim.h0)),
         "summary": sim.summary.result(sim),
         "forming_limits": forming_limit_diagram(sim),

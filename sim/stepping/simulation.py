@@ -115,6 +115,7 @@ class Simulation:
         self._stroked = 0  # steps of the stroke made
         self._record_sections()  # the rest state, when a section asks for step 0
         self.series: series.FrameSeries | None = None  # the frames saved (save_frames)
+        self.field_ranges: dict[str, tuple[float, float]] = {}  # over its frames (frame())
 
     @property
     def stroke_steps(self) -> int:
@@ -561,8 +562,11 @@ class Simulation:
         return {t.tool: quaternion_wxyz(t.R_now) for t in self.tools}
 
     def frame(self) -> Frame:
-        """The viewer's frame of the current state (sim.frames.output.frame)."""
-        return output.frame(self)
+        """The viewer's frame of the current state (sim.frames.output.frame); its fields
+        widen the run's ``field_ranges``."""
+        f = output.frame(self)
+        output.grow(self.field_ranges, f.fields)
+        return f
 
     def result(self) -> dict:
         """What the run did, in numbers JSON carries (sim.frames.output.result)."""

@@ -14,6 +14,7 @@ tests/test_trust_browser.py drives the same in chromium):
 
 from __future__ import annotations
 
+import json
 import os
 import tomllib
 
@@ -263,3 +264,20 @@ def test_controls_show_the_selected_runs_values(env, viewer):
     client.put("/api/view", json={"run": first})
     assert sliders(viewer) == changed
     assert all(s.disabled for s in viewer.gui.sliders.values())
+
+
+def test_a_finished_runs_record_holds_its_fields_ranges_over_every_step(env):
+    """The solver frames every step for the viewer; the recording keeps every N-th. The run's
+    record (run.json) takes each field's range over every step from the solver's end, as
+    result.json has it, and a replay of the run colours over it (server.clientview)."""
+    client, settings = env
+    st = run_to_end(client, scene="tiny")
+    assert st["state"] == "finished", st["reason"]
+    result = json.loads((settings.runs_dir / st["id"] / "result.json").read_text())
+    ranges = result["field_ranges"]
+    assert ranges and all(lo <= hi for lo, hi in ranges.values())
+    m = client.app.state.manager
+    assert {k: list(v) for k, v in m.runs[st["id"]].field_ranges.items()} == ranges
+    rep, why = m.viewer.actions.recording(st["id"])  # the env's server has its viewer on
+    assert rep is not None, why
+    assert {k: list(v) for k, v in rep.ranges.items()} == ranges

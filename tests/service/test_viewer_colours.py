@@ -122,6 +122,21 @@ def test_a_value_keeps_its_colour_across_the_frames_of_a_recording(viewer):
     assert "0.7" in legend and "range of this run" in legend
 
 
+def test_a_finished_run_colours_over_every_step_its_record_holds(viewer):
+    """The recording keeps every N-th step; the run's record holds each field's range over
+    every step the solver framed (a step between, thinner than any kept): the view of the
+    finished run colours over that, as it was watched live, and its legend says so."""
+    rep = Replay(steps=[0, 5], positions=[X, X], colors=[np.zeros((6, 3), np.uint8)] * 2,
+                 fields=[{"thickness_mm": np.full(6, 1.0, np.float32)},
+                         {"thickness_mm": np.array([1.0, 0.9, 0.8, 0.8, 1.1, 1.1], np.float32)}],
+                 faces=FACES, ranges={"thickness_mm": (0.6, 1.2)})
+    viewer.actions.replays["every"] = rep
+    viewer.show_run("every", {}, active=False, controls=(), line="every")
+    until(lambda: viewer.mode == "replay", "the recording was not shown")
+    assert viewer.canvas.palette.ranges.of("thickness_mm")[:2] == pytest.approx((0.6, 1.2))
+    assert "range of this run, every step" in viewer.canvas.legend.content
+
+
 def test_a_fixed_range_is_kept_across_runs(viewer):
     live(viewer, "a", frame("a", 1, thickness_mm=[0.5, 0.6, 0.7, 0.8, 0.9, 1.0]))
     assert viewer.canvas.colour["min"].disabled  # the run's own range: nothing to type

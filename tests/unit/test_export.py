@@ -50,6 +50,26 @@ def test_frames_saved_every_nth_step_and_the_last_whole(cup):
         assert int(z["step"]) == 2 and float(z["time"]) == res["steps"][1]["time"]
 
 
+def test_result_holds_each_fields_range_over_every_frame_made(tmp_path):
+    """A viewer's frame of each step (as the service's solver makes one) widens the run's
+    field_ranges, which result.json keeps: each field's min and max over all of them; a run
+    that made no frame (no viewer) keeps none."""
+    sim = Simulation.from_scene(scene_from_toml(tiny_cup_toml(3)))
+    seen: dict[str, list] = {}
+    for _ in range(3):
+        sim.step()
+        for k, v in sim.frame().fields.items():
+            seen.setdefault(k, []).append(v)
+    assert set(sim.field_ranges) == set(seen)
+    for k, vs in seen.items():
+        assert sim.field_ranges[k] == (min(v.min() for v in vs), max(v.max() for v in vs))
+    thinnest = [v.min() for v in seen["thickness_mm"]]
+    assert thinnest[0] > thinnest[-1]  # the range is of every step, not the last alone
+    assert sim.result()["field_ranges"]["thickness_mm"] == list(sim.field_ranges["thickness_mm"])
+    quiet = Simulation.from_scene(scene_from_toml(tiny_cup_toml(1)))
+    assert quiet.run() and quiet.result()["field_ranges"] == {}
+
+
 def test_the_time_column_says_seconds_only_in_a_dynamic_run(tmp_path):
     steps = [{"step": 1, "time": 0.5, "probes": {}}]
     for kind, head in (("static", "pseudo-time [-]"), ("dynamic", "time [s]"),
