@@ -104,8 +104,9 @@ def probe_text(name: str, value: float, kind: str | None) -> str:
 
 
 def sections(found: dict[str, list[dict]]) -> list[dict]:
-    """Each section's thickness (mm) against the rest radius (mm) at its steps."""
-    return [{"name": name,
+    """Each section's thickness (mm) against the rest radius (mm) at its steps, and its ray's
+    angle from the x axis (deg; None for a run recorded before sections said it)."""
+    return [{"name": name, "angle": rows[0].get("angle_deg") if rows else None,
              "steps": [{"step": s["step"], "position": shown(s["rest_radius"], "m"),
                         "thickness": shown(s["thickness"], "m")} for s in rows]}
             for name, rows in found.items()]

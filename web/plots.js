@@ -246,7 +246,10 @@ const Plots = (() => {
                                      "<extra>%{fullData.name}</extra>" });
       }
     }
-    const names = found.map((s) => `"${s.name}"`).join(", ");
+    // each section by name and the direction of its ray (the rolling direction of an
+    // anisotropic sheet is the x axis, 0 deg)
+    const names = found.map((s) => `"${s.name}"` + (s.angle === null || s.angle === undefined
+      ? "" : ` at ${Units.num(+s.angle.toFixed(1))} deg`)).join(", ");
     // the steps' names in two columns, the plot taller by the rows they take: one below the
     // other, seven steps overflowed plotly's legend into a scroll bar
     const rows = Math.ceil(traces.length / 2), PLOT = 196;  // px: the plot area's height

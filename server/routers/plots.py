@@ -44,6 +44,8 @@ class SectionStep(BaseModel):
 
 class Section(BaseModel):
     name: str
+    angle: float | None = Field(None, description="its ray's angle from the x axis, deg (null "
+                                "for a run recorded before sections said it)")
     steps: list[SectionStep]
 
 

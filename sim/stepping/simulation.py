@@ -517,9 +517,15 @@ class Simulation:
     def _record_sections(self) -> None:
         for sp in self.model.scene.sections:
             if not sp.steps or self.step_index in sp.steps:
-                self.sections[sp.name].append(
-                    {"step": self.step_index, "time": self.t,
-                     **fields.section(self.model, self.x, self._sections[sp.name])})
+                self.sections[sp.name].append(self._section_row(sp.name))
+
+    def _section_row(self, name: str) -> dict:
+        """The section ``name`` now, with its ray's angle from the x axis (deg: where an
+        anisotropic sheet's rolling direction is measured from)."""
+        (dx, dy), = [sp.direction for sp in self.model.scene.sections if sp.name == name]
+        return {"step": self.step_index, "time": self.t,
+                **fields.section(self.model, self.x, self._sections[name]),
+                "angle_deg": float(np.degrees(np.arctan2(dy, dx)))}
 
     def recorded_sections(self) -> dict[str, list[dict]]:
         """The sections as recorded, each ending at the last step made: a section that lists
@@ -530,8 +536,7 @@ class Simulation:
             last = rows and rows[-1]["step"] == self.step_index
             # after a failure the state is partway into the next step: not the last one's
             out[name] = rows if last or not self.records or self.failure is not None else [
-                *rows, {"step": self.step_index, "time": self.t,
-                        **fields.section(self.model, self.x, self._sections[name])}]
+                *rows, self._section_row(name)]
         return out
 
     def run(self, progress: Callable[[Simulation, StepRecord], None] | None = None) -> bool:

@@ -147,6 +147,7 @@ def test_sections_and_parameter_marks(env, finished):
     plots = client.get(f"/api/runs/{run}/plots").json()
     (sec,) = plots["sections"]
     assert sec["name"] == "radial" and [s["step"] for s in sec["steps"]] == [0, 2, 4]
+    assert sec["angle"] == pytest.approx(result["sections"]["radial"][0]["angle_deg"])
     for got, want in zip(sec["steps"], result["sections"]["radial"], strict=True):
         assert (got["position"]["unit"], got["thickness"]["unit"]) == ("mm", "mm")
         assert got["thickness"]["values"] == pytest.approx(np.array(want["thickness"]) * 1e3,

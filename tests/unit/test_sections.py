@@ -102,6 +102,7 @@ def test_a_section_ends_at_the_last_step_made():
     assert kept == [0, 2] and [r["step"] for r in got] == [0, 2, 3]
     final = fields.section(sim.model, sim.x, sim._sections["x"])
     assert got[-1]["thickness"] == final["thickness"] and got[-1]["time"] == sim.t
+    assert {r["angle_deg"] for r in got} == {0.0}  # its ray's direction, for the plot's title
     assert [r["step"] for r in sim.sections["x"]] == [0, 2]  # the record itself unchanged
     # a run that made its last listed step: as recorded
     text = text.replace("steps = [0, 2, 5]", "steps = [0, 3]")
