@@ -285,6 +285,7 @@ class RunFiles:
         try:
             result = json.loads((self.dir(run.id) / "result.json").read_text())
             run.records, run.counts = result["steps"], result["counts"]
+            run.field_ranges = result.get("field_ranges") or {}
             if result["converged"]:
                 state, reason = "finished", None
             elif result["failure"]:

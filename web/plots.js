@@ -246,8 +246,8 @@ const Plots = (() => {
                                      "<extra>%{fullData.name}</extra>" });
       }
     }
-    // each section by name and the direction of its ray (the rolling direction of an
-    // anisotropic sheet is the x axis, 0 deg)
+    // each section by name and the direction of its ray from the x axis (an anisotropic
+    // sheet's rolling direction is hill48.rolling_angle from the same axis)
     const names = found.map((s) => `"${s.name}"` + (s.angle === null || s.angle === undefined
       ? "" : ` at ${Units.num(+s.angle.toFixed(1))} deg`)).join(", ");
     // the steps' names in two columns, the plot taller by the rows they take: one below the

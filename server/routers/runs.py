@@ -97,7 +97,8 @@ class RunSummary(BaseModel):
         "(progress.elapsed_s also holds the build, pauses and the viewer's pacing)"))
     changes: list[str] = Field(default_factory=list, description=(
         "what the run changed of its saved scene, in words, values in the scene form's units "
-        "(mm, MPa, kN): unsaved edits, overrides, live parameter values and the step each "
+        "(mm, MPa, kN): unsaved edits, an element other than the scene's, overrides, live "
+        "parameter values and the step each "
         "applied from"))
     override_units: dict[str, str | None] = Field(default_factory=dict, description=(
         "the SI unit of each override's scene field (null: none), as the scene schema gives "

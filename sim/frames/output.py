@@ -68,8 +68,14 @@ class Frame:
 
 
 def grow(seen: dict[str, tuple[float, float]], fields: dict[str, np.ndarray]) -> None:
-    """Widen each field's ``seen`` min..max to hold ``fields`` too."""
+    """Widen each field's ``seen`` min..max to hold the finite values of ``fields`` too (a
+    frame that is not finite fails its run, sim.stepping and server.worker: its NaN must not
+    take the range, which run.json and the colour scale carry, with it)."""
     for key, v in fields.items():
+        v = np.asarray(v)
+        v = v[np.isfinite(v)]
+        if not v.size:
+            continue
         lo, hi = float(np.min(v)), float(np.max(v))
         if key in seen:
             lo, hi = min(lo, seen[key][0]), max(hi, seen[key][1])

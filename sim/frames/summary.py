@@ -533,16 +533,17 @@ def _rim_height(view: View) -> list[dict]:
     deg = np.degrees(r.angle)
     profile = {"angle": measure(deg, "deg"), "height": measure(r.height, "m")}
     harmonics = {k: r.harmonic(k) for k in (4, 6)}  # k -> (amplitude, first crest)
+    lattice = _mesh_earing(harmonics[4][0], harmonics[6][0], r.height[i] - r.height[j])
     out = [entry("max_rim_height", "Rim height, largest", r.height[i], "m",
                  {"angle": measure(deg[i], "deg"), **at_vertex(r.vertices[i], mid)}),
            entry("min_rim_height", "Rim height, smallest", r.height[j], "m",
                  {"angle": measure(deg[j], "deg"), **at_vertex(r.vertices[j], mid)}),
            entry("earing", "Earing", r.earing, "1", profile=profile,
                  note="(largest - smallest) / mean rim height; angles about the punch axis "
-                      "from the x axis" + _mesh_earing(harmonics[4][0], harmonics[6][0]),
+                      "from the x axis" + lattice,
                  # shown on the card, not only in its note: an isotropic cup's earing on a
                  # lattice is its mesh's six waves
-                 flag="mesh" if harmonics[6][0] > harmonics[4][0] else None)]
+                 flag="mesh" if lattice else None)]
     for k, name in ((4, "four-fold (ears)"), (6, "six-fold (mesh)")):
         amp, crest = harmonics[k]
         out.append(entry(f"rim_harmonic_{k}", f"Rim height, {name} harmonic", amp, "m",
@@ -552,11 +553,13 @@ def _rim_height(view: View) -> list[dict]:
     return out
 
 
-def _mesh_earing(ears: float, mesh: float) -> str:
+def _mesh_earing(ears: float, mesh: float, spread: float) -> str:
     """What the earing note adds when the rim's six-fold wave, which a blank meshed in one
-    60-degree lattice gives linear triangles, outgrows the rolled sheet's four ears: that this
-    earing is the mesh's (docs/elements-ans.md, "The cup's lateral force")."""
-    if mesh <= ears:
+    60-degree lattice gives linear triangles, outgrows the rolled sheet's four ears and makes
+    at least half the rim's spread (its peak to valley, twice its amplitude): that this
+    earing is the mesh's (docs/elements-ans.md, "The cup's lateral force"). On a blank without
+    a lattice both terms are small beside the spread, and neither says whose it is."""
+    if mesh <= ears or 2.0 * mesh < 0.5 * spread:
         return ""
     return (f"; mostly the mesh's: its six-fold wave ({1e3 * mesh:.3g} mm) is larger than the "
             f"four ears ({1e3 * ears:.3g} mm), the pattern of a blank meshed in one lattice; an "

@@ -45,10 +45,14 @@ def test_rim_heights_and_harmonics():
 
 def test_an_earing_made_by_the_mesh_says_so():
     """A review read 'Earing 11.8 %' beside a six-fold (mesh) harmonic of 0.859 mm and four
-    ears of 0.141 mm: the earing's note says when the mesh's wave is the larger."""
+    ears of 0.141 mm: the earing's note (and the card's flag) says when the mesh's wave is the
+    larger and makes at least half the rim's spread."""
     from sim.frames.summary import _mesh_earing
 
-    assert _mesh_earing(0.5e-3, 0.1e-3) == ""  # a rolled sheet's ears: the sheet's earing
-    note = _mesh_earing(0.141e-3, 0.859e-3)
+    assert _mesh_earing(0.5e-3, 0.1e-3, 1.2e-3) == ""  # a rolled sheet's ears: the sheet's
+    # a blank without a lattice (MeshAdapt's isotropic cup: six-fold 0.065 mm, four-fold
+    # 0.04, spread 1.03 mm): neither term is the spread, the note does not blame a lattice
+    assert _mesh_earing(0.04e-3, 0.065e-3, 1.03e-3) == ""
+    note = _mesh_earing(0.141e-3, 0.859e-3, 2.4e-3)
     assert "mostly the mesh's: its six-fold wave (0.859 mm) is larger than the four ears " \
            "(0.141 mm)" in note and 'mesh.mesher = "meshadapt"' in note

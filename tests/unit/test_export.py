@@ -70,6 +70,28 @@ def test_result_holds_each_fields_range_over_every_frame_made(tmp_path):
     assert quiet.run() and quiet.result()["field_ranges"] == {}
 
 
+def test_a_frame_that_is_not_finite_leaves_the_ranges_finite(monkeypatch):
+    """A step that ends not finite fails its run (server.worker checks the frame): the ranges
+    the earlier frames gave stay, finite (run.json and the colour scale carry them)."""
+    from sim.frames import output
+
+    sim = Simulation.from_scene(scene_from_toml(tiny_cup_toml(2)))
+    sim.step()
+    before = dict(sim.frame() and sim.field_ranges)
+    real = output.frame
+
+    def poisoned(s):
+        f = real(s)
+        f.fields["thickness_mm"] = np.full_like(f.fields["thickness_mm"], np.nan)
+        f.fields["von_mises_MPa"][0] = np.inf
+        return f
+
+    monkeypatch.setattr(output, "frame", poisoned)
+    sim.frame()
+    assert sim.field_ranges["thickness_mm"] == before["thickness_mm"]
+    assert all(np.isfinite(v).all() for v in sim.field_ranges.values())
+
+
 def test_the_time_column_says_seconds_only_in_a_dynamic_run(tmp_path):
     steps = [{"step": 1, "time": 0.5, "probes": {}}]
     for kind, head in (("static", "pseudo-time [-]"), ("dynamic", "time [s]"),

@@ -1,7 +1,8 @@
-"""The stored answers (tests/data/reference, written by ``q3t reference --out`` with the Newton
-of before the watchdog) reproduced by today's solver: the cantilever's tip and reaction at
-every step, the 2 mm cup's punch force, holder, thickness, draw-in and radial section at every
-step. An algorithm made faster must keep them (issue 16: within 0.5 %)."""
+"""The stored answers (tests/data/reference, written by ``q3t reference --out``: the
+cantilever's and Q3T's cup with the Newton of before the watchdog, q3t_ans's cup with today's)
+reproduced by today's solver: the cantilever's tip and reaction at every step, the 2 mm cup's
+punch force, holder, thickness, draw-in and radial section at every step. An algorithm made
+faster must keep them (issue 16: within 0.5 %)."""
 
 import json
 
@@ -48,13 +49,25 @@ def test_the_2mm_cup_keeps_its_stored_answers():
     from tests.support.scenes import shipped_cup
 
     ref = json.loads((DATA / "cup_drawing-q3t_ans-2mm.json").read_text())
-    assert (ref["scene"], ref["overrides"]) == ("cup_drawing", {})  # the shipped run's
+    assert (ref["scene"], ref["element"], ref["overrides"]) == ("cup_drawing", "q3t_ans", {})
     shipped = shipped_cup()[0]
     assert shipped.failure is None, shipped.failure
     sim = _check("cup_drawing-q3t_ans-2mm.json", TOLERANCE, shipped)
     # issue 16's goal, 8 Newton iterations per step (386 when stored). Counts do not depend
     # on the machine's speed; the goal itself is the bar
     assert sum(r.iterations for r in sim.records) <= 400, [r.iterations for r in sim.records]
+
+
+def test_a_check_against_a_run_of_another_element_is_refused_before_running(capsys):
+    """The scene's element changed (cup_drawing: Q3T until 2026-12-07): checking Q3T's stored
+    run against the scene as it is would compare two elements; it is refused, naming the
+    element to give, before the run (exit 2)."""
+    from sim.apps.cli import main
+
+    assert main(["reference", "cup_drawing", "--check",
+                 str(DATA / "cup_drawing-q3t-2mm.json")]) == 2
+    err = capsys.readouterr().err
+    assert "holds a run with q3t, this run would have q3t_ans (give --element q3t)" in err
 
 
 @pytest.mark.slow
