@@ -104,6 +104,37 @@ def compare(runs: list[Loaded]) -> dict:
     return results.finite(out)[0]
 
 
+def summary_csv(runs: list[Loaded]) -> str:
+    """The comparison's summary table as CSV, as the page shows it: a row per quantity (its
+    unit in its own column), each run's value (the header names the run and its element), then
+    each later run's difference from A (in the row's unit:
+    points for a %) and in % of A's value; six significant digits, empty where a run has none.
+    A flagged value (a forming limit reached, the mesh's earing) says so in a last column."""
+    import csv
+    import io
+
+    from sim.frames.export import DIGITS
+
+    rows, letters = summary_rows(runs), [r.letter for r in runs]
+
+    def num(v: float | None) -> str:
+        return "" if v is None else f"{v:.{DIGITS}g}"
+
+    head = ["quantity", "unit",
+            *(f"{r.letter}: {r.id} ({r.status['element']})" for r in runs),
+            *(f"{b} - A" for b in letters[1:]), *(f"{b} - A [% of A]" for b in letters[1:]),
+            "flags"]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(head)
+    for row in rows:
+        flags = "; ".join(f"{x}: {f}" for x, f in zip(letters, row["flags"], strict=True) if f)
+        w.writerow([row["label"] + (f" ({row['tool']})" if row["tool"] else ""), row["unit"],
+                    *map(num, row["values"]), *map(num, row["delta"][1:]),
+                    *map(num, row["delta_pct"][1:]), flags])
+    return buf.getvalue()
+
+
 def _head(r: Loaded) -> dict:
     st = r.status
     if st["state"] not in ENDED:

@@ -284,7 +284,12 @@ const Compare = (() => {
                      el("tbody", {}, ...rows));
     const box = $("compare-summary");
     const none = runs.filter((r) => !r.result).map((r) => r.letter);
-    box.replaceChildren(el("h3", { textContent: "Summary" }), table);
+    // the table as a file, for a report or a spreadsheet (the values as shown, in their units)
+    const csv = el("a", { id: "compare-csv", textContent: "Download CSV", download: "",
+                          href: "/api/compare/summary.csv?runs=" +
+                                runs.map((r) => encodeURIComponent(r.id)).join(","),
+                          title: "this table: each quantity per run and its difference from A" });
+    box.replaceChildren(el("h3", {}, "Summary ", csv), table);
     if (none.length)
       box.append(el("p", { className: "muted", textContent: `${none.join(", ")}: no summary ` +
                            "yet (see the note above); its column shows –." }));

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Query, Request, Response
 from pydantic import BaseModel, ConfigDict, Field
 
 from server import compare as cmp
 from server import compare_frames, sweeps
+from server.downloads import attachment
 from server.errors import BODY, CheckedRoute, documented
 from server.routers.plots import ProbeSeries, PunchCurve
 
@@ -198,6 +199,18 @@ def compare(runs: RUNS, request: Request) -> dict:
     A run still going is compared up to its last step (``result`` false, ``note``)."""
     m = request.app.state.manager
     return cmp.compare(cmp.load(m, cmp.run_ids(runs)))
+
+
+@router.get("/api/compare/summary.csv", response_class=Response, responses={
+    **documented(404, 422), 200: {"description": "the summary table as CSV",
+                                  "content": {"text/csv": {}}}})
+def summary_csv(runs: RUNS, request: Request) -> Response:
+    """The comparison's summary table (each quantity per run, each run's difference from A)
+    as a CSV file, values in the units the page shows (kN, mm, %)."""
+    m = request.app.state.manager
+    loaded = cmp.load(m, cmp.run_ids(runs))
+    return attachment(cmp.summary_csv(loaded).encode(), "csv",
+                      f"compare-{loaded[0].id}-and-{len(loaded) - 1}")
 
 
 @router.get("/api/compare/thickness", response_model=Thickness,

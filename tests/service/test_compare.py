@@ -128,6 +128,39 @@ def test_summaries_side_by_side_with_differences(env, runs):
     assert cost["values"] == [float(r["counts"]["dofs"]) for r in results]
 
 
+def test_the_summary_table_downloads_as_csv(env, runs):
+    """/api/compare/summary.csv: the table the page shows, a row per quantity with its unit,
+    each run's value (headed by run and element), each later run's difference from A and in %
+    of A, to the CSV export's six digits."""
+    import csv
+    import io
+
+    from sim.frames.export import DIGITS
+
+    client, _ = env
+    a, b, c, _ = runs
+    r = client.get(f"/api/compare/summary.csv?runs={a},{b},{c}")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/csv")
+    assert f'filename="compare-{a}-and-2.csv"' in r.headers["content-disposition"]
+    table = list(csv.reader(io.StringIO(r.text)))
+    cmp = client.get(f"/api/compare?runs={a},{b},{c}").json()
+    head = table[0]
+    assert head[:2] == ["quantity", "unit"] and head[-1] == "flags"
+    assert head[2:5] == [f"{x['letter']}: {x['id']} ({x['element']})" for x in cmp["runs"]]
+    assert head[5:9] == ["B - A", "C - A", "B - A [% of A]", "C - A [% of A]"]
+    assert len(table) - 1 == len(cmp["summary"])
+    half = 0.5 * 10.0 ** (1 - DIGITS)  # written to six significant digits
+    for line, row in zip(table[1:], cmp["summary"], strict=True):
+        assert line[1] == row["unit"]
+        for got, want in zip(line[2:9], row["values"] + row["delta"][1:] + row["delta_pct"][1:],
+                             strict=True):
+            assert got == "" if want is None else float(got) == pytest.approx(want, rel=half,
+                                                                             abs=1e-300)
+    peak = next(line for line in table[1:] if line[0] == "Peak punch force (punch)")
+    assert peak[1] == "kN" and peak[2] and peak[5]
+    assert client.get(f"/api/compare/summary.csv?runs={a}").status_code == 422  # one run
+
+
 def test_the_line_says_what_differs(env, runs):
     client, _ = env
     a, b, c, _ = runs

@@ -17,6 +17,7 @@ With Q3T_SHOTS set, screenshots go to `$Q3T_SHOTS/compare/`."""
 from __future__ import annotations
 
 import os
+import pathlib
 import subprocess
 import sys
 
@@ -116,6 +117,12 @@ def test_compare_two_runs_and_toggle_the_thickness(served, browser):
     assert delta == [f"{'+' if peak['delta'][1] > 0 else '−'}{js_number(abs(peak['delta'][1]))} "
                      f"kN ({'+' if peak['delta'][1] > 0 else '−'}"
                      f"{js_number(abs(peak['delta_pct'][1]), 2)} %)"]
+    # the table as a file: the link downloads what /api/compare/summary.csv gives
+    with page.expect_download() as dl:
+        page.click("#compare-csv")
+    saved = pathlib.Path(dl.value.path()).read_text()
+    assert saved == httpx.get(f"{url}/api/compare/summary.csv?runs={c},{a}").text
+    assert saved.splitlines()[0].startswith("quantity,unit,A: ")
     # the force-stroke plot: one curve per run, in mm and kN
     force = page.evaluate("() => { const d = document.getElementById('compare-force');"
                           " return {n: d.data.length, names: d.data.map(t => t.name), x: "
