@@ -243,7 +243,8 @@ class RunManager:
             run.place = len(self.queue) + 1  # run.json says queued, and where
             ran = text if run.scene_element is None else tomlout.with_element(text, run.element)
             out = self.files.create(run, scenediff.ran_head(
-                run.id, scene, text, edits if edited else None, overrides, parameters) + ran)
+                run.id, scene, text, edits if edited else None, overrides, parameters,
+                run.scene_element) + ran)
             self.runs[run.id] = run
             self._starts[run.id] = dict(run=run.id, out=str(out), scene_toml=text,
                                         overrides=solver_overrides,

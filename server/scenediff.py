@@ -118,12 +118,15 @@ def element_of(text: str, element: str) -> str | None:
 
 
 def ran_head(run_id: str, scene: str, text: str, edits: list[str] | None,
-             overrides: dict, parameters: dict | None = None) -> str:
+             overrides: dict, parameters: dict | None = None,
+             scene_element: str | None = None) -> str:
     """The comment lines that head a run's scene.toml (``text``, a valid scene, as the page or
     the file had it; the copy below them takes the run's element) when what ran
     is not that text as it stands: the page's unsaved edits (``edits``, None: none; the
     comments below are the saved file's and may describe its values), overrides on top of
-    it, an element other than its own, live parameters given at the start (``parameters``;
+    it, an element other than its own (``scene_element``, :func:`element_of`, the text's when
+    the run took ``overrides["shell.element"]`` instead), live parameters given at the start
+    (``parameters``;
     those changed while it ran are in run.json's parameter log); '' otherwise (the file is the
     saved one, comments true)."""
     parts = []
@@ -136,11 +139,9 @@ def ran_head(run_id: str, scene: str, text: str, edits: list[str] | None,
     if given:
         parts.append("Overrides on top of this file (run.json): " +
                      "; ".join(f"{k} = {override_text(k, v)}" for k, v in given.items()) + ".")
-    element = overrides.get("shell.element")
-    own = element and element_of(text, element)
-    if own:
-        parts.append(f"It ran element {element}, not the file's {own}: [shell] below says "
-                     "what ran.")
+    if scene_element:
+        parts.append(f"It ran element {overrides['shell.element']}, not the file's "
+                     f"{scene_element}: [shell] below says what ran.")
     live = {k: v for k, v in (parameters or {}).items() if v != 1.0}  # 1: as written
     if live:
         parts.append("Live parameters from its start: " +

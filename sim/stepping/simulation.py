@@ -517,14 +517,14 @@ class Simulation:
     def _record_sections(self) -> None:
         for sp in self.model.scene.sections:
             if not sp.steps or self.step_index in sp.steps:
-                self.sections[sp.name].append(self._section_row(sp.name))
+                self.sections[sp.name].append(self._section_row(sp))
 
-    def _section_row(self, name: str) -> dict:
-        """The section ``name`` now, with its ray's angle from the x axis (deg: where an
+    def _section_row(self, sp: fields.Ray) -> dict:
+        """The section ``sp`` now, with its ray's angle from the x axis (deg: where an
         anisotropic sheet's rolling direction is measured from)."""
-        (dx, dy), = [sp.direction for sp in self.model.scene.sections if sp.name == name]
+        (dx, dy) = sp.direction
         return {"step": self.step_index, "time": self.t,
-                **fields.section(self.model, self.x, self._sections[name]),
+                **fields.section(self.model, self.x, self._sections[sp.name]),
                 "angle_deg": float(np.degrees(np.arctan2(dy, dx)))}
 
     def recorded_sections(self) -> dict[str, list[dict]]:
@@ -532,11 +532,12 @@ class Simulation:
         its steps and missed it (a run stopped early, steps or the tool speed changed since the
         steps were listed) gets that step too, so that its plot ends where the part is."""
         out = {}
-        for name, rows in self.sections.items():
+        for sp in self.model.scene.sections:
+            rows = self.sections[sp.name]
             last = rows and rows[-1]["step"] == self.step_index
             # after a failure the state is partway into the next step: not the last one's
-            out[name] = rows if last or not self.records or self.failure is not None else [
-                *rows, self._section_row(name)]
+            out[sp.name] = rows if last or not self.records or self.failure is not None else [
+                *rows, self._section_row(sp)]
         return out
 
     def run(self, progress: Callable[[Simulation, StepRecord], None] | None = None) -> bool:
