@@ -739,7 +739,7 @@ async function main() {
   for (const e of state.config.elements) {
     const o = document.createElement("option");
     o.value = o.textContent = e;
-    o.selected = e === "q3t";
+    o.selected = e === state.config.default_element;
     o.title = state.config.element_notes[e] || "";
     $("element").appendChild(o);
   }

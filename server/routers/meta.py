@@ -21,6 +21,9 @@ class Config(BaseModel):
     ready: bool = Field(description="the solver process is up and has named the parameters")
     elements: list[str]
     element_notes: dict[str, str] = Field(description="a line on when to choose each element")
+    default_element: str = Field(description=(
+        "the element of a scene that names none (shell.element's default): the Run box's "
+        "choice until a scene is open"))
     parameters: dict[str, Range] = Field(description="the live parameters and their ranges")
     tool_parameters: dict[str, Range] = Field(description=(
         "the per-tool live parameters: a run has `<name>.<tool>` (as `friction_scale.die`) "
@@ -63,6 +66,7 @@ def config(request: Request) -> dict:
     """What the page needs before anything else: whether the solver process is ready, the
     elements, the live parameters with their ranges and labels, the viewer's port."""
     from sim.elements import ELEMENTS
+    from sim.scene.sheet import ShellSpec
     from sim.stepping.parameters import LABELS, PER_TOOL, RANGES, TOOL_LABELS
 
     m = request.app.state.manager
@@ -70,6 +74,7 @@ def config(request: Request) -> dict:
     # server); until then ``ready`` is false and the page asks again
     return {"ready": m.ready.is_set(), "elements": sorted(ELEMENTS),
             "element_notes": {k: e.note for k, e in ELEMENTS.items()},
+            "default_element": ShellSpec.model_fields["element"].default,
             "parameters": {k: {"min": lo, "max": hi, "label": LABELS.get(k, (k, ""))[0],
                                "hint": LABELS.get(k, (k, ""))[1]}
                            for k, (lo, hi) in m.parameter_ranges.items()},

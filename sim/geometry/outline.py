@@ -44,6 +44,10 @@ MAX_TRIANGLES = 2_000_000
 # a blank's extent, m: larger than a press bed or smaller than a tenth of a millimetre is a
 # drawing read in other units than its scale says (a drawing in mm at scale = 1 is 1000x)
 EXTENT = (1e-4, 5.0)
+# the longest chord, over the edge length, that gmsh meshes as one segment (its 1-D mesher
+# takes int(L / lc + 1.99) points on a line: two up to L = 1.01 lc), with a margin for the
+# rounding of L
+WHOLE = 1.009
 COARSE = 1e300  # a flattening step longer than any curve: its ends and a midpoint
 # curves of a drawing are flattened to chords this fine against the edge length, so that the
 # resampling at the edge length sees the curve, not the chords
@@ -201,7 +205,10 @@ def resample(p: np.ndarray, h: float) -> np.ndarray:
         np.array([0, len(p)])
     out = []
     for a, b in zip(cuts[:-1], cuts[1:], strict=True):
-        n = max(1 if len(corners) > 1 else 3, int(round((s[b] - s[a]) / h)))
+        # as many chords as the stretch holds at h, and no chord longer than gmsh leaves whole:
+        # it divides a line above 1.01 lc in two, so a 6 mm blank once took 3 mm triangles
+        n = max(1 if len(corners) > 1 else 3, int(round((s[b] - s[a]) / h)),
+                math.ceil((s[b] - s[a]) / (WHOLE * h)))
         t = np.linspace(s[a], s[b], n + 1)[:-1]
         out.append(np.column_stack([np.interp(t, s, q[:, 0]), np.interp(t, s, q[:, 1])]))
     return np.concatenate(out)

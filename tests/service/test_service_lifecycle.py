@@ -255,6 +255,8 @@ def test_nothing_waits_long_for_a_slow_solver_start(tmp_path):
         cfg = client.get("/api/config").json()
         assert ready.waits == []  # no wait for the solver
         assert cfg["ready"] is False and cfg["parameters"] == {}
+        # the Run box's choice before a scene is open: what a scene naming none runs
+        assert cfg["default_element"] == "q3t" and "q3t" in cfg["elements"]
         r = client.post("/api/runs", json={"scene": "tiny", "parameters": {"load_scale": 2}})
         assert r.status_code == 503 and "starting" in r.text, r.text
         assert r.headers["retry-after"] == "1"

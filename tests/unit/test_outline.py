@@ -109,6 +109,26 @@ def test_resample_keeps_corners_and_spacing():
     assert {tuple(c) for c in SQUARE} <= {tuple(q) for q in p}
 
 
+@pytest.mark.parametrize("mesher", sorted(ol.MESHERS))
+def test_a_coarser_edge_never_gives_a_finer_mesh(mesher):
+    """The shipped cup's blank (a circle of 30 mm, 360 segments) at 2 to 8 mm edges: its
+    rim's chords are never so long that gmsh halves them (it divides a line longer than 1.01
+    times its size in two: at 6 mm the 31 chords of 6.08 mm became 62 and the blank 748
+    triangles of 3 mm, more than the 437 at 4 mm), so the triangles' median edge is near the
+    one asked and their count falls as it grows. Near, not equal: gmsh sizes the interior a
+    little under the size where few triangles span the blank (measured: 0.97-1.00 of it at 2
+    mm, 0.92-0.96 at 8 mm, four across the radius), where the halving gave 0.5."""
+    outline = ol.Outline(ol.circle(R, segments=360))
+    counts = []
+    for h in (0.002, 0.004, 0.005, 0.006, 0.008):
+        m = ol.mesh(outline, h, mesher=mesher)
+        rim = ol.meshed_loops(outline, h)[0]
+        chords = np.linalg.norm(np.roll(rim, -1, axis=0) - rim, axis=1)
+        assert chords.max() <= ol.WHOLE * h * (1 + 1e-12)
+        assert 0.85 * h < np.median(angles_and_edges(m)[1]) < 1.05 * h, h
+        counts.append(len(m.faces))
+    assert counts == sorted(counts, reverse=True), counts
+
 @pytest.mark.parametrize("points, holes, field, words", [
     ([[0, 0], [1, 0]], [], "points", "at least 3"),
     ([[0, 0], [1, 0], [1, 0], [0, 0]], [], "points", "at least 3"),
