@@ -7,9 +7,10 @@ read back with the readers the solver uses and checked, and only then linked (a 
 or renamed (an explicit replace) into place: a file in the scenes folder is always whole and
 readable, whatever the client does, and two uploads of one new name cannot both win.
 A tool's surface (a tool shape of kind ``mesh``, ``tools.N.shape.path``) shares the blank's
-extensions: its upload says ``kind=tool`` and is checked as a tool surface (closed, wound one
-way, not self-intersecting: sim.tools.meshtool); the listing names a mesh file by the field a
-scene reads it as, else by what it holds (a closed surface is a tool's)."""
+extensions: its upload says ``kind=tool`` and is checked as a tool surface (wound one way, and
+closed and not self-intersecting, or open, which its entry says: sim.tools.meshtool); the
+listing names a mesh file by the field a scene reads it as, else by what it holds (a closed
+surface is a tool's)."""
 
 from __future__ import annotations
 
@@ -126,7 +127,14 @@ def inspect_blank(path: Path) -> dict:
     problem = check_blank(mesh.vertices, mesh.faces)
     if problem:
         raise Invalid(f"{path.name}: {problem}")
-    return {"vertices": report["vertices"], "triangles": report["triangles"]}
+    return {"vertices": report["vertices"], "triangles": report["triangles"],
+            "extent": _extent(mesh.vertices)}
+
+
+def _extent(points: np.ndarray) -> list[float]:
+    """The bounding box's sides in the file's own units: what a scene's ``scale`` turns
+    into metres, shown so that a drawing in mm read as metres is seen before a run."""
+    return [float(d) for d in np.ptp(points, axis=0)]
 
 
 def inspect_thickness(path: Path) -> dict:
@@ -159,19 +167,27 @@ def inspect_outline(path: Path) -> dict:
         shape = outline.read_drawing(path, 1.0, 1.0, extent=False)  # its scale is a scene's
     except outline.OutlineError as exc:
         raise Invalid(str(exc)) from None
-    return {"holes": len(shape.holes)}
+    return {"holes": len(shape.holes), "extent": _extent(shape.outer)}
 
 
 def inspect_tool(path: Path) -> dict:
-    """The mesh file as a tool's surface (sim.tools.meshtool.read_surface, closed): its size
-    is not checked, as the scene's ``scale`` says its units."""
+    """The mesh file as a tool's surface (sim.tools.meshtool.read_surface): closed, or open
+    (a CAD export of a die's working faces; ``open`` says so, as a scene must, with its side);
+    its size is not checked, as the scene's ``scale`` says its units."""
     from sim.tools.meshtool import MeshOptions, read_surface
 
     try:
         V, F = read_surface(path, MeshOptions(), check_size=False)
+        is_open = False
     except ValueError as exc:  # names the file
-        raise Invalid(str(exc)) from None
-    return {"vertices": len(V), "triangles": len(F)}
+        if ": open: " not in str(exc):
+            raise Invalid(str(exc)) from None
+        try:  # wound one way and manifold, only not closed
+            V, F = read_surface(path, MeshOptions(open=True), check_size=False)
+        except ValueError as exc:
+            raise Invalid(str(exc)) from None
+        is_open = True
+    return {"vertices": len(V), "triangles": len(F), "open": is_open, "extent": _extent(V)}
 
 
 INSPECT = {"blank": inspect_blank, "thickness": inspect_thickness, "tool": inspect_tool,
@@ -231,6 +247,7 @@ class FileStore:
         st = p.stat()
         kind = kind_of(name, kind) if kind else self.kind(p, uses)
         counts = {"vertices": None, "triangles": None, "values": None, "holes": None,
+                  "open": None, "extent": None,
                   **_described(str(p), kind, st.st_size, st.st_mtime_ns)}
         return {"name": name, "kind": kind, "size": st.st_size, **counts,
                 "used_by": list(dict.fromkeys(scene for scene, _ in uses))}
@@ -250,8 +267,8 @@ class FileStore:
         for _, field in uses:
             return "tool" if field.startswith("tools.") else "blank"
         st = path.stat()
-        closed = _described(str(path), "tool", st.st_size, st.st_mtime_ns)["problem"] is None
-        return "tool" if closed else "blank"
+        tool = _described(str(path), "tool", st.st_size, st.st_mtime_ns)
+        return "tool" if tool["problem"] is None and not tool.get("open") else "blank"
 
     def uses(self) -> dict[str, list[tuple[str, str]]]:
         """File name -> (scene, field) of each file field of a scene's TOML that names it."""

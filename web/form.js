@@ -61,8 +61,13 @@ const SceneForm = (() => {
                                    : `${(n / 2 ** 20).toFixed(1)} MiB`);
   // what a listed file holds, for its option (a thickness file has a value per vertex)
   const counts = (f) => (f.problem ? "unusable" : f.triangles !== null
-    ? `${f.vertices} vertices, ${f.triangles} triangles`
+    ? `${f.vertices} vertices, ${f.triangles} triangles` +
+      (f.open ? ", open (set open: the tool behind its faces)" : "")
     : f.kind === "outline" ? `${f.holes} hole${f.holes === 1 ? "" : "s"}` : `${f.values} values`);
+  // its size in its own units, which the scene's scale makes metres: a drawing in mm read
+  // as metres shows when it is uploaded, before a preview refuses it
+  const across = (f) => (f.extent ? `${f.extent.map((d) => +d.toPrecision(4)).join(" × ")} ` +
+    "across in the file's units (scale: metres per unit)" : "");
   // each kind of file as an engineer says it (the server's kinds: /api/files)
   const KIND = { blank: "blank mesh", tool: "tool mesh", outline: "outline drawing",
                  thickness: "thickness file" };
@@ -420,7 +425,8 @@ const SceneForm = (() => {
           .sort((a, b) => (a.kind !== kind) - (b.kind !== kind));
         for (const f of mine)
           options.push(el("option", { value: f.name, textContent: `${f.name} (${described(f)})`,
-                                      title: f.problem || bytes(f.size) }));
+                                      title: f.problem || [bytes(f.size), across(f)]
+                                        .filter(Boolean).join(", ") }));
         if (chosen && !mine.some((f) => f.name === chosen))  // a path in a subfolder, or gone
           options.push(el("option", { value: chosen, textContent: chosen }));
         sel.replaceChildren(...options);
@@ -468,7 +474,7 @@ const SceneForm = (() => {
             f = await upload(file, name, kind, true);
           }
           await refresh(f.name);  // then said: the select shows it when the words do
-          say(`uploaded ${f.name}: ${described(f)}`);
+          say(`uploaded ${f.name}: ${[described(f), across(f)].filter(Boolean).join("; ")}`);
         } catch (e) { say(e.message, true); }
       };
       return [button, chooser];

@@ -46,6 +46,12 @@ class FileEntry(BaseModel):
     values: int | None = Field(description="a thickness file's values")
     holes: int | None = Field(description="an outline's holes (its closed paths but the "
                                           "largest)")
+    open: bool | None = Field(description=(
+        "a tool's surface with a boundary (a die's working faces from CAD): a scene reads "
+        "it with open = true, the tool behind its faces' normals (flip = true: in front)"))
+    extent: list[float] | None = Field(description=(
+        "a mesh's or a drawing's bounding box sides in the file's own units (x, y[, z]): "
+        "a scene's scale turns them into metres (a file in mm needs scale = 0.001)"))
     used_by: list[str] = Field(description="the scenes that name the file")
     problem: str | None = Field(description="why the solver could not use the file (one put "
                                             "in the folder by hand); null when it can")
@@ -88,9 +94,10 @@ async def upload_file(request: Request, response: Response, name: FileName,
     """Keep the body as ``name`` in the scenes folder, once it reads as its kind (by
     extension: .obj/.ply/.stl a blank, .npy/.txt/.csv a thickness file; ``kind=tool`` a mesh
     file as a tool's surface): 422 naming what is wrong (not a mesh, zero-area triangles,
-    non-manifold or flipped edges, values that are no thickness; a tool's surface open or
-    self-intersecting), 413 past the size limit, 409 when the name is taken and ``replace`` is not
-    set. Nothing is left behind by a refused or interrupted upload."""
+    non-manifold or flipped edges, values that are no thickness; a tool's surface wound both
+    ways or self-intersecting; an open one is kept, its ``open`` true), 413 past the size
+    limit, 409 when the name is taken and ``replace`` is not set. Nothing is left behind by a
+    refused or interrupted upload."""
     files, limit = _files(request), _settings(request).max_upload
     path, kind = files.target(name, kind, replace)
     declared = request.headers.get("content-length", "")

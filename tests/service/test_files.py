@@ -153,8 +153,6 @@ def flipped() -> bytes:
     ("plate.STL", mesh_bytes("stl"), {}, "unknown extension '.STL'"),
     ("plate.obj", mesh_bytes("obj"), {"kind": "thickness"}, "is a blank file by its extension"),
     ("tool.obj", mesh_bytes("obj"), {"kind": "sheet"}, "query.kind: Input should be 'blank', "),
-    # a plate is no tool: a tool's surface must be closed (the scene's shape.open aside)
-    ("plate.obj", mesh_bytes("obj"), {"kind": "tool"}, "plate.obj: open: "),
 ])
 def test_what_cannot_be_used_is_refused_and_not_kept(env, name, content, params, detail):
     client, scenes = env

@@ -116,7 +116,8 @@ def test_an_outline_drawing_uploaded_for_the_blank_runs(open_page, served):
     page.wait_for_selector("[data-path='mesh.path'] select.file-select")
     page.uncheck("[data-path='mesh.path'] input.unset")
     assert upload(page, "mesh.path", drawing) == (
-        "uploaded Blank_with_hole.svg: outline drawing: 1 hole")
+        "uploaded Blank_with_hole.svg: outline drawing: 1 hole; 20 × 20 across in the file's "
+        "units (scale: metres per unit)")  # its size says it is no 20 m blank
     page.fill("[name='mesh.scale']", "0.001")  # the drawing's mm
     page.fill("[name='mesh.edge_length']", "4")  # mm, as the form shows lengths
     synced(page, 'path = "Blank_with_hole.svg"', "scale = 0.001", "edge_length = 0.004")

@@ -43,6 +43,7 @@ def test_an_outline_drawing_is_kept_and_used(client):
     assert r.status_code == 201, r.text
     entry = r.json()
     assert entry["kind"] == "outline" and entry["holes"] == 1 and entry["problem"] is None
+    assert entry["extent"] == [100.0, 100.0]  # in its own units: the scene says mm
     assert ".dxf" in client.get("/api/files").json()["kinds"]["outline"]
     r = client.put("/api/scenes/drawn", json={"toml": SCENE})
     assert r.status_code == 200, r.text

@@ -69,9 +69,56 @@ def test_a_tool_surface_is_kept_used_by_a_running_scene_and_guarded(env):
     assert client.delete("/api/files/punch.stl").status_code == 204
 
 
+def working_faces() -> trimesh.Trimesh:
+    """The punch's nose and side, its top left open: a CAD export of the faces that work."""
+    m = punch_mesh()
+    return trimesh.Trimesh(m.vertices, m.faces[m.triangles_center[:, 2] < 0.0099])
+
+
+def test_an_open_tool_surface_is_kept_and_runs_once_the_scene_says_open(env):
+    """CAD gives a die's working faces, an open surface: the upload keeps it and says it is
+    open (a refusal asked the scene to set open = true, which the file it refused could not
+    be given); a scene reading it as closed is refused naming the tool, one with open = true
+    presses as the closed punch does (the top is far from the plate)."""
+    client, scenes = env
+    r = upload(client, "faces.stl", stl(working_faces()), kind="tool")
+    assert r.status_code == 201, r.text
+    f = r.json()
+    assert f["kind"] == "tool" and f["open"] is True and f["triangles"] == 144, f
+    # the file's own units (STL: float32): what the scene's scale makes metres
+    np.testing.assert_allclose(f["extent"], [0.008, 0.008, 0.01], rtol=1e-6)
+    assert upload(client, "closed.stl", stl(punch_mesh()), kind="tool").json()["open"] is False
+    forces = {}
+    for name, shape in (("closed", '{ kind = "mesh", path = "closed.stl" }'),
+                        ("asclosed", '{ kind = "mesh", path = "faces.stl" }'),
+                        ("faces", '{ kind = "mesh", path = "faces.stl", open = true }')):
+        toml = PRESS_TOML.replace(PUNCH, f"shape = {shape}")
+        assert client.put(f"/api/scenes/{name}", json={"toml": toml}).status_code == 200
+        run = client.post("/api/runs", json={"scene": name})
+        if name == "asclosed":
+            assert run.status_code == 422, run.text
+            assert run.json()["detail"].startswith("tools.1.shape.path: tool 'punch': "
+                                                   "faces.stl: open: "), run.text
+            continue
+        st = wait_state(client, run.json()["id"], {"finished", "failed", "stopped"})
+        assert st["state"] == "finished", st["reason"]
+        steps = client.get(f"/api/runs/{run.json()['id']}/result").json()["steps"]
+        forces[name] = steps[-1]["probes"]["punch_force"]
+    # the same nose and side, sampled alike: the same force to the spline's smoothing, far
+    # below 1e-6 of it (the plate's nodes touch the flat nose only)
+    assert forces["closed"] > 100.0 and forces["faces"] == pytest.approx(forces["closed"],
+                                                                          rel=1e-6), forces
+    for name in ("closed", "asclosed", "faces"):
+        assert client.delete(f"/api/scenes/{name}").status_code == 204
+    for name in ("closed.stl", "faces.stl"):
+        assert client.delete(f"/api/files/{name}").status_code == 204
+
+
 @pytest.mark.parametrize("name,mesh,detail", [
-    ("open.stl", trimesh.Trimesh(punch_mesh().vertices, punch_mesh().faces[3:]),
-     "open.stl: open: "),
+    ("flipped.stl", trimesh.Trimesh(punch_mesh().vertices,
+                                    np.vstack([punch_mesh().faces[:1, ::-1],
+                                               punch_mesh().faces[1:]])),
+     "flipped.stl: 3 edges between triangles wound opposite ways"),
     ("two.stl", trimesh.util.concatenate([punch_mesh(),
                                           punch_mesh().apply_translation([0.002, 0, 0])]),
      "two.stl: self-intersecting: "),

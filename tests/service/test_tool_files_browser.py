@@ -67,21 +67,33 @@ def test_a_tool_surface_uploaded_from_the_form_runs(page, served):
     mine = tmp / "mine"
     mine.mkdir()
     punch_mesh().export(mine / "Punch v1.stl")
-    open_one = mine / "open.stl"
-    trimesh.Trimesh(punch_mesh().vertices, punch_mesh().faces[3:]).export(open_one)
+    two = mine / "two.stl"  # two punches through each other
+    trimesh.util.concatenate([punch_mesh(), punch_mesh().apply_translation([0.002, 0, 0])]
+                             ).export(two)
+    open_one = mine / "open.stl"  # the working faces, its top left open, as CAD gives a die's
+    m = punch_mesh()
+    trimesh.Trimesh(m.vertices, m.faces[m.triangles_center[:, 2] < 0.0099]).export(open_one)
 
     page.select_option("[name='tools.1.shape.kind']", "mesh")
     page.wait_for_selector(f"[data-path='{FIELD}'] select.file-select")
     left_column(page, "1-mesh-kind.png")
-    upload(page, open_one)  # refused: the form says why, nothing is kept
-    until(lambda: "boundary" in status(page), "no refusal shown", 300)
-    assert status(page).startswith("open.stl: open: ") and "boundary edges" in status(page)
-    assert not (tmp / "scenes" / "open.stl").exists()
-    left_column(page, "2-open-refused.png")
+    upload(page, two)  # refused: the form says why, nothing is kept
+    until(lambda: "self-intersecting" in status(page), "no refusal shown", 300)
+    assert status(page).startswith("two.stl: self-intersecting: ")
+    assert not (tmp / "scenes" / "two.stl").exists()
+    left_column(page, "2-refused.png")
+    upload(page, open_one)  # kept, and the form says what the scene must say of it
+    until(lambda: status(page).startswith("uploaded"), "no upload", 300)
+    assert status(page) == ("uploaded open.stl: tool mesh: 97 vertices, 144 triangles, open "
+                            "(set open: the tool behind its faces); 0.008 × 0.008 × 0.01 "
+                            "across in the file's units (scale: metres per unit)")
+    left_column(page, "2-open-kept.png")
 
     upload(page, mine / "Punch v1.stl")
     until(lambda: status(page).startswith("uploaded"), "no upload", 300)
-    assert status(page) == "uploaded Punch_v1.stl: tool mesh: 98 vertices, 192 triangles"
+    assert status(page) == ("uploaded Punch_v1.stl: tool mesh: 98 vertices, 192 triangles; "
+                            "0.008 × 0.008 × 0.01 across in the file's units (scale: metres "
+                            "per unit)")
     assert page.input_value(f"[name='{FIELD}']") == "Punch_v1.stl"
     page.wait_for_function("""() => document.getElementById('toml').value
         .includes('path = "Punch_v1.stl"')""")
