@@ -533,7 +533,8 @@ def _rim_height(view: View) -> list[dict]:
     deg = np.degrees(r.angle)
     profile = {"angle": measure(deg, "deg"), "height": measure(r.height, "m")}
     harmonics = {k: r.harmonic(k) for k in (4, 6)}  # k -> (amplitude, first crest)
-    lattice = _mesh_earing(harmonics[4][0], harmonics[6][0], r.height[i] - r.height[j])
+    lattice = (ROUND_NOTE if _round_draw(view, tool, d)
+               else _mesh_earing(harmonics[4][0], harmonics[6][0], r.height[i] - r.height[j]))
     out = [entry("max_rim_height", "Rim height, largest", r.height[i], "m",
                  {"angle": measure(deg[i], "deg"), **at_vertex(r.vertices[i], mid)}),
            entry("min_rim_height", "Rim height, smallest", r.height[j], "m",
@@ -551,6 +552,56 @@ def _rim_height(view: View) -> list[dict]:
                          note=f"amplitude of the {k}-fold term of the rim height's "
                               "least-squares Fourier series"))
     return out
+
+
+# what the earing's note says of a draw that has nothing to make ears but the mesh
+ROUND_NOTE = ("; all the mesh's: a sheet isotropic in its plane, drawn from a round blank by "
+              "tools round about the punch's axis, has no ears (a converged mesh shows none); "
+              "a finer mesh, or an outline blank with mesh.mesher = \"meshadapt\", shows less")
+# a blank's edge within this share of its mean radius of one radius about the punch's axis is
+# round (a polygon of 360 chords is within 4e-5, a square's corners 41 % out)
+ROUND_BLANK = 0.01
+# a tool whose distance around each ring about the punch's axis spreads by less than this share
+# of the sheet's thickness is round about it (an analytic punch, die or holder: round-off; a
+# tessellated one: the sag left of its facets, micrometres; a square punch: millimetres)
+ROUND_TOOL = 0.01
+
+
+def _round_draw(view: View, punch: str, d: np.ndarray) -> bool:
+    """Whether only the mesh can make ears: a sheet isotropic in its plane (von Mises, or
+    Hill48 with r0 = r45 = r90), its blank's edge round about the punch's axis (through its
+    start along ``d``), and every tool the same all round that axis (its distance sampled on
+    rings of radii and heights about it, where it is at the end)."""
+    m = view.model
+    hill = m.scene.material.hill48
+    if hill is not None and not hill.planar_isotropic():
+        return False
+    axis = view.summary.starts[punch]
+
+    def about(points: np.ndarray) -> np.ndarray:  # (radius, height) about the axis
+        rel = points - axis
+        along = rel @ d
+        return np.linalg.norm(rel - np.outer(along, d), axis=1), along
+
+    radius = about(m.shell.mesh.vertices[view.summary.edge.vertices])[0]
+    if np.ptp(radius) > ROUND_BLANK * radius.mean():
+        return False
+    e1 = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(d, e1)
+    angle = np.linspace(0.0, 2.0 * np.pi, 36, endpoint=False)
+    ring = np.outer(np.cos(angle), e1) + np.outer(np.sin(angle), e2)  # (36, 3)
+    scale = radius.mean()
+    bound = ROUND_TOOL * float(m.shell.thickness.max())
+    for t in (t for t in m.terms if isinstance(t, ToolContact)):
+        centre = axis + (about(t.translation(view.x)[None])[1][0]) * d
+        for r in scale * np.array([0.25, 0.5, 0.75, 1.0, 1.25]):
+            for h in scale * np.array([-0.5, -0.25, 0.0, 0.25, 0.5]):
+                X = centre + h * d + r * ring
+                dist = sdf_world_distance(t.prog, t.R_now, t.translation(view.x), X)
+                if np.ptp(dist) > bound:
+                    return False
+    return True
 
 
 def _mesh_earing(ears: float, mesh: float, spread: float) -> str:
