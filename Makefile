@@ -13,7 +13,11 @@ $(STAMP): pyproject.toml
 	$(MAKE) --no-print-directory browser-deps
 	touch $(STAMP)
 
+# the solver's kernels compiled first, two processes sharing them (sim/apps/warm.py): else the
+# first runs after a checkout or an edit of sim/ compile them, minutes counted as their solver
+# time; on a warm numba cache a few seconds
 serve: $(STAMP)
+	$(BIN)/q3t warm --part 1/2 & $(BIN)/q3t warm --part 2/2; rc=$$?; wait $$! && [ $$rc -eq 0 ]
 	$(BIN)/q3t serve
 
 # pytest exits 5 when it collected no test: that is a failure here, never a silent pass.
