@@ -85,6 +85,7 @@ function say(text, isError, run) {
   $("msg").style.color = isError ? "#b00" : "#555";
   $("msg").dataset.run = run || "";
   $("msg").dataset.preview = "";
+  $("msg").dataset.scene = "";
 }
 
 async function loadScenes() {
@@ -137,8 +138,11 @@ function previewScene(name, toml) {
 async function previewEditor() {
   // the Preview button: the editor's scene, also while the viewer shows a run
   await flushSync();
-  if (state.tomlStale || Number($("scene-error").dataset.count || 0) > 0)
-    return say("the scene has errors (see the fields): nothing to preview", true);
+  if (state.tomlStale || Number($("scene-error").dataset.count || 0) > 0) {
+    say("the scene has errors (see the fields): nothing to preview", true);
+    $("msg").dataset.scene = "1";  // goes once the fields are right
+    return;
+  }
   previewScene(state.scene, $("toml").value);
 }
 
@@ -184,6 +188,7 @@ function showSceneErrors(errors) {
   box.textContent = errors.map((e) => `${e.loc}: ${Units.shownMessage(e.msg)}`).join("\n");
   box.dataset.count = errors.length;
   box.dataset.unplaced = rest.length;
+  if (!errors.length && $("msg").dataset.scene) say("");  // a refusal the edits have fixed
 }
 
 function scheduleSync(fn, ms) {
@@ -316,6 +321,7 @@ async function saveScene() {
     await loadScenes();
   } catch (e) {
     say(`${name} not saved: ${e.message}`, true);
+    if (e.status === 422) $("msg").dataset.scene = "1";  // goes once the fields are right
     $("scene-error").textContent = Units.shownMessage(e.message);
     // the error where the user looks: the first field named, else the error box
     const where = $("scene-form").querySelector(".has-error") || $("scene-error");
@@ -346,7 +352,9 @@ async function startRun() {
   try {
     await flushSync();
     dropPreview();  // the sync's own edits may have asked for one
-    if (state.tomlStale) throw new Error("the form has errors (see the fields): not started");
+    if (state.tomlStale)
+      throw Object.assign(new Error("the form has errors (see the fields): not started"),
+                          { status: 422 });
     const run = await api("POST", "/api/runs",
       { scene: state.scene, element: $("element").value, toml: $("toml").value });
     state.viewSeq++;  // the server selected the new run
@@ -356,7 +364,11 @@ async function startRun() {
                                  : `started ${run.id}`) +
         (run.edited ? " with the unsaved edits of " + run.scene : ""), false, run.id);
     await loadRuns();
-  } catch (e) { say(e.message, true); }
+  } catch (e) {
+    say(e.message, true);
+    // the scene's fields refused: the message goes once the fields are right again
+    if (e.status === 422) $("msg").dataset.scene = "1";
+  }
 }
 
 async function control(action) {

@@ -378,6 +378,34 @@ def test_edits_in_the_form_show_in_the_preview(served, browser):
     page.close()
 
 
+def test_a_refusal_of_the_fields_goes_once_they_are_right(served, browser):
+    """Start and Save refused for a field (422) said so in the header, which kept saying it
+    after the field was put right (a browser review); it goes with the field's error."""
+    page, errors = open_page(browser, served)
+    runs = len(httpx.get(f"{served}/api/runs").json())
+    page.fill("[name='shell.thickness']", "0")
+    page.wait_for_function("document.getElementById('scene-error').dataset.count === '1'")
+    # Start says the server's refusal, or the page's own while the form's edit is still on
+    # its way to the server; Save and Preview theirs
+    for button, said in (("#start", ("shell.thickness: Input should be greater than 0 mm",
+                                     "the form has errors (see the fields): not started")),
+                         ("#save", ("tiny_cup not saved: shell.thickness: Input should be "
+                                    "greater than 0 mm",)),
+                         ("#preview-scene", ("the scene has errors (see the fields): nothing "
+                                             "to preview",))):
+        page.evaluate("say('')")
+        page.click(button)
+        page.wait_for_function("ts => ts.includes(document.getElementById('msg').textContent)",
+                               arg=list(said))
+        page.fill("[name='shell.thickness']", "0.5")  # put right: the refusal goes
+        page.wait_for_function("document.getElementById('msg').textContent === ''")
+        page.fill("[name='shell.thickness']", "0")
+        page.wait_for_function("document.getElementById('scene-error').dataset.count === '1'")
+    assert len(httpx.get(f"{served}/api/runs").json()) == runs  # the refused Start ran nothing
+    assert not errors, errors
+    page.close()
+
+
 def test_the_viewer_draws_at_the_pixel_density_asked(served, browser):
     # a GPU-less machine's lighter 3-D view: the page's viewer_dpr reaches viser's canvas,
     # whose drawing buffer is its CSS size times that density (three.js floors it); one
