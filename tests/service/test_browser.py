@@ -107,7 +107,9 @@ def spread(bins: np.ndarray) -> int:
 def test_page_run_viewer_pause(server, browser, tmp_path):
     page, _ = new_page(browser, server, "#scenes li[data-name=tiny]")
     try:
-        assert "name = \"tiny\"" in page.input_value("#toml")
+        # the list is drawn before the chosen scene's text arrives: wait for that too
+        page.wait_for_function("document.getElementById('toml').value"
+                               ".includes('name = \"tiny\"')")
         page.select_option("#element", "linear")
         page.click("#start")
         page.wait_for_function("+document.getElementById('status').dataset.step >= 2")

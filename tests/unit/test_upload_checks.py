@@ -71,8 +71,10 @@ def test_a_flipped_triangle_is_refused():
 
 def test_a_blank_file_is_read_as_the_solver_reads_it(tmp_path):
     V, F = plate()
-    assert inspect_blank(write_obj(tmp_path / "p.obj", V, F)) == {"vertices": len(V),
-                                                                "triangles": len(F)}
+    # its extent in the file's own units (the scene's scale makes them metres)
+    extent = np.ptp(V, axis=0).tolist()
+    assert inspect_blank(write_obj(tmp_path / "p.obj", V, F)) == {
+        "vertices": len(V), "triangles": len(F), "extent": pytest.approx(extent, rel=1e-9)}
     F[3] = F[3, ::-1]
     with pytest.raises(Invalid, match=r"^f\.obj: \d edges between triangles wound opposite"):
         inspect_blank(write_obj(tmp_path / "f.obj", V, F))
