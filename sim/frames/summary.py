@@ -578,7 +578,7 @@ def _round_draw(view: View, punch: str, d: np.ndarray) -> bool:
         return False
     axis = view.summary.starts[punch]
 
-    def about(points: np.ndarray) -> np.ndarray:  # (radius, height) about the axis
+    def about(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # radius, height
         rel = points - axis
         along = rel @ d
         return np.linalg.norm(rel - np.outer(along, d), axis=1), along
