@@ -594,11 +594,11 @@ def _round_draw(view: View, punch: str, d: np.ndarray) -> bool:
     scale = radius.mean()
     bound = ROUND_TOOL * float(m.shell.thickness.max())
     for t in (t for t in m.terms if isinstance(t, ToolContact)):
-        centre = axis + (about(t.translation(view.x)[None])[1][0]) * d
+        where = t.translation(view.x)
+        centre = axis + about(where[None])[1][0] * d
         for r in scale * np.array([0.25, 0.5, 0.75, 1.0, 1.25]):
             for h in scale * np.array([-0.5, -0.25, 0.0, 0.25, 0.5]):
-                X = centre + h * d + r * ring
-                dist = sdf_world_distance(t.prog, t.R_now, t.translation(view.x), X)
+                dist = sdf_world_distance(t.prog, t.R_now, where, centre + h * d + r * ring)
                 if np.ptp(dist) > bound:
                     return False
     return True
