@@ -160,14 +160,18 @@ def inspect_thickness(path: Path) -> dict:
 def inspect_outline(path: Path) -> dict:
     """The drawing as an outline mesh reads it (sim.geometry.outline.read_drawing): closed
     paths, the largest enclosing the others as holes. Its units are the scene's mesh.scale, so
-    its curves are flattened here at a tenth of a drawing unit, fine enough to check."""
+    its curves are flattened here at a tenth of a drawing unit, fine enough to check; the
+    units the file says (``units``: metres per unit and where it says so), the scale's
+    default."""
     from sim.geometry import outline
 
     try:
         shape = outline.read_drawing(path, 1.0, 1.0, extent=False)  # its scale is a scene's
     except outline.OutlineError as exc:
         raise Invalid(str(exc)) from None
-    return {"holes": len(shape.holes), "extent": _extent(shape.outer)}
+    units = outline.drawing_units(path)
+    return {"holes": len(shape.holes), "extent": _extent(shape.outer),
+            "units": units and {"scale": units[0], "said": units[1]}}
 
 
 def inspect_tool(path: Path) -> dict:
@@ -247,7 +251,7 @@ class FileStore:
         st = p.stat()
         kind = kind_of(name, kind) if kind else self.kind(p, uses)
         counts = {"vertices": None, "triangles": None, "values": None, "holes": None,
-                  "open": None, "extent": None,
+                  "open": None, "extent": None, "units": None,
                   **_described(str(p), kind, st.st_size, st.st_mtime_ns)}
         return {"name": name, "kind": kind, "size": st.st_size, **counts,
                 "used_by": list(dict.fromkeys(scene for scene, _ in uses))}

@@ -66,8 +66,11 @@ const SceneForm = (() => {
     : f.kind === "outline" ? `${f.holes} hole${f.holes === 1 ? "" : "s"}` : `${f.values} values`);
   // its size in its own units, which the scene's scale makes metres: a drawing in mm read
   // as metres shows when it is uploaded, before a preview refuses it
+  // a drawing that says its units (an SVG's width in mm, a DXF's $INSUNITS) needs no scale
   const across = (f) => (f.extent ? `${f.extent.map((d) => +d.toPrecision(4)).join(" × ")} ` +
-    "across in the file's units (scale: metres per unit)" : "");
+    "across in the file's units" + (f.units ? `, each ${+(1e3 * f.units.scale).toPrecision(4)} ` +
+    `mm as it says (${f.units.said}): scale may be left empty` : " (scale: metres per unit)")
+    : "");
   // each kind of file as an engineer says it (the server's kinds: /api/files)
   const KIND = { blank: "blank mesh", tool: "tool mesh", outline: "outline drawing",
                  thickness: "thickness file" };

@@ -31,6 +31,12 @@ Kind = Literal["blank", "thickness", "tool", "outline"]
 CLOSE = {"Connection": "close"}
 
 
+class DrawingUnits(BaseModel):
+    scale: float = Field(description="metres per unit of the drawing's coordinates")
+    said: str = Field(description='where the file says so: \'width="80mm" over a viewBox 80 '
+                                  "wide', '$INSUNITS = 4 (Millimeters)'")
+
+
 class FileEntry(BaseModel):
     name: str = Field(description="the file's name in the scenes folder: what a scene's "
                                   "mesh.path or shell.thickness_file says")
@@ -52,6 +58,9 @@ class FileEntry(BaseModel):
     extent: list[float] | None = Field(description=(
         "a mesh's or a drawing's bounding box sides in the file's own units (x, y[, z]): "
         "a scene's scale turns them into metres (a file in mm needs scale = 0.001)"))
+    units: DrawingUnits | None = Field(description=(
+        "the units a drawing says it is in, which a scene's scale left unset reads it in; "
+        "null for a mesh, or a drawing that says none (an SVG in px, a DXF's $INSUNITS 0)"))
     used_by: list[str] = Field(description="the scenes that name the file")
     problem: str | None = Field(description="why the solver could not use the file (one put "
                                             "in the folder by hand); null when it can")

@@ -16,6 +16,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import math
+import re
 import signal
 import threading
 from dataclasses import dataclass
@@ -24,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.geometry.trimesh import TriMesh
+from sim.text import figure, mm
 
 # a turn sharper than this at an outline's vertex is a corner the mesh keeps; gentler turns
 # are a flattened curve, resampled through
@@ -226,7 +228,7 @@ def check_extent(loops: list[np.ndarray], scale: float) -> None:
     are no blank's size."""
     ext = scale * float(np.ptp(np.concatenate(loops), axis=0).max())
     if not EXTENT[0] <= ext <= EXTENT[1]:
-        raise OutlineError("scale", f"absurd size: the drawing is {1e3 * ext:.3g} mm across "
+        raise OutlineError("scale", f"absurd size: the drawing is {mm(ext)} across "
                                     f"with scale = {scale:g} (a blank is {1e3 * EXTENT[0]:g}-"
                                     f"{1e3 * EXTENT[1]:g} mm across; a drawing in mm needs "
                                     "scale = 0.001)")
@@ -238,23 +240,23 @@ def check_size(outline: Outline, h: float, bands: tuple[Band, ...] = ()) -> None
     than ``h``, or either when the mesh would pass MAX_TRIANGLES."""
     width = np.sqrt(outline.area)
     if h > 0.5 * width:
-        raise OutlineError("edge_length", f"{1e3 * h:.3g} mm is too coarse for an outline of "
-                                          f"area {1e6 * outline.area:.3g} mm² (at most "
-                                          f"{0.5e3 * width:.3g} mm)")
+        raise OutlineError("edge_length", f"{mm(h)} is too coarse for an outline of "
+                                          f"area {figure(1e6 * outline.area)} mm² (at most "
+                                          f"{mm(0.5 * width)})")
     for i, b in enumerate(bands):
         if b.h >= h:
-            raise OutlineError(f"refine.{i}.edge_length", f"{1e3 * b.h:.3g} mm is not finer "
+            raise OutlineError(f"refine.{i}.edge_length", f"{mm(b.h)} is not finer "
                                                           f"than the mesh's edge_length "
-                                                          f"{1e3 * h:.3g} mm")
+                                                          f"{mm(h)}")
     n = estimate(outline, h)[1]
     if n > MAX_TRIANGLES:
-        raise OutlineError("edge_length", f"{1e3 * h:.3g} mm would give about {n:.3g} "
-                                          f"triangles, above {MAX_TRIANGLES:.0e}; use a "
+        raise OutlineError("edge_length", f"{mm(h)} would give about {figure(n)} "
+                                          f"triangles, above {figure(MAX_TRIANGLES)}; use a "
                                           "coarser mesh")
     n += sum(b.triangles(h) for b in bands)
     if n > MAX_TRIANGLES:
-        raise OutlineError("refine", f"the refined rings would give about {n:.3g} triangles, "
-                                     f"above {MAX_TRIANGLES:.0e}; refine less")
+        raise OutlineError("refine", f"the refined rings would give about {figure(n)} triangles, "
+                                     f"above {figure(MAX_TRIANGLES)}; refine less")
 
 
 def estimate(outline: Outline, h: float) -> tuple[int, int]:
@@ -341,10 +343,12 @@ def _gmsh(loops: list[np.ndarray], h: float, bands: tuple[Band, ...],
     return V, renumber[F].astype(np.int64)
 
 
-def read_drawing(path: str | Path, scale: float, h: float, extent: bool = True) -> Outline:
+def read_drawing(path: str | Path, scale: float | None, h: float,
+                 extent: bool = True) -> Outline:
     """The outline of an SVG or DXF drawing: its closed paths, the one of largest area the
     outline and the others its holes; coordinates (an SVG's user units, those of its viewBox,
-    with y turned up) times ``scale`` are metres. Curves are
+    with y turned up) times ``scale`` are metres, ``scale`` None the units the drawing says
+    (:func:`drawing_units`; OutlineError naming ``scale`` if it says none). Curves are
     flattened to chords FLATTEN h long. OutlineError naming ``path`` when it cannot be read.
 
     Read once per version of the file (its path, modification time and size): a scene's
@@ -358,6 +362,13 @@ def read_drawing(path: str | Path, scale: float, h: float, extent: bool = True) 
         st = None
     if st is None or not path.is_file():
         raise OutlineError("path", f"no drawing {str(path)!r}")
+    if scale is None:
+        units = drawing_units(path)
+        if units is None:
+            raise OutlineError("scale", f"{path.name} does not say its units (an SVG's width "
+                                        "in mm, cm, in, pt or pc over its viewBox; a DXF's "
+                                        "$INSUNITS): give scale, 0.001 for a drawing in mm")
+        scale = units[0]
     return _read_drawing(path.resolve(), st.st_mtime_ns, st.st_size, scale, h, extent)
 
 
@@ -388,6 +399,67 @@ def _read_drawing(path: Path, mtime_ns: int, size: int, scale: float, h: float,
     for a in (shape.outer, *shape.holes):
         a.setflags(write=False)
     return shape
+
+
+# an SVG length's units in metres: the absolute ones of CSS. A px, or a length without a unit,
+# is 1/96 in to a browser but 1/72 in to some drawing programs: no declaration of units
+SVG_UNITS = {"mm": 1e-3, "cm": 1e-2, "q": 2.5e-4, "in": 0.0254, "pt": 0.0254 / 72,
+             "pc": 0.0254 / 6}
+# CSS's px, the user unit of an SVG without a viewBox
+PX = 0.0254 / 96
+
+
+def drawing_units(path: str | Path) -> tuple[float, str] | None:
+    """Metres per unit of the drawing's coordinates as the file declares them, and where it
+    does: an SVG's width (and height) in absolute units over its viewBox's, a DXF's
+    $INSUNITS. None when it declares none (an SVG in px or without a size, $INSUNITS 0) or
+    when an SVG's width and height give different units (a drawing stretched to its page)."""
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".dxf":
+            return _dxf_units(path)
+        if path.suffix.lower() == ".svg":
+            return _svg_units(path)
+    except Exception:  # unreadable: read_drawing says why
+        return None
+    return None
+
+
+def _svg_units(path: Path) -> tuple[float, str] | None:
+    import xml.etree.ElementTree as ET
+
+    root = next(ET.iterparse(path, events=("start",)))[1]  # the <svg>, not the whole tree
+    box = re.split(r"[\s,]+", root.get("viewBox", "").strip())
+    box = [float(v) for v in box] if len(box) == 4 else None
+    per_unit, said = [], []
+    for i, side in ((0, "width"), (1, "height")):
+        length = re.fullmatch(r"\s*([-+0-9.eE]+)\s*([a-zA-Z]+)\s*", root.get(side, ""))
+        unit = SVG_UNITS.get(length[2].lower()) if length else None
+        if unit is None:
+            continue
+        size = float(length[1]) * unit
+        if box is None:  # user units are CSS px, absolute once the size is
+            per_unit.append(PX)
+            said.append(f'{side}="{root.get(side).strip()}" (no viewBox: px)')
+        elif box[2 + i] > 0:
+            per_unit.append(size / box[2 + i])
+            said.append(f'{side}="{root.get(side).strip()}" over a viewBox '
+                        f"{box[2 + i]:g} {('wide', 'high')[i]}")
+    if not per_unit or abs(per_unit[0] - per_unit[-1]) > 1e-6 * per_unit[0]:
+        return None
+    return per_unit[0], said[0]
+
+
+def _dxf_units(path: Path) -> tuple[float, str] | None:
+    import ezdxf
+    from ezdxf import units
+
+    code = int(ezdxf.readfile(path).header.get("$INSUNITS", 0))
+    per_metre = units.METER_FACTOR[code] if 0 < code < len(units.METER_FACTOR) else None
+    if not per_metre:
+        return None
+    # ezdxf's factors have ten digits: an inch is 1 / 39.37007874 = 0.0254000000001 m
+    return float(f"{1.0 / per_metre:.10g}"), f"$INSUNITS = {code} ({units.unit_name(code)})"
 
 
 # a shape without these attributes of its own is not drawn (SVG: they default to 0), but

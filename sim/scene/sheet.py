@@ -300,8 +300,10 @@ class OutlineMesh(_Generated):
                                 "[x, y] points", "m", [])
     path: str | None = doc("an SVG or DXF drawing of closed paths instead of points or a "
                            "circle", default=None)
-    scale: Annotated[float, Field(ge=1e-9, le=1e3)] = doc(
-        "the drawing's units to metres (1e-3 for a drawing in mm)", "m per drawing unit", 1.0)
+    scale: Annotated[float, Field(ge=1e-9, le=1e3)] | None = doc(
+        "the drawing's units to metres (1e-3 for a drawing in mm); unset: the units the "
+        "drawing says, an SVG's width in mm, cm, in, pt or pc over its viewBox or a DXF's "
+        "$INSUNITS (refused if it says none)", "m per drawing unit", None)
     refine: list[RefineSpec] = doc(
         "rings around the z axis meshed finer (each graded back to edge_length)", default=[])
     mesher: Literal[tuple(outline.MESHERS)] = doc(

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.text import figure, mm
 from sim.tools.program import OP_GRID, program, record
 
 BRICK = 6  # cells per brick side
@@ -104,13 +105,13 @@ def read_surface(path: str | Path, opts: MeshOptions,
 def _size_problem(V: np.ndarray, opts: MeshOptions) -> str | None:
     ext = float((V.max(0) - V.min(0)).max())
     if not MIN_EXTENT <= ext <= MAX_EXTENT:
-        return (f"absurd size: {1e3 * ext:.3g} mm across with scale = {opts.scale:g} (a tool "
+        return (f"absurd size: {mm(ext)} across with scale = {opts.scale:g} (a tool "
                 f"is {1e3 * MIN_EXTENT:g}-{1e3 * MAX_EXTENT:g} mm across; a file in mm needs "
                 "scale = 0.001)")
     cells = (V.max(0) - V.min(0)) / opts.spacing + 2 * (BRICK + 2)
     if float(np.prod(cells)) > MAX_NODES:
-        return (f"spacing {1e3 * opts.spacing:g} mm is too fine for a tool {1e3 * ext:.3g} mm "
-                f"across (over {MAX_NODES:.0e} grid nodes): give a larger spacing")
+        return (f"spacing {mm(opts.spacing)} is too fine for a tool {mm(ext)} "
+                f"across (over {figure(MAX_NODES)} grid nodes): give a larger spacing")
     return None
 
 

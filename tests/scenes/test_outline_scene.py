@@ -155,27 +155,35 @@ def test_points_and_drawing_give_the_same_blank(tmp_path):
 def test_a_bad_drawing_is_refused_naming_the_field(tmp_path):
     """By the model's size check, before a run starts (a 422 from the service), and by the
     build: a drawing that is missing, has an open path or only an empty rect (svgelements
-    read it as the whole page), or is read in other units than its scale says."""
+    read it as the whole page), is read in other units than its scale says, or says no units
+    where the scene gives no scale."""
     svg = '<svg xmlns="http://www.w3.org/2000/svg" width="60mm" height="40mm" ' \
           'viewBox="0 0 60 40">{}</svg>'
     (tmp_path / "open.svg").write_text(svg.format('<path d="M 0 0 L 100 0 L 100 100"/>'))
     (tmp_path / "empty.svg").write_text(svg.format("<rect/>"))
     (tmp_path / "mm.svg").write_text(svg.format('<rect width="60" height="40"/>'))
+    (tmp_path / "px.svg").write_text(svg.replace("mm", "px").format('<rect width="60" '
+                                                                    'height="40"/>'))
     for name, scale, words in (
             ("none.svg", "0.001", "mesh.path: no drawing"),
             ("open.svg", "0.001", "mesh.path: open.svg: an open path"),
             ("empty.svg", "0.001", "mesh.path: empty.svg: no closed path"),
-            ("mm.svg", "1", "mesh.scale: absurd size: the drawing is 6e.04 mm across with "
+            ("mm.svg", "1", "mesh.scale: absurd size: the drawing is 60000 mm across with "
                             "scale = 1 .a blank is 0.1-5000 mm across; a drawing in mm needs "
-                            "scale = 0.001.")):
-        (tmp_path / "s.toml").write_text(outline_toml(path=f'"{name}"', scale=scale))
+                            "scale = 0.001."),
+            ("px.svg", None, "mesh.scale: px.svg does not say its units .an SVG's width in "
+                             "mm, cm, in, pt or pc over its viewBox; a DXF's .INSUNITS.: give "
+                             "scale, 0.001 for a drawing in mm")):
+        given = {"scale": scale} if scale else {}
+        (tmp_path / "s.toml").write_text(outline_toml(path=f'"{name}"', **given))
         sc = load_scene(tmp_path / "s.toml")
         with pytest.raises(SceneError, match=words):
             size.mesh_counts(sc.mesh)
         with pytest.raises(ValueError, match=words):
             mesh_and_thickness(sc)
-    (tmp_path / "s.toml").write_text(outline_toml(path='"mm.svg"', scale="0.001"))
-    assert size.mesh_counts(load_scene(tmp_path / "s.toml").mesh)[1] > 0  # in mm: a blank
+    for given in ({"scale": "0.001"}, {}):  # in mm, as given or as the drawing says
+        (tmp_path / "s.toml").write_text(outline_toml(path='"mm.svg"', **given))
+        assert size.mesh_counts(load_scene(tmp_path / "s.toml").mesh)[1] > 0
 
 
 def test_the_service_reads_drawings_from_its_scenes_folder_only(tmp_path):

@@ -40,7 +40,8 @@ PRESS = PRESS_TOML.replace("steps = 3", "steps = 2").replace(
     "min = [-0.001, -0.001, -1.0], max = [0.001, 0.001, 1.0]",
     "min = [-0.003, -0.003, -1.0], max = [0.003, 0.003, 1.0]")
 # a 20 x 20 mm blank (drawing units mm) with a 3 mm hole off the punch
-SVG = ('<svg xmlns="http://www.w3.org/2000/svg" viewBox="-10 -10 20 20">'
+SVG = ('<svg xmlns="http://www.w3.org/2000/svg" width="20mm" height="20mm" '
+       'viewBox="-10 -10 20 20">'
        '<path d="M -10 -10 H 10 V 10 H -10 Z"/><circle cx="6" cy="6" r="1.5"/></svg>')
 HILL = {"r0": 0.663, "r45": 0.86, "r90": 0.717}  # AA5754-O (scenes/cup_drawing_aa5754.toml)
 # the tiny cup as a Hill48 sheet drawn through its die: a 15 mm blank, 8 mm of stroke in 4
@@ -115,12 +116,13 @@ def test_an_outline_drawing_uploaded_for_the_blank_runs(open_page, served):
     page.select_option("[name='mesh.kind']", "outline")
     page.wait_for_selector("[data-path='mesh.path'] select.file-select")
     page.uncheck("[data-path='mesh.path'] input.unset")
-    assert upload(page, "mesh.path", drawing) == (
+    assert upload(page, "mesh.path", drawing) == (  # in mm as the file says: no scale
         "uploaded Blank_with_hole.svg: outline drawing: 1 hole; 20 × 20 across in the file's "
-        "units (scale: metres per unit)")  # its size says it is no 20 m blank
-    page.fill("[name='mesh.scale']", "0.001")  # the drawing's mm
+        'units, each 1 mm as it says (width="20mm" over a viewBox 20 wide): scale may be left '
+        "empty")
     page.fill("[name='mesh.edge_length']", "4")  # mm, as the form shows lengths
-    synced(page, 'path = "Blank_with_hole.svg"', "scale = 0.001", "edge_length = 0.004")
+    synced(page, 'path = "Blank_with_hole.svg"', "edge_length = 0.004")
+    assert "scale" not in page.input_value("#toml")
     page.locator("[data-path='mesh.path']").scroll_into_view_if_needed()
     shot(page, SHOTS, "1-outline-uploaded.png", where="#left")
     st = started_run(page, url)

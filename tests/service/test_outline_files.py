@@ -44,6 +44,7 @@ def test_an_outline_drawing_is_kept_and_used(client):
     entry = r.json()
     assert entry["kind"] == "outline" and entry["holes"] == 1 and entry["problem"] is None
     assert entry["extent"] == [100.0, 100.0]  # in its own units: the scene says mm
+    assert entry["units"] is None  # a viewBox without a width in mm: the scene must say
     assert ".dxf" in client.get("/api/files").json()["kinds"]["outline"]
     r = client.put("/api/scenes/drawn", json={"toml": SCENE})
     assert r.status_code == 200, r.text
@@ -52,6 +53,22 @@ def test_an_outline_drawing_is_kept_and_used(client):
     assert r.status_code == 409 and "mesh.path" in r.json()["detail"]
     assert client.delete("/api/scenes/drawn").status_code == 204
     assert client.delete("/api/files/blank.svg").status_code == 204
+
+
+def test_a_drawing_that_says_its_units_needs_no_scale(client):
+    """An SVG 100 mm wide over a viewBox 100 wide, uploaded and read by a scene without a
+    scale: in mm, as the file says (the upload shows where it says so); a scene's scale,
+    where it gives one, is what counts."""
+    r = upload(client, "mm.svg", SVG.replace(b"viewBox", b'width="100mm" height="100mm" viewBox'))
+    assert r.json()["units"] == {"scale": 0.001, "said": 'width="100mm" over a viewBox 100 wide'}
+    own = SCENE.replace('name = "drawn"', 'name = "own"').replace(
+        'path = "blank.svg"\nscale = 0.001', 'path = "mm.svg"')
+    store = client.app.state.store  # as a run's start checks it: the model's size, read
+    scene, _ = store.checked(own, {}, 2**34)
+    assert scene.mesh.scale is None
+    with pytest.raises(ValueError, match="mesh.scale: absurd size: the drawing is 100000 mm"):
+        store.checked(own.replace('"mm.svg"', '"mm.svg"\nscale = 1.0'), {}, 2**34)
+    assert client.delete("/api/files/mm.svg").status_code == 204
 
 
 @pytest.mark.parametrize("name, content, words", [

@@ -233,6 +233,41 @@ def test_dxf_drawing(tmp_path):
         ol.read_drawing(tmp_path / "open.dxf", 1e-3, 0.005)
 
 
+@pytest.mark.parametrize("head, scale", [
+    ('width="80mm" height="80mm" viewBox="-40 -40 80 80"', 1e-3),
+    ('width="8cm" height="8cm" viewBox="0 0 80 80"', 1e-3),
+    ('width="3.15in" viewBox="0 0 80 80"', 0.0254 * 3.15 / 80),
+    ('width="226.8pt" viewBox="0 0 80 80"', 0.0254 * 226.8 / 72 / 80),
+    ('width="80mm" height="80mm"', 0.0254 / 96),  # no viewBox: user units are CSS px
+    ('width="800" height="800" viewBox="0 0 80 80"', None),  # px: 1/96 in, or 1/72
+    ('width="80mm" height="40mm" viewBox="0 0 80 80"', None),  # stretched to its page
+    ('width="100%" viewBox="0 0 80 80"', None),
+    ("", None),
+])
+def test_an_svg_says_its_units_by_its_size_over_its_viewbox(tmp_path, head, scale):
+    f = tmp_path / "d.svg"
+    f.write_text(f'<svg xmlns="http://www.w3.org/2000/svg" {head}><circle r="25"/></svg>')
+    said = ol.drawing_units(f)
+    assert (said and said[0]) == (scale and pytest.approx(scale, rel=1e-12))
+
+
+@pytest.mark.parametrize("code, scale", [(0, None), (1, 0.0254), (4, 1e-3), (5, 1e-2),
+                                         (6, 1.0)])
+def test_a_dxf_says_its_units_by_insunits(tmp_path, code, scale):
+    """$INSUNITS read exactly (ezdxf's factors are ten digits: an inch came out 0.0254000000001
+    m), and a drawing read at the scale it says: a circle of 25 units radius."""
+    import ezdxf
+
+    doc = ezdxf.new()
+    doc.header["$INSUNITS"] = code
+    doc.modelspace().add_circle((0, 0), 25)
+    doc.saveas(tmp_path / "d.dxf")
+    assert (ol.drawing_units(tmp_path / "d.dxf") or (None,))[0] == scale
+    if scale and scale < 0.1:  # in metres, 50 across is no blank
+        shape = ol.read_drawing(tmp_path / "d.dxf", None, 2.5 * scale)
+        assert shape.area == pytest.approx(np.pi * (25 * scale) ** 2, rel=1e-3)
+
+
 @pytest.mark.parametrize("name, text, words", [
     ("none.svg", None, "no drawing"),
     ("bad.svg", "<svg", "not a readable drawing"),
