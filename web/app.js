@@ -123,7 +123,11 @@ function previewScene(name, toml) {
   if (!$("viewer")) return;  // no viewer here to show it in
   state.previewing = name;  // before the next poll says so: the edits that follow show too
   const seq = ++state.previewSeq;  // an earlier request answered late says nothing
+  // nor does a view polled before the server has taken this request: its "no preview, a
+  // run" ended the previewing above, and the edits that followed asked for no preview
+  state.viewSeq++;
   api("PUT", "/api/view/scene", toml === undefined ? { scene: name } : { scene: name, toml })
+    .finally(() => { state.viewSeq++; })
     .then(() => {
       // a refused preview's error goes once a preview is taken: the edits that fixed it
       if (seq === state.previewSeq && $("msg").dataset.preview) say("");

@@ -354,12 +354,25 @@ def test_edits_in_the_form_show_in_the_preview(served, browser):
     click_row(page, run)
     until(lambda: httpx.get(f"{url}/api/view", headers=own).json()["preview"] is None,
           "selecting a run did not end the preview")
+    # a poll of the page's view answered late, as on a busy machine: sent before the Preview
+    # button, it says "a run" after it. The page once took that for the server's state, and
+    # the edit below asked for no preview (this test failed now and then). The answers are
+    # held here, and the one sent before the button let through after the preview is shown.
+    page.evaluate("""() => { window.plainFetch = window.fetch; window.held = [];
+        window.fetch = async (url, opts) => { const r = await window.plainFetch(url, opts);
+            if (String(url).includes('/api/view?') && window.plainFetch)
+                await new Promise((ok) => window.held.push(ok));
+            return r; }; }""")
+    held = "window.held.length > 0"
+    page.wait_for_function(held)  # a poll's answer, "a run", held
     page.click("#preview-scene")
     assert previewed(True)["scene"] == "tiny_cup"
+    page.evaluate("window.held.splice(0).forEach((ok) => ok())")
+    page.wait_for_function(held)  # the old answer taken (or not), the next poll's held
     # an edit the preview refuses (a model too large to build) says so; the edit that fixes
     # it takes the error away with the preview it gets
     page.fill("[name='mesh.edge_length']:not([data-old])", "0.01")  # mm, on a 26 mm blank
-    try:  # failed now and then (2026-12-07), not understood: a failure says what was shown
+    try:
         page.wait_for_function("document.getElementById('msg').textContent.startsWith("
                                "'preview of tiny_cup: mesh.edge_length: the model would have')")
     except sync_api.Error:
@@ -369,6 +382,8 @@ def test_edits_in_the_form_show_in_the_preview(served, browser):
             edge: document.querySelector("[name='mesh.edge_length']:not([data-old])").value})""")
         view = httpx.get(f"{url}/api/view", headers=own).json()
         raise AssertionError(f"no refusal shown: page {seen}, view {view}") from None
+    page.evaluate("""() => { window.fetch = window.plainFetch; window.plainFetch = null;
+                            window.held.splice(0).forEach((ok) => ok()); }""")
     page.fill("[name='mesh.edge_length']:not([data-old])", "3")
     page.wait_for_function("document.getElementById('msg').textContent === ''")
     previewed(True)
