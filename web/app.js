@@ -12,7 +12,7 @@ const $ = (id) => document.getElementById(id);
 const state = { scene: null, run: null, config: null, form: null, syncSeq: 0,
                 syncTimer: null, syncPending: null, syncRunning: null, viewSeq: 0,
                 paramSeq: 0, status: null, noticeSeq: 0, editorChanged: false, nudge: null,
-                unsaved: false, previewSeq: 0 };
+                unsaved: false, previewSeq: 0, previewFailed: 0 };
 
 // a run another browser (or a script) started: an action on it asks first, once per run,
 // and says whose it was; what others did to this view's runs is shown here
@@ -134,6 +134,7 @@ function previewScene(name, toml) {
     })
     .catch((e) => {
       if (seq !== state.previewSeq) return;
+      state.previewFailed = seq;  // said: not again when the view says it failed
       say(`preview of ${name}: ${e.message}`, true);
       $("msg").dataset.preview = name;
     });
@@ -626,6 +627,14 @@ async function followView() {
   Owner.showNotices(v.notices);
   if (seq !== state.viewSeq) return;
   state.previewing = v.scene;  // the scene this page's viewer previews (null: a run)
+  // a preview the solver could not build (a tool inside the blank, a drawing it cannot
+  // mesh) is said here as a refused one is, once; it goes with the next preview taken
+  if (v.preview === "failed" && v.scene === state.scene &&
+      state.previewFailed !== state.previewSeq) {
+    state.previewFailed = state.previewSeq;
+    say(`preview of ${v.scene}: ${v.preview_error}`, true);
+    $("msg").dataset.preview = v.scene;
+  }
   adoptRun(v.run);
   // the headline and plots are the run's; the 3-D view below them may be a scene's preview
   const other = v.scene && v.run;

@@ -325,6 +325,29 @@ def test_choosing_a_scene_previews_it_in_3d(served, browser):
     page.close()
 
 
+def test_a_preview_the_solver_cannot_build_says_why_in_the_header(served, browser):
+    """A scene that validates but does not build (three thicknesses for the disk's vertices)
+    says why at the top of the page, as a refused preview does, not only in the viewer."""
+    url = served
+    r = httpx.post(f"{url}/api/files", params={"name": "three.txt"}, content=b"1e-3\n1e-3\n1e-3\n")
+    assert r.status_code == 201, r.text
+    toml = tiny_cup_toml(STEPS).replace('name = "tiny_cup"', 'name = "thick"').replace(
+        "thickness = 0.0005", 'thickness_file = "three.txt"').replace(
+        'n = 0.2 }', 'n = 0.2, thickness = 0.0005 }')
+    assert httpx.put(f"{url}/api/scenes/thick", json={"toml": toml}).status_code == 200
+    page, errors = open_page(browser, url)
+    try:
+        page.click("#scenes li[data-name=thick]")
+        page.wait_for_function("document.getElementById('msg').textContent.startsWith("
+                               "'preview of thick: shell.thickness_file: 3 values for the ')")
+        shot(page, SHOTS, "preview-not-built")
+        assert not errors, errors
+    finally:
+        page.close()
+        httpx.delete(f"{url}/api/scenes/thick")
+        httpx.delete(f"{url}/api/files/three.txt")
+
+
 def test_edits_in_the_form_show_in_the_preview(served, browser):
     """Valid edits of the scene the viewer previews show there without a save, its status
     saying they are unsaved; a run chosen in the table ends the preview, and the Preview
