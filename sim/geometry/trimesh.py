@@ -210,6 +210,24 @@ def load(path: str | Path, scale: float = 1.0, merge: bool | None = None) -> Tri
     return load_with_values(path, scale, merge=merge)[0]
 
 
+def _cut_short(path: Path) -> str | None:
+    """Why a binary STL gave no triangles when its header counts some and the file is shorter
+    than they take (80 bytes of header, a count, 50 bytes a triangle): a copy or an upload
+    that did not finish, which trimesh reads as an empty text STL."""
+    if path.suffix.lower() != ".stl":
+        return None
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        head = f.read(84)
+    n = int.from_bytes(head[80:84], "little") if len(head) == 84 else 0
+    # a text file's four bytes there count at least 0x0a0a0a0a (168 million) triangles; a
+    # binary count under 2^24 (0.8 GB of triangles) has a zero high byte
+    if n == 0 or head[83] != 0 or size >= 84 + 50 * n:
+        return None
+    return (f"{path.name}: a binary STL of {n} triangles cut short: {size} bytes of the "
+            f"{84 + 50 * n} they take (a copy or an upload that did not finish?)")
+
+
 def load_with_values(path: str | Path, scale: float = 1.0, values: np.ndarray | None = None,
                      attribute: str | None = None, merge: bool | None = None,
                      ) -> tuple[TriMesh, np.ndarray | None, dict]:
@@ -234,8 +252,8 @@ def load_with_values(path: str | Path, scale: float = 1.0, values: np.ndarray | 
     except Exception as exc:  # trimesh's parsers raise anything on a malformed file
         raise MeshFileError(f"{path.name}: not a readable mesh ({exc})") from None
     if not hasattr(m, "faces") or len(m.faces) == 0:
-        raise MeshFileError(f"{path.name}: no triangles: not a {path.suffix} mesh file (text, "
-                            "another format?), or an empty one")
+        raise MeshFileError(_cut_short(path) or f"{path.name}: no triangles: not a "
+                            f"{path.suffix} mesh file (text, another format?), or an empty one")
     if attribute is not None:
         values = _ply_property(m, path, attribute)
     V, F = np.asarray(m.vertices, float) * scale, np.asarray(m.faces, np.int64)

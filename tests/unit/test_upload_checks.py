@@ -83,6 +83,12 @@ def test_a_blank_file_is_read_as_the_solver_reads_it(tmp_path):
 @pytest.mark.parametrize("name,content,reason", [
     ("text.obj", b"this is not a mesh\n", "text.obj: no triangles"),
     ("empty.stl", b"", "empty.stl: "),
+    # a binary STL of 12 triangles (84 + 600 bytes) cut after 584: trimesh read it as an
+    # empty text STL, and the reason said "not a .stl mesh file"
+    ("cut.stl", bytes(80) + (12).to_bytes(4, "little") + bytes(500),
+     "cut.stl: a binary STL of 12 triangles cut short: 584 bytes of the 684 they take"),
+    ("text.stl", b"solid x\n" + b"  facet normal 0 0 1\n" * 5 + b"endsolid\n",
+     "text.stl: no triangles: not a .stl mesh file"),
     ("noise.ply", bytes(range(256)) * 4, "noise.ply: not a readable mesh"),
     ("points.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\n", "points.obj: no triangles"),
     ("nan.obj", b"v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n", "nan.obj: vertex 1"),
