@@ -21,7 +21,7 @@ import numpy as np
 from server.plots import labelled, plots
 from server.problems import Conflict, Invalid, NotFound
 from server.records import ENDED
-from server.scenediff import flat_scene, shown, value_text
+from server.scenediff import collapsed, flat_scene, shown, value_text
 from sim.elements import ELEMENTS
 from sim.frames import results
 from sim.scene.load import SceneError, apply_override, read_toml, scene_from_toml, unit_of
@@ -188,12 +188,13 @@ def differences(runs: list[Loaded]) -> dict:
     if len(set(scenes)) > 1:
         items.append({"what": "scene", "values": scenes})
     flat, paths = zip(*(settings(r) for r in runs), strict=True)
+    every_path = {k: v for p in paths for k, v in p.items()}
+    flat = collapsed(list(flat), every_path)
     keys = sorted({k for f in flat for k in f}, key=lambda k: (k != "shell.element", k))
     for k in keys:
         values = [f.get(k) for f in flat]
         if any(v != values[0] for v in values):
-            path = next(p[k] for p in paths if k in p)
-            items.append({"what": k, "values": values, "unit": unit_of(path)})
+            items.append({"what": k, "values": values, "unit": unit_of(every_path[k])})
     edited = [r.letter for r in runs if r.status.get("edited")]
     live = {r.letter: labelled(r.status.get("parameter_log") or []) for r in runs}
     return {"items": items, "live": live, "edited": edited,

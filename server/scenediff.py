@@ -42,6 +42,25 @@ def flat_scene(tree: dict) -> tuple[dict[str, object], dict[str, str]]:
     return flatten(tree, paths=paths), paths
 
 
+def collapsed(flats: list[dict[str, object]], paths: dict[str, str]) -> list[dict[str, object]]:
+    """The flattened scenes with a table set in some and unset (null) in others
+    (``material.hill48``) as one setting each, its set fields in one text ('r0 0.663, ...,
+    rolling_angle 0 deg'): turning a sheet anisotropic is one change, not one per field."""
+    tables = {k for f in flats for k, v in f.items()
+              if v is None and any(j.startswith(k + ".") for g in flats for j in g)}
+    out = []
+    for f in flats:
+        g = dict(f)
+        for t in tables:
+            sub = {k: g.pop(k) for k in list(g) if k.startswith(t + ".")}
+            if sub:
+                g[t] = ", ".join(shown({"what": k[len(t) + 1:], "values": [v],
+                                        "unit": unit_of(paths[k])})
+                                 for k, v in sub.items() if v is not None)
+        out.append(g)
+    return out
+
+
 # the edits of a scene the Runs table lists, the rest counted
 EDITS_SHOWN = 6
 
@@ -57,6 +76,7 @@ def edits(saved: str, edited: str) -> list[str]:
         return []
     b, paths = flat_scene(scene_from_toml(edited, {}).model_dump(mode="json"))
     paths = paths_a | paths
+    a, b = collapsed([a, b], paths)
     keys = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
     out = [shown({"what": k, "values": [a.get(k), b.get(k)], "unit": unit_of(paths[k])},
                   " → ") for k in keys[:EDITS_SHOWN]]

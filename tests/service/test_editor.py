@@ -139,3 +139,19 @@ def test_a_duplicate_of_an_editors_text_copies_it_and_refuses_a_bad_one(env):
     assert not (settings.scenes_dir / "cup3-bad.toml").exists()
     missing = client.post("/api/scenes/nope/duplicate", json={"name": "x", "toml": edited})
     assert missing.status_code == 404, missing.text
+
+
+def test_a_sheet_made_anisotropic_is_one_edit_in_the_forms_units():
+    """Hill48 set on a von Mises sheet is one change, its set fields (r-values, the defaults
+    L and M, the rolling angle) in one text, not six edits (a browser review read
+    it so in the comparison); a change inside it is the field's own."""
+    from server.scenediff import edits
+
+    saved = (ROOT / "scenes" / "cup_drawing.toml").read_text()
+    hill = saved.replace("[material]", "[material]\nhill48 = { r0 = 0.663, r45 = 0.86, "
+                         "r90 = 0.717, rolling_angle = 45.0 }", 1)
+    said = "r0 0.663, r45 0.86, r90 0.717, L 1.5, M 1.5, rolling_angle 45 deg"
+    assert edits(saved, hill) == [f"material.hill48 – → {said}"]
+    assert edits(hill, saved) == [f"material.hill48 {said} → –"]
+    assert edits(hill, hill.replace("r0 = 0.663", "r0 = 0.7")) == [
+        "material.hill48.r0 0.663 → 0.7"]
