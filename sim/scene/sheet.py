@@ -528,12 +528,20 @@ class Hill48Spec(Strict):
     r0: _Ratio | None = doc("the r-value along the rolling direction", "1", None)
     r45: _Ratio | None = doc("the r-value at 45 degrees to the rolling direction", "1", None)
     r90: _Ratio | None = doc("the r-value across the rolling direction", "1", None)
-    F: _Ratio | None = doc("Hill's F (instead of the r-values)", "1", None)
-    G: _Ratio | None = doc("Hill's G; G + H = 1", "1", None)
-    H: _Ratio | None = doc("Hill's H; G + H = 1", "1", None)
-    N: _Ratio | None = doc("Hill's N (in-plane shear)", "1", None)
-    L: _Ratio = doc("Hill's L (transverse shear; von Mises' 1.5 unless measured)", "1", 1.5)
-    M: _Ratio = doc("Hill's M (transverse shear; von Mises' 1.5 unless measured)", "1", 1.5)
+    # Hill's criterion with 1 the rolling, 2 the transverse direction, 3 the normal:
+    # F (s22 - s33)^2 + G (s33 - s11)^2 + H (s11 - s22)^2 + 2 L s23^2 + 2 M s31^2 + 2 N s12^2
+    # = yield_stress^2
+    F: _Ratio | None = doc("Hill's F, of (σ_TD − σ_normal)², instead of the r-values; "
+                           "r90 = H / F", "1", None)
+    G: _Ratio | None = doc("Hill's G, of (σ_normal − σ_RD)²; G + H = 1 (yield_stress along "
+                           "the rolling direction), r0 = H / G", "1", None)
+    H: _Ratio | None = doc("Hill's H, of (σ_RD − σ_TD)²; G + H = 1", "1", None)
+    N: _Ratio | None = doc("Hill's N, of 2 τ_RD,TD² (in-plane shear); r45 = N / (F + G) − 1/2",
+                           "1", None)
+    L: _Ratio = doc("Hill's L, of 2 τ_TD,normal² (transverse shear; von Mises' 1.5 unless "
+                    "measured)", "1", 1.5)
+    M: _Ratio = doc("Hill's M, of 2 τ_normal,RD² (transverse shear; von Mises' 1.5 unless "
+                    "measured)", "1", 1.5)
     rolling_direction: Direction | None = doc(
         "the rolling direction as a vector in scene coordinates, projected on the sheet's "
         "plane at each element; needed unless the sheet is isotropic in its plane "
