@@ -95,6 +95,7 @@ async function loadScenes() {
   for (const s of list) {
     const li = document.createElement("li");
     li.textContent = s.name + (s.description ? " — " + s.description : "");
+    li.title = li.textContent;
     li.dataset.name = s.name;
     li.className = s.name === state.scene ? "sel" : "";
     li.tabIndex = 0;  // opened with the keyboard too (Enter or Space)
