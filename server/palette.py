@@ -17,6 +17,9 @@ FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%")
           "fld_zone": ("FLD zone", ""),
           "eq_plastic_strain": ("Equivalent plastic strain", "-"),
           "von_mises_MPa": ("von Mises stress", "MPa"),
+          "major_strain_pct": ("Major true strain", "%"),
+          "minor_strain_pct": ("Minor true strain", "%"),
+          # recordings made before the strains were shown in %
           "major_strain": ("Major true strain", "-"), "minor_strain": ("Minor true strain", "-")}
 DEFAULT_FIELD = "thickness_mm"
 Scale = Continuous | Categories

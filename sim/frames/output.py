@@ -94,8 +94,10 @@ def frame(sim: Run) -> Frame:
                 "von_mises_MPa": lambda: 1e-6 * fields.vertex_average(
                     m, m.elasticity.von_mises(x)),
                 "eq_plastic_strain": lambda: fields.vertex_average(m, m.elasticity.ep),
-                **{name: functools.partial(lambda k: limits()[k], name)
-                   for name in ("major_strain", "minor_strain", "fld_zone")}}
+                # in %, as the FLD and the summary give them
+                "major_strain_pct": lambda: 100 * limits()["major_strain"],
+                "minor_strain_pct": lambda: 100 * limits()["minor_strain"],
+                "fld_zone": lambda: limits()["fld_zone"]}
     values = {name: sim.display.per_vertex(field_of[name]()) for name in frame_fields(m)}
     return Frame(sim.step_index, sim.t, sim.display.positions(sim.x), values,
                  rec.probes if rec else {}, rec.iterations if rec else 0,

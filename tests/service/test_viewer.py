@@ -39,8 +39,8 @@ from tests.support.viewer import attached  # noqa: E402
 
 # a plastic scene's frame: its major and minor strain too (forming limits), no FLD zone
 # without a forming limit curve
-FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain", "major_strain",
-          "minor_strain"}
+FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain",
+          "major_strain_pct", "minor_strain_pct"}
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +107,7 @@ def test_viewer_draws_moves_recolours_and_scrubs(done, viewer):
     np.testing.assert_allclose(viewer.canvas.tools["punch"].position, last["punch"], atol=1e-9)
     options = viewer.canvas.field.options
     assert len(options) == len(FIELDS) and "Equivalent plastic strain (-)" in options
-    assert "Major true strain (-)" in options
+    assert "Major true strain (%)" in options  # as the FLD gives it
     viewer.canvas.field.value = "Equivalent plastic strain (-)"
     assert "Equivalent plastic strain" in viewer.canvas.legend.content
     viewer.canvas.field.value = "von Mises stress (MPa)"
