@@ -17,9 +17,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
+import json
 import os
 import secrets
 import shutil
+import threading
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path, PurePosixPath
 from typing import BinaryIO
@@ -45,6 +47,11 @@ TEMP_PREFIX = ".upload-"
 # s: an upload folder untouched this long is left by a server that died mid-upload (a live one
 # is written at least every body_timeout, and then read back once, which takes seconds)
 STALE = 3600.0
+# the kind each mesh file was uploaded as, for those no scene names yet: an open surface is a
+# blank's or a tool's open faces by what the uploader said, not by what it holds (a hidden
+# file: the listing shows file names only)
+UPLOADED = ".uploaded-kinds.json"
+_UPLOADED_LOCK = threading.Lock()
 
 
 class TooLarge(Exception):
@@ -263,13 +270,16 @@ class FileStore:
     @staticmethod
     def kind(path: Path, uses: list[tuple[str, str]]) -> str:
         """What a file is: by its extension, and a mesh file (a blank's or a tool's suffix)
-        by the field of the first scene that names it, else by what it holds: a closed
-        surface is a tool's (a blank is an open sheet; an uploaded tool is closed)."""
+        by the field of the first scene that names it, else by the kind it was uploaded as,
+        else by what it holds: a closed surface is a tool's (a blank is an open sheet)."""
         kind = kind_of(path.name)
         if kind not in ("blank", "tool"):
             return kind
         for _, field in uses:
             return "tool" if field.startswith("tools.") else "blank"
+        uploaded = _uploaded(path.parent).get(path.name)
+        if uploaded in ("blank", "tool"):
+            return uploaded
         st = path.stat()
         tool = _described(str(path), "tool", st.st_size, st.st_mtime_ns)
         return "tool" if tool["problem"] is None and not tool.get("open") else "blank"
@@ -298,6 +308,7 @@ class FileStore:
             raise Conflict(f"file {name!r} is used by scene(s) {scenes} ({fields}); "
                            "change or delete them first")
         p.unlink()
+        _remember(self.root, name, None)
 
     def target(self, name: str, kind: str | None, replace: bool) -> tuple[Path, str]:
         """Where an upload of ``name`` goes and its kind, checked before any byte is read:
@@ -334,10 +345,11 @@ class FileStore:
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
 
-    def keep(self, received: Path, kind: str, replace: bool) -> dict:
+    def keep(self, received: Path, kind: str, replace: bool, said: str | None = None) -> dict:
         """Read the received file back and check it (Invalid names the problem), then put it
         in place: renamed over the old file when ``replace``, else linked only if the name is
-        still free (Conflict when a concurrent upload took it)."""
+        still free (Conflict when a concurrent upload took it). ``said``: the kind the upload
+        asked for, if it did: a mesh file is listed as that until a scene names it."""
         INSPECT[kind](received)
         final = self.root / received.name
         if replace:
@@ -348,7 +360,31 @@ class FileStore:
             except FileExistsError:
                 raise Conflict(f"file {received.name!r} exists; upload with replace=true to "
                                "replace it") from None
+        _remember(self.root, received.name, said if said in ("blank", "tool") else None)
         return self.entry(received.name, kind=kind)
+
+
+def _uploaded(root: Path) -> dict[str, str]:
+    try:
+        kinds = json.loads((root / UPLOADED).read_text())
+    except (OSError, ValueError):  # none yet, or damaged: the files' contents decide
+        return {}
+    return kinds if isinstance(kinds, dict) else {}
+
+
+def _remember(root: Path, name: str, kind: str | None) -> None:
+    """Keep (or with None forget) the kind ``name`` was uploaded as; written whole, then
+    renamed, so that a reader never sees half of it."""
+    with _UPLOADED_LOCK:
+        kinds = _uploaded(root)
+        if kinds.get(name) == kind:
+            return
+        kinds.pop(name, None)
+        if kind is not None:
+            kinds[name] = kind
+        tmp = root / f"{UPLOADED}.{secrets.token_hex(4)}"
+        tmp.write_text(json.dumps(kinds, indent=1, sort_keys=True))
+        os.replace(tmp, root / UPLOADED)
 
 
 def _named(raw: dict) -> Iterator[tuple[str, str]]:

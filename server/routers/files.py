@@ -108,6 +108,7 @@ async def upload_file(request: Request, response: Response, name: FileName,
     limit, 409 when the name is taken and ``replace`` is not set. Nothing is left behind by a
     refused or interrupted upload."""
     files, limit = _files(request), _settings(request).max_upload
+    said = kind  # the uploader's word, kept for a mesh file no scene names yet
     path, kind = files.target(name, kind, replace)
     declared = request.headers.get("content-length", "")
     if declared.isdigit() and int(declared) > limit:  # refused before a byte is read
@@ -125,7 +126,7 @@ async def upload_file(request: Request, response: Response, name: FileName,
             raise HTTPException(408, str(exc), CLOSE) from None
         except ClientDisconnect:  # nobody will read the answer; the file is gone with it
             raise HTTPException(400, "the upload was cut off") from None
-        entry = await run_in_threadpool(files.keep, received, kind, replace)
+        entry = await run_in_threadpool(files.keep, received, kind, replace, said)
     if existed and replace:
         response.status_code = 200
     response.headers["Location"] = f"/api/files/{name}"

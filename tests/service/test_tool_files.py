@@ -85,6 +85,9 @@ def test_an_open_tool_surface_is_kept_and_runs_once_the_scene_says_open(env):
     assert r.status_code == 201, r.text
     f = r.json()
     assert f["kind"] == "tool" and f["open"] is True and f["triangles"] == 144, f
+    # listed as the tool it was uploaded as before a scene names it (by what it holds, an
+    # open surface is a blank's: the tool field offered it as a "blank mesh")
+    assert client.get("/api/files/faces.stl").json()["kind"] == "tool"
     # the file's own units (STL: float32): what the scene's scale makes metres
     np.testing.assert_allclose(f["extent"], [0.008, 0.008, 0.01], rtol=1e-6)
     assert upload(client, "closed.stl", stl(punch_mesh()), kind="tool").json()["open"] is False
@@ -161,6 +164,12 @@ def test_the_listing_names_each_mesh_file_by_what_it_is(env):
     kinds = {f["name"]: f["kind"] for f in client.get("/api/files").json()["files"]}
     assert {n: kinds[n] for n in files} == {"tool.stl": "tool", "sheet.obj": "blank",
                                             "closed.obj": "tool"}
+    # the kind an upload asks for names it until a scene does; forgotten with the file
+    assert upload(client, "sheet.obj", files["sheet.obj"], kind="tool", replace="true").json()[
+        "kind"] == "tool"
+    assert client.get("/api/files/sheet.obj").json()["kind"] == "tool"
+    assert client.delete("/api/files/sheet.obj").status_code == 204
+    assert upload(client, "sheet.obj", files["sheet.obj"]).json()["kind"] == "blank"
     # named by a scene as its blank (a closed mesh is a poor blank, but the scene says so)
     toml = PRESS_TOML.replace('[mesh]\nkind = "rectangle"', '[mesh]\nkind = "file"\n'
                               'path = "closed.obj"\n[unused]\nkind = "rectangle"')
