@@ -44,8 +44,9 @@ class FileEntry(BaseModel):
                                    "vertex; tool: a tool's surface mesh; outline: an SVG or "
                                    "DXF drawing of a blank's outline (mesh kind outline). A "
                                    "mesh file is a blank or a tool by the field the first "
-                                   "scene naming it reads it as, else by what it holds (a "
-                                   "closed surface is a tool's)")
+                                   "scene naming it reads it as, else by the kind its upload "
+                                   "asked for, else by what it holds (a closed surface is a "
+                                   "tool's)")
     size: int = Field(description="bytes")
     vertices: int | None = Field(description="a mesh's vertices as the solver reads them")
     triangles: int | None = Field(description="a mesh's triangles")
