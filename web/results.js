@@ -324,8 +324,7 @@ const Results = (() => {
     a.setAttribute("download", "");
     a.dataset.format = f.format;
     a.textContent = label;
-    a.title = f.format === "png" ? f.description :
-      `${f.description} (lengths in mm, forces in kN, stresses in MPa)`;
+    a.title = f.description;  // with its units: a summary's values are SI beside the page's
     if (f.format === "png") a.addEventListener("click", downloadView);
     return a;
   }

@@ -23,9 +23,11 @@ from sim.frames.display import DisplayMesh
 from sim.frames.punch import punch_history
 from sim.frames.units import DISPLAY
 
-FORMATS = {"csv": "the probes per step", "vtu": "final state and frames, VTU + PVD (ParaView)",
+FORMATS = {"csv": "the probes per step (mm, kN: units in the header)",
+           "vtu": "final state and frames, VTU + PVD (ParaView; units in the field names)",
            "stl": "the formed part (closed surface, mm)", "ply": "the formed part (closed "
-           "surface, mm)", "json": "the run summary"}
+           "surface, mm)", "json": "the run summary: each entry's value in SI units and its "
+           "display value in the page's (mm, kN, MPa, %); field ranges in SI; FLD zone counts"}
 STATE_FORMATS = ("vtu", "stl", "ply")  # need the final state (final.npz)
 MM = 1e3
 # final.npz's fields (sim.frames.fields.output_fields, SI) -> the exported name and its factor;
