@@ -26,14 +26,19 @@ class Rim:
     angle: np.ndarray
     height: np.ndarray
 
-    def harmonic(self, k: int) -> tuple[float, float]:
-        """Amplitude (m) and the angle (rad, in [0, 2 pi / k)) of the first crest of the k-fold
-        harmonic of the least-squares Fourier fit of orders 0..HARMONICS."""
+    def terms(self, k: int, start: float = 0.0) -> tuple[float, float]:
+        """The k-fold harmonic a cos(k phi) + b sin(k phi) of the least-squares Fourier fit of
+        orders 0..HARMONICS, phi the angle from ``start`` (rad): (a, b), m."""
         cols = [np.ones_like(self.angle)]
         for j in range(1, HARMONICS + 1):
-            cols += [np.cos(j * self.angle), np.sin(j * self.angle)]
+            cols += [np.cos(j * (self.angle - start)), np.sin(j * (self.angle - start))]
         coef = np.linalg.lstsq(np.column_stack(cols), self.height, rcond=None)[0]
-        a, b = coef[2 * k - 1], coef[2 * k]
+        return float(coef[2 * k - 1]), float(coef[2 * k])
+
+    def harmonic(self, k: int) -> tuple[float, float]:
+        """Amplitude (m) and the angle (rad, in [0, 2 pi / k)) of the first crest of the k-fold
+        harmonic."""
+        a, b = self.terms(k)
         return float(np.hypot(a, b)), float(np.arctan2(b, a) % (2 * np.pi) / k)
 
     @property

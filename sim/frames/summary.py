@@ -81,6 +81,7 @@ from sim.frames.punch import punch_history
 from sim.frames.units import measure
 from sim.scene.shapes import tool_role
 from sim.terms.tool_contact import ToolContact
+from sim.text import mm
 from sim.tools.evaluate import sdf_world_distance
 
 if TYPE_CHECKING:
@@ -533,8 +534,8 @@ def _rim_height(view: View) -> list[dict]:
     deg = np.degrees(r.angle)
     profile = {"angle": measure(deg, "deg"), "height": measure(r.height, "m")}
     harmonics = {k: r.harmonic(k) for k in (4, 6)}  # k -> (amplitude, first crest)
-    lattice = (ROUND_NOTE if _round_draw(view, tool, d)
-               else _mesh_earing(harmonics[4][0], harmonics[6][0], r.height[i] - r.height[j]))
+    lattice = (_round_draw_earing(view, tool, d, r)
+               or _mesh_earing(harmonics[4][0], harmonics[6][0], r.height[i] - r.height[j]))
     out = [entry("max_rim_height", "Rim height, largest", r.height[i], "m",
                  {"angle": measure(deg[i], "deg"), **at_vertex(r.vertices[i], mid)}),
            entry("min_rim_height", "Rim height, smallest", r.height[j], "m",
@@ -567,15 +568,39 @@ ROUND_BLANK = 0.01
 ROUND_TOOL = 0.01
 
 
+def _round_draw_earing(view: View, punch: str, d: np.ndarray, rim: earing.Rim) -> str:
+    """What the earing note says of a draw from a round blank by round tools (_round_draw):
+    on a sheet isotropic in its plane (von Mises, or Hill48 with r0 = r45 = r90) every ear is
+    the mesh's (ROUND_NOTE). An orthotropic sheet's rim is mirror-symmetric about its
+    rolling and transverse directions, so its four-fold term is a cos(4 phi), phi from the
+    rolling direction, its crests on those directions or at 45 degrees to them; the term's
+    b sin(4 phi) is the mesh's, and where it outgrows a the ears are mostly the mesh's (a crest
+    more than 11.25 degrees off). '' where neither is said."""
+    if not _round_draw(view, punch, d):
+        return ""
+    hill = view.model.scene.material.hill48
+    if hill is None or hill.planar_isotropic():
+        return ROUND_NOTE
+    rolling = float(earing.angle_about(d, np.asarray(hill.rolling_vector(), float)[None])[0])
+    a, b = rim.terms(4, rolling)
+    if abs(b) <= abs(a):
+        return ""
+    crest = abs(np.degrees(np.arctan2(b, a) / 4))  # 0: on the rolling direction, 45: between
+    return (f"; mostly the mesh's: the four ears' crest lies {min(crest, 45 - crest):.0f} "
+            "degrees off the "
+            f"sheet's axes (the rolling direction, {np.degrees(rolling) % 360:.0f} degrees, "
+            "and 45 degrees from it), where a rolled sheet drawn from a round blank by round "
+            f"tools has its ears; the part of the four-fold off them ({mm(abs(b))}) outgrows "
+            f"the part on them ({mm(abs(a))}). A finer mesh, or an outline "
+            "blank with mesh.mesher = \"meshadapt\", shows the sheet's")
+
+
 def _round_draw(view: View, punch: str, d: np.ndarray) -> bool:
-    """Whether only the mesh can make ears: a sheet isotropic in its plane (von Mises, or
-    Hill48 with r0 = r45 = r90), its blank's edge round about the punch's axis (through its
-    start along ``d``), and every tool the same all round that axis (its distance sampled on
-    rings of radii and heights about it, where it is at the end)."""
+    """Whether the draw is the same all round the punch's axis but for the sheet: its blank's
+    edge round about the axis (through the punch's start along ``d``), and every tool the
+    same all round it (its distance sampled on rings of radii and heights about it, where it
+    is at the end)."""
     m = view.model
-    hill = m.scene.material.hill48
-    if hill is not None and not hill.planar_isotropic():
-        return False
     axis = view.summary.starts[punch]
 
     def about(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # radius, height
@@ -612,8 +637,8 @@ def _mesh_earing(ears: float, mesh: float, spread: float) -> str:
     a lattice both terms are small beside the spread, and neither says whose it is."""
     if mesh <= ears or 2.0 * mesh < 0.5 * spread:
         return ""
-    return (f"; mostly the mesh's: its six-fold wave ({1e3 * mesh:.3g} mm) is larger than the "
-            f"four ears ({1e3 * ears:.3g} mm), the pattern of a blank meshed in one lattice; an "
+    return (f"; mostly the mesh's: its six-fold wave ({mm(mesh)}) is larger than the "
+            f"four ears ({mm(ears)}), the pattern of a blank meshed in one lattice; an "
             "outline blank with mesh.mesher = \"meshadapt\", or a finer mesh, shows the sheet's")
 
 
