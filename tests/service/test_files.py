@@ -18,6 +18,7 @@ import trimesh  # noqa: E402
 from fastapi.testclient import TestClient  # noqa: E402
 
 from server.app import create_app  # noqa: E402
+from server.files import UPLOADED  # noqa: E402
 from server.settings import Settings  # noqa: E402
 from server.store import SceneStore  # noqa: E402
 from sim.geometry.trimesh import rectangle  # noqa: E402
@@ -40,8 +41,9 @@ def npy(values) -> bytes:
 
 
 def left_behind(scenes) -> list:
-    """Temporary files or folders in the scenes folder (hidden names)."""
-    return [p.name for p in scenes.iterdir() if p.name.startswith(".")]
+    """Temporary files or folders in the scenes folder (hidden names; not the uploads' kinds,
+    server.files.UPLOADED, which stays)."""
+    return [p.name for p in scenes.iterdir() if p.name.startswith(".") and p.name != UPLOADED]
 
 
 @pytest.fixture(scope="module")

@@ -194,7 +194,7 @@ def test_an_upload_cut_off_over_a_real_socket_leaves_nothing(served):
         s.sendall(b"v 0 0 0\n" * 1000)
         until(lambda: any(p.name.startswith(".upload-") for p in scenes.iterdir()),
               "the upload never reached the disk")
-    until(lambda: not any(p.name.startswith(".") for p in scenes.iterdir()),
+    until(lambda: not any(p.name.startswith(".upload-") for p in scenes.iterdir()),
           "the cut-off upload was left behind")
     assert not (scenes / "cut.obj").exists()
     assert "cut.obj" not in [f["name"] for f in httpx.get(url + "/api/files").json()["files"]]
