@@ -43,17 +43,23 @@ def flat_scene(tree: dict) -> tuple[dict[str, object], dict[str, str]]:
 
 
 def collapsed(flats: list[dict[str, object]], paths: dict[str, str]) -> list[dict[str, object]]:
-    """The flattened scenes with a table set in some and unset (null) in others
-    (``material.hill48``) as one setting each, its set fields in one text ('r0 0.663, ...,
-    rolling_angle 0 deg'): turning a sheet anisotropic is one change, not one per field."""
+    """The flattened scenes with a table or a list of named tables set in some and unset or
+    empty in others as one setting each: a table's set fields in one text (``material.hill48``
+    'r0 0.663, ..., rolling_angle 0 deg'), a list's names (``sections`` 'radial'). Turning a
+    sheet anisotropic, or removing a section, is one change, not one per field."""
     tables = {k for f in flats for k, v in f.items()
-              if v is None and any(j.startswith(k + ".") for g in flats for j in g)}
+              if v in (None, [], {}) and any(j.startswith(k + ".") for g in flats for j in g)}
     out = []
     for f in flats:
         g = dict(f)
         for t in tables:
             sub = {k: g.pop(k) for k in list(g) if k.startswith(t + ".")}
-            if sub:
+            if not sub:
+                continue
+            depth = len(paths[t].split("."))
+            if all(paths[k].split(".")[depth].isdigit() for k in sub):  # a list's items
+                g[t] = ", ".join(dict.fromkeys(k[len(t) + 1:].split(".")[0] for k in sub))
+            else:
                 g[t] = ", ".join(shown({"what": k[len(t) + 1:], "values": [v],
                                         "unit": unit_of(paths[k])})
                                  for k, v in sub.items() if v is not None)
@@ -100,13 +106,15 @@ def value_text(v: object, factor: float = 1.0, digits: int = 4,
                longest: int | None = LIST_SHOWN) -> str:
     """A value in the shown unit (``factor``) to ``digits``; a list longer than ``longest``
     by its length."""
+    if v is None or v == []:  # as the form says a field left out, or a list emptied
+        return "unset" if v is None else "none"
     if isinstance(v, float) or (isinstance(v, int) and not isinstance(v, bool) and factor != 1):
         return f"{v * factor:.{digits}g}"
     if isinstance(v, list) and longest is not None and len(v) > longest:
         return f"[{len(v)} values]"
     if isinstance(v, list):
         return "[" + ", ".join(value_text(x, factor, digits, longest) for x in v) + "]"
-    return "–" if v is None else str(v)
+    return str(v)
 
 
 def _labelled(text: str, label: str | None) -> str:

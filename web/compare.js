@@ -222,7 +222,8 @@ const Compare = (() => {
     d.dataset.items = String(data.differs.items.length);
     // every differing setting, in the form's units (the line names the first few)
     d.title = data.differs.items.map((it) => `${it.what}: ${it.values
-      .map((v) => (v === null ? "–" : Units.sceneValue(v, it.unit || ""))).join(" | ")}`)
+      .map((v) => (v === null ? "unset" : Array.isArray(v) && !v.length ? "none"
+        : Units.sceneValue(v, it.unit || ""))).join(" | ")}`)
       .join("\n");
   }
 

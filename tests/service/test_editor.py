@@ -151,7 +151,21 @@ def test_a_sheet_made_anisotropic_is_one_edit_in_the_forms_units():
     hill = saved.replace("[material]", "[material]\nhill48 = { r0 = 0.663, r45 = 0.86, "
                          "r90 = 0.717, rolling_angle = 45.0 }", 1)
     said = "r0 0.663, r45 0.86, r90 0.717, L 1.5, M 1.5, rolling_angle 45 deg"
-    assert edits(saved, hill) == [f"material.hill48 – → {said}"]
-    assert edits(hill, saved) == [f"material.hill48 {said} → –"]
+    assert edits(saved, hill) == [f"material.hill48 unset → {said}"]
+    assert edits(hill, saved) == [f"material.hill48 {said} → unset"]
     assert edits(hill, hill.replace("r0 = 0.663", "r0 = 0.7")) == [
         "material.hill48.r0 0.663 → 0.7"]
+
+
+def test_a_removed_section_is_one_edit_that_names_it():
+    """The radial section removed in the form (sections = []) read as 'sections – → []' and
+    four more edits of its fields, hiding the steps changed beside it (a browser review)."""
+    from server.scenediff import edits
+
+    saved = (ROOT / "scenes" / "cup_drawing.toml").read_text()
+    assert [s["name"] for s in tomllib.loads(saved)["sections"]] == ["radial"]
+    start = saved.index("[[sections]]")
+    bare = saved[:start] + saved[saved.index("[[probes]]", start):]  # none: the default
+    bare = bare.replace("steps = 50", "steps = 20", 1)
+    assert "sections" not in tomllib.loads(bare)
+    assert edits(saved, bare) == ["sections radial → none", "stepping.steps 50 → 20"]
