@@ -177,7 +177,9 @@ def inspect_outline(path: Path) -> dict:
     except outline.OutlineError as exc:
         raise Invalid(str(exc)) from None
     units = outline.drawing_units(path)
+    middle = 0.5 * (shape.outer.min(0) + shape.outer.max(0))
     return {"holes": len(shape.holes), "extent": _extent(shape.outer),
+            "centre": [float(c) for c in middle],
             "units": units and {"scale": units[0], "said": units[1]}}
 
 
@@ -258,7 +260,7 @@ class FileStore:
         st = p.stat()
         kind = kind_of(name, kind) if kind else self.kind(p, uses)
         counts = {"vertices": None, "triangles": None, "values": None, "holes": None,
-                  "open": None, "extent": None, "units": None,
+                  "open": None, "extent": None, "centre": None, "units": None,
                   **_described(str(p), kind, st.st_size, st.st_mtime_ns)}
         return {"name": name, "kind": kind, "size": st.st_size, **counts,
                 "used_by": list(dict.fromkeys(scene for scene, _ in uses))}

@@ -69,8 +69,12 @@ const SceneForm = (() => {
   // a drawing that says its units (an SVG's width in mm, a DXF's $INSUNITS) needs no scale
   const across = (f) => (f.extent ? `${f.extent.map((d) => +d.toPrecision(4)).join(" × ")} ` +
     "across in the file's units" + (f.units ? `, each ${+(1e3 * f.units.scale).toPrecision(4)} ` +
-    `mm as it says (${f.units.said}): scale may be left empty` : " (scale: metres per unit)")
-    : "");
+    `mm as it says (${f.units.said}): scale may be left empty` : " (scale: metres per unit)") +
+    offCentre(f) : "");
+  // a drawing whose origin is a corner lies beside the cup scenes' punch (on the z axis)
+  const offCentre = (f) => (f.centre && Math.hypot(...f.centre) > 0.01 * Math.max(...f.extent)
+    ? `; centred at (${f.centre.map((c) => +c.toPrecision(4)).join(", ")}), not at the ` +
+      "origin: centre moves it there" : "");
   // each kind of file as an engineer says it (the server's kinds: /api/files)
   const KIND = { blank: "blank mesh", tool: "tool mesh", outline: "outline drawing",
                  thickness: "thickness file" };

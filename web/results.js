@@ -68,6 +68,7 @@ const Results = (() => {
       return `${flag} in ${Units.num(at.over_limit)} vert${at.over_limit === 1 ? "ex" : "ices"}`;
     }
     if (flag === "mesh") return "the mesh's, not ears";  // why: the card's tooltip
+    if (flag === "no_contact") return "the punch never touched the sheet";
     // a harmonic's phase is what says where the ears are (45 deg: Delta r < 0)
     if (at.first_crest) return `first crest at ${m(at.first_crest)}`;
     if (flag && at.zone_counts) {

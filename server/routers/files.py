@@ -59,6 +59,9 @@ class FileEntry(BaseModel):
     extent: list[float] | None = Field(description=(
         "a mesh's or a drawing's bounding box sides in the file's own units (x, y[, z]): "
         "a scene's scale turns them into metres (a file in mm needs scale = 0.001)"))
+    centre: list[float] | None = Field(description=(
+        "a drawing's bounding box centre in its own units (x, y up): where its blank lies, "
+        "unless the scene's mesh.centre moves it to the origin"))
     units: DrawingUnits | None = Field(description=(
         "the units a drawing says it is in, which a scene's scale left unset reads it in; "
         "null for a mesh, or a drawing that says none (an SVG in px, a DXF's $INSUNITS 0)"))

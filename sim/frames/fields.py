@@ -11,6 +11,7 @@ from sim.elements.base import line_lagrange
 from sim.frames import forming_limits
 from sim.geometry.trimesh import TriMesh, edges, vertex_normals
 from sim.materials.plasticity import net_plastic_strain
+from sim.text import mm
 
 if TYPE_CHECKING:  # the scene's validation imports this module: it loads no solver term
     from sim.geometry.shell import Shell
@@ -176,9 +177,12 @@ def section_points(model: Discretised, spec: Ray) -> tuple[np.ndarray, np.ndarra
     t = np.concatenate([np.zeros(len(on)), sa[cut] / (sa[cut] - sb[cut])])
     along = ((1 - t)[:, None] * V[pairs[:, 0]] + t[:, None] * V[pairs[:, 1]]) @ d
     keep = along >= -1e-12  # the ray, not the line's other half
-    if keep.sum() < 2:
-        raise ValueError(f"sections.{spec.name}: the ray crosses the blank at fewer than two "
-                         "points")
+    if keep.sum() < 2:  # a blank beside the origin (a drawing in its own coordinates) too
+        lo, hi = V.min(0), V.max(0)
+        raise ValueError(f"sections.{spec.name}: the ray from the origin along "
+                         f"{[float(x) for x in d]} crosses the blank at fewer than two points: "
+                         f"the blank lies at x {mm(lo[0])} to {mm(hi[0])}, y {mm(lo[1])} to "
+                         f"{mm(hi[1])}")
     order = np.flatnonzero(keep)[np.argsort(along[keep], kind="stable")]
     return pairs[order], t[order]
 

@@ -282,14 +282,27 @@ def _punch_force(view: View) -> list[dict]:
     out = []
     for tool, h in punches(view).items():
         steps, force, stroke = h["steps"], h["force"], h["stroke"]
+        missed = _missed(view, tool) if not np.any(np.asarray(force) > 0) else {}
         for name, label, k in (("peak_punch_force", "Peak punch force", int(np.argmax(force))),
                                ("final_punch_force", "Punch force at the end of the stroke",
                                 len(force) - 1)):
             at = {"step": int(steps[k])}
             if stroke is not None:
                 at["stroke"] = measure(stroke[k], "m")
-            out.append(entry(name, label, force[k], "N", at, tool=tool))
+            out.append(entry(name, label, force[k], "N", at, tool=tool, **missed))
     return out
+
+
+def _missed(view: View, punch: str) -> dict:
+    """The flag and note of a punch that never touched the sheet: a run that ends with no
+    force at all is a set-up to look at (a drawn blank beside the punch, in its drawing's own
+    coordinates), not a part."""
+    lo, hi = view.model.shell.mesh.vertices.min(0), view.model.shell.mesh.vertices.max(0)
+    start = view.summary.starts[punch]
+    return {"flag": "no_contact",
+            "note": f"the punch never touched the sheet: is the blank under it? The punch "
+                    f"started at (x, y) = ({mm(start[0])}, {mm(start[1])}); the blank lies at "
+                    f"x {mm(lo[0])} to {mm(hi[0])}, y {mm(lo[1])} to {mm(hi[1])}"}
 
 
 def holder_on_stop(view: View) -> int | None:

@@ -343,8 +343,8 @@ def _gmsh(loops: list[np.ndarray], h: float, bands: tuple[Band, ...],
     return V, renumber[F].astype(np.int64)
 
 
-def read_drawing(path: str | Path, scale: float | None, h: float,
-                 extent: bool = True) -> Outline:
+def read_drawing(path: str | Path, scale: float | None, h: float, extent: bool = True,
+                 centre: bool = False) -> Outline:
     """The outline of an SVG or DXF drawing: its closed paths, the one of largest area the
     outline and the others its holes; coordinates (an SVG's user units, those of its viewBox,
     with y turned up) times ``scale`` are metres, ``scale`` None the units the drawing says
@@ -354,7 +354,8 @@ def read_drawing(path: str | Path, scale: float | None, h: float,
     Read once per version of the file (its path, modification time and size): a scene's
     ring check reads it, then the build, and the page's form checks it again at every edit.
     The outline's arrays are read-only, being shared. ``extent``: refuse (naming ``scale``) a
-    drawing that is no blank's size at ``scale``."""
+    drawing that is no blank's size at ``scale``. ``centre``: moved so that its bounding box
+    is centred on the origin."""
     path = Path(path)
     try:
         st = path.stat()
@@ -369,12 +370,12 @@ def read_drawing(path: str | Path, scale: float | None, h: float,
                                         "in mm, cm, in, pt or pc over its viewBox; a DXF's "
                                         "$INSUNITS): give scale, 0.001 for a drawing in mm")
         scale = units[0]
-    return _read_drawing(path.resolve(), st.st_mtime_ns, st.st_size, scale, h, extent)
+    return _read_drawing(path.resolve(), st.st_mtime_ns, st.st_size, scale, h, extent, centre)
 
 
 @functools.lru_cache(maxsize=8)
 def _read_drawing(path: Path, mtime_ns: int, size: int, scale: float, h: float,
-                  extent: bool) -> Outline:
+                  extent: bool, centre: bool) -> Outline:
     reader = {".svg": _svg_loops, ".dxf": _dxf_loops}.get(path.suffix.lower())
     if reader is None:
         raise OutlineError("path", f"{path.name}: an outline is an SVG or DXF drawing "
@@ -391,7 +392,11 @@ def _read_drawing(path: Path, mtime_ns: int, size: int, scale: float, h: float,
         raise
     except Exception as exc:  # the parsers raise anything on a malformed file
         raise OutlineError("path", f"{path.name}: not a readable drawing ({exc})") from None
-    loops = [loop(p * scale, "path") for p in raw]
+    shift = 0.0
+    if centre and raw:
+        every = np.concatenate(raw) * scale
+        shift = 0.5 * (every.min(0) + every.max(0))
+    loops = [loop(p * scale - shift, "path") for p in raw]
     if not loops:
         raise OutlineError("path", f"{path.name}: no closed path")
     loops.sort(key=_area, reverse=True)

@@ -39,7 +39,8 @@ def outline_of(spec: OutlineMesh) -> outline.Outline:
     """The outline of an ``outline`` mesh: its points or circle and holes, or its drawing's
     paths."""
     if spec.path is not None:
-        return outline.read_drawing(spec.path, spec.scale, spec.edge_length)
+        return outline.read_drawing(spec.path, spec.scale, spec.edge_length,
+                                    centre=spec.centre)
     return spec.shape()
 
 

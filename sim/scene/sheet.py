@@ -304,6 +304,10 @@ class OutlineMesh(_Generated):
         "the drawing's units to metres (1e-3 for a drawing in mm); unset: the units the "
         "drawing says, an SVG's width in mm, cm, in, pt or pc over its viewBox or a DXF's "
         "$INSUNITS (refused if it says none)", "m per drawing unit", None)
+    centre: bool = doc("move the drawing so that its outline's bounding box is centred on "
+                       "the origin, the punch axis of the cup scenes (a drawing whose origin "
+                       "is a corner); false: the drawing's own coordinates, y up",
+                       default=False)
     refine: list[RefineSpec] = doc(
         "rings around the z axis meshed finer (each graded back to edge_length)", default=[])
     mesher: Literal[tuple(outline.MESHERS)] = doc(
@@ -334,7 +338,8 @@ class OutlineMesh(_Generated):
         shape = self.shape()
         if shape is None:  # a drawing: read here too, or named by the build if it cannot be
             try:
-                shape = outline.read_drawing(self.path, self.scale, self.edge_length)
+                shape = outline.read_drawing(self.path, self.scale, self.edge_length,
+                                             centre=self.centre)
             except outline.OutlineError:
                 return None
         return footprint.loop_ranges(outline.meshed_loops(shape, self.edge_length))
@@ -345,6 +350,9 @@ class OutlineMesh(_Generated):
         if len(given) != 1:
             raise ValueError("give exactly one of points, path, circle (got "
                              f"{', '.join(given) or 'none'})")
+        if self.centre and self.path is None:
+            raise ValueError("centre: for a drawing (path); points and a circle are placed "
+                             "by their coordinates")
         if self.path is not None:
             if self.holes:
                 raise ValueError("holes: a drawing's holes are its inner paths (holes go with "

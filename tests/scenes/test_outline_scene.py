@@ -46,6 +46,8 @@ def outline_toml(**fields) -> str:
     ({"points": SQUARE, "edge_length": "0.08"}, "mesh: edge_length: 80 mm is too coarse"),
     ({"points": SQUARE, "edge_length": "1e-6"}, "mesh: edge_length: 0.001 mm would give"),
     ({}, "mesh: give exactly one of points, path, circle (got none)"),
+    ({"points": SQUARE, "centre": "true"}, "mesh: centre: for a drawing (path); points and a "
+                                           "circle are placed by their coordinates"),
     ({"points": SQUARE, "path": '"b.svg"'},
      "mesh: give exactly one of points, path, circle (got points, path)"),
     ({"path": '"b.svg"', "holes": f"[{HOLE}]"}, "mesh: holes: a drawing's holes are its"),

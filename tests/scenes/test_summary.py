@@ -606,6 +606,7 @@ def test_cup_summary_is_plausible_at_a_coarse_mesh(tmp_path):
         f > 0.02 * max(fz) for f in side)
     assert s["peak_punch_force"]["value"] == pytest.approx(max(fz), rel=1e-12)
     assert s["peak_punch_force"]["display"]["unit"] == "kN"
+    assert "flag" not in s["peak_punch_force"]  # touched: no_contact is for a punch that never did
     k = s["peak_punch_force"]["at"]["step"]
     assert s["peak_punch_force"]["at"]["stroke"]["value"] == pytest.approx(0.025 * k / 10)
     assert s["final_punch_force"]["value"] == pytest.approx(fz[-1], rel=1e-12)
@@ -676,3 +677,18 @@ def test_the_rims_fourfold_terms_are_read_from_any_start():
     amp, crest = r.harmonic(4)
     assert amp == pytest.approx(np.hypot(3e-4, 1e-4), rel=1e-12)
     assert crest == pytest.approx((start + np.arctan2(-1e-4, 3e-4) / 4) % (np.pi / 2), rel=1e-12)
+
+
+def test_a_punch_that_never_touched_the_sheet_is_flagged():
+    """A blank beside the punch (a drawing read in its own coordinates, off the origin) ran to
+    the end with 0 kN and no word (a browser review): the punch's force entries say the punch
+    never touched the sheet, where the punch started and where the blank lies."""
+    beside = DRAWN.replace("position = [0.0, 0.0, 0.00025]", "position = [0.05, 0.0, 0.00025]")
+    assert beside != DRAWN
+    sim = Simulation.from_scene(scene_from_toml(beside))
+    assert sim.run(), sim.failure
+    s = {e["name"]: e for e in sim.result()["summary"]}
+    for name in ("peak_punch_force", "final_punch_force"):
+        assert s[name]["value"] == 0.0 and s[name]["flag"] == "no_contact", s[name]
+        assert s[name]["note"].startswith("the punch never touched the sheet: is the blank "
+                                          "under it? The punch started at (x, y) = (50 mm, 0 mm)")

@@ -45,6 +45,7 @@ def test_an_outline_drawing_is_kept_and_used(client):
     assert entry["kind"] == "outline" and entry["holes"] == 1 and entry["problem"] is None
     assert entry["extent"] == [100.0, 100.0]  # in its own units: the scene says mm
     assert entry["units"] is None  # a viewBox without a width in mm: the scene must say
+    assert entry["centre"] == [50.0, 50.0]  # its origin a corner: mesh.centre moves it
     assert ".dxf" in client.get("/api/files").json()["kinds"]["outline"]
     r = client.put("/api/scenes/drawn", json={"toml": SCENE})
     assert r.status_code == 200, r.text

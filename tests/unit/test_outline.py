@@ -215,6 +215,11 @@ def test_svg_drawing(tmp_path):
     assert shape.area == pytest.approx(0.15**2 - np.pi * 0.02**2, rel=1e-3)
     assert shape.outer[:, 0].min() == pytest.approx(-0.065)  # translated 10 mm
     assert len(shape.holes) == 1
+    # centred: its outline's bounding box on the origin, the hole moved with it
+    moved = ol.read_drawing(f, 1e-3, 0.005, centre=True)
+    np.testing.assert_allclose(moved.outer.min(0) + moved.outer.max(0), 0.0, atol=1e-9)
+    np.testing.assert_allclose(moved.holes[0].mean(0), shape.holes[0].mean(0) - [0.01, 0.0],
+                               atol=1e-9)
 
 
 def test_dxf_drawing(tmp_path):
