@@ -77,7 +77,7 @@ class _Synthetic:
         h = (1.0 - 0.1 * V[:, 0] * np.sin(k / 20)).astype(np.float32)
         return {"kind": "frame", "run": self.run, "step": k, "time": 0.01 * k, "positions": W,
                 "fields": {"thickness_mm": h, "thinning_pct": 100 * (1 - h),
-                           "von_mises_MPa": 100 * h, "eq_plastic_strain": 0 * h},
+                           "von_mises_MPa": 100 * h, "eq_plastic_strain_pct": 0 * h},
                 "tools": {}, "probes": {"tip": float(W[0, 2])}, "iterations": 1,
                 "residual": 1e-9}
 

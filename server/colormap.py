@@ -30,7 +30,7 @@ VIRIDIS = np.array([[68, 1, 84], [71, 44, 122], [59, 81, 139], [44, 113, 142], [
                     [39, 173, 129], [92, 200, 99], [170, 220, 50], [253, 231, 37]], np.float64)
 COLORMAPS = {"viridis": VIRIDIS}
 # smallest colour span per field: a (nearly) uniform field shows one colour, not its noise
-MIN_SPAN = {"thickness_mm": 1e-3, "thinning_pct": 1e-2, "eq_plastic_strain": 1e-5,
+MIN_SPAN = {"thickness_mm": 1e-3, "thinning_pct": 1e-2, "eq_plastic_strain_pct": 1e-3,
             "von_mises_MPa": 1e-2, "major_strain_pct": 1e-3, "minor_strain_pct": 1e-3}
 # tools: muted greys with a tint each (never colour-map hues), drawn semi-transparent
 TOOL_COLOURS = [(150, 155, 170), (170, 150, 130), (150, 150, 150), (160, 140, 160),

@@ -15,11 +15,12 @@ from server.colormap import Categories, Continuous, Ranges
 # field key -> (label, unit); the dropdown shows "label (unit)", in this order
 FIELDS = {"thickness_mm": ("Thickness", "mm"), "thinning_pct": ("Thinning", "%"),
           "fld_zone": ("FLD zone", ""),
-          "eq_plastic_strain": ("Equivalent plastic strain", "-"),
+          "eq_plastic_strain_pct": ("Equivalent plastic strain", "%"),
           "von_mises_MPa": ("von Mises stress", "MPa"),
           "major_strain_pct": ("Major true strain", "%"),
           "minor_strain_pct": ("Minor true strain", "%"),
           # recordings made before the strains were shown in %
+          "eq_plastic_strain": ("Equivalent plastic strain", "-"),
           "major_strain": ("Major true strain", "-"), "minor_strain": ("Minor true strain", "-")}
 DEFAULT_FIELD = "thickness_mm"
 Scale = Continuous | Categories

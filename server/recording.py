@@ -32,7 +32,7 @@ from server.replay import FIELD_PREFIX
 SOLVER = ("energy", "iterations", "residual", "cutbacks")
 # per-frame maxima of the frame fields that have one: a scalar series beside the coloured mesh
 FIELD_MAXIMA = {"thinning_pct": "solver/max_thinning_pct",
-                "eq_plastic_strain": "solver/max_eq_plastic_strain"}
+                "eq_plastic_strain_pct": "solver/max_eq_plastic_strain_pct"}
 
 
 def channels(outputs: dict) -> list[str]:

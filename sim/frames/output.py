@@ -93,8 +93,8 @@ def frame(sim: Run) -> Frame:
                 "thinning_pct": lambda: 100 * fields.thinning(h, sim.h0, x),
                 "von_mises_MPa": lambda: 1e-6 * fields.vertex_average(
                     m, m.elasticity.von_mises(x)),
-                "eq_plastic_strain": lambda: fields.vertex_average(m, m.elasticity.ep),
-                # in %, as the FLD and the summary give them
+                # the strains in %, as the FLD, the probes and the summary give them
+                "eq_plastic_strain_pct": lambda: 100 * fields.vertex_average(m, m.elasticity.ep),
                 "major_strain_pct": lambda: 100 * limits()["major_strain"],
                 "minor_strain_pct": lambda: 100 * limits()["minor_strain"],
                 "fld_zone": lambda: limits()["fld_zone"]}

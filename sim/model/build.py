@@ -126,7 +126,8 @@ def frame_fields(model: Model) -> list[str]:
     only with a forming limit curve (sim.frames.forming_limits)."""
     plastic = model.elasticity.plastic
     return ["thickness_mm", "thinning_pct", "von_mises_MPa",
-            *(["eq_plastic_strain", "major_strain_pct", "minor_strain_pct"] if plastic else []),
+            *(["eq_plastic_strain_pct", "major_strain_pct", "minor_strain_pct"] if plastic
+              else []),
             *(["fld_zone"] if model.scene.material.flc is not None else [])]
 
 

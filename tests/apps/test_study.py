@@ -224,7 +224,7 @@ def test_scene_builds_only_what_it_needs(path):
     assert built["outputs"]["probes"] == [p.name for p in sc.probes]
     # the report says what a frame carries: no plastic strain field for an elastic scene
     assert list(sim.frame().fields) == built["outputs"]["frame_fields"]
-    assert ("eq_plastic_strain" in built["outputs"]["frame_fields"]) == plastic
+    assert ("eq_plastic_strain_pct" in built["outputs"]["frame_fields"]) == plastic
     if small:  # no plastic state can join a small-strain term: no all-terms variant
         return
     full = all_terms_model(load_scene(path, {**o, **all_terms_overrides(sc)})).built

@@ -287,7 +287,7 @@ def test_every_shipped_scene_records_no_channel_for_an_absent_quantity(path):
         if p.kind in TOOL_PROBES:
             assert p.tool in tools
         assert p.kind != "plastic_strain" or plastic
-    assert ("solver/max_eq_plastic_strain" in ch) == plastic
+    assert ("solver/max_eq_plastic_strain_pct" in ch) == plastic
     if not plastic:
         assert not any("plastic" in c for c in ch)
     if not tools:

@@ -39,7 +39,7 @@ from tests.support.viewer import attached  # noqa: E402
 
 # a plastic scene's frame: its major and minor strain too (forming limits), no FLD zone
 # without a forming limit curve
-FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain",
+FIELDS = {"thickness_mm", "thinning_pct", "von_mises_MPa", "eq_plastic_strain_pct",
           "major_strain_pct", "minor_strain_pct"}
 
 
@@ -86,8 +86,8 @@ def test_tool_run_frames_and_poses(done):
     for f in frames:
         assert set(f["fields"]) == FIELDS
         assert f["fields"]["thickness_mm"]["min"] > 0
-    assert frames[0]["fields"]["eq_plastic_strain"]["max"] == 0.0
-    assert frames[-1]["fields"]["eq_plastic_strain"]["max"] > 0.0  # the press yields
+    assert frames[0]["fields"]["eq_plastic_strain_pct"]["max"] == 0.0
+    assert frames[-1]["fields"]["eq_plastic_strain_pct"]["max"] > 0.0  # the press yields
     punch_z = [f["tools"]["punch"][2] for f in frames]
     assert np.all(np.diff(punch_z) < 0), punch_z  # the punch moves down every step
     assert punch_z[-1] == pytest.approx(0.00025 - 0.0002, abs=1e-7)
@@ -106,9 +106,9 @@ def test_viewer_draws_moves_recolours_and_scrubs(done, viewer):
     assert viewer.selected == viewer.gui.run.value == st["id"]  # the new run is selected
     np.testing.assert_allclose(viewer.canvas.tools["punch"].position, last["punch"], atol=1e-9)
     options = viewer.canvas.field.options
-    assert len(options) == len(FIELDS) and "Equivalent plastic strain (-)" in options
+    assert len(options) == len(FIELDS) and "Equivalent plastic strain (%)" in options
     assert "Major true strain (%)" in options  # as the FLD gives it
-    viewer.canvas.field.value = "Equivalent plastic strain (-)"
+    viewer.canvas.field.value = "Equivalent plastic strain (%)"
     assert "Equivalent plastic strain" in viewer.canvas.legend.content
     viewer.canvas.field.value = "von Mises stress (MPa)"
     assert "MPa" in viewer.canvas.legend.content

@@ -346,7 +346,7 @@ def test_elastic_scene_has_no_plastic_state():
     sim = Simulation.from_scene(load_scene("scenes/cantilever.toml",
                                            {"mesh.edge_length": 0.035}))
     assert sim.model.elasticity.ep.size == 0 and not sim.model.built["plastic_state"]
-    assert "eq_plastic_strain" not in sim.frame().fields
+    assert "eq_plastic_strain_pct" not in sim.frame().fields
 
 
 def test_result_files_carry_the_plastic_fields(tmp_path):
