@@ -75,6 +75,17 @@ def _nonzero(v: tuple[float, ...]) -> tuple[float, ...]:
 
 
 Direction = Annotated[Vec3, AfterValidator(_nonzero)]
+
+
+def _named_file(text: str) -> str:
+    # an empty name is the form's file field before a file is chosen: said at the field, not
+    # as a path that leads nowhere when the scene is saved or run
+    if not text.strip():
+        raise ValueError("no file chosen: choose or upload one (or leave the field unset)")
+    return text
+
+
+FileName = Annotated[str, AfterValidator(_named_file)]  # a file the scene reads
 Direction2 = Annotated[tuple[float, float], AfterValidator(_nonzero)]
 
 

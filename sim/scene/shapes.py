@@ -14,6 +14,7 @@ from sim.scene.fields import (
     Coord,
     Direction,
     Extent,
+    FileName,
     Length,
     Point,
     Rotation,
@@ -164,7 +165,7 @@ class MeshShape(_Shape):
     folder."""
 
     kind: Literal["mesh"] = doc("a tool surface from a triangle mesh file")
-    path: str = doc("the mesh file (STL, OBJ, PLY)")
+    path: FileName = doc("the mesh file (STL, OBJ, PLY)")
     scale: Annotated[float, Field(ge=1e-9, le=1e3)] = doc(
         "file units to metres (1e-3 for a file in mm)", "m per file unit", 1.0)
     spacing: Annotated[float, Field(ge=5e-5, le=0.01)] = doc(

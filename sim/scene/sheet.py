@@ -21,6 +21,7 @@ from sim.scene.fields import (
     Coord,
     Direction,
     Extent,
+    FileName,
     Length,
     Slope,
     Stress,
@@ -213,7 +214,7 @@ class FileMesh(_Mesh):
     from the scene file's folder."""
 
     kind: Literal["file"] = doc("a triangle mesh file")
-    path: str = doc("the mesh file")
+    path: FileName = doc("the mesh file")
     merge_vertices: bool | None = doc(
         "a file's coincident vertices merged into one (a slit whose sides are two rows of "
         "coincident vertices closes); unset: only for STL, which stores every triangle's "
@@ -298,8 +299,8 @@ class OutlineMesh(_Generated):
                                     "segments", default=None)
     holes: list[list[XY]] = doc("holes inside the outline (points or circle), each a list of "
                                 "[x, y] points", "m", [])
-    path: str | None = doc("an SVG or DXF drawing of closed paths instead of points or a "
-                           "circle", default=None)
+    path: FileName | None = doc("an SVG or DXF drawing of closed paths instead of points or "
+                                "a circle", default=None)
     scale: Annotated[float, Field(ge=1e-9, le=1e3)] | None = doc(
         "the drawing's units to metres (1e-3 for a drawing in mm); unset: the units the "
         "drawing says, an SVG's width in mm, cm, in, pt or pc over its viewBox or a DXF's "
@@ -384,7 +385,7 @@ class ShellSpec(Strict):
     thickness_gradient: tuple[Slope, Slope, Slope] = doc(
         "a tapered sheet: thickness + gradient . X at every vertex; must stay positive",
         "m/m", (0.0, 0.0, 0.0))
-    thickness_file: str | None = doc("a .npy or text file of one thickness (m) per vertex",
+    thickness_file: FileName | None = doc("a .npy or text file of one thickness (m) per vertex",
                                      default=None)
     thickness_attribute: str | None = doc(
         "the PLY mesh file's vertex property holding the thickness (m)", default=None)

@@ -46,6 +46,10 @@ def outline_toml(**fields) -> str:
     ({"points": SQUARE, "edge_length": "0.08"}, "mesh: edge_length: 80 mm is too coarse"),
     ({"points": SQUARE, "edge_length": "1e-6"}, "mesh: edge_length: 0.001 mm would give"),
     ({}, "mesh: give exactly one of points, path, circle (got none)"),
+    # the form's file field before a file is chosen: said at the field (it read as a path
+    # leading out of the scenes folder, at Save)
+    ({"path": '""'}, "mesh.path: no file chosen: choose or upload one (or leave the field "
+                     "unset)"),
     ({"points": SQUARE, "centre": "true"}, "mesh: centre: for a drawing (path); points and a "
                                            "circle are placed by their coordinates"),
     ({"points": SQUARE, "path": '"b.svg"'},
