@@ -24,6 +24,7 @@ import numpy as np
 from sim.frames.forming_limits import FAILURE, INSUFFICIENT, MARGINAL, SAFE, WRINKLING, ZONES
 from sim.frames.output import grow
 from sim.frames.summary import MARGINAL_SHARE, THINNING_LIMIT
+from sim.text import figure
 
 # viridis sampled at 9 evenly spaced points (matplotlib's values, rounded to 8 bits)
 VIRIDIS = np.array([[68, 1, 84], [71, 44, 122], [59, 81, 139], [44, 113, 142], [33, 144, 141],
@@ -82,14 +83,17 @@ def colorize(values: np.ndarray, lo: float, hi: float, name: str = "viridis") ->
 
 
 def _fmt(v: float, digits: int = 4) -> str:
-    return f"{v:.{digits}g}"
+    return figure(v, digits)
 
 
 def scale_ends(lo: float, mid: float, hi: float) -> list[str]:
     """A scale's ends and middle, to the digits that tell them apart: a uniform 1 mm blank's
-    scale (its least span, 1 um) read "0.9995 | 1 | 1" at four."""
+    scale (its least span, 1 um) read "0.9995 | 1 | 1" at four. A value within round-off of
+    zero beside the others is zero (a strain field at rest read "-1.85e-15 %")."""
+    size = max(abs(lo), abs(hi))
+    ends = [0.0 if abs(v) <= 1e-9 * size else v for v in (lo, mid, hi)]
     for digits in range(4, 9):
-        out = [_fmt(v, digits) for v in (lo, mid, hi)]
+        out = [_fmt(v, digits) for v in ends]
         if len(set(out)) == 3:
             break
     return out
@@ -131,7 +135,7 @@ class Continuous:
                 f'<div style="height:12px;border-radius:2px;margin:3px 0;border:1px solid #777;'
                 f'background:linear-gradient(to right, {stops})"></div>'
                 f'<div style="display:flex;justify-content:space-between">'
-                f"<span>&le; {lo}{u}</span><span>{mid}</span>"
+                f"<span>&le; {lo}{u}</span><span>{mid}{u}</span>"
                 f"<span>&ge; {hi}{u}</span></div></div>")
 
 

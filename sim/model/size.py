@@ -21,6 +21,7 @@ from sim.geometry import trimesh as meshes
 from sim.model.sheet import outline_of
 from sim.scene.load import Scene, SceneError
 from sim.scene.sheet import MeshSpec
+from sim.text import figure
 
 BASE_BYTES = 0.3 * 2**30  # the solver process before any model (numpy, numba, MKL)
 BYTES_PER_ENTRY = 48
@@ -116,8 +117,8 @@ def check(scene: Scene, limit: float, how: str = "--max-memory") -> ModelSize | 
     size = estimate(scene)
     if size is not None and size.bytes > limit:
         raise SceneError(
-            f"{size.field}: the model would have about {size.vertices:.3g} vertices, "
-            f"{size.elements:.3g} {scene.shell.element} elements and {size.dofs:.3g} DoFs, and "
-            f"need about {size.bytes / 2**30:.3g} GiB to build, above the limit of "
-            f"{limit / 2**30:.3g} GiB ({how}); use a coarser mesh")
+            f"{size.field}: the model would have about {figure(size.vertices)} vertices, "
+            f"{figure(size.elements)} {scene.shell.element} elements and {figure(size.dofs)} "
+            f"DoFs, and need about {figure(size.bytes / 2**30)} GiB to build, above the limit "
+            f"of {figure(limit / 2**30)} GiB ({how}); use a coarser mesh")
     return size

@@ -263,6 +263,11 @@ def test_a_narrow_scale_tells_its_ends_apart():
     """A uniform 1 mm blank's thickness scale spans its least span, 1 um: four digits read
     '≤ 0.9995 mm | 1 | ≥ 1 mm', the end as the middle; now to the digits that tell them apart."""
     html = Continuous("Thickness", "mm", 0.9995, 1.0005).legend()
-    assert "&le; 0.9995 mm" in html and "<span>1</span>" in html and "&ge; 1.0005 mm" in html
+    assert "&le; 0.9995 mm" in html and "<span>1 mm</span>" in html and "&ge; 1.0005 mm" in html
     wide = Continuous("Thickness", "mm", 0.8035, 1.529).legend()
-    assert "&le; 0.8035 mm" in wide and "<span>1.166</span>" in wide and "&ge; 1.529 mm" in wide
+    assert "&le; 0.8035 mm" in wide and "<span>1.166 mm</span>" in wide and "&ge; 1.529 mm" in wide
+    # round-off about zero beside the others is zero, and no number has an exponent
+    noise = Continuous("Major true strain", "%", -1.85e-15, 12.5).legend()
+    assert "&le; 0 %" in noise and "<span>6.25 %</span>" in noise, noise
+    small = Continuous("Thickness", "mm", 1e-5, 3e-5).legend()
+    assert "&le; 0.00001 mm" in small and "<span>0.00002 mm</span>" in small, small
