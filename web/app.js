@@ -719,11 +719,11 @@ function showNoRun() {
 
 async function previewFirst() {
   // a first look with no run to show: the chosen scene at rest in 3-D, not an empty box
-  // (once the solver process is up: it builds the preview); a scene or a run chosen
-  // meanwhile stays
+  // (once the solver process is up: it builds the preview); a run chosen meanwhile stays,
+  // and a preview of another scene (this tab's before a reload) gives way to the editor's
   if (!$("viewer") || !state.scene) return;  // no viewer here (off, or not reachable)
   const v = await api("GET", "/api/view");
-  if (!v.run && !v.scene) previewScene(state.scene);
+  if (!v.run && v.scene !== state.scene) previewScene(state.scene);
 }
 
 function viewerOff(why) {
@@ -808,6 +808,8 @@ async function main() {
       state.scene = name;
       await loadScenes();
       await selectScene(name);
+      // the viewer previewed the original: it shows the copy the editor now holds
+      if (state.previewing === from) previewScene(name);
       say(`duplicated ${from} as ${name}`);  // in place of an earlier refusal's words
     } catch (e) { say(e.message, true); }
   };

@@ -321,6 +321,15 @@ def test_choosing_a_scene_previews_it_in_3d(served, browser):
                  in ("shown", "failed") and v, "the preview never came")
     assert view["preview"] == "shown" and view["scene"] == "tiny_cup", view
     shot(page, SHOTS, "preview-tiny-cup", settle_ms=SETTLE_MS)
+    # a copy made while the viewer previews its original: the viewer shows the copy, which
+    # the editor now holds (it kept previewing the original: a browser review)
+    page.once("dialog", lambda d: d.accept("tiny_copy"))
+    page.click("#duplicate")
+    try:
+        until(lambda: httpx.get(f"{url}/api/view", headers=own).json()["scene"] == "tiny_copy",
+              "the viewer kept the original's preview")
+    finally:
+        httpx.delete(f"{url}/api/scenes/tiny_copy")
     assert not [e for e in errors if "/static/" in e], errors
     page.close()
 
