@@ -135,7 +135,7 @@ def columns(run: RunFolder) -> list[tuple[str, list]]:
     steps = run.result.get("steps") or []
     # a static run's time is the pseudo-time that moves its tools and loads, 0 to 1 over the
     # run, not seconds (a run written before result.json said which kind says seconds)
-    time = "pseudo-time [-]" if run.result.get("stepping") == "static" else "time [s]"
+    time = "pseudo-time [-]" if time_name(run) == "pseudo_time" else "time [s]"
     cols = [("step", [r["step"] for r in steps]), (time, [r["time"] for r in steps])]
     punches = run.result.get("punches") or run.status.get("punches") or {}
     for tool, start in punches.items():
@@ -270,10 +270,10 @@ def wedges(faces: np.ndarray, n_v: int) -> np.ndarray:
     return np.concatenate([faces, faces + n_v], axis=1)
 
 
-def vtu(state: State, faces: np.ndarray, path: Path) -> None:
+def vtu(state: State, faces: np.ndarray, path: Path, time: str = "time_s") -> None:
     """One state as an unstructured grid of wedges (the shell's volume): points in mm, the
     fields on both skins' points and per cell, displacement from the rest state (mm); step
-    and time as field data."""
+    and time as field data, the time named ``time`` (:func:`time_name`)."""
     import meshio
 
     n_v = len(state.positions) // 2
@@ -291,7 +291,7 @@ def vtu(state: State, faces: np.ndarray, path: Path) -> None:
     grid = b"<UnstructuredGrid>"
     if grid not in text:
         raise RuntimeError("meshio's VTU has no <UnstructuredGrid>: its format changed")
-    _bytes(path, text.replace(grid, grid + _field_data(step=state.step, time_s=state.time), 1))
+    _bytes(path, text.replace(grid, grid + _field_data(step=state.step, **{time: state.time}), 1))
 
 
 def _field_data(**values: float) -> bytes:
@@ -303,7 +303,8 @@ def _field_data(**values: float) -> bytes:
 
 def pvd(entries: list[tuple[int, str]]) -> str:
     """A ParaView collection of ``(step, file)``: its time is the step (a release stage's
-    step has the same scene time as the last of the stroke; each file has ``time_s``)."""
+    step has the same scene time as the last of the stroke; each file has its time:
+    :func:`time_name`)."""
     root = ElementTree.Element("VTKFile", type="Collection", version="0.1")
     coll = ElementTree.SubElement(root, "Collection")
     for step, file in entries:
@@ -312,20 +313,26 @@ def pvd(entries: list[tuple[int, str]]) -> str:
     return '<?xml version="1.0"?>\n' + ElementTree.tostring(root, encoding="unicode") + "\n"
 
 
+def time_name(run: RunFolder) -> str:
+    """The VTU field data's name of a state's time: a static run's is the pseudo-time that
+    moves its tools and loads, 0 to 1 (as the CSV's header says), a dynamic run's seconds."""
+    return "pseudo_time" if run.result.get("stepping") == "static" else "time_s"
+
+
 def write_vtu(run: RunFolder, out: Path) -> list[Path]:
     """``<run>_final.vtu``, the saved frames ``<run>_frames/step-NNNNNN.vtu`` and
     ``<run>.pvd`` (the frames in step order; the final state alone when none were saved)."""
     final, faces = final_state(run)
-    stem = run.name
+    stem, time = run.name, time_name(run)
     written = [out / f"{stem}_final.vtu"]
-    vtu(final, faces, written[0])
+    vtu(final, faces, written[0], time)
     entries = []
     frames = frame_states(run)
     if frames:
         (out / f"{stem}_frames").mkdir(exist_ok=True)
     for s in frames:
         rel = f"{stem}_frames/step-{s.step:06d}.vtu"
-        vtu(s, faces, out / rel)
+        vtu(s, faces, out / rel, time)
         written.append(out / rel)
         entries.append((s.step, rel))
     written.append(out / f"{stem}.pvd")
