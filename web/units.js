@@ -7,13 +7,18 @@ const Units = (() => {
     const a = Math.abs(v);
     // a count (elements, DoFs, iterations) whole: 8004 DoFs are not "8000"
     if (Number.isInteger(+v) && a < 1e9) return (a === 0 ? 0 : +v).toLocaleString("en-US");
-    if (a !== 0 && (a >= 1e5 || a < 1e-3)) return (+v).toExponential(digits - 1);
-    return String(+(+v).toPrecision(digits));
+    // written out, never with an exponent ("0.0000314 mm", "123000 mm", not "3.14e-5 mm")
+    return (+v).toLocaleString("en-US", { maximumSignificantDigits: digits,
+                                           useGrouping: false });
   }
 
   function withUnit(v, unit, digits = 3) {
-    const text = Array.isArray(v) ? `(${v.map((c) => num(c, digits)).join(", ")})`
-                                  : num(v, digits);
+    // a point's coordinate within round-off of zero beside the others is zero: an edge point
+    // on the x axis read "(-30, 3.05e-13, 0) mm"
+    const size = Array.isArray(v) ? Math.max(...v.map((c) => Math.abs(+c) || 0)) : 0;
+    const text = Array.isArray(v)
+      ? `(${v.map((c) => num(Math.abs(c) <= 1e-9 * size ? 0 : c, digits)).join(", ")})`
+      : num(v, digits);
     return unit ? `${text} ${unit}` : text;
   }
 
