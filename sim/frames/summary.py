@@ -600,12 +600,12 @@ def _round_draw_earing(view: View, punch: str, d: np.ndarray, rim: earing.Rim) -
         return ""
     crest = abs(np.degrees(np.arctan2(b, a) / 4))  # 0: on the rolling direction, 45: between
     return (f"; mostly the mesh's: the four ears' crest lies {min(crest, 45 - crest):.0f} "
-            "degrees off the "
-            f"sheet's axes (the rolling direction, {np.degrees(rolling) % 360:.0f} degrees, "
-            "and 45 degrees from it), where a rolled sheet drawn from a round blank by round "
-            f"tools has its ears; the part of the four-fold off them ({mm(abs(b))}) outgrows "
-            f"the part on them ({mm(abs(a))}). A finer mesh, or an outline "
-            "blank with mesh.mesher = \"meshadapt\", shows the sheet's")
+            f"degrees off the sheet's axes (the rolling direction, "
+            f"{np.degrees(rolling) % 360:.0f} degrees, and 45 degrees from it), where a rolled "
+            "sheet drawn from a round blank by round tools has its ears; the part of the "
+            f"four-fold off them ({mm(abs(b))}) outgrows the part on them ({mm(abs(a))}). A "
+            "finer mesh, or an outline blank with mesh.mesher = \"meshadapt\", shows the "
+            "sheet's")
 
 
 def _round_draw(view: View, punch: str, d: np.ndarray) -> bool:
