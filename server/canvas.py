@@ -244,8 +244,9 @@ class Canvas:
         if ranged:
             step, decimals = typing_step(float(scale.lo), float(scale.hi))
             for end, value in (("min", scale.lo), ("max", scale.hi)):
+                # to the digits shown, and + 0.0: round-off below zero read "-0.00"
                 shown += [(c[end], "step", step), (c[end], "precision", decimals),
-                          (c[end], "value", float(value))]
+                          (c[end], "value", round(float(value), decimals) + 0.0)]
         with self.from_code():
             for handle, prop, value in shown:
                 if getattr(handle, prop) != value:  # each change is a message to every client
