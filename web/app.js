@@ -77,6 +77,14 @@ function viewerDensity() {
   return "";
 }
 
+function markRefused(message) {
+  // a refusal of a scene's field ("mesh.scale: absurd size ...", "tools.1.shape.path: tool
+  // 'punch': ...") is marked at the field too, not only said in the header; the next edit's
+  // check of the form clears it (and a preview then asked for says it again if it holds)
+  const m = /^([a-z_]+(?:\.[A-Za-z0-9_]+)+): (.+)$/s.exec(message);
+  if (m && state.form) state.form.markError(m[1], m[2]);
+}
+
 function say(text, isError, run) {
   // ``run``: the message is about that run's start or control, and goes once the run has
   // ended (the status line says how it ended; "started ..." would read as still running)
@@ -138,6 +146,7 @@ function previewScene(name, toml) {
       state.previewFailed = seq;  // said: not again when the view says it failed
       say(`preview of ${name}: ${e.message}`, true);
       $("msg").dataset.preview = name;
+      if (name === state.scene) markRefused(e.message);
     });
 }
 
@@ -327,7 +336,7 @@ async function saveScene() {
     await loadScenes();
   } catch (e) {
     say(`${name} not saved: ${e.message}`, true);
-    if (e.status === 422) $("msg").dataset.scene = "1";  // goes once the fields are right
+    if (e.status === 422) { $("msg").dataset.scene = "1"; markRefused(e.message); }
     $("scene-error").textContent = Units.shownMessage(e.message);
     // the error where the user looks: the first field named, else the error box
     const where = $("scene-form").querySelector(".has-error") || $("scene-error");
@@ -373,7 +382,7 @@ async function startRun() {
   } catch (e) {
     say(e.message, true);
     // the scene's fields refused: the message goes once the fields are right again
-    if (e.status === 422) $("msg").dataset.scene = "1";
+    if (e.status === 422) { $("msg").dataset.scene = "1"; markRefused(e.message); }
   }
 }
 
@@ -635,6 +644,7 @@ async function followView() {
     state.previewFailed = state.previewSeq;
     say(`preview of ${v.scene}: ${v.preview_error}`, true);
     $("msg").dataset.preview = v.scene;
+    markRefused(v.preview_error);
   }
   adoptRun(v.run);
   // the headline and plots are the run's; the 3-D view below them may be a scene's preview

@@ -594,26 +594,30 @@ const SceneForm = (() => {
     showErrors(errors) {
       for (const e of this.root.querySelectorAll(".field-error")) e.textContent = "";
       for (const e of this.root.querySelectorAll(".has-error")) e.classList.remove("has-error");
-      const rest = [];
-      for (const { loc, msg } of errors || []) {
-        let parts = loc.split("."), target = null;
-        while (parts.length && !target) {
-          target = this.root.querySelector(`[data-path="${CSS.escape(parts.join("."))}"]`);
-          if (!target) parts = parts.slice(0, -1);
-        }
-        if (target && target.tagName === "INPUT") {  // a tuple's component
-          target.classList.add("has-error");
-          target = target.closest(".field");
-        }
-        if (!target || loc === "scene") { rest.push({ loc, msg }); continue; }
-        const matched = parts.join(".");
-        const left = loc.slice(matched.length + 1);
-        const span = target.querySelector(":scope > .field-error");
-        target.classList.add("has-error");
-        span.textContent += (span.textContent ? "; " : "") + (left ? `${left}: ` : "")
-                            + Units.shownMessage(msg);
+      return (errors || []).filter((e) => !this.markError(e.loc, e.msg));
+    }
+
+    // one error beside the field it names (or its nearest enclosing field), added to those
+    // shown: false when it names no field of the form. The server's refusals that schema
+    // validation cannot see (a drawing's size at its scale, a tool's file) go here too.
+    markError(loc, msg) {
+      let parts = loc.split("."), target = null;
+      while (parts.length && !target) {
+        target = this.root.querySelector(`[data-path="${CSS.escape(parts.join("."))}"]`);
+        if (!target) parts = parts.slice(0, -1);
       }
-      return rest;
+      if (target && target.tagName === "INPUT") {  // a tuple's component
+        target.classList.add("has-error");
+        target = target.closest(".field");
+      }
+      if (!target || loc === "scene") return false;
+      const left = loc.slice(parts.join(".").length + 1);
+      const span = target.querySelector(":scope > .field-error");
+      const text = (left ? `${left}: ` : "") + Units.shownMessage(msg);
+      target.classList.add("has-error");
+      if (!span.textContent.split("; ").includes(text))
+        span.textContent += (span.textContent ? "; " : "") + text;
+      return true;
     }
   }
 

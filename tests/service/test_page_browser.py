@@ -416,8 +416,12 @@ def test_edits_in_the_form_show_in_the_preview(served, browser):
         raise AssertionError(f"no refusal shown: page {seen}, view {view}") from None
     page.evaluate("""() => { window.fetch = window.plainFetch; window.plainFetch = null;
                             window.held.splice(0).forEach((ok) => ok()); }""")
+    # marked at the field it names too, which the form's own check finds valid (a review)
+    edge = "[data-path='mesh.edge_length'] > .field-error"
+    assert page.text_content(edge).startswith("the model would have"), page.text_content(edge)
     page.fill("[name='mesh.edge_length']:not([data-old])", "3")
     page.wait_for_function("document.getElementById('msg').textContent === ''")
+    page.wait_for_function(f"document.querySelector(\"{edge}\").textContent === ''")
     previewed(True)
     # an edit, then Start within the preview's delay (800 ms): the new run is shown, and no
     # preview asked for by the edit takes the viewer from it afterwards
