@@ -77,11 +77,15 @@ def test_values_are_linear_along_the_cut_edges():
 
 
 def test_a_ray_that_misses_the_blank_is_named():
-    """A blank that does not reach the origin's ray (a triangle beside it) has no section."""
+    """A blank that does not reach the origin's ray (a triangle beside it) has no section;
+    the error says where the blank lies (a drawing in its own coordinates lies beside the
+    cups' punch)."""
     mesh = SimpleNamespace(vertices=np.array([[0.01, 0.01, 0], [0.02, 0.01, 0], [0.01, 0.02, 0]]),
                            faces=np.array([[0, 1, 2]]))
     spec = SimpleNamespace(name="axis", direction=(1.0, 0.0), width=1e-4)
-    with pytest.raises(ValueError, match="sections.axis: the ray crosses the blank at fewer"):
+    with pytest.raises(ValueError, match=r"sections.axis: the ray from the origin along "
+                       r"\[1.0, 0.0\] crosses the blank at fewer than two points: the blank "
+                       "lies at x 10 mm to 20 mm, y 10 mm to 20 mm"):
         fields.section_points(SimpleNamespace(shell=SimpleNamespace(mesh=mesh)), spec)
 
 
