@@ -440,7 +440,7 @@ def _svg_units(path: Path) -> tuple[float, str] | None:
     for i, side in ((0, "width"), (1, "height")):
         length = re.fullmatch(r"\s*([-+0-9.eE]+)\s*([a-zA-Z]+)\s*", root.get(side, ""))
         unit = SVG_UNITS.get(length[2].lower()) if length else None
-        if unit is None:
+        if unit is None or not float(length[1]) > 0:  # no size, or none a drawing can have
             continue
         size = float(length[1]) * unit
         if box is None:  # user units are CSS px, absolute once the size is

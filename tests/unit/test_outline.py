@@ -247,6 +247,7 @@ def test_dxf_drawing(tmp_path):
     ('width="800" height="800" viewBox="0 0 80 80"', None),  # px: 1/96 in, or 1/72
     ('width="80mm" height="40mm" viewBox="0 0 80 80"', None),  # stretched to its page
     ('width="100%" viewBox="0 0 80 80"', None),
+    ('width="0mm" viewBox="0 0 80 80"', None),  # no size: not a scale of 0
     ("", None),
 ])
 def test_an_svg_says_its_units_by_its_size_over_its_viewbox(tmp_path, head, scale):
