@@ -14,3 +14,9 @@ def figure(x: float, digits: int = 3) -> str:
 def mm(metres: float, digits: int = 3) -> str:
     """A length in metres as millimetres, with its unit."""
     return f"{figure(1e3 * metres, digits)} mm"
+
+
+def plan_extent(points: np.ndarray) -> str:
+    """Where points ``(n, 2+)`` (m) lie in x and y: 'x 5 mm to 65 mm, y -65 mm to -5 mm'."""
+    lo, hi = points.min(0), points.max(0)
+    return f"x {mm(lo[0])} to {mm(hi[0])}, y {mm(lo[1])} to {mm(hi[1])}"

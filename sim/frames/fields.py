@@ -11,7 +11,7 @@ from sim.elements.base import line_lagrange
 from sim.frames import forming_limits
 from sim.geometry.trimesh import TriMesh, edges, vertex_normals
 from sim.materials.plasticity import net_plastic_strain
-from sim.text import mm
+from sim.text import plan_extent
 
 if TYPE_CHECKING:  # the scene's validation imports this module: it loads no solver term
     from sim.geometry.shell import Shell
@@ -178,11 +178,9 @@ def section_points(model: Discretised, spec: Ray) -> tuple[np.ndarray, np.ndarra
     along = ((1 - t)[:, None] * V[pairs[:, 0]] + t[:, None] * V[pairs[:, 1]]) @ d
     keep = along >= -1e-12  # the ray, not the line's other half
     if keep.sum() < 2:  # a blank beside the origin (a drawing in its own coordinates) too
-        lo, hi = V.min(0), V.max(0)
         raise ValueError(f"sections.{spec.name}: the ray from the origin along "
                          f"{[float(x) for x in d]} crosses the blank at fewer than two points: "
-                         f"the blank lies at x {mm(lo[0])} to {mm(hi[0])}, y {mm(lo[1])} to "
-                         f"{mm(hi[1])}")
+                         f"the blank lies at {plan_extent(V)}")
     order = np.flatnonzero(keep)[np.argsort(along[keep], kind="stable")]
     return pairs[order], t[order]
 

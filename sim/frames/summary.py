@@ -81,7 +81,7 @@ from sim.frames.punch import punch_history
 from sim.frames.units import measure
 from sim.scene.shapes import tool_role
 from sim.terms.tool_contact import ToolContact
-from sim.text import mm
+from sim.text import mm, plan_extent
 from sim.tools.evaluate import sdf_world_distance
 
 if TYPE_CHECKING:
@@ -297,12 +297,11 @@ def _missed(view: View, punch: str) -> dict:
     """The flag and note of a punch that never touched the sheet: a run that ends with no
     force at all is a set-up to look at (a drawn blank beside the punch, in its drawing's own
     coordinates), not a part."""
-    lo, hi = view.model.shell.mesh.vertices.min(0), view.model.shell.mesh.vertices.max(0)
     start = view.summary.starts[punch]
     return {"flag": "no_contact",
             "note": f"the punch never touched the sheet: is the blank under it? The punch "
                     f"started at (x, y) = ({mm(start[0])}, {mm(start[1])}); the blank lies at "
-                    f"x {mm(lo[0])} to {mm(hi[0])}, y {mm(lo[1])} to {mm(hi[1])}"}
+                    f"{plan_extent(view.model.shell.mesh.vertices)}"}
 
 
 def holder_on_stop(view: View) -> int | None:

@@ -418,8 +418,18 @@ def drawing_units(path: str | Path) -> tuple[float, str] | None:
     """Metres per unit of the drawing's coordinates as the file declares them, and where it
     does: an SVG's width (and height) in absolute units over its viewBox's, a DXF's
     $INSUNITS. None when it declares none (an SVG in px or without a size, $INSUNITS 0) or
-    when an SVG's width and height give different units (a drawing stretched to its page)."""
+    when an SVG's width and height give different units (a drawing stretched to its page).
+    Read once per version of the file, as the drawing is (a DXF is parsed whole for it)."""
     path = Path(path)
+    try:
+        st = path.stat()
+    except OSError:  # no file: read_drawing says so
+        return None
+    return _drawing_units(path.resolve(), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=8)
+def _drawing_units(path: Path, mtime_ns: int, size: int) -> tuple[float, str] | None:
     try:
         if path.suffix.lower() == ".dxf":
             return _dxf_units(path)
