@@ -24,6 +24,7 @@ from pathlib import Path
 
 from server.records import Run
 from sim.scene.load import Scene, scene_from_toml
+from sim.text import mm
 
 # the command that studies a scene whose mesh is refined by its edge length; a patch refined by
 # cells per side is the shell obstacle course's (``q3t study SCENE`` refuses it, naming --course)
@@ -112,13 +113,6 @@ def find_course(root: Path, scene: str) -> tuple[Path, list[dict]] | None:
     return max(found, key=lambda t: t[0])[1:] if found else None
 
 
-def length(m: float) -> str:
-    """An edge length for people: 3.5 mm, 17.5 mm, 0.12 m."""
-    if m < 1.0:
-        return f"{1000 * m:.3g} mm"
-    return f"{m:.3g} m"
-
-
 def seconds(s: float) -> str:
     if s < 0.1:
         return f"{1000 * s:.2g} ms"
@@ -141,7 +135,7 @@ def reference_of(study: dict) -> dict:
     el, edge = (study["plan"].get("reference") or [None, None])[:2]
     return {"kind": "numerical", "element": el, "edge_length": edge,
             "value": ref.get("value") if isinstance(ref, dict) else None,
-            "label": f"{el} at {length(edge)}" if edge else str(el)}
+            "label": f"{el} at {mm(edge)}" if edge else str(el)}
 
 
 def row_error(row: dict, ref: dict) -> float | None:
@@ -255,13 +249,13 @@ def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float
     err = row_error(row, ref)
     if err is None:
         out["reason"] = "no_error"
-        return f"the {when} has no error for {element} at {length(row['edge_length'])}"
+        return f"the {when} has no error for {element} at {mm(row['edge_length'])}"
     out.update(available=True, relative_error=err, row=row,
                match="exact" if exact else "nearest")
     out["notes"] += _notes(row, ref, element, edge_length, exact, overrides)
     head = f"error estimate: {percent(err)} vs {ref['label']}"
     if not exact:
-        head += f" at the nearest studied level {length(row['edge_length'])}"
+        head += f" at the nearest studied level {mm(row['edge_length'])}"
     return head + f" ({when})"
 
 
@@ -287,8 +281,8 @@ def _notes(row: dict, ref: dict, element: str, edge_length: float, exact: bool,
     converge, self-convergence, overrides the study did not have."""
     notes = []
     if not exact:
-        notes.append(f"nearest studied level: {length(row['edge_length'])} (the run used "
-                     f"{length(edge_length)})")
+        notes.append(f"nearest studied level: {mm(row['edge_length'])} (the run used "
+                     f"{mm(edge_length)})")
     if row.get("status") not in (None, "converged"):
         notes.append(f"the study's run at this level ended {row['status']}")
     if ref["kind"] == "numerical" and ref.get("element") == element:

@@ -99,6 +99,7 @@ function say(text, isError, run) {
 async function loadScenes() {
   const list = await api("GET", "/api/scenes");
   const ul = $("scenes");
+  state.sceneList = list;
   ul.replaceChildren();
   for (const s of list) {
     const li = document.createElement("li");
@@ -123,6 +124,7 @@ async function loadScenes() {
     const dflt = list.find((s) => s.name === state.config.default_scene);
     await selectScene((dflt || list[0]).name);
   }
+  showAbout();
 }
 
 // a scene the user chooses shows in 3-D at rest, its blank and tools, before any run (the
@@ -193,6 +195,14 @@ async function selectScene(name) {
     await syncFromToml();  // the raw tables and the errors naming the fields
   }
   for (const li of $("scenes").children) li.className = li.dataset.name === name ? "sel" : "";
+  showAbout();
+}
+
+function showAbout() {
+  // the list gives each scene a line, its description cut at the column: the chosen one's
+  // whole, under the list (as saved)
+  const listed = (state.sceneList || []).find((x) => x.name === state.scene);
+  $("scene-about").textContent = listed ? listed.description : "";
 }
 
 // ---- the scene form and the TOML view, in sync through the server ---------------------------

@@ -43,6 +43,8 @@ const Compare = (() => {
       el("summary", { textContent: "Compare runs" }),
       el("p", { className: "muted hint", textContent: "Tick two or more runs; the first " +
                 "ticked is the reference (A)." }),
+      el("div", { id: "compare-filter", className: "row", hidden: true },
+         el("label", {}, "Scene ", el("select", { id: "compare-scene" }))),
       el("div", { className: "compare-scroll" },
          el("table", { id: "compare-runs" }, el("tbody"))),
       el("div", { className: "row" },
@@ -58,6 +60,7 @@ const Compare = (() => {
     $("compare-open").onclick = () => open([...picked]);
     $("compare-clear").onclick = () => { picked.length = 0; refreshPanel(); };
     $("compare-import").onclick = importSweep;
+    $("compare-scene").onchange = refreshPanel;
   }
 
   function said(text, isError) {
@@ -82,11 +85,29 @@ const Compare = (() => {
     const ids = new Set(runs.map((r) => r.id));
     for (let i = picked.length - 1; i >= 0; i--) if (!ids.has(picked[i])) picked.splice(i, 1);
     const body = $("compare-runs").querySelector("tbody");
-    body.replaceChildren(...runs.map(runRow));
+    body.replaceChildren(...shownRuns(runs).map(runRow));
     $("compare-open").disabled = picked.length < 2;
     $("compare-open").textContent = picked.length >= 2 ? `Compare ${picked.length} runs`
                                                        : "Compare";
     await refreshSweeps();
+  }
+
+  function shownRuns(runs) {
+    // runs of many scenes: a scene's runs alone, those ticked of others staying in sight
+    // (a comparison across scenes is allowed; what is ticked is never hidden)
+    const count = new Map();
+    for (const r of runs) count.set(r.scene, (count.get(r.scene) || 0) + 1);
+    const sel = $("compare-scene"), was = sel.value;
+    const names = [...count.keys()].sort();
+    const n = (k) => `${k} run${k === 1 ? "" : "s"}`;
+    sel.replaceChildren(
+      el("option", { value: "", textContent: `all (${n(runs.length)})` }),
+      ...names.map((name) => el("option", { value: name,
+                                         textContent: `${name} (${n(count.get(name))})` })));
+    sel.value = count.has(was) ? was : "";
+    $("compare-filter").hidden = names.length < 2;
+    return sel.value ? runs.filter((r) => r.scene === sel.value || picked.includes(r.id))
+                     : runs;
   }
 
   function runRow(r) {

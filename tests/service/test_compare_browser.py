@@ -61,9 +61,11 @@ def _changed(url: str) -> str:
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
     """The server's url and its runs folder, with three finished runs of tiny_cup: the second
-    with its friction doubled from step 3, the third with half the friction."""
+    with its friction doubled from step 3, the third with half the friction (and a copy of
+    the scene, tiny_cup_b, not run)."""
     tmp = tmp_path_factory.mktemp("compare-browser")
-    with serve(tmp, {"tiny_cup": tiny_cup_toml()}, "tiny_cup", "--no-viewer") as (url, _):
+    scenes = {"tiny_cup": tiny_cup_toml(), "tiny_cup_b": tiny_cup_toml()}
+    with serve(tmp, scenes, "tiny_cup", "--no-viewer") as (url, _):
         runs = [_changed(url),
                 _finished(url, overrides={"tools.0.friction": 0.05, "tools.1.friction": 0.05}),
                 _finished(url, element="linear")]
@@ -224,18 +226,60 @@ def test_sweep_cases_open_from_the_panel(served, browser):
     assert not errors, errors
 
 
+def _failed(url: str, scene: str) -> str:
+    """A run of ``scene`` that fails at its build: 20 mm thick is valid as read (the 24 mm
+    blank is wider) and refused by the build (the punch's nose inside it)."""
+    r = httpx.post(f"{url}/api/runs", json={"scene": scene,
+                                            "overrides": {"shell.thickness": 0.02}})
+    run = r.json()["id"]
+    st = until(lambda: (s := httpx.get(f"{url}/api/runs/{run}").json())["state"] in ENDED
+               and s, f"run {run} never ended")
+    assert st["state"] == "failed" and "starts inside it" in st["reason"], st
+    return run
+
+
+def test_the_runs_of_one_scene_are_picked_from_a_filter(served, browser):
+    """Runs of many scenes: the panel's filter lists each scene with its count of runs and
+    shows one scene's runs alone; a run ticked from another scene stays in sight."""
+    url, _, (a, _, _) = served
+    other = _failed(url, "tiny_cup_b")
+    page, errors = open_page(browser, url)
+    page.wait_for_selector("#compare-filter:not([hidden])")
+    runs = httpx.get(f"{url}/api/runs").json()
+    mine = {r["id"] for r in runs if r["scene"] == "tiny_cup"}
+    options = page.eval_on_selector_all("#compare-scene option", "os => os.map(o => o.text)")
+    assert options == [f"all ({len(runs)} runs)", f"tiny_cup ({len(mine)} runs)",
+                       "tiny_cup_b (1 run)"], options
+
+    def listed() -> set[str]:
+        return set(page.eval_on_selector_all("#compare-runs input", "bs => bs.map(b => b.value)"))
+
+    assert listed() == {r["id"] for r in runs}
+    page.select_option("#compare-scene", "tiny_cup_b")
+    page.wait_for_function("document.querySelectorAll('#compare-runs tr').length === 1")
+    assert listed() == {other}
+    tick(page, other)
+    page.select_option("#compare-scene", "tiny_cup")
+    page.wait_for_function(f"document.querySelectorAll('#compare-runs tr').length === "
+                           f"{len(mine) + 1}")
+    assert listed() == mine | {other}  # the ticked run of the other scene stays
+    assert page.is_checked(f"#compare-runs input[value='{other}']")
+    tick(page, a)
+    page.wait_for_function("document.getElementById('compare-open').textContent === "
+                           "'Compare 2 runs'")
+    shot(page, SHOTS, "scene-filter", settle_ms=0)
+    page.select_option("#compare-scene", "")
+    page.wait_for_function(f"document.querySelectorAll('#compare-runs tr').length === "
+                           f"{len(runs)}")
+    assert not errors, errors
+    page.close()
+
+
 def test_a_failed_run_as_a_says_no_difference_can_be_taken(served, browser):
     """Every difference is from A: a run that failed before any summary, ticked first, left
     the table all "–" without a word (a browser review); the page says why, and what to do."""
     url, _, (a, _, _) = served
-    # 20 mm thick: valid as read (the 24 mm blank is wider), refused by the build (the
-    # punch's nose inside it): a run that failed before any step
-    r = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup",
-                                            "overrides": {"shell.thickness": 0.02}})
-    failed = r.json()["id"]
-    st = until(lambda: (s := httpx.get(f"{url}/api/runs/{failed}").json())["state"] in ENDED
-               and s, f"run {failed} never ended")
-    assert st["state"] == "failed" and "starts inside it" in st["reason"], st
+    failed = _failed(url, "tiny_cup")  # before any step
     page, errors = open_page(browser, url)
     page.wait_for_selector(f"#compare-runs input[value='{failed}']")
     tick(page, failed)

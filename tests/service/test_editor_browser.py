@@ -174,9 +174,13 @@ def test_unsaved_edits_are_asked_for_before_another_scene_and_go_with_a_duplicat
     asks first, and keeps them when told no; a duplicate is of the editor's text, edits
     included, under the copy's name."""
     url, scenes = served
-    (scenes / "other.toml").write_text(COARSE.replace('name = "cup"', 'name = "other"'))
+    about = "another cup, described at more length than the scene list's column shows whole"
+    (scenes / "other.toml").write_text(COARSE.replace('name = "cup"', 'name = "other"').replace(
+        tomllib.loads(COARSE)["description"], about))
     page.reload()
     page.wait_for_selector("#scenes li[data-name='other']")
+    # the list's line is cut at the column; the chosen scene's description shows whole below
+    assert page.text_content("#scene-about") == tomllib.loads(COARSE)["description"]
     page.fill("[name='material.nu']", "0.31")
     synced(page, "nu = 0.31")
     asked: list[str] = []
@@ -203,6 +207,7 @@ def test_unsaved_edits_are_asked_for_before_another_scene_and_go_with_a_duplicat
     page.click("#scenes li[data-name='other']")
     page.wait_for_function("document.getElementById('scene-name').value === 'other'")
     assert len(asked) == 2, asked
+    assert page.text_content("#scene-about") == about
     httpx.delete(f"{url}/api/scenes/cup-edited")
     httpx.delete(f"{url}/api/scenes/other")
 
