@@ -30,7 +30,7 @@ import numpy as np
 
 from server.problems import Conflict, Invalid, NotFound
 from server.settings import SCENE_NAME_MAX, check_name
-from server.store import MESH_SUFFIXES, OUTLINE_SUFFIXES, VALUE_SUFFIXES, SceneStore
+from server.store import MESH_SUFFIXES, OUTLINE_SUFFIXES, VALUE_SUFFIXES, SceneStore, held
 from sim.scene.fields import MAX_LENGTH
 from sim.scene.load import SceneError, read_toml
 
@@ -248,13 +248,13 @@ class FileStore:
 
     def names(self) -> list[str]:
         return sorted(p.name for p in self.root.iterdir()
-                      if p.is_file() and _is_file_name(p.name))
+                      if _is_file_name(p.name) and held(self.root, p))
 
     def entry(self, name: str, uses: dict[str, list[tuple[str, str]]] | None = None,
               kind: str | None = None) -> dict:
         """The file's entry; its ``kind`` as given (an upload's), else :meth:`kind`."""
         p = self.path(name)
-        if not p.is_file():
+        if not held(self.root, p):
             raise NotFound(f"no file {name!r}")
         uses = (self.uses() if uses is None else uses).get(name, [])
         st = p.stat()

@@ -70,6 +70,12 @@ def _is_name(text: str) -> bool:
         return False
 
 
+def held(root: Path, p: Path) -> bool:
+    """Whether ``p`` is a file of the folder ``root``: a link out of it (put there by hand)
+    is not, so that the service reads nothing outside its folders."""
+    return p.is_file() and p.resolve().parent == root.resolve()
+
+
 class SceneStore:
     def __init__(self, root: Path):
         self.root = root
@@ -80,12 +86,13 @@ class SceneStore:
 
     def names(self) -> list[str]:
         """The scenes: the folder's TOML files whose names are scene names (a file named
-        otherwise, put there by hand, could not be addressed)."""
-        return sorted(p.stem for p in self.root.glob("*.toml") if _is_name(p.stem))
+        otherwise, or a folder or link put there by hand, could not be addressed)."""
+        return sorted(p.stem for p in self.root.glob("*.toml")
+                      if _is_name(p.stem) and held(self.root, p))
 
     def text(self, name: str) -> str:
         p = self.path(name)
-        if not p.is_file():
+        if not held(self.root, p):
             raise NotFound(f"no scene {name!r}")
         try:
             return p.read_bytes().decode("utf-8")

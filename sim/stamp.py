@@ -140,6 +140,14 @@ def results_path(text: str) -> Path:
     p = Path(text)
     if p.suffix != ".md" or p.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r} is not a markdown file path (FILE.md)")
+    tmp = p.with_name(p.name + ".tmp")  # write_results' own: tried before the measuring
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp.touch()
+        tmp.unlink()
+    except OSError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: cannot write there ({exc.strerror})") \
+            from None
     return p
 
 

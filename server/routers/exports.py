@@ -176,8 +176,12 @@ def export_run(run_id: RunId, format: Format, request: Request) -> Response:
     with tempfile.TemporaryDirectory(prefix="q3t-export-") as tmp:
         try:
             written = export.export(folder, format, Path(tmp))
-        except export.ExportError as exc:  # no result.json or final.npz: nothing to export
-            raise NotFound(str(exc)) from None
+        except (export.ExportError, FileNotFoundError) as exc:
+            if run.id not in request.app.state.manager.run_ids():  # its files went meanwhile
+                raise NotFound(f"run {run.id!r} was deleted while it was exported") from None
+            if isinstance(exc, FileNotFoundError):
+                raise
+            raise NotFound(str(exc)) from None  # no result.json or final.npz: nothing to export
         # the PVD names the VTU files by their paths under tmp
         data = zipped({f.relative_to(tmp).as_posix(): f for f in written}) \
             if format == "vtu" else written[0].read_bytes()

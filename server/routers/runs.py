@@ -18,7 +18,9 @@ from server.runs import RunManager
 from server.settings import RunId, SceneName
 
 router = APIRouter(prefix="/api/runs", tags=["runs"], route_class=CheckedRoute)
-Scalar = float | int | bool | str | list[float]
+# a list's integers stay integers (a section's steps; list[float] made them 0.0 and 2.0,
+# which the scene then refused as not integers)
+Scalar = float | int | bool | str | list[int | float]
 RUN = documented(404, 422)  # any route naming a run
 
 
@@ -28,7 +30,8 @@ class NewRun(BaseModel):
         "scene": "cantilever", "element": "linear", "overrides": {"mesh.edge_length": 0.035},
         "paused": True}]})
     scene: SceneName
-    element: str | None = None
+    element: str | None = Field(default=None, min_length=1, description=(
+        "the element to run (default: the scene's)"))
     overrides: dict[str, Scalar] = Field(default_factory=dict,
                                          description='scene overrides, e.g. {"material.nu": 0.3}')
     parameters: dict[str, float] = Field(default_factory=dict, description="live parameters")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -36,6 +37,12 @@ def run(args: argparse.Namespace) -> int:
     size.check(scene, args.max_memory * 2**30)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = Path(args.out or f"runs/{scene.name}-{scene.shell.element}-{stamp}")
+    # before the solve: a folder that cannot be made is bad input, not a failed run (made
+    # only once there is something to write in it)
+    there = next(a for a in (out, *out.parents) if a.exists())
+    if not there.is_dir() or not os.access(there, os.W_OK | os.X_OK):
+        why = "is a file" if not there.is_dir() else "cannot be written"
+        raise SceneError(f"--out: {str(out)!r} cannot be made: {str(there)!r} {why}")
     try:
         sim = Simulation.from_scene(scene)
     except ValueError as exc:  # bad input the build finds (a region selecting no node, ...)

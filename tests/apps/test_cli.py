@@ -72,3 +72,18 @@ def test_bad_input_exits_2_naming_it(tmp_path, capsys, args, names):
     assert code == 2
     assert names in capsys.readouterr().err
     assert not (tmp_path / "x").exists()  # nothing written
+
+
+def test_an_output_path_that_cannot_be_written_exits_2_before_the_solve(tmp_path, capsys):
+    """--out under a file, --results where no file can be made: said at once (exit 2), not
+    as a traceback after the run (exit 1, the solve's time lost)."""
+    (tmp_path / "afile").write_text("")
+    code = main(["run", "cantilever", *COARSE, "--out", str(tmp_path / "afile" / "x")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert f"--out: '{tmp_path / 'afile' / 'x'}' cannot be made: '{tmp_path / 'afile'}' is a " \
+        "file" in err, err
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "cantilever", *COARSE, "--results", str(tmp_path / "afile" / "r.md")])
+    assert exc.value.code == 2
+    assert "cannot write there" in capsys.readouterr().err

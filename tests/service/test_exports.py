@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from sim.frames import export
+from sim.frames import export, series
 from tests.support.scenes import tiny_cup_toml
 from tests.support.service import wait_state
 
@@ -178,3 +178,26 @@ def test_a_queued_run_has_no_downloads_until_it_has_run(env):
     for run in (queued["id"], ahead):
         client.post(f"/api/runs/{run}/stop")
         wait_state(client, run, {"stopped", "cancelled", "finished"})
+
+
+def test_a_run_deleted_while_exported_is_404(env, monkeypatch):
+    """A run deleted while its download is being read (its frames gone under the export):
+    404 saying so, where the export's FileNotFoundError had been a 500."""
+    client, settings = env
+    (settings.scenes_dir / "tiny_cup.toml").write_text(tiny_cup_toml(2))
+    run_id = client.post("/api/runs", json={"scene": "tiny_cup"}).json()["id"]
+    assert wait_state(client, run_id, ENDED)["state"] == "finished"
+    listed = series.steps
+
+    def deleted_meanwhile(folder):  # noqa: ANN001, ANN202
+        found = listed(folder)  # the frames listed, then the run deleted before they are read
+        assert found and client.delete(f"/api/runs/{run_id}").status_code == 204
+        return found
+
+    monkeypatch.setattr(series, "steps", deleted_meanwhile)
+    r = client.get(f"/api/runs/{run_id}/export/vtu")
+    assert r.status_code == 404, r.text
+    assert r.json()["detail"] == f"run {run_id!r} was deleted while it was exported"
+    # deleted before the export opened it: the same, not the folder's path on the server
+    monkeypatch.undo()
+    assert client.get(f"/api/runs/{run_id}/export/vtu").status_code == 404

@@ -30,6 +30,7 @@ from tests.support.service import (  # noqa: E402
     ("put", "/api/scenes/bad", {"toml": "x", "extra": 1}, 422, ["extra"]),
     ("post", "/api/runs", {"scene": "tiny", "colour": "red"}, 422, ["colour"]),
     ("post", "/api/runs", {"scene": "tiny", "element": "nonesuch"}, 422, ["nonesuch", "q3t"]),
+    ("post", "/api/runs", {"scene": "tiny", "element": ""}, 422, ["element", "at least 1"]),
     ("post", "/api/runs", {"scene": "tiny", "overrides": {"material.E": -1}}, 422,
      ["material.E"]),
     ("post", "/api/runs", {"scene": "tiny", "parameters": {"load_scale": 1e6}}, 422,
@@ -205,3 +206,51 @@ def test_scene_errors_name_the_field_without_pydantic_noise(env):
     named = tiny_toml().replace('name = "tiny"', 'name = "my cup 2"', 1)
     assert named != tiny_toml()
     assert client.post("/api/scenes/validate", json={"toml": named}).status_code == 200
+
+
+def test_a_list_of_integers_overrides_as_integers(env):
+    """An override's list of integers (a section's steps) stays integers: it went through
+    list[float] and the scene then refused 0.0 and 2.0 as no integers (the command line's
+    --set took it)."""
+    from tests.support.scenes import tiny_cup_toml
+    from tests.support.service import wait_state
+
+    client, settings = env
+    (settings.scenes_dir / "tiny_cup.toml").write_text(tiny_cup_toml(2))
+    r = client.post("/api/runs", json={"scene": "tiny_cup", "paused": True,
+                                       "overrides": {"sections.0.steps": [0, 2]}})
+    assert r.status_code == 201, r.text
+    run = r.json()["id"]
+    assert client.get(f"/api/runs/{run}").json()["overrides"]["sections.0.steps"] == [0, 2]
+    client.post(f"/api/runs/{run}/stop")
+    wait_state(client, run, {"stopped", "finished", "failed"})
+    r = client.post("/api/runs", json={"scene": "tiny_cup", "overrides": {
+        "sections.0.steps": [0, 2.5]}})
+    assert r.status_code == 422 and r.json()["detail"].startswith("sections.0.steps.1"), r.text
+
+
+def test_a_folder_or_a_link_out_of_the_scenes_folder_is_no_scene(env, tmp_path):
+    """What a hand put in the scenes folder: a folder named like a scene broke both listings
+    (404 "no scene 'dir'" for the whole list); a link to a file outside was read and sent
+    whole. Neither is a scene or a file of the service; the rest is listed."""
+    client, settings = env
+    secret = tmp_path / "secret.toml"
+    secret.write_text(tiny_toml().replace('name = "tiny"', 'name = "secret"'))
+    (settings.scenes_dir / "dir.toml").mkdir()
+    (settings.scenes_dir / "link.toml").symlink_to(secret)
+    (settings.scenes_dir / "link.csv").symlink_to(secret)
+    try:
+        r = client.get("/api/scenes")
+        assert r.status_code == 200, r.text
+        names = [s["name"] for s in r.json()]
+        assert "tiny" in names and "dir" not in names and "link" not in names, names
+        r = client.get("/api/files")
+        assert r.status_code == 200, r.text
+        assert "link.csv" not in [f["name"] for f in r.json()["files"]]
+        for url in ("/api/scenes/link", "/api/scenes/dir", "/api/files/link.csv"):
+            r = client.get(url)
+            assert r.status_code == 404 and "secret" not in r.text, (url, r.text)
+    finally:
+        (settings.scenes_dir / "dir.toml").rmdir()
+        (settings.scenes_dir / "link.toml").unlink()
+        (settings.scenes_dir / "link.csv").unlink()
