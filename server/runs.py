@@ -277,6 +277,8 @@ class RunManager:
                 raise Conflict(f"run {run_id!r} is {run.state}, not active")
             elif cmd == "stop" and run.state in ("starting", "building"):
                 old = self._end_build(run)
+            elif cmd == "resume" and run.state == "running":  # a page's stale button, say
+                raise Conflict(f"run {run_id!r} is running, not paused: nothing to resume")
             else:
                 if cmd in ("pause", "step"):
                     run.state = "paused"  # at once, so a status read after the request agrees

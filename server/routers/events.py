@@ -60,8 +60,8 @@ async def run_events(run_id: RunId, request: Request,
 
 @router.get("/{run_id}/wait", response_model=RunSummary, responses=documented(404, 422))
 async def wait_run(run_id: RunId, request: Request,
-                   timeout: float = Query(60.0, gt=0, le=WAIT_MAX_S, description=(
-                       "seconds to wait at most"))) -> dict:
+                   timeout: float = Query(60.0, gt=0, le=WAIT_MAX_S, allow_inf_nan=False,
+                                          description="seconds to wait at most")) -> dict:
     """Return once the run has ended (its state finished, failed, stopped or cancelled; a
     queued run has not begun), or after `timeout` seconds with the run as it is then (its
     state still queued or active: wait again). A script's `wait` is one request, not a poll

@@ -7,6 +7,7 @@ import json
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Request, Response
+from fastapi import Path as FastPath
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -281,7 +282,8 @@ def pause(run_id: RunId, request: Request, view: ViewId = None) -> dict:
 @router.post("/{run_id}/resume", response_model=Acted,
              responses=documented(409, 404, 422))
 def resume(run_id: RunId, request: Request, view: ViewId = None) -> dict:
-    """Go on stepping a paused run (409 when it is not paused or is over)."""
+    """Go on stepping a paused run, or a run started paused once it is built (409 when it
+    is running or is over)."""
     return _command(request, run_id, "resume", view)
 
 
@@ -401,6 +403,10 @@ def forming_limits(run_id: RunId, request: Request) -> dict:
     4 failure)."""
     _, run, res = _result(request, run_id)
     fl = res.get("forming_limits")
+    if fl is None and not res.get("steps"):
+        why = (res.get("failure") or {}).get("reason")
+        raise NotFound(f"run {run_id!r} has no forming limits: it ended before its first step"
+                       + (f" ({why})" if why else ""))
     if fl is None:
         raise NotFound(f"run {run_id!r} has no forming limits (its material is not plastic)")
     return {"run": run.id, **fl}
@@ -428,7 +434,8 @@ def frames(run_id: RunId, request: Request) -> dict:
 
 
 @router.get("/{run_id}/frames/{step}", response_model=FrameStats, responses=RUN)
-def frame(run_id: RunId, step: int, request: Request) -> dict:
+def frame(run_id: RunId, step: Annotated[int, FastPath(ge=0, description="0: the rest state")],
+          request: Request) -> dict:
     """One kept frame (the one at ``step`` or the nearest before): tool translations, probes,
     and each field's min, max and mean over the display vertices."""
     m = _runs(request)

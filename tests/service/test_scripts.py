@@ -93,6 +93,7 @@ def test_wait_returns_the_ended_run_and_a_paused_one_after_its_timeout(env):
 @pytest.mark.parametrize("url, field", [
     ("/api/runs/no-such-run/events", None), ("/api/runs/no-such-run/wait", None),
     ("/api/runs/x/wait?timeout=0", "timeout"), ("/api/runs/x/wait?timeout=601", "timeout"),
+    ("/api/runs/x/wait?timeout=nan", "timeout: Input should be a finite number"),
     ("/api/runs/x/events?since=-1", "since"), ("/api/runs/..%5Csecret/events", "run id")])
 def test_bad_event_and_wait_requests_name_the_problem(env, url, field):
     client, _ = env

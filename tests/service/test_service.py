@@ -54,6 +54,10 @@ def test_happy_path(env):
     assert client.post(f"/api/runs/{run_id}/pause").status_code == 200  # a round trip
     assert wait_done(client, run_id)["step"] == paused_at  # paused: no step meanwhile
     assert client.post(f"/api/runs/{run_id}/resume").status_code == 200
+    r = client.post(f"/api/runs/{run_id}/resume")  # running again (or over): nothing to resume
+    assert r.status_code == 409 and r.json()["detail"] in (
+        f"run {run_id!r} is running, not paused: nothing to resume",
+        f"run {run_id!r} is finished, not active"), r.text
     st = wait_state(client, run_id, {"finished", "failed", "stopped"})
     assert st["state"] == "finished", st["reason"]
     assert [r["step"] for r in st["records"]] == list(range(1, 201))

@@ -31,6 +31,7 @@ from tests.support.service import (  # noqa: E402
     ("post", "/api/runs", {"scene": "tiny", "colour": "red"}, 422, ["colour"]),
     ("post", "/api/runs", {"scene": "tiny", "element": "nonesuch"}, 422, ["nonesuch", "q3t"]),
     ("post", "/api/runs", {"scene": "tiny", "element": ""}, 422, ["element", "at least 1"]),
+    ("get", "/api/runs/x/frames/-1", None, 422, ["step", "greater than or equal to 0"]),
     ("post", "/api/runs", {"scene": "tiny", "overrides": {"material.E": -1}}, 422,
      ["material.E"]),
     ("post", "/api/runs", {"scene": "tiny", "parameters": {"load_scale": 1e6}}, 422,
@@ -254,3 +255,27 @@ def test_a_folder_or_a_link_out_of_the_scenes_folder_is_no_scene(env, tmp_path):
         (settings.scenes_dir / "dir.toml").rmdir()
         (settings.scenes_dir / "link.toml").unlink()
         (settings.scenes_dir / "link.csv").unlink()
+
+
+def test_forming_limits_say_why_a_run_has_none(env):
+    """A run whose build failed has no forming limits because it never stepped (the answer
+    said its material was not plastic, of a plastic cup); an elastic run's says that."""
+    from tests.support.scenes import tiny_cup_toml
+    from tests.support.service import wait_state
+
+    client, settings = env
+    (settings.scenes_dir / "tiny_cup.toml").write_text(tiny_cup_toml(2))
+    # 20 mm thick: valid as read, refused by the build (the punch's nose inside the sheet)
+    run = client.post("/api/runs", json={"scene": "tiny_cup", "overrides": {
+        "shell.thickness": 0.02}}).json()["id"]
+    st = wait_state(client, run, {"stopped", "finished", "failed"})
+    assert st["state"] == "failed", st
+    r = client.get(f"/api/runs/{run}/forming_limits")
+    assert r.status_code == 404, r.text
+    assert r.json()["detail"].startswith(f"run {run!r} has no forming limits: it ended before "
+                                         "its first step (build failed: "), r.text
+    elastic = client.post("/api/runs", json={"scene": "tiny"}).json()["id"]
+    assert wait_state(client, elastic, {"stopped", "finished", "failed"})["state"] == "finished"
+    r = client.get(f"/api/runs/{elastic}/forming_limits")
+    assert r.status_code == 404 and r.json()["detail"] == (
+        f"run {elastic!r} has no forming limits (its material is not plastic)"), r.text
