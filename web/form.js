@@ -70,7 +70,12 @@ const SceneForm = (() => {
   const across = (f) => (f.extent ? `${f.extent.map((d) => +d.toPrecision(4)).join(" × ")} ` +
     "across in the file's units" + (f.units ? `, each ${+(1e3 * f.units.scale).toPrecision(4)} ` +
     `mm as it says (${f.units.said}): scale may be left empty` : " (scale: metres per unit)") +
-    offCentre(f) : "");
+    inMillimetres(f) + offCentre(f) : "");
+  // no blank is more than 5 m across (sim.geometry.outline.EXTENT): a file that is, read as
+  // metres, is most likely in mm
+  const inMillimetres = (f) => (!f.units && Math.max(...f.extent) > 5
+    ? `; read as metres that is ${+Math.max(...f.extent).toPrecision(4)} m across: a file in ` +
+      "mm needs scale 0.001" : "");
   // a drawing whose origin is a corner lies beside the cup scenes' punch (on the z axis)
   const offCentre = (f) => (f.centre && Math.hypot(...f.centre) > 0.01 * Math.max(...f.extent)
     ? `; centred at (${f.centre.map((c) => +c.toPrecision(4)).join(", ")}), not at the ` +

@@ -223,14 +223,14 @@ def meshed_loops(outline: Outline, h: float) -> list[np.ndarray]:
     return [resample(p, h) for p in (outline.outer, *outline.holes)]
 
 
-def check_extent(loops: list[np.ndarray], scale: float) -> None:
-    """OutlineError naming ``scale`` when a drawing's paths (its units) read at ``scale``
-    are no blank's size."""
+def check_extent(loops: list[np.ndarray], scale: float, what: str = "drawing") -> None:
+    """OutlineError naming ``scale`` when a drawing's paths (or a mesh file's vertices: its
+    units) read at ``scale`` are no blank's size."""
     ext = scale * float(np.ptp(np.concatenate(loops), axis=0).max())
     if not EXTENT[0] <= ext <= EXTENT[1]:
-        raise OutlineError("scale", f"absurd size: the drawing is {mm(ext)} across "
+        raise OutlineError("scale", f"absurd size: the {what} is {mm(ext)} across "
                                     f"with scale = {scale:g} (a blank is {1e3 * EXTENT[0]:g}-"
-                                    f"{1e3 * EXTENT[1]:g} mm across; a drawing in mm needs "
+                                    f"{1e3 * EXTENT[1]:g} mm across; a {what} in mm needs "
                                     "scale = 0.001)")
 
 

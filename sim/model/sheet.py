@@ -102,6 +102,8 @@ def mesh_and_thickness(scene: Scene) -> tuple[meshes.TriMesh, np.ndarray, dict]:
             mesh, h, report = meshes.load_with_values(spec.path, spec.scale, values,
                                                       sh.thickness_attribute,
                                                       spec.merge_vertices)
+            # a file in mm read as metres: a blank 60 m across, else built and previewed
+            outline.check_extent([mesh.vertices / spec.scale], spec.scale, "mesh")
         else:
             mesh, h = build_mesh(spec), values
             report = {"vertices": len(mesh.vertices), "triangles": len(mesh.faces)}

@@ -153,6 +153,18 @@ def test_missing_or_broken_mesh_file_names_the_field(tmp_path):
         Simulation.from_scene(load_scene(path))
 
 
+def test_a_mesh_file_in_mm_read_as_metres_is_refused_naming_the_scale(tmp_path):
+    """A 100 mm disk written in mm and read at scale 1 was a blank 100 m across, built and
+    previewed without a word (a browser review); refused as a drawing of that size is."""
+    m = mesh.annulus(0.0, 0.05, 0.02)
+    trimesh.Trimesh(m.vertices * 1e3, m.faces, process=False).export(tmp_path / "d.obj")
+    path = write_scene(tmp_path, 'kind = "file"\npath = "d.obj"\nscale = 1')
+    with pytest.raises(ValueError, match=r"^mesh.scale: absurd size: the mesh is 100000 mm "
+                       r"across with scale = 1 \(a blank is 0.1-5000 mm across; a mesh in mm "
+                       r"needs scale = 0.001\)$"):
+        Simulation.from_scene(load_scene(path))
+
+
 def test_imperfection_seeds_one_smooth_bump(tmp_path):
     path = write_scene(tmp_path)
     sim = Simulation.from_scene(load_scene(path, {"mesh.imperfection": 1e-5}))

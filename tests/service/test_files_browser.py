@@ -142,6 +142,21 @@ def test_a_file_that_is_no_mesh_says_why(page, served):
     assert status(page, "mesh.path").startswith("big.obj: 51.2 KiB is past the server's limit")
 
 
+def test_a_blank_in_mm_says_its_size_read_as_metres(page, served):
+    """A blank drawn in mm uploaded with the scale's metres: the form said "valid" and the
+    preview showed a blank 700 m across (a browser review); the upload now says so."""
+    _, tmp = served
+    mm = tmp / "plate_mm.obj"
+    trimesh.Trimesh(PLATE.vertices * 1e3, PLATE.faces, process=False).export(mm)
+    page.select_option("[name='mesh.kind']", "file")
+    page.wait_for_selector("[data-path='mesh.path'] select.file-select")
+    choose(page, "mesh.path", mm)
+    until(lambda: status(page, "mesh.path").startswith("uploaded"), "no upload", 300)
+    assert status(page, "mesh.path").endswith(
+        "across in the file's units (scale: metres per unit); read as metres that is 700 m "
+        "across: a file in mm needs scale 0.001"), status(page, "mesh.path")
+
+
 def test_a_name_taken_asks_before_replacing(page, served):
     url, tmp = served
     half = rectangle((0.35, 0.07), 0.035)
