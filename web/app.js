@@ -336,12 +336,16 @@ async function saveScene() {
       state.scene = name;
       await loadScenes();
       await selectScene(name);
+      // the viewer previewed the original (with the edits now saved): it shows the new one
+      if (state.previewing === from) previewScene(name);
       return say(`saved as ${name}${from ? ` (${from} unchanged)` : ""}`);
     }
     await api("PUT", `/api/scenes/${encodeURIComponent(name)}`, { toml });
     $("scene-error").textContent = "";
     state.unsaved = false;
     state.loadedName = field;
+    // a preview "with its unsaved edits" shows the saved scene now
+    if (state.previewing === name) previewScene(name);
     say(`saved ${name}`);
     await loadScenes();
   } catch (e) {

@@ -25,6 +25,7 @@ from sim.scene.load import Scene
 from sim.solve.newton import INVERTED_AT_START, NewtonResult, Timing, minimise
 from sim.stepping import parameters
 from sim.terms.tool_contact import ToolContact, quaternion_wxyz
+from sim.text import figure
 
 
 class SolverFailure(RuntimeError):
@@ -32,9 +33,11 @@ class SolverFailure(RuntimeError):
 
     def __init__(self, report: dict):
         self.report = report
+        # the residual is the force the step left unbalanced (the energy's gradient, N)
+        last = ", ".join(figure(r) for r in report["residuals"][-6:])
         super().__init__(f"step {report['step']} failed at t = {report['t']:.6g} after "
-                         f"{report['cutbacks']} cut-backs: {report['reason']}; residuals "
-                         f"{[f'{r:.3e}' for r in report['residuals'][-6:]]}")
+                         f"{report['cutbacks']} cut-backs: {report['reason']}"
+                         + (f"; the last residuals {last} N" if last else ""))
 
 
 @dataclass

@@ -328,8 +328,14 @@ def test_choosing_a_scene_previews_it_in_3d(served, browser):
     try:
         until(lambda: httpx.get(f"{url}/api/view", headers=own).json()["scene"] == "tiny_copy",
               "the viewer kept the original's preview")
+        # saved under another name: the same (the viewer named the old scene)
+        page.fill("#scene-name", "tiny_saved_as")
+        page.click("#save")
+        until(lambda: httpx.get(f"{url}/api/view", headers=own).json()["scene"]
+              == "tiny_saved_as", "the viewer kept the preview of the scene saved from")
     finally:
         httpx.delete(f"{url}/api/scenes/tiny_copy")
+        httpx.delete(f"{url}/api/scenes/tiny_saved_as")
     assert not [e for e in errors if "/static/" in e], errors
     page.close()
 
