@@ -255,7 +255,9 @@ const Plots = (() => {
     const rows = Math.ceil(traces.length / 2), PLOT = 196;  // px: the plot area's height
     const b = base(`Thickness, section ${names}`, 0);
     const margin = { ...b.margin, b: 50 + 18 * rows };
-    const layout = { ...b, height: PLOT + margin.t + margin.b, margin,
+    // the legend says each curve's step even when there is one (plotly hides a lone trace's:
+    // a failed run's only section, the rest state's flat line, read as the formed part)
+    const layout = { ...b, height: PLOT + margin.t + margin.b, margin, showlegend: true,
                      legend: { ...b.legend, entrywidth: 0.5, entrywidthmode: "fraction",
                                y: -44 / PLOT, yanchor: "top" },
                      xaxis: axis("rest radius (mm)"), yaxis: axis("thickness (mm)") };
