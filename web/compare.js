@@ -291,6 +291,10 @@ const Compare = (() => {
         const tag = el("span", { className: "letter", textContent: r.letter });
         tag.style.background = colour(i);
         const th = el("th", { className: "num" }, tag);
+        // a run that did not finish: its values are where it ended, not the stroke's end
+        if (r.state !== "finished")
+          th.append(el("div", { className: "sub ended", textContent: `${r.state} at step ` +
+                                `${r.step}${r.n_steps ? ` of ${r.n_steps}` : ""}` }));
         if (i) th.append(el("div", { className: "sub", textContent: `${r.letter} − A (% of A)` }));
         return th;
       }));

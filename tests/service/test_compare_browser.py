@@ -289,6 +289,9 @@ def test_a_failed_run_as_a_says_no_difference_can_be_taken(served, browser):
     assert page.text_content("#compare-summary p.caution") == (
         "A has no summary, so no difference from it can be taken: tick a run with a result "
         "first to compare the others against it.")
+    # its column says where it ended; the finished run's says nothing
+    heads = page.locator("#compare-summary thead th .sub.ended").all_inner_texts()
+    assert heads == ["failed at step 0"], heads  # before its build said its steps
     shot(page, SHOTS, "failed-a", settle_ms=SETTLE_MS)
     assert not errors, errors
     page.close()
