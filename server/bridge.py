@@ -153,6 +153,7 @@ def _state(m: Books, ev: dict) -> Booked:
             run.state = ev["state"]
         else:
             run.field_ranges = ev.get("field_ranges") or {}
+            run.stepping_s += ev.get("wall_s") or 0.0  # a step that failed took time too
             m.finish(run, ev["state"], ev.get("reason"))
             booked.later.append(lambda: m.save(run))
         if m.viewer:

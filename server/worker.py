@@ -374,8 +374,8 @@ class Solver:
         t0 = time.perf_counter()
         try:
             rec = self.sim.step()
-        except SolverFailure as exc:
-            self.finish("failed", str(exc))
+        except SolverFailure as exc:  # its cut-backs' time is the run's too, as result.json's
+            self.finish("failed", str(exc), failed_s=time.perf_counter() - t0)
             return
         wall = time.perf_counter() - t0
         msg = _frame_msg(self.run, self.sim)
@@ -418,9 +418,11 @@ class Solver:
             self.recorder = None
         return None
 
-    def finish(self, state: str, reason: str | None = None, last: dict | None = None) -> None:
+    def finish(self, state: str, reason: str | None = None, last: dict | None = None,
+               failed_s: float = 0.0) -> None:
         """End the run: its last frame (to the viewer and the recording), result.json, the
-        closed recording, then the state (its reason the run's note when it has none)."""
+        closed recording, then the state (its reason the run's note when it has none);
+        ``failed_s``: the wall time of a step that failed (the steps made sent theirs)."""
         reason, self.note = reason or self.note, None
         problems = []
         try:
@@ -444,7 +446,7 @@ class Solver:
         if problems:
             state = "failed" if state == "finished" else state
             reason = "; ".join([reason or state, *problems])
-        self.emit("state", state=state, reason=reason,
+        self.emit("state", state=state, reason=reason, wall_s=failed_s,
                   frames={"produced": self.produced, "dropped": self.dropped},
                   field_ranges=dict(self.sim.field_ranges))
         self.sim, self.paused = None, False

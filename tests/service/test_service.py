@@ -307,3 +307,18 @@ def test_a_scene_file_put_there_by_hand_never_breaks_the_list(env):
     finally:
         for name in bad:
             (settings.scenes_dir / name).unlink()
+
+
+def test_a_failed_steps_time_is_the_runs_solver_time(env):
+    """A step that fails after its cut-backs took time the run's solver time left out (the
+    Runs table said 13 s where Compare, from result.json, said 22 s: a browser review). One
+    Newton iteration and no cut-back: the first step fails; the solver time the server counts
+    spans the result's own timing of the same step (timed around it in the solver process)."""
+    client, settings = env
+    r = client.post("/api/runs", json={"scene": "tiny", "overrides": {
+        "material.E": 1e7, "solver.max_iterations": 1, "stepping.max_cutbacks": 0}})
+    run = r.json()["id"]
+    st = wait_state(client, run, {"finished", "failed", "stopped"})
+    assert st["state"] == "failed" and st["step"] == 0, st
+    total = json.loads((settings.runs_dir / run / "result.json").read_text())["timing"]["total"]
+    assert st["stepping_s"] >= total > 0, (st["stepping_s"], total)
