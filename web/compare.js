@@ -27,6 +27,8 @@ const Compare = (() => {
   const EYE = { x: 0.6, y: -1.3, z: 1.05 };
   // plotly's RdBu runs from blue (low) to red (high): reversed, A − B < 0 (A thinner) is red
   const THINNER_RED = { colorscale: "RdBu", reversescale: true };
+  // a difference map's colour range at least ±1 um (mm): two equal parts' read "±0.000000001"
+  const ZERO_MM = 1e-3;
   const VIEWS3D = ["compare-thickness", "compare-3d-a", "compare-3d-b", "compare-3d-diff"];
   const el = (tag, props = {}, ...kids) => {
     const e = Object.assign(document.createElement(tag), props);
@@ -491,7 +493,7 @@ const Compare = (() => {
     const t = view.thickness, d = t.difference;
     let trace, title;
     if (view.show === "diff" && d.available) {
-      const m = Math.max(d.max_abs, 1e-9);
+      const m = Math.max(d.max_abs, ZERO_MM);
       trace = meshTrace(t.a, d.values, {
         ...THINNER_RED, cmin: -m, cmax: m, cmid: 0,
         colorbar: { title: { text: `A − ${t.b.letter}<br>thickness (mm)`, side: "right" },
@@ -690,7 +692,7 @@ const Compare = (() => {
                    stroke3d($("compare-3d-b"), thick(t.b), head(t.b), t.b)];
     const d = t.difference, div = $("compare-3d-diff");
     if (d.available) {
-      const m = Math.max(d.max_abs, 1e-9), B = t.b.letter;
+      const m = Math.max(d.max_abs, ZERO_MM), B = t.b.letter;
       draws.push(stroke3d(div, strokeTrace(t.a, d.values, {
         ...THINNER_RED, cmin: -m, cmax: m, cmid: 0,
         colorbar: { title: { text: `A − ${B}<br>thickness (mm)`, side: "right" }, len: 0.85,

@@ -373,6 +373,18 @@ def read_drawing(path: str | Path, scale: float | None, h: float, extent: bool =
     return _read_drawing(path.resolve(), st.st_mtime_ns, st.st_size, scale, h, extent, centre)
 
 
+def _unreadable(exc: Exception, path: Path) -> str:
+    """Why a parser gave up, as the drawing's author can act on it (the parsers' own words
+    are Python's: "float division by zero", "cannot convert float NaN to integer"), without
+    the folder the file is in (an upload's is the server's temporary one)."""
+    if isinstance(exc, ZeroDivisionError):
+        return "a size of 0 in it: a viewBox, width or height of 0?"
+    text = str(exc).replace(str(path), path.name)
+    if isinstance(exc, OverflowError) or "NaN" in text or "inf" in text.split():
+        return "numbers too large to compute with: an arc or a coordinate near 1e308?"
+    return text
+
+
 @functools.lru_cache(maxsize=8)
 def _read_drawing(path: Path, mtime_ns: int, size: int, scale: float, h: float,
                   extent: bool, centre: bool) -> Outline:
@@ -391,7 +403,8 @@ def _read_drawing(path: Path, mtime_ns: int, size: int, scale: float, h: float,
     except OutlineError:
         raise
     except Exception as exc:  # the parsers raise anything on a malformed file
-        raise OutlineError("path", f"{path.name}: not a readable drawing ({exc})") from None
+        raise OutlineError("path", f"{path.name}: not a readable drawing "
+                                   f"({_unreadable(exc, path)})") from None
     shift = 0.0
     if centre and raw:
         every = np.concatenate(raw) * scale

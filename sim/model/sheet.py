@@ -63,13 +63,27 @@ def read_values(path: str) -> np.ndarray:
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"no file {path!r}")
-    try:
-        if p.suffix == ".npy":
-            return np.asarray(np.load(p, allow_pickle=False), float).ravel()
-        return np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, ndmin=1).ravel()
-    except ValueError as exc:
-        raise ValueError(f"{p.name} is not an array of numbers ({_not_a_number(p) or exc})"
-                         ) from None
+    if p.suffix == ".npy":
+        try:
+            a = np.load(p, allow_pickle=False)
+        except (ValueError, EOFError, OSError) as exc:  # not .npy, objects, cut short
+            raise ValueError(f"{p.name} is not a .npy array of numbers ({exc})") from None
+        if a.dtype.kind not in "iuf":
+            what = "text" if a.dtype.kind in "US" else f"{a.dtype.name} values"
+            raise ValueError(f"{p.name} holds {what}, not numbers")
+        a = a.astype(float)
+    else:
+        try:
+            a = np.loadtxt(p, delimiter="," if p.suffix == ".csv" else None, ndmin=1)
+        except ValueError as exc:
+            raise ValueError(f"{p.name} is not an array of numbers "
+                             f"({_not_a_number(p) or exc})") from None
+    # a value per vertex: one column or one row (a table of several would be read across its
+    # rows, a value of one vertex's taken for the next one's)
+    if sum(n > 1 for n in a.shape) > 1:
+        raise ValueError(f"{p.name} holds an array of shape {'x'.join(map(str, a.shape))}: a "
+                         "value per vertex is one column or one row")
+    return a.ravel()
 
 
 def _not_a_number(p: Path) -> str | None:

@@ -113,6 +113,31 @@ def test_bad_thickness_arrays_name_the_field(tmp_path, values, message):
     assert message in str(err.value)
 
 
+def test_a_thickness_file_that_is_no_list_of_values_says_what_it_is(tmp_path):
+    """A table (2 rows of 3, a 3-D array) was read across its rows as 6 values; a .npy of
+    text or cut short was read as a text file ('line 1, value 1: "\\x93NUMPY..."'); a fuzz of
+    the uploads."""
+    from sim.model.sheet import read_values
+
+    (tmp_path / "t.csv").write_text("1e-3,1e-3,1e-3\n1e-3,1e-3,1e-3\n")
+    np.save(tmp_path / "cube.npy", np.full((2, 2, 2), 1e-3))
+    np.save(tmp_path / "words.npy", np.array(["a", "b"]))
+    (tmp_path / "cut.npy").write_bytes((tmp_path / "cube.npy").read_bytes()[:90])
+    for name, words in (("t.csv", "t.csv holds an array of shape 2x3: a value per vertex is "
+                                  "one column or one row"),
+                        ("cube.npy", "cube.npy holds an array of shape 2x2x2"),
+                        ("words.npy", "words.npy holds text, not numbers"),
+                        ("cut.npy", "cut.npy is not a .npy array of numbers (")):
+        with pytest.raises(ValueError) as err:
+            read_values(str(tmp_path / name))
+        assert str(err.value).startswith(words), str(err.value)
+    (tmp_path / "row.csv").write_text("1e-3,2e-3,3e-3\n")
+    (tmp_path / "column.txt").write_text("1e-3\n2e-3\n3e-3\n")
+    np.save(tmp_path / "column.npy", np.array([[1e-3], [2e-3], [3e-3]]))
+    for name in ("row.csv", "column.txt", "column.npy"):  # one row or one column: the values
+        assert read_values(str(tmp_path / name)).tolist() == [1e-3, 2e-3, 3e-3]
+
+
 def test_thickness_sources_are_exclusive(tmp_path):
     with pytest.raises(SceneError, match="exactly one of thickness"):
         load_scene(write_scene(tmp_path, shell='thickness = 0.004\nthickness_file = "h.npy"'))

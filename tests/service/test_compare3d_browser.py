@@ -108,6 +108,9 @@ def test_two_views_follow_the_stroke_slider(served, browser):
     page.keyboard.press("Home")  # a user's key: the slider's input and change events
     wait_steps(page, 0, 0)
     assert page.text_content("#compare-stroke-value") == "0.000 mm"
+    # the two rest states are equal: the map's range is +-1 um, not +-1e-9 mm
+    assert page.eval_on_selector("#compare-3d-diff", "d => [d.data[0].cmin, d.data[0].cmax]"
+                                 ) == [-0.001, 0.001]
 
     # between two frames: A saved 1 and 1.5 mm, B 1 and 1.25 mm; each shows its nearest
     slider.evaluate("s => { s.value = '1.2'; s.dispatchEvent(new Event('input')); "

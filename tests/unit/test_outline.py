@@ -282,6 +282,18 @@ def test_a_dxf_says_its_units_by_insunits(tmp_path, code, scale):
                  "</svg>", "an open path"),
     ("empty.svg", '<svg xmlns="http://www.w3.org/2000/svg"></svg>', "no closed path"),
     ("blank.stl", "solid", "SVG or DXF"),
+    # the parsers' own words were Python's (a fuzz of the uploads), and an empty DXF's named
+    # the folder it was in (an upload's is the server's temporary one)
+    ("arc.svg", '<svg xmlns="http://www.w3.org/2000/svg" width="60mm" height="60mm" viewBox='
+                '"0 0 60 60"><path d="M 0 0 A 1e300 1e300 0 0 1 50 0 L 50 50 Z"/></svg>',
+     r"^arc.svg: not a readable drawing \(numbers too large to compute with: an arc or a "
+     r"coordinate near 1e308\?\)$"),
+    ("zero.svg", '<svg xmlns="http://www.w3.org/2000/svg" width="60mm" height="80mm" viewBox='
+                 '"0 0 0 80"><rect width="60" height="40"/></svg>',
+     r"^zero.svg: not a readable drawing \(a size of 0 in it: a viewBox, width or height of "
+     r"0\?\)$"),
+    ("empty.dxf", "", r"^empty.dxf: not a readable drawing \(File 'empty.dxf' is not a DXF "
+                      r"file.\)$"),
 ])
 def test_bad_drawings_name_the_path(tmp_path, name, text, words):
     if text is not None:
