@@ -1,14 +1,13 @@
-"""The whole suite as pytest processes side by side (``make test``, what CI runs).
+"""The whole suite as two pytest processes side by side (``make test``, what CI runs).
 
-``python -m tests.split [pytest options] [paths]``: five pytest processes side by side, each
+``python -m tests.split [pytest options] [paths]``: four pytest processes side by side, each
 with its own temporary folder: the browser tests (tests/service's ``test_*browser*.py``, which
 mostly wait on servers, solver processes and pages) in two, those of the page's forms and files
 and those that show, compare and export runs; the service's and the command line's other tests
 (tests/service, tests/apps: servers, solver processes and clusters started, driven and
-stopped) in the third; tests/verification in the fourth and every other test in the fifth
-(these two mostly compute: as one part they ended last, minutes after the others). On a
-2-core machine they overlap: the waiting of one is another's computing time (with two parts
-the machine's two cores were a third idle). Options go to every part; paths given run as one part,
+stopped) in the third; every other test (which mostly computes) in the fourth. On a 2-core
+machine they overlap: the waiting of one is another's computing time (with two parts the
+machine's two cores were a third idle). Options go to every part; paths given run as one part,
 as asked. Each part's
 output goes to a log (its path printed first) and is printed whole once the part ends, so the
 parts never interleave; every minute a line gives each running part's progress. Exits 0 only
@@ -48,9 +47,6 @@ RUNS_BROWSER = {"test_compare3d_browser", "test_compare_browser", "test_exports_
                 "test_viewer_browser", "test_views_browser"}
 # the service and the command line, apart from the page
 SERVING = (SERVICE, ROOT / "tests" / "apps")
-# the checks against analytic solutions, references and other codes: the most computing, a
-# part of their own, so the computing has two parts' share of the cores while the others wait
-VERIFICATION = ROOT / "tests" / "verification"
 # a line per minute: CI shows the suite alive (and where) while the logs wait for their part
 HEARTBEAT = 60.0
 # processes of `q3t warm`, one per core (sim/apps/warm.py), and how long they may take (a
@@ -84,11 +80,10 @@ def parts(args: list[str]) -> dict[str, list[str]]:
     no_browser = [f"--ignore={f}" for f in BROWSER]
     plan = {"browser-page": kept(f for f in BROWSER if f.stem not in RUNS_BROWSER),
             "browser-runs": kept(f for f in BROWSER if f.stem in RUNS_BROWSER),
-            "service": kept(SERVING), "verification": kept([VERIFICATION])}
+            "service": kept(SERVING)}
     plan = {name: [*options, *(no_browser if name == "service" else ()), *paths]
             for name, paths in plan.items() if paths}
-    return {**plan, "other": [*options, *no_browser,
-                              *(f"--ignore={d}" for d in (*SERVING, VERIFICATION))]}
+    return {**plan, "other": [*options, *no_browser, *(f"--ignore={d}" for d in SERVING)]}
 
 
 def main(argv: list[str] | None = None) -> int:

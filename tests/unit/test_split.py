@@ -8,14 +8,14 @@ import sys
 import pytest
 
 from tests import split
-from tests.split import BROWSER, ROOT, RUNS_BROWSER, SERVING, VERIFICATION, parts, progress
+from tests.split import BROWSER, ROOT, RUNS_BROWSER, SERVING, parts, progress
 
 pytestmark = pytest.mark.fast
 
 
-def test_the_suite_splits_into_two_browser_parts_the_service_the_verification_and_the_rest():
+def test_the_suite_splits_into_two_browser_parts_the_service_and_the_rest():
     got = parts(["-x", "-m", "not slow"])
-    assert list(got) == ["browser-page", "browser-runs", "service", "verification", "other"]
+    assert list(got) == ["browser-page", "browser-runs", "service", "other"]
     assert all("browser" in f.name for f in BROWSER) and len(BROWSER) > 10
     page, runs = ([str(f) for f in BROWSER if (f.stem in RUNS_BROWSER) is r] for r in (False, True))
     assert len(page) > 5 and len(runs) > 5
@@ -23,9 +23,8 @@ def test_the_suite_splits_into_two_browser_parts_the_service_the_verification_an
     assert got["browser-runs"] == ["-x", "-m", "not slow", *runs]
     no_browser = [f"--ignore={f}" for f in BROWSER]
     assert got["service"] == ["-x", "-m", "not slow", *no_browser, *map(str, SERVING)]
-    assert got["verification"] == ["-x", "-m", "not slow", str(VERIFICATION)]
     assert got["other"] == ["-x", "-m", "not slow", *no_browser,
-                            *(f"--ignore={d}" for d in (*SERVING, VERIFICATION))]
+                            *(f"--ignore={d}" for d in SERVING)]
     # every browser module in one browser part; every module named there exists
     assert {f.stem for f in BROWSER} >= RUNS_BROWSER
 
@@ -36,9 +35,9 @@ def test_an_ignored_module_or_folder_leaves_its_part():
     got = parts([f"--ignore={page[0]}"])
     assert str(page[0]) not in got["browser-page"] and str(page[1]) in got["browser-page"]
     got = parts(["--ignore", str(ROOT / "tests" / "service")])
-    assert list(got) == ["service", "verification", "other"]  # no browser part left to run
+    assert list(got) == ["service", "other"]  # no browser part left to run
     assert got["service"][-1] == str(ROOT / "tests" / "apps")
-    got = parts(["--ignore=tests/service", "--ignore=tests/apps", "--ignore=tests/verification"])
+    got = parts(["--ignore=tests/service", "--ignore=tests/apps"])
     assert list(got) == ["other"]
 
 
@@ -49,7 +48,7 @@ def test_paths_given_run_as_one_part():
 
 def test_an_options_value_is_no_path_even_when_it_names_one():
     got = parts(["--deselect", "tests/unit/test_split.py", "-k", "tests"])
-    assert list(got) == ["browser-page", "browser-runs", "service", "verification", "other"]
+    assert list(got) == ["browser-page", "browser-runs", "service", "other"]
     assert got["other"][:4] == ["--deselect", "tests/unit/test_split.py", "-k", "tests"]
 
 
