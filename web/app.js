@@ -173,7 +173,11 @@ function previewEdits() {
 }
 
 async function selectScene(name) {
+  // the scene chosen last wins: the page's first load opens the default scene, and a click
+  // on another while that one is still on its way was overwritten by it when it came
+  const seq = state.selectSeq = (state.selectSeq || 0) + 1;
   const s = await api("GET", `/api/scenes/${encodeURIComponent(name)}`);
+  if (seq !== state.selectSeq) return;
   if (name !== state.scene) state.sceneElement = null;  // the run's element follows its own
   state.scene = name;
   $("scene-name").value = name;

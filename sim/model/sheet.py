@@ -67,7 +67,7 @@ def read_values(path: str) -> np.ndarray:
         try:
             a = np.load(p, allow_pickle=False)
         except (ValueError, EOFError, OSError) as exc:  # not .npy, objects, cut short
-            raise ValueError(f"{p.name} is not a .npy array of numbers ({exc})") from None
+            raise ValueError(f"{p.name} is not an array of numbers ({exc})") from None
         if a.dtype.kind not in "iuf":
             what = "text" if a.dtype.kind in "US" else f"{a.dtype.name} values"
             raise ValueError(f"{p.name} holds {what}, not numbers")

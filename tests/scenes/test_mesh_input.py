@@ -127,7 +127,7 @@ def test_a_thickness_file_that_is_no_list_of_values_says_what_it_is(tmp_path):
                                   "one column or one row"),
                         ("cube.npy", "cube.npy holds an array of shape 2x2x2"),
                         ("words.npy", "words.npy holds text, not numbers"),
-                        ("cut.npy", "cut.npy is not a .npy array of numbers (")):
+                        ("cut.npy", "cut.npy is not an array of numbers (")):
         with pytest.raises(ValueError) as err:
             read_values(str(tmp_path / name))
         assert str(err.value).startswith(words), str(err.value)

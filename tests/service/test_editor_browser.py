@@ -248,6 +248,32 @@ def test_a_changed_name_saves_a_new_scene_named_as_its_file(page, served):
         httpx.delete(f"{url}/api/scenes/{n}")
 
 
+def test_a_scene_chosen_while_the_first_one_loads_stays_chosen(page, served):
+    """The page's first load opens the default scene; a scene clicked while that one is still
+    on its way was overwritten by it when it came (the suite's run of the next test, on a
+    loaded machine, timed out waiting for the clicked scene). Held here until the click."""
+    _, scenes = served
+    (scenes / "quick.toml").write_text(COARSE.replace('name = "cup"', 'name = "quick"'))
+    held = []
+    page.route("**/api/scenes/cup", lambda route: held.append(route))
+    page.reload()
+    page.wait_for_selector("#scenes li[data-name='quick']")
+    for _ in range(int(WAIT_MS / 50)):  # Playwright runs the route's handler while it waits
+        if held:
+            break
+        page.wait_for_timeout(50)
+    assert held, "the default scene was never asked for"
+    page.click("#scenes li[data-name='quick']")
+    page.wait_for_function("document.getElementById('scene-name').value === 'quick'")
+    with page.expect_response("**/api/scenes/cup"):
+        held[0].continue_()
+    page.unroute("**/api/scenes/cup")
+    page.evaluate("new Promise((r) => setTimeout(r, 200))")  # its answer handled
+    assert page.input_value("#scene-name") == "quick"
+    assert "quick" in page.input_value("#toml")
+    (scenes / "quick.toml").unlink()
+
+
 def test_deleting_a_scene_says_its_runs_stay(page, served):
     """Delete asks first, saying the scene's runs stay (each keeps its own copy of the
     scene): the question is not read as deleting them, nor are they deleted."""
