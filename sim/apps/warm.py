@@ -16,11 +16,14 @@ import argparse
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sim.apps.common import OK
-from sim.scene.load import Scene
+
+if TYPE_CHECKING:
+    from sim.scene.load import Scene
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
 # coarse: what is compiled does not depend on the mesh, and the solve should take a second
