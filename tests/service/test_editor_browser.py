@@ -248,6 +248,15 @@ def test_a_changed_name_saves_a_new_scene_named_as_its_file(page, served):
         httpx.delete(f"{url}/api/scenes/{n}")
 
 
+def until_held(page, held: list, what: str) -> None:
+    """Wait until a route handler that holds requests in ``held`` has held one."""
+    for _ in range(int(WAIT_MS / 50)):  # Playwright runs the route's handler while it waits
+        if held:
+            return
+        page.wait_for_timeout(50)
+    raise AssertionError(what)
+
+
 def test_a_scene_chosen_while_the_first_one_loads_stays_chosen(page, served):
     """The page's first load opens the default scene; a scene clicked while that one is still
     on its way was overwritten by it when it came (the suite's run of the next test, on a
@@ -258,11 +267,7 @@ def test_a_scene_chosen_while_the_first_one_loads_stays_chosen(page, served):
     page.route("**/api/scenes/cup", lambda route: held.append(route))
     page.reload()
     page.wait_for_selector("#scenes li[data-name='quick']")
-    for _ in range(int(WAIT_MS / 50)):  # Playwright runs the route's handler while it waits
-        if held:
-            break
-        page.wait_for_timeout(50)
-    assert held, "the default scene was never asked for"
+    until_held(page, held, "the default scene was never asked for")
     page.click("#scenes li[data-name='quick']")
     page.wait_for_function("document.getElementById('scene-name').value === 'quick'")
     with page.expect_response("**/api/scenes/cup"):
@@ -390,11 +395,7 @@ def test_toml_typed_while_a_form_edit_converts_is_kept(page):
     page.route("**/api/scenes/render", lambda route: held.append(route))
     page.fill("[name='description']", "edited in the form")
     page.dispatch_event("[name='description']", "input")
-    for _ in range(int(WAIT_MS / 50)):  # Playwright runs the route's handler while it waits
-        if held:
-            break
-        page.wait_for_timeout(50)
-    assert held, "the form's edit was never sent to be rendered"
+    until_held(page, held, "the form's edit was never sent to be rendered")
     page.click("#tab-toml")
     typed = page.input_value("#toml").replace("steps = 50", "steps = 7")
     assert "steps = 7" in typed
