@@ -98,6 +98,7 @@ def build_model(scene: Scene) -> Model:
     inertia = parts.inertia(scene, shell, rule, elastic, pattern, x0, n_tool_dofs)
     tools = parts.tools(scene, shell, pattern, candidates)
     parts.check_start(scene, shell, tools, x0)
+    parts.check_paths(scene, shell, tools)
     stored = parts.stored_energy(scene, elastic, x0)
     terms = [t for t in (stored, external, inertia) if t is not None] + tools
     bcs = dirichlet(scene, shell, regions, tools, n_total)

@@ -52,6 +52,13 @@ def imperfect(mesh: meshes.TriMesh, amplitude: float) -> meshes.TriMesh:
     if np.ptp(V[:, 2]) > 1e-12 * np.ptp(V, axis=0).max():
         raise ValueError("mesh.imperfection: needs a flat mesh (z = const)")
     lo, span = V.min(0), np.ptp(V, axis=0)
+    # a seed of a buckle is a share of the thickness; a bump as high as half the sheet is
+    # wide is a dome with flanks of 57 degrees, a mistyped unit (1 for 1 mm) rather than a seed
+    if abs(amplitude) > 0.5 * span[:2].min():
+        raise ValueError(
+            f"mesh.imperfection: {1e3 * amplitude:.4g} mm is more than half the sheet's "
+            f"narrower side ({1e3 * span[:2].min():.4g} mm): it seeds a buckle with a "
+            "share of the thickness (in m: 1e-5 is 0.01 mm)")
     s, t = (V[:, 0] - lo[0]) / span[0], (V[:, 1] - lo[1]) / span[1]
     out = V.copy()
     out[:, 2] += amplitude * np.sin(np.pi * s) * np.sin(np.pi * t)

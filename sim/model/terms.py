@@ -20,6 +20,7 @@ from sim.terms.small_strain import SmallStrain
 from sim.terms.tool_contact import ToolContact
 from sim.tools.evaluate import sdf_world_distance
 from sim.tools.shapes import tool_program
+from sim.tools.surface import tool_mesh
 
 # linear_elastic is the elastic term linearised at rest, where every law is Hooke's
 MODEL_IDS = {"neo_hookean": 0, "hencky": 1, "plastic": 2, "linear_elastic": 0}
@@ -158,6 +159,61 @@ def check_start(scene: Scene, shell: Shell, tools: list[ToolContact], x0: np.nda
                 f"{share[v]:.0%} of the sheet's thickness there ({1e3 * shell.thickness[v]:.3g} "
                 "mm): place the tool "
                 "clear of the sheet (its shape's position) or check shell.thickness")
+
+
+# the tools' paths are checked at this many points of the run at most (every step up to it):
+# two tools that run into each other do so over many steps, closer at each
+PATH_SAMPLES = 200
+# two tools that come closer than this share of the blank's thickness leave it no room: a
+# sheet ironed to a tenth of its thickness has torn long before
+PINCH = 0.1
+
+
+def check_paths(scene: Scene, shell: Shell, tools: list[ToolContact]) -> None:
+    """SceneError naming two tools whose prescribed paths bring them closer than PINCH of the
+    blank's thickness at a step of the run: a punch wider than the die's opening, a stroke into
+    the die's floor. The solver found it out only after steps of a stalled line search that
+    named no tool. Force-controlled tools (a blank holder) are placed by the solve, not by a
+    path, and two tools that keep their places relative to each other are one rigid tool."""
+    st = scene.stepping
+    end = st.steps * (st.dt if st.kind == "dynamic" else 1.0 / st.steps)
+    led = [i for i, t in enumerate(tools) if t.vdof is None]
+    pairs = [(a, b) for a in led for b in led if a != b and (tools[a].moves or tools[b].moves)]
+    if not pairs:
+        return
+    size = 4.0 * float(np.ptp(shell.mesh.vertices, axis=0).max())  # a plane's square
+    surface = {i: tool_mesh(tools[i].prog, plane_size=size)[0] for i in led}
+    # a lower bound of each surface point's distance to the other tool: its last distance less
+    # twice the tools' travel since (a distance field changes by at most the travel; the
+    # factor covers smoothed and sampled fields), so a point is evaluated again only where
+    # it may have come close, and most of a tool's surface never is
+    bound = {pair: np.full(len(surface[pair[0]]), -np.inf) for pair in pairs}
+    h = float(np.min(shell.thickness))
+    before = 0.0
+    for k in np.unique(np.linspace(0, st.steps, min(st.steps, PATH_SAMPLES) + 1).round()):
+        now = end * k / st.steps
+        pose = {i: tools[i].planned(now) for i in led}
+        for a, b in pairs:
+            points = surface[a] @ pose[a][0].T + pose[a][1]
+            bound[a, b] -= 2.0 * (tools[a].travel(before, now, points)
+                                  + tools[b].travel(before, now, points))
+            near = bound[a, b] < PINCH * h
+            d = sdf_world_distance(tools[b].prog, *pose[b], points[near])
+            bound[a, b][near] = d
+            if not len(d) or d.min() >= PINCH * h:
+                continue
+            ta, tb, v = scene.tools[a], scene.tools[b], int(np.argmin(d))
+            x, y, z = 1e3 * points[near][v]
+            how = (f"overlap by {-1e3 * d[v]:.3g} mm" if d[v] < 0 else
+                   f"come within {1e3 * d[v]:.3g} mm of each other")
+            raise SceneError(
+                f"tools.{a}: tool {ta.name!r} runs into tool {tb.name!r} (tools.{b}) at "
+                f"step {int(k)} of {st.steps}: they {how} at (x, y, z) = ({x:.3g}, {y:.3g}, "
+                f"{z:.3g}) mm, where the blank needs its {1e3 * h:.3g} mm between them. "
+                "Check the tools' shapes, positions and velocities: a punch passes the "
+                "die's opening with the sheet around it")
+        before = now
+
 
 def external_force(scene: Scene, shell: Shell, rule: Rule, elastic: Elasticity,
                    regions: dict[str, np.ndarray], x0: np.ndarray) -> loads.ExternalForce | None:

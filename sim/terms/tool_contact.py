@@ -107,6 +107,7 @@ class ToolContact(Term):
         start = self.path(0.0)  # where the path begins (held before its first time)
         self.position += start[:3]
         self.rot = start[3:].copy()  # committed rotation vector
+        self._origin = self.position.copy(), self.rot.copy()  # where the path starts from
         self.rot_now = self.rot.copy()
         self.R_now = rotation_matrix(self.rot)
         self.force_scale = 1.0
@@ -143,6 +144,16 @@ class ToolContact(Term):
         if not len(self._path_t):
             return np.zeros(6)
         return np.array([np.interp(t, self._path_t, self._path_u[:, c]) for c in range(6)])
+
+    def planned(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The pose (R, translation) the tool's velocity and keyframes give it at scene time t
+        (a force-controlled tool's solved offset is not in it)."""
+        p, (position, rot) = self.path(t) - self.path(0.0), self._origin
+        return rotation_matrix(rot + p[3:]), position + t * self.velocity + p[:3]
+
+    @property
+    def moves(self) -> bool:
+        return bool(np.any(self.velocity) or len(self._path_t))
 
     def travel(self, t0: float, t1: float, points: np.ndarray) -> float:
         """Largest distance the tool moves from scene time t0 to t1, at any of ``points``

@@ -216,6 +216,49 @@ def test_a_sheet_thicker_than_wide_or_inside_a_tool_is_refused_naming_the_field(
         build_model(load_scene(cup, {"shell.thickness": 0.05}))
 
 
+def test_tools_whose_paths_run_into_each_other_are_refused_naming_both():
+    """A fuzz of the API gave the cup a punch 18 mm in radius, wider than the die's 17.7 mm
+    opening: the run stalled in line searches that named no tool. The build follows every
+    prescribed path: the punch's rounded shoulder meets the die's 0.3 mm inside its opening,
+    within a tenth of the blank's thickness of it from step 17 on (the two 5 mm radii's
+    closest approach at 0.5 mm of stroke a step), and the message names both tools and the
+    step. A punch that passes with a gap under the thickness irons the wall and is taken, as
+    a stroke through the die's ring is; the blank holder, placed by its force, is no path."""
+    from sim.model.build import build_model
+
+    cup = ROOT / "scenes" / "cup_drawing.toml"
+    with pytest.raises(SceneError, match=r"^tools\.0: tool 'punch' runs into tool 'die' "
+                                         r"\(tools\.1\) at step 17 of 50: they come within "
+                                         r"0\.0\d+ mm of each other at \(x, y, z\) = "):
+        build_model(load_scene(cup, {"tools.0.shape.radius": 0.018}))
+    for ironed in ({"tools.1.shape.inner_radius": 0.0170},  # 0.5 mm gap: half the sheet
+                   {"tools.0.velocity": [0.0, 0.0, -0.05]},  # through the ring
+                   {"tools.2.shape.inner_radius": 0.017}):  # the holder over the punch
+        build_model(load_scene(cup, ironed))
+    # the same check of a stroke to the floor: two plates 1 mm apart closed by 0.95 mm, within
+    # 0.1 mm of each other from step 48 on
+    press = {"tools": [{"name": "top", "shape": {"kind": "plane", "point": [0, 0, 0.0005],
+                                                 "normal": [0, 0, -1]},
+                        "velocity": [0, 0, -0.00095]},
+                       {"name": "bottom", "shape": {"kind": "plane", "point": [0, 0, -0.0005],
+                                                    "normal": [0, 0, 1]}}], "probes": []}
+    with pytest.raises(SceneError, match=r"^tools\.0: tool 'top' runs into tool 'bottom' "
+                                         r"\(tools\.1\) at step 48 of 50: they come within "
+                                         r"0\.0\d+ mm"):
+        build_model(load_scene(cup, press))
+
+
+def test_an_imperfection_as_high_as_the_sheet_is_wide_is_refused():
+    """The fuzz again: mesh.imperfection = 1 (m) on the 60 mm blank ran and "converged": a
+    dome 16 times as high as wide, not a seed (1 for 1 mm?)."""
+    from sim.model.build import build_model
+
+    cup = ROOT / "scenes" / "cup_drawing.toml"
+    with pytest.raises(ValueError, match=r"^mesh\.imperfection: 1000 mm is more than half the "
+                                         r"sheet's narrower side \(59\.97 mm\)"):
+        build_model(load_scene(cup, {"mesh.imperfection": 1.0}))
+
+
 def test_a_disk_meshed_coarser_than_its_radius_is_refused_naming_the_edge_length():
     """A browser review set the cup's edge length to 5 m: six triangles ran and "finished"
     with a full summary. An edge up to the radius is taken (a coarse look is the user's)."""
