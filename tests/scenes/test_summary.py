@@ -654,16 +654,21 @@ def test_an_isotropic_round_draws_earing_is_the_meshs(punch, flag):
 def test_a_rolled_sheets_ears_off_its_axes_are_the_meshs():
     """An orthotropic sheet drawn from a round blank by round tools has a rim mirror-symmetric
     about its rolling and transverse directions: its four ears' crest on them or at 45 degrees
-    to them. AA5754's r-values on the 3.5 mm drawn cup put the crest at 30 degrees from the
+    to them. AA5754's r-values on the 3.5 mm drawn cup put the crest near 30 degrees from the
     rolling direction (x), 15 off: the four-fold is mostly the mesh's, and the entry says so."""
     hill = "hill48 = { r0 = 0.663, r45 = 0.86, r90 = 0.717, rolling_angle = 0.0 }\n"
     sim = Simulation.from_scene(scene_from_toml(DRAWN.replace("flc = {", hill + "flc = {")))
     assert sim.run(), sim.failure
     s = {e["name"]: e for e in sim.result()["summary"]}
     crest = s["rim_harmonic_4"]["at"]["first_crest"]["value"]
-    assert 11.25 < min(crest % 45, 45 - crest % 45)  # more off the axes than on them
+    off = min(crest % 45, 45 - crest % 45)
+    assert 11.25 < off  # more off the axes than on them
     assert s["earing"]["flag"] == "mesh", s["earing"]
-    assert "the four ears' crest lies 15 degrees off the sheet's axes" in s["earing"]["note"]
+    # the crest of a 0.03 mm harmonic of a coarse mesh's rim moves by tenths of a degree with
+    # the CPU's arithmetic (15.6 degrees off on an Intel Xeon, under 15.5 on an AMD EPYC): the
+    # note rounds the angle the harmonic's entry gives, whichever side of 15.5 it falls
+    assert f"the four ears' crest lies {off:.0f} degrees off the sheet's axes" \
+        in s["earing"]["note"]
 
 
 def test_the_rims_fourfold_terms_are_read_from_any_start():
