@@ -159,8 +159,11 @@ def serve(rep: Replay, host: str = "127.0.0.1", port: int = 9090, title: str = "
     import trimesh
     import viser
 
+    from server import viserloop
+
     if not rep.steps or rep.faces is None:
         raise ValueError("the recording holds no sheet mesh")
+    viserloop.install()
     server = viser.ViserServer(host=host, port=port, verbose=False)
     lock = threading.Lock()
     handles = _add_tools(server, rep)

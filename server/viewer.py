@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import viser
 
+from server import viserloop
 from server.clientview import Actions, ClientView
 from sim.frames.output import grow
 
@@ -49,6 +50,7 @@ class Viewer:
     def __init__(self, host: str, port: int, actions: Actions, colour_hz: float = 4.0,
                  live_runs: int = 1):
         """``live_runs``: how many of the latest runs are kept live (one per solver)."""
+        viserloop.install()
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         # embedded in the page's centre column: the narrow panel, and no share button (a
         # share link would expose the run's controls)
