@@ -21,12 +21,14 @@ from server.routers import (
     runs,
     scenes,
     split_ring,
+    studies,
     view,
     web,
 )
 from server.runs import RunManager
 from server.settings import Settings
 from server.store import SceneStore
+from server.studies import Studies
 from server.workerhandle import WorkerTarget
 
 
@@ -49,9 +51,11 @@ def create_app(settings: Settings | None = None,
                                     ViewerActions(manager), live_runs=settings.solvers)
         app.state.store, app.state.manager = store, manager
         app.state.rings = RingCutter()
+        app.state.studies = Studies(settings.runs_dir)
         manager.start()
         yield
         app.state.rings.close()
+        app.state.studies.close()
         manager.close()
         if manager.viewer:
             manager.viewer.stop()
@@ -68,7 +72,7 @@ def create_app(settings: Settings | None = None,
     app.state.settings = settings
     errors.install(app, settings)
     every = errors.documented(401) if settings.token else None
-    for module in (scenes, files, runs, split_ring, events, exports, plots, compare, view,
-                   meta, web):
+    for module in (scenes, files, runs, split_ring, studies, events, exports, plots, compare,
+                   view, meta, web):
         app.include_router(module.router, responses=every)
     return app

@@ -243,8 +243,12 @@ def write_study(study: dict, overheads: list[dict], out: Path, workers: int = 1,
     md = (f"# Refinement study: {Path(study['plan']['scene']).stem}\n\n{_meta()}.\n\n"
           + study_md(study, overheads, workers, scheduler) + "\n" + _images(plots))
     (out / "report.md").write_text(md)
-    (out / "report.json").write_text(results.dumps({"study": study, "overhead": overheads},
-                                                   nulls=True, indent=1, default=float))
+    # renamed into place: a study ended mid-write (cancelled from the page) leaves the last
+    # report whole, which the runs' estimates read
+    tmp = out / ".report.json.tmp"
+    tmp.write_text(results.dumps({"study": study, "overhead": overheads}, nulls=True,
+                                 indent=1, default=float))
+    os.replace(tmp, out / "report.json")
 
 
 def overhead_report(overheads: list[dict], cluster: str) -> str:
