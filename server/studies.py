@@ -121,7 +121,7 @@ def make(scene_path: Path, name: str, basis: dict, overrides: dict, max_bytes: f
             "reference": {"element": p.reference[0], "edge_mm": 1e3 * p.reference[1]}
             if p.reference else None,
             "analytic": p.analytic, "cases": rows, "predicted_s": total,
-            "basis": basis, "notes": [*p.notes, *_notes(basis)],
+            "basis": basis, "notes": [*map(_in_mm, p.notes), *_notes(basis)],
             "command": f"q3t study {name} {' '.join(args)}", "args": args}
 
 
@@ -129,6 +129,11 @@ def _positive(v: float, name: str) -> float:
     if not (math.isfinite(v) and v > 0):
         raise ValueError(f"{name}: {v:g} mm: a mesh edge length is a positive number of mm")
     return v
+
+
+def _in_mm(note: str) -> str:
+    """The command line's note with its lengths in m given in mm, as the page shows them."""
+    return re.sub(r"\(([\d.]+(?:e-?\d+)?) m\)", lambda m: f"({mm(float(m.group(1)))})", note)
 
 
 def _notes(basis: dict) -> list[str]:

@@ -418,6 +418,7 @@ const Results = (() => {
     document.getElementById("downloads").hidden = true;
     document.getElementById("downloads").replaceChildren();
     Rings.forget();
+    Studies.forget();
   }
 
   async function show(st) {
@@ -431,6 +432,7 @@ const Results = (() => {
     await showSummary(st);
     await showDownloads(st);
     await Rings.show(st);
+    Studies.show(st);
     // not awaited: drawing (and fetching plotly.js the first time) never holds the status
     // line back
     plotly().then(() => refreshPlots(st), () => {
@@ -465,6 +467,7 @@ const Results = (() => {
   function init() {
     document.getElementById("solver-box").addEventListener("toggle", () => drawSolver());
     Rings.init();
+    Studies.init();
   }
 
   function none() {

@@ -75,6 +75,8 @@ def test_the_plan_sizes_and_times_each_case_from_the_run(env, run):
     warm = sum(c["predicted_s"] for c in cases if c["edge_mm"] == 140.0)
     assert plan["predicted_s"] == pytest.approx(sum(c["predicted_s"] for c in cases) + warm)
     assert any("within a factor of two or three" in n for n in plan["notes"])
+    # the command line's notes in mm, as the page gives lengths
+    assert "reference edge length: half the finest level (17.5 mm)" in plan["notes"]
     # asked for: those elements, levels and reference only
     r = client.post("/api/studies/plan", json={"run": run, "elements": ["q3t"],
                                               "levels_mm": [70, 35],

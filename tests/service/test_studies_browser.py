@@ -1,0 +1,108 @@
+"""A refinement study from the page (web/studies.js) in Debian's chromium, against the real
+server in a subprocess: a finished run shows "Study: error against mesh size"; opened, it
+plans the scene's default study with the run's element added, each case's DoFs, memory and
+predicted time as the API gives them; levels typed wrong are said at once, a level too fine for
+the server's memory is refused naming the field; a study started shows its progress and ends
+with the run's error estimate in the headline; a study cancelled says so. A run not finished
+has no such panel. With Q3T_SHOTS set, screenshots go to its folder studies."""
+
+from __future__ import annotations
+
+import httpx
+import pytest
+
+from tests.support.browser import VIEWER_FOR_SHOTS, open_scene, serve, shot, shots_dir
+from tests.support.scenes import tiny_toml
+
+SHOTS = shots_dir("studies")
+pytestmark = pytest.mark.browser
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("studies-browser")
+    with serve(tmp, {"tiny": tiny_toml()}, "tiny", *VIEWER_FOR_SHOTS,
+               "--max-memory", "0.5") as (url, _):
+        yield url, tmp / "runs"
+
+
+def test_a_study_is_planned_started_and_gives_the_estimate(served, open_page):
+    url, runs = served
+    page = open_scene(open_page, url, "tiny", "[name='mesh.kind']")
+    assert page.is_hidden("#study-box")
+    page.click("#start")
+    page.wait_for_function("document.getElementById('status').dataset.state === 'finished'")
+    run = page.get_attribute("#status", "data-run")
+    page.wait_for_selector("#study-box:not([hidden])")
+    assert "no study for this scene" in page.inner_text("#estimate")
+    page.click("#study-box summary")
+    page.wait_for_selector("#study-table")
+    plan = httpx.post(f"{url}/api/studies/plan", json={"run": run}).json()
+    assert page.input_value("#study-elements") == ", ".join(plan["elements"])
+    assert page.input_value("#study-levels") == "140, 70, 35"
+    assert (page.input_value("#study-ref-element"), page.input_value("#study-ref-edge")) == (
+        "quadratic", "17.5")
+    rows = page.eval_on_selector_all("#study-table tbody tr", "rs => rs.map(r => "
+                                     "[...r.cells].map(c => c.textContent))")
+    assert len(rows) == len(plan["cases"])
+    assert rows[0][0] == "quadratic 17.5 mm (ref.)" and rows[1][0] == "linear 140 mm"
+    assert [r[1] for r in rows] == [f"{c['dofs']:,}" for c in plan["cases"]]
+    assert page.inner_text("#study-table tfoot").startswith(
+        f"whole study, warm-up included ({len(rows)} cases)")
+    notes = page.inner_text("#study-notes")
+    assert "within a factor of two or three" in notes and "q3t study tiny --elements" in notes
+    assert page.is_enabled("#study-start")
+    page.locator("#study-box").scroll_into_view_if_needed()
+    shot(page, SHOTS, "plan.png", settle_ms=500)
+    # typed wrong: said at once, and nothing can start
+    page.fill("#study-levels", "70, -35")
+    page.click("#study-plan")
+    assert page.inner_text("#study-error") == (
+        "levels: mesh edge lengths in mm, positive numbers, separated by commas")
+    assert page.is_disabled("#study-start")
+    # too fine for the server's memory (--max-memory 0.5): the server's word, naming the field
+    page.fill("#study-levels", "70, 5")
+    page.click("#study-plan")
+    page.wait_for_function("document.getElementById('study-error').textContent !== ''")
+    assert page.inner_text("#study-error").startswith("levels_mm: quadratic at 5 mm would have ")
+    # a small study: two levels of two elements against the quadratic prism at 17.5 mm
+    page.fill("#study-elements", "q3t, linear")
+    page.fill("#study-levels", "70, 35")
+    page.click("#study-plan")
+    page.wait_for_function("document.querySelectorAll('#study-table tbody tr').length === 5")
+    page.click("#study-start")
+    page.wait_for_selector("#study-progress[data-state='running']")
+    assert page.is_visible("#study-cancel")
+    assert page.inner_text("#study-progress").startswith("Study of tiny running: ")
+    shot(page, SHOTS, "running.png", settle_ms=300)
+    page.wait_for_selector("#study-progress[data-state='finished']", timeout=180_000)
+    assert page.is_hidden("#study-cancel")
+    assert page.inner_text("#study-progress").startswith("Study of tiny finished: 5 cases in ")
+    # the headline's estimate comes from the study's report at the next poll
+    page.wait_for_function("document.getElementById('estimate').dataset.available === 'true'")
+    est = page.inner_text("#estimate")
+    assert est.startswith("error estimate: ") and "vs quadratic at 17.5 mm" in est
+    assert (runs / "study-tiny" / "report.json").is_file()
+    shot(page, SHOTS, "finished.png", settle_ms=500)
+
+
+def test_a_study_cancelled_from_the_page_says_so(served, open_page):
+    url, _ = served
+    page = open_scene(open_page, url, "tiny", "[name='mesh.kind']")
+    page.click("#start")
+    page.wait_for_function("document.getElementById('status').dataset.state === 'finished'")
+    page.click("#study-box summary")
+    page.wait_for_selector("#study-table")
+    page.fill("#study-levels", "35")
+    page.fill("#study-ref-edge", "10")
+    page.click("#study-plan")
+    page.wait_for_function("document.querySelectorAll('#study-table tbody tr').length > 1")
+    page.click("#study-start")
+    page.wait_for_selector("#study-progress[data-state='running']")
+    page.click("#study-cancel")
+    page.wait_for_selector("#study-progress[data-state='cancelled']")
+    assert "cancelled after" in page.inner_text("#study-progress")
+    assert "the last report stays" in page.inner_text("#study-progress")
+    assert page.is_enabled("#study-start")
+    shot(page, SHOTS, "cancelled.png", settle_ms=300)

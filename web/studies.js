@@ -1,0 +1,220 @@
+// A refinement study of the selected finished run's scene (POST /api/studies, as `q3t
+// study`): its plan first, each case's size and its time predicted from the run, so that
+// minutes are told from hours before anything starts; then its progress, a line per case, and
+// a cancel. The study's report gives the scene's runs their error estimate (the headline's
+// line under the cards), which the page's next poll shows.
+"use strict";
+const Studies = (() => {
+  const POLL_MS = 1000;  // while a study runs: its cases take a second to hours each
+  let run = null;  // the finished run shown: its scene is studied, its time predicts
+  let planned = null;  // the run the inputs and the plan were made for
+  let following = false;  // a poll of the running study is under way
+  let seen = null;  // the state of the study last drawn
+  const $ = (id) => document.getElementById(id);
+  // lists are typed comma- or space-separated; a decimal point only (the comma separates)
+  const list = (text) => text.split(/[,\s]+/).filter(Boolean);
+
+  function duration(s) {
+    if (!Number.isFinite(s)) return "–";
+    if (s < 0.01) return "under 0.01 s";
+    if (s < 1) return `${s.toFixed(2)} s`;
+    if (s < 90) return `${Math.round(s)} s`;
+    if (s < 5400) return `${(s / 60).toFixed(1)} min`;
+    return `${(s / 3600).toFixed(1)} h`;
+  }
+
+  function asked() {
+    // the request the inputs make: what is left empty is the server's default
+    const body = { run };
+    const elements = list($("study-elements").value);
+    if (elements.length) body.elements = elements;
+    const levels = list($("study-levels").value).map(Number);
+    if (levels.length) body.levels_mm = levels;
+    const el = $("study-ref-element").value.trim(), edge = $("study-ref-edge").value.trim();
+    if (el || edge) body.reference = { element: el, edge_mm: Number(edge) };
+    return body;
+  }
+
+  function check(body) {
+    // what the server refuses by the same rule, said at once (a number it cannot read is
+    // not sent as JSON: NaN has no spelling there)
+    if ((body.levels_mm || []).some((v) => !Number.isFinite(v) || v <= 0))
+      return "levels: mesh edge lengths in mm, positive numbers, separated by commas";
+    if (body.reference && (!body.reference.element || !Number.isFinite(body.reference.edge_mm)
+                           || body.reference.edge_mm <= 0))
+      return "reference: an element and its mesh edge length in mm";
+    return null;
+  }
+
+  function error(text) {
+    $("study-error").textContent = text || "";
+  }
+
+  async function plan(fill) {
+    const body = fill ? { run } : asked();
+    const bad = check(body);
+    $("study-start").disabled = true;
+    if (bad) { error(bad); return; }
+    error("");
+    const forRun = run;
+    let p;
+    try {
+      p = await api("POST", "/api/studies/plan", body);
+    } catch (e) {
+      if (forRun === run) { error(e.message); drawCases(null); }
+      return;
+    }
+    if (forRun !== run) return;  // another run was selected meanwhile
+    planned = run;
+    if (fill) {
+      $("study-elements").value = p.elements.join(", ");
+      $("study-levels").value = p.levels_mm.map((v) => +v.toPrecision(6)).join(", ");
+      $("study-ref-element").value = p.reference ? p.reference.element : "";
+      $("study-ref-edge").value = p.reference ? +p.reference.edge_mm.toPrecision(6) : "";
+    }
+    drawCases(p);
+    $("study-start").disabled = seen === "running";
+  }
+
+  function drawCases(p) {
+    const box = $("study-cases");
+    box.dataset.total = p ? String(p.predicted_s) : "";
+    if (!p) { box.replaceChildren(); $("study-notes").replaceChildren(); return; }
+    const table = document.createElement("table");
+    table.id = "study-table";
+    const head = table.createTHead().insertRow();
+    const heads = { case: "element and mesh edge", DoFs: "degrees of freedom",
+                    GiB: "memory the build takes", time: "predicted from the run's time" };
+    for (const [h, title] of Object.entries(heads)) {
+      const th = document.createElement("th");
+      th.textContent = h;
+      th.title = title;
+      head.append(th);
+    }
+    const tbody = table.createTBody();
+    for (const c of p.cases) {
+      const tr = tbody.insertRow();
+      if (c.reference) tr.className = "reference";
+      const cells = [`${c.element} ${+c.edge_mm.toPrecision(4)} mm` +
+                     (c.reference ? " (ref.)" : ""), c.dofs.toLocaleString("en"),
+                     c.memory_gib.toFixed(2), duration(c.predicted_s)];
+      for (const v of cells) tr.insertCell().textContent = v;
+    }
+    const total = table.createTFoot().insertRow();
+    const th = document.createElement("th");
+    th.colSpan = 3;
+    th.textContent = `whole study, warm-up included (${p.cases.length} cases` +
+      (p.analytic ? `, against ${p.analytic.name}` : "") + ")";
+    total.append(th);
+    total.insertCell().textContent = `about ${duration(p.predicted_s)}`;
+    box.replaceChildren(table);
+    const notes = $("study-notes");
+    notes.replaceChildren(...[`error measured on ${p.probe}`, ...p.notes,
+                              `the same from the command line: ${p.command}`].map((n) => {
+      const li = document.createElement("li");
+      li.textContent = n;
+      return li;
+    }));
+  }
+
+  function drawProgress(s) {
+    const box = $("study-progress");
+    seen = s ? s.state : null;
+    box.dataset.state = seen || "";
+    $("study-cancel").hidden = seen !== "running";
+    if (seen === "running") $("study-start").disabled = true;
+    else if (planned === run && run) $("study-start").disabled = false;
+    if (!s) { box.replaceChildren(); return; }
+    const head = document.createElement("div");
+    const when = `${duration(s.elapsed_s)} of about ${duration(s.predicted_s)} predicted`;
+    head.textContent = {
+      running: `Study of ${s.scene} running: ${s.done} of ${s.cases} cases done, ${when}`,
+      finished: `Study of ${s.scene} finished: ${s.cases} cases in ${duration(s.elapsed_s)} ` +
+        `(predicted ${duration(s.predicted_s)}); its runs' error estimates come from it`,
+      failed: `Study of ${s.scene} failed after ${s.done} of ${s.cases} cases: ${s.reason}`,
+      cancelled: `Study of ${s.scene} cancelled after ${s.done} of ${s.cases} cases ` +
+        `(${s.reason}); the last report stays`,
+    }[s.state];
+    const bar = document.createElement("progress");
+    bar.max = s.cases;
+    bar.value = s.done;
+    const last = document.createElement("code");
+    last.textContent = s.lines.length ? s.lines[s.lines.length - 1] : "starting its workers";
+    box.replaceChildren(head, bar, last);
+  }
+
+  async function follow() {
+    // the study's state, again each second while it runs; once it has ended, the page's
+    // next poll brings the run's estimate from its report
+    if (following) return;
+    following = true;
+    try {
+      for (;;) {
+        let s = null;
+        try {
+          s = (await api("GET", "/api/studies")).study;
+        } catch (e) { error(e.message); }
+        const was = seen;
+        drawProgress(s);
+        if (was === "running" && seen !== "running" && typeof pollNow === "function") pollNow();
+        if (seen !== "running") break;
+        await new Promise((ok) => setTimeout(ok, POLL_MS));
+      }
+    } finally { following = false; }
+  }
+
+  async function start() {
+    const body = asked(), bad = check(body);
+    if (bad) { error(bad); return; }
+    $("study-start").disabled = true;
+    try {
+      drawProgress(await api("POST", "/api/studies", body));
+      error("");
+    } catch (e) {
+      error(e.message);
+      $("study-start").disabled = false;
+    }
+    follow();
+  }
+
+  async function cancel() {
+    $("study-cancel").disabled = true;
+    try {
+      drawProgress(await api("POST", "/api/studies/cancel"));
+    } catch (e) { error(e.message); }
+    $("study-cancel").disabled = false;
+  }
+
+  function show(st) {
+    // a finished run's scene can be studied; other runs have no time to predict from
+    const box = $("study-box");
+    box.hidden = st.state !== "finished";
+    if (box.hidden) return;
+    if (st.id !== run) {
+      run = st.id;
+      planned = null;
+      error("");
+      drawCases(null);
+      $("study-start").disabled = true;
+      if (box.open) plan(true);
+    }
+  }
+
+  function forget() {
+    run = planned = null;
+    $("study-box").hidden = true;
+  }
+
+  function init() {
+    $("study-box").addEventListener("toggle", () => {
+      if ($("study-box").open && run && planned !== run) plan(true);
+      if ($("study-box").open) follow();
+    });
+    $("study-plan").addEventListener("click", () => plan(false));
+    $("study-start").addEventListener("click", start);
+    $("study-cancel").addEventListener("click", cancel);
+    follow();  // a study started before the page was opened
+  }
+
+  return { show, forget, init };
+})();
