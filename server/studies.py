@@ -65,10 +65,9 @@ def make(scene_path: Path, name: str, basis: dict, overrides: dict, max_bytes: f
     to the scene's. Invalid names the field: an unknown element, a level not positive, a case
     over ``max_bytes``."""
     from sim.apps.cases import element_overrides
-    from sim.apps.study import make_plan
+    from sim.apps.study import case_sizes, make_plan
     from sim.elements import ELEMENTS
-    from sim.model import size
-    from sim.scene.load import SceneError, load_scene
+    from sim.scene.load import SceneError
 
     try:
         for spec in elements or ():
@@ -91,24 +90,22 @@ def make(scene_path: Path, name: str, basis: dict, overrides: dict, max_bytes: f
                           overrides)
     except (SceneError, ValueError) as exc:  # the scene's own: no mesh to refine
         raise Invalid(f"run: its scene {name!r}: {exc}") from None
-    cases = [(el, edge, False) for el in p.elements for edge in p.levels]
-    if p.reference:
-        cases.insert(0, (*p.reference, True))
+    try:
+        sizes = case_sizes(p)
+    except ValueError as exc:
+        raise Invalid(f"run: its scene {name!r}: {exc}") from None
     rows = []
-    for el, edge, is_ref in cases:
-        sc = load_scene(scene_path, {**overrides, **element_overrides(el),
-                                     "mesh.edge_length": edge})
-        s = size.estimate(sc)
-        if s is None:
-            raise Invalid(f"scene {name!r}: its mesh cannot be counted before it is built")
-        if s.bytes > max_bytes:
-            what = "reference.edge_mm" if is_ref else "levels_mm"
-            raise Invalid(f"{what}: {el} at {mm(edge)} would have {s.dofs:,} DoFs and need "
-                          f"about {s.bytes / 2**30:.3g} GiB to build, above the server's limit "
-                          f"of {max_bytes / 2**30:.3g} GiB: a coarser level")
-        rows.append({"element": el, "edge_mm": 1e3 * edge, "reference": is_ref,
-                     "dofs": s.dofs, "memory_gib": s.bytes / 2**30,
-                     "predicted_s": predicted(basis, el, s.dofs)})
+    for c in sizes:
+        if c["bytes"] > max_bytes:
+            what = "reference.edge_mm" if c["reference"] else "levels_mm"
+            raise Invalid(f"{what}: {c['element']} at {mm(c['edge_length'])} would have "
+                          f"{c['dofs']:,} DoFs and need about {c['bytes'] / 2**30:.3g} GiB to "
+                          f"build, above the server's limit of {max_bytes / 2**30:.3g} GiB: a "
+                          "coarser level")
+        rows.append({"element": c["element"], "edge_mm": 1e3 * c["edge_length"],
+                     "reference": c["reference"], "dofs": c["dofs"],
+                     "memory_gib": c["bytes"] / 2**30,
+                     "predicted_s": predicted(basis, c["element"], c["dofs"])})
     # each Dask worker first runs every element once at the coarsest level, untimed
     warm = sum(r["predicted_s"] for r in rows
                if not r["reference"] and r["edge_mm"] == 1e3 * p.levels[0])

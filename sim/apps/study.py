@@ -126,6 +126,29 @@ def make_plan(scene_path: str, elements: list[str] | None = None,
                 tuple(reference) if reference else None, analytic, overrides, notes)
 
 
+def case_sizes(plan: Plan) -> list[dict]:
+    """The cases of ``plan`` in the order the study runs them (the reference first), each
+    with its model's size counted from the mesh parameters, nothing built (sim.model.size):
+    ``{element, edge_length, reference, dofs, bytes}``. ValueError for a mesh that cannot be
+    counted before it is built."""
+    from sim.model import size
+    from sim.scene.load import load_scene
+
+    cases = [(el, edge, False) for el in plan.elements for edge in plan.levels]
+    if plan.reference:
+        cases.insert(0, (*plan.reference, True))
+    out = []
+    for el, edge, is_ref in cases:
+        s = size.estimate(load_scene(plan.scene, {**plan.overrides, **element_overrides(el),
+                                                  "mesh.edge_length": edge}))
+        if s is None:
+            raise ValueError(f"{Path(plan.scene).stem}: its mesh cannot be counted before it "
+                             "is built")
+        out.append({"element": el, "edge_length": edge, "reference": is_ref, "dofs": s.dofs,
+                    "bytes": s.bytes})
+    return out
+
+
 def measured(r: dict, m: dict) -> float | tuple[np.ndarray, np.ndarray] | None:
     """What a case gives for measure ``m``: a float (final), or (x, y) arrays."""
     if m["measure"] == "final":
@@ -336,6 +359,27 @@ def _study(args: argparse.Namespace, scene: str, plan: Plan, out: Path,
             study_md(study, overheads, args.workers, args.scheduler))
 
 
+def _print_plan(plan: Plan) -> int:
+    """``--plan``: the cases and their sizes, nothing run."""
+    from sim.scene.load import SceneError
+
+    try:
+        rows = case_sizes(plan)
+    except (SceneError, ValueError) as exc:
+        print(f"q3t study: {exc}", file=sys.stderr)
+        return BAD_INPUT
+    print(f"Study of {Path(plan.scene).stem}: {plan.probe}, "
+          + (f"against {plan.analytic['name']}" if plan.analytic else
+             f"reference {plan.reference[0]} at {plan.reference[1]:.6g} m") + "\n")
+    table = [{**r, "case": ("reference " if r["reference"] else "") + r["element"],
+              "gib": r["bytes"] / 2**30} for r in rows]
+    print(markdown_table(table, [("case", "case", ""), ("edge_length", "edge [m]", ".6g"),
+                                 ("dofs", "DoFs", ","), ("gib", "memory [GiB]", ".2f")]))
+    for note in plan.notes:
+        print(f"- {note}")
+    return OK
+
+
 def _where(kw: dict) -> dict:
     return {k: kw[k] for k in ("workers", "threads", "scheduler")}
 
@@ -360,6 +404,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out or f"runs/study-{Path(scene).stem}")
     kw = {"workers": args.workers, "threads": args.threads, "scheduler": args.scheduler,
           "timeout": args.timeout}
+    if args.plan:
+        return _print_plan(plan)
     mode = _factorisation if args.factorisation else (
         _overhead if args.overhead_only else _study)
     made = mode(args, scene, plan, out, kw)
@@ -394,6 +440,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="study.measure: the final value, the curve over the run, a profile")
     s.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="a scene override for every case, e.g. material.nu=0 (repeatable)")
+    s.add_argument("--plan", action="store_true",
+                   help="print the cases with their DoFs and memory, and run nothing")
     s.add_argument("--factorisation", action="store_true",
                    help="time the Hessian factorisation instead (paper Fig. 7)")
     s.add_argument("--repeat", type=int, default=None,

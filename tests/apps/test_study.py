@@ -37,6 +37,28 @@ def test_plan_takes_the_study_table_or_says_which_defaults_it_used():
     assert any("half the finest" in n for n in q.notes)
 
 
+def test_plan_only_prints_the_cases_sizes_and_runs_nothing(tmp_path, capsys):
+    """``--plan``: the cases in the order they run, each sized by sim.model.size from the
+    mesh parameters (what the page's plan also shows, with times), and nothing written."""
+    from sim.apps.study import case_sizes
+    from sim.model import size
+
+    rc = main(["study", "convergence", "--elements", "q3t,linear", "--levels", "0.035,0.0175",
+               "--plan", "--out", str(tmp_path / "out")])
+    out = capsys.readouterr().out
+    assert rc == 0 and not (tmp_path / "out").exists()
+    sizes = case_sizes(make_plan(CONVERGENCE, ["q3t", "linear"], [0.035, 0.0175]))
+    assert [(c["element"], c["edge_length"], c["reference"]) for c in sizes] == [
+        ("quadratic", 0.0035, True), ("q3t", 0.035, False), ("q3t", 0.0175, False),
+        ("linear", 0.035, False), ("linear", 0.0175, False)]
+    for c in sizes:
+        s = size.estimate(load_scene(CONVERGENCE, {"shell.element": c["element"],
+                                                   "mesh.edge_length": c["edge_length"]}))
+        assert (c["dofs"], c["bytes"]) == (s.dofs, s.bytes)
+        case = ("reference " if c["reference"] else "") + c["element"]
+        assert f"| {case} | {c['edge_length']:.6g} | {c['dofs']:,} | " in out, out
+
+
 def test_two_level_study_on_dask_writes_report_and_plots(tmp_path):
     plan = make_plan(CONVERGENCE, ["linear", "q3t"], [0.07, 0.035], ("quadratic", 0.035))
     study = run_study(plan, overhead={"overrides": {"mesh.edge_length": 0.07}, "repeat": 1},
