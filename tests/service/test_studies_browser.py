@@ -27,17 +27,36 @@ def served(tmp_path_factory):
         yield url, tmp / "runs"
 
 
-def test_a_study_is_planned_started_and_gives_the_estimate(served, open_page):
-    url, runs = served
+def finished_with_study(open_page, url: str):
+    """The tiny scene run from the page to its end, its study panel opened on its plan; the
+    page and the run's id."""
     page = open_scene(open_page, url, "tiny", "[name='mesh.kind']")
     assert page.is_hidden("#study-box")
     page.click("#start")
     page.wait_for_function("document.getElementById('status').dataset.state === 'finished'")
-    run = page.get_attribute("#status", "data-run")
     page.wait_for_selector("#study-box:not([hidden])")
-    assert "no study for this scene" in page.inner_text("#estimate")
     page.click("#study-box summary")
     page.wait_for_selector("#study-table")
+    return page, page.get_attribute("#status", "data-run")
+
+
+def start(page, cases: int, **inputs: str) -> None:
+    """The study of ``inputs`` (``#study-<key>``: its text) planned with ``cases`` cases and
+    started, once the page says it runs."""
+    for key, text in inputs.items():
+        page.fill(f"#study-{key.replace('_', '-')}", text)
+    page.click("#study-plan")
+    page.wait_for_function(f"document.querySelectorAll('#study-table tbody tr').length === "
+                           f"{cases}")
+    page.click("#study-start")
+    page.wait_for_selector("#study-progress[data-state='running']")
+    assert page.is_visible("#study-cancel")
+
+
+def test_a_study_is_planned_started_and_gives_the_estimate(served, open_page):
+    url, runs = served
+    page, run = finished_with_study(open_page, url)
+    assert "no study for this scene" in page.inner_text("#estimate")
     plan = httpx.post(f"{url}/api/studies/plan", json={"run": run}).json()
     assert page.input_value("#study-elements") == ", ".join(plan["elements"])
     assert page.input_value("#study-levels") == "140, 70, 35"
@@ -67,13 +86,7 @@ def test_a_study_is_planned_started_and_gives_the_estimate(served, open_page):
     page.wait_for_function("document.getElementById('study-error').textContent !== ''")
     assert page.inner_text("#study-error").startswith("levels_mm: quadratic at 5 mm would have ")
     # a small study: two levels of two elements against the quadratic prism at 17.5 mm
-    page.fill("#study-elements", "q3t, linear")
-    page.fill("#study-levels", "70, 35")
-    page.click("#study-plan")
-    page.wait_for_function("document.querySelectorAll('#study-table tbody tr').length === 5")
-    page.click("#study-start")
-    page.wait_for_selector("#study-progress[data-state='running']")
-    assert page.is_visible("#study-cancel")
+    start(page, 5, elements="q3t, linear", levels="70, 35")
     assert page.inner_text("#study-progress").startswith("Study of tiny running: ")
     shot(page, SHOTS, "running.png", settle_ms=300)
     page.wait_for_selector("#study-progress[data-state='finished']", timeout=180_000)
@@ -88,18 +101,9 @@ def test_a_study_is_planned_started_and_gives_the_estimate(served, open_page):
 
 
 def test_a_study_cancelled_from_the_page_says_so(served, open_page):
-    url, _ = served
-    page = open_scene(open_page, url, "tiny", "[name='mesh.kind']")
-    page.click("#start")
-    page.wait_for_function("document.getElementById('status').dataset.state === 'finished'")
-    page.click("#study-box summary")
-    page.wait_for_selector("#study-table")
-    page.fill("#study-levels", "35")
-    page.fill("#study-ref-edge", "10")
-    page.click("#study-plan")
-    page.wait_for_function("document.querySelectorAll('#study-table tbody tr').length > 1")
-    page.click("#study-start")
-    page.wait_for_selector("#study-progress[data-state='running']")
+    page, _ = finished_with_study(open_page, served[0])
+    # the three routine elements and the reference at one level
+    start(page, 4, levels="35", ref_edge="10")
     page.click("#study-cancel")
     page.wait_for_selector("#study-progress[data-state='cancelled']")
     assert "cancelled after" in page.inner_text("#study-progress")
