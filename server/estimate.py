@@ -183,7 +183,8 @@ def study_command(scene: Scene) -> str | None:
 
 def estimate(root: Path, scene: str, element: str, edge_length: float | None,
              result: dict | None, overrides: dict | None = None,
-             command: str | None = BY_EDGE, cells: int | None = None) -> dict:
+             command: str | None = BY_EDGE, cells: int | None = None,
+             edits: list[str] | None = None) -> dict:
     """What the page shows for a finished run: ``available``, ``text`` and the numbers.
     ``command``: what studies the scene (:func:`study_command`); ``cells``: a course scene's
     cells per side."""
@@ -195,6 +196,9 @@ def estimate(root: Path, scene: str, element: str, edge_length: float | None,
     else:
         command = command.format(scene=scene) if command is not None else None
         head = _compare(out, root, scene, element, edge_length, overrides or {}, command)
+    if out["available"] and edits:
+        out["notes"].append(f"the run changed the saved scene ({'; '.join(edits)}); the "
+                            "study ran it as saved")
     out["text"] = "; ".join(s for s in (head, cost_text(cost)) if s)
     return out
 
@@ -316,7 +320,9 @@ class EstimateCache:
                 if run.estimate is None or self._keys.get(run.id, "?") != key:
                     edge, result, command, cells = self._facts_of(run)
                     run.estimate = estimate(self.root, run.scene, run.element, edge, result,
-                                            run.overrides, command, cells)
+                                            run.overrides, command, cells,
+                                            run.edits or (["unsaved edits"] if run.edited
+                                                          else None))
                     self._keys[run.id] = key
             except Exception as exc:  # never let the estimate break a status request
                 run.estimate = {"available": False, "reason": "error",

@@ -8,11 +8,14 @@ const Studies = (() => {
   const POLL_MS = 1000;  // while a study runs: its cases take a second to hours each
   let run = null;  // the finished run shown: its scene is studied, its time predicts
   let planned = null;  // the run the inputs and the plan were made for
+  let plannedBody = null;  // the request of the plan on screen: what Start starts
   let following = false;  // a poll of the running study is under way
   let seen = null;  // the state of the study last drawn
   const $ = (id) => document.getElementById(id);
-  // lists are typed comma- or space-separated; a decimal point only (the comma separates)
-  const list = (text) => text.split(/[,\s]+/).filter(Boolean);
+  // lists are typed separated by spaces, ";" or ", " (a comma and a space); a comma between
+  // digits is a decimal comma ("17,5" is 17.5 mm)
+  const list = (text) => text.split(/\s*;\s*|,\s+|\s+/).filter(Boolean)
+    .map((t) => t.replace(/(\d),(\d)/, "$1.$2"));
 
   function duration(s) {
     if (!Number.isFinite(s)) return "–";
@@ -54,7 +57,8 @@ const Studies = (() => {
     const body = fill ? { run } : asked();
     const bad = check(body);
     $("study-start").disabled = true;
-    if (bad) { error(bad); return; }
+    plannedBody = null;
+    if (bad) { error(bad); drawCases(null); return; }
     error("");
     const forRun = run;
     let p;
@@ -66,6 +70,7 @@ const Studies = (() => {
     }
     if (forRun !== run) return;  // another run was selected meanwhile
     planned = run;
+    plannedBody = body;
     if (fill) {
       $("study-elements").value = p.elements.join(", ");
       $("study-levels").value = p.levels_mm.map((v) => +v.toPrecision(6)).join(", ");
@@ -74,6 +79,15 @@ const Studies = (() => {
     }
     drawCases(p);
     $("study-start").disabled = seen === "running";
+    $("study-stale").hidden = true;
+  }
+
+  function edited() {
+    // a field changed since the plan on screen: Start would not run what it shows
+    if (!plannedBody) return;
+    plannedBody = null;
+    $("study-start").disabled = true;
+    $("study-stale").hidden = false;
   }
 
   function drawCases(p) {
@@ -84,7 +98,7 @@ const Studies = (() => {
     table.id = "study-table";
     const head = table.createTHead().insertRow();
     const heads = { case: "element and mesh edge", DoFs: "degrees of freedom",
-                    GiB: "memory the build takes", time: "predicted from the run's time" };
+                    time: "predicted from the run's time" };
     for (const [h, title] of Object.entries(heads)) {
       const th = document.createElement("th");
       th.textContent = h;
@@ -95,16 +109,18 @@ const Studies = (() => {
     for (const c of p.cases) {
       const tr = tbody.insertRow();
       if (c.reference) tr.className = "reference";
+      tr.title = `its build takes about ${c.memory_gib.toFixed(2)} GiB`;
       const cells = [`${c.element} ${+c.edge_mm.toPrecision(4)} mm` +
                      (c.reference ? " (ref.)" : ""), c.dofs.toLocaleString("en"),
-                     c.memory_gib.toFixed(2), duration(c.predicted_s)];
+                     duration(c.predicted_s)];
       for (const v of cells) tr.insertCell().textContent = v;
     }
     const total = table.createTFoot().insertRow();
     const th = document.createElement("th");
-    th.colSpan = 3;
+    th.colSpan = 2;
     th.textContent = `whole study, warm-up included (${p.cases.length} cases` +
-      (p.analytic ? `, against ${p.analytic.name}` : "") + ")";
+      (p.analytic ? `, against ${p.analytic.name}` : "") +
+      `; largest build ${p.largest_gib.toFixed(2)} GiB)`;
     total.append(th);
     total.insertCell().textContent = `about ${duration(p.predicted_s)}`;
     box.replaceChildren(table);
@@ -117,30 +133,44 @@ const Studies = (() => {
     }));
   }
 
+  const caseName = (c) => `${c.element} ${+c.edge_mm.toPrecision(4)} mm` +
+    (c.reference ? " (reference)" : "");
+
   function drawProgress(s) {
     const box = $("study-progress");
     seen = s ? s.state : null;
     box.dataset.state = seen || "";
     $("study-cancel").hidden = seen !== "running";
     if (seen === "running") $("study-start").disabled = true;
-    else if (planned === run && run) $("study-start").disabled = false;
+    else if (planned === run && run && plannedBody) $("study-start").disabled = false;
     if (!s) { box.replaceChildren(); return; }
     const head = document.createElement("div");
     const when = `${duration(s.elapsed_s)} of about ${duration(s.predicted_s)} predicted`;
+    const kept = s.had_report ? "the scene's last report stays" : "no report written";
     head.textContent = {
       running: `Study of ${s.scene} running: ${s.done} of ${s.cases} cases done, ${when}`,
       finished: `Study of ${s.scene} finished: ${s.cases} cases in ${duration(s.elapsed_s)} ` +
         `(predicted ${duration(s.predicted_s)}); its runs' error estimates come from it`,
-      failed: `Study of ${s.scene} failed after ${s.done} of ${s.cases} cases: ${s.reason}`,
+      failed: `Study of ${s.scene} failed after ${s.done} of ${s.cases} cases: ${s.reason}; ` +
+        kept,
       cancelled: `Study of ${s.scene} cancelled after ${s.done} of ${s.cases} cases ` +
-        `(${s.reason}); the last report stays`,
+        `(${s.reason}); ${kept}`,
     }[s.state];
     const bar = document.createElement("progress");
     bar.max = s.cases;
     bar.value = s.done;
-    const last = document.createElement("code");
-    last.textContent = s.lines.length ? s.lines[s.lines.length - 1] : "starting its workers";
-    box.replaceChildren(head, bar, last);
+    const lines = [];
+    if (s.now) lines.push(`now: ${caseName(s.now)}, ${s.now.dofs.toLocaleString("en")} DoFs, ` +
+                          `predicted ${duration(s.now.predicted_s)}`);
+    const last = s.finished[s.finished.length - 1];
+    if (last) lines.push(`done: ${caseName(last)}, ${last.status}, ${duration(last.seconds)}`);
+    const said = lines.map((t) => {
+      const d = document.createElement("div");
+      d.className = "study-case";
+      d.textContent = t;
+      return d;
+    });
+    box.replaceChildren(head, bar, ...said);
   }
 
   async function follow() {
@@ -164,8 +194,8 @@ const Studies = (() => {
   }
 
   async function start() {
-    const body = asked(), bad = check(body);
-    if (bad) { error(bad); return; }
+    const body = plannedBody;  // the plan on screen, whatever the fields say since
+    if (!body) return;
     $("study-start").disabled = true;
     try {
       drawProgress(await api("POST", "/api/studies", body));
@@ -192,7 +222,7 @@ const Studies = (() => {
     if (box.hidden) return;
     if (st.id !== run) {
       run = st.id;
-      planned = null;
+      planned = plannedBody = null;
       error("");
       drawCases(null);
       $("study-start").disabled = true;
@@ -213,6 +243,8 @@ const Studies = (() => {
     $("study-plan").addEventListener("click", () => plan(false));
     $("study-start").addEventListener("click", start);
     $("study-cancel").addEventListener("click", cancel);
+    for (const id of ["study-elements", "study-levels", "study-ref-element", "study-ref-edge"])
+      $(id).addEventListener("input", edited);
     follow();  // a study started before the page was opened
   }
 

@@ -16,6 +16,7 @@ from server.problems import Invalid, NotFound
 from server.runs import RunManager
 from server.settings import RunId
 from server.store import SceneStore
+from sim.scene.load import scene_from_toml
 
 router = APIRouter(prefix="/api/studies", tags=["studies"], route_class=CheckedRoute)
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -62,10 +63,20 @@ class Plan(BaseModel):
                                   "of a run")
     cases: list[Case]
     predicted_s: float = Field(description="the whole study, seconds, its warm-up included")
+    largest_gib: float = Field(description="the largest case's build, GiB")
     basis: dict = Field(description="the run the times are predicted from: run, element, "
                         "dofs, seconds")
     notes: list[str]
     command: str = Field(description="the same study from the command line")
+
+
+class Done(BaseModel):
+    element: str
+    edge_mm: float
+    reference: bool
+    dofs: int
+    status: str = Field(description="converged, failed, timeout, ... (the case's run)")
+    seconds: float = Field(description="its build and solve, as the study times it")
 
 
 class Progress(BaseModel):
@@ -75,8 +86,12 @@ class Progress(BaseModel):
     cases: int
     elapsed_s: float
     predicted_s: float
-    lines: list[str] = Field(description="the command's last lines: a line per case")
+    now: Case | None = Field(description="the case running now, as the plan gave it (the "
+                             "study runs them in the plan's order, one at a time)")
+    finished: list[Done] = Field(description="the cases done, as the command said")
     reason: str | None = Field(description="why it failed or was cancelled")
+    had_report: bool = Field(description="the scene had a study report before this one (a "
+                             "study cancelled or failed leaves it)")
     command: str
 
 
@@ -106,11 +121,22 @@ def _plan(body: Asked, request: Request) -> tuple[dict, object, dict]:
     if not path.is_file():
         raise NotFound(f"run: its scene {run.scene!r} is no longer in the scenes folder")
     overrides = store.solver_overrides(store.validate(store.text(run.scene)))
-    basis = {"run": run.id, "element": run.element, "dofs": int(dofs), "seconds": float(t)}
+    # what the run changed of the saved scene (unsaved edits, overrides: the study runs the
+    # saved scene), and its mesh's edge, which the plan's levels take
+    other = sorted(k for k in run.overrides if k not in ("shell.element", "mesh.edge_length"))
+    edits = [*run.edits, *(f"--set {k}" for k in other)]
+    try:
+        ran = scene_from_toml((m.files.dir(run.id) / "scene.toml").read_text(), run.overrides)
+        edge = getattr(ran.mesh, "edge_length", None)
+    except (OSError, ValueError):
+        edge = None
+    basis = {"run": run.id, "element": run.element, "dofs": int(dofs), "seconds": float(t),
+             "edge": edge, "edits": "; ".join(edits) if edits or not run.edited
+             else "unsaved edits"}
     ref = (body.reference.element, body.reference.edge_mm) if body.reference else None
     plan = studies.make(path, run.scene, basis, overrides,
                         request.app.state.settings.max_model_bytes, body.elements,
-                        body.levels_mm, ref)
+                        body.levels_mm, ref, m.files.root)
     return plan, path, overrides
 
 

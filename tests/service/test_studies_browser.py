@@ -68,30 +68,51 @@ def test_a_study_is_planned_started_and_gives_the_estimate(served, open_page):
     assert rows[0][0] == "quadratic 17.5 mm (ref.)" and rows[1][0] == "linear 140 mm"
     assert [r[1] for r in rows] == [f"{c['dofs']:,}" for c in plan["cases"]]
     assert page.inner_text("#study-table tfoot").startswith(
-        f"whole study, warm-up included ({len(rows)} cases)")
+        f"whole study, warm-up included ({len(rows)} cases; largest build 0.3")
     notes = page.inner_text("#study-notes")
-    assert "within a factor of two or three" in notes and "q3t study tiny --elements" in notes
+    assert "within about a factor of two" in notes and "q3t study tiny --elements" in notes
     assert page.is_enabled("#study-start")
     page.locator("#study-box").scroll_into_view_if_needed()
     shot(page, SHOTS, "plan.png", settle_ms=500)
     # typed wrong: said at once, and nothing can start
+    # a field edited after the plan: Start waits for Plan (it starts the plan on screen)
+    page.fill("#study-levels", "140, 70")
+    assert page.is_disabled("#study-start") and page.is_visible("#study-stale")
+    # a decimal comma is a decimal comma
+    page.fill("#study-levels", "70, 17,5")
+    page.click("#study-plan")
+    page.wait_for_function("document.getElementById('study-stale').hidden")
+    assert [r[0] for r in page.eval_on_selector_all(
+        "#study-table tbody tr", "rs => rs.map(r => [...r.cells].map(c => c.textContent))")
+        if r[0].startswith("linear")] == ["linear 70 mm", "linear 17.5 mm"]
     page.fill("#study-levels", "70, -35")
     page.click("#study-plan")
     assert page.inner_text("#study-error") == (
         "levels: mesh edge lengths in mm, positive numbers, separated by commas")
     assert page.is_disabled("#study-start")
-    # too fine for the server's memory (--max-memory 0.5): the server's word, naming the field
+    # the server's word, naming the field: a level finer than the reference, ...
     page.fill("#study-levels", "70, 5")
     page.click("#study-plan")
     page.wait_for_function("document.getElementById('study-error').textContent !== ''")
-    assert page.inner_text("#study-error").startswith("levels_mm: quadratic at 5 mm would have ")
+    assert page.inner_text("#study-error").startswith(
+        "reference.edge_mm: 17.5 mm is coarser than the finest level (5 mm)")
+    assert page.inner_text("#study-cases") == ""  # no plan on screen
+    # ... and a reference too fine for the server's memory (--max-memory 0.5)
+    page.fill("#study-ref-edge", "5")
+    page.click("#study-plan")
+    page.wait_for_function("document.getElementById('study-error').textContent"
+                           ".startsWith('reference.edge_mm: quadratic')")
+    assert page.inner_text("#study-error").startswith(
+        "reference.edge_mm: quadratic at 5 mm would have ")
     # a small study: two levels of two elements against the quadratic prism at 17.5 mm
-    start(page, 5, elements="q3t, linear", levels="70, 35")
+    start(page, 5, elements="q3t, linear", levels="70, 35", ref_edge="17.5")
     assert page.inner_text("#study-progress").startswith("Study of tiny running: ")
+    assert "now: quadratic 17.5 mm (reference), " in page.inner_text("#study-progress")
     shot(page, SHOTS, "running.png", settle_ms=300)
     page.wait_for_selector("#study-progress[data-state='finished']", timeout=180_000)
     assert page.is_hidden("#study-cancel")
     assert page.inner_text("#study-progress").startswith("Study of tiny finished: 5 cases in ")
+    assert "done: linear 35 mm, converged, " in page.inner_text("#study-progress")
     # the headline's estimate comes from the study's report at the next poll
     page.wait_for_function("document.getElementById('estimate').dataset.available === 'true'")
     est = page.inner_text("#estimate")
@@ -107,6 +128,7 @@ def test_a_study_cancelled_from_the_page_says_so(served, open_page):
     page.click("#study-cancel")
     page.wait_for_selector("#study-progress[data-state='cancelled']")
     assert "cancelled after" in page.inner_text("#study-progress")
-    assert "the last report stays" in page.inner_text("#study-progress")
+    # the first test's study wrote the scene's report, which a cancelled one leaves
+    assert "the scene's last report stays" in page.inner_text("#study-progress")
     assert page.is_enabled("#study-start")
     shot(page, SHOTS, "cancelled.png", settle_ms=300)
