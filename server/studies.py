@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 from server.problems import Conflict, Invalid
 
 if TYPE_CHECKING:
-    from sim.apps.study import Plan
+    from sim.refinement import Plan
 from sim.text import mm
 
 # a case's time: the run's, scaled by its DoFs to this power and by the element's weight,
@@ -78,7 +78,7 @@ def make(scene_path: Path, name: str, basis: dict, overrides: dict, max_bytes: f
     element, a level not positive or one the scene refuses, a reference no finer than the
     finest level, a case over ``max_bytes``. ``runs_dir``: where a study's report would be
     replaced (said in the notes)."""
-    from sim.apps.study import case_sizes
+    from sim.refinement import case_sizes
     from sim.scene.load import SceneError
 
     p = _plan_of(scene_path, name, basis, overrides, *_asked(elements, levels_mm, reference))
@@ -120,8 +120,8 @@ def _asked(elements: list[str] | None, levels_mm: list[float] | None,
            reference: tuple[str, float] | None) -> tuple:
     """The request's elements (each once), levels (m, each once, coarse to fine) and
     reference (element, m), checked: Invalid naming the field."""
-    from sim.apps.cases import element_overrides
     from sim.elements import ELEMENTS
+    from sim.refinement import element_overrides
 
     try:
         for spec in elements or ():
@@ -146,7 +146,7 @@ def _plan_of(scene_path: Path, name: str, basis: dict, overrides: dict,
              ref: tuple[str, float] | None) -> Plan:
     """sim.apps.study's plan, with the run's element and level where the defaults lack them;
     Invalid when the scene has no mesh to refine or the reference is coarser than a level."""
-    from sim.apps.study import make_plan
+    from sim.refinement import make_plan
     from sim.scene.load import SceneError
 
     try:

@@ -140,31 +140,6 @@ def _invalid_row(overrides: dict, reason: str | None) -> dict:
             "elements": None, "iterations": 0, "cutbacks": 0, "residual": None}
 
 
-def element_overrides(spec: str) -> dict:
-    """The overrides of an element as a study names it: ``NAME``, or ``NAME:NxM`` for that
-    element with the quadrature rule of N in-plane by M through-thickness points
-    (``shell.quadrature``; the scene's ``thickness_points`` would replace M, so it is unset).
-    ValueError naming the spec and what is wrong with it."""
-    from sim.elements import ELEMENTS
-    from sim.geometry.quadrature import prism_rule
-
-    name, colon, rule = spec.partition(":")
-    if name not in ELEMENTS:
-        raise ValueError(f"unknown element {name!r} in {spec!r}; known: {sorted(ELEMENTS)}")
-    if not colon:
-        return {"shell.element": name}
-    n, x, m = rule.partition("x")
-    if not (x and n.isdigit() and m.isdigit()):
-        raise ValueError(f"element {spec!r}: after ':' comes the rule as N x M points "
-                         "(in-plane x through the thickness), e.g. q3t:3x3")
-    try:
-        prism_rule(int(n), int(m))
-    except ValueError as exc:
-        raise ValueError(f"element {spec!r}: {exc}") from None
-    return {"shell.element": name, "shell.quadrature": [int(n), int(m)],
-            "shell.thickness_points": None}
-
-
 def scene_row(scene_path: str, overrides: dict) -> dict | None:
     """The ``invalid`` row of a case whose scene does not validate, else None. Cheap (no
     model is built): a sweep sorts these out before any case starts, so no clock - a case's

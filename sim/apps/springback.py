@@ -21,11 +21,12 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sim.apps.cases import element_overrides, run_case
+from sim.apps.cases import run_case
 from sim.apps.common import BAD_INPUT, FAILED, OK, load, resolve_scene
 from sim.apps.study_report import markdown_table
 from sim.apps.tasks import cluster_text, run_tasks
 from sim.frames import results
+from sim.refinement import element_overrides
 from sim.stamp import Stamp, add_results_option, write_results
 
 if TYPE_CHECKING:

@@ -59,8 +59,8 @@ def cases(marks: list[Benchmark], elements: list[str], cells: list[int] | None,
           overrides: dict, max_dofs: int) -> list[dict]:
     """Every (benchmark, element, level) as ``{scene, element, cells, overrides, skip}``;
     ``skip`` says why a case does not run (its size, from the mesh parameters alone)."""
-    from sim.apps.cases import element_overrides
     from sim.model.size import estimate
+    from sim.refinement import element_overrides
     from sim.scene.load import load_scene
 
     out = []

@@ -5,10 +5,10 @@ themselves run at their smallest size in test_results.py."""
 
 import pytest
 
-from sim.apps.cases import element_overrides
 from sim.apps.cli import main
 from sim.apps.study_report import extrapolation_md, extrapolations, richardson
 from sim.model.build import build_model
+from sim.refinement import element_overrides
 from sim.scene.load import load_scene
 from tests.support import ROOT
 

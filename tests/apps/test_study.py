@@ -40,8 +40,8 @@ def test_plan_takes_the_study_table_or_says_which_defaults_it_used():
 def test_plan_only_prints_the_cases_sizes_and_runs_nothing(tmp_path, capsys):
     """``--plan``: the cases in the order they run, each sized by sim.model.size from the
     mesh parameters (what the page's plan also shows, with times), and nothing written."""
-    from sim.apps.study import case_sizes
     from sim.model import size
+    from sim.refinement import case_sizes
 
     rc = main(["study", "convergence", "--elements", "q3t,linear", "--levels", "0.035,0.0175",
                "--plan", "--out", str(tmp_path / "out")])

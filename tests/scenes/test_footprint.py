@@ -45,9 +45,9 @@ MESHES = {
     "file": {"kind": "file", "scale": 1e-3,
              "path": str(ROOT / "tests/data/blanks/dished_annulus.obj")},
     "disk": {"kind": "disk", "edge_length": H, "r_outer": 0.03},
-    # an imperfection taller than the disk is wide: the mesh's extent, which sets region_mask's
-    # tolerance, is then its height
-    "imperfect disk": {"kind": "disk", "edge_length": H, "r_outer": 0.03, "imperfection": -0.5},
+    # a bump as tall as the build takes (half the disk's width: a taller one is refused), its
+    # nodes out of the plane by up to 25 mm
+    "imperfect disk": {"kind": "disk", "edge_length": H, "r_outer": 0.03, "imperfection": -0.025},
     "annulus": {"kind": "annulus", "edge_length": H, "r_inner": 0.01, "r_outer": 0.03},
     "rectangle": {"kind": "rectangle", "edge_length": H, "size": [0.04, 0.02],
                   "origin": [0.005, -0.01]},

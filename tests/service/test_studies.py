@@ -13,8 +13,8 @@ import time
 import pytest
 
 from server import studies
-from sim.apps.cases import element_overrides
 from sim.model import size
+from sim.refinement import element_overrides
 from sim.scene.load import load_scene
 from tests.support.scenes import tiny_toml
 from tests.support.service import HANG, finished_run, in_process, until
