@@ -185,8 +185,9 @@ def _in_mm(note: str) -> str:
 
 def _notes(basis: dict, name: str, runs_dir: Path | None) -> list[str]:
     out = [f"times predicted from run {basis['run']} ({basis['element']}, {basis['dofs']:,} "
-           f"DoFs, {basis['seconds']:.3g} s), scaled by DoFs^{DOF_POWER:g} and by element: "
-           "within about a factor of two, high rather than low scaling up from a small run",
+           f"DoFs, the solver's {basis['seconds']:.3g} s), scaled by DoFs^{DOF_POWER:g} and by "
+           "element: within about a factor of two, high rather than low scaling up from a "
+           "small run",
            "runs stepping meanwhile slow its cases and skew the times it reports"]
     if basis.get("edits"):
         out.append(f"the run changed the saved scene ({basis['edits']}); the study runs "
