@@ -41,7 +41,7 @@ from sim.text import mm
 # q3t_ans from 858 to 6,798 DoFs and Q3T from there to 121,716 (bench.md) 0.77-1.12, the
 # convergence scene from 567 to 21,744 DoFs 1.09 (small models carry a fixed cost per
 # iteration, large ones a factorisation that grows faster). So it errs high scaling up from a
-# small run (the cup's 2 mm cases predicted 1.9 times their time from the 6 mm run), within
+# small run (the cup's 2 mm cases predicted 1.6 times their time from the 6 mm run), within
 # a factor of two either way on both (tests/unit/test_study_prediction.py), which is what tells
 # minutes from hours. Weights per iteration at equal DoFs (bench.md, bench-ans.md, the 2 mm
 # cup): linear 0.8, Q3T 1, q3t_ans and the quadratic prism 1.5, the quartic 4
