@@ -44,11 +44,14 @@ class Asked(BaseModel):
                                         "the finest level)")
 
 
-class Case(BaseModel):
+class Which(BaseModel):
     element: str
     edge_mm: float
     reference: bool = Field(description="the reference run: every case's error is against it")
     dofs: int
+
+
+class Case(Which):
     memory_gib: float = Field(description="the build's peak memory, GiB (sim.model.size)")
     predicted_s: float = Field(description="seconds, predicted from the asking run's")
 
@@ -70,11 +73,7 @@ class Plan(BaseModel):
     command: str = Field(description="the same study from the command line")
 
 
-class Done(BaseModel):
-    element: str
-    edge_mm: float
-    reference: bool
-    dofs: int
+class Done(Which):
     status: str = Field(description="converged, failed, timeout, ... (the case's run)")
     seconds: float = Field(description="its build and solve, as the study times it")
 
