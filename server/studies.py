@@ -31,10 +31,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from server.problems import Conflict, Invalid
+from sim.text import mm
 
 if TYPE_CHECKING:
     from sim.refinement import Plan
-from sim.text import mm
 
 # a case's time: the run's, scaled by its DoFs to this power and by the element's weight,
 # the same steps and Newton iterations taken. Per iteration, over whole runs: the cup with
