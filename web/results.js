@@ -232,6 +232,22 @@ const Results = (() => {
         line.append(c);
       } else line.append(part);
     });
+    // no study of the scene yet (or none of this element): the page can plan one, where the
+    // command line's is not a course's nor of a mesh read from a file
+    if (["no_study", "element_not_studied"].includes(est.reason) && st.state === "finished" &&
+        est.text.includes("`q3t study ") && !est.text.includes("--course")) {
+      const open = document.createElement("a");
+      open.href = "#study-box";
+      open.id = "estimate-plan";
+      open.textContent = "plan one under the plots";
+      open.addEventListener("click", (e) => {
+        e.preventDefault();
+        const box = document.getElementById("study-box");
+        box.open = true;
+        box.scrollIntoView({ block: "nearest" });
+      });
+      line.append(" — or ", open);
+    }
     const kids = [line];
     if (est.notes && est.notes.length) {
       const ul = document.createElement("ul");

@@ -62,6 +62,12 @@ def test_a_study_is_planned_started_and_gives_the_estimate(served, open_page):
     assert httpx.get(f"{url}/api/runs").json() == []  # nothing finished: nothing to study
     page, run = finished_with_study(open_page, url)
     assert "no study for this scene" in page.inner_text("#estimate")
+    # the headline's line points at the panel, which its link opens
+    page.click("#study-box summary")  # closed again, for the link to open
+    assert not page.eval_on_selector("#study-box", "b => b.open")
+    assert page.inner_text("#estimate-plan") == "plan one under the plots"
+    page.click("#estimate-plan")
+    assert page.eval_on_selector("#study-box", "b => b.open")
     plan = httpx.post(f"{url}/api/studies/plan", json={"run": run}).json()
     assert page.input_value("#study-elements") == ", ".join(plan["elements"])
     assert page.input_value("#study-levels") == "140, 70, 35"
