@@ -246,7 +246,8 @@ const Results = (() => {
         box.open = true;
         box.scrollIntoView({ block: "nearest" });
       });
-      line.append(" — or ", open);
+      // after the command it names: "run `q3t study tiny` (or plan one under the plots)"
+      line.querySelector("code").after(" (or ", open, ")");
     }
     const kids = [line];
     if (est.notes && est.notes.length) {
