@@ -320,9 +320,7 @@ class EstimateCache:
                 if run.estimate is None or self._keys.get(run.id, "?") != key:
                     edge, result, command, cells = self._facts_of(run)
                     run.estimate = estimate(self.root, run.scene, run.element, edge, result,
-                                            run.overrides, command, cells,
-                                            run.edits or (["unsaved edits"] if run.edited
-                                                          else None))
+                                            run.overrides, command, cells, run.unsaved())
                     self._keys[run.id] = key
             except Exception as exc:  # never let the estimate break a status request
                 run.estimate = {"available": False, "reason": "error",

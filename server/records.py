@@ -111,16 +111,23 @@ class Run:
         paused = last == ["pause"] if last else self.state == "paused"
         return ["resume" if paused else "pause", "step", "stop"]
 
-    def changes(self) -> list[str]:
-        """What this run changed of its saved scene, in words: the page's unsaved edits (each
-        setting from the saved value to the edited one), the
+    def unsaved(self) -> list[str]:
+        """The page's unsaved edits it ran, in words (each setting from the saved value to the
+        edited one)."""
+        return list(self.edits or ["unsaved edits of the scene"]) if self.edited else []
+
+    def changes(self, studied: bool = False) -> list[str]:
+        """What this run changed of its saved scene, in words: the page's unsaved edits, the
         overrides (the element is a column of its own), the live parameters given at the
-        start (from step 1) and those changed while it ran, from the step each applied."""
-        out = list(self.edits or ["unsaved edits of the scene"]) if self.edited else []
-        if self.scene_element:  # the element has its own column, but this is a change
+        start (from step 1) and those changed while it ran, from the step each applied.
+        ``studied``: what a refinement study does not vary itself (not the element, not the
+        mesh's edge length)."""
+        out = self.unsaved()
+        if self.scene_element and not studied:  # a column of its own, but a change
             out.append(f"element {self.element} (the scene's {self.scene_element})")
+        varied = ("shell.element", "mesh.edge_length") if studied else ("shell.element",)
         out += [f"{k} = {override_text(k, v)}" for k, v in self.overrides.items()
-                if k != "shell.element"]
+                if k not in varied]
         # the live parameters as the page's sliders name them (Friction × 0.5)
         out += [f"{label(k)[0]} {v:.4g} from step 1" for k, v in self.given.items()
                 if v != AS_WRITTEN]

@@ -4,7 +4,6 @@ cancel (server.studies). Its report gives the scene's runs their error estimate.
 
 from __future__ import annotations
 
-import json
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Request
@@ -16,7 +15,6 @@ from server.problems import Invalid, NotFound
 from server.runs import RunManager
 from server.settings import RunId
 from server.store import SceneStore
-from sim.scene.load import scene_from_toml
 
 router = APIRouter(prefix="/api/studies", tags=["studies"], route_class=CheckedRoute)
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -111,31 +109,21 @@ def _plan(body: Asked, request: Request) -> tuple[dict, object, dict]:
     if run.state != "finished":
         raise Invalid(f"run: {run.id} is {run.state}: a study's times are predicted from a "
                       "finished run's")
-    try:
-        result = json.loads((m.files.dir(run.id) / "result.json").read_text())
-        # the solver's own time (assembly, factorisation, solve, line search): the service's
-        # run also makes and records a frame a step, which a study's cases do not (on the 2 mm
-        # cup 11 s of its 25, against 2.4 s of 14.6 from the command line)
-        timing, dofs = result["timing"], result["counts"]["dofs"]
-        t = timing["per_iteration"] * timing["newton_iterations"]
-    except (OSError, ValueError, KeyError, TypeError):
-        raise Invalid(f"run: {run.id} has no timing in its result") from None
+    # the run's cost and mesh edge as its estimate read them (its result.json, its scene);
+    # the solver's own time (assembly, factorisation, solve, line search): the service's run
+    # also makes and records a frame a step, which a study's cases do not (on the 2 mm cup 11 s
+    # of its 25, against 2.4 s of 14.6 from the command line)
+    est = m.estimates.get(run) or {}
+    cost = est.get("cost") or {}
+    if not (cost.get("per_iteration_s") and cost.get("newton_iterations") and cost.get("dofs")):
+        raise Invalid(f"run: {run.id} has no timing in its result")
+    t, dofs = cost["per_iteration_s"] * cost["newton_iterations"], cost["dofs"]
     path = store.path(run.scene)
     if not path.is_file():
         raise NotFound(f"run: its scene {run.scene!r} is no longer in the scenes folder")
     overrides = store.solver_overrides(store.validate(store.text(run.scene)))
-    # what the run changed of the saved scene (unsaved edits, overrides: the study runs the
-    # saved scene), and its mesh's edge, which the plan's levels take
-    other = sorted(k for k in run.overrides if k not in ("shell.element", "mesh.edge_length"))
-    edits = [*run.edits, *(f"--set {k}" for k in other)]
-    try:
-        ran = scene_from_toml((m.files.dir(run.id) / "scene.toml").read_text(), run.overrides)
-        edge = getattr(ran.mesh, "edge_length", None)
-    except (OSError, ValueError):
-        edge = None
     basis = {"run": run.id, "element": run.element, "dofs": int(dofs), "seconds": float(t),
-             "edge": edge, "edits": "; ".join(edits) if edits or not run.edited
-             else "unsaved edits"}
+             "edge": est.get("edge_length"), "edits": "; ".join(run.changes(studied=True))}
     ref = (body.reference.element, body.reference.edge_mm) if body.reference else None
     plan = studies.make(path, run.scene, basis, overrides,
                         request.app.state.settings.max_model_bytes, body.elements,

@@ -101,7 +101,7 @@ def test_the_plan_takes_the_runs_level_and_says_what_the_run_changed(env):
     assert plan["levels_mm"] == pytest.approx([140.0, 70.0, 50.0, 35.0])
     assert plan["reference"]["edge_mm"] == pytest.approx(17.5)
     assert "the run's level (50 mm) added to the scene's" in plan["notes"]
-    assert ("the run changed the saved scene (--set material.nu); the study runs scene "
+    assert ("the run changed the saved scene (material.nu = 0.25); the study runs scene "
             "'tiny' as saved: save the edits first to study what ran") in plan["notes"]
 
 
