@@ -39,7 +39,8 @@ def plots(status: dict, result: dict | None) -> dict:
                       "iterations": [r["iterations"] for r in records]},
            "parameter_log": labelled(status.get("parameter_log") or []),
            "sheet": sheet_series(records),
-           "sections": sections((result or {}).get("sections") or {})}
+           "sections": sections((result or {}).get("sections") or {}),
+           "forming_limits": bool((result or {}).get("forming_limits"))}
     return results.finite(out)[0]  # JSON has no NaN: a missing value is null
 
 

@@ -385,7 +385,10 @@ const Results = (() => {
     if (COMING.includes(st.state)) { Plots.show("fld-fig", false); drawn.fld = null; return; }
     if (drawn.fld === k) return;
     let fl = null;
-    try {
+    // the plots say whether the result has one: an elastic run's is not asked for (a 404
+    // in the console of every page that shows one)
+    const none = plotsData && plotsData.run === st.id && !plotsData.forming_limits;
+    if (!none) try {
       fl = await api("GET", `/api/runs/${st.id}/forming_limits`);
     } catch (e) {
       if (e.status !== 404) throw e;  // an elastic run, or one without a result

@@ -6,11 +6,13 @@
 "use strict";
 const Studies = (() => {
   const POLL_MS = 1000;  // while a study runs: its cases take a second to hours each
+  const NOTICE_MS = 10000;  // a study another page started shows within this
   let run = null;  // the finished run shown: its scene is studied, its time predicts
   let planned = null;  // the run the inputs and the plan were made for
   let plannedBody = null;  // the request of the plan on screen: what Start starts
   let following = false;  // a poll of the running study is under way
   let seen = null;  // the state of the study last drawn
+  let watched = false;  // this page saw the study run: the headline says how it ended
   const $ = (id) => document.getElementById(id);
   // lists are typed separated by spaces, ";" or ", " (a comma and a space); a comma between
   // digits is a decimal comma ("17,5" is 17.5 mm)
@@ -143,7 +145,7 @@ const Studies = (() => {
     $("study-cancel").hidden = seen !== "running";
     if (seen === "running") $("study-start").disabled = true;
     else if (planned === run && run && plannedBody) $("study-start").disabled = false;
-    if (!s) { box.replaceChildren(); return; }
+    if (!s) { box.replaceChildren(); headline(null); return; }
     const head = document.createElement("div");
     const when = `${duration(s.elapsed_s)} of about ${duration(s.predicted_s)} predicted`;
     const kept = s.had_report ? "the scene's last report stays" : "no report written";
@@ -171,6 +173,21 @@ const Studies = (() => {
       return d;
     });
     box.replaceChildren(head, bar, ...said);
+    headline(s, head.textContent);
+  }
+
+  function headline(s, text) {
+    // the headline's line: a study runs for the server, whichever run the page shows (the
+    // panel lives under a finished run's plots), so a page opened or reloaded meanwhile
+    // still shows it and can cancel it; once it has ended the line says how, until dismissed
+    const line = $("study-line");
+    if (s && s.state === "running") watched = true;
+    line.hidden = !s || !watched;
+    if (line.hidden) return;
+    line.dataset.state = s.state;
+    line.querySelector(".text").textContent = text;
+    $("study-line-cancel").hidden = s.state !== "running";
+    $("study-line-close").hidden = s.state === "running";
   }
 
   async function follow() {
@@ -208,11 +225,14 @@ const Studies = (() => {
   }
 
   async function cancel() {
-    $("study-cancel").disabled = true;
+    for (const id of ["study-cancel", "study-line-cancel"]) $(id).disabled = true;
     try {
       drawProgress(await api("POST", "/api/studies/cancel"));
-    } catch (e) { error(e.message); }
-    $("study-cancel").disabled = false;
+    } catch (e) {
+      error(e.message);
+      $("msg").textContent = `study: ${e.message}`;  // the panel may not be on screen
+    }
+    for (const id of ["study-cancel", "study-line-cancel"]) $(id).disabled = false;
   }
 
   function show(st) {
@@ -243,9 +263,26 @@ const Studies = (() => {
     $("study-plan").addEventListener("click", () => plan(false));
     $("study-start").addEventListener("click", start);
     $("study-cancel").addEventListener("click", cancel);
+    $("study-line-cancel").addEventListener("click", cancel);
+    $("study-line-close").addEventListener("click", () => {
+      watched = false;
+      $("study-line").hidden = true;
+    });
+    $("study-line-open").addEventListener("click", () => {
+      // the panel is under a finished run's plots: without one shown there is none
+      const box = $("study-box");
+      if (box.hidden) {
+        error("");
+        $("msg").textContent = "the study's panel is under a finished run's plots: select one";
+        return;
+      }
+      box.open = true;
+      box.scrollIntoView({ block: "start", behavior: "smooth" });
+    });
     for (const id of ["study-elements", "study-levels", "study-ref-element", "study-ref-edge"])
       $(id).addEventListener("input", edited);
     follow();  // a study started before the page was opened
+    setInterval(follow, NOTICE_MS);  // or by another page since
   }
 
   return { show, forget, init };

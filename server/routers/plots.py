@@ -70,6 +70,8 @@ class Plots(BaseModel):
                                     "(once the run has written its result)")
     sheet: SheetSeries = Field(description="the sheet at each step, while the run goes (its "
                                "summary comes at the end)")
+    forming_limits: bool = Field(description="its result has a forming limit diagram "
+                                 "(/api/runs/{id}/forming_limits): a plastic run, finished")
 
 
 @router.get("/{run_id}/plots", response_model=Plots, responses=documented(404, 422))

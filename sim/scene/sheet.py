@@ -55,6 +55,16 @@ class _Mesh(Strict):
 class _Generated(_Mesh):
     edge_length: Length = doc("the triangles' edge length: the mesh's resolution", "m")
 
+    def _at_most(self, longest: float, what: str, makes: str) -> Self:
+        # an edge longer than the sheet is across makes a mesh of a few triangles, no sheet: a
+        # typo (an edge length of 5 m on a 60 mm blank ran and "finished"; a study's level of
+        # 1000 m gave the same 90 DoFs as its 100 m). A coarse mesh short of that is the
+        # user's look to take.
+        if self.edge_length > longest * (1 + 1e-9):
+            raise ValueError(f"edge_length: {1e3 * self.edge_length:.4g} mm is longer than "
+                             f"{what} ({1e3 * longest:.4g} mm): at most that, {makes}")
+        return self
+
 
 class RectangleMesh(_Generated):
     """A rectangle in the plane z = 0, from ``origin`` to ``origin + size``."""
@@ -62,6 +72,11 @@ class RectangleMesh(_Generated):
     kind: Literal["rectangle"] = doc("a rectangle in z = 0")
     size: tuple[Length, Length] = doc("its sides (Lx, Ly)", "m")
     origin: tuple[Coord, Coord] = doc("its corner of least x and y", "m", (0.0, 0.0))
+
+    @model_validator(mode="after")
+    def _resolved(self) -> Self:
+        return self._at_most(max(self.size), "the rectangle's longer side",
+                             "two triangles across it")
 
     def radial_ranges(self) -> footprint.RadialRanges:
         return footprint.rectangle_ranges(self.origin, self.size)
@@ -78,7 +93,8 @@ class AnnulusMesh(_Generated):
     def _radii(self) -> Self:
         if self.r_inner >= self.r_outer:
             raise ValueError("r_inner must be smaller than r_outer")
-        return self
+        return self._at_most(self.r_outer, "the ring's outer radius", "a ring of a few "
+                             "triangles")
 
     def radial_ranges(self) -> footprint.RadialRanges:
         return footprint.annulus_ranges(self.r_inner, self.r_outer, self.edge_length)
@@ -92,14 +108,7 @@ class DiskMesh(_Generated):
 
     @model_validator(mode="after")
     def _resolved(self) -> Self:
-        # an edge longer than the radius makes a hexagon of six triangles, no disk: a typo (an
-        # edge length of 5 m on a 60 mm blank ran and "finished"). A coarse mesh short of that
-        # is the user's look to take.
-        if self.edge_length > self.r_outer:
-            raise ValueError(f"edge_length: {1e3 * self.edge_length:.4g} mm is longer than the "
-                             f"disk's radius ({1e3 * self.r_outer:.4g} mm): at most that, a "
-                             "hexagon of six triangles")
-        return self
+        return self._at_most(self.r_outer, "the disk's radius", "a hexagon of six triangles")
 
     def radial_ranges(self) -> footprint.RadialRanges:
         return footprint.annulus_ranges(0.0, self.r_outer, self.edge_length)
@@ -111,6 +120,12 @@ class CylinderBandMesh(_Generated):
     kind: Literal["cylinder_band"] = doc("a cylinder's side around the z axis (a tube)")
     radius: Length = doc("the cylinder's radius", "m")
     height: Length = doc("its height along z", "m")
+
+    @model_validator(mode="after")
+    def _resolved(self) -> Self:
+        return self._at_most(max(self.height, 2 * math.pi * self.radius),
+                             "the tube's height and circumference", "a band of a few "
+                             "triangles")
 
     def radial_ranges(self) -> footprint.RadialRanges:
         return footprint.tube_ranges(self.radius, self.height, self.edge_length)

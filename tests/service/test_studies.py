@@ -116,6 +116,9 @@ def test_the_plan_takes_the_runs_level_and_says_what_the_run_changed(env):
     ({"reference": {"element": "quadratic", "edge_mm": 0.0}}, 422,
      r"^reference\.edge_mm: 0 mm: a mesh edge length is a positive number"),
     ({"elements": ["prism9"]}, 422, r"^elements: unknown element 'prism9'"),
+    # a level longer than the sheet: the same few triangles as a finer one, no level
+    ({"levels_mm": [1e6, 35]}, 422, r"^levels_mm: mesh: edge_length: 1e\+06 mm is longer "
+                                    r"than the rectangle's longer side \(700 mm\)"),
     ({"levels_mm": [70], "reference": {"element": "quadratic", "edge_mm": 140.0}}, 422,
      r"^reference\.edge_mm: 140 mm is coarser than the finest level \(70 mm\): every case's "
      r"error is measured against the reference"),

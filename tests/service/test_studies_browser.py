@@ -27,10 +27,12 @@ def served(tmp_path_factory):
         yield url, tmp / "runs"
 
 
-def finished_with_study(open_page, url: str):
+def finished_with_study(open_page, url: str, asked: list | None = None):
     """The tiny scene run from the page to its end, its study panel opened on its plan; the
-    page and the run's id."""
+    page and the run's id. ``asked``: the urls the page requests go to this list."""
     page = open_scene(open_page, url, "tiny", "[name='mesh.kind']")
+    if asked is not None:
+        page.on("request", lambda r: asked.append(r.url))
     before = page.get_attribute("#status", "data-run") or ""
     if not before:  # no run shown: nothing to study
         assert page.is_hidden("#study-box")
@@ -60,8 +62,13 @@ def start(page, cases: int, **inputs: str) -> None:
 def test_a_study_is_planned_started_and_gives_the_estimate(served, open_page):
     url, runs = served
     assert httpx.get(f"{url}/api/runs").json() == []  # nothing finished: nothing to study
-    page, run = finished_with_study(open_page, url)
+    asked = []
+    page, run = finished_with_study(open_page, url, asked)
     assert "no study for this scene" in page.inner_text("#estimate")
+    # an elastic run has no forming limit diagram: the page does not ask for one (a 404 in
+    # the console), which the run's plots said
+    assert httpx.get(f"{url}/api/runs/{run}/plots").json()["forming_limits"] is False
+    assert not [u for u in asked if "forming_limits" in u], asked
     # the headline's line points at the panel, which its link opens
     page.click("#study-box summary")  # closed again, for the link to open
     assert not page.eval_on_selector("#study-box", "b => b.open")
@@ -133,13 +140,28 @@ def test_a_study_is_planned_started_and_gives_the_estimate(served, open_page):
 
 
 def test_a_study_cancelled_from_the_page_says_so(served, open_page):
-    page, _ = finished_with_study(open_page, served[0])
+    url = served[0]
+    page, _ = finished_with_study(open_page, url)
     # the three routine elements and the reference at one level
     start(page, 4, levels="35", ref_edge="10")
-    page.click("#study-cancel")
+    assert page.inner_text("#study-line .text").startswith("Study of tiny running: ")
+    # a page opened meanwhile (a reload) shows the study in its headline, whichever run it
+    # shows, and cancels it from there (the panel is under a finished run's plots)
+    other = open_page(url, "#scenes li.sel")
+    other.wait_for_selector("#study-line[data-state='running']")
+    assert other.is_visible("#study-line-cancel") and other.is_hidden("#study-line-close")
+    shot(other, SHOTS, "reloaded-running.png", settle_ms=300)
+    other.click("#study-line-cancel")
+    other.wait_for_selector("#study-line[data-state='cancelled']")
+    assert "cancelled after" in other.inner_text("#study-line .text")
+    other.click("#study-line-close")
+    assert other.is_hidden("#study-line")
+    # the page that started it hears it too, at its next poll of the study
     page.wait_for_selector("#study-progress[data-state='cancelled']")
     assert "cancelled after" in page.inner_text("#study-progress")
     # the first test's study wrote the scene's report, which a cancelled one leaves
     assert "the scene's last report stays" in page.inner_text("#study-progress")
     assert page.is_enabled("#study-start")
     shot(page, SHOTS, "cancelled.png", settle_ms=300)
+    # the page opened cold, with no study running, has no study line
+    assert open_page(url, "#scenes li.sel").is_hidden("#study-line")
