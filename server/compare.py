@@ -93,7 +93,7 @@ def _result(folder: Path, status: dict) -> dict | None:
 def compare(runs: list[Loaded]) -> dict:
     """The comparison of ``runs`` (the first is the reference): see the module's doc."""
     drawn = [plots(r.status, r.result) for r in runs]
-    out = {"runs": [_head(r) for r in runs],
+    out = {"runs": [_head(r, runs[0]) for r in runs],
            "differs": differences(runs),
            "punches": [{"run": r.id, "letter": r.letter, **p}
                        for r, d in zip(runs, drawn, strict=True) for p in d["punches"]],
@@ -135,7 +135,9 @@ def summary_csv(runs: list[Loaded]) -> str:
     return buf.getvalue()
 
 
-def _head(r: Loaded) -> dict:
+def _head(r: Loaded, runs0: Loaded | None = None) -> dict:
+    """The run as the comparison's head shows it; ``comparable``: its summary is of the same
+    stage as A's (``runs0``), so that differences from A are taken."""
     st = r.status
     if st["state"] not in ENDED:
         note = f"{st['state']}: compared up to step {st['step']}; its summary comes when it ends"
@@ -146,7 +148,8 @@ def _head(r: Loaded) -> dict:
     return {"id": r.id, "letter": r.letter, "scene": st["scene"], "element": st["element"],
             "state": st["state"], "step": st["step"], "n_steps": st.get("n_steps"),
             "overrides": st.get("overrides") or {}, "edited": bool(st.get("edited")),
-            "result": r.result is not None, "note": note}
+            "result": r.result is not None, "note": note,
+            "comparable": comparable(runs0, r) if runs0 is not None else True}
 
 
 # ---- what differs --------------------------------------------------------------------------
@@ -237,12 +240,32 @@ def summary_rows(runs: list[Loaded]) -> list[dict]:
             row["flags"][i] = e.get("flag")
             row["values"][i] = v if isinstance(v, (int, float)) else None
             row["at"][i] = _at(e.get("at") or {})
+    unlike = [not comparable(runs[0], r) for r in runs]
     for row in rows.values():
         a = row["values"][0]
-        row["delta"] = [None if a is None or v is None else v - a for v in row["values"]]
-        row["delta_pct"] = [None if a in (None, 0) or v is None or row["unit"] == "%"
-                            else 100 * (v - a) / abs(a) for v in row["values"]]
+        # the part of a run that ended early is the part at its last step: no difference
+        # from a formed part ("punch force at the end +290 %" of a run that failed halfway);
+        # the mesh's size still compares
+        skip = [u and row["name"] not in SIZE_ROWS for u in unlike]
+        row["delta"] = [None if a is None or v is None or k else v - a
+                        for v, k in zip(row["values"], skip, strict=True)]
+        row["delta_pct"] = [None if a in (None, 0) or v is None or row["unit"] == "%" or k
+                            else 100 * (v - a) / abs(a)
+                            for v, k in zip(row["values"], skip, strict=True)]
     return list(rows.values())
+
+
+SIZE_ROWS = ("elements", "dofs")  # what a run's end does not change
+
+
+def comparable(a: Loaded, b: Loaded) -> bool:
+    """Whether the two runs' summaries are of the same stage of the process: both finished,
+    or both ended at the same step of as many."""
+    sa, sb = a.status, b.status
+    done = (sa["state"] == "finished", sb["state"] == "finished")
+    if all(done):
+        return True
+    return not any(done) and (sa["step"], sa.get("n_steps")) == (sb["step"], sb.get("n_steps"))
 
 
 def _entries(result: dict | None) -> list[dict]:
@@ -315,10 +338,21 @@ def same_mesh(a: dict, b: dict, tol: float = SAME_MESH_TOL) -> str | None:
 def thickness_available(a: Loaded, b: Loaded) -> dict:
     """Whether A and B have a thickness-difference map, and why not."""
     try:
-        why = same_mesh(final_state(a), final_state(b))
+        why = same_mesh(final_state(a), final_state(b)) or other_stage(a, b)
     except Conflict as exc:
         why = str(exc)
     return {"a": a.id, "b": b.id, "available": why is None, "reason": why}
+
+
+def other_stage(a: Loaded, b: Loaded) -> str | None:
+    """Why A - B of two final states is no difference of formed parts: one ended early."""
+    if comparable(a, b):
+        return None
+    early = [f"{r.letter} {r.status['state']} at step {r.status['step']}"
+             + (f" of {r.status['n_steps']}" if r.status.get("n_steps") else "")
+             for r in (a, b) if r.status["state"] != "finished"]
+    return (f"{' and '.join(early)}: its part is not the formed one, and A - B would be the "
+            "stroke's difference; the views at the same punch stroke below compare them")
 
 
 def thickness(a: Loaded, b: Loaded) -> dict:
@@ -326,7 +360,7 @@ def thickness(a: Loaded, b: Loaded) -> dict:
     and A - B (mm, on A's vertices) where the meshes are the same; the colour range both
     share."""
     fa, fb = final_state(a), final_state(b)
-    why = same_mesh(fa, fb)
+    why = same_mesh(fa, fb) or other_stage(a, b)
     both = np.concatenate([fa["thickness"], fb["thickness"]])
 
     def part(r: Loaded, f: dict) -> dict:

@@ -321,6 +321,15 @@ const Compare = (() => {
     if (none.length)
       box.append(el("p", { className: "muted", textContent: `${none.join(", ")}: no summary ` +
                            "yet (see the note above); its column shows –." }));
+    // a run that ended early holds the part at its last step: no difference from A's
+    const unlike = runs.filter((r, i) => i && r.result && !r.comparable);
+    const ended = (r) => (r.state === "finished" ? `${r.letter} finished`
+      : `${r.letter} ${r.state} at step ${r.step}` + (r.n_steps ? ` of ${r.n_steps}` : ""));
+    if (unlike.length && data.summary.some((row) => row.values[0] !== null))
+      box.append(el("p", { id: "compare-unlike", className: "caution", role: "note",
+        textContent: `${[runs[0], ...unlike].map(ended).join("; ")}: each value is the part ` +
+          "where its run ended, so no difference from A is taken for " +
+          `${unlike.map((r) => r.letter).join(", ")} (–), except the mesh's size.` }));
     // every difference is from A: without A's summary the table has none to show
     if (data.summary.length && data.summary.every((row) => row.values[0] === null))
       box.append(el("p", { className: "caution", role: "note", textContent: "A has no " +

@@ -38,6 +38,9 @@ class ComparedRun(BaseModel):
     result: bool = Field(description="its result.json is there: false while it runs (it is "
                          "compared as far as it has got) or when it ended without one")
     note: str | None = Field(description="why a run is compared only in part, or its reason")
+    comparable: bool = Field(description=(
+        "its summary is of the same stage as A's (both finished, or both ended at the same "
+        "step): false, and its differences from A are null but for the mesh's size"))
 
 
 class Difference(BaseModel):

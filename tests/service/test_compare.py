@@ -261,6 +261,23 @@ def test_a_run_still_going_is_compared_in_part(env, runs):
         assert "final state is written when it ends" in cmp["thickness"]["reason"]
         t = client.get(f"/api/compare/thickness?runs={a},{live}")
         assert t.status_code == 409 and live in t.json()["detail"]
+        # stopped at step 1, it has the part there: its values, and no difference from a
+        # formed part's (a browser review read "punch force at the end +290 %" off a run
+        # that failed halfway), except the mesh's size
+        client.post(f"/api/runs/{live}/stop")
+        wait_state(client, live, ENDED)
+        cmp = client.get(f"/api/compare?runs={a},{live}").json()
+        assert cmp["runs"][1]["state"] == "stopped" and cmp["runs"][1]["result"]
+        assert [h["comparable"] for h in cmp["runs"]] == [True, False]
+        rows = {row["name"]: row for row in cmp["summary"] if row["tool"] is None}
+        assert rows["min_thickness"]["values"][1] is not None
+        for row in cmp["summary"]:
+            shown = row["delta"][1] is not None
+            assert shown == (row["name"] in ("elements", "dofs")), row
+            assert row["delta_pct"][1] is None or shown
+        csv = client.get(f"/api/compare/summary.csv?runs={a},{live}").text.splitlines()
+        thinnest = next(ln for ln in csv if ln.startswith("Minimum thickness"))
+        assert thinnest.split(",")[4:6] == ["", ""], thinnest  # B - A, and in % of A
     finally:
         client.post(f"/api/runs/{live}/stop")
         wait_state(client, live, ENDED)

@@ -295,3 +295,41 @@ def test_a_failed_run_as_a_says_no_difference_can_be_taken(served, browser):
     shot(page, SHOTS, "failed-a", settle_ms=SETTLE_MS)
     assert not errors, errors
     page.close()
+
+
+def test_a_run_that_stopped_early_takes_no_difference_from_a_formed_part(served, browser):
+    """A browser review compared a finished cup with one that failed halfway: "punch force
+    at the end of the stroke +11.2 kN (+290 %)", in bold. The run stopped early shows its
+    values (the part where it ended), no difference from A's but the mesh's size, and a
+    note says why."""
+    url, _, (a, _, _) = served
+    run = httpx.post(f"{url}/api/runs", json={"scene": "tiny_cup", "paused": True}).json()["id"]
+    until(lambda: httpx.get(f"{url}/api/runs/{run}").json()["state"] == "paused", "not paused")
+    httpx.post(f"{url}/api/runs/{run}/step")
+    until(lambda: httpx.get(f"{url}/api/runs/{run}").json()["step"] >= 1, "no step")
+    httpx.post(f"{url}/api/runs/{run}/stop")
+    st = until(lambda: (s := httpx.get(f"{url}/api/runs/{run}").json())["state"] in ENDED
+               and s, f"run {run} never ended")
+    assert st["state"] == "stopped", st
+    page, errors = open_page(browser, url)
+    page.wait_for_selector(f"#compare-runs input[value='{run}']")
+    tick(page, a)
+    tick(page, run)
+    page.click("#compare-open")
+    page.wait_for_selector("#compare-unlike")
+    assert page.text_content("#compare-unlike") == (
+        f"A finished; B stopped at step {st['step']} of {st['n_steps']}: each value is the part "
+        "where its run ended, so no difference from A is taken for B (–), except the mesh's "
+        "size.")
+    deltas = page.eval_on_selector_all(
+        "#compare-summary tbody tr", "rs => rs.map(r => [r.dataset.name, "
+        "r.cells[2].querySelector('.delta').textContent])")
+    assert deltas and all((d == "–") == (n not in ("elements", "dofs")) for n, d in deltas), \
+        deltas
+    # nor a map of A - B: each run's thickness, and why not
+    page.wait_for_selector("#compare-thickness-note")
+    page.wait_for_function("document.getElementById('compare-thickness-note').textContent"
+                           ".includes('its part is not the formed one')")
+    shot(page, SHOTS, "stopped-b", settle_ms=SETTLE_MS)
+    assert not errors, errors
+    page.close()
