@@ -25,9 +25,11 @@ def _font(px: int) -> ImageFont.ImageFont:
     return ImageFont.load_default(size=px)
 
 
-# the default font's glyphs are Latin-1's: the legend's signs written as text
+# the default font lacks these glyphs (a box in the caption: "Tool speed ▯ 1.5", a browser
+# review), even some of Latin-1's: the signs written as text
 PLAIN = str.maketrans({"≥": ">=", "≤": "<=", "–": "-", "—": "-", "›": ">", "→": "->",
-                       "…": "..."})
+                       "…": "...", "×": "x", "−": "-", "µ": "u", "²": "^2", "³": "^3",
+                       "≈": "~", "Δ": "delta "})
 
 
 def _text_w(draw: ImageDraw.ImageDraw, text: str, font: ImageFont.ImageFont) -> int:

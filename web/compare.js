@@ -20,6 +20,7 @@ const Compare = (() => {
   const view = { runs: null, data: null, thickness: null, show: "diff", shape: "formed",
                  against: 1, camera: null, timer: null, seq: 0,
                  stroke: null, strokeKey: null, strokeSeq: 0, strokeDigits: 3,
+                 strokeTicks: null,
                  bounds: null };
   // the 3-D views whose cameras move together: the final thickness and the views at a stroke
   // the views at a stroke: from the front, a little to the right and above, the whole part
@@ -557,8 +558,18 @@ const Compare = (() => {
     slider.setAttribute("list", "compare-stroke-ticks");
     slider.setAttribute("aria-label", "punch stroke (mm)");
     // the number shown follows the thumb; the frames are asked for where it is let go
-    slider.oninput = () => { $("compare-stroke-value").textContent = mm(+slider.value); };
+    // a stroke between saved frames showed the frame nearest it under another number (11.9 mm
+    // over a frame of 10 mm, a browser review): the thumb goes to the nearest stroke a frame
+    // was saved at, and the number with it
+    const snapped = () => {
+      const ticks = view.strokeTicks || [];
+      if (!ticks.length) return +slider.value;
+      return ticks.reduce((a, b) => (Math.abs(b - slider.value) < Math.abs(a - slider.value)
+                                     ? b : a));
+    };
+    slider.oninput = () => { $("compare-stroke-value").textContent = mm(snapped()); };
     slider.onchange = () => {
+      slider.value = String(snapped());
       view.stroke = +slider.value;
       fetchStroke();
     };
@@ -630,9 +641,11 @@ const Compare = (() => {
     Object.assign(slider, { min: lo, max: hi, step, disabled: !(hi > lo) });
     view.strokeDigits = hi < 10 ? 3 : 2;
     slider.value = String(t.stroke);
-    const ticks = [...new Set(t.runs.flatMap((r) => r.frames.map((f) => f.stroke)))];
-    $("compare-stroke-ticks").replaceChildren(...ticks.filter((v) => v >= lo && v <= hi)
-      .map((v) => el("option", { value: String(v) })));
+    const ticks = [...new Set(t.runs.flatMap((r) => r.frames.map((f) => f.stroke)))]
+      .filter((v) => v >= lo && v <= hi).sort((a, b) => a - b);
+    view.strokeTicks = ticks;
+    $("compare-stroke-ticks").replaceChildren(...ticks.map((v) => el("option",
+                                                                  { value: String(v) })));
     $("compare-stroke-value").textContent = mm(t.stroke);
     const shown = [t.a, t.b].map((p) => `${p.letter}: frame of step ${p.step} at ` +
                                       mm(p.stroke));

@@ -318,8 +318,24 @@ const Plots = (() => {
     const lo = (xs) => Math.min(0, ...xs), hi = (xs) => Math.max(0, ...xs);
     const flc0 = fl.curve ? 100 * fl.curve.flc0 : 0;
     const xr = [Math.min(-10, 1.3 * lo(pct(fl.minor))), Math.max(10, 1.3 * hi(pct(fl.minor)))];
+    // and the curve over the points' minor strains: a drawn cup's flange (minor -60 %) lay
+    // under a curve that ran off the top (a browser review)
+    const points = pct(fl.minor);
+    const [m0, m1] = [Math.min(0, ...points), Math.max(0, ...points)];
+    const over = [];
+    if (fl.curve) {
+      const cx = pct(fl.curve.minor), cy = pct(fl.curve.major);
+      // the curve at the points' ends (linear between its own points, held past them) and
+      // its points between
+      const at = (m) => {
+        const k = cx.findIndex((v) => v >= m);
+        if (k <= 0) return cy[k < 0 ? cy.length - 1 : 0];
+        return cy[k - 1] + (cy[k] - cy[k - 1]) * (m - cx[k - 1]) / (cx[k] - cx[k - 1]);
+      };
+      over.push(at(m0), at(m1), ...cy.filter((_, i) => cx[i] >= m0 && cx[i] <= m1));
+    }
     const yr = [Math.min(-2, 1.2 * lo(pct(fl.major))),
-                Math.max(1.3 * flc0, 1.2 * hi(pct(fl.major)), 10)];
+                Math.max(1.3 * flc0, 1.2 * hi(pct(fl.major)), 1.1 * hi(over), 10)];
     const layout = { ...base(`Forming limit diagram (step ${fl.step})`, 320),
                      xaxis: axis("minor true strain (%)", { range: xr }),
                      yaxis: axis("major true strain (%)", { range: yr }) };

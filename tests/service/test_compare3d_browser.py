@@ -112,13 +112,18 @@ def test_two_views_follow_the_stroke_slider(served, browser):
     assert page.eval_on_selector("#compare-3d-diff", "d => [d.data[0].cmin, d.data[0].cmax]"
                                  ) == [-0.001, 0.001]
 
-    # between two frames: A saved 1 and 1.5 mm, B 1 and 1.25 mm; each shows its nearest
+    # let go between two frames: A saved 1 and 1.5 mm, B 1 and 1.25 mm; the thumb goes to the
+    # nearest stroke either saved, 1.25 mm (a stroke of 1.2 mm showed frames of others, a
+    # review), and each view shows its run's frame nearest that
     slider.evaluate("s => { s.value = '1.2'; s.dispatchEvent(new Event('input')); "
                     "s.dispatchEvent(new Event('change')); }")
-    wait_steps(page, 2, 5)
+    assert page.text_content("#compare-stroke-value") == "1.250 mm"
+    assert slider.input_value() == "1.25"
+    api = httpx.get(f"{url}/api/compare/frames?runs={a},{b}&stroke_mm=1.25").json()
+    assert api["b"]["step"] == 5 and api["a"]["step"] in (2, 3)
+    wait_steps(page, api["a"]["step"], 5)
     text = page.text_content("#compare-stroke-shown")
-    assert "A: frame of step 2 at 1.000 mm" in text and "B: frame of step 5 at 1.250 mm" in text
-    api = httpx.get(f"{url}/api/compare/frames?runs={a},{b}&stroke_mm=1.2").json()
+    assert "B: frame of step 5 at 1.250 mm" in text
     assert intensities(page, "#compare-3d-a") == pytest.approx(api["a"]["thickness"])
     assert intensities(page, "#compare-3d-b") == pytest.approx(api["b"]["thickness"])
     assert intensities(page, "#compare-3d-diff") == pytest.approx(api["difference"]["values"])

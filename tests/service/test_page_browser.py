@@ -220,6 +220,18 @@ def test_results_of_a_finished_run(plain, browser):
         # and its one curve's step is in the legend (plotly hides a lone trace's: a failed
         # run's rest-state section read as the formed part, a browser review)
         assert ys == [[0.78, 0.78, 0.78], True, "step 0"]
+        # the forming limit curve stays in view over the points' minor strains (a drawn
+        # cup's flange at minor -60 % lay under a curve that ran off the top: a review)
+        top = page.evaluate("""async () => {
+            const div = document.createElement("div");
+            document.body.append(div);
+            await Plots.fld(div, { step: 9, minor: [-0.6, -0.2, 0.05], major: [0.7, 0.3, 0.1],
+                curve: { minor: [-0.8, -0.4, 0, 0.4], major: [1.2, 0.8, 0.4, 0.6], flc0: 0.4 },
+                margin: 0.1 });
+            const y = div.layout.yaxis.range[1];
+            div.remove();
+            return y; }""")
+        assert top >= 100.0  # the curve at minor -60 % (major 100 %) in view
         # a server's message in SI under a box in mm, and counts, as the page writes them
         assert page.evaluate("Units.shownMessage('0.1 m is too coarse (at most 0.0266 m; "
                              "area 0.00283 m^2)')") == \

@@ -59,4 +59,25 @@ def test_a_second_caption_line_and_signs_the_font_lacks():
                                     "as run: mesh.edge_length 2 → 4 mm; Friction × 0.5 …"])
     rows = lambda out: np.flatnonzero(np.any(out != image, axis=(1, 2)))  # noqa: E731
     assert rows(two).min() < rows(one).min()  # a taller box
-    assert "2 -> 4 mm; Friction × 0.5 ..." in "2 → 4 mm; Friction × 0.5 …".translate(PLAIN)
+    assert "2 -> 4 mm; Friction x 0.5 ..." in "2 → 4 mm; Friction × 0.5 …".translate(PLAIN)
+
+
+def test_every_sign_a_caption_may_hold_has_a_glyph():
+    """A browser review's PNG read "Tool speed ▯ 1.5": the default font has no "×", nor "−",
+    "µ", "²", though they are Latin-1's or near. Every character of the words the page and
+    the legends write, as the PNG writes them, is drawn, not the font's missing glyph (that
+    of a CJK character, which it certainly lacks)."""
+    from PIL import ImageFont
+
+    from server.snapshot import PLAIN
+
+    font = ImageFont.load_default(size=20)
+
+    def glyph(c: str) -> tuple:
+        return bytes(font.getmask(c)), font.getbbox(c)
+
+    missing = glyph("\u4e00")
+    words = ("as run: Tool speed × 1.5 from step 19; mesh.edge_length 2 → 4 mm … ≥ 1.2 mm, "
+             "≤ 0.9 mm – — › −3 °C 5 µm 2.8 m² 1 m³ ≈ Δr ± 0.1 · ABCxyz0123456789()[]%/,.:;'")
+    absent = sorted({c for c in words.translate(PLAIN) if c != " " and glyph(c) == missing})
+    assert absent == [], absent
