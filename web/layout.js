@@ -1,4 +1,5 @@
-// The 3-D view over the whole window and back (the button, or Esc).
+// The 3-D view over the whole window and back (the button, or Esc), and the headline's height
+// over it: whole rows of the summary's cards.
 "use strict";
 const Layout = (() => {
   function setFull(on) {
@@ -12,7 +13,44 @@ const Layout = (() => {
                    "this button then)" : "the 3-D view over the whole window (Esc leaves)";
   }
 
+  function fitHeadline() {
+    // the headline ends under a whole row of the summary's cards, not through one (a review
+    // saw a row of values cut in half by the 3-D view); the 3-D view takes what is left, and
+    // a line under the headline says how many cards are below it
+    const h = document.getElementById("headline"), more = document.getElementById("summary-more");
+    h.style.maxHeight = "";
+    const cards = [...document.querySelectorAll("#summary .quantity")];
+    const top = h.getBoundingClientRect().top - h.scrollTop, room = h.clientHeight;
+    if (!cards.length || h.scrollHeight <= room + 1) { more.hidden = true; return; }
+    const bottoms = cards.map((c) => c.getBoundingClientRect().bottom - top);
+    const fits = bottoms.filter((b) => b <= room + 0.5);
+    const end = fits.length ? Math.max(...fits) : 0;
+    // max-height is of the content box: the paddings add to it (the next row starts a gap of
+    // about 4 px below)
+    const css = getComputedStyle(h);
+    const pad = parseFloat(css.paddingTop) + parseFloat(css.paddingBottom);
+    if (end) h.style.maxHeight = `${Math.floor(end + 2 - pad)}px`;
+    const below = cards.filter((_, i) => bottoms[i] > end + 0.5);
+    more.hidden = !below.length;
+    more.textContent = `▾ ${below.length} more result${below.length === 1 ? "" : "s"} ` +
+      "below: scroll the cards";
+    more.onclick = () => below[0] && below[0].scrollIntoView({ block: "nearest" });
+  }
+
+  let fitting = false;
+  function fitSoon() {
+    // once per frame, after the layout the change made
+    if (fitting) return;
+    fitting = true;
+    requestAnimationFrame(() => { fitting = false; fitHeadline(); });
+  }
+
   function init() {
+    // the window's size and the headline's contents (cards drawn, a line added) change it
+    new ResizeObserver(fitSoon).observe(document.getElementById("centre"));
+    new MutationObserver(fitSoon).observe(document.getElementById("headline"),
+                                          { childList: true, subtree: true, attributes: true,
+                                            attributeFilter: ["hidden"] });
     const b = document.getElementById("full-window");
     b.onclick = () => setFull(!document.body.classList.contains("viewer-full"));
     document.addEventListener("keydown", (ev) => {
@@ -20,5 +58,5 @@ const Layout = (() => {
     });
   }
 
-  return { init, setFull };
+  return { init, setFull, fitHeadline };
 })();

@@ -199,6 +199,26 @@ def test_results_of_a_finished_run(plain, browser):
             const h = document.getElementById("headline").getBoundingClientRect();
             const v = document.querySelector("#summary .quantity .value").getBoundingClientRect();
             return v.top >= h.top && v.bottom <= h.bottom; }""")
+        # and ends under a whole row, not through one (a review saw a row's values cut in
+        # half by the 3-D view), saying how many cards are below
+        cut = """() => {
+            const h = document.getElementById("headline").getBoundingClientRect();
+            return [...document.querySelectorAll("#summary .quantity")].filter((c) => {
+                const r = c.getBoundingClientRect();
+                return r.top < h.bottom - 1 && r.bottom > h.bottom + 1; }).length; }"""
+        assert page.evaluate(cut) == 0
+        hidden = page.evaluate("""() => {
+            const h = document.getElementById("headline").getBoundingClientRect();
+            return [...document.querySelectorAll("#summary .quantity")]
+                .filter((c) => c.getBoundingClientRect().top >= h.bottom - 1).length; }""")
+        if hidden:
+            assert page.inner_text("#summary-more") == (
+                f"▾ {hidden} more result{'s' if hidden > 1 else ''} below: scroll the cards")
+            page.click("#summary-more")
+            page.wait_for_function("document.getElementById('headline').scrollTop > 0")
+        else:
+            assert page.is_hidden("#summary-more")
+        shot(page, SHOTS, "finished-1280x720", settle_ms=SETTLE_MS)
         page.set_viewport_size({"width": 1400, "height": 1000})
         # a long summary scrolls in its headline: the 3-D view stays above the Runs table
         page.evaluate("""() => { const s = document.getElementById("summary");
@@ -206,6 +226,8 @@ def test_results_of_a_finished_run(plain, browser):
             for (let i = 0; i < 40; i++) s.append(card.cloneNode(true)); }""")
         view, runs = (page.locator(sel).bounding_box() for sel in ("#viewer-box", "#runs-box"))
         assert view["y"] + view["height"] <= runs["y"] + 1 and view["height"] >= 300
+        page.wait_for_function("!document.getElementById('summary-more').hidden")
+        assert page.evaluate(cut) == 0
         # a uniform sheet's section is drawn flat, not its last bits spread over the axis
         ys = page.evaluate("""async () => {
             const div = document.createElement("div");
