@@ -96,6 +96,8 @@ function say(text, isError, run) {
   $("msg").dataset.scene = "";
 }
 
+const KEPT_SCENE = "q3t.scene";  // the tab's open scene, for a reload
+
 async function loadScenes() {
   const list = await api("GET", "/api/scenes");
   const ul = $("scenes");
@@ -121,8 +123,11 @@ async function loadScenes() {
     ul.appendChild(li);
   }
   if (!state.scene && list.length) {
+    // a reload keeps the scene this tab had open (a review's reload went back to the
+    // server's default scene, and the run it had started read "not the editor's scene")
+    const kept = list.find((s) => s.name === sessionStorage.getItem(KEPT_SCENE));
     const dflt = list.find((s) => s.name === state.config.default_scene);
-    await selectScene((dflt || list[0]).name);
+    await selectScene((kept || dflt || list[0]).name);
   }
   showAbout();
 }
@@ -180,6 +185,7 @@ async function selectScene(name) {
   if (seq !== state.selectSeq) return;
   if (name !== state.scene) state.sceneElement = null;  // the run's element follows its own
   state.scene = name;
+  sessionStorage.setItem(KEPT_SCENE, name);
   $("scene-name").value = name;
   $("toml").value = s.toml;
   state.loadedName = s.scene ? s.scene.name : null;  // a changed name field saves a new scene

@@ -279,6 +279,26 @@ def test_a_scene_chosen_while_the_first_one_loads_stays_chosen(page, served):
     (scenes / "quick.toml").unlink()
 
 
+def test_a_reload_keeps_the_scene_the_tab_had_open(page, open_page, served):
+    """A review reloaded the page while editing and running its own scene: the editor came
+    back on the server's default scene, and the run read "not the editor's scene". The tab
+    keeps its scene over a reload; a new tab opens the default one."""
+    url, scenes = served
+    (scenes / "mine.toml").write_text(COARSE.replace('name = "cup"', 'name = "mine"'))
+    try:
+        page.reload()
+        page.wait_for_selector("#scenes li[data-name='mine']")
+        page.click("#scenes li[data-name='mine']")
+        page.wait_for_selector("#scenes li.sel[data-name='mine']")
+        page.reload()
+        page.wait_for_selector("#scenes li.sel[data-name='mine']")
+        page.wait_for_function("document.getElementById('scene-name').value === 'mine'")
+        other = open_page(url, "#scenes li.sel")
+        assert other.get_attribute("#scenes li.sel", "data-name") == "cup"
+    finally:
+        (scenes / "mine.toml").unlink()
+
+
 def test_deleting_a_scene_says_its_runs_stay(page, served):
     """Delete asks first, saying the scene's runs stay (each keeps its own copy of the
     scene): the question is not read as deleting them, nor are they deleted."""
