@@ -99,7 +99,9 @@ const Studies = (() => {
     const table = document.createElement("table");
     table.id = "study-table";
     const head = table.createTHead().insertRow();
-    const heads = { case: "element and mesh edge", DoFs: "degrees of freedom",
+    const heads = { case: "element and mesh edge",
+                    DoFs: "degrees of freedom, counted from the mesh parameters (an outline's " +
+                          "from its area, within a few %); the run's own case has the run's",
                     time: "predicted from the run's time" };
     for (const [h, title] of Object.entries(heads)) {
       const th = document.createElement("th");
@@ -113,7 +115,8 @@ const Studies = (() => {
       if (c.reference) tr.className = "reference";
       tr.title = `its build takes about ${c.memory_gib.toFixed(2)} GiB`;
       const cells = [`${c.element} ${+c.edge_mm.toPrecision(4)} mm` +
-                     (c.reference ? " (ref.)" : ""), c.dofs.toLocaleString("en"),
+                     (c.reference ? " (ref.)" : c.asking_run ? " (the run's)" : ""),
+                     c.dofs.toLocaleString("en"),
                      duration(c.predicted_s)];
       for (const v of cells) tr.insertCell().textContent = v;
     }

@@ -50,6 +50,9 @@ class Which(BaseModel):
 
 
 class Case(Which):
+    asking_run: bool = Field(False, description=(
+        "the asking run's own element and level: its DoFs are the run's; the others' are "
+        "counted from the mesh parameters (an outline's from its area, within a few %)"))
     memory_gib: float = Field(description="the build's peak memory, GiB (sim.model.size)")
     predicted_s: float = Field(description="seconds, predicted from the asking run's")
 

@@ -72,6 +72,9 @@ def test_the_plan_sizes_and_times_each_case_from_the_run(env, run):
     # the run's own case is predicted at its own time
     own = next(c for c in cases if c["element"] == "q3t_ans" and c["edge_mm"] == 35.0)
     assert own["dofs"] == basis["dofs"] and own["predicted_s"] == pytest.approx(basis["seconds"])
+    # with the run's own DoFs, which the count from the mesh parameters may miss (an
+    # outline's is from its area): it alone is marked so
+    assert [c["asking_run"] for c in cases] == [c is own for c in cases]
     # the study's warm-up runs each element once at the coarsest level
     warm = sum(c["predicted_s"] for c in cases if c["edge_mm"] == 140.0)
     assert plan["predicted_s"] == pytest.approx(sum(c["predicted_s"] for c in cases) + warm)
