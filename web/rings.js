@@ -154,7 +154,9 @@ const Rings = (() => {
 
   // the table's rows: a label with its unit, and the value of a ring (one number a cell, so
   // a ring's column stays narrow)
-  const D = { mean: "mean", d0: "0°", d90: "90°" };
+  // the diameters across the cut's meridian (0°) and square to it (90°): measured from the
+  // cut, so rings cut at other angles read them along other axes of the cup (a review)
+  const D = { mean: "mean", d0: "0° from the cut", d90: "90° from the cut" };
   const ROWS = [
     ["Cut angle (deg)", (r) => Units.num(r.cut_angle_deg)],
     ["Section points through the thickness",
@@ -165,8 +167,10 @@ const Rings = (() => {
     ["Opening along the cut, max (mm)", (r) => mm(r.opening_mm.max)],
     ...["formed", "released", "split"].flatMap((s) => Object.entries(D).map(([k, name]) => [
       `D ${s}, ${name} (mm)`, (r) => mm(r.diameters_mm[s][k]), k === "mean" ? "group" : ""])),
-    ["Re-yield on release, closed (%)", (r) => Units.num(r.reyield_pct.closed, 2), "group"],
-    ["Re-yield on release, split (%)", (r) => Units.num(r.reyield_pct.split, 2)],
+    // a share of the ring's quadrature points whose plastic strain grew in that release
+    ["Re-yield on release, closed (% of points)", (r) => Units.num(r.reyield_pct.closed, 2),
+     "group"],
+    ["Re-yield on release, split (% of points)", (r) => Units.num(r.reyield_pct.split, 2)],
   ];
 
   // a ring's files: the row's label says what each is, the link in a ring's column is short

@@ -127,9 +127,10 @@ def test_a_ring_is_cut_from_the_page_and_tabled(served, open_page, tmp_path):
             "Opening along the cut, min (mm)": f"{o['min']:.3f}",
             "Opening along the cut, max (mm)": f"{o['max']:.3f}",
             **{f"D {s}, {name} (mm)": f"{d[s][k]:.3f}" for s in ("formed", "released", "split")
-               for k, name in (("mean", "mean"), ("d0", "0°"), ("d90", "90°"))},
-            "Re-yield on release, closed (%)": num(ring["reyield_pct"]["closed"], 2),
-            "Re-yield on release, split (%)": num(ring["reyield_pct"]["split"], 2)}
+               for k, name in (("mean", "mean"), ("d0", "0° from the cut"),
+                               ("d90", "90° from the cut"))},
+            "Re-yield on release, closed (% of points)": num(ring["reyield_pct"]["closed"], 2),
+            "Re-yield on release, split (% of points)": num(ring["reyield_pct"]["split"], 2)}
     assert rows == want
     assert float(rows["Opening at mid-height (mm)"]) > 0  # this ring opens
     # the cup has Q3T's own three points through the thickness: the opening is flagged
