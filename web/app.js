@@ -521,10 +521,17 @@ function paramRow(name, r, text) {
       revert();
       result.textContent = why;
       result.classList.add("error");
-      // the result line comes back after a while (and with the next edit, or another run)
-      setTimeout(() => result.classList.remove("error"), 12000);
+      // the result line comes back after a while (and with the next edit, or another run),
+      // and the header's line goes with it (it stood after the run had ended, a review)
+      const said = $("msg").textContent;
+      setTimeout(() => {
+        result.classList.remove("error");
+        if ($("msg").textContent === said) say("");
+      }, 12000);
       return;
     }
+    if (result.classList.contains("error") && $("msg").textContent === result.textContent)
+      say("");  // the value typed right now: the refusal of the last one goes
     result.classList.remove("error");
     inp.value = v;
     showResult(name, v, state.status);

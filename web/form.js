@@ -427,6 +427,11 @@ const SceneForm = (() => {
         status.textContent = text;
         status.classList.toggle("bad", !!bad);
       };
+      // a refused upload's word goes once a file is chosen by hand (it stood under a valid
+      // choice, a review)
+      sel.addEventListener("change", () => {
+        if (status.classList.contains("bad")) say("");
+      });
       const folder = { limit: null, accept: "" };  // the server's limit and the extensions
       const fill = (list, chosen) => {
         const options = [el("option", { value: "", textContent: "— choose a file —" })];

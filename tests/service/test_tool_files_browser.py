@@ -82,6 +82,9 @@ def test_a_tool_surface_uploaded_from_the_form_runs(page, served):
     assert status(page).startswith("two.stl: self-intersecting: ")
     assert not (tmp / "scenes" / "two.stl").exists()
     left_column(page, "2-refused.png")
+    # a file chosen by hand: the refusal goes (it stood under a valid choice, a review)
+    page.select_option(f"[name='{FIELD}']", index=0)
+    assert status(page) == ""
     upload(page, open_one)  # kept, and the form says what the scene must say of it
     until(lambda: status(page).startswith("uploaded"), "no upload", 300)
     assert status(page) == ("uploaded open.stl: tool mesh: 97 vertices, 144 triangles, open "
