@@ -113,7 +113,16 @@ const SceneForm = (() => {
       this.node = null;
       this.fileList = null;  // GET /api/files, once per build and after an upload
       root.addEventListener("input", () => this.onChange());
-      root.addEventListener("change", () => this.onChange());
+      root.addEventListener("change", () => { this.timeUnits(); this.onChange(); });
+    }
+
+    // a tool's velocity is its stroke over the run under static stepping (scene time runs
+    // from 0 to 1), a speed under dynamic: its unit says which (a review read "mm/s" on the
+    // static cup's punch)
+    timeUnits() {
+      const kind = ((this.value() || {}).stepping || {}).kind || "static";
+      for (const span of this.root.querySelectorAll("span.unit[data-si='m/s']"))
+        span.textContent = kind === "static" ? "mm over the run" : shown("m/s")[0];
     }
 
     resolve(s) {
@@ -126,6 +135,7 @@ const SceneForm = (() => {
       this.fileList = null;
       this.node = this.object(this.schema, value || {}, "", "scene", true);
       this.root.replaceChildren(this.node.el);
+      this.timeUnits();
     }
 
     value() {
@@ -168,7 +178,8 @@ const SceneForm = (() => {
       const name = el("span", { class: "key", title: description ? `${path}: ${description}`
                                                              : path }, words(key));
       const u = shown(unit)[0];
-      const label = el("label", {}, name, control, u ? el("span", { class: "unit" }, u) : null);
+      const label = el("label", {}, name, control,
+                       u ? el("span", { class: "unit", dataset: { si: unit } }, u) : null);
       const help = description ? el("small", { class: "help" }, description) : null;
       return el("div", { class: "field", dataset: { path } }, label, extra, help, err);
     }

@@ -67,6 +67,14 @@ def test_fields_show_units_descriptions_and_their_kinds_fields_only(page):
     assert page.input_value("[name='mesh.r_outer']") == "30"
     assert field(page, "mesh.r_outer").locator(".unit").text_content() == "mm"
     assert page.input_value("[name='material.yield_stress']") == "102.75"
+    # a tool's velocity under static stepping is its stroke over the run (a review read
+    # "mm/s" on the cup's punch); under dynamic stepping a speed
+    velocity = field(page, "tools.0.velocity").locator(":scope > label > .unit")
+    assert velocity.text_content() == "mm over the run"
+    page.select_option("[name='stepping.kind']", "dynamic")
+    assert velocity.text_content() == "mm/s"
+    page.select_option("[name='stepping.kind']", "static")
+    assert velocity.text_content() == "mm over the run"
     # the description: a tooltip on the name, and below the field while it has the focus
     assert "Young's modulus" in field(page, "material.E").locator(".key").get_attribute("title")
     help_text = field(page, "material.E").locator(".help")
