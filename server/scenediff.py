@@ -133,8 +133,14 @@ def shown(item: dict, between: str = " | ") -> str:
     """A setting's values side by side in the unit the page shows, labelled."""
     unit = item.get("unit")
     label, factor = SHOWN.get(unit or "", (unit, 1.0))
-    return _labelled(f"{item['what']} " + between.join(value_text(v, factor)
-                                                       for v in item["values"]), label)
+    values = item["values"]
+    texts = [value_text(v, factor) for v in values]
+    if label and any(v is None or v == [] for v in values):
+        # each number with its unit: "1 → unset mm" read as an unset of mm (a review)
+        return f"{item['what']} " + between.join(
+            t if v is None or v == [] else f"{t} {label}" for t, v in zip(texts, values,
+                                                                          strict=True))
+    return _labelled(f"{item['what']} " + between.join(texts), label)
 
 
 def element_of(text: str, element: str) -> str | None:

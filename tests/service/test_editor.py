@@ -157,6 +157,21 @@ def test_a_sheet_made_anisotropic_is_one_edit_in_the_forms_units():
         "material.hill48.r0 0.663 → 0.7"]
 
 
+def test_a_value_set_or_unset_has_its_unit_beside_the_number():
+    """"shell.thickness 1 → unset mm" read as an unset of mm (a review): with a side unset,
+    the unit goes with the number; two numbers share it."""
+    from server.scenediff import shown
+
+    assert shown({"what": "shell.thickness", "values": [0.001, None], "unit": "m"},
+                 " → ") == "shell.thickness 1 mm → unset"
+    assert shown({"what": "tools.die.shape.edge_radius", "values": [None, 0.005],
+                  "unit": "m"}) == "tools.die.shape.edge_radius unset | 5 mm"
+    assert shown({"what": "shell.thickness", "values": [0.001, 0.0008], "unit": "m"},
+                 " → ") == "shell.thickness 1 → 0.8 mm"
+    assert shown({"what": "material.nu", "values": [0.3, None], "unit": "1"}) == \
+        "material.nu 0.3 | unset"
+
+
 def test_a_removed_section_is_one_edit_that_names_it():
     """The radial section removed in the form (sections = []) read as 'sections – → []' and
     four more edits of its fields, hiding the steps changed beside it (a browser review)."""
