@@ -75,6 +75,16 @@ def test_fields_show_units_descriptions_and_their_kinds_fields_only(page):
     assert velocity.text_content() == "mm/s"
     page.select_option("[name='stepping.kind']", "static")
     assert velocity.text_content() == "mm over the run"
+    # the thickness unset: the shell's own rule, which names it, beside it (a review saw it
+    # under the shell's last field only)
+    thickness = field(page, "shell.thickness")
+    thickness.locator("input.unset").check()
+    page.wait_for_function("""() => document.querySelector(
+        "#scene-form .field[data-path='shell.thickness'] > .field-error").textContent !== ''""")
+    assert thickness.locator(":scope > .field-error").text_content().startswith(
+        "give exactly one of thickness, thickness_file")
+    thickness.locator("input.unset").uncheck()
+    page.wait_for_function("document.getElementById('sync').textContent === 'valid'")
     # the description: a tooltip on the name, and below the field while it has the focus
     assert "Young's modulus" in field(page, "material.E").locator(".key").get_attribute("title")
     help_text = field(page, "material.E").locator(".help")
