@@ -21,7 +21,7 @@ import numpy as np
 from server.plots import labelled, plots
 from server.problems import Conflict, Invalid, NotFound
 from server.records import ENDED
-from server.scenediff import collapsed, flat_scene, shown, value_text
+from server.scenediff import SHOWN, collapsed, flat_scene, shown, value_text
 from sim.elements import ELEMENTS
 from sim.frames import results
 from sim.scene.load import SceneError, apply_override, read_toml, scene_from_toml, unit_of
@@ -132,6 +132,19 @@ def summary_csv(runs: list[Loaded]) -> str:
         w.writerow([row["label"] + (f" ({row['tool']})" if row["tool"] else ""), row["unit"],
                     *map(num, row["values"]), *map(num, row["delta"][1:]),
                     *map(num, row["delta_pct"][1:]), flags])
+    # what the runs differ in, under the quantities (the table alone did not say which run
+    # was which setting, a review): a row per setting, each run's value in the form's unit
+    diff = differences(runs)
+    if diff["items"] or any(diff["live"].values()):
+        w.writerow([])
+        w.writerow(["setting", "unit", *(f"{r.letter}: {r.id}" for r in runs)])
+    for it in diff["items"]:
+        label, factor = SHOWN.get(it.get("unit") or "", (it.get("unit") or "", 1.0))
+        w.writerow([it["what"], label, *(value_text(v, factor, DIGITS) for v in it["values"])])
+    if any(diff["live"].values()):
+        w.writerow(["live changes", "", *("; ".join(
+            f"{e['label']} {value_text(e['value'])} from step {e['step']}"
+            for e in diff["live"].get(r.letter) or []) for r in runs)])
     return buf.getvalue()
 
 

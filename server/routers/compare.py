@@ -212,8 +212,10 @@ def summary_csv(runs: RUNS, request: Request) -> Response:
     as a CSV file, values in the units the page shows (kN, mm, %)."""
     m = request.app.state.manager
     loaded = cmp.load(m, cmp.run_ids(runs))
-    return attachment(cmp.summary_csv(loaded).encode(), "csv",
-                      f"compare-{loaded[0].id}-and-{len(loaded) - 1}")
+    # named by its runs ("compare-A-and-1" said which was A only)
+    name = (f"compare-{loaded[0].id}-{loaded[1].id}" if len(loaded) == 2
+            else f"compare-{loaded[0].id}-and-{len(loaded) - 1}-more")
+    return attachment(cmp.summary_csv(loaded).encode(), "csv", name)
 
 
 @router.get("/api/compare/thickness", response_model=Thickness,

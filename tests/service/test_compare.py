@@ -141,8 +141,17 @@ def test_the_summary_table_downloads_as_csv(env, runs):
     a, b, c, _ = runs
     r = client.get(f"/api/compare/summary.csv?runs={a},{b},{c}")
     assert r.status_code == 200 and r.headers["content-type"].startswith("text/csv")
-    assert f'filename="compare-{a}-and-2.csv"' in r.headers["content-disposition"]
+    assert f'filename="compare-{a}-and-2-more.csv"' in r.headers["content-disposition"]
     table = list(csv.reader(io.StringIO(r.text)))
+    # under the quantities, after a blank line, what the runs differ in: a row per setting,
+    # each run's value in the form's unit, and their live changes
+    blank = table.index([])
+    table, settings = table[:blank], table[blank + 1:]
+    assert settings[0] == ["setting", "unit", f"A: {a}", f"B: {b}", f"C: {c}"]
+    assert ["shell.element", "", "q3t", "q3t", "linear"] in settings
+    assert ["tools.punch.friction", "", "0.1", "0.05", "0.1"] in settings
+    assert settings[-1] == ["live changes", "", "", "Friction × 2 from step 3", ""]
+    assert len(settings) == 5  # the three settings of test_the_line_says_what_differs
     cmp = client.get(f"/api/compare?runs={a},{b},{c}").json()
     head = table[0]
     assert head[:2] == ["quantity", "unit"] and head[-1] == "flags"
@@ -159,6 +168,9 @@ def test_the_summary_table_downloads_as_csv(env, runs):
     peak = next(line for line in table[1:] if line[0] == "Peak punch force (punch)")
     assert peak[1] == "kN" and peak[2] and peak[5]
     assert client.get(f"/api/compare/summary.csv?runs={a}").status_code == 422  # one run
+    # two runs: named by both
+    two = client.get(f"/api/compare/summary.csv?runs={a},{c}")
+    assert f'filename="compare-{a}-{c}.csv"' in two.headers["content-disposition"]
 
 
 def test_the_line_says_what_differs(env, runs):
