@@ -37,7 +37,15 @@ class SolverFailure(RuntimeError):
         last = ", ".join(figure(r) for r in report["residuals"][-6:])
         super().__init__(f"step {report['step']} failed at t = {report['t']:.6g} after "
                          f"{report['cutbacks']} cut-backs: {report['reason']}"
-                         + (f"; the last residuals {last} N" if last else ""))
+                         + (f"; the last residuals {last} N" if last else "")
+                         + (f"; {report['hint']}" if report.get("hint") else ""))
+
+
+# what a step that ran out of cut-backs most often needs, said with its numbers (a review's
+# "line search stalled (residual 2.476e+02)" on a sharp-edged punch said nothing to change)
+CUTBACK_HINT = ("what usually helps: more steps (stepping.steps) or cut-backs "
+                "(stepping.max_cutbacks); rounder tool edges (an edge sharper than the mesh "
+                "can wrap); a finer mesh (mesh.edge_length) where the sheet bends")
 
 
 @dataclass
@@ -494,7 +502,8 @@ class Simulation:
                 if hopeless or dt / 2 < dt_min * (1 - 1e-12):
                     self.failure = {"step": self.step_index + 1, "t": self.t + dt,
                                     "cutbacks": cutbacks, "reason": res.reason,
-                                    "iterations": res.iterations, "residuals": res.residuals}
+                                    "iterations": res.iterations, "residuals": res.residuals,
+                                    "hint": None if hopeless else CUTBACK_HINT}
                     self.wall += time.perf_counter() - start
                     raise SolverFailure(self.failure)
                 cutbacks += 1
