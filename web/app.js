@@ -83,6 +83,9 @@ function markRefused(message) {
   // check of the form clears it (and a preview then asked for says it again if it holds)
   const m = /^([a-z_]+(?:\.[A-Za-z0-9_]+)+): (.+)$/s.exec(message);
   if (m && state.form) state.form.markError(m[1], m[2]);
+  // the form's "valid" is the scene as read; the build (a preview's) found what reading cannot
+  // (a thickness file's count against the mesh): the form said "valid" beside the refusal
+  $("sync").textContent = "read, but its build refuses it (see the field)";
 }
 
 function say(text, isError, run) {

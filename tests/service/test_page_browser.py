@@ -391,6 +391,10 @@ def test_a_preview_the_solver_cannot_build_says_why_in_the_header(served, browse
         page.click("#scenes li[data-name=thick]")
         page.wait_for_function("document.getElementById('msg').textContent.startsWith("
                                "'preview of thick: shell.thickness_file: 3 values for the ')")
+        # beside the field, and the form's word is not "valid" (a review read both at once)
+        page.wait_for_function("document.querySelector(\"#scene-form .field[data-path="
+                               "'shell.thickness_file'] > .field-error\").textContent !== ''")
+        assert page.inner_text("#sync") == "read, but its build refuses it (see the field)"
         shot(page, SHOTS, "preview-not-built")
         assert not errors, errors
     finally:
