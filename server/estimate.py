@@ -182,23 +182,29 @@ def study_command(scene: Scene) -> str | None:
 
 
 def estimate(root: Path, scene: str, element: str, edge_length: float | None,
-             result: dict | None, overrides: dict | None = None,
-             command: str | None = BY_EDGE, cells: int | None = None,
-             edits: list[str] | None = None) -> dict:
+             result: dict | None, changes: list[str] | None = None,
+             command: str | None = BY_EDGE, cells: int | None = None) -> dict:
     """What the page shows for a finished run: ``available``, ``text`` and the numbers.
-    ``command``: what studies the scene (:func:`study_command`); ``cells``: a course scene's
-    cells per side."""
+    ``changes``: what the run changed of its saved scene, in words, less what a study varies
+    itself (server.records.Run.changes); ``command``: what studies the scene
+    (:func:`study_command`); ``cells``: a course scene's cells per side."""
     cost = cost_of(result)
     out: dict = {"available": False, "scene": scene, "element": element,
                  "edge_length": edge_length, "cost": cost, "notes": []}
+    changes = list(changes or [])
     if command == COURSE:
         head = _course(out, root, scene, element, cells)
+        studied: list[str] = []  # the course runs its scenes as saved
     else:
         command = command.format(scene=scene) if command is not None else None
-        head = _compare(out, root, scene, element, edge_length, overrides or {}, command)
-    if out["available"] and edits:
-        out["notes"].append(f"the run changed the saved scene ({'; '.join(edits)}); the "
-                            "study ran it as saved")
+        head = _compare(out, root, scene, element, edge_length, command)
+        studied = list((out.pop("studied", None)) or [])
+    if out["available"] and changes != studied:
+        # a study of a run's edits gives its scene's other runs their estimates too: each
+        # says what it ran that the study did not, or the other way round
+        said = [f"the scene with {'; '.join(c)}" if c else "the scene as saved"
+                for c in (studied, changes)]
+        out["notes"].append(f"the study ran {said[0]}; this run ran {said[1]}")
     out["text"] = "; ".join(s for s in (head, cost_text(cost)) if s)
     return out
 
@@ -229,7 +235,7 @@ def _course(out: dict, root: Path, scene: str, element: str, cells: int | None) 
 
 
 def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float | None,
-             overrides: dict, command: str | None) -> str:
+             command: str | None) -> str:
     """Fill ``out`` from the study row of the run's element and edge length; returns the
     head line, or why there is no estimate (then ``out["reason"]`` says so in a word)."""
     found = find_study(root, scene) if command is not None else None
@@ -244,6 +250,7 @@ def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float
     out["study"] = {"path": str(path), "date": study.get("date"), "probe": plan.get("probe"),
                     "elements": plan.get("elements"), "levels": plan.get("levels")}
     out["reference"] = ref
+    out["studied"] = study.get("changes") or []  # what the study ran of a run's changes
     when = f"study of {study.get('date')}"
     row, missing = _nearest_row(study, command, element, edge_length, when)
     if row is None:
@@ -256,7 +263,7 @@ def _compare(out: dict, root: Path, scene: str, element: str, edge_length: float
         return f"the {when} has no error for {element} at {mm(row['edge_length'])}"
     out.update(available=True, relative_error=err, row=row,
                match="exact" if exact else "nearest")
-    out["notes"] += _notes(row, ref, element, edge_length, exact, overrides)
+    out["notes"] += _notes(row, ref, element, edge_length, exact)
     head = f"error estimate: {percent(err)} vs {ref['label']}"
     if not exact:
         head += f" at the nearest studied level {mm(row['edge_length'])}"
@@ -279,10 +286,9 @@ def _nearest_row(study: dict, command: str, element: str, edge_length: float | N
     return min(rows, key=lambda r: abs(math.log(r["edge_length"] / edge_length))), ("", "")
 
 
-def _notes(row: dict, ref: dict, element: str, edge_length: float, exact: bool,
-           overrides: dict) -> list[str]:
+def _notes(row: dict, ref: dict, element: str, edge_length: float, exact: bool) -> list[str]:
     """What qualifies the estimate: a level not the run's, a study run that did not
-    converge, self-convergence, overrides the study did not have."""
+    converge, self-convergence."""
     notes = []
     if not exact:
         notes.append(f"nearest studied level: {mm(row['edge_length'])} (the run used "
@@ -292,9 +298,6 @@ def _notes(row: dict, ref: dict, element: str, edge_length: float, exact: bool,
     if ref["kind"] == "numerical" and ref.get("element") == element:
         notes.append(f"{element} against {element} on a finer mesh: self-convergence, "
                      "an underestimate")
-    other = sorted(k for k in overrides if k not in ("shell.element", "mesh.edge_length"))
-    if other:
-        notes.append(f"the run overrides {', '.join(other)}; the study did not")
     return notes
 
 
@@ -320,7 +323,7 @@ class EstimateCache:
                 if run.estimate is None or self._keys.get(run.id, "?") != key:
                     edge, result, command, cells = self._facts_of(run)
                     run.estimate = estimate(self.root, run.scene, run.element, edge, result,
-                                            run.overrides, command, cells, run.unsaved())
+                                            run.changes(studied=True), command, cells)
                     self._keys[run.id] = key
             except Exception as exc:  # never let the estimate break a status request
                 run.estimate = {"available": False, "reason": "error",

@@ -116,24 +116,31 @@ class Run:
         edited one)."""
         return list(self.edits or ["unsaved edits of the scene"]) if self.edited else []
 
-    def changes(self, studied: bool = False) -> list[str]:
+    def changes(self, studied: bool = False, live: bool = True) -> list[str]:
         """What this run changed of its saved scene, in words: the page's unsaved edits, the
         overrides (the element is a column of its own), the live parameters given at the
         start (from step 1) and those changed while it ran, from the step each applied.
         ``studied``: what a refinement study does not vary itself (not the element, not the
-        mesh's edge length)."""
+        mesh's edge length); ``live``: with the live parameters (a study runs the edits and
+        the overrides, not those)."""
         out = self.unsaved()
         if self.scene_element and not studied:  # a column of its own, but a change
             out.append(f"element {self.element} (the scene's {self.scene_element})")
-        varied = ("shell.element", "mesh.edge_length") if studied else ("shell.element",)
-        out += [f"{k} = {override_text(k, v)}" for k, v in self.overrides.items()
-                if k not in varied]
+        out += [f"{k} = {override_text(k, v)}" for k, v in self.studied_overrides(
+            ("shell.element", "mesh.edge_length") if studied else ("shell.element",)).items()]
+        if not live:
+            return out
         # the live parameters as the page's sliders name them (Friction × 0.5)
         out += [f"{label(k)[0]} {v:.4g} from step 1" for k, v in self.given.items()
                 if v != AS_WRITTEN]
         out += [f"{label(e['name'])[0]} {e['value']:.4g} from step {e['step']}"
                 for e in self.parameter_log]
         return out
+
+    def studied_overrides(self, varied: tuple[str, ...] = ("shell.element",
+                                                           "mesh.edge_length")) -> dict:
+        """The run's overrides less those ``varied`` (a study's own: element and mesh)."""
+        return {k: v for k, v in self.overrides.items() if k not in varied}
 
     def _fields(self) -> dict:
         return {f.name: copy.deepcopy(getattr(self, f.name)) for f in fields(self)

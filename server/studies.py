@@ -72,8 +72,10 @@ def make(scene_path: Path, name: str, basis: dict, overrides: dict, max_bytes: f
     """The plan of a study of the scene at ``scene_path`` (named ``name``; ``overrides``: the
     solver's full paths of the files it reads) as the page shows it: the cases with their
     DoFs, memory and predicted seconds, the command it runs. ``basis``: the run asked from
-    (run, element, dofs, seconds, edge: its mesh edge in m, edits: what it changed of the saved
-    scene); its element and its level are added to the scene's defaults. ``levels_mm`` and
+    (run, element, dofs, seconds, edge: its mesh edge in m; changes: what it changed of the
+    saved scene that the study runs too, live: what it does not; scene_arg and sets: the scene
+    and the --set the command shown names); its element and its level are added to the
+    scene's defaults. ``levels_mm`` and
     ``reference`` (element, mm) default to the scene's. Invalid names the field: an unknown
     element, a level not positive or one the scene refuses, a reference no finer than the
     finest level, a case over ``max_bytes``. ``runs_dir``: where a study's report would be
@@ -109,6 +111,10 @@ def make(scene_path: Path, name: str, basis: dict, overrides: dict, max_bytes: f
     args = ["--elements", ",".join(p.elements), "--levels", ",".join(f"{v:g}" for v in p.levels)]
     if p.reference:
         args += ["--reference", f"{p.reference[0]}:{p.reference[1]:g}"]
+    # what the study runs of the run's changes, in its report: the run's estimate compares
+    shown = [*args, *(a for k, v in (basis.get("sets") or {}).items()
+                      for a in ("--set", f"{k}={_toml(v)}"))]
+    args += [a for c in basis.get("changes") or () for a in ("--changes", c)]
     return {"scene": name, "probe": p.probe, "elements": p.elements,
             "levels_mm": [1e3 * v for v in p.levels],
             "reference": {"element": p.reference[0], "edge_mm": 1e3 * p.reference[1]}
@@ -118,7 +124,8 @@ def make(scene_path: Path, name: str, basis: dict, overrides: dict, max_bytes: f
             "largest_gib": max(r["memory_gib"] for r in rows),
             "basis": {k: basis[k] for k in ("run", "element", "dofs", "seconds")},
             "notes": [*map(_in_mm, p.notes), *_notes(basis, name, runs_dir)],
-            "command": f"q3t study {name} {' '.join(args)}", "args": args}
+            "command": f"q3t study {basis.get('scene_arg') or name} {' '.join(shown)}",
+            "args": args}
 
 
 def _asked(elements: list[str] | None, levels_mm: list[float] | None,
@@ -194,9 +201,11 @@ def _notes(basis: dict, name: str, runs_dir: Path | None) -> list[str]:
            "element: within about a factor of two, high rather than low scaling up from a "
            "small run",
            "runs stepping meanwhile slow its cases and skew the times it reports"]
-    if basis.get("edits"):
-        out.append(f"the run changed the saved scene ({basis['edits']}); the study runs "
-                   f"scene {name!r} as saved: save the edits first to study what ran")
+    if basis.get("changes"):
+        out.append(f"the study runs what the run ran: {'; '.join(basis['changes'])}")
+    if basis.get("live"):
+        out.append(f"not the run's live changes ({'; '.join(basis['live'])}): a study runs "
+                   "the scene's own parameters")
     if runs_dir is not None:
         from server.estimate import find_study
 
@@ -335,6 +344,8 @@ def _end(proc: subprocess.Popen) -> None:
 
 
 def _toml(v: object) -> str:
+    """A value as --set reads it (TOML): strings quoted, lists and true/false as JSON's,
+    which TOML reads alike."""
     import json
 
-    return json.dumps(v) if isinstance(v, str) else str(v)
+    return json.dumps(v)

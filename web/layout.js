@@ -18,18 +18,27 @@ const Layout = (() => {
     // saw a row of values cut in half by the 3-D view); the 3-D view takes what is left, and
     // a line under the headline says how many cards are below it
     const h = document.getElementById("headline"), more = document.getElementById("summary-more");
-    h.style.maxHeight = "";
-    const cards = [...document.querySelectorAll("#summary .quantity")];
+    const summary = document.getElementById("summary");
+    h.style.maxHeight = h.style.minHeight = "";
+    summary.classList.remove("tight");
+    const cards = [...summary.querySelectorAll(".quantity")];
     const top = h.getBoundingClientRect().top - h.scrollTop, room = h.clientHeight;
     if (!cards.length || h.scrollHeight <= room + 1) { more.hidden = true; return; }
-    const bottoms = cards.map((c) => c.getBoundingClientRect().bottom - top);
+    let bottoms = cards.map((c) => c.getBoundingClientRect().bottom - top);
+    if (!bottoms.some((b) => b <= room + 0.5)) {
+      // not one whole row (1280 x 720 with a line above the cards): the cards without their
+      // "at ..." lines, which their tooltips keep
+      summary.classList.add("tight");
+      bottoms = cards.map((c) => c.getBoundingClientRect().bottom - top);
+    }
     const fits = bottoms.filter((b) => b <= room + 0.5);
     const end = fits.length ? Math.max(...fits) : 0;
     // max-height is of the content box: the paddings add to it (the next row starts a gap of
     // about 4 px below)
     const css = getComputedStyle(h);
     const pad = parseFloat(css.paddingTop) + parseFloat(css.paddingBottom);
-    if (end) h.style.maxHeight = `${Math.floor(end + 2 - pad)}px`;
+    // (under its least height too, which is a row's of cards with their "at" lines)
+    if (end) h.style.maxHeight = h.style.minHeight = `${Math.floor(end + 2 - pad)}px`;
     const below = cards.filter((_, i) => bottoms[i] > end + 0.5);
     more.hidden = !below.length;
     more.textContent = `▾ ${below.length} more result${below.length === 1 ? "" : "s"} ` +

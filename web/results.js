@@ -357,7 +357,10 @@ const Results = (() => {
     plotsData = data;
     // the live line reads the punch force from these: drawn again now, not a poll later
     const box = document.getElementById("summary");
-    if (COMING.includes(st.state) && box.dataset.run === st.id) box.replaceChildren(liveLine());
+    // (not over the summary: a poll of the running run answered after it finished drew the
+    // live line over the finished run's cards)
+    if (COMING.includes(st.state) && box.dataset.run === st.id && box.dataset.ready !== "true")
+      box.replaceChildren(liveLine());
     const $ = (id) => document.getElementById(id);
     const force = data.punches.filter((p) => p.force.values.length);
     Plots.show("force-fig", force.length > 0);

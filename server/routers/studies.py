@@ -4,6 +4,8 @@ cancel (server.studies). Its report gives the scene's runs their error estimate.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Request
@@ -12,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from server import studies
 from server.errors import BODY, CheckedRoute, documented
 from server.problems import Invalid, NotFound
+from server.records import Run
 from server.runs import RunManager
 from server.settings import RunId
 from server.store import SceneStore
@@ -100,6 +103,27 @@ class Current(BaseModel):
                                    "the server started")
 
 
+def _scene_ran(run: Run, m: RunManager, store: SceneStore) -> tuple[Path, str]:
+    """The scene file a study of ``run`` reads and its text: the saved scene's, or for a run
+    of unsaved edits a copy of what it ran (its scene.toml) named as the scene, which the
+    study's report names (its estimate is found by that name), beside the study's report."""
+    if not run.edited:
+        path = store.path(run.scene)
+        if not path.is_file():
+            raise NotFound(f"run: its scene {run.scene!r} is no longer in the scenes folder")
+        return path, store.text(run.scene)
+    try:
+        text = (m.files.dir(run.id) / "scene.toml").read_text()
+    except OSError as exc:
+        raise NotFound(f"run: {run.id} has no scene.toml of the edits it ran ({exc})") from None
+    path = m.files.root / f"study-{run.scene}" / f"ran-{run.id}" / f"{run.scene}.toml"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".toml.tmp")  # a study of the same run may be reading it
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path, text
+
+
 def _plan(body: Asked, request: Request) -> tuple[dict, object, dict]:
     """The plan of ``body`` (Invalid / NotFound naming the field), the scene's file and the
     solver's overrides (full paths of the files it reads)."""
@@ -121,12 +145,17 @@ def _plan(body: Asked, request: Request) -> tuple[dict, object, dict]:
     if not (cost.get("per_iteration_s") and cost.get("newton_iterations") and cost.get("dofs")):
         raise Invalid(f"run: {run.id} has no timing in its result")
     t, dofs = cost["per_iteration_s"] * cost["newton_iterations"], cost["dofs"]
-    path = store.path(run.scene)
-    if not path.is_file():
-        raise NotFound(f"run: its scene {run.scene!r} is no longer in the scenes folder")
-    overrides = store.solver_overrides(store.validate(store.text(run.scene)))
+    path, text = _scene_ran(run, m, store)
+    # what ran: the run's unsaved edits (its scene.toml) and its overrides, less the element
+    # and the mesh a study varies itself; the files the scene reads by their full paths
+    overrides = run.studied_overrides()
+    overrides.update(store.solver_overrides(store.validate(text, overrides)))
+    ran = run.changes(studied=True, live=False)
     basis = {"run": run.id, "element": run.element, "dofs": int(dofs), "seconds": float(t),
-             "edge": est.get("edge_length"), "edits": "; ".join(run.changes(studied=True))}
+             "edge": est.get("edge_length"), "changes": ran,
+             "live": run.changes(studied=True)[len(ran):],
+             "scene_arg": str(path) if run.edited else run.scene,
+             "sets": run.studied_overrides()}
     ref = (body.reference.element, body.reference.edge_mm) if body.reference else None
     plan = studies.make(path, run.scene, basis, overrides,
                         request.app.state.settings.max_model_bytes, body.elements,

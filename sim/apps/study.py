@@ -252,6 +252,7 @@ def _study(args: argparse.Namespace, scene: str, plan: Plan, out: Path,
         print(f"q3t study: {exc}", file=sys.stderr)
         return None
     overheads = [study["overhead"]] if study["overhead"] else []
+    study["changes"] = list(args.changes)
     write_study(study, overheads, out, args.workers, args.scheduler)
     print(markdown_table(study["rows"], STUDY_COLS)
           + (overhead_md(overheads) if overheads else ""))
@@ -340,6 +341,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="study.measure: the final value, the curve over the run, a profile")
     s.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="a scene override for every case, e.g. material.nu=0 (repeatable)")
+    s.add_argument("--changes", action="append", default=[], metavar="TEXT",
+                   help="what the studied scene changed of the saved one, in words (the "
+                        "service's study of a run's edits); kept in the report, where a run's "
+                        "error estimate compares it with what the run changed")
     s.add_argument("--plan", action="store_true",
                    help="print the cases with their DoFs and memory, and run nothing")
     s.add_argument("--factorisation", action="store_true",

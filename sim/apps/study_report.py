@@ -213,6 +213,8 @@ def study_md(study: dict, overheads: list[dict], workers: int = 1,
         notes.append("the study's --timeout ended it: unfinished cases are marked timeout")
     if study.get("overhead_failed"):
         notes.append(f"the lean against all-terms timing failed: {study['overhead_failed']}")
+    if study.get("changes"):
+        notes.append("the scene as a run changed it: " + "; ".join(study["changes"]))
     if p["analytic"]:
         head = f"reference **{p['analytic']['name']} (analytic)**: {p['analytic']['about']}."
     else:

@@ -104,8 +104,10 @@ def test_the_plan_takes_the_runs_level_and_says_what_the_run_changed(env):
     assert plan["levels_mm"] == pytest.approx([140.0, 70.0, 50.0, 35.0])
     assert plan["reference"]["edge_mm"] == pytest.approx(17.5)
     assert "the run's level (50 mm) added to the scene's" in plan["notes"]
-    assert ("the run changed the saved scene (material.nu = 0.25); the study runs scene "
-            "'tiny' as saved: save the edits first to study what ran") in plan["notes"]
+    # the study runs what the run ran: its overrides (and edits, below), not its element or
+    # mesh, which it varies itself; the command says so
+    assert "the study runs what the run ran: material.nu = 0.25" in plan["notes"]
+    assert plan["command"].endswith(" --set material.nu=0.25")
 
 
 @pytest.mark.parametrize(("body", "status", "detail"), [
@@ -183,9 +185,10 @@ def test_a_study_runs_as_the_command_lines_and_gives_the_run_its_estimate(env, r
                           toml=text.replace("\nnu = 0.49\n", "\nnu = 0.25\n"))
     est = client.get(f"/api/runs/{edited}").json()["estimate"]
     assert est["available"], est
-    assert any(n.startswith("the run changed the saved scene (") and
-               n.endswith("); the study ran it as saved") for n in est["notes"]), est["notes"]
+    assert ("the study ran the scene as saved; this run ran the scene with material.nu "
+            "0.49 → 0.25") in est["notes"], est["notes"]
     report = json.loads((settings.runs_dir / "study-tiny" / "report.json").read_text())
+    assert report["study"]["changes"] == []
     rows = report["study"]["rows"]
     assert [(r["element"], r["edge_length"]) for r in rows] == [
         ("q3t_ans", 0.07), ("q3t_ans", 0.035), ("q3t", 0.07), ("q3t", 0.035)]
@@ -193,6 +196,26 @@ def test_a_study_runs_as_the_command_lines_and_gives_the_run_its_estimate(env, r
     assert est["available"] and est["match"] == "exact", est
     own = rows[1]
     assert est["relative_error"] == pytest.approx(own["error"])
+    # studied from the run of edits, the study runs what that run ran (its scene.toml, as
+    # the scene's name, beside the report); its report says so, and the run's estimate has
+    # no word of it, where the saved scene's run now has
+    small = {"run": edited, "elements": ["q3t_ans", "q3t"], "levels_mm": [35]}
+    plan = client.post("/api/studies/plan", json=small).json()
+    assert "the study runs what the run ran: material.nu 0.49 → 0.25" in plan["notes"]
+    copy = settings.runs_dir / "study-tiny" / f"ran-{edited}" / "tiny.toml"
+    assert plan["command"].startswith(f"q3t study {copy} --elements q3t_ans,q3t --levels "
+                                      "0.035")
+    assert "\nnu = 0.25\n" in copy.read_text()
+    assert client.post("/api/studies", json=small).status_code == 201
+    assert until(ended, "the study did not end", HANG)["state"] == "finished"
+    report = json.loads((settings.runs_dir / "study-tiny" / "report.json").read_text())
+    assert report["study"]["changes"] == ["material.nu 0.49 → 0.25"]
+    assert report["study"]["rows"][1]["probe"] != rows[3]["probe"]  # another nu, another sag
+    est = client.get(f"/api/runs/{edited}").json()["estimate"]
+    assert est["available"] and est["match"] == "exact" and est["notes"] == [], est
+    est = client.get(f"/api/runs/{run}").json()["estimate"]
+    assert ("the study ran the scene with material.nu 0.49 → 0.25; this run ran the scene as "
+            "saved") in est["notes"], est["notes"]
 
 
 def test_a_cancelled_study_ends_its_processes_and_leaves_the_last_report(env, run):

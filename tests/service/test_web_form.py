@@ -283,7 +283,8 @@ def test_estimate_at_the_nearest_level_says_so(env):
     assert est["row"]["edge_length"] == 0.035 and est["edge_length"] == 0.03
     assert "nearest studied level 35 mm" in est["text"]
     assert any("nearest studied level: 35 mm (the run used 30 mm)" in n for n in est["notes"])
-    assert any("overrides material.nu" in n for n in est["notes"])
+    assert "the study ran the scene as saved; this run ran the scene with material.nu = 0.3" \
+        in est["notes"]
 
 
 def test_estimate_against_an_analytic_reference(env):
@@ -329,7 +330,7 @@ def test_estimate_function_edge_cases(tmp_path):
     est = estimate(tmp_path, "s", "q3t", None, None)
     assert not est["available"] and est["reason"] == "no_edge_length"
     assert est["cost"] is None and "cost" not in est["text"]
-    est = estimate(tmp_path, "s", "q3t", 0.01, result_json("s", "q3t"), {"mesh.edge_length": 0.01})
+    est = estimate(tmp_path, "s", "q3t", 0.01, result_json("s", "q3t"), [])
     assert est["available"] and est["notes"] == []
     (tmp_path / "study-s" / "report.json").write_text("{ not json")
     assert estimate(tmp_path, "s", "q3t", 0.01, None)["reason"] == "no_study"
