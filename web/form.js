@@ -635,11 +635,12 @@ const SceneForm = (() => {
       // a table's own rule that names its fields ("shell: give exactly one of thickness,
       // thickness_file, ...") goes beside the first of them the form shows, not under the
       // table's last field (a review emptied the thickness and saw it far below)
+      // (and under the table as before: its rule is the table's)
       if (target.tagName === "FIELDSET" && parts.join(".") === loc) {
         const named = [...target.querySelectorAll(":scope > .field[data-path], " +
                                                   ":scope > fieldset[data-path]")]
           .find((f) => new RegExp(`\\b${f.dataset.path.split(".").pop()}\\b`).test(msg));
-        if (named) target = named;
+        if (named) this.markError(named.dataset.path, msg);
       }
       const left = loc.slice(parts.join(".").length + 1);
       const span = target.querySelector(":scope > .field-error");

@@ -110,10 +110,9 @@ def test_rotations_show_in_degrees_and_go_back_in_radians(open_page, served):
     assert punch["shape"]["rotation"] == [math.pi / 2, 0.0, QUARTER]
     assert punch["keyframes"][1] == [1.0, 0.0, 0.0, -0.0001, 0.0, math.pi / 4, SIXTH]
     # and they show as typed when the scene is read again
-    page.reload()
-    page.wait_for_selector("#scenes li.sel[data-name='press']")
-    page.click("#scenes li[data-name='turn']")
+    page.reload()  # the tab's scene is kept over a reload
     page.wait_for_selector("#scenes li.sel[data-name='turn']")
+    page.wait_for_selector(f"[name='{rotation}.0']")
     assert page.input_value(f"[name='{rotation}.0']") == "90"
     assert page.input_value(f"[name='{PUNCH}.keyframes.1.5']") == "45"
     # a bound in degrees: the schema's 160 turns
