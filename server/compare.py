@@ -121,7 +121,7 @@ def summary_csv(runs: list[Loaded]) -> str:
         return "" if v is None else f"{v:.{DIGITS}g}"
 
     head = ["quantity", "unit",
-            *(f"{r.letter}: {r.id} ({r.status['element']})" for r in runs),
+            *(f"{r.letter}: {r.id} ({r.status['element']}{_ended(r)})" for r in runs),
             *(f"{b} - A" for b in letters[1:]), *(f"{b} - A [% of A]" for b in letters[1:]),
             "flags"]
     buf = io.StringIO()
@@ -146,6 +146,15 @@ def summary_csv(runs: list[Loaded]) -> str:
             f"{e['label']} {value_text(e['value'])} from step {e['step']}"
             for e in diff["live"].get(r.letter) or []) for r in runs)])
     return buf.getvalue()
+
+
+def _ended(r: Loaded) -> str:
+    """How a run that did not finish ended, for the CSV's head (its differences are empty)."""
+    st = r.status
+    if st["state"] == "finished":
+        return ""
+    return f", {st['state']} at step {st['step']}" + (f" of {st['n_steps']}"
+                                                       if st.get("n_steps") else "")
 
 
 def _head(r: Loaded, runs0: Loaded | None = None) -> dict:
@@ -364,7 +373,7 @@ def other_stage(a: Loaded, b: Loaded) -> str | None:
     early = [f"{r.letter} {r.status['state']} at step {r.status['step']}"
              + (f" of {r.status['n_steps']}" if r.status.get("n_steps") else "")
              for r in (a, b) if r.status["state"] != "finished"]
-    return (f"{' and '.join(early)}: its part is not the formed one, and A - B would be the "
+    return (f"{' and '.join(early)}: its part is not the formed one, and A − B would be the "
             "stroke's difference; the views at the same punch stroke below compare them")
 
 

@@ -22,8 +22,13 @@ const Layout = (() => {
     h.style.maxHeight = h.style.minHeight = "";
     summary.classList.remove("tight");
     const cards = [...summary.querySelectorAll(".quantity")];
+    if (!cards.length || h.scrollHeight <= h.clientHeight + 1) {
+      more.hidden = true;
+      counted = null;
+      return;
+    }
+    more.hidden = false;  // its line comes out of the headline's room: measured with it
     const top = h.getBoundingClientRect().top - h.scrollTop, room = h.clientHeight;
-    if (!cards.length || h.scrollHeight <= room + 1) { more.hidden = true; return; }
     let bottoms = cards.map((c) => c.getBoundingClientRect().bottom - top);
     if (!bottoms.some((b) => b <= room + 0.5)) {
       // not one whole row (1280 x 720 with a line above the cards): the cards without their
@@ -38,8 +43,22 @@ const Layout = (() => {
     const css = getComputedStyle(h);
     const pad = parseFloat(css.paddingTop) + parseFloat(css.paddingBottom);
     // (under its least height too, which is a row's of cards with their "at" lines)
-    if (end) h.style.maxHeight = h.style.minHeight = `${Math.floor(end + 2 - pad)}px`;
-    const below = cards.filter((_, i) => bottoms[i] > end + 0.5);
+    if (end) {
+      h.style.maxHeight = h.style.minHeight = `${Math.floor(Math.min(end + 2, room) - pad)}px`;
+    }
+    counted = { h, more, cards };
+    countBelow();
+  }
+
+  let counted = null;  // the headline's cards, as last fitted
+  function countBelow() {
+    // the cards under the headline's bottom as it is scrolled now (a review saw "11 more"
+    // stay after a click had shown four of them)
+    if (!counted) return;
+    const { h, more, cards } = counted;
+    const bottom = h.getBoundingClientRect().bottom;
+    const below = cards.filter((c) => c.isConnected &&
+                               c.getBoundingClientRect().bottom > bottom + 0.5);
     more.hidden = !below.length;
     more.textContent = `▾ ${below.length} more result${below.length === 1 ? "" : "s"} ` +
       "below: scroll the cards";
@@ -57,6 +76,8 @@ const Layout = (() => {
   function init() {
     // the window's size and the headline's contents (cards drawn, a line added) change it
     new ResizeObserver(fitSoon).observe(document.getElementById("centre"));
+    document.getElementById("headline").addEventListener("scroll", countBelow,
+                                                         { passive: true });
     new MutationObserver(fitSoon).observe(document.getElementById("headline"),
                                           { childList: true, subtree: true, attributes: true,
                                             attributeFilter: ["hidden"] });

@@ -216,6 +216,9 @@ def test_results_of_a_finished_run(plain, browser):
                 f"▾ {hidden} more result{'s' if hidden > 1 else ''} below: scroll the cards")
             page.click("#summary-more")
             page.wait_for_function("document.getElementById('headline').scrollTop > 0")
+            # the count follows the scroll (it said the first count after a click, a review)
+            page.wait_for_function(f"""() => {{ const m = document.getElementById(
+                "summary-more"); return m.hidden || !m.textContent.startsWith("▾ {hidden} "); }}""")
             page.evaluate("document.getElementById('headline').scrollTo(0, 0)")  # as it was
         else:
             assert page.is_hidden("#summary-more")
@@ -225,10 +228,10 @@ def test_results_of_a_finished_run(plain, browser):
         page.evaluate("""() => { const s = document.getElementById("summary");
             const card = s.querySelector(".quantity");
             for (let i = 0; i < 40; i++) s.append(card.cloneNode(true)); }""")
-        view, runs = (page.locator(sel).bounding_box() for sel in ("#viewer-box", "#runs-box"))
-        assert view["y"] + view["height"] <= runs["y"] + 1 and view["height"] >= 300
         page.wait_for_function("!document.getElementById('summary-more').hidden")
         page.wait_for_function(f"({cut})() === 0")  # fitted at the next frame
+        view, runs = (page.locator(sel).bounding_box() for sel in ("#viewer-box", "#runs-box"))
+        assert view["y"] + view["height"] <= runs["y"] + 1 and view["height"] >= 300
         # a uniform sheet's section is drawn flat, not its last bits spread over the axis
         ys = page.evaluate("""async () => {
             const div = document.createElement("div");
