@@ -148,18 +148,21 @@ def summary_csv(runs: list[Loaded]) -> str:
     return buf.getvalue()
 
 
+def ended_at(r: Loaded) -> str:
+    """Where a run ended: 'stopped at step 12 of 50'."""
+    st = r.status
+    return f"{st['state']} at step {st['step']}" + (f" of {st['n_steps']}"
+                                                    if st.get("n_steps") else "")
+
+
 def _ended(r: Loaded) -> str:
     """How a run that did not finish ended, for the CSV's head (its differences are empty)."""
-    st = r.status
-    if st["state"] == "finished":
-        return ""
-    return f", {st['state']} at step {st['step']}" + (f" of {st['n_steps']}"
-                                                       if st.get("n_steps") else "")
+    return "" if r.status["state"] == "finished" else f", {ended_at(r)}"
 
 
-def _head(r: Loaded, runs0: Loaded | None = None) -> dict:
+def _head(r: Loaded, a: Loaded) -> dict:
     """The run as the comparison's head shows it; ``comparable``: its summary is of the same
-    stage as A's (``runs0``), so that differences from A are taken."""
+    stage as A's (``a``), so that differences from A are taken."""
     st = r.status
     if st["state"] not in ENDED:
         note = f"{st['state']}: compared up to step {st['step']}; its summary comes when it ends"
@@ -171,7 +174,7 @@ def _head(r: Loaded, runs0: Loaded | None = None) -> dict:
             "state": st["state"], "step": st["step"], "n_steps": st.get("n_steps"),
             "overrides": st.get("overrides") or {}, "edited": bool(st.get("edited")),
             "result": r.result is not None, "note": note,
-            "comparable": comparable(runs0, r) if runs0 is not None else True}
+            "comparable": comparable(a, r)}
 
 
 # ---- what differs --------------------------------------------------------------------------
@@ -370,9 +373,7 @@ def other_stage(a: Loaded, b: Loaded) -> str | None:
     """Why A - B of two final states is no difference of formed parts: one ended early."""
     if comparable(a, b):
         return None
-    early = [f"{r.letter} {r.status['state']} at step {r.status['step']}"
-             + (f" of {r.status['n_steps']}" if r.status.get("n_steps") else "")
-             for r in (a, b) if r.status["state"] != "finished"]
+    early = [f"{r.letter} {ended_at(r)}" for r in (a, b) if r.status["state"] != "finished"]
     return (f"{' and '.join(early)}: its part is not the formed one, and A − B would be the "
             "stroke's difference; the views at the same punch stroke below compare them")
 

@@ -88,5 +88,5 @@ const Layout = (() => {
     });
   }
 
-  return { init, setFull, fitHeadline };
+  return { init, setFull };
 })();

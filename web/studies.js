@@ -233,7 +233,7 @@ const Studies = (() => {
       drawProgress(await api("POST", "/api/studies/cancel"));
     } catch (e) {
       error(e.message);
-      $("msg").textContent = `study: ${e.message}`;  // the panel may not be on screen
+      say(`study: ${e.message}`, true);  // the panel may not be on screen
     }
     for (const id of ["study-cancel", "study-line-cancel"]) $(id).disabled = false;
   }
@@ -276,7 +276,7 @@ const Studies = (() => {
       const box = $("study-box");
       if (box.hidden) {
         error("");
-        $("msg").textContent = "the study's panel is under a finished run's plots: select one";
+        say("the study's panel is under a finished run's plots: select one");
         return;
       }
       box.open = true;

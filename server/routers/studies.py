@@ -148,14 +148,13 @@ def _plan(body: Asked, request: Request) -> tuple[dict, object, dict]:
     path, text = _scene_ran(run, m, store)
     # what ran: the run's unsaved edits (its scene.toml) and its overrides, less the element
     # and the mesh a study varies itself; the files the scene reads by their full paths
-    overrides = run.studied_overrides()
-    overrides.update(store.solver_overrides(store.validate(text, overrides)))
+    sets = run.studied_overrides()
+    overrides = {**sets, **store.solver_overrides(store.validate(text, sets))}
     ran = run.changes(studied=True, live=False)
     basis = {"run": run.id, "element": run.element, "dofs": int(dofs), "seconds": float(t),
              "edge": est.get("edge_length"), "changes": ran,
-             "live": run.changes(studied=True)[len(ran):],
-             "scene_arg": str(path) if run.edited else run.scene,
-             "sets": run.studied_overrides()}
+             "live": run.changes(studied=True)[len(ran):],  # what follows: the live ones
+             "scene_arg": str(path) if run.edited else run.scene, "sets": sets}
     ref = (body.reference.element, body.reference.edge_mm) if body.reference else None
     plan = studies.make(path, run.scene, basis, overrides,
                         request.app.state.settings.max_model_bytes, body.elements,
